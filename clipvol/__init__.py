@@ -1,0 +1,69 @@
+"""clipvol: look interactively at volumes far larger than memory.
+
+A preprocessing step (``clipvol brick``) bricks a volume into a multiresolution zarr store; at
+view time a :class:`ClipTexture` keeps per-level toroidal brick windows around a centre of
+interest in main memory, filled by loader threads, and a :class:`ClipRenderAction` picks each
+region's level from its projected size, uploads bricks under a texture budget and ray-casts them
+back to front with moderngl.
+
+Public names are imported lazily so ``import clipvol`` stays cheap (no zarr, no GL).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+__version__ = "0.1.0"
+
+_LAZY = {
+    # contracts and geometry
+    "Loader": "clipvol.loader",
+    "HasBrickRanges": "clipvol.loader",
+    "BrickKey": "clipvol.loader",
+    "Pyramid": "clipvol.pyramid",
+    "LevelInfo": "clipvol.pyramid",
+    "parse_bytes": "clipvol.units",
+    # paging
+    "ClipTexture": "clipvol.cliptexture",
+    "BrickState": "clipvol.cliptexture",
+    "open_store": "clipvol.open",
+    # rendering (pure numpy parts)
+    "Camera": "clipvol.camera",
+    "TransferFunction": "clipvol.transfer",
+    "Shape": "clipvol.geometry",
+    # rendering (GL)
+    "create_context": "clipvol.render.context",
+    "ClipRenderAction": "clipvol.render.action",
+    # preprocessing
+    "brick_volume": "clipvol.brick",
+}
+
+__all__ = sorted(_LAZY) + ["__version__"]
+
+
+def __getattr__(name: str) -> Any:
+    mod = _LAZY.get(name)
+    if mod is None:
+        raise AttributeError(f"module 'clipvol' has no attribute {name!r}")
+    value = getattr(importlib.import_module(mod), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return __all__
+
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .camera import Camera
+    from .cliptexture import BrickState, ClipTexture
+    from .geometry import Shape
+    from .loader import BrickKey, HasBrickRanges, Loader
+    from .open import open_store
+    from .pyramid import LevelInfo, Pyramid
+    from .render.action import ClipRenderAction
+    from .render.context import create_context
+    from .transfer import TransferFunction
+    from .units import parse_bytes
+    from .brick import brick_volume

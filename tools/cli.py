@@ -1,0 +1,75 @@
+"""``clipvol``: one console script, one sub-command per job.
+
+Each sub-command lives in its own module ``clipvol.tools.cmd_<name>`` with two functions,
+``add_arguments(parser)`` and ``run(args) -> int``. Modules import heavy dependencies (zarr,
+moderngl, glfw) inside ``run`` so that ``clipvol --help`` starts fast.
+
+Errors a user can cause (:class:`clipvol.errors.ClipvolError`) print one line naming the file or
+parameter and exit with status 2, no traceback; Ctrl-C exits with 130 after the command has
+cleaned up (threads joined, partial outputs left resumable, never marked complete).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from clipvol.errors import ClipvolError
+
+#: sub-command -> one-line help; the module is clipvol.tools.cmd_<name>
+COMMANDS = {
+    "brick": "brick a volume into a multiresolution zarr store (OME-Zarr)",
+    "info": "describe a store: levels, shapes, bricks, bytes, compression, value range",
+    "check": "validate a store: metadata, filter on sampled bricks, statistics",
+    "render": "render one image of a store or procedural volume",
+    "view": "interactive roaming / multiresolution viewer (or --offscreen frames)",
+    "report": "image error against run time for a sweep of quality settings",
+    "demo": "brick the built-in dataset, fly around it, and write the report",
+}
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # argparse's usage errors: one line, exit 2
+        self.exit(2, f"clipvol {self.prog.split()[-1] if ' ' in self.prog else ''}: error: {message}\n".replace("  ", " "))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="clipvol", description="Out-of-core multiresolution volume rendering with 3D clip-textures.")
+    from clipvol import __version__
+
+    parser.add_argument("--version", action="version", version=f"clipvol {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    for name, help_text in COMMANDS.items():
+        try:
+            mod = importlib.import_module(f"clipvol.tools.cmd_{name}")
+        except ModuleNotFoundError as e:
+            if e.name != f"clipvol.tools.cmd_{name}":
+                raise
+            continue  # a sub-command not built yet
+        p = sub.add_parser(name, help=help_text, description=(mod.__doc__ or help_text).strip().splitlines()[0])
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "_run", None):
+        parser.print_help(sys.stderr)
+        return 2
+    try:
+        return int(args._run(args) or 0)
+    except ClipvolError as e:
+        print(f"clipvol {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"clipvol {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # `clipvol info | head`
+        return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
