@@ -341,17 +341,30 @@ def downsample(block: np.ndarray, filter: str = "mean") -> np.ndarray:
     if filter not in FILTERS:
         raise ParameterError(f"filter: expected one of {', '.join(FILTERS)}, got {filter!r}")
     dtype = block.dtype
-    b6 = _blocks(_pad_even(block))
+    p = _pad_even(block)
+    # Pairwise reductions axis by axis on strided views: an order of magnitude faster than a
+    # 6-D reshape + reduce, and bit-identical (the filter dominates bricking time).
     if filter == "max":
-        if dtype.kind == "f":
-            return np.fmax.reduce(b6, axis=(1, 3, 5))
-        return b6.max(axis=(1, 3, 5))
+        f = np.fmax if dtype.kind == "f" else np.maximum  # fmax ignores NaN
+        m = f(p[:, :, 0::2], p[:, :, 1::2])
+        m = f(m[:, 0::2], m[:, 1::2])
+        return f(m[0::2], m[1::2])
+    if dtype.kind in "iu" and dtype.itemsize <= 4:
+        s = p[:, :, 0::2].astype(np.int32 if dtype.itemsize <= 2 else np.int64)
+        s += p[:, :, 1::2]
+        s = s[:, 0::2] + s[:, 1::2]
+        s = s[0::2] + s[1::2]
+        s += 4
+        s >>= 3  # floor division by 8, also for negative sums
+        return s.astype(dtype)
+    b6 = _blocks(p)
     if dtype.kind in "iu":
         return _mean_int(b6, dtype)
     b64 = b6.astype(np.float64)
     nan = np.isnan(b64)
     if not nan.any():
-        out = b64.mean(axis=(1, 3, 5))
+        with np.errstate(invalid="ignore"):  # +inf and -inf in one block give NaN, as numpy does
+            out = b64.mean(axis=(1, 3, 5))
     else:
         cnt = (~nan).sum(axis=(1, 3, 5))
         s = np.where(nan, 0.0, b64).sum(axis=(1, 3, 5))

@@ -38,6 +38,7 @@ __all__ = [
     "ome_metadata",
     "clipvol_metadata",
     "parse_metadata",
+    "open_store_meta",
 ]
 
 FORMAT_VERSION = 1
@@ -214,3 +215,31 @@ def level_info_from_ome(attrs: dict[str, Any], shapes: list[tuple[int, int, int]
         return out
     except (KeyError, IndexError, TypeError, ValueError) as e:
         raise StoreFormatError(f"{where}: OME-Zarr 'multiscales' metadata is malformed ({type(e).__name__}: {e})") from None
+
+
+def open_store_meta(path, *, require_complete: bool = False) -> StoreMeta:
+    """Read and validate the metadata of the store at ``path`` (a directory) without touching data.
+
+    Raises :class:`~clipvol.errors.InputNotFoundError` when ``path`` does not exist,
+    :class:`StoreFormatError` when it is not a clipvol store, and, with ``require_complete``,
+    :class:`~clipvol.errors.StoreIncompleteError` for an interrupted build.
+    """
+    import json
+    from pathlib import Path
+
+    from .errors import InputNotFoundError, StoreIncompleteError
+
+    p = Path(path)
+    if not p.exists():
+        raise InputNotFoundError(f"{p}: no such store")
+    try:
+        meta = json.loads((p / "zarr.json").read_text())
+    except FileNotFoundError:
+        raise StoreFormatError(f"{p}: not a zarr v3 store (no zarr.json)") from None
+    except (OSError, ValueError) as e:
+        raise StoreFormatError(f"{p}/zarr.json: unreadable ({e})") from None
+    attrs = meta.get("attributes", {}) if isinstance(meta, dict) else {}
+    out = parse_metadata(attrs, str(p))
+    if require_complete and not out.complete:
+        raise StoreIncompleteError(f"{p}: incomplete store (an interrupted build); re-run the same `clipvol brick` command to resume")
+    return out

@@ -1,0 +1,62 @@
+"""Brick a volume into a multiresolution clipvol store (OME-Zarr 0.5, zarr v3).
+
+Streamed (memory bounded by a few brick slabs), parallel across cores, and resumable: re-running
+the same command on an interrupted build finishes it. See ``docs/format.md`` for the store.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from clipvol.errors import ParameterError
+
+
+def _triple(text: str, name: str, kind=float) -> tuple:
+    parts = [p for p in text.replace("x", ",").split(",") if p.strip()]
+    try:
+        vals = tuple(kind(p) for p in parts)
+    except ValueError:
+        raise ParameterError(f"--{name}: expected three comma-separated values z,y,x, got {text!r}") from None
+    if len(vals) != 3:
+        raise ParameterError(f"--{name}: expected three comma-separated values z,y,x, got {text!r}")
+    return vals
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("input", metavar="INPUT", help=".npy, raw file (with --shape/--dtype), TIFF stack directory or glob, "
+                        "multi-page TIFF, zarr array / OME-Zarr image, or procedural:NAME?size=N")
+    parser.add_argument("output", metavar="OUTPUT", help="store directory to create (or resume)")
+    parser.add_argument("--brick", type=int, default=64, help="brick edge in voxels, even, 8..256 (default 64)")
+    parser.add_argument("--filter", default="mean", help="down-sampling filter: mean | subsample | max (default mean)")
+    parser.add_argument("--codec", default="lz4", help="lz4 | zstd | none (default lz4: blosc lz4 + shuffle)")
+    parser.add_argument("--spacing", help="level-0 voxel size z,y,x (default: the input's, else 1,1,1)")
+    parser.add_argument("--unit", default="micrometer", help="unit of the spacing (default micrometer)")
+    parser.add_argument("--shape", help="raw input: shape Z,Y,X")
+    parser.add_argument("--dtype", help="raw input: numpy dtype, e.g. uint16")
+    parser.add_argument("--byte-order", default="little", help="raw input: little | big (default little)")
+    parser.add_argument("--workers", type=int, default=None, help="threads (default: number of cores)")
+    parser.add_argument("--overwrite", action="store_true", help="remove an existing OUTPUT first")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+
+
+def run(args: argparse.Namespace) -> int:
+    import time
+
+    from clipvol.brick import brick_volume
+    from clipvol.units import format_bytes
+
+    spacing = _triple(args.spacing, "spacing") if args.spacing else None
+    shape = _triple(args.shape, "shape", int) if args.shape else None
+    t0 = time.perf_counter()
+    meta = brick_volume(
+        args.input, args.output, brick=args.brick, filter=args.filter, codec=args.codec, spacing=spacing,
+        unit=args.unit, workers=args.workers, overwrite=args.overwrite, progress=not args.quiet,
+        raw_shape=shape, raw_dtype=args.dtype, byte_order=args.byte_order,
+    )
+    if not args.quiet:
+        pyr = meta.pyramid
+        nbytes = int(pyr.dtype.itemsize) * pyr.shape[0] * pyr.shape[1] * pyr.shape[2]
+        dt = time.perf_counter() - t0
+        print(f"{args.output}: {pyr.num_levels} levels, level 0 {pyr.shape} {pyr.dtype}, "
+              f"{format_bytes(nbytes)} in {dt:.1f} s ({format_bytes(nbytes / max(dt, 1e-9))}/s)")
+    return 0
