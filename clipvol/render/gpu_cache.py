@@ -1,0 +1,416 @@
+"""The GPU brick cache: per-level 3D textures addressed toroidally, filled by sub-loads under a budget.
+
+Why this layout (see ``docs/rendering.md`` for the measurement)
+----------------------------------------------------------------
+Each pyramid level gets **one 3D texture** of ``w = (wz, wy, wx)`` bricks (``w = min(W, grid)``
+per axis, one ``W`` for every level, like the clip-texture's clipmap). Brick ``b`` lives in slot
+``b mod w``. The texture is sampled with ``REPEAT`` wrapping, so the texel after the last one of
+slot ``w - 1`` is the first one of slot ``0`` - which, toroidally, holds brick ``b + 1``. Hardware
+trilinear filtering is therefore seamless across the faces of neighbouring bricks of a level
+without any ghost border, and a brick is uploaded with one ``texture.write(viewport=...)`` of
+exactly its own voxels (no copy into an atlas with borders, no re-upload of neighbours). Where a
+neighbour is *not* on the GPU (not loaded, evicted, or outside the grid), the shader clamps the
+brick-local coordinate to the brick's own voxel centres on that face (``CLAMP_TO_EDGE`` per brick).
+A face counts as open only if every existing brick of the 3x3 slab behind it is on the GPU, so the
+edge and corner texels that trilinear filtering touches are correct too.
+
+The one GPU seam (pygfx habit)
+------------------------------
+Per frame the render action calls :meth:`GpuBrickCache.begin_frame`, hands the cache (a residency
+object) to the selection, then calls :meth:`GpuBrickCache.commit`, the only place that writes
+textures. ``resident_mask`` answers "drawable this frame": on the GPU already, or in the
+clip-texture's RAM and still inside this frame's ``texels_per_frame`` upload budget. A ``True``
+answer *reserves* the brick's slot for the frame, so two bricks that share a slot are never both
+drawn and a slot drawn this frame is never overwritten in the same frame. Eviction is positional
+(a new brick replaces the previous occupant of its slot); since only unreserved slots are written,
+an evicted brick was not drawn this frame, and the window always holds the most recently used
+brick of each slot.
+
+Texture formats: ``uint8``/``int8`` as normalised ``r8``, ``uint16``/``int16`` as normalised
+``r16`` (signed types shifted to unsigned), ``float16``/``float32`` as ``r32f`` raw values (NaN and
+Inf kept; the shader treats non-finite samples as transparent), every other type (32/64-bit
+integers, ``float64``) - and float data whose range float32 arithmetic would lose (denormal or
+zero-width ranges, magnitudes beyond 1e30) - as ``r32f`` normalised over the data's value range.
+:class:`TextureFormat` gives ``(a, b)`` with ``raw = a * texel + b``; the shader maps a texel
+straight to the transfer function's coordinate with a scale and offset computed in float64, so
+``raw`` itself never has to exist in float32.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..pyramid import Pyramid
+
+__all__ = ["GpuBrickCache", "TextureFormat", "texture_format", "allocate_gpu_windows"]
+
+
+@dataclass(frozen=True, slots=True)
+class TextureFormat:
+    """How bricks of one dtype are stored: moderngl ``dtype``, bytes per texel, and ``raw = a*texel + b``."""
+
+    gl_dtype: str
+    itemsize: int
+    a: float
+    b: float
+
+    def __post_init__(self) -> None:
+        if self.gl_dtype not in ("f1", "nu2", "f4") or self.itemsize not in (1, 2, 4):
+            raise ParameterError(f"TextureFormat: expected gl_dtype f1/nu2/f4, got {self.gl_dtype!r}")
+
+
+def texture_format(dtype, value_range: tuple[float, float]) -> TextureFormat:
+    """The :class:`TextureFormat` for bricks of ``dtype`` whose finite values lie in ``value_range``."""
+    dt = np.dtype(dtype)
+    if dt == np.uint8:
+        return TextureFormat("f1", 1, 255.0, 0.0)
+    if dt == np.int8:
+        return TextureFormat("f1", 1, 255.0, -128.0)
+    if dt == np.uint16:
+        return TextureFormat("nu2", 2, 65535.0, 0.0)
+    if dt == np.int16:
+        return TextureFormat("nu2", 2, 65535.0, -32768.0)
+    lo, hi = (float(v) for v in value_range)
+    if dt in (np.float16, np.float32) and 1e-30 < hi - lo and max(abs(lo), abs(hi)) < 1e30:
+        return TextureFormat("f4", 4, 1.0, 0.0)  # raw values: no conversion on upload
+    # normalised over the data's range: 64-bit types, and floats whose range float32 arithmetic
+    # on the GPU would lose (denormal or zero-width ranges, magnitudes near the float32 limit)
+    return TextureFormat("f4", 4, (hi - lo) if hi > lo else 1.0, lo)
+
+
+def convert_brick(brick: np.ndarray, fmt: TextureFormat) -> np.ndarray:
+    """``brick`` in the texel representation of ``fmt`` (C-contiguous, ready for ``texture.write``)."""
+    dt = brick.dtype
+    if dt == np.uint8 or dt == np.uint16:
+        return np.ascontiguousarray(brick)
+    if dt == np.int8:
+        return (brick.astype(np.int16) + 128).astype(np.uint8)
+    if dt == np.int16:
+        return (brick.astype(np.int32) + 32768).astype(np.uint16)
+    if fmt.a == 1.0 and fmt.b == 0.0 and dt == np.float32:
+        return np.ascontiguousarray(brick)
+    if fmt.a == 1.0 and fmt.b == 0.0 and dt == np.float16:
+        return brick.astype(np.float32)
+    with np.errstate(invalid="ignore", over="ignore"):
+        return ((brick.astype(np.float64) - fmt.b) / fmt.a).astype(np.float32)
+
+
+#: largest single texture (bytes); Mesa's llvmpipe refuses 3D textures of about 2 GiB
+MAX_TEXTURE_BYTES = 1 << 30
+
+
+def allocate_gpu_windows(pyramid: Pyramid, budget: int, itemsize: int, max_texture_size: int = 2048,
+                         max_texture_bytes: int = MAX_TEXTURE_BYTES) -> list[tuple[int, int, int] | None]:
+    """Window shape ``(wz, wy, wx)`` in bricks per level (``None``: no texture) within ``budget`` bytes.
+
+    One ``W`` for all levels, ``w = min(W, grid)`` per axis, the largest ``W`` whose textures fit
+    (each texture also at most ``max_texture_size`` texels per axis and ``max_texture_bytes``).
+    If even ``W = 1`` does not fit every level, coarse levels are served first and the finest
+    levels get no texture (they are then drawn coarser). Raises :class:`ParameterError` when the
+    budget cannot hold one brick of the coarsest level.
+    """
+    brick_bytes = int(np.prod(pyramid.brick_shape)) * itemsize
+    nlev = pyramid.num_levels
+    if budget < brick_bytes:
+        raise ParameterError(
+            f"texture_budget: expected at least one brick of the coarsest level "
+            f"({brick_bytes} bytes for brick shape {pyramid.brick_shape}), got {budget} bytes"
+        )
+    wmax = [max(1, max_texture_size // b) for b in pyramid.brick_shape]
+
+    max_bricks = max(1, max_texture_bytes // brick_bytes)
+
+    def capped(w: list[int]) -> tuple[int, int, int]:
+        while w[0] * w[1] * w[2] > max_bricks:  # shrink the longest axis until the texture fits
+            a = int(np.argmax(w))
+            w[a] = max(1, w[a] - 1)
+        return tuple(w)  # type: ignore[return-value]
+
+    def shapes(W: int) -> list[tuple[int, int, int]]:
+        return [capped([min(W, g, m) for g, m in zip(pyramid.grid(L), wmax)]) for L in range(nlev)]
+
+    def total(W: int) -> int:
+        return sum(int(np.prod(s)) for s in shapes(W)) * brick_bytes
+
+    if total(1) > budget:
+        out: list[tuple[int, int, int] | None] = [None] * nlev
+        left = budget
+        for L in range(nlev - 1, -1, -1):
+            if left < brick_bytes:
+                break
+            out[L] = (1, 1, 1)
+            left -= brick_bytes
+        return out
+    top = max(max(pyramid.grid(L)) for L in range(nlev))
+    lo, hi = 1, top
+    while lo < hi:  # largest W with total(W) <= budget (total is monotone in W)
+        mid = (lo + hi + 1) // 2
+        if total(mid) <= budget:
+            lo = mid
+        else:
+            hi = mid - 1
+    return shapes(lo)  # type: ignore[return-value]
+
+
+class GpuBrickCache:
+    """Bricks of every level in per-level toroidal 3D textures, within ``texture_budget`` bytes.
+
+    Parameters
+    ----------
+    ctx : moderngl.Context
+    pyramid : Pyramid
+    texture_budget : int
+        Bytes of texture memory for bricks; :attr:`texture_bytes` never exceeds it.
+    """
+
+    def __init__(self, ctx, pyramid: Pyramid, texture_budget: int) -> None:
+        self.ctx = ctx
+        self.pyramid = pyramid
+        self.texture_budget = int(texture_budget)
+        self.format = texture_format(pyramid.dtype, pyramid.value_range)
+        max3d = int(ctx.info.get("GL_MAX_3D_TEXTURE_SIZE", 2048))
+        self.windows = allocate_gpu_windows(pyramid, self.texture_budget, self.format.itemsize, max3d)
+        self.brick_texels = int(np.prod(pyramid.brick_shape))
+        self.textures: list = []
+        self._slot_key: list[np.ndarray | None] = []  # per level (wz, wy, wx, 3) brick index held, -1 = empty
+        import moderngl
+
+        B = pyramid.brick_shape
+        for w in self.windows:
+            if w is None:
+                self.textures.append(None)
+                self._slot_key.append(None)
+                continue
+            size = (w[2] * B[2], w[1] * B[1], w[0] * B[0])  # GL (width, height, depth) = (x, y, z)
+            tex = ctx.texture3d(size, 1, dtype=self.format.gl_dtype)
+            tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            tex.repeat_x = tex.repeat_y = tex.repeat_z = True
+            self.textures.append(tex)
+            self._slot_key.append(np.full(tuple(w) + (3,), -1, dtype=np.int64))
+        self.texture_bytes = sum(
+            int(np.prod(w)) * self.brick_texels * self.format.itemsize for w in self.windows if w is not None
+        )
+        self._clip = None
+        self._reserved: list[dict] = [dict() for _ in self.windows]
+        self._pending: dict[tuple[int, tuple[int, int, int]], np.ndarray] = {}
+        self._upload_left: int | None = None
+        self._allow = None
+        self.bytes_uploaded = 0  # of the last commit
+        self.texels_uploaded = 0
+        self.bricks_uploaded = 0
+        self.total_texels_uploaded = 0
+
+    # -- per frame ---------------------------------------------------------------------------------
+    def begin_frame(self, clip_texture, texels_per_frame: int | None, allow=None) -> "GpuBrickCache":
+        """Start a frame: forget reservations, set this frame's upload budget; returns the residency object.
+
+        ``allow``: if given, a set of ``(level, index)``; only those bricks may be uploaded this
+        frame (the render action's coarse-first choice, see :meth:`plan_uploads`).
+        """
+        self._clip = clip_texture
+        self._reserved = [dict() for _ in self.windows]
+        self._pending = {}
+        self._allow = allow
+        self._upload_left = None if texels_per_frame is None else int(texels_per_frame)
+        return self
+
+    def plan_uploads(self, texels_per_frame: int, items=()) -> set:
+        """After a dry selection with an unlimited budget: the bricks to upload this frame.
+
+        Candidates are the bricks the dry run would have uploaded plus the not-yet-uploaded
+        ancestors (held in RAM) of its draw ``items``. Coarse levels go first - they are the fallback
+        of everything finer, so a frame never shows a hole for want of upload budget - then the
+        order the selection asked for them; at most ``texels_per_frame`` texels (at least one
+        brick). Forgets the dry run's pending uploads.
+        """
+        cand = list(self._pending)
+        seen = set(cand)
+        top = self.pyramid.num_levels - 1
+        anc: dict[int, set] = {}
+        for it in items:
+            idx = np.asarray(it.index, dtype=np.int64)
+            for L in range(int(it.level) + 1, top + 1):
+                idx = idx // 2
+                anc.setdefault(L, set()).add(tuple(int(i) for i in idx))
+        for L, keys in anc.items():
+            if self.windows[L] is None:
+                continue
+            arr = np.array(sorted(keys), dtype=np.int64)
+            ok = ~self.on_gpu_mask(L, arr) & np.asarray(self._clip.resident_mask(L, arr), dtype=bool)
+            for k in arr[ok]:
+                key = (L, tuple(int(i) for i in k))
+                if key not in seen:
+                    seen.add(key)
+                    cand.append(key)
+        cand.sort(key=lambda k: -k[0])  # stable: selection order within a level
+        n = max(1, int(texels_per_frame) // self.brick_texels)
+        self._pending = {}
+        return set(cand[:n])
+
+    def _slots(self, level: int, idx: np.ndarray) -> np.ndarray:
+        return idx % np.asarray(self.windows[level], dtype=np.int64)
+
+    def on_gpu_mask(self, level: int, indices) -> np.ndarray:
+        """``(n,)`` bool: brick ``indices[i]`` is in its slot of the level's texture now."""
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1, 3)
+        keys = self._slot_key[level]
+        if keys is None or len(idx) == 0:
+            return np.zeros(len(idx), dtype=bool)
+        s = self._slots(level, idx)
+        return np.all(keys[s[:, 0], s[:, 1], s[:, 2]] == idx, axis=1)
+
+    def in_window_mask(self, level: int, indices) -> np.ndarray:
+        """The clip-texture's window, restricted to levels that have a texture."""
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1, 3)
+        if self.windows[level] is None:
+            return np.zeros(len(idx), dtype=bool)
+        return np.asarray(self._clip.in_window_mask(level, idx), dtype=bool) | self.on_gpu_mask(level, idx)
+
+    def resident_mask(self, level: int, indices) -> np.ndarray:
+        """Drawable this frame (on the GPU, or in RAM within the upload budget); reserves the slots."""
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1, 3)
+        out = np.zeros(len(idx), dtype=bool)
+        if self.windows[level] is None or len(idx) == 0:
+            return out
+        gpu = self.on_gpu_mask(level, idx)
+        ram = np.asarray(self._clip.resident_mask(level, idx), dtype=bool)
+        slots = self._slots(level, idx)
+        reserved = self._reserved[level]
+        for i in range(len(idx)):
+            if not (gpu[i] or ram[i]):
+                continue
+            key = (int(idx[i, 0]), int(idx[i, 1]), int(idx[i, 2]))
+            slot = (int(slots[i, 0]), int(slots[i, 1]), int(slots[i, 2]))
+            holder = reserved.get(slot)
+            if holder is not None:
+                out[i] = holder == key
+                continue
+            if not gpu[i]:
+                if self._allow is not None and (level, key) not in self._allow:
+                    continue
+                if self._upload_left is not None and self._upload_left < self.brick_texels:
+                    continue
+                data = self._clip.get_brick(level, key)
+                if data is None:
+                    continue
+                self._pending[(level, key)] = data
+                if self._upload_left is not None:
+                    self._upload_left -= self.brick_texels
+            reserved[slot] = key
+            out[i] = True
+        return out
+
+    def reserve_neighbours(self, items) -> None:
+        """After the selection: also upload the same-level neighbours of the drawn bricks that are in RAM.
+
+        They are never drawn this frame (their slots were free), but with them on the GPU the drawn
+        bricks filter seamlessly across their faces instead of clamping (screen edges, level
+        transitions). Uses only what is left of this frame's upload budget.
+        """
+        for level, nb in sorted(self._neighbours(items).items(), reverse=True):
+            nb = nb[~self.on_gpu_mask(level, nb)]
+            if len(nb):
+                self.resident_mask(level, nb)
+
+    def _neighbours(self, items) -> dict[int, np.ndarray]:
+        """Per level, the existing same-level neighbours (26-neighbourhood) of the drawn bricks."""
+        by_level: dict[int, list] = {}
+        for it in items:
+            by_level.setdefault(int(it.level), []).append(tuple(it.index))
+        offs = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij"), -1).reshape(27, 3)
+        out = {}
+        for level, keys in by_level.items():
+            if self.windows[level] is None:
+                continue
+            idx = np.array(keys, dtype=np.int64)
+            nb = np.unique((idx[:, None, :] + offs[None]).reshape(-1, 3), axis=0)
+            out[level] = nb[np.all((nb >= 0) & (nb < np.asarray(self.pyramid.grid(level))), axis=1)]
+        return out
+
+    def missing_neighbours(self, items) -> list[tuple[int, tuple[int, int, int]]]:
+        """Neighbours of the drawn bricks that the drawn bricks' filtering would use but that are not
+        on the GPU: inside the clip-texture's window, not failed, and their slot not held this frame
+        by another brick. A frame is only converged when this is empty (else it changes later)."""
+        from ..cliptexture import BrickState
+
+        out = []
+        for level, nb in self._neighbours(items).items():
+            nb = nb[~self.on_gpu_mask(level, nb)]
+            if not len(nb):
+                continue
+            nb = nb[np.asarray(self._clip.in_window_mask(level, nb), dtype=bool)]
+            slots = self._slots(level, nb)
+            reserved = self._reserved[level]
+            for k, sl in zip(nb, slots):
+                key = (int(k[0]), int(k[1]), int(k[2]))
+                holder = reserved.get((int(sl[0]), int(sl[1]), int(sl[2])))
+                if holder is not None and holder != key:
+                    continue
+                if self._clip.state(level, key) == BrickState.FAILED:
+                    continue
+                out.append((level, key))
+        return out
+
+    def pending_keys(self) -> list[tuple[int, tuple[int, int, int]]]:
+        """``(level, index)`` of the bricks reserved for upload by the current frame."""
+        return [(level, tuple(key)) for level, key in self._pending]
+
+    def commit(self) -> int:
+        """Upload every brick reserved for upload this frame (texture sub-loads); returns bytes written."""
+        B = self.pyramid.brick_shape
+        nbytes = 0
+        for (level, key), data in self._pending.items():
+            tex = self.textures[level]
+            slot = tuple(int(k) % w for k, w in zip(key, self.windows[level]))
+            texels = convert_brick(np.asarray(data), self.format)
+            tex.write(
+                texels,
+                viewport=(slot[2] * B[2], slot[1] * B[1], slot[0] * B[0], B[2], B[1], B[0]),
+                alignment=1,
+            )
+            self._slot_key[level][slot] = key
+            nbytes += texels.nbytes
+        n = len(self._pending)
+        self._pending = {}
+        self.bytes_uploaded = nbytes
+        self.bricks_uploaded = n
+        self.texels_uploaded = n * self.brick_texels
+        self.total_texels_uploaded += self.texels_uploaded
+        return nbytes
+
+    def open_faces(self, level: int, indices) -> np.ndarray:
+        """``(n, 3, 2)`` bool ``[axis (z, y, x), side (low, high)]``: may sampling cross that face?
+
+        True only if the face neighbour exists and every existing brick of the 3x3 slab behind the
+        face is on the GPU (trilinear filtering near edges and corners reads those texels).
+        """
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1, 3)
+        n = len(idx)
+        out = np.zeros((n, 3, 2), dtype=bool)
+        if n == 0 or self.windows[level] is None:
+            return out
+        grid = np.asarray(self.pyramid.grid(level), dtype=np.int64)
+        w = np.asarray(self.windows[level], dtype=np.int64)
+        keys = self._slot_key[level]
+        offs = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij"), -1).reshape(27, 3)
+        nb = idx[:, None, :] + offs[None]  # (n, 27, 3)
+        exists = np.all((nb >= 0) & (nb < grid), axis=2)
+        s = nb % w
+        ok = np.all(keys[s[..., 0], s[..., 1], s[..., 2]] == nb, axis=2) | ~exists  # (n, 27)
+        for a in range(3):
+            for side, d in ((0, -1), (1, 1)):
+                slab = offs[:, a] == d
+                face = np.all(offs == (np.eye(3, dtype=np.int64)[a] * d), axis=1)
+                face_exists = exists[:, face][:, 0]
+                # a slab neighbour that duplicates a wrapped slot (w < 3 on an axis) is never both held
+                out[:, a, side] = face_exists & np.all(ok[:, slab], axis=1) & (w[a] >= 2)
+        return out
+
+    def release(self) -> None:
+        for t in self.textures:
+            if t is not None:
+                t.release()
+        self.textures = [None] * len(self.windows)

@@ -1,0 +1,200 @@
+"""An independent numpy ray caster: the reference the GL renderer is tested against.
+
+It shares nothing with ``clipvol.render`` but the camera's rays (``Camera.rays``) and the
+transfer function's table: its own box intersection, sample lattice, trilinear sampling of a
+plain array with clamp-to-edge, table lookup (``GL_LINEAR`` with texel centres at
+``(i + 0.5) / n``), opacity correction and front-to-back premultiplied compositing.
+
+Lattice (the renderer's contract): samples at ``t = k * delta`` along each ray, ``k`` integer,
+inside the half-open interval ``[t_entry, t_exit)`` of the ray with the volume box; ``t`` is the
+distance from the eye (perspective, ``t >= 0``) or from the plane through the camera centre
+perpendicular to the view (orthographic, any sign). Non-finite samples are transparent.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["trilinear", "tf_lookup", "correct_opacity", "raycast", "raycast_levels", "to_uint8"]
+
+
+def trilinear(vol: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Sample ``vol`` ``(z, y, x)`` at voxel coordinates ``u`` ``(..., 3)`` ``(x, y, z)`` (centres at integers).
+
+    Clamp-to-edge outside ``[0, n - 1]``; computed in float64.
+    """
+    v = np.asarray(vol, dtype=np.float64)
+    n = np.array(v.shape[::-1], dtype=np.float64)  # (x, y, z)
+    u = np.clip(u, 0.0, n - 1.0)
+    i0 = np.minimum(np.floor(u), np.maximum(n - 2.0, 0.0)).astype(np.int64)
+    f = u - i0
+    i1 = np.minimum(i0 + 1, (n - 1).astype(np.int64))
+    out = 0.0
+    for dz in (0, 1):
+        wz = f[..., 2] if dz else 1.0 - f[..., 2]
+        iz = i1[..., 2] if dz else i0[..., 2]
+        for dy in (0, 1):
+            wy = f[..., 1] if dy else 1.0 - f[..., 1]
+            iy = i1[..., 1] if dy else i0[..., 1]
+            for dx in (0, 1):
+                wx = f[..., 0] if dx else 1.0 - f[..., 0]
+                ix = i1[..., 0] if dx else i0[..., 0]
+                out = out + wz * wy * wx * v[iz, iy, ix]
+    return out
+
+
+def tf_lookup(table: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """RGBA of a table ``(n, 4)`` at ``t`` (clamped to [0, 1]) as a ``GL_LINEAR`` texture gives it."""
+    tab = np.asarray(table, dtype=np.float64)
+    n = len(tab)
+    x = np.clip(t, 0.0, 1.0) * n - 0.5
+    i = np.floor(x)
+    f = (x - i)[..., None]
+    i0 = np.clip(i, 0, n - 1).astype(np.int64)
+    i1 = np.clip(i + 1, 0, n - 1).astype(np.int64)
+    return tab[i0] * (1.0 - f) + tab[i1] * f
+
+
+def correct_opacity(a: np.ndarray, ratio: float) -> np.ndarray:
+    """``1 - (1 - a) ** ratio``, written with log1p/expm1."""
+    a = np.clip(a, 0.0, 1.0)
+    with np.errstate(divide="ignore"):
+        return np.where(a >= 1.0, 1.0, -np.expm1(ratio * np.log1p(-np.minimum(a, 1.0 - 1e-300))))
+
+
+def _rays(camera):
+    o, d = camera.rays()
+    o = o.reshape(-1, 3).astype(np.float64)
+    d = d.reshape(-1, 3).astype(np.float64)
+    if camera.orthographic:  # lattice origin: the plane through the centre
+        c = np.asarray(camera.center, dtype=np.float64)
+        o = o + d * ((c - o) * d).sum(axis=1, keepdims=True)
+    return o, d
+
+
+def _box_interval(o, d, lo, hi, ortho):
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dd = np.where(d == 0, 1e-300, d)
+        ta = (lo - o) / dd
+        tb = (hi - o) / dd
+    t0 = np.minimum(ta, tb).max(axis=1)
+    t1 = np.maximum(ta, tb).min(axis=1)
+    if not ortho:
+        t0 = np.maximum(t0, 0.0)
+    return t0, t1
+
+
+def _clip_to_shape(o, d, t0, t1, shape):
+    """Narrow ``[t0, t1)`` to a shape ``(box_lo, box_hi, planes)`` (box may be None; planes ``(a, b, c, d)``)."""
+    if shape is None:
+        return t0, t1
+    box_lo, box_hi, planes = shape
+    if box_lo is not None:
+        s0, s1 = _box_interval(o, d, np.asarray(box_lo, float), np.asarray(box_hi, float), True)
+        t0, t1 = np.maximum(t0, s0), np.minimum(t1, s1)
+    for a, b, c, e in planes:
+        n = np.array([a, b, c], dtype=np.float64)
+        nd = d @ n
+        no = o @ n + e
+        with np.errstate(divide="ignore", invalid="ignore"):
+            th = -no / nd
+        t0 = np.where(nd > 0, np.maximum(t0, th), t0)
+        t1 = np.where(nd < 0, np.minimum(t1, th), t1)
+        t1 = np.where((nd == 0) & (no < 0), -np.inf, t1)
+    return t0, t1
+
+
+def raycast(vol, spacing, camera, table, value_range, step: float = 0.5, mode: str = "composite", shape=None,
+            origin=(0.0, 0.0, 0.0)):
+    """Reference render of a level-0 volume; returns premultiplied float RGBA ``(h, w, 4)``.
+
+    ``spacing`` ``(z, y, x)``; ``value_range`` the transfer function's window ``(lo, hi)``;
+    ``step`` in level-0 smallest voxels. ``mode`` ``"mip"`` returns the TF of the maximum.
+    ``shape``: ``(box_lo, box_hi, planes)`` clipping the rays. ``origin``: world ``(x, y, z)`` of
+    ``vol``'s first voxel (a sub-volume of a larger one); the drawn box is then ``vol``'s own cells.
+    """
+    sp = np.asarray(spacing, dtype=np.float64)[::-1]
+    n = np.array(vol.shape[::-1], dtype=np.float64)
+    org = np.asarray(origin, dtype=np.float64)
+    return raycast_levels([(vol, sp, org)], [(0, org - 0.5 * sp, org + (n - 0.5) * sp)], camera, table,
+                          value_range, step, mode, float(sp.min()), shape)
+
+
+def raycast_levels(levels, regions, camera, table, value_range, step, mode="composite", ref_spacing=None, shape=None):
+    """Reference render of a multi-level cut.
+
+    ``levels``: per level ``(array (z, y, x), scale (x, y, z), translation (x, y, z))``;
+    ``regions``: ``(level, lo, hi)`` world boxes tiling the drawn space (no overlaps). Each
+    region is sampled from its level with that level's spacing ``step * min(scale)``; samples of
+    all regions are sorted by ``t`` per pixel and composited front to back.
+    """
+    w, h = camera.size
+    o, d = _rays(camera)
+    npix = len(o)
+    lo_v, hi_v = value_range
+    pix_l, t_l, val_l = [], [], []
+    ratio_of = {}
+    for L, lo, hi in regions:
+        arr, scale, trans = levels[L]
+        delta = step * float(np.min(scale))
+        ratio_of[L] = delta / (ref_spacing if ref_spacing else float(np.min(levels[0][1])))
+        t0, t1 = _box_interval(o, d, np.asarray(lo, float), np.asarray(hi, float), camera.orthographic)
+        t0, t1 = _clip_to_shape(o, d, t0, t1, shape)
+        k0 = np.ceil(t0 / delta)
+        k1 = np.ceil(t1 / delta) - 1
+        hit = np.nonzero(k1 >= k0)[0]
+        if not len(hit):
+            continue
+        cnt = (k1[hit] - k0[hit] + 1).astype(np.int64)
+        pix = np.repeat(hit, cnt)
+        start = np.repeat(np.cumsum(cnt) - cnt, cnt)
+        k = np.repeat(k0[hit], cnt) + (np.arange(cnt.sum()) - start)
+        t = k * delta
+        p = o[pix] + t[:, None] * d[pix]
+        u = (p - np.asarray(trans)) / np.asarray(scale)
+        pix_l.append(pix)
+        t_l.append(t)
+        val_l.append((trilinear(arr, u), np.full(len(t), L)))
+    img = np.zeros((npix, 4))
+    if not pix_l:
+        return img.reshape(h, w, 4)
+    pix = np.concatenate(pix_l)
+    t = np.concatenate(t_l)
+    val = np.concatenate([v for v, _ in val_l])
+    lev = np.concatenate([lv for _, lv in val_l])
+    ok = np.isfinite(val)
+    pix, t, val, lev = pix[ok], t[ok], val[ok], lev[ok]
+    if mode == "mip":
+        m = np.full(npix, -np.inf)
+        np.maximum.at(m, pix, val)
+        hit = np.isfinite(m)
+        tt = (m[hit] - lo_v) / (hi_v - lo_v) if hi_v > lo_v else np.full(hit.sum(), 0.5)
+        rgba = tf_lookup(table, tt)
+        img[hit, :3] = rgba[:, :3] * rgba[:, 3:4]
+        img[hit, 3] = rgba[:, 3]
+        return img.reshape(h, w, 4)
+    order = np.lexsort((t, pix))
+    pix, t, val, lev = pix[order], t[order], val[order], lev[order]
+    tt = (val - lo_v) / (hi_v - lo_v) if hi_v > lo_v else np.full(len(val), 0.5)
+    rgba = tf_lookup(table, tt)
+    ratio = np.vectorize(ratio_of.get)(lev) if len(lev) else lev
+    a = correct_opacity(rgba[:, 3], ratio)
+    # transmittance before each sample, per pixel: exclusive cumulative product within the pixel's run
+    log1m = np.log1p(-np.minimum(a, 1.0 - 1e-15))
+    cs = np.cumsum(log1m)
+    first = np.r_[True, pix[1:] != pix[:-1]]
+    run_start = np.maximum.accumulate(np.where(first, np.arange(len(pix)), 0))
+    before = cs - log1m - np.where(run_start > 0, cs[run_start - 1], 0.0)
+    T = np.exp(before)
+    contrib = T * a
+    np.add.at(img[:, 3], pix, contrib)
+    for c in range(3):
+        np.add.at(img[:, c], pix, contrib * rgba[:, c])
+    return img.reshape(h, w, 4)
+
+
+def to_uint8(prem: np.ndarray) -> np.ndarray:
+    """Premultiplied float RGBA -> straight RGBA uint8 (colour 0 where alpha is 0)."""
+    a = np.clip(prem[..., 3], 0.0, 1.0)
+    rgb = np.where(a[..., None] > 0, prem[..., :3] / np.maximum(a[..., None], 1e-300), 0.0)
+    return np.rint(np.concatenate([np.clip(rgb, 0, 1), a[..., None]], axis=-1) * 255.0).astype(np.uint8)

@@ -1,0 +1,337 @@
+"""Render benchmark: multiresolution against full resolution, bricks against one texture, sub-loads.
+
+Every figure is a ratio measured in one run on this machine (Mesa llvmpipe, no GPU), so the
+noise of a shared machine cancels as far as it can:
+
+* **multiresolution vs full resolution** - the same view of a >= 1 GiB store rendered with
+  ``selection="multiresolution", lod_threshold=1`` and with ``selection="fixed", level=0``;
+  warm frames (every brick already on the GPU), median of ``--repeat``. Target >= 5x faster at
+  <= 5 % of pixels with CIELUV Delta E >= 6 (``clipvol.metrics``), PSNR reported too.
+* **bytes loaded for the view** - the bricks the multiresolution view wants (what a cold
+  clip-texture must load before the frame converges) against the level-0 bricks in the frustum.
+  Target >= 8x fewer. The clip-texture's own ``bytes_loaded`` at convergence (it also pre-loads
+  its windows around the centre) is reported beside it.
+* **texture sub-load throughput** - MB/s of the cache's upload path (residency bookkeeping,
+  conversion, one ``texture.write(viewport=...)`` per brick) re-uploading the full-resolution
+  frame's bricks, against bare ``texture.write(viewport=...)`` calls of the same bricks into the
+  same slots. Target >= 0.8. One big ``texture.write`` of as many bytes into one texture is
+  reported beside it (what llvmpipe's memcpy reaches without sub-image addressing).
+* **bricks vs one texture** - the full-resolution frame drawn as bricks against a one-pass ray
+  caster: the same shader with the whole level 0 as a single brick in a single 3D texture (one
+  draw), same view and step. Target <= 1.5x the time.
+
+Run ``python -m clipvol.tools.bench_render`` (uses ``bench-data/fractal-640-b64.zarr``, 640^3
+float32 = 1.05 GB, bricking it with ``clipvol brick`` first if it is missing) or ``--quick`` for a
+small smoke run. (Mesa's llvmpipe refuses single 3D textures of about 2 GiB, which bounds the
+one-texture reference caster, hence not the 2 GiB paging store.) Writes ``docs/bench_render.csv``, ``docs/bench_render.png`` and
+the two compared images ``docs/bench_render_full.png`` / ``docs/bench_render_multires.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+STORE = "fractal-640-b64.zarr"
+STORE_SOURCE = "procedural:fractal?size=640"  # 640^3 float32: 1.05 GB, built once with `clipvol brick`
+
+
+class _WholeVolume:
+    """A loader that serves level 0 of another loader as one brick (for the one-pass caster)."""
+
+    def __init__(self, loader) -> None:
+        from clipvol.pyramid import Pyramid
+
+        p = loader.pyramid
+        self._src = loader
+        self._pyr = Pyramid((p.levels[0],), p.shape, p.dtype, p.value_range, p.fill_value, p.filter)
+
+    @property
+    def pyramid(self):
+        return self._pyr
+
+    def read_brick(self, level, index):
+        p = self._src.pyramid
+        out = np.empty(p.shape, dtype=p.dtype)
+        B = p.brick_shape
+        g = p.grid(0)
+        for bz in range(g[0]):
+            for by in range(g[1]):
+                for bx in range(g[2]):
+                    (z0, y0, x0), (z1, y1, x1) = p.brick_voxel_box(0, (bz, by, bx))
+                    brick = self._src.read_brick(0, (bz, by, bx))
+                    out[z0:z1, y0:y1, x0:x1] = brick[: z1 - z0, : y1 - y0, : x1 - x0]
+        return out
+
+
+def _frames(action, cam, tf, repeat: int) -> tuple[float, float, np.ndarray]:
+    """Median total and draw seconds of ``repeat`` warm frames, and the last image."""
+    tot, draw = [], []
+    img = None
+    for _ in range(repeat):
+        img = action.render(cam, tf, wait=False)
+        st = action.last_frame_stats
+        tot.append(st.times["total"])
+        draw.append(st.times["draw"])
+    return statistics.median(tot), statistics.median(draw), img
+
+
+def _raw_write_mbps(ctx, nbytes: int, brick_shape, repeat: int = 3) -> float:
+    """MB/s of one ``texture.write`` of ``nbytes`` (float32) into one 3D texture of that size."""
+    bz, by, bx = brick_shape
+    n = max(1, nbytes // (bz * by * bx * 4))
+    side = 1
+    while (side * 2) ** 2 <= n and side * 2 * bx <= 2048:
+        side *= 2
+    depth = -(-n // (side * side))
+    size = (side * bx, side * by, depth * bz)
+    data = np.random.default_rng(0).random(size[::-1], dtype=np.float32)
+    tex = ctx.texture3d(size, 1, dtype="f4")
+    best = 0.0
+    for _ in range(repeat):
+        ctx.finish()
+        t = time.perf_counter()
+        tex.write(data, alignment=1)
+        ctx.finish()
+        best = max(best, data.nbytes / (time.perf_counter() - t) / 1e6)
+    tex.release()
+    return best
+
+
+def _subload_vs_raw(action, clip, repeat: int = 3) -> tuple[float, float]:
+    """MB/s of the cache's commit of the frame's bricks (re-uploaded) vs bare ``texture.write`` calls.
+
+    Both write the same bricks into the same slots of the same (warm) textures; the cache path adds
+    the residency bookkeeping, the dtype conversion and the slot arithmetic.
+    """
+    cache = action.cache
+    B = cache.pyramid.brick_shape
+    keys = sorted({(it.level, tuple(it.index)) for it in action.last_selection.items})
+    datas = [(L, k, clip.get_brick(L, k)) for L, k in keys]
+    datas = [d for d in datas if d[2] is not None]
+    nbytes = sum(d[2].nbytes for d in datas)
+    best_cache = best_raw = 0.0
+    for _ in range(repeat):
+        for L, k, _d in datas:  # forget them, so that the cache uploads them again
+            slot = tuple(int(i) % w for i, w in zip(k, cache.windows[L]))
+            cache._slot_key[L][slot] = -1
+        cache.begin_frame(clip, None)
+        action.ctx.finish()
+        t = time.perf_counter()
+        for L in sorted({d[0] for d in datas}):
+            cache.resident_mask(L, np.array([d[1] for d in datas if d[0] == L]))
+        cache.commit()
+        action.ctx.finish()
+        best_cache = max(best_cache, nbytes / (time.perf_counter() - t) / 1e6)
+        t = time.perf_counter()
+        for L, k, d in datas:
+            slot = tuple(int(i) % w for i, w in zip(k, cache.windows[L]))
+            cache.textures[L].write(d, viewport=(slot[2] * B[2], slot[1] * B[1], slot[0] * B[0], B[2], B[1], B[0]),
+                                    alignment=1)
+        action.ctx.finish()
+        best_raw = max(best_raw, nbytes / (time.perf_counter() - t) / 1e6)
+    return best_cache, best_raw
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--source", default=None, help="store or procedural URL (default: the 2 GiB bench store)")
+    ap.add_argument("--quick", action="store_true", help="small smoke run (procedural 96x192x192, bricks of 32)")
+    ap.add_argument("--size", type=int, default=256, help="image edge in pixels (default 256)")
+    ap.add_argument("--repeat", type=int, default=3, help="warm frames per configuration and round (median)")
+    ap.add_argument("--step", type=float, default=0.5)
+    ap.add_argument("--out-dir", type=Path, default=REPO / "docs")
+    args = ap.parse_args(argv)
+
+    from PIL import Image
+
+    from clipvol.camera import Camera
+    from clipvol.cliptexture import ClipTexture
+    from clipvol.metrics import percent_delta_e, psnr
+    from clipvol.open import open_store
+    from clipvol.render import create_context
+    from clipvol.render.action import ClipRenderAction
+    from clipvol.transfer import TransferFunction
+
+    if args.quick:
+        source, kw = "procedural:fractal?size=96x192x192", {"brick": 32}
+    elif args.source:
+        source, kw = args.source, {}
+    else:
+        store = REPO / "bench-data" / STORE
+        if not (store / "zarr.json").exists():
+            from clipvol.tools.cli import main as cli
+
+            print(f"bricking {STORE_SOURCE} into {store} (once)", file=sys.stderr)
+            if cli(["brick", STORE_SOURCE, str(store), "--quiet"]) != 0:
+                return 2
+        source, kw = str(store), {}
+    loader = open_store(source, **kw)
+    pyr = loader.pyramid
+    lo, hi = pyr.volume_box()
+    centre = (lo + hi) / 2.0
+    diag = float(np.linalg.norm(hi - lo))
+    direction = np.array([0.55, 0.45, 0.7])
+    direction /= np.linalg.norm(direction)
+    cam = Camera.perspective(tuple(centre - direction * 1.3 * diag), tuple(centre), up=(0, -1, 0), fov_y=35,
+                             size=(args.size, args.size))
+    tf = TransferFunction.preset("bone", value_range=pyr.value_range)
+    brick_bytes = pyr.brick_nbytes
+    all_bytes = sum(pyr.num_bricks(L) for L in range(pyr.num_levels)) * brick_bytes
+    ctx = create_context()
+    rows: list[tuple] = []
+    log = lambda *a: print(*a, file=sys.stderr, flush=True)  # noqa: E731
+    log(f"source {source}: level 0 {pyr.shape}, {pyr.num_bricks(0)} bricks of {pyr.brick_shape}, "
+        f"{pyr.num_bricks(0) * brick_bytes / 2**30:.2f} GiB; image {args.size}^2, step {args.step}")
+
+    # -- set-up (cold): full resolution as bricks, one texture, multiresolution -----------------
+    from contextlib import ExitStack
+
+    stack = ExitStack()
+    budget = int(all_bytes * 1.1) + (64 << 20)
+    t0 = time.perf_counter()
+    clip = stack.enter_context(ClipTexture(loader, budget, center=centre))
+    full = ClipRenderAction(ctx, clip, texture_budget=budget, selection="fixed", level=0, step=args.step)
+    stack.callback(full.close)
+    full.render(cam, tf, wait=True, timeout=1800)
+    st = full.last_frame_stats
+    cold_full = time.perf_counter() - t0
+    n_frustum = len(full.last_selection.wanted)
+    first_mbps = st.bytes_uploaded / max(st.times["upload"], 1e-9) / 1e6
+    up_bytes = st.bytes_uploaded
+    log(f"full resolution: {n_frustum} level-0 bricks in the frustum, cold frame {cold_full:.1f} s; "
+        f"first sub-loads {up_bytes / 1e6:.0f} MB at {first_mbps:.0f} MB/s")
+    sub_mbps, raw_mbps = _subload_vs_raw(full, clip)
+    big_mbps = _raw_write_mbps(ctx, min(up_bytes, 512 << 20), pyr.brick_shape)
+    log(f"warm sub-loads through the cache {sub_mbps:.0f} MB/s; raw texture.write of the same bricks "
+        f"{raw_mbps:.0f} MB/s; one big texture.write {big_mbps:.0f} MB/s")
+
+    whole = _WholeVolume(loader)
+    vol_bytes = int(np.prod(pyr.shape)) * pyr.dtype.itemsize
+    clip1 = stack.enter_context(ClipTexture(whole, vol_bytes + (16 << 20), threads=1))
+    one = ClipRenderAction(ctx, clip1, texture_budget=vol_bytes + (16 << 20), selection="fixed", level=0, step=args.step)
+    stack.callback(one.close)
+    one.render(cam, tf, wait=True, timeout=1800)
+
+    t0 = time.perf_counter()
+    clip2 = stack.enter_context(ClipTexture(loader, "512MB", center=centre))
+    multi = ClipRenderAction(ctx, clip2, texture_budget="512MB", lod_threshold=1.0, step=args.step)
+    stack.callback(multi.close)
+    multi.render(cam, tf, wait=True, timeout=1800)
+    cold_multi = time.perf_counter() - t0
+    loaded_at_convergence = clip2.stats.bytes_loaded
+    wanted = multi.last_selection.wanted
+    st_m = multi.last_frame_stats
+
+    # the overview: the same direction from twice as far (coarser levels suffice)
+    far_cam = Camera.perspective(tuple(centre - direction * 2.6 * diag), tuple(centre), up=(0, -1, 0), fov_y=35,
+                                 size=(args.size, args.size))
+    multi.render(far_cam, tf, wait=True, timeout=1800)
+    full.render(far_cam, tf, wait=True, timeout=1800)
+    far_levels = None
+    far = {"full": [], "multi": []}
+    far_images = {}
+    for _ in range(args.repeat):
+        for name, action in (("full", full), ("multi", multi)):
+            far_images[name] = action.render(far_cam, tf, wait=False)
+            far[name].append(action.last_frame_stats.times["total"])
+            if name == "multi":
+                far_levels = action.last_frame_stats.bricks_drawn
+    tf_full, tf_multi = statistics.median(far["full"]), statistics.median(far["multi"])
+    pct_far = percent_delta_e(far_images["multi"], far_images["full"], 6.0, premultiplied=False)
+    log(f"overview (2.6 diagonals): full {tf_full:.3f} s, multiresolution {tf_multi:.3f} s {far_levels}, "
+        f"{pct_far:.2f} % pixels dE>=6")
+
+    # -- warm frames: two rounds of blocks, so that the load of a shared machine hits all alike --
+    times: dict[str, list] = {"full": [], "one": [], "multi": []}
+    draws: dict[str, list] = {"full": [], "one": [], "multi": []}
+    images = {}
+    for _ in range(2):  # two rounds of blocks: a warm-up frame, then args.repeat timed frames each
+        for name, action in (("full", full), ("one", one), ("multi", multi)):
+            action.render(cam, tf, wait=False)
+            for _ in range(args.repeat):
+                images[name] = action.render(cam, tf, wait=False)
+                times[name].append(action.last_frame_stats.times["total"])
+                draws[name].append(action.last_frame_stats.times["draw"])
+    t_full, t_one, t_multi = (statistics.median(times[k]) for k in ("full", "one", "multi"))
+    d_full, d_one, d_multi = (statistics.median(draws[k]) for k in ("full", "one", "multi"))
+    img_full, img_one, img_multi = images["full"], images["one"], images["multi"]
+    log("multiresolution warm frame stages: " + ", ".join(f"{k} {v:.3f}" for k, v in multi.last_frame_stats.times.items()))
+    stack.close()
+    same = int(np.abs(img_one.astype(int) - img_full.astype(int)).max())
+    log(f"warm frames (median of {2 * args.repeat}): bricks {t_full:.3f} s, one texture {t_one:.3f} s, "
+        f"multiresolution {t_multi:.3f} s; max |bricks - one texture| = {same}")
+    view_bytes = len(wanted) * brick_bytes
+    full_bytes = n_frustum * brick_bytes
+    pct = percent_delta_e(img_multi, img_full, 6.0, premultiplied=False)
+    ps = psnr(img_multi, img_full, premultiplied=False)
+    log(f"multiresolution: bricks drawn {st_m.bricks_drawn}, converged {st_m.converged}, cold {cold_multi:.1f} s, "
+        f"warm frame {t_multi:.3f} s; {pct:.2f} % pixels dE>=6, PSNR {ps:.1f} dB; view needs "
+        f"{view_bytes / 1e6:.0f} MB vs {full_bytes / 1e6:.0f} MB (clip-texture loaded {loaded_at_convergence / 1e6:.0f} MB)")
+
+    rows = [
+        ("multires_frame_s", t_multi, "full_res_frame_s", t_full, t_full / t_multi, ">= 5x faster", t_full / t_multi >= 5),
+        ("pct_pixels_dE6", pct, "-", "", "", "<= 5 %", pct <= 5.0),
+        ("overview_multires_frame_s", tf_multi, "overview_full_res_frame_s", tf_full, tf_full / tf_multi,
+         ">= 5x faster", tf_full / tf_multi >= 5),
+        ("overview_pct_pixels_dE6", pct_far, "-", "", "", "<= 5 %", pct_far <= 5.0),
+        ("psnr_db", ps, "-", "", "", "reported", ""),
+        ("view_bytes", view_bytes, "full_res_frustum_bytes", full_bytes, full_bytes / max(view_bytes, 1), ">= 8x fewer",
+         full_bytes / max(view_bytes, 1) >= 8),
+        ("cliptexture_bytes_loaded", loaded_at_convergence, "full_res_frustum_bytes", full_bytes,
+         full_bytes / max(loaded_at_convergence, 1), "reported", ""),
+        ("subload_MBps", sub_mbps, "raw_write_MBps", raw_mbps, sub_mbps / raw_mbps, ">= 0.8", sub_mbps / raw_mbps >= 0.8),
+        ("subload_MBps", sub_mbps, "one_big_write_MBps", big_mbps, sub_mbps / big_mbps, "reported", ""),
+        ("bricks_frame_s", t_full, "one_texture_frame_s", t_one, t_full / t_one, "<= 1.5x", t_full / t_one <= 1.5),
+        ("bricks_draw_s", d_full, "one_texture_draw_s", d_one, d_full / d_one, "reported", ""),
+        ("max_abs_diff_bricks_vs_one_texture", same, "-", "", "", "reported", ""),
+        ("full_res_cold_s", cold_full, "multires_cold_s", cold_multi, cold_full / cold_multi, "reported", ""),
+    ]
+    args.out_dir.mkdir(parents=True, exist_ok=True)
+    with open(args.out_dir / "bench_render.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["metric", "value", "reference", "reference_value", "ratio", "target", "met"])
+        for r in rows:
+            w.writerow([r[0], f"{r[1]:.6g}" if isinstance(r[1], float) else r[1], r[2],
+                        f"{r[3]:.6g}" if isinstance(r[3], float) else r[3],
+                        f"{r[4]:.3f}" if isinstance(r[4], float) else r[4], r[5], r[6]])
+    Image.fromarray(img_full, "RGBA").save(args.out_dir / "bench_render_full.png")
+    Image.fromarray(img_multi, "RGBA").save(args.out_dir / "bench_render_multires.png")
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, ax = plt.subplots(1, 3, figsize=(12, 3.6))
+        ax[0].bar(["multires", "full res\n(bricks)", "full res\n(one texture)"], [t_multi, t_full, t_one],
+                  color=["tab:green", "tab:blue", "tab:gray"])
+        ax[0].set_ylabel("warm frame time (s)")
+        ax[0].set_title(f"frame time, {args.size}² (llvmpipe)")
+        ax[1].bar(["view wants\n(multires)", "clip-texture\nloaded", "level-0 bricks\nin frustum"],
+                  [view_bytes / 1e6, loaded_at_convergence / 1e6, full_bytes / 1e6], color=["tab:green", "tab:olive", "tab:blue"])
+        ax[1].set_ylabel("MB")
+        ax[1].set_title("bytes for the view")
+        ax[2].bar(["cache\nsub-loads", "raw writes,\nsame bricks", "one big\nwrite"], [sub_mbps, raw_mbps, big_mbps],
+                  color=["tab:green", "tab:gray", "tab:olive"])
+        ax[2].set_ylabel("MB/s")
+        ax[2].set_title("texture upload")
+        fig.suptitle(f"multires: {pct:.2f} % pixels ΔE≥6, PSNR {ps:.1f} dB")
+        fig.tight_layout()
+        fig.savefig(args.out_dir / "bench_render.png", dpi=110)
+    except ImportError:  # pragma: no cover
+        log("matplotlib missing: no plot")
+    for r in rows:
+        print(",".join(str(x) for x in r))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,149 @@
+"""Render one image of a store, a procedural volume or a .npy file to a PNG.
+
+By default the frame is *converged*: the command waits until every brick the view wants is
+loaded and drawn at its own level (``--no-wait`` renders whatever is resident after the first
+pass). The clip-texture's centre of interest is the camera target, clamped into the volume.
+Frame statistics (bricks per level, uploads, texture bytes, time per stage) go to stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+from clipvol.errors import ParameterError
+
+VIEWS = ("front", "back", "side", "top", "iso")
+
+
+def _triple(text: str) -> tuple[float, float, float]:
+    try:
+        v = tuple(float(t) for t in text.split(","))
+    except ValueError:
+        v = ()
+    if len(v) != 3 or not all(math.isfinite(x) for x in v):
+        raise argparse.ArgumentTypeError(f"expected three numbers x,y,z, got {text!r}")
+    return v  # type: ignore[return-value]
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(t) for t in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WxH such as 512x384, got {text!r}") from None
+    if not (1 <= w <= 16384 and 1 <= h <= 16384):
+        raise argparse.ArgumentTypeError(f"expected 1..16384 pixels per side, got {text!r}")
+    return w, h
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, or a .npy file")
+    p.add_argument("--out", "-o", required=True, help="output PNG")
+    p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default 64)")
+    v = p.add_argument_group("camera")
+    v.add_argument("--view", choices=VIEWS, default="iso", help="preset direction towards the volume centre (default iso)")
+    v.add_argument("--eye", type=_triple, default=None, help="eye position x,y,z (world units; overrides --view)")
+    v.add_argument("--target", type=_triple, default=None, help="point looked at x,y,z (default: the volume centre)")
+    v.add_argument("--up", type=_triple, default=None, help="up vector x,y,z (default: -y, image rows follow +y)")
+    v.add_argument("--fov", type=float, default=35.0, help="vertical field of view in degrees (perspective)")
+    v.add_argument("--distance", type=float, default=None, help="eye distance from the target, in volume diagonals (default 1.6)")
+    v.add_argument("--ortho", action="store_true", help="orthographic projection framing the volume")
+    v.add_argument("--size", type=_size, default=(512, 512), help="image size WxH (default 512x512)")
+    r = p.add_argument_group("rendering")
+    r.add_argument("--mode", choices=("composite", "mip"), default="composite")
+    r.add_argument("--selection", choices=("multiresolution", "roaming", "fixed"), default="multiresolution")
+    r.add_argument("--level", type=int, default=None, help="level for --selection fixed (default 0)")
+    r.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel projects to more than this many pixels")
+    r.add_argument("--tf", default="viridis", help="transfer-function preset (grey, viridis, magma, inferno, plasma, bone)")
+    r.add_argument("--tf-range", type=lambda s: tuple(float(t) for t in s.split(",")), default=None,
+                   help="transfer-function window lo,hi (default: the data's value range)")
+    r.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
+    r.add_argument("--background", type=lambda s: tuple(float(t) for t in s.split(",")), default=(0.0, 0.0, 0.0, 0.0),
+                   help="straight RGBA r,g,b,a in [0, 1] behind the volume (default transparent)")
+    r.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
+    r.add_argument("--texture-budget", default="256MB", help="GPU brick cache budget")
+    r.add_argument("--texels-per-frame", type=int, default=None, help="most texels uploaded per pass")
+    r.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
+    r.add_argument("--no-wait", action="store_true", help="do not wait for the view's bricks (draw what is resident)")
+    r.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for convergence (default 300)")
+
+
+def view_camera(pyramid, view: str, size, *, eye=None, target=None, up=None, fov=35.0, distance=None, ortho=False):
+    """The camera of a preset ``view`` (or an explicit ``eye``) looking at ``target`` (default: the centre)."""
+    import numpy as np
+
+    from clipvol.camera import Camera
+
+    lo, hi = pyramid.volume_box()
+    centre = (lo + hi) / 2.0
+    diag = float(np.linalg.norm(hi - lo))
+    tgt = centre if target is None else np.asarray(target, dtype=np.float64)
+    dirs = {"front": (0, 0, 1), "back": (0, 0, -1), "side": (1, 0, 0), "top": (0, 1, 0), "iso": (0.55, 0.45, 0.7)}
+    if eye is not None:
+        e = np.asarray(eye, dtype=np.float64)
+        if np.allclose(e, tgt):
+            raise ParameterError(f"--eye: expected a point other than the target {tuple(tgt)}, got {tuple(e)}")
+        fwd = (tgt - e) / np.linalg.norm(tgt - e)
+    else:
+        fwd = np.asarray(dirs[view], dtype=np.float64)
+        fwd /= np.linalg.norm(fwd)
+        dist = (1.6 if distance is None else float(distance)) * diag
+        if not (dist > 0 and math.isfinite(dist)):
+            raise ParameterError(f"--distance: expected a number > 0, got {distance}")
+        e = tgt - fwd * dist
+    if up is None:
+        up = (0.0, -1.0, 0.0) if abs(fwd[1]) < 0.9 else (0.0, 0.0, -1.0)
+    if ortho:
+        w, h = size
+        ext = diag * 1.05
+        width, height = (ext, ext * h / w) if w >= h else (ext * w / h, ext)
+        return Camera.orthographic(tuple(tgt), tuple(fwd), tuple(up), width, height, size=size)
+    return Camera.perspective(tuple(e), tuple(tgt), up=tuple(up), fov_y=fov, size=size)
+
+
+def run(args) -> int:
+    import numpy as np
+    from PIL import Image
+
+    from clipvol.cliptexture import ClipTexture
+    from clipvol.open import open_store
+    from clipvol.render import create_context
+    from clipvol.render.action import ClipRenderAction
+    from clipvol.transfer import TransferFunction
+    from clipvol.units import format_bytes
+
+    if not str(args.out).lower().endswith(".png"):
+        raise ParameterError(f"--out: expected a .png file name, got {args.out!r}")
+    if args.tf not in TransferFunction.names():
+        raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())}, got {args.tf!r}")
+    kwargs = {} if args.brick is None else {"brick": args.brick}
+    loader = open_store(args.source, **kwargs)
+    pyr = loader.pyramid
+    cam = view_camera(pyr, args.view, args.size, eye=args.eye, target=args.target, up=args.up, fov=args.fov,
+                      distance=args.distance, ortho=args.ortho)
+    lo, hi = pyr.volume_box()
+    centre = np.clip(np.asarray(cam.center, dtype=np.float64), lo, hi)
+    selection = args.selection
+    level = args.level if args.level is not None else (0 if selection == "fixed" else None)
+    tf = TransferFunction.preset(args.tf, value_range=args.tf_range)
+    ctx = create_context()
+    with ClipTexture(loader, args.memory_budget, args.threads, center=centre) as clip:
+        action = ClipRenderAction(ctx, clip, texture_budget=args.texture_budget, lod_threshold=args.lod_threshold,
+                                  mode=args.mode, selection=selection, level=level,
+                                  texels_per_frame=args.texels_per_frame, step=args.step, background=args.background)
+        try:
+            image = action.render(cam, tf, wait=not args.no_wait, timeout=args.timeout)
+            st = action.last_frame_stats
+        finally:
+            action.close()
+    Image.fromarray(image, "RGBA").save(args.out)
+    t = st.times
+    levels = ", ".join(f"L{L}: {n}" for L, n in st.bricks_drawn.items()) or "none"
+    print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, {args.mode}, {selection})", file=sys.stderr)
+    print(f"bricks drawn {sum(st.bricks_drawn.values())} ({levels}); texels drawn {st.texels_drawn:,}; "
+          f"converged {st.converged} after {st.passes} pass(es)", file=sys.stderr)
+    print(f"uploaded {format_bytes(st.bytes_uploaded)} in {st.bricks_uploaded} bricks; textures "
+          f"{format_bytes(st.texture_bytes)} of {format_bytes(st.texture_budget)}", file=sys.stderr)
+    print("time: " + ", ".join(f"{k} {v * 1000:.1f} ms" for k, v in t.items()), file=sys.stderr)
+    return 0
