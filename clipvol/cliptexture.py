@@ -34,7 +34,7 @@ from typing import Callable, Iterable
 import numpy as np
 
 from .errors import LoaderError, ParameterError
-from .loader import BrickKey, Loader, check_brick
+from .loader import BrickKey, HasBrickRanges, Loader, check_brick
 from .pyramid import Int3
 from .toroidal import (
     Allocation,
@@ -108,6 +108,8 @@ class ClipTextureStats:
     retries: int
     dropped: int
     failures: int
+    #: bricks the loader's bounds showed to be empty: filled without a read, not counted as loads
+    empty_skipped: int = 0
 
 
 def _count(value, name: str, minimum: int) -> int:
@@ -228,6 +230,11 @@ class ClipTexture:
         self._parked: dict[tuple[int, int], tuple] = {}  # (level, slot) -> queue entry waiting for a busy slot
         into = getattr(loader, "read_brick_into", None)
         self._read_into: Callable[[int, Int3, np.ndarray], None] | None = into if callable(into) else None
+        # empty bricks (bounds [fill, fill], see HasBrickRanges) are filled here, never read
+        self._ranges = loader.brick_ranges if isinstance(loader, HasBrickRanges) else None
+        self._fill_brick = np.full(pyr.brick_shape, pyr.fill_value, dtype=pyr.dtype)
+        self._fill_brick.setflags(write=False)
+        self._skipped_empty = 0
         self._delayed: list[tuple] = []  # heap: (not_before, level, slot, gen) for retries
         self._closing = False
         self._pending = 0  # bricks QUEUED or LOADING (recounted on every move, decremented per outcome)
@@ -342,6 +349,7 @@ class ClipTexture:
             loads, total, retries, dropped, fails = (
                 self._loads_total, self._bytes_total, self._retries, self._dropped, len(self.failures)
             )
+            skipped = self._skipped_empty
         span = max(min(RATE_WINDOW_S, now - self._t0), 1e-9)
         p = np.percentile(lat, [50, 95, 99]) if lat.size else np.full(3, np.nan)
         return ClipTextureStats(
@@ -364,6 +372,7 @@ class ClipTexture:
             retries=retries,
             dropped=dropped,
             failures=fails,
+            empty_skipped=skipped,
         )
 
     def load_cost(self, level: int, indices: np.ndarray) -> np.ndarray:
@@ -663,7 +672,9 @@ class ClipTexture:
         err: BaseException | None = None
         brick = None
         try:
-            if self._read_into is not None:
+            if self._known_empty(L, idx):
+                brick = self._fill_brick  # copied into the slot below; the loader is not called
+            elif self._read_into is not None:
                 self._read_into(L, idx, self._levels[L].pool[s])  # straight into the slot
             else:
                 brick = check_brick(self.loader, L, idx, self.loader.read_brick(L, idx))
@@ -693,13 +704,16 @@ class ClipTexture:
                 if self.failures:
                     self.failures.pop(BrickKey(L, idx), None)
                 self.residency_version += 1
-                nb = self.pyramid.brick_nbytes
-                self._loads_total += 1
-                self._bytes_total += nb
-                now = time.perf_counter()
-                self._events.append((now, nb))
-                self._trim_events(now)
-                self._latency.append(latency)
+                if brick is self._fill_brick:
+                    self._skipped_empty += 1
+                else:
+                    nb = self.pyramid.brick_nbytes
+                    self._loads_total += 1
+                    self._bytes_total += nb
+                    now = time.perf_counter()
+                    self._events.append((now, nb))
+                    self._trim_events(now)
+                    self._latency.append(latency)
                 # only waiters care about a load that leaves work queued: spare the wake-ups
                 wake = self._pending == 0 or self._count_down(L, idx)
             elif isinstance(err, LoaderError) or lv.attempts[s] >= self.retries:
@@ -724,6 +738,16 @@ class ClipTexture:
             except Exception as e:  # the callback's bug must not kill the loader thread
                 warnings.warn(f"ClipTexture on_error callback raised {type(e).__name__}: {e}", RuntimeWarning)
         return True
+
+    def _known_empty(self, level: int, idx: Int3) -> bool:
+        """True if the loader's bounds say the brick holds only its fill value (nothing to read)."""
+        if self._ranges is None:
+            return False
+        r = self._ranges(level, np.array([idx], dtype=np.int64))
+        if r is None:
+            return False
+        lo, hi = (float(v) for v in np.asarray(r, dtype=np.float64).reshape(-1, 2)[0])
+        return lo == hi == self.pyramid.fill_value
 
     def _count_down(self, level: int, idx: Int3) -> bool:
         """A watched brick settled: count down its waiters; ``True`` if one of them is due."""

@@ -19,7 +19,9 @@ Contract of ``read_brick(level, (bz, by, bx))``:
 
 Optional: a loader that knows value bounds per brick without reading it (a store's statistics, an
 analytic generator) also implements :class:`HasBrickRanges`; the render action then skips bricks
-the transfer function makes fully transparent without ever loading them.
+the transfer function makes fully transparent without ever loading them, and the clip-texture
+never reads an empty brick. A loader may also offer ``read_brick_into(level, index, out)``, which
+writes the brick straight into the clip-texture's slot ``out`` (same contract, no copy).
 
 ``clipvol.testing.LoaderTests`` is a conformance suite every loader (yours too) can run.
 """
@@ -80,9 +82,12 @@ class HasBrickRanges(Protocol):
     """Optional: per-brick value bounds without reading the bricks (for empty-space skipping)."""
 
     def brick_ranges(self, level: int, indices: np.ndarray) -> np.ndarray | None:
-        """``(n, 2)`` float64 ``[min, max]`` of the finite values of each brick in ``indices``
+        """``(n, 2)`` float64 ``[min, max]`` of the values of each brick in ``indices``
         (``(n, 3)`` ints, ``(bz, by, bx)``), or ``None`` when unknown. Bounds may be loose (a
-        bound that contains the true range is fine); a brick of only NaN may give ``[nan, nan]``.
+        bound that contains the true range is fine). A brick holding NaN gives ``[nan, nan]``
+        (unknown), one holding ±Inf gives infinite bounds. ``[fill, fill]`` therefore means the
+        brick is *empty*: the clip-texture fills it without calling ``read_brick``, and the
+        render action skips it when the transfer function makes that value transparent.
         """
         ...
 

@@ -497,7 +497,13 @@ class ZarrLoader:
         if np.any(idx < 0) or np.any(idx >= g):
             raise StoreFormatError(f"brick_ranges: indices outside level {level}'s grid {tuple(g)}")
         t = (idx[:, 0], idx[:, 1], idx[:, 2])
-        return np.stack([stats["min"][t], stats["max"][t]], axis=1).astype(np.float64)
+        out = np.stack([stats["min"][t], stats["max"][t]], axis=1).astype(np.float64)
+        # Bounds must not hide non-finite voxels: a brick of fill value plus NaN is not "empty".
+        if "inf_count" in stats:
+            out[stats["inf_count"][t] > 0] = (-np.inf, np.inf)
+        if "nan_count" in stats:
+            out[stats["nan_count"][t] > 0] = np.nan
+        return out
 
     def __repr__(self) -> str:
         kind = "clipvol store" if self.is_clipvol_store else "OME-Zarr"

@@ -498,3 +498,36 @@ def test_open_store_third_party_plugin(monkeypatch):
     monkeypatch.setattr(EntryPoint, "load", lambda self: Spy)
     op.open_store("fake:anything?x=1", brick=8)
     assert calls == [("fake:anything?x=1", {"brick": 8})]
+
+
+def test_empty_bricks_are_filled_without_a_read_but_nan_bricks_are_read(tmp_path):
+    """[fill, fill] bounds mean empty (never read); a brick of fill value plus NaN is not empty."""
+    from clipvol.brick import brick_volume
+    from clipvol.cliptexture import ClipTexture
+
+    vol = np.zeros((32, 32, 32), dtype=np.float32)
+    vol[:16, :16, 16:] = 0.5                     # one brick with data
+    vol[16:, 16:, 16:][3, 4, 5] = np.nan        # one brick of zeros plus one NaN
+    out = tmp_path / "s.zarr"
+    brick_volume(vol, out, brick=16, progress=False, workers=1)
+    inner = ZarrLoader(out)
+    ranges = inner.brick_ranges(0, np.array([[0, 0, 1], [1, 1, 1], [0, 0, 0]]))
+    assert np.isnan(ranges[1]).all() and ranges[2].tolist() == [0.0, 0.0]
+
+    reads: list = []
+
+    class Counting:
+        pyramid = inner.pyramid
+        brick_ranges = staticmethod(inner.brick_ranges)
+
+        def read_brick(self, level, index):
+            reads.append((level, tuple(index)))
+            return inner.read_brick(level, index)
+
+    with ClipTexture(Counting(), "64MB", threads=1) as tex:
+        assert tex.wait_until_idle(10)
+        assert set(reads) == {(0, (0, 0, 1)), (0, (1, 1, 1)), (1, (0, 0, 0))}
+        assert tex.stats.empty_skipped == 6
+        for L, idx in tex.resident_bricks():
+            got = tex.get_brick(L, idx)
+            np.testing.assert_array_equal(got, inner.read_brick(L, idx))
