@@ -1,0 +1,154 @@
+"""The heads-up display: frame statistics as text, rasterised with pillow into an RGBA image.
+
+The viewer uploads the image into a texture and blends it over the frame; the offscreen mode can
+composite it onto saved frames. Pillow's bundled font (``ImageFont.load_default(size=...)``) keeps
+the HUD free of system font paths. Building the lines (:func:`hud_lines`) and drawing them
+(:func:`render_text`) are separate so the text can be tested without pixels.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import Iterable, Mapping
+
+import numpy as np
+
+__all__ = ["hud_lines", "render_text", "composite_over", "level_counts"]
+
+
+@lru_cache(maxsize=4)
+def _font(size: int):
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=size)
+    except TypeError:  # pillow < 10.1: a fixed bitmap font
+        return ImageFont.load_default()
+
+
+def level_counts(value) -> dict[int, float]:
+    """Per-level numbers from a dict ``{level: n}``, a sequence indexed by level, or ``None``."""
+    if value is None:
+        return {}
+    if isinstance(value, Mapping):
+        return {int(k): v for k, v in sorted(value.items())}
+    try:
+        return {i: v for i, v in enumerate(value)}
+    except TypeError:
+        return {}
+
+
+def _per_level(d: Mapping[int, float], fmt: str) -> str:
+    return " ".join(f"L{k}:{fmt.format(v)}" for k, v in d.items() if v) or "-"
+
+
+def hud_lines(
+    *,
+    fps: float | None = None,
+    frame_stats=None,
+    texture_stats=None,
+    settings: Mapping[str, object] | None = None,
+    message: str = "",
+) -> list[str]:
+    """The HUD's lines of text.
+
+    Parameters
+    ----------
+    fps : float, optional
+        Frames per second (smoothed by the caller).
+    frame_stats : FrameStats, optional
+        The render action's ``last_frame_stats`` (bricks drawn per level, uploads, texture bytes).
+    texture_stats : ClipTextureStats, optional
+        The clip-texture's ``stats`` (resident bytes per level, queue length, loads).
+    settings : mapping, optional
+        Current viewer settings (mode, level, LOD threshold, MIP/composite, transfer function).
+    message : str
+        A transient status line (e.g. the last key's effect).
+    """
+    lines: list[str] = []
+    if fps is not None:
+        lines.append(f"{fps:5.1f} fps")
+    if settings:
+        lines.append("  ".join(f"{k} {v}" for k, v in settings.items()))
+    if frame_stats is not None:
+        drawn = level_counts(getattr(frame_stats, "bricks_drawn", None))
+        total = int(sum(drawn.values())) if drawn else 0
+        lines.append(f"drawn {total} bricks  {_per_level(drawn, '{:d}')}")
+        up = getattr(frame_stats, "bytes_uploaded", None)
+        tex = getattr(frame_stats, "texture_bytes", None)
+        budget = getattr(frame_stats, "texture_budget", None)
+        part = []
+        if up is not None:
+            part.append(f"uploaded {up / 1e6:.2f} MB")
+        if tex is not None:
+            part.append(f"texture {tex / 1e6:.1f}" + (f"/{budget / 1e6:.0f} MB" if budget else " MB"))
+        conv = getattr(frame_stats, "converged", None)
+        if conv is not None:
+            part.append("converged" if conv else "refining")
+        if part:
+            lines.append("  ".join(part))
+    if texture_stats is not None:
+        res = getattr(texture_stats, "resident_bytes_per_level", None)
+        if res is None:
+            res = getattr(texture_stats, "resident_bytes", None)
+        res = level_counts(res)
+        if res:
+            lines.append(f"resident {sum(res.values()) / 1e6:.1f} MB  {_per_level({k: v / 1e6 for k, v in res.items()}, '{:.1f}')}")
+        q = getattr(texture_stats, "queued", getattr(texture_stats, "queue_length", None))
+        mbs = getattr(texture_stats, "mb_per_s", None)
+        lps = getattr(texture_stats, "loads_per_s", None)
+        part = []
+        if q is not None:
+            part.append(f"queue {q}")
+        if lps is not None:
+            part.append(f"{lps:.0f} loads/s")
+        if mbs is not None:
+            part.append(f"{mbs:.1f} MB/s")
+        nf = getattr(texture_stats, "failures", None)
+        nf = len(nf) if isinstance(nf, (dict, list, tuple, set)) else nf
+        if nf:
+            part.append(f"{nf} failed")
+        if part:
+            lines.append("  ".join(part))
+    if message:
+        lines.append(message)
+    return lines
+
+
+def render_text(lines: Iterable[str], *, font_size: int = 13, padding: int = 6,
+                color=(255, 255, 255, 255), background=(0, 0, 0, 150), width: int | None = None) -> np.ndarray:
+    """Rasterise ``lines`` into an ``(h, w, 4)`` uint8 straight-alpha RGBA image, row 0 at top.
+
+    The box is ``width`` wide (or as wide as the longest line) with a translucent background.
+    """
+    from PIL import Image, ImageDraw
+
+    lines = list(lines) or [""]
+    font = _font(int(font_size))
+    probe = ImageDraw.Draw(Image.new("RGBA", (1, 1)))
+    boxes = [probe.textbbox((0, 0), ln or " ", font=font) for ln in lines]
+    line_h = max(b[3] - min(b[1], 0) for b in boxes) + 2
+    w = width or (max(b[2] for b in boxes) + 2 * padding)
+    h = line_h * len(lines) + 2 * padding
+    img = Image.new("RGBA", (max(int(w), 1), int(h)), tuple(background))
+    draw = ImageDraw.Draw(img)
+    for i, ln in enumerate(lines):
+        draw.text((padding, padding + i * line_h), ln, font=font, fill=tuple(color))
+    return np.asarray(img, dtype=np.uint8).copy()
+
+
+def composite_over(image: np.ndarray, overlay: np.ndarray, origin=(0, 0)) -> np.ndarray:
+    """Blend straight-alpha ``overlay`` over ``image`` (both RGBA uint8) at ``origin`` (row, col); new array."""
+    out = image.copy()
+    r0, c0 = origin
+    h = min(overlay.shape[0], image.shape[0] - r0)
+    w = min(overlay.shape[1], image.shape[1] - c0)
+    if h <= 0 or w <= 0:
+        return out
+    src = overlay[:h, :w].astype(np.float32) / 255.0
+    dst = out[r0:r0 + h, c0:c0 + w].astype(np.float32) / 255.0
+    a = src[..., 3:4]
+    rgb = src[..., :3] * a + dst[..., :3] * (1 - a)
+    alpha = a + dst[..., 3:4] * (1 - a)
+    out[r0:r0 + h, c0:c0 + w] = np.clip(np.concatenate([rgb, alpha], axis=-1) * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    return out

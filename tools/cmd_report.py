@@ -1,0 +1,75 @@
+"""Image error against run time for a sweep of quality settings (LOD threshold, memory and texture budgets).
+
+``clipvol report STORE --out DIR`` renders a few views along a camera path, converged and as they
+come, for each setting; compares each frame with the full-resolution render of the same view
+(% pixels with ΔE ≥ 6 in CIELUV, RMSE, PSNR) and writes ``report.csv``, plots of error against
+frame time and bytes, and ``report.md`` with fixed-vs-multiresolution tables. The work is done by
+:func:`clipvol.report.run_report`.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def _floats(text: str) -> list[float]:
+    try:
+        vals = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers such as 0.5,1,2,4, got {text!r}") from None
+    if not vals or any(not (v > 0) for v in vals):
+        raise argparse.ArgumentTypeError(f"expected numbers > 0, got {text!r}")
+    return vals
+
+
+def _sizes(text: str) -> list[str]:
+    return [v.strip() for v in text.split(",") if v.strip()]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from clipvol.tools.cmd_view import _size
+
+    p.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, or a .npy file")
+    p.add_argument("--out", required=True, help="output directory (created)")
+    p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources")
+    p.add_argument("--path", choices=("orbit", "fly", "zoom"), default="orbit", help="camera path the views come from")
+    p.add_argument("--views", type=int, default=3, help="views along the path")
+    p.add_argument("--size", type=_size, default=(192, 192), help="image size WxH (also caps the reference's cost)")
+    p.add_argument("--thresholds", type=_floats, default=[0.5, 1, 2, 4, 8, 16], help="LOD thresholds (pixels), comma-separated")
+    p.add_argument("--memory-budgets", type=_sizes, default=None,
+                   help="clip-texture budgets swept at LOD 1, e.g. 64MB,16MB (default: 1/2 and 1/8 of the data; '' to skip)")
+    p.add_argument("--texture-budgets", type=_sizes, default=None,
+                   help="GPU cache budgets swept at LOD 1 (default: 1/2 and 1/8 of the data; '' to skip)")
+    p.add_argument("--tf", default="viridis", help="transfer-function preset, or demo (the demo's)")
+    p.add_argument("--mode", choices=("composite", "mip"), default="composite")
+    p.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
+    p.add_argument("--threads", type=int, default=None, help="loader threads")
+    p.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for a converged frame")
+    p.add_argument("--max-frames", type=int, default=8, help="as-it-comes frames per view at most")
+    p.add_argument("--reference-cap", default="1GB", help="most bytes the full-resolution reference may hold")
+    p.add_argument("--no-plots", action="store_true", help="skip the matplotlib plots")
+
+
+def run(args) -> int:
+    from clipvol.report import run_report
+    from clipvol.viewer.session import open_loader
+
+    from clipvol.errors import ParameterError
+    from clipvol.transfer import TransferFunction
+
+    tf = args.tf
+    if tf == "demo":
+        from clipvol.tools.cmd_demo import demo_transfer_function
+
+        tf = demo_transfer_function()
+    elif tf not in TransferFunction.names():
+        raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())} or demo, got {tf!r}")
+    loader = open_loader(args.source, **({} if args.brick is None else {"brick": args.brick}))
+    res = run_report(
+        loader, args.out, path=args.path, views=args.views, size=args.size, thresholds=args.thresholds,
+        memory_budgets=args.memory_budgets, texture_budgets=args.texture_budgets, tf=tf, mode=args.mode,
+        step=args.step, threads=args.threads, timeout=args.timeout, max_frames=args.max_frames,
+        reference_cap=args.reference_cap, log=lambda s: print(s, flush=True), plots=not args.no_plots,
+    )
+    print(f"wrote {res.csv}, {res.markdown}" + "".join(f", {p}" for p in res.plots))
+    return 0

@@ -1,0 +1,104 @@
+"""Interactive roaming / multiresolution viewer, or offscreen flythrough frames (--offscreen).
+
+``clipvol view STORE|procedural:...|x.npy`` opens a window (GLFW + moderngl) that renders the data
+with the multiresolution clip renderer, never waiting for I/O: coarse data shows at once and
+refines as bricks arrive. Keys: left drag orbit, right/middle drag pan, wheel zoom, WASD/QE fly
+(moves the centre of interest), M mode, [ ] fixed level, +/- LOD threshold, I MIP/composite,
+T transfer function, B brick outlines, P screenshot, H HUD, R reset, Esc quit.
+
+``--offscreen --path orbit|fly|zoom --frames N --out DIR|anim.gif`` renders a camera path without
+a window (EGL) and writes PNG frames or a GIF plus a per-frame CSV.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 640x480, got {text!r}") from None
+    if w < 1 or h < 1 or w > 16384 or h > 16384:
+        raise argparse.ArgumentTypeError(f"expected a size between 1x1 and 16384x16384, got {text!r}")
+    return w, h
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, or a .npy file")
+    p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default: the loader's, 64)")
+    g = p.add_argument_group("rendering")
+    g.add_argument("--mode", choices=("composite", "mip"), default="composite", help="compositing or maximum intensity projection")
+    g.add_argument("--selection", choices=("multiresolution", "roaming", "fixed"), default="multiresolution")
+    g.add_argument("--level", type=int, default=None, help="level drawn with --selection fixed (default 0)")
+    g.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel projects to more than this many pixels")
+    g.add_argument("--tf", default="viridis", help="transfer-function preset (grey, viridis, magma, inferno, plasma, bone) or demo (the demo's)")
+    g.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
+    g.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
+    g.add_argument("--texture-budget", default="256MB", help="GPU brick cache budget")
+    g.add_argument("--texels-per-frame", type=int, default=None, help="most texels uploaded per frame")
+    g.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
+    g.add_argument("--outlines", action="store_true", help="draw brick outlines coloured by level (key B)")
+    g.add_argument("--size", type=_size, default=None, help="window or image size WxH (default 960x640 window, 256x256 offscreen)")
+    o = p.add_argument_group("offscreen")
+    o.add_argument("--offscreen", action="store_true", help="render a camera path to files instead of opening a window")
+    o.add_argument("--path", choices=("orbit", "fly", "zoom"), default="orbit", help="camera path")
+    o.add_argument("--frames", type=int, default=36, help="frames along the path")
+    o.add_argument("--out", default="frames", help="output directory (PNG frames) or anim.gif")
+    o.add_argument("--converged", action="store_true", help="wait each frame until its bricks are drawn at their own level")
+    o.add_argument("--timeout", type=float, default=60.0, help="seconds to wait per frame with --converged")
+    o.add_argument("--fps", type=float, default=12.0, help="GIF frame rate")
+    w = p.add_argument_group("window")
+    w.add_argument("--screenshot-dir", default=".", help="where P saves screenshots")
+    w.add_argument("--max-frames", type=int, default=None, help=argparse.SUPPRESS)
+
+
+def run(args) -> int:
+    from dataclasses import replace
+
+    from clipvol.errors import ParameterError
+    from clipvol.viewer.session import RenderSettings, open_loader
+
+    if args.frames < 1:
+        raise ParameterError(f"--frames: expected >= 1, got {args.frames}")
+    settings = RenderSettings(
+        lod_threshold=args.lod_threshold, selection=args.selection, level=args.level, mode=args.mode, tf=args.tf,
+        step=args.step, texels_per_frame=args.texels_per_frame,
+    )
+    from clipvol.transfer import TransferFunction
+
+    if args.tf == "demo":
+        from clipvol.tools.cmd_demo import demo_transfer_function
+
+        settings = replace(settings, tf=demo_transfer_function())
+    elif args.tf not in TransferFunction.names():
+        raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())} or demo, got {args.tf!r}")
+    kwargs = {} if args.brick is None else {"brick": args.brick}
+    loader = open_loader(args.source, **kwargs)
+    if settings.level is not None and settings.level >= loader.pyramid.num_levels:
+        raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {settings.level}")
+    if args.offscreen:
+        from clipvol.viewer.offscreen import render_path
+
+        def show(row: dict) -> None:
+            print(f"frame {row['frame']:4d}  {row['frame_s'] * 1e3:7.1f} ms  {row['bricks_drawn']:5d} bricks  "
+                  f"loaded {row['bytes_loaded'] / 1e6:6.2f} MB  uploaded {row['bytes_uploaded'] / 1e6:6.2f} MB"
+                  + ("" if row["converged"] else "  (refining)"), flush=True)
+
+        res = render_path(
+            loader, args.out, path=args.path, frames=args.frames, size=args.size or (256, 256),
+            converged=args.converged, timeout=args.timeout, memory_budget=args.memory_budget,
+            texture_budget=args.texture_budget, threads=args.threads, settings=settings, outlines=args.outlines,
+            fps=args.fps, progress=show,
+        )
+        print(f"wrote {res.frames} frames to {args.out}; per-frame statistics in {res.csv}")
+        return 0
+    from clipvol.viewer.window import Viewer
+
+    with Viewer(loader, size=args.size or (960, 640), memory_budget=args.memory_budget,
+                texture_budget=args.texture_budget, threads=args.threads, settings=settings,
+                screenshot_dir=args.screenshot_dir, title=f"clipvol - {args.source}") as viewer:
+        if args.outlines:
+            viewer.key("B")
+        return viewer.run(max_frames=args.max_frames)
