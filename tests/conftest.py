@@ -10,3 +10,27 @@ import pytest
 def rng() -> np.random.Generator:
     """A seeded generator, so every failure reproduces."""
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="session")
+def ctx():
+    """One standalone EGL context for the whole test session (Mesa llvmpipe is enough).
+
+    Skips GL tests, saying why, on a machine with no EGL / GL 3.3.
+    """
+    from clipvol.render import GLContextError, create_context
+
+    try:
+        c = create_context()
+    except GLContextError as e:  # pragma: no cover - machines without EGL
+        pytest.skip(f"no offscreen GL context: {e}")
+    yield c
+    c.release()
+
+
+@pytest.fixture
+def gl(ctx):
+    """``ctx``, checked to hold no GL error before and after the test."""
+    assert ctx.error == "GL_NO_ERROR"
+    yield ctx
+    assert ctx.error == "GL_NO_ERROR"

@@ -22,17 +22,6 @@ import reference_raycast as ref
 pytestmark = pytest.mark.gl
 
 
-@pytest.fixture(scope="module")
-def ctx():
-    from clipvol.render import GLContextError, create_context
-
-    try:
-        c = create_context()
-    except GLContextError as e:  # pragma: no cover - machines without EGL
-        pytest.skip(str(e))
-    yield c
-    c.release()
-
 
 @pytest.fixture(autouse=True)
 def _gl_clean(ctx):

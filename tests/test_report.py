@@ -12,27 +12,14 @@ pytest.importorskip("moderngl")
 
 
 @pytest.fixture(scope="module")
-def gl_ctx():
-    from clipvol.errors import ClipvolError
-    from clipvol.render.context import create_context
-
-    try:
-        ctx = create_context()
-    except ClipvolError as e:  # pragma: no cover - no EGL on this machine
-        pytest.skip(f"no offscreen GL context: {e}")
-    yield ctx
-    ctx.release()
-
-
-@pytest.fixture(scope="module")
-def report(tmp_path_factory, gl_ctx):
+def report(tmp_path_factory, ctx):
     from clipvol.loaders.procedural import ProceduralLoader
     from clipvol.report import run_report
 
     out = tmp_path_factory.mktemp("report")
     loader = ProceduralLoader("procedural:fractal?size=32&seed=1", brick=8)
     res = run_report(loader, out, views=2, size=(48, 48), thresholds=(0.5, 2.0, 8.0), memory_budgets=(),
-                     texture_budgets=("40kB",), tf="grey", ctx=gl_ctx, max_frames=3)
+                     texture_budgets=("40kB",), tf="grey", ctx=ctx, max_frames=3)
     return res, loader
 
 

@@ -144,17 +144,6 @@ def test_loader_hang_bounded_waits_and_close():
 
 
 # -- GL: the render action with faults --------------------------------------------------------------
-@pytest.fixture(scope="module")
-def ctx():
-    from clipvol.render import GLContextError, create_context
-
-    try:
-        c = create_context()
-    except GLContextError as e:  # pragma: no cover - machines without EGL
-        pytest.skip(str(e))
-    yield c
-    c.release()
-
 
 @pytest.mark.gl
 def test_render_with_failed_and_hung_bricks_is_bounded(ctx):

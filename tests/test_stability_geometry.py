@@ -60,23 +60,6 @@ VOL = smooth()
 PYR = NumpyLoader(VOL, brick=8).pyramid  # 24^3 voxels, bricks of 8: 3x3x3 bricks at level 0
 
 
-@pytest.fixture(scope="module")
-def ctx():
-    from clipvol.render import GLContextError, create_context
-
-    try:
-        c = create_context()
-    except GLContextError as e:  # pragma: no cover - machines without EGL
-        pytest.skip(str(e))
-    yield c
-    c.release()
-
-
-@pytest.fixture
-def gl(ctx):
-    assert ctx.error == "GL_NO_ERROR"
-    yield ctx
-    assert ctx.error == "GL_NO_ERROR"
 
 
 def render(ctx, cam, vol=VOL, *, brick=8, selection="fixed", level=0, mode="composite", **kw):

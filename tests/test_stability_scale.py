@@ -35,17 +35,6 @@ TF_SPARSE = TransferFunction.from_points([(0.0, (0, 0, 1, 0.0)), (0.1, (0, 0, 1,
                                          (1.0, (1, 0, 0, 0.6))], value_range=(0.0, 1.0))
 
 
-@pytest.fixture(scope="module")
-def ctx():
-    from clipvol.render import GLContextError, create_context
-
-    try:
-        c = create_context()
-    except GLContextError as e:  # pragma: no cover - machines without EGL
-        pytest.skip(str(e))
-    yield c
-    c.release()
-
 
 def _render(ctx, loader, cam, **kw):
     from clipvol.render.action import ClipRenderAction

@@ -52,23 +52,6 @@ def volume(shape, seed=0) -> np.ndarray:
     return np.random.default_rng(seed).random(shape).astype(np.float32)
 
 
-@pytest.fixture(scope="module")
-def ctx():
-    from clipvol.render import GLContextError, create_context
-
-    try:
-        c = create_context()
-    except GLContextError as e:  # pragma: no cover - machines without EGL
-        pytest.skip(str(e))
-    yield c
-    c.release()
-
-
-@pytest.fixture
-def gl(ctx):
-    assert ctx.error == "GL_NO_ERROR"
-    yield ctx
-    assert ctx.error == "GL_NO_ERROR"
 
 
 def build(tmp_path, name):

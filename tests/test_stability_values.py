@@ -103,17 +103,6 @@ def test_transfer_function_keeps_extreme_alphas():
 
 
 # -- rendering helpers -----------------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def ctx():
-    from clipvol.render import GLContextError, create_context
-
-    try:
-        c = create_context()
-    except GLContextError as e:  # pragma: no cover - machines without EGL
-        pytest.skip(str(e))
-    yield c
-    c.release()
-
 
 @pytest.fixture
 def gl_clean(ctx):
