@@ -137,8 +137,8 @@ class Viewer:
                  title: str = "clipvol", background=(0.0, 0.0, 0.0)) -> None:
         try:
             import glfw
-        except ImportError as e:  # pragma: no cover - glfw is in the 'view' extra
-            raise WindowError(f"clipvol view needs the glfw package (pip install 'clipvol[view]'), got ImportError: {e}") from e
+        except ImportError as e:  # pragma: no cover - glfw is a dependency
+            raise WindowError(f"clipvol view needs the glfw package (pip install glfw), got ImportError: {e}") from e
         w, h = (int(v) for v in size)
         if w < 1 or h < 1:
             raise ParameterError(f"size: expected a window size >= 1x1, got {size!r}")
