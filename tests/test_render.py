@@ -378,11 +378,13 @@ def test_front_to_back_with_early_termination_equals_back_to_front_over(scenes):
     opaque = TransferFunction.from_points([(0.0, (0, 0, 1, 0.1)), (1.0, (1, 0.5, 0, 0.9))])
     cam = Camera.perspective((-30.0, -20.0, -40.0), centre_of(vol.shape), size=(64, 64), fov_y=40)
     bg = (0.2, 0.3, 0.4, 1.0)
-    a = scenes(vol, 8, selection="fixed", level=0, background=bg)
-    b = scenes(vol, 8, selection="fixed", level=0, background=bg, early_termination=False)
-    ia, ib = a.render(cam, opaque), b.render(cam, opaque)
+    a = scenes(vol, 8, selection="fixed", level=0, background=bg, merge_boxes=False)
+    b = scenes(vol, 8, selection="fixed", level=0, background=bg, early_termination=False, merge_boxes=False)
+    c = scenes(vol, 8, selection="fixed", level=0, background=bg)  # merged boxes, front to back
+    ia, ib, ic = a.render(cam, opaque), b.render(cam, opaque), c.render(cam, opaque)
     assert a.action.occlusion_passes > 0 and b.action.occlusion_passes == 0
-    assert diff(ia, ib).max() <= 1
+    assert a.action.boxes_drawn == 216 and c.action.boxes_drawn < 216
+    assert diff(ia, ib).max() <= 1 and diff(ia, ic).max() <= 1
     # and both equal the reference composited over the background
     r = ref.raycast(vol, (1, 1, 1), cam.fit_depth(*a.pyramid.volume_box()), opaque.table, a.pyramid.value_range, 0.5)
     bgp = np.array([bg[0] * bg[3], bg[1] * bg[3], bg[2] * bg[3], bg[3]])

@@ -15,7 +15,7 @@ import pytest
 from clipvol.camera import Camera
 from clipvol.geometry import Shape
 from clipvol.pyramid import Pyramid
-from clipvol.selection import DrawItem, SelectionParams, back_to_front, select
+from clipvol.selection import DrawItem, SelectionParams, back_to_front, merge_items, select
 
 
 # -- brute-force visibility check ---------------------------------------------------------------
@@ -423,3 +423,65 @@ def test_with_a_real_clip_texture_items_are_resident_and_wanted_in_window():
             assert ct.in_window_mask(lv, np.array([b]))[0]
         np.testing.assert_array_equal(coverage(sel.items, visible_points(cam, pyr)), 1)
         assert order_violations(cam, *boxes(sel.items))[0] == 0
+
+
+@pytest.mark.parametrize("eye", EYES)
+@pytest.mark.parametrize("threshold", [0.7, 3.0])
+def test_merged_items_keep_order_and_coverage(eye, threshold):
+    """merge_items: same region covered exactly once, still back to front, each item one level."""
+    cam = cam_at(eye)
+    sel = select(PYR, cam, SelectionParams(lod_threshold=threshold))
+    windows = [PYR.grid(L) for L in range(PYR.num_levels)]
+    merged = merge_items(sel.items, PYR, windows)
+    assert 0 < len(merged) <= len(sel.items)
+    bad, hit = order_violations(cam, *boxes(merged))
+    assert bad == 0 and hit > 0
+    pts = visible_points(cam, PYR)
+    np.testing.assert_array_equal(coverage(merged, pts), coverage(sel.items, pts))
+    # every point is sampled from the same level as before the merge
+    def level_at(items, p):
+        return [it.level for it in items if np.all(p > it.lo) and np.all(p < it.hi)]
+    for p in pts[:200]:
+        assert level_at(merged, p) == level_at(sel.items, p)
+
+
+def test_merge_collapses_a_uniform_cut_and_respects_windows():
+    cam = Camera.orthographic(CENTRE, (0, 0, 1), (0, -1, 0), 70, 70, size=(32, 32))
+    sel = select(PYR, cam, SelectionParams(mode="fixed", level=0))
+    assert len(sel.items) == 512
+    whole = merge_items(sel.items, PYR, [PYR.grid(L) for L in range(PYR.num_levels)])
+    assert [(it.level, it.index, it.span) for it in whole] == [(0, (0, 0, 0), 8)]
+    # a GPU window of 4 bricks per axis: blocks of at most 4, never two bricks in one slot
+    four = merge_items(sel.items, PYR, [(4, 4, 4)] * PYR.num_levels)
+    assert len(four) == 8 and all(it.span == 4 for it in four)
+    assert merge_items(sel.items, PYR, [None] * PYR.num_levels) == sel.items
+
+
+def test_merge_covers_a_culled_sibling_only_when_allowed_and_never_twice():
+    cam = Camera.orthographic(CENTRE, (0, 0, 1), (0, -1, 0), 70, 70, size=(32, 32))
+    sel = select(PYR, cam, SelectionParams(mode="fixed", level=0))
+    windows = [PYR.grid(L) for L in range(PYR.num_levels)]
+    culled = [it for it in sel.items if it.index != (0, 0, 0)]  # as if (0,0,0) were transparent
+    assert len(merge_items(culled, PYR, windows)) > 1
+    asked = []
+
+    def yes(level, node_level, node_index):
+        asked.append((level, node_level, tuple(node_index)))
+        return True
+
+    merged = merge_items(culled, PYR, windows, yes)
+    assert [(it.level, it.span) for it in merged] == [(0, 8)] and asked == [(0, 0, (0, 0, 0))]
+    assert len(merge_items(culled, PYR, windows, lambda *a: False)) > 1
+    # a sibling drawn at a finer level (here: a level-1 brick replaced by its level-0 children)
+    # is never covered by a merge of its level-1 siblings, whatever may_cover says
+    sel1 = select(PYR, cam, SelectionParams(mode="fixed", level=1))
+    mixed = []
+    for it in sel1.items:
+        if it.index == (0, 0, 0):
+            mixed += [DrawItem(0, c, tuple(PYR.node_box(0, c)[0]), tuple(PYR.node_box(0, c)[1]))
+                      for c in PYR.children(1, (0, 0, 0))]
+        else:
+            mixed.append(it)
+    out = merge_items(mixed, PYR, windows, lambda *a: True)
+    pts = visible_points(cam, PYR)
+    np.testing.assert_array_equal(coverage(out, pts), 1)

@@ -56,6 +56,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ParameterError
+from ..selection import merge_items
 from ..units import parse_bytes
 from .gpu_cache import GpuBrickCache
 from .shaders import load_shader
@@ -72,7 +73,7 @@ _GL_DEPTH_CLAMP = 0x864F
 OPAQUE = 0.9995
 #: composite: an occlusion pass after every len(items) / OCCLUSION_PASSES boxes (at least this many)
 OCCLUSION_PASSES = 256
-OCCLUSION_MIN_BATCH = 2
+OCCLUSION_MIN_BATCH = 1
 
 # unit cube, 12 triangles wound counter-clockwise seen from outside
 _CUBE_FACES = [
@@ -165,13 +166,17 @@ class ClipRenderAction:
         Composite: draw the boxes front to back with the "under" operator and skip pixels that are
         already opaque (default; much faster for opaque data). ``False`` draws them back to front
         with ``(ONE, ONE_MINUS_SRC_ALPHA)``; both give the same image (the operator is associative).
+    merge_boxes : bool
+        Draw complete sibling sets of one level as one box over their parent node
+        (:func:`clipvol.selection.merge_items`; same image, far fewer boxes). ``False`` draws one
+        box per selected item, as ``vzClipRenderAction`` does.
     """
 
     def __init__(self, ctx, clip_texture, *, texture_budget="256MB", lod_threshold: float = 1.0,
                  mode: str = "composite", selection: str = "multiresolution", level: int | None = None,
                  texels_per_frame: int | None = None, max_texels_drawn: int | None = None,
                  step: float = 0.5, shape=None, background=(0.0, 0.0, 0.0, 0.0),
-                 early_termination: bool = True) -> None:
+                 early_termination: bool = True, merge_boxes: bool = True) -> None:
         import moderngl
 
         self.ctx = ctx
@@ -210,6 +215,7 @@ class ClipRenderAction:
         self.shape = shape
         self.background = bg
         self.early_termination = bool(early_termination)
+        self.merge_boxes = bool(merge_boxes)
         self.texture_budget = parse_bytes(texture_budget, "texture_budget")
         self.cache = GpuBrickCache(ctx, self.pyramid, self.texture_budget)
         self.program = ctx.program(vertex_shader=load_shader("brick.vert"), fragment_shader=load_shader("brick.frag"))
@@ -223,6 +229,7 @@ class ClipRenderAction:
         self._default_fbo = None
         self.last_frame_stats: FrameStats | None = None
         self.occlusion_passes = 0
+        self.boxes_drawn = 0  # proxy boxes of the last frame, after merge_items
         self.last_selection = None
         self._moderngl = moderngl
         self.program["u_volume"].value = 0
@@ -565,23 +572,17 @@ class ClipRenderAction:
         pyr = self.pyramid
         B = np.asarray(pyr.brick_shape, dtype=np.float64)
         ref_spacing = float(min(pyr.spacing))
-        by_level: dict[int, list[int]] = {}
-        for i, it in enumerate(sel.items):
-            by_level.setdefault(it.level, []).append(i)
-        open_faces: dict[int, np.ndarray] = {}
-        for L, ids in by_level.items():
-            idx = np.array([sel.items[i].index for i in ids], dtype=np.int64)
-            of = self.cache.open_faces(L, idx)
-            for j, i in enumerate(ids):
-                open_faces[i] = of[j]
+        items = merge_items(sel.items, pyr, self.cache.windows, self._may_cover()) if self.merge_boxes else list(sel.items)
+        self.boxes_drawn = len(items)
+        clamps = self._block_clamps(items)
         bound_level = None
-        n_items = len(sel.items)
+        n_items = len(items)
         order = range(n_items - 1, -1, -1) if front_to_back else range(n_items)
         batch = max(OCCLUSION_MIN_BATCH, -(-n_items // OCCLUSION_PASSES))
         for count, i in enumerate(order):
             if front_to_back and count and count % batch == 0:
                 self._occlusion_pass(fbo)
-            it = sel.items[i]
+            it = items[i]
             L = it.level
             tex = self.cache.textures[L]
             if tex is None:
@@ -608,9 +609,7 @@ class ClipRenderAction:
             prog["u_box_hi"].value = _vec(hi - origin)
             prog["u_o_minus_b"].value = _vec(origin - first)
             prog["u_slot_origin"].value = _vec(((bidx % win) * B)[::-1])
-            of = open_faces[i]  # (3 axes zyx, 2 sides)
-            clo = np.where(of[:, 0], -0.5, 0.0)[::-1]
-            chi = np.where(of[:, 1], B - 0.5, B - 1.0)[::-1]
+            clo, chi = clamps[i]
             prog["u_clamp_lo"].value = _vec(clo)
             prog["u_clamp_hi"].value = _vec(chi)
             self._vao.render(mgl.TRIANGLES)
@@ -644,6 +643,51 @@ class ClipRenderAction:
                 prem = prem + (1.0 - prem[..., 3:4]) * np.array([r * ba, g * ba, b * ba, ba])
         image = premultiplied_to_uint8(prem)
         return image, t1 - t0, time.perf_counter() - t1
+
+    def _may_cover(self):
+        """``may_cover`` for :func:`merge_items`: a culled node whose bricks of the drawn level are
+        all in texture memory may be covered by a merged box (it then shows its real data)."""
+        pyr = self.pyramid
+
+        def may_cover(level: int, node_level: int, node_index) -> bool:
+            f = 2 ** (node_level - level)
+            grid = np.asarray(pyr.grid(level))
+            first = np.asarray(node_index, dtype=np.int64) * f
+            stop = np.minimum(first + f, grid)
+            idx = np.stack(np.meshgrid(*(np.arange(a, b) for a, b in zip(first, stop)), indexing="ij"), -1).reshape(-1, 3)
+            return bool(np.all(self.cache.on_gpu_mask(level, idx)))
+
+        return may_cover
+
+    def _block_clamps(self, items) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per item, the ``(lo, hi)`` clamp of its sampling in item-local voxels (``(x, y, z)``).
+
+        An item covers ``span`` bricks per axis (clipped to the grid). A face of the item may be
+        sampled across (half a voxel beyond its last texels, trilinear filtering reading the
+        neighbour) only if that face is open for every brick on it (see
+        :meth:`GpuBrickCache.open_faces`); otherwise sampling clamps to the item's own texels.
+        """
+        B = np.asarray(self.pyramid.brick_shape, dtype=np.int64)
+        blocks: dict[int, list[tuple[int, np.ndarray, np.ndarray]]] = {}
+        for i, it in enumerate(items):
+            first = np.asarray(it.index, dtype=np.int64)
+            grid = np.asarray(self.pyramid.grid(it.level), dtype=np.int64)
+            cnt = np.minimum(first + it.span, grid) - first
+            local = np.stack(np.meshgrid(*(np.arange(c) for c in cnt), indexing="ij"), -1).reshape(-1, 3)
+            blocks.setdefault(it.level, []).append((i, cnt, local))
+        out: list = [None] * len(items)
+        for L, group in blocks.items():
+            idx = np.concatenate([np.asarray(items[i].index, dtype=np.int64) + local for i, _, local in group])
+            of = self.cache.open_faces(L, idx)  # (n, 3 axes zyx, 2 sides)
+            k = 0
+            for i, cnt, local in group:
+                ofb = of[k:k + len(local)]
+                k += len(local)
+                lo_open = np.array([ofb[local[:, a] == 0, a, 0].all() for a in range(3)])
+                hi_open = np.array([ofb[local[:, a] == cnt[a] - 1, a, 1].all() for a in range(3)])
+                ext = (cnt * B).astype(np.float64)
+                out[i] = (np.where(lo_open, -0.5, 0.0)[::-1], np.where(hi_open, ext - 0.5, ext - 1.0)[::-1])
+        return out
 
     def _occlusion_pass(self, fbo) -> None:
         """Snapshot the target for the boxes' opacity test (early ray termination across boxes)."""
