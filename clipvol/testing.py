@@ -171,6 +171,18 @@ class LoaderTests:
             for k in keys:
                 np.testing.assert_array_equal(res[k], serial[k], err_msg=f"concurrent read of {k}")
 
+    def test_read_brick_into_equals_read_brick(self, loader) -> None:
+        """The optional zero-copy ``read_brick_into`` writes exactly what ``read_brick`` returns."""
+        into = getattr(loader, "read_brick_into", None)
+        if into is None:
+            pytest.skip("loader has no read_brick_into")
+        pyr = loader.pyramid
+        for L in range(pyr.num_levels):
+            for idx in sample_bricks(pyr, L, self.bricks_per_level):
+                slot = np.full(pyr.brick_shape, 7, dtype=pyr.dtype)  # a reused slot holds stale data
+                into(L, idx, slot)
+                np.testing.assert_array_equal(slot, loader.read_brick(L, idx), err_msg=f"read_brick_into level {L} {idx}")
+
     def test_bricks_are_not_shared(self, loader) -> None:
         """Writing into a returned brick must not change what the loader returns next."""
         pyr = loader.pyramid

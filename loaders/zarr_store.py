@@ -368,10 +368,32 @@ class ZarrLoader:
             block = block.astype(self._pyramid.dtype)
         return pad_to_brick(block, self._pyramid.brick_shape)
 
-    def _read_fast(self, am: _ArrayMeta, level: int, index: Int3) -> np.ndarray:
+    def read_brick_into(self, level: int, index: Int3, out: np.ndarray) -> None:
+        """Write brick ``index`` of ``level`` into ``out`` (brick shape and dtype, C-contiguous).
+
+        The clip-texture hands its slot here: an interior brick of a blosc (or uncompressed) level
+        is decoded straight into it, saving a copy of every brick; anything else goes through
+        :meth:`read_brick` and one copy. Same contract and errors as :meth:`read_brick`.
+        """
+        index = self._pyramid.check_key(level, index)
+        pyr = self._pyramid
+        if level < self._stored and out.flags.c_contiguous and out.shape == pyr.brick_shape and out.dtype == pyr.dtype:
+            am = self._arrays[level]
+            start, stop = pyr.brick_voxel_box(level, index)
+            interior = all(e - s == b for s, e, b in zip(start, stop, pyr.brick_shape))
+            if am.fast and interior and not self._lead and am.chunks == pyr.brick_shape and am.dtype == pyr.dtype \
+                    and (am.decoder is None or am.blosc):
+                if self._read_fast(am, level, index, out.reshape(-1).view(np.uint8)) is None:
+                    out.fill(am.fill_value)  # missing chunk: an empty brick
+                return
+        out[...] = self.read_brick(level, index)
+
+    def _read_fast(self, am: _ArrayMeta, level: int, index: Int3, buf: np.ndarray | None = None) -> np.ndarray | None:
+        """Decode one chunk file; into ``buf`` (uint8, chunk bytes) when given, where a missing
+        chunk returns None instead of a filled array."""
         cpath = am.chunk_path((0,) * self._lead + tuple(index))
         nbytes = math.prod(am.chunks) * am.dtype.itemsize
-        out = np.empty(nbytes, dtype=np.uint8)
+        out = np.empty(nbytes, dtype=np.uint8) if buf is None else buf
         try:
             with open(cpath, "rb") as f:
                 if am.decoder is None:
@@ -381,6 +403,8 @@ class ZarrLoader:
                 else:
                     data = f.read()
         except FileNotFoundError:
+            if buf is not None:
+                return None
             return np.full(self._pyramid.brick_shape, am.fill_value, dtype=self._pyramid.dtype)
         except ValueError as e:
             raise self._corrupt(level, index, cpath, e) from None

@@ -264,7 +264,11 @@ def test_fast_path_equals_zarr_indexing(tmp_path, codec, dtype):
     for L in range(pyr.num_levels):
         for idx in np.ndindex(*pyr.grid(L)):
             got = loader.read_brick(L, idx)
-            np.testing.assert_array_equal(got, zarr_reference_brick(path, L, idx, pyr), err_msg=f"{codec} {L} {idx}")
+            ref = zarr_reference_brick(path, L, idx, pyr)
+            np.testing.assert_array_equal(got, ref, err_msg=f"{codec} {L} {idx}")
+            slot = np.full(pyr.brick_shape, 77, dtype=pyr.dtype)  # a reused slot holds old data
+            loader.read_brick_into(L, idx, slot)
+            np.testing.assert_array_equal(slot, ref, err_msg=f"read_brick_into {codec} {L} {idx}")
             n += 1
     assert n > 10
 
@@ -289,6 +293,9 @@ def test_missing_chunk_is_fill(tmp_path):
     loader = ZarrLoader(path)
     np.testing.assert_array_equal(loader.read_brick(0, (0, 0, 0)), np.zeros(BRICK, np.uint16))
     np.testing.assert_array_equal(loader.read_brick(0, (1, 2, 1)), np.full(BRICK, loader.pyramid.fill_value, np.uint16))
+    slot = np.full(BRICK, 9, np.uint16)
+    loader.read_brick_into(0, (1, 2, 1), slot)
+    np.testing.assert_array_equal(slot, np.full(BRICK, loader.pyramid.fill_value, np.uint16))
 
 
 @pytest.mark.parametrize("codec", ["lz4", "zstd", "none"])
