@@ -15,7 +15,7 @@ child process so that peak resident memory is that run's alone (its ``VmHWM``):
 Both read the input from the page cache (it was just written or read). The ratio is
 ``zarr time / brick time`` (bricking throughput relative to zarr's; target >= 0.7) although the
 bricker does more work (every level, 8/7 of the voxels, plus statistics). Results go to
-``docs/bench_brick.csv`` and a section of ``docs/benchmarks-brick.md``.
+``docs/bench_brick.csv`` and the bricking section of ``docs/benchmarks.md``.
 """
 
 from __future__ import annotations

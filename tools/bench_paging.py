@@ -16,7 +16,7 @@ Measured, in a child process so its peak resident memory is the clip-texture's o
 
 Run ``python -m clipvol.tools.bench_paging`` (a >= 2 GiB procedural fractal store, cached under
 ``bench-data/``) or ``--quick`` for a small run. Results go to ``docs/bench_paging.csv`` and a
-summary is printed; ``docs/benchmarks-paging.md`` discusses them.
+summary is printed; ``docs/benchmarks.md`` discusses them.
 """
 
 from __future__ import annotations
