@@ -187,7 +187,31 @@ def main(argv: list[str] | None = None) -> int:
             w.writeheader()
         w.writerow(row)
     print(f"appended to {csv_path}")
+    print(f"wrote {plot_csv(csv_path, csv_path.with_suffix('.png'))}")
     return 0
+
+
+def plot_csv(csv_path: Path, png_path: Path) -> Path:
+    """Time and peak RSS of the last run, bricking against zarr's level-0 write, from the CSV."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    row = list(csv.DictReader(open(csv_path)))[-1]
+    fig, (a, b) = plt.subplots(1, 2, figsize=(7, 3))
+    names = ["clipvol brick\n(all levels + stats)", "zarr write\n(level 0 only)"]
+    a.bar(names, [float(row["brick_s"]), float(row["zarr_level0_s"])], color=["tab:green", "tab:gray"])
+    a.set_ylabel("seconds")
+    a.set_title(f"{row['shape']} {row['dtype']}: ratio {float(row['ratio']):.2f} (target >= 0.7)", fontsize=9)
+    b.bar(names, [float(row["brick_peak_rss_MB"]), float(row["zarr_peak_rss_MB"])], color=["tab:green", "tab:gray"])
+    b.axhline(600, color="tab:red", ls="--", lw=1, label="600 MB target")
+    b.set_ylabel("peak RSS (MB)")
+    b.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(png_path, dpi=100)
+    plt.close(fig)
+    return png_path
 
 
 if __name__ == "__main__":

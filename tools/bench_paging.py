@@ -292,6 +292,34 @@ def _run_variant(ctx, store: Path, cfg: dict, threads: int, direct: bool, sync: 
     return res
 
 
+def plot_csv(csv_path: Path, png_path: Path) -> Path:
+    """Bar chart of the clip-texture's MB/s against both references, per variant, from the CSV."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = list(csv.DictReader(open(csv_path)))
+    wanted = ("cliptexture_MB_s", "zarr_arr_MB_s", "floor_MB_s", "ratio_vs_zarr", "ratio_vs_floor")
+    val = {(r["metric"], r["variant"]): float(r["value"]) for r in rows if r["metric"] in wanted}
+    variants = list(dict.fromkeys(r["variant"] for r in rows if r["variant"]))
+    series = [("cliptexture_MB_s", "ClipTexture", "tab:green"), ("zarr_arr_MB_s", "zarr-python arr[...]", "tab:gray"),
+              ("floor_MB_s", "read + numcodecs (floor)", "tab:olive")]
+    fig, ax = plt.subplots(figsize=(7, 3.2))
+    for k, (metric, label, colour) in enumerate(series):
+        xs = [i + (k - 1) * 0.27 for i in range(len(variants))]
+        ax.bar(xs, [val.get((metric, v), 0) for v in variants], width=0.27, label=label, color=colour)
+    ax.set_xticks(range(len(variants)), [f"{v}\nvs zarr {val.get(('ratio_vs_zarr', v), 0):.2f}x, "
+                                         f"vs floor {val.get(('ratio_vs_floor', v), 0):.2f}" for v in variants])
+    ax.set_ylabel("MB/s (2 threads)")
+    ax.set_title("loading bricks while roaming (2 GiB store, 256 MB budget)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(png_path, dpi=100)
+    plt.close(fig)
+    return png_path
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small store and budget (seconds)")
@@ -363,6 +391,8 @@ def main(argv: list[str] | None = None) -> int:
     for r in rows:
         print(f"{r[0]:>26} {r[3]:>4}: {r[1]} {r[2]}  {r[4]}")
     print(f"wrote {args.csv}")
+    if not args.quick:
+        print(f"wrote {plot_csv(args.csv, args.csv.with_suffix('.png'))}")
     return 0
 
 
