@@ -452,10 +452,7 @@ class ClipRenderAction:
             return cam
         lo = np.min(np.array([it.lo for it in items], dtype=np.float64), axis=0)
         hi = np.max(np.array([it.hi for it in items], dtype=np.float64), axis=0)
-        fitted = cam.fit_depth(lo, hi)
-        if not fitted.orthographic:
-            pass
-        return fitted
+        return cam.fit_depth(lo, hi)
 
     def _frame_uniforms(self, cam, tf) -> tuple[np.ndarray, np.ndarray]:
         """Set per-frame uniforms; returns the origin ``O`` (float64) and the culling matrix."""
