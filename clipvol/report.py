@@ -36,6 +36,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .errors import ClipvolError, ParameterError
+from .toroidal import minimum_budget
 from .units import format_bytes, parse_bytes
 
 __all__ = ["ReportResult", "run_report", "REPORT_COLUMNS", "DEFAULT_THRESHOLDS"]
@@ -91,24 +92,6 @@ def _holding_budget(pyr, level: int) -> int:
     """A budget that holds ``level`` and every coarser level whole, plus 2x2x2 windows below."""
     whole = sum(_level_bytes(pyr, l) for l in range(level, pyr.num_levels))
     return int(whole * 1.25) + (8 * level + 8) * pyr.brick_nbytes
-
-
-def _min_memory_budget(pyr) -> int | None:
-    from .toroidal import allocate
-
-    lo, hi = pyr.brick_nbytes, _holding_budget(pyr, 0)
-    try:
-        allocate(pyr, hi)
-    except ClipvolError:
-        return None
-    while hi - lo > pyr.brick_nbytes:
-        mid = (lo + hi) // 2
-        try:
-            allocate(pyr, mid)
-            hi = mid
-        except ClipvolError:
-            lo = mid
-    return hi
 
 
 def _metrics(img: np.ndarray, ref: np.ndarray) -> dict:
@@ -342,7 +325,7 @@ def run_report(
         settings = [_Setting("lod_threshold", f"lod={t:g}", t, full_mem, full_tex) for t in thresholds]
         total = _holding_budget(pyr, 0)
         if memory_budgets is None:
-            mmin = _min_memory_budget(pyr) or 0
+            mmin = minimum_budget(pyr)
             memory_budgets = sorted({max(total // 2, mmin), max(total // 8, mmin)}, reverse=True)
         for m in memory_budgets:
             m = parse_bytes(m, "memory_budgets")

@@ -318,13 +318,15 @@ def _cut_greedy(ctx: _Ctx, budget: int) -> None:
         _, _, key = heap[0]
         lv, b = key
         one = np.array([b], dtype=np.int64)
-        rec0 = len(ctx.rec)
+        rec0, counts0 = len(ctx.rec), dict(ctx.counts)
         c = ctx.expand(lv, one)
         c, clo, chi = ctx.cull(lv - 1, c) if len(c) else (c, np.zeros((0, 3)), np.zeros((0, 3)))
         n_out = sum(len(r[1]) for r in ctx.rec[rec0:])
         delta = (len(c) + n_out - 1) * tree.texels
         if cost + delta > budget:
-            del ctx.rec[rec0:]  # undo the out-of-window records of this refusal
+            del ctx.rec[rec0:]  # undo the out-of-window records and counts of this refusal
+            ctx.counts.clear()
+            ctx.counts.update(counts0)
             break
         heapq.heappop(heap)
         cost += delta
@@ -549,11 +551,13 @@ def select(pyramid: Pyramid, camera: Camera, params: SelectionParams = Selection
     ctx.counts["fallback"] = int(fallback.sum())
     src_lv, src_idx, reg_lv, reg_idx = _merge(tree, src_lv[drawn], src_idx[drawn], reg_lv[drawn], reg_idx[drawn])
     order = _order(tree, camera, reg_lv, reg_idx)
-    items = []
-    for i in order:
-        lo, hi = tree.boxes(int(reg_lv[i]), reg_idx[i])
-        items.append(DrawItem(int(src_lv[i]), (int(src_idx[i, 0]), int(src_idx[i, 1]), int(src_idx[i, 2])),
-                              tuple(float(v) for v in lo[0]), tuple(float(v) for v in hi[0])))
+    box_lo = np.empty((len(reg_lv), 3))
+    box_hi = np.empty((len(reg_lv), 3))
+    for L in np.unique(reg_lv):  # one vectorised call per level
+        rows = reg_lv == L
+        box_lo[rows], box_hi[rows] = tree.boxes(int(L), reg_idx[rows])
+    items = [DrawItem(int(src_lv[i]), (int(src_idx[i, 0]), int(src_idx[i, 1]), int(src_idx[i, 2])),
+                      tuple(box_lo[i].tolist()), tuple(box_hi[i].tolist())) for i in order]
     ctx.counts["texels"] = len(items) * tree.texels
     return Selection(items, wanted, ctx.counts)
 

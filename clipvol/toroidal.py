@@ -53,6 +53,7 @@ from .pyramid import Int3, Pyramid
 from .units import format_bytes
 
 __all__ = [
+    "minimum_budget",
     "Allocation",
     "allocate",
     "window_shape",
@@ -118,6 +119,12 @@ class Allocation:
         return self.slots * self.brick_nbytes
 
 
+def minimum_budget(pyramid) -> int:
+    """The smallest memory budget (bytes) :func:`allocate` accepts: a window of 2 bricks per axis
+    (fewer where a level's grid is smaller) at every level."""
+    return sum(_prod(window_shape(pyramid.grid(L), 2)) for L in range(pyramid.num_levels)) * pyramid.brick_nbytes
+
+
 def allocate(pyramid: Pyramid, memory_budget: int) -> Allocation:
     """Split ``memory_budget`` bytes into whole levels and windowed levels (module docstring).
 
@@ -133,8 +140,8 @@ def allocate(pyramid: Pyramid, memory_budget: int) -> Allocation:
     n = pyramid.num_levels
     grids = [pyramid.grid(L) for L in range(n)]
     need2 = [_prod(window_shape(g, 2)) for g in grids]
-    minimum = sum(need2) * nb
-    if slots < sum(need2):
+    minimum = minimum_budget(pyramid)
+    if slots * nb < minimum:
         raise ParameterError(
             f"memory_budget: expected at least {minimum} bytes ({format_bytes(minimum)}: a window of 2 bricks "
             f"per axis at each of {n} levels of {nb}-byte bricks), got {budget} ({format_bytes(budget)})"

@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from clipvol.errors import InputFormatError, InputNotFoundError, StoreFormatError, StoreIncompleteError
+from clipvol.errors import InputFormatError, InputNotFoundError, ParameterError, StoreFormatError, StoreIncompleteError
 from clipvol.loader import BrickKey
 from clipvol.pyramid import FILTERS, Int3, LevelInfo, Pyramid, downsample, level_shapes, level_transform, pad_to_brick, validate_dtype
 from clipvol.store import MAX_BRICK_VOXELS, MAX_VOXELS, STATS_GROUP, STAT_ARRAYS, parse_metadata
@@ -315,7 +315,10 @@ class ZarrLoader:
         return out
 
     def _ome_value_range(self, ome: dict, dtype: np.dtype) -> tuple[float, float] | None:
-        win = (ome.get("omero") or {}).get("channels", [{}])[0].get("window") if isinstance(ome.get("omero"), dict) else None
+        omero = ome.get("omero")
+        chans = omero.get("channels") if isinstance(omero, dict) else None
+        first = chans[0] if isinstance(chans, list) and chans else None
+        win = first.get("window") if isinstance(first, dict) else None  # written by other tools: trust nothing
         if isinstance(win, dict):
             try:
                 lo, hi = float(win["min"]), float(win["max"])
@@ -519,7 +522,8 @@ class ZarrLoader:
         idx = np.asarray(indices, dtype=np.int64).reshape(-1, 3)
         g = np.array(self._pyramid.grid(level))
         if np.any(idx < 0) or np.any(idx >= g):
-            raise StoreFormatError(f"brick_ranges: indices outside level {level}'s grid {tuple(g)}")
+            raise ParameterError(f"{self.path}: brick_ranges: expected indices inside level {level}'s grid {tuple(g)}, "
+                                 f"got {idx[np.any((idx < 0) | (idx >= g), axis=1)][0].tolist()}")
         t = (idx[:, 0], idx[:, 1], idx[:, 2])
         out = np.stack([stats["min"][t], stats["max"][t]], axis=1).astype(np.float64)
         # Bounds must not hide non-finite voxels: a brick of fill value plus NaN is not "empty".

@@ -389,3 +389,15 @@ def test_front_to_back_with_early_termination_equals_back_to_front_over(scenes):
     r = ref.raycast(vol, (1, 1, 1), cam.fit_depth(*a.pyramid.volume_box()), opaque.table, a.pyramid.value_range, 0.5)
     bgp = np.array([bg[0] * bg[3], bg[1] * bg[3], bg[2] * bg[3], bg[3]])
     assert diff(ib, ref.to_uint8(r + (1 - r[..., 3:4]) * bgp)).max() <= 2
+
+
+def test_merged_boxes_never_cut_rays_short(scenes):
+    """A merge whose box would need more samples per ray than the shader takes is not made."""
+    vol = (np.random.default_rng(0).random((64, 64, 64)) * 0.2).astype(np.float32)
+    tf = TransferFunction.from_points([(0.0, (1, 1, 1, 0.0)), (1.0, (1, 1, 1, 0.02))], value_range=(0, 1))
+    cam = Camera.perspective((150.0, 130.0, 170.0), (32.0, 32.0, 32.0), fov_y=30, size=(12, 12))
+    merged = scenes(vol, 8, selection="fixed", level=0, step=0.001)
+    single = scenes(vol, 8, selection="fixed", level=0, step=0.001, merge_boxes=False)
+    a, b = merged.render(cam, tf), single.render(cam, tf)
+    assert merged.action.boxes_drawn == single.action.boxes_drawn == len(single.action.last_selection.items)
+    np.testing.assert_array_equal(a, b)

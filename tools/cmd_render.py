@@ -128,15 +128,16 @@ def run(args) -> int:
     level = args.level if args.level is not None else (0 if selection == "fixed" else None)
     tf = TransferFunction.preset(args.tf, value_range=args.tf_range)
     ctx = create_context()
-    with ClipTexture(loader, args.memory_budget, args.threads, center=centre) as clip:
-        action = ClipRenderAction(ctx, clip, texture_budget=args.texture_budget, lod_threshold=args.lod_threshold,
-                                  mode=args.mode, selection=selection, level=level,
-                                  texels_per_frame=args.texels_per_frame, step=args.step, background=args.background)
-        try:
+    try:
+        with ClipTexture(loader, args.memory_budget, args.threads, center=centre) as clip, \
+                ClipRenderAction(ctx, clip, texture_budget=args.texture_budget, lod_threshold=args.lod_threshold,
+                                 mode=args.mode, selection=selection, level=level,
+                                 texels_per_frame=args.texels_per_frame, step=args.step,
+                                 background=args.background) as action:
             image = action.render(cam, tf, wait=not args.no_wait, timeout=args.timeout)
             st = action.last_frame_stats
-        finally:
-            action.close()
+    finally:
+        ctx.release()
     Image.fromarray(image, "RGBA").save(args.out)
     t = st.times
     levels = ", ".join(f"L{L}: {n}" for L, n in st.bricks_drawn.items()) or "none"

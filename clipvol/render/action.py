@@ -29,8 +29,8 @@ Per frame (:meth:`ClipRenderAction.render`):
    Between boxes, composite mode uses the selection's exact visibility order in one of two
    equivalent ways (the operator is associative). Default (``early_termination=True``): *front to
    back* (the back-to-front list reversed) with the "under" operator ``(ONE_MINUS_DST_ALPHA,
-   ONE)``; every ``len(items) / 256`` boxes (at least 2) the target is copied, and a box's fragment whose pixel is
-   already opaque in the copy returns at once - early ray termination across bricks, which a
+   ONE)``; every ``len(items) / 32`` boxes (at least every box) the target is copied, and a box's
+   fragment whose pixel is already opaque in the copy returns at once - early ray termination across bricks, which a
    one-pass ray caster gets for free and back-to-front drawing never can (5x on opaque data
    here). ``early_termination=False``: *back to front* with ``(ONE, ONE_MINUS_SRC_ALPHA)`` over
    the background, exactly as ``vzClipRenderAction``. MIP writes the largest raw value with the
@@ -56,6 +56,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ParameterError
+from ..selection import MODES as SELECTION_MODES
 from ..selection import merge_items
 from ..units import parse_bytes
 from .gpu_cache import GpuBrickCache
@@ -64,7 +65,7 @@ from .shaders import load_shader
 __all__ = ["ClipRenderAction", "FrameStats", "MODES", "SELECTIONS"]
 
 MODES = ("composite", "mip")
-SELECTIONS = ("multiresolution", "roaming", "fixed")
+SELECTIONS = SELECTION_MODES  # multiresolution, roaming, fixed (clipvol.selection.MODES)
 #: most samples one ray takes inside one box (a smaller step is refused with ParameterError)
 MAX_STEPS_PER_BOX = 1 << 16
 _MIP_EMPTY = -3.0e38
@@ -72,7 +73,7 @@ _GL_DEPTH_CLAMP = 0x864F
 #: accumulated opacity at which a ray stops early
 OPAQUE = 0.9995
 #: composite: an occlusion pass after every len(items) / OCCLUSION_PASSES boxes (at least this many)
-OCCLUSION_PASSES = 256
+OCCLUSION_PASSES = 32
 OCCLUSION_MIN_BATCH = 1
 
 # unit cube, 12 triangles wound counter-clockwise seen from outside
@@ -242,8 +243,18 @@ class ClipRenderAction:
     def _check_samples(self, cam, items) -> None:
         """Refuse (ParameterError naming ``step``) a frame whose rays would need more than
         :data:`MAX_STEPS_PER_BOX` samples inside one box, instead of cutting them short."""
+        worst = self._samples_per_box(cam, items)
+        if worst > MAX_STEPS_PER_BOX:
+            raise ParameterError(
+                f"step: expected at most {MAX_STEPS_PER_BOX} samples per ray and brick, got about {worst:.3g} with "
+                f"step {self.step} of the smallest voxel (spacing {self.pyramid.spacing}) for this view; use step >= "
+                f"{self.step * worst / MAX_STEPS_PER_BOX:.3g}"
+            )
+
+    def _samples_per_box(self, cam, items) -> float:
+        """Upper bound of the samples one ray takes inside one of ``items`` (10 % margin)."""
         if not items:
-            return
+            return 0.0
         ext = np.array([np.subtract(it.hi, it.lo) for it in items], dtype=np.float64)  # (n, 3)
         levels = np.array([it.level for it in items])
         f, u, r = (np.asarray(v, dtype=np.float64) for v in (cam.forward, cam.up, cam.right))
@@ -260,13 +271,7 @@ class ClipRenderAction:
             path = np.min(ext[:, None, :] / np.abs(dirs[None, :, :]), axis=2).max(axis=1)  # (n,)
         sp_min = float(min(self.pyramid.spacing))
         delta = np.array([self.step * sp_min * 2.0**L for L in levels])
-        worst = float(np.max(path / delta)) * 1.1
-        if worst > MAX_STEPS_PER_BOX:
-            raise ParameterError(
-                f"step: expected at most {MAX_STEPS_PER_BOX} samples per ray and brick, got about {worst:.3g} with "
-                f"step {self.step} of the smallest voxel (spacing {self.pyramid.spacing}) for this view; use step >= "
-                f"{self.step * worst / MAX_STEPS_PER_BOX:.3g}"
-            )
+        return float(np.max(path / delta)) * 1.1
 
     def _selection_params(self):
         from ..selection import SelectionParams
@@ -327,6 +332,8 @@ class ClipRenderAction:
             residency = self.cache.begin_frame(self.clip_texture, None)
             dry = select(self.pyramid, camera, params, residency=residency, shape=self.shape, transparent=transparent)
             self.cache.reserve_neighbours(dry.items)
+            if len(self.cache.pending_keys()) * self.cache.brick_texels <= self.texels_per_frame:
+                return dry  # the budget does not bind (the steady state): the real run would be the same
             allow = self.cache.plan_uploads(self.texels_per_frame, dry.items)
         residency = self.cache.begin_frame(self.clip_texture, self.texels_per_frame, allow)
         sel = select(self.pyramid, camera, params, residency=residency, shape=self.shape, transparent=transparent)
@@ -383,7 +390,8 @@ class ClipRenderAction:
             drawn = {(it.level, tuple(it.index)) for it in sel.items}
             missing = [(int(L), tuple(int(i) for i in idx)) for L, idx in sel.wanted
                        if (int(L), tuple(int(i) for i in idx)) not in drawn]
-            missing += [k for k in neighbours if k not in set(missing)]
+            seen = set(missing)
+            missing += [k for k in neighbours if k not in seen]
             waitable = [k for k in missing if self.cache.windows[k[0]] is not None
                         and not self.cache.on_gpu_mask(k[0], [k[1]])[0]
                         and bool(np.asarray(self.clip_texture.in_window_mask(k[0], np.array([k[1]])))[0])
@@ -531,9 +539,15 @@ class ClipRenderAction:
     def _draw(self, cam, tf, sel) -> tuple[np.ndarray, float, float]:
         mgl = self._moderngl
         ctx = self.ctx
-        self._check_samples(cam, sel.items)
+        items = list(sel.items)
+        if self.merge_boxes:
+            merged = merge_items(items, self.pyramid, self.cache.windows, self._may_cover())
+            if self._samples_per_box(cam, merged) <= MAX_STEPS_PER_BOX:  # else the rays would be cut
+                items = merged
+        self._check_samples(cam, items)
+        self.boxes_drawn = len(items)
         t0 = time.perf_counter()
-        cam = self._draw_camera(cam, sel.items)
+        cam = self._draw_camera(cam, items)
         w, h = cam.size
         fbo = self._ensure_fbo((int(w), int(h)))
         previous = ctx.fbo
@@ -569,8 +583,6 @@ class ClipRenderAction:
         pyr = self.pyramid
         B = np.asarray(pyr.brick_shape, dtype=np.float64)
         ref_spacing = float(min(pyr.spacing))
-        items = merge_items(sel.items, pyr, self.cache.windows, self._may_cover()) if self.merge_boxes else list(sel.items)
-        self.boxes_drawn = len(items)
         clamps = self._block_clamps(items)
         bound_level = None
         n_items = len(items)
@@ -700,7 +712,8 @@ class ClipRenderAction:
                     self._fbo_copy):
             if obj is not None:
                 obj.release()
-        self._tf_tex = self._fbo = self._fbo_copy = None
+        self._tf_tex = self._fbo = self._fbo_copy = self._fbo_color = self._default_fbo = None
+        self._vao = self._vbo = self.program = None  # a second close() releases nothing twice
 
     def __enter__(self) -> "ClipRenderAction":
         return self

@@ -47,6 +47,9 @@ from ..pyramid import Pyramid
 
 __all__ = ["GpuBrickCache", "TextureFormat", "texture_format", "allocate_gpu_windows"]
 
+#: the 27 offsets (z, y, x) of a brick's 3x3x3 neighbourhood, itself included
+_OFFSETS_27 = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij"), -1).reshape(27, 3)
+
 
 @dataclass(frozen=True, slots=True)
 class TextureFormat:
@@ -202,6 +205,7 @@ class GpuBrickCache:
         self.texels_uploaded = 0
         self.bricks_uploaded = 0
         self.total_texels_uploaded = 0
+        self._nb_cache: tuple | None = None  # (items, neighbours) of the current frame
 
     # -- per frame ---------------------------------------------------------------------------------
     def begin_frame(self, clip_texture, texels_per_frame: int | None, allow=None) -> "GpuBrickCache":
@@ -211,6 +215,7 @@ class GpuBrickCache:
         frame (the render action's coarse-first choice, see :meth:`plan_uploads`).
         """
         self._clip = clip_texture
+        self._nb_cache = None
         self._reserved = [dict() for _ in self.windows]
         self._pending = {}
         self._allow = allow
@@ -316,18 +321,27 @@ class GpuBrickCache:
                 self.resident_mask(level, nb)
 
     def _neighbours(self, items) -> dict[int, np.ndarray]:
-        """Per level, the existing same-level neighbours (26-neighbourhood) of the drawn bricks."""
+        """Per level, the existing same-level neighbours (26-neighbourhood) of the drawn bricks.
+
+        Computed once per item list (the selection's items are asked for twice per frame: to
+        reserve the neighbours, then to test convergence); unique via linear brick ids, which is
+        an order of magnitude faster than ``np.unique(axis=0)``.
+        """
+        if self._nb_cache is not None and self._nb_cache[0] is items:
+            return self._nb_cache[1]
         by_level: dict[int, list] = {}
         for it in items:
             by_level.setdefault(int(it.level), []).append(tuple(it.index))
-        offs = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij"), -1).reshape(27, 3)
         out = {}
         for level, keys in by_level.items():
             if self.windows[level] is None:
                 continue
-            idx = np.array(keys, dtype=np.int64)
-            nb = np.unique((idx[:, None, :] + offs[None]).reshape(-1, 3), axis=0)
-            out[level] = nb[np.all((nb >= 0) & (nb < np.asarray(self.pyramid.grid(level))), axis=1)]
+            grid = tuple(self.pyramid.grid(level))
+            nb = (np.array(keys, dtype=np.int64)[:, None, :] + _OFFSETS_27[None]).reshape(-1, 3)
+            nb = nb[np.all((nb >= 0) & (nb < np.asarray(grid)), axis=1)]
+            ids = np.unique(np.ravel_multi_index(nb.T, grid))
+            out[level] = np.stack(np.unravel_index(ids, grid), axis=-1).astype(np.int64)
+        self._nb_cache = (items, out)
         return out
 
     def missing_neighbours(self, items) -> list[tuple[int, tuple[int, int, int]]]:
@@ -395,7 +409,7 @@ class GpuBrickCache:
         grid = np.asarray(self.pyramid.grid(level), dtype=np.int64)
         w = np.asarray(self.windows[level], dtype=np.int64)
         keys = self._slot_key[level]
-        offs = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij"), -1).reshape(27, 3)
+        offs = _OFFSETS_27
         nb = idx[:, None, :] + offs[None]  # (n, 27, 3)
         exists = np.all((nb >= 0) & (nb < grid), axis=2)
         s = nb % w

@@ -46,6 +46,15 @@ class RenderSettings:
     max_texels_drawn: int | None = None
 
     def __post_init__(self) -> None:
+        for name in ("lod_threshold", "step"):
+            try:
+                object.__setattr__(self, name, float(getattr(self, name)))
+            except (TypeError, ValueError):
+                raise ParameterError(f"{name}: expected a number, got {getattr(self, name)!r}") from None
+        for name in ("texels_per_frame", "max_texels_drawn"):
+            v = getattr(self, name)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1):
+                raise ParameterError(f"{name}: expected None or an integer >= 1, got {v!r}")
         if not (np.isfinite(self.lod_threshold) and self.lod_threshold > 0):
             raise ParameterError(f"lod_threshold: expected a finite value > 0 pixels, got {self.lod_threshold!r}")
         if self.selection not in ("multiresolution", "roaming", "fixed"):
@@ -144,16 +153,13 @@ class RenderSession:
         old, self.settings = self.settings, new
         if replace(old, tf=new.tf) == new:
             return True
+        # the action reads these per frame: change them in place and keep its GPU cache
         a = self.action
-        if all(hasattr(a, n) for n in _LIVE):
-            # the action reads these per frame: change them in place and keep its GPU cache
-            kw = new.action_kwargs()
-            for n in _LIVE:
-                setattr(a, n, kw[n])
-            if a.texels_per_frame is not None:
-                a.texels_per_frame = max(int(a.texels_per_frame), int(np.prod(self.pyramid.brick_shape)))
-        else:
-            self._build_action()
+        kw = new.action_kwargs()
+        for n in _LIVE:
+            setattr(a, n, kw[n])
+        if a.texels_per_frame is not None:  # at least one brick per frame, as the action's constructor does
+            a.texels_per_frame = max(int(a.texels_per_frame), int(np.prod(self.pyramid.brick_shape)))
         return True
 
     @property
