@@ -404,11 +404,12 @@ def test_ctrl_c_during_offscreen_viewer(tmp_path):
     _interrupt_when(proc, lambda: (out / "frame_0003.png").exists(), timeout=120)
     t0 = time.monotonic()
     _, err = proc.communicate(timeout=60)
-    assert time.monotonic() - t0 < 30
+    took = time.monotonic() - t0
+    assert took < 30, f"{took:.1f} s to stop after SIGINT; stderr: {err[-2000:]}"
     assert proc.returncode == 130, err[-2000:]
-    assert "Traceback" not in err
+    assert "Traceback" not in err, err[-2000:]
     frames = sorted(out.glob("frame_*.png"))
-    assert 4 <= len(frames) < 2000
+    assert 4 <= len(frames) < 2000, (len(frames), err[-2000:])
     with open(out / "frames.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     # every row complete (the file was flushed and closed), one per frame written
