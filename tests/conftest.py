@@ -34,3 +34,4 @@ def gl(ctx):
     assert ctx.error == "GL_NO_ERROR"
     yield ctx
     assert ctx.error == "GL_NO_ERROR"
+

@@ -22,6 +22,7 @@ from clipvol.selection import SelectionParams, select
 from clipvol.transfer import TransferFunction
 
 import reference_raycast as ref
+from render_helpers import render_converged
 
 TF = TransferFunction.from_points([(0.0, (0, 0, 1, 0.0)), (0.4, (0, 1, 0, 0.05)), (1.0, (1, 0.3, 0, 0.35))])
 
@@ -74,11 +75,7 @@ def render(ctx, cam, vol=VOL, *, brick=8, selection="fixed", level=0, mode="comp
         action = ClipRenderAction(ctx, clip, selection=selection, level=level if selection == "fixed" else None,
                                   mode=mode, **kw)
         try:
-            for _ in range(4):  # a race in render(wait=True) can end a pass early (see test_stability_faults)
-                img = action.render(cam, TF, wait=True, timeout=20)
-                if action.last_frame_stats.converged:
-                    break
-            assert action.last_frame_stats.converged
+            img = render_converged(action, cam, TF, timeout=20)
             return img, action.last_frame_stats, action.last_selection
         finally:
             action.close()

@@ -27,6 +27,7 @@ from clipvol.cliptexture import BrickState, ClipTexture
 from clipvol.loaders.procedural import ProceduralLoader
 from clipvol.selection import SelectionParams, select
 from clipvol.transfer import TransferFunction
+from render_helpers import render_converged
 
 MOVES = 10_000
 SELECT_EVERY = 1 if os.environ.get("CLIPVOL_STABILITY_FULL") else 20
@@ -62,7 +63,7 @@ def _roam(clip: ClipTexture, pyr, rng, log: dict) -> None:
     log["final_center"] = c
 
 
-def test_random_roaming_with_teleports():
+def test_random_roaming_with_teleports(ctx):
     loader = ProceduralLoader(URL, brick=32)
     pyr = loader.pyramid
     level0 = int(np.prod(pyr.shape)) * pyr.dtype.itemsize
@@ -104,41 +105,26 @@ def test_random_roaming_with_teleports():
         elapsed = time.monotonic() - t0
         assert elapsed < 600
         final_center = log["final_center"]
-        _compare_final_render(clip, loader, final_center)
+        _compare_final_render(ctx, clip, loader, final_center)
     finally:
         assert clip.close(timeout=10)
     assert not any(t.is_alive() for t in clip._threads)
 
 
-def _compare_final_render(clip, loader, center) -> None:
-    try:
-        from clipvol.render import GLContextError, create_context
-        from clipvol.render.action import ClipRenderAction
-    except ImportError:  # pragma: no cover
-        pytest.skip("no GL render action")
-    try:
-        ctx = create_context()
-    except GLContextError as e:  # pragma: no cover
-        pytest.skip(str(e))
-    try:
-        cam = camera_for(center)
-        images = []
-        for c in (clip, ClipTexture(loader, BUDGET, threads=2, center=center)):
-            action = ClipRenderAction(ctx, c, texture_budget="64MB", lod_threshold=2.0)
-            try:
-                for _ in range(4):
-                    img = action.render(cam, TF, wait=True, timeout=60)
-                    if action.last_frame_stats.converged:
-                        break
-                assert action.last_frame_stats.converged
-                images.append(img)
-            finally:
-                action.close()
-                if c is not clip:
-                    c.close()
-        assert images[0][..., 3].max() > 0
-        d = np.abs(images[0].astype(int) - images[1].astype(int))
-        assert d.max() <= 1, f"roamed vs fresh clip-texture: max diff {d.max()}"
-        assert ctx.error == "GL_NO_ERROR"
-    finally:
-        ctx.release()
+def _compare_final_render(ctx, clip, loader, center) -> None:
+    from clipvol.render.action import ClipRenderAction
+
+    cam = camera_for(center)
+    images = []
+    for c in (clip, ClipTexture(loader, BUDGET, threads=2, center=center)):
+        action = ClipRenderAction(ctx, c, texture_budget="64MB", lod_threshold=2.0)
+        try:
+            images.append(render_converged(action, cam, TF))
+        finally:
+            action.close()
+            if c is not clip:
+                c.close()
+    assert images[0][..., 3].max() > 0
+    d = np.abs(images[0].astype(int) - images[1].astype(int))
+    assert d.max() <= 1, f"roamed vs fresh clip-texture: max diff {d.max()}"
+    assert ctx.error == "GL_NO_ERROR"

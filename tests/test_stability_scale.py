@@ -23,6 +23,7 @@ from clipvol.geometry import Shape
 from clipvol.loaders.numpy_array import NumpyLoader
 from clipvol.loaders.procedural import ProceduralLoader
 from clipvol.transfer import TransferFunction
+from render_helpers import render_converged
 
 pytestmark = pytest.mark.gl
 
@@ -44,11 +45,7 @@ def _render(ctx, loader, cam, **kw):
     with ClipTexture(loader, "32MB", threads=2, center=center) as clip:
         action = ClipRenderAction(ctx, clip, **kw)
         try:
-            for _ in range(4):
-                img = action.render(cam, tf, wait=True, timeout=60)
-                if action.last_frame_stats.converged:
-                    break
-            assert action.last_frame_stats.converged
+            img = render_converged(action, cam, tf)
             return img, action.last_frame_stats
         finally:
             action.close()

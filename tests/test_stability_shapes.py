@@ -19,6 +19,7 @@ from clipvol.loaders.zarr_store import ZarrLoader
 from clipvol.transfer import TransferFunction
 
 import reference_raycast as ref
+from render_helpers import render_converged
 
 TF = TransferFunction.preset("viridis")
 
@@ -109,11 +110,7 @@ def _render(ctx, loader, cam, mode, step=0.5):
         assert clip.wait_until_idle(timeout=30)
         action = ClipRenderAction(ctx, clip, mode=mode, selection="fixed", level=0, step=step)
         try:
-            for _ in range(4):  # a race in render(wait=True) can end a pass early (see test_stability_faults)
-                img = action.render(cam, TF, wait=True, timeout=20)
-                if action.last_frame_stats.converged:
-                    break
-            assert action.last_frame_stats.converged
+            img = render_converged(action, cam, TF, timeout=20)
             return img
         finally:
             action.close()
