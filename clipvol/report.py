@@ -106,20 +106,6 @@ def _metrics(img: np.ndarray, ref: np.ndarray) -> dict:
     }
 
 
-def _bricks(stats, brick_voxels: int) -> int:
-    """Distinct bricks a frame drew.
-
-    ``bricks_drawn`` counts draw items, and an ancestor standing in for several missing children
-    is one item per child octant; ``texels_drawn`` counts each distinct brick once.
-    """
-    texels = getattr(stats, "texels_drawn", None)
-    if texels is not None:
-        return int(texels) // int(brick_voxels)
-    from .viewer.hud import level_counts
-
-    return int(sum(level_counts(getattr(stats, "bricks_drawn", None)).values()))
-
-
 def _row(s: _Setting, view: int, kind: str, frame: int, **values) -> dict:
     row = {
         "sweep": s.sweep, "setting": s.label, "lod_threshold": s.lod_threshold, "memory_budget": s.memory_budget,
@@ -145,7 +131,7 @@ def _settle(sess, cam, coi, timeout: float, max_passes: int = 32) -> int:
     for _ in range(max_passes):
         sess.render(cam, coi, wait=False)
         fs = sess.frame_stats
-        up = int(getattr(fs, "bytes_uploaded", 0) or 0)
+        up = fs.bytes_uploaded
         uploaded += up
         if fs.converged or up == 0 or time.perf_counter() > t_end:
             break
@@ -159,7 +145,6 @@ def _run_setting(s: _Setting, loader, ctx, views, refs, *, tf, mode, step, threa
     settings = RenderSettings(lod_threshold=s.lod_threshold, selection=s.selection, level=s.level, mode=mode, tf=tf, step=step)
     rows: list[dict] = []
     brick_bytes = loader.pyramid.brick_nbytes
-    brick_voxels = int(np.prod(loader.pyramid.brick_shape))
     with RenderSession(loader, ctx, memory_budget=s.memory_budget, texture_budget=s.texture_budget,
                        threads=threads, settings=settings) as sess:
         for v, (cam, coi) in enumerate(views):
@@ -173,13 +158,13 @@ def _run_setting(s: _Setting, loader, ctx, views, refs, *, tf, mode, step, threa
             for k in range(max_frames):
                 img, dt = sess.timed_render(cam, coi, wait=False)
                 fs = sess.frame_stats
-                uploaded += int(getattr(fs, "bytes_uploaded", 0) or 0)
-                conv = bool(getattr(fs, "converged", False))
+                uploaded += fs.bytes_uploaded
+                conv = fs.converged
                 if ref is not None:
                     rows.append(_row(
                         s, v, "as-it-comes", k, elapsed_s=round(time.perf_counter() - t_view, 6), frame_s=round(dt, 6),
-                        converged=int(conv), bricks_drawn=_bricks(fs, brick_voxels), texels_drawn=int(getattr(fs, "texels_drawn", 0) or 0),
-                        bytes_needed=_bricks(fs, brick_voxels) * brick_bytes, bytes_loaded=int(sess.texture_stats.bytes_loaded) - loaded0,
+                        converged=int(conv), bricks_drawn=fs.bricks_distinct, texels_drawn=fs.texels_drawn,
+                        bytes_needed=fs.bricks_distinct * brick_bytes, bytes_loaded=int(sess.texture_stats.bytes_loaded) - loaded0,
                         bytes_uploaded=uploaded, resident_mb=round(sess.texture_stats.resident_bytes / 1e6, 3),
                         **_metrics(img, ref),
                     ))
@@ -196,8 +181,8 @@ def _run_setting(s: _Setting, loader, ctx, views, refs, *, tf, mode, step, threa
             fs = sess.frame_stats
             values = dict(
                 elapsed_s=round(time.perf_counter() - t_view, 6), frame_s=round(dt, 6), converge_s=round(converge_s, 6),
-                converged=int(bool(getattr(fs, "converged", False))), bricks_drawn=_bricks(fs, brick_voxels),
-                texels_drawn=int(getattr(fs, "texels_drawn", 0) or 0), bytes_needed=_bricks(fs, brick_voxels) * brick_bytes,
+                converged=int(fs.converged), bricks_drawn=fs.bricks_distinct,
+                texels_drawn=fs.texels_drawn, bytes_needed=fs.bricks_distinct * brick_bytes,
                 bytes_loaded=int(sess.texture_stats.bytes_loaded) - loaded0, bytes_uploaded=uploaded,
                 resident_mb=round(sess.texture_stats.resident_bytes / 1e6, 3),
             )

@@ -102,7 +102,9 @@ class FrameStats:
     Attributes
     ----------
     bricks_drawn : dict[int, int]
-        Draw items per level.
+        Draw items per level (an ancestor drawn over several missing children counts once per child).
+    bricks_distinct : int
+        Distinct bricks drawn (each brick once, however many items sample it).
     texels_drawn : int
         Voxels of the bricks drawn (a sub-box drawn from an ancestor counts its whole brick once).
     bytes_uploaded, bricks_uploaded : int
@@ -120,6 +122,7 @@ class FrameStats:
     """
 
     bricks_drawn: dict[int, int]
+    bricks_distinct: int
     texels_drawn: int
     bytes_uploaded: int
     bricks_uploaded: int
@@ -409,18 +412,13 @@ class ClipRenderAction:
         times["draw"], times["readback"] = draw_t, read_t
         times["total"] = time.perf_counter() - t_start
         per_level: dict[int, int] = {}
-        texels = 0
-        bt = self.cache.brick_texels
-        seen = set()
         for it in sel.items:
             per_level[it.level] = per_level.get(it.level, 0) + 1
-            k = (it.level, tuple(it.index))
-            if k not in seen:
-                seen.add(k)
-                texels += bt
+        distinct = len({(it.level, tuple(it.index)) for it in sel.items})
         self.last_selection = sel
         self.last_frame_stats = FrameStats(
-            bricks_drawn=dict(sorted(per_level.items())), texels_drawn=texels, bytes_uploaded=up_bytes,
+            bricks_drawn=dict(sorted(per_level.items())), bricks_distinct=distinct,
+            texels_drawn=distinct * self.cache.brick_texels, bytes_uploaded=up_bytes,
             bricks_uploaded=up_bricks, texture_bytes=self.cache.texture_bytes, texture_budget=self.texture_budget,
             times=times, converged=converged, passes=passes, items_drawn=len(sel.items), counts=dict(sel.counts),
         )

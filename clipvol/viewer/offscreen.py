@@ -22,7 +22,6 @@ from typing import Callable
 import numpy as np
 
 from ..errors import ParameterError
-from .hud import level_counts
 from .session import RenderSession, RenderSettings
 
 __all__ = ["PathResult", "render_path", "frame_row", "save_gif", "CSV_BASE_COLUMNS"]
@@ -48,23 +47,22 @@ def frame_row(session: RenderSession, frame: int, frame_s: float, elapsed_s: flo
     """One CSV row of statistics for the frame just rendered by ``session``."""
     fs = session.frame_stats
     ts = session.texture_stats
-    per_level = level_counts(getattr(fs, "bricks_drawn", None))
-    loaded_total = int(getattr(ts, "bytes_loaded", 0) or 0)
     row = {
         "frame": frame,
         "frame_s": round(frame_s, 6),
         "elapsed_s": round(elapsed_s, 6),
-        "converged": int(bool(getattr(fs, "converged", False))),
-        "bricks_drawn": int(sum(per_level.values())),
-        "texels_drawn": int(getattr(fs, "texels_drawn", 0) or 0),
-        "bytes_loaded": loaded_total - int(bytes_before),
-        "bytes_loaded_total": loaded_total,
-        "bytes_uploaded": int(getattr(fs, "bytes_uploaded", 0) or 0),
-        "resident_mb": round(int(getattr(ts, "resident_bytes", 0) or 0) / 1e6, 3),
-        "queued": int(getattr(ts, "queued", 0) or 0),
+        "converged": int(fs.converged),
+        "bricks_drawn": fs.bricks_distinct,  # distinct bricks, as in the report's CSV
+        "texels_drawn": fs.texels_drawn,
+        "bytes_loaded": ts.bytes_loaded - int(bytes_before),
+        "bytes_loaded_total": ts.bytes_loaded,
+        "bytes_uploaded": fs.bytes_uploaded,
+        "resident_mb": round(ts.resident_bytes / 1e6, 3),
+        "queued": ts.queued,
     }
-    for L in range(session.pyramid.num_levels):
-        row[f"bricks_L{L}"] = int(per_level.get(L, 0))
+    distinct = {(it.level, tuple(it.index)) for it in session.last_items()}
+    for L in range(session.pyramid.num_levels):  # distinct bricks per level: they add up to bricks_drawn
+        row[f"bricks_L{L}"] = sum(1 for lv, _ in distinct if lv == L)
     return row
 
 

@@ -207,17 +207,9 @@ class RenderSession:
         return self.clip_texture.stats
 
     def last_items(self) -> list:
-        """The draw items of the last frame (for brick outlines), if the action exposes them."""
-        a = self.action
-        for name in ("last_selection", "selection_result", "_last_selection"):
-            sel = getattr(a, name, None)
-            if sel is not None and hasattr(sel, "items"):
-                return list(sel.items)
-        for name in ("last_items", "_last_items"):
-            items = getattr(a, name, None)
-            if items is not None:
-                return list(items)
-        return []
+        """The draw items of the last frame (for brick outlines); empty before the first frame."""
+        sel = getattr(self.action, "last_selection", None)
+        return list(sel.items) if sel is not None else []
 
     def close(self) -> None:
         """Release the render action's GL resources, then stop the loader threads."""
