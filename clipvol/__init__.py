@@ -18,25 +18,25 @@ __version__ = "0.1.0"
 
 _LAZY = {
     # contracts and geometry
-    "Loader": "clipvol.loader",
-    "HasBrickRanges": "clipvol.loader",
-    "BrickKey": "clipvol.loader",
-    "Pyramid": "clipvol.pyramid",
-    "LevelInfo": "clipvol.pyramid",
+    "Loader": "clipvol.paging.loader",
+    "HasBrickRanges": "clipvol.paging.loader",
+    "BrickKey": "clipvol.paging.loader",
+    "Pyramid": "clipvol.bricking.pyramid",
+    "LevelInfo": "clipvol.bricking.pyramid",
     "parse_bytes": "clipvol.units",
     # paging
-    "ClipTexture": "clipvol.cliptexture",
-    "BrickState": "clipvol.cliptexture",
-    "open_store": "clipvol.open",
+    "ClipTexture": "clipvol.paging.cliptexture",
+    "BrickState": "clipvol.paging.cliptexture",
+    "open_store": "clipvol.paging.open",
     # rendering (pure numpy parts)
-    "Camera": "clipvol.camera",
-    "TransferFunction": "clipvol.transfer",
-    "Shape": "clipvol.geometry",
+    "Camera": "clipvol.scene.camera",
+    "TransferFunction": "clipvol.scene.transfer",
+    "Shape": "clipvol.scene.geometry",
     # rendering (GL)
     "create_context": "clipvol.render.context",
     "ClipRenderAction": "clipvol.render.action",
     # preprocessing
-    "brick_volume": "clipvol.brick",
+    "brick_volume": "clipvol.bricking.pipeline",
 }
 
 __all__ = sorted(_LAZY) + ["__version__"]
@@ -56,14 +56,14 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .camera import Camera
-    from .cliptexture import BrickState, ClipTexture
-    from .geometry import Shape
-    from .loader import BrickKey, HasBrickRanges, Loader
-    from .open import open_store
-    from .pyramid import LevelInfo, Pyramid
+    from .scene.camera import Camera
+    from .paging.cliptexture import BrickState, ClipTexture
+    from .scene.geometry import Shape
+    from .paging.loader import BrickKey, HasBrickRanges, Loader
+    from .paging.open import open_store
+    from .bricking.pyramid import LevelInfo, Pyramid
     from .render.action import ClipRenderAction
     from .render.context import create_context
-    from .transfer import TransferFunction
+    from .scene.transfer import TransferFunction
     from .units import parse_bytes
-    from .brick import brick_volume
+    from .bricking.pipeline import brick_volume

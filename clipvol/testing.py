@@ -1,6 +1,6 @@
 """``LoaderTests``: the conformance suite for loaders - bundled ones and yours.
 
-Custom loaders are a product feature, so the contract in :mod:`clipvol.loader` is checked by a
+Custom loaders are a product feature, so the contract in :mod:`clipvol.paging.loader` is checked by a
 reusable pytest class (in the manner of zarr-python's ``zarr.testing.store.StoreTests``).
 Subclass it in a test module and provide two fixtures::
 
@@ -19,7 +19,7 @@ Subclass it in a test module and provide two fixtures::
 
 Every test reads only a few bricks per level (corners, centre, edges), so the suite stays fast
 on large virtual volumes. Each check compares against an independent numpy computation:
-level 0 against ``reference``; coarse levels against :func:`clipvol.pyramid.downsample` of the
+level 0 against ``reference``; coarse levels against :func:`clipvol.bricking.pyramid.downsample` of the
 finer level assembled from its bricks; edge padding against :func:`numpy.pad` in ``edge`` mode.
 
 Class attributes a subclass may override: ``check_filter = False`` when the stored coarse levels
@@ -35,8 +35,8 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
-from .loader import HasBrickRanges, Loader, check_brick
-from .pyramid import Pyramid, downsample, level_shapes
+from .paging.loader import HasBrickRanges, Loader, check_brick
+from .bricking.pyramid import Pyramid, downsample, level_shapes
 
 __all__ = ["LoaderTests", "sample_bricks"]
 
@@ -62,7 +62,7 @@ def _valid(pyramid: Pyramid, level: int, index) -> tuple[slice, ...]:
 
 
 class LoaderTests:
-    """Conformance tests for a :class:`~clipvol.loader.Loader` (see the module docstring)."""
+    """Conformance tests for a :class:`~clipvol.paging.loader.Loader` (see the module docstring)."""
 
     check_filter: bool = True
     rtol: float = 1e-5

@@ -1,1 +1,1 @@
-"""Bundled data loaders (importable as ``clipvol.loaders``); see :mod:`clipvol.loader` for the contract."""
+"""Bundled data loaders (importable as ``clipvol.loaders``); see :mod:`clipvol.paging.loader` for the contract."""

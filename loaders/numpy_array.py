@@ -3,7 +3,7 @@
 For a quick look at data that is already an array: level 0 bricks are slices of the array, and
 coarser levels are computed on demand. A brick ``(L, b)`` covers the level-0 region
 ``[b * B * 2**L, (b + 1) * B * 2**L)`` (clipped to the volume); applying
-:func:`clipvol.pyramid.downsample` ``L`` times to that region gives exactly the brick of the
+:func:`clipvol.bricking.pyramid.downsample` ``L`` times to that region gives exactly the brick of the
 full-volume recursive down-sample, because the region starts on a multiple of ``2**L`` and has
 an even extent at every intermediate level except at the volume's end, where the global
 down-sample does the same edge replication. Coarse levels that are small (at most
@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from clipvol.errors import InputFormatError, InputNotFoundError, ParameterError
-from clipvol.pyramid import FILTERS, Int3, Pyramid, downsample, pad_to_brick, validate_dtype
+from clipvol.bricking.pyramid import FILTERS, Int3, Pyramid, downsample, pad_to_brick, validate_dtype
 
 __all__ = ["NumpyLoader", "finite_range"]
 

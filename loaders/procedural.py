@@ -1,10 +1,10 @@
 """Procedural volumes as a loader: synthetic data of any size (2**20 voxels per axis and more).
 
-Every brick of every level is evaluated directly by :mod:`clipvol.procedural` (the generators
+Every brick of every level is evaluated directly by :mod:`clipvol.bricking.generators` (the generators
 are exact with respect to the ``mean`` filter, so coarse levels equal what ``clipvol brick``
 would compute from level 0), without ever touching level 0. That makes these loaders the test
 bed for huge virtual volumes and for paging without any I/O. ``sparse`` volumes also know value
-bounds per brick analytically (:class:`~clipvol.loader.HasBrickRanges`), so the renderer can skip
+bounds per brick analytically (:class:`~clipvol.paging.loader.HasBrickRanges`), so the renderer can skip
 empty bricks without evaluating them.
 """
 
@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from clipvol.errors import ParameterError
-from clipvol.procedural import Generator, Sparse, parse_procedural
-from clipvol.pyramid import Int3, Pyramid, pad_to_brick
+from clipvol.bricking.generators import Generator, Sparse, parse_procedural
+from clipvol.bricking.pyramid import Int3, Pyramid, pad_to_brick
 
 __all__ = ["ProceduralLoader"]
 
@@ -26,7 +26,7 @@ class ProceduralLoader:
     ----------
     url_or_generator : str or Generator
         ``procedural:fractal?size=256&seed=1``, ``procedural:sparse?size=1048576&count=50``, or a
-        :class:`clipvol.procedural.Generator`.
+        :class:`clipvol.bricking.generators.Generator`.
     brick : int or (int, int, int)
         Brick shape.
     spacing : (float, float, float)

@@ -8,7 +8,7 @@ It builds (once, cached under ``bench-data/``) a uint16 ``.npy`` input of ``size
 procedural fractal scaled to the uint16 range, 2 GiB at the default 1024 - then, each in its own
 child process so that peak resident memory is that run's alone (its ``VmHWM``):
 
-1. bricks it with :func:`clipvol.brick.brick_volume` (all levels, statistics, ``workers`` threads);
+1. bricks it with :func:`clipvol.bricking.pipeline.brick_volume` (all levels, statistics, ``workers`` threads);
 2. writes the same level 0 with zarr-python alone: same chunks and codec, ``arr[z0:z1] = slab``
    slab by slab with ``zarr.config.set({'threading.max_workers': workers})``.
 
@@ -47,7 +47,7 @@ def _hwm_mb():
 _BRICK_CHILD = _HWM + r"""
 import json, sys, time
 import numcodecs, tqdm, zarr  # imported before the clock starts, as in the zarr child
-from clipvol.brick import brick_volume
+from clipvol.bricking.pipeline import brick_volume
 a = json.loads(sys.argv[1])
 t, c = time.perf_counter(), time.process_time()
 brick_volume(a["input"], a["output"], brick=a["brick"], codec=a["codec"], workers=a["workers"], overwrite=True, progress=False)
@@ -57,7 +57,7 @@ print(json.dumps({"seconds": time.perf_counter() - t, "cpu": time.process_time()
 _ZARR_CHILD = _HWM + r"""
 import json, sys, time
 import numpy as np, zarr
-from clipvol.brick import store_codecs
+from clipvol.bricking.pipeline import store_codecs
 a = json.loads(sys.argv[1])
 src = np.load(a["input"], mmap_mode="r")
 b = a["brick"]
@@ -76,7 +76,7 @@ print(json.dumps({"seconds": time.perf_counter() - t, "cpu": time.process_time()
 
 def make_input(size: int, data_dir: Path) -> Path:
     """The cached uint16 input of ``size``^3 voxels (procedural fractal scaled to 0..65535)."""
-    from clipvol.procedural import parse_procedural
+    from clipvol.bricking.generators import parse_procedural
 
     path = data_dir / f"fractal_{size}_uint16.npy"
     if path.exists():

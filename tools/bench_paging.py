@@ -39,8 +39,8 @@ QUICK = {"size": "96x192x192", "brick": 32, "budget": "12MB"}
 
 
 def build_store(size: str, brick: int, data_dir: Path) -> Path:
-    """The procedural fractal bricked with ``clipvol.brick.brick_volume`` (cached by size and brick)."""
-    from clipvol.brick import brick_volume
+    """The procedural fractal bricked with ``clipvol.bricking.pipeline.brick_volume`` (cached by size and brick)."""
+    from clipvol.bricking.pipeline import brick_volume
 
     path = data_dir / f"fractal-{size}-b{brick}.zarr"
     attrs = path / "zarr.json"
@@ -121,7 +121,7 @@ def _vm_hwm() -> int:
 
 def _entering(ct, before: list) -> list:
     """Bricks ``(level, index)`` in the clip-texture's windows now that were not in ``before``."""
-    from clipvol.toroidal import window_diff
+    from clipvol.paging.toroidal import window_diff
 
     keys = []
     for L, old in enumerate(before):
@@ -141,7 +141,7 @@ def roam_child(store: str, budget: str, threads: int, out_q, go_q, direct: bool 
     import numpy as np
     import psutil
 
-    from clipvol.cliptexture import ClipTexture
+    from clipvol.paging.cliptexture import ClipTexture
     from clipvol.loaders.zarr_store import ZarrLoader
 
     loader = _Recording(ZarrLoader(store) if direct else _CopyOnly(ZarrLoader(store)))

@@ -6,7 +6,7 @@ noise of a shared machine cancels as far as it can:
 * **multiresolution vs full resolution** - the same view of a >= 1 GiB store rendered with
   ``selection="multiresolution", lod_threshold=1`` and with ``selection="fixed", level=0``;
   warm frames (every brick already on the GPU), median of ``--repeat``. Target >= 5x faster at
-  <= 5 % of pixels with CIELUV Delta E >= 6 (``clipvol.metrics``), PSNR reported too.
+  <= 5 % of pixels with CIELUV Delta E >= 6 (``clipvol.scene.metrics``), PSNR reported too.
 * **bytes loaded for the view** - the bricks the multiresolution view wants (what a cold
   clip-texture must load before the frame converges) against the level-0 bricks in the frustum.
   Target >= 8x fewer. The clip-texture's own ``bytes_loaded`` at convergence (it also pre-loads
@@ -47,7 +47,7 @@ class _WholeVolume:
     """A loader that serves level 0 of another loader as one brick (for the one-pass caster)."""
 
     def __init__(self, loader) -> None:
-        from clipvol.pyramid import Pyramid
+        from clipvol.bricking.pyramid import Pyramid
 
         p = loader.pyramid
         self._src = loader
@@ -152,13 +152,13 @@ def main(argv: list[str] | None = None) -> int:
 
     from PIL import Image
 
-    from clipvol.camera import Camera
-    from clipvol.cliptexture import ClipTexture
-    from clipvol.metrics import percent_delta_e, psnr
-    from clipvol.open import open_store
+    from clipvol.scene.camera import Camera
+    from clipvol.paging.cliptexture import ClipTexture
+    from clipvol.scene.metrics import percent_delta_e, psnr
+    from clipvol.paging.open import open_store
     from clipvol.render import create_context
     from clipvol.render.action import ClipRenderAction
-    from clipvol.transfer import TransferFunction
+    from clipvol.scene.transfer import TransferFunction
 
     if args.quick:
         source, kw = "procedural:fractal?size=96x192x192", {"brick": 32}

@@ -42,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import time
 
-    from clipvol.brick import brick_volume
+    from clipvol.bricking.pipeline import brick_volume
     from clipvol.units import format_bytes
 
     spacing = _triple(args.spacing, "spacing") if args.spacing else None

@@ -1,7 +1,7 @@
 """Validate a clipvol store: metadata, the filter on a sample of bricks per level, their statistics.
 
 For each level a seeded random sample of bricks is read; a level ``L >= 1`` brick is compared
-exactly (NaN-aware) with :func:`clipvol.pyramid.downsample` of the level ``L - 1`` voxels it
+exactly (NaN-aware) with :func:`clipvol.bricking.pyramid.downsample` of the level ``L - 1`` voxels it
 summarises, and every sampled brick's statistics are recomputed and compared. A failure prints
 ``level L brick (z, y, x): what is wrong`` and exits with status 1.
 """
@@ -39,8 +39,8 @@ def check_brick(group, pyr, stats, L: int, idx) -> list[str]:
     """Problems found with brick ``(L, idx)`` (empty when it is sound)."""
     import numpy as np
 
-    from clipvol.pyramid import downsample
-    from clipvol.store import STATS_GROUP
+    from clipvol.bricking.pyramid import downsample
+    from clipvol.bricking.store import STATS_GROUP
 
     problems = []
     start, stop = pyr.brick_voxel_box(L, idx)
@@ -93,8 +93,8 @@ def run(args: argparse.Namespace) -> int:
     import zarr
 
     from clipvol.errors import ParameterError
-    from clipvol.stats import StatsComputer
-    from clipvol.store import open_store_meta
+    from clipvol.bricking.stats import StatsComputer
+    from clipvol.bricking.store import open_store_meta
 
     if args.samples < 1:
         raise ParameterError(f"--samples: expected an integer >= 1, got {args.samples}")

@@ -2,9 +2,9 @@
 
 ``clipvol demo`` (no arguments) builds a 192^3 procedural volume - the ``fractal`` generator
 (detail at every scale) shaped into a ball so the octree has empty bricks to skip - bricks it into
-``./clipvol-demo/fractal-ball.zarr`` with :func:`clipvol.brick.brick_volume` (32^3 bricks),
+``./clipvol-demo/fractal-ball.zarr`` with :func:`clipvol.bricking.pipeline.brick_volume` (32^3 bricks),
 renders an orbit flythrough with the multiresolution renderer to ``orbit.gif``, a zoom onto a
-point with brick outlines coloured by level (frames as they come) to ``zoom.gif``, runs :func:`clipvol.report.run_report` into
+point with brick outlines coloured by level (frames as they come) to ``zoom.gif``, runs :func:`clipvol.app.report.run_report` into
 ``clipvol-demo/report/`` and prints where everything is. ``--quick`` does a tiny version in seconds
 (used by the tests). Re-running reuses a finished store.
 """
@@ -28,15 +28,15 @@ DEMO_TF_POINTS = (
 
 
 def demo_transfer_function():
-    """The demo's :class:`~clipvol.transfer.TransferFunction` (over the data's value range)."""
-    from clipvol.transfer import TransferFunction
+    """The demo's :class:`~clipvol.scene.transfer.TransferFunction` (over the data's value range)."""
+    from clipvol.scene.transfer import TransferFunction
 
     return TransferFunction.from_points(DEMO_TF_POINTS)
 
 
 def demo_volume(n: int, seed: int = 3, slab: int = 32) -> np.ndarray:
     """``(n, n, n)`` float32: the procedural fractal times a soft ball envelope (computed in z-slabs)."""
-    from clipvol.procedural import Fractal
+    from clipvol.bricking.generators import Fractal
 
     gen = Fractal((n, n, n), seed=seed)
     c = (np.arange(n) + 0.5) / n * 2.0 - 1.0
@@ -61,7 +61,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _store_ok(path: Path, n: int) -> bool:
     from clipvol.errors import ClipvolError
-    from clipvol.open import open_store
+    from clipvol.paging.open import open_store
 
     try:
         return open_store(path).pyramid.shape == (n, n, n)
@@ -70,11 +70,11 @@ def _store_ok(path: Path, n: int) -> bool:
 
 
 def run(args) -> int:
-    from clipvol.brick import brick_volume
+    from clipvol.bricking.pipeline import brick_volume
     from clipvol.errors import ParameterError
-    from clipvol.report import run_report
-    from clipvol.viewer.offscreen import render_path
-    from clipvol.viewer.session import RenderSettings, open_loader
+    from clipvol.app.report import run_report
+    from clipvol.app.flythrough import render_path
+    from clipvol.app.session import RenderSettings, open_loader
 
     quick = bool(args.quick)
     n = args.size or (40 if quick else 192)
@@ -104,7 +104,7 @@ def run(args) -> int:
     ctx = create_context()
     try:
         t1 = time.perf_counter()
-        from clipvol.paths import fit_distance
+        from clipvol.scene.paths import fit_distance
 
         # the ball fills the cube's inscribed sphere: come closer than the cube's bounding sphere
         dist = 0.75 * fit_distance(loader.pyramid, 35.0, size)
@@ -133,7 +133,7 @@ def run(args) -> int:
         print(f"  report  {report.markdown}  ({t_report:.1f} s)")
         for p in report.plots:
             print(f"          {p}")
-        from clipvol.report import summarise
+        from clipvol.app.report import summarise
 
         for s in summarise(report.rows):
             if s["sweep"] in ("fixed", "lod_threshold"):

@@ -24,7 +24,7 @@ def _dir_bytes(path) -> tuple[int, int]:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from clipvol.store import open_store_meta
+    from clipvol.bricking.store import open_store_meta
     from clipvol.units import format_bytes
 
     path = Path(args.store)

@@ -73,7 +73,7 @@ def view_camera(pyramid, view: str, size, *, eye=None, target=None, up=None, fov
     """The camera of a preset ``view`` (or an explicit ``eye``) looking at ``target`` (default: the centre)."""
     import numpy as np
 
-    from clipvol.camera import Camera
+    from clipvol.scene.camera import Camera
 
     lo, hi = pyramid.volume_box()
     centre = (lo + hi) / 2.0
@@ -106,11 +106,11 @@ def run(args) -> int:
     import numpy as np
     from PIL import Image
 
-    from clipvol.cliptexture import ClipTexture
-    from clipvol.open import open_store
+    from clipvol.paging.cliptexture import ClipTexture
+    from clipvol.paging.open import open_store
     from clipvol.render import create_context
     from clipvol.render.action import ClipRenderAction
-    from clipvol.transfer import TransferFunction
+    from clipvol.scene.transfer import TransferFunction
     from clipvol.units import format_bytes
 
     if not str(args.out).lower().endswith(".png"):

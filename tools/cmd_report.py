@@ -4,7 +4,7 @@
 come, for each setting; compares each frame with the full-resolution render of the same view
 (% pixels with ΔE ≥ 6 in CIELUV, RMSE, PSNR) and writes ``report.csv``, plots of error against
 frame time and bytes, and ``report.md`` with fixed-vs-multiresolution tables. The work is done by
-:func:`clipvol.report.run_report`.
+:func:`clipvol.app.report.run_report`.
 """
 
 from __future__ import annotations
@@ -51,11 +51,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from clipvol.report import run_report
-    from clipvol.viewer.session import open_loader
+    from clipvol.app.report import run_report
+    from clipvol.app.session import open_loader
 
     from clipvol.errors import ParameterError
-    from clipvol.transfer import TransferFunction
+    from clipvol.scene.transfer import TransferFunction
 
     tf = args.tf
     if tf == "demo":

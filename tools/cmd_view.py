@@ -58,7 +58,7 @@ def run(args) -> int:
     from dataclasses import replace
 
     from clipvol.errors import ParameterError
-    from clipvol.viewer.session import RenderSettings, open_loader
+    from clipvol.app.session import RenderSettings, open_loader
 
     if args.frames < 1:
         raise ParameterError(f"--frames: expected >= 1, got {args.frames}")
@@ -66,7 +66,7 @@ def run(args) -> int:
         lod_threshold=args.lod_threshold, selection=args.selection, level=args.level, mode=args.mode, tf=args.tf,
         step=args.step, texels_per_frame=args.texels_per_frame,
     )
-    from clipvol.transfer import TransferFunction
+    from clipvol.scene.transfer import TransferFunction
 
     if args.tf == "demo":
         from clipvol.tools.cmd_demo import demo_transfer_function
@@ -79,7 +79,7 @@ def run(args) -> int:
     if settings.level is not None and settings.level >= loader.pyramid.num_levels:
         raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {settings.level}")
     if args.offscreen:
-        from clipvol.viewer.offscreen import render_path
+        from clipvol.app.flythrough import render_path
 
         def show(row: dict) -> None:
             print(f"frame {row['frame']:4d}  {row['frame_s'] * 1e3:7.1f} ms  {row['bricks_drawn']:5d} bricks  "

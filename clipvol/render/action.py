@@ -2,20 +2,20 @@
 
 Per frame (:meth:`ClipRenderAction.render`):
 
-1. **Select** - :func:`clipvol.selection.select` walks the octree from the coarsest level with a
+1. **Select** - :func:`clipvol.scene.selection.select` walks the octree from the coarsest level with a
    residency object that is the :class:`~clipvol.render.gpu_cache.GpuBrickCache`: a brick is
    drawable if it is on the GPU, or in the clip-texture's RAM and still inside this frame's
    ``texels_per_frame`` upload budget. Bricks the transfer function makes fully transparent are
-   culled from the loader's per-brick value ranges (:class:`clipvol.loader.HasBrickRanges`) without
+   culled from the loader's per-brick value ranges (:class:`clipvol.paging.loader.HasBrickRanges`) without
    being read (composite mode only: in MIP a transparent value can still be the maximum).
 2. **Upload** - :meth:`GpuBrickCache.commit`, the one place that writes textures: sub-loads of the
    newly selected bricks into their toroidal slots of the per-level 3D textures.
-3. **Draw** - one proxy box per :class:`~clipvol.selection.DrawItem` into a float32 RGBA offscreen
+3. **Draw** - one proxy box per :class:`~clipvol.scene.selection.DrawItem` into a float32 RGBA offscreen
    target. The box's *back* faces are rasterised (front faces culled; depth clamp on and a far
    plane never applied), so the camera may sit inside a box. The fragment shader
    (``shaders/brick.frag.glsl``) rebuilds the pixel's ray from ``gl_FragCoord`` and the camera
    basis (per-frame uniforms, so bit-identical for every box), intersects it with the item's box
-   (and the :class:`~clipvol.geometry.Shape`'s box and planes) and samples the half-open interval
+   (and the :class:`~clipvol.scene.geometry.Shape`'s box and planes) and samples the half-open interval
    ``[t_entry, t_exit)`` at ``t = k * delta``: spherical shells around the eye (perspective,
    seed 003) or planes parallel to the image through the camera centre (orthographic). Adjacent
    boxes therefore share no sample and skip none, and because ``delta_L = 2**L * delta_0`` the
@@ -56,16 +56,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ParameterError
-from ..selection import MODES as SELECTION_MODES
-from ..selection import merge_items
+from ..scene.selection import MODES as SELECTION_MODES
+from ..scene.selection import merge_items
 from ..units import parse_bytes
 from .gpu_cache import GpuBrickCache
-from .shaders import load_shader
+from .glsl import load_shader
 
 __all__ = ["ClipRenderAction", "FrameStats", "MODES", "SELECTIONS"]
 
 MODES = ("composite", "mip")
-SELECTIONS = SELECTION_MODES  # multiresolution, roaming, fixed (clipvol.selection.MODES)
+SELECTIONS = SELECTION_MODES  # multiresolution, roaming, fixed (clipvol.scene.selection.MODES)
 #: most samples one ray takes inside one box (a smaller step is refused with ParameterError)
 MAX_STEPS_PER_BOX = 1 << 16
 _MIP_EMPTY = -3.0e38
@@ -140,7 +140,7 @@ def _vec(v) -> tuple[float, float, float]:
 
 
 class ClipRenderAction:
-    """Render a :class:`~clipvol.cliptexture.ClipTexture` with a moderngl context.
+    """Render a :class:`~clipvol.paging.cliptexture.ClipTexture` with a moderngl context.
 
     Parameters
     ----------
@@ -163,7 +163,7 @@ class ClipRenderAction:
     step : float
         Sample spacing in units of the drawn level's smallest voxel size.
     shape : Shape, optional
-        Region of interest / clip planes (:class:`clipvol.geometry.Shape`).
+        Region of interest / clip planes (:class:`clipvol.scene.geometry.Shape`).
     background : 4 floats
         Straight RGBA in ``[0, 1]`` behind the volume.
     early_termination : bool
@@ -172,7 +172,7 @@ class ClipRenderAction:
         with ``(ONE, ONE_MINUS_SRC_ALPHA)``; both give the same image (the operator is associative).
     merge_boxes : bool
         Draw complete sibling sets of one level as one box over their parent node
-        (:func:`clipvol.selection.merge_items`; same image, far fewer boxes). ``False`` draws one
+        (:func:`clipvol.scene.selection.merge_items`; same image, far fewer boxes). ``False`` draws one
         box per selected item, as ``vzClipRenderAction`` does.
     """
 
@@ -277,14 +277,14 @@ class ClipRenderAction:
         return float(np.max(path / delta)) * 1.1
 
     def _selection_params(self):
-        from ..selection import SelectionParams
+        from ..scene.selection import SelectionParams
 
         return SelectionParams(mode=self.selection, lod_threshold=self.lod_threshold, level=self.level,
                                max_texels_drawn=self.max_texels_drawn)
 
     def _transparent(self, tf):
         """``(level, idx) -> bool mask`` from the loader's brick ranges, or None."""
-        from ..loader import HasBrickRanges
+        from ..paging.loader import HasBrickRanges
 
         loader = self.clip_texture.loader
         if self.mode != "composite" or not isinstance(loader, HasBrickRanges):
@@ -327,7 +327,7 @@ class ClipRenderAction:
         return self._tf_tex
 
     def _select(self, camera, tf):
-        from ..selection import select
+        from ..scene.selection import select
 
         params, transparent = self._selection_params(), self._transparent(tf)
         allow = None
@@ -425,7 +425,7 @@ class ClipRenderAction:
         return image
 
     def render_items(self, camera, transfer_function, items) -> np.ndarray:
-        """Draw the given :class:`~clipvol.selection.DrawItem` list in the given order (no selection).
+        """Draw the given :class:`~clipvol.scene.selection.DrawItem` list in the given order (no selection).
 
         Every item's brick must be resident in the clip-texture; missing ones are uploaded now
         regardless of ``texels_per_frame``. For tests (draw order) and benchmarks (one fixed cut).

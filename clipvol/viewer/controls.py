@@ -126,7 +126,7 @@ class OrbitControls:
     @classmethod
     def for_pyramid(cls, pyramid, size=(640, 480), fov_y: float = 35.0, azimuth: float = 30.0, elevation: float = 25.0) -> "OrbitControls":
         """A rig looking at the whole volume of ``pyramid`` from ``azimuth``/``elevation``."""
-        from ..paths import fit_distance, volume_center
+        from ..scene.paths import fit_distance, volume_center
 
         lo, hi = pyramid.volume_box()
         return cls(
@@ -170,8 +170,8 @@ class OrbitControls:
         return np.clip(self.target, self.bounds[0], self.bounds[1])
 
     def camera(self, size=(640, 480)):
-        """The :class:`~clipvol.camera.Camera` of the current view for an image of ``size``."""
-        from ..camera import Camera
+        """The :class:`~clipvol.scene.camera.Camera` of the current view for an image of ``size``."""
+        from ..scene.camera import Camera
 
         cam = Camera.perspective(tuple(self.eye), tuple(self.target), up=tuple(UP), fov_y=self.fov_y, size=tuple(size))
         if self.bounds is not None:

@@ -1,6 +1,6 @@
 """Brick outlines coloured by level (seed 001 Fig. 13b), drawn over a rendered image.
 
-Each :class:`~clipvol.selection.DrawItem` box is projected with the camera's view-projection
+Each :class:`~clipvol.scene.selection.DrawItem` box is projected with the camera's view-projection
 matrix; its 12 edges are clipped against the near plane in homogeneous coordinates (so boxes
 around or behind the eye still draw correctly) and rasterised with pillow. Doing this on the
 image rather than in GL keeps it identical in the window and in offscreen frames, and testable.

@@ -28,7 +28,7 @@ import numpy as np
 from ..errors import ClipvolError, ParameterError
 from .controls import MOVE_KEYS, OrbitControls, ViewState
 from .hud import hud_lines, render_text
-from .session import RenderSession, RenderSettings
+from ..app.session import RenderSession, RenderSettings
 
 __all__ = ["Viewer", "WindowError"]
 
@@ -113,7 +113,7 @@ class Viewer:
     Parameters
     ----------
     source : loader, path or URL
-        The data (see :func:`clipvol.open.open_store`).
+        The data (see :func:`clipvol.paging.open.open_store`).
     size : (int, int)
         Window size in screen coordinates.
     memory_budget, texture_budget : int or str

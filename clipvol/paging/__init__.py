@@ -1,0 +1,8 @@
+"""Stage 2, paging: bricks from a store into main memory around a centre of interest.
+
+Holds the loader contract every data source implements (``loader``), how a store path or URL
+becomes a loader (``open``), the toroidal window arithmetic (``toroidal``), the prioritised load
+queue with its retry timing (``queue``) and the clip-texture itself (``cliptexture``: slots,
+windows, loader threads). It may import the bricking stage (pyramid geometry, store format) and
+nothing above it: no camera, no transfer function, no GL.
+"""

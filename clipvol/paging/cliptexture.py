@@ -1,0 +1,786 @@
+"""The clip-texture: per-level toroidal brick windows in main memory, filled by loader threads.
+
+After ``vzParameterClipTexture`` (seed 001, section 4.1) and the clipmap. A memory budget becomes
+a pool of brick slots allocated once (:func:`clipvol.paging.toroidal.allocate`); coarse levels that fit
+are held whole, finer ones keep a window of ``W`` bricks per axis around the centre of interest,
+brick ``b`` living in slot ``b mod W``. Moving the centre evicts the bricks that left a window,
+gives their slots to the bricks that entered, and re-sorts one load queue by distance (coarse
+before fine at equal distance, biased towards where the centre is going). Loader threads pop the
+queue front, call the loader, validate, copy into the slot and set its state to ``RESIDENT``.
+
+Threads live here and nowhere else in clipvol. One lock guards all bookkeeping; loader calls run
+outside it, and the copy into the slot happens under it after checking the slot's generation, so
+a reader never sees a partly written brick and a late result for an evicted brick is dropped.
+A loader that also offers ``read_brick_into(level, index, out)`` is handed the slot itself (no
+copy); the slot is then marked busy until that write ends, and a brick that takes the slot over
+meanwhile waits for it. See ``docs/cliptexture.md`` for the brick lifecycle and the failure
+semantics.
+"""
+
+from __future__ import annotations
+
+import heapq
+import operator
+import os
+import threading
+import time
+import warnings
+import weakref
+from collections import deque
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Callable, Iterable
+
+import numpy as np
+
+from ..errors import LoaderError, ParameterError
+from .loader import BrickKey, HasBrickRanges, Loader, check_brick
+from ..bricking.pyramid import Int3
+from .toroidal import (
+    Allocation,
+    allocate,
+    brick_costs,
+    in_box,
+    level_window,
+    predicted_offset,
+    slot_of,
+    window_bricks,
+    window_shape,
+)
+from ..units import parse_bytes
+
+__all__ = ["BrickState", "ClipTexture", "ClipTextureStats"]
+
+#: centres kept for the motion prediction, and how many moves ahead it looks
+HISTORY = 4
+LOOKAHEAD = 1.0
+#: sliding window (seconds) of the throughput figures, and loads kept for the latency percentiles
+RATE_WINDOW_S = 5.0
+LATENCY_SAMPLES = 2048
+#: longest sleep of an idle loader thread before it checks that its clip-texture still exists
+IDLE_POLL_S = 1.0
+
+
+class BrickState(IntEnum):
+    """Lifecycle of a brick of the clip-texture (see ``docs/cliptexture.md``).
+
+    ``ABSENT`` (outside every window, or not yet placed) -> ``QUEUED`` (in a window, waiting in the
+    load queue) -> ``LOADING`` (a loader thread is reading it) -> ``RESIDENT`` (its slot holds the
+    loader's data) or, after the retries, ``FAILED``. Leaving the window makes any state ``ABSENT``.
+    """
+
+    ABSENT = 0
+    QUEUED = 1
+    LOADING = 2
+    RESIDENT = 3
+    FAILED = 4
+
+
+# plain ints for the per-move numpy bookkeeping (enum attribute access is slow on hot paths)
+_ABSENT, _QUEUED, _LOADING, _RESIDENT, _FAILED = (int(s) for s in BrickState)
+
+
+@dataclass(frozen=True, slots=True)
+class ClipTextureStats:
+    """A snapshot of the clip-texture's memory, queue and loader throughput.
+
+    Rates are over the last ``RATE_WINDOW_S`` seconds (or since creation if shorter); latencies
+    (seconds, loader call plus validation, for the last ``LATENCY_SAMPLES`` loads) are ``nan``
+    before the first load.
+    """
+
+    memory_budget: int
+    pool_bytes: int
+    window: int
+    whole_levels: tuple[int, ...]
+    resident_bricks: tuple[int, ...]
+    resident_bytes_per_level: tuple[int, ...]
+    resident_bytes: int
+    queued: int
+    loading: int
+    loads_total: int
+    bytes_loaded: int
+    loads_per_s: float
+    mb_per_s: float
+    latency_p50: float
+    latency_p95: float
+    latency_p99: float
+    retries: int
+    dropped: int
+    failures: int
+    #: bricks the loader's bounds showed to be empty: filled without a read, not counted as loads
+    empty_skipped: int = 0
+
+
+def _count(value, name: str, minimum: int) -> int:
+    """``value`` as an int >= ``minimum`` (numpy integers welcome, bools and floats refused)."""
+    if isinstance(value, bool):
+        raise ParameterError(f"{name}: expected an integer >= {minimum}, got {value!r}")
+    try:
+        n = operator.index(value)
+    except TypeError:
+        raise ParameterError(f"{name}: expected an integer >= {minimum}, got {value!r}") from None
+    if n < minimum:
+        raise ParameterError(f"{name}: expected an integer >= {minimum}, got {value!r}")
+    return n
+
+
+class _Countdown:
+    """Bricks a ``wait_for`` call still waits for (compared by identity)."""
+
+    __slots__ = ("n",)
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+
+
+class _Level:
+    """Slot bookkeeping of one level: its pool and, per slot, brick, state, generation, attempts."""
+
+    __slots__ = ("level", "grid", "whole", "shape", "start", "stop", "pool", "key", "state", "gen", "attempts", "not_before", "busy")
+
+    def __init__(self, level: int, grid: Int3, whole: bool, capacity: int, brick_shape: Int3, dtype: np.dtype):
+        self.level = level
+        self.grid = grid
+        self.whole = whole
+        self.shape: Int3 = (0, 0, 0)
+        self.start: Int3 = (0, 0, 0)
+        self.stop: Int3 = (0, 0, 0)
+        # allocated once; np.empty leaves pages untouched until a brick is written
+        self.pool = np.empty((capacity, *brick_shape), dtype=dtype)
+        self.key = np.full((capacity, 3), -1, dtype=np.int64)
+        self.state = np.zeros(capacity, dtype=np.int8)
+        self.gen = np.zeros(capacity, dtype=np.int64)
+        self.attempts = np.zeros(capacity, dtype=np.int32)
+        self.not_before = np.zeros(capacity, dtype=np.float64)
+        # a thread is writing into the slot outside the lock (``read_brick_into``): the slot's next
+        # brick waits ("parked") until that write is over, even if the write is for an evicted brick
+        self.busy = np.zeros(capacity, dtype=bool)
+
+
+class ClipTexture:
+    """Per-level toroidal windows of bricks in main memory, paged in by loader threads.
+
+    Parameters
+    ----------
+    loader : Loader
+        The data source (:class:`clipvol.paging.loader.Loader`); called from several threads at once.
+    memory_budget : int or str
+        Bytes for the brick slot pool (``"256MB"``, ``"1GiB"``, ...); never exceeded.
+    threads : int, optional
+        Loader threads; default ``os.cpu_count()``.
+    center : (x, y, z), optional
+        Initial centre of interest in world units; default the volume's centre.
+    retries : int
+        How many times a failing ``read_brick`` is retried before the brick is ``FAILED``.
+    retry_backoff : float
+        Seconds before the first retry, doubling with each further one. A waiting retry does not
+        hold a thread: the brick waits in a timed queue while threads serve other bricks.
+    on_error : callable, optional
+        ``on_error(key: BrickKey, exc)`` called (from a loader thread) when a brick fails for good.
+    predictive : bool
+        Bias the queue towards the direction the centre has been moving.
+
+    Notes
+    -----
+    ``get_brick`` returns a read-only view into the slot pool, valid until the caller's next
+    :meth:`set_center` / :meth:`set_roaming_window` (which may give the slot to another brick).
+    """
+
+    def __init__(
+        self,
+        loader: Loader,
+        memory_budget: int | str = "256MB",
+        threads: int | None = None,
+        *,
+        center=None,
+        retries: int = 2,
+        retry_backoff: float = 0.05,
+        on_error: Callable[[BrickKey, BaseException], None] | None = None,
+        predictive: bool = True,
+    ) -> None:
+        self.loader = loader
+        self.pyramid = loader.pyramid
+        self.memory_budget: int = parse_bytes(memory_budget, "memory_budget")
+        nthreads = _count((os.cpu_count() or 1) if threads is None else threads, "threads", 1)
+        retries = _count(retries, "retries", 0)
+        try:
+            backoff = float(retry_backoff)
+        except (TypeError, ValueError):
+            backoff = float("nan")
+        if not (0.0 <= backoff < float("inf")):
+            raise ParameterError(f"retry_backoff: expected finite seconds >= 0, got {retry_backoff!r}")
+        if on_error is not None and not callable(on_error):
+            raise ParameterError(f"on_error: expected a callable(key, exc) or None, got {on_error!r}")
+        self.retries = retries
+        self.retry_backoff = backoff
+        self.on_error = on_error
+        self.predictive = bool(predictive)
+        self.allocation: Allocation = allocate(self.pyramid, self.memory_budget)
+        self.whole_levels: tuple[int, ...] = self.allocation.whole_levels
+        pyr = self.pyramid
+        self._levels = [
+            _Level(L, pyr.grid(L), L in self.whole_levels, self.allocation.capacity[L], pyr.brick_shape, pyr.dtype)
+            for L in range(pyr.num_levels)
+        ]
+        self._window = self.allocation.window
+        self._lock = threading.Lock()
+        self._cv = threading.Condition(self._lock)
+        self._queue: list[tuple] = []  # heap: (cost, -level, bz, by, bx, level, slot, gen)
+        self._parked: dict[tuple[int, int], tuple] = {}  # (level, slot) -> queue entry waiting for a busy slot
+        into = getattr(loader, "read_brick_into", None)
+        self._read_into: Callable[[int, Int3, np.ndarray], None] | None = into if callable(into) else None
+        # empty bricks (bounds [fill, fill], see HasBrickRanges) are filled here, never read
+        self._ranges = loader.brick_ranges if isinstance(loader, HasBrickRanges) else None
+        self._fill_brick = np.full(pyr.brick_shape, pyr.fill_value, dtype=pyr.dtype)
+        self._fill_brick.setflags(write=False)
+        self._skipped_empty = 0
+        self._delayed: list[tuple] = []  # heap: (not_before, level, slot, gen) for retries
+        self._closing = False
+        self._pending = 0  # bricks QUEUED or LOADING (recounted on every move, decremented per outcome)
+        self._watched: dict[tuple[int, Int3], list[_Countdown]] = {}  # brick -> wait_for calls waiting on it
+        self.failures: dict[BrickKey, BaseException] = {}
+        self.residency_version = 0
+        self._loads_total = 0
+        self._bytes_total = 0
+        self._retries = 0
+        self._dropped = 0
+        self._events: deque[tuple[float, int]] = deque()  # (done time, bytes) in the rate window
+        self._latency: deque[float] = deque(maxlen=LATENCY_SAMPLES)
+        self._t0 = time.perf_counter()
+        lo, hi = pyr.volume_box()
+        c = (lo + hi) / 2.0 if center is None else self._check_center(center)
+        self._history: deque[np.ndarray] = deque([c], maxlen=HISTORY)
+        with self._cv:
+            self._apply(c, self._window)
+        # the threads hold only a weak reference between loads, so a clip-texture that is dropped
+        # without close() is still collected, and its threads end within IDLE_POLL_S
+        ref = weakref.ref(self)
+        self._threads = [
+            threading.Thread(target=_loader_thread, args=(ref,), name=f"clipvol-loader-{i}", daemon=True)
+            for i in range(nthreads)
+        ]
+        for t in self._threads:
+            t.start()
+
+    # -- public queries -------------------------------------------------------------------------
+    @property
+    def center(self) -> np.ndarray:
+        """The centre of interest ``(x, y, z)`` in world units (a copy)."""
+        return self._history[-1].copy()
+
+    @property
+    def window_size(self) -> int:
+        """The roaming window ``W`` (bricks per axis) of the windowed levels."""
+        return self._window
+
+    def window_shape(self, level: int) -> tuple[int, int, int]:
+        """Bricks per axis ``(z, y, x)`` of ``level``'s window (its whole grid for a whole level)."""
+        return self._lv(level).shape
+
+    def window(self, level: int) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
+        """``(start, stop)`` brick indices ``(z, y, x)`` of ``level``'s current window."""
+        lv = self._lv(level)
+        with self._lock:
+            return lv.start, lv.stop
+
+    def in_window_mask(self, level: int, indices: np.ndarray) -> np.ndarray:
+        """``(n,)`` bool: which bricks ``indices`` (``(n, 3)`` ``bz, by, bx``) lie in ``level``'s window."""
+        lv = self._lv(level)
+        with self._lock:
+            return in_box(indices, lv.start, lv.stop)
+
+    def resident_mask(self, level: int, indices: np.ndarray) -> np.ndarray:
+        """``(n,)`` bool: which bricks ``indices`` are resident (their data is in memory)."""
+        lv = self._lv(level)
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1, 3)
+        with self._lock:
+            ok = in_box(idx, lv.start, lv.stop)
+            s = slot_of(idx[ok], lv.shape)
+            res = np.zeros(len(idx), dtype=bool)
+            res[ok] = (lv.state[s] == _RESIDENT) & np.all(lv.key[s] == idx[ok], axis=1)
+        return res
+
+    def state(self, level: int, index) -> BrickState:
+        """The :class:`BrickState` of brick ``index`` of ``level``."""
+        idx = self.pyramid.check_key(level, index)
+        lv = self._levels[level]
+        with self._lock:
+            s = self._slot_if_held(lv, idx)
+            return BrickState.ABSENT if s is None else BrickState(int(lv.state[s]))
+
+    def get_brick(self, level: int, index) -> np.ndarray | None:
+        """A read-only view of the resident brick, or ``None`` if it is not resident.
+
+        The view stays valid until the caller's next :meth:`set_center` / :meth:`set_roaming_window`.
+        """
+        idx = self.pyramid.check_key(level, index)
+        lv = self._levels[level]
+        with self._lock:
+            s = self._slot_if_held(lv, idx)
+            if s is None or lv.state[s] != _RESIDENT:
+                return None
+            view = lv.pool[s].view()
+        view.flags.writeable = False
+        return view
+
+    def resident_bricks(self) -> list[tuple[int, tuple[int, int, int]]]:
+        """Every resident brick as ``(level, (bz, by, bx))``, coarsest level first."""
+        out = []
+        with self._lock:
+            for lv in reversed(self._levels):
+                for k in lv.key[lv.state == BrickState.RESIDENT]:
+                    out.append((lv.level, (int(k[0]), int(k[1]), int(k[2]))))
+        return out
+
+    @property
+    def stats(self) -> ClipTextureStats:
+        """A :class:`ClipTextureStats` snapshot."""
+        nb = self.pyramid.brick_nbytes
+        now = time.perf_counter()
+        with self._lock:
+            res = tuple(int(np.count_nonzero(lv.state == BrickState.RESIDENT)) for lv in self._levels)
+            queued = sum(int(np.count_nonzero(lv.state == BrickState.QUEUED)) for lv in self._levels)
+            loading = sum(int(np.count_nonzero(lv.state == BrickState.LOADING)) for lv in self._levels)
+            self._trim_events(now)
+            n_ev = len(self._events)
+            b_ev = sum(b for _, b in self._events)
+            lat = np.array(self._latency, dtype=np.float64)
+            loads, total, retries, dropped, fails = (
+                self._loads_total, self._bytes_total, self._retries, self._dropped, len(self.failures)
+            )
+            skipped = self._skipped_empty
+        span = max(min(RATE_WINDOW_S, now - self._t0), 1e-9)
+        p = np.percentile(lat, [50, 95, 99]) if lat.size else np.full(3, np.nan)
+        return ClipTextureStats(
+            memory_budget=self.memory_budget,
+            pool_bytes=self.allocation.nbytes,
+            window=self._window,
+            whole_levels=self.whole_levels,
+            resident_bricks=res,
+            resident_bytes_per_level=tuple(r * nb for r in res),
+            resident_bytes=sum(res) * nb,
+            queued=queued,
+            loading=loading,
+            loads_total=loads,
+            bytes_loaded=total,
+            loads_per_s=n_ev / span,
+            mb_per_s=b_ev / span / 1e6,
+            latency_p50=float(p[0]),
+            latency_p95=float(p[1]),
+            latency_p99=float(p[2]),
+            retries=retries,
+            dropped=dropped,
+            failures=fails,
+            empty_skipped=skipped,
+        )
+
+    def load_cost(self, level: int, indices: np.ndarray) -> np.ndarray:
+        """Current queue cost of bricks ``indices`` of ``level`` (distance in brick units, predicted)."""
+        with self._lock:
+            return brick_costs(self.pyramid, level, indices, self._interest_point(level))
+
+    # -- control ---------------------------------------------------------------------------------
+    def set_center(self, xyz) -> None:
+        """Move the centre of interest to ``xyz`` (world ``(x, y, z)``): evict, re-queue, re-sort."""
+        c = self._check_center(xyz)
+        with self._cv:
+            self._check_open()
+            prev = self._history[-1]
+            if self._is_teleport(c - prev):
+                self._history.clear()
+            self._history.append(c)
+            self._apply(c, self._window)
+            self._cv.notify_all()
+
+    def set_roaming_window(self, size: int) -> None:
+        """Set ``W``, the bricks per axis of the windowed levels' windows.
+
+        ``size`` is limited to the budget's largest window (:attr:`allocation`.window), as the
+        physical memory window of Volumizer is limited by the memory allowed.
+        """
+        if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 2:
+            raise ParameterError(f"roaming window size: expected an integer >= 2 (bricks per axis), got {size!r}")
+        w = min(int(size), self.allocation.window)
+        with self._cv:
+            self._check_open()
+            self._window = w
+            self._apply(self._history[-1], w)
+            self._cv.notify_all()
+
+    def wait_until_idle(self, timeout: float | None = None) -> bool:
+        """Block until no brick is queued or loading; ``False`` if ``timeout`` seconds passed first."""
+        with self._cv:
+            return self._cv.wait_for(lambda: self._closing or self._idle(), timeout) and self._idle()
+
+    def wait_for(self, keys: Iterable, timeout: float | None = None) -> bool:
+        """Block until each ``(level, index)`` in ``keys`` is resident, failed or out of its window."""
+        ks = [(k.level, k.index) if isinstance(k, BrickKey) else (int(k[0]), tuple(int(i) for i in k[1])) for k in keys]
+        for L, idx in ks:
+            self.pyramid.check_key(L, idx)
+
+        def unsettled(L: int, idx: Int3) -> bool:
+            lv = self._levels[L]
+            s = self._slot_if_held(lv, idx)
+            return s is not None and _QUEUED <= lv.state[s] <= _LOADING
+
+        def settled() -> bool:
+            return self._pending == 0 or not any(unsettled(L, idx) for L, idx in ks)
+
+        with self._cv:
+            if settled():
+                return True
+            # loader threads wake this waiter only when its count of unsettled bricks reaches 0
+            # (set_center wakes everyone anyway); the predicate below is the authority
+            countdown = _Countdown(sum(unsettled(L, idx) for L, idx in ks))
+            for k in ks:
+                self._watched.setdefault(k, []).append(countdown)
+            try:
+                return self._cv.wait_for(lambda: self._closing or settled(), timeout) and settled()
+            finally:
+                for k in ks:
+                    waiters = self._watched[k]
+                    waiters.remove(countdown)
+                    if not waiters:
+                        del self._watched[k]
+
+    def close(self, timeout: float | None = 5.0) -> bool:
+        """Stop the loader threads and join them for up to ``timeout`` seconds in all.
+
+        Returns ``True`` when every thread has ended. A thread stuck inside ``read_brick`` cannot be
+        interrupted: after the timeout ``close`` warns and returns ``False``; the thread is a daemon
+        (it never keeps the interpreter alive) and discards its result when the loader returns.
+        """
+        with self._cv:
+            self._closing = True
+            self._queue.clear()
+            self._delayed.clear()
+            self._cv.notify_all()
+        deadline = None if timeout is None else time.monotonic() + timeout
+        for t in self._threads:
+            if t is threading.current_thread():
+                continue
+            t.join(None if deadline is None else max(0.0, deadline - time.monotonic()))
+        alive = [t.name for t in self._threads if t.is_alive() and t is not threading.current_thread()]
+        if alive:
+            warnings.warn(
+                f"ClipTexture.close: {len(alive)} loader thread(s) still inside read_brick after {timeout} s "
+                f"({', '.join(alive)}); they are daemons and will drop their result",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+            return False
+        return True
+
+    def __enter__(self) -> "ClipTexture":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return (
+            f"ClipTexture({type(self.loader).__name__}, budget={self.memory_budget}, W={self._window}, "
+            f"whole_levels={self.whole_levels}, threads={len(self._threads)})"
+        )
+
+    # -- internals (call with the lock held unless noted) ---------------------------------------
+    def _lv(self, level: int) -> _Level:
+        if isinstance(level, bool) or not (0 <= int(level) < len(self._levels)):
+            raise ParameterError(f"level: expected 0..{len(self._levels) - 1}, got {level!r}")
+        return self._levels[int(level)]
+
+    def _check_open(self) -> None:
+        if self._closing:
+            raise ParameterError("ClipTexture: expected an open clip-texture, got one that was closed")
+
+    @staticmethod
+    def _check_center(xyz) -> np.ndarray:
+        try:
+            c = np.asarray(xyz, dtype=np.float64).reshape(3)
+        except (TypeError, ValueError):
+            raise ParameterError(f"center: expected three numbers (x, y, z), got {xyz!r}") from None
+        if not np.all(np.isfinite(c)):
+            raise ParameterError(f"center: expected finite (x, y, z), got {tuple(c)}")
+        return c
+
+    @staticmethod
+    def _slot_if_held(lv: _Level, idx) -> int | None:
+        if not all(a <= i < b for i, a, b in zip(idx, lv.start, lv.stop)):
+            return None
+        s = int(slot_of(np.asarray(idx), lv.shape)[0])
+        return s if tuple(lv.key[s]) == tuple(idx) else None
+
+    def _idle(self) -> bool:
+        return self._pending == 0
+
+    def _is_teleport(self, move: np.ndarray) -> bool:
+        """A move longer than half the finest window's extent resets the motion history."""
+        pyr = self.pyramid
+        ext = np.array(pyr.brick_shape[::-1], dtype=np.float64) * np.array(pyr.spacing[::-1]) * self._window
+        return bool(np.any(np.abs(move) > ext / 2.0))
+
+    def _interest_point(self, level: int) -> np.ndarray:
+        """The centre moved by the predicted motion, at most half a window of ``level`` away."""
+        c = self._history[-1]
+        if not self.predictive:
+            return c
+        off = predicted_offset(list(self._history), LOOKAHEAD)
+        pyr = self.pyramid
+        ext = np.array(pyr.brick_shape[::-1], dtype=np.float64) * 2.0**level * np.array(pyr.spacing[::-1])
+        n = float(np.linalg.norm(off / ext))
+        limit = self._window / 2.0
+        if n > limit:
+            off = off * (limit / n)
+        return c + off
+
+    def _apply(self, center: np.ndarray, window: int) -> None:
+        """Place every level's window for ``center`` and ``window``; evict, move, queue; re-sort."""
+        evicted = 0
+        for lv in self._levels:
+            shape = lv.grid if lv.whole else window_shape(lv.grid, window)
+            start, stop = level_window(self.pyramid, lv.level, center, shape)
+            if (start, stop, shape) == (lv.start, lv.stop, lv.shape):
+                continue
+            evicted += self._relayout(lv, start, stop, shape)
+        if evicted:
+            self.residency_version += 1
+        self._pending = sum(
+            int(np.count_nonzero((lv.state >= _QUEUED) & (lv.state <= _LOADING))) for lv in self._levels
+        )
+        self._rebuild_queue()
+
+    def _relayout(self, lv: _Level, start: Int3, stop: Int3, shape: Int3) -> int:
+        """Give ``lv`` the window ``[start, stop)`` of ``shape``; returns how many resident bricks left."""
+        if shape == lv.shape:
+            # a move (the common case): each entering brick takes the slot of one that left
+            bricks = window_bricks(start, stop)
+            enter = bricks[~in_box(bricks, lv.start, lv.stop)]
+            s = slot_of(enter, shape)
+            evicted = int(np.count_nonzero(lv.state[s] == _RESIDENT))
+            lv.gen[s] += 1  # late results for the bricks that left are dropped
+            lv.key[s] = enter
+            lv.state[s] = _QUEUED
+            lv.attempts[s] = 0
+            lv.not_before[s] = 0.0
+            lv.start, lv.stop = start, stop
+            return evicted
+        # a new window shape (or the first placement): slots are re-assigned; bricks kept move along
+        bricks = window_bricks(start, stop)
+        new_slot = slot_of(bricks, shape)
+        held = in_box(bricks, lv.start, lv.stop) if lv.shape != (0, 0, 0) else np.zeros(len(bricks), bool)
+        old_slot = np.zeros(len(bricks), dtype=np.int64)
+        if held.any():
+            old_slot[held] = slot_of(bricks[held], lv.shape)
+            held[held] = np.all(lv.key[old_slot[held]] == bricks[held], axis=1)
+        old_state = np.where(held, lv.state[old_slot], _ABSENT)
+        was_resident = int(np.count_nonzero(lv.state == _RESIDENT))
+        in_place = held & (old_slot == new_slot)
+        moved = held & ~in_place & ((old_state == _RESIDENT) | (old_state == _FAILED))
+        moved &= ~lv.busy[new_slot]  # never copy into a slot a late writer is still filling: reload instead
+        # bricks that change slot (only when the window shape changes) carry their data along
+        data = lv.pool[old_slot[moved & (old_state == _RESIDENT)]].copy() if moved.any() else None
+        keep_attempts = lv.attempts[old_slot].copy()
+        keep_nb = lv.not_before[old_slot].copy()
+        # every slot not kept in place gets a new generation: late results for it are dropped
+        kept_slots = np.zeros(len(lv.state), dtype=bool)
+        kept_slots[new_slot[in_place]] = True
+        lv.gen[~kept_slots] += 1
+        lv.key[~kept_slots] = -1
+        lv.state[~kept_slots] = _ABSENT
+        lv.attempts[~kept_slots] = 0
+        lv.not_before[~kept_slots] = 0.0
+        enter = ~in_place
+        lv.key[new_slot[enter]] = bricks[enter]
+        lv.state[new_slot[enter]] = _QUEUED
+        if moved.any():
+            ms = new_slot[moved]
+            lv.state[ms] = old_state[moved]
+            lv.attempts[ms] = keep_attempts[moved]
+            lv.not_before[ms] = keep_nb[moved]
+            if data is not None and len(data):
+                lv.pool[new_slot[moved & (old_state == _RESIDENT)]] = data
+        lv.start, lv.stop, lv.shape = start, stop, shape
+        still = int(np.count_nonzero(lv.state == _RESIDENT))
+        return was_resident - still
+
+    def _rebuild_queue(self) -> None:
+        """Rebuild the load queue (sorted by cost, coarse first at ties) and the retry queue."""
+        now = time.monotonic()
+        entries: list[tuple] = []
+        delayed: list[tuple] = []
+        for lv in self._levels:
+            q = np.nonzero(lv.state == _QUEUED)[0]
+            if not len(q):
+                continue
+            due = lv.not_before[q] <= now
+            for s in q[~due]:
+                delayed.append((float(lv.not_before[s]), lv.level, int(s), int(lv.gen[s])))
+            q = q[due]
+            keys = lv.key[q]
+            cost = brick_costs(self.pyramid, lv.level, keys, self._interest_point(lv.level))
+            L = lv.level
+            for c, k, s, g in zip(cost.tolist(), keys.tolist(), q.tolist(), lv.gen[q].tolist()):
+                entries.append((c, -L, k[0], k[1], k[2], L, s, g))
+        entries.sort()
+        self._queue = entries  # a sorted list is a heap
+        self._parked.clear()  # every queued brick is in ``entries`` again
+        heapq.heapify(delayed)
+        self._delayed = delayed
+
+    def _valid(self, level: int, slot: int, gen: int, state: int) -> bool:
+        lv = self._levels[level]
+        return lv.gen[slot] == gen and lv.state[slot] == state
+
+    def _promote_due(self, now: float) -> float | None:
+        """Move due retries into the load queue; return seconds until the next one (or None)."""
+        while self._delayed and self._delayed[0][0] <= now:
+            _, L, s, gen = heapq.heappop(self._delayed)
+            if self._valid(L, s, gen, _QUEUED):
+                lv = self._levels[L]
+                k = lv.key[s]
+                c = float(brick_costs(self.pyramid, L, k[None], self._interest_point(L))[0])
+                heapq.heappush(self._queue, (c, -L, int(k[0]), int(k[1]), int(k[2]), L, s, gen))
+        return self._delayed[0][0] - now if self._delayed else None
+
+    def _pop_job(self) -> tuple[tuple[int, int, int, Int3] | None, float | None]:
+        """Pop the front of the queue (lazy invalidation): ``(job, None)``, or ``(None, seconds)``
+        until the next retry is due (``None``: nothing scheduled)."""
+        wait = self._promote_due(time.monotonic())
+        if not self._closing:
+            while self._queue:
+                entry = heapq.heappop(self._queue)
+                _, _, bz, by, bx, L, s, gen = entry
+                if self._valid(L, s, gen, _QUEUED):
+                    lv = self._levels[L]
+                    if lv.busy[s]:
+                        self._parked[(L, s)] = entry  # back in the queue when the writer is done
+                        continue
+                    lv.state[s] = _LOADING
+                    if self._read_into is not None:
+                        lv.busy[s] = True
+                    return (L, s, gen, (bz, by, bx)), None
+        return None, wait
+
+    def _load(self, job: tuple[int, int, int, Int3]) -> bool:
+        """Load one brick: read outside the lock, validate, copy and publish under the lock.
+
+        Returns ``False`` when the clip-texture is closing (the thread then ends).
+        """
+        L, s, gen, idx = job
+        t0 = time.perf_counter()
+        err: BaseException | None = None
+        brick = None
+        try:
+            if self._known_empty(L, idx):
+                brick = self._fill_brick  # copied into the slot below; the loader is not called
+            elif self._read_into is not None:
+                self._read_into(L, idx, self._levels[L].pool[s])  # straight into the slot
+            else:
+                brick = check_brick(self.loader, L, idx, self.loader.read_brick(L, idx))
+        except Exception as e:  # a loader's failure never kills the thread
+            err = e
+        latency = time.perf_counter() - t0
+        report = None
+        with self._cv:
+            if self._read_into is not None:
+                self._levels[L].busy[s] = False
+                parked = self._parked.pop((L, s), None)
+                if parked is not None:
+                    heapq.heappush(self._queue, parked)
+                    self._cv.notify_all()
+            if self._closing:
+                return False
+            if not self._valid(L, s, gen, _LOADING):
+                self._dropped += 1  # the brick left its window meanwhile: a late result
+                return True
+            lv = self._levels[L]
+            wake = True
+            if err is None:
+                if brick is not None:
+                    lv.pool[s] = brick  # under the lock, after the generation check
+                lv.state[s] = _RESIDENT
+                self._pending -= 1
+                if self.failures:
+                    self.failures.pop(BrickKey(L, idx), None)
+                self.residency_version += 1
+                if brick is self._fill_brick:
+                    self._skipped_empty += 1
+                else:
+                    nb = self.pyramid.brick_nbytes
+                    self._loads_total += 1
+                    self._bytes_total += nb
+                    now = time.perf_counter()
+                    self._events.append((now, nb))
+                    self._trim_events(now)
+                    self._latency.append(latency)
+                # only waiters care about a load that leaves work queued: spare the wake-ups
+                wake = self._pending == 0 or self._count_down(L, idx)
+            elif isinstance(err, LoaderError) or lv.attempts[s] >= self.retries:
+                lv.state[s] = _FAILED
+                self._pending -= 1
+                self._count_down(L, idx)
+                key = BrickKey(L, idx)
+                self.failures[key] = err
+                report = (key, err)
+            else:
+                lv.attempts[s] += 1
+                self._retries += 1
+                lv.state[s] = _QUEUED
+                nb_t = time.monotonic() + self.retry_backoff * 2.0 ** (int(lv.attempts[s]) - 1)
+                lv.not_before[s] = nb_t
+                heapq.heappush(self._delayed, (nb_t, L, s, gen))
+            if wake:
+                self._cv.notify_all()
+        if report is not None and self.on_error is not None:
+            try:
+                self.on_error(*report)
+            except Exception as e:  # the callback's bug must not kill the loader thread
+                warnings.warn(f"ClipTexture on_error callback raised {type(e).__name__}: {e}", RuntimeWarning)
+        return True
+
+    def _known_empty(self, level: int, idx: Int3) -> bool:
+        """True if the loader's bounds say the brick holds only its fill value (nothing to read)."""
+        if self._ranges is None:
+            return False
+        r = self._ranges(level, np.array([idx], dtype=np.int64))
+        if r is None:
+            return False
+        lo, hi = (float(v) for v in np.asarray(r, dtype=np.float64).reshape(-1, 2)[0])
+        return lo == hi == self.pyramid.fill_value
+
+    def _count_down(self, level: int, idx: Int3) -> bool:
+        """A watched brick settled: count down its waiters; ``True`` if one of them is due."""
+        due = False
+        for countdown in self._watched.get((level, idx), ()):
+            countdown.n -= 1
+            due |= countdown.n <= 0
+        return due
+
+    def _trim_events(self, now: float) -> None:
+        while self._events and now - self._events[0][0] > RATE_WINDOW_S:
+            self._events.popleft()
+
+
+def _loader_thread(ref: "weakref.ref[ClipTexture]") -> None:
+    """Body of a loader thread: pop a job under the lock, load it, repeat; sleep when idle.
+
+    It keeps a strong reference to the clip-texture only while popping and loading, and ends when
+    the clip-texture closes or has been garbage collected.
+    """
+    while True:
+        ct = ref()
+        if ct is None:
+            return
+        with ct._cv:
+            job, wait = ct._pop_job()
+            if job is None:
+                if ct._closing:
+                    return
+                cv = ct._cv
+                del ct  # sleep without keeping the clip-texture alive
+                cv.wait(IDLE_POLL_S if wait is None else min(wait, IDLE_POLL_S))
+                continue
+        if not ct._load(job):
+            return
+        del ct

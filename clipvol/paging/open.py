@@ -1,0 +1,85 @@
+"""``open_store``: one call from a path or URL to the right loader.
+
+Users name data the way they think of it - a store directory, a ``.npy`` file, a
+``procedural:fractal?size=512`` URL - and get a :class:`~clipvol.paging.loader.Loader`. Third-party
+loaders plug in through the ``clipvol.loaders`` entry-point group: a package that declares
+``myformat = "mypkg.loader:MyLoader"`` makes ``open_store("myformat:...")`` call
+``MyLoader("myformat:...", **kwargs)`` with the full URL.
+"""
+
+from __future__ import annotations
+
+import re
+from importlib.metadata import entry_points
+from pathlib import Path
+
+from ..errors import InputFormatError, InputNotFoundError
+from .loader import Loader
+
+__all__ = ["open_store", "loader_plugins"]
+
+ENTRY_POINT_GROUP = "clipvol.loaders"
+_SCHEME = re.compile(r"^([A-Za-z][A-Za-z0-9+.\-_]*):(?!\\)")
+
+
+def loader_plugins() -> dict[str, object]:
+    """Entry points of the ``clipvol.loaders`` group, by name (bundled ones included)."""
+    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def open_store(path_or_url: str | Path, **kwargs) -> Loader:
+    """Open a data source as a loader.
+
+    Parameters
+    ----------
+    path_or_url : str or Path
+        * a directory holding a zarr group (``zarr.json`` or ``.zgroup``): a clipvol store or a
+          plain OME-Zarr image -> :class:`clipvol.loaders.zarr_store.ZarrLoader`;
+        * a ``.npy`` file -> :class:`clipvol.loaders.numpy_array.NumpyLoader` (memory-mapped);
+        * ``procedural:NAME?...`` -> :class:`clipvol.loaders.procedural.ProceduralLoader`;
+        * ``SCHEME:...`` -> the ``clipvol.loaders`` entry point named ``SCHEME``, called with the
+          full URL and ``kwargs``.
+    **kwargs
+        Passed to the loader (e.g. ``brick=32`` for the numpy and procedural loaders).
+
+    Raises
+    ------
+    InputNotFoundError
+        The path does not exist.
+    InputFormatError
+        The path exists but is no format clipvol knows, or the URL's scheme has no loader.
+    """
+    text = str(path_or_url)
+    m = _SCHEME.match(text) if isinstance(path_or_url, str) else None
+    if m and len(m.group(1)) > 1 and not Path(text).exists():
+        scheme = m.group(1)
+        if scheme == "procedural":
+            from ..loaders.procedural import ProceduralLoader
+
+            return ProceduralLoader(text, **kwargs)
+        plugins = loader_plugins()
+        if scheme not in plugins:
+            raise InputFormatError(
+                f"{text}: no loader for the scheme {scheme!r}; expected a path, 'procedural:...', or one of the "
+                f"installed '{ENTRY_POINT_GROUP}' plug-ins: {', '.join(sorted(plugins)) or 'none'}"
+            )
+        return plugins[scheme].load()(text, **kwargs)
+    path = Path(path_or_url)
+    if not path.exists():
+        raise InputNotFoundError(f"{path}: no such file or directory")
+    if path.is_file() and path.name in ("zarr.json", ".zgroup"):
+        path = path.parent
+    if path.is_dir():
+        if (path / "zarr.json").is_file() or (path / ".zgroup").is_file():
+            from ..loaders.zarr_store import ZarrLoader
+
+            return ZarrLoader(path, **kwargs)
+        raise InputFormatError(f"{path}: expected a zarr store (a directory with zarr.json or .zgroup), found neither")
+    if path.suffix.lower() == ".npy":
+        from ..loaders.numpy_array import NumpyLoader
+
+        return NumpyLoader(path, **kwargs)
+    raise InputFormatError(
+        f"{path}: unknown format (suffix {path.suffix or 'none'!r}); expected a zarr store directory, a .npy file "
+        "or a URL such as 'procedural:fractal?size=256'"
+    )

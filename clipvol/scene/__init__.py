@@ -1,0 +1,9 @@
+"""Stage 3, scene: what a frame should show, as pure numpy (no GL, no threads).
+
+Holds the camera and its frustum (``camera``), regions of interest and clip planes (``geometry``),
+transfer functions (``transfer``), the one frozen set of render parameters (``params``), the
+selection traversal over the brick octree and its interchangeable policies (``selection``), camera
+paths for flythroughs (``paths``) and image metrics (``metrics``). It may import paging and
+bricking (the pyramid, the residency contract), never moderngl or glfw, so every decision a
+renderer makes can be tested and explained without a context.
+"""

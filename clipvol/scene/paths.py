@@ -1,0 +1,299 @@
+"""Camera paths over a pyramid's volume: orbit, fly-through and zoom (pure numpy, no GL).
+
+The viewer's offscreen mode, the report and the demo need repeatable motion that exercises what
+the clip-texture is for (seed 001 §3.5, §4): an **orbit** looks at the whole volume from every side
+(the multiresolution cut changes with the view, the centre of interest stays put); a **fly** path
+goes *through* the volume and drags the centre of interest with it, so the per-level windows roam
+and bricks stream in ahead of the camera; a **zoom** moves from the whole view to a close-up of a
+point, so ever finer levels are wanted around that point.
+
+Every path is a generator of ``(camera, center_of_interest)`` pairs, ``center_of_interest`` an
+``(x, y, z)`` float64 world point inside the volume box (what the application passes to
+``ClipTexture.set_center``). Cameras are :class:`clipvol.scene.camera.Camera` objects with their depth
+range fitted to the volume box. The "up" of every path is world ``-y`` so that the first orbit
+frame (looking along ``+z``) shows the volume like ``numpy``'s ``vol.max(axis=0)``: ``x`` to the
+right, ``y`` growing down the image.
+"""
+
+from __future__ import annotations
+
+from typing import Iterator
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..bricking.pyramid import Pyramid
+
+__all__ = ["PATHS", "orbit", "fly", "zoom", "make_path", "volume_center", "volume_radius", "UP"]
+
+#: world "up" of every path: -y, so images look like numpy's vol.max(axis=0) from the front
+UP = (0.0, -1.0, 0.0)
+
+
+def volume_center(pyramid: Pyramid) -> np.ndarray:
+    """Centre ``(x, y, z)`` of the pyramid's volume box."""
+    lo, hi = pyramid.volume_box()
+    return (lo + hi) / 2.0
+
+
+def volume_radius(pyramid: Pyramid) -> float:
+    """Radius of the sphere around the volume box (half its diagonal)."""
+    lo, hi = pyramid.volume_box()
+    return float(np.linalg.norm(hi - lo) / 2.0)
+
+
+def _check_frames(frames: int) -> int:
+    try:
+        n = int(frames)
+    except (TypeError, ValueError):
+        raise ParameterError(f"frames: expected a whole number >= 1, got {frames!r}") from None
+    if n < 1 or n != frames:
+        raise ParameterError(f"frames: expected a whole number >= 1, got {frames!r}")
+    return n
+
+
+def _check_size(size) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in size)
+    except (TypeError, ValueError):
+        raise ParameterError(f"size: expected (width, height) in pixels, got {size!r}") from None
+    if w < 1 or h < 1:
+        raise ParameterError(f"size: expected (width, height) >= 1 pixel, got {size!r}")
+    return w, h
+
+
+def _direction(azimuth_deg: float, elevation_deg: float) -> np.ndarray:
+    """Unit vector from the target to the eye: azimuth about world up (-y), elevation towards up.
+
+    Azimuth 0 and elevation 0 put the eye on the ``-z`` side (looking along ``+z``).
+    """
+    az = np.radians(azimuth_deg)
+    el = np.radians(elevation_deg)
+    return np.array([np.cos(el) * np.sin(az), -np.sin(el), -np.cos(el) * np.cos(az)])
+
+
+def _perspective(eye, target, fov_y: float, size, pyramid: Pyramid):
+    from .camera import Camera
+
+    cam = Camera.perspective(tuple(eye), tuple(target), up=UP, fov_y=fov_y, size=size)
+    lo, hi = pyramid.volume_box()
+    return cam.fit_depth(lo, hi)
+
+
+def fit_distance(pyramid: Pyramid, fov_y: float, size=(1, 1), margin: float = 1.05) -> float:
+    """Distance from the volume centre at which the whole bounding sphere fits in the view."""
+    w, h = _check_size(size)
+    half = np.radians(fov_y) / 2.0
+    half_min = min(half, np.arctan(np.tan(half) * w / h))
+    return margin * volume_radius(pyramid) / np.sin(half_min)
+
+
+def orbit(
+    pyramid: Pyramid,
+    frames: int = 36,
+    *,
+    size=(256, 256),
+    fov_y: float = 35.0,
+    elevation: float = 25.0,
+    distance: float | None = None,
+    turns: float = 1.0,
+    start_azimuth: float = 0.0,
+) -> Iterator[tuple[object, np.ndarray]]:
+    """Circle the volume centre: ``frames`` views at equal azimuth steps over ``turns`` turns.
+
+    Parameters
+    ----------
+    pyramid : Pyramid
+        The data's pyramid (its volume box sets the centre and the default distance).
+    frames : int
+        Number of views; frame ``k`` is at azimuth ``start_azimuth + 360 * turns * k / frames``.
+    size : (int, int)
+        Image ``(width, height)`` of every camera.
+    fov_y : float
+        Vertical field of view in degrees.
+    elevation : float
+        Degrees above the horizontal plane (towards world up, ``-y``).
+    distance : float, optional
+        Eye distance from the centre; default: the whole volume fits (:func:`fit_distance`).
+    turns, start_azimuth : float
+        How far the orbit goes, where it starts (degrees).
+
+    Yields
+    ------
+    (Camera, ndarray)
+        The camera and the centre of interest (the volume centre).
+    """
+    n = _check_frames(frames)
+    size = _check_size(size)
+    if not -89.0 <= float(elevation) <= 89.0:
+        raise ParameterError(f"elevation: expected -89..89 degrees, got {elevation!r}")
+    c = volume_center(pyramid)
+    d = fit_distance(pyramid, fov_y, size) if distance is None else float(distance)
+    if not (np.isfinite(d) and d > 0):
+        raise ParameterError(f"distance: expected a finite value > 0, got {distance!r}")
+    for k in range(n):
+        az = start_azimuth + 360.0 * turns * k / n
+        eye = c + d * _direction(az, elevation)
+        yield _perspective(eye, c, fov_y, size, pyramid), c.copy()
+
+
+def _fly_points(pyramid: Pyramid, t: np.ndarray) -> np.ndarray:
+    """A closed, smooth curve inside the volume box: a tilted ellipse with a vertical wobble."""
+    lo, hi = pyramid.volume_box()
+    c = (lo + hi) / 2.0
+    half = (hi - lo) / 2.0
+    a = 2 * np.pi * t
+    x = c[0] + 0.6 * half[0] * np.sin(a)
+    z = c[2] - 0.6 * half[2] * np.cos(a)
+    y = c[1] + 0.25 * half[1] * np.sin(2 * a)
+    return np.stack([x, y, z], axis=-1)
+
+
+def fly(
+    pyramid: Pyramid,
+    frames: int = 60,
+    *,
+    size=(256, 256),
+    fov_y: float = 60.0,
+    look_ahead: float = 0.08,
+    points=None,
+) -> Iterator[tuple[object, np.ndarray]]:
+    """Fly *through* the volume along a smooth closed curve, looking where the path goes.
+
+    The centre of interest is the point the camera looks at, ``look_ahead`` of the path ahead
+    (as a fraction of the path), so the clip-texture's windows move with the camera and load
+    ahead of it.
+
+    Parameters
+    ----------
+    pyramid : Pyramid
+        The data's pyramid.
+    frames : int
+        Number of views along the path.
+    size : (int, int)
+        Image ``(width, height)``.
+    fov_y : float
+        Vertical field of view in degrees (wide: the camera is inside the data).
+    look_ahead : float
+        Fraction of the path (``0 < look_ahead < 0.5``) between the eye and the point looked at.
+    points : array_like, optional
+        ``(m, 3)`` world ``(x, y, z)`` way-points (``m >= 2``) to fly through instead of the default
+        loop; the path is then a Catmull-Rom spline through them and the camera looks along it.
+
+    Yields
+    ------
+    (Camera, ndarray)
+        The camera and the centre of interest (inside the volume box).
+    """
+    n = _check_frames(frames)
+    size = _check_size(size)
+    if not 0.0 < float(look_ahead) < 0.5:
+        raise ParameterError(f"look_ahead: expected a fraction in (0, 0.5), got {look_ahead!r}")
+    lo, hi = pyramid.volume_box()
+    if points is None:
+        curve = lambda t: _fly_points(pyramid, np.asarray(t, dtype=np.float64) % 1.0)  # noqa: E731
+    else:
+        pts = np.asarray(points, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2 or not np.all(np.isfinite(pts)):
+            raise ParameterError(f"points: expected (m, 3) finite (x, y, z) way-points with m >= 2, got shape {pts.shape}")
+        curve = lambda t: _catmull_rom(pts, np.clip(np.asarray(t, dtype=np.float64), 0.0, 1.0))  # noqa: E731
+    for k in range(n):
+        t = k / n if points is None else (k / max(n - 1, 1)) * (1.0 - look_ahead)
+        eye = curve(t)
+        ahead = curve(t + look_ahead)
+        if np.linalg.norm(ahead - eye) < 1e-9 * max(1.0, volume_radius(pyramid)):
+            ahead = eye + np.array([0.0, 0.0, 1e-3 * volume_radius(pyramid) + 1e-9])
+        target = np.clip(ahead, lo, hi)
+        yield _perspective(eye, ahead, fov_y, size, pyramid), target
+
+
+def _catmull_rom(pts: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Uniform Catmull-Rom spline through ``pts`` at parameters ``t`` in [0, 1] (ends clamped)."""
+    m = len(pts)
+    ext = np.concatenate([pts[:1], pts, pts[-1:]])
+    s = np.asarray(t) * (m - 1)
+    i = np.clip(np.floor(s).astype(int), 0, m - 2)
+    u = (s - i)[..., None]
+    p0, p1, p2, p3 = ext[i], ext[i + 1], ext[i + 2], ext[i + 3]
+    return 0.5 * (2 * p1 + (-p0 + p2) * u + (2 * p0 - 5 * p1 + 4 * p2 - p3) * u**2 + (-p0 + 3 * p1 - 3 * p2 + p3) * u**3)
+
+
+def zoom(
+    pyramid: Pyramid,
+    frames: int = 40,
+    *,
+    size=(256, 256),
+    fov_y: float = 35.0,
+    target=None,
+    azimuth: float = 30.0,
+    elevation: float = 25.0,
+    end_distance: float | None = None,
+) -> Iterator[tuple[object, np.ndarray]]:
+    """Zoom from the whole view to a close-up of ``target`` (geometric steps in distance).
+
+    The view direction is fixed; the eye moves from the distance at which the whole volume fits to
+    ``end_distance`` from ``target``, and the looked-at point slides from the volume centre to
+    ``target``. The centre of interest is the looked-at point.
+
+    Parameters
+    ----------
+    pyramid : Pyramid
+        The data's pyramid.
+    frames : int
+        Number of views (the first is the whole view, the last the close-up).
+    size : (int, int)
+        Image ``(width, height)``.
+    fov_y : float
+        Vertical field of view in degrees.
+    target : array_like, optional
+        ``(x, y, z)`` world point to zoom onto; default: a point a third of the way from the
+        centre to the ``(lo.x, lo.y, lo.z)`` corner (off-centre, so the windows must move).
+    azimuth, elevation : float
+        View direction, degrees (as in :func:`orbit`).
+    end_distance : float, optional
+        Final distance from ``target``; default: where a level-0 voxel near ``target`` spans about
+        two pixels (so level 0 is wanted there at ``lod_threshold`` 1), but at most a fifth of the
+        starting distance.
+
+    Yields
+    ------
+    (Camera, ndarray)
+        The camera and the centre of interest.
+    """
+    n = _check_frames(frames)
+    size = _check_size(size)
+    lo, hi = pyramid.volume_box()
+    c = volume_center(pyramid)
+    if target is None:
+        p = c + (lo - c) / 3.0
+    else:
+        p = np.asarray(target, dtype=np.float64)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise ParameterError(f"target: expected a finite (x, y, z) point, got {target!r}")
+        if np.any(p < lo) or np.any(p > hi):
+            raise ParameterError(f"target: expected a point inside the volume box {lo.tolist()}..{hi.tolist()}, got {p.tolist()}")
+    d0 = fit_distance(pyramid, fov_y, size)
+    if end_distance is None:
+        d1 = 0.5 * max(pyramid.spacing) * min(size) / (2 * np.tan(np.radians(fov_y) / 2))
+        d1 = min(max(d1, 2.0 * max(pyramid.spacing)), 0.2 * d0)
+    else:
+        d1 = float(end_distance)
+        if not (np.isfinite(d1) and 0 < d1):
+            raise ParameterError(f"end_distance: expected a finite value > 0, got {end_distance!r}")
+    direction = _direction(azimuth, elevation)
+    for k in range(n):
+        s = k / (n - 1) if n > 1 else 1.0
+        d = d0 * (d1 / d0) ** s
+        look = c + (p - c) * s
+        eye = look + d * direction
+        yield _perspective(eye, look, fov_y, size, pyramid), np.clip(look, lo, hi)
+
+
+PATHS = {"orbit": orbit, "fly": fly, "zoom": zoom}
+
+
+def make_path(name: str, pyramid: Pyramid, frames: int, *, size=(256, 256), **kwargs) -> Iterator[tuple[object, np.ndarray]]:
+    """The path called ``name`` (``orbit``, ``fly`` or ``zoom``) with ``frames`` views of ``size``."""
+    if name not in PATHS:
+        raise ParameterError(f"path: expected one of {', '.join(PATHS)}, got {name!r}")
+    return PATHS[name](pyramid, frames, size=size, **kwargs)

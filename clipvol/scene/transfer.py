@@ -1,0 +1,257 @@
+"""Transfer functions: data value -> straight (non-premultiplied) RGBA, as a table.
+
+Why a table: the renderer uploads it as a 1-D texture sampled with ``GL_LINEAR`` and
+``CLAMP_TO_EDGE``, and everything on the CPU side that must agree with the picture - the numpy
+references in the tests, and above all the empty-space test that lets the renderer skip bricks
+the transfer function makes fully transparent without loading them - evaluates *that very
+texture* (:meth:`TransferFunction.lookup`, :meth:`TransferFunction.transparent_mask`). A brick
+is skipped only when no value in its ``[min, max]`` can reach a table entry with alpha > 0, even
+through interpolation, so skipping never changes an image.
+
+Values are normalised over the transfer function's window ``value_range`` (``None``: the data's
+range, ``pyramid.value_range``): ``t = clip((v - lo) / (hi - lo), 0, 1)``; a zero-width window is a
+step (``t = 0`` below, ``0.5`` at, ``1`` above it); NaN maps to ``t = 0``.
+
+:func:`correct_opacity` adapts an opacity defined for a unit sample spacing to a spacing
+``ratio`` times as long, in a form stable near alpha 0 and 1.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+from ..errors import ParameterError
+
+__all__ = ["TransferFunction", "correct_opacity", "transparency_filter"]
+
+# 17 samples (t = 0, 1/16, ..., 1) of matplotlib's perceptually uniform colormaps (CC0 data by
+# van der Walt & Smith), tabulated here so that matplotlib is not needed at run time.
+_CMAPS: dict[str, tuple[tuple[float, float, float], ...]] = {
+    "viridis": ((0.2670, 0.0049, 0.3294), (0.2823, 0.0950, 0.4173), (0.2788, 0.1755, 0.4834), (0.2590, 0.2515, 0.5247), (0.2297, 0.3224, 0.5457), (0.1994, 0.3876, 0.5546), (0.1727, 0.4488, 0.5579), (0.1490, 0.5081, 0.5573), (0.1276, 0.5669, 0.5506), (0.1206, 0.6258, 0.5335), (0.1579, 0.6838, 0.5017), (0.2461, 0.7389, 0.4520), (0.3692, 0.7889, 0.3829), (0.5160, 0.8312, 0.2943), (0.6785, 0.8637, 0.1895), (0.8456, 0.8873, 0.0997), (0.9932, 0.9062, 0.1439)),
+    "magma": ((0.0015, 0.0005, 0.0139), (0.0396, 0.0311, 0.1335), (0.1131, 0.0655, 0.2768), (0.2117, 0.0620, 0.4186), (0.3167, 0.0717, 0.4854), (0.4147, 0.1104, 0.5047), (0.5128, 0.1482, 0.5076), (0.6136, 0.1818, 0.4985), (0.7164, 0.2150, 0.4753), (0.8169, 0.2559, 0.4365), (0.9043, 0.3196, 0.3881), (0.9609, 0.4183, 0.3596), (0.9867, 0.5356, 0.3822), (0.9961, 0.6537, 0.4462), (0.9969, 0.7696, 0.5349), (0.9924, 0.8843, 0.6401), (0.9871, 0.9914, 0.7495)),
+    "inferno": ((0.0015, 0.0005, 0.0139), (0.0423, 0.0281, 0.1411), (0.1293, 0.0473, 0.2908), (0.2383, 0.0366, 0.3964), (0.3415, 0.0623, 0.4294), (0.4412, 0.0993, 0.4316), (0.5409, 0.1347, 0.4151), (0.6401, 0.1714, 0.3811), (0.7357, 0.2159, 0.3302), (0.8224, 0.2752, 0.2661), (0.8943, 0.3534, 0.1936), (0.9470, 0.4492, 0.1153), (0.9784, 0.5579, 0.0349), (0.9879, 0.6753, 0.0653), (0.9746, 0.7977, 0.2063), (0.9476, 0.9174, 0.4107), (0.9884, 0.9984, 0.6449)),
+    "plasma": ((0.0504, 0.0298, 0.5280), (0.1934, 0.0184, 0.5903), (0.2999, 0.0096, 0.6316), (0.3994, 0.0009, 0.6561), (0.4949, 0.0120, 0.6579), (0.5844, 0.0686, 0.6328), (0.6651, 0.1386, 0.5856), (0.7360, 0.2094, 0.5279), (0.7982, 0.2802, 0.4695), (0.8533, 0.3516, 0.4137), (0.9018, 0.4251, 0.3597), (0.9426, 0.5026, 0.3058), (0.9734, 0.5858, 0.2515), (0.9914, 0.6754, 0.1985), (0.9930, 0.7717, 0.1548), (0.9744, 0.8746, 0.1441), (0.9400, 0.9752, 0.1313)),
+}
+
+# CT-like: air and fat transparent, a faint translucent skin-coloured band for soft tissue, then
+# opacity rising to opaque white bone at the top of the range.
+_BONE = (
+    (0.00, (0.0, 0.0, 0.0, 0.0)),
+    (0.25, (0.0, 0.0, 0.0, 0.0)),
+    (0.30, (0.85, 0.45, 0.30, 0.08)),
+    (0.42, (0.95, 0.65, 0.45, 0.12)),
+    (0.50, (0.95, 0.70, 0.50, 0.02)),
+    (0.60, (0.90, 0.85, 0.75, 0.25)),
+    (0.80, (0.97, 0.95, 0.90, 0.80)),
+    (1.00, (1.00, 1.00, 1.00, 1.00)),
+)
+
+_PRESETS = ("grey", "viridis", "magma", "inferno", "plasma", "bone")
+
+
+def _check_range(value_range, name: str = "value_range") -> tuple[float, float] | None:
+    if value_range is None:
+        return None
+    try:
+        lo, hi = (float(v) for v in value_range)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{name}: expected (low, high) numbers or None, got {value_range!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+        raise ParameterError(f"{name}: expected finite (low, high) with low <= high, got {value_range!r}")
+    return (lo, hi)
+
+
+def correct_opacity(alpha, ratio):
+    """Opacity of a sample ``ratio`` times as long as the one ``alpha`` is defined for.
+
+    ``1 - (1 - alpha) ** ratio``, computed as ``-expm1(ratio * log1p(-alpha))``: exact to float
+    rounding at alpha near 0 (no cancellation) and alpha near 1 (``alpha = 1`` gives 1 for any
+    ``ratio > 0``). ``alpha`` is clipped to ``[0, 1]``; ``ratio`` must be >= 0 (0 gives 0).
+    Works on scalars and arrays (float64 out).
+    """
+    a = np.clip(np.asarray(alpha, dtype=np.float64), 0.0, 1.0)
+    r = np.asarray(ratio, dtype=np.float64)
+    if np.any(r < 0) or np.any(np.isnan(r)):
+        raise ParameterError(f"ratio: expected values >= 0, got {ratio!r}")
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        out = -np.expm1(r * np.log1p(-a))
+    out = np.where(a >= 1.0, np.where(r > 0, 1.0, 0.0), out)
+    out = np.where(r == 0, 0.0, out)
+    out = np.clip(np.nan_to_num(out, nan=0.0), 0.0, 1.0)
+    return out if out.ndim else float(out)
+
+
+class TransferFunction:
+    """A straight-alpha RGBA table of ``n`` entries over the normalised value ``t`` in ``[0, 1]``.
+
+    Entry ``i`` sits at ``t = (i + 0.5) / n`` (a texel centre); between entries the colour is
+    interpolated linearly and it is clamped beyond the first and last centre, exactly like a
+    ``GL_LINEAR``/``CLAMP_TO_EDGE`` 1-D texture of :attr:`table`.
+
+    Parameters
+    ----------
+    table : array_like
+        ``(n, 4)`` RGBA in ``[0, 1]``, ``n >= 1``.
+    value_range : tuple or None
+        The window ``(lo, hi)`` of data values mapped to ``t = 0 .. 1``; None uses the data's range.
+    """
+
+    __slots__ = ("_table", "_value_range")
+
+    def __init__(self, table, value_range=None) -> None:
+        t = np.asarray(table, dtype=np.float64)
+        if t.ndim != 2 or t.shape[1] != 4 or t.shape[0] < 1:
+            raise ParameterError(f"table: expected an (n, 4) RGBA array with n >= 1, got shape {t.shape}")
+        if not np.all(np.isfinite(t)) or t.min() < 0 or t.max() > 1:
+            raise ParameterError("table: expected RGBA values in [0, 1]")
+        self._table = np.ascontiguousarray(t, dtype=np.float32)
+        self._table.setflags(write=False)
+        self._value_range = _check_range(value_range)
+
+    # -- construction -------------------------------------------------------------------------
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        """Names accepted by :meth:`preset`."""
+        return _PRESETS
+
+    @classmethod
+    def from_points(cls, points: Sequence, value_range=None, n: int = 256) -> "TransferFunction":
+        """Piecewise-linear RGBA through control points ``[(t, (r, g, b, a)), ...]``, ``t`` ascending in ``[0, 1]``.
+
+        The table holds the curve evaluated at the texel centres ``(i + 0.5) / n``; the curve is
+        constant beyond the first and last point.
+        """
+        n = int(n)
+        if n < 1:
+            raise ParameterError(f"n: expected a table size >= 1, got {n}")
+        try:
+            ts = np.array([float(p[0]) for p in points])
+            cs = np.array([[float(c) for c in p[1]] for p in points])
+        except (TypeError, ValueError, IndexError):
+            raise ParameterError(f"points: expected a sequence of (t, (r, g, b, a)), got {points!r}") from None
+        if ts.size == 0 or cs.shape != (ts.size, 4):
+            raise ParameterError(f"points: expected at least one (t, (r, g, b, a)), got {points!r}")
+        if not np.all(np.isfinite(ts)) or ts.min() < 0 or ts.max() > 1 or np.any(np.diff(ts) < 0):
+            raise ParameterError(f"points: expected t ascending in [0, 1], got {ts.tolist()}")
+        if not np.all(np.isfinite(cs)) or cs.min() < 0 or cs.max() > 1:
+            raise ParameterError("points: expected RGBA values in [0, 1]")
+        x = (np.arange(n) + 0.5) / n
+        table = np.stack([np.interp(x, ts, cs[:, k]) for k in range(4)], axis=1)
+        return cls(table, value_range)
+
+    @classmethod
+    def preset(cls, name: str, value_range=None, n: int = 256) -> "TransferFunction":
+        """A named transfer function (see :meth:`names`).
+
+        ``grey``: rgb = alpha = t. ``viridis``/``magma``/``inferno``/``plasma``: matplotlib's
+        colours with alpha = t. ``bone``: CT-like (transparent below soft tissue, a translucent
+        skin-coloured band, opaque white bone at the top).
+        """
+        if name == "grey" or name == "gray":
+            return cls.from_points([(0.0, (0, 0, 0, 0)), (1.0, (1, 1, 1, 1))], value_range, n)
+        if name in _CMAPS:
+            cols = _CMAPS[name]
+            k = len(cols) - 1
+            return cls.from_points([(i / k, (*c, i / k)) for i, c in enumerate(cols)], value_range, n)
+        if name == "bone":
+            return cls.from_points(_BONE, value_range, n)
+        raise ParameterError(f"transfer function preset: expected one of {', '.join(_PRESETS)}, got {name!r}")
+
+    # -- properties ---------------------------------------------------------------------------
+    @property
+    def table(self) -> np.ndarray:
+        """``(n, 4)`` float32 straight RGBA (read-only)."""
+        return self._table
+
+    @property
+    def value_range(self) -> tuple[float, float] | None:
+        """The window of data values mapped to ``t = 0 .. 1``, or None for the data's range."""
+        return self._value_range
+
+    def with_value_range(self, value_range) -> "TransferFunction":
+        """The same table over another window."""
+        return TransferFunction(self._table, value_range)
+
+    def __repr__(self) -> str:
+        return f"TransferFunction(n={len(self._table)}, value_range={self._value_range})"
+
+    # -- evaluation ---------------------------------------------------------------------------
+    def window(self, data_range) -> tuple[float, float]:
+        """The ``(lo, hi)`` in effect: :attr:`value_range`, else ``data_range``."""
+        if self._value_range is not None:
+            return self._value_range
+        r = _check_range(data_range, "data_range")
+        if r is None:
+            raise ParameterError("data_range: expected (low, high) when the transfer function has no value_range, got None")
+        return r
+
+    def normalise(self, values, data_range=None) -> np.ndarray:
+        """``t = clip((v - lo) / (hi - lo), 0, 1)`` in float64 (zero-width window: a step; NaN: 0)."""
+        lo, hi = self.window(data_range)
+        v = np.asarray(values, dtype=np.float64)
+        if hi > lo:
+            with np.errstate(invalid="ignore", over="ignore"):
+                t = np.clip((v - lo) / (hi - lo), 0.0, 1.0)
+        else:
+            t = np.where(v < lo, 0.0, np.where(v > hi, 1.0, 0.5))
+        return np.where(np.isnan(v), 0.0, t)
+
+    def _texcoord(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        n = len(self._table)
+        u = t * n - 0.5
+        i0 = np.floor(u)
+        f = u - i0
+        i0 = i0.astype(np.int64)
+        return np.clip(i0, 0, n - 1), np.clip(i0 + 1, 0, n - 1), f
+
+    def lookup(self, values, data_range=None) -> np.ndarray:
+        """``(..., 4)`` float64 straight RGBA of ``values``, as the ``GL_LINEAR`` texture gives it."""
+        t = self.normalise(values, data_range)
+        i0, i1, f = self._texcoord(t)
+        tab = self._table.astype(np.float64)
+        return tab[i0] * (1.0 - f)[..., None] + tab[i1] * f[..., None]
+
+    def transparent_mask(self, ranges, data_range=None) -> np.ndarray:
+        """``(n,)`` bool: True where alpha is 0 for every value in ``[min, max]`` of each row of ``ranges``.
+
+        Exact with respect to :meth:`lookup` and conservative: every table entry that any value of
+        the range reaches with a non-zero interpolation weight must have alpha 0. A NaN bound
+        gives False (unknown data may be visible).
+        """
+        r = np.asarray(ranges, dtype=np.float64).reshape(-1, 2)
+        bad = np.isnan(r).any(axis=1)
+        t0 = self.normalise(np.where(bad, 0.0, r[:, 0]), data_range)
+        t1 = self.normalise(np.where(bad, 0.0, r[:, 1]), data_range)
+        t0, t1 = np.minimum(t0, t1), np.maximum(t0, t1)
+        n = len(self._table)
+        first = np.clip(np.floor(t0 * n - 0.5).astype(np.int64), 0, n - 1)
+        last = np.clip(np.ceil(t1 * n - 0.5).astype(np.int64), 0, n - 1)
+        visible = np.concatenate([[0], np.cumsum(self._table[:, 3] > 0)])
+        hits = visible[last + 1] - visible[first]
+        return (hits == 0) & ~bad
+
+
+def transparency_filter(tf: TransferFunction, loader):
+    """A ``transparent(level, idx) -> (n,) bool`` callback for :func:`clipvol.scene.selection.select`.
+
+    Uses the loader's :class:`~clipvol.paging.loader.HasBrickRanges` bounds (no brick is read) and
+    :meth:`TransferFunction.transparent_mask` over the loader's ``pyramid.value_range``.
+    Returns None when the loader has no ``brick_ranges``; where it answers None for a level,
+    nothing is reported transparent.
+    """
+    ranges_fn = getattr(loader, "brick_ranges", None)
+    if ranges_fn is None:
+        return None
+    data_range = loader.pyramid.value_range
+
+    def transparent(level: int, idx: np.ndarray) -> np.ndarray:
+        idx = np.asarray(idx).reshape(-1, 3)
+        r = ranges_fn(level, idx)
+        if r is None:
+            return np.zeros(len(idx), dtype=bool)
+        return tf.transparent_mask(r, data_range)
+
+    return transparent

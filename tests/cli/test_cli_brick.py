@@ -1,0 +1,186 @@
+"""`clipvol brick`, `clipvol info`, `clipvol check` through the CLI entry point."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import zarr
+
+import clipvol.bricking.pipeline as brick_mod
+from clipvol.tools.cli import main
+
+
+def _one_error_line(capsys, *needles):
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.strip().splitlines() if ln.strip()]
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    for n in needles:
+        assert n in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.fixture
+def npy(tmp_path, rng):
+    vol = rng.integers(0, 1000, size=(20, 12, 18)).astype(np.uint16)
+    p = tmp_path / "v.npy"
+    np.save(p, vol)
+    return p, vol
+
+
+@pytest.mark.parametrize(
+    "extra,needles",
+    [
+        (["--brick", "4"], ["brick", "8..256", "4"]),
+        (["--brick", "300"], ["brick", "300"]),
+        (["--brick", "9"], ["brick", "even"]),
+        (["--filter", "median"], ["filter", "median"]),
+        (["--codec", "gzip"], ["codec", "gzip"]),
+        (["--spacing", "1,2"], ["--spacing", "1,2"]),
+        (["--spacing", "1,0,2"], ["spacing"]),
+        (["--workers", "0"], ["workers"]),
+        (["--unit", " "], ["unit"]),
+    ],
+)
+def test_bad_parameters(tmp_path, npy, capsys, extra, needles):
+    assert main(["brick", str(npy[0]), str(tmp_path / "o.zarr"), "--quiet", *extra]) == 2
+    _one_error_line(capsys, *needles)
+    assert not (tmp_path / "o.zarr").exists()
+
+
+def test_missing_input(tmp_path, capsys):
+    assert main(["brick", str(tmp_path / "nope.npy"), str(tmp_path / "o.zarr"), "--quiet"]) == 2
+    _one_error_line(capsys, "nope.npy", "no such")
+
+
+def test_unmatched_glob(tmp_path, capsys):
+    assert main(["brick", str(tmp_path / "x*.tif"), str(tmp_path / "o.zarr"), "--quiet"]) == 2
+    _one_error_line(capsys, "x*.tif")
+
+
+def test_unknown_format(tmp_path, capsys):
+    (tmp_path / "v.dat").write_bytes(b"1234")
+    assert main(["brick", str(tmp_path / "v.dat"), str(tmp_path / "o.zarr"), "--quiet"]) == 2
+    _one_error_line(capsys, "v.dat", "--shape")
+
+
+def test_raw_size_mismatch(tmp_path, capsys):
+    (tmp_path / "v.raw").write_bytes(bytes(1000))
+    assert main(["brick", str(tmp_path / "v.raw"), str(tmp_path / "o.zarr"), "--shape", "10,10,10", "--dtype", "uint16", "--quiet"]) == 2
+    _one_error_line(capsys, "v.raw", "2000", "1000")
+
+
+def test_raw_needs_dtype(tmp_path, capsys):
+    (tmp_path / "v.raw").write_bytes(bytes(1000))
+    assert main(["brick", str(tmp_path / "v.raw"), str(tmp_path / "o.zarr"), "--shape", "10,10,10", "--quiet"]) == 2
+    _one_error_line(capsys, "--dtype")
+
+
+@pytest.mark.parametrize("dtype", ["complex64", "bool", "object"])
+def test_unsupported_dtype_raw(tmp_path, capsys, dtype):
+    (tmp_path / "v.raw").write_bytes(bytes(8))
+    assert main(["brick", str(tmp_path / "v.raw"), str(tmp_path / "o.zarr"), "--shape", "1,1,1", "--dtype", dtype, "--quiet"]) == 2
+    _one_error_line(capsys, "dtype", dtype)
+
+
+@pytest.mark.parametrize("arr", [np.zeros((2, 2, 2), np.complex64), np.zeros((2, 2, 2), bool)])
+def test_unsupported_dtype_npy(tmp_path, capsys, arr):
+    np.save(tmp_path / "v.npy", arr)
+    assert main(["brick", str(tmp_path / "v.npy"), str(tmp_path / "o.zarr"), "--quiet"]) == 2
+    _one_error_line(capsys, "v.npy", "dtype", str(arr.dtype))
+
+
+def test_zero_axis(tmp_path, capsys):
+    np.save(tmp_path / "v.npy", np.zeros((3, 0, 4), np.uint8))
+    assert main(["brick", str(tmp_path / "v.npy"), str(tmp_path / "o.zarr"), "--quiet"]) == 2
+    _one_error_line(capsys, "v.npy", "(3, 0, 4)")
+
+
+def test_unknown_procedural(tmp_path, capsys):
+    assert main(["brick", "procedural:clouds?size=8", str(tmp_path / "o.zarr"), "--quiet"]) == 2
+    _one_error_line(capsys, "clouds", "fractal")
+
+
+def test_output_exists(tmp_path, npy, capsys):
+    out = tmp_path / "o.zarr"
+    out.mkdir()
+    (out / "keep.txt").write_text("x")
+    assert main(["brick", str(npy[0]), str(out), "--quiet"]) == 2
+    _one_error_line(capsys, "o.zarr", "--overwrite")
+    assert (out / "keep.txt").exists()
+    assert main(["brick", str(npy[0]), str(out), "--quiet", "--brick", "8", "--overwrite"]) == 0
+    assert not (out / "keep.txt").exists()
+    capsys.readouterr()
+    assert main(["brick", str(npy[0]), str(out), "--quiet", "--brick", "8"]) == 2
+    _one_error_line(capsys, "complete", "--overwrite")
+
+
+def test_resume_with_other_parameters(tmp_path, npy, capsys, monkeypatch):
+    out = tmp_path / "o.zarr"
+
+    def crash(level, index):
+        raise RuntimeError("crash")
+
+    monkeypatch.setattr(brick_mod, "_after_brick", crash)
+    with pytest.raises(RuntimeError):
+        main(["brick", str(npy[0]), str(out), "--quiet", "--brick", "8"])
+    monkeypatch.setattr(brick_mod, "_after_brick", None)
+    capsys.readouterr()
+    assert main(["brick", str(npy[0]), str(out), "--quiet", "--brick", "16"]) == 2
+    _one_error_line(capsys, "brick_shape", "--overwrite")
+    assert main(["info", str(out)]) == 0
+    assert "no (interrupted" in capsys.readouterr().out
+    assert main(["check", str(out)]) == 1
+    assert "incomplete" in capsys.readouterr().err
+    assert main(["brick", str(npy[0]), str(out), "--quiet", "--brick", "8"]) == 0
+    assert main(["check", str(out), "--samples", "100"]) == 0
+
+
+def test_brick_info_check(tmp_path, npy, capsys):
+    p, vol = npy
+    out = tmp_path / "o.zarr"
+    assert main(["brick", str(p), str(out), "--brick", "8", "--spacing", "2,1,1", "--unit", "nanometer", "--codec", "zstd"]) == 0
+    cap = capsys.readouterr()
+    assert "bricking" in cap.err  # the progress bar
+    np.testing.assert_array_equal(zarr.open_group(str(out), mode="r")["0"][...], vol)
+    assert main(["info", str(out)]) == 0
+    text = capsys.readouterr().out
+    g = zarr.open_group(str(out), mode="r")
+    for L, shape in enumerate(g.attrs["clipvol"]["levels"]):
+        assert "x".join(map(str, shape)) in text
+    assert "uint16" in text and "zstd" in text and "mean" in text and "nanometer" in text
+    assert f"{vol.min():g} .. {vol.max():g}" in text
+    assert "complete   yes" in text
+    assert main(["check", str(out), "--samples", "3"]) == 0
+    assert "ok" in capsys.readouterr().out
+
+
+def _encode_like_store(out, level, block):
+    from clipvol.bricking.pipeline import chunk_encoder
+
+    return chunk_encoder("lz4", block.dtype)(block)
+
+
+@pytest.mark.parametrize("how", ["garbage", "wrong data"])
+def test_check_names_a_corrupted_brick(tmp_path, npy, capsys, how):
+    p, vol = npy
+    out = tmp_path / "o.zarr"
+    assert main(["brick", str(p), str(out), "--brick", "8", "--quiet"]) == 0
+    chunk = out / "1" / "c" / "1" / "0" / "1"
+    assert chunk.exists()
+    if how == "garbage":
+        chunk.write_bytes(b"not a blosc chunk at all")
+    else:
+        blk = zarr.open_group(str(out), mode="r")["1"][0:8, 0:8, 0:8][...]  # brick (0,0,0), a valid one
+        chunk.write_bytes(_encode_like_store(out, 1, blk))
+    assert main(["check", str(out), "--samples", "1000"]) == 1
+    err = capsys.readouterr().err
+    assert "level 1 brick (1, 0, 1)" in err
+
+
+def test_info_and_check_on_non_store(tmp_path, capsys):
+    assert main(["info", str(tmp_path / "missing.zarr")]) == 2
+    _one_error_line(capsys, "missing.zarr")
+    (tmp_path / "d").mkdir()
+    assert main(["check", str(tmp_path / "d")]) == 2
+    _one_error_line(capsys, "zarr.json")

@@ -1,0 +1,157 @@
+"""Transfer functions against independent references (np.interp, float64 powers, matplotlib)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from clipvol.errors import ParameterError
+from clipvol.scene.transfer import TransferFunction, correct_opacity, transparency_filter
+
+EDGE_ALPHAS = np.array([0.0, 1e-7, 1e-3, 0.5, 1 - 1e-7, 1.0])
+RATIOS = np.logspace(-3, 3, 25)
+
+
+def _interp_ref(tf, t):
+    """GL_LINEAR + CLAMP_TO_EDGE of the table = np.interp over the texel centres."""
+    n = len(tf.table)
+    x = (np.arange(n) + 0.5) / n
+    return np.stack([np.interp(t, x, tf.table[:, k].astype(np.float64)) for k in range(4)], axis=-1)
+
+
+def test_correct_opacity_edge_values_are_finite_monotone_and_exact():
+    a, r = np.meshgrid(EDGE_ALPHAS, RATIOS, indexing="ij")
+    out = correct_opacity(a, r)
+    assert np.all(np.isfinite(out)) and np.all((out >= 0) & (out <= 1))
+    assert np.all(np.diff(out, axis=0) >= 0) and np.all(np.diff(out, axis=1) >= 0)
+    np.testing.assert_array_equal(out[0], 0.0)
+    np.testing.assert_array_equal(out[-1], 1.0)
+    ref = 1.0 - (1.0 - a) ** r
+    # float64 reference loses ~1e-16/alpha relative accuracy at tiny alpha; ours is better
+    np.testing.assert_allclose(out, ref, rtol=1e-8, atol=1e-15)
+    # near 0 the expansion alpha * ratio is the truth
+    np.testing.assert_allclose(correct_opacity(1e-12, RATIOS), 1e-12 * RATIOS, rtol=1e-9)
+    assert correct_opacity(0.3, 1.0) == pytest.approx(0.3, rel=1e-15)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(0.0, 1.0), st.floats(1e-3, 1e3))
+def test_correct_opacity_matches_power_form(a, r):
+    got = correct_opacity(a, r)
+    ref = 1.0 - (1.0 - a) ** r
+    assert np.isfinite(got) and 0.0 <= got <= 1.0
+    assert got == pytest.approx(ref, rel=1e-7, abs=1e-12)
+    assert correct_opacity(a, r * 1.5) >= got
+
+
+@pytest.mark.parametrize("name", TransferFunction.names())
+def test_lookup_equals_np_interp_reference(name):
+    tf = TransferFunction.preset(name, n=64)
+    rng = np.random.default_rng(0)
+    v = np.concatenate([rng.uniform(-20, 120, 2000), [-1e30, 1e30, 0, 100, 50]])
+    t = np.clip((v - 0) / 100, 0, 1)
+    np.testing.assert_allclose(tf.lookup(v, (0, 100)), _interp_ref(tf, t), atol=1e-12)
+    np.testing.assert_allclose(tf.normalise(v, (0, 100)), t)
+
+
+def test_value_range_overrides_data_range_and_nan_maps_to_zero():
+    tf = TransferFunction.preset("grey", value_range=(10, 20))
+    np.testing.assert_allclose(tf.normalise([5, 15, 25], (0, 1000)), [0, 0.5, 1])
+    assert tf.normalise(np.nan, (0, 1)) == 0.0
+    with pytest.raises(ParameterError):
+        TransferFunction.preset("grey").normalise([1.0], None)
+
+
+def test_zero_width_range_is_a_step_without_division():
+    tf = TransferFunction.preset("grey")
+    with np.errstate(all="raise"):
+        t = tf.normalise([-1.0, 3.0, 3.0, 7.0], (3.0, 3.0))
+        rgba = tf.lookup([-1.0, 3.0, 7.0], (3.0, 3.0))
+    np.testing.assert_array_equal(t, [0, 0.5, 0.5, 1])
+    np.testing.assert_allclose(rgba, _interp_ref(tf, np.array([0, 0.5, 1])))
+    m = tf.transparent_mask([[-5, -1], [3, 3]], (3.0, 3.0))
+    ref = [np.all(tf.lookup(np.array([-5, -1]), (3.0, 3.0))[:, 3] == 0), False]
+    np.testing.assert_array_equal(m, ref)
+
+
+@pytest.mark.parametrize("name", ["bone", "custom"])
+def test_transparent_mask_is_exact_against_brute_force(name):
+    if name == "bone":
+        tf = TransferFunction.preset("bone", n=64)
+    else:
+        tf = TransferFunction.from_points(
+            [(0, (1, 1, 1, 0)), (0.3, (1, 1, 1, 0)), (0.31, (1, 0, 0, 0.5)), (0.33, (1, 0, 0, 0)),
+             (0.7, (0, 0, 0, 0)), (0.71, (0, 1, 0, 1)), (0.72, (0, 0, 0, 0)), (1, (0, 0, 0, 0))], n=100)
+    rng = np.random.default_rng(1)
+    lo = rng.uniform(-0.1, 1.1, 3000)
+    hi = lo + rng.exponential(0.03, 3000)
+    ranges = np.stack([lo, hi], axis=1)
+    got = tf.transparent_mask(ranges, (0.0, 1.0))
+    n = len(tf.table)
+    centres = (np.arange(n) + 0.5) / n
+    brute = np.empty(len(ranges), dtype=bool)
+    for i, (a, b) in enumerate(ranges):
+        # endpoints, every texel centre inside and dense samples: the alpha is piecewise linear
+        # between centres, so its maximum over [a, b] is attained at one of these points
+        pts = np.concatenate([[a, b], centres[(centres > a) & (centres < b)], np.linspace(a, b, 50)])
+        brute[i] = np.all(tf.lookup(pts, (0.0, 1.0))[:, 3] == 0)
+    np.testing.assert_array_equal(got, brute)
+    assert got.any() and (~got).any()
+    assert not tf.transparent_mask([[np.nan, np.nan]], (0, 1))[0]
+
+
+def test_presets_follow_matplotlib_and_bone_is_ct_like():
+    mpl = pytest.importorskip("matplotlib")
+    x = (np.arange(256) + 0.5) / 256
+    for name in ("viridis", "magma", "inferno", "plasma"):
+        tf = TransferFunction.preset(name)
+        ref = mpl.colormaps[name](x)[:, :3]
+        assert np.abs(tf.table[:, :3] - ref).max() < 0.03, name  # 17-point piecewise-linear fit
+        np.testing.assert_allclose(tf.table[:, 3], x, atol=1e-6)
+    g = TransferFunction.preset("grey")
+    np.testing.assert_allclose(g.table, np.repeat(x[:, None], 4, axis=1), atol=1e-6)
+    bone = TransferFunction.preset("bone")
+    assert bone.transparent_mask([[0.0, 0.2]], (0, 1))[0]
+    top = bone.lookup([1.0], (0, 1))[0]
+    assert top[3] > 0.99 and top[:3].min() > 0.99
+    mid = bone.lookup([0.4], (0, 1))[0]
+    assert 0 < mid[3] < 0.3 and mid[0] > mid[2]  # translucent, warm
+    assert bone.table.dtype == np.float32 and not bone.table.flags.writeable
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda: TransferFunction.preset("nope"),
+        lambda: TransferFunction.from_points([]),
+        lambda: TransferFunction.from_points([(0.5, (1, 1, 1, 1)), (0.2, (0, 0, 0, 0))]),
+        lambda: TransferFunction.from_points([(0.0, (2, 0, 0, 0))]),
+        lambda: TransferFunction.from_points([(0.0, (1, 0, 0, 0))], n=0),
+        lambda: TransferFunction.preset("grey", value_range=(2, 1)),
+        lambda: TransferFunction(np.zeros((4, 3))),
+        lambda: correct_opacity(0.5, -1.0),
+    ],
+)
+def test_invalid_input_raises_parameter_error(make):
+    with pytest.raises(ParameterError):
+        make()
+
+
+def test_transparency_filter_uses_brick_ranges():
+    class L:
+        class pyramid:
+            value_range = (0.0, 100.0)
+
+        def brick_ranges(self, level, idx):
+            return np.where(idx[:, :1] == 0, [[0.0, 10.0]], [[0.0, 90.0]]) if level == 0 else None
+
+    tf = TransferFunction.preset("bone")
+    f = transparency_filter(tf, L())
+    idx = np.array([[0, 0, 0], [1, 0, 0]])
+    ref = tf.transparent_mask([[0, 10], [0, 90]], (0, 100))
+    np.testing.assert_array_equal(f(0, idx), ref)
+    assert ref.tolist() == [True, False]
+    np.testing.assert_array_equal(f(1, idx), [False, False])
+    assert transparency_filter(tf, object()) is None
