@@ -30,7 +30,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import threading
+import warnings
 from collections import OrderedDict
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -38,12 +40,46 @@ from typing import Any
 
 import numpy as np
 
-from clipvol.errors import InputFormatError, InputNotFoundError, ParameterError, StoreFormatError, StoreIncompleteError
+from clipvol.errors import (BrickIntegrityError, InputFormatError, InputNotFoundError, ParameterError, StoreFormatError,
+                            StoreIncompleteError)
 from clipvol.paging.loader import BrickKey
 from clipvol.bricking.pyramid import FILTERS, Int3, LevelInfo, Pyramid, downsample, level_shapes, level_transform, pad_to_brick, validate_dtype
 from clipvol.bricking.store import MAX_BRICK_VOXELS, MAX_VOXELS, STATS_GROUP, STAT_ARRAYS, parse_metadata
 
-__all__ = ["ZarrLoader"]
+__all__ = ["ZarrLoader", "UnverifiedStoreWarning"]
+
+
+class UnverifiedStoreWarning(UserWarning):
+    """A clipvol store written before chunk checksums: its bricks load, but corruption inside a chunk
+    is caught only by the statistics check."""
+
+
+class _ChecksumError(ValueError):
+    pass
+
+
+_UNREAD = object()
+#: CRC-32C of any byte string followed by its own CRC-32C (little-endian), the codec's layout
+_CRC32C_RESIDUE = 0x48674BC7
+
+
+def _crc32c(data) -> int:
+    """CRC-32C (Castagnoli) as zarr v3's ``crc32c`` codec computes it (google-crc32c: a zarr dependency)."""
+    import google_crc32c
+
+    return google_crc32c.value(data)
+
+
+def inside(root: Path, rel: str, where: str) -> Path:
+    """``root / rel`` resolved (symbolic links followed), which must stay inside ``root``: a metadata
+    path that is absolute or climbs out (``../../other.zarr/0``) is an :class:`InputFormatError`."""
+    if not isinstance(rel, str) or not rel or "\x00" in rel or os.path.isabs(rel) or rel.startswith(("/", "\\")):
+        raise InputFormatError(f"{where}: dataset path {rel!r} must be a relative path inside the store")
+    base = root.resolve()
+    p = (base / rel).resolve()
+    if p == base or not p.is_relative_to(base):
+        raise InputFormatError(f"{where}: dataset path {rel!r} resolves to {p}, outside the store {base}")
+    return p
 
 #: bytes of derived (computed) bricks kept for plain OME-Zarr images missing coarse levels
 DERIVED_CACHE_BYTES = 256 * 2**20
@@ -92,6 +128,7 @@ class _ArrayMeta:
     key_prefix: str  # "c/" (v3 default) or "" (v2 / v3 "v2" encoding)
     separator: str
     decoder: Any  # numcodecs codec, None = raw bytes, "fallback" = use zarr indexing
+    checksum: bool = False  # a crc32c codec ends the chain: the last 4 bytes are the CRC-32C of the rest
 
     @property
     def fast(self) -> bool:
@@ -100,6 +137,15 @@ class _ArrayMeta:
     @property
     def blosc(self) -> bool:
         return type(self.decoder).__name__ == "Blosc"
+
+    @property
+    def nbytes(self) -> int:
+        return math.prod(self.chunks) * self.dtype.itemsize
+
+    def chunk_root(self, lead: int) -> str:
+        """The chunk key up to the last three indices, as a string (built once per level: no
+        pathlib on the hot path)."""
+        return str(self.path) + "/" + self.key_prefix + ("0" + self.separator) * lead
 
     def chunk_path(self, cidx: tuple[int, ...]) -> Path:
         return self.path / (self.key_prefix + self.separator.join(str(i) for i in cidx))
@@ -151,6 +197,9 @@ def _array_meta(path: Path, where: str) -> _ArrayMeta:
         codecs = [c if isinstance(c, dict) else {"name": c} for c in m.get("codecs") or []]
         decoder: Any = "fallback"
         endian = "little"
+        checksum = bool(codecs) and codecs[-1].get("name") == "crc32c"
+        if checksum:
+            codecs = codecs[:-1]
         if codecs and codecs[0].get("name") == "bytes" and len(codecs) <= 2 and not m.get("storage_transformers"):
             endian = (codecs[0].get("configuration") or {}).get("endian", "little")
             rest = [c.get("name") for c in codecs[1:]]
@@ -164,7 +213,8 @@ def _array_meta(path: Path, where: str) -> _ArrayMeta:
         prefix = "c" + sep if cke.get("name") == "default" else ""
         if cke.get("name") not in ("default", "v2"):
             decoder = "fallback"
-        return _ArrayMeta(path, shape, chunks, dtype, _fill(m.get("fill_value"), dtype, where), prefix, sep, decoder)
+        return _ArrayMeta(path, shape, chunks, dtype, _fill(m.get("fill_value"), dtype, where), prefix, sep, decoder,
+                          checksum)
     if (path / ".zarray").is_file():
         m = _read_json(path / ".zarray", where)
         raw_dt = m.get("dtype")
@@ -207,7 +257,11 @@ class ZarrLoader:
         Metadata that is inconsistent, absurd, or describes unsupported data.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    #: check every load against the store's statistics (set False only to measure what it costs)
+    check_plausibility: bool = True
+
+    def __init__(self, path: str | Path, *, allow_incomplete: bool = False) -> None:
+        self._allow_incomplete = bool(allow_incomplete)
         if isinstance(path, str) and path.startswith("zarr:"):
             path = path[len("zarr:"):]
         self.path = Path(path)
@@ -232,11 +286,31 @@ class ZarrLoader:
             self._open_clipvol(attrs)
         else:
             self._open_ome(attrs)
+        self._prepare_hot_path()
+
+    def _prepare_hot_path(self) -> None:
+        """Per level, what :meth:`read_brick_into` needs without building anything per call: the
+        chunk key's root as a string, the separator, the grid, whether edge bricks are whole, and
+        whether the level can be decoded straight into a slot."""
+        pyr = self._pyramid
+        self._roots = [am.chunk_root(self._lead) for am in self._arrays]
+        self._seps = [am.separator for am in self._arrays]
+        self._grids = [pyr.grid(L) for L in range(pyr.num_levels)]
+        self._full_last = [tuple(n % b == 0 for n, b in zip(pyr.levels[L].shape, pyr.brick_shape))
+                           for L in range(pyr.num_levels)]
+        self._direct = [L < self._stored and am.fast and not self._lead and am.chunks == pyr.brick_shape
+                        and am.dtype == pyr.dtype and (am.decoder is None or am.blosc)
+                        for L, am in enumerate(self._arrays)]
+
+    @property
+    def checksummed(self) -> bool:
+        """True when every stored level carries zarr v3's ``crc32c`` codec (each chunk is verified on read)."""
+        return all(am.checksum for am in self._arrays)
 
     # -- opening ------------------------------------------------------------------------------
     def _open_clipvol(self, attrs: dict) -> None:
         meta = parse_metadata(attrs, self._where)
-        if not meta.complete:
+        if not meta.complete and not self._allow_incomplete:
             raise StoreIncompleteError(
                 f"{self._where}: the store is incomplete (attrs['clipvol']['complete'] is false): its build was "
                 "interrupted; re-run `clipvol brick` with the same arguments to resume it"
@@ -256,6 +330,10 @@ class ZarrLoader:
             self._arrays.append(am)
         self._pyramid = replace(pyr, dtype=pyr.dtype.newbyteorder("="))
         self._stored = pyr.num_levels
+        if not all(am.checksum for am in self._arrays):
+            warnings.warn(f"{self._where}: unverified store (written before chunk checksums): corruption inside a chunk "
+                          "is caught only by the statistics check; `clipvol check --all` reads every brick",
+                          UnverifiedStoreWarning, stacklevel=3)
 
     def _open_ome(self, attrs: dict) -> None:
         ome = attrs.get("ome") if isinstance(attrs.get("ome"), dict) else attrs
@@ -268,7 +346,7 @@ class ZarrLoader:
         if not isinstance(datasets, list) or not datasets or not all(isinstance(d, dict) and isinstance(d.get("path"), str) for d in datasets):
             raise InputFormatError(f"{self._where}: OME-Zarr 'multiscales'[0]['datasets'] is malformed")
         self.is_clipvol_store = False
-        first = _array_meta(self.path / datasets[0]["path"], f"{self._where} level 0")
+        first = _array_meta(inside(self.path, datasets[0]["path"], f"{self._where} level 0"), f"{self._where} level 0")
         nd = len(first.shape)
         if nd < 3 or any(s != 1 for s in first.shape[:-3]):
             raise InputFormatError(
@@ -280,8 +358,9 @@ class ZarrLoader:
         expect = level_shapes(first.shape[-3:], brick)
         arrays = [first]
         for L, ds in enumerate(datasets[1:len(expect)], start=1):
+            lpath = inside(self.path, ds["path"], f"{self._where} level {L}")  # outside the store: an error, not a skip
             try:
-                am = _array_meta(self.path / ds["path"], f"{self._where} level {L}")
+                am = _array_meta(lpath, f"{self._where} level {L}")
             except (InputFormatError, FileNotFoundError):
                 break
             if am.shape[-3:] != expect[L] or am.chunks[-3:] != brick or am.dtype != first.dtype or len(am.shape) != nd:
@@ -300,6 +379,7 @@ class ZarrLoader:
         fill = first.fill_value if math.isfinite(first.fill_value) else 0.0
         self._pyramid = Pyramid(tuple(infos), brick, dtype, vr or (0.0, 0.0), fill, filt)
         if vr is None:
+            self._prepare_hot_path()  # _coarsest_range reads bricks
             self._pyramid = replace(self._pyramid, value_range=self._coarsest_range())
 
     def _ome_levels(self, ms: dict, shapes: list) -> list[LevelInfo]:
@@ -359,21 +439,33 @@ class ZarrLoader:
         return self._stored
 
     def read_brick(self, level: int, index: Int3) -> np.ndarray:
-        """Brick ``index`` ``(bz, by, bx)`` of ``level``: brick shape, native dtype, edge-replicated."""
+        """Brick ``index`` ``(bz, by, bx)`` of ``level``: brick shape, native dtype, edge-replicated.
+
+        Raises :class:`~clipvol.errors.BrickIntegrityError` when the chunk fails its checksum, when
+        its decoded bounds disagree with the store's statistics, or when it is missing although the
+        statistics say it holds data: wrong data is never returned as if right.
+        """
         index = self._pyramid.check_key(level, index)
         if level >= self._stored:
             return self._derived_brick(level, index)
         am = self._arrays[level]
         start, stop = self._pyramid.brick_voxel_box(level, index)
+        valid = tuple(e - s for s, e in zip(start, stop))
         if am.fast:
-            block = self._read_fast(am, level, index)
+            buf = np.empty(am.nbytes, dtype=np.uint8)
+            if not self._load_chunk(am, level, index, buf):
+                self._check_absent(level, index)
+                return np.full(self._pyramid.brick_shape, am.fill_value, dtype=self._pyramid.dtype)
+            block = buf.view(am.dtype).reshape(am.chunks)
+            if self._lead:
+                block = block[(0,) * self._lead]
         else:
             block = self._read_zarr(level, start, stop)
-        valid = tuple(e - s for s, e in zip(start, stop))
         if block.shape != valid:
             block = block[tuple(slice(0, v) for v in valid)]
         if block.dtype != self._pyramid.dtype:
             block = block.astype(self._pyramid.dtype)
+        self._check_plausible(level, index, block)
         return pad_to_brick(block, self._pyramid.brick_shape)
 
     def read_brick_into(self, level: int, index: Int3, out: np.ndarray) -> None:
@@ -381,66 +473,152 @@ class ZarrLoader:
 
         The clip-texture hands its slot here: an interior brick of a blosc (or uncompressed) level
         is decoded straight into it, saving a copy of every brick; anything else goes through
-        :meth:`read_brick` and one copy. Same contract and errors as :meth:`read_brick`.
+        :meth:`read_brick` and one copy. Same contract and errors as :meth:`read_brick`; on an
+        error ``out`` holds garbage (the caller marks the brick failed, it never shows it).
         """
-        index = self._pyramid.check_key(level, index)
-        pyr = self._pyramid
-        if level < self._stored and out.flags.c_contiguous and out.shape == pyr.brick_shape and out.dtype == pyr.dtype:
-            am = self._arrays[level]
-            start, stop = pyr.brick_voxel_box(level, index)
-            interior = all(e - s == b for s, e, b in zip(start, stop, pyr.brick_shape))
-            if am.fast and interior and not self._lead and am.chunks == pyr.brick_shape and am.dtype == pyr.dtype \
-                    and (am.decoder is None or am.blosc):
-                if self._read_fast(am, level, index, out.reshape(-1).view(np.uint8)) is None:
-                    out.fill(am.fill_value)  # missing chunk: an empty brick
-                return
+        direct = self._direct
+        if 0 <= level < len(direct) and direct[level] and out.shape == self._pyramid.brick_shape \
+                and out.dtype == self._pyramid.dtype and out.flags.c_contiguous:
+            grid = self._grids[level]
+            bz, by, bx = index
+            # interior bricks only (the hot path: no key object, no pathlib, one bounds test)
+            if 0 <= bz < grid[0] - 1 or (bz == grid[0] - 1 and self._full_last[level][0]):
+                if 0 <= by < grid[1] - 1 or (by == grid[1] - 1 and self._full_last[level][1]):
+                    if 0 <= bx < grid[2] - 1 or (bx == grid[2] - 1 and self._full_last[level][2]):
+                        am = self._arrays[level]
+                        if not self._load_chunk(am, level, index, out.reshape(-1).view(np.uint8)):
+                            self._check_absent(level, index)
+                            out.fill(am.fill_value)  # missing chunk the statistics call empty
+                            return
+                        self._check_plausible(level, index, out)
+                        return
         out[...] = self.read_brick(level, index)
 
-    def _read_fast(self, am: _ArrayMeta, level: int, index: Int3, buf: np.ndarray | None = None) -> np.ndarray | None:
-        """Decode one chunk file; into ``buf`` (uint8, chunk bytes) when given, where a missing
-        chunk returns None instead of a filled array."""
-        cpath = am.chunk_path((0,) * self._lead + tuple(index))
-        nbytes = math.prod(am.chunks) * am.dtype.itemsize
-        out = np.empty(nbytes, dtype=np.uint8) if buf is None else buf
-        try:
-            with open(cpath, "rb") as f:
-                if am.decoder is None:
-                    n = f.readinto(memoryview(out))
-                    if n != nbytes or f.read(1):
-                        raise ValueError(f"expected {nbytes} bytes, got {n if n != nbytes else 'more'}")
-                else:
-                    data = f.read()
-        except FileNotFoundError:
-            if buf is not None:
-                return None
-            return np.full(self._pyramid.brick_shape, am.fill_value, dtype=self._pyramid.dtype)
-        except ValueError as e:
-            raise self._corrupt(level, index, cpath, e) from None
-        if am.decoder is not None:
-            try:
-                if am.blosc:
-                    # the header says the sizes: check them, then decode straight into `out`
-                    n, cbytes = _blosc_sizes(data)
-                    if n != nbytes or cbytes != len(data):
-                        raise ValueError(f"blosc header: {n} bytes in {cbytes}, expected {nbytes} bytes in {len(data)}")
-                    am.decoder.decode(data, out=out)
-                else:
-                    dec = np.frombuffer(am.decoder.decode(data), dtype=np.uint8)
-                    if dec.size != nbytes:
-                        raise ValueError(f"decoded {dec.size} bytes, expected {nbytes}")
-                    out = dec
-            except Exception as e:  # numcodecs raises RuntimeError/ValueError/TypeError for bad data
-                raise self._corrupt(level, index, cpath, e) from None
-        arr = out.view(am.dtype).reshape(am.chunks)
-        if self._lead:
-            arr = arr[(0,) * self._lead]
-        return arr
+    # -- the raw fetch (the one method a remote store overrides) -------------------------------
+    def _chunk_bytes(self, level: int, index: Int3) -> bytes | None:
+        """The stored bytes of brick ``index``'s chunk at ``level``, or ``None`` when it is absent.
 
-    def _corrupt(self, level: int, index: Int3, cpath: Path, e: BaseException) -> InputFormatError:
-        return InputFormatError(
-            f"{self._where}: {BrickKey(level, index)}: chunk file {cpath.relative_to(self.path)} is truncated or "
+        Every raw chunk read of this loader goes through here, so a loader for another storage
+        (object store, HTTP) overrides only this; decoding, checksum and plausibility stay above.
+        Other ``OSError``\\ s propagate (transient: the clip-texture retries them).
+        """
+        bz, by, bx = index
+        sep = self._seps[level]
+        try:
+            with open(f"{self._roots[level]}{bz}{sep}{by}{sep}{bx}", "rb") as f:
+                return f.read()
+        except FileNotFoundError:
+            return None
+
+    def _load_chunk(self, am: _ArrayMeta, level: int, index: Int3, out: np.ndarray) -> bool:
+        """Fetch, verify and decode one chunk into ``out`` (uint8, the chunk's bytes). False: absent."""
+        data = self._chunk_bytes(level, index)
+        if data is None:
+            return False
+        nbytes = out.size
+        try:
+            if am.checksum:
+                if len(data) < 4:
+                    raise ValueError(f"{len(data)} bytes cannot hold a crc32c checksum")
+                # one pass, no copy: the CRC-32C of a message followed by its own CRC is a constant
+                if _crc32c(data) != _CRC32C_RESIDUE:
+                    want, got = int.from_bytes(data[-4:], "little"), _crc32c(bytes(data[:-4]))
+                    raise _ChecksumError(f"crc32c checksum mismatch (stored {want:#010x}, computed {got:#010x})")
+                body = memoryview(data)[:-4]
+            else:
+                body = data
+            if am.decoder is None:
+                if len(body) != nbytes:
+                    raise ValueError(f"expected {nbytes} bytes, got {len(body)}")
+                out[:] = np.frombuffer(body, dtype=np.uint8)
+            elif am.blosc:
+                # the header says the sizes: check them, then decode straight into `out`
+                n, cbytes = _blosc_sizes(body)
+                if n != nbytes or cbytes != len(body):
+                    raise ValueError(f"blosc header: {n} bytes in {cbytes}, expected {nbytes} bytes in {len(body)}")
+                am.decoder.decode(body, out=out)
+            else:
+                dec = np.frombuffer(am.decoder.decode(body), dtype=np.uint8)
+                if dec.size != nbytes:
+                    raise ValueError(f"decoded {dec.size} bytes, expected {nbytes}")
+                out[:] = dec
+        except _ChecksumError as e:
+            raise BrickIntegrityError(f"{self._where}: {BrickKey(level, index)}: chunk "
+                                      f"{self._chunk_name(level, index)} is corrupt: {e}") from None
+        except Exception as e:  # numcodecs raises RuntimeError/ValueError/TypeError for bad data
+            raise self._corrupt(level, index, e) from None
+        return True
+
+    def _chunk_name(self, level: int, index: Int3) -> str:
+        am = self._arrays[level]
+        root = self.path.resolve()
+        rel = am.path.relative_to(root) if am.path.is_relative_to(root) else am.path.relative_to(self.path) \
+            if am.path.is_relative_to(self.path) else am.path
+        key = am.key_prefix + ("0" + am.separator) * self._lead + am.separator.join(str(i) for i in index)
+        return f"{rel}/{key}"
+
+    def _corrupt(self, level: int, index: Int3, e: BaseException) -> InputFormatError:
+        return BrickIntegrityError(
+            f"{self._where}: {BrickKey(level, index)}: chunk file {self._chunk_name(level, index)} is truncated or "
             f"corrupt ({type(e).__name__}: {e})"
         )
+
+    # -- plausibility: every load against the store's own statistics -----------------------------
+    def _brick_stats(self, level: int, index: Int3) -> tuple[float, float, int | None, int | None] | None:
+        """``(min, max, nan_count, inf_count)`` the store recorded for the brick, or None (no statistics)."""
+        st = self._stats.get(level, _UNREAD)
+        if st is _UNREAD:
+            st = self.brick_statistics(level)
+        if st is None:
+            return None
+        i = tuple(index)
+        nan = int(st["nan_count"][i]) if "nan_count" in st else None  # None: not recorded, not compared
+        inf = int(st["inf_count"][i]) if "inf_count" in st else None
+        return float(st["min"][i]), float(st["max"][i]), nan, inf
+
+    def _check_absent(self, level: int, index: Int3) -> None:
+        """A missing chunk is an empty brick only if the statistics say so (min = max = fill, no NaN/Inf)."""
+        if not self.check_plausibility:
+            return
+        st = self._brick_stats(level, index)
+        if st is None:
+            return
+        lo, hi, nan, inf = st
+        fill = self._pyramid.fill_value
+        if not (lo == fill and hi == fill and not nan and not inf):
+            raise BrickIntegrityError(
+                f"{self._where}: {BrickKey(level, index)}: chunk {self._chunk_name(level, index)} is missing, but the "
+                f"store's statistics say the brick holds data (min {lo:g}, max {hi:g}, {nan} NaN, {inf} Inf)")
+
+    def _check_plausible(self, level: int, index: Int3, block: np.ndarray) -> None:
+        """Decoded min/max (and NaN/Inf counts) must equal the statistics written with the brick.
+
+        One SIMD min and max over the decoded brick, while it is still in cache; NaN/Inf are
+        counted only when the cheap pass meets one. ``block`` holds exactly the brick's valid voxels
+        (an interior brick: all of them).
+        """
+        if not self.check_plausibility:
+            return
+        st = self._brick_stats(level, index)
+        if st is None:
+            return
+        lo, hi, nan, inf = st
+        mn, mx = block.min(), block.max()
+        if block.dtype.kind == "f" and not (math.isfinite(mn) and math.isfinite(mx)):
+            fin = np.isfinite(block)
+            got_nan = int(np.count_nonzero(np.isnan(block)))
+            got_inf = int(block.size - np.count_nonzero(fin) - got_nan)
+            vals = block[fin]
+            mn, mx = (vals.min(), vals.max()) if vals.size else (math.nan, math.nan)
+        else:
+            got_nan = got_inf = 0
+        mn, mx = float(mn), float(mx)
+        same = (mn == lo or (math.isnan(mn) and math.isnan(lo))) and (mx == hi or (math.isnan(mx) and math.isnan(hi)))
+        if not same or (nan is not None and got_nan != nan) or (inf is not None and got_inf != inf):
+            raise BrickIntegrityError(
+                f"{self._where}: {BrickKey(level, index)}: decoded data (min {mn:g}, max {mx:g}, {got_nan} NaN, "
+                f"{got_inf} Inf) disagrees with the store's statistics (min {lo:g}, max {hi:g}, {nan} NaN, {inf} Inf): "
+                "the chunk is corrupt or belongs to another brick")
 
     def _read_zarr(self, level: int, start, stop) -> np.ndarray:
         arr = self._zarr_arrays.get(level)

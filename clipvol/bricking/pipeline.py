@@ -75,30 +75,44 @@ def _brick_shape(brick) -> tuple[int, int, int]:
     return b  # type: ignore[return-value]
 
 
-def store_codecs(codec: str, dtype: np.dtype) -> list | None:
-    """The zarr v3 ``compressors`` for ``--codec`` (``None`` = uncompressed)."""
-    from zarr.codecs import BloscCodec
+def store_codecs(codec: str, dtype: np.dtype, checksum: bool = True) -> list:
+    """The zarr v3 ``compressors`` (bytes-to-bytes codecs) for ``--codec``: blosc or nothing, then
+    zarr v3's ``crc32c`` codec, so that every reader of the store (ours, zarr-python, others)
+    verifies each chunk's checksum before decoding it."""
+    from zarr.codecs import BloscCodec, Crc32cCodec
 
+    tail = [Crc32cCodec()] if checksum else []
     if codec == "none":
-        return None
+        return tail
     shuffle = "bitshuffle" if dtype.itemsize == 1 else "shuffle"
     if codec == "lz4":
-        return [BloscCodec(cname="lz4", clevel=5, shuffle=shuffle, typesize=dtype.itemsize)]
+        return [BloscCodec(cname="lz4", clevel=5, shuffle=shuffle, typesize=dtype.itemsize)] + tail
     if codec == "zstd":
-        return [BloscCodec(cname="zstd", clevel=1, shuffle=shuffle, typesize=dtype.itemsize)]
+        return [BloscCodec(cname="zstd", clevel=1, shuffle=shuffle, typesize=dtype.itemsize)] + tail
     raise ParameterError(f"codec: expected one of {', '.join(CODECS)}, got {codec!r}")
 
 
-def chunk_encoder(codec: str, dtype: np.dtype) -> Callable[[np.ndarray], bytes]:
-    """Encode a full chunk (C order, native little-endian) to the bytes zarr stores for ``codec``."""
+def chunk_encoder(codec: str, dtype: np.dtype, checksum: bool = True) -> Callable[[np.ndarray], bytes]:
+    """Encode a full chunk (C order, native little-endian) to the bytes zarr stores for ``codec``,
+    with the 4-byte little-endian CRC-32C of the encoded bytes appended (zarr v3 ``crc32c``)."""
     import numcodecs
 
     if codec == "none":
-        return lambda a: np.ascontiguousarray(a, dtype=dtype.newbyteorder("<")).tobytes()
-    shuffle = numcodecs.Blosc.BITSHUFFLE if dtype.itemsize == 1 else numcodecs.Blosc.SHUFFLE
-    clevel = 5 if codec == "lz4" else 1
-    comp = numcodecs.Blosc(cname=codec, clevel=clevel, shuffle=shuffle, blocksize=0)
-    return lambda a: bytes(comp.encode(np.ascontiguousarray(a, dtype=dtype.newbyteorder("<"))))
+        enc = lambda a: np.ascontiguousarray(a, dtype=dtype.newbyteorder("<")).tobytes()  # noqa: E731
+    else:
+        shuffle = numcodecs.Blosc.BITSHUFFLE if dtype.itemsize == 1 else numcodecs.Blosc.SHUFFLE
+        clevel = 5 if codec == "lz4" else 1
+        comp = numcodecs.Blosc(cname=codec, clevel=clevel, shuffle=shuffle, blocksize=0)
+        enc = lambda a: bytes(comp.encode(np.ascontiguousarray(a, dtype=dtype.newbyteorder("<"))))  # noqa: E731
+    if not checksum:
+        return enc
+    import google_crc32c
+
+    def with_crc(a: np.ndarray) -> bytes:
+        data = enc(a)
+        return data + google_crc32c.value(data).to_bytes(4, "little")
+
+    return with_crc
 
 
 def _check_params(filter: str, codec: str, spacing, unit: str, workers) -> tuple[tuple[float, float, float] | None, int]:
@@ -227,7 +241,9 @@ class _Builder:
         self.out = output
         self.pool = pool
         self.bar = bar
-        self.encode = chunk_encoder(codec, pyramid.dtype)
+        # a resumed build of a store written before checksums keeps that store's codec chain
+        checksum = any(type(c).__name__ == "Crc32cCodec" for c in group["0"].metadata.codecs)
+        self.encode = chunk_encoder(codec, pyramid.dtype, checksum)
         self.stats = StatsComputer(pyramid.dtype, pyramid.value_range)
         self.nlev = pyramid.num_levels
         self.stat_arrays = [{name: group[f"{STATS_GROUP}/{L}/{name}"] for name in ("min", "max", "mean", "std", "nan_count", "inf_count", "histogram", "done")} for L in range(self.nlev)]
@@ -326,7 +342,7 @@ def _create_store(output: Path, pyramid: Pyramid, codec: str, unit: str, source_
             chunks=pyramid.brick_shape,
             dtype=pyramid.dtype,
             fill_value=0,
-            compressors=compressors,
+            compressors=compressors or None,
             dimension_names=["z", "y", "x"],
             config={"write_empty_chunks": False},
         )
