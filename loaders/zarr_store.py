@@ -696,6 +696,11 @@ class ZarrLoader:
             self._stats[level] = stats
         return stats
 
+    def refresh_statistics(self) -> None:
+        """Forget the cached statistics (after ``clipvol repair`` rewrote some): the next load re-reads them."""
+        with self._lock:
+            self._stats.clear()
+
     def brick_ranges(self, level: int, indices: np.ndarray) -> np.ndarray | None:
         """``(n, 2)`` ``[min, max]`` of each brick in ``indices`` (``(n, 3)``) from the store's
         statistics, or ``None`` (plain OME-Zarr, or no statistics)."""

@@ -21,7 +21,8 @@ from clipvol.errors import ClipvolError
 COMMANDS = {
     "brick": "brick a volume into a multiresolution zarr store (OME-Zarr)",
     "info": "describe a store: levels, shapes, bricks, bytes, compression, value range",
-    "check": "validate a store: metadata, filter on sampled bricks, statistics",
+    "check": "validate a store: checksums, statistics and filter of sampled (or --all) bricks",
+    "repair": "rebuild a store's bad bricks and their ancestors from its input",
     "render": "render one image of a store or procedural volume",
     "view": "interactive roaming / multiresolution viewer (or --offscreen frames)",
     "report": "image error against run time for a sweep of quality settings",

@@ -1,4 +1,7 @@
-"""Describe a clipvol store: levels, shapes, bricks, bytes on disk, compression, value range."""
+"""Describe a clipvol store: levels, shapes, bricks, bytes on disk, compression, value range.
+
+Exits 1 (after the description) when the store is incomplete: an interrupted build is not a store.
+"""
 
 from __future__ import annotations
 
@@ -33,6 +36,8 @@ def run(args: argparse.Namespace) -> int:
     it = pyr.dtype.itemsize
     print(f"store      {path}")
     print(f"complete   {'yes' if meta.complete else 'no (interrupted build: re-run the same clipvol brick command)'}")
+    crc = _checksummed(path, pyr.num_levels)
+    print(f"checksum   {'crc32c on every chunk' if crc else 'none (unverified store, written before checksums)'}")
     print(f"dtype      {pyr.dtype}")
     print(f"brick      {'x'.join(map(str, pyr.brick_shape))}")
     print(f"filter     {pyr.filter}")
@@ -54,4 +59,24 @@ def run(args: argparse.Namespace) -> int:
     print(f"total      {format_bytes(tot_disk)} on disk for {format_bytes(vox)} of level 0; "
           f"compression ratio {tot_raw / tot_disk:.2f} over written bricks" if tot_disk else
           f"total      nothing written (every brick is empty) for {format_bytes(vox)} of level 0")
+    if not meta.complete:  # the counts above describe a partial store: not a success
+        import sys
+
+        print(f"clipvol info: {path}: incomplete store (an interrupted build); re-run the same clipvol brick command",
+              file=sys.stderr)
+        return 1
     return 0
+
+
+def _checksummed(path, levels: int) -> bool:
+    """True when every level's codec chain ends with zarr v3's ``crc32c``."""
+    import json
+
+    for L in range(levels):
+        try:
+            codecs = json.loads((path / str(L) / "zarr.json").read_text()).get("codecs") or []
+        except (OSError, ValueError):
+            return False
+        if not codecs or (codecs[-1] if isinstance(codecs[-1], str) else codecs[-1].get("name")) != "crc32c":
+            return False
+    return True

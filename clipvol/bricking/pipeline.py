@@ -44,13 +44,14 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ..errors import OutputExistsError, ParameterError
+from ..errors import OutputExistsError, OutputLockedError, ParameterError, SourceChangedError
 from .pyramid import FILTERS, Pyramid, downsample
-from .sources import Source, open_source
+from .sources import Source, identity_changes, open_source, source_identity
 from .stats import StatsComputer, finite_range
 from .store import STATS_GROUP, StoreMeta, clipvol_metadata, ome_metadata, parse_metadata
 
-__all__ = ["brick_volume", "CODECS", "BRICK_RANGE", "store_codecs", "chunk_encoder"]
+__all__ = ["brick_volume", "CODECS", "BRICK_RANGE", "store_codecs", "chunk_encoder", "output_lock", "job_spec",
+           "prepare_output", "mark_complete"]
 
 CODECS = ("lz4", "zstd", "none")
 BRICK_RANGE = (8, 256)
@@ -137,9 +138,11 @@ def _check_params(filter: str, codec: str, spacing, unit: str, workers) -> tuple
     return spacing, int(workers)
 
 
-def _job(src: Source, pyr_shape, brick, filter, codec, spacing, unit) -> dict[str, Any]:
-    """The parameters that must match for a build to be resumed."""
+def job_spec(src: Source, pyr_shape, brick, filter, codec, spacing, unit) -> dict[str, Any]:
+    """The parameters that must match for a build to be resumed, the source's identity included
+    (:func:`clipvol.bricking.sources.source_identity`: size, mtime, sampled-content hash, dtype, shape)."""
     return {
+        "source_identity": source_identity(src),
         "source": f"{src.key or src.name} ({'x'.join(map(str, src.shape))} {src.dtype.name})",
         "shape": list(pyr_shape),
         "dtype": src.dtype.name,
@@ -154,6 +157,7 @@ def _job(src: Source, pyr_shape, brick, filter, codec, spacing, unit) -> dict[st
 def _stored_job(cv: dict) -> dict[str, Any]:
     levels = cv.get("levels") or [[]]
     return {
+        "source_identity": cv.get("source_identity"),
         "source": cv.get("source"),
         "shape": list(levels[0]),
         "dtype": cv.get("dtype"),
@@ -176,7 +180,7 @@ def _read_attrs(path: Path) -> dict | None:
     return attrs if isinstance(attrs, dict) else None
 
 
-def _prepare_output(output: Path, job: dict, overwrite: bool) -> dict | None:
+def prepare_output(output: Path, job: dict, overwrite: bool) -> dict | None:
     """Clear or vet an existing output; return its attrs when it is a resumable build of ``job``."""
     if not output.exists() and not output.is_symlink():
         return None
@@ -193,7 +197,13 @@ def _prepare_output(output: Path, job: dict, overwrite: bool) -> dict | None:
     if cv.get("complete"):
         raise OutputExistsError(f"{output}: output exists (a complete clipvol store); pass --overwrite to rebuild it")
     stored = _stored_job(cv)
-    diff = [k for k in job if stored.get(k) != job[k]]
+    diff = [k for k in job if k != "source_identity" and stored.get(k) != job[k]]
+    if not diff and stored.get("source_identity") != job["source_identity"]:
+        changes = identity_changes(stored.get("source_identity"), job["source_identity"])
+        raise SourceChangedError(
+            f"{output}: the input changed since this interrupted build started ({'; '.join(changes)}); resuming would "
+            "mix old and new data: pass --overwrite to start again"
+        )
     if diff:
         k = diff[0]
         raise OutputExistsError(
@@ -201,6 +211,93 @@ def _prepare_output(output: Path, job: dict, overwrite: bool) -> dict | None:
             f"got {stored.get(k)!r}); pass --overwrite to start again"
         )
     return attrs
+
+
+def _lock_path(output: Path) -> Path:
+    return output.with_name(output.name + ".lock")
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # exists, owned by someone else
+    return True
+
+
+def _read_lock(lock: Path) -> dict | None:
+    import json
+
+    try:
+        doc = json.loads(lock.read_text())
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError):
+        return {}  # being written, or garbage: treat as held (never steal what we cannot read)
+    return doc if isinstance(doc, dict) else {}
+
+
+class output_lock:
+    """Context manager: the build lock of ``output``, a file ``<output>.lock`` holding the writer's
+    pid and host, created atomically (``O_EXCL``). A second writer gets :class:`OutputLockedError`
+    naming the holder; a lock left by a dead process on this host is taken over. Any build path
+    (the streaming sweep here, a Dask build) takes it around its writes."""
+
+    def __init__(self, output) -> None:
+        self.path = _lock_path(Path(output))
+
+    def __enter__(self) -> "output_lock":
+        import json
+        import socket
+
+        me = {"pid": os.getpid(), "host": socket.gethostname()}
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        for _ in range(3):
+            try:
+                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                held = _read_lock(self.path)
+                if held is None:
+                    continue  # released meanwhile: try again
+                pid, host = held.get("pid"), held.get("host")
+                if isinstance(pid, int) and host == me["host"] and pid != me["pid"] and not _pid_alive(pid):
+                    self._take_over(held)
+                    continue
+                raise OutputLockedError(
+                    f"{self.path}: another clipvol brick (pid {pid}, host {host}) is writing {self.path.stem}; wait for "
+                    "it to finish, or delete this lock file if that process is gone"
+                ) from None
+            with os.fdopen(fd, "w") as f:
+                f.write(json.dumps(me))
+            return self
+        raise OutputLockedError(f"{self.path}: could not take the build lock (it keeps changing hands)")
+
+    def _take_over(self, stale: dict) -> None:
+        """Remove a dead holder's lock, atomically: rename it aside, and put it back if it was not the
+        one we judged stale (another process took it over first)."""
+        aside = self.path.with_name(f"{self.path.name}.stale-{os.getpid()}")
+        try:
+            os.rename(self.path, aside)
+        except FileNotFoundError:
+            return
+        if _read_lock(aside) != stale:
+            try:
+                os.link(aside, self.path)
+            except FileExistsError:
+                pass
+        aside.unlink(missing_ok=True)
+
+    def __exit__(self, *exc) -> None:
+        self.path.unlink(missing_ok=True)
+
+
+def mark_complete(group) -> None:
+    """Set ``attrs['clipvol']['complete']``: the very last write of any build path."""
+    cv = dict(group.attrs["clipvol"])
+    cv["complete"] = True
+    group.attrs.update({"clipvol": cv})
 
 
 def _scan_range(src: Source, pool: ThreadPoolExecutor, workers: int, chunk_bytes: int = 8 << 20) -> tuple[float, float]:
@@ -326,14 +423,14 @@ class _Builder:
         self.done[L][k] = True
 
 
-def _create_store(output: Path, pyramid: Pyramid, codec: str, unit: str, source_desc: str):
+def _create_store(output: Path, pyramid: Pyramid, codec: str, unit: str, source_desc: str, identity: dict | None = None):
     import zarr
 
     group = zarr.open_group(str(output), mode="w-", zarr_format=3)
-    attrs = {
-        "ome": ome_metadata(pyramid, name=output.stem or "image", unit=unit),
-        "clipvol": clipvol_metadata(pyramid, unit=unit, codec=codec, complete=False, source=source_desc),
-    }
+    cv = clipvol_metadata(pyramid, unit=unit, codec=codec, complete=False, source=source_desc)
+    if identity is not None:
+        cv["source_identity"] = identity
+    attrs = {"ome": ome_metadata(pyramid, name=output.stem or "image", unit=unit), "clipvol": cv}
     compressors = store_codecs(codec, pyramid.dtype)
     for L, lv in enumerate(pyramid.levels):
         group.create_array(
@@ -415,22 +512,21 @@ def brick_volume(
     try:
         sp = spacing or src.spacing or (1.0, 1.0, 1.0)
         sp = tuple(float(v) for v in sp)
-        job = _job(src, src.shape, bshape, filter, codec, sp, unit)
-        attrs = _prepare_output(output, job, overwrite)
-        with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="clipvol-brick") as pool:
+        job = job_spec(src, src.shape, bshape, filter, codec, sp, unit)
+        with output_lock(output), \
+                ThreadPoolExecutor(max_workers=workers, thread_name_prefix="clipvol-brick") as pool:
+            attrs = prepare_output(output, job, overwrite)
             if attrs is None:
                 vr = _scan_range(src, pool, workers)
                 pyramid = Pyramid.build(src.shape, bshape, sp, filter, src.dtype, vr, 0.0)
-                group = _create_store(output, pyramid, codec, unit, job["source"])
+                group = _create_store(output, pyramid, codec, unit, job["source"], job["source_identity"])
             else:
                 import zarr
 
                 pyramid = parse_metadata(attrs, str(output)).pyramid
                 group = zarr.open_group(str(output), mode="r+")
             _sweep(src, group, pyramid, output, codec, pool, progress)
-        cv = dict(group.attrs["clipvol"])
-        cv["complete"] = True
-        group.attrs.update({"clipvol": cv})  # the very last write
+            mark_complete(group)  # the very last write
         return parse_metadata(dict(group.attrs), str(output))
     finally:
         src.close()
