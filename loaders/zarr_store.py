@@ -156,12 +156,19 @@ def _fill(raw, dtype: np.dtype, where: str) -> float:
         return 0.0
     if isinstance(raw, str):
         try:
-            return float({"NaN": "nan", "Infinity": "inf", "-Infinity": "-inf"}.get(raw, raw))
+            v = float({"NaN": "nan", "Infinity": "inf", "-Infinity": "-inf"}.get(raw, raw))
         except ValueError:
             raise InputFormatError(f"{where}: expected a numeric fill_value, got {raw!r}") from None
-    if isinstance(raw, bool) or not isinstance(raw, (int, float)):
+    elif isinstance(raw, bool) or not isinstance(raw, (int, float)):
         raise InputFormatError(f"{where}: expected a numeric fill_value, got {raw!r}")
-    return float(raw)
+    else:
+        try:
+            v = float(raw)
+        except OverflowError:
+            raise InputFormatError(f"{where}: expected a fill_value within {dtype.name}, got {raw!r:.40}") from None
+    if dtype.kind in "iu" and not (math.isfinite(v) and v.is_integer() and np.iinfo(dtype).min <= v <= np.iinfo(dtype).max):
+        raise InputFormatError(f"{where}: expected an integer fill_value within {dtype.name}, got {raw!r:.40}")
+    return v
 
 
 def _check_sizes(shape, chunks, where: str) -> tuple[tuple[int, ...], tuple[int, ...]]:
@@ -621,17 +628,25 @@ class ZarrLoader:
                 "the chunk is corrupt or belongs to another brick")
 
     def _read_zarr(self, level: int, start, stop) -> np.ndarray:
-        arr = self._zarr_arrays.get(level)
-        if arr is None:
-            import zarr
+        """Codec chains off the fast path, through zarr-python (which verifies a crc32c itself). Anything
+        zarr raises for metadata or data it cannot use becomes an :class:`InputFormatError`."""
+        try:
+            arr = self._zarr_arrays.get(level)
+            if arr is None:
+                import zarr
 
-            with self._lock:
-                arr = self._zarr_arrays.get(level)
-                if arr is None:
-                    arr = zarr.open_array(str(self._arrays[level].path), mode="r")
-                    self._zarr_arrays[level] = arr
-        sl = (0,) * self._lead + tuple(slice(a, b) for a, b in zip(start, stop))
-        return np.asarray(arr[sl])
+                with self._lock:
+                    arr = self._zarr_arrays.get(level)
+                    if arr is None:
+                        arr = zarr.open_array(str(self._arrays[level].path), mode="r")
+                        self._zarr_arrays[level] = arr
+            sl = (0,) * self._lead + tuple(slice(a, b) for a, b in zip(start, stop))
+            return np.asarray(arr[sl])
+        except (OSError, MemoryError):
+            raise
+        except Exception as e:
+            raise InputFormatError(f"{self._where} level {level}: zarr cannot read the array ({type(e).__name__}: "
+                                   f"{str(e)[:200]})") from None
 
     def _derived_brick(self, level: int, index: Int3) -> np.ndarray:
         """A brick of a level the OME-Zarr image does not store: the filter over its 8 children."""
