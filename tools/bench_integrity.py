@@ -1,0 +1,242 @@
+"""Integrity benchmark: what the crc32c checksum and the statistics check cost per brick, and where
+the zarr loader's time goes against the decode floor.
+
+Why these references: a brick of a clipvol store is one zarr chunk, so the fastest anything can
+load it is "read the chunk file, decode it with numcodecs" (the *floor*, outside our code path:
+``open().read()`` then ``numcodecs.Blosc().decode``, as ``tools/bench_paging.py`` defines it).
+The loader is measured on the same bricks, on the same number of threads, in one run, page cache
+warm, rounds interleaved, median of rounds:
+
+* ``floor``: file read + numcodecs decode;
+* ``loader, no checks``: ``ZarrLoader.read_brick_into`` with ``verify_checksums`` and
+  ``check_plausibility`` off (the bare read path);
+* ``loader, checksum``: crc32c verified;
+* ``loader, checksum + statistics``: the default.
+
+Reported: MB/s (decoded bytes) of each, the cost of the checks as a fraction of the bare loader's
+throughput (target <= 5 %), the loader against the floor (target >= 0.85 with 2 threads), and a
+single-thread breakdown in microseconds per brick (file open+read, crc32c, blosc decode into the
+slot, min/max check, the rest = Python around them).
+
+Run ``python -m clipvol.tools.bench_integrity`` (a procedural fractal store, cached under
+``bench-data/``) or ``--quick``. Results: ``docs/bench_integrity.csv`` and a summary on stdout;
+``docs/benchmarks.md`` discusses them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import statistics
+import sys
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+FULL = {"size": "256x512x512", "brick": 64}  # 256 MiB of float32
+QUICK = {"size": "128x128x128", "brick": 32}
+
+
+def build_store(size: str, brick: int, data_dir: Path, dtype: str = "float32") -> Path:
+    """The procedural fractal bricked (cached). ``uint16``: the same field quantised to 12 bits, like
+    CT data (it compresses about twice as well as the float32 field, so the checksum covers fewer bytes)."""
+    import numpy as np
+
+    from clipvol.bricking.generators import parse_procedural
+    from clipvol.bricking.pipeline import brick_volume
+
+    path = data_dir / f"fractal-{size}-b{brick}-{dtype}-crc.zarr"
+    attrs = path / "zarr.json"
+    if attrs.is_file() and json.loads(attrs.read_text())["attributes"]["clipvol"].get("complete"):
+        return path
+    data_dir.mkdir(parents=True, exist_ok=True)
+    url = f"procedural:fractal?size={size}&seed=1"
+    source = url
+    if dtype == "uint16":
+        gen = parse_procedural(url)
+        v = gen.region(0, (0, 0, 0), gen.shape)
+        lo, hi = float(v.min()), float(v.max())
+        source = np.rint((v - lo) / (hi - lo) * 4095).astype(np.uint16)
+    brick_volume(source, path, brick=brick, codec="lz4", progress=True, overwrite=True)
+    return path
+
+
+def chunk_keys(store: Path, levels: int) -> list[tuple[int, tuple[int, int, int]]]:
+    """Every written chunk (non-empty brick) of every level, interior bricks only (the slot path)."""
+    from clipvol.loaders.zarr_store import ZarrLoader
+
+    pyr = ZarrLoader(store).pyramid
+    keys = []
+    for L in range(levels):
+        for p in sorted((store / str(L) / "c").glob("*/*/*")):
+            idx = tuple(int(v) for v in p.parts[-3:])
+            s, e = pyr.brick_voxel_box(L, idx)
+            if all(b - a == n for a, b, n in zip(s, e, pyr.brick_shape)):
+                keys.append((L, idx))
+    return keys
+
+
+def _chunk_path(store: Path, level: int, idx) -> str:
+    return f"{store}/{level}/c/{idx[0]}/{idx[1]}/{idx[2]}"
+
+
+def floor_run(store: Path, keys, pool: ThreadPoolExecutor) -> float:
+    """Seconds: read each chunk file and decode it with numcodecs (the floor, outside our code)."""
+    import numcodecs
+
+    codec = numcodecs.Blosc()
+
+    def one(key):
+        with open(_chunk_path(store, *key), "rb") as f:
+            data = f.read()
+        return len(codec.decode(data))
+
+    t = time.perf_counter()
+    list(pool.map(one, keys))
+    return time.perf_counter() - t
+
+
+def loader_run(loader, keys, pool: ThreadPoolExecutor) -> float:
+    """Seconds: ``read_brick_into`` of every key into a per-thread slot (as the clip-texture does)."""
+    import numpy as np
+
+    local = threading.local()
+    pyr = loader.pyramid
+
+    def one(key):
+        slot = getattr(local, "slot", None)
+        if slot is None:
+            slot = local.slot = np.empty(pyr.brick_shape, dtype=pyr.dtype)
+        loader.read_brick_into(key[0], key[1], slot)
+
+    t = time.perf_counter()
+    list(pool.map(one, keys))
+    return time.perf_counter() - t
+
+
+def breakdown(store: Path, keys, loader) -> dict[str, float]:
+    """Single-thread microseconds per brick of each step of the loader's read path."""
+    import google_crc32c
+    import numpy as np
+
+    pyr = loader.pyramid
+    slot = np.empty(pyr.brick_shape, dtype=pyr.dtype)
+    u8 = slot.reshape(-1).view(np.uint8)
+    dec = loader._arrays[0].decoder
+    paths = [_chunk_path(store, *k) for k in keys]
+    def read_all():
+        out = []
+        for p in paths:
+            with open(p, "rb") as f:
+                out.append(f.read())
+        return out
+
+    read_all()
+    t = time.perf_counter()
+    datas = read_all()  # the second pass: the first pays for growing the heap
+    read = time.perf_counter() - t
+    t = time.perf_counter()
+    for d in datas:
+        google_crc32c.value(d)
+    crc = time.perf_counter() - t
+    t = time.perf_counter()
+    for d in datas:
+        dec.decode(memoryview(d)[:-4], out=u8)
+    decode = time.perf_counter() - t
+    t = time.perf_counter()
+    for _ in datas:
+        slot.min(), slot.max()
+    minmax = time.perf_counter() - t
+    t = time.perf_counter()
+    for L, idx in keys:
+        loader.read_brick_into(L, idx, slot)
+    total = time.perf_counter() - t
+    n = len(keys)
+    us = {k: 1e6 * v / n for k, v in (("file open+read", read), ("crc32c", crc), ("blosc decode into slot", decode),
+                                      ("min/max statistics check", minmax), ("read_brick_into total", total))}
+    us["Python around them"] = us["read_brick_into total"] - sum(v for k, v in us.items() if k != "read_brick_into total")
+    return us
+
+
+def main(argv: list[str] | None = None) -> int:
+    import numpy as np
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="small store (seconds)")
+    ap.add_argument("--size", help="ZxYxX of the fractal (default 256x512x512 float32)")
+    ap.add_argument("--brick", type=int)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--dtype", choices=("float32", "uint16"), default="float32")
+    ap.add_argument("--rounds", type=int, default=7)
+    ap.add_argument("--data-dir", type=Path, default=REPO / "bench-data")
+    ap.add_argument("--csv", type=Path, help="output (default docs/bench_integrity.csv; --quick: bench-data/...)")
+    args = ap.parse_args(argv)
+    if args.csv is None:
+        args.csv = args.data_dir / "bench_integrity_quick.csv" if args.quick else REPO / "docs" / "bench_integrity.csv"
+    cfg = dict(QUICK if args.quick else FULL)
+    for k in ("size", "brick"):
+        if getattr(args, k) is not None:
+            cfg[k] = getattr(args, k)
+    from clipvol.loaders.zarr_store import ZarrLoader
+
+    store = build_store(cfg["size"], int(cfg["brick"]), args.data_dir, args.dtype)
+    probe = ZarrLoader(store)
+    keys = chunk_keys(store, probe.pyramid.num_levels)
+    for k in keys:  # warm the page cache: every path reads from memory
+        Path(_chunk_path(store, *k)).read_bytes()
+    nbytes = len(keys) * probe.pyramid.brick_nbytes
+    variants = {}
+    for name, crc, stats in (("no checks", False, False), ("checksum", True, False), ("checksum + statistics", True, True)):
+        ld = ZarrLoader(store)
+        ld.verify_checksums, ld.check_plausibility = crc, stats
+        ld.brick_statistics(0)
+        variants[name] = ld
+    pool = ThreadPoolExecutor(args.threads)
+    list(pool.map(time.sleep, [0.01] * args.threads))
+    times: dict[str, list[float]] = {"floor": [], **{k: [] for k in variants}}
+    for _ in range(args.rounds):  # interleaved rounds
+        times["floor"].append(floor_run(store, keys, pool))
+        for name, ld in variants.items():
+            times[name].append(loader_run(ld, keys, pool))
+    pool.shutdown()
+    mbs = {k: nbytes / statistics.median(v) / 1e6 for k, v in times.items()}
+    # per-round ratios, then the median: robust to a noisy neighbour on a shared machine
+    r = lambda a, b: float(np.median(np.array(times[b]) / np.array(times[a])))  # noqa: E731  throughput a / b
+    cost_crc = 1 - r("checksum", "no checks")
+    cost_all = 1 - r("checksum + statistics", "no checks")
+    bd = breakdown(store, keys[: min(len(keys), 400)], variants["checksum + statistics"])
+    comp = sum(os.path.getsize(_chunk_path(store, *k)) for k in keys)
+    rows = [
+        ("store", f"procedural:fractal size={cfg['size']} {args.dtype} brick={cfg['brick']} blosc-lz4 + crc32c", "", ""),
+        ("bricks", len(keys), "", "interior written bricks of every level, page cache warm"),
+        ("compression_ratio", round(nbytes / comp, 2), "x", "decoded / stored bytes"),
+        ("threads", args.threads, "", ""),
+        ("rounds", args.rounds, "", "interleaved; medians"),
+    ]
+    for k, v in mbs.items():
+        rows.append((f"MB_s {k}", round(v, 1), "MB/s", "floor = file read + numcodecs decode" if k == "floor"
+                     else f"ZarrLoader.read_brick_into, {k}"))
+    rows += [
+        ("cost checksum", round(100 * cost_crc, 1), "% of throughput", "vs the loader with no checks; target total <= 5"),
+        ("cost checksum + statistics", round(100 * cost_all, 1), "% of throughput", "vs the loader with no checks; target <= 5"),
+        ("loader (default) / floor", round(r("checksum + statistics", "floor"), 2), "x", "throughput ratio; target >= 0.85"),
+        ("loader (no checks) / floor", round(r("no checks", "floor"), 2), "x", "throughput ratio"),
+    ]
+    rows += [(f"us/brick {k}", round(v, 1), "us", "one thread") for k, v in bd.items()]
+    args.csv.parent.mkdir(parents=True, exist_ok=True)
+    with open(args.csv, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["metric", "value", "unit", "note"])
+        w.writerows(rows)
+    for row in rows:
+        print(f"{row[0]:>36}: {row[1]} {row[2]}  {row[3]}")
+    print(f"wrote {args.csv}")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
