@@ -565,8 +565,8 @@ class ZarrLoader:
                     raise ValueError(f"decoded {dec.size} bytes, expected {nbytes}")
                 out[:] = dec
         except _ChecksumError as e:
-            raise BrickIntegrityError(f"{self._where}: {BrickKey(level, index)}: chunk "
-                                      f"{self._chunk_name(level, index)} is corrupt: {e}") from None
+            raise BrickIntegrityError(f"{self._where}: {BrickKey(level, index)}: chunk file "
+                                      f"{self._chunk_name(level, index)} is truncated or corrupt ({e})") from None
         except Exception as e:  # numcodecs raises RuntimeError/ValueError/TypeError for bad data
             raise self._corrupt(level, index, e) from None
         return True

@@ -432,6 +432,9 @@ def _create_store(output: Path, pyramid: Pyramid, codec: str, unit: str, source_
         cv["source_identity"] = identity
     attrs = {"ome": ome_metadata(pyramid, name=output.stem or "image", unit=unit), "clipvol": cv}
     compressors = store_codecs(codec, pyramid.dtype)
+    from zarr.codecs import Crc32cCodec, ZstdCodec
+
+    stat_codecs = [ZstdCodec(level=0), Crc32cCodec()]  # the statistics the loads are checked against are checked too
     for L, lv in enumerate(pyramid.levels):
         group.create_array(
             str(L),
@@ -447,11 +450,12 @@ def _create_store(output: Path, pyramid: Pyramid, codec: str, unit: str, source_
         row = (1, g[1], g[2])
         sg = group.require_group(f"{STATS_GROUP}/{L}")
         for name in ("min", "max", "mean", "std"):
-            sg.create_array(name, shape=g, chunks=row, dtype="float64", fill_value=np.nan)
+            sg.create_array(name, shape=g, chunks=row, dtype="float64", fill_value=np.nan, compressors=stat_codecs)
         for name in ("nan_count", "inf_count"):
-            sg.create_array(name, shape=g, chunks=row, dtype="int64", fill_value=0)
-        sg.create_array("histogram", shape=g + (64,), chunks=row + (64,), dtype="int64", fill_value=0)
-        sg.create_array("done", shape=g, chunks=row, dtype="bool", fill_value=False)
+            sg.create_array(name, shape=g, chunks=row, dtype="int64", fill_value=0, compressors=stat_codecs)
+        sg.create_array("histogram", shape=g + (64,), chunks=row + (64,), dtype="int64", fill_value=0,
+                        compressors=stat_codecs)
+        sg.create_array("done", shape=g, chunks=row, dtype="bool", fill_value=False, compressors=stat_codecs)
     group.attrs.update(attrs)  # written after the arrays: a store is only recognised once whole
     return group
 
