@@ -5,11 +5,18 @@ and funnels every thread through one event loop, so chunk-aligned reads from sev
 threads reach only a few percent of memcpy speed. Because a brick *is* one chunk, this loader reads
 the chunk's file itself (``<array>/c/<bz>/<by>/<bx>`` for zarr v3's default key encoding) and
 decodes it with numcodecs, which releases the GIL, in the calling loader thread. The codec chains
-``bytes`` (+ ``blosc`` | ``zstd`` | ``gzip`` | nothing) of zarr v3 and the plain compressors of
-zarr v2 take this fast path; anything else (sharding, transpose, crc32c, filters) falls back to
-zarr indexing, which gives the same values, only slower. A missing chunk file is an empty brick
-(the array's fill value); a truncated or corrupt one raises :class:`InputFormatError` naming the
-store, level and brick.
+``bytes`` (+ ``blosc`` | ``zstd`` | ``gzip`` | nothing) (+ ``crc32c``) of zarr v3 and the plain
+compressors of zarr v2 take this fast path; anything else (sharding, transpose, filters) falls back
+to zarr indexing, which gives the same values, only slower. Every raw chunk fetch goes through one
+method, :meth:`ZarrLoader._chunk_bytes`, so a loader for remote storage overrides only that.
+
+Integrity (never wrong data as if right): a ``crc32c`` codec is verified before decoding (clipvol
+stores carry it on every array); every load's decoded min/max (and NaN/Inf counts) must equal the
+store's statistics for that brick; a missing chunk file is an empty brick (the fill value) only if
+the statistics say the brick is empty. A truncated, corrupt, substituted or lost chunk raises
+:class:`~clipvol.errors.BrickIntegrityError` naming the store, brick and chunk file. A clipvol
+store without checksums opens with an :class:`UnverifiedStoreWarning`. Dataset paths of plain
+OME-Zarr metadata must resolve inside the store.
 
 Metadata is read as JSON and validated *before* zarr opens anything: absurd shapes or chunk
 shapes, and object, string, structured or complex dtypes, are refused (nothing is ever unpickled).
