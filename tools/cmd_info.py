@@ -1,6 +1,7 @@
 """Describe a clipvol store: levels, shapes, bricks, bytes on disk, compression, value range.
 
-Exits 1 (after the description) when the store is incomplete: an interrupted build is not a store.
+Exits 1 (after the description) when the store is incomplete (an interrupted build is not a store)
+or when bricks whose statistics say they hold data have no chunk file (lost data, not empty bricks).
 """
 
 from __future__ import annotations
@@ -12,16 +13,42 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("store", metavar="STORE", help="a store written by `clipvol brick`")
 
 
-def _dir_bytes(path) -> tuple[int, int]:
-    """(files, bytes) of the chunk files under ``path/c``."""
+def _dir_bytes(path) -> tuple[int, int, set]:
+    """(files, bytes, brick indices) of the chunk files under ``path/c``."""
     import os
 
     n = size = 0
+    present = set()
     for root, _dirs, files in os.walk(path / "c"):
         for f in files:
             n += 1
             size += os.path.getsize(os.path.join(root, f))
-    return n, size
+            rel = os.path.relpath(os.path.join(root, f), path / "c").split(os.sep)
+            if len(rel) == 3 and all(p.isdigit() for p in rel):
+                present.add(tuple(int(p) for p in rel))
+    return n, size, present
+
+
+def _lost(path, level: int, present: set) -> int:
+    """Bricks whose statistics say they hold data (not min = max = 0 without NaN/Inf) but whose
+    chunk file is missing: lost data, which a reader must not show as empty."""
+    import numpy as np
+    import zarr
+
+    from clipvol.bricking.store import STATS_GROUP
+
+    try:
+        sg = zarr.open_group(str(path / STATS_GROUP / str(level)), mode="r")
+        mn, mx = np.asarray(sg["min"][...]), np.asarray(sg["max"][...])
+        done = np.asarray(sg["done"][...]) if "done" in sg else np.ones(mn.shape, bool)
+        odd = np.zeros(mn.shape, bool)
+        for name in ("nan_count", "inf_count"):
+            if name in sg:
+                odd |= np.asarray(sg[name][...]) > 0
+    except Exception:  # no statistics: nothing to compare with
+        return 0
+    holds = done & ((mn != 0) | (mx != 0) | odd)
+    return sum(1 for idx in zip(*np.nonzero(holds)) if tuple(int(i) for i in idx) not in present)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -46,8 +73,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"value range {pyr.value_range[0]:g} .. {pyr.value_range[1]:g}")
     print(f"{'level':>5} {'shape (z, y, x)':>22} {'grid':>14} {'bricks':>8} {'non-empty':>9} {'on disk':>10} {'raw':>10} {'ratio':>6}")
     tot_disk = tot_raw = 0
+    lost = {}
     for L, lv in enumerate(pyr.levels):
-        n, disk = _dir_bytes(path / str(L))
+        n, disk, present = _dir_bytes(path / str(L))
+        lost[L] = _lost(path, L, present)
         raw = n * int(pyr.brick_nbytes)
         tot_disk += disk
         tot_raw += raw
@@ -59,13 +88,17 @@ def run(args: argparse.Namespace) -> int:
     print(f"total      {format_bytes(tot_disk)} on disk for {format_bytes(vox)} of level 0; "
           f"compression ratio {tot_raw / tot_disk:.2f} over written bricks" if tot_disk else
           f"total      nothing written (every brick is empty) for {format_bytes(vox)} of level 0")
-    if not meta.complete:  # the counts above describe a partial store: not a success
-        import sys
+    import sys
 
+    bad = {L: k for L, k in lost.items() if k}
+    for L, k in bad.items():
+        print(f"clipvol info: {path}: level {L}: {k} bricks hold data by their statistics but have no chunk file "
+              "(lost data; `clipvol check --all` names them, `clipvol repair` rebuilds them)", file=sys.stderr)
+    if not meta.complete:  # the counts above describe a partial store: not a success
         print(f"clipvol info: {path}: incomplete store (an interrupted build); re-run the same clipvol brick command",
               file=sys.stderr)
         return 1
-    return 0
+    return 1 if bad else 0
 
 
 def _checksummed(path, levels: int) -> bool:

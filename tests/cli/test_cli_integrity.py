@@ -180,3 +180,15 @@ def test_check_on_an_interrupted_store_reports_no_bogus_mismatch(tmp_path, npy, 
     assert main(["check", str(out), "--all", "--quiet"]) == 1
     err = capsys.readouterr().err
     assert "incomplete" in err and "histogram" not in err and "stored" not in err, err
+
+
+def test_info_counts_a_deleted_chunk_as_lost_not_empty(tmp_path, npy, capsys):
+    p, vol = npy
+    out = tmp_path / "o.zarr"
+    assert main(["brick", str(p), str(out), "--brick", "16", "--quiet"]) == 0
+    assert main(["info", str(out)]) == 0
+    capsys.readouterr()
+    _chunk(out, 0, (1, 1, 1)).unlink()
+    assert main(["info", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "level 0: 1 bricks hold data" in err and "Traceback" not in err
