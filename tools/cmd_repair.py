@@ -104,15 +104,21 @@ def run(args: argparse.Namespace) -> int:
                 for idx in sorted(todo[L]):
                     block = rebuild_brick(loader, src, L, idx)
                     chunk = path / str(L) / "c" / str(idx[0]) / str(idx[1]) / str(idx[2])
+                    crc = -1
                     if block.view(f"u{block.dtype.itemsize}").any():
                         full = np.zeros(B, dtype=pyr.dtype)  # an edge brick is padded with the fill value, as zarr does
                         full[tuple(slice(0, s) for s in block.shape)] = block
                         chunk.parent.mkdir(parents=True, exist_ok=True)
                         tmp = chunk.with_name(chunk.name + ".repair")
-                        tmp.write_bytes(encode(full))
+                        data = encode(full)
+                        tmp.write_bytes(data)
                         os.replace(tmp, chunk)
+                        if am.checksum:
+                            crc = int.from_bytes(data[-4:], "little")
                     else:
                         chunk.unlink(missing_ok=True)  # empty bricks are not written
+                    if "chunk_crc32c" in sg:
+                        sg["chunk_crc32c"][idx] = crc
                     st = stats.compute(block)
                     for name in ("min", "max", "mean", "std", "nan_count", "inf_count"):
                         sg[name][idx] = getattr(st, name)

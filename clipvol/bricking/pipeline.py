@@ -48,7 +48,7 @@ from ..errors import OutputExistsError, OutputLockedError, ParameterError, Sourc
 from .pyramid import FILTERS, Pyramid, downsample
 from .sources import Source, identity_changes, open_source, source_identity
 from .stats import StatsComputer, finite_range
-from .store import STATS_GROUP, StoreMeta, clipvol_metadata, ome_metadata, parse_metadata
+from .store import STAT_ARRAYS, STATS_GROUP, StoreMeta, clipvol_metadata, ome_metadata, parse_metadata
 
 __all__ = ["brick_volume", "CODECS", "BRICK_RANGE", "store_codecs", "chunk_encoder", "output_lock", "job_spec",
            "prepare_output", "mark_complete"]
@@ -339,11 +339,13 @@ class _Builder:
         self.pool = pool
         self.bar = bar
         # a resumed build of a store written before checksums keeps that store's codec chain
-        checksum = any(type(c).__name__ == "Crc32cCodec" for c in group["0"].metadata.codecs)
-        self.encode = chunk_encoder(codec, pyramid.dtype, checksum)
+        self.checksum = any(type(c).__name__ == "Crc32cCodec" for c in group["0"].metadata.codecs)
+        self.encode = chunk_encoder(codec, pyramid.dtype, self.checksum)
         self.stats = StatsComputer(pyramid.dtype, pyramid.value_range)
         self.nlev = pyramid.num_levels
-        self.stat_arrays = [{name: group[f"{STATS_GROUP}/{L}/{name}"] for name in ("min", "max", "mean", "std", "nan_count", "inf_count", "histogram", "done")} for L in range(self.nlev)]
+        self.stat_arrays = [{name: group[f"{STATS_GROUP}/{L}/{name}"] for name in STAT_ARRAYS
+                             if name in group[f"{STATS_GROUP}/{L}"]} for L in range(self.nlev)]
+        self.crc = [None] * self.nlev  # per level: the chunk crc32c of the bricks of the row being written
         self.done = [np.asarray(self.stat_arrays[L]["done"][...], dtype=bool) for L in range(self.nlev)]
         self.buffers: list[np.ndarray | None] = [None] * self.nlev
         self._made_dirs: set[Path] = set()
@@ -359,12 +361,15 @@ class _Builder:
         st = None
         if write:
             st = self.stats.compute(block)
+            crc = -1  # no chunk written
             if block.view(f"u{block.dtype.itemsize}").any():  # not all fill (0) bytes
                 full = block
                 if block.shape != B:
                     full = np.zeros(B, dtype=block.dtype)
                     full[: block.shape[0], : block.shape[1], : block.shape[2]] = block
                 data = self.encode(full)
+                if self.checksum:
+                    crc = int.from_bytes(data[-4:], "little")
                 d = self.out / str(L) / "c" / str(k) / str(by)
                 if d not in self._made_dirs:
                     d.mkdir(parents=True, exist_ok=True)
@@ -374,6 +379,7 @@ class _Builder:
                     f.write(data)
                 with self._bytes_lock:
                     self.bytes_written += len(data)
+            st = (st, crc)
             if _after_brick is not None:
                 _after_brick(L, (k, by, bx))
         if L + 1 < self.nlev:
@@ -414,6 +420,10 @@ class _Builder:
     def _write_stats(self, L: int, k: int, results, gy: int, gx: int) -> None:
         arrs = self.stat_arrays[L]
         shape = (gy, gx)
+        crcs = [c for _, c in results]
+        results = [r for r, _ in results]
+        if "chunk_crc32c" in arrs:
+            arrs["chunk_crc32c"][k] = np.array(crcs, dtype=np.int64).reshape(shape)
         for name in ("min", "max", "mean", "std"):
             arrs[name][k] = np.array([getattr(r, name) for r in results], dtype=np.float64).reshape(shape)
         for name in ("nan_count", "inf_count"):
@@ -456,6 +466,9 @@ def _create_store(output: Path, pyramid: Pyramid, codec: str, unit: str, source_
         sg.create_array("histogram", shape=g + (64,), chunks=row + (64,), dtype="int64", fill_value=0,
                         compressors=stat_codecs)
         sg.create_array("done", shape=g, chunks=row, dtype="bool", fill_value=False, compressors=stat_codecs)
+        # each written chunk's own crc32c (-1: no chunk): a chunk that is intact but belongs to another
+        # brick, or to another build, is caught at no cost (its trailing crc is compared with this)
+        sg.create_array("chunk_crc32c", shape=g, chunks=row, dtype="int64", fill_value=-1, compressors=stat_codecs)
     group.attrs.update(attrs)  # written after the arrays: a store is only recognised once whole
     return group
 

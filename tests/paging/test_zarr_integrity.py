@@ -8,6 +8,7 @@ codec independently of our code).
 from __future__ import annotations
 
 import json
+import shutil
 import warnings
 
 import numpy as np
@@ -81,11 +82,46 @@ def test_deleted_chunk_with_data_fails_not_zeros(store, vol):
 
 
 def test_chunk_substituted_by_another_bricks_valid_chunk_fails(store):
-    """A chunk file copied over another passes its own checksum; the statistics catch it."""
+    """A chunk file copied over another passes its own checksum; the crc32c recorded per brick
+    catches it, and without that record the statistics do."""
     _chunk(store, 0, (1, 1, 1)).write_bytes(_chunk(store, 0, (0, 0, 0)).read_bytes())
-    loader = ZarrLoader(store)
+    with pytest.raises(BrickIntegrityError, match="not the one written for this brick"):
+        ZarrLoader(store).read_brick(0, (1, 1, 1))
+    shutil.rmtree(store / "clipvol_stats" / "0" / "chunk_crc32c")
     with pytest.raises(BrickIntegrityError, match="statistics"):
-        loader.read_brick(0, (1, 1, 1))
+        ZarrLoader(store).read_brick(0, (1, 1, 1))
+
+
+def test_substitution_between_bricks_with_equal_bounds_is_caught(tmp_path):
+    """Saturated CT bricks share min 0 and max 4095: only the per-brick checksum tells them apart."""
+    rng = np.random.default_rng(5)
+    v = rng.integers(0, 4096, (32, 32, 32)).astype(np.uint16)
+    v[::16, ::16, ::16] = 0
+    v[1::16, 1::16, 1::16] = 4095
+    path = tmp_path / "sat.zarr"
+    brick_volume(v, path, brick=B, progress=False, workers=1)
+    st = ZarrLoader(path).brick_statistics(0)
+    assert st["min"][0, 0, 0] == st["min"][1, 1, 1] == 0 and st["max"][0, 0, 0] == st["max"][1, 1, 1] == 4095
+    _chunk(path, 0, (1, 1, 1)).write_bytes(_chunk(path, 0, (0, 0, 0)).read_bytes())
+    loader = ZarrLoader(path)
+    for read in (lambda: loader.read_brick(0, (1, 1, 1)),
+                 lambda: loader.read_brick_into(0, (1, 1, 1), np.empty((B, B, B), np.uint16))):
+        with pytest.raises(BrickIntegrityError, match="another brick"):
+            read()
+
+
+def test_a_chunk_where_none_was_written_is_caught(tmp_path, vol):
+    v = vol.copy()
+    v[:16, :16, :16] = 0  # an empty brick: no chunk written
+    path = tmp_path / "e.zarr"
+    brick_volume(v, path, brick=B, progress=False, workers=1)
+    assert not _chunk(path, 0, (0, 0, 0)).exists()
+    loader = ZarrLoader(path)
+    np.testing.assert_array_equal(loader.read_brick(0, (0, 0, 0)), 0)
+    _chunk(path, 0, (0, 0, 0)).parent.mkdir(parents=True, exist_ok=True)
+    _chunk(path, 0, (0, 0, 0)).write_bytes(_chunk(path, 0, (1, 1, 1)).read_bytes())
+    with pytest.raises(BrickIntegrityError, match="no chunk was written"):
+        ZarrLoader(path).read_brick(0, (0, 0, 0))
 
 
 def test_old_store_without_checksum_opens_unverified_and_statistics_still_catch_garbage(tmp_path, vol):
@@ -126,6 +162,7 @@ def test_float_nan_bricks_pass_and_a_lost_nan_is_caught(tmp_path):
     loader = ZarrLoader(path)
     np.testing.assert_array_equal(loader.read_brick(0, (0, 0, 0)), v[:16, :16, :16])
     np.testing.assert_array_equal(loader.read_brick(0, (1, 1, 1)), v[16:, 16:, 16:])
+    shutil.rmtree(path / "clipvol_stats" / "0" / "chunk_crc32c")  # unproven bytes: the full check applies
     stale = ZarrLoader(path)
     st = stale.brick_statistics(0)
     st["nan_count"].setflags(write=True)
