@@ -375,7 +375,7 @@ def brick_volume(
         The store directory to create (or resume).
     brick : int or (int, int, int)
         Brick edge in voxels, even, 8..256.
-    filter : {'mean', 'subsample', 'max'}
+    filter : {'mean', 'subsample', 'max', 'mode'}
         The 2x2x2 down-sampling filter.
     codec : {'lz4', 'zstd', 'none'}
         Blosc lz4 (clevel 5) or zstd (clevel 1) with byte shuffle (bit shuffle for 8-bit data).

@@ -83,7 +83,7 @@ def ome_metadata(pyramid: Pyramid, name: str = "image", unit: str = "micrometer"
                 "name": name,
                 "axes": [{"name": a, "type": "space", "unit": unit} for a in ("z", "y", "x")],
                 "datasets": datasets,
-                "type": {"mean": "mean", "max": "max", "subsample": "subsample"}[pyramid.filter],
+                "type": {"mean": "mean", "max": "max", "subsample": "subsample", "mode": "mode"}[pyramid.filter],
                 "metadata": {"method": f"clipvol.bricking.pyramid.downsample(filter={pyramid.filter!r})"},
             }
         ],
