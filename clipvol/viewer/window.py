@@ -397,6 +397,16 @@ class Viewer:
             self._draw_hud(w, h)
         ctx.disable(mgl.BLEND)
 
+    def _orientation(self) -> dict[str, str] | None:
+        """The view edges' anatomical (or world-axis) labels when the store records its affine."""
+        frame = getattr(getattr(self.session, "loader", None), "frame", None)
+        if frame is None:
+            return None
+        from clipvol.scene.orientation import view_labels
+
+        cam = self.camera()
+        return view_labels(frame.affine, cam.right, cam.up, frame.frame)
+
     def _draw_hud(self, w: int, h: int) -> None:
         now = time.perf_counter()
         if self._hud_text is None or now - self._hud_time > 0.25:
@@ -408,7 +418,8 @@ class Viewer:
                 "tf": st.tf_name,
             }
             lines = hud_lines(fps=self._fps, frame_stats=self.session.frame_stats,
-                              texture_stats=self.session.texture_stats, settings=settings, message=st.message)
+                              texture_stats=self.session.texture_stats, settings=settings, message=st.message,
+                              orientation=self._orientation())
             self._hud_text = lines
             self._hud_time = now
             img = render_text(lines)
