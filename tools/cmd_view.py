@@ -6,8 +6,10 @@ refines as bricks arrive. Keys: left drag orbit, right/middle drag pan, wheel zo
 (moves the centre of interest), M mode, [ ] fixed level, +/- LOD threshold, I MIP/composite,
 T transfer function, B brick outlines, P screenshot, H HUD, R reset, Esc quit.
 
-``--offscreen --path orbit|fly|zoom --frames N --out DIR|anim.gif`` renders a camera path without
-a window (EGL) and writes PNG frames or a GIF plus a per-frame CSV.
+``--offscreen --path orbit|turntable|fly|zoom --frames N --out DIR|anim.gif|movie.mp4`` renders a
+camera path without a window (EGL) and writes PNG frames, a GIF or a movie (imageio-ffmpeg; ``--fps``,
+``--quality``) plus a per-frame CSV. For a store built from NIfTI or DICOM the turntable spins the
+patient head-up, starting from the front, and every frame's edges are labelled R/L, A/P, S/I.
 """
 
 from __future__ import annotations
@@ -43,12 +45,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--size", type=_size, default=None, help="window or image size WxH (default 960x640 window, 256x256 offscreen)")
     o = p.add_argument_group("offscreen")
     o.add_argument("--offscreen", action="store_true", help="render a camera path to files instead of opening a window")
-    o.add_argument("--path", choices=("orbit", "fly", "zoom"), default="orbit", help="camera path")
+    o.add_argument("--path", choices=("orbit", "turntable", "fly", "zoom"), default="orbit",
+                   help="camera path (turntable: one upright turn, head-up for patient-frame stores)")
     o.add_argument("--frames", type=int, default=36, help="frames along the path")
-    o.add_argument("--out", default="frames", help="output directory (PNG frames) or anim.gif")
+    o.add_argument("--out", default="frames", help="output directory (PNG frames), anim.gif or movie.mp4/.webm/.mkv/.mov")
     o.add_argument("--converged", action="store_true", help="wait each frame until its bricks are drawn at their own level")
     o.add_argument("--timeout", type=float, default=60.0, help="seconds to wait per frame with --converged")
-    o.add_argument("--fps", type=float, default=12.0, help="GIF frame rate")
+    o.add_argument("--fps", type=float, default=12.0, help="GIF or movie frame rate")
+    o.add_argument("--quality", type=float, default=8.0, help="movie quality, 0 (smallest) .. 10 (best), default 8")
+    o.add_argument("--no-labels", action="store_true", help="do not write anatomical edge labels on the frames")
     w = p.add_argument_group("window")
     w.add_argument("--screenshot-dir", default=".", help="where P saves screenshots")
     w.add_argument("--max-frames", type=int, default=None, help=argparse.SUPPRESS)
@@ -86,11 +91,19 @@ def run(args) -> int:
                   f"loaded {row['bytes_loaded'] / 1e6:6.2f} MB  uploaded {row['bytes_uploaded'] / 1e6:6.2f} MB"
                   + ("" if row["converged"] else "  (refining)"), flush=True)
 
+        frame = getattr(loader, "frame", None)  # the store's voxel-to-world affine, if it records one
+        path_kwargs = {}
+        if args.path == "turntable" and frame is not None and frame.frame == "RAS":
+            from clipvol.scene.orientation import anatomical_axes
+
+            up, front = anatomical_axes(frame.affine)
+            path_kwargs = {"up": tuple(up), "front": tuple(front)}
         res = render_path(
             loader, args.out, path=args.path, frames=args.frames, size=args.size or (256, 256),
             converged=args.converged, timeout=args.timeout, memory_budget=args.memory_budget,
             texture_budget=args.texture_budget, threads=args.threads, settings=settings, outlines=args.outlines,
-            fps=args.fps, progress=show,
+            fps=args.fps, progress=show, path_kwargs=path_kwargs, quality=args.quality,
+            orientation=None if args.no_labels or frame is None or frame.frame != "RAS" else frame,
         )
         print(f"wrote {res.frames} frames to {args.out}; per-frame statistics in {res.csv}")
         return 0

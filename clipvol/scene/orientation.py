@@ -20,7 +20,7 @@ import numpy as np
 
 from ..errors import ParameterError
 
-__all__ = ["direction_label", "axis_codes", "view_labels", "plane_labels", "opposite", "RAS_LETTERS"]
+__all__ = ["anatomical_axes", "direction_label", "axis_codes", "view_labels", "plane_labels", "opposite", "RAS_LETTERS"]
 
 #: letters for the +/- direction of each RAS+ world axis
 RAS_LETTERS = (("R", "L"), ("A", "P"), ("S", "I"))
@@ -108,3 +108,16 @@ def plane_labels(affine, axis: str, frame: str = "RAS") -> dict[str, str]:
     if axis not in cols:
         raise ParameterError(f"axis: expected 'z', 'y' or 'x', got {axis!r}")
     return view_labels(affine, cols[axis], -np.asarray(rows[axis], dtype=np.float64), frame)
+
+
+def anatomical_axes(affine) -> tuple[np.ndarray, np.ndarray]:
+    """``(up, front)``: the array-axis ``(x, y, z)`` directions of *superior* and *anterior*.
+
+    What a camera needs to show a RAS-frame volume the way a clinician expects (head up, seen from
+    the front); :func:`clipvol.scene.paths.turntable` takes them as ``up`` and ``front``.
+    """
+    rot = _rotation(affine)
+    inv = np.linalg.inv(rot)  # world direction -> array-axis direction
+    up = inv @ np.array([0.0, 0.0, 1.0])
+    front = inv @ np.array([0.0, 1.0, 0.0])
+    return up / np.linalg.norm(up), front / np.linalg.norm(front)
