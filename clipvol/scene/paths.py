@@ -147,6 +147,7 @@ def turntable(
     front=(0.0, 0.0, -1.0),
     elevation: float = 0.0,
     distance: float | None = None,
+    azimuth: float = 0.0,
 ) -> Iterator[tuple[object, np.ndarray]]:
     """The volume spinning upright once about ``up`` as on a turntable, first seen from ``front``.
 
@@ -172,6 +173,8 @@ def turntable(
         Degrees the eye is raised towards ``up`` (-89..89).
     distance : float, optional
         Eye distance from the centre; default: the whole volume fits.
+    azimuth : float
+        Degrees the first view is turned from ``front`` (right-handed about ``up``).
 
     Yields
     ------
@@ -182,6 +185,8 @@ def turntable(
     size = _check_size(size)
     if not -89.0 <= float(elevation) <= 89.0:
         raise ParameterError(f"elevation: expected -89..89 degrees, got {elevation!r}")
+    if not np.isfinite(float(azimuth)):
+        raise ParameterError(f"azimuth: expected a finite angle in degrees, got {azimuth!r}")
     u = np.asarray(up, dtype=np.float64)
     f = np.asarray(front, dtype=np.float64)
     if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0:
@@ -201,7 +206,7 @@ def turntable(
     from .camera import Camera
 
     for k in range(n):
-        a = 2.0 * np.pi * k / n
+        a = 2.0 * np.pi * k / n + np.radians(float(azimuth))
         horiz = np.cos(a) * f + np.sin(a) * side
         eye = c + d * (np.cos(el) * horiz + np.sin(el) * u)
         cam = Camera.perspective(tuple(eye), tuple(c), up=tuple(u), fov_y=fov_y, size=size)
