@@ -28,7 +28,9 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, or a .npy file")
+    p.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, a .npy file, or a NIfTI / "
+                   "DICOM folder / FILE.h5:/dataset / MRC input (bricked first into --store)")
+    p.add_argument("--store", default=None, help="where a NIfTI/DICOM/HDF5/MRC input is bricked (default ./NAME.zarr; reused when it exists)")
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default: the loader's, 64)")
     g = p.add_argument_group("rendering")
     g.add_argument("--mode", choices=("composite", "mip"), default="composite", help="compositing or maximum intensity projection")
@@ -59,6 +61,52 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     w.add_argument("--max-frames", type=int, default=None, help=argparse.SUPPRESS)
 
 
+def _store_name(text: str) -> str:
+    from pathlib import Path
+
+    base = text.split(".h5:")[0].split(".hdf5:")[0].rstrip("/\\")
+    name = Path(base).name
+    for suf in (".nii.gz", ".nii", ".hdr", ".img", ".mrc", ".map", ".mrcs", ".rec", ".st", ".h5", ".hdf5", ".hdf", ".nxs", ".dcm"):
+        if name.lower().endswith(suf):
+            return name[: -len(suf)] or "volume"
+    return name or "volume"
+
+
+def _bricked(args) -> str:
+    """The source itself, or for a NIfTI / DICOM / HDF5 / MRC input the store it is bricked into.
+
+    One command from a scan to a view: ``clipvol view ct_folder/`` bricks the series into
+    ``./ct_folder.zarr`` (or ``--store``) the first time and reuses that store afterwards.
+    """
+    import json
+    import os
+    from pathlib import Path
+
+    text = args.source
+    p = Path(text)
+    if text.startswith("procedural:") or p.suffix.lower() == ".npy" or (p.is_dir() and any((p / m).exists() for m in ("zarr.json", ".zgroup"))):
+        return text
+    from clipvol.bricking.formats import open_format
+
+    src = open_format(text)
+    if src is None:
+        return text
+    src.close()
+    store = Path(args.store) if args.store else Path.cwd() / f"{_store_name(text)}.zarr"
+    try:
+        cv = json.loads((store / "zarr.json").read_text())["attributes"]["clipvol"]
+        if cv.get("complete") and str(cv.get("source", "")).startswith(os.path.abspath(text) + " ("):
+            print(f"using {store} (bricked from {text})")
+            return str(store)
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    from clipvol.bricking.pipeline import brick_volume
+
+    print(f"bricking {text} into {store}")
+    brick_volume(text, store, progress=True)
+    return str(store)
+
+
 def run(args) -> int:
     from dataclasses import replace
 
@@ -80,7 +128,8 @@ def run(args) -> int:
     elif args.tf not in TransferFunction.names():
         raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())} or demo, got {args.tf!r}")
     kwargs = {} if args.brick is None else {"brick": args.brick}
-    loader = open_loader(args.source, **kwargs)
+    source = _bricked(args)
+    loader = open_loader(source, **kwargs)
     if settings.level is not None and settings.level >= loader.pyramid.num_levels:
         raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {settings.level}")
     if args.offscreen:

@@ -98,6 +98,17 @@ class _EglUnbound:
             self._saved = None
 
 
+def _anatomical_rig(loader) -> dict:
+    """For a patient-frame store: orbit head-up, first seen from the front (else the default rig)."""
+    frame = getattr(loader, "frame", None)
+    if frame is None or frame.frame != "RAS":
+        return {}
+    from clipvol.scene.orientation import anatomical_axes
+
+    up, front = anatomical_axes(frame.affine)
+    return {"up": up, "front": front, "azimuth": 0.0, "elevation": 0.0}
+
+
 def _quad(ctx, x0: float, y0: float, x1: float, y1: float):
     """A textured quad in NDC; texture row 0 (image top) at ``y1``."""
     data = np.array([
@@ -194,7 +205,7 @@ class Viewer:
             lod_threshold=s.lod_threshold, render_mode=s.mode,
             tf_index=presets.index(s.tf) if isinstance(s.tf, str) and s.tf in presets else (0 if self._custom_tf is not None else 1),
         )
-        self.controls = OrbitControls.for_pyramid(pyr, size=self.framebuffer_size)
+        self.controls = OrbitControls.for_pyramid(pyr, size=self.framebuffer_size, **_anatomical_rig(self.session.loader))
         self.screenshot_dir = Path(screenshot_dir)
         self.background = tuple(float(v) for v in background)
         self.held: set[str] = set()
