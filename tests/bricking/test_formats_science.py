@@ -108,3 +108,17 @@ def test_mrc_big_endian_and_truncated(tmp_path, rng):
     p.write_bytes(p.read_bytes()[:-10])
     with pytest.raises(InputFormatError, match=r"be\.mrc: truncated MRC"):
         open_source(p)
+
+
+def test_ome_tiff_voxel_size_from_its_xml(tmp_path, rng):
+    tifffile = pytest.importorskip("tifffile")
+    vol = rng.integers(0, 60000, size=(6, 20, 24)).astype(np.uint16)
+    p = tmp_path / "stack.ome.tif"
+    tifffile.imwrite(p, vol, ome=True, metadata={"axes": "ZYX", "PhysicalSizeX": 0.325, "PhysicalSizeY": 0.325,
+                                                "PhysicalSizeZ": 2.0, "PhysicalSizeXUnit": "µm"})
+    out = tmp_path / "stack.zarr"
+    brick_volume(p, out, brick=8, progress=False)
+    np.testing.assert_array_equal(zarr.open_group(str(out), mode="r")["0"][:], tifffile.imread(p))
+    scale, _ = _ome0(out)
+    np.testing.assert_allclose(scale, [2.0, 0.325, 0.325])
+    assert _attrs(out)["clipvol"]["unit"] == "micrometer"

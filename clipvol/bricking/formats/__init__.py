@@ -1,4 +1,4 @@
-"""Readers for the files people hold: NIfTI, DICOM series, HDF5 datasets, MRC maps.
+"""Readers for the files people hold: NIfTI, DICOM series, HDF5 datasets, MRC maps, OME-TIFF geometry.
 
 Each reader is a :class:`clipvol.bricking.sources.Source` in its own module, built on the
 library of its field (nibabel, pydicom, h5py, mrcfile) rather than a parser of our own, and each
@@ -73,6 +73,10 @@ def open_format(text: str):
         from .dicom import DicomSeriesSource
 
         return DicomSeriesSource(files, str(path))
+    from .ometiff import OME_SUFFIXES, open_ome_tiff
+
+    if _has_suffix(path.name, OME_SUFFIXES):
+        return open_ome_tiff(path)
     if _has_suffix(path.name, NIFTI_SUFFIXES):
         from .nifti import NiftiSource
 
