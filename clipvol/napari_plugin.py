@@ -12,7 +12,8 @@ The manifest is ``clipvol/napari.yaml`` (npe2), found through the ``napari.manif
 napari itself is an optional extra (``pip install 'clipvol[napari]'``) and is not imported here,
 so the reader's contract (:func:`read_store`) is usable and testable without it.
 
-What napari can and cannot show of a store larger than memory is in ``docs/napari.md``.
+What napari can and cannot show of a store larger than memory is in ``docs/coming-from.md``
+(measured in ``docs/benchmarks.md``).
 """
 
 from __future__ import annotations

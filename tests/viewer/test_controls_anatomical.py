@@ -39,3 +39,14 @@ def test_default_rig_is_unchanged():
     np.testing.assert_allclose(a.eye, b.eye)
     np.testing.assert_allclose(a.camera().up, b.camera().up)
     np.testing.assert_allclose(a.world_up, [0, -1, 0])
+
+
+def test_hud_names_the_edges_of_the_current_view():
+    from clipvol.viewer.hud import hud_lines
+
+    up, front = anatomical_axes(AFF)
+    rig = OrbitControls.for_pyramid(_pyr(), size=(96, 64), up=up, front=front, azimuth=0.0, elevation=0.0)
+    cam = rig.camera((96, 64))
+    lines = hud_lines(fps=10.0, orientation=view_labels(AFF, cam.right, cam.up))
+    assert "left R  right L  top S  bottom I" in lines
+    assert not any("left" in ln for ln in hud_lines(fps=10.0))
