@@ -38,11 +38,12 @@ def _hwm():
 import json, resource, sys
 import numpy as np
 from clipvol.render.context import create_context
-from clipvol.app.session import RenderSession, RenderSettings
+from clipvol.app.session import RenderSession
+from clipvol.scene.params import RenderParams
 from clipvol.scene.paths import turntable
 store, budget = sys.argv[1], sys.argv[2]
 ctx = create_context()
-s = RenderSession(store, ctx, memory_budget=budget, texture_budget=budget, settings=RenderSettings(mode="mip", tf="grey"))
+s = RenderSession(store, ctx, memory_budget=budget, texture_budget=budget, params=RenderParams(mode="mip"), tf="grey")
 base = _hwm()
 cam, coi = next(turntable(s.pyramid, 1, size=(256, 256), elevation=20))
 img = s.render(cam, coi, wait=True, timeout=600)

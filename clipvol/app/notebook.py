@@ -135,7 +135,8 @@ class VolumeView:
                  lod_threshold: float = 1.0, timeout: float = 30.0, brick: int = 32) -> None:
         from ..render.context import create_context
         from ..scene.transfer import TransferFunction
-        from .session import RenderSession, RenderSettings
+        from ..scene.params import RenderParams
+        from .session import RenderSession
 
         w, h = (int(v) for v in size)
         if not (16 <= w <= 2048 and 16 <= h <= 2048):
@@ -148,7 +149,7 @@ class VolumeView:
         self._ctx = create_context()
         try:
             self.session = RenderSession(loader, self._ctx, memory_budget=memory_budget, texture_budget=texture_budget,
-                                         threads=threads, settings=RenderSettings(tf=tf, mode=mode, lod_threshold=lod_threshold))
+                                         threads=threads, params=RenderParams(mode=mode, lod_threshold=lod_threshold), tf=tf)
         except BaseException:
             self._ctx.release()
             raise

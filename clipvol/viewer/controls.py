@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ParameterError
+from ..scene.camera import Camera
+from ..scene.paths import fit_distance, volume_center
 
 __all__ = ["OrbitControls", "ViewState", "KEY_HELP", "MODES", "MOVE_KEYS"]
 
@@ -142,7 +144,6 @@ class OrbitControls:
         :func:`clipvol.scene.orientation.anatomical_axes`) orient the rig: world up becomes ``up``
         and azimuth 0, elevation 0 looks from ``front``.
         """
-        from ..scene.paths import fit_distance, volume_center
 
         rotation = None
         if up is not None and front is not None:
@@ -202,7 +203,6 @@ class OrbitControls:
 
     def camera(self, size=(640, 480)):
         """The :class:`~clipvol.scene.camera.Camera` of the current view for an image of ``size``."""
-        from ..scene.camera import Camera
 
         cam = Camera.perspective(tuple(self.eye), tuple(self.target), up=tuple(self.world_up), fov_y=self.fov_y, size=tuple(size))
         if self.bounds is not None:

@@ -62,7 +62,7 @@ def test_tf_and_mode_from_the_widget(view):
     rgb = view.snapshot()[..., :3].astype(int)
     assert (np.abs(rgb[..., 0] - rgb[..., 2]) > 10).any()  # no longer grey
     view.widget.mode = "composite"
-    assert view.session.settings.mode == "composite"
+    assert view.session.params.mode == "composite"
     view.widget.tf = "no-such-preset"
     assert view.widget.hud.startswith("error: tf")
 
