@@ -274,6 +274,7 @@ class ZarrLoader:
                 "interrupted; re-run `clipvol brick` with the same arguments to resume it"
             )
         pyr = meta.pyramid
+        self.frame = meta.frame  # the source's voxel-to-world affine (NIfTI, DICOM, ...) or None
         self.is_clipvol_store = True
         self._lead = 0
         for name, v in self._want.items():
@@ -303,6 +304,7 @@ class ZarrLoader:
         if not isinstance(datasets, list) or not datasets or not all(isinstance(d, dict) and isinstance(d.get("path"), str) for d in datasets):
             raise InputFormatError(f"{self._where}: OME-Zarr 'multiscales'[0]['datasets'] is malformed")
         self.is_clipvol_store = False
+        self.frame = None  # a plain OME-Zarr image: no affine beyond scale and translation
         first = _array_meta(self.path / datasets[0]["path"], f"{self._where} level 0")
         nd = len(first.shape)
         if nd < 3 or nd > 5:

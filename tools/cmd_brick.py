@@ -24,13 +24,14 @@ def _triple(text: str, name: str, kind=float) -> tuple:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", metavar="INPUT", help=".npy, raw file (with --shape/--dtype), TIFF stack directory or glob, "
-                        "multi-page TIFF, zarr array / OME-Zarr image, or procedural:NAME?size=N")
+                        "multi-page TIFF, zarr array / OME-Zarr image, NIfTI .nii/.nii.gz, DICOM series folder, "
+                        "HDF5 FILE.h5:/dataset, MRC .mrc/.map, or procedural:NAME?size=N")
     parser.add_argument("output", metavar="OUTPUT", help="store directory to create (or resume)")
     parser.add_argument("--brick", type=int, default=64, help="brick edge in voxels, even, 8..256 (default 64)")
     parser.add_argument("--filter", default="mean", help="down-sampling filter: mean | subsample | max | mode (label volumes) (default mean)")
     parser.add_argument("--codec", default="lz4", help="lz4 | zstd | none (default lz4: blosc lz4 + shuffle)")
     parser.add_argument("--spacing", help="level-0 voxel size z,y,x (default: the input's, else 1,1,1)")
-    parser.add_argument("--unit", default="micrometer", help="unit of the spacing (default micrometer)")
+    parser.add_argument("--unit", default=None, help="unit of the spacing (default: the input's, e.g. millimeter for NIfTI/DICOM, else micrometer)")
     parser.add_argument("--shape", help="raw input: shape Z,Y,X")
     parser.add_argument("--dtype", help="raw input: numpy dtype, e.g. uint16")
     parser.add_argument("--byte-order", default="little", help="raw input: little | big (default little)")
