@@ -21,6 +21,7 @@ __all__ = [
     "BrickIntegrityError",
     "OutputLockedError",
     "SourceChangedError",
+    "MissingExtraError",
 ]
 
 
@@ -72,3 +73,7 @@ class OutputLockedError(OutputExistsError):
 
 class SourceChangedError(OutputExistsError):
     """A build is resumed against a source that differs from the one it started with (says what changed)."""
+
+
+class MissingExtraError(ClipvolError, ImportError):
+    """An optional dependency is not installed; the message names the extra that brings it."""

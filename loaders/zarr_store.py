@@ -47,11 +47,33 @@ from typing import Any
 
 import numpy as np
 
-from clipvol.errors import (BrickIntegrityError, InputFormatError, InputNotFoundError, ParameterError, StoreFormatError,
-                            StoreIncompleteError)
+from clipvol.bricking.pyramid import (
+    FILTERS,
+    Int3,
+    LevelInfo,
+    Pyramid,
+    downsample,
+    level_shapes,
+    level_transform,
+    pad_to_brick,
+    validate_dtype,
+)
+from clipvol.bricking.store import (
+    MAX_BRICK_VOXELS,
+    MAX_VOXELS,
+    STAT_ARRAYS,
+    STATS_GROUP,
+    parse_metadata,
+)
+from clipvol.errors import (
+    BrickIntegrityError,
+    InputFormatError,
+    InputNotFoundError,
+    ParameterError,
+    StoreFormatError,
+    StoreIncompleteError,
+)
 from clipvol.paging.loader import BrickKey
-from clipvol.bricking.pyramid import FILTERS, Int3, LevelInfo, Pyramid, downsample, level_shapes, level_transform, pad_to_brick, validate_dtype
-from clipvol.bricking.store import MAX_BRICK_VOXELS, MAX_VOXELS, STATS_GROUP, STAT_ARRAYS, parse_metadata
 
 __all__ = ["ZarrLoader", "UnverifiedStoreWarning"]
 
@@ -156,10 +178,10 @@ class _ArrayMeta:
     def nbytes(self) -> int:
         return math.prod(self.chunks) * self.dtype.itemsize
 
-    def chunk_root(self, lead: int) -> str:
-        """The chunk key up to the last three indices, as a string (built once per level: no
-        pathlib on the hot path)."""
-        return str(self.path) + "/" + self.key_prefix + ("0" + self.separator) * lead
+    def chunk_root(self, lead: tuple[int, ...]) -> str:
+        """The chunk key up to the last three indices (``lead``: the chunk index of the leading t/c
+        axes), as a string (built once per level: no pathlib on the hot path)."""
+        return str(self.path) + "/" + self.key_prefix + "".join(f"{v}{self.separator}" for v in lead)
 
     def chunk_path(self, cidx: tuple[int, ...]) -> Path:
         return self.path / (self.key_prefix + self.separator.join(str(i) for i in cidx))
@@ -267,6 +289,10 @@ class ZarrLoader:
     path : str or Path
         The store's directory (a ``zarr:`` prefix is accepted, for :func:`clipvol.open_store`
         plug-in URLs).
+    t, c : int, optional
+        For an OME-Zarr image with time and/or channel axes (``t, c, z, y, x``, as microscopes
+        write them): the time point and channel to read (default 0). The loader is then the 3-D
+        volume at that ``(t, c)``; open one loader per time point or channel.
 
     Raises
     ------
@@ -283,7 +309,8 @@ class ZarrLoader:
     #: verify each chunk's crc32c (set False only to measure what it costs)
     verify_checksums: bool = True
 
-    def __init__(self, path: str | Path, *, allow_incomplete: bool = False) -> None:
+    def __init__(self, path: str | Path, *, t: int | None = None, c: int | None = None,
+                 allow_incomplete: bool = False) -> None:
         self._allow_incomplete = bool(allow_incomplete)
         if isinstance(path, str) and path.startswith("zarr:"):
             path = path[len("zarr:"):]
@@ -306,6 +333,12 @@ class ZarrLoader:
         self._checks: dict[int, np.ndarray | None] = {}  # per level: (grid..., 5) min, max, nan, inf, crc
         self._derived: OrderedDict[tuple, np.ndarray] = OrderedDict()
         self._derived_bytes = 0
+        self._want = {"t": t, "c": c}
+        self._select: tuple[int, ...] = ()  # index of the leading (t, c) axes
+        self._chunk_lead: tuple[int, ...] = ()  # ... as chunk grid index
+        self._within: tuple[int, ...] = ()  # ... inside that chunk
+        self.axes: tuple[str, ...] = ()  # names of the leading axes ("t", "c")
+        self.lead_shape: tuple[int, ...] = ()
         if "clipvol" in attrs:
             self._open_clipvol(attrs)
         else:
@@ -317,7 +350,7 @@ class ZarrLoader:
         chunk key's root as a string, the separator, the grid, whether edge bricks are whole, and
         whether the level can be decoded straight into a slot."""
         pyr = self._pyramid
-        self._roots = [am.chunk_root(self._lead) for am in self._arrays]
+        self._roots = [am.chunk_root(self._chunk_lead) for am in self._arrays]
         self._seps = [am.separator for am in self._arrays]
         self._grids = [pyr.grid(L) for L in range(pyr.num_levels)]
         self._full_last = [tuple(n % b == 0 for n, b in zip(pyr.levels[L].shape, pyr.brick_shape))
@@ -340,8 +373,12 @@ class ZarrLoader:
                 "interrupted; re-run `clipvol brick` with the same arguments to resume it"
             )
         pyr = meta.pyramid
+        self.frame = meta.frame  # the source's voxel-to-world affine (NIfTI, DICOM, ...) or None
         self.is_clipvol_store = True
         self._lead = 0
+        for name, v in self._want.items():
+            if v is not None and v != 0:
+                raise ParameterError(f"{name}: this store has no {name!r} axis (a 3-D clipvol store), got {name}={v}")
         self._arrays: list[_ArrayMeta] = []
         for L, lv in enumerate(pyr.levels):
             where = f"{self._where} level {L}"
@@ -370,14 +407,14 @@ class ZarrLoader:
         if not isinstance(datasets, list) or not datasets or not all(isinstance(d, dict) and isinstance(d.get("path"), str) for d in datasets):
             raise InputFormatError(f"{self._where}: OME-Zarr 'multiscales'[0]['datasets'] is malformed")
         self.is_clipvol_store = False
+        self.frame = None  # a plain OME-Zarr image: no affine beyond scale and translation
         first = _array_meta(inside(self.path, datasets[0]["path"], f"{self._where} level 0"), f"{self._where} level 0")
         nd = len(first.shape)
-        if nd < 3 or any(s != 1 for s in first.shape[:-3]):
-            raise InputFormatError(
-                f"{self._where}: expected a 3-D image (z, y, x) with any leading time/channel axes of size 1, got "
-                f"shape {list(first.shape)}; several channels or time points are not supported yet"
-            )
+        if nd < 3 or nd > 5:
+            raise InputFormatError(f"{self._where}: expected an image (t, c, z, y, x) with 3 to 5 axes, got shape "
+                                   f"{list(first.shape)}")
         self._lead = nd - 3
+        self._choose_lead(ms, first)
         brick: Int3 = tuple(first.chunks[-3:])  # type: ignore[assignment]
         expect = level_shapes(first.shape[-3:], brick)
         arrays = [first]
@@ -406,6 +443,31 @@ class ZarrLoader:
             self._prepare_hot_path()  # _coarsest_range reads bricks
             self._pyramid = replace(self._pyramid, value_range=self._coarsest_range())
 
+    def _choose_lead(self, ms: dict, first: "_ArrayMeta") -> None:
+        """Resolve the requested ``t``/``c`` against the leading axes named in the metadata."""
+        axes = ms.get("axes")
+        names = []
+        if isinstance(axes, list) and len(axes) == len(first.shape):
+            names = [a.get("name") if isinstance(a, dict) else a for a in axes][: self._lead]
+        if len(names) != self._lead or not all(isinstance(n, str) for n in names):
+            names = ["t", "c"][2 - self._lead:] if self._lead else []  # OME order: t before c
+        for name, v in self._want.items():
+            if v is not None and name not in names and v != 0:
+                raise ParameterError(f"{name}: {self._where} has no {name!r} axis (axes {names + ['z', 'y', 'x']}), "
+                                     f"got {name}={v}")
+        sel = []
+        for name, size in zip(names, first.shape[: self._lead]):
+            v = self._want.get(name) or 0
+            if isinstance(v, bool) or int(v) != v or not 0 <= v < size:
+                raise ParameterError(f"{name}: expected 0..{size - 1} for {self._where}, got {v!r}")
+            sel.append(int(v))
+        self._select = tuple(sel)
+        lead_chunks = first.chunks[: self._lead]
+        self._chunk_lead = tuple(v // ch for v, ch in zip(sel, lead_chunks))
+        self._within = tuple(v % ch for v, ch in zip(sel, lead_chunks))
+        self.axes = tuple(names)
+        self.lead_shape = tuple(first.shape[: self._lead])
+
     def _ome_levels(self, ms: dict, shapes: list) -> list[LevelInfo]:
         out = []
         try:
@@ -421,7 +483,8 @@ class ZarrLoader:
     def _ome_value_range(self, ome: dict, dtype: np.dtype) -> tuple[float, float] | None:
         omero = ome.get("omero")
         chans = omero.get("channels") if isinstance(omero, dict) else None
-        first = chans[0] if isinstance(chans, list) and chans else None
+        ci = self._select[self.axes.index("c")] if "c" in self.axes else 0
+        first = chans[ci] if isinstance(chans, list) and len(chans) > ci else None
         win = first.get("window") if isinstance(first, dict) else None  # written by other tools: trust nothing
         if isinstance(win, dict):
             try:
@@ -483,7 +546,7 @@ class ZarrLoader:
                 return np.full(self._pyramid.brick_shape, am.fill_value, dtype=self._pyramid.dtype)
             block = buf.view(am.dtype).reshape(am.chunks)
             if self._lead:
-                block = block[(0,) * self._lead]
+                block = block[self._within]
         else:
             got = 1
             block = self._read_zarr(level, start, stop)
@@ -609,7 +672,7 @@ class ZarrLoader:
         root = self.path.resolve()
         rel = am.path.relative_to(root) if am.path.is_relative_to(root) else am.path.relative_to(self.path) \
             if am.path.is_relative_to(self.path) else am.path
-        key = am.key_prefix + ("0" + am.separator) * self._lead + am.separator.join(str(i) for i in index)
+        key = am.key_prefix + "".join(f"{v}{am.separator}" for v in self._chunk_lead) + am.separator.join(str(i) for i in index)
         return f"{rel}/{key}"
 
     def _corrupt(self, level: int, index: Int3, e: BaseException) -> InputFormatError:
@@ -707,7 +770,7 @@ class ZarrLoader:
                     if arr is None:
                         arr = zarr.open_array(str(self._arrays[level].path), mode="r")
                         self._zarr_arrays[level] = arr
-            sl = (0,) * self._lead + tuple(slice(a, b) for a, b in zip(start, stop))
+            sl = self._select + tuple(slice(a, b) for a, b in zip(start, stop))
             return np.asarray(arr[sl])
         except (OSError, MemoryError):
             raise

@@ -77,13 +77,12 @@ def _over_black(img):
 
 def test_window_matches_offscreen_render(xdisplay, loader, tmp_path):
     """Also: an offscreen EGL context made *before* the window keeps working after it (see _EglUnbound)."""
+    from clipvol.app.session import RenderSession
     from clipvol.render.context import create_context
-    from clipvol.app.session import RenderSession, RenderSettings
     from clipvol.viewer.window import Viewer
 
-    settings = RenderSettings(tf="viridis")
     ctx = create_context()
-    with Viewer(loader, size=(96, 72), settings=settings, screenshot_dir=tmp_path, visible=False) as v:
+    with Viewer(loader, size=(96, 72), tf="viridis", screenshot_dir=tmp_path, visible=False) as v:
         v.key("H")  # HUD off: the screen then shows the frame only
         _converge(v)
         screen = v.read_screen()
@@ -109,7 +108,7 @@ def test_window_matches_offscreen_render(xdisplay, loader, tmp_path):
     assert np.abs(with_hud[:20, :40].astype(int) - outlined[:20, :40]).max() > 0
     # the same view rendered offscreen (EGL), composited over the window's black background
     try:
-        with RenderSession(loader, ctx, settings=settings) as s:
+        with RenderSession(loader, ctx, tf="viridis") as s:
             ref = s.render(cam, coi, wait=True)
     finally:
         ctx.release()
@@ -131,12 +130,12 @@ def test_window_controls_change_the_view(xdisplay, loader):
         assert np.abs(a.astype(int) - b).max() > 20
         v.key("M")  # roaming
         v.key("]")  # fixed level 1
-        assert v.session.settings.selection == "fixed" and v.session.settings.level == 1
+        assert v.session.params.policy == "fixed" and v.session.params.level == 1
         v.step()
         assert set(v.session.frame_stats.bricks_drawn) <= {1, 2}
         v.key("I")
         v.step()
-        assert v.session.action.mode == "mip"
+        assert v.session.action.params.mode == "mip"
         v.key("ESCAPE")
         assert v.should_close()
 
@@ -155,3 +154,21 @@ def test_no_display_is_a_clear_error(monkeypatch, capsys):
     assert main(["view", "procedural:fractal?size=16", "--max-frames", "1"]) == 2
     err = capsys.readouterr().err
     assert "display" in err and "--offscreen" in err and err.count("\n") == 1
+
+
+def test_window_on_a_dicom_store_is_head_up_and_labelled(xdisplay, tmp_path):
+    """A patient-frame store opens seen from the front, head up, and the HUD names the edges."""
+    pytest.importorskip("pydicom")
+    from format_files import write_dicom_series
+
+    from clipvol.bricking.pipeline import brick_volume
+    from clipvol.viewer.window import Viewer
+
+    vol = np.zeros((16, 16, 16), np.uint16)
+    vol[10:14, 4:12, 10:14] = 1000  # patient's left (high x), superior (high z)
+    write_dicom_series(tmp_path / "ct", vol, spacing=(1.0, 1.0, 1.0))
+    brick_volume(tmp_path / "ct", tmp_path / "ct.zarr", brick=8, progress=False)
+    with Viewer(str(tmp_path / "ct.zarr"), size=(96, 96), tf="grey") as viewer:
+        _converge(viewer)
+        assert viewer._orientation() == {"right": "L", "left": "R", "top": "S", "bottom": "I"}
+        assert any("left R  right L  top S  bottom I" in ln for ln in (viewer._hud_text or []))
