@@ -33,7 +33,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--selection", choices=("multiresolution", "roaming", "fixed"), default="multiresolution")
     g.add_argument("--level", type=int, default=None, help="level drawn with --selection fixed (default 0)")
     g.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel projects to more than this many pixels")
-    g.add_argument("--tf", default="viridis", help="transfer-function preset (grey, viridis, magma, inferno, plasma, bone) or demo (the demo's)")
     g.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
     g.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
     g.add_argument("--texture-budget", default="256MB", help="GPU brick cache budget")
@@ -41,6 +40,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
     g.add_argument("--outlines", action="store_true", help="draw brick outlines coloured by level (key B)")
     g.add_argument("--size", type=_size, default=None, help="window or image size WxH (default 960x640 window, 256x256 offscreen)")
+    from clipvol.tools.tf_args import add_tf_arguments
+
+    add_tf_arguments(p.add_argument_group("transfer function"))
     o = p.add_argument_group("offscreen")
     o.add_argument("--offscreen", action="store_true", help="render a camera path to files instead of opening a window")
     o.add_argument("--path", choices=("orbit", "fly", "zoom"), default="orbit", help="camera path")
@@ -50,32 +52,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     o.add_argument("--timeout", type=float, default=60.0, help="seconds to wait per frame with --converged")
     o.add_argument("--fps", type=float, default=12.0, help="GIF frame rate")
     w = p.add_argument_group("window")
-    w.add_argument("--screenshot-dir", default=".", help="where P saves screenshots")
+    w.add_argument("--screenshot-dir", default="clipvol-screenshots",
+                   help="folder where P (with the HUD) and Shift+P (without) save screenshots, S the transfer "
+                        "function and C the camera (created; default ./clipvol-screenshots)")
+    w.add_argument("--camera", default=None, metavar="FILE.json", help="start from a camera saved with C")
+    w.add_argument("--frame-time", type=float, default=100.0, metavar="MS",
+                   help="target frame time while the camera moves, in ms: the viewer lowers resolution and "
+                        "sampling to hold it and refines to full quality when still (default 100; 0 turns it off)")
     w.add_argument("--max-frames", type=int, default=None, help=argparse.SUPPRESS)
 
 
 def run(args) -> int:
-    from dataclasses import replace
-
     from clipvol.errors import ParameterError
     from clipvol.app.session import RenderSettings, open_loader
 
     if args.frames < 1:
         raise ParameterError(f"--frames: expected >= 1, got {args.frames}")
-    settings = RenderSettings(
-        lod_threshold=args.lod_threshold, selection=args.selection, level=args.level, mode=args.mode, tf=args.tf,
-        step=args.step, texels_per_frame=args.texels_per_frame,
-    )
-    from clipvol.scene.transfer import TransferFunction
+    if args.frame_time < 0:
+        raise ParameterError(f"--frame-time: expected milliseconds >= 0, got {args.frame_time}")
+    from clipvol.tools.tf_args import transfer_function_from_args
 
-    if args.tf == "demo":
-        from clipvol.tools.cmd_demo import demo_transfer_function
-
-        settings = replace(settings, tf=demo_transfer_function())
-    elif args.tf not in TransferFunction.names():
-        raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())} or demo, got {args.tf!r}")
     kwargs = {} if args.brick is None else {"brick": args.brick}
     loader = open_loader(args.source, **kwargs)
+    settings = RenderSettings(
+        lod_threshold=args.lod_threshold, selection=args.selection, level=args.level, mode=args.mode,
+        tf=transfer_function_from_args(args, loader), step=args.step, texels_per_frame=args.texels_per_frame,
+    )
     if settings.level is not None and settings.level >= loader.pyramid.num_levels:
         raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {settings.level}")
     if args.offscreen:

@@ -1,6 +1,6 @@
 """The clip-texture: per-level toroidal brick windows in main memory, filled by loader threads.
 
-After ``vzParameterClipTexture`` (seed 001, section 4.1) and the clipmap. A memory budget becomes
+After OpenGL Volumizer's ``vzParameterClipTexture`` (Bhaniramka & Demange 2002) and the clipmap. A memory budget becomes
 a pool of brick slots allocated once (:func:`clipvol.paging.toroidal.allocate`); coarse levels that fit
 are held whole, finer ones keep a window of ``W`` bricks per axis around the centre of interest,
 brick ``b`` living in slot ``b mod W``. Moving the centre evicts the bricks that left a window,

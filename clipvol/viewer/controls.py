@@ -9,7 +9,7 @@ or a GL context (``tests/test_controls.py``):
   Left drag orbits, right/middle drag pans so the point under the cursor follows it exactly (at the
   target's depth), the wheel zooms by a constant factor per step, and WASD/QE move eye and target
   together (fly / roam: the centre of interest moves through the data and the per-level windows
-  follow it, seed 001 §3.5).
+  follow it, as in OpenGL Volumizer's volume roaming).
 * :class:`ViewState` holds the renderer settings the keys toggle (selection mode, fixed level, LOD
   threshold, MIP/composite, transfer-function preset, brick outlines, HUD) and
   :meth:`ViewState.handle_key` applies one key.
