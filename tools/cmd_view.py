@@ -2,9 +2,12 @@
 
 ``clipvol view STORE|procedural:...|x.npy`` opens a window (GLFW + moderngl) that renders the data
 with the multiresolution clip renderer, never waiting for I/O: coarse data shows at once and
-refines as bricks arrive. Keys: left drag orbit, right/middle drag pan, wheel zoom, WASD/QE fly
-(moves the centre of interest), M mode, [ ] fixed level, +/- LOD threshold, I MIP/composite,
-T transfer function, B brick outlines, P screenshot, H HUD, R reset, Esc quit.
+refines as bricks arrive; while the camera moves it renders at a lower resolution and sampling to
+hold --frame-time, and at full quality once still. Keys: left drag orbit, right/middle drag pan,
+wheel zoom, WASD/QE fly (moves the centre of interest), M mode, [ ] fixed level, +/- LOD threshold,
+I MIP/composite, T colour map, Left/Right/Up/Down move/widen the transfer-function window,
+Shift+S save it, C save the camera, B brick outlines, P screenshot (Shift+P without HUD), H HUD,
+R reset, Esc quit.
 
 ``--offscreen --path orbit|fly|zoom --frames N --out DIR|anim.gif`` renders a camera path without
 a window (EGL) and writes PNG frames or a GIF plus a per-frame CSV.
@@ -98,9 +101,16 @@ def run(args) -> int:
         return 0
     from clipvol.viewer.window import Viewer
 
+    camera = None
+    if args.camera is not None:
+        from clipvol.scene.bookmarks import load_camera
+
+        camera = load_camera(args.camera)
+
     with Viewer(loader, size=args.size or (960, 640), memory_budget=args.memory_budget,
                 texture_budget=args.texture_budget, threads=args.threads, settings=settings,
-                screenshot_dir=args.screenshot_dir, title=f"clipvol - {args.source}") as viewer:
+                screenshot_dir=args.screenshot_dir, title=f"clipvol - {args.source}",
+                frame_time=args.frame_time / 1000.0 or None, camera=camera) as viewer:
         if args.outlines:
             viewer.key("B")
         return viewer.run(max_frames=args.max_frames)

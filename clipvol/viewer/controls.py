@@ -50,9 +50,13 @@ KEY_HELP = (
     ("[ ]", "fixed level finer / coarser (switches to fixed mode)"),
     ("+ / -", "LOD threshold up (coarser, faster) / down (finer)"),
     ("I", "MIP / composite"),
-    ("T", "next transfer-function preset"),
+    ("T", "next colour map over the same window"),
+    ("Left / Right", "move the transfer-function window down / up (5 % of the data range)"),
+    ("Up / Down", "widen / narrow the transfer-function window"),
+    ("Shift+S (or Ctrl+S)", "save the transfer function as JSON (read back with --tf FILE.json)"),
+    ("C", "save the camera as JSON (read back with --camera FILE.json)"),
     ("B", "brick outlines coloured by level"),
-    ("P", "screenshot (PNG)"),
+    ("P / Shift+P", "screenshot (PNG) with / without the HUD, into --screenshot-dir"),
     ("H", "HUD on / off"),
     ("R", "reset the view"),
     ("Esc", "quit"),
@@ -177,6 +181,27 @@ class OrbitControls:
         if self.bounds is not None:
             cam = cam.fit_depth(self.bounds[0], self.bounds[1])
         return cam
+
+    def set_camera(self, cam) -> None:
+        """Look as ``cam`` does (a saved bookmark): its target, distance, direction and field of view.
+
+        The rig keeps world up ``-y``; a camera rolled about its view direction comes back unrolled.
+        An orthographic camera gives its centre as the target at the rig's current distance.
+        """
+        if cam.ortho:
+            target = np.asarray(cam.center, dtype=np.float64)
+            d = -np.asarray(cam.forward, dtype=np.float64)
+            dist = self.distance
+        else:
+            target = np.asarray(cam.target, dtype=np.float64)
+            v = np.asarray(cam.eye, dtype=np.float64) - target
+            dist = float(np.linalg.norm(v))
+            d = v / dist
+            self.fov_y = float(cam.fov_y)
+        self.target = target.copy()
+        self.distance = dist
+        self.elevation = float(np.clip(np.degrees(np.arcsin(np.clip(-d[1], -1.0, 1.0))), -89.0, 89.0))
+        self.azimuth = float(np.degrees(np.arctan2(d[0], -d[2])) % 360.0)
 
     def reset(self) -> None:
         """Back to the view the rig was created with."""
