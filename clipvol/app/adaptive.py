@@ -13,7 +13,7 @@ alike.
 
 **The control law.** The quality is one number, the *cost* ``c`` in ``(0, 1]``: the fraction of a
 full frame's rays x samples. After an interactive frame that took ``t`` seconds at cost ``c``,
-the next cost is ``c * (T / t) ** gain``, clipped to ``[min_cost, 1]`` - a damped multiplicative
+the next cost is ``c * (h T / t) ** gain`` (``h``: a headroom, 0.85), clipped to ``[min_cost, 1]`` - a damped multiplicative
 step towards the target ``T`` that needs no model of the fixed per-frame overhead (if the overhead
 alone exceeds ``T``, the cost settles at ``min_cost``). A full-quality frame seeds the estimate the
 same way. The cost maps to an image scale ``s`` and a step factor ``f`` (``c = s**2 / f``): the
@@ -71,6 +71,9 @@ class AdaptiveQuality:
         Largest sample-step multiplier.
     gain : float
         Damping of the control step, in ``(0, 1]`` (1: jump to the estimate at once).
+    headroom : float
+        The controller aims at ``headroom * target_s`` so that frame-to-frame noise (other
+        processes, brick uploads) keeps frames under the target rather than around it.
 
     Use: ``q = aq.next(moving, now)``; when ``q`` is not None render at ``q`` and call
     ``aq.done(q, frame_seconds)``. ``next`` returns None when nothing needs drawing for
@@ -78,7 +81,7 @@ class AdaptiveQuality:
     """
 
     def __init__(self, target_s: float = 0.1, *, settle_s: float = 0.2, min_scale: float = 0.2,
-                 max_step_factor: float = 3.0, gain: float = 0.7) -> None:
+                 max_step_factor: float = 3.0, gain: float = 0.7, headroom: float = 0.85) -> None:
         for name, v, lo in (("target_s", target_s, 0.0), ("settle_s", settle_s, -1e-300),
                             ("min_scale", min_scale, 0.0), ("max_step_factor", max_step_factor, 1.0 - 1e-12)):
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > lo):
@@ -87,6 +90,9 @@ class AdaptiveQuality:
             raise ParameterError(f"min_scale: expected a fraction in (0, 1], got {min_scale!r}")
         if not (0.0 < gain <= 1.0):
             raise ParameterError(f"gain: expected a number in (0, 1], got {gain!r}")
+        if not (0.0 < headroom <= 1.0):
+            raise ParameterError(f"headroom: expected a number in (0, 1], got {headroom!r}")
+        self.headroom = float(headroom)
         self.target_s = float(target_s)
         self.settle_s = float(settle_s)
         self.min_scale = float(min_scale)
@@ -136,7 +142,7 @@ class AdaptiveQuality:
             self._full_drawn = True
         if not (t > 0 and math.isfinite(t)):
             return
-        c = q.cost * (self.target_s / t) ** self.gain
+        c = q.cost * (self.headroom * self.target_s / t) ** self.gain
         if q.full:  # a full frame seeds the estimate or lowers it, never raises what motion measured
             c = min(c, self.cost)
         self.cost = min(max(c, self.min_cost), 1.0)
