@@ -94,8 +94,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         pyr = loader.pyramid
         stored = loader.stored_levels
-        dirs = [a.chunk_path((0,) * len(a.shape)).parent for a in loader._arrays]
-        dirs = [_array_dir(d, path) for d in dirs]
+        dirs = _ome_dataset_dirs(path)[:stored]
     it = pyr.dtype.itemsize
     print(f"store      {path}")
     if meta is not None:
@@ -137,11 +136,13 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _array_dir(chunk_parent: Path, store: Path) -> Path:
-    """The array directory above a chunk file's folder (``.../c/0/0`` -> ``...``)."""
-    p = chunk_parent
-    while p != store and p.parent != p:
-        if (p / "zarr.json").is_file() or (p / ".zarray").is_file():
-            return p
-        p = p.parent
-    return chunk_parent
+def _ome_dataset_dirs(path: Path) -> list[Path]:
+    """The array directories of an OME-Zarr image's ``multiscales[0].datasets``, in order."""
+    import json
+
+    if (path / "zarr.json").is_file():
+        attrs = json.loads((path / "zarr.json").read_text()).get("attributes") or {}
+    else:
+        attrs = json.loads((path / ".zattrs").read_text()) if (path / ".zattrs").is_file() else {}
+    ome = attrs.get("ome") if isinstance(attrs.get("ome"), dict) else attrs
+    return [path / d["path"] for d in ome["multiscales"][0]["datasets"]]

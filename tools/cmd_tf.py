@@ -64,15 +64,11 @@ def run(args) -> int:
         for line in describe(tf):
             print(line)
         return 0
-    from pathlib import Path
-
     from clipvol.app.session import open_loader
     from clipvol.tools.cmd_render import check_output_file
     from clipvol.tools.tf_args import transfer_function_from_args
 
     check_output_file(args.file, ".json", "FILE.json")
-    if Path(args.file).resolve() == Path(args.tf).resolve() if args.tf.lower().endswith(".json") else False:
-        raise ParameterError(f"FILE.json: expected a file other than --tf {args.tf!r}")
     loader = open_loader(args.source, **({} if args.brick is None else {"brick": args.brick}))
     tf = transfer_function_from_args(args, loader)
     tf.save(args.file)
