@@ -85,7 +85,7 @@ def _drag(sess, controls, coi_fn, frames: int, aq, base_step: float) -> list[dic
         q = aq.next(True, now) if aq is not None else FULL
         cam = controls.camera(q.size(SIZE))
         step = base_step * q.step_factor
-        if sess.settings.step != step:
+        if sess.params.step != step:
             sess.update(step=step)
         t0 = time.perf_counter()
         sess.render(cam, coi_fn(), wait=False)
@@ -120,7 +120,8 @@ def _one_pass(ctx, loader, cam, tf, step: float, repeat: int) -> float:
 
 def bench(name: str, quick: bool, frames: int, ctx, log) -> dict:
     from clipvol.app.adaptive import AdaptiveQuality
-    from clipvol.app.session import RenderSession, RenderSettings
+    from clipvol.app.session import RenderSession
+    from clipvol.scene.params import RenderParams
     from clipvol.paging.open import open_store
     from clipvol.viewer.controls import OrbitControls
 
@@ -128,8 +129,8 @@ def bench(name: str, quick: bool, frames: int, ctx, log) -> dict:
     tf = _tf(name, loader)
     base_step = 0.5
     out: dict = {"store": name, "shape": "x".join(map(str, loader.pyramid.shape))}
-    with RenderSession(loader, ctx, memory_budget="1GB", texture_budget="1GB",
-                       settings=RenderSettings(tf=tf, step=base_step)) as sess:
+    with RenderSession(loader, ctx, memory_budget="1GB", params=RenderParams(step=base_step, texture_budget="1GB"),
+                       tf=tf) as sess:
         controls = OrbitControls.for_pyramid(loader.pyramid, size=SIZE)
         coi = lambda: controls.center_of_interest  # noqa: E731
         home = controls.camera(SIZE)
@@ -159,7 +160,7 @@ def bench(name: str, quick: bool, frames: int, ctx, log) -> dict:
         log(f"{name}: drag {out['drag_fps']:.1f} fps adaptive (median scale {out['drag_scale_median']:.2f}, "
             f"step x{out['drag_step_factor_median']:.2f}) vs {out['full_drag_fps']:.2f} fps at full quality")
         # stop: the refined frame
-        if sess.settings.step != base_step:
+        if sess.params.step != base_step:
             sess.update(step=base_step)
         cam = controls.camera(SIZE)
         t0 = time.perf_counter()

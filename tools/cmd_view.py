@@ -33,7 +33,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default: the loader's, 64)")
     g = p.add_argument_group("rendering")
     g.add_argument("--mode", choices=("composite", "mip"), default="composite", help="compositing or maximum intensity projection")
-    g.add_argument("--selection", choices=("multiresolution", "roaming", "fixed"), default="multiresolution")
+    g.add_argument("--selection", "--policy", dest="selection", choices=("multiresolution", "roaming", "fixed"),
+                   default="multiresolution", help="selection policy the viewer starts with (M cycles them)")
     g.add_argument("--level", type=int, default=None, help="level drawn with --selection fixed (default 0)")
     g.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel projects to more than this many pixels")
     g.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
@@ -66,8 +67,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    from clipvol.app.session import open_loader
     from clipvol.errors import ParameterError
-    from clipvol.app.session import RenderSettings, open_loader
+    from clipvol.scene.params import RenderParams
 
     if args.frames < 1:
         raise ParameterError(f"--frames: expected >= 1, got {args.frames}")
@@ -75,14 +77,15 @@ def run(args) -> int:
         raise ParameterError(f"--frame-time: expected milliseconds >= 0, got {args.frame_time}")
     from clipvol.tools.tf_args import transfer_function_from_args
 
+    params = RenderParams(
+        lod_threshold=args.lod_threshold, policy=args.selection, level=args.level, mode=args.mode,
+        step=args.step, texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget,
+    )
     kwargs = {} if args.brick is None else {"brick": args.brick}
     loader = open_loader(args.source, **kwargs)
-    settings = RenderSettings(
-        lod_threshold=args.lod_threshold, selection=args.selection, level=args.level, mode=args.mode,
-        tf=transfer_function_from_args(args, loader), step=args.step, texels_per_frame=args.texels_per_frame,
-    )
-    if settings.level is not None and settings.level >= loader.pyramid.num_levels:
-        raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {settings.level}")
+    if params.level is not None and params.level >= loader.pyramid.num_levels:
+        raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {params.level}")
+    tf = transfer_function_from_args(args, loader)
     if args.offscreen:
         from clipvol.app.flythrough import render_path
 
@@ -94,7 +97,7 @@ def run(args) -> int:
         res = render_path(
             loader, args.out, path=args.path, frames=args.frames, size=args.size or (256, 256),
             converged=args.converged, timeout=args.timeout, memory_budget=args.memory_budget,
-            texture_budget=args.texture_budget, threads=args.threads, settings=settings, outlines=args.outlines,
+            texture_budget=args.texture_budget, threads=args.threads, params=params, tf=tf, outlines=args.outlines,
             fps=args.fps, progress=show,
         )
         print(f"wrote {res.frames} frames to {args.out}; per-frame statistics in {res.csv}")
@@ -108,7 +111,7 @@ def run(args) -> int:
         camera = load_camera(args.camera)
 
     with Viewer(loader, size=args.size or (960, 640), memory_budget=args.memory_budget,
-                texture_budget=args.texture_budget, threads=args.threads, settings=settings,
+                texture_budget=args.texture_budget, threads=args.threads, params=params, tf=tf,
                 screenshot_dir=args.screenshot_dir, title=f"clipvol - {args.source}",
                 frame_time=args.frame_time / 1000.0 or None, camera=camera) as viewer:
         if args.outlines:

@@ -45,7 +45,7 @@ def volumes(n: int = 96, seed: int = 0) -> dict[str, np.ndarray]:
 def main(argv=None) -> int:
     from PIL import Image, ImageDraw
 
-    from clipvol.app.session import RenderSession, RenderSettings
+    from clipvol.app.session import RenderSession
     from clipvol.bricking.pipeline import brick_volume
     from clipvol.loaders.zarr_store import ZarrLoader
     from clipvol.render import create_context
@@ -68,7 +68,7 @@ def main(argv=None) -> int:
                 cam = OrbitControls.for_pyramid(loader.pyramid, size=size).camera(size)
                 row = []
                 for tf in (old, auto_transfer_function(loader)):
-                    with RenderSession(loader, ctx, settings=RenderSettings(tf=tf)) as s:
+                    with RenderSession(loader, ctx, tf=tf) as s:
                         img = s.render(cam, cam.target, wait=True, timeout=120)
                     bg = Image.new("RGBA", size, (30, 30, 30, 255))
                     bg.alpha_composite(Image.fromarray(img, "RGBA"))

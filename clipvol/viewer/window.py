@@ -36,11 +36,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..app.adaptive import FULL, AdaptiveQuality
+from ..app.session import RenderSession
 from ..errors import ClipvolError, ParameterError
+from ..render.context import create_context
+from ..scene.params import RenderParams
 from .controls import MOVE_KEYS, OrbitControls, ViewState
 from .hud import hud_lines, render_text
-from ..app.adaptive import FULL, AdaptiveQuality
-from ..app.session import RenderSession, RenderSettings
 
 __all__ = ["Viewer", "WindowError"]
 
@@ -132,8 +134,10 @@ class Viewer:
         Clip-texture and GPU cache budgets.
     threads : int, optional
         Loader threads.
-    settings : RenderSettings, optional
-        Initial render settings (LOD threshold, mode, selection, transfer function, step).
+    params : RenderParams, optional
+        Initial render parameters (policy, LOD threshold, mode, step).
+    tf : str or TransferFunction
+        Initial transfer function.
     screenshot_dir : str or Path
         Where P writes ``clipvol-NNNN.png`` (Shift+P: ``clipvol-NNNN-nohud.png``), Shift+S
         ``tf-NNNN.json`` and C ``camera-NNNN.json`` (created when first needed).
@@ -150,7 +154,7 @@ class Viewer:
     """
 
     def __init__(self, source, *, size=(960, 640), memory_budget="256MB", texture_budget="256MB", threads=None,
-                 settings: RenderSettings | None = None, screenshot_dir=".", visible: bool = True,
+                 params: RenderParams | None = None, tf="viridis", screenshot_dir=".", visible: bool = True,
                  title: str = "clipvol", background=(0.0, 0.0, 0.0), frame_time: float | None = 0.1,
                  camera=None) -> None:
         try:
@@ -191,17 +195,15 @@ class Viewer:
                 raise WindowError("expected a window with an OpenGL 3.3 core context, but glfw.create_window failed")
             glfw.make_context_current(self.window)
             glfw.swap_interval(1 if visible else 0)
-            from ..render.context import create_context
-
             self.ctx = create_context(standalone=False, backend=None)
             self.session = RenderSession(source, self.ctx, memory_budget=memory_budget, texture_budget=texture_budget,
-                                         threads=threads, settings=settings)
+                                         threads=threads, params=params, tf=tf)
             self._setup_gl()
         except BaseException:
             self.close()
             raise
         pyr = self.session.pyramid
-        s = self.session.settings
+        s, tf0 = self.session.params, self.session.tf
         from ..scene.transfer import TransferFunction
 
         presets = tuple(n for n in TransferFunction.names())
@@ -209,8 +211,8 @@ class Viewer:
         # heads the cycle under its own label; T cycles colour maps over the current window
         self._first_tf = self.session.transfer_function
         first = self._first_tf.name or "custom"
-        if isinstance(s.tf, str) and s.tf in presets:
-            first = s.tf
+        if isinstance(tf0, str) and tf0 in presets:
+            first = tf0
         self._first_label = first
         presets = (first,) + tuple(n for n in presets if n != first)
         self.tf = self._first_tf
@@ -447,7 +449,7 @@ class Viewer:
             tf = TransferFunction.preset(name, value_range=self.tf.window(self.session.pyramid.value_range))
         self.tf = tf
         self.session.update(
-            lod_threshold=st.lod_threshold, selection=st.mode, level=st.level if st.mode == "fixed" else None,
+            lod_threshold=st.lod_threshold, policy=st.mode, level=st.level if st.mode == "fixed" else None,
             mode=st.render_mode, tf=tf,
         )
         if self.adaptive is not None:
@@ -497,12 +499,12 @@ class Viewer:
             self._dirty = False
             cam = self.controls.camera(q.size(self.framebuffer_size))
             step = self._base_step * q.step_factor
-            if sess.settings.step != step:
+            if sess.params.step != step:
                 sess.update(step=step)
             t0 = time.perf_counter()
             img = sess.render(cam, self.controls.center_of_interest, wait=False)
             if self.state.outlines:
-                from .overlay import draw_outlines
+                from ..app.overlay import draw_outlines
 
                 img = draw_outlines(img, cam, sess.last_items())
             self._frame = img
@@ -621,12 +623,12 @@ class Viewer:
             Image.fromarray(self.read_screen(), "RGB").save(path)
         else:
             sess = self.session
-            if sess.settings.step != self._base_step:
+            if sess.params.step != self._base_step:
                 sess.update(step=self._base_step)
             cam = self.camera()
             img = sess.render(cam, self.controls.center_of_interest, wait=True, timeout=60.0)
             if self.state.outlines:
-                from .overlay import draw_outlines
+                from ..app.overlay import draw_outlines
 
                 img = draw_outlines(img, cam, sess.last_items())
             Image.fromarray(img, "RGBA").save(path)

@@ -49,12 +49,12 @@ def test_auto_tf_leaves_the_empty_corner_transparent_and_shows_the_structure(gl,
 
 
 def test_session_resolves_auto_to_the_automatic_transfer_function(gl, tmp_path):
-    from clipvol.app.session import RenderSession, RenderSettings
+    from clipvol.app.session import RenderSession
 
     vol, _, _ = VOLUMES["signed"](np.random.default_rng(4))
     path = tmp_path / "s.zarr"
     brick_volume(vol, path, brick=16, progress=False, workers=1)
-    with RenderSession(ZarrLoader(path), gl, settings=RenderSettings(tf="auto")) as s:
+    with RenderSession(ZarrLoader(path), gl, tf="auto") as s:
         tf = s.transfer_function
     ref = auto_transfer_function(ZarrLoader(path))
     assert tf.name == ref.name and tf.name.startswith("auto: diverging")
