@@ -19,7 +19,8 @@ Ratios, each against a reference measured in the same run:
   change: every frame at 960x640 and the base step);
 * the full-quality frame against a **one-texture, one-pass ray caster** of level 0 (the whole
   volume in a single 3D texture, one draw, same view and step: the paging and bricking code out
-  of the path) - so the numbers can be compared with ``bench_render``'s.
+  of the path), the two measured alternately - so the numbers can be compared with
+  ``bench_render``'s.
 
 ``python -m clipvol.tools.bench_interactive`` (builds the two stores under ``bench-data/`` if
 missing; ``--quick`` for a small smoke run). Writes ``docs/bench_interactive.csv`` and
@@ -98,24 +99,29 @@ def _drag(sess, controls, coi_fn, frames: int, aq, base_step: float) -> list[dic
     return rows
 
 
-def _one_pass(ctx, loader, cam, tf, step: float, repeat: int) -> float:
-    """Median seconds of a full frame of the whole of level 0 as one brick in one 3D texture."""
+def _alternate(ctx, loader, sess, cam, coi, tf, step: float, repeat: int) -> tuple[float, float]:
+    """Median seconds of the session's warm full-quality frame and of a one-pass frame of the whole
+    of level 0 as one brick in one 3D texture, measured alternately (a busy machine's speed drifts)."""
     from clipvol.paging.cliptexture import ClipTexture
     from clipvol.render.action import ClipRenderAction
+    from clipvol.scene.params import RenderParams
     from clipvol.tools.bench_render import _WholeVolume
 
     whole = _WholeVolume(loader)
     nbytes = int(np.prod(whole.pyramid.shape)) * whole.pyramid.dtype.itemsize
-    with ClipTexture(whole, nbytes + (64 << 20), threads=1) as clip, \
-            ClipRenderAction(ctx, clip, texture_budget=nbytes * 2 + (64 << 20), selection="fixed", level=0,
-                             step=step) as action:
+    params = RenderParams(policy="fixed", level=0, step=step, texture_budget=nbytes * 2 + (64 << 20))
+    ours, one = [], []
+    with ClipTexture(whole, nbytes + (64 << 20), threads=1) as clip, ClipRenderAction(ctx, clip, params) as action:
         action.render(cam, tf, wait=True, timeout=600)
-        ts = []
+        sess.render(cam, coi, wait=True, timeout=600)
         for _ in range(repeat):
             t0 = time.perf_counter()
+            sess.render(cam, coi, wait=False)
+            ours.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
             action.render(cam, tf, wait=False)
-            ts.append(time.perf_counter() - t0)
-    return statistics.median(ts)
+            one.append(time.perf_counter() - t0)
+    return statistics.median(ours), statistics.median(one)
 
 
 def bench(name: str, quick: bool, frames: int, ctx, log) -> dict:
@@ -171,10 +177,11 @@ def bench(name: str, quick: bool, frames: int, ctx, log) -> dict:
             f"refined (converged) after {out['refined_s'] * 1e3:.0f} ms")
         out["_rows"] = rows
         out["_full_rows"] = full_rows
-    out["one_pass_s"] = _one_pass(ctx, loader, home, tf, base_step, 2)
-    out["full_vs_one_pass"] = out["full_frame_s"] / out["one_pass_s"]
-    log(f"{name}: one-texture one-pass caster {out['one_pass_s'] * 1e3:.0f} ms "
-        f"(bricked full-quality frame {out['full_vs_one_pass']:.2f}x that)")
+        ours, one = _alternate(ctx, loader, sess, home, coi(), tf, base_step, 3)
+    out["full_frame_alt_s"], out["one_pass_s"] = ours, one
+    out["full_vs_one_pass"] = ours / one
+    log(f"{name}: one-texture one-pass caster {one * 1e3:.0f} ms, our full-quality frame {ours * 1e3:.0f} ms "
+        f"measured alternately ({out['full_vs_one_pass']:.2f}x)")
     return out
 
 

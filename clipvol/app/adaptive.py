@@ -13,7 +13,7 @@ alike.
 
 **The control law.** The quality is one number, the *cost* ``c`` in ``(0, 1]``: the fraction of a
 full frame's rays x samples. After an interactive frame that took ``t`` seconds at cost ``c``,
-the next cost is ``c * (h T / t) ** gain`` (``h``: a headroom, 0.85), clipped to ``[min_cost, 1]`` - a damped multiplicative
+the next cost is ``c * (h T / t) ** gain`` (``h``: a headroom, 0.75), clipped to ``[min_cost, 1]`` - a damped multiplicative
 step towards the target ``T`` that needs no model of the fixed per-frame overhead (if the overhead
 alone exceeds ``T``, the cost settles at ``min_cost``). A full-quality frame seeds the estimate the
 same way. The cost maps to an image scale ``s`` and a step factor ``f`` (``c = s**2 / f``): the
@@ -81,7 +81,7 @@ class AdaptiveQuality:
     """
 
     def __init__(self, target_s: float = 0.1, *, settle_s: float = 0.2, min_scale: float = 0.2,
-                 max_step_factor: float = 3.0, gain: float = 0.7, headroom: float = 0.85) -> None:
+                 max_step_factor: float = 3.0, gain: float = 0.7, headroom: float = 0.75) -> None:
         for name, v, lo in (("target_s", target_s, 0.0), ("settle_s", settle_s, -1e-300),
                             ("min_scale", min_scale, 0.0), ("max_step_factor", max_step_factor, 1.0 - 1e-12)):
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > lo):
