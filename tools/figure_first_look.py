@@ -50,12 +50,12 @@ def main(argv=None) -> int:
     from clipvol.loaders.zarr_store import ZarrLoader
     from clipvol.render import create_context
     from clipvol.scene.auto_tf import auto_transfer_function
-    from clipvol.scene.transfer import _CMAPS, TransferFunction
+    from clipvol.scene.transfer import TransferFunction
     from clipvol.viewer.controls import OrbitControls
 
-    cols = _CMAPS["viridis"]
-    k = len(cols) - 1
-    old = TransferFunction.from_points([(i / k, (*c, i / k)) for i, c in enumerate(cols)], name="before")
+    table = TransferFunction.preset("viridis").table.astype(np.float64)
+    table[:, 3] = (np.arange(len(table)) + 0.5) / len(table)  # the old opacity: t over the whole range
+    old = TransferFunction(table, name="before")
     size = (240, 240)
     tiles = []
     ctx = create_context()
