@@ -5,7 +5,8 @@ with the multiresolution clip renderer, never waiting for I/O: coarse data shows
 refines as bricks arrive; while the camera moves it renders at a lower resolution and sampling to
 hold --frame-time, and at full quality once still. Keys: left drag orbit, right/middle drag pan,
 wheel zoom, WASD/QE fly (moves the centre of interest), M mode, [ ] fixed level, +/- LOD threshold,
-I MIP/composite, T colour map, Left/Right/Up/Down move/widen the transfer-function window,
+I MIP/composite, T colour map, Left/Right/Up/Down (or a drag on the HUD's histogram) move/widen
+the transfer-function window,
 Shift+S save it, C save the camera, B brick outlines, P screenshot (Shift+P without HUD), H HUD,
 R reset, Esc quit.
 

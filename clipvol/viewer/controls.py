@@ -55,6 +55,7 @@ KEY_HELP = (
     ("T", "next colour map over the same window"),
     ("Left / Right", "move the transfer-function window down / up (5 % of the data range)"),
     ("Up / Down", "widen / narrow the transfer-function window"),
+    ("drag on the HUD histogram", "left: move the window; right: widen / narrow it"),
     ("Shift+S (or Ctrl+S)", "save the transfer function as JSON (read back with --tf FILE.json)"),
     ("C", "save the camera as JSON (read back with --camera FILE.json)"),
     ("B", "brick outlines coloured by level"),

@@ -20,7 +20,8 @@ to hold a target frame time (default 100 ms), and scaled up on screen; once the 
 still for 0.2 s one full-quality frame is drawn and refined as bricks arrive. The HUD says which.
 
 **Transfer function.** The HUD shows the data's histogram with the opacity curve and the window
-over it. Left/Right move the window, Up/Down widen/narrow it, T cycles colour maps over the same
+over it. Left/Right (or a left drag on the histogram) move the window, Up/Down (or a right drag)
+widen/narrow it, T cycles colour maps over the same
 window, Shift+S (or Ctrl+S) saves it as JSON (``--tf FILE.json`` reads it back), C saves the camera
 (``--camera FILE.json``), P saves a screenshot with the HUD and Shift+P one without, all into the
 screenshot folder.
@@ -227,6 +228,7 @@ class Viewer:
         self._base_step = float(s.step)
         self._quality = FULL
         self._hist = None
+        self._strip_rect = None
         self.screenshot_dir = Path(screenshot_dir)
         self.background = tuple(float(v) for v in background)
         self.held: set[str] = set()
@@ -331,6 +333,10 @@ class Viewer:
         if action == glfw.PRESS:
             x, y = glfw.get_cursor_pos(win)
             self._drag = (button, x, y)
+            r = self._strip_rect if self.state.hud else None
+            sx = self.framebuffer_size[0] / max(glfw.get_window_size(win)[0], 1)
+            if r is not None and r[0] <= x * sx < r[2] and r[1] <= y * sx < r[3]:
+                self._drag = (("strip", button), x, y)  # a drag on the histogram edits the window
         elif action == glfw.RELEASE:
             self._drag = None
 
@@ -342,6 +348,9 @@ class Viewer:
         # cursor positions are in screen coordinates; pan in framebuffer pixels
         sx = self.framebuffer_size[0] / max(self._glfw.get_window_size(win)[0], 1)
         dx, dy = (x - x0) * sx, (y - y0) * sx
+        if isinstance(button, tuple):
+            self.drag_window(dx, widen=button[1] != self._glfw.MOUSE_BUTTON_LEFT)
+            return
         if button == self._glfw.MOUSE_BUTTON_LEFT:
             self.controls.orbit(dx, dy)
         else:
@@ -401,6 +410,23 @@ class Viewer:
         else:
             raise ParameterError(f"direction: expected LEFT, RIGHT, UP or DOWN, got {direction!r}")
         win = (c - w / 2.0, c + w / 2.0)
+        self._set_tf(self.tf.with_value_range(win), f"window {win[0]:.4g} .. {win[1]:.4g}")
+        return win
+
+    def drag_window(self, dx: float, widen: bool = False) -> tuple[float, float]:
+        """A horizontal drag of ``dx`` pixels on the HUD's histogram: move the window with the
+        cursor (left button), or widen it (right button: x2 per 100 pixels to the right)."""
+        lo, hi = self.tf.window(self.session.pyramid.value_range)
+        h = self._histogram()
+        e0, e1 = (float(h.edges[0]), float(h.edges[-1])) if h is not None else self.session.pyramid.value_range
+        r = self._strip_rect
+        px = max((r[2] - r[0]) - 12, 1) if r is not None else 288  # the strip's plot width (padding 6)
+        if widen:
+            c, w = (lo + hi) / 2.0, (hi - lo) * 2.0 ** (float(dx) / 100.0)
+            win = (c - w / 2.0, c + w / 2.0)
+        else:
+            d = float(dx) / px * ((e1 - e0) or 1.0)
+            win = (lo + d, hi + d)
         self._set_tf(self.tf.with_value_range(win), f"window {win[0]:.4g} .. {win[1]:.4g}")
         return win
 
@@ -575,6 +601,7 @@ class Viewer:
                 strip = tf_strip(hist.counts, hist.edges, self.tf, self.session.pyramid.value_range,
                                  width=max(240, min(text.shape[1], 360)))
             img = stack_images([text, strip])
+            self._strip_rect = None if strip is None else (0, text.shape[0], strip.shape[1], text.shape[0] + strip.shape[0])
             self._hud_tex = self._texture(self._hud_tex, img)
             ih, iw = img.shape[:2]
             x1 = -1.0 + 2.0 * min(iw, w) / w

@@ -223,3 +223,20 @@ def test_window_saves_tf_and_camera_and_takes_screenshots_without_hud(xdisplay, 
     finally:
         ctx.release()
     assert np.abs(img.astype(int) - ref).max() <= 2
+
+
+def test_dragging_on_the_histogram_moves_and_widens_the_window(xdisplay, loader):
+    from clipvol.viewer.window import Viewer
+
+    with Viewer(loader, size=(320, 240), visible=False) as v:
+        v.step(force=True)  # draws the HUD, which places the histogram strip
+        assert v._strip_rect is not None
+        x0, y0, x1, y1 = v._strip_rect
+        h = v._histogram()
+        span = float(h.edges[-1] - h.edges[0])
+        lo, hi = v.tf.window(loader.pyramid.value_range)
+        lo2, hi2 = v.drag_window(0.5 * (x1 - x0 - 12))  # half the plot's width to the right
+        assert lo2 == pytest.approx(lo + 0.5 * span) and hi2 == pytest.approx(hi + 0.5 * span)
+        lo3, hi3 = v.drag_window(100, widen=True)  # x2
+        assert hi3 - lo3 == pytest.approx(2 * (hi2 - lo2)) and (lo3 + hi3) / 2 == pytest.approx((lo2 + hi2) / 2)
+        assert v.session.transfer_function.value_range == pytest.approx((lo3, hi3))
