@@ -6,9 +6,8 @@ refines as bricks arrive; while the camera moves it renders at a lower resolutio
 hold --frame-time, and at full quality once still. Keys: left drag orbit, right/middle drag pan,
 wheel zoom, WASD/QE fly (moves the centre of interest), M mode, [ ] fixed level, +/- LOD threshold,
 I MIP/composite, T colour map, Left/Right/Up/Down (or a drag on the HUD's histogram) move/widen
-the transfer-function window,
-Shift+S save it, C save the camera, B brick outlines, P screenshot (Shift+P without HUD), H HUD,
-R reset, Esc quit.
+the transfer-function window, Shift+S save it, C save the camera, B brick outlines, P screenshot
+(Shift+P without HUD), H HUD, R reset, Esc quit.
 
 ``--offscreen --path orbit|fly|zoom --frames N --out DIR|anim.gif`` renders a camera path without
 a window (EGL) and writes PNG frames or a GIF plus a per-frame CSV.
