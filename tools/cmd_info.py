@@ -6,6 +6,10 @@ and derived, chunks, bytes) and no statistics, which only ``clipvol brick`` writ
 
 The compression ratio is the bytes of the voxels the written chunks hold - an edge chunk counts
 only its voxels inside the level, not its padding - over the bytes of those chunk files.
+
+For a store built from a file that records its geometry (NIfTI, DICOM, MRC, ...) it also prints
+the origin, the voxel-to-world affine and which anatomical direction (R/L, A/P, S/I) each array
+axis points to.
 """
 
 from __future__ import annotations
@@ -70,6 +74,24 @@ def _stats_line(loader, pyr) -> str | None:
             + (f"; {100 * (nan + inf) / total:.2f} % drawn transparent" if nan + inf else ""))
 
 
+def _print_geometry(meta) -> None:
+    """Origin, affine and axis directions (only for stores that record them)."""
+    if meta.frame is None and not any(meta.origin):
+        return
+    print(f"origin     {', '.join(f'{v:g}' for v in meta.origin)} {meta.unit} (z, y, x; world position of voxel 0)")
+    if meta.frame is None:
+        return
+    from clipvol.scene.orientation import axis_codes
+
+    codes = axis_codes(meta.frame.affine, meta.frame.frame)
+    world = "patient RAS+" if meta.frame.frame == "RAS" else "world"
+    print(f"frame      {world}; array axes point to x {codes[0]}, y {codes[1]}, z {codes[2]} "
+          f"(orientation {''.join(codes)}{', oblique' if meta.frame.oblique else ''})")
+    for k, row in enumerate(meta.frame.affine[:3]):
+        head = "affine    " if k == 0 else "          "
+        print(f"{head} [{'  '.join(f'{v:10.4g}' for v in row)}]")
+
+
 def run(args: argparse.Namespace) -> int:
     from clipvol.bricking.store import open_store_meta
     from clipvol.errors import InputNotFoundError, StoreIncompleteError
@@ -116,6 +138,8 @@ def run(args: argparse.Namespace) -> int:
         line = _stats_line(loader, pyr)
         if line:
             print(line)
+    if meta is not None:
+        _print_geometry(meta)
     print(f"{'level':>5} {'shape (z, y, x)':>22} {'grid':>14} {'bricks':>8} {'written':>9} {'on disk':>10} {'raw':>10} {'ratio':>6}")
     tot_disk = tot_raw = 0
     for L, lv in enumerate(pyr.levels):

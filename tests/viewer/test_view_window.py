@@ -240,3 +240,21 @@ def test_dragging_on_the_histogram_moves_and_widens_the_window(xdisplay, loader)
         lo3, hi3 = v.drag_window(100, widen=True)  # x2
         assert hi3 - lo3 == pytest.approx(2 * (hi2 - lo2)) and (lo3 + hi3) / 2 == pytest.approx((lo2 + hi2) / 2)
         assert v.session.transfer_function.value_range == pytest.approx((lo3, hi3))
+
+
+def test_window_on_a_dicom_store_is_head_up_and_labelled(xdisplay, tmp_path):
+    """A patient-frame store opens seen from the front, head up, and the HUD names the edges."""
+    pytest.importorskip("pydicom")
+    from format_files import write_dicom_series
+
+    from clipvol.bricking.pipeline import brick_volume
+    from clipvol.viewer.window import Viewer
+
+    vol = np.zeros((16, 16, 16), np.uint16)
+    vol[10:14, 4:12, 10:14] = 1000  # patient's left (high x), superior (high z)
+    write_dicom_series(tmp_path / "ct", vol, spacing=(1.0, 1.0, 1.0))
+    brick_volume(tmp_path / "ct", tmp_path / "ct.zarr", brick=8, progress=False)
+    with Viewer(str(tmp_path / "ct.zarr"), size=(96, 96), tf="grey") as viewer:
+        _converge(viewer)
+        assert viewer._orientation() == {"right": "L", "left": "R", "top": "S", "bottom": "I"}
+        assert any("left R  right L  top S  bottom I" in ln for ln in (viewer._hud_text or []))
