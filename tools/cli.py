@@ -61,6 +61,18 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "_run", None):
         parser.print_help(sys.stderr)
         return 2
+    import warnings
+
+    show = warnings.showwarning
+
+    def one_line_notes(message, category, filename, lineno, file=None, line=None):
+        """clipvol's own notes (an unverified store) as one line, without Python's source echo."""
+        if category.__module__.startswith("clipvol."):
+            print(f"clipvol {args.command}: note: {message}", file=sys.stderr)
+        else:
+            show(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = one_line_notes
     try:
         return int(args._run(args) or 0)
     except ClipvolError as e:
@@ -71,6 +83,8 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except BrokenPipeError:  # `clipvol info | head`
         return 0
+    finally:
+        warnings.showwarning = show
 
 
 if __name__ == "__main__":  # pragma: no cover

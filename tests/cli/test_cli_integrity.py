@@ -192,3 +192,26 @@ def test_info_counts_a_deleted_chunk_as_lost_not_empty(tmp_path, npy, capsys):
     assert main(["info", str(out)]) == 1
     err = capsys.readouterr().err
     assert "level 0: 1 bricks hold data" in err and "Traceback" not in err
+
+
+def test_a_store_without_checksums_opens_with_a_one_line_note(tmp_path, npy, capsys):
+    """A store written before checksums (its chains without crc32c, rewritten here with zarr-python)."""
+    p, vol = npy
+    out = tmp_path / "o.zarr"
+    assert main(["brick", str(p), str(out), "--brick", "16", "--quiet"]) == 0
+    for L in range(len(list(out.glob("[0-9]*")))):
+        data = zarr.open_array(str(out / str(L)), mode="r")[...]
+        meta = json.loads((out / str(L) / "zarr.json").read_text())
+        shutil.rmtree(out / str(L) / "c")
+        meta["codecs"] = meta["codecs"][:-1]
+        (out / str(L) / "zarr.json").write_text(json.dumps(meta))
+        zarr.open_array(str(out / str(L)), mode="r+")[...] = data
+    shutil.rmtree(out / "clipvol_stats" / "0" / "chunk_crc32c")
+    capsys.readouterr()
+    assert main(["check", str(out), "--all", "--quiet"]) == 0
+    cap = capsys.readouterr()
+    notes = [ln for ln in cap.err.splitlines() if "unverified" in ln]
+    assert len(notes) == 1 and "Traceback" not in cap.err and "warnings.warn" not in cap.err
+    assert "no checksums" in cap.out
+    assert main(["info", str(out)]) == 0
+    assert "none (unverified store" in capsys.readouterr().out
