@@ -155,6 +155,8 @@ class SliceAction:
         self.last_values: np.ndarray | None = None
         self.last_levels: np.ndarray | None = None
         self.last_ratios: np.ndarray | None = None
+        #: blend high and low tiles at level changes (False shows the seams: the paper's Fig. 6a)
+        self.blend = True
 
     def set_params(self, params: RenderParams) -> None:
         """Use ``params`` from the next frame on (policy forced to ``"plane"``)."""
@@ -220,7 +222,7 @@ class SliceAction:
             up_bricks += plan.bricks_uploaded
             t0 = time.perf_counter()
             sel = plan.selection
-            low, missing_low = self._reserve_low_tiles(sel, policy.node_data)
+            low, missing_low = self._reserve_low_tiles(sel, policy.node_data if self.blend else {})
             up_bytes += self.cache.commit()
             up_bricks += self.cache.bricks_uploaded
             times["upload"] += time.perf_counter() - t0
