@@ -23,6 +23,7 @@ COMMANDS = {
     "info": "describe a store: levels, shapes, bricks, bytes, compression, value range",
     "check": "validate a store: metadata, filter on sampled bricks, statistics",
     "render": "render one image of a store or procedural volume",
+    "slice": "draw a cutting plane (axial, coronal, sagittal, oblique), fine near a point of interest",
     "view": "interactive roaming / multiresolution viewer (or --offscreen frames)",
     "report": "image error against run time for a sweep of quality settings",
     "demo": "brick the built-in dataset, fly around it, and write the report",
