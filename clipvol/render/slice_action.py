@@ -277,7 +277,7 @@ class SliceAction:
             if key not in node_data or it.level + 1 >= pyr.num_levels:
                 continue
             lo, hi = pyr.node_box(it.level, np.array(it.index))
-            if not (np.allclose(lo, it.lo) and np.allclose(hi, it.hi)):
+            if tuple(lo.tolist()) != tuple(it.lo) or tuple(hi.tolist()) != tuple(it.hi):
                 continue  # a sub-box drawn from an ancestor: no blending while it loads
             want[i] = (it.level + 1, tuple(int(v) // 2 for v in it.index))
         ok_keys: set = set()
@@ -317,13 +317,23 @@ class SliceAction:
         prog["u_clamp_lo" + suffix].value = _vec(clamp[0])
         prog["u_clamp_hi" + suffix].value = _vec(clamp[1])
 
-    def _clamp(self, level: int, index) -> tuple[np.ndarray, np.ndarray]:
-        """Brick-local voxel bounds ``(x, y, z)``: half a voxel beyond faces whose neighbours are on the GPU."""
+    def _clamps(self, keys) -> dict:
+        """Per brick ``(level, index)``: brick-local voxel bounds ``(lo, hi)`` (``(x, y, z)``), half a
+        voxel beyond the faces whose neighbours are on the GPU (seamless filtering), else clamped to
+        the brick's own voxel centres."""
         B = np.asarray(self.pyramid.brick_shape, dtype=np.float64)
-        of = self.cache.open_faces(level, np.array([index], dtype=np.int64))[0]  # (3 zyx, 2)
-        lo = np.where(of[:, 0], -0.5, 0.0)
-        hi = np.where(of[:, 1], B - 0.5, B - 1.0)
-        return lo[::-1], hi[::-1]
+        by_level: dict[int, set] = {}
+        for L, idx in keys:
+            by_level.setdefault(int(L), set()).add(tuple(int(v) for v in idx))
+        out = {}
+        for L, idxs in by_level.items():
+            arr = np.array(sorted(idxs), dtype=np.int64)
+            of = self.cache.open_faces(L, arr)  # (n, 3 zyx, 2)
+            lo = np.where(of[:, :, 0], -0.5, 0.0)[:, ::-1]
+            hi = np.where(of[:, :, 1], B - 0.5, B - 1.0)[:, ::-1]
+            for k, a, b in zip(arr, lo, hi):
+                out[(L, tuple(int(v) for v in k))] = (a, b)
+        return out
 
     def _draw(self, plane: Plane, size, px: float, sel, low: dict):
         mgl, ctx, prog = self._mgl, self.ctx, self.program
@@ -331,19 +341,30 @@ class SliceAction:
         t0 = time.perf_counter()
         origin = np.asarray(plane.origin, dtype=np.float64)
         # one vertex buffer for every tile's triangle fan, in NDC
-        tris, ranges = [], []
+        items = sel.items
+        ranges: list = [None] * len(items)
+        tris = np.zeros((0, 2))
         n = 0
-        for it in sel.items:
-            poly = plane.box_polygon(it.lo, it.hi)
-            if len(poly) < 3 or self.cache.textures[it.level] is None:
-                ranges.append(None)
-                continue
-            pix = plane.to_pixels(poly, size, px)
-            ndc = np.stack([pix[:, 0] / w * 2.0 - 1.0, 1.0 - pix[:, 1] / h * 2.0], axis=-1)
-            fan = np.concatenate([[ndc[0], ndc[k], ndc[k + 1]] for k in range(1, len(ndc) - 1)])
-            tris.append(fan)
-            ranges.append((n, len(fan)))
-            n += len(fan)
+        if items:
+            lo = np.array([it.lo for it in items], dtype=np.float64)
+            hi = np.array([it.hi for it in items], dtype=np.float64)
+            polys, counts = plane.box_polygons(lo, hi)
+            pix = plane.to_pixels(polys.reshape(-1, 3), size, px).reshape(len(items), 6, 2)
+            ndc = np.stack([pix[..., 0] / w * 2.0 - 1.0, 1.0 - pix[..., 1] / h * 2.0], axis=-1)
+            chunks = []
+            for i, (it, k) in enumerate(zip(items, counts)):
+                if k < 3 or self.cache.textures[it.level] is None:
+                    continue
+                fan = np.repeat(np.arange(1, k - 1), 3)
+                fan[0::3] = 0
+                fan[2::3] += 1
+                chunks.append(ndc[i, fan])
+                ranges[i] = (n, len(fan))
+                n += len(fan)
+            if chunks:
+                tris = np.concatenate(chunks)
+        clamps = self._clamps([(int(it.level), it.index) for it in items]
+                              + [low[i] for i in sorted(low)])
         fbo = self._ensure_fbo((int(w), int(h)))
         previous = ctx.fbo
         fbo.use()
@@ -352,7 +373,7 @@ class SliceAction:
         ctx.disable(mgl.BLEND | mgl.DEPTH_TEST | mgl.CULL_FACE)
         vbo = vao = None
         if n:
-            vbo = ctx.buffer(np.concatenate(tris).astype(np.float32).tobytes())
+            vbo = ctx.buffer(tris.astype(np.float32).tobytes())
             vao = ctx.vertex_array(prog, [(vbo, "2f", "in_ndc")])
             prog["u_viewport"].value = (float(w), float(h))
             prog["u_pixel"].value = float(px)
@@ -364,12 +385,12 @@ class SliceAction:
                 L = int(it.level)
                 self.cache.textures[L].use(location=0)
                 prog["u_level"].value = float(L)
-                self._brick_uniforms("", L, it.index, origin, self._clamp(L, it.index))
+                self._brick_uniforms("", L, it.index, origin, clamps[(L, tuple(int(v) for v in it.index))])
                 parent = low.get(i)
                 if parent is not None:
                     PL, pidx = parent
                     self.cache.textures[PL].use(location=1)
-                    self._brick_uniforms("_low", PL, pidx, origin, self._clamp(PL, pidx))
+                    self._brick_uniforms("_low", PL, pidx, origin, clamps[(PL, tuple(pidx))])
                     r = sel.node_data[(L, tuple(int(v) for v in it.index))]
                     prog["u_ratio"].write(np.asarray(r, dtype=np.float32).reshape(-1).tobytes())
                     nlo = np.asarray(it.lo, dtype=np.float64)

@@ -23,7 +23,7 @@ Conventions (world vectors are ``(x, y, z)``, arrays ``(z, y, x)``):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -37,6 +37,8 @@ AXES = {
     "coronal": (1, (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
     "sagittal": (2, (-1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
 }
+#: the 12 edges of a box as pairs of corner numbers (bit a of a corner number: high side of axis a)
+_EDGES = np.array([(i, i | (1 << a)) for i in range(8) for a in range(3) if not i & (1 << a)], dtype=np.int64)
 #: axis letter of ``--plane z=94`` -> preset
 AXIS_LETTERS = {"z": "axial", "y": "coronal", "x": "sagittal"}
 
@@ -62,6 +64,7 @@ class Plane:
     origin: tuple[float, float, float]
     normal: tuple[float, float, float]
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    _right: np.ndarray = field(init=False, repr=False, compare=False, default=None)
 
     def __post_init__(self) -> None:
         o = _vec3(self.origin, "origin")
@@ -79,6 +82,9 @@ class Plane:
         object.__setattr__(self, "origin", tuple(o.tolist()))
         object.__setattr__(self, "normal", tuple(n.tolist()))
         object.__setattr__(self, "up", tuple(u.tolist()))
+        r = np.cross(n, u)
+        r.setflags(write=False)
+        object.__setattr__(self, "_right", r)
 
     # -- construction ---------------------------------------------------------------------------
     @classmethod
@@ -120,7 +126,7 @@ class Plane:
     @property
     def right(self) -> np.ndarray:
         """Unit ``normal x up``: towards the image's last column."""
-        return np.cross(np.asarray(self.normal), np.asarray(self.up))
+        return self._right
 
     def signed_distance(self, points) -> np.ndarray:
         """``(n,)`` signed distances of world points ``(n, 3)`` from the plane (positive along the normal)."""
@@ -138,36 +144,37 @@ class Plane:
     def box_polygon(self, lo, hi) -> np.ndarray:
         """The plane's intersection with the box ``[lo, hi]``: ``(k, 3)`` world points, ``k`` in 0 or 3..6.
 
-        The vertices are in counter-clockwise order seen against the normal (increasing angle in the
-        ``(right, up)`` frame), so the polygon is a triangle fan. Empty when the plane misses the
-        box or only touches an edge or a corner.
+        The vertices are in counter-clockwise order in the ``(right, up)`` frame, so the polygon is
+        a triangle fan. Empty when the plane misses the box or only touches it on its negative side
+        (a corner, an edge or a face: points exactly on the plane count as on its positive side,
+        so boxes that tile space give polygons that tile the plane once).
         """
-        lo = np.asarray(lo, dtype=np.float64)
-        hi = np.asarray(hi, dtype=np.float64)
-        corners = np.array([[(lo, hi)[i & 1][0], (lo, hi)[(i >> 1) & 1][1], (lo, hi)[(i >> 2) & 1][2]] for i in range(8)])
-        d = self.signed_distance(corners)
-        pts = []
-        for a in range(8):
-            for axis in range(3):
-                b = a | (1 << axis)
-                if b == a:
-                    continue
-                da, db = d[a], d[b]
-                if da == 0.0:
-                    pts.append(corners[a])
-                if (da < 0 < db) or (db < 0 < da):
-                    s = da / (da - db)
-                    pts.append(corners[a] + s * (corners[b] - corners[a]))
-                if db == 0.0:
-                    pts.append(corners[b])
-        if len(pts) < 3:
-            return np.zeros((0, 3))
-        pts = np.unique(np.round(np.array(pts), 12), axis=0)
-        if len(pts) < 3:
-            return np.zeros((0, 3))
-        rel = pts - pts.mean(axis=0)
+        pts, k = self.box_polygons(np.atleast_2d(lo), np.atleast_2d(hi))
+        return pts[0, : k[0]]
+
+    def box_polygons(self, lo, hi) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`box_polygon` of ``n`` boxes at once: ``(points (n, 6, 3), counts (n,))``."""
+        lo = np.atleast_2d(np.asarray(lo, dtype=np.float64))
+        hi = np.atleast_2d(np.asarray(hi, dtype=np.float64))
+        n = len(lo)
+        sel = np.array([[(i >> a) & 1 for a in range(3)] for i in range(8)], dtype=bool)  # (8, 3) x, y, z
+        corners = np.where(sel[None], hi[:, None, :], lo[:, None, :])  # (n, 8, 3)
+        d = (corners - np.asarray(self.origin)) @ np.asarray(self.normal)  # (n, 8)
+        ea, eb = _EDGES[:, 0], _EDGES[:, 1]
+        da, db = d[:, ea], d[:, eb]  # (n, 12)
+        cross = (da >= 0) != (db >= 0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            t = np.where(cross, da / np.where(cross, da - db, 1.0), 0.0)
+        p = corners[:, ea] + t[..., None] * (corners[:, eb] - corners[:, ea])  # (n, 12, 3)
+        k = cross.sum(axis=1)
+        cen = np.where(k[:, None] > 0, (p * cross[..., None]).sum(axis=1) / np.maximum(k, 1)[:, None], 0.0)
+        rel = p - cen[:, None, :]
         ang = np.arctan2(rel @ np.asarray(self.up), rel @ self.right)
-        return pts[np.argsort(ang)]
+        ang = np.where(cross, ang, np.inf)
+        order = np.argsort(ang, axis=1)[:, :6]
+        out = np.take_along_axis(p, order[..., None], axis=1)
+        k = np.where(k >= 3, k, 0)
+        return out, k
 
     # -- pixels ---------------------------------------------------------------------------------
     def pixel_points(self, size, pixel_size: float) -> np.ndarray:

@@ -5,8 +5,10 @@ the shared traversal:
 
 1. **Select** (``keep`` + ``refine``): only nodes the plane crosses are kept; a node is refined
    while one of its voxels covers more than ``lod_threshold`` slice pixels *and*, when a point of
-   interest (``RenderParams.focus``) is set, its centre is closer to that point than
-   ``distance_factor`` times its diagonal (the paper's test). Without a point of interest the
+   interest (``RenderParams.focus``) is set, the node is closer to that point than
+   ``distance_factor`` times its diagonal. The paper measures from the node's centre; we measure
+   from the node's nearest point, so the nodes holding the point are always refined and the
+   point itself is at full resolution for any ``distance_factor``. Without a point of interest the
    slice is as fine as its pixels need; with ``RenderParams.level`` set, every node is drawn at
    that level (``--level 0``: full resolution).
 2. **Balance** (:func:`~clipvol.scene.selection.balance.balance`): leaves are split until no two
@@ -49,7 +51,8 @@ class PlaneCut(RefinePolicy):
         if self.params.focus is not None:
             p = np.asarray(self.params.focus, dtype=np.float64)
             diag = np.linalg.norm(hi - lo, axis=1)
-            fine &= np.linalg.norm(0.5 * (lo + hi) - p, axis=1) < self.params.distance_factor * diag
+            near = np.linalg.norm(np.clip(p, lo, hi) - p, axis=1)  # 0 for the nodes holding the point
+            fine &= near < self.params.distance_factor * diag
         return fine
 
     def cut(self, t) -> None:
