@@ -99,8 +99,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="a small procedural volume (smoke run)")
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--steps", type=int, default=24, help="slices of the stepping test")
-    ap.add_argument("--texture-budget", default="256MB")
-    ap.add_argument("--memory-budget", default="768MB")
+    ap.add_argument("--texture-budget", default="1100MB", help="GPU cache budget (its cubic windows must hold a full-resolution plane: 10^3 level-0 bricks here)")
+    ap.add_argument("--memory-budget", default="1200MB", help="clip-texture budget (likewise)")
     ap.add_argument("--out-dir", type=Path, default=REPO / "docs")
     args = ap.parse_args(argv)
 
@@ -148,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         # -- full resolution, then multiresolution at several distance factors (cold -> converged)
         sa.set_params(RenderParams(policy="plane", level=0, texture_budget=args.texture_budget))
-        full, v_full = sa.render(plane, window=window, wait=True, timeout=600, return_values=True)
+        full, v_full = sa.render(plane, window=window, wait=True, timeout=180, return_values=True)
         st_full = sa.last_stats
         log(f"full resolution: {st_full.tiles} tiles, {st_full.bytes_needed / 1e6:.1f} MB, {st_full.times['total']:.2f} s")
         h, w = v_full.shape
@@ -159,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
         for f in (1.0, 0.5, 0.25):
             sa.set_params(RenderParams(policy="plane", focus=tuple(poi), distance_factor=f,
                                        texture_budget=args.texture_budget))
-            img, v = sa.render(plane, window=window, wait=True, timeout=600, return_values=True)
+            img, v = sa.render(plane, window=window, wait=True, timeout=180, return_values=True)
             st = sa.last_stats
             levels = sa.last_levels
             radius = float(dist[(levels != 0) & (levels >= 0)].min()) if np.any((levels != 0) & (levels >= 0)) else np.inf
@@ -180,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
         # -- warm frame time against one 2D texture of the full-resolution slice
         sa.set_params(RenderParams(policy="plane", focus=tuple(poi), distance_factor=0.5,
                                    texture_budget=args.texture_budget))
-        sa.render(plane, window=window, wait=True, timeout=600)
+        sa.render(plane, window=window, wait=True, timeout=180)
         ref = TextureSlice(ctx, v_full)
         t_multi, t_ref = [], []
         for _ in range(args.repeat):

@@ -229,8 +229,13 @@ class SliceAction:
             converged = plan.converged and not missing_low
             if not wait or converged:
                 break
+            ct = self.clip_texture
+            # only parents that may still arrive in RAM (a parent held in RAM but without a free GPU
+            # slot this frame cannot be waited for: the tile is then drawn unblended)
             waitable = [k for k in missing_low
-                        if bool(np.asarray(self.clip_texture.in_window_mask(k[0], np.array([k[1]])))[0])]
+                        if bool(np.asarray(ct.in_window_mask(k[0], np.array([k[1]])))[0])
+                        and not bool(np.asarray(ct.resident_mask(k[0], np.array([k[1]])))[0])
+                        and ct.state(k[0], k[1]).name in ("QUEUED", "LOADING")]
             left = None if deadline is None else deadline - time.perf_counter()
             if not waitable or (left is not None and left <= 0):
                 break

@@ -200,7 +200,7 @@ class Viewer:
         self.screenshot_dir = Path(screenshot_dir)
         self.background = tuple(float(v) for v in background)
         self.held: set[str] = set()
-        self._drag: tuple[int, float, float] | None = None
+        self._drag: tuple[int, float, float, float] | None = None  # button, x, y, distance moved
         self._dirty = True
         self._frame = None
         self._frame_camera = None
@@ -213,6 +213,7 @@ class Viewer:
         self._version = None
         self._view = None
         self.last_screenshot: Path | None = None
+        self.slices = None  # slice mode (key L): clipvol.viewer.slice_layout, built on first use
         self._install_callbacks()
 
     # -- GL objects ---------------------------------------------------------------------------
@@ -276,6 +277,16 @@ class Viewer:
         if action == glfw.PRESS:
             self.key(name)
 
+    def toggle_slices(self) -> None:
+        """Slice mode on / off: three orthogonal slices beside the 3D view (:mod:`.slice_layout`)."""
+        if self.slices is None:
+            from .slice_layout import SliceLayout
+
+            self.slices = SliceLayout(self.session)
+        self.slices.active = not self.slices.active
+        self._hud_text = None
+        self._dirty = True
+
     def _on_char(self, win, codepoint) -> None:
         ch = chr(codepoint)
         if ch in "+-=_[]":
@@ -285,30 +296,47 @@ class Viewer:
         glfw = self._glfw
         if action == glfw.PRESS:
             x, y = glfw.get_cursor_pos(win)
-            self._drag = (button, x, y)
+            self._drag = (button, x, y, 0.0)
         elif action == glfw.RELEASE:
+            if self.slices is not None and self.slices.active and self._drag is not None and self._drag[3] < 3:
+                self.slices.click(*self._slice_panel(win))  # a click, not a drag: set the point of interest
+                self._dirty = True
             self._drag = None
 
     def _on_cursor(self, win, x, y) -> None:
         if self._drag is None:
             return
-        button, x0, y0 = self._drag
-        self._drag = (button, x, y)
+        button, x0, y0, moved = self._drag
+        self._drag = (button, x, y, moved + abs(x - x0) + abs(y - y0))
         # cursor positions are in screen coordinates; pan in framebuffer pixels
         sx = self.framebuffer_size[0] / max(self._glfw.get_window_size(win)[0], 1)
         dx, dy = (x - x0) * sx, (y - y0) * sx
-        if button == self._glfw.MOUSE_BUTTON_LEFT:
+        if self.slices is not None and self.slices.active and self._slice_panel(win)[0] != "3d":
+            self.slices.tilt(self._slice_panel(win)[0], dx, dy)
+        elif button == self._glfw.MOUSE_BUTTON_LEFT:
             self.controls.orbit(dx, dy)
         else:
             self.controls.pan(dx, dy, self.framebuffer_size)
         self._dirty = True
 
     def _on_scroll(self, win, xoff, yoff) -> None:
-        self.controls.zoom(yoff)
+        if self.slices is not None and self.slices.active and self._slice_panel(win)[0] != "3d":
+            self.slices.step_plane(self._slice_panel(win)[0], yoff)
+        else:
+            self.controls.zoom(yoff)
         self._dirty = True
 
+    def _slice_panel(self, win) -> tuple[str, float, float]:
+        """The slice-mode panel under the cursor and the cursor in its framebuffer pixels."""
+        x, y = self._glfw.get_cursor_pos(win)
+        sx = self.framebuffer_size[0] / max(self._glfw.get_window_size(win)[0], 1)
+        return self.slices.panel_at(x * sx, y * sx, self.framebuffer_size)
+
     def key(self, name: str) -> None:
-        """Apply one key as if pressed (``'M'``, ``'+'``, ``'P'``, ...)."""
+        """Apply one key as if pressed (``'M'``, ``'+'``, ``'P'``, ``'L'`` for slice mode, ...)."""
+        if name == "L":
+            self.toggle_slices()
+            return
         if self.state.handle_key(name):
             self._apply_state()
 
@@ -361,8 +389,11 @@ class Viewer:
             self._dirty = False
             cam = self.camera()
             t0 = time.perf_counter()
-            img = sess.render(cam, self.controls.center_of_interest, wait=False)
-            if self.state.outlines:
+            if self.slices is not None and self.slices.active:
+                img = self.slices.render(lambda size: self.controls.camera(size), self.framebuffer_size)
+            else:
+                img = sess.render(cam, self.controls.center_of_interest, wait=False)
+            if self.state.outlines and not (self.slices is not None and self.slices.active):
                 from ..app.overlay import draw_outlines
 
                 img = draw_outlines(img, cam, sess.last_items())
@@ -411,6 +442,8 @@ class Viewer:
             }
             lines = hud_lines(fps=self._fps, frame_stats=self.session.frame_stats,
                               texture_stats=self.session.texture_stats, settings=settings, message=st.message)
+            if self.slices is not None and self.slices.active:
+                lines = lines + self.slices.hud_lines()
             self._hud_text = lines
             self._hud_time = now
             img = render_text(lines)
@@ -482,6 +515,9 @@ class Viewer:
     def close(self) -> None:
         """Stop the loader threads, release GL objects, destroy the window."""
         try:
+            if getattr(self, "slices", None) is not None:
+                self.slices.close()
+                self.slices = None
             if self.session is not None:
                 self.session.close()
                 self.session = None
