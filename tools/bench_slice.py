@@ -168,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
             pct = 100.0 * float(np.mean(de >= 6))
             pct_in = 100.0 * float(np.mean(de[inside] >= 6)) if inside.any() else 0.0
             ratio = st_full.bytes_needed / st.bytes_needed
-            results[f] = (img, st, pct, pct_in, radius, ratio)
+            results[f] = (img, st, pct, pct_in, radius, ratio, levels.copy())
             log(f"distance_factor {f}: {st.tiles} tiles {st.tiles_per_level}, {st.bytes_needed / 1e6:.1f} MB "
                 f"({ratio:.1f}x fewer), {pct:.2f} % pixels dE>=6 ({pct_in:.2f} % inside the focus radius {radius:.0f}), "
                 f"PSNR {psnr(img, full):.1f} dB")
@@ -234,8 +234,20 @@ def main(argv: list[str] | None = None) -> int:
                          f"{r[4]:.3f}" if isinstance(r[4], float) else "", r[5], r[6]])
     img_dir = args.out_dir / "images"
     img_dir.mkdir(exist_ok=True)
-    Image.fromarray(full, "RGBA").save(img_dir / "slice_full.png")
-    Image.fromarray(results[0.5][0], "RGBA").save(img_dir / "slice_multires.png")
+    k = max(1, -(-max(full.shape[:2]) // 512))  # at most 512 pixels a side in the docs
+
+    def save(img, name):
+        Image.fromarray(np.ascontiguousarray(img[::k, ::k]), "RGBA").save(img_dir / name)
+
+    save(full, "slice_full.png")
+    save(results[0.5][0], "slice_multires.png")
+    # the tiles' levels as a tint over the multiresolution slice (the paper's Fig. 6b)
+    tint = np.array([[255, 255, 255], [255, 120, 120], [120, 255, 120], [255, 230, 90], [120, 160, 255],
+                     [220, 120, 255]], dtype=np.float64)
+    lv = np.clip(results[0.5][6], 0, len(tint) - 1)
+    over = results[0.5][0].astype(np.float64)
+    over[..., :3] = over[..., :3] * tint[lv] / 255.0
+    save(np.rint(over).astype(np.uint8), "slice_levels.png")
     try:
         import matplotlib
 

@@ -23,8 +23,8 @@ level 3D textures and budgets the volume action uses. Per frame (:meth:`SliceAct
 
 References
 ----------
-E. LaMar, B. Hamann, K. I. Joy, "Multiresolution cutting planes" (VisSym / Data Visualization,
-circa 2000-2001).
+E. LaMar, B. Hamann, K. I. Joy, "Multiresolution cutting planes" (the copy we work from states no
+year or venue).
 """
 
 from __future__ import annotations
