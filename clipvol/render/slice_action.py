@@ -269,6 +269,67 @@ class SliceAction:
             times=times)
         return (rgba, values) if return_values else rgba
 
+    def render_in_view(self, volume_action, camera, transfer_function, plane: Plane, *, opacity: float = 1.0,
+                       cut: bool = True, wait: bool = False, timeout: float | None = None) -> np.ndarray:
+        """The plane drawn inside a 3D view of the volume, so users see where the slice lies.
+
+        A separate pass beside the volume action (which is not changed): with ``cut`` the volume is
+        rendered with one extra clip plane that removes the half-space in front of the plane (on the
+        camera's side), then the slice's tiles are drawn through ``camera`` - each pixel's ray meets
+        the plane in the fragment shader - coloured by ``transfer_function`` and laid over the
+        volume with ``opacity`` (1: opaque; below 1 and ``cut=False``: a translucent plane over the
+        whole volume, not depth-sorted against it). Returns ``(h, w, 4)`` uint8 straight RGBA.
+        """
+        from dataclasses import replace
+
+        from ..scene.geometry import Shape
+
+        if not (0.0 <= float(opacity) <= 1.0):
+            raise ParameterError(f"opacity: expected a value in [0, 1], got {opacity!r}")
+        pyr = self.pyramid
+        vlo, vhi = pyr.volume_box()
+        if not plane.crosses(vlo, vhi)[0]:
+            raise ParameterError(f"plane: expected a plane that meets the volume {tuple(vlo)}..{tuple(vhi)}, "
+                                 f"got origin {plane.origin} normal {plane.normal}")
+        vparams = volume_action.params
+        if cut:
+            n = np.asarray(plane.normal)
+            s = -1.0 if float(n @ (np.asarray(camera.eye) - np.asarray(plane.origin))) > 0 else 1.0
+            clip = tuple((s * n).tolist()) + (float(-s * n @ np.asarray(plane.origin)),)
+            shape = vparams.shape
+            box = shape.box if shape is not None else None
+            planes = (tuple(shape.planes) if shape is not None else ()) + (clip,)
+            volume_action.set_params(replace(vparams, shape=Shape(box=box, planes=planes)))
+        try:
+            vol = volume_action.render(camera, transfer_function, wait=wait, timeout=timeout)
+        finally:
+            volume_action.set_params(vparams)
+        # tiles: the plane's cut through the volume at about the view's pixel size at the plane
+        w, h = camera.size
+        if camera.orthographic:
+            px = float(camera.height) / h
+        else:
+            depth = max(float((np.asarray(plane.origin) - camera.eye) @ camera.forward), 1e-9)
+            px = 2.0 * depth * math.tan(math.radians(float(camera.fov_y)) / 2.0) / h
+        px = max(px, default_pixel_size(pyr, plane))
+        size = default_size(pyr, plane, px)
+        cam = plane.camera(size, px).fit_depth(vlo, vhi)
+        policy = PlaneCut(self.params, plane)
+        plan = self.frame_loop.run(cam, self.params, policy=policy, wait=wait, timeout=timeout)
+        low, _ = self._reserve_low_tiles(plan.selection, policy.node_data if self.blend else {})
+        self.cache.commit()
+        values, _, _, _, _ = self._draw(plane, (w, h), px, plan.selection, low, view=camera.fit_depth(vlo, vhi))
+        ok = np.isfinite(values)
+        rgb = transfer_function.lookup(values, pyr.value_range)[..., :3]
+        a_s = np.where(ok, float(opacity), 0.0)[..., None]
+        va = vol[..., 3:4].astype(np.float64) / 255.0
+        prem = a_s * rgb + (1.0 - a_s) * vol[..., :3].astype(np.float64) / 255.0 * va
+        alpha = a_s + (1.0 - a_s) * va
+        with np.errstate(invalid="ignore", divide="ignore"):
+            straight = np.where(alpha > 0, prem / np.maximum(alpha, 1e-300), 0.0)
+        out = np.concatenate([straight, alpha], axis=-1)
+        return np.rint(np.clip(out, 0.0, 1.0) * 255.0).astype(np.uint8)
+
     def _reserve_low_tiles(self, sel, node_data) -> tuple[dict, list]:
         """For each item drawn at its own node with blend ratios: reserve (upload) its parent brick.
 
@@ -340,7 +401,7 @@ class SliceAction:
                 out[(L, tuple(int(v) for v in k))] = (a, b)
         return out
 
-    def _draw(self, plane: Plane, size, px: float, sel, low: dict):
+    def _draw(self, plane: Plane, size, px: float, sel, low: dict, view=None):
         mgl, ctx, prog = self._mgl, self.ctx, self.program
         w, h = size
         t0 = time.perf_counter()
@@ -348,14 +409,21 @@ class SliceAction:
         # one vertex buffer for every tile's triangle fan, in NDC
         items = sel.items
         ranges: list = [None] * len(items)
-        tris = np.zeros((0, 2))
+        tris = np.zeros((0, 4))
         n = 0
         if items:
             lo = np.array([it.lo for it in items], dtype=np.float64)
             hi = np.array([it.hi for it in items], dtype=np.float64)
             polys, counts = plane.box_polygons(lo, hi)
-            pix = plane.to_pixels(polys.reshape(-1, 3), size, px).reshape(len(items), 6, 2)
-            ndc = np.stack([pix[..., 0] / w * 2.0 - 1.0, 1.0 - pix[..., 1] / h * 2.0], axis=-1)
+            if view is None:
+                pix = plane.to_pixels(polys.reshape(-1, 3), size, px).reshape(len(items), 6, 2)
+                ndc = np.stack([pix[..., 0] / w * 2.0 - 1.0, 1.0 - pix[..., 1] / h * 2.0,
+                                np.zeros(pix.shape[:2]), np.ones(pix.shape[:2])], axis=-1)
+            else:  # clip coordinates of the 3D view (GL clips what lies behind the eye)
+                vp = view.view_projection()
+                hom = np.concatenate([polys, np.ones(polys.shape[:2] + (1,))], axis=-1)
+                ndc = hom @ vp.T
+                ndc[..., 2] = 0.0 * ndc[..., 3]  # no depth test: the plane is the only surface drawn
             chunks = []
             for i, (it, k) in enumerate(zip(items, counts)):
                 if k < 3 or self.cache.textures[it.level] is None:
@@ -379,8 +447,21 @@ class SliceAction:
         vbo = vao = None
         if n:
             vbo = ctx.buffer(tris.astype(np.float32).tobytes())
-            vao = ctx.vertex_array(prog, [(vbo, "2f", "in_ndc")])
+            vao = ctx.vertex_array(prog, [(vbo, "4f", "in_clip")])
             prog["u_viewport"].value = (float(w), float(h))
+            prog["u_in_view"].value = view is not None
+            if view is not None:
+                prog["u_ortho"].value = bool(view.orthographic)
+                prog["u_normal"].value = _vec(plane.normal)
+                prog["u_eye_rel"].value = _vec(np.asarray(view.eye, dtype=np.float64) - origin)
+                prog["u_cam_forward"].value = _vec(view.forward)
+                prog["u_cam_right"].value = _vec(view.right)
+                prog["u_cam_up"].value = _vec(view.up)
+                if view.orthographic:
+                    prog["u_cam_half"].value = (float(view.width) / 2.0, float(view.height) / 2.0)
+                else:
+                    ty = math.tan(math.radians(float(view.fov_y)) / 2.0)
+                    prog["u_cam_half"].value = (ty * w / h, ty)
             prog["u_pixel"].value = float(px)
             prog["u_right"].value = _vec(plane.right)
             prog["u_up"].value = _vec(plane.up)

@@ -12,7 +12,8 @@ Interaction (the window forwards its events here while the mode is on):
 * a click on a slice panel sets the point of interest there: the other two planes move through it
   and the clip-texture's centre of interest follows it;
 * a drag on a slice panel tilts that plane about its own up and right axes (an oblique plane);
-* the 3D panel orbits as in the normal mode.
+* the 3D panel orbits as in the normal mode; it shows the volume cut open at the axial plane, with
+  the plane drawn in it (:meth:`SliceAction.render_in_view`), so users see where they are.
 
 The layout composes one RGBA image on the CPU (panels are small; no extra GL state in the
 window), and :meth:`SliceLayout.hud_lines` gives the level of each panel's tiles and the bytes read.
@@ -145,7 +146,10 @@ class SliceLayout:
         for name in PANELS:
             x0, y0, pw, ph = self.panel_rect(name, size)
             if name == "3d":
-                img = sess.render(camera_for_size((pw, ph)), self.poi, wait=False)
+                # the 3D view cut open at the axial plane, the plane drawn in it (orientation)
+                sess.set_center(self.poi)
+                img = self.action.render_in_view(sess.action, camera_for_size((pw, ph)), sess.transfer_function,
+                                                 self.planes["axial"])
                 self.stats[name] = sess.frame_stats
             else:
                 pl = self.planes[name]

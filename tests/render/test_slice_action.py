@@ -169,3 +169,41 @@ def test_window_level_and_bad_input(gl, vol_u8):
             sa.render(Plane.through((0, 0, 500.0), (0, 0, 1)))
         with pytest.raises(ParameterError, match="pixel_size"):
             sa.render(Plane.axis(ld.pyramid, "axial", 3), pixel_size=0.0)
+
+
+def test_slice_in_the_3d_view_is_the_plane_seen_by_the_camera(gl, rng):
+    """Perspective view of an oblique plane: the pixels it covers are the rays that meet the plane
+    inside the volume (numpy), coloured by the transfer function of scipy's resampling there."""
+    from clipvol.render.action import ClipRenderAction
+    from clipvol.scene.camera import Camera
+    from clipvol.scene.transfer import TransferFunction
+
+    vol = rng.random((24, 40, 48)).astype(np.float32)
+    ld = NumpyLoader(vol, brick=8)
+    tf = TransferFunction.preset("viridis")
+    pl = Plane.through((24.0, 20.0, 12.0), (0.2, 0.4, 0.9))
+    cam = Camera.perspective((90.0, -50.0, -70.0), (23.5, 19.5, 11.5), up=(0, -1, 0), fov_y=40, size=(96, 80))
+    with ClipTexture(ld, "64MB", 2) as ct, ClipRenderAction(gl, ct) as va, SliceAction(gl, ct, level=0) as sa:
+        img = sa.render_in_view(va, cam, tf, pl, wait=True, timeout=60)
+        vol_only = va.render(cam, tf, wait=True, timeout=60)
+    o, d = cam.rays()
+    n = np.asarray(pl.normal)
+    t = ((np.asarray(pl.origin) - o) @ n) / (d @ n)
+    hit = o + t[..., None] * d
+    out = np.maximum(np.maximum(-0.5 - hit, hit - np.array([47.5, 39.5, 23.5])), -np.inf).max(axis=-1)
+    inside, outside = (out < -0.05) & (t > 0), (out > 0.05) | (t <= 0)
+    ref = map_coordinates(vol.astype(np.float64), hit[..., ::-1].transpose(2, 0, 1), order=1, mode="nearest")
+    want = np.rint(tf.lookup(ref, ld.pyramid.value_range)[..., :3] * 255)
+    assert inside.sum() > 1000
+    assert np.all(img[inside, 3] == 255)
+    assert np.max(np.abs(img[inside, :3].astype(int) - want[inside])) <= 2
+    # rays that miss the volume box show the (transparent) background; the rest of the volume
+    # still shows where the plane is not; the plane covers what the uncut volume showed
+    lo_b, hi_b = np.array([-0.5] * 3), np.array([47.5, 39.5, 23.5])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta, tb = (lo_b - o) / d, (hi_b - o) / d
+    t0, t1 = np.minimum(ta, tb).max(axis=-1), np.maximum(ta, tb).min(axis=-1)
+    miss = ~(t1 > np.maximum(t0, 0))
+    assert miss.sum() > 100 and np.all(img[miss, 3] == 0)
+    assert np.any(img[outside & ~miss, 3] > 0)
+    assert np.mean(np.abs(img[inside, :3].astype(int) - vol_only[inside, :3].astype(int))) > 5

@@ -10,6 +10,15 @@ uniform vec2 u_viewport;        // (w, h) pixels
 uniform float u_pixel;          // pixel size (world)
 uniform vec3 u_right;           // plane frame (unit)
 uniform vec3 u_up;
+// a 3D view instead of the slice's own pixel grid: the pixel's ray meets the plane
+uniform bool u_in_view;
+uniform bool u_ortho;
+uniform vec3 u_normal;          // plane normal (unit)
+uniform vec3 u_eye_rel;         // camera eye (perspective) or centre (orthographic) - plane origin
+uniform vec3 u_cam_forward;
+uniform vec3 u_cam_right;
+uniform vec3 u_cam_up;
+uniform vec2 u_cam_half;        // half extents at depth 1 (perspective) or in world units (orthographic)
 
 uniform float u_level;
 // high tile: the node's own brick
@@ -37,9 +46,20 @@ uniform float u_ratio[8];       // index cx + 2 * cy + 4 * cz
 out vec4 f_color;
 
 void main() {
-    float col = gl_FragCoord.x - 0.5 * u_viewport.x;
-    float row = gl_FragCoord.y - 0.5 * u_viewport.y;   // towards up (row 0 is the top)
-    vec3 rel = (col * u_pixel) * u_right + (row * u_pixel) * u_up;   // point - plane origin
+    vec3 rel;                   // the pixel's point of the plane - plane origin
+    if (u_in_view) {
+        vec2 ndc = gl_FragCoord.xy / u_viewport * 2.0 - 1.0;
+        vec3 off = (ndc.x * u_cam_half.x) * u_cam_right + (ndc.y * u_cam_half.y) * u_cam_up;
+        vec3 o = u_ortho ? u_eye_rel + off : u_eye_rel;
+        vec3 d = u_ortho ? u_cam_forward : normalize(u_cam_forward + off);
+        float nd = dot(u_normal, d);
+        if (nd == 0.0) discard;
+        rel = o - (dot(u_normal, o) / nd) * d;
+    } else {
+        float col = gl_FragCoord.x - 0.5 * u_viewport.x;
+        float row = gl_FragCoord.y - 0.5 * u_viewport.y;   // towards up (row 0 is the top)
+        rel = (col * u_pixel) * u_right + (row * u_pixel) * u_up;
+    }
     vec3 u = clamp((rel + u_o_minus_b) * u_inv_scale, u_clamp_lo, u_clamp_hi);
     float high = texture(u_volume, (u_slot_origin + u + 0.5) * u_inv_tex_size).r;
     float r = 0.0;
