@@ -161,6 +161,13 @@ class SliceLayout:
                 self.stats[name] = self.action.last_stats
             a = img[..., 3:4].astype(np.float32) / 255.0
             out[y0:y0 + ph, x0:x0 + pw, :3] = np.rint(img[..., :3] * a).astype(np.uint8)
+            if name != "3d":  # a yellow cross at the point of interest, if it lies in this plane
+                pl = self.planes[name]
+                if abs(pl.signed_distance(self.poi)[0]) < 0.5 * float(max(self.pyramid.spacing)):
+                    c, r = pl.to_pixels(self.poi, (pw, ph), self.pixel_size(name, (pw, ph)))[0].astype(int)
+                    for dr, dc in [(0, k) for k in range(-6, 7)] + [(k, 0) for k in range(-6, 7)]:
+                        if 0 <= r + dr < ph and 0 <= c + dc < pw and abs(dr + dc) > 1:
+                            out[y0 + r + dr, x0 + c + dc, :3] = (255, 220, 0)
         return out
 
     def hud_lines(self) -> list[str]:

@@ -11,6 +11,8 @@ from clipvol.loaders.numpy_array import NumpyLoader
 from clipvol.scene.camera import Camera
 from clipvol.viewer.slice_layout import SliceLayout
 
+from test_view_window import _converge, loader, xdisplay  # noqa: F401  (the window tests' Xvfb fixtures)
+
 pytestmark = pytest.mark.gl
 
 
@@ -31,8 +33,8 @@ def test_panels_show_the_planes_in_radiological_order(session):
     lay.set_poi((20.0, 24.0, 10.0))
     img = lay.render(_cam, (160, 120))
     assert img.shape == (120, 160, 4)
-    grey = img[..., 0].astype(float)
-    ax = grey[0:60, 0:80]
+    grey = np.where((img[..., 0] == img[..., 1]) & (img[..., 1] == img[..., 2]), img[..., 0], 0).astype(float)
+    ax = grey[0:60, 0:80]  # (the yellow cross at the point of interest is left out)
     drawn = ax[ax > 0]
     # the axial plane at z = 10 of a volume whose value is z: one grey level, 10/31 of white
     assert drawn.size > 500 and np.ptp(drawn) <= 1 and abs(drawn.mean() - 255 * 10 / 31) <= 1.5
@@ -73,3 +75,28 @@ def test_step_and_tilt(session):
     assert np.degrees(np.arccos(abs(n @ np.array([-1.0, 0, 0])))) > 5  # oblique now
     img = lay.render(_cam, (160, 120))
     assert img[60:, 0:80, 0].any()  # the oblique sagittal panel still draws
+
+
+def test_window_key_l_shows_the_slice_layout(xdisplay, loader):
+    """Under Xvfb: L switches the window to the 2x2 slice layout and back; the wheel over the axial
+    panel steps the axial plane."""
+    from clipvol.viewer.window import Viewer
+
+    with Viewer(loader, size=(128, 96), visible=False) as v:
+        v.key("H")
+        _converge(v)
+        normal = v.read_screen()
+        v.key("L")
+        assert v.slices is not None and v.slices.active
+        v.step(force=True)
+        grid = v.read_screen()
+        assert np.abs(grid.astype(int) - normal).max() > 50
+        # the axial panel (top left) shows the middle axial slice of the source in grey
+        assert grid[:48, :64].max() > 30
+        z0 = v.slices.planes["axial"].origin[2]
+        v.slices.step_plane("axial", 2)
+        assert v.slices.planes["axial"].origin[2] == pytest.approx(z0 + 2)
+        v.key("L")
+        assert not v.slices.active
+        _converge(v)
+        assert np.abs(v.read_screen().astype(int) - normal).max() <= 3
