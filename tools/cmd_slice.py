@@ -63,7 +63,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def plane_from_args(pyramid, args):
-    """The :class:`~clipvol.scene.plane.Plane` the arguments name (default: the middle axial plane)."""
+    """The :class:`~clipvol.scene.plane.Plane` the arguments name (default: the middle axial plane).
+
+    Errors name the command-line option (``--plane: index: expected 0..255 ...``)."""
+    option = "--plane" if args.plane is not None else "--axis/--index" if args.axis is not None else "--origin/--normal/--up"
+    try:
+        return _plane_from_args(pyramid, args)
+    except ParameterError as e:
+        text = str(e)
+        raise ParameterError(text if text.startswith("--") else f"{option}: {text}") from None
+
+
+def _plane_from_args(pyramid, args):
     from clipvol.scene.plane import AXIS_LETTERS, Plane
 
     given = [name for name, v in (("--plane", args.plane), ("--axis", args.axis), ("--origin/--normal",

@@ -17,7 +17,8 @@ the shared traversal:
 3. **Blend ratios** (:func:`~clipvol.scene.selection.balance.blend_ratios`): per-corner ratios
    towards coarser neighbours, in :attr:`node_data` keyed by ``(level, index)``.
 
-The plane comes with the policy instance (``PlaneCut(params, plane)``, built by the slice render
+The cut is always level by level (``max_texels_drawn`` is not used: a slice's cost is its tiles,
+bounded by the plane's area). The plane comes with the policy instance (``PlaneCut(params, plane)``, built by the slice render
 action); the registry name ``"plane"`` makes it a valid ``RenderParams.policy``.
 """
 
