@@ -6,8 +6,9 @@ Without ``--poi`` and ``--level`` the slice is as fine as its pixels need; with 
 resolution near that point and coarser away from it, balanced and blended so no seam shows
 (LaMar, Hamann & Joy, "Multiresolution cutting planes"); ``--level 0`` is full resolution
 everywhere. Outputs: a PNG (grey ``--window C,W`` or a ``--tf`` colour map), the float32 values
-(``--npy``, NaN outside the volume) and statistics (``--stats``, JSON). Outputs are written to a
-temporary name and renamed when complete.
+(``--npy``, NaN outside the volume) and statistics (``--stats``, JSON; with the image edges'
+anatomical labels, R/L A/P S/I, when the store records its patient frame). Outputs are written
+to a temporary name and renamed when complete.
 """
 
 from __future__ import annotations
@@ -149,6 +150,12 @@ def run(args) -> int:
                              f"got origin {plane.origin} normal {plane.normal}")
     if args.level is not None and not (0 <= args.level < pyr.num_levels):
         raise ParameterError(f"--level: expected 0..{pyr.num_levels - 1} for this store, got {args.level}")
+    frame = getattr(loader, "frame", None)  # the source's voxel-to-world affine (NIfTI, DICOM, ...)
+    edges = None
+    if frame is not None:
+        from clipvol.scene.orientation import view_labels
+
+        edges = view_labels(frame.affine, plane.right, plane.up, frame.frame)
     params = RenderParams(policy="plane", focus=args.poi, level=args.level, distance_factor=args.distance_factor,
                           lod_threshold=args.lod_threshold, texture_budget=args.texture_budget)
     centre = np.clip(np.asarray(args.poi if args.poi is not None else plane.origin, dtype=np.float64), lo, hi)
@@ -172,10 +179,13 @@ def run(args) -> int:
         _write_atomic(args.npy, save_npy)
     if args.stats is not None:
         doc = dict(st.as_dict(), size=[w, h], plane=dict(origin=list(plane.origin), normal=list(plane.normal),
-                                                         up=list(plane.up)), poi=args.poi, level=args.level)
+                                                         up=list(plane.up)), poi=args.poi, level=args.level,
+                   edges=edges)
         _write_atomic(args.stats, lambda p: open(p, "w").write(json.dumps(doc, indent=1) + "\n"))
     levels = ", ".join(f"L{L}: {n}" for L, n in st.tiles_per_level.items()) or "none"
     print(f"slice {w}x{h}: tiles {st.tiles} ({levels}), {st.blended} blended, converged {st.converged}", file=sys.stderr)
     print(f"bricks needed {st.bricks_needed} ({format_bytes(st.bytes_needed)}); loaded {format_bytes(st.bytes_loaded)}; "
           f"uploaded {format_bytes(st.bytes_uploaded)}; total {st.times['total'] * 1000:.1f} ms", file=sys.stderr)
+    if edges is not None:
+        print("edges: " + ", ".join(f"{k} {v}" for k, v in edges.items()), file=sys.stderr)
     return 0

@@ -508,10 +508,13 @@ class SliceAction:
             v64 = np.where(covered, fmt.a * raw[..., 0].astype(np.float64) + fmt.b, np.nan)
             if self.pyramid.dtype.kind in "iu":
                 # the GPU's normalised-integer -> float conversion is good to about one float32 ulp
-                # of the texel: snap values that close to an integer back onto it (so a slice through
-                # voxel centres of integer data is exact); interpolated values keep their fraction
+                # of the texel, i.e. of a * texel before the offset b cancels: snap values that close
+                # to an integer back onto it (so a slice through voxel centres of integer data is
+                # exact); interpolated values keep their fraction
                 r = np.rint(v64)
-                v64 = np.where(np.abs(v64 - r) <= 4 * np.finfo(np.float32).eps * np.maximum(np.abs(r), 1.0), r, v64)
+                eps = 4 * float(np.finfo(np.float32).eps)
+                tol = eps * (np.abs(fmt.a * raw[..., 0].astype(np.float64)) + abs(fmt.b) + np.maximum(np.abs(r), 1.0))
+                v64 = np.where(np.abs(v64 - r) <= tol, r, v64)
             values = v64.astype(np.float32)
         levels = np.where(covered, np.rint(raw[..., 2]), -1).astype(np.int16)
         ratios = np.where(covered, raw[..., 3], 0.0).astype(np.float32)

@@ -173,12 +173,19 @@ class SliceLayout:
     def hud_lines(self) -> list[str]:
         """One line per slice panel: its tiles per level and the bytes its tiles read."""
         lines = [f"slices: point of interest ({', '.join(f'{v:.0f}' for v in self.poi)})"]
+        frame = getattr(self.session.loader, "frame", None)
         for name in PANELS[:3]:
             st = self.stats.get(name)
             if st is None:
                 continue
             levels = " ".join(f"L{L}:{n}" for L, n in st.tiles_per_level.items())
-            lines.append(f"{name}: {levels}  {st.bytes_needed / 1e6:.1f} MB"
+            edges = ""
+            if frame is not None:  # the panel's right and top edges in the patient frame
+                from ..scene.orientation import view_labels
+
+                lab = view_labels(frame.affine, self.planes[name].right, self.planes[name].up, frame.frame)
+                edges = f"  [right {lab['right']}, top {lab['top']}]"
+            lines.append(f"{name}: {levels}  {st.bytes_needed / 1e6:.1f} MB" + edges
                          + ("" if st.converged else "  (loading)"))
         lines.append(f"loaded {self.session.clip_texture.stats.bytes_loaded / 1e6:.0f} MB")
         return lines

@@ -68,3 +68,28 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(tmp_path, capsys, args,
     err = capsys.readouterr().err.strip()
     assert name in err and len(err.splitlines()) == 1
     assert not out.exists() and not list(tmp_path.iterdir())
+
+
+def test_slice_of_a_nifti_store_labels_its_edges_like_nibabel(tmp_path):
+    nib = pytest.importorskip("nibabel")
+    data = np.arange(21 * 17 * 13, dtype=np.int16).reshape(21, 17, 13)  # nibabel order (i, j, k)
+    aff = np.array([[-0.9, 0.0, 0.0, 60.0], [0.0, 0.0, 1.1, -40.0], [0.0, 1.7, 0.0, 12.0], [0, 0, 0, 1.0]])
+    nib.save(nib.Nifti1Image(data, aff), tmp_path / "head.nii.gz")
+    store = tmp_path / "head.zarr"
+    assert main(["brick", str(tmp_path / "head.nii.gz"), str(store), "--brick", "8", "--quiet"]) == 0
+    st, npy = tmp_path / "s.json", tmp_path / "s.npy"
+    # voxels of 0.9 (i) x 1.7 (j) mm and square pixels of 1.7 mm: rows hit the j voxel centres,
+    # columns fall between i voxels (linear interpolation along i)
+    assert main(["slice", str(store), "--plane", "z=5", "--level", "0", "--pixel-size", "1.7", "--size", "10x17",
+                 "--stats", str(st), "--npy", str(npy)]) == 0
+    # the store's array is nibabel's (i, j, k) transposed to (z, y, x) = (k, j, i): the axial preset
+    # shows vol[5] = data[:, :, 5].T, rows along j, columns along i
+    v = np.load(npy)
+    assert v.shape == (17, 10) and np.all(np.isfinite(v))
+    x_world = (np.arange(10) + 0.5 - 5) * 1.7 + (21 - 1) / 2 * 0.9
+    ref = np.array([np.interp(x_world / 0.9, np.arange(21), data[:, j, 5].astype(float)) for j in range(17)])
+    assert np.max(np.abs(v - ref)) <= 1e-3 * np.ptp(data)
+    codes = nib.aff2axcodes(aff)  # the patient direction of +i, +j, +k
+    flip = {"L": "R", "R": "L", "A": "P", "P": "A", "S": "I", "I": "S"}
+    edges = json.loads(st.read_text())["edges"]
+    assert edges == {"right": codes[0], "left": flip[codes[0]], "top": flip[codes[1]], "bottom": codes[1]}
