@@ -38,6 +38,15 @@ def test_axis_slices_at_level0_equal_numpy_exactly_for_integers(gl, vol_u8):
             assert sa.last_stats.converged and set(sa.last_stats.tiles_per_level) == {0}
 
 
+@pytest.mark.parametrize("dtype", ["int16", "uint16", "int8"])
+def test_axial_slice_is_exact_for_other_integer_types(gl, rng, dtype):
+    info = np.iinfo(dtype)
+    vol = rng.integers(info.min, info.max, size=(20, 24, 28), endpoint=True).astype(dtype)
+    pl = Plane.axis(NumpyLoader(vol, brick=8).pyramid, "axial", 7)
+    _, v, st, _ = _render(gl, vol, pl, brick=8, level=0)
+    np.testing.assert_array_equal(v, vol[7].astype(np.float32))
+
+
 def test_axis_slice_of_float_data_within_1e6(gl, rng):
     vol = rng.normal(size=(24, 33, 41)).astype(np.float32) * 100
     pl = Plane.axis(NumpyLoader(vol, brick=8).pyramid, "axial", 11)

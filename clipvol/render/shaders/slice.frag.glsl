@@ -45,6 +45,20 @@ uniform float u_ratio[8];       // index cx + 2 * cy + 4 * cz
 
 out vec4 f_color;
 
+// Trilinear sample at brick-local voxel coordinate u of the brick whose slot starts at texel slot.
+// A point within 1e-4 voxel of a voxel centre reads that texel exactly (texelFetch, wrapped
+// toroidally): the normalised coordinate (slot + u + 0.5) / size carries a float32 rounding error
+// of ~1e-6 texel, which filtering would turn into a visible error on 16-bit data.
+float sample_brick(sampler3D tex, vec3 slot, vec3 u, vec3 inv_size) {
+    vec3 p = slot + u;
+    vec3 c = floor(p + 0.5);
+    if (all(lessThan(abs(p - c), vec3(1e-4)))) {
+        vec3 size = floor(1.0 / inv_size + 0.5);
+        return texelFetch(tex, ivec3(mod(c, size)), 0).r;
+    }
+    return texture(tex, (p + 0.5) * inv_size).r;
+}
+
 void main() {
     vec3 rel;                   // the pixel's point of the plane - plane origin
     if (u_in_view) {
@@ -61,7 +75,7 @@ void main() {
         rel = (col * u_pixel) * u_right + (row * u_pixel) * u_up;
     }
     vec3 u = clamp((rel + u_o_minus_b) * u_inv_scale, u_clamp_lo, u_clamp_hi);
-    float high = texture(u_volume, (u_slot_origin + u + 0.5) * u_inv_tex_size).r;
+    float high = sample_brick(u_volume, u_slot_origin, u, u_inv_tex_size);
     float r = 0.0;
     float value = high;
     if (u_blend) {
@@ -73,7 +87,7 @@ void main() {
         r = mix(mix(c00, c10, s.y), mix(c01, c11, s.y), s.z);
         if (r > 0.0) {
             vec3 ul = clamp((rel + u_o_minus_b_low) * u_inv_scale_low, u_clamp_lo_low, u_clamp_hi_low);
-            float low = texture(u_volume_low, (u_slot_origin_low + ul + 0.5) * u_inv_tex_size_low).r;
+            float low = sample_brick(u_volume_low, u_slot_origin_low, ul, u_inv_tex_size_low);
             value = r >= 1.0 ? low : mix(high, low, r);
         }
     }
