@@ -24,6 +24,7 @@ COMMANDS = {
     "check": "validate a store: checksums, statistics and filter of sampled (or --all) bricks",
     "repair": "rebuild a store's bad bricks and their ancestors from its input",
     "render": "render one image of a store or procedural volume",
+    "slice": "draw a cutting plane (axial, coronal, sagittal, oblique), fine near a point of interest",
     "view": "interactive roaming / multiresolution viewer (or --offscreen frames)",
     "report": "image error against run time for a sweep of quality settings",
     "demo": "brick the built-in dataset, fly around it, and write the report",

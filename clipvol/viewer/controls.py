@@ -62,6 +62,8 @@ KEY_HELP = (
     ("P / Shift+P", "screenshot (PNG) with / without the HUD, into --screenshot-dir"),
     ("H", "HUD on / off"),
     ("R", "reset the view"),
+    ("L", "slice mode: axial, coronal, sagittal and 3D; wheel steps a slice, click sets the point of "
+          "interest, drag tilts a slice"),
     ("Esc", "quit"),
 )
 
