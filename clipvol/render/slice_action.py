@@ -62,7 +62,7 @@ class SliceStats:
         Distinct bricks the drawn slice reads: the tiles' bricks and the low tiles' parents.
     bytes_needed : int
         ``bricks_needed`` times the bytes of one brick in memory: what a loader must read for
-        this slice (the seed paper's "data transferred").
+        this slice (LaMar, Hamann & Joy's "data transferred").
     bytes_loaded : int
         Bytes the clip-texture's loader threads read during the call (its window prefetch included).
     bytes_uploaded, bricks_uploaded : int
