@@ -21,6 +21,7 @@ from clipvol.errors import ClipvolError
 COMMANDS = {
     "brick": "brick a volume into a multiresolution zarr store (OME-Zarr)",
     "info": "describe a store: levels, shapes, bricks, bytes, compression, value range",
+    "summarize": "build the summary tables of image-based level of detail for an existing store",
     "check": "validate a store: metadata, filter on sampled bricks, statistics",
     "render": "render one image of a store or procedural volume",
     "view": "interactive roaming / multiresolution viewer (or --offscreen frames)",

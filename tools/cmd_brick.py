@@ -37,6 +37,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=None, help="threads (default: number of cores)")
     parser.add_argument("--overwrite", action="store_true", help="remove an existing OUTPUT first")
     parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    parser.add_argument("--no-summary", action="store_true",
+                        help="skip the summary tables of image-based level of detail (add them later with `clipvol summarize`)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -51,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     meta = brick_volume(
         args.input, args.output, brick=args.brick, filter=args.filter, codec=args.codec, spacing=spacing,
         unit=args.unit, workers=args.workers, overwrite=args.overwrite, progress=not args.quiet,
-        raw_shape=shape, raw_dtype=args.dtype, byte_order=args.byte_order,
+        raw_shape=shape, raw_dtype=args.dtype, byte_order=args.byte_order, summary=not args.no_summary,
     )
     if not args.quiet:
         pyr = meta.pyramid
