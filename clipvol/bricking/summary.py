@@ -23,7 +23,8 @@ where the data is rare - where a CT's bone and contrast agent live.
 Storage (zarr arrays in the store, under ``clipvol_summary/<level>/``): ``histogram`` (grid x 256,
 uint32), ``nan_count`` (grid, int64) and, below the top level, the correspondence tables as a CSR
 over the level's bricks in C order: ``pairs_offsets`` (n_bricks + 1, int64), ``pairs_code`` (uint16,
-``parent * 256 + child``, ascending within a brick) and ``pairs_count`` (uint32). Only non-zero pairs
+``parent * 256 + child``, ascending within a brick, stored as the difference from the brick's
+previous code - the first one as is) and ``pairs_count`` (uint32). Only non-zero pairs
 are kept; parent and child are strongly correlated, so a brick's table is a narrow band around the
 diagonal (the observation behind the paper's zig-zag run-length code; the CSR form keeps the same
 entries and is simpler to read with numpy). The group's attributes record the quantisation and the
@@ -48,7 +49,7 @@ __all__ = ["SUMMARY_GROUP", "SUMMARY_BINS", "SummaryMissingError", "Quantiser", 
 
 SUMMARY_GROUP = "clipvol_summary"
 SUMMARY_BINS = 256
-_FORMAT = 1
+_FORMAT = 2
 
 
 class SummaryMissingError(StoreFormatError):
@@ -267,9 +268,30 @@ def _build_level(group, arrays, pyr: Pyramid, q: Quantiser, L: int, pool, bar) -
         lg.create_array("pairs_offsets", shape=off.shape, chunks=(min(len(off), 1 << 20),), dtype="int64",
                         fill_value=0, overwrite=True)[...] = off
         lg.create_array("pairs_code", shape=allc.shape, chunks=(chunk,), dtype="uint16", fill_value=0,
-                        overwrite=True)[...] = allc
+                        overwrite=True)[...] = _delta(allc, off)
         lg.create_array("pairs_count", shape=allk.shape, chunks=(chunk,), dtype="uint32", fill_value=0,
                         overwrite=True)[...] = allk
+
+
+def _delta(codes: np.ndarray, off: np.ndarray) -> np.ndarray:
+    """Codes stored as differences within each brick (the first one absolute): ascending codes near
+    the table's diagonal become small numbers that compress several times better."""
+    d = np.diff(codes.astype(np.int64), prepend=0)
+    starts = off[:-1][np.diff(off) > 0]
+    d[starts] = codes[starts]
+    return d.astype(np.uint16)
+
+
+def _undelta(d: np.ndarray, off: np.ndarray) -> np.ndarray:
+    c = np.cumsum(d.astype(np.int64))
+    starts = off[:-1][np.diff(off) > 0]
+    base = np.zeros(len(d), np.int64)
+    if len(starts):
+        # subtract the running sum before each brick's first entry
+        seg = np.repeat(np.arange(len(starts)), np.diff(np.append(starts, len(d))))
+        before = c[starts] - d[starts].astype(np.int64)
+        base = before[seg]
+    return (c - base).astype(np.uint16)
 
 
 # -- reading ---------------------------------------------------------------------------------------
@@ -310,13 +332,13 @@ def open_summary(path) -> SummaryTables:
         nanc.append(np.asarray(lg["nan_count"][...]))
         if L < pyr.num_levels - 1:
             off = np.asarray(lg["pairs_offsets"][...])
-            cd = np.asarray(lg["pairs_code"][...])
             ct = np.asarray(lg["pairs_count"][...])
+            cd = np.asarray(lg["pairs_code"][...])
             if off.shape != (pyr.num_bricks(L) + 1,) or off[-1] != len(cd) or len(cd) != len(ct) or np.any(np.diff(off) < 0):
                 raise StoreFormatError(f"{path}/{SUMMARY_GROUP}/{L}: inconsistent correspondence tables "
                                        f"(offsets {off.shape}, {len(cd)} codes, {len(ct)} counts)")
             offs.append(off)
-            codes.append(cd)
+            codes.append(_undelta(cd, off))
             counts.append(ct)
         else:
             offs.append(None)
