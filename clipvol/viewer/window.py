@@ -278,7 +278,7 @@ class Viewer:
 
     def _on_char(self, win, codepoint) -> None:
         ch = chr(codepoint)
-        if ch in "+-=_[]":
+        if ch in "+-=_[]<>,.":
             self.key(ch)
 
     def _on_button(self, win, button, action, mods) -> None:
@@ -322,6 +322,7 @@ class Viewer:
         self.session.update(
             lod_threshold=st.lod_threshold, policy=st.mode, level=st.level if st.mode == "fixed" else None,
             mode=st.render_mode, tf=self._custom_tf if st.tf_name == "custom" else st.tf_name,
+            block_budget=st.block_budget,
         )
         self._hud_text = None
         self._dirty = True
@@ -361,7 +362,14 @@ class Viewer:
             self._dirty = False
             cam = self.camera()
             t0 = time.perf_counter()
-            img = sess.render(cam, self.controls.center_of_interest, wait=False)
+            try:
+                img = sess.render(cam, self.controls.center_of_interest, wait=False)
+            except ClipvolError as e:  # e.g. image-based LOD on a store without summary tables
+                if self.state.mode != "image":
+                    raise
+                self.state.mode, self.state.message = "multiresolution", str(e)
+                self._apply_state()
+                img = sess.render(cam, self.controls.center_of_interest, wait=False)
             if self.state.outlines:
                 from ..app.overlay import draw_outlines
 
@@ -399,6 +407,13 @@ class Viewer:
             self._draw_hud(w, h)
         ctx.disable(mgl.BLEND)
 
+    def _image_lod_settings(self) -> dict:
+        """HUD entries of image-based LOD: block budget and its estimated error (else none)."""
+        if self.state.mode != "image":
+            return {}
+        est = getattr(getattr(self.session.action, "last_policy", None), "estimated_error", float("nan"))
+        return {"budget": f"{self.state.block_budget} blocks", "est.err": f"{est:.3f}"}
+
     def _draw_hud(self, w: int, h: int) -> None:
         now = time.perf_counter()
         if self._hud_text is None or now - self._hud_time > 0.25:
@@ -406,6 +421,7 @@ class Viewer:
             settings = {
                 "mode": st.mode + (f" L{st.level}" if st.mode == "fixed" else ""),
                 "lod": f"{st.lod_threshold:g}px",
+                **self._image_lod_settings(),
                 "render": st.render_mode,
                 "tf": st.tf_name,
             }
