@@ -28,10 +28,12 @@ from ..scene.metrics import percent_delta_e
 __all__ = ["LOD_POLICIES", "DEFAULT_BLOCK_BUDGETS", "policy_changes", "lod_sweep", "blocks_to_reach", "plot_lod_sweep"]
 
 #: label -> RenderParams changes of the compared policies (budget applied by :func:`policy_changes`)
+#: (the refine predicates of projected size and distance are opened wide so that the budget, not
+#: their threshold, decides how far they refine; their rule still decides the order)
 LOD_POLICIES = {
-    "projected size": dict(policy="projected-size"),
-    "distance": dict(policy="distance"),
-    "image, no visibility": dict(policy="image", visibility=False),
+    "projected size": dict(policy="projected-size", lod_threshold=1.0 / 64.0),
+    "distance": dict(policy="distance", distance_factor=1e9),
+    "image (no visibility)": dict(policy="image", visibility=False),
     "image": dict(policy="image", visibility=True),
 }
 DEFAULT_BLOCK_BUDGETS = (8, 16, 32, 64, 128, 256)
