@@ -70,7 +70,8 @@ class ImageLod:
     def policy(self, camera, tf, params) -> ImageBased:
         """The frame's :class:`ImageBased` policy for ``camera``, ``tf`` and ``params``."""
         errors = self.errors_for(tf)
-        vis = self.visibility_for(camera, tf, params) if params.visibility else None
+        # MIP has no occlusion: a brick behind another can still hold the maximum
+        vis = self.visibility_for(camera, tf, params) if params.visibility and params.mode == "composite" else None
         return ImageBased(params, errors=errors, visibility=vis)
 
     def close(self) -> None:

@@ -3,8 +3,8 @@
 After Wang, Garcia & Shen (2007, section IV-E). The paper draws the coarsest level as view-aligned
 slices front to back and snapshots the accumulated opacity whenever a brick's nearest vertex is
 passed. We get the same *occlusion layers* from the clip render action itself: the coarse level
-(the finest one with at most :data:`MAX_VISIBILITY_BRICKS` bricks, which the clip-texture holds
-whole) is ray-cast into a small image (``size`` pixels on the long side) ``layers - 1`` times, each
+(the finest one with at most :data:`MAX_VISIBILITY_BRICKS` bricks and
+:data:`MAX_VISIBILITY_TEXELS` voxels, which the clip-texture holds whole) is ray-cast into a small image (``size`` pixels on the long side) ``layers - 1`` times, each
 time with one extra clip plane at depth ``d_k`` along the view axis that keeps only what lies in
 front of it; the alpha of each image is the opacity accumulated in front of ``d_k``. The images are
 read back once per estimate and reduced per brick on the CPU with a summed-area table
@@ -27,10 +27,11 @@ from ..scene.geometry import Shape
 from ..scene.params import RenderParams
 from ..scene.visibility import OcclusionLayers, box_depths
 
-__all__ = ["VisibilityEstimator", "MAX_VISIBILITY_BRICKS"]
+__all__ = ["VisibilityEstimator", "MAX_VISIBILITY_BRICKS", "MAX_VISIBILITY_TEXELS"]
 
-#: the estimate draws the finest level with at most this many bricks
+#: the estimate draws the finest level with at most this many bricks and texels (a 128^3 volume)
 MAX_VISIBILITY_BRICKS = 64
+MAX_VISIBILITY_TEXELS = 1 << 21
 
 
 class VisibilityEstimator:
@@ -53,7 +54,10 @@ class VisibilityEstimator:
 
         pyr = clip_texture.pyramid
         if level is None:
-            level = min(L for L in range(pyr.num_levels) if pyr.num_bricks(L) <= MAX_VISIBILITY_BRICKS or L == pyr.num_levels - 1)
+            texels = int(np.prod(pyr.brick_shape))
+            level = min(L for L in range(pyr.num_levels)
+                        if (pyr.num_bricks(L) <= MAX_VISIBILITY_BRICKS and pyr.num_bricks(L) * texels <= MAX_VISIBILITY_TEXELS)
+                        or L == pyr.num_levels - 1)
         self.level, self.size, self.layers = int(level), int(size), max(2, int(layers))
         budget = max(8 << 20, 2 * pyr.num_bricks(self.level) * int(np.prod(pyr.brick_shape)) * 4)
         self.base = RenderParams(policy="fixed", level=self.level, step=1.0, texture_budget=budget)
