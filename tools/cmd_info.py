@@ -1,54 +1,157 @@
-"""Describe a clipvol store: levels, shapes, bricks, bytes on disk, compression, value range."""
+"""Describe a store: levels, shapes, bricks, bytes on disk, compression, value range, NaN/Inf counts.
+
+Works on a store written by ``clipvol brick`` and on any OME-Zarr image (what ``render`` and
+``view`` open): for the latter it reports what the metadata and the files say (levels stored
+and derived, chunks, bytes) and no statistics, which only ``clipvol brick`` writes.
+
+The compression ratio is the bytes of the voxels the written chunks hold - an edge chunk counts
+only its voxels inside the level, not its padding - over the bytes of those chunk files.
+
+For a store built from a file that records its geometry (NIfTI, DICOM, MRC, ...) it also prints
+the origin, the voxel-to-world affine and which anatomical direction (R/L, A/P, S/I) each array
+axis points to.
+"""
 
 from __future__ import annotations
 
 import argparse
+import os
+import re
+from pathlib import Path
+
+_META_FILES = {"zarr.json", ".zarray", ".zattrs", ".zgroup", ".zmetadata"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("store", metavar="STORE", help="a store written by `clipvol brick`")
+    parser.add_argument("store", metavar="STORE", help="a store written by `clipvol brick`, or any OME-Zarr image")
 
 
-def _dir_bytes(path) -> tuple[int, int]:
-    """(files, bytes) of the chunk files under ``path/c``."""
-    import os
-
-    n = size = 0
-    for root, _dirs, files in os.walk(path / "c"):
+def chunk_files(array_dir: Path) -> list[tuple[Path, tuple[int, ...] | None]]:
+    """The chunk files of one zarr array directory and their chunk index (None if unparsable)."""
+    out = []
+    for root, _dirs, files in os.walk(array_dir):
         for f in files:
-            n += 1
-            size += os.path.getsize(os.path.join(root, f))
-    return n, size
+            if f in _META_FILES or f.endswith(".tmp"):
+                continue
+            p = Path(root) / f
+            rel = p.relative_to(array_dir).as_posix()
+            if rel.startswith("c/"):
+                rel = rel[2:]
+            parts = re.split(r"[./]", rel)
+            idx = tuple(int(s) for s in parts) if parts and all(s.isdigit() for s in parts) else None
+            out.append((p, idx))
+    return out
+
+
+def level_bytes(array_dir: Path, shape, chunks, itemsize: int) -> tuple[int, int, int]:
+    """``(chunk files, bytes on disk, bytes of the voxels they hold)`` of one level."""
+    n = disk = raw = 0
+    full = itemsize
+    for c in chunks:
+        full *= int(c)
+    for p, idx in chunk_files(array_dir):
+        n += 1
+        disk += p.stat().st_size
+        if idx is None or len(idx) < 3:
+            raw += full
+            continue
+        v = itemsize
+        for i, c, s in zip(idx[-3:], chunks[-3:], shape[-3:]):
+            v *= max(0, min(int(c), int(s) - int(i) * int(c)))
+        raw += v
+    return n, disk, raw
+
+
+def _stats_line(loader, pyr) -> str | None:
+    fn = getattr(loader, "brick_statistics", None)
+    st = fn(0) if fn is not None else None
+    if not st:
+        return None
+    nan = int(st["nan_count"].sum()) if "nan_count" in st else 0
+    inf = int(st["inf_count"].sum()) if "inf_count" in st else 0
+    total = int(pyr.shape[0]) * int(pyr.shape[1]) * int(pyr.shape[2])
+    return (f"non-finite {nan:,} NaN and {inf:,} Inf of {total:,} voxels (level 0)"
+            + (f"; {100 * (nan + inf) / total:.2f} % drawn transparent" if nan + inf else ""))
+
+
+def _print_geometry(meta) -> None:
+    """Origin, affine and axis directions (only for stores that record them)."""
+    if meta.frame is None and not any(meta.origin):
+        return
+    print(f"origin     {', '.join(f'{v:g}' for v in meta.origin)} {meta.unit} (z, y, x; world position of voxel 0)")
+    if meta.frame is None:
+        return
+    from clipvol.scene.orientation import axis_codes
+
+    codes = axis_codes(meta.frame.affine, meta.frame.frame)
+    world = "patient RAS+" if meta.frame.frame == "RAS" else "world"
+    print(f"frame      {world}; array axes point to x {codes[0]}, y {codes[1]}, z {codes[2]} "
+          f"(orientation {''.join(codes)}{', oblique' if meta.frame.oblique else ''})")
+    for k, row in enumerate(meta.frame.affine[:3]):
+        head = "affine    " if k == 0 else "          "
+        print(f"{head} [{'  '.join(f'{v:10.4g}' for v in row)}]")
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     from clipvol.bricking.store import open_store_meta
+    from clipvol.errors import InputNotFoundError, StoreIncompleteError
+    from clipvol.loaders.zarr_store import ZarrLoader
     from clipvol.units import format_bytes
 
     path = Path(args.store)
-    meta = open_store_meta(path)
-    pyr = meta.pyramid
+    if not path.exists():
+        raise InputNotFoundError(f"{path}: no such store")
+    meta = loader = None
+    attrs_say_clipvol = False
+    try:
+        loader = ZarrLoader(path)
+        attrs_say_clipvol = loader.is_clipvol_store
+    except StoreIncompleteError:
+        attrs_say_clipvol = True
+    if attrs_say_clipvol:
+        meta = open_store_meta(path)
+        pyr = meta.pyramid
+        dirs = [path / str(L) for L in range(pyr.num_levels)]
+        stored = pyr.num_levels
+    else:
+        pyr = loader.pyramid
+        stored = loader.stored_levels
+        dirs = _ome_dataset_dirs(path)[:stored]
     it = pyr.dtype.itemsize
     print(f"store      {path}")
-    print(f"complete   {'yes' if meta.complete else 'no (interrupted build: re-run the same clipvol brick command)'}")
+    if meta is not None:
+        print("kind       clipvol store (with per-brick statistics)")
+        print(f"complete   {'yes' if meta.complete else 'no (interrupted build: re-run the same clipvol brick command)'}")
+    else:
+        print(f"kind       OME-Zarr image (not written by clipvol brick: no statistics; {stored} of "
+              f"{pyr.num_levels} levels stored, the rest derived on the fly)")
     print(f"dtype      {pyr.dtype}")
-    print(f"brick      {'x'.join(map(str, pyr.brick_shape))}")
+    print(f"brick      {'x'.join(map(str, pyr.brick_shape))}" + ("" if meta is not None else " (the level-0 chunks)"))
     print(f"filter     {pyr.filter}")
-    print(f"codec      {meta.codec}")
-    print(f"spacing    {', '.join(f'{s:g}' for s in pyr.spacing)} {meta.unit} (z, y, x)")
+    if meta is not None:
+        print(f"codec      {meta.codec}")
+        print(f"spacing    {', '.join(f'{s:g}' for s in pyr.spacing)} {meta.unit} (z, y, x)")
+    else:
+        print(f"spacing    {', '.join(f'{s:g}' for s in pyr.spacing)} (z, y, x)")
     print(f"value range {pyr.value_range[0]:g} .. {pyr.value_range[1]:g}")
-    print(f"{'level':>5} {'shape (z, y, x)':>22} {'grid':>14} {'bricks':>8} {'non-empty':>9} {'on disk':>10} {'raw':>10} {'ratio':>6}")
+    if loader is not None:
+        line = _stats_line(loader, pyr)
+        if line:
+            print(line)
+    if meta is not None:
+        _print_geometry(meta)
+    print(f"{'level':>5} {'shape (z, y, x)':>22} {'grid':>14} {'bricks':>8} {'written':>9} {'on disk':>10} {'raw':>10} {'ratio':>6}")
     tot_disk = tot_raw = 0
     for L, lv in enumerate(pyr.levels):
-        n, disk = _dir_bytes(path / str(L))
-        raw = n * int(pyr.brick_nbytes)
+        grid = "x".join(map(str, pyr.grid(L)))
+        shape = "x".join(map(str, lv.shape))
+        if L >= stored:
+            print(f"{L:>5} {shape:>22} {grid:>14} {pyr.num_bricks(L):>8} {'derived':>9} {'-':>10} {'-':>10} {'-':>6}")
+            continue
+        n, disk, raw = level_bytes(dirs[L], lv.shape, pyr.brick_shape, it)
         tot_disk += disk
         tot_raw += raw
         ratio = f"{raw / disk:.2f}" if disk else "-"
-        grid = "x".join(map(str, pyr.grid(L)))
-        shape = "x".join(map(str, lv.shape))
         print(f"{L:>5} {shape:>22} {grid:>14} {pyr.num_bricks(L):>8} {n:>9} {format_bytes(disk):>10} {format_bytes(raw):>10} {ratio:>6}")
     from clipvol.bricking.summary import summary_bytes
 
@@ -60,6 +163,18 @@ def run(args: argparse.Namespace) -> int:
         print(f"summary    tables {format_bytes(sb)}{share}")
     vox = pyr.shape[0] * pyr.shape[1] * pyr.shape[2] * it
     print(f"total      {format_bytes(tot_disk)} on disk for {format_bytes(vox)} of level 0; "
-          f"compression ratio {tot_raw / tot_disk:.2f} over written bricks" if tot_disk else
-          f"total      nothing written (every brick is empty) for {format_bytes(vox)} of level 0")
+          f"compression ratio {tot_raw / tot_disk:.2f} (voxels in written chunks, no padding, over their files)"
+          if tot_disk else f"total      nothing written (every brick is empty) for {format_bytes(vox)} of level 0")
     return 0
+
+
+def _ome_dataset_dirs(path: Path) -> list[Path]:
+    """The array directories of an OME-Zarr image's ``multiscales[0].datasets``, in order."""
+    import json
+
+    if (path / "zarr.json").is_file():
+        attrs = json.loads((path / "zarr.json").read_text()).get("attributes") or {}
+    else:
+        attrs = json.loads((path / ".zattrs").read_text()) if (path / ".zattrs").is_file() else {}
+    ome = attrs.get("ome") if isinstance(attrs.get("ome"), dict) else attrs
+    return [path / d["path"] for d in ome["multiscales"][0]["datasets"]]

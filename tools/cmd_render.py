@@ -46,6 +46,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, or a .npy file")
     p.add_argument("--out", "-o", required=True, help="output PNG")
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default 64)")
+    d = p.add_argument_group("data")
+    d.add_argument("--t", type=int, default=None, help="time point of an OME-Zarr image with a t axis (default 0)")
+    d.add_argument("--c", type=int, default=None, help="channel of an OME-Zarr image with a c axis (default 0)")
+    d.add_argument("--hide-labels", default=None, metavar="NAME:ID,ID",
+                   help="hide the voxels of these label ids of the store's labels/NAME (from clipvol brick --labels)")
     v = p.add_argument_group("camera")
     v.add_argument("--view", choices=VIEWS, default="iso", help="preset direction towards the volume centre (default iso)")
     v.add_argument("--eye", type=_triple, default=None, help="eye position x,y,z (world units; overrides --view)")
@@ -55,6 +60,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     v.add_argument("--distance", type=float, default=None, help="eye distance from the target, in volume diagonals (default 1.6)")
     v.add_argument("--ortho", action="store_true", help="orthographic projection framing the volume")
     v.add_argument("--size", type=_size, default=(512, 512), help="image size WxH (default 512x512)")
+    v.add_argument("--camera", default=None, metavar="FILE.json",
+                   help="a camera saved by the viewer's C key (overrides --view/--eye/--target/--up/--fov/--ortho)")
     r = p.add_argument_group("rendering")
     r.add_argument("--mode", choices=("composite", "mip"), default="composite")
     r.add_argument("--policy", "--selection", dest="policy", choices=POLICY_CHOICES, default="projected-size",
@@ -72,9 +79,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--no-visibility", action="store_true",
                    help="--policy image: no visibility estimate (every brick counts as fully visible)")
     r.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel projects to more than this many pixels")
-    r.add_argument("--tf", default="viridis", help="transfer-function preset (grey, viridis, magma, inferno, plasma, bone)")
-    r.add_argument("--tf-range", type=lambda s: tuple(float(t) for t in s.split(",")), default=None,
-                   help="transfer-function window lo,hi (default: the data's value range)")
+    from clipvol.tools.tf_args import add_tf_arguments
+
+    add_tf_arguments(p.add_argument_group("transfer function"))
     r.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
     r.add_argument("--background", type=lambda s: tuple(float(t) for t in s.split(",")), default=(0.0, 0.0, 0.0, 0.0),
                    help="straight RGBA r,g,b,a in [0, 1] behind the volume (default transparent)")
@@ -84,6 +91,37 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
     r.add_argument("--no-wait", action="store_true", help="do not wait for the view's bricks (draw what is resident)")
     r.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for convergence (default 300)")
+
+
+def check_output_file(path, suffix: str, flag: str) -> None:
+    """Fail before any work when ``path`` cannot be written: wrong suffix, or a missing folder."""
+    from pathlib import Path
+
+    p = Path(path)
+    if suffix and not p.name.lower().endswith(suffix):
+        raise ParameterError(f"{flag}: expected a {suffix} file name, got {str(path)!r}")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise ParameterError(f"{flag}: {str(path)!r}: the folder {str(parent)!r} does not exist")
+
+
+def hidden_labels(source, loader, spec: str):
+    """``loader`` with the voxels of ``NAME:ID,ID`` (a label image of the store) hidden."""
+    from pathlib import Path
+
+    from clipvol.bricking.labels import label_names
+    from clipvol.paging.open import open_store
+    from clipvol.paging.tagging import TaggedLoader
+
+    name, _, ids = spec.partition(":")
+    names = label_names(source)
+    if name not in names:
+        raise ParameterError(f"--hide-labels: expected one of the store's labels {names or '(none)'}, got {name!r}")
+    try:
+        hidden = [int(v) for v in ids.split(",") if v.strip()]
+    except ValueError:
+        raise ParameterError(f"--hide-labels: expected NAME:ID,ID with integer ids, got {spec!r}") from None
+    return TaggedLoader(loader, open_store(Path(source) / "labels" / name), hidden)
 
 
 def view_camera(pyramid, view: str, size, *, eye=None, target=None, up=None, fov=35.0, distance=None, ortho=False):
@@ -128,18 +166,23 @@ def run(args) -> int:
     from clipvol.render import create_context
     from clipvol.render.action import ClipRenderAction
     from clipvol.scene.params import RenderParams
-    from clipvol.scene.transfer import TransferFunction
     from clipvol.units import format_bytes
 
-    if not str(args.out).lower().endswith(".png"):
-        raise ParameterError(f"--out: expected a .png file name, got {args.out!r}")
-    if args.tf not in TransferFunction.names():
-        raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())}, got {args.tf!r}")
+    from clipvol.scene.bookmarks import load_camera
+    from clipvol.tools.tf_args import transfer_function_from_args
+
+    check_output_file(args.out, ".png", "--out")
     kwargs = {} if args.brick is None else {"brick": args.brick}
+    kwargs.update({k: v for k, v in (("t", args.t), ("c", args.c)) if v is not None})
     loader = open_store(args.source, **kwargs)
+    if args.hide_labels:
+        loader = hidden_labels(args.source, loader, args.hide_labels)
     pyr = loader.pyramid
-    cam = view_camera(pyr, args.view, args.size, eye=args.eye, target=args.target, up=args.up, fov=args.fov,
-                      distance=args.distance, ortho=args.ortho)
+    if args.camera is not None:
+        cam = load_camera(args.camera, size=args.size)
+    else:
+        cam = view_camera(pyr, args.view, args.size, eye=args.eye, target=args.target, up=args.up, fov=args.fov,
+                          distance=args.distance, ortho=args.ortho)
     lo, hi = pyr.volume_box()
     centre = np.clip(np.asarray(cam.center, dtype=np.float64), lo, hi)
     params = RenderParams(
@@ -148,7 +191,7 @@ def run(args) -> int:
         texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget, step=args.step,
         background=args.background, block_budget=args.block_budget, visibility=not args.no_visibility,
     ).check_for(pyr)
-    tf = TransferFunction.preset(args.tf, value_range=args.tf_range)
+    tf = transfer_function_from_args(args, loader)
     ctx = create_context()
     try:
         with ClipTexture(loader, args.memory_budget, args.threads, center=centre) as clip, \
@@ -160,7 +203,8 @@ def run(args) -> int:
     Image.fromarray(image, "RGBA").save(args.out)
     t = st.times
     levels = ", ".join(f"L{L}: {n}" for L, n in st.bricks_drawn.items()) or "none"
-    print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, {args.mode}, {params.policy})", file=sys.stderr)
+    print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, {args.mode}, {params.policy}, transfer function "
+          f"{tf.name or 'custom'})", file=sys.stderr)
     print(f"bricks drawn {sum(st.bricks_drawn.values())} ({levels}); texels drawn {st.texels_drawn:,}; "
           f"converged {st.converged} after {st.passes} pass(es)", file=sys.stderr)
     print(f"uploaded {format_bytes(st.bytes_uploaded)} in {st.bricks_uploaded} bricks; textures "

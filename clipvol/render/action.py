@@ -17,7 +17,7 @@ Per frame (:meth:`ClipRenderAction.render`):
    basis (per-frame uniforms, so bit-identical for every box), intersects it with the item's box
    (and the :class:`~clipvol.scene.geometry.Shape`'s box and planes) and samples the half-open interval
    ``[t_entry, t_exit)`` at ``t = k * delta``: spherical shells around the eye (perspective,
-   seed 003) or planes parallel to the image through the camera centre (orthographic). Adjacent
+   LaMar, Hamann & Joy 1999) or planes parallel to the image through the camera centre (orthographic). Adjacent
    boxes therefore share no sample and skip none, and because ``delta_L = 2**L * delta_0`` the
    lattice of a coarse level is a subset of a fine level's: no seams between bricks or levels.
    Each sample is trilinear in the level's texture, mapped by the 1-D transfer-function texture
@@ -275,6 +275,19 @@ class ClipRenderAction:
             self.cache = GpuBrickCache(self.ctx, self.pyramid, params.texture_budget)
             self.frame_loop = FrameLoop(self.clip_texture, self.cache)
         self.params = params
+
+    def use_clip_texture(self, clip_texture) -> None:
+        """Draw from another clip-texture of the same brick geometry from the next frame on (the
+        next time step of a series): the GPU cache is emptied, the program and targets are kept."""
+        pyr = clip_texture.pyramid
+        if pyr.brick_shape != self.pyramid.brick_shape or [lv.shape for lv in pyr.levels] != \
+                [lv.shape for lv in self.pyramid.levels] or pyr.dtype != self.pyramid.dtype:
+            raise ParameterError("clip_texture: expected the same levels, brick shape and dtype as the current one, "
+                                 f"got levels {[lv.shape for lv in pyr.levels]} brick {pyr.brick_shape} {pyr.dtype}")
+        self.cache.release()
+        self.clip_texture, self.pyramid = clip_texture, pyr
+        self.cache = GpuBrickCache(self.ctx, pyr, self.params.texture_budget)
+        self.frame_loop = FrameLoop(clip_texture, self.cache)
 
     # -- the frame ---------------------------------------------------------------------------------
     def render(self, camera, transfer_function, wait: bool = False, timeout: float | None = None,
