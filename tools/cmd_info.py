@@ -156,7 +156,9 @@ def run(args: argparse.Namespace) -> int:
     from clipvol.bricking.summary import summary_bytes
 
     sb = summary_bytes(path)
-    if sb is None:
+    if meta is None:
+        pass  # summary tables belong to clipvol stores (`clipvol brick` an OME-Zarr to get them)
+    elif sb is None:
         print(f"summary    none (image-based level of detail needs them: clipvol summarize {path})")
     else:
         share = f", {100.0 * sb / tot_disk:.1f} % of the bricks on disk" if tot_disk else ""
