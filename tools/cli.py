@@ -23,6 +23,7 @@ COMMANDS = {
     "info": "describe a store or any OME-Zarr: levels, shapes, bricks, bytes, compression, value range, NaN/Inf",
     "check": "validate a store: checksums, statistics and filter of sampled (or --all) bricks",
     "repair": "rebuild a store's bad bricks and their ancestors from its input",
+    "summarize": "build the summary tables of image-based level of detail for an existing store",
     "render": "render one image of a store or procedural volume",
     "slice": "draw a cutting plane (axial, coronal, sagittal, oblique), fine near a point of interest",
     "view": "interactive roaming / multiresolution viewer (or --offscreen frames)",

@@ -347,7 +347,7 @@ class Viewer:
 
     def _on_char(self, win, codepoint) -> None:
         ch = chr(codepoint)
-        if ch in "+-=_[]":
+        if ch in "+-=_[]<>,.":
             self.key(ch)
 
     def _on_button(self, win, button, action, mods) -> None:
@@ -516,6 +516,7 @@ class Viewer:
         self.session.update(
             lod_threshold=st.lod_threshold, policy=st.mode, level=st.level if st.mode == "fixed" else None,
             mode=st.render_mode, tf=tf,
+            block_budget=st.block_budget,
         )
         if self.adaptive is not None:
             self.adaptive.invalidate()
@@ -570,7 +571,14 @@ class Viewer:
             if self.slices is not None and self.slices.active:
                 img = self.slices.render(lambda size: self.controls.camera(size), self.framebuffer_size)
             else:
-                img = sess.render(cam, self.controls.center_of_interest, wait=False)
+                try:
+                    img = sess.render(cam, self.controls.center_of_interest, wait=False)
+                except ClipvolError as e:  # e.g. image-based LOD on a store without summary tables
+                    if self.state.mode != "image":
+                        raise
+                    self.state.mode, self.state.message = "multiresolution", str(e)
+                    self._apply_state()
+                    img = sess.render(cam, self.controls.center_of_interest, wait=False)
             if self.state.outlines and not (self.slices is not None and self.slices.active):
                 from ..app.overlay import draw_outlines
 
@@ -611,6 +619,13 @@ class Viewer:
             self._draw_hud(w, h)
         ctx.disable(mgl.BLEND)
 
+    def _image_lod_settings(self) -> dict:
+        """HUD entries of image-based LOD: block budget and its estimated error (else none)."""
+        if self.state.mode != "image":
+            return {}
+        est = getattr(getattr(self.session.action, "last_policy", None), "estimated_error", float("nan"))
+        return {"budget": f"{self.state.block_budget} blocks", "est.err": f"{est:.3f}"}
+
     def _orientation(self) -> dict[str, str] | None:
         """The view edges' anatomical (or world-axis) labels when the store records its affine."""
         frame = getattr(getattr(self.session, "loader", None), "frame", None)
@@ -628,6 +643,7 @@ class Viewer:
             settings = {
                 "mode": st.mode + (f" L{st.level}" if st.mode == "fixed" else ""),
                 "lod": f"{st.lod_threshold:g}px",
+                **self._image_lod_settings(),
                 "render": st.render_mode,
                 "tf": self.tf.name or "custom",
             }
