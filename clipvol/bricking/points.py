@@ -41,6 +41,7 @@ __all__ = [
     "SubtreeBuild",
     "build_subtrees",
     "choose_representatives",
+    "NodeTable",
 ]
 
 GEO_BITS = 17
@@ -237,3 +238,63 @@ def choose_representatives(depth: int, k: int, cand_keys: np.ndarray, cand_xyz: 
     s = sub[order]
     first = np.r_[True, s[1:] != s[:-1]] if len(s) else np.zeros(0, bool)
     return np.sort(order[first])
+
+
+class NodeTable:
+    """The octree's nodes sorted by ``(depth, code)``, with per-depth runs for lookups.
+
+    Attributes are numpy arrays of one entry per node: ``depth``, ``code``, ``offset``, ``count``,
+    ``weight``, ``child_mask``; ``origin`` and ``edge`` give node boxes.
+    """
+
+    def __init__(self, t: dict[str, np.ndarray], origin, edge: float) -> None:
+        self.depth = t["depth"].astype(np.int64)
+        self.code = t["code"].astype(np.int64)
+        self.offset = t["offset"].astype(np.int64)
+        self.count = t["count"].astype(np.int64)
+        self.weight = t["weight"].astype(np.int64)
+        self.child_mask = t["child_mask"].astype(np.int64)
+        self.origin = np.asarray(origin, np.float64)
+        self.edge = float(edge)
+        self.max_depth = int(self.depth.max()) if len(self.depth) else 0
+        b = np.searchsorted(self.depth, np.arange(self.max_depth + 2))
+        self._runs = [(int(b[d]), int(b[d + 1])) for d in range(self.max_depth + 1)]
+
+    def __len__(self) -> int:
+        return len(self.depth)
+
+    def lookup(self, depth: int, codes) -> np.ndarray:
+        """Node ids of ``codes`` at ``depth`` (``-1`` where no such node)."""
+        codes = np.asarray(codes, np.int64)
+        if depth > self.max_depth or depth < 0:
+            return np.full(codes.shape, -1, np.int64)
+        a, b = self._runs[depth]
+        run = self.code[a:b]
+        pos = np.searchsorted(run, codes)
+        ok = pos < len(run)
+        ok[ok] = run[pos[ok]] == codes[ok]
+        return np.where(ok, a + pos, -1)
+
+    def children(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(parent_index, child_id)`` of every existing child of nodes ``ids`` (octant order)."""
+        ids = np.asarray(ids, np.int64)
+        bits = (self.child_mask[ids][:, None] >> np.arange(8)) & 1
+        par, octant = np.nonzero(bits)
+        if not len(par):
+            return par, par
+        d = self.depth[ids][par]
+        codes = self.code[ids][par] * 8 + octant
+        out = np.empty(len(par), np.int64)
+        for dd in np.unique(d):
+            m = d == dd
+            out[m] = self.lookup(int(dd) + 1, codes[m])
+        return par, out
+
+    def boxes(self, ids) -> tuple[np.ndarray, np.ndarray]:
+        """World ``(lo, hi)`` of nodes ``ids``."""
+        ids = np.asarray(ids, np.int64)
+        return node_box(self.depth[ids], self.code[ids], self.origin, self.edge)
+
+    def edges(self, ids) -> np.ndarray:
+        """Edge length of nodes ``ids`` (world units)."""
+        return self.edge / 2.0 ** self.depth[np.asarray(ids, np.int64)]
