@@ -24,10 +24,14 @@ def _dir_bytes(path) -> tuple[int, int]:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from clipvol.bricking.point_store import is_point_store
     from clipvol.bricking.store import open_store_meta
+    from clipvol.tools import point_cli
     from clipvol.units import format_bytes
 
     path = Path(args.store)
+    if is_point_store(path):
+        return point_cli.info(path)
     meta = open_store_meta(path)
     pyr = meta.pyramid
     it = pyr.dtype.itemsize

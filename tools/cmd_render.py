@@ -67,6 +67,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
     r.add_argument("--no-wait", action="store_true", help="do not wait for the view's bricks (draw what is resident)")
     r.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for convergence (default 300)")
+    r.add_argument("--tolerance", default="0.01", help="point stores: largest splat, a fraction of the screen (0.05), '5%%' or '12px' (default 0.01)")
 
 
 def view_camera(pyramid, view: str, size, *, eye=None, target=None, up=None, fov=35.0, distance=None, ortho=False):
@@ -115,6 +116,12 @@ def run(args) -> int:
 
     if not str(args.out).lower().endswith(".png"):
         raise ParameterError(f"--out: expected a .png file name, got {args.out!r}")
+    from clipvol.bricking.point_store import is_point_store
+
+    if is_point_store(args.source):  # scattered points: splats (tools/point_cli.py)
+        from clipvol.tools import point_cli
+
+        return point_cli.render(args)
     if args.tf not in TransferFunction.names():
         raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())}, got {args.tf!r}")
     kwargs = {} if args.brick is None else {"brick": args.brick}
