@@ -394,7 +394,8 @@ def _scan(source: PointSource, bar):
 
 
 def build_point_store(source: PointSource, output, *, max_points: int = 64, overwrite: bool = False,
-                      progress: bool = True, memory_points: int = 1 << 21, unit: str = "") -> PointStoreMeta:
+                      progress: bool = True, memory_points: int = 1 << 21, unit: str = "",
+                      box=None) -> PointStoreMeta:
     """Build the point octree of ``source`` into a new zarr store at ``output``.
 
     Parameters
@@ -407,6 +408,10 @@ def build_point_store(source: PointSource, output, *, max_points: int = 64, over
         ``N``: at most this many points in any node (>= 8; the seed's choice is 8).
     memory_points : int
         Most points held in memory at once by the build (the partition threshold).
+    box : ((x0, y0, z0), (x1, y1, z1)), optional
+        The domain (a simulation box): the root cube is the cube around it (and around every
+        point, should one lie outside). Default: the points' bounds. A box aligned with the data's
+        own structure (a lattice, a grid of cells) aligns the octree's cells with it too.
     """
     import zarr
     from tqdm import tqdm
@@ -427,6 +432,14 @@ def build_point_store(source: PointSource, output, *, max_points: int = 64, over
     with tqdm(total=2 * source.count, unit="pt", unit_scale=True, desc="points", file=sys.stderr,
               disable=not progress, dynamic_ncols=True) as bar:
         lo, hi, vlo, vhi, n = _scan(source, bar)
+        if box is not None:
+            try:
+                blo, bhi = (np.asarray(b, np.float64).reshape(3) for b in box)
+            except (TypeError, ValueError):
+                raise ParameterError(f"box: expected ((x0, y0, z0), (x1, y1, z1)), got {box!r}") from None
+            if not (np.all(np.isfinite(blo)) and np.all(np.isfinite(bhi)) and np.all(bhi > blo)):
+                raise ParameterError(f"box: expected finite corners with x1 > x0, y1 > y0, z1 > z0, got {box!r}")
+            lo, hi = np.minimum(lo, blo), np.maximum(hi, bhi)
         ext = float((hi - lo).max())
         edge = ext * (1.0 + 2.0**-20) if ext > 0 else max(1.0, float(np.abs(lo).max()) * 1e-6)
         origin = (lo + hi) / 2.0 - edge / 2.0

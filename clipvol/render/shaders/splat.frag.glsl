@@ -4,7 +4,7 @@
 // fragment's opacity is the transfer function's opacity corrected for a path of w(r) * h / unit:
 // alpha = 1 - (1 - a)^(w h / unit), so overlapping splats of one layer multiply to the opacity of a
 // path of length h. Blended back to front with (ONE, ONE_MINUS_SRC_ALPHA).
-// MIP: the splat's core (r <= sigma) writes its normalised value with the MAX blend equation.
+// MIP: the splat's core (r <= 1.5 sigma) writes its normalised value with the MAX blend equation.
 #version 330
 
 in float v_t;
@@ -31,7 +31,7 @@ void main() {
     float r2 = dot(d, d) / (v_sigma_px * v_sigma_px);
     if (r2 > 9.0) discard;
     if (u_mip == 1) {
-        if (r2 > 1.0) discard;
+        if (r2 > 2.25) discard;  // the core, r <= 1.5 sigma = 0.75 h: covers a lattice of spacing h without gaps
         frag = vec4(clamp(v_t, 0.0, 1.0), 0.0, 0.0, 1.0);
         return;
     }
