@@ -5,11 +5,13 @@ smooth field, are built into a point store with that box as its domain and at mo
 node, so the finest nodes hold 2 x 2 x 2 lattice points and their splat size ``h`` equals the
 lattice spacing. Drawn at the finest tolerance they must look like the volume
 ray caster of the same field (``tests/reference_raycast.py``, trilinear, step 0.5, opacity per
-voxel). The bound on the ``Delta E >= 6`` fraction is not zero because the two reconstruct the field
-differently: Gaussian footprints (sigma = h / 2) blur it slightly and fade out over about one
-spacing at the boundary, where the ray caster stops sharply at the box of the voxel cells; the
-silhouette pixels therefore differ by construction (about 2-4 % of the image here, all at the
-edges), so the bound is 8 %, and the mean colour must agree closely.
+voxel). The ``Delta E >= 6`` fraction measured here is 0.25 % (orthographic) and 0.3 %
+(perspective); it cannot be zero because the two reconstruct the field differently: Gaussian
+footprints (sigma = h / 2) blur it slightly and fade out over about one spacing at the boundary,
+where the ray caster stops sharply at the box of the voxel cells, so silhouette pixels differ by
+construction. The bound, 2 %, is several times that, for driver rounding; wrong splat sizes (a
+lattice not aligned with the octree cells, splats of 0.5 to 1 spacing) gave 10-12 % while this was
+built, so the bound still catches a wrong size or opacity.
 """
 
 from __future__ import annotations
@@ -70,7 +72,7 @@ def test_finest_tolerance_looks_like_the_ray_caster(gl, lattice, cam_i):
         st = action.last_frame_stats
     assert st.converged and st.points_drawn == N**3  # the finest nodes: every lattice point once
     bad = percent_delta_e(img, ref, premultiplied=False)
-    assert bad < 8.0, bad
+    assert bad < 2.0, bad
     cover = (ref[..., 3] > 20) & (img[..., 3] > 20)
     assert abs(img[..., 3][cover].mean() - ref[..., 3][cover].mean()) < 8  # opacity agrees (8-bit units)
 
