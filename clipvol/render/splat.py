@@ -108,7 +108,8 @@ class SplatRenderAction:
             raise ParameterError(f"background: expected four values in [0, 1] (r, g, b, a), got {background!r}")
         self.background = bg
         self.prog = ctx.program(vertex_shader=load_shader("splat.vert"), fragment_shader=load_shader("splat.frag"))
-        self._max_size = float(ctx.info.get("GL_ALIASED_POINT_SIZE_RANGE", (1, 64))[1])
+        rng = ctx.info.get("GL_POINT_SIZE_RANGE") or ctx.info.get("GL_ALIASED_POINT_SIZE_RANGE") or (1.0, 64.0)
+        self._max_size = float(rng[1])
         self._fbo = self._color = None
         self._fbo_size = None
         self._tf_tex = None
@@ -177,13 +178,13 @@ class SplatRenderAction:
         levels, idx = self.loader.brick_of_nodes(sel.draw)
         hs = nodes.edges(sel.draw) / np.cbrt(np.maximum(nodes.count[sel.draw], 1))
         rows, hh = [], []
-        for L, i, h in zip(levels.tolist(), idx.tolist(), hs.tolist()):
-            b = self.clip.get_brick(L, i)
-            if b is None:  # evicted since the selection: drawn next frame
-                continue
-            r = b[0][b[0][:, 3] > 0.5]
-            rows.append(r)
-            hh.append(np.full(len(r), h))
+        for L in np.unique(levels):
+            m = levels == L
+            res, bricks = self.clip.get_bricks(int(L), idx[m])  # nodes evicted since the selection: next frame
+            r = bricks[:, 0].reshape(-1, bricks.shape[-1])
+            keep = r[:, 3] > 0.5
+            rows.append(r[keep])
+            hh.append(np.repeat(hs[m][res], bricks.shape[2])[keep])
         if not rows:
             return np.zeros((0, 3)), np.zeros(0, np.float32), np.zeros(0)
         r = np.concatenate(rows)
