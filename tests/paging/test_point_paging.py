@@ -41,6 +41,13 @@ def test_budget_holds_while_roaming_and_resident_nodes_hold_the_store_points(tmp
                 np.testing.assert_array_equal(b[0, :n, :3], xyz[a:a + n])
                 np.testing.assert_array_equal(b[0, :n, 4:], vals[a:a + n])
                 assert (b[0, :n, 3] == 1).all() and not b[0, n:].any()
+            # the bulk copy the splat action uses gives the same bricks as get_brick, one by one
+            L0 = resident[-1][0]
+            idx = np.array([i for L, i in resident if L == L0], np.int64)
+            ok, data = ct.get_bricks(L0, idx)
+            assert ok.all() and len(data) == len(idx)
+            for i, b in zip(idx, data):
+                np.testing.assert_array_equal(b, ct.get_brick(L0, tuple(i)))
         # the node under the last centre, at the finest depth, is resident
         d = loader.depth
         q = ((c - lo) / (hi - lo) * 2**d).astype(int).clip(0, 2**d - 1)
