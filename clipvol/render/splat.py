@@ -188,8 +188,12 @@ class SplatRenderAction:
         if not rows:
             return np.zeros((0, 3)), np.zeros(0, np.float32), np.zeros(0)
         r = np.concatenate(rows)
+        h = np.concatenate(hh)
+        ok = np.isfinite(r[:, 4 + self.value])  # NaN / Inf values are not drawn (as the volume's samples)
+        if not ok.all():
+            r, h = r[ok], h[ok]
         pos = r[:, :3].astype(np.float64) + (origin - np.asarray(camera.eye, np.float64))
-        return pos, r[:, 4 + self.value], np.concatenate(hh)
+        return pos, r[:, 4 + self.value], h
 
     def _ensure(self, size, tf):
         mgl = self._mgl
