@@ -166,3 +166,19 @@ def test_bad_input_gets_a_clear_error(tmp_path, rng):
         build_point_store(open_point_source(tmp_path / "ok.npy"), tmp_path / "ok.zarr", progress=False)
     with pytest.raises(ClipvolError, match="max-points"):
         build_point_store(open_point_source(tmp_path / "ok.npy"), tmp_path / "x.zarr", max_points=4, progress=False)
+
+
+def test_too_many_coincident_points_are_refused_by_name(tmp_path):
+    """8**DUP_BITS * N coincident points still split into leaves of N; one more cannot."""
+    from clipvol.bricking.points import DUP_BITS
+
+    n = 8**DUP_BITS * 8
+    xyz = np.zeros((n + 1, 3))
+    xyz[0] = (1.0, 1.0, 1.0)  # a second position, so the cube has an extent
+    xyz_ok = xyz[:n].copy()
+    xyz_ok[0] = (1.0, 1.0, 1.0)
+    build_point_store(ArrayPointSource(xyz_ok, np.zeros(n)), tmp_path / "ok", max_points=8, progress=False)
+    assert check_point_store(tmp_path / "ok") == []
+    extra = np.concatenate([xyz, np.zeros((1, 3))])
+    with pytest.raises(InputFormatError, match="coincident points.*--max-points"):
+        build_point_store(ArrayPointSource(extra, np.zeros(len(extra))), tmp_path / "bad", max_points=8, progress=False)
