@@ -55,7 +55,8 @@ from clipvol.bricking.point_sources import ClusteredPointSource
 from clipvol.bricking.point_store import build_point_store
 a = json.loads(sys.argv[1])
 t = time.perf_counter()
-m = build_point_store(ClusteredPointSource(a["n"], seed=1), a["out"], max_points=64, overwrite=True, progress=False)
+m = build_point_store(ClusteredPointSource(a["n"], seed=1), a["out"], max_points=64, overwrite=True, progress=False,
+                      representative=a.get("representative", "nearest"))
 print(json.dumps({"seconds": time.perf_counter() - t, "rss_mb": _hwm_mb(), "nodes": m.num_nodes, "depth": m.depth,
                   "stored": m.num_stored}))
 """
@@ -149,7 +150,7 @@ class BruteSplats:
         return img
 
 
-def _frames(store: Path, size: int, tolerances: list[str]) -> list[dict]:
+def _frames(store: Path, size: int, tolerances: list[str], frames_png: Path) -> list[dict]:
     from clipvol.loaders.point_store import PointStoreLoader
     from clipvol.paging.cliptexture import ClipTexture
     from clipvol.render import create_context
@@ -214,7 +215,7 @@ def _frames(store: Path, size: int, tolerances: list[str]) -> list[dict]:
     from PIL import Image
 
     Image.fromarray(np.concatenate([ref] + [images[i] for i in (0, len(images) // 2, len(images) - 1)], axis=1)).save(
-        ROOT / "docs" / "bench_splat_frames.png")
+        frames_png)
     print(rows[-1], flush=True)
     ctx.release()
     return rows
@@ -226,6 +227,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--render-points", type=float, default=4e6, help="points of the store the frames are timed on")
     p.add_argument("--size", type=int, default=256, help="image edge in pixels")
     p.add_argument("--tolerances", default="1px,2px,4px,0.02,0.05,0.1,0.2")
+    p.add_argument("--representative", choices=("nearest", "mean"), default="nearest", help="inner nodes' values")
+    p.add_argument("--frames-png", default=str(ROOT / "docs" / "bench_splat_frames.png"))
     p.add_argument("--out", default=str(ROOT / "docs" / "bench_splat.csv"))
     a = p.parse_args(argv)
     rows = []
@@ -233,7 +236,7 @@ def main(argv: list[str] | None = None) -> int:
         render_store = None
         for n in sorted({int(float(s)) for s in a.build_sizes.split(",")} | {int(a.render_points)}):
             out = Path(tmp) / f"p{n}"
-            b = _child(_BUILD_CHILD, {"n": n, "out": str(out)})
+            b = _child(_BUILD_CHILD, {"n": n, "out": str(out), "representative": a.representative})
             z = _child(_ZARR_CHILD, {"n": n, "out": str(Path(tmp) / "z")})
             r = {"what": f"build {n:,} points", "points": n, "build_s": b["seconds"], "build_rss_mb": b["rss_mb"],
                  "zarr_s": z["seconds"], "zarr_rss_mb": z["rss_mb"], "ratio": z["seconds"] / b["seconds"],
@@ -246,7 +249,7 @@ def main(argv: list[str] | None = None) -> int:
                 import shutil
 
                 shutil.rmtree(out)
-        frames = _frames(render_store, a.size, a.tolerances.split(","))
+        frames = _frames(render_store, a.size, a.tolerances.split(","), Path(a.frames_png))
     base = frames[-1]["frame_s"]
     for f in frames:
         f["speedup_vs_every_point"] = base / f["frame_s"]

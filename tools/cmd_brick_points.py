@@ -19,6 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="value column / property / point-data array to keep (repeatable; default: all)")
     parser.add_argument("--xyz", default="x,y,z", help="coordinate column names for .csv/.parquet/.ply/structured .npy (default x,y,z)")
     parser.add_argument("--memory-points", type=int, default=1 << 21, help="most points the build holds in memory (default 2097152)")
+    parser.add_argument("--representative", choices=("nearest", "mean"), default="nearest",
+                        help="values of inner nodes' points: the nearest point's (Meredith & Ma) or the cell's mean")
     parser.add_argument("--unit", default="", help="unit of the coordinates (recorded in the store)")
     parser.add_argument("--workers", type=int, default=None, help="accepted for symmetry with `brick`; the build is single-threaded")
     parser.add_argument("--overwrite", action="store_true", help="remove an existing OUTPUT first")
@@ -40,7 +42,8 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     src = open_point_source(args.input, args.value, xyz)
     meta = build_point_store(src, args.output, max_points=args.max_points, overwrite=args.overwrite,
-                             progress=not args.quiet, memory_points=args.memory_points, unit=args.unit)
+                             progress=not args.quiet, memory_points=args.memory_points, unit=args.unit,
+                             representative=args.representative)
     if not args.quiet:
         dt = time.perf_counter() - t0
         print(f"{args.output}: {meta.num_points:,} points, {meta.num_nodes:,} nodes, depth {meta.depth}, "

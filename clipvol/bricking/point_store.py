@@ -40,7 +40,10 @@ import numpy as np
 
 from ..errors import InputFormatError, OutputExistsError, ParameterError, StoreFormatError, StoreIncompleteError
 from .point_sources import PointSource
-from .points import DEPTH, GEO_BITS, DUP_BITS, build_subtrees, choose_representatives, morton_encode, node_box, point_keys, quantise, rep_depth_step
+from .points import (
+    DEPTH, DUP_BITS, GEO_BITS, REPRESENTATIVES, build_subtrees, cell_means, choose_representatives, morton_encode, node_box,
+    point_keys, quantise, rep_depth_step,
+)
 
 __all__ = [
     "POINT_FORMAT_VERSION",
@@ -191,7 +194,9 @@ class _Writer:
 class _Build:
     """State of one build: the cube, the writer, the limits and the temporary folder."""
 
-    def __init__(self, origin, edge, writer: _Writer, max_points: int, memory_points: int, tmp: Path, k: int, bar) -> None:
+    def __init__(self, origin, edge, writer: _Writer, max_points: int, memory_points: int, tmp: Path, k: int, bar,
+                 representative: str = "nearest") -> None:
+        self.mean = representative == "mean"
         self.origin = np.asarray(origin, np.float64)
         self.edge = float(edge)
         self.w = writer
@@ -218,9 +223,10 @@ class _Build:
             start[i] = np.searchsorted(keys, c << sh)
             end[i] = len(keys) if (c + 1) << sh >= 1 << 63 else np.searchsorted(keys, (c + 1) << sh)
         b = build_subtrees(keys, rd, start, end, self.N)
-        st_node, st_pt = [], []
+        st_node, st_pt, st_val = [], [], []
         prev_node = np.zeros(0, np.int64)
         prev_pt = np.zeros(0, np.int64)
+        prev_val = np.zeros((0, self.k), np.float32)
         for d in range(int(b.depth.max()), int(b.depth.min()) - 1, -1):
             at = np.flatnonzero(b.depth == d)
             lv = at[b.leaf[at]]
@@ -229,25 +235,30 @@ class _Build:
             l_pt = np.repeat(b.start[lv] - np.cumsum(cnt) + cnt, cnt) + np.arange(int(cnt.sum()))
             i_node = np.zeros(0, np.int64)
             i_pt = np.zeros(0, np.int64)
+            i_val = np.zeros((0, self.k), np.float32)
             if len(prev_pt):
                 o = np.argsort(prev_pt, kind="stable")  # key order (points are key-sorted)
                 cand_pt = prev_pt[o]
                 cand_parent = b.parent[prev_node[o]]
                 sel = choose_representatives(d, self.kstep, keys[cand_pt], xyz[cand_pt], self.origin, self.edge)
                 i_node, i_pt = cand_parent[sel], cand_pt[sel]
+                i_val = cell_means(d, self.kstep, keys[cand_pt], prev_val[o]) if self.mean else prev_val[o][sel]
             cur_node = np.concatenate([l_node, i_node])
             cur_pt = np.concatenate([l_pt, i_pt])
+            cur_val = np.concatenate([vals[l_pt], i_val])
             st_node.append(cur_node)
             st_pt.append(cur_pt)
+            st_val.append(cur_val)
             keep = b.parent[cur_node] >= 0  # roots feed nothing in this build
-            prev_node, prev_pt = cur_node[keep], cur_pt[keep]
+            prev_node, prev_pt, prev_val = cur_node[keep], cur_pt[keep], cur_val[keep]
         node = np.concatenate(st_node)
         pt = np.concatenate(st_pt)
+        val = np.concatenate(st_val)
         o = np.lexsort((pt, node))
-        node, pt = node[o], pt[o]
+        node, pt, val = node[o], pt[o], val[o]
         counts = np.bincount(node, minlength=len(b.depth))
         self.w.add(b.depth, b.code, b.end - b.start, b.child_mask, counts,
-                   (xyz[pt] - self.origin).astype(np.float32), vals[pt])
+                   (xyz[pt] - self.origin).astype(np.float32), val)
         # stored sets of the roots, in the order given
         out = []
         root_ids = np.flatnonzero(b.parent < 0)
@@ -256,7 +267,7 @@ class _Build:
         for d, c in zip(rd.tolist(), rc.tolist()):
             i = by_code[(d, c)]
             p = pt[bounds[i]:bounds[i + 1]]
-            out.append((keys[p], xyz[p], vals[p], int(b.end[i] - b.start[i])))
+            out.append((keys[p], xyz[p], val[bounds[i]:bounds[i + 1]], int(b.end[i] - b.start[i])))
         return out
 
     # -- out of core ------------------------------------------------------------------------
@@ -341,9 +352,10 @@ class _Build:
             cx = np.concatenate([s[1] for s in kids])
             cv = np.concatenate([s[2] for s in kids])
             sel = choose_representatives(d, self.kstep, ck, cx, self.origin, self.edge)
+            rv = cell_means(d, self.kstep, ck, cv) if self.mean else cv[sel]
             self.w.add(np.array([d]), np.array([code]), np.array([cn]), np.array([m]), np.array([len(sel)]),
-                       (cx[sel] - self.origin).astype(np.float32), cv[sel])
-            stored[(d, code)] = (ck[sel], cx[sel], cv[sel], cn)
+                       (cx[sel] - self.origin).astype(np.float32), rv)
+            stored[(d, code)] = (ck[sel], cx[sel], rv, cn)
         return stored[(d0, code0)]
 
     def _rel_code(self, xyz, hd: int, code0: int, rel: int) -> np.ndarray:
@@ -395,7 +407,7 @@ def _scan(source: PointSource, bar):
 
 def build_point_store(source: PointSource, output, *, max_points: int = 64, overwrite: bool = False,
                       progress: bool = True, memory_points: int = 1 << 21, unit: str = "",
-                      box=None) -> PointStoreMeta:
+                      box=None, representative: str = "nearest") -> PointStoreMeta:
     """Build the point octree of ``source`` into a new zarr store at ``output``.
 
     Parameters
@@ -408,6 +420,9 @@ def build_point_store(source: PointSource, output, *, max_points: int = 64, over
         ``N``: at most this many points in any node (>= 8; the seed's choice is 8).
     memory_points : int
         Most points held in memory at once by the build (the partition threshold).
+    representative : {"nearest", "mean"}
+        Values of an inner node's points: the nearest point's own (the seed's choice) or the mean
+        of the cell's candidates (the children's points in that cell).
     box : ((x0, y0, z0), (x1, y1, z1)), optional
         The domain (a simulation box): the root cube is the cube around it (and around every
         point, should one lie outside). Default: the points' bounds. A box aligned with the data's
@@ -420,6 +435,8 @@ def build_point_store(source: PointSource, output, *, max_points: int = 64, over
     if mp < 8 or mp > 1 << 16:
         raise ParameterError(f"--max-points: expected 8..65536, got {max_points}")
     rep_depth_step(mp)
+    if representative not in REPRESENTATIVES:
+        raise ParameterError(f"--representative: expected one of {', '.join(REPRESENTATIVES)}, got {representative!r}")
     out = Path(output)
     if out.exists():
         if not overwrite:
@@ -450,13 +467,13 @@ def build_point_store(source: PointSource, output, *, max_points: int = 64, over
             "origin": [float(v) for v in origin], "edge": edge, "bounds": [lo.tolist(), hi.tolist()],
             "value_names": list(source.value_names), "value_ranges": [[float(a), float(b)] for a, b in zip(vlo, vhi)],
             "num_points": n, "point_spacing": spacing, "geo_bits": GEO_BITS, "dup_bits": DUP_BITS,
-            "representative": "nearest to the cell centre", "unit": unit, "source": source.name, "complete": False,
+            "representative": representative, "unit": unit, "source": source.name, "complete": False,
         }
         group = zarr.open_group(str(out), mode="w", attributes={"clipvol": attrs})
         writer = _Writer(group, k)
         tmp = out / "_build_tmp"
         tmp.mkdir()
-        build = _Build(origin, edge, writer, mp, memory_points, tmp, k, bar)
+        build = _Build(origin, edge, writer, mp, memory_points, tmp, k, bar, representative)
         build.node(lambda: source.chunks(), n, 0, 0)
         writer.close()
         shutil.rmtree(tmp)

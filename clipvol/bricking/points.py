@@ -41,9 +41,14 @@ __all__ = [
     "SubtreeBuild",
     "build_subtrees",
     "choose_representatives",
+    "cell_means",
+    "REPRESENTATIVES",
     "NodeTable",
 ]
 
+#: how an inner node's point for a cell gets its values: the nearest point's own (the seed's
+#: choice), or the mean over the cell's candidates (smoother, no longer an input value)
+REPRESENTATIVES = ("nearest", "mean")
 GEO_BITS = 17
 DUP_BITS = 4
 DEPTH = GEO_BITS + DUP_BITS  # 21 levels below the root: 63-bit keys
@@ -238,6 +243,21 @@ def choose_representatives(depth: int, k: int, cand_keys: np.ndarray, cand_xyz: 
     s = sub[order]
     first = np.r_[True, s[1:] != s[:-1]] if len(s) else np.zeros(0, bool)
     return np.sort(order[first])
+
+
+def cell_means(depth: int, k: int, cand_keys: np.ndarray, cand_vals: np.ndarray) -> np.ndarray:
+    """Mean values of the candidates of each cell of depth ``depth + k`` (the cells
+    :func:`choose_representatives` picks one point for, in the same order)."""
+    sd = min(depth + k, DEPTH)
+    sub = np.asarray(cand_keys, np.int64) >> (3 * (DEPTH - sd))
+    _, inv, cnt = np.unique(sub, return_inverse=True, return_counts=True)
+    v = np.asarray(cand_vals, np.float64).reshape(len(sub), -1)
+    out = np.zeros((len(cnt), v.shape[1]))
+    np.add.at(out, inv, np.nan_to_num(v, nan=0.0))
+    fin = np.zeros((len(cnt), v.shape[1]))
+    np.add.at(fin, inv, np.isfinite(v))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(fin > 0, out / np.maximum(fin, 1), np.nan).astype(np.float32)
 
 
 class NodeTable:

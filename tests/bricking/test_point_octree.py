@@ -182,3 +182,25 @@ def test_too_many_coincident_points_are_refused_by_name(tmp_path):
     extra = np.concatenate([xyz, np.zeros((1, 3))])
     with pytest.raises(InputFormatError, match="coincident points.*--max-points"):
         build_point_store(ArrayPointSource(extra, np.zeros(len(extra))), tmp_path / "bad", max_points=8, progress=False)
+
+
+def test_mean_representatives_average_their_cell(tmp_path, rng):
+    """``representative="mean"``: an inner node's point for a cell carries the mean value of the
+    candidates in that cell (N = 8: a cell is a child octant, the candidates that child's points)."""
+    xyz = rng.random((2000, 3))
+    vals = rng.random((2000, 2)).astype(np.float32)
+    build_point_store(ArrayPointSource(xyz, vals), tmp_path / "p", max_points=8, progress=False, representative="mean")
+    meta, t, sxyz, svals, rows, _ = _leaf_points(tmp_path / "p")
+    np.testing.assert_allclose(_sorted_rows(svals[rows]), _sorted_rows(vals), atol=0)  # leaves keep the input
+    ids = {(int(d), int(c)): i for i, (d, c) in enumerate(zip(t["depth"], t["code"]))}
+    inner = np.flatnonzero(t["child_mask"] > 0)
+    for i in inner[:60]:
+        d, c = int(t["depth"][i]), int(t["code"][i])
+        got = svals[t["offset"][i]:t["offset"][i] + t["count"][i]]
+        want = []
+        for o in range(8):
+            if t["child_mask"][i] >> o & 1:
+                k = ids[(d + 1, c * 8 + o)]
+                want.append(svals[t["offset"][k]:t["offset"][k] + t["count"][k]].astype(np.float64).mean(axis=0))
+        np.testing.assert_allclose(got, np.array(want), rtol=1e-5)
+    assert check_point_store(tmp_path / "p") == []
