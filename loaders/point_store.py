@@ -85,6 +85,7 @@ class PointStoreLoader:
         return self.depth - self.nodes.depth[ids], ixyz[:, ::-1].copy()
 
     def read_brick(self, level: int, index) -> np.ndarray:
+        index = self._pyramid.check_key(level, index)  # names the level and brick if outside
         out = np.zeros(self._pyramid.brick_shape, np.float32)
         nid = self.node_of_brick(level, index)
         if nid >= 0:

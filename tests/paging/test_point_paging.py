@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import zarr
 
 from clipvol.bricking.point_sources import ClusteredPointSource
 from clipvol.bricking.point_store import build_point_store
 from clipvol.loaders.point_store import PointStoreLoader
 from clipvol.paging.cliptexture import BrickState, ClipTexture
+from clipvol.testing import LoaderTests
 
 
 def test_budget_holds_while_roaming_and_resident_nodes_hold_the_store_points(tmp_path, rng):
@@ -53,3 +55,19 @@ def test_budget_holds_while_roaming_and_resident_nodes_hold_the_store_points(tmp
         q = ((c - lo) / (hi - lo) * 2**d).astype(int).clip(0, 2**d - 1)
         L, idx = 0, (int(q[2]), int(q[1]), int(q[0]))
         assert ct.state(L, idx) == BrickState.RESIDENT
+
+
+class TestPointStoreLoader(LoaderTests):
+    """The loader contract (shapes, dtype, concurrency, ranges, bounds) for the point-node pyramid.
+
+    ``check_filter`` is off: a node's brick holds its points, not a down-sampled finer level.
+    """
+
+    check_filter = False
+
+    @pytest.fixture(scope="class")
+    @classmethod
+    def loader(cls, tmp_path_factory):
+        p = tmp_path_factory.mktemp("conf") / "p"
+        build_point_store(ClusteredPointSource(20_000, seed=9), p, max_points=8, progress=False)
+        return PointStoreLoader(p)
