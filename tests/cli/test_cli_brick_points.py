@@ -36,6 +36,8 @@ def test_brick_points_info_check_render(tmp_path, capsys, rng):
     img = np.asarray(Image.open(png))
     assert img.shape == (48, 64, 4) and img[..., 3].any()
     assert "points drawn" in capsys.readouterr().err
+    assert main(["render", str(out), "--out", str(png), "--tolerance", "lots"]) == 2
+    assert "tolerance: expected a fraction" in capsys.readouterr().err
     # a second build into the complete store is refused; --overwrite rebuilds it
     assert main(["brick-points", str(tmp_path / "p.npy"), str(out), "--quiet"]) == 2
     assert "--overwrite" in capsys.readouterr().err
