@@ -38,6 +38,9 @@ def test_brick_points_info_check_render(tmp_path, capsys, rng):
     assert "points drawn" in capsys.readouterr().err
     assert main(["render", str(out), "--out", str(png), "--tolerance", "lots"]) == 2
     assert "tolerance: expected a fraction" in capsys.readouterr().err
+    # the volume-only commands say what a point store is instead of failing on missing volume metadata
+    assert main(["view", str(out), "--offscreen", "--out", str(tmp_path / "v")]) == 2
+    assert "a point store" in capsys.readouterr().err
     # a second build into the complete store is refused; --overwrite rebuilds it
     assert main(["brick-points", str(tmp_path / "p.npy"), str(out), "--quiet"]) == 2
     assert "--overwrite" in capsys.readouterr().err
