@@ -61,7 +61,7 @@ class PointStoreLoader:
             g_ = 2 ** (D - L)
             levels.append(LevelInfo((g_ * brick[0], g_ * brick[1], g_ * brick[2]), tuple(2.0**L * s for s in s0), (0.0, 0.0, 0.0)))
         lo, hi = meta.value_ranges[0]
-        self._pyramid = Pyramid(tuple(levels), brick, "float32", (min(lo, 0.0), max(hi, 1.0)), 0.0, "subsample")
+        self._pyramid = Pyramid(tuple(levels), brick, "float32", (lo, hi), 0.0, "subsample")
         self._half = 0.5 * np.array(s0[::-1])  # (x, y, z)
         self._cache: OrderedDict[int, tuple[np.ndarray, np.ndarray]] = OrderedDict()
         self._lock = threading.Lock()

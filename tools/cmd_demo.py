@@ -17,21 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-#: the demo's transfer-function control points: transparent below, embers to white-hot above
-DEMO_TF_POINTS = (
-    (0.0, (0.0, 0.0, 0.0, 0.0)),
-    (0.60, (0.2, 0.1, 0.5, 0.0)),
-    (0.68, (0.9, 0.3, 0.2, 0.35)),
-    (0.80, (1.0, 0.8, 0.4, 0.9)),
-    (1.0, (1.0, 1.0, 1.0, 1.0)),
-)
-
-
 def demo_transfer_function():
-    """The demo's :class:`~clipvol.scene.transfer.TransferFunction` (over the data's value range)."""
+    """The demo's :class:`~clipvol.scene.transfer.TransferFunction` (the ``demo`` preset, over the data's value range)."""
     from clipvol.scene.transfer import TransferFunction
 
-    return TransferFunction.from_points(DEMO_TF_POINTS)
+    return TransferFunction.preset("demo")
 
 
 def demo_volume(n: int, seed: int = 3, slab: int = 32) -> np.ndarray:
@@ -70,11 +60,11 @@ def _store_ok(path: Path, n: int) -> bool:
 
 
 def run(args) -> int:
+    from clipvol.app.flythrough import render_path
+    from clipvol.app.report import run_report
+    from clipvol.app.session import open_loader
     from clipvol.bricking.pipeline import brick_volume
     from clipvol.errors import ParameterError
-    from clipvol.app.report import run_report
-    from clipvol.app.flythrough import render_path
-    from clipvol.app.session import RenderSettings, open_loader
 
     quick = bool(args.quick)
     n = args.size or (40 if quick else 192)
@@ -109,9 +99,9 @@ def run(args) -> int:
         # the ball fills the cube's inscribed sphere: come closer than the cube's bounding sphere
         dist = 0.75 * fit_distance(loader.pyramid, 35.0, size)
         orbit = render_path(loader, out / "orbit.gif", path="orbit", frames=frames, size=size, converged=True,
-                            settings=RenderSettings(tf=tf), ctx=ctx, fps=12, path_kwargs={"distance": dist})
+                            tf=tf, ctx=ctx, fps=12, path_kwargs={"distance": dist})
         zoom = render_path(loader, out / "zoom.gif", path="zoom", frames=max(frames // 2, 2), size=size, converged=False,
-                           settings=RenderSettings(tf=tf), outlines=True, ctx=ctx, fps=6)
+                           tf=tf, outlines=True, ctx=ctx, fps=6)
         t_render = time.perf_counter() - t1
         report = None
         if not args.no_report:

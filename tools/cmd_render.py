@@ -13,6 +13,11 @@ import math
 import sys
 
 from clipvol.errors import ParameterError
+from clipvol.scene.params import POLICY_ALIASES
+from clipvol.scene.selection.policies import POLICIES
+
+#: what --policy accepts: the registry's names and their older aliases
+POLICY_CHOICES = sorted(POLICIES) + sorted(POLICY_ALIASES)
 
 VIEWS = ("front", "back", "side", "top", "iso")
 
@@ -41,6 +46,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, or a .npy file")
     p.add_argument("--out", "-o", required=True, help="output PNG")
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default 64)")
+    d = p.add_argument_group("data")
+    d.add_argument("--t", type=int, default=None, help="time point of an OME-Zarr image with a t axis (default 0)")
+    d.add_argument("--c", type=int, default=None, help="channel of an OME-Zarr image with a c axis (default 0)")
+    d.add_argument("--hide-labels", default=None, metavar="NAME:ID,ID",
+                   help="hide the voxels of these label ids of the store's labels/NAME (from clipvol brick --labels)")
     v = p.add_argument_group("camera")
     v.add_argument("--view", choices=VIEWS, default="iso", help="preset direction towards the volume centre (default iso)")
     v.add_argument("--eye", type=_triple, default=None, help="eye position x,y,z (world units; overrides --view)")
@@ -50,14 +60,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     v.add_argument("--distance", type=float, default=None, help="eye distance from the target, in volume diagonals (default 1.6)")
     v.add_argument("--ortho", action="store_true", help="orthographic projection framing the volume")
     v.add_argument("--size", type=_size, default=(512, 512), help="image size WxH (default 512x512)")
+    v.add_argument("--camera", default=None, metavar="FILE.json",
+                   help="a camera saved by the viewer's C key (overrides --view/--eye/--target/--up/--fov/--ortho)")
     r = p.add_argument_group("rendering")
     r.add_argument("--mode", choices=("composite", "mip"), default="composite")
-    r.add_argument("--selection", choices=("multiresolution", "roaming", "fixed"), default="multiresolution")
-    r.add_argument("--level", type=int, default=None, help="level for --selection fixed (default 0)")
+    r.add_argument("--policy", "--selection", dest="policy", choices=POLICY_CHOICES, default="projected-size",
+                   help="selection policy: which bricks at which level (default projected-size; "
+                        "--selection multiresolution is the same)")
+    r.add_argument("--level", type=int, default=None, help="level for --policy fixed (default 0)")
+    r.add_argument("--max-texels-drawn", type=int, default=None,
+                   help="most voxels of drawn bricks: refine the largest projected voxels first until it binds")
+    r.add_argument("--distance-factor", type=float, default=1.0,
+                   help="--policy distance: refine nodes closer to the eye than this many of their diagonals")
+    r.add_argument("--fov-fraction", type=float, default=0.5,
+                   help="--policy field-of-view: refine nodes subtending more than this fraction of the view")
     r.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel projects to more than this many pixels")
-    r.add_argument("--tf", default="viridis", help="transfer-function preset (grey, viridis, magma, inferno, plasma, bone)")
-    r.add_argument("--tf-range", type=lambda s: tuple(float(t) for t in s.split(",")), default=None,
-                   help="transfer-function window lo,hi (default: the data's value range)")
+    from clipvol.tools.tf_args import add_tf_arguments
+
+    add_tf_arguments(p.add_argument_group("transfer function"))
     r.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
     r.add_argument("--background", type=lambda s: tuple(float(t) for t in s.split(",")), default=(0.0, 0.0, 0.0, 0.0),
                    help="straight RGBA r,g,b,a in [0, 1] behind the volume (default transparent)")
@@ -68,6 +88,37 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--no-wait", action="store_true", help="do not wait for the view's bricks (draw what is resident)")
     r.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for convergence (default 300)")
     r.add_argument("--tolerance", default="0.01", help="point stores: largest splat, a fraction of the screen (0.05), '5%%' or '12px' (default 0.01)")
+
+
+def check_output_file(path, suffix: str, flag: str) -> None:
+    """Fail before any work when ``path`` cannot be written: wrong suffix, or a missing folder."""
+    from pathlib import Path
+
+    p = Path(path)
+    if suffix and not p.name.lower().endswith(suffix):
+        raise ParameterError(f"{flag}: expected a {suffix} file name, got {str(path)!r}")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise ParameterError(f"{flag}: {str(path)!r}: the folder {str(parent)!r} does not exist")
+
+
+def hidden_labels(source, loader, spec: str):
+    """``loader`` with the voxels of ``NAME:ID,ID`` (a label image of the store) hidden."""
+    from pathlib import Path
+
+    from clipvol.bricking.labels import label_names
+    from clipvol.paging.open import open_store
+    from clipvol.paging.tagging import TaggedLoader
+
+    name, _, ids = spec.partition(":")
+    names = label_names(source)
+    if name not in names:
+        raise ParameterError(f"--hide-labels: expected one of the store's labels {names or '(none)'}, got {name!r}")
+    try:
+        hidden = [int(v) for v in ids.split(",") if v.strip()]
+    except ValueError:
+        raise ParameterError(f"--hide-labels: expected NAME:ID,ID with integer ids, got {spec!r}") from None
+    return TaggedLoader(loader, open_store(Path(source) / "labels" / name), hidden)
 
 
 def view_camera(pyramid, view: str, size, *, eye=None, target=None, up=None, fov=35.0, distance=None, ortho=False):
@@ -111,36 +162,43 @@ def run(args) -> int:
     from clipvol.paging.open import open_store
     from clipvol.render import create_context
     from clipvol.render.action import ClipRenderAction
-    from clipvol.scene.transfer import TransferFunction
+    from clipvol.scene.params import RenderParams
     from clipvol.units import format_bytes
 
-    if not str(args.out).lower().endswith(".png"):
-        raise ParameterError(f"--out: expected a .png file name, got {args.out!r}")
+    from clipvol.scene.bookmarks import load_camera
+    from clipvol.tools.tf_args import transfer_function_from_args
+
+    check_output_file(args.out, ".png", "--out")
     from clipvol.bricking.point_store import is_point_store
 
     if is_point_store(args.source):  # scattered points: splats (tools/point_cli.py)
         from clipvol.tools import point_cli
 
         return point_cli.render(args)
-    if args.tf not in TransferFunction.names():
-        raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())}, got {args.tf!r}")
     kwargs = {} if args.brick is None else {"brick": args.brick}
+    kwargs.update({k: v for k, v in (("t", args.t), ("c", args.c)) if v is not None})
     loader = open_store(args.source, **kwargs)
+    if args.hide_labels:
+        loader = hidden_labels(args.source, loader, args.hide_labels)
     pyr = loader.pyramid
-    cam = view_camera(pyr, args.view, args.size, eye=args.eye, target=args.target, up=args.up, fov=args.fov,
-                      distance=args.distance, ortho=args.ortho)
+    if args.camera is not None:
+        cam = load_camera(args.camera, size=args.size)
+    else:
+        cam = view_camera(pyr, args.view, args.size, eye=args.eye, target=args.target, up=args.up, fov=args.fov,
+                          distance=args.distance, ortho=args.ortho)
     lo, hi = pyr.volume_box()
     centre = np.clip(np.asarray(cam.center, dtype=np.float64), lo, hi)
-    selection = args.selection
-    level = args.level if args.level is not None else (0 if selection == "fixed" else None)
-    tf = TransferFunction.preset(args.tf, value_range=args.tf_range)
+    params = RenderParams(
+        mode=args.mode, policy=args.policy, level=args.level, lod_threshold=args.lod_threshold,
+        max_texels_drawn=args.max_texels_drawn, distance_factor=args.distance_factor, fov_fraction=args.fov_fraction,
+        texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget, step=args.step,
+        background=args.background,
+    ).check_for(pyr)
+    tf = transfer_function_from_args(args, loader)
     ctx = create_context()
     try:
         with ClipTexture(loader, args.memory_budget, args.threads, center=centre) as clip, \
-                ClipRenderAction(ctx, clip, texture_budget=args.texture_budget, lod_threshold=args.lod_threshold,
-                                 mode=args.mode, selection=selection, level=level,
-                                 texels_per_frame=args.texels_per_frame, step=args.step,
-                                 background=args.background) as action:
+                ClipRenderAction(ctx, clip, params) as action:
             image = action.render(cam, tf, wait=not args.no_wait, timeout=args.timeout)
             st = action.last_frame_stats
     finally:
@@ -148,7 +206,8 @@ def run(args) -> int:
     Image.fromarray(image, "RGBA").save(args.out)
     t = st.times
     levels = ", ".join(f"L{L}: {n}" for L, n in st.bricks_drawn.items()) or "none"
-    print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, {args.mode}, {selection})", file=sys.stderr)
+    print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, {args.mode}, {params.policy}, transfer function "
+          f"{tf.name or 'custom'})", file=sys.stderr)
     print(f"bricks drawn {sum(st.bricks_drawn.values())} ({levels}); texels drawn {st.texels_drawn:,}; "
           f"converged {st.converged} after {st.passes} pass(es)", file=sys.stderr)
     print(f"uploaded {format_bytes(st.bytes_uploaded)} in {st.bricks_uploaded} bricks; textures "

@@ -2,12 +2,17 @@
 
 ``clipvol view STORE|procedural:...|x.npy`` opens a window (GLFW + moderngl) that renders the data
 with the multiresolution clip renderer, never waiting for I/O: coarse data shows at once and
-refines as bricks arrive. Keys: left drag orbit, right/middle drag pan, wheel zoom, WASD/QE fly
-(moves the centre of interest), M mode, [ ] fixed level, +/- LOD threshold, I MIP/composite,
-T transfer function, B brick outlines, P screenshot, H HUD, R reset, Esc quit.
+refines as bricks arrive; while the camera moves it renders at a lower resolution and sampling to
+hold --frame-time, and at full quality once still. Keys: left drag orbit, right/middle drag pan,
+wheel zoom, WASD/QE fly (moves the centre of interest), M mode, [ ] fixed level, +/- LOD threshold,
+I MIP/composite, T colour map, Left/Right/Up/Down (or a drag on the HUD's histogram) move/widen
+the transfer-function window, Shift+S save it, C save the camera, B brick outlines, P screenshot
+(Shift+P without HUD), H HUD, R reset, Esc quit.
 
-``--offscreen --path orbit|fly|zoom --frames N --out DIR|anim.gif`` renders a camera path without
-a window (EGL) and writes PNG frames or a GIF plus a per-frame CSV.
+``--offscreen --path orbit|turntable|fly|zoom --frames N --out DIR|anim.gif|movie.mp4`` renders a
+camera path without a window (EGL) and writes PNG frames, a GIF or a movie (imageio-ffmpeg; ``--fps``,
+``--quality``) plus a per-frame CSV. For a store built from NIfTI or DICOM the turntable spins the
+patient head-up, starting from the front, and every frame's edges are labelled R/L, A/P, S/I.
 """
 
 from __future__ import annotations
@@ -26,14 +31,16 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, or a .npy file")
+    p.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, a .npy file, or a NIfTI / "
+                   "DICOM folder / FILE.h5:/dataset / MRC input (bricked first into --store)")
+    p.add_argument("--store", default=None, help="where a NIfTI/DICOM/HDF5/MRC input is bricked (default ./NAME.zarr; reused when it exists)")
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default: the loader's, 64)")
     g = p.add_argument_group("rendering")
     g.add_argument("--mode", choices=("composite", "mip"), default="composite", help="compositing or maximum intensity projection")
-    g.add_argument("--selection", choices=("multiresolution", "roaming", "fixed"), default="multiresolution")
+    g.add_argument("--selection", "--policy", dest="selection", choices=("multiresolution", "roaming", "fixed"),
+                   default="multiresolution", help="selection policy the viewer starts with (M cycles them)")
     g.add_argument("--level", type=int, default=None, help="level drawn with --selection fixed (default 0)")
     g.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel projects to more than this many pixels")
-    g.add_argument("--tf", default="viridis", help="transfer-function preset (grey, viridis, magma, inferno, plasma, bone) or demo (the demo's)")
     g.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
     g.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
     g.add_argument("--texture-budget", default="256MB", help="GPU brick cache budget")
@@ -41,43 +48,98 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
     g.add_argument("--outlines", action="store_true", help="draw brick outlines coloured by level (key B)")
     g.add_argument("--size", type=_size, default=None, help="window or image size WxH (default 960x640 window, 256x256 offscreen)")
+    from clipvol.tools.tf_args import add_tf_arguments
+
+    add_tf_arguments(p.add_argument_group("transfer function"))
     o = p.add_argument_group("offscreen")
     o.add_argument("--offscreen", action="store_true", help="render a camera path to files instead of opening a window")
-    o.add_argument("--path", choices=("orbit", "fly", "zoom"), default="orbit", help="camera path")
+    o.add_argument("--path", choices=("orbit", "turntable", "fly", "zoom"), default="orbit",
+                   help="camera path (turntable: one upright turn, head-up for patient-frame stores)")
     o.add_argument("--frames", type=int, default=36, help="frames along the path")
-    o.add_argument("--out", default="frames", help="output directory (PNG frames) or anim.gif")
+    o.add_argument("--out", default="frames", help="output directory (PNG frames), anim.gif or movie.mp4/.webm/.mkv/.mov")
     o.add_argument("--converged", action="store_true", help="wait each frame until its bricks are drawn at their own level")
     o.add_argument("--timeout", type=float, default=60.0, help="seconds to wait per frame with --converged")
-    o.add_argument("--fps", type=float, default=12.0, help="GIF frame rate")
+    o.add_argument("--fps", type=float, default=12.0, help="GIF or movie frame rate")
+    o.add_argument("--quality", type=float, default=8.0, help="movie quality, 0 (smallest) .. 10 (best), default 8")
+    o.add_argument("--no-labels", action="store_true", help="do not write anatomical edge labels on the frames")
     w = p.add_argument_group("window")
-    w.add_argument("--screenshot-dir", default=".", help="where P saves screenshots")
+    w.add_argument("--screenshot-dir", default="clipvol-screenshots",
+                   help="folder where P (with the HUD) and Shift+P (without) save screenshots, S the transfer "
+                        "function and C the camera (created; default ./clipvol-screenshots)")
+    w.add_argument("--camera", default=None, metavar="FILE.json", help="start from a camera saved with C")
+    w.add_argument("--frame-time", type=float, default=100.0, metavar="MS",
+                   help="target frame time while the camera moves, in ms: the viewer lowers resolution and "
+                        "sampling to hold it and refines to full quality when still (default 100; 0 turns it off)")
     w.add_argument("--max-frames", type=int, default=None, help=argparse.SUPPRESS)
 
 
-def run(args) -> int:
-    from dataclasses import replace
+def _store_name(text: str) -> str:
+    from pathlib import Path
 
+    base = text.split(".h5:")[0].split(".hdf5:")[0].rstrip("/\\")
+    name = Path(base).name
+    for suf in (".nii.gz", ".nii", ".hdr", ".img", ".mrc", ".map", ".mrcs", ".rec", ".st", ".h5", ".hdf5", ".hdf", ".nxs", ".dcm"):
+        if name.lower().endswith(suf):
+            return name[: -len(suf)] or "volume"
+    return name or "volume"
+
+
+def _bricked(args) -> str:
+    """The source itself, or for a NIfTI / DICOM / HDF5 / MRC input the store it is bricked into.
+
+    One command from a scan to a view: ``clipvol view ct_folder/`` bricks the series into
+    ``./ct_folder.zarr`` (or ``--store``) the first time and reuses that store afterwards.
+    """
+    import json
+    import os
+    from pathlib import Path
+
+    text = args.source
+    p = Path(text)
+    if text.startswith("procedural:") or p.suffix.lower() == ".npy" or (p.is_dir() and any((p / m).exists() for m in ("zarr.json", ".zgroup"))):
+        return text
+    from clipvol.bricking.formats import open_format
+
+    src = open_format(text)
+    if src is None:
+        return text
+    src.close()
+    store = Path(args.store) if args.store else Path.cwd() / f"{_store_name(text)}.zarr"
+    try:
+        cv = json.loads((store / "zarr.json").read_text())["attributes"]["clipvol"]
+        if cv.get("complete") and str(cv.get("source", "")).startswith(os.path.abspath(text) + " ("):
+            print(f"using {store} (bricked from {text})")
+            return str(store)
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    from clipvol.bricking.pipeline import brick_volume
+
+    print(f"bricking {text} into {store}")
+    brick_volume(text, store, progress=True)
+    return str(store)
+
+
+def run(args) -> int:
+    from clipvol.app.session import open_loader
     from clipvol.errors import ParameterError
-    from clipvol.app.session import RenderSettings, open_loader
+    from clipvol.scene.params import RenderParams
 
     if args.frames < 1:
         raise ParameterError(f"--frames: expected >= 1, got {args.frames}")
-    settings = RenderSettings(
-        lod_threshold=args.lod_threshold, selection=args.selection, level=args.level, mode=args.mode, tf=args.tf,
-        step=args.step, texels_per_frame=args.texels_per_frame,
+    if args.frame_time < 0:
+        raise ParameterError(f"--frame-time: expected milliseconds >= 0, got {args.frame_time}")
+    from clipvol.tools.tf_args import transfer_function_from_args
+
+    params = RenderParams(
+        lod_threshold=args.lod_threshold, policy=args.selection, level=args.level, mode=args.mode,
+        step=args.step, texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget,
     )
-    from clipvol.scene.transfer import TransferFunction
-
-    if args.tf == "demo":
-        from clipvol.tools.cmd_demo import demo_transfer_function
-
-        settings = replace(settings, tf=demo_transfer_function())
-    elif args.tf not in TransferFunction.names():
-        raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())} or demo, got {args.tf!r}")
     kwargs = {} if args.brick is None else {"brick": args.brick}
-    loader = open_loader(args.source, **kwargs)
-    if settings.level is not None and settings.level >= loader.pyramid.num_levels:
-        raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {settings.level}")
+    source = _bricked(args)
+    loader = open_loader(source, **kwargs)
+    if params.level is not None and params.level >= loader.pyramid.num_levels:
+        raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {params.level}")
+    tf = transfer_function_from_args(args, loader)
     if args.offscreen:
         from clipvol.app.flythrough import render_path
 
@@ -86,19 +148,34 @@ def run(args) -> int:
                   f"loaded {row['bytes_loaded'] / 1e6:6.2f} MB  uploaded {row['bytes_uploaded'] / 1e6:6.2f} MB"
                   + ("" if row["converged"] else "  (refining)"), flush=True)
 
+        frame = getattr(loader, "frame", None)  # the store's voxel-to-world affine, if it records one
+        path_kwargs = {}
+        if args.path == "turntable" and frame is not None and frame.frame == "RAS":
+            from clipvol.scene.orientation import anatomical_axes
+
+            up, front = anatomical_axes(frame.affine)
+            path_kwargs = {"up": tuple(up), "front": tuple(front)}
         res = render_path(
             loader, args.out, path=args.path, frames=args.frames, size=args.size or (256, 256),
             converged=args.converged, timeout=args.timeout, memory_budget=args.memory_budget,
-            texture_budget=args.texture_budget, threads=args.threads, settings=settings, outlines=args.outlines,
-            fps=args.fps, progress=show,
+            texture_budget=args.texture_budget, threads=args.threads, params=params, tf=tf, outlines=args.outlines,
+            fps=args.fps, progress=show, path_kwargs=path_kwargs, quality=args.quality,
+            orientation=None if args.no_labels or frame is None or frame.frame != "RAS" else frame,
         )
         print(f"wrote {res.frames} frames to {args.out}; per-frame statistics in {res.csv}")
         return 0
     from clipvol.viewer.window import Viewer
 
+    camera = None
+    if args.camera is not None:
+        from clipvol.scene.bookmarks import load_camera
+
+        camera = load_camera(args.camera)
+
     with Viewer(loader, size=args.size or (960, 640), memory_budget=args.memory_budget,
-                texture_budget=args.texture_budget, threads=args.threads, settings=settings,
-                screenshot_dir=args.screenshot_dir, title=f"clipvol - {args.source}") as viewer:
+                texture_budget=args.texture_budget, threads=args.threads, params=params, tf=tf,
+                screenshot_dir=args.screenshot_dir, title=f"clipvol - {args.source}",
+                frame_time=args.frame_time / 1000.0 or None, camera=camera) as viewer:
         if args.outlines:
             viewer.key("B")
         return viewer.run(max_frames=args.max_frames)

@@ -53,7 +53,6 @@ def render(args) -> int:
     import numpy as np
     from PIL import Image
 
-    from clipvol.errors import ParameterError
     from clipvol.loaders.point_store import PointStoreLoader
     from clipvol.paging.cliptexture import ClipTexture
     from clipvol.render import create_context
@@ -70,9 +69,12 @@ def render(args) -> int:
 
     cam = view_camera(_Box(), args.view, args.size, eye=args.eye, target=args.target, up=args.up, fov=args.fov,
                       distance=args.distance, ortho=args.ortho)
-    if args.tf not in TransferFunction.names():
-        raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())}, got {args.tf!r}")
-    tf = TransferFunction.preset(args.tf, value_range=args.tf_range)
+    if getattr(args, "tf", None) == "auto" and getattr(args, "tf_range", None) is None:
+        tf = TransferFunction.preset("viridis", value_range=loader.meta.value_ranges[0])  # no histogram of points yet
+    else:
+        from clipvol.tools.tf_args import transfer_function_from_args
+
+        tf = transfer_function_from_args(args, loader)
     centre = np.clip(np.asarray(cam.center, np.float64), lo, hi)
     ctx = create_context()
     try:

@@ -9,7 +9,7 @@ or a GL context (``tests/test_controls.py``):
   Left drag orbits, right/middle drag pans so the point under the cursor follows it exactly (at the
   target's depth), the wheel zooms by a constant factor per step, and WASD/QE move eye and target
   together (fly / roam: the centre of interest moves through the data and the per-level windows
-  follow it, seed 001 §3.5).
+  follow it, as in OpenGL Volumizer's volume roaming).
 * :class:`ViewState` holds the renderer settings the keys toggle (selection mode, fixed level, LOD
   threshold, MIP/composite, transfer-function preset, brick outlines, HUD) and
   :meth:`ViewState.handle_key` applies one key.
@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ParameterError
+from ..scene.camera import Camera
+from ..scene.paths import fit_distance, volume_center
 
 __all__ = ["OrbitControls", "ViewState", "KEY_HELP", "MODES", "MOVE_KEYS"]
 
@@ -50,18 +52,25 @@ KEY_HELP = (
     ("[ ]", "fixed level finer / coarser (switches to fixed mode)"),
     ("+ / -", "LOD threshold up (coarser, faster) / down (finer)"),
     ("I", "MIP / composite"),
-    ("T", "next transfer-function preset"),
+    ("T", "next colour map over the same window"),
+    ("Left / Right", "move the transfer-function window down / up (5 % of the data range)"),
+    ("Up / Down", "widen / narrow the transfer-function window"),
+    ("drag on the HUD histogram", "left: move the window; right: widen / narrow it"),
+    ("Shift+S (or Ctrl+S)", "save the transfer function as JSON (read back with --tf FILE.json)"),
+    ("C", "save the camera as JSON (read back with --camera FILE.json)"),
     ("B", "brick outlines coloured by level"),
-    ("P", "screenshot (PNG)"),
+    ("P / Shift+P", "screenshot (PNG) with / without the HUD, into --screenshot-dir"),
     ("H", "HUD on / off"),
     ("R", "reset the view"),
+    ("L", "slice mode: axial, coronal, sagittal and 3D; wheel steps a slice, click sets the point of "
+          "interest, drag tilts a slice"),
     ("Esc", "quit"),
 )
 
 
-def _basis(forward: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _basis(forward: np.ndarray, world_up: np.ndarray = UP) -> tuple[np.ndarray, np.ndarray]:
     """Camera ``right`` and ``up`` for a unit ``forward`` (right = forward x up, right-handed)."""
-    right = np.cross(forward, UP)
+    right = np.cross(forward, world_up)
     n = np.linalg.norm(right)
     if n < 1e-12:  # looking straight along world up: any right will do
         right = np.array([1.0, 0.0, 0.0])
@@ -93,6 +102,10 @@ class OrbitControls:
         Degrees per pixel of drag.
     zoom_step : float
         Distance factor per wheel step (> 1).
+    rotation : (3, 3) array, optional
+        Turns the rig's own frame (up ``-y``, first eye on the ``-z`` side) into the data's: for a
+        patient-frame store, :meth:`for_pyramid` with ``up``/``front`` (superior / anterior) makes
+        the rig orbit head-up and start from the front. None: the identity.
     """
 
     target: np.ndarray
@@ -104,6 +117,7 @@ class OrbitControls:
     rotate_speed: float = 0.3
     zoom_step: float = 1.15
     min_distance: float = 1e-6
+    rotation: np.ndarray | None = None
     _home: tuple = field(default=(), repr=False)
 
     def __post_init__(self) -> None:
@@ -121,13 +135,31 @@ class OrbitControls:
             lo, hi = (np.asarray(b, dtype=np.float64) for b in self.bounds)
             self.bounds = (lo, hi)
         self.elevation = float(np.clip(self.elevation, -89.0, 89.0))
+        if self.rotation is not None:
+            m = np.asarray(self.rotation, dtype=np.float64)
+            if m.shape != (3, 3) or not np.allclose(m @ m.T, np.eye(3), atol=1e-6):
+                raise ParameterError(f"rotation: expected an orthonormal 3x3 matrix, got {self.rotation!r}")
+            self.rotation = m
         self._home = (self.target.copy(), self.distance, self.azimuth, self.elevation)
 
     @classmethod
-    def for_pyramid(cls, pyramid, size=(640, 480), fov_y: float = 35.0, azimuth: float = 30.0, elevation: float = 25.0) -> "OrbitControls":
-        """A rig looking at the whole volume of ``pyramid`` from ``azimuth``/``elevation``."""
-        from ..scene.paths import fit_distance, volume_center
+    def for_pyramid(cls, pyramid, size=(640, 480), fov_y: float = 35.0, azimuth: float = 30.0, elevation: float = 25.0,
+                    up=None, front=None) -> "OrbitControls":
+        """A rig looking at the whole volume of ``pyramid`` from ``azimuth``/``elevation``.
 
+        ``up`` and ``front`` (data directions, e.g. superior and anterior from
+        :func:`clipvol.scene.orientation.anatomical_axes`) orient the rig: world up becomes ``up``
+        and azimuth 0, elevation 0 looks from ``front``.
+        """
+
+        rotation = None
+        if up is not None and front is not None:
+            u = np.asarray(up, dtype=np.float64)
+            u = u / np.linalg.norm(u)
+            f = np.asarray(front, dtype=np.float64)
+            f = f - (f @ u) * u
+            f = f / np.linalg.norm(f)
+            rotation = np.stack([np.cross(u, f), -u, -f], axis=1)  # rig x, y (= -up), z (= -front)
         lo, hi = pyramid.volume_box()
         return cls(
             target=volume_center(pyramid),
@@ -137,6 +169,7 @@ class OrbitControls:
             fov_y=fov_y,
             bounds=(lo, hi),
             min_distance=0.25 * float(min(pyramid.spacing)),
+            rotation=rotation,
         )
 
     # -- state ----------------------------------------------------------------------------------
@@ -145,7 +178,13 @@ class OrbitControls:
         """Unit vector from the target to the eye."""
         az = np.radians(self.azimuth)
         el = np.radians(self.elevation)
-        return np.array([np.cos(el) * np.sin(az), -np.sin(el), -np.cos(el) * np.cos(az)])
+        d = np.array([np.cos(el) * np.sin(az), -np.sin(el), -np.cos(el) * np.cos(az)])
+        return d if self.rotation is None else self.rotation @ d
+
+    @property
+    def world_up(self) -> np.ndarray:
+        """The data direction shown upwards (``-y`` unless a ``rotation`` says otherwise)."""
+        return UP.copy() if self.rotation is None else self.rotation @ UP
 
     @property
     def eye(self) -> np.ndarray:
@@ -159,7 +198,7 @@ class OrbitControls:
     def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(forward, right, up)`` unit vectors of the current view (as the Camera has them)."""
         f = self.forward
-        r, u = _basis(f)
+        r, u = _basis(f, self.world_up)
         return f, r, u
 
     @property
@@ -171,12 +210,35 @@ class OrbitControls:
 
     def camera(self, size=(640, 480)):
         """The :class:`~clipvol.scene.camera.Camera` of the current view for an image of ``size``."""
-        from ..scene.camera import Camera
 
-        cam = Camera.perspective(tuple(self.eye), tuple(self.target), up=tuple(UP), fov_y=self.fov_y, size=tuple(size))
+        cam = Camera.perspective(tuple(self.eye), tuple(self.target), up=tuple(self.world_up), fov_y=self.fov_y, size=tuple(size))
         if self.bounds is not None:
             cam = cam.fit_depth(self.bounds[0], self.bounds[1])
         return cam
+
+    def set_camera(self, cam) -> None:
+        """Look as ``cam`` does (a saved bookmark): its target, distance, direction and field of view.
+
+        The rig keeps its world up (``-y``, or the patient's superior for a store with anatomical
+        axes); a camera rolled about its view direction comes back unrolled.
+        An orthographic camera gives its centre as the target at the rig's current distance.
+        """
+        if cam.ortho:
+            target = np.asarray(cam.center, dtype=np.float64)
+            d = -np.asarray(cam.forward, dtype=np.float64)
+            dist = self.distance
+        else:
+            target = np.asarray(cam.target, dtype=np.float64)
+            v = np.asarray(cam.eye, dtype=np.float64) - target
+            dist = float(np.linalg.norm(v))
+            d = v / dist
+            self.fov_y = float(cam.fov_y)
+        if self.rotation is not None:  # into the rig's own frame (the rotation is orthonormal)
+            d = np.asarray(self.rotation).T @ d
+        self.target = target.copy()
+        self.distance = dist
+        self.elevation = float(np.clip(np.degrees(np.arcsin(np.clip(-d[1], -1.0, 1.0))), -89.0, 89.0))
+        self.azimuth = float(np.degrees(np.arctan2(d[0], -d[2])) % 360.0)
 
     def reset(self) -> None:
         """Back to the view the rig was created with."""

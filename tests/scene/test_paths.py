@@ -5,9 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clipvol.errors import ParameterError
-from clipvol.scene.paths import PATHS, fit_distance, fly, make_path, orbit, volume_center, zoom
 from clipvol.bricking.pyramid import Pyramid
+from clipvol.errors import ParameterError
+from clipvol.scene.paths import (
+    PATHS,
+    fit_distance,
+    fly,
+    make_path,
+    orbit,
+    volume_center,
+    zoom,
+)
 
 
 @pytest.fixture
@@ -89,7 +97,7 @@ def test_zoom_goes_from_whole_view_to_close_up(pyr):
 
 
 def test_make_path_and_errors(pyr):
-    assert set(PATHS) == {"orbit", "fly", "zoom"}
+    assert set(PATHS) == {"orbit", "turntable", "fly", "zoom"}
     assert len(list(make_path("zoom", pyr, 3, size=(8, 8)))) == 3
     with pytest.raises(ParameterError, match="path"):
         make_path("spiral", pyr, 3)

@@ -5,11 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clipvol.errors import ParameterError
 from clipvol.bricking.pyramid import Pyramid
+from clipvol.errors import ParameterError
 from clipvol.viewer.controls import MODES, OrbitControls, ViewState
 from clipvol.viewer.hud import composite_over, hud_lines, render_text
-from clipvol.viewer.overlay import box_segments, clip_segment, draw_outlines, project_points
+from clipvol.app.overlay import (
+    box_segments,
+    clip_segment,
+    draw_outlines,
+    project_points,
+)
 
 
 @pytest.fixture
@@ -211,11 +216,32 @@ def test_hud_text_and_composite():
     np.testing.assert_allclose(out[:h, :w, :3] / 255.0, ref, atol=1 / 255 + 1e-6)
 
 
-def test_render_settings_validate():
-    from clipvol.app.session import RenderSettings
+def test_render_params_validate():
+    from clipvol.scene.params import RenderParams
 
-    assert RenderSettings(selection="fixed").level == 0
-    for bad in (dict(lod_threshold=0), dict(selection="best"), dict(mode="x-ray"), dict(step=-1), dict(level=-1),
-                dict(tf=3)):
+    assert RenderParams(policy="fixed").level == 0
+    assert RenderParams(policy="multiresolution").policy == "projected-size"
+    for bad in (dict(lod_threshold=0), dict(policy="best"), dict(mode="x-ray"), dict(step=-1), dict(level=-1),
+                dict(texture_budget="lots"), dict(focus=(1, 2)), dict(background=(0, 0, 0))):
         with pytest.raises(ParameterError):
-            RenderSettings(**bad)
+            RenderParams(**bad)
+
+
+@pytest.mark.parametrize("rig", [{}, {"up": (0.0, 0.0, 1.0), "front": (0.0, -1.0, 0.0)}])
+def test_set_camera_restores_a_saved_view(rig):
+    """A bookmark (eye, target, fov) read back into the rig gives the same camera, rotated rig too."""
+    from clipvol.scene.bookmarks import camera_from_json, camera_to_json
+
+    pyr = Pyramid.build((40, 50, 60), (16, 16, 16))
+    a = OrbitControls.for_pyramid(pyr, size=(96, 64), **rig)
+    a.orbit(37, -21)
+    a.pan(5, 3, (96, 64))
+    a.zoom(2)
+    cam = camera_from_json(camera_to_json(a.camera((96, 64))))
+    b = OrbitControls.for_pyramid(pyr, size=(96, 64), **rig)
+    b.set_camera(cam)
+    got = b.camera((96, 64))
+    np.testing.assert_allclose(got.eye, cam.eye, atol=1e-9)
+    np.testing.assert_allclose(got.target, cam.target, atol=1e-9)
+    np.testing.assert_allclose(got.up, cam.up, atol=1e-9)
+    assert got.fov_y == cam.fov_y
