@@ -417,11 +417,11 @@ def build_point_store(source: PointSource, output, *, max_points: int = 64, over
     output : path
         The store directory; an existing complete store needs ``overwrite``.
     max_points : int
-        ``N``: at most this many points in any node (>= 8; the seed's choice is 8).
+        ``N``: at most this many points in any node (>= 8; Meredith & Ma's choice is 8).
     memory_points : int
         Most points held in memory at once by the build (the partition threshold).
     representative : {"nearest", "mean"}
-        Values of an inner node's points: the nearest point's own (the seed's choice) or the mean
+        Values of an inner node's points: the nearest point's own (Meredith & Ma's choice) or the mean
         of the cell's candidates (the children's points in that cell).
     box : ((x0, y0, z0), (x1, y1, z1)), optional
         The domain (a simulation box): the root cube is the cube around it (and around every

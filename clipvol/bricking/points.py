@@ -17,7 +17,7 @@ root's edge.
 
 Representatives. An inner node at depth ``d`` keeps, for every non-empty cell of depth
 ``d + k`` below it (``8 ** k <= N``), the candidate nearest that cell's centre, the candidates
-being its children's stored points - the seed's "point closest to the centre", applied to a grid
+being its children's stored points - Meredith & Ma's "point closest to the centre", applied to a grid
 of ``8 ** k`` cells rather than one point per leaf, so an inner node is as full as a leaf.
 """
 
@@ -46,7 +46,7 @@ __all__ = [
     "NodeTable",
 ]
 
-#: how an inner node's point for a cell gets its values: the nearest point's own (the seed's
+#: how an inner node's point for a cell gets its values: the nearest point's own (Meredith & Ma's
 #: choice), or the mean over the cell's candidates (smoother, no longer an input value)
 REPRESENTATIVES = ("nearest", "mean")
 GEO_BITS = 17

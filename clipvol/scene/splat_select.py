@@ -4,7 +4,7 @@ After Meredith & Ma (2001), section 3.3. Walking down from the root, a node outs
 frustum is culled; otherwise its splats would be ``projected node size / cbrt(n)`` pixels wide
 (``n`` its stored points: they are spread over ``cbrt(n)`` per axis). The first node on the way
 down whose splat size is at most the tolerance is drawn, as is a leaf; otherwise its children are
-visited. The tolerance is a fraction of the screen's linear size (the seed's "maximum percentage
+visited. The tolerance is a fraction of the screen's linear size (Meredith & Ma's "maximum percentage
 of linear screen space any one splat may cover"; 10 % of a 1000-pixel window is 100 pixels), or a
 number of pixels.
 
