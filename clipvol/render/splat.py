@@ -21,7 +21,7 @@ Per frame (:meth:`SplatRenderAction.render`), the volume action's loop with poin
 
 Points larger than the driver's largest point size are drawn at that size (counted in
 ``clamped``); a finer tolerance avoids it. Sorting is per point (exact for equal splat sizes; the
-Meredith & Ma sort nodes only and notes that per-point order barely shows).
+Meredith & Ma sort nodes only and note that per-point order barely shows).
 """
 
 from __future__ import annotations
