@@ -30,6 +30,7 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from ..errors import InputFormatError, InputNotFoundError, ParameterError
+from .formats import require
 
 __all__ = [
     "PointSource",
@@ -190,7 +191,7 @@ class CsvPointSource(PointSource):
     """A ``.csv`` file with a header row, read ``rows`` at a time with pandas."""
 
     def __init__(self, path, value_names: Sequence[str], xyz_names=("x", "y", "z")) -> None:
-        import pandas as pd
+        pd = require("pandas", "points")
 
         self.path, self.name = Path(path), str(path)
         header = list(pd.read_csv(self.path, nrows=0).columns)
@@ -203,7 +204,7 @@ class CsvPointSource(PointSource):
         _check_nonempty(self)
 
     def chunks(self, rows: int = CHUNK_ROWS) -> Iterator[Chunk]:
-        import pandas as pd
+        pd = require("pandas", "points")
 
         a = 0
         for df in pd.read_csv(self.path, usecols=self._xyz + list(self.value_names), chunksize=rows):
@@ -220,7 +221,7 @@ class ParquetPointSource(PointSource):
     """A ``.parquet`` file, read one record batch at a time with pyarrow."""
 
     def __init__(self, path, value_names: Sequence[str], xyz_names=("x", "y", "z")) -> None:
-        import pyarrow.parquet as pq
+        pq = require("pyarrow.parquet", "points")
 
         self.path, self.name = Path(path), str(path)
         self._file = pq.ParquetFile(self.path)
@@ -246,7 +247,7 @@ class PlyPointSource(PointSource):
     """A ``.ply`` file's ``vertex`` element (binary files are memory-mapped by plyfile)."""
 
     def __init__(self, path, value_names: Sequence[str], xyz_names=("x", "y", "z")) -> None:
-        from plyfile import PlyData
+        PlyData = require("plyfile", "points").PlyData
 
         self.path, self.name = Path(path), str(path)
         try:
@@ -279,7 +280,7 @@ class MeshPointSource(PointSource):
     """
 
     def __init__(self, path, value_names: Sequence[str]) -> None:
-        import meshio
+        meshio = require("meshio", "points")
 
         self.path, self.name = Path(path), str(path)
         try:
