@@ -20,6 +20,7 @@ from clipvol.errors import ClipvolError
 #: sub-command -> one-line help; the module is clipvol.tools.cmd_<name>
 COMMANDS = {
     "brick": "brick a volume into a multiresolution zarr store (OME-Zarr)",
+    "brick-points": "build a point octree store from scattered points (npy, csv, parquet, ply, meshes)",
     "info": "describe a store or any OME-Zarr: levels, shapes, bricks, bytes, compression, value range, NaN/Inf",
     "check": "validate a store: checksums, statistics and filter of sampled (or --all) bricks",
     "repair": "rebuild a store's bad bricks and their ancestors from its input",
@@ -46,9 +47,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name, help_text in COMMANDS.items():
         try:
-            mod = importlib.import_module(f"clipvol.tools.cmd_{name}")
+            mod = importlib.import_module(f"clipvol.tools.cmd_{name.replace('-', '_')}")
         except ModuleNotFoundError as e:
-            if e.name != f"clipvol.tools.cmd_{name}":
+            if e.name != f"clipvol.tools.cmd_{name.replace('-', '_')}":
                 raise
             continue  # a sub-command not built yet
         p = sub.add_parser(name, help=help_text, description=(mod.__doc__ or help_text).strip().splitlines()[0])

@@ -146,6 +146,12 @@ def run(args: argparse.Namespace) -> int:
 
     from clipvol.errors import ParameterError
 
+    from clipvol.bricking.point_store import is_point_store
+
+    if is_point_store(args.store):
+        from clipvol.tools import point_cli
+
+        return point_cli.check(args.store)
     if args.samples < 1:
         raise ParameterError(f"--samples: expected an integer >= 1, got {args.samples}")
     path = Path(args.store)

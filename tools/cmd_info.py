@@ -142,6 +142,12 @@ def run(args: argparse.Namespace) -> int:
     path = Path(args.store)
     if not path.exists():
         raise InputNotFoundError(f"{path}: no such store")
+    from clipvol.bricking.point_store import is_point_store
+
+    if is_point_store(path):  # scattered points (tools/point_cli.py)
+        from clipvol.tools import point_cli
+
+        return point_cli.info(path)
     meta = loader = None
     attrs_say_clipvol = False
     try:

@@ -91,6 +91,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
     r.add_argument("--no-wait", action="store_true", help="do not wait for the view's bricks (draw what is resident)")
     r.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for convergence (default 300)")
+    r.add_argument("--tolerance", default="0.01", help="point stores: largest splat, a fraction of the screen (0.05), '5%%' or '12px' (default 0.01)")
 
 
 def check_output_file(path, suffix: str, flag: str) -> None:
@@ -172,6 +173,12 @@ def run(args) -> int:
     from clipvol.tools.tf_args import transfer_function_from_args
 
     check_output_file(args.out, ".png", "--out")
+    from clipvol.bricking.point_store import is_point_store
+
+    if is_point_store(args.source):  # scattered points: splats (tools/point_cli.py)
+        from clipvol.tools import point_cli
+
+        return point_cli.render(args)
     kwargs = {} if args.brick is None else {"brick": args.brick}
     kwargs.update({k: v for k, v in (("t", args.t), ("c", args.c)) if v is not None})
     loader = open_store(args.source, **kwargs)

@@ -324,6 +324,22 @@ class ClipTexture:
         view.flags.writeable = False
         return view
 
+    def get_bricks(self, level: int, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(resident mask (n,), copies (m, *brick_shape))`` of the resident bricks among ``indices``.
+
+        One lock and one fancy-indexed copy for many bricks (the splat action gathers thousands
+        of small point-node bricks per frame); the copies stay valid after the slots are reused.
+        """
+        lv = self._lv(level)
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1, 3)
+        with self._lock:
+            ok = in_box(idx, lv.start, lv.stop)
+            s = slot_of(idx[ok], lv.shape)
+            res = np.zeros(len(idx), dtype=bool)
+            res[ok] = (lv.state[s] == _RESIDENT) & np.all(lv.key[s] == idx[ok], axis=1)
+            data = lv.pool[slot_of(idx[res], lv.shape)]
+        return res, data
+
     def resident_bricks(self) -> list[tuple[int, tuple[int, int, int]]]:
         """Every resident brick as ``(level, (bz, by, bx))``, coarsest level first."""
         out = []

@@ -71,6 +71,13 @@ def open_store(path_or_url: str | Path, **kwargs) -> Loader:
         path = path.parent
     if path.is_dir():
         if (path / "zarr.json").is_file() or (path / ".zgroup").is_file():
+            from ..bricking.point_store import is_point_store
+
+            if is_point_store(path):  # not a brick pyramid: PointStoreLoader + SplatRenderAction draw it
+                raise InputFormatError(
+                    f"{path}: a point store (clipvol brick-points), not a volume; draw it with `clipvol render` "
+                    "(splats) or clipvol.loaders.point_store.PointStoreLoader; `view` and `report` do not open point stores yet"
+                )
             from ..loaders.zarr_store import ZarrLoader
 
             return ZarrLoader(path, **kwargs)

@@ -1,0 +1,92 @@
+"""Point-store branches of `clipvol info`, `check` and `render` (kept out of the volume commands)."""
+
+from __future__ import annotations
+
+import sys
+
+
+def info(path) -> int:
+    """Print a point store's summary: points, nodes per depth, bytes on disk, values."""
+    import os
+
+    import numpy as np
+
+    from clipvol.bricking.point_store import open_point_store, read_node_table
+    from clipvol.units import format_bytes
+
+    meta, g = open_point_store(path, require_complete=False)
+    print(f"store      {path}")
+    print("kind       points (octree, Meredith & Ma 2001)")
+    print(f"complete   {'yes' if meta.complete else 'no (interrupted build: run clipvol brick-points again)'}")
+    print(f"points     {meta.num_points:,} ({meta.num_stored:,} stored with representatives)")
+    print(f"max points {meta.max_points} per node")
+    print(f"cube       origin {', '.join(f'{v:g}' for v in meta.origin)} (x, y, z), edge {meta.edge:g}")
+    print(f"spacing    {meta.point_spacing:g} (mean point spacing)")
+    for name, (lo, hi) in zip(meta.value_names, meta.value_ranges):
+        print(f"value      {name}: {lo:g} .. {hi:g}")
+    if meta.complete:
+        t = read_node_table(g)
+        print(f"{'depth':>5} {'nodes':>10} {'leaves':>10} {'points':>12}")
+        for d in np.unique(t["depth"]):
+            m = t["depth"] == d
+            print(f"{int(d):>5} {int(m.sum()):>10} {int((m & (t['child_mask'] == 0)).sum()):>10} {int(t['count'][m].sum()):>12}")
+    size = sum(os.path.getsize(os.path.join(r, f)) for r, _, fs in os.walk(path) for f in fs)
+    print(f"total      {format_bytes(size)} on disk")
+    return 0
+
+
+def check(path) -> int:
+    """Validate a point store's octree invariants; exit 1 naming each problem."""
+    from clipvol.bricking.point_store import check_point_store
+
+    problems = check_point_store(path)
+    for p in problems:
+        print(f"{path}: {p}", file=sys.stderr)
+    if problems:
+        return 1
+    print(f"{path}: ok (node table, leaf counts, weights, point boxes)")
+    return 0
+
+
+def render(args) -> int:
+    """`clipvol render` on a point store: splats at --tolerance through the clip-texture."""
+    import numpy as np
+    from PIL import Image
+
+    from clipvol.loaders.point_store import PointStoreLoader
+    from clipvol.paging.cliptexture import ClipTexture
+    from clipvol.render import create_context
+    from clipvol.render.splat import SplatRenderAction
+    from clipvol.scene.transfer import TransferFunction
+    from clipvol.tools.cmd_render import view_camera
+
+    loader = PointStoreLoader(args.source)
+    lo, hi = loader.world_box()
+
+    class _Box:  # the framing view_camera expects (volume_box)
+        def volume_box(self):
+            return lo, hi
+
+    cam = view_camera(_Box(), args.view, args.size, eye=args.eye, target=args.target, up=args.up, fov=args.fov,
+                      distance=args.distance, ortho=args.ortho)
+    if getattr(args, "tf", None) == "auto" and getattr(args, "tf_range", None) is None:
+        tf = TransferFunction.preset("viridis", value_range=loader.meta.value_ranges[0])  # no histogram of points yet
+    else:
+        from clipvol.tools.tf_args import transfer_function_from_args
+
+        tf = transfer_function_from_args(args, loader)
+    centre = np.clip(np.asarray(cam.center, np.float64), lo, hi)
+    ctx = create_context()
+    try:
+        with ClipTexture(loader, args.memory_budget, args.threads, center=loader.to_paging(centre)) as clip, \
+                SplatRenderAction(ctx, clip, tolerance=args.tolerance, mode=args.mode, background=args.background) as action:
+            image = action.render(cam, tf, wait=not args.no_wait, timeout=args.timeout)
+            st = action.last_frame_stats
+    finally:
+        ctx.release()
+    Image.fromarray(image, "RGBA").save(args.out)
+    print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, splats, {args.mode}, tolerance {st.tolerance_px:.1f} px)", file=sys.stderr)
+    print(f"nodes drawn {st.nodes_drawn} ({', '.join(f'd{d}: {n}' for d, n in st.nodes_per_depth.items())}); "
+          f"points drawn {st.points_drawn:,}; converged {st.converged}", file=sys.stderr)
+    print("time: " + ", ".join(f"{k} {v * 1000:.1f} ms" for k, v in st.times.items()), file=sys.stderr)
+    return 0
