@@ -18,6 +18,7 @@ __all__ = [
     "OutputExistsError",
     "LoaderError",
     "BrickLoadError",
+    "RemoteStoreError",
 ]
 
 
@@ -55,3 +56,8 @@ class LoaderError(ClipvolError, RuntimeError):
 
 class BrickLoadError(ClipvolError, RuntimeError):
     """Loading a brick failed after its retries; the original exception is ``__cause__``."""
+
+
+class RemoteStoreError(ClipvolError, OSError):
+    """A remote store (S3, HTTP, any fsspec URL) cannot be read: unreachable, no credentials,
+    access denied, or retries exhausted (names the URL, never the credentials)."""

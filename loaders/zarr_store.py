@@ -402,21 +402,16 @@ class ZarrLoader:
         cpath = am.chunk_path((0,) * self._lead + tuple(index))
         nbytes = math.prod(am.chunks) * am.dtype.itemsize
         out = np.empty(nbytes, dtype=np.uint8) if buf is None else buf
-        try:
-            with open(cpath, "rb") as f:
-                if am.decoder is None:
-                    n = f.readinto(memoryview(out))
-                    if n != nbytes or f.read(1):
-                        raise ValueError(f"expected {nbytes} bytes, got {n if n != nbytes else 'more'}")
-                else:
-                    data = f.read()
-        except FileNotFoundError:
+        data = self._chunk_bytes(level, index)
+        if data is None:
             if buf is not None:
                 return None
             return np.full(self._pyramid.brick_shape, am.fill_value, dtype=self._pyramid.dtype)
-        except ValueError as e:
-            raise self._corrupt(level, index, cpath, e) from None
-        if am.decoder is not None:
+        if am.decoder is None:
+            if len(data) != nbytes:
+                raise self._corrupt(level, index, cpath, ValueError(f"expected {nbytes} bytes, got {len(data)}"))
+            out[:] = np.frombuffer(data, dtype=np.uint8)
+        else:
             try:
                 if am.blosc:
                     # the header says the sizes: check them, then decode straight into `out`
@@ -435,6 +430,19 @@ class ZarrLoader:
         if self._lead:
             arr = arr[(0,) * self._lead]
         return arr
+
+    def _chunk_bytes(self, level: int, index: Int3) -> bytes | None:
+        """The stored bytes of the chunk of brick ``index`` of ``level``; ``None`` when it is absent.
+
+        Every raw chunk fetch of the fast path goes through here, so a subclass can read from
+        elsewhere (:class:`clipvol.loaders.zarr_remote.RemoteZarrLoader` fetches over fsspec);
+        decoding and checks stay with the caller."""
+        am = self._arrays[level]
+        try:
+            with open(am.chunk_path((0,) * self._lead + tuple(index)), "rb") as f:
+                return f.read()
+        except FileNotFoundError:
+            return None
 
     def _corrupt(self, level: int, index: Int3, cpath: Path, e: BaseException) -> InputFormatError:
         return InputFormatError(

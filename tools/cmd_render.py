@@ -38,7 +38,8 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, or a .npy file")
+    p.add_argument("source", help="a clipvol store / OME-Zarr directory or URL (s3://, https://, ...), procedural:NAME?size=N, "
+                                  "or a .npy file")
     p.add_argument("--out", "-o", required=True, help="output PNG")
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default 64)")
     v = p.add_argument_group("camera")
@@ -67,6 +68,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
     r.add_argument("--no-wait", action="store_true", help="do not wait for the view's bricks (draw what is resident)")
     r.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for convergence (default 300)")
+    from clipvol.tools.remote_args import add_remote_arguments
+
+    add_remote_arguments(p)
 
 
 def view_camera(pyramid, view: str, size, *, eye=None, target=None, up=None, fov=35.0, distance=None, ortho=False):
@@ -117,8 +121,10 @@ def run(args) -> int:
         raise ParameterError(f"--out: expected a .png file name, got {args.out!r}")
     if args.tf not in TransferFunction.names():
         raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())}, got {args.tf!r}")
+    from clipvol.tools.remote_args import remote_kwargs
+
     kwargs = {} if args.brick is None else {"brick": args.brick}
-    loader = open_store(args.source, **kwargs)
+    loader = open_store(args.source, **kwargs, **remote_kwargs(args))
     pyr = loader.pyramid
     cam = view_camera(pyr, args.view, args.size, eye=args.eye, target=args.target, up=args.up, fov=args.fov,
                       distance=args.distance, ortho=args.ortho)

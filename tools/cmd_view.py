@@ -26,7 +26,11 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, or a .npy file")
+    p.add_argument("source", help="a clipvol store / OME-Zarr directory or URL (s3://, https://, ...), procedural:NAME?size=N, "
+                                  "or a .npy file")
+    from clipvol.tools.remote_args import add_remote_arguments
+
+    add_remote_arguments(p)
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default: the loader's, 64)")
     g = p.add_argument_group("rendering")
     g.add_argument("--mode", choices=("composite", "mip"), default="composite", help="compositing or maximum intensity projection")
@@ -74,8 +78,10 @@ def run(args) -> int:
         settings = replace(settings, tf=demo_transfer_function())
     elif args.tf not in TransferFunction.names():
         raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())} or demo, got {args.tf!r}")
+    from clipvol.tools.remote_args import remote_kwargs
+
     kwargs = {} if args.brick is None else {"brick": args.brick}
-    loader = open_loader(args.source, **kwargs)
+    loader = open_loader(args.source, **kwargs, **remote_kwargs(args))
     if settings.level is not None and settings.level >= loader.pyramid.num_levels:
         raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {settings.level}")
     if args.offscreen:
