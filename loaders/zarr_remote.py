@@ -232,3 +232,34 @@ class RemoteZarrLoader(ZarrLoader):
     def __repr__(self) -> str:
         kind = "clipvol store" if self.is_clipvol_store else "OME-Zarr"
         return f"RemoteZarrLoader({self.url!r}, {kind}, {self._pyramid.num_levels} levels, brick {self._pyramid.brick_shape})"
+
+
+def remote_store_meta(url: str, *, storage_options: dict | None = None, **source_kwargs):
+    """The validated clipvol metadata of the store at ``url`` (complete or not), read without
+    opening data, and a function ``level -> (chunks, bytes) | None`` giving the chunk objects
+    stored for a level where the server can list them (object stores can; plain HTTP cannot).
+
+    For ``clipvol info`` / ``clipvol check`` on a URL. Raises as :class:`RemoteZarrLoader`.
+    """
+    from clipvol.bricking.store import parse_metadata
+
+    src = FsspecByteSource(url, storage_options=storage_options, **source_kwargs)
+    root = src.get("zarr.json")
+    if root is None:
+        raise InputFormatError(f"{src.display_url}: not a clipvol store (no zarr.json at this URL)")
+    doc = _json(root, f"{src.display_url}/zarr.json") or {}
+    meta = parse_metadata(doc.get("attributes") or {}, src.display_url)
+
+    def level_objects(level: int) -> tuple[int, int] | None:
+        if src.url.split(":", 1)[0].lower() in ("http", "https"):
+            return None  # HTTP has no listing; fsspec scrapes index pages, without sizes
+        try:
+            found = src.fs.find(f"{src._full(str(level))}/c", detail=True)
+        except Exception:  # listing is optional (HTTP has none): the caller prints "-"
+            return None
+        sizes = [v.get("size") for v in found.values() if v.get("type", "file") == "file"]
+        if not all(isinstance(x, int) for x in sizes):
+            return None
+        return len(sizes), sum(sizes)
+
+    return meta, level_objects

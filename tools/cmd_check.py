@@ -12,7 +12,7 @@ import argparse
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("store", metavar="STORE", help="a store written by `clipvol brick`")
+    parser.add_argument("store", metavar="STORE", help="a store written by `clipvol brick` (a directory or a URL)")
     parser.add_argument("--samples", type=int, default=8, help="bricks checked per level (default 8)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the brick sample (default 0)")
 
@@ -98,10 +98,19 @@ def run(args: argparse.Namespace) -> int:
 
     if args.samples < 1:
         raise ParameterError(f"--samples: expected an integer >= 1, got {args.samples}")
-    path = Path(args.store)
-    meta = open_store_meta(path)
+    from clipvol.paging.bytesource import is_remote_url
+
+    if is_remote_url(args.store):  # a URL: our metadata check, then zarr-python over fsspec reads the bricks
+        from clipvol.loaders.zarr_remote import remote_store_meta
+
+        path = args.store
+        meta, _ = remote_store_meta(args.store)
+        group = zarr.open_group(args.store, mode="r")
+    else:
+        path = Path(args.store)
+        meta = open_store_meta(path)
+        group = zarr.open_group(str(path), mode="r")
     pyr = meta.pyramid
-    group = zarr.open_group(str(path), mode="r")
     for L, lv in enumerate(pyr.levels):
         try:
             arr = group[str(L)]

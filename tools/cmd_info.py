@@ -6,7 +6,10 @@ import argparse
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("store", metavar="STORE", help="a store written by `clipvol brick`")
+    parser.add_argument("store", metavar="STORE", help="a store written by `clipvol brick` (a directory or a URL)")
+    from clipvol.tools.remote_args import add_remote_arguments
+
+    add_remote_arguments(parser)
 
 
 def _dir_bytes(path) -> tuple[int, int]:
@@ -27,8 +30,20 @@ def run(args: argparse.Namespace) -> int:
     from clipvol.bricking.store import open_store_meta
     from clipvol.units import format_bytes
 
+    from clipvol.paging.bytesource import is_remote_url
+    from clipvol.tools.remote_args import remote_kwargs
+
     path = Path(args.store)
-    meta = open_store_meta(path)
+    level_files = lambda L: _dir_bytes(path / str(L))  # noqa: E731
+    if is_remote_url(args.store):  # a URL: metadata over the network, sizes where the server lists
+        from clipvol.loaders.zarr_remote import remote_store_meta
+
+        kw = remote_kwargs(args)
+        kw.pop("cache", None)
+        path = args.store
+        meta, level_files = remote_store_meta(args.store, **kw)
+    else:
+        meta = open_store_meta(path)
     pyr = meta.pyramid
     it = pyr.dtype.itemsize
     print(f"store      {path}")
@@ -41,8 +56,15 @@ def run(args: argparse.Namespace) -> int:
     print(f"value range {pyr.value_range[0]:g} .. {pyr.value_range[1]:g}")
     print(f"{'level':>5} {'shape (z, y, x)':>22} {'grid':>14} {'bricks':>8} {'non-empty':>9} {'on disk':>10} {'raw':>10} {'ratio':>6}")
     tot_disk = tot_raw = 0
+    unlisted = False
     for L, lv in enumerate(pyr.levels):
-        n, disk = _dir_bytes(path / str(L))
+        listed = level_files(L)
+        if listed is None:
+            unlisted = True  # a server that cannot list (plain HTTP): sizes unknown, not zero
+            print(f"{L:>5} {'x'.join(map(str, lv.shape)):>22} {'x'.join(map(str, pyr.grid(L))):>14} "
+                  f"{pyr.num_bricks(L):>8} {'-':>9} {'-':>10} {'-':>10} {'-':>6}")
+            continue
+        n, disk = listed
         raw = n * int(pyr.brick_nbytes)
         tot_disk += disk
         tot_raw += raw
@@ -51,6 +73,9 @@ def run(args: argparse.Namespace) -> int:
         shape = "x".join(map(str, lv.shape))
         print(f"{L:>5} {shape:>22} {grid:>14} {pyr.num_bricks(L):>8} {n:>9} {format_bytes(disk):>10} {format_bytes(raw):>10} {ratio:>6}")
     vox = pyr.shape[0] * pyr.shape[1] * pyr.shape[2] * it
+    if unlisted:
+        print(f"total      bytes stored unknown (the server cannot list objects) for {format_bytes(vox)} of level 0")
+        return 0
     print(f"total      {format_bytes(tot_disk)} on disk for {format_bytes(vox)} of level 0; "
           f"compression ratio {tot_raw / tot_disk:.2f} over written bricks" if tot_disk else
           f"total      nothing written (every brick is empty) for {format_bytes(vox)} of level 0")

@@ -63,3 +63,24 @@ def test_bad_remote_sources_exit_2_with_one_line(site, tmp_path, capsys):
     # remote options on a local source are refused, naming the option
     assert main(["render", str(site / "f.zarr"), "--out", out, "--cache", str(tmp_path)]) == 2
     assert "--cache" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_info_and_check_over_s3_and_http(site, capsys):
+    with moto_s3() as endpoint:
+        upload_directory(endpoint, site / "f.zarr", "bucket", "f.zarr")
+        assert main(["info", "s3://bucket/f.zarr"]) == 0
+        out = capsys.readouterr().out
+        assert "store      s3://bucket/f.zarr" in out and "complete   yes" in out
+        # level 0's row: the chunk objects S3 lists are the chunk files on local disk
+        files = [p for p in (site / "f.zarr/0/c").rglob("*") if p.is_file()]
+        row = next(line for line in out.splitlines() if line.split()[:1] == ["0"])
+        assert row.split()[4] == str(len(files)), row
+        assert main(["check", "s3://bucket/f.zarr", "--samples", "3"]) == 0
+        assert "ok (" in capsys.readouterr().out
+    with serve_directory(site) as (url, srv):
+        assert main(["info", f"{url}/f.zarr"]) == 0
+        out = capsys.readouterr().out
+        assert "complete   yes" in out and "bytes stored unknown" in out  # HTTP cannot list: no made-up zero
+        assert main(["check", f"{url}/f.zarr", "--samples", "2"]) == 0
+        assert "ok (" in capsys.readouterr().out
