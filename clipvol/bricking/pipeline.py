@@ -50,7 +50,7 @@ from .sources import Source, open_source
 from .stats import StatsComputer, finite_range
 from .store import STATS_GROUP, StoreMeta, clipvol_metadata, ome_metadata, parse_metadata
 
-__all__ = ["brick_volume", "CODECS", "BRICK_RANGE", "store_codecs", "chunk_encoder"]
+__all__ = ["brick_volume", "CODECS", "BRICK_RANGE", "store_codecs", "chunk_encoder", "encode_brick"]
 
 CODECS = ("lz4", "zstd", "none")
 BRICK_RANGE = (8, 256)
@@ -99,6 +99,19 @@ def chunk_encoder(codec: str, dtype: np.dtype) -> Callable[[np.ndarray], bytes]:
     clevel = 5 if codec == "lz4" else 1
     comp = numcodecs.Blosc(cname=codec, clevel=clevel, shuffle=shuffle, blocksize=0)
     return lambda a: bytes(comp.encode(np.ascontiguousarray(a, dtype=dtype.newbyteorder("<"))))
+
+
+def encode_brick(block: np.ndarray, brick_shape, encode: Callable[[np.ndarray], bytes]) -> bytes | None:
+    """The chunk file's bytes for a brick's valid voxels ``block`` (an edge brick is padded with the
+    fill value, as zarr does), or ``None`` for an empty brick (all fill bytes: not written).
+    Shared by the local sweep and the Dask build, so both write the same bytes."""
+    if not block.view(f"u{block.dtype.itemsize}").any():  # not all fill (0) bytes
+        return None
+    full = block
+    if block.shape != tuple(brick_shape):
+        full = np.zeros(brick_shape, dtype=block.dtype)
+        full[: block.shape[0], : block.shape[1], : block.shape[2]] = block
+    return encode(full)
 
 
 def _check_params(filter: str, codec: str, spacing, unit: str, workers) -> tuple[tuple[float, float, float] | None, int]:
@@ -246,12 +259,8 @@ class _Builder:
         st = None
         if write:
             st = self.stats.compute(block)
-            if block.view(f"u{block.dtype.itemsize}").any():  # not all fill (0) bytes
-                full = block
-                if block.shape != B:
-                    full = np.zeros(B, dtype=block.dtype)
-                    full[: block.shape[0], : block.shape[1], : block.shape[2]] = block
-                data = self.encode(full)
+            data = encode_brick(block, B, self.encode)
+            if data is not None:
                 d = self.out / str(L) / "c" / str(k) / str(by)
                 if d not in self._made_dirs:
                     d.mkdir(parents=True, exist_ok=True)
