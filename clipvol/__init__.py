@@ -3,8 +3,11 @@
 A preprocessing step (``clipvol brick``) bricks a volume into a multiresolution zarr store; at
 view time a :class:`ClipTexture` keeps per-level toroidal brick windows around a centre of
 interest in main memory, filled by loader threads, and a :class:`ClipRenderAction` picks each
-region's level from its projected size, uploads bricks under a texture budget and ray-casts them
-back to front with moderngl.
+region's level with a selection policy (:class:`RenderParams`), uploads bricks under a texture
+budget and ray-casts them in visibility order with moderngl.
+
+The package is built in stages, each importing only the ones below it: ``bricking`` -> ``paging``
+-> ``scene`` -> ``render`` -> ``app`` -> ``viewer`` (see ``docs/architecture.md``).
 
 Public names are imported lazily so ``import clipvol`` stays cheap (no zarr, no GL).
 """
@@ -32,6 +35,7 @@ _LAZY = {
     "Camera": "clipvol.scene.camera",
     "TransferFunction": "clipvol.scene.transfer",
     "Shape": "clipvol.scene.geometry",
+    "RenderParams": "clipvol.scene.params",
     # rendering (GL)
     "create_context": "clipvol.render.context",
     "ClipRenderAction": "clipvol.render.action",
@@ -56,14 +60,15 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .scene.camera import Camera
+    from .bricking.pipeline import brick_volume
+    from .bricking.pyramid import LevelInfo, Pyramid
     from .paging.cliptexture import BrickState, ClipTexture
-    from .scene.geometry import Shape
     from .paging.loader import BrickKey, HasBrickRanges, Loader
     from .paging.open import open_store
-    from .bricking.pyramid import LevelInfo, Pyramid
     from .render.action import ClipRenderAction
     from .render.context import create_context
+    from .scene.camera import Camera
+    from .scene.geometry import Shape
+    from .scene.params import RenderParams
     from .scene.transfer import TransferFunction
     from .units import parse_bytes
-    from .bricking.pipeline import brick_volume

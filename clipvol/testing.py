@@ -35,8 +35,8 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
-from .paging.loader import HasBrickRanges, Loader, check_brick
 from .bricking.pyramid import Pyramid, downsample, level_shapes
+from .paging.loader import HasBrickRanges, Loader, check_brick
 
 __all__ = ["LoaderTests", "sample_bricks"]
 

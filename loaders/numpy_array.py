@@ -22,8 +22,15 @@ from pathlib import Path
 
 import numpy as np
 
+from clipvol.bricking.pyramid import (
+    FILTERS,
+    Int3,
+    Pyramid,
+    downsample,
+    pad_to_brick,
+    validate_dtype,
+)
 from clipvol.errors import InputFormatError, InputNotFoundError, ParameterError
-from clipvol.bricking.pyramid import FILTERS, Int3, Pyramid, downsample, pad_to_brick, validate_dtype
 
 __all__ = ["NumpyLoader", "finite_range"]
 

@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from clipvol.errors import ParameterError
 from clipvol.bricking.generators import Generator, Sparse, parse_procedural
 from clipvol.bricking.pyramid import Int3, Pyramid, pad_to_brick
+from clipvol.errors import ParameterError
 
 __all__ = ["ProceduralLoader"]
 

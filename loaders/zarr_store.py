@@ -38,10 +38,32 @@ from typing import Any
 
 import numpy as np
 
-from clipvol.errors import InputFormatError, InputNotFoundError, ParameterError, StoreFormatError, StoreIncompleteError
+from clipvol.bricking.pyramid import (
+    FILTERS,
+    Int3,
+    LevelInfo,
+    Pyramid,
+    downsample,
+    level_shapes,
+    level_transform,
+    pad_to_brick,
+    validate_dtype,
+)
+from clipvol.bricking.store import (
+    MAX_BRICK_VOXELS,
+    MAX_VOXELS,
+    STAT_ARRAYS,
+    STATS_GROUP,
+    parse_metadata,
+)
+from clipvol.errors import (
+    InputFormatError,
+    InputNotFoundError,
+    ParameterError,
+    StoreFormatError,
+    StoreIncompleteError,
+)
 from clipvol.paging.loader import BrickKey
-from clipvol.bricking.pyramid import FILTERS, Int3, LevelInfo, Pyramid, downsample, level_shapes, level_transform, pad_to_brick, validate_dtype
-from clipvol.bricking.store import MAX_BRICK_VOXELS, MAX_VOXELS, STATS_GROUP, STAT_ARRAYS, parse_metadata
 
 __all__ = ["ZarrLoader"]
 

@@ -140,9 +140,9 @@ def roam_child(store: str, budget: str, threads: int, out_q, go_q, direct: bool 
     """
     import numpy as np
     import psutil
+    from clipvol.loaders.zarr_store import ZarrLoader
 
     from clipvol.paging.cliptexture import ClipTexture
-    from clipvol.loaders.zarr_store import ZarrLoader
 
     loader = _Recording(ZarrLoader(store) if direct else _CopyOnly(ZarrLoader(store)))
     pyr = loader.pyramid

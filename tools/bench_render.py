@@ -152,12 +152,12 @@ def main(argv: list[str] | None = None) -> int:
 
     from PIL import Image
 
-    from clipvol.scene.camera import Camera
     from clipvol.paging.cliptexture import ClipTexture
-    from clipvol.scene.metrics import percent_delta_e, psnr
     from clipvol.paging.open import open_store
     from clipvol.render import create_context
     from clipvol.render.action import ClipRenderAction
+    from clipvol.scene.camera import Camera
+    from clipvol.scene.metrics import percent_delta_e, psnr
     from clipvol.scene.transfer import TransferFunction
 
     if args.quick:

@@ -92,9 +92,9 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
     import zarr
 
-    from clipvol.errors import ParameterError
     from clipvol.bricking.stats import StatsComputer
     from clipvol.bricking.store import open_store_meta
+    from clipvol.errors import ParameterError
 
     if args.samples < 1:
         raise ParameterError(f"--samples: expected an integer >= 1, got {args.samples}")

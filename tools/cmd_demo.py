@@ -70,11 +70,11 @@ def _store_ok(path: Path, n: int) -> bool:
 
 
 def run(args) -> int:
+    from clipvol.app.flythrough import render_path
+    from clipvol.app.report import run_report
+    from clipvol.app.session import open_loader
     from clipvol.bricking.pipeline import brick_volume
     from clipvol.errors import ParameterError
-    from clipvol.app.report import run_report
-    from clipvol.app.flythrough import render_path
-    from clipvol.app.session import RenderSettings, open_loader
 
     quick = bool(args.quick)
     n = args.size or (40 if quick else 192)
@@ -109,9 +109,9 @@ def run(args) -> int:
         # the ball fills the cube's inscribed sphere: come closer than the cube's bounding sphere
         dist = 0.75 * fit_distance(loader.pyramid, 35.0, size)
         orbit = render_path(loader, out / "orbit.gif", path="orbit", frames=frames, size=size, converged=True,
-                            settings=RenderSettings(tf=tf), ctx=ctx, fps=12, path_kwargs={"distance": dist})
+                            tf=tf, ctx=ctx, fps=12, path_kwargs={"distance": dist})
         zoom = render_path(loader, out / "zoom.gif", path="zoom", frames=max(frames // 2, 2), size=size, converged=False,
-                           settings=RenderSettings(tf=tf), outlines=True, ctx=ctx, fps=6)
+                           tf=tf, outlines=True, ctx=ctx, fps=6)
         t_render = time.perf_counter() - t1
         report = None
         if not args.no_report:

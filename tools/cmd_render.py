@@ -13,6 +13,11 @@ import math
 import sys
 
 from clipvol.errors import ParameterError
+from clipvol.scene.params import POLICY_ALIASES
+from clipvol.scene.selection.policies import POLICIES
+
+#: what --policy accepts: the registry's names and their older aliases
+POLICY_CHOICES = sorted(POLICIES) + sorted(POLICY_ALIASES)
 
 VIEWS = ("front", "back", "side", "top", "iso")
 
@@ -53,8 +58,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     v.add_argument("--size", type=_size, default=(512, 512), help="image size WxH (default 512x512)")
     r = p.add_argument_group("rendering")
     r.add_argument("--mode", choices=("composite", "mip"), default="composite")
-    r.add_argument("--selection", choices=("multiresolution", "roaming", "fixed"), default="multiresolution")
-    r.add_argument("--level", type=int, default=None, help="level for --selection fixed (default 0)")
+    r.add_argument("--policy", "--selection", dest="policy", choices=POLICY_CHOICES, default="projected-size",
+                   help="selection policy: which bricks at which level (default projected-size; "
+                        "--selection multiresolution is the same)")
+    r.add_argument("--level", type=int, default=None, help="level for --policy fixed (default 0)")
+    r.add_argument("--max-texels-drawn", type=int, default=None,
+                   help="most voxels of drawn bricks: refine the largest projected voxels first until it binds")
+    r.add_argument("--distance-factor", type=float, default=1.0,
+                   help="--policy distance: refine nodes closer to the eye than this many of their diagonals")
+    r.add_argument("--fov-fraction", type=float, default=0.5,
+                   help="--policy field-of-view: refine nodes subtending more than this fraction of the view")
     r.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel projects to more than this many pixels")
     r.add_argument("--tf", default="viridis", help="transfer-function preset (grey, viridis, magma, inferno, plasma, bone)")
     r.add_argument("--tf-range", type=lambda s: tuple(float(t) for t in s.split(",")), default=None,
@@ -114,6 +127,7 @@ def run(args) -> int:
     from clipvol.paging.open import open_store
     from clipvol.render import create_context
     from clipvol.render.action import ClipRenderAction
+    from clipvol.scene.params import RenderParams
     from clipvol.scene.transfer import TransferFunction
     from clipvol.units import format_bytes
 
@@ -130,16 +144,17 @@ def run(args) -> int:
                       distance=args.distance, ortho=args.ortho)
     lo, hi = pyr.volume_box()
     centre = np.clip(np.asarray(cam.center, dtype=np.float64), lo, hi)
-    selection = args.selection
-    level = args.level if args.level is not None else (0 if selection == "fixed" else None)
+    params = RenderParams(
+        mode=args.mode, policy=args.policy, level=args.level, lod_threshold=args.lod_threshold,
+        max_texels_drawn=args.max_texels_drawn, distance_factor=args.distance_factor, fov_fraction=args.fov_fraction,
+        texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget, step=args.step,
+        background=args.background,
+    ).check_for(pyr)
     tf = TransferFunction.preset(args.tf, value_range=args.tf_range)
     ctx = create_context()
     try:
         with ClipTexture(loader, args.memory_budget, args.threads, center=centre) as clip, \
-                ClipRenderAction(ctx, clip, texture_budget=args.texture_budget, lod_threshold=args.lod_threshold,
-                                 mode=args.mode, selection=selection, level=level,
-                                 texels_per_frame=args.texels_per_frame, step=args.step,
-                                 background=args.background) as action:
+                ClipRenderAction(ctx, clip, params) as action:
             image = action.render(cam, tf, wait=not args.no_wait, timeout=args.timeout)
             st = action.last_frame_stats
     finally:
@@ -147,7 +162,7 @@ def run(args) -> int:
     Image.fromarray(image, "RGBA").save(args.out)
     t = st.times
     levels = ", ".join(f"L{L}: {n}" for L, n in st.bricks_drawn.items()) or "none"
-    print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, {args.mode}, {selection})", file=sys.stderr)
+    print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, {args.mode}, {params.policy})", file=sys.stderr)
     print(f"bricks drawn {sum(st.bricks_drawn.values())} ({levels}); texels drawn {st.texels_drawn:,}; "
           f"converged {st.converged} after {st.passes} pass(es)", file=sys.stderr)
     print(f"uploaded {format_bytes(st.bytes_uploaded)} in {st.bricks_uploaded} bricks; textures "

@@ -57,7 +57,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     from clipvol.app.report import run_report
     from clipvol.app.session import open_loader
-
     from clipvol.errors import ParameterError
     from clipvol.scene.transfer import TransferFunction
 

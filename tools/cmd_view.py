@@ -34,7 +34,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default: the loader's, 64)")
     g = p.add_argument_group("rendering")
     g.add_argument("--mode", choices=("composite", "mip"), default="composite", help="compositing or maximum intensity projection")
-    g.add_argument("--selection", choices=("multiresolution", "roaming", "fixed"), default="multiresolution")
+    g.add_argument("--selection", "--policy", dest="selection", choices=("multiresolution", "roaming", "fixed"),
+                   default="multiresolution", help="selection policy the viewer starts with (M cycles them)")
     g.add_argument("--level", type=int, default=None, help="level drawn with --selection fixed (default 0)")
     g.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel projects to more than this many pixels")
     g.add_argument("--tf", default="viridis", help="transfer-function preset (grey, viridis, magma, inferno, plasma, bone) or demo (the demo's)")
@@ -59,31 +60,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from dataclasses import replace
-
+    from clipvol.app.session import open_loader
     from clipvol.errors import ParameterError
-    from clipvol.app.session import RenderSettings, open_loader
+    from clipvol.scene.params import RenderParams
 
     if args.frames < 1:
         raise ParameterError(f"--frames: expected >= 1, got {args.frames}")
-    settings = RenderSettings(
-        lod_threshold=args.lod_threshold, selection=args.selection, level=args.level, mode=args.mode, tf=args.tf,
-        step=args.step, texels_per_frame=args.texels_per_frame,
+    params = RenderParams(
+        lod_threshold=args.lod_threshold, policy=args.selection, level=args.level, mode=args.mode,
+        step=args.step, texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget,
     )
+    tf = args.tf
     from clipvol.scene.transfer import TransferFunction
 
     if args.tf == "demo":
         from clipvol.tools.cmd_demo import demo_transfer_function
 
-        settings = replace(settings, tf=demo_transfer_function())
+        tf = demo_transfer_function()
     elif args.tf not in TransferFunction.names():
         raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())} or demo, got {args.tf!r}")
     from clipvol.tools.remote_args import remote_kwargs
 
     kwargs = {} if args.brick is None else {"brick": args.brick}
     loader = open_loader(args.source, **kwargs, **remote_kwargs(args))
-    if settings.level is not None and settings.level >= loader.pyramid.num_levels:
-        raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {settings.level}")
+    if params.level is not None and params.level >= loader.pyramid.num_levels:
+        raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {params.level}")
     if args.offscreen:
         from clipvol.app.flythrough import render_path
 
@@ -95,7 +96,7 @@ def run(args) -> int:
         res = render_path(
             loader, args.out, path=args.path, frames=args.frames, size=args.size or (256, 256),
             converged=args.converged, timeout=args.timeout, memory_budget=args.memory_budget,
-            texture_budget=args.texture_budget, threads=args.threads, settings=settings, outlines=args.outlines,
+            texture_budget=args.texture_budget, threads=args.threads, params=params, tf=tf, outlines=args.outlines,
             fps=args.fps, progress=show,
         )
         print(f"wrote {res.frames} frames to {args.out}; per-frame statistics in {res.csv}")
@@ -103,7 +104,7 @@ def run(args) -> int:
     from clipvol.viewer.window import Viewer
 
     with Viewer(loader, size=args.size or (960, 640), memory_budget=args.memory_budget,
-                texture_budget=args.texture_budget, threads=args.threads, settings=settings,
+                texture_budget=args.texture_budget, threads=args.threads, params=params, tf=tf,
                 screenshot_dir=args.screenshot_dir, title=f"clipvol - {args.source}") as viewer:
         if args.outlines:
             viewer.key("B")

@@ -22,7 +22,9 @@ from typing import Callable
 import numpy as np
 
 from ..errors import ParameterError
-from .session import RenderSession, RenderSettings
+from ..scene.params import RenderParams
+from ..scene.paths import make_path
+from .session import RenderSession
 
 __all__ = ["PathResult", "render_path", "frame_row", "save_gif", "CSV_BASE_COLUMNS"]
 
@@ -94,7 +96,8 @@ def render_path(
     memory_budget="256MB",
     texture_budget="256MB",
     threads: int | None = None,
-    settings: RenderSettings | None = None,
+    params: RenderParams | None = None,
+    tf="viridis",
     outlines: bool = False,
     fps: float = 12.0,
     ctx=None,
@@ -123,8 +126,10 @@ def render_path(
         Seconds to wait per frame when ``converged``.
     memory_budget, texture_budget, threads
         Clip-texture and GPU cache budgets, loader threads.
-    settings : RenderSettings, optional
-        LOD threshold, selection mode, MIP/composite, transfer function, step.
+    params : RenderParams, optional
+        Selection policy, LOD threshold, MIP/composite, step (``texture_budget`` above wins).
+    tf : str or TransferFunction
+        The transfer function.
     outlines : bool
         Draw each frame's bricks outlined in their level's colour.
     fps : float
@@ -142,7 +147,6 @@ def render_path(
     -------
     PathResult
     """
-    from ..scene.paths import make_path
 
     out = Path(out)
     gif = out.suffix.lower() == ".gif"
@@ -166,7 +170,7 @@ def render_path(
                 ctx = create_context()
                 own_ctx = True
             session = RenderSession(source, ctx, memory_budget=memory_budget, texture_budget=texture_budget,
-                                    threads=threads, settings=settings)
+                                    threads=threads, params=params, tf=tf)
             own_session = True
         cams = make_path(path, session.pyramid, frames, size=size, **(path_kwargs or {}))
         fh = open(csv_path, "w", newline="")
@@ -178,7 +182,7 @@ def render_path(
         for k, (cam, coi) in enumerate(cams):
             img, dt = session.timed_render(cam, coi, wait=converged, timeout=timeout if converged else None)
             if outlines:
-                from ..viewer.overlay import draw_outlines
+                from .overlay import draw_outlines
 
                 img = draw_outlines(img, cam, session.last_items())
             row = frame_row(session, k, dt, time.perf_counter() - t_start, before)

@@ -37,7 +37,12 @@ import numpy as np
 
 from ..errors import ClipvolError, ParameterError
 from ..paging.toroidal import minimum_budget
+from ..render.context import create_context
+from ..scene.metrics import percent_delta_e, psnr, rmse
+from ..scene.params import RenderParams
+from ..scene.paths import make_path
 from ..units import format_bytes, parse_bytes
+from .session import RenderSession, open_loader
 
 __all__ = ["ReportResult", "run_report", "REPORT_COLUMNS", "DEFAULT_THRESHOLDS"]
 
@@ -95,7 +100,6 @@ def _holding_budget(pyr, level: int) -> int:
 
 
 def _metrics(img: np.ndarray, ref: np.ndarray) -> dict:
-    from ..scene.metrics import percent_delta_e, psnr, rmse
 
     # the render action returns straight (non-premultiplied) RGBA: composite it over black as such
     p = float(psnr(img, ref, premultiplied=False))
@@ -140,13 +144,11 @@ def _settle(sess, cam, coi, timeout: float, max_passes: int = 32) -> int:
 
 def _run_setting(s: _Setting, loader, ctx, views, refs, *, tf, mode, step, threads, timeout, max_frames,
                  log, keep_frames: dict | None, repeats: int = 3) -> list[dict]:
-    from .session import RenderSession, RenderSettings
-
-    settings = RenderSettings(lod_threshold=s.lod_threshold, selection=s.selection, level=s.level, mode=mode, tf=tf, step=step)
+    params = RenderParams(lod_threshold=s.lod_threshold, policy=s.selection, level=s.level, mode=mode, step=step)
     rows: list[dict] = []
     brick_bytes = loader.pyramid.brick_nbytes
     with RenderSession(loader, ctx, memory_budget=s.memory_budget, texture_budget=s.texture_budget,
-                       threads=threads, settings=settings) as sess:
+                       threads=threads, params=params, tf=tf) as sess:
         for v, (cam, coi) in enumerate(views):
             ref = refs[v] if refs is not None else None
             t_view = time.perf_counter()
@@ -265,8 +267,6 @@ def run_report(
     -------
     ReportResult
     """
-    from ..scene.paths import make_path
-    from .session import open_loader
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -287,7 +287,6 @@ def run_report(
     result = ReportResult(out_dir=out, csv=out / "report.csv", markdown=out / "report.md", reference_level=ref_level)
     own_ctx = ctx is None
     if own_ctx:
-        from ..render.context import create_context
 
         ctx = create_context()
     kw = dict(tf=tf, mode=mode, step=step, threads=threads, timeout=timeout, max_frames=int(max_frames), log=log)

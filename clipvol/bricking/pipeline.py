@@ -48,7 +48,13 @@ from ..errors import OutputExistsError, ParameterError
 from .pyramid import FILTERS, Pyramid, downsample
 from .sources import Source, open_source
 from .stats import StatsComputer, finite_range
-from .store import STATS_GROUP, StoreMeta, clipvol_metadata, ome_metadata, parse_metadata
+from .store import (
+    STATS_GROUP,
+    StoreMeta,
+    clipvol_metadata,
+    ome_metadata,
+    parse_metadata,
+)
 
 __all__ = ["brick_volume", "CODECS", "BRICK_RANGE", "store_codecs", "chunk_encoder", "encode_brick"]
 

@@ -26,6 +26,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import InputFormatError, InputNotFoundError, ParameterError
+from .generators import parse_procedural
 from .pyramid import validate_dtype
 
 __all__ = [
@@ -281,7 +282,6 @@ class ProceduralSource(Source):
     """Level 0 of a ``procedural:NAME?size=N`` generator, evaluated region by region."""
 
     def __init__(self, url: str) -> None:
-        from .generators import parse_procedural
 
         self.generator = parse_procedural(url)
         self._init(self.generator.shape, self.generator.dtype, self.generator.url())

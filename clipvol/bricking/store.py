@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import StoreFormatError
+from ..errors import InputNotFoundError, StoreFormatError, StoreIncompleteError
 from .pyramid import FILTERS, LevelInfo, Pyramid, validate_dtype
 
 __all__ = [
@@ -226,8 +226,6 @@ def open_store_meta(path, *, require_complete: bool = False) -> StoreMeta:
     """
     import json
     from pathlib import Path
-
-    from ..errors import InputNotFoundError, StoreIncompleteError
 
     p = Path(path)
     if not p.exists():

@@ -1,6 +1,6 @@
 """The clip-texture: per-level toroidal brick windows in main memory, filled by loader threads.
 
-After ``vzParameterClipTexture`` (seed 001, section 4.1) and the clipmap. A memory budget becomes
+After ``vzParameterClipTexture`` (Bhaniramka & Demange 2002, section 4.1) and the clipmap. A memory budget becomes
 a pool of brick slots allocated once (:func:`clipvol.paging.toroidal.allocate`); coarse levels that fit
 are held whole, finer ones keep a window of ``W`` bricks per axis around the centre of interest,
 brick ``b`` living in slot ``b mod W``. Moving the centre evicts the bricks that left a window,
@@ -8,7 +8,9 @@ gives their slots to the bricks that entered, and re-sorts one load queue by dis
 before fine at equal distance, biased towards where the centre is going). Loader threads pop the
 queue front, call the loader, validate, copy into the slot and set its state to ``RESIDENT``.
 
-Threads live here and nowhere else in clipvol. One lock guards all bookkeeping; loader calls run
+The paging stage's threads live here (bricking has its own worker pool, and the loader conformance
+suite its own test threads); the load order and retry timing are :mod:`clipvol.paging.queue`. One
+lock guards all bookkeeping; loader calls run
 outside it, and the copy into the slot happens under it after checking the slot's generation, so
 a reader never sees a partly written brick and a late result for an evicted brick is dropped.
 A loader that also offers ``read_brick_into(level, index, out)`` is handed the slot itself (no
@@ -19,7 +21,6 @@ semantics.
 
 from __future__ import annotations
 
-import heapq
 import operator
 import os
 import threading
@@ -33,9 +34,11 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from ..errors import LoaderError, ParameterError
-from .loader import BrickKey, HasBrickRanges, Loader, check_brick
 from ..bricking.pyramid import Int3
+from ..errors import LoaderError, ParameterError
+from ..units import parse_bytes
+from .loader import BrickKey, HasBrickRanges, Loader, check_brick
+from .queue import LoadQueue
 from .toroidal import (
     Allocation,
     allocate,
@@ -47,7 +50,6 @@ from .toroidal import (
     window_bricks,
     window_shape,
 )
-from ..units import parse_bytes
 
 __all__ = ["BrickState", "ClipTexture", "ClipTextureStats"]
 
@@ -229,8 +231,7 @@ class ClipTexture:
         self._window = self.allocation.window
         self._lock = threading.Lock()
         self._cv = threading.Condition(self._lock)
-        self._queue: list[tuple] = []  # heap: (cost, -level, bz, by, bx, level, slot, gen)
-        self._parked: dict[tuple[int, int], tuple] = {}  # (level, slot) -> queue entry waiting for a busy slot
+        self._queue = LoadQueue(backoff)  # heap by cost, delayed retries, parked jobs
         into = getattr(loader, "read_brick_into", None)
         self._read_into: Callable[[int, Int3, np.ndarray], None] | None = into if callable(into) else None
         # empty bricks (bounds [fill, fill], see HasBrickRanges) are filled here, never read
@@ -238,7 +239,6 @@ class ClipTexture:
         self._fill_brick = np.full(pyr.brick_shape, pyr.fill_value, dtype=pyr.dtype)
         self._fill_brick.setflags(write=False)
         self._skipped_empty = 0
-        self._delayed: list[tuple] = []  # heap: (not_before, level, slot, gen) for retries
         self._closing = False
         self._pending = 0  # bricks QUEUED or LOADING (recounted on every move, decremented per outcome)
         self._watched: dict[tuple[int, Int3], list[_Countdown]] = {}  # brick -> wait_for calls waiting on it
@@ -378,11 +378,6 @@ class ClipTexture:
             empty_skipped=skipped,
         )
 
-    def load_cost(self, level: int, indices: np.ndarray) -> np.ndarray:
-        """Current queue cost of bricks ``indices`` of ``level`` (distance in brick units, predicted)."""
-        with self._lock:
-            return brick_costs(self.pyramid, level, indices, self._interest_point(level))
-
     # -- control ---------------------------------------------------------------------------------
     def set_center(self, xyz) -> None:
         """Move the centre of interest to ``xyz`` (world ``(x, y, z)``): evict, re-queue, re-sort."""
@@ -457,7 +452,6 @@ class ClipTexture:
         with self._cv:
             self._closing = True
             self._queue.clear()
-            self._delayed.clear()
             self._cv.notify_all()
         deadline = None if timeout is None else time.monotonic() + timeout
         for t in self._threads:
@@ -625,11 +619,7 @@ class ClipTexture:
             L = lv.level
             for c, k, s, g in zip(cost.tolist(), keys.tolist(), q.tolist(), lv.gen[q].tolist()):
                 entries.append((c, -L, k[0], k[1], k[2], L, s, g))
-        entries.sort()
-        self._queue = entries  # a sorted list is a heap
-        self._parked.clear()  # every queued brick is in ``entries`` again
-        heapq.heapify(delayed)
-        self._delayed = delayed
+        self._queue.rebuild(entries, delayed)
 
     def _valid(self, level: int, slot: int, gen: int, state: int) -> bool:
         lv = self._levels[level]
@@ -637,27 +627,25 @@ class ClipTexture:
 
     def _promote_due(self, now: float) -> float | None:
         """Move due retries into the load queue; return seconds until the next one (or None)."""
-        while self._delayed and self._delayed[0][0] <= now:
-            _, L, s, gen = heapq.heappop(self._delayed)
-            if self._valid(L, s, gen, _QUEUED):
-                lv = self._levels[L]
-                k = lv.key[s]
-                c = float(brick_costs(self.pyramid, L, k[None], self._interest_point(L))[0])
-                heapq.heappush(self._queue, (c, -L, int(k[0]), int(k[1]), int(k[2]), L, s, gen))
-        return self._delayed[0][0] - now if self._delayed else None
+        def cost(L: int, s: int) -> tuple:
+            k = self._levels[L].key[s]
+            c = float(brick_costs(self.pyramid, L, k[None], self._interest_point(L))[0])
+            return (c, -L, int(k[0]), int(k[1]), int(k[2]))
+
+        self._queue.promote(now, cost, lambda L, s, gen: self._valid(L, s, gen, _QUEUED))
+        return self._queue.next_retry_in(now)
 
     def _pop_job(self) -> tuple[tuple[int, int, int, Int3] | None, float | None]:
         """Pop the front of the queue (lazy invalidation): ``(job, None)``, or ``(None, seconds)``
         until the next retry is due (``None``: nothing scheduled)."""
         wait = self._promote_due(time.monotonic())
         if not self._closing:
-            while self._queue:
-                entry = heapq.heappop(self._queue)
+            while (entry := self._queue.pop()) is not None:
                 _, _, bz, by, bx, L, s, gen = entry
                 if self._valid(L, s, gen, _QUEUED):
                     lv = self._levels[L]
                     if lv.busy[s]:
-                        self._parked[(L, s)] = entry  # back in the queue when the writer is done
+                        self._queue.park(L, s, entry)  # back in the queue when the writer is done
                         continue
                     lv.state[s] = _LOADING
                     if self._read_into is not None:
@@ -688,9 +676,7 @@ class ClipTexture:
         with self._cv:
             if self._read_into is not None:
                 self._levels[L].busy[s] = False
-                parked = self._parked.pop((L, s), None)
-                if parked is not None:
-                    heapq.heappush(self._queue, parked)
+                if self._queue.unpark(L, s):
                     self._cv.notify_all()
             if self._closing:
                 return False
@@ -730,9 +716,9 @@ class ClipTexture:
                 lv.attempts[s] += 1
                 self._retries += 1
                 lv.state[s] = _QUEUED
-                nb_t = time.monotonic() + self.retry_backoff * 2.0 ** (int(lv.attempts[s]) - 1)
+                nb_t = self._queue.retry_at(int(lv.attempts[s]), time.monotonic())
                 lv.not_before[s] = nb_t
-                heapq.heappush(self._delayed, (nb_t, L, s, gen))
+                self._queue.delay(nb_t, L, s, gen)
             if wake:
                 self._cv.notify_all()
         if report is not None and self.on_error is not None:

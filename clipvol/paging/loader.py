@@ -33,8 +33,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from ..errors import LoaderError
 from ..bricking.pyramid import Int3, Pyramid
+from ..errors import LoaderError
 
 __all__ = ["Loader", "HasBrickRanges", "BrickKey", "check_brick"]
 

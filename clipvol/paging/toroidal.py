@@ -48,8 +48,8 @@ from typing import Sequence
 
 import numpy as np
 
-from ..errors import ParameterError
 from ..bricking.pyramid import Int3, Pyramid
+from ..errors import ParameterError
 from ..units import format_bytes
 
 __all__ = [

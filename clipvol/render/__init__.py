@@ -1,4 +1,7 @@
-"""GL rendering of clip-textures: the offscreen context, the GPU brick cache, the clip render action.
+"""Stage 4, render (GL): the offscreen context, the GPU brick cache, the frame loop, the render actions.
+
+The frame loop (:mod:`.frame_loop`: select, plan uploads, wait) makes no GL call itself; the
+actions draw what it settled on. Everything below this stage is pure numpy.
 
 Importing this package imports moderngl lazily (only :func:`create_context` and the action need it).
 """

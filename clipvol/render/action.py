@@ -56,16 +56,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ParameterError
-from ..scene.selection import MODES as SELECTION_MODES
+from ..paging.loader import HasBrickRanges
+from ..scene.params import MODES, RenderParams
 from ..scene.selection import merge_items
-from ..units import parse_bytes
-from .gpu_cache import GpuBrickCache
+from ..scene.selection.policies import POLICIES
+from .frame_loop import FrameLoop
 from .glsl import load_shader
+from .gpu_cache import GpuBrickCache
 
 __all__ = ["ClipRenderAction", "FrameStats", "MODES", "SELECTIONS"]
 
-MODES = ("composite", "mip")
-SELECTIONS = SELECTION_MODES  # multiresolution, roaming, fixed (clipvol.scene.selection.MODES)
+#: selection policy names (clipvol.scene.selection.policies.POLICIES)
+SELECTIONS = tuple(POLICIES)
 #: most samples one ray takes inside one box (a smaller step is refused with ParameterError)
 MAX_STEPS_PER_BOX = 1 << 16
 _MIP_EMPTY = -3.0e38
@@ -148,80 +150,24 @@ class ClipRenderAction:
         From :func:`clipvol.render.create_context` (or a window's context).
     clip_texture : ClipTexture
         Source of bricks (its ``loader`` and ``pyramid`` are used).
-    texture_budget : int or str
-        Bytes of texture memory for bricks (``"256MB"``).
-    lod_threshold : float
-        Refine while a voxel of a brick's level projects to more than this many pixels.
-    mode : {"composite", "mip"}
-    selection : {"multiresolution", "roaming", "fixed"}
-    level : int, optional
-        The level drawn in ``"fixed"`` mode.
-    texels_per_frame : int, optional
-        Most texels uploaded per frame (at least one brick per frame is always allowed).
-    max_texels_drawn : int, optional
-        Passed to the selection.
-    step : float
-        Sample spacing in units of the drawn level's smallest voxel size.
-    shape : Shape, optional
-        Region of interest / clip planes (:class:`clipvol.scene.geometry.Shape`).
-    background : 4 floats
-        Straight RGBA in ``[0, 1]`` behind the volume.
-    early_termination : bool
-        Composite: draw the boxes front to back with the "under" operator and skip pixels that are
-        already opaque (default; much faster for opaque data). ``False`` draws them back to front
-        with ``(ONE, ONE_MINUS_SRC_ALPHA)``; both give the same image (the operator is associative).
-    merge_boxes : bool
-        Draw complete sibling sets of one level as one box over their parent node
-        (:func:`clipvol.scene.selection.merge_items`; same image, far fewer boxes). ``False`` draws one
-        box per selected item, as ``vzClipRenderAction`` does.
+    params : RenderParams, optional
+        Mode, selection policy and its parameters, step, budgets, shape, background
+        (:class:`clipvol.scene.params.RenderParams`); change them later with :meth:`set_params`.
+    **kwargs
+        Any :class:`~clipvol.scene.params.RenderParams` field as a keyword, applied over ``params``
+        (``texture_budget="512MB", lod_threshold=2``); ``selection=`` is the older name of
+        ``policy=``.
     """
 
-    def __init__(self, ctx, clip_texture, *, texture_budget="256MB", lod_threshold: float = 1.0,
-                 mode: str = "composite", selection: str = "multiresolution", level: int | None = None,
-                 texels_per_frame: int | None = None, max_texels_drawn: int | None = None,
-                 step: float = 0.5, shape=None, background=(0.0, 0.0, 0.0, 0.0),
-                 early_termination: bool = True, merge_boxes: bool = True) -> None:
+    def __init__(self, ctx, clip_texture, params: RenderParams | None = None, **kwargs) -> None:
         import moderngl
 
         self.ctx = ctx
         self.clip_texture = clip_texture
         self.pyramid = clip_texture.pyramid
-        if mode not in MODES:
-            raise ParameterError(f"mode: expected one of {', '.join(MODES)}, got {mode!r}")
-        if selection not in SELECTIONS:
-            raise ParameterError(f"selection: expected one of {', '.join(SELECTIONS)}, got {selection!r}")
-        step = float(step)
-        if not math.isfinite(step) or step <= 0:
-            raise ParameterError(f"step: expected a finite number > 0 (voxels), got {step}")
-        lod_threshold = float(lod_threshold)
-        if not math.isfinite(lod_threshold) or lod_threshold <= 0:
-            raise ParameterError(f"lod_threshold: expected a finite number > 0 (pixels), got {lod_threshold}")
-        if level is not None and not (0 <= int(level) < self.pyramid.num_levels):
-            raise ParameterError(f"level: expected 0..{self.pyramid.num_levels - 1}, got {level}")
-        if selection == "fixed" and level is None:
-            raise ParameterError("level: expected a level for selection='fixed', got None")
-        brick_texels = int(np.prod(self.pyramid.brick_shape))
-        if texels_per_frame is not None:
-            texels_per_frame = int(texels_per_frame)
-            if texels_per_frame < 1:
-                raise ParameterError(f"texels_per_frame: expected None or >= 1, got {texels_per_frame}")
-            texels_per_frame = max(texels_per_frame, brick_texels)
-        bg = tuple(float(v) for v in background)
-        if len(bg) != 4 or not all(0.0 <= v <= 1.0 for v in bg):
-            raise ParameterError(f"background: expected four values in [0, 1] (r, g, b, a), got {background!r}")
-        self.mode = mode
-        self.selection = selection
-        self.level = None if level is None else int(level)
-        self.lod_threshold = lod_threshold
-        self.texels_per_frame = texels_per_frame
-        self.max_texels_drawn = max_texels_drawn
-        self.step = step
-        self.shape = shape
-        self.background = bg
-        self.early_termination = bool(early_termination)
-        self.merge_boxes = bool(merge_boxes)
-        self.texture_budget = parse_bytes(texture_budget, "texture_budget")
-        self.cache = GpuBrickCache(ctx, self.pyramid, self.texture_budget)
+        self.params = RenderParams.from_kwargs(params, **kwargs).check_for(self.pyramid)
+        self.cache = GpuBrickCache(ctx, self.pyramid, self.params.texture_budget)
+        self.frame_loop = FrameLoop(clip_texture, self.cache)
         self.program = ctx.program(vertex_shader=load_shader("brick.vert"), fragment_shader=load_shader("brick.frag"))
         self._vbo = ctx.buffer(_cube_triangles().tobytes())
         self._vao = ctx.vertex_array(self.program, [(self._vbo, "3f", "in_corner")])
@@ -250,8 +196,8 @@ class ClipRenderAction:
         if worst > MAX_STEPS_PER_BOX:
             raise ParameterError(
                 f"step: expected at most {MAX_STEPS_PER_BOX} samples per ray and brick, got about {worst:.3g} with "
-                f"step {self.step} of the smallest voxel (spacing {self.pyramid.spacing}) for this view; use step >= "
-                f"{self.step * worst / MAX_STEPS_PER_BOX:.3g}"
+                f"step {self.params.step} of the smallest voxel (spacing {self.pyramid.spacing}) for this view; use step >= "
+                f"{self.params.step * worst / MAX_STEPS_PER_BOX:.3g}"
             )
 
     def _samples_per_box(self, cam, items) -> float:
@@ -273,21 +219,13 @@ class ClipRenderAction:
         with np.errstate(divide="ignore"):
             path = np.min(ext[:, None, :] / np.abs(dirs[None, :, :]), axis=2).max(axis=1)  # (n,)
         sp_min = float(min(self.pyramid.spacing))
-        delta = np.array([self.step * sp_min * 2.0**L for L in levels])
+        delta = np.array([self.params.step * sp_min * 2.0**L for L in levels])
         return float(np.max(path / delta)) * 1.1
-
-    def _selection_params(self):
-        from ..scene.selection import SelectionParams
-
-        return SelectionParams(mode=self.selection, lod_threshold=self.lod_threshold, level=self.level,
-                               max_texels_drawn=self.max_texels_drawn)
 
     def _transparent(self, tf):
         """``(level, idx) -> bool mask`` from the loader's brick ranges, or None."""
-        from ..paging.loader import HasBrickRanges
-
         loader = self.clip_texture.loader
-        if self.mode != "composite" or not isinstance(loader, HasBrickRanges):
+        if self.params.mode != "composite" or not isinstance(loader, HasBrickRanges):
             return None
         data_range = self.pyramid.value_range
 
@@ -326,30 +264,21 @@ class ClipRenderAction:
             self._tf_tex, self._tf_key = tex, key
         return self._tf_tex
 
-    def _select(self, camera, tf):
-        from ..scene.selection import select
-
-        params, transparent = self._selection_params(), self._transparent(tf)
-        allow = None
-        if self.texels_per_frame is not None:  # dry run to choose the uploads coarse-first
-            residency = self.cache.begin_frame(self.clip_texture, None)
-            dry = select(self.pyramid, camera, params, residency=residency, shape=self.shape, transparent=transparent)
-            self.cache.reserve_neighbours(dry.items)
-            if len(self.cache.pending_keys()) * self.cache.brick_texels <= self.texels_per_frame:
-                return dry  # the budget does not bind (the steady state): the real run would be the same
-            allow = self.cache.plan_uploads(self.texels_per_frame, dry.items)
-        residency = self.cache.begin_frame(self.clip_texture, self.texels_per_frame, allow)
-        sel = select(self.pyramid, camera, params, residency=residency, shape=self.shape, transparent=transparent)
-        self.cache.reserve_neighbours(sel.items)
-        return sel
-
-    @staticmethod
-    def _converged(sel) -> bool:
-        drawn = {(it.level, tuple(it.index)) for it in sel.items}
-        return all((int(L), tuple(int(i) for i in idx)) in drawn for L, idx in sel.wanted)
+    def set_params(self, params: RenderParams) -> None:
+        """Use ``params`` from the next frame on (the GPU cache is kept unless the texture budget
+        changed; the clip-texture is never touched)."""
+        if not isinstance(params, RenderParams):
+            raise ParameterError(f"params: expected a RenderParams, got {type(params).__name__}")
+        params.check_for(self.pyramid)
+        if params.texture_budget != self.params.texture_budget:
+            self.cache.release()
+            self.cache = GpuBrickCache(self.ctx, self.pyramid, params.texture_budget)
+            self.frame_loop = FrameLoop(self.clip_texture, self.cache)
+        self.params = params
 
     # -- the frame ---------------------------------------------------------------------------------
-    def render(self, camera, transfer_function, wait: bool = False, timeout: float | None = None) -> np.ndarray:
+    def render(self, camera, transfer_function, wait: bool = False, timeout: float | None = None,
+               policy=None) -> np.ndarray:
         """Render one frame; returns ``(h, w, 4)`` uint8 straight RGBA, row 0 at the top.
 
         Parameters
@@ -360,54 +289,14 @@ class ClipRenderAction:
             Wait for the wanted bricks (loads and uploads) until the selection converges.
         timeout : float, optional
             Seconds to wait at most with ``wait=True`` (None: until nothing more can arrive).
+        policy : object, optional
+            A selection policy instance to use instead of the one ``params.policy`` names.
         """
         t_start = time.perf_counter()
-        times = dict(select=0.0, upload=0.0, wait=0.0, draw=0.0, readback=0.0)
         cam = self._selection_camera(camera)
-        deadline = None if timeout is None else t_start + float(timeout)
-        passes, up_bytes, up_bricks = 0, 0, 0
-        uploaded_now: set = set()  # bricks uploaded by this call: a second upload means thrashing
-        while True:
-            t0 = time.perf_counter()
-            version = self.clip_texture.residency_version  # before selecting: any change after counts
-            sel = self._select(cam, transfer_function)
-            t1 = time.perf_counter()
-            pending = set(self.cache.pending_keys())
-            thrashing = bool(pending & uploaded_now)
-            uploaded_now |= pending
-            up_bytes += self.cache.commit()
-            up_bricks += self.cache.bricks_uploaded
-            t2 = time.perf_counter()
-            times["select"] += t1 - t0
-            times["upload"] += t2 - t1
-            passes += 1
-            neighbours = self.cache.missing_neighbours(sel.items)
-            converged = self._converged(sel) and not neighbours
-            if not wait or converged:
-                break
-            left = None if deadline is None else deadline - time.perf_counter()
-            if (left is not None and left <= 0) or thrashing:
-                break  # out of time, or the texture budget cannot hold this view at once
-            if self.cache.bricks_uploaded:
-                continue  # more passes: the upload budget of one pass was spent
-            drawn = {(it.level, tuple(it.index)) for it in sel.items}
-            missing = [(int(L), tuple(int(i) for i in idx)) for L, idx in sel.wanted
-                       if (int(L), tuple(int(i) for i in idx)) not in drawn]
-            seen = set(missing)
-            missing += [k for k in neighbours if k not in seen]
-            waitable = [k for k in missing if self.cache.windows[k[0]] is not None
-                        and not self.cache.on_gpu_mask(k[0], [k[1]])[0]
-                        and bool(np.asarray(self.clip_texture.in_window_mask(k[0], np.array([k[1]])))[0])
-                        and not bool(np.asarray(self.clip_texture.resident_mask(k[0], np.array([k[1]])))[0])]
-            if not waitable:
-                if self.clip_texture.residency_version != version:
-                    continue  # bricks arrived while selecting: select again
-                break  # what is missing can never come (failed, outside the windows, slot conflicts)
-            t3 = time.perf_counter()
-            self.clip_texture.wait_for(waitable, timeout=left)
-            times["wait"] += time.perf_counter() - t3
-            if self.clip_texture.residency_version == version:
-                break
+        plan = self.frame_loop.run(cam, self.params, transparent=self._transparent(transfer_function),
+                                   policy=policy, wait=wait, timeout=timeout)
+        sel, times = plan.selection, dict(plan.times)
         image, draw_t, read_t = self._draw(cam, transfer_function, sel)
         times["draw"], times["readback"] = draw_t, read_t
         times["total"] = time.perf_counter() - t_start
@@ -418,9 +307,10 @@ class ClipRenderAction:
         self.last_selection = sel
         self.last_frame_stats = FrameStats(
             bricks_drawn=dict(sorted(per_level.items())), bricks_distinct=distinct,
-            texels_drawn=distinct * self.cache.brick_texels, bytes_uploaded=up_bytes,
-            bricks_uploaded=up_bricks, texture_bytes=self.cache.texture_bytes, texture_budget=self.texture_budget,
-            times=times, converged=converged, passes=passes, items_drawn=len(sel.items), counts=dict(sel.counts),
+            texels_drawn=distinct * self.cache.brick_texels, bytes_uploaded=plan.bytes_uploaded,
+            bricks_uploaded=plan.bricks_uploaded, texture_bytes=self.cache.texture_bytes,
+            texture_budget=self.params.texture_budget, times=times, converged=plan.converged, passes=plan.passes,
+            items_drawn=len(sel.items), counts=dict(sel.counts),
         )
         return image
 
@@ -494,14 +384,14 @@ class ClipRenderAction:
             scale, offset = fmt.a * big, (fmt.b - lo) * big + 0.5
         prog["u_t_scale"].value = float(np.clip(scale, -3e38, 3e38))
         prog["u_t_offset"].value = float(np.clip(offset, -3e38, 3e38))
-        prog["u_mode"].value = 1 if self.mode == "mip" else 0
-        if self.shape is None:
+        prog["u_mode"].value = 1 if self.params.mode == "mip" else 0
+        if self.params.shape is None:
             box = np.array([[-1e30] * 3, [1e30] * 3])
             planes = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (6, 1))
             n_planes, has_box = 0, False
         else:
-            box, planes, n_planes = self.shape.box_and_planes_arrays()
-            has_box = self.shape.box is not None
+            box, planes, n_planes = self.params.shape.box_and_planes_arrays()
+            has_box = self.params.shape.box is not None
             box = np.asarray(box, dtype=np.float64)
             planes = np.array(planes, dtype=np.float64)
         finite = np.abs(box) < 1e29
@@ -538,7 +428,7 @@ class ClipRenderAction:
         mgl = self._moderngl
         ctx = self.ctx
         items = list(sel.items)
-        if self.merge_boxes:
+        if self.params.merge_boxes:
             merged = merge_items(items, self.pyramid, self.cache.windows, self._may_cover())
             if self._samples_per_box(cam, merged) <= MAX_STEPS_PER_BOX:  # else the rays would be cut
                 items = merged
@@ -551,12 +441,12 @@ class ClipRenderAction:
         previous = ctx.fbo
         fbo.use()
         ctx.viewport = (0, 0, int(w), int(h))
-        composite = self.mode != "mip"
-        front_to_back = composite and self.early_termination
+        composite = self.params.mode != "mip"
+        front_to_back = composite and self.params.early_termination
         if front_to_back:
             fbo.clear(0.0, 0.0, 0.0, 0.0)
         elif composite:
-            r, g, b, a = self.background
+            r, g, b, a = self.params.background
             fbo.clear(r * a, g * a, b * a, a)
         else:
             fbo.clear(_MIP_EMPTY, 0.0, 0.0, 0.0)
@@ -568,7 +458,7 @@ class ClipRenderAction:
         ctx.enable_direct(_GL_DEPTH_CLAMP)  # no near/far clipping of the proxy boxes
         ctx.front_face = self._front_face(M, cam)
         ctx.cull_face = "front"
-        if self.mode == "mip":
+        if self.params.mode == "mip":
             ctx.blend_equation = mgl.MAX
         else:
             ctx.blend_equation = mgl.FUNC_ADD
@@ -604,7 +494,7 @@ class ClipRenderAction:
                 scale = np.asarray(lv.scale[::-1], dtype=np.float64)
                 trans = np.asarray(lv.translation[::-1], dtype=np.float64)
                 win = np.asarray(self.cache.windows[L], dtype=np.int64)
-                delta = self.step * float(min(lv.scale))
+                delta = self.params.step * float(min(lv.scale))
                 prog["u_delta"].value = delta
                 prog["u_alpha_ratio"].value = delta / ref_spacing
                 prog["u_inv_scale"].value = _vec(1.0 / scale)
@@ -633,20 +523,20 @@ class ClipRenderAction:
         err = ctx.error
         if err != "GL_NO_ERROR":
             raise RuntimeError(f"OpenGL error after drawing the frame: expected GL_NO_ERROR, got {err}")
-        if self.mode == "mip":
+        if self.params.mode == "mip":
             m = raw[..., 0].astype(np.float64)
             hit = m > _MIP_EMPTY * 0.5
             fmt = self.cache.format
             rgba = tf.lookup(np.where(hit, fmt.a * m + fmt.b, fmt.b), pyr.value_range)
             a = np.where(hit, rgba[..., 3], 0.0)
             prem = np.concatenate([rgba[..., :3] * a[..., None], a[..., None]], axis=-1)
-            r, g, b, ba = self.background
+            r, g, b, ba = self.params.background
             bgp = np.array([r * ba, g * ba, b * ba, ba])
             prem = prem + (1.0 - a[..., None]) * bgp
         else:
             prem = raw.astype(np.float64)
             if front_to_back:  # the background goes under everything, last
-                r, g, b, ba = self.background
+                r, g, b, ba = self.params.background
                 prem = prem + (1.0 - prem[..., 3:4]) * np.array([r * ba, g * ba, b * ba, ba])
         image = premultiplied_to_uint8(prem)
         return image, t1 - t0, time.perf_counter() - t1

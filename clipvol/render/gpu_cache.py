@@ -42,8 +42,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ParameterError
 from ..bricking.pyramid import Pyramid
+from ..errors import ParameterError
+from ..paging.cliptexture import BrickState
 
 __all__ = ["GpuBrickCache", "TextureFormat", "texture_format", "allocate_gpu_windows"]
 
@@ -348,7 +349,6 @@ class GpuBrickCache:
         """Neighbours of the drawn bricks that the drawn bricks' filtering would use but that are not
         on the GPU: inside the clip-texture's window, not failed, and their slot not held this frame
         by another brick. A frame is only converged when this is empty (else it changes later)."""
-        from ..paging.cliptexture import BrickState
 
         out = []
         for level, nb in self._neighbours(items).items():

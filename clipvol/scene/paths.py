@@ -21,8 +21,9 @@ from typing import Iterator
 
 import numpy as np
 
-from ..errors import ParameterError
 from ..bricking.pyramid import Pyramid
+from ..errors import ParameterError
+from .camera import Camera
 
 __all__ = ["PATHS", "orbit", "fly", "zoom", "make_path", "volume_center", "volume_radius", "UP"]
 
@@ -73,7 +74,6 @@ def _direction(azimuth_deg: float, elevation_deg: float) -> np.ndarray:
 
 
 def _perspective(eye, target, fov_y: float, size, pyramid: Pyramid):
-    from .camera import Camera
 
     cam = Camera.perspective(tuple(eye), tuple(target), up=UP, fov_y=fov_y, size=size)
     lo, hi = pyramid.volume_box()

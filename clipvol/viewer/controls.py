@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ParameterError
+from ..scene.camera import Camera
+from ..scene.paths import fit_distance, volume_center
 
 __all__ = ["OrbitControls", "ViewState", "KEY_HELP", "MODES", "MOVE_KEYS"]
 
@@ -126,7 +128,6 @@ class OrbitControls:
     @classmethod
     def for_pyramid(cls, pyramid, size=(640, 480), fov_y: float = 35.0, azimuth: float = 30.0, elevation: float = 25.0) -> "OrbitControls":
         """A rig looking at the whole volume of ``pyramid`` from ``azimuth``/``elevation``."""
-        from ..scene.paths import fit_distance, volume_center
 
         lo, hi = pyramid.volume_box()
         return cls(
@@ -171,7 +172,6 @@ class OrbitControls:
 
     def camera(self, size=(640, 480)):
         """The :class:`~clipvol.scene.camera.Camera` of the current view for an image of ``size``."""
-        from ..scene.camera import Camera
 
         cam = Camera.perspective(tuple(self.eye), tuple(self.target), up=tuple(UP), fov_y=self.fov_y, size=tuple(size))
         if self.bounds is not None:

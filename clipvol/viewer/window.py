@@ -25,10 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..app.session import RenderSession
 from ..errors import ClipvolError, ParameterError
+from ..render.context import create_context
+from ..scene.params import RenderParams
 from .controls import MOVE_KEYS, OrbitControls, ViewState
 from .hud import hud_lines, render_text
-from ..app.session import RenderSession, RenderSettings
 
 __all__ = ["Viewer", "WindowError"]
 
@@ -120,8 +122,10 @@ class Viewer:
         Clip-texture and GPU cache budgets.
     threads : int, optional
         Loader threads.
-    settings : RenderSettings, optional
-        Initial render settings (LOD threshold, mode, selection, transfer function, step).
+    params : RenderParams, optional
+        Initial render parameters (policy, LOD threshold, mode, step).
+    tf : str or TransferFunction
+        Initial transfer function.
     screenshot_dir : str or Path
         Where P writes ``clipvol-NNNN.png``.
     visible : bool
@@ -133,7 +137,7 @@ class Viewer:
     """
 
     def __init__(self, source, *, size=(960, 640), memory_budget="256MB", texture_budget="256MB", threads=None,
-                 settings: RenderSettings | None = None, screenshot_dir=".", visible: bool = True,
+                 params: RenderParams | None = None, tf="viridis", screenshot_dir=".", visible: bool = True,
                  title: str = "clipvol", background=(0.0, 0.0, 0.0)) -> None:
         try:
             import glfw
@@ -173,26 +177,24 @@ class Viewer:
                 raise WindowError("expected a window with an OpenGL 3.3 core context, but glfw.create_window failed")
             glfw.make_context_current(self.window)
             glfw.swap_interval(1 if visible else 0)
-            from ..render.context import create_context
-
             self.ctx = create_context(standalone=False, backend=None)
             self.session = RenderSession(source, self.ctx, memory_budget=memory_budget, texture_budget=texture_budget,
-                                         threads=threads, settings=settings)
+                                         threads=threads, params=params, tf=tf)
             self._setup_gl()
         except BaseException:
             self.close()
             raise
         pyr = self.session.pyramid
-        s = self.session.settings
+        s, tf = self.session.params, self.session.tf
         presets = ("grey", "viridis", "magma", "inferno", "plasma", "bone")
         # a transfer function given as an object (not a preset name) joins the cycle as "custom"
-        self._custom_tf = None if isinstance(s.tf, str) else s.tf
+        self._custom_tf = None if isinstance(tf, str) else tf
         if self._custom_tf is not None:
             presets = ("custom",) + presets
         self.state = ViewState(
             num_levels=pyr.num_levels, tf_presets=presets, mode=s.selection, level=s.level or 0,
             lod_threshold=s.lod_threshold, render_mode=s.mode,
-            tf_index=presets.index(s.tf) if isinstance(s.tf, str) and s.tf in presets else (0 if self._custom_tf is not None else 1),
+            tf_index=presets.index(tf) if isinstance(tf, str) and tf in presets else (0 if self._custom_tf is not None else 1),
         )
         self.controls = OrbitControls.for_pyramid(pyr, size=self.framebuffer_size)
         self.screenshot_dir = Path(screenshot_dir)
@@ -318,7 +320,7 @@ class Viewer:
         if st.quit:
             self._glfw.set_window_should_close(self.window, True)
         self.session.update(
-            lod_threshold=st.lod_threshold, selection=st.mode, level=st.level if st.mode == "fixed" else None,
+            lod_threshold=st.lod_threshold, policy=st.mode, level=st.level if st.mode == "fixed" else None,
             mode=st.render_mode, tf=self._custom_tf if st.tf_name == "custom" else st.tf_name,
         )
         self._hud_text = None
@@ -361,7 +363,7 @@ class Viewer:
             t0 = time.perf_counter()
             img = sess.render(cam, self.controls.center_of_interest, wait=False)
             if self.state.outlines:
-                from .overlay import draw_outlines
+                from ..app.overlay import draw_outlines
 
                 img = draw_outlines(img, cam, sess.last_items())
             self._frame = img

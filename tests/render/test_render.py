@@ -8,16 +8,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from clipvol.scene.camera import Camera
-from clipvol.paging.cliptexture import ClipTexture
-from clipvol.errors import ParameterError
+import reference_raycast as ref
 from clipvol.loaders.numpy_array import NumpyLoader
+
 from clipvol.bricking.pyramid import downsample
+from clipvol.errors import ParameterError
+from clipvol.paging.cliptexture import ClipTexture
+from clipvol.scene.camera import Camera
 from clipvol.scene.selection import DrawItem
 from clipvol.scene.transfer import TransferFunction
-
-import reference_raycast as ref
 
 pytestmark = pytest.mark.gl
 
@@ -317,8 +316,8 @@ def test_parameters_are_validated(scenes, ctx):
     s = scenes(vol, 8)
     from clipvol.render.action import ClipRenderAction
 
-    for kw, name in [({"mode": "x"}, "mode"), ({"selection": "x"}, "selection"), ({"step": 0}, "step"),
-                     ({"lod_threshold": -1}, "lod_threshold"), ({"selection": "fixed"}, "level"),
+    for kw, name in [({"mode": "x"}, "mode"), ({"selection": "x"}, "policy"), ({"policy": "texel-budget"}, "max_texels_drawn"), ({"step": 0}, "step"),
+                     ({"lod_threshold": -1}, "lod_threshold"), ({"selection": "fixed", "level": 99}, "level"), ({"colour": 1}, "colour"),
                      ({"background": (2, 0, 0, 0)}, "background")]:
         with pytest.raises(ParameterError, match=name):
             ClipRenderAction(ctx, s.clip, **kw)
@@ -345,9 +344,10 @@ def test_shape_box_and_planes_clip_the_rays(scenes):
 def test_huge_virtual_volume_keeps_precision_in_brick_local_space(scenes, ctx):
     """A 2**20-per-axis procedural volume, viewed near its far corner: float32 world coordinates
     would be off by ~0.06 voxels there; brick-local coordinates render it like the reference."""
-    from clipvol.scene.geometry import Shape
     from clipvol.loaders.procedural import ProceduralLoader
+
     from clipvol.render.action import ClipRenderAction
+    from clipvol.scene.geometry import Shape
 
     n = 1 << 20
     loader = ProceduralLoader(f"procedural:fractal?size={n}&seed=3", brick=16)

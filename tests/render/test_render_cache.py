@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clipvol.errors import ParameterError
 from clipvol.bricking.pyramid import Pyramid
+from clipvol.errors import ParameterError
 from clipvol.render.gpu_cache import allocate_gpu_windows, convert_brick, texture_format
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clipvol.scene.camera import Camera
 from clipvol.errors import ParameterError
+from clipvol.scene.camera import Camera
 
 
 def _cams(offset=(0.0, 0.0, 0.0)):

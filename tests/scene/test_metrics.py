@@ -6,7 +6,15 @@ import numpy as np
 import pytest
 
 from clipvol.errors import ParameterError
-from clipvol.scene.metrics import composite, delta_e_luv, percent_delta_e, psnr, rgb_to_luv, rmse, srgb_to_linear
+from clipvol.scene.metrics import (
+    composite,
+    delta_e_luv,
+    percent_delta_e,
+    psnr,
+    rgb_to_luv,
+    rmse,
+    srgb_to_linear,
+)
 
 # sRGB primaries in CIE L*u*v* (D65), as published e.g. by Bruce Lindbloom's calculator
 PUBLISHED = {

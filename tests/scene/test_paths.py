@@ -5,9 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clipvol.errors import ParameterError
-from clipvol.scene.paths import PATHS, fit_distance, fly, make_path, orbit, volume_center, zoom
 from clipvol.bricking.pyramid import Pyramid
+from clipvol.errors import ParameterError
+from clipvol.scene.paths import (
+    PATHS,
+    fit_distance,
+    fly,
+    make_path,
+    orbit,
+    volume_center,
+    zoom,
+)
 
 
 @pytest.fixture

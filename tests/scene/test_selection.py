@@ -12,10 +12,11 @@ import math
 import numpy as np
 import pytest
 
+from clipvol.bricking.pyramid import Pyramid
 from clipvol.scene.camera import Camera
 from clipvol.scene.geometry import Shape
-from clipvol.bricking.pyramid import Pyramid
-from clipvol.scene.selection import DrawItem, SelectionParams, back_to_front, merge_items, select
+from clipvol.scene.params import RenderParams
+from clipvol.scene.selection import DrawItem, back_to_front, merge_items, select
 
 
 # -- brute-force visibility check ---------------------------------------------------------------
@@ -125,7 +126,7 @@ EYES = [(-20, 10, -30), (10, -30, 15), (5, 5, 5), (70, 70, -5), (20.3, 17.9, 33.
 @pytest.mark.parametrize("eye", EYES)
 def test_order_is_back_to_front_and_cut_covers_the_view_once(eye):
     cam = cam_at(eye)
-    sel = select(PYR, cam, SelectionParams(lod_threshold=3))
+    sel = select(PYR, cam, RenderParams(lod_threshold=3))
     lo, hi = boxes(sel.items)
     bad, hit = order_violations(cam, lo, hi)
     assert bad == 0 and hit > 0
@@ -137,7 +138,7 @@ def test_order_is_back_to_front_and_cut_covers_the_view_once(eye):
 def test_centre_distance_sorting_fails_where_our_order_holds():
     # a mixed-level cut seen from the side: sorting by centre distance draws boxes in the wrong order
     cam = cam_at((10, -30, 15))
-    sel = select(PYR, cam, SelectionParams(lod_threshold=3))
+    sel = select(PYR, cam, RenderParams(lod_threshold=3))
     lo, hi = boxes(sel.items)
     assert len({i.level for i in sel.items}) > 1
     dist = np.linalg.norm((lo + hi) / 2 - cam.eye, axis=1)
@@ -159,8 +160,8 @@ def test_centre_distance_sorting_fails_where_our_order_holds():
     ],
 )
 def test_order_with_ties_on_axes_and_diagonals(cam):
-    sel = select(PYR, cam, SelectionParams(mode="fixed", level=0))
-    mixed = select(PYR, cam, SelectionParams(lod_threshold=2.5))
+    sel = select(PYR, cam, RenderParams(policy="fixed", level=0))
+    mixed = select(PYR, cam, RenderParams(lod_threshold=2.5))
     for s in (sel, mixed):
         lo, hi = boxes(s.items)
         assert order_violations(cam, lo, hi)[0] == 0
@@ -187,7 +188,7 @@ def test_lod_rule_and_refinement_falls_with_threshold(eye):
     cam = cam_at(eye, size=(64, 64))
     counts = []
     for thr in (16, 8, 4, 2, 1):
-        sel = select(PYR, cam, SelectionParams(lod_threshold=thr))
+        sel = select(PYR, cam, RenderParams(lod_threshold=thr))
         counts.append(len(sel.items))
         for it in sel.items:
             vox = max(PYR.levels[it.level].scale)
@@ -201,7 +202,7 @@ def test_lod_rule_and_refinement_falls_with_threshold(eye):
 
 def test_frustum_culling():
     cam = cam_at((-10, -10, -10), target=(0, 0, 0), fov=20)
-    sel = select(PYR, cam, SelectionParams(lod_threshold=2))
+    sel = select(PYR, cam, RenderParams(lod_threshold=2))
     assert sel.counts["culled_frustum"] > 0
     lo, hi = boxes(sel.items)
     # no drawn box lies wholly outside a frustum plane (checked on its 8 corners), and the
@@ -217,8 +218,8 @@ def test_frustum_culling():
 def test_shape_culling():
     shape = Shape(box=((0, 0, 0), (20, 20, 60)), planes=[(1, 1, 0, -10)])
     cam = cam_at((-20, 10, -30))
-    sel = select(PYR, cam, SelectionParams(lod_threshold=2), shape=shape)
-    full = select(PYR, cam, SelectionParams(lod_threshold=2))
+    sel = select(PYR, cam, RenderParams(lod_threshold=2, shape=shape))
+    full = select(PYR, cam, RenderParams(lod_threshold=2))
     assert sel.counts["culled_shape"] > 0 and len(sel.items) < len(full.items)
     lo, hi = boxes(sel.items)
     assert not shape.boxes_outside(lo, hi).any()
@@ -230,8 +231,8 @@ def test_transparent_bricks_are_neither_drawn_nor_wanted():
         return (level <= 1) & (np.asarray(idx).sum(axis=1) % 2 == 0)
 
     cam = cam_at((-20, 10, -30))
-    full = select(PYR, cam, SelectionParams(lod_threshold=3))
-    sel = select(PYR, cam, SelectionParams(lod_threshold=3), transparent=transparent)
+    full = select(PYR, cam, RenderParams(lod_threshold=3))
+    sel = select(PYR, cam, RenderParams(lod_threshold=3), transparent=transparent)
     key = lambda it: (it.level, it.index)  # noqa: E731
     expect = [key(i) for i in full.items if not (i.level <= 1 and sum(i.index) % 2 == 0)]
     assert sorted(map(key, sel.items)) == sorted(expect)
@@ -257,8 +258,8 @@ def test_fallback_to_nearest_resident_ancestor_without_holes_or_overlaps(seed):
     cam = cam_at(EYES[seed])
     missing = {(lv, b) for lv in range(PYR.num_levels - 1) for b in np.ndindex(PYR.grid(lv)) if rng.uniform() < 0.35}
     res = FakeResidency(PYR, _window_around(PYR, (20, 20, 20), 4), missing)
-    sel = select(PYR, cam, SelectionParams(lod_threshold=2), residency=res)
-    ideal = select(PYR, cam, SelectionParams(lod_threshold=2), residency=FakeResidency(PYR, res.windows))
+    sel = select(PYR, cam, RenderParams(lod_threshold=2), residency=res)
+    ideal = select(PYR, cam, RenderParams(lod_threshold=2), residency=FakeResidency(PYR, res.windows))
     assert sel.counts["fallback"] > 0
     # coverage identical to the all-resident cut, each point exactly once
     pts = visible_points(cam, PYR, seed=seed)
@@ -289,11 +290,11 @@ def test_fallback_to_nearest_resident_ancestor_without_holes_or_overlaps(seed):
 def test_nothing_resident_draws_nothing_and_window_limits_refinement():
     cam = cam_at((-20, 10, -30))
     none = FakeResidency(PYR, missing={(lv, b) for lv in range(PYR.num_levels) for b in np.ndindex(PYR.grid(lv))})
-    sel = select(PYR, cam, SelectionParams(lod_threshold=1), residency=none)
+    sel = select(PYR, cam, RenderParams(lod_threshold=1), residency=none)
     assert sel.items == [] and len(sel.wanted) > 0 and sel.counts["missing"] > 0
     # windows of 2 bricks: finer children outside the window are drawn from their parent
     res = FakeResidency(PYR, _window_around(PYR, (0, 0, 0), 2))
-    sel = select(PYR, cam, SelectionParams(lod_threshold=0.5), residency=res)
+    sel = select(PYR, cam, RenderParams(lod_threshold=0.5), residency=res)
     assert sel.counts["outside_window"] > 0
     np.testing.assert_array_equal(coverage(sel.items, visible_points(cam, PYR)), 1)
     for it in sel.items:
@@ -304,11 +305,11 @@ def test_nothing_resident_draws_nothing_and_window_limits_refinement():
 def test_texel_budget_holds_and_coverage_stays_complete(budget_bricks):
     cam = cam_at((5, 5, 5))
     texels = int(np.prod(PYR.brick_shape))
-    sel = select(PYR, cam, SelectionParams(lod_threshold=1, max_texels_drawn=budget_bricks * texels))
+    sel = select(PYR, cam, RenderParams(lod_threshold=1, max_texels_drawn=budget_bricks * texels))
     assert len(sel.items) <= max(budget_bricks, 1)
     np.testing.assert_array_equal(coverage(sel.items, visible_points(cam, PYR)), 1)
     assert order_violations(cam, *boxes(sel.items))[0] == 0
-    free = select(PYR, cam, SelectionParams(lod_threshold=1))
+    free = select(PYR, cam, RenderParams(lod_threshold=1))
     if budget_bricks >= len(free.items):
         assert sorted((i.level, i.index) for i in sel.items) == sorted((i.level, i.index) for i in free.items)
 
@@ -316,14 +317,14 @@ def test_texel_budget_holds_and_coverage_stays_complete(budget_bricks):
 def test_budget_grows_detail_monotonically():
     cam = cam_at((-20, 10, -30))
     t = int(np.prod(PYR.brick_shape))
-    n = [len(select(PYR, cam, SelectionParams(lod_threshold=1, max_texels_drawn=k * t)).items) for k in (1, 8, 30, 100, 400)]
+    n = [len(select(PYR, cam, RenderParams(lod_threshold=1, max_texels_drawn=k * t)).items) for k in (1, 8, 30, 100, 400)]
     assert n == sorted(n) and n[-1] > n[0]
 
 
 def test_roaming_picks_one_level_the_finest_inside_the_window():
     cam = cam_at((-20, 10, -30))
     res = FakeResidency(PYR, _window_around(PYR, (20, 20, 20), 3))
-    sel = select(PYR, cam, SelectionParams(mode="roaming", lod_threshold=0.1), residency=res)
+    sel = select(PYR, cam, RenderParams(policy="roaming", lod_threshold=0.1), residency=res)
     levels = {i.level for i in sel.items}
     assert len(levels) == 1
     L = levels.pop()
@@ -338,18 +339,18 @@ def test_roaming_picks_one_level_the_finest_inside_the_window():
     assert L == 0 or not res.in_window_mask(L - 1, visible(L - 1)).all()
     np.testing.assert_array_equal(coverage(sel.items, visible_points(cam, PYR)), 1)
     # without a window it goes as fine as the LOD threshold asks; a texel budget coarsens it
-    assert select(PYR, cam, SelectionParams(mode="roaming", lod_threshold=0.1)).counts["level"] == 0
+    assert select(PYR, cam, RenderParams(policy="roaming", lod_threshold=0.1)).counts["level"] == 0
     t = int(np.prod(PYR.brick_shape))
-    s2 = select(PYR, cam, SelectionParams(mode="roaming", lod_threshold=0.1, max_texels_drawn=20 * t))
+    s2 = select(PYR, cam, RenderParams(policy="roaming", lod_threshold=0.1, max_texels_drawn=20 * t))
     assert len({i.level for i in s2.items}) == 1 and len(s2.items) <= 20
 
 
 def test_fixed_level_with_ancestor_fallback():
     cam = cam_at((70, 70, -5))
-    sel = select(PYR, cam, SelectionParams(mode="fixed", level=1))
+    sel = select(PYR, cam, RenderParams(policy="fixed", level=1))
     assert {i.level for i in sel.items} == {1}
     missing = {(1, (0, 0, 0)), (1, (3, 3, 3)), (1, (2, 3, 3))}
-    sel2 = select(PYR, cam, SelectionParams(mode="fixed", level=1), residency=FakeResidency(PYR, missing=missing))
+    sel2 = select(PYR, cam, RenderParams(policy="fixed", level=1), residency=FakeResidency(PYR, missing=missing))
     assert {i.level for i in sel2.items} <= {1, 2}
     pts = visible_points(cam, PYR)
     np.testing.assert_array_equal(coverage(sel2.items, pts), 1)
@@ -361,7 +362,7 @@ def test_huge_virtual_pyramid_near_the_far_corner_is_bounded():
     big = Pyramid.build((n, n, n), (64, 64, 64))
     far = np.array(big.volume_box()[1])
     cam = Camera.perspective(far + (40, 25, 60), far - (500, 500, 500), size=(32, 32), fov_y=50).fit_depth(*big.volume_box())
-    sel = select(big, cam, SelectionParams(lod_threshold=2))
+    sel = select(big, cam, RenderParams(lod_threshold=2))
     assert 0 < len(sel.items) and sel.counts["visited"] < 20000
     lo, hi = boxes(sel.items)
     assert cam.boxes_in_frustum(lo, hi).all()
@@ -369,7 +370,7 @@ def test_huge_virtual_pyramid_near_the_far_corner_is_bounded():
     assert order_violations(cam, lo, hi)[0] == 0
     # inside the huge volume, near its far corner
     cam2 = Camera.perspective(far - (30, 30, 30), far - (5000, 4000, 3000), size=(32, 32)).fit_depth(*big.volume_box())
-    sel2 = select(big, cam2, SelectionParams(lod_threshold=2))
+    sel2 = select(big, cam2, RenderParams(lod_threshold=2))
     assert 0 < len(sel2.items) and sel2.counts["visited"] < 20000
     assert order_violations(cam2, *boxes(sel2.items))[0] == 0
 
@@ -377,7 +378,7 @@ def test_huge_virtual_pyramid_near_the_far_corner_is_bounded():
 def test_top_level_with_several_bricks_uses_virtual_levels():
     pyr = PYR.with_levels(2)  # top level has 4x4x4 bricks
     cam = cam_at((-20, 10, -30), pyr=pyr)
-    sel = select(pyr, cam, SelectionParams(lod_threshold=4))
+    sel = select(pyr, cam, RenderParams(lod_threshold=4))
     assert {i.level for i in sel.items} <= {0, 1}
     np.testing.assert_array_equal(coverage(sel.items, visible_points(cam, pyr)), 1)
     assert order_violations(cam, *boxes(sel.items))[0] == 0
@@ -388,7 +389,7 @@ def test_prime_sized_anisotropic_volume():
     vlo, vhi = pyr.volume_box()
     c = (vlo + vhi) / 2
     cam = cam_at(c + (30, -12, -40), target=c, pyr=pyr)
-    sel = select(pyr, cam, SelectionParams(lod_threshold=1.5))
+    sel = select(pyr, cam, RenderParams(lod_threshold=1.5))
     np.testing.assert_array_equal(coverage(sel.items, visible_points(cam, pyr)), 1)
     assert order_violations(cam, *boxes(sel.items))[0] == 0
 
@@ -396,17 +397,18 @@ def test_prime_sized_anisotropic_volume():
 def test_params_validation():
     from clipvol.errors import ParameterError
 
-    for kw in (dict(mode="x"), dict(lod_threshold=0), dict(mode="fixed"), dict(level=-1), dict(max_texels_drawn=0)):
+    for kw in (dict(policy="x"), dict(lod_threshold=0), dict(policy="texel-budget"), dict(level=-1), dict(max_texels_drawn=0)):
         with pytest.raises(ParameterError):
-            SelectionParams(**kw)
+            RenderParams(**kw)
     with pytest.raises(ParameterError):
-        select(PYR, cam_at((0, 0, -50)), SelectionParams(mode="fixed", level=9))
+        select(PYR, cam_at((0, 0, -50)), RenderParams(policy="fixed", level=9))
     assert isinstance(select(PYR, cam_at((0, 0, -50))).items[0], DrawItem)
 
 
 def test_with_a_real_clip_texture_items_are_resident_and_wanted_in_window():
-    from clipvol.paging.cliptexture import ClipTexture
     from clipvol.loaders.numpy_array import NumpyLoader
+
+    from clipvol.paging.cliptexture import ClipTexture
 
     vol = np.random.default_rng(0).random((64, 64, 64), dtype=np.float32)
     loader = NumpyLoader(vol, brick=8)
@@ -415,7 +417,7 @@ def test_with_a_real_clip_texture_items_are_resident_and_wanted_in_window():
     budget = 40 * pyr.brick_nbytes * 8
     with ClipTexture(loader, memory_budget=budget, threads=1, center=(10, 10, 10)) as ct:
         ct.wait_until_idle(timeout=30)
-        sel = select(pyr, cam, SelectionParams(lod_threshold=0.5), residency=ct)
+        sel = select(pyr, cam, RenderParams(lod_threshold=0.5), residency=ct)
         assert sel.items and sel.counts["outside_window"] > 0  # the window limits refinement
         for it in sel.items:
             assert ct.resident_mask(it.level, np.array([it.index]))[0]
@@ -430,7 +432,7 @@ def test_with_a_real_clip_texture_items_are_resident_and_wanted_in_window():
 def test_merged_items_keep_order_and_coverage(eye, threshold):
     """merge_items: same region covered exactly once, still back to front, each item one level."""
     cam = cam_at(eye)
-    sel = select(PYR, cam, SelectionParams(lod_threshold=threshold))
+    sel = select(PYR, cam, RenderParams(lod_threshold=threshold))
     windows = [PYR.grid(L) for L in range(PYR.num_levels)]
     merged = merge_items(sel.items, PYR, windows)
     assert 0 < len(merged) <= len(sel.items)
@@ -447,7 +449,7 @@ def test_merged_items_keep_order_and_coverage(eye, threshold):
 
 def test_merge_collapses_a_uniform_cut_and_respects_windows():
     cam = Camera.orthographic(CENTRE, (0, 0, 1), (0, -1, 0), 70, 70, size=(32, 32))
-    sel = select(PYR, cam, SelectionParams(mode="fixed", level=0))
+    sel = select(PYR, cam, RenderParams(policy="fixed", level=0))
     assert len(sel.items) == 512
     whole = merge_items(sel.items, PYR, [PYR.grid(L) for L in range(PYR.num_levels)])
     assert [(it.level, it.index, it.span) for it in whole] == [(0, (0, 0, 0), 8)]
@@ -459,7 +461,7 @@ def test_merge_collapses_a_uniform_cut_and_respects_windows():
 
 def test_merge_covers_a_culled_sibling_only_when_allowed_and_never_twice():
     cam = Camera.orthographic(CENTRE, (0, 0, 1), (0, -1, 0), 70, 70, size=(32, 32))
-    sel = select(PYR, cam, SelectionParams(mode="fixed", level=0))
+    sel = select(PYR, cam, RenderParams(policy="fixed", level=0))
     windows = [PYR.grid(L) for L in range(PYR.num_levels)]
     culled = [it for it in sel.items if it.index != (0, 0, 0)]  # as if (0,0,0) were transparent
     assert len(merge_items(culled, PYR, windows)) > 1
@@ -474,7 +476,7 @@ def test_merge_covers_a_culled_sibling_only_when_allowed_and_never_twice():
     assert len(merge_items(culled, PYR, windows, lambda *a: False)) > 1
     # a sibling drawn at a finer level (here: a level-1 brick replaced by its level-0 children)
     # is never covered by a merge of its level-1 siblings, whatever may_cover says
-    sel1 = select(PYR, cam, SelectionParams(mode="fixed", level=1))
+    sel1 = select(PYR, cam, RenderParams(policy="fixed", level=1))
     mixed = []
     for it in sel1.items:
         if it.index == (0, 0, 0):

@@ -8,7 +8,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from clipvol.errors import ParameterError
-from clipvol.scene.transfer import TransferFunction, correct_opacity, transparency_filter
+from clipvol.scene.transfer import (
+    TransferFunction,
+    correct_opacity,
+    transparency_filter,
+)
 
 EDGE_ALPHAS = np.array([0.0, 1e-7, 1e-3, 0.5, 1 - 1e-7, 1.0])
 RATIOS = np.logspace(-3, 3, 25)

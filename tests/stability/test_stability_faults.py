@@ -31,7 +31,8 @@ from clipvol.errors import ClipvolError, InputFormatError, LoaderError, StoreFor
 from clipvol.paging.loader import BrickKey
 from clipvol.loaders.numpy_array import NumpyLoader
 from clipvol.loaders.zarr_store import ZarrLoader
-from clipvol.scene.selection import SelectionParams, select
+from clipvol.scene.params import RenderParams
+from clipvol.scene.selection import select
 from clipvol.scene.transfer import TransferFunction
 
 VOL = np.random.default_rng(0).random((16, 16, 16)).astype(np.float32)
@@ -96,7 +97,7 @@ def test_loader_raises_retried_then_failed_and_reported():
         assert clip.stats.failures == 1
         # the selection draws the failed brick's region from its parent (no hole)
         cam = Camera.orthographic((7.5, 7.5, 7.5), (0, 0, 1), (0, -1, 0), 16, 16, size=(16, 16))
-        sel = select(loader.pyramid, cam, SelectionParams(mode="fixed", level=0), residency=clip)
+        sel = select(loader.pyramid, cam, RenderParams(policy="fixed", level=0), residency=clip)
         assert sel.counts["fallback"] == 1 and sel.counts["missing"] == 0
         vol_box = np.prod(16 * np.ones(3))
         covered = sum(np.prod(np.subtract(it.hi, it.lo)) for it in sel.items)
@@ -131,7 +132,7 @@ def test_loader_hang_bounded_waits_and_close():
         assert clip.wait_until_idle(timeout=0.2) is False
         # selection never blocks on it: the hung brick's region comes from the parent
         cam = Camera.orthographic((7.5, 7.5, 7.5), (0, 0, 1), (0, -1, 0), 16, 16, size=(16, 16))
-        sel = select(loader.pyramid, cam, SelectionParams(mode="fixed", level=0), residency=clip)
+        sel = select(loader.pyramid, cam, RenderParams(policy="fixed", level=0), residency=clip)
         assert sel.counts["fallback"] >= 1 and sel.counts["missing"] == 0
         t0 = time.monotonic()
         with pytest.warns(RuntimeWarning, match="still inside read_brick"):

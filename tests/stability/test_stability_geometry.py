@@ -18,7 +18,8 @@ from clipvol.scene.camera import Camera
 from clipvol.paging.cliptexture import ClipTexture
 from clipvol.errors import ParameterError
 from clipvol.loaders.numpy_array import NumpyLoader
-from clipvol.scene.selection import SelectionParams, select
+from clipvol.scene.params import RenderParams
+from clipvol.scene.selection import select
 from clipvol.scene.transfer import TransferFunction
 
 import reference_raycast as ref
@@ -157,7 +158,7 @@ def test_draw_order_exact_with_ties(where, look):
     eye = np.array(EYES[where])
     up = (0, 1, 0) if abs(look[1]) < 0.9 * np.linalg.norm(look) else (0, 0, 1)
     cam = Camera.perspective(eye, eye + np.array(look, float), up=up, fov_y=90, size=(32, 32))
-    sel = select(PYR, cam, SelectionParams(lod_threshold=3.0))
+    sel = select(PYR, cam, RenderParams(lod_threshold=3.0))
     if where in ("on_volume_face", "outside_near_face") and tuple(look) == (0, 0, -1):  # looking away from the volume: nothing to draw
         assert sel.items == [] and sel.wanted == []
         return
@@ -267,7 +268,7 @@ def test_far_camera_draws_coarsest_level_correctly(gl, dist):
     fov = float(np.degrees(2 * np.arctan(20.0 / dist)))  # the volume fills most of the image
     fov = min(max(fov, 1.0), 170.0)
     cam = Camera.perspective(eye, target, up=(0, -1, 0), fov_y=fov, size=(16, 16))
-    sel = select(PYR, cam, SelectionParams(lod_threshold=8.0))
+    sel = select(PYR, cam, RenderParams(lod_threshold=8.0))
     top = PYR.num_levels - 1
     img, stats, s2 = render(gl, cam, selection="multiresolution", lod_threshold=8.0)
     if dist > 1e6:  # the whole volume is a fraction of a pixel: only the top level

@@ -25,7 +25,8 @@ import pytest
 from clipvol.scene.camera import Camera
 from clipvol.paging.cliptexture import BrickState, ClipTexture
 from clipvol.loaders.procedural import ProceduralLoader
-from clipvol.scene.selection import SelectionParams, select
+from clipvol.scene.params import RenderParams
+from clipvol.scene.selection import select
 from clipvol.scene.transfer import TransferFunction
 from render_helpers import render_converged
 
@@ -44,7 +45,7 @@ def camera_for(center, size=(48, 48)) -> Camera:
 def _roam(clip: ClipTexture, pyr, rng, log: dict) -> None:
     lo, hi = pyr.volume_box()
     c = (lo + hi) / 2
-    params = SelectionParams(lod_threshold=4.0)
+    params = RenderParams(lod_threshold=4.0)
     for i in range(MOVES):
         teleport = rng.random() < 0.03
         if teleport:

@@ -5,11 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clipvol.errors import ParameterError
 from clipvol.bricking.pyramid import Pyramid
+from clipvol.errors import ParameterError
 from clipvol.viewer.controls import MODES, OrbitControls, ViewState
 from clipvol.viewer.hud import composite_over, hud_lines, render_text
-from clipvol.viewer.overlay import box_segments, clip_segment, draw_outlines, project_points
+from clipvol.app.overlay import (
+    box_segments,
+    clip_segment,
+    draw_outlines,
+    project_points,
+)
 
 
 @pytest.fixture
@@ -211,11 +216,12 @@ def test_hud_text_and_composite():
     np.testing.assert_allclose(out[:h, :w, :3] / 255.0, ref, atol=1 / 255 + 1e-6)
 
 
-def test_render_settings_validate():
-    from clipvol.app.session import RenderSettings
+def test_render_params_validate():
+    from clipvol.scene.params import RenderParams
 
-    assert RenderSettings(selection="fixed").level == 0
-    for bad in (dict(lod_threshold=0), dict(selection="best"), dict(mode="x-ray"), dict(step=-1), dict(level=-1),
-                dict(tf=3)):
+    assert RenderParams(policy="fixed").level == 0
+    assert RenderParams(policy="multiresolution").policy == "projected-size"
+    for bad in (dict(lod_threshold=0), dict(policy="best"), dict(mode="x-ray"), dict(step=-1), dict(level=-1),
+                dict(texture_budget="lots"), dict(focus=(1, 2)), dict(background=(0, 0, 0))):
         with pytest.raises(ParameterError):
-            RenderSettings(**bad)
+            RenderParams(**bad)

@@ -77,13 +77,12 @@ def _over_black(img):
 
 def test_window_matches_offscreen_render(xdisplay, loader, tmp_path):
     """Also: an offscreen EGL context made *before* the window keeps working after it (see _EglUnbound)."""
+    from clipvol.app.session import RenderSession
     from clipvol.render.context import create_context
-    from clipvol.app.session import RenderSession, RenderSettings
     from clipvol.viewer.window import Viewer
 
-    settings = RenderSettings(tf="viridis")
     ctx = create_context()
-    with Viewer(loader, size=(96, 72), settings=settings, screenshot_dir=tmp_path, visible=False) as v:
+    with Viewer(loader, size=(96, 72), tf="viridis", screenshot_dir=tmp_path, visible=False) as v:
         v.key("H")  # HUD off: the screen then shows the frame only
         _converge(v)
         screen = v.read_screen()
@@ -109,7 +108,7 @@ def test_window_matches_offscreen_render(xdisplay, loader, tmp_path):
     assert np.abs(with_hud[:20, :40].astype(int) - outlined[:20, :40]).max() > 0
     # the same view rendered offscreen (EGL), composited over the window's black background
     try:
-        with RenderSession(loader, ctx, settings=settings) as s:
+        with RenderSession(loader, ctx, tf="viridis") as s:
             ref = s.render(cam, coi, wait=True)
     finally:
         ctx.release()
@@ -131,12 +130,12 @@ def test_window_controls_change_the_view(xdisplay, loader):
         assert np.abs(a.astype(int) - b).max() > 20
         v.key("M")  # roaming
         v.key("]")  # fixed level 1
-        assert v.session.settings.selection == "fixed" and v.session.settings.level == 1
+        assert v.session.params.policy == "fixed" and v.session.params.level == 1
         v.step()
         assert set(v.session.frame_stats.bricks_drawn) <= {1, 2}
         v.key("I")
         v.step()
-        assert v.session.action.mode == "mip"
+        assert v.session.action.params.mode == "mip"
         v.key("ESCAPE")
         assert v.should_close()
 

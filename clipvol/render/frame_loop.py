@@ -1,0 +1,133 @@
+"""The frame loop every render action shares: select, plan uploads, upload, wait, converge.
+
+A render action (volume, slice, splat) asks :meth:`FrameLoop.run` for a converged-enough
+:class:`~clipvol.scene.selection.Selection` and then only draws it. The loop makes no GL call
+itself: it talks to the clip-texture (main memory) and to the
+:class:`~clipvol.render.gpu_cache.GpuBrickCache` (texture memory) through their methods, so the
+whole data path - store, loader, clip-texture, selection, GPU cache - reads in one direction here.
+
+One pass:
+
+1. **Select** with the GPU cache as residency: a brick is drawable if it is on the GPU, or in the
+   clip-texture's RAM and still inside this frame's ``texels_per_frame`` upload budget. When that
+   budget binds, a dry run first chooses which uploads to allow (coarse levels first, then
+   nearest), so a constrained frame still shows the whole view coarsely.
+2. **Upload** what was reserved (:meth:`GpuBrickCache.commit`, the one place that writes textures).
+3. With ``wait=True``: if some wanted brick (or a same-level neighbour its filtering reads) is not
+   yet drawn, wait on the clip-texture for the ones that can still come and pass again - until the
+   selection converges, nothing more can arrive, the texture budget cannot hold the view (a
+   brick uploaded twice in one call), or ``timeout`` passes.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..paging.cliptexture import ClipTexture
+from ..scene.params import RenderParams
+from ..scene.selection import Selection, select
+
+__all__ = ["FrameLoop", "FramePlan"]
+
+
+@dataclass
+class FramePlan:
+    """What :meth:`FrameLoop.run` settled on for one frame."""
+
+    selection: Selection
+    converged: bool
+    passes: int
+    bytes_uploaded: int
+    bricks_uploaded: int
+    times: dict = field(default_factory=dict)
+
+
+class FrameLoop:
+    """Selection and uploads of one render action over ``clip_texture`` into ``cache``."""
+
+    def __init__(self, clip_texture: ClipTexture, cache) -> None:
+        self.clip_texture = clip_texture
+        self.cache = cache
+        self.pyramid = clip_texture.pyramid
+
+    def _upload_budget(self, params: RenderParams) -> int | None:
+        """``texels_per_frame``, never less than one brick (a frame always makes progress)."""
+        if params.texels_per_frame is None:
+            return None
+        return max(params.texels_per_frame, self.cache.brick_texels)
+
+    def select(self, camera, params: RenderParams, transparent=None, policy=None) -> Selection:
+        """One selection against the GPU cache, reserving the uploads it implies."""
+        cache, budget = self.cache, self._upload_budget(params)
+        allow = None
+        if budget is not None:  # dry run to choose the uploads coarse-first
+            residency = cache.begin_frame(self.clip_texture, None)
+            dry = select(self.pyramid, camera, params, residency=residency, transparent=transparent, policy=policy)
+            cache.reserve_neighbours(dry.items)
+            if len(cache.pending_keys()) * cache.brick_texels <= budget:
+                return dry  # the budget does not bind (the steady state): the real run would be the same
+            allow = cache.plan_uploads(budget, dry.items)
+        residency = cache.begin_frame(self.clip_texture, budget, allow)
+        sel = select(self.pyramid, camera, params, residency=residency, transparent=transparent, policy=policy)
+        cache.reserve_neighbours(sel.items)
+        return sel
+
+    def _waitable(self, sel: Selection, neighbours) -> list:
+        """Wanted bricks and neighbours not drawn that the clip-texture may still deliver."""
+        missing = sel.missing_wanted()
+        seen = set(missing)
+        missing += [k for k in neighbours if k not in seen]
+        ct, cache = self.clip_texture, self.cache
+        out = []
+        for level, idx in missing:
+            one = np.array([idx])
+            if (cache.windows[level] is not None and not cache.on_gpu_mask(level, one)[0]
+                    and bool(np.asarray(ct.in_window_mask(level, one))[0])
+                    and not bool(np.asarray(ct.resident_mask(level, one))[0])):
+                out.append((level, idx))
+        return out
+
+    def run(self, camera, params: RenderParams, *, transparent=None, policy=None, wait: bool = False,
+            timeout: float | None = None) -> FramePlan:
+        """Select and upload (and with ``wait``, repeat) for one frame; see the module docstring."""
+        times = dict(select=0.0, upload=0.0, wait=0.0)
+        deadline = None if timeout is None else time.perf_counter() + float(timeout)
+        passes = up_bytes = up_bricks = 0
+        uploaded_now: set = set()  # bricks uploaded by this call: a second upload means thrashing
+        ct, cache = self.clip_texture, self.cache
+        while True:
+            t0 = time.perf_counter()
+            version = ct.residency_version  # before selecting: any change after counts
+            sel = self.select(camera, params, transparent, policy)
+            t1 = time.perf_counter()
+            pending = set(cache.pending_keys())
+            thrashing = bool(pending & uploaded_now)
+            uploaded_now |= pending
+            up_bytes += cache.commit()
+            up_bricks += cache.bricks_uploaded
+            times["select"] += t1 - t0
+            times["upload"] += time.perf_counter() - t1
+            passes += 1
+            neighbours = cache.missing_neighbours(sel.items)
+            converged = sel.is_converged() and not neighbours
+            if not wait or converged:
+                break
+            left = None if deadline is None else deadline - time.perf_counter()
+            if (left is not None and left <= 0) or thrashing:
+                break  # out of time, or the texture budget cannot hold this view at once
+            if cache.bricks_uploaded:
+                continue  # more passes: the upload budget of one pass was spent
+            waitable = self._waitable(sel, neighbours)
+            if not waitable:
+                if ct.residency_version != version:
+                    continue  # bricks arrived while selecting: select again
+                break  # what is missing can never come (failed, outside the windows, slot conflicts)
+            t3 = time.perf_counter()
+            ct.wait_for(waitable, timeout=left)
+            times["wait"] += time.perf_counter() - t3
+            if ct.residency_version == version:
+                break
+        return FramePlan(sel, converged, passes, up_bytes, up_bricks, times)

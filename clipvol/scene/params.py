@@ -1,0 +1,189 @@
+"""One frozen set of render parameters, validated once.
+
+Every part that renders (the render actions, the session, the CLI, the viewer, the report) takes a
+:class:`RenderParams` and changes it with :func:`dataclasses.replace`, which validates the new value
+in ``__post_init__``. No other module re-checks or re-clamps these values; the one check that needs
+the data (a fixed level must exist in the pyramid) is :meth:`RenderParams.check_for`.
+
+Why one object: a parameter validated in three places drifts in three ways (the clamp of one
+module, the error text of another), and a viewer that patches attributes of a live render action
+bypasses all of them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from typing import Any
+
+from ..errors import ParameterError
+from ..units import parse_bytes
+from .geometry import Shape
+
+__all__ = ["RenderParams", "MODES", "POLICY_ALIASES"]
+
+#: compositing modes of the volume action
+MODES = ("composite", "mip")
+#: older names of selection policies, still accepted (``selection="multiresolution"``)
+POLICY_ALIASES = {"multiresolution": "projected-size", "projected": "projected-size", "fov": "field-of-view",
+                  "budget": "texel-budget"}
+
+
+def _positive(value: Any, name: str, unit: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{name}: expected a finite number > 0 ({unit}), got {value!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise ParameterError(f"{name}: expected a finite number > 0 ({unit}), got {value!r}")
+    return v
+
+
+def _count_or_none(value: Any, name: str) -> int | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or int(value) != value or value < 1:
+        raise ParameterError(f"{name}: expected None or an integer >= 1, got {value!r}")
+    return int(value)
+
+
+@dataclass(frozen=True, slots=True)
+class RenderParams:
+    """What a render action is asked to do, apart from the camera and the transfer function.
+
+    Parameters
+    ----------
+    mode : {"composite", "mip"}
+        Front-to-back emission-absorption compositing, or maximum intensity projection.
+    policy : str
+        The selection policy (:mod:`clipvol.scene.selection.policies`): ``"projected-size"``
+        (refine while a voxel projects to more than ``lod_threshold`` pixels; the default),
+        ``"fixed"`` (``level`` everywhere), ``"roaming"`` (one level for the frame),
+        ``"texel-budget"`` (largest projected voxels first until ``max_texels_drawn``),
+        ``"distance"`` and ``"field-of-view"`` (the filters of LaMar, Hamann & Joy). The older
+        names ``"multiresolution"`` (= ``"projected-size"``) are accepted.
+    lod_threshold : float
+        Pixels a voxel of a drawn level may project to before the brick is refined (> 0).
+    level : int, optional
+        The level drawn by the ``"fixed"`` policy (default 0 for it).
+    distance_factor : float
+        ``"distance"`` policy: a node is refined while its centre is closer to the focus than this
+        many times its diagonal.
+    fov_fraction : float
+        ``"field-of-view"`` policy: a node is refined while it subtends more than this fraction of
+        the vertical field of view (0.5 is the paper's "half the field-of-view angle").
+    focus : 3 floats, optional
+        World ``(x, y, z)`` point of interest of the distance policy (default: the eye).
+    max_texels_drawn : int, optional
+        Upper bound on the voxels of the drawn bricks; any policy then refines greedily, largest
+        projected voxel first, until the next refinement would exceed it.
+    texels_per_frame : int, optional
+        Most texels uploaded to the GPU per frame (at least one brick per frame is always allowed).
+    texture_budget : int or str
+        Bytes of texture memory for bricks (``"256MB"``).
+    step : float
+        Sample spacing along a ray, in units of the drawn level's smallest voxel size.
+    early_termination : bool
+        Composite: draw front to back and stop rays that are opaque (same image, faster).
+    merge_boxes : bool
+        Draw complete sibling sets of one level as one box over their parent (same image).
+    background : 4 floats
+        Straight RGBA in ``[0, 1]`` behind the volume.
+    shape : Shape, optional
+        Region of interest and clip planes.
+    """
+
+    mode: str = "composite"
+    policy: str = "projected-size"
+    lod_threshold: float = 1.0
+    level: int | None = None
+    distance_factor: float = 1.0
+    fov_fraction: float = 0.5
+    focus: tuple[float, float, float] | None = None
+    max_texels_drawn: int | None = None
+    texels_per_frame: int | None = None
+    texture_budget: int = 256 << 20
+    step: float = 0.5
+    early_termination: bool = True
+    merge_boxes: bool = True
+    background: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    shape: Shape | None = None
+
+    def __post_init__(self) -> None:
+        from .selection.policies import (
+            POLICIES,  # the registry (a sibling of this module's users)
+        )
+
+        s = object.__setattr__
+        if self.mode not in MODES:
+            raise ParameterError(f"mode: expected one of {', '.join(MODES)}, got {self.mode!r}")
+        policy = POLICY_ALIASES.get(self.policy, self.policy)
+        if policy not in POLICIES:
+            raise ParameterError(f"policy: expected one of {', '.join(sorted(POLICIES))}, got {self.policy!r}")
+        s(self, "policy", policy)
+        s(self, "lod_threshold", _positive(self.lod_threshold, "lod_threshold", "pixels"))
+        s(self, "distance_factor", _positive(self.distance_factor, "distance_factor", "node diagonals"))
+        s(self, "fov_fraction", _positive(self.fov_fraction, "fov_fraction", "of the field of view"))
+        s(self, "step", _positive(self.step, "step", "voxels"))
+        if policy == "fixed" and self.level is None:
+            s(self, "level", 0)
+        if self.level is not None:
+            if isinstance(self.level, bool) or int(self.level) != self.level or self.level < 0:
+                raise ParameterError(f"level: expected an integer >= 0, got {self.level!r}")
+            s(self, "level", int(self.level))
+        s(self, "max_texels_drawn", _count_or_none(self.max_texels_drawn, "max_texels_drawn"))
+        s(self, "texels_per_frame", _count_or_none(self.texels_per_frame, "texels_per_frame"))
+        if policy == "texel-budget" and self.max_texels_drawn is None:
+            raise ParameterError("max_texels_drawn: expected a texel count for policy 'texel-budget', got None")
+        s(self, "texture_budget", parse_bytes(self.texture_budget, "texture_budget"))
+        if self.focus is not None:
+            f = tuple(float(v) for v in self.focus)
+            if len(f) != 3 or not all(math.isfinite(v) for v in f):
+                raise ParameterError(f"focus: expected three finite world coordinates (x, y, z), got {self.focus!r}")
+            s(self, "focus", f)
+        try:
+            bg = tuple(float(v) for v in self.background)
+        except (TypeError, ValueError):
+            bg = ()
+        if len(bg) != 4 or not all(0.0 <= v <= 1.0 for v in bg):
+            raise ParameterError(f"background: expected four values in [0, 1] (r, g, b, a), got {self.background!r}")
+        s(self, "background", bg)
+        if self.shape is not None and not isinstance(self.shape, Shape):
+            raise ParameterError(f"shape: expected a clipvol Shape or None, got {type(self.shape).__name__}")
+        s(self, "early_termination", bool(self.early_termination))
+        s(self, "merge_boxes", bool(self.merge_boxes))
+
+    # -- helpers ---------------------------------------------------------------------------------
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        """The field names (for ``update(**changes)`` checks and CLI mapping)."""
+        return tuple(f.name for f in fields(cls))
+
+    @classmethod
+    def from_kwargs(cls, params: "RenderParams | None" = None, *, selection: str | None = None,
+                    **kwargs) -> "RenderParams":
+        """``params`` (or the defaults) with keyword overrides; ``selection=`` is the older name of
+        ``policy=``. Unknown names are a :class:`ParameterError` naming them."""
+        if selection is not None:
+            kwargs.setdefault("policy", selection)
+        bad = sorted(set(kwargs) - set(cls.names()))
+        if bad:
+            raise ParameterError(f"unknown render parameter(s) {', '.join(bad)}; expected {', '.join(cls.names())}")
+        base = params if params is not None else cls()
+        if not kwargs:
+            return base
+        from dataclasses import replace
+
+        return replace(base, **kwargs)
+
+    def check_for(self, pyramid) -> "RenderParams":
+        """Raise :class:`ParameterError` if the parameters do not fit ``pyramid`` (a fixed level
+        past its top); returns ``self``."""
+        if self.level is not None and self.level >= pyramid.num_levels:
+            raise ParameterError(f"level: expected 0..{pyramid.num_levels - 1} for this store, got {self.level}")
+        return self
+
+    @property
+    def selection(self) -> str:
+        """The policy under its older name (``"multiresolution"`` for ``"projected-size"``)."""
+        return "multiresolution" if self.policy == "projected-size" else self.policy
