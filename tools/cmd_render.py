@@ -81,6 +81,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
     r.add_argument("--no-wait", action="store_true", help="do not wait for the view's bricks (draw what is resident)")
     r.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for convergence (default 300)")
+    d = p.add_argument_group("sort-last rendering on Dask (needs clipvol[dask])")
+    d.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="draw N spatially disjoint brick groups in N worker processes and composite them")
+    d.add_argument("--scheduler", default="processes", metavar="S",
+                   help="with --workers: processes (a local cluster, default) or tcp://HOST:PORT of a dask.distributed scheduler")
     from clipvol.tools.remote_args import add_remote_arguments
 
     add_remote_arguments(p)
@@ -151,6 +156,8 @@ def run(args) -> int:
         background=args.background,
     ).check_for(pyr)
     tf = TransferFunction.preset(args.tf, value_range=args.tf_range)
+    if args.workers is not None:  # sort-last on Dask: groups of bricks in worker processes
+        return _run_sort_last(args, params, cam, tf, kwargs)
     ctx = create_context()
     try:
         with ClipTexture(loader, args.memory_budget, args.threads, center=centre) as clip, \
@@ -168,4 +175,29 @@ def run(args) -> int:
     print(f"uploaded {format_bytes(st.bytes_uploaded)} in {st.bricks_uploaded} bricks; textures "
           f"{format_bytes(st.texture_bytes)} of {format_bytes(st.texture_budget)}", file=sys.stderr)
     print("time: " + ", ".join(f"{k} {v * 1000:.1f} ms" for k, v in t.items()), file=sys.stderr)
+    return 0
+
+
+def _run_sort_last(args, params, cam, tf, kwargs) -> int:
+    """``--workers N``: :class:`clipvol.app.sortlast.DistributedRenderer` instead of one action."""
+    from PIL import Image
+
+    from clipvol.app.sortlast import DistributedRenderer
+    from clipvol.tools.remote_args import remote_kwargs
+
+    if args.workers < 1:
+        raise ParameterError(f"--workers: expected an integer >= 1, got {args.workers}")
+    if args.no_wait:
+        raise ParameterError("--no-wait: sort-last frames are always converged; drop --no-wait or --workers")
+    with DistributedRenderer(args.source, args.workers, params, scheduler=args.scheduler,
+                             memory_budget=args.memory_budget, timeout=args.timeout,
+                             source_kwargs={**kwargs, **remote_kwargs(args)}) as dr:
+        image = dr.render(cam, tf)
+        st = dr.last_stats
+    Image.fromarray(image, "RGBA").save(args.out)
+    print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, {args.mode}, {params.policy}, sort-last over "
+          f"{args.workers} workers)", file=sys.stderr)
+    print("time: frame {:.1f} ms, groups {}, compositing {:.1f} ms".format(
+        st.frame_seconds * 1000, ", ".join(f"{t * 1000:.1f} ms" for t in st.group_seconds), st.composite_seconds * 1000),
+        file=sys.stderr)
     return 0

@@ -86,3 +86,26 @@ def test_two_dask_worker_processes_give_the_single_frame(gl, store):
         cam = view_camera(pyr, "iso", SIZE)
         assert _close(dr.render(cam, tf), _single(gl, store, replace(params, mode="mip"), cam, tf)) <= 1
         assert len(dr.last_stats.group_seconds) == 2
+
+
+def test_render_cli_refuses_bad_worker_options(tmp_path, store, capsys):
+    from clipvol.tools.cli import main
+
+    out = str(tmp_path / "x.png")
+    assert main(["render", store, "--out", out, "--workers", "0"]) == 2
+    assert "--workers" in capsys.readouterr().err
+    assert main(["render", store, "--out", out, "--workers", "2", "--scheduler", "threads"]) == 2
+    assert "--scheduler" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_render_cli_with_two_workers_equals_one(tmp_path, store):
+    from PIL import Image
+
+    from clipvol.tools.cli import main
+
+    common = ["--size", "80x64", "--view", "side", "--tf", "grey"]
+    assert main(["render", store, "--out", str(tmp_path / "one.png"), *common]) == 0
+    assert main(["render", store, "--out", str(tmp_path / "two.png"), "--workers", "2", *common]) == 0
+    one, two = (np.asarray(Image.open(tmp_path / n)) for n in ("one.png", "two.png"))
+    assert _close(one, two) <= 1 and (one[..., 3] > 0).sum() > 500
