@@ -109,3 +109,23 @@ def test_render_cli_with_two_workers_equals_one(tmp_path, store):
     assert main(["render", store, "--out", str(tmp_path / "two.png"), "--workers", "2", *common]) == 0
     one, two = (np.asarray(Image.open(tmp_path / n)) for n in ("one.png", "two.png"))
     assert _close(one, two) <= 1 and (one[..., 3] > 0).sum() > 500
+
+
+def test_offscreen_flythrough_sort_last_frames_equal_single_renders(gl, store, tmp_path, capsys):
+    """``clipvol view --offscreen --workers 2`` (inline scheduler: the groups drawn in this process)."""
+    from PIL import Image
+
+    from clipvol.scene.paths import make_path
+    from clipvol.tools.cli import main
+
+    out = tmp_path / "frames"
+    assert main(["view", store, "--offscreen", "--workers", "2", "--scheduler", "inline", "--frames", "3",
+                 "--size", "64x64", "--out", str(out), "--tf", "viridis"]) == 0
+    assert "wrote 3 frames" in capsys.readouterr().out
+    rows = (out / "frames.csv").read_text().splitlines()
+    assert len(rows) == 4 and rows[0].startswith("frame,frame_s,composite_s,order,group0_s,group1_s")
+    pyr = open_store(store).pyramid
+    tf = TransferFunction.preset("viridis")
+    for k, (cam, _coi) in enumerate(make_path("orbit", pyr, 3, size=(64, 64))):
+        got = np.asarray(Image.open(out / f"frame_{k:04d}.png"))
+        assert _close(got, _single(gl, store, RenderParams(), cam, tf)) <= 1, k
