@@ -277,7 +277,7 @@ def _plot(rows: list, path: Path) -> None:
     fig, ax = plt.subplots(figsize=(8, 0.4 * len(ratios) + 1.2))
     ax.barh([r[0] for r in ratios], [r[1] for r in ratios], color="tab:blue")
     ax.axvline(1.0, color="k", lw=0.8)
-    ax.set_xlabel("ratio (each bar: the quantity named / its baseline named in docs/bench_scale.csv)")
+    ax.set_xlabel("ratio to the baseline named in bench_scale.csv (column what)")
     ax.invert_yaxis()
     fig.tight_layout()
     fig.savefig(path, dpi=100)
