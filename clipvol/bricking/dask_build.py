@@ -73,6 +73,11 @@ def _worker_source(spec):
     if isinstance(source, np.ndarray):
         return open_source(source)
     key = (str(source), raw_shape, str(raw_dtype), byte_order)
+    try:  # a long-lived worker must not keep a handle on an input replaced since
+        st = Path(source).stat()
+        key += (st.st_mtime_ns, st.st_size)
+    except (OSError, TypeError, ValueError):
+        pass
     src = _SOURCES.get(key)
     if src is None:
         src = _SOURCES[key] = open_source(source, raw_shape=raw_shape, raw_dtype=raw_dtype, byte_order=byte_order)

@@ -163,7 +163,8 @@ def _status(e: BaseException) -> int | None:
         v = resp.get("ResponseMetadata", {}).get("HTTPStatusCode")
         if isinstance(v, int):
             return v
-    m = re.search(r"\b(5\d\d|429|403|401)\b", str(e)) if isinstance(e, OSError) else None
+    # s3fs and friends sometimes only say it in words: "... (HTTP 503)", "status code: 403"
+    m = re.search(r"(?:HTTP|[Ss]tatus(?: code)?)\W{0,3}(5\d\d|429|403|401)\b", str(e)) if isinstance(e, OSError) else None
     return int(m.group(1)) if m else None
 
 

@@ -212,3 +212,11 @@ class TestRemoteZarrOverHttp(LoaderTests):
         brick_volume(reference, root / "c.zarr", brick=16, progress=False, workers=1)
         with serve_directory(root) as (url, srv):
             yield open_store(f"{url}/c.zarr")
+
+
+def test_credentials_in_a_url_never_reach_a_message(site):
+    with serve_directory(site) as (url, srv):
+        port = url.rsplit(":", 1)[1]
+    with pytest.raises(RemoteStoreError) as ei:  # nothing listens there any more
+        open_store(f"http://alice:s3cret@127.0.0.1:{port}/s.zarr", retries=0)
+    assert "s3cret" not in str(ei.value) and f"http://***@127.0.0.1:{port}/s.zarr" in str(ei.value)
