@@ -197,6 +197,7 @@ def _run_sort_last(args, params, cam, tf, kwargs) -> int:
     Image.fromarray(image, "RGBA").save(args.out)
     print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, {args.mode}, {params.policy}, sort-last over "
           f"{args.workers} workers)", file=sys.stderr)
+    print(f"converged {st.converged}", file=sys.stderr)
     print("time: frame {:.1f} ms, groups {}, compositing {:.1f} ms".format(
         st.frame_seconds * 1000, ", ".join(f"{t * 1000:.1f} ms" for t in st.group_seconds), st.composite_seconds * 1000),
         file=sys.stderr)

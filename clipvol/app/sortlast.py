@@ -70,7 +70,8 @@ def release_worker_state() -> None:
 
 
 def _render_group(source, source_kwargs, memory_budget, params: RenderParams, camera, tf, box, timeout):
-    """Draw one group: returns ``(raw float32 (h, w, 4), (a, b) of the texture format, seconds)``."""
+    """Draw one group: returns ``(raw float32 (h, w, 4), (a, b) of the texture format, seconds,
+    converged)``; a group whose bricks did not all arrive within ``timeout`` says so."""
     t0 = time.perf_counter()
     _ctx, clip, action = _worker_action(source, source_kwargs, memory_budget, params)
     shape = params.shape
@@ -82,13 +83,14 @@ def _render_group(source, source_kwargs, memory_budget, params: RenderParams, ca
         raw = np.zeros((int(h), int(w), 4), dtype=np.float32)
         if params.mode == "mip":
             raw[..., 0] = -3.0e38
-        return raw, (action.cache.format.a, action.cache.format.b), time.perf_counter() - t0
+        return raw, (action.cache.format.a, action.cache.format.b), time.perf_counter() - t0, True
     group_shape = Shape(box=(tuple(lo), tuple(hi)), planes=shape.planes if shape is not None else ())
     action.set_params(replace(params, shape=group_shape, background=(0.0, 0.0, 0.0, 0.0), early_termination=True))
     vlo, vhi = clip.pyramid.volume_box()
     clip.set_center(np.clip((lo + hi) / 2.0, vlo, vhi))
     action.render(camera, tf, wait=True, timeout=timeout)
-    return np.array(action.last_raw), (action.cache.format.a, action.cache.format.b), time.perf_counter() - t0
+    return (np.array(action.last_raw), (action.cache.format.a, action.cache.format.b), time.perf_counter() - t0,
+            bool(action.last_frame_stats.converged))
 
 
 # -- client side --------------------------------------------------------------------------------
@@ -100,6 +102,8 @@ class SortLastStats:
     frame_seconds: float
     composite_seconds: float
     order: tuple[int, ...]
+    #: every group drew its bricks at their own level (False: some were still loading at the timeout)
+    converged: bool = True
 
 
 class DistributedRenderer:
@@ -193,7 +197,8 @@ class DistributedRenderer:
         prem = prem + (1.0 - alpha[..., None]) * np.array([r * ba, g_ * ba, b * ba, ba])
         image = premultiplied_to_uint8(prem)
         t2 = time.perf_counter()
-        self.last_stats = SortLastStats(tuple(results[g][2] for g in sorted(results)), t2 - t0, t2 - t1, tuple(order))
+        self.last_stats = SortLastStats(tuple(results[g][2] for g in sorted(results)), t2 - t0, t2 - t1, tuple(order),
+                                        all(results[g][3] for g in results))
         return image
 
     def set_params(self, params: RenderParams) -> None:
@@ -242,7 +247,7 @@ def render_path_sort_last(source, out, *, workers: int = 2, scheduler: str = "pr
     with DistributedRenderer(source, workers, params, scheduler=scheduler, memory_budget=memory_budget,
                              source_kwargs=source_kwargs, timeout=timeout) as dr, \
             open(out / "frames.csv", "w", newline="") as fh:
-        cols = ["frame", "frame_s", "composite_s", "order"] + [f"group{g}_s" for g in range(workers)]
+        cols = ["frame", "frame_s", "composite_s", "converged", "order"] + [f"group{g}_s" for g in range(workers)]
         writer = csv.DictWriter(fh, fieldnames=cols)
         writer.writeheader()
         for k, (cam, _coi) in enumerate(make_path(path, dr.pyramid, frames, size=size)):
@@ -250,6 +255,7 @@ def render_path_sort_last(source, out, *, workers: int = 2, scheduler: str = "pr
             Image.fromarray(img, "RGBA").save(out / f"frame_{k:04d}.png")
             st = dr.last_stats
             row = {"frame": k, "frame_s": round(st.frame_seconds, 6), "composite_s": round(st.composite_seconds, 6),
+                   "converged": st.converged,
                    "order": " ".join(map(str, st.order)),
                    **{f"group{g}_s": round(t, 6) for g, t in enumerate(st.group_seconds)}}
             writer.writerow(row)

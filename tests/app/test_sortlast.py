@@ -57,7 +57,7 @@ def test_inline_groups_composite_to_the_single_frame(gl, store):
             got = dr.render(cam, tf)
             assert (ref[..., 3] > 0).sum() > 1000
             assert _close(got, ref) <= 1, (mode, view)
-            assert sorted(dr.last_stats.order) == [0, 1, 2]
+            assert sorted(dr.last_stats.order) == [0, 1, 2] and dr.last_stats.converged
         # a wrong order is visibly wrong: the check above can fail
         dr.set_params(RenderParams())
         cam = view_camera(pyr, "iso", SIZE)
@@ -123,7 +123,8 @@ def test_offscreen_flythrough_sort_last_frames_equal_single_renders(gl, store, t
                  "--size", "64x64", "--out", str(out), "--tf", "viridis"]) == 0
     assert "wrote 3 frames" in capsys.readouterr().out
     rows = (out / "frames.csv").read_text().splitlines()
-    assert len(rows) == 4 and rows[0].startswith("frame,frame_s,composite_s,order,group0_s,group1_s")
+    assert len(rows) == 4 and rows[0].startswith("frame,frame_s,composite_s,converged,order,group0_s,group1_s")
+    assert all(r.split(",")[3] == "True" for r in rows[1:])
     pyr = open_store(store).pyramid
     tf = TransferFunction.preset("viridis")
     for k, (cam, _coi) in enumerate(make_path("orbit", pyr, 3, size=(64, 64))):
