@@ -332,13 +332,15 @@ def _build(client, spec, group, pyr: Pyramid, output: Path, codec: str, span: in
         del below, here
         error: BaseException | None = None
         for fut in as_completed(stat_futs):
-            if fut.status == "finished":
+            if fut.status == "error":
+                if error is None:
+                    error = fut.exception()
+                    client.cancel([f for f in stat_futs if not f.done()])
+            elif fut.status == "finished" or (fut.status != "cancelled" and error is None):
+                # finished - or being recomputed because the worker holding it died: result() waits
                 stats = fut.result()
                 book.add(stats)  # rows finished before a failure are kept: a re-run skips them
                 bar.update(len(stats))
-            elif fut.status == "error" and error is None:
-                error = fut.exception()
-                client.cancel([f for f in stat_futs if not f.done()])
             fut.release()
         if error is not None:
             raise error
