@@ -88,6 +88,8 @@ def run(args) -> int:
     loader = open_loader(args.source, **kwargs, **remote_kwargs(args))
     if params.level is not None and params.level >= loader.pyramid.num_levels:
         raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {params.level}")
+    if args.workers is not None and not args.offscreen:
+        raise ParameterError("--workers: sort-last frames are drawn offscreen only; add --offscreen")
     if args.offscreen and args.workers is not None:  # sort-last frames on Dask
         from clipvol.app.sortlast import render_path_sort_last
 

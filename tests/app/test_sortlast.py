@@ -130,3 +130,10 @@ def test_offscreen_flythrough_sort_last_frames_equal_single_renders(gl, store, t
     for k, (cam, _coi) in enumerate(make_path("orbit", pyr, 3, size=(64, 64))):
         got = np.asarray(Image.open(out / f"frame_{k:04d}.png"))
         assert _close(got, _single(gl, store, RenderParams(), cam, tf)) <= 1, k
+
+
+def test_view_workers_needs_offscreen(store, capsys):
+    from clipvol.tools.cli import main
+
+    assert main(["view", store, "--workers", "2"]) == 2
+    assert "--offscreen" in capsys.readouterr().err
