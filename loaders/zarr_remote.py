@@ -89,6 +89,8 @@ class RemoteZarrLoader(ZarrLoader):
         default (:attr:`preferred_threads`).
     retries, timeout
         See :class:`~clipvol.paging.bytesource.FsspecByteSource`.
+    t, c
+        Time point and channel of an OME-Zarr image with such axes (as :class:`ZarrLoader`).
 
     Raises
     ------
@@ -99,7 +101,8 @@ class RemoteZarrLoader(ZarrLoader):
     """
 
     def __init__(self, url: str, *, cache: str | Path | None = None, storage_options: dict | None = None,
-                 max_in_flight: int = DEFAULT_IN_FLIGHT, retries: int = 5, timeout: float = 30.0) -> None:
+                 max_in_flight: int = DEFAULT_IN_FLIGHT, retries: int = 5, timeout: float = 30.0,
+                 t: int | None = None, c: int | None = None) -> None:
         self.source = FsspecByteSource(url, storage_options=storage_options, max_in_flight=max_in_flight,
                                        retries=retries, timeout=timeout, cache=cache)
         self.url = self.source.display_url
@@ -110,7 +113,7 @@ class RemoteZarrLoader(ZarrLoader):
         self._stats_mirrored: set[int] = set()
         try:
             self._mirror_metadata()
-            super().__init__(self._mirror)
+            super().__init__(self._mirror, t=t, c=c)
         except ClipvolError as e:
             self._finalizer()
             raise self._renamed(e) from None
@@ -171,7 +174,7 @@ class RemoteZarrLoader(ZarrLoader):
     # -- the one swapped piece: chunk bytes ------------------------------------------------------
     def _chunk_bytes(self, level: int, index) -> bytes | None:
         am = self._arrays[level]
-        key = am.chunk_path((0,) * self._lead + tuple(index)).relative_to(self._mirror).as_posix()
+        key = am.chunk_path(self._chunk_lead + tuple(index)).relative_to(self._mirror).as_posix()
         return self.source.get(key)
 
     def _read_zarr(self, level: int, start, stop):
@@ -188,7 +191,7 @@ class RemoteZarrLoader(ZarrLoader):
                     store = FsspecStore.from_url(self.source.url, storage_options=self._storage_options, read_only=True)
                     arr = zarr.open_array(store, path=rel, mode="r")
                     self._zarr_arrays[level] = arr
-        sl = (0,) * self._lead + tuple(slice(a, b) for a, b in zip(start, stop))
+        sl = self._select + tuple(slice(a, b) for a, b in zip(start, stop))
         try:
             return np.asarray(arr[sl])
         except (OSError, RuntimeError) as e:

@@ -47,6 +47,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                   "or a .npy file")
     p.add_argument("--out", "-o", required=True, help="output PNG")
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default 64)")
+    d = p.add_argument_group("data")
+    d.add_argument("--t", type=int, default=None, help="time point of an OME-Zarr image with a t axis (default 0)")
+    d.add_argument("--c", type=int, default=None, help="channel of an OME-Zarr image with a c axis (default 0)")
+    d.add_argument("--hide-labels", default=None, metavar="NAME:ID,ID",
+                   help="hide the voxels of these label ids of the store's labels/NAME (from clipvol brick --labels)")
     v = p.add_argument_group("camera")
     v.add_argument("--view", choices=VIEWS, default="iso", help="preset direction towards the volume centre (default iso)")
     v.add_argument("--eye", type=_triple, default=None, help="eye position x,y,z (world units; overrides --view)")
@@ -81,14 +86,33 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
     r.add_argument("--no-wait", action="store_true", help="do not wait for the view's bricks (draw what is resident)")
     r.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for convergence (default 300)")
-    d = p.add_argument_group("sort-last rendering on Dask (needs clipvol[dask])")
-    d.add_argument("--workers", type=int, default=None, metavar="N",
+    sl = p.add_argument_group("sort-last rendering on Dask (needs clipvol[dask])")
+    sl.add_argument("--workers", type=int, default=None, metavar="N",
                    help="draw N spatially disjoint brick groups in N worker processes and composite them")
-    d.add_argument("--scheduler", default="processes", metavar="S",
-                   help="with --workers: processes (a local cluster, default) or tcp://HOST:PORT of a dask.distributed scheduler")
+    sl.add_argument("--scheduler", default="processes", metavar="S",
+                    help="with --workers: processes (a local cluster, default) or tcp://HOST:PORT of a dask.distributed scheduler")
     from clipvol.tools.remote_args import add_remote_arguments
 
     add_remote_arguments(p)
+
+
+def hidden_labels(source, loader, spec: str):
+    """``loader`` with the voxels of ``NAME:ID,ID`` (a label image of the store) hidden."""
+    from pathlib import Path
+
+    from clipvol.bricking.labels import label_names
+    from clipvol.paging.open import open_store
+    from clipvol.paging.tagging import TaggedLoader
+
+    name, _, ids = spec.partition(":")
+    names = label_names(source)
+    if name not in names:
+        raise ParameterError(f"--hide-labels: expected one of the store's labels {names or '(none)'}, got {name!r}")
+    try:
+        hidden = [int(v) for v in ids.split(",") if v.strip()]
+    except ValueError:
+        raise ParameterError(f"--hide-labels: expected NAME:ID,ID with integer ids, got {spec!r}") from None
+    return TaggedLoader(loader, open_store(Path(source) / "labels" / name), hidden)
 
 
 def view_camera(pyramid, view: str, size, *, eye=None, target=None, up=None, fov=35.0, distance=None, ortho=False):
@@ -143,7 +167,10 @@ def run(args) -> int:
     from clipvol.tools.remote_args import remote_kwargs
 
     kwargs = {} if args.brick is None else {"brick": args.brick}
+    kwargs.update({k: v for k, v in (("t", args.t), ("c", args.c)) if v is not None})
     loader = open_store(args.source, **kwargs, **remote_kwargs(args))
+    if args.hide_labels:
+        loader = hidden_labels(args.source, loader, args.hide_labels)
     pyr = loader.pyramid
     cam = view_camera(pyr, args.view, args.size, eye=args.eye, target=args.target, up=args.up, fov=args.fov,
                       distance=args.distance, ortho=args.ortho)
@@ -189,6 +216,8 @@ def _run_sort_last(args, params, cam, tf, kwargs) -> int:
         raise ParameterError(f"--workers: expected an integer >= 1, got {args.workers}")
     if args.no_wait:
         raise ParameterError("--no-wait: sort-last frames are always converged; drop --no-wait or --workers")
+    if args.hide_labels:
+        raise ParameterError("--hide-labels: not available with --workers (the workers draw the image alone)")
     with DistributedRenderer(args.source, args.workers, params, scheduler=args.scheduler,
                              memory_budget=args.memory_budget, timeout=args.timeout,
                              source_kwargs={**kwargs, **remote_kwargs(args)}) as dr:

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ParameterError
+from ..errors import MissingExtraError, ParameterError
 from ..scene.decompose import back_to_front, composite_max, composite_over, kd_split
 from ..scene.geometry import Shape
 from ..scene.params import RenderParams
@@ -151,8 +151,8 @@ class DistributedRenderer:
             try:
                 from distributed import Client, LocalCluster
             except ImportError:
-                raise ParameterError("--workers: sort-last rendering on Dask needs the dask extra: "
-                                     "pip install 'clipvol[dask]'") from None
+                raise MissingExtraError("--workers: sort-last rendering on Dask needs the dask extra: "
+                                        "pip install 'clipvol[dask]'") from None
             if scheduler == "processes":
                 self._cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
                                              host="127.0.0.1", dashboard_address=None,

@@ -40,7 +40,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import ParameterError
+from ..errors import MissingExtraError, ParameterError
 from .pipeline import _brick_shape, _check_params, _create_store, _job, _prepare_output, chunk_encoder, encode_brick
 from .pyramid import Pyramid, downsample
 from .sources import open_source
@@ -60,7 +60,7 @@ def _need_dask():
         import dask  # noqa: F401
         import distributed  # noqa: F401
     except ImportError:
-        raise ParameterError("--scheduler: bricking on Dask needs the dask extra: pip install 'clipvol[dask]'") from None
+        raise MissingExtraError("--scheduler: bricking on Dask needs the dask extra: pip install 'clipvol[dask]'") from None
 
 
 # -- worker side ------------------------------------------------------------------------------------
@@ -211,7 +211,7 @@ def brick_volume_dask(
     filter: str = "mean",
     codec: str = "lz4",
     spacing: Sequence[float] | None = None,
-    unit: str = "micrometer",
+    unit: str | None = None,
     workers: int | None = None,
     overwrite: bool = False,
     progress: bool = True,
@@ -240,13 +240,15 @@ def brick_volume_dask(
     """
     _need_dask()
     bshape = _brick_shape(brick)
-    spacing, workers = _check_params(filter, codec, spacing, unit, workers)
+    spacing, workers = _check_params(filter, codec, spacing, unit or "micrometer", workers)
     if isinstance(span, bool) or not isinstance(span, int) or not 1 <= span <= 6:
         raise ParameterError(f"span: expected an integer in 1..6, got {span!r}")
     output = Path(output).absolute()
     src = open_source(source, raw_shape=raw_shape, raw_dtype=raw_dtype, byte_order=byte_order)
     try:
         sp = tuple(float(v) for v in (spacing or src.spacing or (1.0, 1.0, 1.0)))
+        unit = unit or getattr(src, "unit", None) or "micrometer"  # as the local path decides them
+        frame = src.frame.with_spacing(sp) if getattr(src, "frame", None) is not None else None
         job = _job(src, src.shape, bshape, filter, codec, sp, unit)
         attrs = _prepare_output(output, job, overwrite)
         shape, dtype = src.shape, src.dtype
@@ -265,7 +267,7 @@ def brick_volume_dask(
         if attrs is None:
             vr = _scan(client, spec, shape, dtype)
             pyramid = Pyramid.build(shape, bshape, sp, filter, dtype, vr, 0.0)
-            group = _create_store(output, pyramid, codec, unit, job["source"])
+            group = _create_store(output, pyramid, codec, unit, job["source"], frame)
         else:
             import zarr
 

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Protocol, runtime_checkable
 from urllib.parse import urlsplit, urlunsplit
 
-from ..errors import InputFormatError, ParameterError, RemoteStoreError
+from ..errors import InputFormatError, MissingExtraError, ParameterError, RemoteStoreError
 
 __all__ = [
     "ByteSource",
@@ -233,7 +233,7 @@ class FsspecByteSource:
         try:
             import fsspec
         except ImportError:  # pragma: no cover
-            raise InputFormatError(f"{redact_url(url)}: remote stores need fsspec: pip install 'clipvol[remote]'") from None
+            raise MissingExtraError(f"{redact_url(url)}: remote stores need fsspec: pip install 'clipvol[remote]'") from None
         if max_in_flight < 1:
             raise ParameterError(f"max_in_flight: expected an integer >= 1, got {max_in_flight}")
         if retries < 0 or not backoff >= 0 or not timeout > 0:

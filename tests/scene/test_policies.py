@@ -142,3 +142,26 @@ def test_a_policy_added_at_run_time_needs_only_the_registry():
         assert set(sel.wanted) == brute_force(lambda level, lo, hi: lo[0] < N / 2 - 1)
     finally:
         del POLICIES[HalfWay.name]
+
+
+def test_texel_budget_counts_regions_drawn_from_a_parent_outside_the_window():
+    """With a residency window, children outside it are drawn from their parent: those boxes cost a
+    brick each too, so the drawn texels stay within the budget whatever the window."""
+    class Window:
+        """Residency whose window at level 0 holds only the bricks with bx < 3."""
+
+        def in_window_mask(self, level, idx):
+            idx = np.asarray(idx).reshape(-1, 3)
+            return idx[:, 2] < 3 if level == 0 else np.ones(len(idx), bool)
+
+        def resident_mask(self, level, idx):
+            return np.ones(len(np.asarray(idx).reshape(-1, 3)), bool)
+
+    cam = whole_view(EYES[0])
+    exercised = 0
+    for bricks in range(8, 520, 12):
+        sel = select(PYR, cam, RenderParams(policy="texel-budget", max_texels_drawn=bricks * B**3, lod_threshold=0.1),
+                     residency=Window())
+        exercised += sel.counts["outside_window"] > 0
+        assert len(sel.items) <= bricks, (bricks, len(sel.items), sel.counts["outside_window"])
+    assert exercised > 5  # the case this test is about did occur
