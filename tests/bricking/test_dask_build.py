@@ -183,3 +183,23 @@ def test_a_worker_killed_mid_build_still_gives_the_same_store(tmp_path):
         t.join()
     assert killed and killed[0] < finished  # the worker died while the build ran
     assert _tree(tmp_path / "a" / "s.zarr") == _tree(tmp_path / "b" / "s.zarr")
+
+
+def test_chunked_hdf5_and_nifti_inputs_give_the_local_store(tmp_path):
+    """Inputs the workers open themselves by path: a chunked HDF5 dataset (h5py) and a NIfTI file
+    with its own spacing and world frame (nibabel) - same store as the local build."""
+    h5py = pytest.importorskip("h5py")
+    nib = pytest.importorskip("nibabel")
+    vol = _volume((40, 36, 44), seed=8)
+    with h5py.File(tmp_path / "v.h5", "w") as f:
+        f.create_dataset("scan", data=vol, chunks=(8, 36, 44))
+    affine = np.diag([0.5, 0.75, 2.0, 1.0])
+    affine[:3, 3] = (10.0, -4.0, 3.0)
+    nib.save(nib.Nifti1Image(np.ascontiguousarray(vol.transpose(2, 1, 0)), affine), tmp_path / "v.nii.gz")
+    for name in ("v.h5:/scan", "v.nii.gz"):
+        src = f"{tmp_path}/{name}"
+        brick_volume(src, tmp_path / "a" / name.split(".")[1][:3] / "s.zarr", brick=8, progress=False, workers=1)
+        brick_volume_dask(src, tmp_path / "b" / name.split(".")[1][:3] / "s.zarr", brick=8, span=2, progress=False,
+                          workers=2)
+        a, b = (_tree(tmp_path / d / name.split(".")[1][:3] / "s.zarr") for d in ("a", "b"))
+        assert len(a) > 50 and a == b, name
