@@ -138,8 +138,8 @@ def bench_bricking(work: Path, size: int, rows: list) -> None:
              ("brick", "dask_threads_over_local", round(t_local / t_thr, 3), "ratio", "throughput relative to the local path")]
     times = {}
     for n in (1, 2):
-        with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
-                          scheduler_kwargs={"dashboard": False}) as cluster, Client(cluster) as client:
+        with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0",
+                          worker_dashboard_address="127.0.0.1:0") as cluster, Client(cluster) as client:
             client.run(_warm_worker)  # imports happen once per process, not inside the clock
             base = client.run(_rss_mb)
             t = min(timed(lambda: brick_volume_dask(npy, work / f"d{n}.zarr", brick=brick, span=2, overwrite=True,

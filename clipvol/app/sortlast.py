@@ -155,8 +155,8 @@ class DistributedRenderer:
                                         "pip install 'clipvol[dask]'") from None
             if scheduler == "processes":
                 self._cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                                             host="127.0.0.1", dashboard_address=None,
-                                             scheduler_kwargs={"dashboard": False})
+                                             host="127.0.0.1", dashboard_address="127.0.0.1:0",
+                                             worker_dashboard_address="127.0.0.1:0")
                 client = Client(self._cluster)
             elif "://" in scheduler:
                 try:

@@ -153,11 +153,11 @@ def _client(scheduler: str, workers: int):
 
     if scheduler == "threads":
         # in-process: the scheduler and the worker talk over Dask's inproc transport, no socket
-        cluster = LocalCluster(n_workers=1, threads_per_worker=workers, processes=False, dashboard_address=None,
-                               scheduler_kwargs={"dashboard": False})
+        cluster = LocalCluster(n_workers=1, threads_per_worker=workers, processes=False, dashboard_address="127.0.0.1:0",
+                               worker_dashboard_address="127.0.0.1:0")
     elif scheduler == "processes":
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                               scheduler_kwargs={"dashboard": False}, host="127.0.0.1")
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0",
+                               worker_dashboard_address="127.0.0.1:0", host="127.0.0.1")
     elif scheduler.startswith(("tcp://", "tls://", "ucx://")) or "://" not in scheduler and ":" in scheduler:
         try:
             return Client(scheduler, timeout="10s"), None

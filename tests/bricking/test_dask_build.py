@@ -138,8 +138,8 @@ def test_local_cluster_over_tcp_reads_zarr_input_in_the_workers(tmp_path, capsys
     src = zarr.open_array(str(tmp_path / "in.zarr"), mode="w", shape=vol.shape, chunks=(16, 40, 72), dtype=vol.dtype)
     src[...] = vol
     brick_volume(tmp_path / "in.zarr", tmp_path / "a" / "s.zarr", brick=16, progress=False, workers=2)
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
-                      scheduler_kwargs={"dashboard": False}) as cluster:
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0",
+                      worker_dashboard_address="127.0.0.1:0") as cluster:
         rc = main(["brick", str(tmp_path / "in.zarr"), str(tmp_path / "b" / "s.zarr"), "--brick", "16",
                    "--scheduler", cluster.scheduler_address])
     assert rc == 0
@@ -159,8 +159,8 @@ def test_a_worker_killed_mid_build_still_gives_the_same_store(tmp_path):
     vol = _volume((64, 64, 64), seed=6)
     np.save(tmp_path / "v.npy", vol)
     brick_volume(tmp_path / "v.npy", tmp_path / "a" / "s.zarr", brick=8, progress=False, workers=2)
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
-                      scheduler_kwargs={"dashboard": False}) as cluster, Client(cluster) as client:
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0",
+                      worker_dashboard_address="127.0.0.1:0") as cluster, Client(cluster) as client:
         client.run(lambda: __import__("clipvol.bricking.dask_build"))
         killed = []
 
