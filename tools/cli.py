@@ -20,12 +20,13 @@ from clipvol.errors import ClipvolError
 #: sub-command -> one-line help; the module is clipvol.tools.cmd_<name>
 COMMANDS = {
     "brick": "brick a volume into a multiresolution zarr store (OME-Zarr)",
-    "info": "describe a store: levels, shapes, bricks, bytes, compression, value range",
+    "info": "describe a store or any OME-Zarr: levels, shapes, bricks, bytes, compression, value range, NaN/Inf",
     "check": "validate a store: metadata, filter on sampled bricks, statistics",
     "render": "render one image of a store or procedural volume",
     "view": "interactive roaming / multiresolution viewer (or --offscreen frames)",
     "report": "image error against run time for a sweep of quality settings",
     "demo": "brick the built-in dataset, fly around it, and write the report",
+    "tf": "save a transfer function to JSON (tf save), or check and describe one (tf load)",
 }
 
 

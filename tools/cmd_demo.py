@@ -17,21 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-#: the demo's transfer-function control points: transparent below, embers to white-hot above
-DEMO_TF_POINTS = (
-    (0.0, (0.0, 0.0, 0.0, 0.0)),
-    (0.60, (0.2, 0.1, 0.5, 0.0)),
-    (0.68, (0.9, 0.3, 0.2, 0.35)),
-    (0.80, (1.0, 0.8, 0.4, 0.9)),
-    (1.0, (1.0, 1.0, 1.0, 1.0)),
-)
-
-
 def demo_transfer_function():
-    """The demo's :class:`~clipvol.scene.transfer.TransferFunction` (over the data's value range)."""
+    """The demo's :class:`~clipvol.scene.transfer.TransferFunction` (the ``demo`` preset, over the data's value range)."""
     from clipvol.scene.transfer import TransferFunction
 
-    return TransferFunction.from_points(DEMO_TF_POINTS)
+    return TransferFunction.preset("demo")
 
 
 def demo_volume(n: int, seed: int = 3, slab: int = 32) -> np.ndarray:

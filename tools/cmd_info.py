@@ -1,32 +1,122 @@
-"""Describe a clipvol store: levels, shapes, bricks, bytes on disk, compression, value range, geometry.
+"""Describe a store: levels, shapes, bricks, bytes on disk, compression, value range, NaN/Inf counts.
+
+Works on a store written by ``clipvol brick`` and on any OME-Zarr image (what ``render`` and
+``view`` open): for the latter it reports what the metadata and the files say (levels stored
+and derived, chunks, bytes) and no statistics, which only ``clipvol brick`` writes.
+
+The compression ratio is the bytes of the voxels the written chunks hold - an edge chunk counts
+only its voxels inside the level, not its padding - over the bytes of those chunk files.
 
 For a store built from a file that records its geometry (NIfTI, DICOM, MRC, ...) it also prints
 the origin, the voxel-to-world affine and which anatomical direction (R/L, A/P, S/I) each array
 axis points to.
+
+Exits 1 (after the description) when a clipvol store is incomplete (an interrupted build is not a
+store) or when bricks whose statistics say they hold data have no chunk file (lost data, not
+empty bricks).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import re
+import sys
+from pathlib import Path
+
+_META_FILES = {"zarr.json", ".zarray", ".zattrs", ".zgroup", ".zmetadata"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("store", metavar="STORE", help="a store written by `clipvol brick` (a directory or a URL)")
+    parser.add_argument("store", metavar="STORE", help="a store written by `clipvol brick`, or any OME-Zarr image "
+                        "(a directory or a URL: s3://, https://, ...)")
     from clipvol.tools.remote_args import add_remote_arguments
 
     add_remote_arguments(parser)
 
 
-def _dir_bytes(path) -> tuple[int, int]:
-    """(files, bytes) of the chunk files under ``path/c``."""
-    import os
-
-    n = size = 0
-    for root, _dirs, files in os.walk(path / "c"):
+def chunk_files(array_dir: Path) -> list[tuple[Path, tuple[int, ...] | None]]:
+    """The chunk files of one zarr array directory and their chunk index (None if unparsable)."""
+    out = []
+    for root, _dirs, files in os.walk(array_dir):
         for f in files:
-            n += 1
-            size += os.path.getsize(os.path.join(root, f))
-    return n, size
+            if f in _META_FILES or f.endswith(".tmp"):
+                continue
+            p = Path(root) / f
+            rel = p.relative_to(array_dir).as_posix()
+            if rel.startswith("c/"):
+                rel = rel[2:]
+            parts = re.split(r"[./]", rel)
+            idx = tuple(int(s) for s in parts) if parts and all(s.isdigit() for s in parts) else None
+            out.append((p, idx))
+    return out
+
+
+def level_bytes(array_dir: Path, shape, chunks, itemsize: int) -> tuple[int, int, int]:
+    """``(chunk files, bytes on disk, bytes of the voxels they hold)`` of one level."""
+    n = disk = raw = 0
+    full = itemsize
+    for c in chunks:
+        full *= int(c)
+    for p, idx in chunk_files(array_dir):
+        n += 1
+        disk += p.stat().st_size
+        if idx is None or len(idx) < 3:
+            raw += full
+            continue
+        v = itemsize
+        for i, c, s in zip(idx[-3:], chunks[-3:], shape[-3:]):
+            v *= max(0, min(int(c), int(s) - int(i) * int(c)))
+        raw += v
+    return n, disk, raw
+
+
+def _lost(path: Path, level: int, present: set) -> int:
+    """Bricks whose statistics say they hold data (not min = max = 0 without NaN/Inf) but whose
+    chunk file is missing: lost data, which a reader must not show as empty."""
+    import numpy as np
+    import zarr
+
+    from clipvol.bricking.store import STATS_GROUP
+
+    try:
+        sg = zarr.open_group(str(path / STATS_GROUP / str(level)), mode="r")
+        mn, mx = np.asarray(sg["min"][...]), np.asarray(sg["max"][...])
+        done = np.asarray(sg["done"][...]) if "done" in sg else np.ones(mn.shape, bool)
+        odd = np.zeros(mn.shape, bool)
+        for name in ("nan_count", "inf_count"):
+            if name in sg:
+                odd |= np.asarray(sg[name][...]) > 0
+    except Exception:  # no statistics: nothing to compare with
+        return 0
+    holds = done & ((mn != 0) | (mx != 0) | odd)
+    return sum(1 for idx in zip(*np.nonzero(holds)) if tuple(int(i) for i in idx) not in present)
+
+
+def _checksummed(path: Path, levels: int) -> bool:
+    """True when every level's codec chain ends with zarr v3's ``crc32c``."""
+    import json
+
+    for L in range(levels):
+        try:
+            codecs = json.loads((path / str(L) / "zarr.json").read_text()).get("codecs") or []
+        except (OSError, ValueError):
+            return False
+        if not codecs or (codecs[-1] if isinstance(codecs[-1], str) else codecs[-1].get("name")) != "crc32c":
+            return False
+    return True
+
+
+def _stats_line(loader, pyr) -> str | None:
+    fn = getattr(loader, "brick_statistics", None)
+    st = fn(0) if fn is not None else None
+    if not st:
+        return None
+    nan = int(st["nan_count"].sum()) if "nan_count" in st else 0
+    inf = int(st["inf_count"].sum()) if "inf_count" in st else 0
+    total = int(pyr.shape[0]) * int(pyr.shape[1]) * int(pyr.shape[2])
+    return (f"non-finite {nan:,} NaN and {inf:,} Inf of {total:,} voxels (level 0)"
+            + (f"; {100 * (nan + inf) / total:.2f} % drawn transparent" if nan + inf else ""))
 
 
 def _print_geometry(meta) -> None:
@@ -48,59 +138,99 @@ def _print_geometry(meta) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     from clipvol.bricking.store import open_store_meta
+    from clipvol.errors import InputNotFoundError, StoreIncompleteError
+    from clipvol.loaders.zarr_store import ZarrLoader
     from clipvol.units import format_bytes
 
     from clipvol.paging.bytesource import is_remote_url
-    from clipvol.tools.remote_args import remote_kwargs
 
+    if is_remote_url(args.store):  # a store behind a URL: see clipvol.tools.remote_info
+        from clipvol.tools.remote_info import run_remote_info
+
+        return run_remote_info(args)
     path = Path(args.store)
-    level_files = lambda L: _dir_bytes(path / str(L))  # noqa: E731
-    if is_remote_url(args.store):  # a URL: metadata over the network, sizes where the server lists
-        from clipvol.loaders.zarr_remote import remote_store_meta
-
-        kw = remote_kwargs(args)
-        kw.pop("cache", None)
-        path = args.store
-        meta, level_files = remote_store_meta(args.store, **kw)
-    else:
+    if not path.exists():
+        raise InputNotFoundError(f"{path}: no such store")
+    meta = loader = None
+    attrs_say_clipvol = False
+    try:
+        loader = ZarrLoader(path)
+        attrs_say_clipvol = loader.is_clipvol_store
+    except StoreIncompleteError:
+        attrs_say_clipvol = True
+    if attrs_say_clipvol:
         meta = open_store_meta(path)
-    pyr = meta.pyramid
+        pyr = meta.pyramid
+        dirs = [path / str(L) for L in range(pyr.num_levels)]
+        stored = pyr.num_levels
+    else:
+        pyr = loader.pyramid
+        stored = loader.stored_levels
+        dirs = _ome_dataset_dirs(path)[:stored]
     it = pyr.dtype.itemsize
     print(f"store      {path}")
-    print(f"complete   {'yes' if meta.complete else 'no (interrupted build: re-run the same clipvol brick command)'}")
+    if meta is not None:
+        print("kind       clipvol store (with per-brick statistics)")
+        print(f"complete   {'yes' if meta.complete else 'no (interrupted build: re-run the same clipvol brick command)'}")
+        crc = _checksummed(path, pyr.num_levels)
+        print(f"checksum   {'crc32c on every chunk' if crc else 'none (unverified store, written before checksums)'}")
+    else:
+        print(f"kind       OME-Zarr image (not written by clipvol brick: no statistics; {stored} of "
+              f"{pyr.num_levels} levels stored, the rest derived on the fly)")
     print(f"dtype      {pyr.dtype}")
-    print(f"brick      {'x'.join(map(str, pyr.brick_shape))}")
+    print(f"brick      {'x'.join(map(str, pyr.brick_shape))}" + ("" if meta is not None else " (the level-0 chunks)"))
     print(f"filter     {pyr.filter}")
-    print(f"codec      {meta.codec}")
-    print(f"spacing    {', '.join(f'{s:g}' for s in pyr.spacing)} {meta.unit} (z, y, x)")
+    if meta is not None:
+        print(f"codec      {meta.codec}")
+        print(f"spacing    {', '.join(f'{s:g}' for s in pyr.spacing)} {meta.unit} (z, y, x)")
+    else:
+        print(f"spacing    {', '.join(f'{s:g}' for s in pyr.spacing)} (z, y, x)")
     print(f"value range {pyr.value_range[0]:g} .. {pyr.value_range[1]:g}")
-    _print_geometry(meta)
-    print(f"{'level':>5} {'shape (z, y, x)':>22} {'grid':>14} {'bricks':>8} {'non-empty':>9} {'on disk':>10} {'raw':>10} {'ratio':>6}")
+    if loader is not None:
+        line = _stats_line(loader, pyr)
+        if line:
+            print(line)
+    if meta is not None:
+        _print_geometry(meta)
+    print(f"{'level':>5} {'shape (z, y, x)':>22} {'grid':>14} {'bricks':>8} {'written':>9} {'on disk':>10} {'raw':>10} {'ratio':>6}")
     tot_disk = tot_raw = 0
-    unlisted = False
+    lost: dict[int, int] = {}
     for L, lv in enumerate(pyr.levels):
-        listed = level_files(L)
-        if listed is None:
-            unlisted = True  # a server that cannot list (plain HTTP): sizes unknown, not zero
-            print(f"{L:>5} {'x'.join(map(str, lv.shape)):>22} {'x'.join(map(str, pyr.grid(L))):>14} "
-                  f"{pyr.num_bricks(L):>8} {'-':>9} {'-':>10} {'-':>10} {'-':>6}")
+        grid = "x".join(map(str, pyr.grid(L)))
+        shape = "x".join(map(str, lv.shape))
+        if L >= stored:
+            print(f"{L:>5} {shape:>22} {grid:>14} {pyr.num_bricks(L):>8} {'derived':>9} {'-':>10} {'-':>10} {'-':>6}")
             continue
-        n, disk = listed
-        raw = n * int(pyr.brick_nbytes)
+        n, disk, raw = level_bytes(dirs[L], lv.shape, pyr.brick_shape, it)
+        if meta is not None:
+            lost[L] = _lost(path, L, {idx[-3:] for _, idx in chunk_files(dirs[L]) if idx and len(idx) >= 3})
         tot_disk += disk
         tot_raw += raw
         ratio = f"{raw / disk:.2f}" if disk else "-"
-        grid = "x".join(map(str, pyr.grid(L)))
-        shape = "x".join(map(str, lv.shape))
         print(f"{L:>5} {shape:>22} {grid:>14} {pyr.num_bricks(L):>8} {n:>9} {format_bytes(disk):>10} {format_bytes(raw):>10} {ratio:>6}")
     vox = pyr.shape[0] * pyr.shape[1] * pyr.shape[2] * it
-    if unlisted:
-        print(f"total      bytes stored unknown (the server cannot list objects) for {format_bytes(vox)} of level 0")
-        return 0
     print(f"total      {format_bytes(tot_disk)} on disk for {format_bytes(vox)} of level 0; "
-          f"compression ratio {tot_raw / tot_disk:.2f} over written bricks" if tot_disk else
-          f"total      nothing written (every brick is empty) for {format_bytes(vox)} of level 0")
-    return 0
+          f"compression ratio {tot_raw / tot_disk:.2f} (voxels in written chunks, no padding, over their files)"
+          if tot_disk else f"total      nothing written (every brick is empty) for {format_bytes(vox)} of level 0")
+    bad = {L: k for L, k in lost.items() if k}
+    for L, k in bad.items():
+        print(f"clipvol info: {path}: level {L}: {k} bricks hold data by their statistics but have no chunk file "
+              "(lost data; `clipvol check --all` names them, `clipvol repair` rebuilds them)", file=sys.stderr)
+    if meta is not None and not meta.complete:  # the counts above describe a partial store: not a success
+        print(f"clipvol info: {path}: incomplete store (an interrupted build); re-run the same clipvol brick command",
+              file=sys.stderr)
+        return 1
+    return 1 if bad else 0
+
+
+def _ome_dataset_dirs(path: Path) -> list[Path]:
+    """The array directories of an OME-Zarr image's ``multiscales[0].datasets``, in order."""
+    import json
+
+    if (path / "zarr.json").is_file():
+        attrs = json.loads((path / "zarr.json").read_text()).get("attributes") or {}
+    else:
+        attrs = json.loads((path / ".zattrs").read_text()) if (path / ".zattrs").is_file() else {}
+    ome = attrs.get("ome") if isinstance(attrs.get("ome"), dict) else attrs
+    return [path / d["path"] for d in ome["multiscales"][0]["datasets"]]

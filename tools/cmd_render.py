@@ -61,6 +61,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     v.add_argument("--distance", type=float, default=None, help="eye distance from the target, in volume diagonals (default 1.6)")
     v.add_argument("--ortho", action="store_true", help="orthographic projection framing the volume")
     v.add_argument("--size", type=_size, default=(512, 512), help="image size WxH (default 512x512)")
+    v.add_argument("--camera", default=None, metavar="FILE.json",
+                   help="a camera saved by the viewer's C key (overrides --view/--eye/--target/--up/--fov/--ortho)")
     r = p.add_argument_group("rendering")
     r.add_argument("--mode", choices=("composite", "mip"), default="composite")
     r.add_argument("--policy", "--selection", dest="policy", choices=POLICY_CHOICES, default="projected-size",
@@ -74,9 +76,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--fov-fraction", type=float, default=0.5,
                    help="--policy field-of-view: refine nodes subtending more than this fraction of the view")
     r.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel projects to more than this many pixels")
-    r.add_argument("--tf", default="viridis", help="transfer-function preset (grey, viridis, magma, inferno, plasma, bone)")
-    r.add_argument("--tf-range", type=lambda s: tuple(float(t) for t in s.split(",")), default=None,
-                   help="transfer-function window lo,hi (default: the data's value range)")
+    from clipvol.tools.tf_args import add_tf_arguments
+
+    add_tf_arguments(p.add_argument_group("transfer function"))
     r.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
     r.add_argument("--background", type=lambda s: tuple(float(t) for t in s.split(",")), default=(0.0, 0.0, 0.0, 0.0),
                    help="straight RGBA r,g,b,a in [0, 1] behind the volume (default transparent)")
@@ -94,6 +96,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from clipvol.tools.remote_args import add_remote_arguments
 
     add_remote_arguments(p)
+
+
+def check_output_file(path, suffix: str, flag: str) -> None:
+    """Fail before any work when ``path`` cannot be written: wrong suffix, or a missing folder."""
+    from pathlib import Path
+
+    p = Path(path)
+    if suffix and not p.name.lower().endswith(suffix):
+        raise ParameterError(f"{flag}: expected a {suffix} file name, got {str(path)!r}")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise ParameterError(f"{flag}: {str(path)!r}: the folder {str(parent)!r} does not exist")
 
 
 def hidden_labels(source, loader, spec: str):
@@ -157,13 +171,12 @@ def run(args) -> int:
     from clipvol.render import create_context
     from clipvol.render.action import ClipRenderAction
     from clipvol.scene.params import RenderParams
-    from clipvol.scene.transfer import TransferFunction
     from clipvol.units import format_bytes
 
-    if not str(args.out).lower().endswith(".png"):
-        raise ParameterError(f"--out: expected a .png file name, got {args.out!r}")
-    if args.tf not in TransferFunction.names():
-        raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())}, got {args.tf!r}")
+    from clipvol.scene.bookmarks import load_camera
+    from clipvol.tools.tf_args import transfer_function_from_args
+
+    check_output_file(args.out, ".png", "--out")
     from clipvol.tools.remote_args import remote_kwargs
 
     kwargs = {} if args.brick is None else {"brick": args.brick}
@@ -172,8 +185,11 @@ def run(args) -> int:
     if args.hide_labels:
         loader = hidden_labels(args.source, loader, args.hide_labels)
     pyr = loader.pyramid
-    cam = view_camera(pyr, args.view, args.size, eye=args.eye, target=args.target, up=args.up, fov=args.fov,
-                      distance=args.distance, ortho=args.ortho)
+    if args.camera is not None:
+        cam = load_camera(args.camera, size=args.size)
+    else:
+        cam = view_camera(pyr, args.view, args.size, eye=args.eye, target=args.target, up=args.up, fov=args.fov,
+                          distance=args.distance, ortho=args.ortho)
     lo, hi = pyr.volume_box()
     centre = np.clip(np.asarray(cam.center, dtype=np.float64), lo, hi)
     params = RenderParams(
@@ -182,9 +198,9 @@ def run(args) -> int:
         texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget, step=args.step,
         background=args.background,
     ).check_for(pyr)
-    tf = TransferFunction.preset(args.tf, value_range=args.tf_range)
-    if args.workers is not None:  # sort-last on Dask: groups of bricks in worker processes
-        return _run_sort_last(args, params, cam, tf, kwargs)
+    tf = transfer_function_from_args(args, loader)
+    from clipvol.tools.remote_args import remote_kwargs
+
     ctx = create_context()
     try:
         with ClipTexture(loader, args.memory_budget, args.threads, center=centre) as clip, \
@@ -196,7 +212,8 @@ def run(args) -> int:
     Image.fromarray(image, "RGBA").save(args.out)
     t = st.times
     levels = ", ".join(f"L{L}: {n}" for L, n in st.bricks_drawn.items()) or "none"
-    print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, {args.mode}, {params.policy})", file=sys.stderr)
+    print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, {args.mode}, {params.policy}, transfer function "
+          f"{tf.name or 'custom'})", file=sys.stderr)
     print(f"bricks drawn {sum(st.bricks_drawn.values())} ({levels}); texels drawn {st.texels_drawn:,}; "
           f"converged {st.converged} after {st.passes} pass(es)", file=sys.stderr)
     print(f"uploaded {format_bytes(st.bytes_uploaded)} in {st.bricks_uploaded} bricks; textures "

@@ -44,7 +44,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="clip-texture budgets swept at LOD 1, e.g. 64MB,16MB (default: 1/2 and 1/8 of the data; '' to skip)")
     p.add_argument("--texture-budgets", type=_sizes, default=None,
                    help="GPU cache budgets swept at LOD 1 (default: 1/2 and 1/8 of the data; '' to skip)")
-    p.add_argument("--tf", default="viridis", help="transfer-function preset, or demo (the demo's)")
+    from clipvol.tools.tf_args import add_tf_arguments
+
+    add_tf_arguments(p.add_argument_group("transfer function"))
     p.add_argument("--mode", choices=("composite", "mip"), default="composite")
     p.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
     p.add_argument("--threads", type=int, default=None, help="loader threads")
@@ -57,19 +59,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     from clipvol.app.report import run_report
     from clipvol.app.session import open_loader
-    from clipvol.errors import ParameterError
-    from clipvol.scene.transfer import TransferFunction
 
-    tf = args.tf
-    if tf == "demo":
-        from clipvol.tools.cmd_demo import demo_transfer_function
+    from clipvol.tools.tf_args import transfer_function_from_args
 
-        tf = demo_transfer_function()
-    elif tf not in TransferFunction.names():
-        raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())} or demo, got {tf!r}")
     from clipvol.tools.remote_args import remote_kwargs
 
     loader = open_loader(args.source, **({} if args.brick is None else {"brick": args.brick}), **remote_kwargs(args))
+    tf = transfer_function_from_args(args, loader)
     res = run_report(
         loader, args.out, path=args.path, views=args.views, size=args.size, thresholds=args.thresholds,
         memory_budgets=args.memory_budgets, texture_budgets=args.texture_budgets, tf=tf, mode=args.mode,

@@ -2,9 +2,12 @@
 
 ``clipvol view STORE|procedural:...|x.npy`` opens a window (GLFW + moderngl) that renders the data
 with the multiresolution clip renderer, never waiting for I/O: coarse data shows at once and
-refines as bricks arrive. Keys: left drag orbit, right/middle drag pan, wheel zoom, WASD/QE fly
-(moves the centre of interest), M mode, [ ] fixed level, +/- LOD threshold, I MIP/composite,
-T transfer function, B brick outlines, P screenshot, H HUD, R reset, Esc quit.
+refines as bricks arrive; while the camera moves it renders at a lower resolution and sampling to
+hold --frame-time, and at full quality once still. Keys: left drag orbit, right/middle drag pan,
+wheel zoom, WASD/QE fly (moves the centre of interest), M mode, [ ] fixed level, +/- LOD threshold,
+I MIP/composite, T colour map, Left/Right/Up/Down (or a drag on the HUD's histogram) move/widen
+the transfer-function window, Shift+S save it, C save the camera, B brick outlines, P screenshot
+(Shift+P without HUD), H HUD, R reset, Esc quit.
 
 ``--offscreen --path orbit|turntable|fly|zoom --frames N --out DIR|anim.gif|movie.mp4`` renders a
 camera path without a window (EGL) and writes PNG frames, a GIF or a movie (imageio-ffmpeg; ``--fps``,
@@ -41,7 +44,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    default="multiresolution", help="selection policy the viewer starts with (M cycles them)")
     g.add_argument("--level", type=int, default=None, help="level drawn with --selection fixed (default 0)")
     g.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel projects to more than this many pixels")
-    g.add_argument("--tf", default="viridis", help="transfer-function preset (grey, viridis, magma, inferno, plasma, bone) or demo (the demo's)")
     g.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
     g.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
     g.add_argument("--texture-budget", default="256MB", help="GPU brick cache budget")
@@ -49,6 +51,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
     g.add_argument("--outlines", action="store_true", help="draw brick outlines coloured by level (key B)")
     g.add_argument("--size", type=_size, default=None, help="window or image size WxH (default 960x640 window, 256x256 offscreen)")
+    from clipvol.tools.tf_args import add_tf_arguments
+
+    add_tf_arguments(p.add_argument_group("transfer function"))
     o = p.add_argument_group("offscreen")
     o.add_argument("--offscreen", action="store_true", help="render a camera path to files instead of opening a window")
     o.add_argument("--path", choices=("orbit", "turntable", "fly", "zoom"), default="orbit",
@@ -64,7 +69,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="draw each frame sort-last in N Dask worker processes (PNG frames; needs clipvol[dask])")
     o.add_argument("--scheduler", default="processes", metavar="S", help="with --workers: processes or tcp://HOST:PORT")
     w = p.add_argument_group("window")
-    w.add_argument("--screenshot-dir", default=".", help="where P saves screenshots")
+    w.add_argument("--screenshot-dir", default="clipvol-screenshots",
+                   help="folder where P (with the HUD) and Shift+P (without) save screenshots, S the transfer "
+                        "function and C the camera (created; default ./clipvol-screenshots)")
+    w.add_argument("--camera", default=None, metavar="FILE.json", help="start from a camera saved with C")
+    w.add_argument("--frame-time", type=float, default=100.0, metavar="MS",
+                   help="target frame time while the camera moves, in ms: the viewer lowers resolution and "
+                        "sampling to hold it and refines to full quality when still (default 100; 0 turns it off)")
     w.add_argument("--max-frames", type=int, default=None, help=argparse.SUPPRESS)
 
 
@@ -125,19 +136,14 @@ def run(args) -> int:
 
     if args.frames < 1:
         raise ParameterError(f"--frames: expected >= 1, got {args.frames}")
+    if args.frame_time < 0:
+        raise ParameterError(f"--frame-time: expected milliseconds >= 0, got {args.frame_time}")
+    from clipvol.tools.tf_args import transfer_function_from_args
+
     params = RenderParams(
         lod_threshold=args.lod_threshold, policy=args.selection, level=args.level, mode=args.mode,
         step=args.step, texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget,
     )
-    tf = args.tf
-    from clipvol.scene.transfer import TransferFunction
-
-    if args.tf == "demo":
-        from clipvol.tools.cmd_demo import demo_transfer_function
-
-        tf = demo_transfer_function()
-    elif args.tf not in TransferFunction.names():
-        raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())} or demo, got {args.tf!r}")
     from clipvol.tools.remote_args import remote_kwargs
 
     kwargs = {} if args.brick is None else {"brick": args.brick}
@@ -145,6 +151,7 @@ def run(args) -> int:
     loader = open_loader(source, **kwargs, **remote_kwargs(args))
     if params.level is not None and params.level >= loader.pyramid.num_levels:
         raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {params.level}")
+    tf = transfer_function_from_args(args, loader)
     if args.workers is not None and not args.offscreen:
         raise ParameterError("--workers: sort-last frames are drawn offscreen only; add --offscreen")
     if args.offscreen and args.workers is not None:  # sort-last frames on Dask
@@ -183,9 +190,16 @@ def run(args) -> int:
         return 0
     from clipvol.viewer.window import Viewer
 
+    camera = None
+    if args.camera is not None:
+        from clipvol.scene.bookmarks import load_camera
+
+        camera = load_camera(args.camera)
+
     with Viewer(loader, size=args.size or (960, 640), memory_budget=args.memory_budget,
                 texture_budget=args.texture_budget, threads=args.threads, params=params, tf=tf,
-                screenshot_dir=args.screenshot_dir, title=f"clipvol - {args.source}") as viewer:
+                screenshot_dir=args.screenshot_dir, title=f"clipvol - {args.source}",
+                frame_time=args.frame_time / 1000.0 or None, camera=camera) as viewer:
         if args.outlines:
             viewer.key("B")
         return viewer.run(max_frames=args.max_frames)

@@ -1,4 +1,4 @@
-"""Brick outlines coloured by level (seed 001 Fig. 13b), drawn over a rendered image.
+"""Brick outlines coloured by level (as OpenGL Volumizer shows its clip-texture levels), drawn over a rendered image.
 
 Each :class:`~clipvol.scene.selection.DrawItem` box is projected with the camera's view-projection
 matrix; its 12 edges are clipped against the near plane in homogeneous coordinates (so boxes

@@ -1,14 +1,14 @@
 """The report of image error against run time: what each quality setting costs and what it loses.
 
-A multiresolution renderer trades image quality for time and bytes (seed 002 Fig. 5, seed 004
-Fig. 6). This module measures the trade on real frames. Along a camera path (a few views) it
+A multiresolution renderer trades image quality for time and bytes (Meredith & Ma 2001 plot
+frame rate against error tolerance; Wang, Garcia & Shen 2007 plot image quality against block budget). This module measures the trade on real frames. Along a camera path (a few views) it
 renders, for a sweep of ``lod_threshold`` and of memory / texture budgets,
 
 * **converged** frames (every wanted brick drawn at its own level: the clip-texture is left to
   go idle, then frames are drawn until nothing more is uploaded - bounded, so a texture budget
   too small for the view ends with the best frame it allows) - their steady frame time (the best
   of three renders once the data is on the GPU), the time to converge, the distinct bricks and
-  texels drawn, the bytes those bricks hold (``bytes_needed``, seed 000's "bytes transmitted"),
+  texels drawn, the bytes those bricks hold (``bytes_needed``, the "bytes transmitted" of LaMar et al. 2000),
   the bytes the clip-texture actually loaded (it pages whole windows, so usually more), and
 * **as-it-comes** frames (``wait=False``, the viewer's default): the frames a user sees while
   the bricks stream in after the view changed, until the frame converges (or a frame limit),
@@ -16,13 +16,14 @@ renders, for a sweep of ``lod_threshold`` and of memory / texture budgets,
 and compares every frame with the **full-resolution reference** of the same view (fixed level 0,
 converged, with budgets that hold everything). When level 0 of a huge volume exceeds
 ``reference_cap`` bytes, the reference uses the finest level that fits and the report says so.
-Errors are seed 004's "% of pixels with ΔE ≥ 6 in CIELUV" plus RMSE and PSNR
+Errors are the "% of pixels with ΔE ≥ 6 in CIELUV" of Wang, Garcia & Shen (2007) plus RMSE and PSNR
 (:mod:`clipvol.scene.metrics`).
 
 Outputs in ``out_dir``: ``report.csv`` (one row per frame), ``error_vs_time.png`` and
 ``error_vs_bytes.png`` (matplotlib, Agg; one curve per sweep / setting), ``reference_view*.png``
-and a few example frames, and ``report.md`` with two tables after seed 003 Table 1 (bricks and
-time, fixed vs multiresolution) and seed 000 Table 1 (bytes, fixed vs multiresolution).
+and a few example frames, and ``report.md`` with two tables - bricks and time, fixed vs
+multiresolution (as LaMar, Hamann & Joy 1999 tabulate them), and bytes, fixed vs multiresolution (as
+LaMar et al. 2000 do) - and a References section (:data:`REFERENCES`).
 """
 
 from __future__ import annotations
@@ -43,6 +44,22 @@ from ..scene.params import RenderParams
 from ..scene.paths import make_path
 from ..units import format_bytes, parse_bytes
 from .session import RenderSession, open_loader
+
+#: the papers the report's measures and tables come from, numbered as the report cites them
+REFERENCES = (
+    "P. Bhaniramka and Y. Demange. OpenGL Volumizer: a toolkit for high quality volume rendering of large "
+    "data sets. IEEE/ACM Symposium on Volume Visualization and Graphics (VolVis), 2002.",
+    "E. LaMar, B. Hamann and K. I. Joy. Multiresolution techniques for interactive texture-based volume "
+    "visualization. IEEE Visualization, 1999.",
+    "E. LaMar, M. A. Duchaineau, B. Hamann and K. I. Joy. Multiresolution techniques for interactive "
+    "texture-based rendering of arbitrarily oriented cutting planes. Joint Eurographics - IEEE TCVG "
+    "Symposium on Visualization (VisSym), 2000.",
+    "C. Wang, A. Garcia and H.-W. Shen. Interactive level-of-detail selection using image-based quality "
+    "metric for large volume visualization. IEEE Transactions on Visualization and Computer Graphics "
+    "13(1), 2007.",
+    "J. Meredith and K.-L. Ma. Multiresolution view-dependent splat based volume rendering of large "
+    "irregular data. IEEE Symposium on Parallel and Large-Data Visualization and Graphics, 2001.",
+)
 
 __all__ = ["ReportResult", "run_report", "REPORT_COLUMNS", "DEFAULT_THRESHOLDS"]
 
@@ -443,11 +460,11 @@ def _markdown(result: ReportResult, pyr, *, size, path, tf, mode, step, cap) -> 
         "",
         f"Data: {' x '.join(map(str, pyr.shape))} voxels (z, y, x), {pyr.dtype}, brick {pyr.brick_shape[0]}, "
         f"{pyr.num_levels} levels. Views: {len({r['view'] for r in rows})} along the `{path}` path, "
-        f"{size[0]}x{size[1]} pixels, `{mode}`, transfer function `{tf if isinstance(tf, str) else 'custom'}`, step {step}.",
+        f"{size[0]}x{size[1]} pixels, `{mode}`, transfer function `{tf if isinstance(tf, str) else (getattr(tf, 'name', None) or 'custom')}`, step {step}.",
         "",
         f"Reference: `{ref_label}` (fixed level {result.reference_level}, converged"
         + (", level 0 exceeds the reference cap of " + format_bytes(cap) if result.reference_level else "")
-        + "). Error: % of pixels with ΔE ≥ 6 in CIELUV (seed 004), RMSE and PSNR on 8-bit RGB.",
+        + "). Error: % of pixels with ΔE ≥ 6 in CIELUV (a difference people notice; the quality measure of [4]), RMSE and PSNR on 8-bit RGB.",
         "",
         "## Converged frames per setting (means over views)",
         "",
@@ -466,7 +483,7 @@ def _markdown(result: ReportResult, pyr, *, size, path, tf, mode, step, cap) -> 
     if fixed and multi:
         lines += [
             "",
-            "## Bricks and time, fixed vs multiresolution (after seed 003, Table 1)",
+            "## Bricks and time, fixed vs multiresolution (as tabulated in [2])",
             "",
             f"| view | {ref_label} bricks | {ref_label} ms | multires (lod={lod:g}) bricks | multires ms | speed-up | % ΔE≥6 |",
             "| --- | ---: | ---: | ---: | ---: | ---: | ---: |",
@@ -480,7 +497,7 @@ def _markdown(result: ReportResult, pyr, *, size, path, tf, mode, step, cap) -> 
                          f"{_fmt_ms(float(m['frame_s']))} | {sp:.1f}x | {float(m['pct_de6']):.2f} |")
         lines += [
             "",
-            "## Bytes, fixed vs multiresolution (after seed 000, Table 1)",
+            "## Bytes, fixed vs multiresolution (as tabulated in [3])",
             "",
             "`needed` = bytes of the bricks the converged frame draws; `loaded` = what the clip-texture read "
             "while the view converged (it pages whole windows around the centre of interest, warm from the "
@@ -503,5 +520,6 @@ def _markdown(result: ReportResult, pyr, *, size, path, tf, mode, step, cap) -> 
             lines.append("")
     if result.skipped:
         lines += ["", "## Skipped settings", ""] + [f"- {s}" for s in result.skipped]
-    lines += ["", "Raw numbers, one row per frame: `report.csv`.", ""]
+    lines += ["", "Raw numbers, one row per frame: `report.csv`.", "", "## References", ""]
+    lines += [f"{i}. {ref}" for i, ref in enumerate(REFERENCES, 1)] + [""]
     result.markdown.write_text("\n".join(lines))

@@ -104,7 +104,12 @@ class RenderSession:
         if not isinstance(tf, str):
             return tf
         if self._tf_name != tf:
-            self._tf = TransferFunction.preset(tf)
+            if tf == "auto":  # a window on the data's foreground, from its histogram
+                from ..scene.auto_tf import auto_transfer_function
+
+                self._tf = auto_transfer_function(self.loader)
+            else:
+                self._tf = TransferFunction.preset(tf)
             self._tf_name = tf
         return self._tf
 

@@ -1,7 +1,7 @@
 """Per-brick statistics stored beside the pyramid (``clipvol_stats/<level>/``).
 
 A renderer skips bricks that the transfer function makes fully transparent from ``min``/``max``
-alone, and image-based level-of-detail (seed 004) estimates a brick's error from its histogram,
+alone, and image-based level-of-detail (Wang, Garcia & Shen 2007) estimates a brick's error from its histogram,
 both without reading the brick. The definitions, all over the brick's *valid* voxels (an edge
 brick's padding is not counted):
 

@@ -28,7 +28,7 @@ Toroidal mapping (``slot_of``)
 ------------------------------
 Brick ``b`` of a level lives in slot ``b mod w`` per axis, flattened row-major over ``w``: any
 ``w`` consecutive bricks per axis map to distinct slots, so when the window moves, each brick that
-enters takes exactly the slot of a brick that left (the 4-D torus of seed 001, Fig. 10), and the
+enters takes exactly the slot of a brick that left (the 4-D toroidal mapping of OpenGL Volumizer, Bhaniramka & Demange 2002), and the
 bricks that stay never move.
 
 Load cost (``brick_costs``)

@@ -17,7 +17,7 @@ Per frame (:meth:`ClipRenderAction.render`):
    basis (per-frame uniforms, so bit-identical for every box), intersects it with the item's box
    (and the :class:`~clipvol.scene.geometry.Shape`'s box and planes) and samples the half-open interval
    ``[t_entry, t_exit)`` at ``t = k * delta``: spherical shells around the eye (perspective,
-   seed 003) or planes parallel to the image through the camera centre (orthographic). Adjacent
+   LaMar, Hamann & Joy 1999) or planes parallel to the image through the camera centre (orthographic). Adjacent
    boxes therefore share no sample and skip none, and because ``delta_L = 2**L * delta_0`` the
    lattice of a coarse level is a subset of a fine level's: no seams between bricks or levels.
    Each sample is trilinear in the level's texture, mapped by the 1-D transfer-function texture

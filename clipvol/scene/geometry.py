@@ -1,6 +1,6 @@
 """The shape a clip render action draws: a region-of-interest box and up to six clip planes.
 
-After Volumizer's shape geometry (seed 001): the part of the volume that is drawn is the
+After OpenGL Volumizer's shape geometry (Bhaniramka & Demange 2002): the part of the volume that is drawn is the
 intersection of an axis-aligned box and half-spaces ``a x + b y + c z + d >= 0`` (world
 ``(x, y, z)``). The selection culls bricks wholly outside it (never loaded, never drawn); the
 shader discards samples outside it. Both read the same numbers, from :class:`Shape`.

@@ -1,6 +1,6 @@
-"""Image error metrics: CIELUV colour difference (seed 004), RMSE and PSNR.
+"""Image error metrics: CIELUV colour difference, RMSE and PSNR.
 
-Why CIELUV: Wang, Garcia & Shen (seed 004) judge a multiresolution image against the
+Why CIELUV: Wang, Garcia & Shen (2007) judge a multiresolution image against the
 full-resolution one by the share of pixels whose colour difference ``Delta E`` in CIE L*u*v* is
 at least 6 - roughly where people start to notice. Euclidean distance in L*u*v* approximates
 perceived difference far better than RGB distance does, so the benchmarks report "% of pixels
@@ -115,7 +115,7 @@ def delta_e_luv(img_a, img_b, background=(0.0, 0.0, 0.0), premultiplied: bool = 
 
 def percent_delta_e(img_a, img_b, threshold: float = 6.0, background=(0.0, 0.0, 0.0),
                     premultiplied: bool = True) -> float:
-    """Percentage of pixels with ``Delta E >= threshold`` (seed 004's quality measure)."""
+    """Percentage of pixels with ``Delta E >= threshold`` (the quality measure of Wang, Garcia & Shen 2007)."""
     d = delta_e_luv(img_a, img_b, background, premultiplied)
     return 100.0 * float(np.mean(d >= float(threshold))) if d.size else 0.0
 

@@ -1,7 +1,7 @@
 """Camera paths over a pyramid's volume: orbit, fly-through and zoom (pure numpy, no GL).
 
 The viewer's offscreen mode, the report and the demo need repeatable motion that exercises what
-the clip-texture is for (seed 001 §3.5, §4): an **orbit** looks at the whole volume from every side
+the clip-texture is for (roaming a large volume, as in OpenGL Volumizer, Bhaniramka & Demange 2002): an **orbit** looks at the whole volume from every side
 (the multiresolution cut changes with the view, the centre of interest stays put); a **fly** path
 goes *through* the volume and drags the centre of interest with it, so the per-level windows roam
 and bricks stream in ahead of the camera; a **zoom** moves from the whole view to a close-up of a

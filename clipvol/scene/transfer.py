@@ -14,18 +14,31 @@ step (``t = 0`` below, ``0.5`` at, ``1`` above it); NaN maps to ``t = 0``.
 
 :func:`correct_opacity` adapts an opacity defined for a unit sample spacing to a spacing
 ``ratio`` times as long, in a form stable near alpha 0 and 1.
+
+Presets are a colour map times an opacity curve (``ramp``, ``flat`` or ``step``, see
+:data:`OPACITY_CURVES`) whose first table entry has alpha exactly 0: every value at or below the
+window's low end - and NaN - is fully transparent, so a window set with ``--tf-range`` or
+``--window`` leaves nothing of the background behind. The one exception is ``diverging`` (for
+signed data): it is transparent in a band around the window's centre and keeps its end colours
+beyond both ends, because strongly negative values are data, not background.
+
+A transfer function is saved as a small JSON document (:meth:`TransferFunction.to_json`,
+:meth:`TransferFunction.save` / :meth:`TransferFunction.load`; the format is described in
+``docs/guide.md``) that ``clipvol tf``, the viewer's ``S`` key and the Python API share.
 """
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
 from ..errors import ParameterError
 
-__all__ = ["TransferFunction", "correct_opacity", "transparency_filter"]
+__all__ = ["TransferFunction", "OPACITY_CURVES", "TF_FORMAT", "correct_opacity", "opacity_curve", "transparency_filter", "window_range"]
 
 # 17 samples (t = 0, 1/16, ..., 1) of matplotlib's perceptually uniform colormaps (CC0 data by
 # van der Walt & Smith), tabulated here so that matplotlib is not needed at run time.
@@ -49,7 +62,54 @@ _BONE = (
     (1.00, (1.00, 1.00, 1.00, 1.00)),
 )
 
-_PRESETS = ("grey", "viridis", "magma", "inferno", "plasma", "bone")
+# The demo's: transparent below 60 % of the range, embers to white-hot above.
+_DEMO = (
+    (0.0, (0.0, 0.0, 0.0, 0.0)),
+    (0.60, (0.2, 0.1, 0.5, 0.0)),
+    (0.68, (0.9, 0.3, 0.2, 0.35)),
+    (0.80, (1.0, 0.8, 0.4, 0.9)),
+    (1.0, (1.0, 1.0, 1.0, 1.0)),
+)
+
+# Diverging blue - light grey - red (after Moreland's "cool to warm"), for signed data around 0.
+_DIVERGING_RGB = ((0.230, 0.299, 0.754), (0.553, 0.690, 0.996), (0.865, 0.865, 0.865), (0.958, 0.603, 0.482), (0.706, 0.016, 0.150))
+
+#: the highest opacity of the colour-map presets' curves (per unit sample spacing)
+MAX_ALPHA = 0.6
+
+#: opacity curves over the window, t in [0, 1] -> alpha; all are 0 at t = 0
+OPACITY_CURVES = {
+    # a gentle ramp: quadratic, so the low end of the window (where most foreground voxels of a
+    # CT or a fluorescence stack sit) stays see-through and the bright structure shows
+    "ramp": lambda t: MAX_ALPHA * t * t,
+    # constant inside the window (thresholding), zero below it
+    "flat": lambda t: np.where(t > 0, 0.25 * MAX_ALPHA, 0.0),
+    # an iso-surface-like step: transparent in the lower half, opaque above
+    "step": lambda t: np.where(t >= 0.5, 1.0, 0.0),
+}
+
+_PRESETS = ("grey", "viridis", "magma", "inferno", "plasma", "bone", "demo", "diverging")
+
+#: the ``format`` field of a saved transfer function
+TF_FORMAT = "clipvol-transfer-function"
+
+
+def opacity_curve(kind: str, n: int = 256) -> np.ndarray:
+    """``(n,)`` alpha of the opacity curve ``kind`` at the texel centres, entry 0 exactly 0."""
+    if kind not in OPACITY_CURVES:
+        raise ParameterError(f"opacity: expected one of {', '.join(OPACITY_CURVES)}, got {kind!r}")
+    x = (np.arange(int(n)) + 0.5) / int(n)
+    a = np.clip(np.asarray(OPACITY_CURVES[kind](x), dtype=np.float64), 0.0, 1.0)
+    a[0] = 0.0
+    return a
+
+
+def window_range(center: float, width: float) -> tuple[float, float]:
+    """``(lo, hi)`` of a window/level pair: ``center -/+ width / 2`` (width >= 0)."""
+    c, w = float(center), float(width)
+    if not (math.isfinite(c) and math.isfinite(w) and w >= 0):
+        raise ParameterError(f"window: expected a finite centre and width >= 0, got {center!r}, {width!r}")
+    return (c - w / 2.0, c + w / 2.0)
 
 
 def _check_range(value_range, name: str = "value_range") -> tuple[float, float] | None:
@@ -99,9 +159,9 @@ class TransferFunction:
         The window ``(lo, hi)`` of data values mapped to ``t = 0 .. 1``; None uses the data's range.
     """
 
-    __slots__ = ("_table", "_value_range")
+    __slots__ = ("_table", "_value_range", "_name")
 
-    def __init__(self, table, value_range=None) -> None:
+    def __init__(self, table, value_range=None, name: str | None = None) -> None:
         t = np.asarray(table, dtype=np.float64)
         if t.ndim != 2 or t.shape[1] != 4 or t.shape[0] < 1:
             raise ParameterError(f"table: expected an (n, 4) RGBA array with n >= 1, got shape {t.shape}")
@@ -110,6 +170,7 @@ class TransferFunction:
         self._table = np.ascontiguousarray(t, dtype=np.float32)
         self._table.setflags(write=False)
         self._value_range = _check_range(value_range)
+        self._name = None if name is None else str(name)
 
     # -- construction -------------------------------------------------------------------------
     @classmethod
@@ -118,7 +179,7 @@ class TransferFunction:
         return _PRESETS
 
     @classmethod
-    def from_points(cls, points: Sequence, value_range=None, n: int = 256) -> "TransferFunction":
+    def from_points(cls, points: Sequence, value_range=None, n: int = 256, name: str | None = None) -> "TransferFunction":
         """Piecewise-linear RGBA through control points ``[(t, (r, g, b, a)), ...]``, ``t`` ascending in ``[0, 1]``.
 
         The table holds the curve evaluated at the texel centres ``(i + 0.5) / n``; the curve is
@@ -140,25 +201,163 @@ class TransferFunction:
             raise ParameterError("points: expected RGBA values in [0, 1]")
         x = (np.arange(n) + 0.5) / n
         table = np.stack([np.interp(x, ts, cs[:, k]) for k in range(4)], axis=1)
-        return cls(table, value_range)
+        return cls(table, value_range, name)
 
     @classmethod
-    def preset(cls, name: str, value_range=None, n: int = 256) -> "TransferFunction":
-        """A named transfer function (see :meth:`names`).
+    def from_value_points(cls, points: Sequence, n: int = 256, name: str | None = "points") -> "TransferFunction":
+        """Piecewise-linear RGBA through control points in *data values* ``[(v, (r, g, b, a)), ...]``.
 
-        ``grey``: rgb = alpha = t. ``viridis``/``magma``/``inferno``/``plasma``: matplotlib's
-        colours with alpha = t. ``bone``: CT-like (transparent below soft tissue, a translucent
-        skin-coloured band, opaque white bone at the top).
+        The window is ``(first v, last v)``: below the first point the colour and opacity are
+        the first point's, above the last the last point's (give the first point alpha 0 for a
+        transparent background). One point is a step at that value.
         """
+        try:
+            vs = np.array([float(p[0]) for p in points])
+        except (TypeError, ValueError, IndexError):
+            raise ParameterError(f"points: expected a sequence of (value, (r, g, b, a)), got {points!r}") from None
+        if vs.size == 0 or not np.all(np.isfinite(vs)) or np.any(np.diff(vs) <= 0):
+            raise ParameterError(f"points: expected at least one finite value, strictly ascending, got {vs.tolist()}")
+        lo, hi = float(vs[0]), float(vs[-1])
+        ts = np.zeros(1) if hi == lo else (vs - lo) / (hi - lo)
+        ts = np.clip(ts, 0.0, 1.0)
+        tf = cls.from_points([(float(t), p[1]) for t, p in zip(ts, points)], (lo, hi), n, name)
+        # the end texels hold the end points exactly, so what lies beyond the window is what the
+        # user wrote (alpha 0 below a first point of alpha 0), not half a texel of interpolation
+        table = tf.table.copy()
+        table[0] = [float(c) for c in points[0][1]]
+        table[-1] = [float(c) for c in points[-1][1]]
+        return cls(table, (lo, hi), name)
+
+    @classmethod
+    def parse_points(cls, text: str, n: int = 256) -> "TransferFunction":
+        """:meth:`from_value_points` of the command-line form ``"v:r,g,b,a;v:r,g,b,a;..."``."""
+        pts = []
+        for item in str(text).split(";"):
+            if not item.strip():
+                continue
+            try:
+                v, rgba = item.split(":")
+                c = tuple(float(x) for x in rgba.split(","))
+                if len(c) != 4:
+                    raise ValueError
+                pts.append((float(v), c))
+            except ValueError:
+                raise ParameterError(f"--tf-points: expected 'value:r,g,b,a' items separated by ';', got {item.strip()!r}") from None
+        return cls.from_value_points(pts, n)
+
+    @classmethod
+    def preset(cls, name: str, value_range=None, n: int = 256, opacity: str | None = None) -> "TransferFunction":
+        """A named transfer function (see :meth:`names`) over the window ``value_range``.
+
+        ``grey``: rgb = t. ``viridis``/``magma``/``inferno``/``plasma``: matplotlib's colours.
+        These four and ``grey`` take the opacity curve ``opacity`` (default ``ramp``, see
+        :data:`OPACITY_CURVES`). ``bone``: CT-like (transparent below soft tissue, a translucent
+        skin-coloured band, opaque white bone at the top). ``demo``: the demo's embers.
+        ``diverging``: blue - grey - red for signed data, transparent within 20 % of the
+        half-width around the window's centre (centre the window on 0). Giving ``opacity``
+        replaces a preset's own alpha with that curve. Alpha is exactly 0 at and below the low
+        end of the window for every preset but ``diverging``.
+        """
+        x = (np.arange(int(n)) + 0.5) / max(int(n), 1)
+        given = opacity
         if name == "grey" or name == "gray":
-            return cls.from_points([(0.0, (0, 0, 0, 0)), (1.0, (1, 1, 1, 1))], value_range, n)
-        if name in _CMAPS:
+            tf = cls.from_points([(0.0, (0, 0, 0, 0)), (1.0, (1, 1, 1, 1))], value_range, n)
+            opacity = opacity or "ramp"
+        elif name in _CMAPS:
             cols = _CMAPS[name]
             k = len(cols) - 1
-            return cls.from_points([(i / k, (*c, i / k)) for i, c in enumerate(cols)], value_range, n)
-        if name == "bone":
-            return cls.from_points(_BONE, value_range, n)
-        raise ParameterError(f"transfer function preset: expected one of {', '.join(_PRESETS)}, got {name!r}")
+            tf = cls.from_points([(i / k, (*c, 0.0)) for i, c in enumerate(cols)], value_range, n)
+            opacity = opacity or "ramp"
+        elif name == "bone":
+            tf = cls.from_points(_BONE, value_range, n)
+        elif name == "demo":
+            tf = cls.from_points(_DEMO, value_range, n)
+        elif name == "diverging":
+            k = len(_DIVERGING_RGB) - 1
+            tf = cls.from_points([(i / k, (*c, 0.0)) for i, c in enumerate(_DIVERGING_RGB)], value_range, n)
+            d = np.abs(x - 0.5) * 2.0  # 0 at the centre, 1 at either end
+            thr = 0.2
+            a = np.clip((d - thr) / (1.0 - thr), 0.0, 1.0)
+            table = tf.table.astype(np.float64)
+            table[:, 3] = np.where(d > thr, 0.05 + (MAX_ALPHA - 0.05) * a, 0.0)
+            if opacity is not None:
+                raise ParameterError("opacity: the diverging preset has its own (transparent around the centre); "
+                                     f"expected no opacity curve, got {opacity!r}")
+            return cls(table, value_range, "diverging")
+        else:
+            raise ParameterError(f"transfer function preset: expected one of {', '.join(_PRESETS)}, got {name!r}")
+        table = tf.table.astype(np.float64)
+        if opacity is not None:
+            table[:, 3] = opacity_curve(opacity, n)
+        table[0, 3] = 0.0  # nothing at or below the window's low end
+        label = "grey" if name == "gray" else name
+        return cls(table, value_range, label if given in (None, "ramp") and opacity in (None, "ramp") else f"{label} ({opacity})")
+
+    # -- saving -------------------------------------------------------------------------------
+    def to_json(self) -> dict:
+        """The JSON document of this transfer function (see ``docs/guide.md``, "Transfer functions").
+
+        ``points`` holds every table entry as ``[t, r, g, b, a]`` at its texel centre, so that
+        :meth:`from_json` rebuilds the identical table.
+        """
+        n = len(self._table)
+        x = (np.arange(n) + 0.5) / n
+        return {
+            "format": TF_FORMAT,
+            "version": 1,
+            "name": self._name,
+            "value_range": None if self._value_range is None else list(self._value_range),
+            "size": n,
+            "points": [[float(t), *(float(c) for c in row)] for t, row in zip(x, self._table)],
+        }
+
+    @classmethod
+    def from_json(cls, doc, where: str = "transfer function") -> "TransferFunction":
+        """A transfer function from a JSON document: ``points`` (``[t, r, g, b, a]``, t in the
+        window ``value_range``) or ``value_points`` (``[value, r, g, b, a]`` in data values)."""
+        if not isinstance(doc, dict) or doc.get("format", TF_FORMAT) != TF_FORMAT:
+            raise ParameterError(f"{where}: expected a JSON object with format {TF_FORMAT!r}")
+        n = doc.get("size", 256)
+        if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 65536:
+            raise ParameterError(f"{where}: size: expected an integer 1..65536, got {n!r}")
+        name = doc.get("name")
+        try:
+            if "value_points" in doc:
+                pts = [(p[0], p[1:5]) for p in doc["value_points"]]
+                if any(len(p[1]) != 4 for p in pts):
+                    raise TypeError
+                return cls.from_value_points(pts, n, name)
+            pts = [(p[0], p[1:5]) for p in doc["points"]]
+            if any(len(p[1]) != 4 for p in pts):
+                raise TypeError
+        except (KeyError, TypeError, IndexError):
+            raise ParameterError(f"{where}: expected 'points' (or 'value_points') as a list of [t, r, g, b, a]") from None
+        try:
+            return cls.from_points(pts, _check_range(doc.get("value_range")), n, name)
+        except ParameterError as e:
+            raise ParameterError(f"{where}: {e}") from None
+
+    def save(self, path) -> Path:
+        """Write :meth:`to_json` to ``path`` (its folder must exist); returns the path."""
+        path = Path(path)
+        if not path.parent.is_dir():
+            raise ParameterError(f"{path}: expected an existing folder {str(path.parent)!r} to save the transfer function in")
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps(self.to_json(), indent=1) + "\n")
+        tmp.replace(path)
+        return path
+
+    @classmethod
+    def load(cls, path) -> "TransferFunction":
+        """Read a transfer function saved by :meth:`save` (or written by hand, see :meth:`from_json`)."""
+        path = Path(path)
+        try:
+            doc = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise ParameterError(f"{path}: no such transfer-function file") from None
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+            raise ParameterError(f"{path}: expected a JSON transfer function, could not read it ({e})") from None
+        return cls.from_json(doc, str(path))
 
     # -- properties ---------------------------------------------------------------------------
     @property
@@ -171,12 +370,27 @@ class TransferFunction:
         """The window of data values mapped to ``t = 0 .. 1``, or None for the data's range."""
         return self._value_range
 
+    @property
+    def name(self) -> str | None:
+        """A label for the HUD and the report (the preset's name, ``auto``, ``points``...), or None."""
+        return self._name
+
     def with_value_range(self, value_range) -> "TransferFunction":
         """The same table over another window."""
-        return TransferFunction(self._table, value_range)
+        return TransferFunction(self._table, value_range, self._name)
+
+    def with_name(self, name: str | None) -> "TransferFunction":
+        """The same table and window under another label."""
+        return TransferFunction(self._table, self._value_range, name)
+
+    def with_opacity(self, kind: str) -> "TransferFunction":
+        """The same colours with the opacity curve ``kind`` (alpha 0 at and below the window)."""
+        table = self._table.astype(np.float64)
+        table[:, 3] = opacity_curve(kind, len(table))
+        return TransferFunction(table, self._value_range, f"{self._name or 'custom'} ({kind})")
 
     def __repr__(self) -> str:
-        return f"TransferFunction(n={len(self._table)}, value_range={self._value_range})"
+        return f"TransferFunction(n={len(self._table)}, value_range={self._value_range}, name={self._name!r})"
 
     # -- evaluation ---------------------------------------------------------------------------
     def window(self, data_range) -> tuple[float, float]:

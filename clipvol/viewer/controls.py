@@ -9,7 +9,7 @@ or a GL context (``tests/test_controls.py``):
   Left drag orbits, right/middle drag pans so the point under the cursor follows it exactly (at the
   target's depth), the wheel zooms by a constant factor per step, and WASD/QE move eye and target
   together (fly / roam: the centre of interest moves through the data and the per-level windows
-  follow it, seed 001 §3.5).
+  follow it, as in OpenGL Volumizer's volume roaming).
 * :class:`ViewState` holds the renderer settings the keys toggle (selection mode, fixed level, LOD
   threshold, MIP/composite, transfer-function preset, brick outlines, HUD) and
   :meth:`ViewState.handle_key` applies one key.
@@ -52,9 +52,14 @@ KEY_HELP = (
     ("[ ]", "fixed level finer / coarser (switches to fixed mode)"),
     ("+ / -", "LOD threshold up (coarser, faster) / down (finer)"),
     ("I", "MIP / composite"),
-    ("T", "next transfer-function preset"),
+    ("T", "next colour map over the same window"),
+    ("Left / Right", "move the transfer-function window down / up (5 % of the data range)"),
+    ("Up / Down", "widen / narrow the transfer-function window"),
+    ("drag on the HUD histogram", "left: move the window; right: widen / narrow it"),
+    ("Shift+S (or Ctrl+S)", "save the transfer function as JSON (read back with --tf FILE.json)"),
+    ("C", "save the camera as JSON (read back with --camera FILE.json)"),
     ("B", "brick outlines coloured by level"),
-    ("P", "screenshot (PNG)"),
+    ("P / Shift+P", "screenshot (PNG) with / without the HUD, into --screenshot-dir"),
     ("H", "HUD on / off"),
     ("R", "reset the view"),
     ("Esc", "quit"),
@@ -208,6 +213,30 @@ class OrbitControls:
         if self.bounds is not None:
             cam = cam.fit_depth(self.bounds[0], self.bounds[1])
         return cam
+
+    def set_camera(self, cam) -> None:
+        """Look as ``cam`` does (a saved bookmark): its target, distance, direction and field of view.
+
+        The rig keeps its world up (``-y``, or the patient's superior for a store with anatomical
+        axes); a camera rolled about its view direction comes back unrolled.
+        An orthographic camera gives its centre as the target at the rig's current distance.
+        """
+        if cam.ortho:
+            target = np.asarray(cam.center, dtype=np.float64)
+            d = -np.asarray(cam.forward, dtype=np.float64)
+            dist = self.distance
+        else:
+            target = np.asarray(cam.target, dtype=np.float64)
+            v = np.asarray(cam.eye, dtype=np.float64) - target
+            dist = float(np.linalg.norm(v))
+            d = v / dist
+            self.fov_y = float(cam.fov_y)
+        if self.rotation is not None:  # into the rig's own frame (the rotation is orthonormal)
+            d = np.asarray(self.rotation).T @ d
+        self.target = target.copy()
+        self.distance = dist
+        self.elevation = float(np.clip(np.degrees(np.arcsin(np.clip(-d[1], -1.0, 1.0))), -89.0, 89.0))
+        self.azimuth = float(np.degrees(np.arctan2(d[0], -d[2])) % 360.0)
 
     def reset(self) -> None:
         """Back to the view the rig was created with."""

@@ -13,7 +13,7 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-__all__ = ["hud_lines", "render_text", "composite_over", "level_counts"]
+__all__ = ["hud_lines", "render_text", "composite_over", "level_counts", "tf_strip", "stack_images"]
 
 
 @lru_cache(maxsize=4)
@@ -156,4 +156,63 @@ def composite_over(image: np.ndarray, overlay: np.ndarray, origin=(0, 0)) -> np.
     rgb = src[..., :3] * a + dst[..., :3] * (1 - a)
     alpha = a + dst[..., 3:4] * (1 - a)
     out[r0:r0 + h, c0:c0 + w] = np.clip(np.concatenate([rgb, alpha], axis=-1) * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    return out
+
+
+def tf_strip(counts, edges, tf, data_range, *, width: int = 300, height: int = 64, padding: int = 6) -> np.ndarray:
+    """The data's histogram with the transfer function over it, as ``(h, w, 4)`` uint8 RGBA.
+
+    Why: the window and opacity ramp only make sense against where the data's values are. The
+    x axis spans the histogram's value range; grey bars are ``log(1 + count)`` per bin; a band at
+    the bottom shows the colour of each value; the white curve is the opacity (0 at the bottom,
+    1 at the top); two yellow ticks mark the window's ends.
+    """
+    from PIL import Image, ImageDraw
+
+    counts = np.asarray(counts, dtype=np.float64)
+    edges = np.asarray(edges, dtype=np.float64)
+    w, h = int(width), int(height)
+    img = Image.new("RGBA", (w, h), (0, 0, 0, 150))
+    draw = ImageDraw.Draw(img)
+    x0, x1 = padding, w - padding
+    top, band = padding, 8
+    base = h - padding - band - 1
+    lo, hi = float(edges[0]), float(edges[-1])
+    span = (hi - lo) or 1.0
+    xs = np.arange(x0, x1)
+    values = lo + (xs - x0 + 0.5) / (x1 - x0) * span
+    # histogram bars
+    if counts.size and counts.max() > 0:
+        lc = np.log1p(counts) / np.log1p(counts.max())
+        nb = counts.size
+        for i in range(nb):
+            a = x0 + int(round(i / nb * (x1 - x0)))
+            b = x0 + int(round((i + 1) / nb * (x1 - x0))) - 1
+            y = base - int(round(lc[i] * (base - top)))
+            if lc[i] > 0:
+                draw.rectangle([a, y, max(a, b), base], fill=(110, 110, 110, 255))
+    # colour band and opacity curve
+    rgba = tf.lookup(values, data_range)
+    for x, c in zip(xs, rgba):
+        draw.line([(int(x), base + 2), (int(x), base + 1 + band)], fill=tuple(int(round(v * 255)) for v in c[:3]) + (255,))
+    ys = base - np.round(rgba[:, 3] * (base - top)).astype(int)
+    draw.line(list(zip(xs.tolist(), ys.tolist())), fill=(255, 255, 255, 255), width=1)
+    wlo, whi = tf.window(data_range)
+    for v in (wlo, whi):
+        if lo <= v <= hi:
+            x = x0 + int(round((v - lo) / span * (x1 - x0)))
+            draw.line([(x, top), (x, base)], fill=(255, 220, 0, 255))
+    return np.asarray(img, dtype=np.uint8).copy()
+
+
+def stack_images(images) -> np.ndarray:
+    """RGBA images one under the other, left-aligned, on a transparent canvas."""
+    images = [np.asarray(i, dtype=np.uint8) for i in images if i is not None]
+    w = max(i.shape[1] for i in images)
+    h = sum(i.shape[0] for i in images)
+    out = np.zeros((h, w, 4), dtype=np.uint8)
+    y = 0
+    for i in images:
+        out[y:y + i.shape[0], : i.shape[1]] = i
+        y += i.shape[0]
     return out

@@ -14,6 +14,18 @@ array from the render action) goes into a texture drawn as a full-window quad, t
 the image is still refining the loop is paced to ~30 frames per second, so the loader threads get
 their share of the interpreter.
 
+**Interactive on a CPU.** While the camera moves (a drag, the wheel, WASD/QE) frames are drawn at
+a reduced image size and a longer sample step chosen by :class:`clipvol.app.adaptive.AdaptiveQuality`
+to hold a target frame time (default 100 ms), and scaled up on screen; once the camera has been
+still for 0.2 s one full-quality frame is drawn and refined as bricks arrive. The HUD says which.
+
+**Transfer function.** The HUD shows the data's histogram with the opacity curve and the window
+over it. Left/Right (or a left drag on the histogram) move the window, Up/Down (or a right drag)
+widen/narrow it, T cycles colour maps over the same
+window, Shift+S (or Ctrl+S) saves it as JSON (``--tf FILE.json`` reads it back), C saves the camera
+(``--camera FILE.json``), P saves a screenshot with the HUD and Shift+P one without, all into the
+screenshot folder.
+
 The window can be driven programmatically (``Viewer.step()``, ``Viewer.read_screen()``), which
 is how ``tests/test_view_window.py`` checks it under Xvfb.
 """
@@ -25,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..app.adaptive import FULL, AdaptiveQuality
 from ..app.session import RenderSession
 from ..errors import ClipvolError, ParameterError
 from ..render.context import create_context
@@ -138,7 +151,12 @@ class Viewer:
     tf : str or TransferFunction
         Initial transfer function.
     screenshot_dir : str or Path
-        Where P writes ``clipvol-NNNN.png``.
+        Where P writes ``clipvol-NNNN.png`` (Shift+P: ``clipvol-NNNN-nohud.png``), Shift+S
+        ``tf-NNNN.json`` and C ``camera-NNNN.json`` (created when first needed).
+    frame_time : float
+        Target frame time in seconds while the camera moves (0 or None: always full quality).
+    camera : Camera, optional
+        The first view (e.g. from :func:`clipvol.scene.bookmarks.load_camera`).
     visible : bool
         Show the window (tests may render into a hidden one).
     title : str
@@ -149,7 +167,8 @@ class Viewer:
 
     def __init__(self, source, *, size=(960, 640), memory_budget="256MB", texture_budget="256MB", threads=None,
                  params: RenderParams | None = None, tf="viridis", screenshot_dir=".", visible: bool = True,
-                 title: str = "clipvol", background=(0.0, 0.0, 0.0)) -> None:
+                 title: str = "clipvol", background=(0.0, 0.0, 0.0), frame_time: float | None = 0.1,
+                 camera=None) -> None:
         try:
             import glfw
         except ImportError as e:  # pragma: no cover - glfw is a dependency
@@ -196,18 +215,31 @@ class Viewer:
             self.close()
             raise
         pyr = self.session.pyramid
-        s, tf = self.session.params, self.session.tf
-        presets = ("grey", "viridis", "magma", "inferno", "plasma", "bone")
-        # a transfer function given as an object (not a preset name) joins the cycle as "custom"
-        self._custom_tf = None if isinstance(tf, str) else tf
-        if self._custom_tf is not None:
-            presets = ("custom",) + presets
+        s, tf0 = self.session.params, self.session.tf
+        from ..scene.transfer import TransferFunction
+
+        presets = tuple(n for n in TransferFunction.names())
+        # the starting transfer function (a preset name or an object, e.g. the automatic one)
+        # heads the cycle under its own label; T cycles colour maps over the current window
+        self._first_tf = self.session.transfer_function
+        first = self._first_tf.name or "custom"
+        if isinstance(tf0, str) and tf0 in presets:
+            first = tf0
+        self._first_label = first
+        presets = (first,) + tuple(n for n in presets if n != first)
+        self.tf = self._first_tf
         self.state = ViewState(
             num_levels=pyr.num_levels, tf_presets=presets, mode=s.selection, level=s.level or 0,
-            lod_threshold=s.lod_threshold, render_mode=s.mode,
-            tf_index=presets.index(tf) if isinstance(tf, str) and tf in presets else (0 if self._custom_tf is not None else 1),
+            lod_threshold=s.lod_threshold, render_mode=s.mode, tf_index=0,
         )
         self.controls = OrbitControls.for_pyramid(pyr, size=self.framebuffer_size, **_anatomical_rig(self.session.loader))
+        if camera is not None:
+            self.controls.set_camera(camera)
+        self.adaptive = AdaptiveQuality(float(frame_time)) if frame_time else None
+        self._base_step = float(s.step)
+        self._quality = FULL
+        self._hist = None
+        self._strip_rect = None
         self.screenshot_dir = Path(screenshot_dir)
         self.background = tuple(float(v) for v in background)
         self.held: set[str] = set()
@@ -240,14 +272,15 @@ class Viewer:
         self._frame_tex = None
         self._mgl = moderngl
 
-    def _texture(self, old, img: np.ndarray):
+    def _texture(self, old, img: np.ndarray, smooth: bool = False):
         h, w = img.shape[:2]
         if old is None or old.size != (w, h):
             if old is not None:
                 old.release()
             old = self.ctx.texture((w, h), 4)
-            old.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
             old.repeat_x = old.repeat_y = False
+        f = self._mgl.LINEAR if smooth else self._mgl.NEAREST
+        old.filter = (f, f)
         old.write(np.ascontiguousarray(img, dtype=np.uint8).tobytes())
         return old
 
@@ -276,7 +309,21 @@ class Viewer:
             name = "+"
         elif key == glfw.KEY_KP_SUBTRACT:
             name = "-"
+        elif key == glfw.KEY_LEFT:
+            name = "LEFT"
+        elif key == glfw.KEY_RIGHT:
+            name = "RIGHT"
+        elif key == glfw.KEY_UP:
+            name = "UP"
+        elif key == glfw.KEY_DOWN:
+            name = "DOWN"
         if name is None:
+            return
+        if action in (glfw.PRESS, glfw.REPEAT) and name in ("LEFT", "RIGHT", "UP", "DOWN"):
+            self.key(name)
+            return
+        if action == glfw.PRESS and (mods & (glfw.MOD_SHIFT | glfw.MOD_CONTROL)) and name in ("S", "P"):
+            self.key("shift+" + name)
             return
         if name in MOVE_KEYS:
             if action == glfw.PRESS:
@@ -297,6 +344,10 @@ class Viewer:
         if action == glfw.PRESS:
             x, y = glfw.get_cursor_pos(win)
             self._drag = (button, x, y)
+            r = self._strip_rect if self.state.hud else None
+            sx = self.framebuffer_size[0] / max(glfw.get_window_size(win)[0], 1)
+            if r is not None and r[0] <= x * sx < r[2] and r[1] <= y * sx < r[3]:
+                self._drag = (("strip", button), x, y)  # a drag on the histogram edits the window
         elif action == glfw.RELEASE:
             self._drag = None
 
@@ -308,6 +359,9 @@ class Viewer:
         # cursor positions are in screen coordinates; pan in framebuffer pixels
         sx = self.framebuffer_size[0] / max(self._glfw.get_window_size(win)[0], 1)
         dx, dy = (x - x0) * sx, (y - y0) * sx
+        if isinstance(button, tuple):
+            self.drag_window(dx, widen=button[1] != self._glfw.MOUSE_BUTTON_LEFT)
+            return
         if button == self._glfw.MOUSE_BUTTON_LEFT:
             self.controls.orbit(dx, dy)
         else:
@@ -319,9 +373,99 @@ class Viewer:
         self._dirty = True
 
     def key(self, name: str) -> None:
-        """Apply one key as if pressed (``'M'``, ``'+'``, ``'P'``, ...)."""
-        if self.state.handle_key(name):
+        """Apply one key as if pressed (``'M'``, ``'+'``, ``'P'``, ``'shift+P'``, ``'shift+S'``,
+        ``'C'``, ``'LEFT'``/``'RIGHT'``/``'UP'``/``'DOWN'``, ...)."""
+        if name in ("LEFT", "RIGHT", "UP", "DOWN"):
+            self.nudge_window(name)
+        elif name == "shift+S":
+            self.save_transfer_function()
+        elif name == "shift+P":
+            self.screenshot(hud=False)
+        elif name.upper() == "C" and len(name) == 1:
+            self.save_camera()
+        elif self.state.handle_key(name):
             self._apply_state()
+
+    # -- transfer function, bookmarks ---------------------------------------------------------
+    def _numbered(self, stem: str, suffix: str) -> Path:
+        self.screenshot_dir.mkdir(parents=True, exist_ok=True)
+        k = 0
+        while (self.screenshot_dir / f"{stem}-{k:04d}{suffix}").exists():
+            k += 1
+        return self.screenshot_dir / f"{stem}-{k:04d}{suffix}"
+
+    def _set_tf(self, tf, message: str | None = None) -> None:
+        self.tf = tf
+        self.session.update(tf=tf)
+        if self.adaptive is not None:
+            self.adaptive.invalidate()
+        if message:
+            self.state.message = message
+        self._hud_text = None
+        self._dirty = True
+
+    def nudge_window(self, direction: str) -> tuple[float, float]:
+        """Move (LEFT/RIGHT: 5 % of the data range) or widen/narrow (UP/DOWN: x1.25) the window."""
+        lo, hi = self.tf.window(self.session.pyramid.value_range)
+        dlo, dhi = self.session.pyramid.value_range
+        span = (dhi - dlo) or 1.0
+        c, w = (lo + hi) / 2.0, hi - lo
+        if direction == "LEFT":
+            c -= 0.05 * span
+        elif direction == "RIGHT":
+            c += 0.05 * span
+        elif direction == "UP":
+            w = w * 1.25 if w > 0 else 0.05 * span
+        elif direction == "DOWN":
+            w = w / 1.25
+        else:
+            raise ParameterError(f"direction: expected LEFT, RIGHT, UP or DOWN, got {direction!r}")
+        win = (c - w / 2.0, c + w / 2.0)
+        self._set_tf(self.tf.with_value_range(win), f"window {win[0]:.4g} .. {win[1]:.4g}")
+        return win
+
+    def drag_window(self, dx: float, widen: bool = False) -> tuple[float, float]:
+        """A horizontal drag of ``dx`` pixels on the HUD's histogram: move the window with the
+        cursor (left button), or widen it (right button: x2 per 100 pixels to the right)."""
+        lo, hi = self.tf.window(self.session.pyramid.value_range)
+        h = self._histogram()
+        e0, e1 = (float(h.edges[0]), float(h.edges[-1])) if h is not None else self.session.pyramid.value_range
+        r = self._strip_rect
+        px = max((r[2] - r[0]) - 12, 1) if r is not None else 288  # the strip's plot width (padding 6)
+        if widen:
+            c, w = (lo + hi) / 2.0, (hi - lo) * 2.0 ** (float(dx) / 100.0)
+            win = (c - w / 2.0, c + w / 2.0)
+        else:
+            d = float(dx) / px * ((e1 - e0) or 1.0)
+            win = (lo + d, hi + d)
+        self._set_tf(self.tf.with_value_range(win), f"window {win[0]:.4g} .. {win[1]:.4g}")
+        return win
+
+    def save_transfer_function(self, path=None) -> Path:
+        """Save the current transfer function as JSON (Shift+S); returns its path."""
+        path = self.tf.save(path if path is not None else self._numbered("tf", ".json"))
+        self.state.message = f"saved {path}"
+        self._hud_text = None
+        return path
+
+    def save_camera(self, path=None) -> Path:
+        """Save the current camera as JSON (C); returns its path."""
+        from ..scene.bookmarks import save_camera
+
+        path = save_camera(self.camera(), path if path is not None else self._numbered("camera", ".json"))
+        self.state.message = f"saved {path}"
+        self._hud_text = None
+        return path
+
+    def _histogram(self):
+        if self._hist is None:
+            from ..scene.auto_tf import value_histogram
+
+            try:
+                self._hist = value_histogram(self.session.loader)
+            except ClipvolError:  # a brick that cannot be read: no strip, the viewer goes on
+                self._hist = False
+        return self._hist or None
 
     def _apply_state(self) -> None:
         st = self.state
@@ -330,10 +474,23 @@ class Viewer:
             st.reset = False
         if st.quit:
             self._glfw.set_window_should_close(self.window, True)
+        name = st.tf_name
+        label = self.tf.name or "custom"
+        if name == self._first_label:
+            tf = self._first_tf.with_value_range(self.tf.window(self.session.pyramid.value_range))
+        elif label == name or label.startswith(name + " "):
+            tf = self.tf
+        else:
+            from ..scene.transfer import TransferFunction
+
+            tf = TransferFunction.preset(name, value_range=self.tf.window(self.session.pyramid.value_range))
+        self.tf = tf
         self.session.update(
             lod_threshold=st.lod_threshold, policy=st.mode, level=st.level if st.mode == "fixed" else None,
-            mode=st.render_mode, tf=self._custom_tf if st.tf_name == "custom" else st.tf_name,
+            mode=st.render_mode, tf=tf,
         )
+        if self.adaptive is not None:
+            self.adaptive.invalidate()
         self._hud_text = None
         self._dirty = True
 
@@ -367,10 +524,20 @@ class Viewer:
         version = sess.clip_texture.residency_version
         rendered = False
         view = (tuple(self.controls.eye), tuple(self.controls.target), self.framebuffer_size)
-        if force or self._dirty or refining or version != self._version or view != self._view:
+        moving = (self._view is not None and view != self._view) or self._drag is not None or bool(self.held)
+        q, want = FULL, False
+        if self.adaptive is not None and not force:  # a forced frame is a full-quality frame
+            q = self.adaptive.next(moving, now)
+            # None: the full frame is drawn and only bricks arrive: refine at full quality
+            want = q is not None
+            q = q or FULL
+        if force or want or self._dirty or (refining and q.full) or version != self._version or view != self._view:
             self._version, self._view = version, view
             self._dirty = False
-            cam = self.camera()
+            cam = self.controls.camera(q.size(self.framebuffer_size))
+            step = self._base_step * q.step_factor
+            if sess.params.step != step:
+                sess.update(step=step)
             t0 = time.perf_counter()
             img = sess.render(cam, self.controls.center_of_interest, wait=False)
             if self.state.outlines:
@@ -379,8 +546,11 @@ class Viewer:
                 img = draw_outlines(img, cam, sess.last_items())
             self._frame = img
             self._frame_camera = cam
-            self._frame_tex = self._texture(self._frame_tex, img)
+            self._frame_tex = self._texture(self._frame_tex, img, smooth=not q.full)
             ft = time.perf_counter() - t0
+            if self.adaptive is not None:
+                self.adaptive.done(q, ft)
+            self._quality = q
             self._fps = 0.8 * self._fps + 0.2 / max(ft, 1e-4) if self._fps else 1.0 / max(ft, 1e-4)
             self.frames_rendered += 1
             rendered = True
@@ -428,14 +598,32 @@ class Viewer:
                 "mode": st.mode + (f" L{st.level}" if st.mode == "fixed" else ""),
                 "lod": f"{st.lod_threshold:g}px",
                 "render": st.render_mode,
-                "tf": st.tf_name,
+                "tf": self.tf.name or "custom",
             }
-            lines = hud_lines(fps=self._fps, frame_stats=self.session.frame_stats,
+            q = self._quality
+            fs = self.session.frame_stats
+            if not q.full:
+                quality = f"interactive: {100 * q.scale:.0f} % resolution, step x{q.step_factor:.1f}"
+            elif fs is not None and not fs.converged:
+                quality = "full quality, refining as bricks arrive"
+            else:
+                quality = "full quality"
+            lines = hud_lines(fps=self._fps, frame_stats=fs,
                               texture_stats=self.session.texture_stats, settings=settings, message=st.message,
                               orientation=self._orientation())
+            lines.insert(1, quality)
             self._hud_text = lines
             self._hud_time = now
-            img = render_text(lines)
+            from .hud import stack_images, tf_strip
+
+            text = render_text(lines)
+            hist = self._histogram()
+            strip = None
+            if hist is not None:
+                strip = tf_strip(hist.counts, hist.edges, self.tf, self.session.pyramid.value_range,
+                                 width=max(240, min(text.shape[1], 360)))
+            img = stack_images([text, strip])
+            self._strip_rect = None if strip is None else (0, text.shape[0], strip.shape[1], text.shape[0] + strip.shape[0])
             self._hud_tex = self._texture(self._hud_tex, img)
             ih, iw = img.shape[:2]
             x1 = -1.0 + 2.0 * min(iw, w) / w
@@ -464,18 +652,35 @@ class Viewer:
         _ = self.ctx.error
         return np.frombuffer(data, dtype=np.uint8).reshape(h, w, 3)[::-1].copy()
 
-    def screenshot(self, path=None) -> Path:
-        """Save what the window shows (redrawn into the back buffer) as a PNG; returns its path."""
+    def screenshot(self, path=None, hud: bool = True) -> Path:
+        """Save a PNG of the view; returns its path.
+
+        ``hud=True``: what the window shows (redrawn into the back buffer), RGB. ``hud=False``:
+        a full-quality frame of the current camera, RGBA with the transparent background kept,
+        and no HUD.
+        """
         from PIL import Image
 
         if path is None:
-            self.screenshot_dir.mkdir(parents=True, exist_ok=True)
-            k = 0
-            while (self.screenshot_dir / f"clipvol-{k:04d}.png").exists():
-                k += 1
-            path = self.screenshot_dir / f"clipvol-{k:04d}.png"
+            path = self._numbered("clipvol", ".png")
+            if not hud:
+                path = path.with_name(path.stem + "-nohud.png")
         path = Path(path)
-        Image.fromarray(self.read_screen(), "RGB").save(path)
+        if not path.parent.is_dir():
+            raise ParameterError(f"{path}: expected an existing folder {str(path.parent)!r} for the screenshot")
+        if hud:
+            Image.fromarray(self.read_screen(), "RGB").save(path)
+        else:
+            sess = self.session
+            if sess.params.step != self._base_step:
+                sess.update(step=self._base_step)
+            cam = self.camera()
+            img = sess.render(cam, self.controls.center_of_interest, wait=True, timeout=60.0)
+            if self.state.outlines:
+                from ..app.overlay import draw_outlines
+
+                img = draw_outlines(img, cam, sess.last_items())
+            Image.fromarray(img, "RGBA").save(path)
         self.last_screenshot = path
         self.state.message = f"saved {path}"
         self._hud_text = None

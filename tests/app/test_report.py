@@ -42,7 +42,12 @@ def test_files_and_columns(report):
     assert {r["sweep"] for r in rows} == {"fixed", "lod_threshold", "texture_budget"}
     assert {r["kind"] for r in rows} == {"converged", "as-it-comes"}
     md = res.markdown.read_text()
-    assert "seed 003" in md and "seed 000" in md and "error_vs_time.png" in md
+    assert "error_vs_time.png" in md
+    # papers cited by authors, title and year in a References section, never by a file number
+    import re
+
+    assert "## References" in md and "LaMar, B. Hamann and K. I. Joy" in md and "1999" in md
+    assert not re.search(r"\bseed", md, re.I)
 
 
 def test_converged_rows_are_consistent(report):

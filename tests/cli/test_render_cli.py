@@ -14,7 +14,7 @@ pytestmark = pytest.mark.gl
 def test_render_writes_png_matching_the_action(tmp_path, capsys):
     out = tmp_path / "img.png"
     rc = main(["render", "procedural:fractal?size=40", "--brick", "16", "--out", str(out), "--size", "64x48",
-               "--view", "front", "--ortho", "--mode", "mip", "--selection", "fixed", "--tf", "grey"])
+               "--view", "front", "--ortho", "--mode", "mip", "--selection", "fixed", "--tf-points", "0:0,0,0,0;1:1,1,1,1"])
     assert rc == 0
     img = np.asarray(Image.open(out))
     assert img.shape == (48, 64, 4)
@@ -30,7 +30,7 @@ def test_render_writes_png_matching_the_action(tmp_path, capsys):
     # the 40x40 volume fills the central columns of the 64x48 image (framing is 1.05 x diagonal)
     drawn = img[..., 3] > 0
     assert drawn.any() and not drawn.all()
-    # grey TF: alpha == t of the ray's maximum; pixel centres fall between voxel centres, so the
+    # grey points from 0 to 1: alpha == t of the ray's maximum; pixel centres fall between voxel centres, so the
     # image's alphas lie within the MIP's range and come close to its maximum
     a = img[..., 3][drawn].astype(float)
     assert a.max() <= t.max() * 255 + 1 and a.min() >= t.min() * 255 - 1

@@ -113,9 +113,11 @@ def test_presets_follow_matplotlib_and_bone_is_ct_like():
         tf = TransferFunction.preset(name)
         ref = mpl.colormaps[name](x)[:, :3]
         assert np.abs(tf.table[:, :3] - ref).max() < 0.03, name  # 17-point piecewise-linear fit
-        np.testing.assert_allclose(tf.table[:, 3], x, atol=1e-6)
+        # the gentle ramp: 0.6 t^2 at the texel centres, entry 0 exactly 0
+        np.testing.assert_allclose(tf.table[1:, 3], 0.6 * x[1:] ** 2, atol=1e-6)
+        assert tf.table[0, 3] == 0.0
     g = TransferFunction.preset("grey")
-    np.testing.assert_allclose(g.table, np.repeat(x[:, None], 4, axis=1), atol=1e-6)
+    np.testing.assert_allclose(g.table[:, :3], np.repeat(x[:, None], 3, axis=1), atol=1e-6)
     bone = TransferFunction.preset("bone")
     assert bone.transparent_mask([[0.0, 0.2]], (0, 1))[0]
     top = bone.lookup([1.0], (0, 1))[0]
@@ -159,3 +161,85 @@ def test_transparency_filter_uses_brick_ranges():
     assert ref.tolist() == [True, False]
     np.testing.assert_array_equal(f(1, idx), [False, False])
     assert transparency_filter(tf, object()) is None
+
+
+# -- presets honour their window; points, opacity curves, JSON (issue: the first five minutes) -----
+
+
+@pytest.mark.parametrize("name", [n for n in TransferFunction.names() if n != "diverging"])
+@pytest.mark.parametrize("opacity", [None, "ramp", "flat", "step"])
+def test_every_preset_is_exactly_transparent_at_and_below_its_window(name, opacity):
+    tf = TransferFunction.preset(name, value_range=(100.0, 300.0), opacity=opacity)
+    below = np.array([-1e30, -5.0, 0.0, 99.0, 99.999, 100.0, np.nan])
+    np.testing.assert_array_equal(tf.lookup(below)[:, 3], 0.0)
+    # and the same through the renderer's texture: entry 0 (what GL_LINEAR/CLAMP gives below lo)
+    assert tf.table[0, 3] == 0.0
+    # something inside the window is visible (else the preset would show nothing)
+    assert tf.lookup(np.linspace(100, 300, 101))[:, 3].max() > 0.1
+    # the empty-space test agrees: a brick entirely below the window is skipped
+    assert tf.transparent_mask([[0.0, 100.0]])[0]
+
+
+def test_opacity_curves_against_their_formulas():
+    x = (np.arange(256) + 0.5) / 256
+    tf = TransferFunction.preset("grey", value_range=(0, 1), opacity="flat")
+    np.testing.assert_allclose(tf.table[1:, 3], 0.15)
+    tf = TransferFunction.preset("grey", value_range=(0, 1), opacity="step")
+    np.testing.assert_array_equal(tf.table[:, 3], np.where(x >= 0.5, 1.0, 0.0))
+    with pytest.raises(ParameterError, match="opacity"):
+        TransferFunction.preset("grey", opacity="wobbly")
+
+
+def test_diverging_is_transparent_around_the_centre_and_visible_at_both_ends():
+    tf = TransferFunction.preset("diverging", value_range=(-10.0, 10.0))
+    rgba = tf.lookup(np.array([-50.0, -10.0, -1.5, 0.0, 1.5, 10.0, 50.0]))
+    np.testing.assert_array_equal(rgba[2:5, 3], 0.0)  # |v| < 20 % of the half-width
+    assert rgba[0, 3] > 0.5 and rgba[-1, 3] > 0.5
+    assert rgba[0, 2] > rgba[0, 0] and rgba[-1, 0] > rgba[-1, 2]  # blue below, red above
+    assert tf.transparent_mask([[-1.5, 1.5]])[0] and not tf.transparent_mask([[-1.5, 3.0]])[0]
+
+
+def test_value_points_hold_exactly_outside_and_interpolate_inside():
+    tf = TransferFunction.parse_points("0:0,0,0,0; 500:1,0.5,0.25,0.2; 1500:1,1,1,1")
+    assert tf.value_range == (0.0, 1500.0) and tf.name == "points"
+    np.testing.assert_array_equal(tf.lookup([-100.0, 0.0])[:, 3], 0.0)
+    np.testing.assert_allclose(tf.lookup([2000.0])[0], [1, 1, 1, 1])
+    # between texel centres the curve is np.interp of the points (to half a texel)
+    v = np.array([250.0, 500.0, 1000.0])
+    ref = np.interp(v, [0, 500, 1500], [0, 0.2, 1.0])
+    np.testing.assert_allclose(tf.lookup(v)[:, 3], ref, atol=1.0 / 256)
+    for bad in ("0:0,0,0", "x:0,0,0,0", "5:0,0,0,0;1:1,1,1,1", "0:0,0,0,2"):
+        with pytest.raises(ParameterError):
+            TransferFunction.parse_points(bad)
+
+
+@pytest.mark.parametrize("name", ["viridis", "bone", "diverging"])
+def test_save_then_load_round_trips_exactly(tmp_path, name):
+    import json
+
+    tf = TransferFunction.preset(name, value_range=(-3.5, 7.25))
+    p = tf.save(tmp_path / "tf.json")
+    doc = json.loads(p.read_text())  # a plain JSON document another tool can read
+    assert doc["format"] == "clipvol-transfer-function" and doc["value_range"] == [-3.5, 7.25]
+    back = TransferFunction.load(p)
+    np.testing.assert_array_equal(back.table, tf.table)
+    assert back.value_range == tf.value_range and back.name == tf.name
+    # a hand-written file in data values
+    (tmp_path / "hand.json").write_text(json.dumps(
+        {"format": "clipvol-transfer-function", "value_points": [[10, 0, 0, 0, 0], [20, 1, 1, 1, 1]]}))
+    hand = TransferFunction.load(tmp_path / "hand.json")
+    assert hand.value_range == (10.0, 20.0)
+    np.testing.assert_allclose(hand.lookup([5.0, 20.0])[:, 3], [0.0, 1.0])
+
+
+def test_load_errors_name_the_file(tmp_path):
+    with pytest.raises(ParameterError, match="nope.json"):
+        TransferFunction.load(tmp_path / "nope.json")
+    (tmp_path / "bad.json").write_text("{not json")
+    with pytest.raises(ParameterError, match="bad.json"):
+        TransferFunction.load(tmp_path / "bad.json")
+    (tmp_path / "pts.json").write_text('{"points": [[0.5, 1, 1]]}')
+    with pytest.raises(ParameterError, match="pts.json"):
+        TransferFunction.load(tmp_path / "pts.json")
+    with pytest.raises(ParameterError, match="folder"):
+        TransferFunction.preset("grey").save(tmp_path / "missing" / "tf.json")

@@ -225,3 +225,23 @@ def test_render_params_validate():
                 dict(texture_budget="lots"), dict(focus=(1, 2)), dict(background=(0, 0, 0))):
         with pytest.raises(ParameterError):
             RenderParams(**bad)
+
+
+@pytest.mark.parametrize("rig", [{}, {"up": (0.0, 0.0, 1.0), "front": (0.0, -1.0, 0.0)}])
+def test_set_camera_restores_a_saved_view(rig):
+    """A bookmark (eye, target, fov) read back into the rig gives the same camera, rotated rig too."""
+    from clipvol.scene.bookmarks import camera_from_json, camera_to_json
+
+    pyr = Pyramid.build((40, 50, 60), (16, 16, 16))
+    a = OrbitControls.for_pyramid(pyr, size=(96, 64), **rig)
+    a.orbit(37, -21)
+    a.pan(5, 3, (96, 64))
+    a.zoom(2)
+    cam = camera_from_json(camera_to_json(a.camera((96, 64))))
+    b = OrbitControls.for_pyramid(pyr, size=(96, 64), **rig)
+    b.set_camera(cam)
+    got = b.camera((96, 64))
+    np.testing.assert_allclose(got.eye, cam.eye, atol=1e-9)
+    np.testing.assert_allclose(got.target, cam.target, atol=1e-9)
+    np.testing.assert_allclose(got.up, cam.up, atol=1e-9)
+    assert got.fov_y == cam.fov_y

@@ -156,6 +156,92 @@ def test_no_display_is_a_clear_error(monkeypatch, capsys):
     assert "display" in err and "--offscreen" in err and err.count("\n") == 1
 
 
+def test_window_adapts_while_moving_and_refines_when_still(xdisplay, loader):
+    """While the camera moves the frame is smaller than the window (scaled up), once still it is full size."""
+    from clipvol.viewer.window import Viewer
+
+    with Viewer(loader, size=(128, 96), visible=False, frame_time=1e-4) as v:  # an unreachable target
+        _converge(v)
+        assert v._frame.shape[:2] == (96, 128)
+        v.controls.orbit(30, 0)
+        v.step()
+        assert not v._quality.full and v._frame.shape[0] < 96 and v._frame.shape[1] < 128
+        assert v.session.params.step > 0.5  # the sample step grows too
+        time.sleep(v.adaptive.settle_s + 0.05)
+        v.step()
+        assert v._quality.full and v._frame.shape[:2] == (96, 128) and v.session.params.step == 0.5
+        assert v.adaptive.state == "refined"
+
+
+def test_window_saves_tf_and_camera_and_takes_screenshots_without_hud(xdisplay, loader, tmp_path):
+    import json
+
+    from PIL import Image
+
+    from clipvol.app.session import RenderSession
+    from clipvol.render.context import create_context
+    from clipvol.scene.bookmarks import load_camera
+    from clipvol.scene.transfer import TransferFunction
+    from clipvol.viewer.window import Viewer
+
+    shots = tmp_path / "shots"
+    with Viewer(loader, size=(96, 72), visible=False, screenshot_dir=shots) as v:
+        _converge(v)
+        w0 = v.tf.window(loader.pyramid.value_range)
+        v.key("RIGHT")
+        v.key("UP")
+        w1 = v.tf.window(loader.pyramid.value_range)
+        span = loader.pyramid.value_range[1] - loader.pyramid.value_range[0]
+        assert (w1[0] + w1[1]) / 2 == pytest.approx((w0[0] + w0[1]) / 2 + 0.05 * span)
+        assert w1[1] - w1[0] == pytest.approx(1.25 * (w0[1] - w0[0]))
+        assert v.session.transfer_function.value_range == pytest.approx(w1)
+        v.key("shift+S")
+        tf_file = shots / "tf-0000.json"
+        assert json.loads(tf_file.read_text())["value_range"] == pytest.approx(list(w1))
+        np.testing.assert_array_equal(TransferFunction.load(tf_file).table, v.tf.table)
+        v.controls.orbit(40, 10)
+        v.key("C")
+        cam = v.camera()
+        v.key("shift+P")
+        nohud = shots / "clipvol-0000-nohud.png"
+        img = np.asarray(Image.open(nohud))
+        # the camera file restores the view; a second viewer started from it sees the same camera
+        saved = load_camera(shots / "camera-0000.json", size=cam.size)
+        np.testing.assert_allclose(saved.eye, cam.eye)
+        np.testing.assert_allclose(saved.target, cam.target)
+        tf = v.tf
+    with Viewer(loader, size=(96, 72), visible=False, camera=saved) as v2:
+        np.testing.assert_allclose(v2.camera().eye, cam.eye, atol=1e-9)
+        np.testing.assert_allclose(v2.camera().target, cam.target, atol=1e-9)
+    # the screenshot without HUD is the offscreen render of that camera (RGBA, no text)
+    assert img.shape == (72, 96, 4)
+    ctx = create_context()
+    try:
+        with RenderSession(loader, ctx) as s:
+            s.update(tf=tf)
+            ref = s.render(cam, None, wait=True)
+    finally:
+        ctx.release()
+    assert np.abs(img.astype(int) - ref).max() <= 2
+
+
+def test_dragging_on_the_histogram_moves_and_widens_the_window(xdisplay, loader):
+    from clipvol.viewer.window import Viewer
+
+    with Viewer(loader, size=(320, 240), visible=False) as v:
+        v.step(force=True)  # draws the HUD, which places the histogram strip
+        assert v._strip_rect is not None
+        x0, y0, x1, y1 = v._strip_rect
+        h = v._histogram()
+        span = float(h.edges[-1] - h.edges[0])
+        lo, hi = v.tf.window(loader.pyramid.value_range)
+        lo2, hi2 = v.drag_window(0.5 * (x1 - x0 - 12))  # half the plot's width to the right
+        assert lo2 == pytest.approx(lo + 0.5 * span) and hi2 == pytest.approx(hi + 0.5 * span)
+        lo3, hi3 = v.drag_window(100, widen=True)  # x2
+        assert hi3 - lo3 == pytest.approx(2 * (hi2 - lo2)) and (lo3 + hi3) / 2 == pytest.approx((lo2 + hi2) / 2)
+        assert v.session.transfer_function.value_range == pytest.approx((lo3, hi3))
+
+
 def test_window_on_a_dicom_store_is_head_up_and_labelled(xdisplay, tmp_path):
     """A patient-frame store opens seen from the front, head up, and the HUD names the edges."""
     pytest.importorskip("pydicom")

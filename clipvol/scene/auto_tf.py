@@ -1,0 +1,190 @@
+"""The automatic transfer function: a window on the data's foreground, from its histogram.
+
+Why: a colour map whose opacity rises over the whole value range turns almost any real volume
+into a fog box - the background (air around a CT, the dark field of a fluorescence stack, the
+zeros around a statistical map) is the most frequent value and gets opacity like everything
+else. Windowing tools for medical images and microscopes solve this the same way: find the
+background from the histogram and put the window on what is left.
+
+What it does, from one 64-bin histogram of the data (the store's per-brick histograms summed
+over one level - nothing is read - or, for a source without statistics, the bricks of a coarse
+level read once):
+
+* **Background**: the most frequent bin (the mode) and its shoulders (the background's noise).
+* **Unsigned data** (or signed data whose background is not 0): the window runs from the 1st to
+  the 99.5th percentile of the values *above* the background's bins; the preset (``viridis``
+  unless asked otherwise) has opacity exactly 0 at and below the window's low end and rises
+  along a gentle ramp (:data:`clipvol.scene.transfer.OPACITY_CURVES`), so the background is
+  transparent and the bright structure shows.
+* **Signed data** (float data whose background bin holds 0 and whose range reaches comparably far
+  either side of 0 - a statistical or difference map): the ``diverging`` preset on a window
+  symmetric about 0 out to the 99.5th percentile of ``|v|``, transparent within 20 % of that
+  around 0, as neuroimaging viewers threshold such maps.
+
+Percentiles are interpolated linearly inside a bin, so the window is good to about a bin width
+(1/64 of the value range), which is all a default needs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..bricking.stats import histogram_edges
+from .transfer import TransferFunction
+
+__all__ = ["ValueHistogram", "value_histogram", "auto_window", "auto_transfer_function"]
+
+#: most bricks summed from the stored statistics (one level); a finer level with more is skipped
+MAX_STAT_BRICKS = 1 << 18
+#: most bricks read to build a histogram when a source stores none
+MAX_READ_BRICKS = 64
+BINS = 64
+
+
+@dataclass(frozen=True, slots=True)
+class ValueHistogram:
+    """Counts of the non-NaN values over ``edges`` (``len(edges) == len(counts) + 1``); ``level``
+    is the pyramid level they come from; ``stored`` is True when they come from the store's
+    statistics (nothing read)."""
+
+    counts: np.ndarray
+    edges: np.ndarray
+    level: int
+    stored: bool
+    nan_count: int = 0
+    inf_count: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class AutoWindow:
+    """The outcome of :func:`auto_window`: ``signed`` picks the diverging preset."""
+
+    window: tuple[float, float]
+    signed: bool
+    background: float
+
+
+def _stored_histogram(loader) -> ValueHistogram | None:
+    stats_fn = getattr(loader, "brick_statistics", None)
+    if stats_fn is None:
+        return None
+    pyr = loader.pyramid
+    for L in range(pyr.num_levels):
+        if pyr.num_bricks(L) > MAX_STAT_BRICKS:
+            continue
+        st = stats_fn(L)
+        if not st or "histogram" not in st:
+            return None
+        h = np.asarray(st["histogram"], dtype=np.int64)
+        counts = h.reshape(-1, h.shape[-1]).sum(axis=0)
+        nan = int(np.asarray(st["nan_count"]).sum()) if "nan_count" in st else 0
+        inf = int(np.asarray(st["inf_count"]).sum()) if "inf_count" in st else 0
+        return ValueHistogram(counts, histogram_edges(*pyr.value_range, len(counts)), L, True, nan, inf)
+    return None
+
+
+def _read_histogram(loader) -> ValueHistogram:
+    """Histogram of the finest level with at most :data:`MAX_READ_BRICKS` bricks, read brick by brick."""
+    pyr = loader.pyramid
+    level = pyr.num_levels - 1
+    while level > 0 and pyr.num_bricks(level - 1) <= MAX_READ_BRICKS:
+        level -= 1
+    edges = histogram_edges(*pyr.value_range, BINS)
+    counts = np.zeros(BINS, dtype=np.int64)
+    nan = inf = 0
+    shape = pyr.levels[level].shape
+    B = pyr.brick_shape
+    for idx in np.ndindex(*pyr.grid(level)):
+        block = np.asarray(loader.read_brick(level, idx))
+        valid = tuple(slice(0, min(B[a], shape[a] - idx[a] * B[a])) for a in range(3))
+        v = block[valid].astype(np.float64, copy=False).reshape(-1)
+        isnan = np.isnan(v)
+        nan += int(isnan.sum())
+        inf += int(np.isinf(v).sum())
+        v = np.clip(v[~isnan], edges[0], edges[-1])
+        counts += np.histogram(v, bins=edges)[0]
+    return ValueHistogram(counts, edges, level, False, nan, inf)
+
+
+def value_histogram(loader) -> ValueHistogram:
+    """The data's histogram: the stored statistics of the finest level with at most
+    :data:`MAX_STAT_BRICKS` bricks, else the bricks of a coarse level read once."""
+    h = _stored_histogram(loader)
+    return h if h is not None else _read_histogram(loader)
+
+
+def _percentile(counts: np.ndarray, edges: np.ndarray, q: float) -> float:
+    """The ``q``-th percentile (0..100) of binned values, linear inside the bin."""
+    c = np.cumsum(counts, dtype=np.float64)
+    total = c[-1]
+    target = q / 100.0 * total
+    i = int(np.searchsorted(c, target, side="left"))
+    i = min(i, len(counts) - 1)
+    before = c[i - 1] if i > 0 else 0.0
+    frac = 0.0 if counts[i] == 0 else (target - before) / counts[i]
+    return float(edges[i] + np.clip(frac, 0.0, 1.0) * (edges[i + 1] - edges[i]))
+
+
+def _background_bins(counts: np.ndarray, m: int, floor: float = 1e-3) -> tuple[int, int]:
+    """``(first, last)`` bin of the background peak around the mode ``m``: its shoulders, followed
+    while the counts keep falling and stay above ``floor`` of the peak (the noise of the
+    background, e.g. air in a CT, spreads over a bin or two either side)."""
+    peak = counts[m]
+    b1 = m
+    while b1 + 1 < len(counts) and counts[b1 + 1] < counts[b1] and counts[b1 + 1] >= floor * peak:
+        b1 += 1
+    b0 = m
+    while b0 > 0 and counts[b0 - 1] < counts[b0] and counts[b0 - 1] >= floor * peak:
+        b0 -= 1
+    return b0, b1
+
+
+def auto_window(hist: ValueHistogram, *, float_data: bool = True, low: float = 1.0, high: float = 99.5) -> AutoWindow:
+    """The window (and whether the data are treated as signed) from a histogram (see the module docstring)."""
+    counts = np.asarray(hist.counts, dtype=np.int64)
+    edges = np.asarray(hist.edges, dtype=np.float64)
+    lo, hi = float(edges[0]), float(edges[-1])
+    if counts.sum() == 0:
+        return AutoWindow((lo, hi), False, lo)
+    m = int(np.argmax(counts))
+    background = float((edges[m] + edges[m + 1]) / 2)
+    b0, b1 = _background_bins(counts, m)
+    holds_zero = edges[m] <= 0.0 <= edges[m + 1]
+    if float_data and lo < 0.0 < hi and holds_zero and min(-lo, hi) >= 0.25 * max(-lo, hi):
+        centres = np.abs((edges[:-1] + edges[1:]) / 2)
+        fg = counts.copy()
+        fg[b0 : b1 + 1] = 0
+        if fg.sum() == 0:
+            fg = counts
+        # percentile of |v| over the foreground: bin the absolute centres on [0, max|edge|]
+        amax = max(-lo, hi)
+        abs_edges = np.linspace(0.0, amax, len(counts) + 1)
+        abs_counts = np.histogram(centres, bins=abs_edges, weights=fg)[0]
+        r = _percentile(abs_counts, abs_edges, high)
+        r = r if r > 0 else amax
+        return AutoWindow((-r, r), True, background)
+    fg = counts.copy()
+    fg[: b1 + 1] = 0
+    if fg.sum() < 1e-3 * counts.sum():
+        fg = counts  # no foreground above the background: window the whole histogram
+    w0, w1 = _percentile(fg, edges, low), _percentile(fg, edges, high)
+    if not w1 > w0:
+        w0, w1 = lo, hi
+    return AutoWindow((w0, w1), False, background)
+
+
+def auto_transfer_function(loader, preset: str | None = None, opacity: str | None = None,
+                           hist: ValueHistogram | None = None) -> TransferFunction:
+    """The automatic :class:`~clipvol.scene.transfer.TransferFunction` of ``loader``'s data.
+
+    ``preset`` replaces the chosen colour map (default ``viridis``, or ``diverging`` for signed
+    data); ``opacity`` its opacity curve. Its :attr:`~TransferFunction.name` says what was chosen,
+    e.g. ``auto: viridis 12.5..230``.
+    """
+    hist = value_histogram(loader) if hist is None else hist
+    aw = auto_window(hist, float_data=np.dtype(loader.pyramid.dtype).kind == "f")
+    name = preset or ("diverging" if aw.signed else "viridis")
+    tf = TransferFunction.preset(name, value_range=aw.window, opacity=None if name == "diverging" else opacity)
+    return tf.with_name(f"auto: {tf.name} {aw.window[0]:.4g}..{aw.window[1]:.4g}")

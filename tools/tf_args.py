@@ -1,0 +1,90 @@
+"""The transfer-function flags shared by ``clipvol render``, ``view`` and ``report``.
+
+One place parses them so that the three commands mean the same thing by each flag:
+
+* ``--tf NAME`` - ``auto`` (the default: a window on the data's foreground from the store's
+  histograms, see :mod:`clipvol.scene.auto_tf`), a preset, or a JSON file saved by
+  ``clipvol tf save`` / the viewer's ``S`` key;
+* ``--tf-range LO,HI`` or ``--window CENTRE,WIDTH`` - the window of data values the colour map
+  spans (opacity is exactly 0 at and below its low end);
+* ``--opacity ramp|flat|step`` - the opacity curve over the window;
+* ``--tf-points "v:r,g,b,a;..."`` - control points in data values (overrides the others).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+
+def _pair(text: str) -> tuple[float, float]:
+    try:
+        v = tuple(float(t) for t in text.split(","))
+    except ValueError:
+        v = ()
+    if len(v) != 2 or not all(math.isfinite(x) for x in v):
+        raise argparse.ArgumentTypeError(f"expected two numbers a,b, got {text!r}")
+    return v  # type: ignore[return-value]
+
+
+def add_tf_arguments(g) -> None:
+    """Add ``--tf``, ``--tf-range``, ``--window``, ``--opacity``, ``--tf-points`` to the group ``g``."""
+    from clipvol.scene.transfer import OPACITY_CURVES, TransferFunction
+
+    g.add_argument("--tf", default="auto",
+                   help="transfer function: auto (default: a window on the data's foreground, from its histogram; "
+                        "a diverging map for signed data), a preset (" + ", ".join(TransferFunction.names())
+                        + "), or a JSON file written by 'clipvol tf save' or the viewer's S key")
+    g.add_argument("--tf-range", type=_pair, default=None, metavar="LO,HI",
+                   help="window of data values the colour map spans; opacity is 0 at and below LO "
+                        "(default: automatic for --tf auto, else the data's value range)")
+    g.add_argument("--window", type=_pair, default=None, metavar="CENTRE,WIDTH",
+                   help="the same window as centre and width (window/level), instead of --tf-range")
+    g.add_argument("--opacity", choices=tuple(OPACITY_CURVES), default=None,
+                   help="opacity over the window: ramp (gentle, default), flat (a threshold) or step (a surface)")
+    g.add_argument("--tf-points", default=None, metavar="'V:R,G,B,A;...'",
+                   help="control points in data values, e.g. '0:0,0,0,0;500:1,0.5,0.3,0.2;1500:1,1,1,1' "
+                        "(colour and opacity in [0, 1]; overrides --tf, --tf-range, --window)")
+
+
+def transfer_function_from_args(args, loader):
+    """The :class:`~clipvol.scene.transfer.TransferFunction` the flags ask for, for ``loader``'s data."""
+    from pathlib import Path
+
+    from clipvol.errors import ParameterError
+    from clipvol.scene.auto_tf import auto_transfer_function
+    from clipvol.scene.transfer import TransferFunction, window_range
+
+    if getattr(args, "tf_range", None) is not None and getattr(args, "window", None) is not None:
+        raise ParameterError("--tf-range and --window: expected one of them, got both")
+    if getattr(args, "tf_points", None):
+        if args.opacity is not None:
+            raise ParameterError("--opacity: expected no opacity curve with --tf-points (the points carry opacity)")
+        return TransferFunction.parse_points(args.tf_points)
+    rng = args.tf_range
+    if getattr(args, "window", None) is not None:
+        rng = window_range(*args.window)
+    if rng is not None and not rng[0] <= rng[1]:
+        raise ParameterError(f"--tf-range: expected LO <= HI, got {rng[0]:g},{rng[1]:g}")
+    name = args.tf
+    opacity = getattr(args, "opacity", None)
+    if name.lower().endswith(".json"):
+        tf = TransferFunction.load(Path(name))
+        if rng is not None:
+            tf = tf.with_value_range(rng)
+        return tf if opacity is None else tf.with_opacity(opacity)
+    if name == "auto":
+        if rng is None:
+            return auto_transfer_function(loader, opacity=opacity)
+        return TransferFunction.preset("viridis", value_range=rng, opacity=opacity)
+    if name not in TransferFunction.names():
+        raise ParameterError(f"--tf: expected auto, one of {', '.join(TransferFunction.names())} "
+                             f"or a .json file, got {name!r}")
+    if name == "diverging":
+        if opacity is not None:
+            raise ParameterError("--opacity: the diverging preset has its own opacity (transparent around 0); expected none")
+        if rng is None:  # symmetric about 0
+            lo, hi = loader.pyramid.value_range
+            r = max(abs(lo), abs(hi)) or 1.0
+            rng = (-r, r)
+    return TransferFunction.preset(name, value_range=rng, opacity=opacity)
