@@ -18,6 +18,9 @@ __all__ = [
     "OutputExistsError",
     "LoaderError",
     "BrickLoadError",
+    "BrickIntegrityError",
+    "OutputLockedError",
+    "SourceChangedError",
     "MissingExtraError",
     "RemoteStoreError",
 ]
@@ -57,6 +60,20 @@ class LoaderError(ClipvolError, RuntimeError):
 
 class BrickLoadError(ClipvolError, RuntimeError):
     """Loading a brick failed after its retries; the original exception is ``__cause__``."""
+
+
+class BrickIntegrityError(InputFormatError):
+    """A stored brick fails its checksum or its plausibility check (decoded bounds against the
+    store's statistics; a missing chunk the statistics say holds data). Deterministic: retrying
+    reads the same bytes, so the clip-texture marks the brick failed at once (names store and brick)."""
+
+
+class OutputLockedError(OutputExistsError):
+    """Another live process holds the output's build lock (names the lock file and its pid)."""
+
+
+class SourceChangedError(OutputExistsError):
+    """A build is resumed against a source that differs from the one it started with (says what changed)."""
 
 
 class MissingExtraError(ClipvolError, ImportError):

@@ -89,8 +89,8 @@ class RemoteZarrLoader(ZarrLoader):
         default (:attr:`preferred_threads`).
     retries, timeout
         See :class:`~clipvol.paging.bytesource.FsspecByteSource`.
-    t, c
-        Time point and channel of an OME-Zarr image with such axes (as :class:`ZarrLoader`).
+    **loader_kwargs
+        Passed to :class:`ZarrLoader` (``t``, ``c``, ``allow_incomplete``).
 
     Raises
     ------
@@ -102,7 +102,7 @@ class RemoteZarrLoader(ZarrLoader):
 
     def __init__(self, url: str, *, cache: str | Path | None = None, storage_options: dict | None = None,
                  max_in_flight: int = DEFAULT_IN_FLIGHT, retries: int = 5, timeout: float = 30.0,
-                 t: int | None = None, c: int | None = None) -> None:
+                 **loader_kwargs) -> None:
         self.source = FsspecByteSource(url, storage_options=storage_options, max_in_flight=max_in_flight,
                                        retries=retries, timeout=timeout, cache=cache)
         self.url = self.source.display_url
@@ -113,7 +113,7 @@ class RemoteZarrLoader(ZarrLoader):
         self._stats_mirrored: set[int] = set()
         try:
             self._mirror_metadata()
-            super().__init__(self._mirror, t=t, c=c)
+            super().__init__(self._mirror, **loader_kwargs)
         except ClipvolError as e:
             self._finalizer()
             raise self._renamed(e) from None

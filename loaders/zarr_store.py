@@ -5,11 +5,18 @@ and funnels every thread through one event loop, so chunk-aligned reads from sev
 threads reach only a few percent of memcpy speed. Because a brick *is* one chunk, this loader reads
 the chunk's file itself (``<array>/c/<bz>/<by>/<bx>`` for zarr v3's default key encoding) and
 decodes it with numcodecs, which releases the GIL, in the calling loader thread. The codec chains
-``bytes`` (+ ``blosc`` | ``zstd`` | ``gzip`` | nothing) of zarr v3 and the plain compressors of
-zarr v2 take this fast path; anything else (sharding, transpose, crc32c, filters) falls back to
-zarr indexing, which gives the same values, only slower. A missing chunk file is an empty brick
-(the array's fill value); a truncated or corrupt one raises :class:`InputFormatError` naming the
-store, level and brick.
+``bytes`` (+ ``blosc`` | ``zstd`` | ``gzip`` | nothing) (+ ``crc32c``) of zarr v3 and the plain
+compressors of zarr v2 take this fast path; anything else (sharding, transpose, filters) falls back
+to zarr indexing, which gives the same values, only slower. Every raw chunk fetch goes through one
+method, :meth:`ZarrLoader._chunk_bytes`, so a loader for remote storage overrides only that.
+
+Integrity (never wrong data as if right): a ``crc32c`` codec is verified before decoding (clipvol
+stores carry it on every array); every load's decoded min/max (and NaN/Inf counts) must equal the
+store's statistics for that brick; a missing chunk file is an empty brick (the fill value) only if
+the statistics say the brick is empty. A truncated, corrupt, substituted or lost chunk raises
+:class:`~clipvol.errors.BrickIntegrityError` naming the store, brick and chunk file. A clipvol
+store without checksums opens with an :class:`UnverifiedStoreWarning`. Dataset paths of plain
+OME-Zarr metadata must resolve inside the store.
 
 Metadata is read as JSON and validated *before* zarr opens anything: absurd shapes or chunk
 shapes, and object, string, structured or complex dtypes, are refused (nothing is ever unpickled).
@@ -30,7 +37,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import threading
+import warnings
 from collections import OrderedDict
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -57,6 +66,7 @@ from clipvol.bricking.store import (
     parse_metadata,
 )
 from clipvol.errors import (
+    BrickIntegrityError,
     InputFormatError,
     InputNotFoundError,
     ParameterError,
@@ -65,7 +75,47 @@ from clipvol.errors import (
 )
 from clipvol.paging.loader import BrickKey
 
-__all__ = ["ZarrLoader"]
+__all__ = ["ZarrLoader", "UnverifiedStoreWarning"]
+
+
+class UnverifiedStoreWarning(UserWarning):
+    """A clipvol store written before chunk checksums: its bricks load, but corruption inside a chunk
+    is caught only by the statistics check."""
+
+
+class _ChecksumError(ValueError):
+    pass
+
+
+class _IdentityError(ValueError):
+    pass
+
+
+_UNREAD = object()
+_O_RDONLY = os.O_RDONLY | getattr(os, "O_BINARY", 0)
+#: a brick whose chunk checksum is proven checks the decode on every SAMPLE_STRIDE-th z-plane
+SAMPLE_STRIDE = 8
+#: CRC-32C of any byte string followed by its own CRC-32C (little-endian), the codec's layout
+_CRC32C_RESIDUE = 0x48674BC7
+
+
+def _crc32c(data) -> int:
+    """CRC-32C (Castagnoli) as zarr v3's ``crc32c`` codec computes it (google-crc32c: a zarr dependency)."""
+    import google_crc32c
+
+    return google_crc32c.value(data)
+
+
+def inside(root: Path, rel: str, where: str) -> Path:
+    """``root / rel`` resolved (symbolic links followed), which must stay inside ``root``: a metadata
+    path that is absolute or climbs out (``../../other.zarr/0``) is an :class:`InputFormatError`."""
+    if not isinstance(rel, str) or not rel or "\x00" in rel or os.path.isabs(rel) or rel.startswith(("/", "\\")):
+        raise InputFormatError(f"{where}: dataset path {rel!r} must be a relative path inside the store")
+    base = root.resolve()
+    p = (base / rel).resolve()
+    if p == base or not p.is_relative_to(base):
+        raise InputFormatError(f"{where}: dataset path {rel!r} resolves to {p}, outside the store {base}")
+    return p
 
 #: bytes of derived (computed) bricks kept for plain OME-Zarr images missing coarse levels
 DERIVED_CACHE_BYTES = 256 * 2**20
@@ -114,6 +164,7 @@ class _ArrayMeta:
     key_prefix: str  # "c/" (v3 default) or "" (v2 / v3 "v2" encoding)
     separator: str
     decoder: Any  # numcodecs codec, None = raw bytes, "fallback" = use zarr indexing
+    checksum: bool = False  # a crc32c codec ends the chain: the last 4 bytes are the CRC-32C of the rest
 
     @property
     def fast(self) -> bool:
@@ -122,6 +173,15 @@ class _ArrayMeta:
     @property
     def blosc(self) -> bool:
         return type(self.decoder).__name__ == "Blosc"
+
+    @property
+    def nbytes(self) -> int:
+        return math.prod(self.chunks) * self.dtype.itemsize
+
+    def chunk_root(self, lead: tuple[int, ...]) -> str:
+        """The chunk key up to the last three indices (``lead``: the chunk index of the leading t/c
+        axes), as a string (built once per level: no pathlib on the hot path)."""
+        return str(self.path) + "/" + self.key_prefix + "".join(f"{v}{self.separator}" for v in lead)
 
     def chunk_path(self, cidx: tuple[int, ...]) -> Path:
         return self.path / (self.key_prefix + self.separator.join(str(i) for i in cidx))
@@ -132,12 +192,19 @@ def _fill(raw, dtype: np.dtype, where: str) -> float:
         return 0.0
     if isinstance(raw, str):
         try:
-            return float({"NaN": "nan", "Infinity": "inf", "-Infinity": "-inf"}.get(raw, raw))
+            v = float({"NaN": "nan", "Infinity": "inf", "-Infinity": "-inf"}.get(raw, raw))
         except ValueError:
             raise InputFormatError(f"{where}: expected a numeric fill_value, got {raw!r}") from None
-    if isinstance(raw, bool) or not isinstance(raw, (int, float)):
+    elif isinstance(raw, bool) or not isinstance(raw, (int, float)):
         raise InputFormatError(f"{where}: expected a numeric fill_value, got {raw!r}")
-    return float(raw)
+    else:
+        try:
+            v = float(raw)
+        except OverflowError:
+            raise InputFormatError(f"{where}: expected a fill_value within {dtype.name}, got {raw!r:.40}") from None
+    if dtype.kind in "iu" and not (math.isfinite(v) and v.is_integer() and np.iinfo(dtype).min <= v <= np.iinfo(dtype).max):
+        raise InputFormatError(f"{where}: expected an integer fill_value within {dtype.name}, got {raw!r:.40}")
+    return v
 
 
 def _check_sizes(shape, chunks, where: str) -> tuple[tuple[int, ...], tuple[int, ...]]:
@@ -173,6 +240,9 @@ def _array_meta(path: Path, where: str) -> _ArrayMeta:
         codecs = [c if isinstance(c, dict) else {"name": c} for c in m.get("codecs") or []]
         decoder: Any = "fallback"
         endian = "little"
+        checksum = bool(codecs) and codecs[-1].get("name") == "crc32c"
+        if checksum:
+            codecs = codecs[:-1]
         if codecs and codecs[0].get("name") == "bytes" and len(codecs) <= 2 and not m.get("storage_transformers"):
             endian = (codecs[0].get("configuration") or {}).get("endian", "little")
             rest = [c.get("name") for c in codecs[1:]]
@@ -186,7 +256,8 @@ def _array_meta(path: Path, where: str) -> _ArrayMeta:
         prefix = "c" + sep if cke.get("name") == "default" else ""
         if cke.get("name") not in ("default", "v2"):
             decoder = "fallback"
-        return _ArrayMeta(path, shape, chunks, dtype, _fill(m.get("fill_value"), dtype, where), prefix, sep, decoder)
+        return _ArrayMeta(path, shape, chunks, dtype, _fill(m.get("fill_value"), dtype, where), prefix, sep, decoder,
+                          checksum)
     if (path / ".zarray").is_file():
         m = _read_json(path / ".zarray", where)
         raw_dt = m.get("dtype")
@@ -233,7 +304,14 @@ class ZarrLoader:
         Metadata that is inconsistent, absurd, or describes unsupported data.
     """
 
-    def __init__(self, path: str | Path, *, t: int | None = None, c: int | None = None) -> None:
+    #: check every load against the store's statistics (set False only to measure what it costs)
+    check_plausibility: bool = True
+    #: verify each chunk's crc32c (set False only to measure what it costs)
+    verify_checksums: bool = True
+
+    def __init__(self, path: str | Path, *, t: int | None = None, c: int | None = None,
+                 allow_incomplete: bool = False) -> None:
+        self._allow_incomplete = bool(allow_incomplete)
         if isinstance(path, str) and path.startswith("zarr:"):
             path = path[len("zarr:"):]
         self.path = Path(path)
@@ -252,6 +330,7 @@ class ZarrLoader:
         self._lock = threading.Lock()
         self._zarr_arrays: dict[int, Any] = {}
         self._stats: dict[int, dict[str, np.ndarray] | None] = {}
+        self._checks: dict[int, np.ndarray | None] = {}  # per level: (grid..., 5) min, max, nan, inf, crc
         self._derived: OrderedDict[tuple, np.ndarray] = OrderedDict()
         self._derived_bytes = 0
         self._want = {"t": t, "c": c}
@@ -264,11 +343,31 @@ class ZarrLoader:
             self._open_clipvol(attrs)
         else:
             self._open_ome(attrs)
+        self._prepare_hot_path()
+
+    def _prepare_hot_path(self) -> None:
+        """Per level, what :meth:`read_brick_into` needs without building anything per call: the
+        chunk key's root as a string, the separator, the grid, whether edge bricks are whole, and
+        whether the level can be decoded straight into a slot."""
+        pyr = self._pyramid
+        self._roots = [am.chunk_root(self._chunk_lead) for am in self._arrays]
+        self._seps = [am.separator for am in self._arrays]
+        self._grids = [pyr.grid(L) for L in range(pyr.num_levels)]
+        self._full_last = [tuple(n % b == 0 for n, b in zip(pyr.levels[L].shape, pyr.brick_shape))
+                           for L in range(pyr.num_levels)]
+        self._direct = [L < self._stored and am.fast and not self._lead and am.chunks == pyr.brick_shape
+                        and am.dtype == pyr.dtype and (am.decoder is None or am.blosc)
+                        for L, am in enumerate(self._arrays)]
+
+    @property
+    def checksummed(self) -> bool:
+        """True when every stored level carries zarr v3's ``crc32c`` codec (each chunk is verified on read)."""
+        return all(am.checksum for am in self._arrays)
 
     # -- opening ------------------------------------------------------------------------------
     def _open_clipvol(self, attrs: dict) -> None:
         meta = parse_metadata(attrs, self._where)
-        if not meta.complete:
+        if not meta.complete and not self._allow_incomplete:
             raise StoreIncompleteError(
                 f"{self._where}: the store is incomplete (attrs['clipvol']['complete'] is false): its build was "
                 "interrupted; re-run `clipvol brick` with the same arguments to resume it"
@@ -292,6 +391,10 @@ class ZarrLoader:
             self._arrays.append(am)
         self._pyramid = replace(pyr, dtype=pyr.dtype.newbyteorder("="))
         self._stored = pyr.num_levels
+        if not all(am.checksum for am in self._arrays):
+            warnings.warn(f"{self._where}: unverified store (written before chunk checksums): corruption inside a chunk "
+                          "is caught only by the statistics check; `clipvol check --all` reads every brick",
+                          UnverifiedStoreWarning, stacklevel=3)
 
     def _open_ome(self, attrs: dict) -> None:
         ome = attrs.get("ome") if isinstance(attrs.get("ome"), dict) else attrs
@@ -305,7 +408,7 @@ class ZarrLoader:
             raise InputFormatError(f"{self._where}: OME-Zarr 'multiscales'[0]['datasets'] is malformed")
         self.is_clipvol_store = False
         self.frame = None  # a plain OME-Zarr image: no affine beyond scale and translation
-        first = _array_meta(self.path / datasets[0]["path"], f"{self._where} level 0")
+        first = _array_meta(inside(self.path, datasets[0]["path"], f"{self._where} level 0"), f"{self._where} level 0")
         nd = len(first.shape)
         if nd < 3 or nd > 5:
             raise InputFormatError(f"{self._where}: expected an image (t, c, z, y, x) with 3 to 5 axes, got shape "
@@ -316,8 +419,9 @@ class ZarrLoader:
         expect = level_shapes(first.shape[-3:], brick)
         arrays = [first]
         for L, ds in enumerate(datasets[1:len(expect)], start=1):
+            lpath = inside(self.path, ds["path"], f"{self._where} level {L}")  # outside the store: an error, not a skip
             try:
-                am = _array_meta(self.path / ds["path"], f"{self._where} level {L}")
+                am = _array_meta(lpath, f"{self._where} level {L}")
             except (InputFormatError, FileNotFoundError):
                 break
             if am.shape[-3:] != expect[L] or am.chunks[-3:] != brick or am.dtype != first.dtype or len(am.shape) != nd:
@@ -336,6 +440,7 @@ class ZarrLoader:
         fill = first.fill_value if math.isfinite(first.fill_value) else 0.0
         self._pyramid = Pyramid(tuple(infos), brick, dtype, vr or (0.0, 0.0), fill, filt)
         if vr is None:
+            self._prepare_hot_path()  # _coarsest_range reads bricks
             self._pyramid = replace(self._pyramid, value_range=self._coarsest_range())
 
     def _choose_lead(self, ms: dict, first: "_ArrayMeta") -> None:
@@ -421,21 +526,35 @@ class ZarrLoader:
         return self._stored
 
     def read_brick(self, level: int, index: Int3) -> np.ndarray:
-        """Brick ``index`` ``(bz, by, bx)`` of ``level``: brick shape, native dtype, edge-replicated."""
+        """Brick ``index`` ``(bz, by, bx)`` of ``level``: brick shape, native dtype, edge-replicated.
+
+        Raises :class:`~clipvol.errors.BrickIntegrityError` when the chunk fails its checksum, when
+        its decoded bounds disagree with the store's statistics, or when it is missing although the
+        statistics say it holds data: wrong data is never returned as if right.
+        """
         index = self._pyramid.check_key(level, index)
         if level >= self._stored:
             return self._derived_brick(level, index)
         am = self._arrays[level]
         start, stop = self._pyramid.brick_voxel_box(level, index)
-        if am.fast:
-            block = self._read_fast(am, level, index)
-        else:
-            block = self._read_zarr(level, start, stop)
         valid = tuple(e - s for s, e in zip(start, stop))
+        if am.fast:
+            buf = np.empty(am.nbytes, dtype=np.uint8)
+            got = self._load_chunk(am, level, index, buf)
+            if not got:
+                self._check_absent(level, index)
+                return np.full(self._pyramid.brick_shape, am.fill_value, dtype=self._pyramid.dtype)
+            block = buf.view(am.dtype).reshape(am.chunks)
+            if self._lead:
+                block = block[self._within]
+        else:
+            got = 1
+            block = self._read_zarr(level, start, stop)
         if block.shape != valid:
             block = block[tuple(slice(0, v) for v in valid)]
         if block.dtype != self._pyramid.dtype:
             block = block.astype(self._pyramid.dtype)
+        self._check_plausible(level, index, block, got == 2)
         return pad_to_brick(block, self._pyramid.brick_shape)
 
     def read_brick_into(self, level: int, index: Int3, out: np.ndarray) -> None:
@@ -443,87 +562,221 @@ class ZarrLoader:
 
         The clip-texture hands its slot here: an interior brick of a blosc (or uncompressed) level
         is decoded straight into it, saving a copy of every brick; anything else goes through
-        :meth:`read_brick` and one copy. Same contract and errors as :meth:`read_brick`.
+        :meth:`read_brick` and one copy. Same contract and errors as :meth:`read_brick`; on an
+        error ``out`` holds garbage (the caller marks the brick failed, it never shows it).
         """
-        index = self._pyramid.check_key(level, index)
-        pyr = self._pyramid
-        if level < self._stored and out.flags.c_contiguous and out.shape == pyr.brick_shape and out.dtype == pyr.dtype:
-            am = self._arrays[level]
-            start, stop = pyr.brick_voxel_box(level, index)
-            interior = all(e - s == b for s, e, b in zip(start, stop, pyr.brick_shape))
-            if am.fast and interior and not self._lead and am.chunks == pyr.brick_shape and am.dtype == pyr.dtype \
-                    and (am.decoder is None or am.blosc):
-                if self._read_fast(am, level, index, out.reshape(-1).view(np.uint8)) is None:
-                    out.fill(am.fill_value)  # missing chunk: an empty brick
-                return
+        direct = self._direct
+        if 0 <= level < len(direct) and direct[level] and out.shape == self._pyramid.brick_shape \
+                and out.dtype == self._pyramid.dtype and out.flags.c_contiguous:
+            grid = self._grids[level]
+            bz, by, bx = index
+            # interior bricks only (the hot path: no key object, no pathlib, one bounds test)
+            if 0 <= bz < grid[0] - 1 or (bz == grid[0] - 1 and self._full_last[level][0]):
+                if 0 <= by < grid[1] - 1 or (by == grid[1] - 1 and self._full_last[level][1]):
+                    if 0 <= bx < grid[2] - 1 or (bx == grid[2] - 1 and self._full_last[level][2]):
+                        am = self._arrays[level]
+                        got = self._load_chunk(am, level, index, out.reshape(-1).view(np.uint8))
+                        if not got:
+                            self._check_absent(level, index)
+                            out.fill(am.fill_value)  # missing chunk the statistics call empty
+                            return
+                        self._check_plausible(level, index, out, got == 2)
+                        return
         out[...] = self.read_brick(level, index)
 
-    def _read_fast(self, am: _ArrayMeta, level: int, index: Int3, buf: np.ndarray | None = None) -> np.ndarray | None:
-        """Decode one chunk file; into ``buf`` (uint8, chunk bytes) when given, where a missing
-        chunk returns None instead of a filled array."""
-        cpath = am.chunk_path(self._chunk_lead + tuple(index))
-        nbytes = math.prod(am.chunks) * am.dtype.itemsize
-        out = np.empty(nbytes, dtype=np.uint8) if buf is None else buf
-        data = self._chunk_bytes(level, index)
-        if data is None:
-            if buf is not None:
-                return None
-            return np.full(self._pyramid.brick_shape, am.fill_value, dtype=self._pyramid.dtype)
-        if am.decoder is None:
-            if len(data) != nbytes:
-                raise self._corrupt(level, index, cpath, ValueError(f"expected {nbytes} bytes, got {len(data)}"))
-            out[:] = np.frombuffer(data, dtype=np.uint8)
-        else:
-            try:
-                if am.blosc:
-                    # the header says the sizes: check them, then decode straight into `out`
-                    n, cbytes = _blosc_sizes(data)
-                    if n != nbytes or cbytes != len(data):
-                        raise ValueError(f"blosc header: {n} bytes in {cbytes}, expected {nbytes} bytes in {len(data)}")
-                    am.decoder.decode(data, out=out)
-                else:
-                    dec = np.frombuffer(am.decoder.decode(data), dtype=np.uint8)
-                    if dec.size != nbytes:
-                        raise ValueError(f"decoded {dec.size} bytes, expected {nbytes}")
-                    out = dec
-            except Exception as e:  # numcodecs raises RuntimeError/ValueError/TypeError for bad data
-                raise self._corrupt(level, index, cpath, e) from None
-        arr = out.view(am.dtype).reshape(am.chunks)
-        if self._lead:
-            arr = arr[self._within]
-        return arr
-
+    # -- the raw fetch (the one method a remote store overrides) -------------------------------
     def _chunk_bytes(self, level: int, index: Int3) -> bytes | None:
-        """The stored bytes of the chunk of brick ``index`` of ``level``; ``None`` when it is absent.
+        """The stored bytes of brick ``index``'s chunk at ``level``, or ``None`` when it is absent.
 
-        Every raw chunk fetch of the fast path goes through here, so a subclass can read from
-        elsewhere (:class:`clipvol.loaders.zarr_remote.RemoteZarrLoader` fetches over fsspec);
-        decoding and checks stay with the caller."""
-        am = self._arrays[level]
+        Every raw chunk read of this loader goes through here, so a loader for another storage
+        (object store, HTTP) overrides only this; decoding, checksum and plausibility stay above.
+        Other ``OSError``\\ s propagate (transient: the clip-texture retries them).
+        """
+        bz, by, bx = index
+        sep = self._seps[level]
         try:
-            with open(am.chunk_path(self._chunk_lead + tuple(index)), "rb") as f:
-                return f.read()
+            fd = os.open(f"{self._roots[level]}{bz}{sep}{by}{sep}{bx}", _O_RDONLY)
         except FileNotFoundError:
             return None
+        try:  # one fstat and (for a regular file) one read: no buffered-reader object per chunk
+            size = os.fstat(fd).st_size
+            data = os.read(fd, size + 1)
+            if len(data) != size:  # a short read (or a file that grew): read on to the end
+                while True:
+                    more = os.read(fd, 1 << 20)
+                    if not more:
+                        break
+                    data += more
+            return data
+        finally:
+            os.close(fd)
 
-    def _corrupt(self, level: int, index: Int3, cpath: Path, e: BaseException) -> InputFormatError:
-        return InputFormatError(
-            f"{self._where}: {BrickKey(level, index)}: chunk file {cpath.relative_to(self.path)} is truncated or "
+    def _load_chunk(self, am: _ArrayMeta, level: int, index: Int3, out: np.ndarray) -> int:
+        """Fetch, verify and decode one chunk into ``out`` (uint8, the chunk's bytes).
+
+        Returns 0 when the chunk is absent, 2 when its checksum is intact *and* equals the one the
+        statistics recorded for this brick (the bytes are exactly those written here), else 1.
+        """
+        data = self._chunk_bytes(level, index)
+        if data is None:
+            return 0
+        nbytes = out.size
+        loaded = 1
+        try:
+            if am.checksum:
+                if len(data) < 4:
+                    raise ValueError(f"{len(data)} bytes cannot hold a crc32c checksum")
+                # one pass, no copy: the CRC-32C of a message followed by its own CRC is a constant
+                if self.verify_checksums and _crc32c(data) != _CRC32C_RESIDUE:
+                    want, got = int.from_bytes(data[-4:], "little"), _crc32c(bytes(data[:-4]))
+                    raise _ChecksumError(f"crc32c checksum mismatch (stored {want:#010x}, computed {got:#010x})")
+                body = memoryview(data)[:-4]
+                st = self._brick_stats(level, index) if self.verify_checksums else None
+                if st is not None and st[4] == st[4]:  # the crc recorded for this brick (not NaN)
+                    have = int.from_bytes(data[-4:], "little")
+                    if st[4] < 0:
+                        raise _IdentityError("the statistics say no chunk was written for this brick")
+                    if have != int(st[4]):
+                        raise _IdentityError(f"it is an intact chunk (crc32c {have:#010x}) but not the one written "
+                                             f"for this brick ({int(st[4]):#010x}): another brick's, or another build's")
+                    loaded = 2
+            else:
+                body = data
+            if am.decoder is None:
+                if len(body) != nbytes:
+                    raise ValueError(f"expected {nbytes} bytes, got {len(body)}")
+                out[:] = np.frombuffer(body, dtype=np.uint8)
+            elif am.blosc:
+                # the header says the sizes: check them, then decode straight into `out`
+                n, cbytes = _blosc_sizes(body)
+                if n != nbytes or cbytes != len(body):
+                    raise ValueError(f"blosc header: {n} bytes in {cbytes}, expected {nbytes} bytes in {len(body)}")
+                am.decoder.decode(body, out=out)
+            else:
+                dec = np.frombuffer(am.decoder.decode(body), dtype=np.uint8)
+                if dec.size != nbytes:
+                    raise ValueError(f"decoded {dec.size} bytes, expected {nbytes}")
+                out[:] = dec
+        except _IdentityError as e:
+            raise BrickIntegrityError(f"{self._where}: {BrickKey(level, index)}: chunk file "
+                                      f"{self._chunk_name(level, index)}: {e}") from None
+        except _ChecksumError as e:
+            raise BrickIntegrityError(f"{self._where}: {BrickKey(level, index)}: chunk file "
+                                      f"{self._chunk_name(level, index)} is truncated or corrupt ({e})") from None
+        except Exception as e:  # numcodecs raises RuntimeError/ValueError/TypeError for bad data
+            raise self._corrupt(level, index, e) from None
+        return loaded
+
+    def _chunk_name(self, level: int, index: Int3) -> str:
+        am = self._arrays[level]
+        root = self.path.resolve()
+        rel = am.path.relative_to(root) if am.path.is_relative_to(root) else am.path.relative_to(self.path) \
+            if am.path.is_relative_to(self.path) else am.path
+        key = am.key_prefix + "".join(f"{v}{am.separator}" for v in self._chunk_lead) + am.separator.join(str(i) for i in index)
+        return f"{rel}/{key}"
+
+    def _corrupt(self, level: int, index: Int3, e: BaseException) -> InputFormatError:
+        return BrickIntegrityError(
+            f"{self._where}: {BrickKey(level, index)}: chunk file {self._chunk_name(level, index)} is truncated or "
             f"corrupt ({type(e).__name__}: {e})"
         )
 
-    def _read_zarr(self, level: int, start, stop) -> np.ndarray:
-        arr = self._zarr_arrays.get(level)
-        if arr is None:
-            import zarr
+    # -- plausibility: every load against the store's own statistics -----------------------------
+    def _brick_stats(self, level: int, index: Int3) -> tuple[float, float, float, float, float] | None:
+        """``(min, max, nan_count, inf_count, chunk_crc32c)`` the store recorded for the brick (NaN
+        where not recorded: not compared; crc -1: no chunk written), or None (no statistics). One
+        lookup in a per-level table."""
+        tbl = self._checks.get(level, _UNREAD)
+        if tbl is _UNREAD:
+            st = self.brick_statistics(level)
+            tbl = None
+            if st is not None:
+                missing = np.full(st["min"].shape, np.nan)
+                cols = [st["min"], st["max"]] + [st[n] if n in st else missing for n in ("nan_count", "inf_count", "chunk_crc32c")]
+                tbl = np.stack(cols, axis=-1).astype(np.float64)  # a crc32c (< 2**32) is exact in float64
+            self._checks[level] = tbl
+        if tbl is None:
+            return None
+        return tuple(tbl[index[0], index[1], index[2]].tolist())
 
-            with self._lock:
-                arr = self._zarr_arrays.get(level)
-                if arr is None:
-                    arr = zarr.open_array(str(self._arrays[level].path), mode="r")
-                    self._zarr_arrays[level] = arr
-        sl = self._select + tuple(slice(a, b) for a, b in zip(start, stop))
-        return np.asarray(arr[sl])
+    def _check_absent(self, level: int, index: Int3) -> None:
+        """A missing chunk is an empty brick only if the statistics say so (min = max = fill, no NaN/Inf)."""
+        if not self.check_plausibility:
+            return
+        st = self._brick_stats(level, index)
+        if st is None:
+            return
+        lo, hi, nan, inf, crc = st
+        fill = self._pyramid.fill_value
+        if not (lo == fill and hi == fill and not nan > 0 and not inf > 0) or crc >= 0:
+            raise BrickIntegrityError(
+                f"{self._where}: {BrickKey(level, index)}: chunk {self._chunk_name(level, index)} is missing, but the "
+                f"store's statistics say the brick holds data (min {lo:g}, max {hi:g}, {nan:g} NaN, {inf:g} Inf)")
+
+    def _check_plausible(self, level: int, index: Int3, block: np.ndarray, proven: bool = False) -> None:
+        """Decoded data against the statistics written with the brick (``block``: exactly its valid
+        voxels; an interior brick: all of them).
+
+        Unproven bytes (no checksum, or none recorded for this brick): the decoded min and max (and
+        NaN/Inf counts) must *equal* the statistics: one SIMD min and max while the brick is in
+        cache; NaN/Inf are counted only when that pass meets one. ``proven`` bytes (their crc32c is
+        intact and is the one recorded for this brick, so they are exactly what was written here):
+        a sample of every eighth z-plane must lie inside the brick's bounds, which checks the
+        decode at an eighth of the cost.
+        """
+        if not self.check_plausibility:
+            return
+        st = self._brick_stats(level, index)
+        if st is None:
+            return
+        lo, hi, nan, inf, _ = st
+        part = block[::SAMPLE_STRIDE] if proven else block
+        mn, mx = part.min(), part.max()
+        if part.dtype.kind == "f" and not (math.isfinite(mn) and math.isfinite(mx)):
+            fin = np.isfinite(part)
+            got_nan = int(np.count_nonzero(np.isnan(part)))
+            got_inf = int(part.size - np.count_nonzero(fin) - got_nan)
+            vals = part[fin]
+            mn, mx = (vals.min(), vals.max()) if vals.size else (math.nan, math.nan)
+        else:
+            got_nan = got_inf = 0
+        mn, mx = float(mn), float(mx)
+        if proven:
+            inside = (lo <= mn and mx <= hi) or (math.isnan(mn) and math.isnan(mx))
+            if inside and (got_nan == 0 or not nan == 0) and (got_inf == 0 or not inf == 0):
+                return
+        elif mn == lo and mx == hi and (got_nan == nan or nan != nan) and (got_inf == inf or inf != inf):
+            return  # the common case: equal bounds, counts equal or not recorded (NaN)
+        else:
+            same = (mn == lo or (math.isnan(mn) and math.isnan(lo))) and (mx == hi or (math.isnan(mx) and math.isnan(hi)))
+            if same and not (nan == nan and got_nan != nan) and not (inf == inf and got_inf != inf):
+                return
+        what = "a sample of every 8th plane of the decoded data" if proven else "decoded data"
+        raise BrickIntegrityError(
+            f"{self._where}: {BrickKey(level, index)}: {what} (min {mn:g}, max {mx:g}, {got_nan} NaN, "
+            f"{got_inf} Inf) disagrees with the store's statistics (min {lo:g}, max {hi:g}, {nan:g} NaN, {inf:g} Inf): "
+            "the chunk is corrupt or belongs to another brick")
+
+    def _read_zarr(self, level: int, start, stop) -> np.ndarray:
+        """Codec chains off the fast path, through zarr-python (which verifies a crc32c itself). Anything
+        zarr raises for metadata or data it cannot use becomes an :class:`InputFormatError`."""
+        try:
+            arr = self._zarr_arrays.get(level)
+            if arr is None:
+                import zarr
+
+                with self._lock:
+                    arr = self._zarr_arrays.get(level)
+                    if arr is None:
+                        arr = zarr.open_array(str(self._arrays[level].path), mode="r")
+                        self._zarr_arrays[level] = arr
+            sl = self._select + tuple(slice(a, b) for a, b in zip(start, stop))
+            return np.asarray(arr[sl])
+        except (OSError, MemoryError):
+            raise
+        except Exception as e:
+            raise InputFormatError(f"{self._where} level {level}: zarr cannot read the array ({type(e).__name__}: "
+                                   f"{str(e)[:200]})") from None
 
     def _derived_brick(self, level: int, index: Int3) -> np.ndarray:
         """A brick of a level the OME-Zarr image does not store: the filter over its 8 children."""
@@ -587,6 +840,12 @@ class ZarrLoader:
         with self._lock:
             self._stats[level] = stats
         return stats
+
+    def refresh_statistics(self) -> None:
+        """Forget the cached statistics (after ``clipvol repair`` rewrote some): the next load re-reads them."""
+        with self._lock:
+            self._stats.clear()
+            self._checks.clear()
 
     def brick_ranges(self, level: int, indices: np.ndarray) -> np.ndarray | None:
         """``(n, 2)`` ``[min, max]`` of each brick in ``indices`` (``(n, 3)``) from the store's

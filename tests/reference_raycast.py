@@ -194,7 +194,7 @@ def raycast_levels(levels, regions, camera, table, value_range, step, mode="comp
 
 
 def to_uint8(prem: np.ndarray) -> np.ndarray:
-    """Premultiplied float RGBA -> straight RGBA uint8 (colour 0 where alpha is 0)."""
+    """Premultiplied float RGBA -> straight RGBA uint8 (colour 0 where the 8-bit alpha is 0)."""
     a = np.clip(prem[..., 3], 0.0, 1.0)
-    rgb = np.where(a[..., None] > 0, prem[..., :3] / np.maximum(a[..., None], 1e-300), 0.0)
+    rgb = np.where(np.rint(a[..., None] * 255.0) > 0, prem[..., :3] / np.maximum(a[..., None], 1e-300), 0.0)
     return np.rint(np.concatenate([np.clip(rgb, 0, 1), a[..., None]], axis=-1) * 255.0).astype(np.uint8)

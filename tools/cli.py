@@ -21,7 +21,8 @@ from clipvol.errors import ClipvolError
 COMMANDS = {
     "brick": "brick a volume into a multiresolution zarr store (OME-Zarr)",
     "info": "describe a store or any OME-Zarr: levels, shapes, bricks, bytes, compression, value range, NaN/Inf",
-    "check": "validate a store: metadata, filter on sampled bricks, statistics",
+    "check": "validate a store: checksums, statistics and filter of sampled (or --all) bricks",
+    "repair": "rebuild a store's bad bricks and their ancestors from its input",
     "render": "render one image of a store or procedural volume",
     "view": "interactive roaming / multiresolution viewer (or --offscreen frames)",
     "report": "image error against run time for a sweep of quality settings",
@@ -60,6 +61,18 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "_run", None):
         parser.print_help(sys.stderr)
         return 2
+    import warnings
+
+    show = warnings.showwarning
+
+    def one_line_notes(message, category, filename, lineno, file=None, line=None):
+        """clipvol's own notes (an unverified store) as one line, without Python's source echo."""
+        if category.__module__.startswith("clipvol."):
+            print(f"clipvol {args.command}: note: {message}", file=sys.stderr)
+        else:
+            show(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = one_line_notes
     try:
         return int(args._run(args) or 0)
     except ClipvolError as e:
@@ -70,6 +83,8 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except BrokenPipeError:  # `clipvol info | head`
         return 0
+    finally:
+        warnings.showwarning = show
 
 
 if __name__ == "__main__":  # pragma: no cover

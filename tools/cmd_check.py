@@ -1,9 +1,15 @@
-"""Validate a clipvol store: metadata, the filter on a sample of bricks per level, their statistics.
+"""Validate a clipvol store: metadata; every chunk's checksum, its statistics and its filter.
 
-For each level a seeded random sample of bricks is read; a level ``L >= 1`` brick is compared
-exactly (NaN-aware) with :func:`clipvol.bricking.pyramid.downsample` of the level ``L - 1`` voxels it
-summarises, and every sampled brick's statistics are recomputed and compared. A failure prints
-``level L brick (z, y, x): what is wrong`` and exits with status 1.
+Bricks are read through the zarr loader's own validated path (the blosc header is checked before
+decoding, never read past its end; zarr v3 ``crc32c`` checksums; decoded bounds against the
+store's statistics; a missing chunk must be empty by its statistics). A level ``L >= 1`` brick is
+then compared exactly (NaN-aware) with :func:`clipvol.bricking.pyramid.downsample` of its level
+``L - 1`` children, and its statistics (mean, std, NaN/Inf counts, histogram) are recomputed.
+
+By default a seeded random sample of bricks per level is checked; ``--all`` checks every brick
+with a progress bar. Each bad brick is printed as ``level L brick (z, y, x): what is wrong`` and a
+summary names them all; the exit status is 1 when any brick is bad or the store is incomplete.
+``clipvol repair STORE --source INPUT`` rebuilds exactly the bricks named here.
 """
 
 from __future__ import annotations
@@ -12,19 +18,11 @@ import argparse
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("store", metavar="STORE", help="a store written by `clipvol brick` (a directory or a URL)")
+    parser.add_argument("store", metavar="STORE", help="a store written by `clipvol brick`")
     parser.add_argument("--samples", type=int, default=8, help="bricks checked per level (default 8)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the brick sample (default 0)")
-
-
-def _same(a, b) -> bool:
-    import numpy as np
-
-    if a.shape != b.shape:
-        return False
-    if a.dtype.kind == "f":
-        return bool(np.array_equal(a, b, equal_nan=True))
-    return bool(np.array_equal(a, b))
+    parser.add_argument("--all", action="store_true", help="check every brick of every level (progress bar on stderr)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def _close(x: float, y: float) -> bool:
@@ -35,54 +33,121 @@ def _close(x: float, y: float) -> bool:
     return math.isclose(x, y, rel_tol=1e-9, abs_tol=1e-12)
 
 
-def check_brick(group, pyr, stats, L: int, idx) -> list[str]:
-    """Problems found with brick ``(L, idx)`` (empty when it is sound)."""
+def _valid(loader, L: int, idx):
+    """The brick's valid voxels (no edge padding), read through the loader's validated path."""
+    start, stop = loader.pyramid.brick_voxel_box(L, idx)
+    return loader.read_brick(L, idx)[tuple(slice(0, b - a) for a, b in zip(start, stop))]
+
+
+def check_brick(loader, stats, L: int, idx) -> list[str]:
+    """Problems found with brick ``(L, idx)`` of an opened :class:`~clipvol.loaders.zarr_store.ZarrLoader`
+    (empty when it is sound). ``stats`` is a :class:`~clipvol.bricking.stats.StatsComputer`."""
     import numpy as np
 
     from clipvol.bricking.pyramid import downsample
-    from clipvol.bricking.store import STATS_GROUP
+    from clipvol.errors import ClipvolError
 
-    problems = []
-    start, stop = pyr.brick_voxel_box(L, idx)
-    sl = tuple(slice(a, b) for a, b in zip(start, stop))
+    pyr = loader.pyramid
     try:
-        block = group[str(L)][sl]
-    except Exception as e:  # a corrupt chunk: zarr / numcodecs raise various kinds
+        block = _valid(loader, L, idx)
+    except ClipvolError as e:
+        return [str(e).split(": ", 1)[-1]]
+    except Exception as e:  # anything a damaged chunk can make a codec raise
         return [f"cannot read or decode ({type(e).__name__}: {e})"]
+    problems = []
     if L >= 1:
-        prev = pyr.levels[L - 1].shape
-        csl = tuple(slice(2 * a, min(2 * b, n)) for a, b, n in zip(start, stop, prev))
+        start, stop = pyr.brick_voxel_box(L, idx)
+        fine = pyr.levels[L - 1].shape
+        lo = [2 * a for a in start]
+        hi = [min(2 * b, n) for b, n in zip(stop, fine)]
+        region = np.empty(tuple(h - l for l, h in zip(lo, hi)), dtype=pyr.dtype)
         try:
-            src = group[str(L - 1)][csl]
-        except Exception as e:
-            return [f"cannot read its level {L - 1} voxels ({type(e).__name__}: {e})"]
-        expect = downsample(src, pyr.filter)
-        if not _same(block, expect):
-            if block.shape != expect.shape:
-                problems.append(f"shape {block.shape} differs from the {pyr.filter} filter of level {L - 1}: {expect.shape}")
-            else:
-                same = block == expect
-                if block.dtype.kind == "f":
-                    same |= np.isnan(block) & np.isnan(expect)
-                diff = int(np.count_nonzero(~same))
-                problems.append(f"differs from the {pyr.filter} filter of level {L - 1} in {diff} voxels")
-    sg = group[f"{STATS_GROUP}/{L}"]
+            for child in pyr.children(L, idx):
+                cs, ce = pyr.brick_voxel_box(L - 1, child)
+                region[tuple(slice(a - o, b - o) for a, b, o in zip(cs, ce, lo))] = _valid(loader, L - 1, child)
+        except Exception:
+            pass  # a bad child is reported as itself; this brick's filter cannot be checked until it is repaired
+        else:
+            expect = downsample(region, pyr.filter)
+            same = block == expect
+            if block.dtype.kind == "f":
+                same |= np.isnan(block) & np.isnan(expect)
+            if not same.all():
+                problems.append(f"differs from the {pyr.filter} filter of level {L - 1} in {int(np.count_nonzero(~same))} voxels")
+    sg = loader.brick_statistics(L) or {}
     st = stats.compute(block)
     for name in ("min", "max", "mean", "std"):
-        have = float(sg[name][idx])
-        want = float(getattr(st, name))
-        if not _close(have, want):
-            problems.append(f"stored {name} {have!r}, expected {want!r}")
+        if name in sg and not _close(float(sg[name][idx]), float(getattr(st, name))):
+            problems.append(f"stored {name} {float(sg[name][idx])!r}, expected {float(getattr(st, name))!r}")
     for name in ("nan_count", "inf_count"):
-        have = int(sg[name][idx])
-        if have != getattr(st, name):
-            problems.append(f"stored {name} {have}, expected {getattr(st, name)}")
-    hist = np.asarray(sg["histogram"][idx])
-    if not np.array_equal(hist, st.histogram):
-        problems.append(f"stored histogram differs from the data in {int(np.count_nonzero(hist != st.histogram))} bins")
-    if not bool(sg["done"][idx]):
-        problems.append("not marked done")
+        if name in sg and int(sg[name][idx]) != getattr(st, name):
+            problems.append(f"stored {name} {int(sg[name][idx])}, expected {getattr(st, name)}")
+    if "histogram" in sg:
+        hist = np.asarray(sg["histogram"][idx])
+        if not np.array_equal(hist, st.histogram):
+            problems.append(f"stored histogram differs from the data in {int(np.count_nonzero(hist != st.histogram))} bins")
     return problems
+
+
+def bad_bricks(loader, meta, keys, progress: bool = False, report=None) -> tuple[dict, int, int]:
+    """Check ``keys`` (``(level, idx)``); return ``({(L, idx): [problems]}, checked, not_yet_written)``.
+
+    Bricks not marked done (an interrupted build has not written them yet) are skipped, not failed.
+    ``report(L, idx, problem)`` is called for each problem as it is found.
+    """
+    import sys
+
+    from tqdm import tqdm
+
+    from clipvol.bricking.stats import StatsComputer
+
+    stats = StatsComputer(loader.pyramid.dtype, loader.pyramid.value_range, meta.histogram_bins)
+    bad: dict = {}
+    checked = pending = 0
+    keys = list(keys)
+    for L, idx in tqdm(keys, unit="brick", desc="checking", file=sys.stderr, disable=not progress, dynamic_ncols=True):
+        done = (loader.brick_statistics(L) or {}).get("done")
+        if done is not None and not bool(done[idx]):
+            pending += 1
+            continue
+        checked += 1
+        problems = check_brick(loader, stats, L, idx)
+        if problems:
+            bad[(L, idx)] = problems
+            if report is not None:
+                for p in problems:
+                    report(L, idx, p)
+    return bad, checked, pending
+
+
+def open_checked(path):
+    """``(meta, loader)`` for a store, incomplete ones included; a store written before checksums
+    opens with a one-line note on stderr."""
+    import sys
+    import warnings
+
+    from clipvol.bricking.store import open_store_meta
+    from clipvol.loaders.zarr_store import UnverifiedStoreWarning, ZarrLoader
+
+    from clipvol.paging.bytesource import is_remote_url
+
+    if is_remote_url(str(path)):  # a store behind a URL: the same checks through the remote loader
+        from clipvol.loaders.zarr_remote import RemoteZarrLoader, remote_store_meta
+
+        meta, _ = remote_store_meta(str(path))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", UnverifiedStoreWarning)
+            loader = RemoteZarrLoader(str(path), allow_incomplete=True)
+        for w in caught:
+            print(f"note: {w.message}", file=sys.stderr)
+        return meta, loader
+    meta = open_store_meta(path)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", UnverifiedStoreWarning)
+        loader = ZarrLoader(path, allow_incomplete=True)
+    for w in caught:
+        print(f"note: {w.message}", file=sys.stderr)
+    return meta, loader
 
 
 def run(args: argparse.Namespace) -> int:
@@ -90,54 +155,42 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     import numpy as np
-    import zarr
 
-    from clipvol.bricking.stats import StatsComputer
-    from clipvol.bricking.store import open_store_meta
     from clipvol.errors import ParameterError
 
     if args.samples < 1:
         raise ParameterError(f"--samples: expected an integer >= 1, got {args.samples}")
     from clipvol.paging.bytesource import is_remote_url
 
-    if is_remote_url(args.store):  # a URL: our metadata check, then zarr-python over fsspec reads the bricks
-        from clipvol.loaders.zarr_remote import remote_store_meta
-
-        path = args.store
-        meta, _ = remote_store_meta(args.store)
-        group = zarr.open_group(args.store, mode="r")
-    else:
-        path = Path(args.store)
-        meta = open_store_meta(path)
-        group = zarr.open_group(str(path), mode="r")
-    pyr = meta.pyramid
-    for L, lv in enumerate(pyr.levels):
-        try:
-            arr = group[str(L)]
-        except KeyError:
-            print(f"clipvol check: {path}: level {L}: array missing", file=sys.stderr)
-            return 1
-        if tuple(arr.shape) != lv.shape or tuple(arr.chunks) != pyr.brick_shape or arr.dtype != pyr.dtype:
-            print(f"clipvol check: {path}: level {L}: expected shape {lv.shape}, chunks {pyr.brick_shape}, dtype {pyr.dtype}; "
-                  f"got {tuple(arr.shape)}, {tuple(arr.chunks)}, {arr.dtype}", file=sys.stderr)
-            return 1
-    stats = StatsComputer(pyr.dtype, pyr.value_range, meta.histogram_bins)
+    path = args.store if is_remote_url(args.store) else Path(args.store)
+    meta, loader = open_checked(path)
+    pyr = loader.pyramid
     rng = np.random.default_rng(args.seed)
-    failures = checked = 0
+    keys = []
     for L in range(pyr.num_levels):
         g = pyr.grid(L)
         n = pyr.num_bricks(L)
-        picks = rng.choice(n, size=min(args.samples, n), replace=False)
-        for flat in sorted(int(p) for p in picks):
-            idx = tuple(int(v) for v in np.unravel_index(flat, g))
-            checked += 1
-            for problem in check_brick(group, pyr, stats, L, idx):
-                failures += 1
-                print(f"clipvol check: {path}: level {L} brick {idx}: {problem}", file=sys.stderr)
+        if args.all:
+            flats = range(n)
+        else:
+            flats = sorted(int(p) for p in rng.choice(n, size=min(args.samples, n), replace=False))
+        keys += [(L, tuple(int(v) for v in np.unravel_index(f, g))) for f in flats]
+
+    def report(L, idx, problem):
+        print(f"clipvol check: {path}: level {L} brick {idx}: {problem}", file=sys.stderr)
+
+    bad, checked, pending = bad_bricks(loader, meta, keys, progress=args.all and not args.quiet, report=report)
+    if bad:
+        names = ", ".join(f"level {L} brick {idx}" for L, idx in sorted(bad))
+        print(f"clipvol check: {path}: {len(bad)} of {checked} bricks checked are bad: {names}; "
+              f"`clipvol repair {path} --source INPUT` rebuilds them", file=sys.stderr)
     if not meta.complete:
-        print(f"clipvol check: {path}: incomplete store (an interrupted build); re-run the same clipvol brick command", file=sys.stderr)
+        print(f"clipvol check: {path}: incomplete store (an interrupted build; {pending} of the bricks looked at not "
+              "written yet); re-run the same clipvol brick command", file=sys.stderr)
         return 1
-    if failures:
+    if bad:
         return 1
-    print(f"{path}: ok ({pyr.num_levels} levels, {checked} bricks checked: filter and statistics match)")
+    what = "every brick" if args.all else f"{checked} bricks"
+    verified = "checksums, " if loader.checksummed else "(no checksums: unverified store) "
+    print(f"{path}: ok ({pyr.num_levels} levels, {what} checked: {verified}statistics and filter match)")
     return 0

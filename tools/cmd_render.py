@@ -199,8 +199,8 @@ def run(args) -> int:
         background=args.background,
     ).check_for(pyr)
     tf = transfer_function_from_args(args, loader)
-    from clipvol.tools.remote_args import remote_kwargs
-
+    if args.workers is not None:  # sort-last on Dask: groups of bricks in worker processes
+        return _run_sort_last(args, params, cam, tf, kwargs)
     ctx = create_context()
     try:
         with ClipTexture(loader, args.memory_budget, args.threads, center=centre) as clip, \

@@ -41,18 +41,18 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import MissingExtraError, ParameterError
-from .pipeline import _brick_shape, _check_params, _create_store, _job, _prepare_output, chunk_encoder, encode_brick
+from .pipeline import (_brick_shape, _check_params, _create_store, chunk_encoder, encode_brick, job_spec, mark_complete,
+                       output_lock, prepare_output)
 from .pyramid import Pyramid, downsample
 from .sources import open_source
 from .stats import StatsComputer, finite_range
-from .store import STATS_GROUP, StoreMeta, parse_metadata
+from .store import STAT_ARRAYS, STATS_GROUP, StoreMeta, parse_metadata
 
 __all__ = ["brick_volume_dask", "SCHEDULERS", "DEFAULT_SPAN"]
 
 SCHEDULERS = ("threads", "processes")
 #: levels per tier task: 3 gives regions of 4^3 level-0 bricks (32 MiB at 64^3 uint16)
 DEFAULT_SPAN = 3
-_STAT_NAMES = ("min", "max", "mean", "std", "nan_count", "inf_count")
 
 
 def _need_dask():
@@ -99,11 +99,12 @@ def _region_box(pyr: Pyramid, L0: int, L1: int, top: tuple[int, int, int]):
     return start, stop
 
 
-def _tier_task(spec, out: str, pyr: Pyramid, codec: str, L0: int, L1: int, top, done, *carries):
+def _tier_task(spec, out: str, pyr: Pyramid, codec: str, checksum: bool, L0: int, L1: int, top, done, *carries):
     """Build levels ``L0..L1`` under brick ``top`` of level ``L1`` (see the module docstring).
 
     ``done[L - L0]`` is the region's ``done`` mask at level ``L``; ``carries`` (tier > 0) are
-    ``(child_top, block)`` pairs of the tier below. Returns ``(stats, carry)``.
+    ``(child_top, block)`` pairs of the tier below. Returns ``(stats, carry)``; ``stats`` holds
+    ``(level, index, BrickStats, chunk crc32c or -1)`` per brick written.
     """
     B = pyr.brick_shape
     start, stop = _region_box(pyr, L0, L1, top)
@@ -114,7 +115,7 @@ def _tier_task(spec, out: str, pyr: Pyramid, codec: str, L0: int, L1: int, top, 
         for child, block in carries:
             o = tuple(c * (b // 2) - s for c, b, s in zip(child, B, start))
             data[tuple(slice(a, a + n) for a, n in zip(o, block.shape))] = block
-    encode = chunk_encoder(codec, pyr.dtype)
+    encode = chunk_encoder(codec, pyr.dtype, checksum)
     stats = StatsComputer(pyr.dtype, pyr.value_range)
     results = []
     for L in range(L0, L1 + 1):
@@ -126,8 +127,9 @@ def _tier_task(spec, out: str, pyr: Pyramid, codec: str, L0: int, L1: int, top, 
                 continue
             idx = tuple(a + r for a, r in zip(first, rel))
             block = data[tuple(slice(r * b, (r + 1) * b) for r, b in zip(rel, B))]
-            results.append((L, idx, stats.compute(block)))
+            st = stats.compute(block)
             payload = encode_brick(block, B, encode)
+            results.append((L, idx, st, int.from_bytes(payload[-4:], "little") if payload is not None and checksum else -1))
             if payload is not None:
                 d = Path(out) / str(L) / "c" / str(idx[0]) / str(idx[1])
                 d.mkdir(parents=True, exist_ok=True)
@@ -173,23 +175,26 @@ class _RowBook:
 
     def __init__(self, group, pyr: Pyramid, done: list[np.ndarray]) -> None:
         self.pyr = pyr
-        self.arrays = [{n: group[f"{STATS_GROUP}/{L}/{n}"] for n in _STAT_NAMES + ("histogram", "done")}
+        self.arrays = [{n: group[f"{STATS_GROUP}/{L}/{n}"] for n in STAT_ARRAYS if n in group[f"{STATS_GROUP}/{L}"]}
                        for L in range(pyr.num_levels)]
         self.missing = {(L, k): int(np.count_nonzero(~done[L][k])) for L in range(pyr.num_levels)
                         for k in range(pyr.grid(L)[0]) if not done[L][k].all()}
         self.rows: dict[tuple[int, int], dict[tuple[int, int], Any]] = {}
 
     def add(self, stats) -> None:
-        for L, (k, by, bx), st in stats:
-            self.rows.setdefault((L, k), {})[(by, bx)] = st
+        for L, (k, by, bx), st, crc in stats:
+            self.rows.setdefault((L, k), {})[(by, bx)] = (st, crc)
             self.missing[(L, k)] -= 1
             if self.missing[(L, k)] == 0:
                 self._write(L, k, self.rows.pop((L, k)))
 
     def _write(self, L: int, k: int, row: dict) -> None:
         _, gy, gx = self.pyr.grid(L)
-        order = [row[(y, x)] for y in range(gy) for x in range(gx)]
+        order = [row[(y, x)][0] for y in range(gy) for x in range(gx)]
         arrs = self.arrays[L]
+        if "chunk_crc32c" in arrs:  # the same arrays, in the same order of writes, as the local sweep
+            arrs["chunk_crc32c"][k] = np.array([row[(y, x)][1] for y in range(gy) for x in range(gx)],
+                                               dtype=np.int64).reshape(gy, gx)
         for name in ("min", "max", "mean", "std"):
             arrs[name][k] = np.array([getattr(r, name) for r in order], dtype=np.float64).reshape(gy, gx)
         for name in ("nan_count", "inf_count"):
@@ -249,8 +254,7 @@ def brick_volume_dask(
         sp = tuple(float(v) for v in (spacing or src.spacing or (1.0, 1.0, 1.0)))
         unit = unit or getattr(src, "unit", None) or "micrometer"  # as the local path decides them
         frame = src.frame.with_spacing(sp) if getattr(src, "frame", None) is not None else None
-        job = _job(src, src.shape, bshape, filter, codec, sp, unit)
-        attrs = _prepare_output(output, job, overwrite)
+        job = job_spec(src, src.shape, bshape, filter, codec, sp, unit)
         shape, dtype = src.shape, src.dtype
     finally:
         src.close()
@@ -262,21 +266,21 @@ def brick_volume_dask(
     try:
         if progress and own is not None and own[1] is None:  # an existing cluster: say where to watch it
             print(f"clipvol brick: Dask dashboard {client.dashboard_link}", file=sys.stderr)
-        if isinstance(source, np.ndarray):
-            spec = (client.scatter(source, broadcast=True), None, None, byte_order)
-        if attrs is None:
-            vr = _scan(client, spec, shape, dtype)
-            pyramid = Pyramid.build(shape, bshape, sp, filter, dtype, vr, 0.0)
-            group = _create_store(output, pyramid, codec, unit, job["source"], frame)
-        else:
-            import zarr
+        with output_lock(output):
+            attrs = prepare_output(output, job, overwrite)
+            if isinstance(source, np.ndarray):
+                spec = (client.scatter(source, broadcast=True), None, None, byte_order)
+            if attrs is None:
+                vr = _scan(client, spec, shape, dtype)
+                pyramid = Pyramid.build(shape, bshape, sp, filter, dtype, vr, 0.0)
+                group = _create_store(output, pyramid, codec, unit, job["source"], frame, job.get("source_identity"))
+            else:
+                import zarr
 
-            pyramid = parse_metadata(attrs, str(output)).pyramid
-            group = zarr.open_group(str(output), mode="r+")
-        _build(client, spec, group, pyramid, output, codec, span, progress)
-        cv = dict(group.attrs["clipvol"])
-        cv["complete"] = True
-        group.attrs.update({"clipvol": cv})  # the very last write, by the client
+                pyramid = parse_metadata(attrs, str(output)).pyramid
+                group = zarr.open_group(str(output), mode="r+")
+            _build(client, spec, group, pyramid, output, codec, span, progress)
+            mark_complete(group)  # the very last write, by the client
         return parse_metadata(dict(group.attrs), str(output))
     finally:
         if own is not None:
@@ -302,6 +306,8 @@ def _build(client, spec, group, pyr: Pyramid, output: Path, codec: str, span: in
     from tqdm import tqdm
 
     nlev = pyr.num_levels
+    # a resumed build of a store written before checksums keeps that store's codec chain (as the local path)
+    checksum = any(type(c).__name__ == "Crc32cCodec" for c in group["0"].metadata.codecs)
     done = [np.asarray(group[f"{STATS_GROUP}/{L}/done"][...], dtype=bool) for L in range(nlev)]
     book = _RowBook(group, pyr, done)
     total = sum(book.missing.values())
@@ -326,7 +332,7 @@ def _build(client, spec, group, pyr: Pyramid, output: Path, codec: str, span: in
                     for rel in product(*(range(min(f, n - t * f)) for t, n in zip(top, g))):
                         child = tuple(t * f + r for t, r in zip(top, rel))
                         carries.append(client.submit(_carry_of, below[child], pure=False))
-                fut = client.submit(_tier_task, spec, str(output), pyr, codec, L0, L1, top, masks, *carries,
+                fut = client.submit(_tier_task, spec, str(output), pyr, codec, checksum, L0, L1, top, masks, *carries,
                                     pure=False, priority=-L0)
                 here[top] = fut
                 stat_futs.append(client.submit(_stats_of, fut, pure=False))

@@ -44,11 +44,12 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ..errors import OutputExistsError, ParameterError
+from ..errors import OutputExistsError, OutputLockedError, ParameterError, SourceChangedError
 from .pyramid import FILTERS, Pyramid, downsample
-from .sources import Source, open_source
+from .sources import Source, identity_changes, open_source, source_identity
 from .stats import StatsComputer, finite_range
 from .store import (
+    STAT_ARRAYS,
     STATS_GROUP,
     StoreMeta,
     clipvol_metadata,
@@ -56,7 +57,8 @@ from .store import (
     parse_metadata,
 )
 
-__all__ = ["brick_volume", "CODECS", "BRICK_RANGE", "store_codecs", "chunk_encoder", "encode_brick"]
+__all__ = ["brick_volume", "CODECS", "BRICK_RANGE", "store_codecs", "chunk_encoder", "output_lock", "job_spec",
+           "prepare_output", "mark_complete", "encode_brick"]
 
 CODECS = ("lz4", "zstd", "none")
 BRICK_RANGE = (8, 256)
@@ -81,30 +83,44 @@ def _brick_shape(brick) -> tuple[int, int, int]:
     return b  # type: ignore[return-value]
 
 
-def store_codecs(codec: str, dtype: np.dtype) -> list | None:
-    """The zarr v3 ``compressors`` for ``--codec`` (``None`` = uncompressed)."""
-    from zarr.codecs import BloscCodec
+def store_codecs(codec: str, dtype: np.dtype, checksum: bool = True) -> list:
+    """The zarr v3 ``compressors`` (bytes-to-bytes codecs) for ``--codec``: blosc or nothing, then
+    zarr v3's ``crc32c`` codec, so that every reader of the store (ours, zarr-python, others)
+    verifies each chunk's checksum before decoding it."""
+    from zarr.codecs import BloscCodec, Crc32cCodec
 
+    tail = [Crc32cCodec()] if checksum else []
     if codec == "none":
-        return None
+        return tail
     shuffle = "bitshuffle" if dtype.itemsize == 1 else "shuffle"
     if codec == "lz4":
-        return [BloscCodec(cname="lz4", clevel=5, shuffle=shuffle, typesize=dtype.itemsize)]
+        return [BloscCodec(cname="lz4", clevel=5, shuffle=shuffle, typesize=dtype.itemsize)] + tail
     if codec == "zstd":
-        return [BloscCodec(cname="zstd", clevel=1, shuffle=shuffle, typesize=dtype.itemsize)]
+        return [BloscCodec(cname="zstd", clevel=1, shuffle=shuffle, typesize=dtype.itemsize)] + tail
     raise ParameterError(f"codec: expected one of {', '.join(CODECS)}, got {codec!r}")
 
 
-def chunk_encoder(codec: str, dtype: np.dtype) -> Callable[[np.ndarray], bytes]:
-    """Encode a full chunk (C order, native little-endian) to the bytes zarr stores for ``codec``."""
+def chunk_encoder(codec: str, dtype: np.dtype, checksum: bool = True) -> Callable[[np.ndarray], bytes]:
+    """Encode a full chunk (C order, native little-endian) to the bytes zarr stores for ``codec``,
+    with the 4-byte little-endian CRC-32C of the encoded bytes appended (zarr v3 ``crc32c``)."""
     import numcodecs
 
     if codec == "none":
-        return lambda a: np.ascontiguousarray(a, dtype=dtype.newbyteorder("<")).tobytes()
-    shuffle = numcodecs.Blosc.BITSHUFFLE if dtype.itemsize == 1 else numcodecs.Blosc.SHUFFLE
-    clevel = 5 if codec == "lz4" else 1
-    comp = numcodecs.Blosc(cname=codec, clevel=clevel, shuffle=shuffle, blocksize=0)
-    return lambda a: bytes(comp.encode(np.ascontiguousarray(a, dtype=dtype.newbyteorder("<"))))
+        enc = lambda a: np.ascontiguousarray(a, dtype=dtype.newbyteorder("<")).tobytes()  # noqa: E731
+    else:
+        shuffle = numcodecs.Blosc.BITSHUFFLE if dtype.itemsize == 1 else numcodecs.Blosc.SHUFFLE
+        clevel = 5 if codec == "lz4" else 1
+        comp = numcodecs.Blosc(cname=codec, clevel=clevel, shuffle=shuffle, blocksize=0)
+        enc = lambda a: bytes(comp.encode(np.ascontiguousarray(a, dtype=dtype.newbyteorder("<"))))  # noqa: E731
+    if not checksum:
+        return enc
+    import google_crc32c
+
+    def with_crc(a: np.ndarray) -> bytes:
+        data = enc(a)
+        return data + google_crc32c.value(data).to_bytes(4, "little")
+
+    return with_crc
 
 
 def encode_brick(block: np.ndarray, brick_shape, encode: Callable[[np.ndarray], bytes]) -> bytes | None:
@@ -142,9 +158,11 @@ def _check_params(filter: str, codec: str, spacing, unit: str, workers) -> tuple
     return spacing, int(workers)
 
 
-def _job(src: Source, pyr_shape, brick, filter, codec, spacing, unit) -> dict[str, Any]:
-    """The parameters that must match for a build to be resumed."""
+def job_spec(src: Source, pyr_shape, brick, filter, codec, spacing, unit) -> dict[str, Any]:
+    """The parameters that must match for a build to be resumed, the source's identity included
+    (:func:`clipvol.bricking.sources.source_identity`: size, mtime, sampled-content hash, dtype, shape)."""
     return {
+        "source_identity": source_identity(src),
         "source": f"{src.key or src.name} ({'x'.join(map(str, src.shape))} {src.dtype.name})",
         "shape": list(pyr_shape),
         "dtype": src.dtype.name,
@@ -159,6 +177,7 @@ def _job(src: Source, pyr_shape, brick, filter, codec, spacing, unit) -> dict[st
 def _stored_job(cv: dict) -> dict[str, Any]:
     levels = cv.get("levels") or [[]]
     return {
+        "source_identity": cv.get("source_identity"),
         "source": cv.get("source"),
         "shape": list(levels[0]),
         "dtype": cv.get("dtype"),
@@ -181,7 +200,7 @@ def _read_attrs(path: Path) -> dict | None:
     return attrs if isinstance(attrs, dict) else None
 
 
-def _prepare_output(output: Path, job: dict, overwrite: bool) -> dict | None:
+def prepare_output(output: Path, job: dict, overwrite: bool) -> dict | None:
     """Clear or vet an existing output; return its attrs when it is a resumable build of ``job``."""
     if not output.exists() and not output.is_symlink():
         return None
@@ -198,7 +217,13 @@ def _prepare_output(output: Path, job: dict, overwrite: bool) -> dict | None:
     if cv.get("complete"):
         raise OutputExistsError(f"{output}: output exists (a complete clipvol store); pass --overwrite to rebuild it")
     stored = _stored_job(cv)
-    diff = [k for k in job if stored.get(k) != job[k]]
+    diff = [k for k in job if k != "source_identity" and stored.get(k) != job[k]]
+    if not diff and stored.get("source_identity") != job["source_identity"]:
+        changes = identity_changes(stored.get("source_identity"), job["source_identity"])
+        raise SourceChangedError(
+            f"{output}: the input changed since this interrupted build started ({'; '.join(changes)}); resuming would "
+            "mix old and new data: pass --overwrite to start again"
+        )
     if diff:
         k = diff[0]
         raise OutputExistsError(
@@ -206,6 +231,93 @@ def _prepare_output(output: Path, job: dict, overwrite: bool) -> dict | None:
             f"got {stored.get(k)!r}); pass --overwrite to start again"
         )
     return attrs
+
+
+def _lock_path(output: Path) -> Path:
+    return output.with_name(output.name + ".lock")
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # exists, owned by someone else
+    return True
+
+
+def _read_lock(lock: Path) -> dict | None:
+    import json
+
+    try:
+        doc = json.loads(lock.read_text())
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError):
+        return {}  # being written, or garbage: treat as held (never steal what we cannot read)
+    return doc if isinstance(doc, dict) else {}
+
+
+class output_lock:
+    """Context manager: the build lock of ``output``, a file ``<output>.lock`` holding the writer's
+    pid and host, created atomically (``O_EXCL``). A second writer gets :class:`OutputLockedError`
+    naming the holder; a lock left by a dead process on this host is taken over. Any build path
+    (the streaming sweep here, a Dask build) takes it around its writes."""
+
+    def __init__(self, output) -> None:
+        self.path = _lock_path(Path(output))
+
+    def __enter__(self) -> "output_lock":
+        import json
+        import socket
+
+        me = {"pid": os.getpid(), "host": socket.gethostname()}
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        for _ in range(3):
+            try:
+                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                held = _read_lock(self.path)
+                if held is None:
+                    continue  # released meanwhile: try again
+                pid, host = held.get("pid"), held.get("host")
+                if isinstance(pid, int) and host == me["host"] and pid != me["pid"] and not _pid_alive(pid):
+                    self._take_over(held)
+                    continue
+                raise OutputLockedError(
+                    f"{self.path}: another clipvol brick (pid {pid}, host {host}) is writing {self.path.stem}; wait for "
+                    "it to finish, or delete this lock file if that process is gone"
+                ) from None
+            with os.fdopen(fd, "w") as f:
+                f.write(json.dumps(me))
+            return self
+        raise OutputLockedError(f"{self.path}: could not take the build lock (it keeps changing hands)")
+
+    def _take_over(self, stale: dict) -> None:
+        """Remove a dead holder's lock, atomically: rename it aside, and put it back if it was not the
+        one we judged stale (another process took it over first)."""
+        aside = self.path.with_name(f"{self.path.name}.stale-{os.getpid()}")
+        try:
+            os.rename(self.path, aside)
+        except FileNotFoundError:
+            return
+        if _read_lock(aside) != stale:
+            try:
+                os.link(aside, self.path)
+            except FileExistsError:
+                pass
+        aside.unlink(missing_ok=True)
+
+    def __exit__(self, *exc) -> None:
+        self.path.unlink(missing_ok=True)
+
+
+def mark_complete(group) -> None:
+    """Set ``attrs['clipvol']['complete']``: the very last write of any build path."""
+    cv = dict(group.attrs["clipvol"])
+    cv["complete"] = True
+    group.attrs.update({"clipvol": cv})
 
 
 def _scan_range(src: Source, pool: ThreadPoolExecutor, workers: int, chunk_bytes: int = 8 << 20) -> tuple[float, float]:
@@ -246,10 +358,14 @@ class _Builder:
         self.out = output
         self.pool = pool
         self.bar = bar
-        self.encode = chunk_encoder(codec, pyramid.dtype)
+        # a resumed build of a store written before checksums keeps that store's codec chain
+        self.checksum = any(type(c).__name__ == "Crc32cCodec" for c in group["0"].metadata.codecs)
+        self.encode = chunk_encoder(codec, pyramid.dtype, self.checksum)
         self.stats = StatsComputer(pyramid.dtype, pyramid.value_range)
         self.nlev = pyramid.num_levels
-        self.stat_arrays = [{name: group[f"{STATS_GROUP}/{L}/{name}"] for name in ("min", "max", "mean", "std", "nan_count", "inf_count", "histogram", "done")} for L in range(self.nlev)]
+        self.stat_arrays = [{name: group[f"{STATS_GROUP}/{L}/{name}"] for name in STAT_ARRAYS
+                             if name in group[f"{STATS_GROUP}/{L}"]} for L in range(self.nlev)]
+        self.crc = [None] * self.nlev  # per level: the chunk crc32c of the bricks of the row being written
         self.done = [np.asarray(self.stat_arrays[L]["done"][...], dtype=bool) for L in range(self.nlev)]
         self.buffers: list[np.ndarray | None] = [None] * self.nlev
         self._made_dirs: set[Path] = set()
@@ -265,8 +381,11 @@ class _Builder:
         st = None
         if write:
             st = self.stats.compute(block)
+            crc = -1  # no chunk written
             data = encode_brick(block, B, self.encode)
             if data is not None:
+                if self.checksum:
+                    crc = int.from_bytes(data[-4:], "little")
                 d = self.out / str(L) / "c" / str(k) / str(by)
                 if d not in self._made_dirs:
                     d.mkdir(parents=True, exist_ok=True)
@@ -276,6 +395,7 @@ class _Builder:
                     f.write(data)
                 with self._bytes_lock:
                     self.bytes_written += len(data)
+            st = (st, crc)
             if _after_brick is not None:
                 _after_brick(L, (k, by, bx))
         if L + 1 < self.nlev:
@@ -316,6 +436,10 @@ class _Builder:
     def _write_stats(self, L: int, k: int, results, gy: int, gx: int) -> None:
         arrs = self.stat_arrays[L]
         shape = (gy, gx)
+        crcs = [c for _, c in results]
+        results = [r for r, _ in results]
+        if "chunk_crc32c" in arrs:
+            arrs["chunk_crc32c"][k] = np.array(crcs, dtype=np.int64).reshape(shape)
         for name in ("min", "max", "mean", "std"):
             arrs[name][k] = np.array([getattr(r, name) for r in results], dtype=np.float64).reshape(shape)
         for name in ("nan_count", "inf_count"):
@@ -325,16 +449,20 @@ class _Builder:
         self.done[L][k] = True
 
 
-def _create_store(output: Path, pyramid: Pyramid, codec: str, unit: str, source_desc: str, frame=None):
+def _create_store(output: Path, pyramid: Pyramid, codec: str, unit: str, source_desc: str, frame=None,
+                  identity: dict | None = None):
     import zarr
 
     group = zarr.open_group(str(output), mode="w-", zarr_format=3)
     origin = frame.origin if frame is not None else (0.0, 0.0, 0.0)
-    attrs = {
-        "ome": ome_metadata(pyramid, name=output.stem or "image", unit=unit, origin=origin),
-        "clipvol": clipvol_metadata(pyramid, unit=unit, codec=codec, complete=False, source=source_desc, frame=frame),
-    }
+    cv = clipvol_metadata(pyramid, unit=unit, codec=codec, complete=False, source=source_desc, frame=frame)
+    if identity is not None:
+        cv["source_identity"] = identity
+    attrs = {"ome": ome_metadata(pyramid, name=output.stem or "image", unit=unit, origin=origin), "clipvol": cv}
     compressors = store_codecs(codec, pyramid.dtype)
+    from zarr.codecs import Crc32cCodec, ZstdCodec
+
+    stat_codecs = [ZstdCodec(level=0), Crc32cCodec()]  # the statistics the loads are checked against are checked too
     for L, lv in enumerate(pyramid.levels):
         group.create_array(
             str(L),
@@ -342,7 +470,7 @@ def _create_store(output: Path, pyramid: Pyramid, codec: str, unit: str, source_
             chunks=pyramid.brick_shape,
             dtype=pyramid.dtype,
             fill_value=0,
-            compressors=compressors,
+            compressors=compressors or None,
             dimension_names=["z", "y", "x"],
             config={"write_empty_chunks": False},
         )
@@ -350,11 +478,15 @@ def _create_store(output: Path, pyramid: Pyramid, codec: str, unit: str, source_
         row = (1, g[1], g[2])
         sg = group.require_group(f"{STATS_GROUP}/{L}")
         for name in ("min", "max", "mean", "std"):
-            sg.create_array(name, shape=g, chunks=row, dtype="float64", fill_value=np.nan)
+            sg.create_array(name, shape=g, chunks=row, dtype="float64", fill_value=np.nan, compressors=stat_codecs)
         for name in ("nan_count", "inf_count"):
-            sg.create_array(name, shape=g, chunks=row, dtype="int64", fill_value=0)
-        sg.create_array("histogram", shape=g + (64,), chunks=row + (64,), dtype="int64", fill_value=0)
-        sg.create_array("done", shape=g, chunks=row, dtype="bool", fill_value=False)
+            sg.create_array(name, shape=g, chunks=row, dtype="int64", fill_value=0, compressors=stat_codecs)
+        sg.create_array("histogram", shape=g + (64,), chunks=row + (64,), dtype="int64", fill_value=0,
+                        compressors=stat_codecs)
+        sg.create_array("done", shape=g, chunks=row, dtype="bool", fill_value=False, compressors=stat_codecs)
+        # each written chunk's own crc32c (-1: no chunk): a chunk that is intact but belongs to another
+        # brick, or to another build, is caught at no cost (its trailing crc is compared with this)
+        sg.create_array("chunk_crc32c", shape=g, chunks=row, dtype="int64", fill_value=-1, compressors=stat_codecs)
     group.attrs.update(attrs)  # written after the arrays: a store is only recognised once whole
     return group
 
@@ -418,22 +550,21 @@ def brick_volume(
         sp = tuple(float(v) for v in sp)
         unit = unit or src.unit or "micrometer"
         frame = src.frame.with_spacing(sp) if src.frame is not None else None
-        job = _job(src, src.shape, bshape, filter, codec, sp, unit)
-        attrs = _prepare_output(output, job, overwrite)
-        with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="clipvol-brick") as pool:
+        job = job_spec(src, src.shape, bshape, filter, codec, sp, unit)
+        with output_lock(output), \
+                ThreadPoolExecutor(max_workers=workers, thread_name_prefix="clipvol-brick") as pool:
+            attrs = prepare_output(output, job, overwrite)
             if attrs is None:
                 vr = _scan_range(src, pool, workers)
                 pyramid = Pyramid.build(src.shape, bshape, sp, filter, src.dtype, vr, 0.0)
-                group = _create_store(output, pyramid, codec, unit, job["source"], frame)
+                group = _create_store(output, pyramid, codec, unit, job["source"], frame, job["source_identity"])
             else:
                 import zarr
 
                 pyramid = parse_metadata(attrs, str(output)).pyramid
                 group = zarr.open_group(str(output), mode="r+")
             _sweep(src, group, pyramid, output, codec, pool, progress)
-        cv = dict(group.attrs["clipvol"])
-        cv["complete"] = True
-        group.attrs.update({"clipvol": cv})  # the very last write
+            mark_complete(group)  # the very last write
         return parse_metadata(dict(group.attrs), str(output))
     finally:
         src.close()

@@ -18,6 +18,7 @@ axis of size 0, an unknown procedural dataset.
 from __future__ import annotations
 
 import glob
+import hashlib
 import os
 import re
 from pathlib import Path
@@ -40,6 +41,8 @@ __all__ = [
     "ProceduralSource",
     "open_source",
     "tiff_spacing",
+    "source_identity",
+    "identity_changes",
 ]
 
 Int3 = tuple[int, int, int]
@@ -102,6 +105,20 @@ class Source:
         """One line for people and for the store's ``source`` attribute."""
         z, y, x = self.shape
         return f"{self.name} ({z}x{y}x{x} {self.dtype})"
+
+    def files(self) -> list[Path]:
+        """The files whose size and modification time identify this input for a resumed build.
+
+        Default: the file named by :attr:`key`, or a directory's own files (not its sub-folders:
+        a zarr store's chunks are covered by the sampled-content hash instead); none for inputs
+        without files (arrays, procedural, URLs). A source class may override it.
+        """
+        if not self.key or not os.path.exists(self.key):
+            return []
+        p = Path(self.key)
+        if p.is_file():
+            return [p]
+        return sorted(c for c in p.iterdir() if c.is_file())
 
     def close(self) -> None:
         """Release file handles (sources opened per read hold none)."""
@@ -210,6 +227,9 @@ class TiffStackSource(Source):
             raise InputFormatError(f"{files[0]}: expected a 2-D grey image per slice, got page shape {yx}")
         self._yx = yx
         self._init((len(files),) + yx, dtype, name)
+
+    def files(self) -> list[Path]:
+        return list(self._files)
 
     def _read(self, start, stop):
         import tifffile
@@ -469,3 +489,47 @@ def _open_raw(path: Path, raw_shape, raw_dtype, byte_order: str) -> Source:
             f"{path}: expected {need} bytes for shape {shape} of {np.dtype(raw_dtype).name}, got {size} bytes"
         )
     return FileArraySource(path, shape, dt, 0, str(path))
+
+
+def source_identity(src: Source, samples: int = 9, edge: int = 16) -> dict:
+    """What identifies ``src`` across runs, so a resumed build can refuse a different input.
+
+    ``shape`` and ``dtype``; ``size`` (bytes) and ``mtime_ns`` (latest) of :meth:`Source.files`
+    (None without files); and ``sample_sha256``, a SHA-256 of ``samples`` blocks of up to
+    ``edge`` voxels per axis read through the source's own :meth:`Source.read` at fixed positions
+    (the eight corners of the volume, then its centre), so it works for any source class,
+    in-memory arrays and generators included, and catches a replaced file with the same size.
+    """
+    files = src.files()
+    size = mtime = None
+    if files:
+        st = [os.stat(f) for f in files]
+        size = int(sum(s.st_size for s in st))
+        mtime = int(max(s.st_mtime_ns for s in st))
+    shape = tuple(int(n) for n in src.shape)
+    e = tuple(min(edge, n) for n in shape)
+    corners = [tuple(0 if (c >> a) & 1 == 0 else n - k for a, (n, k) in enumerate(zip(shape, e))) for c in range(8)]
+    centre = tuple((n - k) // 2 for n, k in zip(shape, e))
+    starts = list(dict.fromkeys(corners + [centre]))[: max(1, samples)]
+    h = hashlib.sha256()
+    for s0 in starts:
+        block = src.read(s0, tuple(a + k for a, k in zip(s0, e)))
+        h.update(np.ascontiguousarray(block).tobytes())
+    return {"shape": list(shape), "dtype": src.dtype.name, "size": size, "mtime_ns": mtime,
+            "sample_sha256": h.hexdigest()}
+
+
+def identity_changes(old: dict | None, new: dict) -> list[str]:
+    """What differs between two :func:`source_identity` records, one phrase each (empty: the same)."""
+    if not isinstance(old, dict):
+        return ["the interrupted build recorded no source identity"]
+    out = []
+    names = {"shape": "shape", "dtype": "dtype", "size": "size in bytes", "mtime_ns": "modification time (ns)",
+             "sample_sha256": "content (hash of sampled blocks)"}
+    for k, what in names.items():
+        if old.get(k) != new.get(k):
+            if k == "sample_sha256":
+                out.append(f"{what} differs")
+            else:
+                out.append(f"{what} {old.get(k)!r} -> {new.get(k)!r}")
+    return out

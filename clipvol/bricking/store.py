@@ -7,7 +7,8 @@ A store is a zarr v3 group (full description in ``docs/format.md``)::
       0/ 1/ ... N-1/       one array per level, one chunk per brick, dimension_names z, y, x;
                            fill_value = background; empty bricks are not written
       clipvol_stats/L/     per level, arrays over the brick grid: min, max, mean, std (float64),
-                           nan_count, inf_count (int64), histogram (grid + (64,), int64), done (bool)
+                           nan_count, inf_count (int64), histogram (grid + (64,), int64), done (bool),
+                           chunk_crc32c (int64: each chunk's crc32c, -1 where none was written)
 
 ``attrs["clipvol"]`` holds ``format_version``, ``brick_shape``, ``filter``, ``dtype``,
 ``value_range`` (finite min/max of level 0), ``fill_value``, ``spacing``, ``unit``, ``codec``,
@@ -48,7 +49,7 @@ FORMAT_VERSION = 1
 STATS_GROUP = "clipvol_stats"
 HIST_BINS = 64
 #: per-level statistics arrays under ``clipvol_stats/<level>/``
-STAT_ARRAYS = ("min", "max", "mean", "std", "nan_count", "inf_count", "histogram", "done")
+STAT_ARRAYS = ("min", "max", "mean", "std", "nan_count", "inf_count", "histogram", "done", "chunk_crc32c")
 #: refuse metadata claiming more voxels than this (2**63 bytes would not fit any index anyway)
 MAX_VOXELS = 2**62
 MAX_BRICK_VOXELS = 512**3

@@ -35,7 +35,7 @@ from typing import Callable, Iterable
 import numpy as np
 
 from ..bricking.pyramid import Int3
-from ..errors import LoaderError, ParameterError
+from ..errors import InputFormatError, LoaderError, ParameterError
 from ..units import parse_bytes
 from .loader import BrickKey, HasBrickRanges, Loader, check_brick
 from .queue import LoadQueue
@@ -705,7 +705,8 @@ class ClipTexture:
                     self._latency.append(latency)
                 # only waiters care about a load that leaves work queued: spare the wake-ups
                 wake = self._pending == 0 or self._count_down(L, idx)
-            elif isinstance(err, LoaderError) or lv.attempts[s] >= self.retries:
+            elif isinstance(err, (LoaderError, InputFormatError)) or lv.attempts[s] >= self.retries:
+                # a broken contract or corrupt data (checksum, statistics) reads the same bytes again: no retry
                 lv.state[s] = _FAILED
                 self._pending -= 1
                 self._count_down(L, idx)

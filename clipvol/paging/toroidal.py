@@ -125,6 +125,25 @@ def minimum_budget(pyramid) -> int:
     return sum(_prod(window_shape(pyramid.grid(L), 2)) for L in range(pyramid.num_levels)) * pyramid.brick_nbytes
 
 
+def _smaller_brick_hint(pyramid, budget: int) -> str:
+    """``"; a store bricked at 32 would fit (needs 16 MB)"``: the largest cubic brick edge (a power of
+    two from 8 to 256, below the current one) whose pyramid's minimum budget fits ``budget``, or ""."""
+    cur = min(pyramid.brick_shape)
+    for b in (256, 128, 64, 32, 16, 8):
+        if b >= cur:
+            continue
+        try:
+            alt = Pyramid.build(pyramid.shape, (b, b, b), pyramid.spacing, pyramid.filter, pyramid.dtype,
+                                pyramid.value_range, pyramid.fill_value)
+        except (ParameterError, ValueError):
+            continue
+        need = minimum_budget(alt)
+        if need <= budget:
+            return (f"; a store bricked at {b} ({alt.num_levels} levels) would fit, needing {format_bytes(need)} "
+                    f"(`clipvol brick --brick {b}`)")
+    return "; no brick size from 8 up fits it either"
+
+
 def allocate(pyramid: Pyramid, memory_budget: int) -> Allocation:
     """Split ``memory_budget`` bytes into whole levels and windowed levels (module docstring).
 
@@ -145,6 +164,7 @@ def allocate(pyramid: Pyramid, memory_budget: int) -> Allocation:
         raise ParameterError(
             f"memory_budget: expected at least {minimum} bytes ({format_bytes(minimum)}: a window of 2 bricks "
             f"per axis at each of {n} levels of {nb}-byte bricks), got {budget} ({format_bytes(budget)})"
+            + _smaller_brick_hint(pyramid, budget)
         )
     whole: list[int] = []
     used = 0

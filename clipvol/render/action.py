@@ -626,9 +626,10 @@ class ClipRenderAction:
 
 
 def premultiplied_to_uint8(prem: np.ndarray) -> np.ndarray:
-    """``(h, w, 4)`` premultiplied float RGBA -> straight RGBA uint8 (colour 0 where alpha is 0)."""
+    """``(h, w, 4)`` premultiplied float RGBA -> straight RGBA uint8 (colour 0 where the 8-bit alpha is 0,
+    so a reader that ignores alpha sees black, not the transfer function's colour, where nothing is)."""
     a = np.clip(prem[..., 3], 0.0, 1.0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        rgb = np.where(a[..., None] > 0, prem[..., :3] / np.maximum(a[..., None], 1e-300), 0.0)
+        rgb = np.where(np.rint(a[..., None] * 255.0) > 0, prem[..., :3] / np.maximum(a[..., None], 1e-300), 0.0)
     out = np.concatenate([np.clip(rgb, 0.0, 1.0), a[..., None]], axis=-1)
     return np.rint(out * 255.0).astype(np.uint8)

@@ -86,8 +86,13 @@ def test_interrupted_dask_build_resumes_to_the_same_store(tmp_path):
     vol = _volume((64, 32, 48), seed=3)
     brick_volume(ArraySource(vol, name="flaky"), tmp_path / "ref" / "s.zarr", brick=8, progress=False, workers=1)
     out = tmp_path / "run" / "s.zarr"
-    # the value-range scan reads 1 slab, then 9 of the 24 tier-0 regions (6 per z-row) succeed
-    _READS_LEFT[0] = 10
+    # the job's source identity samples the input, the value-range scan reads 1 slab, then 9 of the
+    # 24 tier-0 regions (6 per z-row) succeed
+    from clipvol.bricking.sources import source_identity
+
+    _READS_LEFT[0] = 10**6
+    source_identity(_Flaky(vol))
+    _READS_LEFT[0] = 10 + (10**6 - _READS_LEFT[0])
     with pytest.raises(OSError, match="input went away"):
         brick_volume_dask(_Flaky(vol), out, brick=8, progress=False, workers=1, span=2)
     attrs = json.loads((out / "zarr.json").read_text())["attributes"]

@@ -12,7 +12,7 @@ import pytest
 import zarr
 from zarr.codecs import BloscCodec, BytesCodec, Crc32cCodec, GzipCodec, ZstdCodec
 
-from clipvol.errors import ClipvolError, InputFormatError, InputNotFoundError, ParameterError, StoreFormatError, StoreIncompleteError
+from clipvol.errors import BrickIntegrityError, ClipvolError, InputFormatError, InputNotFoundError, ParameterError, StoreFormatError, StoreIncompleteError
 from clipvol.loaders.numpy_array import NumpyLoader, finite_range
 from clipvol.loaders.procedural import ProceduralLoader
 from clipvol.loaders.zarr_store import ZarrLoader
@@ -53,7 +53,7 @@ def _compressors(codec: str, dtype: np.dtype):
         "bitshuffle": [BloscCodec(cname="lz4", clevel=5, shuffle="bitshuffle", typesize=dtype.itemsize)],
         "zstd": [ZstdCodec(level=1)],
         "gzip": [GzipCodec(level=1)],
-        "crc32c": [Crc32cCodec()],  # not on the fast path: falls back to zarr indexing
+        "crc32c": [Crc32cCodec()],  # verified and decoded on the fast path
         "none": None,
     }[codec]
 
@@ -258,7 +258,7 @@ def test_fast_path_equals_zarr_indexing(tmp_path, codec, dtype):
         codec = "bitshuffle"  # 8-bit data with bit shuffle, as clipvol brick writes it
     path = write_store(tmp_path / "s.zarr", vol, codec=codec)
     loader = ZarrLoader(path)
-    assert loader._arrays[0].fast == (codec != "crc32c")
+    assert loader._arrays[0].fast and loader._arrays[0].checksum == (codec == "crc32c")
     pyr = loader.pyramid
     n = 0
     for L in range(pyr.num_levels):
@@ -284,7 +284,7 @@ def test_big_endian_gives_native_values(tmp_path):
     np.testing.assert_array_equal(b, vol[16:32, 16:32, 16:32])
 
 
-def test_missing_chunk_is_fill(tmp_path):
+def test_missing_chunk_is_fill_only_where_statistics_say_empty(tmp_path):
     vol = make_volume("uint16")
     path = write_store(tmp_path / "s.zarr", vol)
     assert not (path / "0" / "c" / "0" / "0" / "0").exists()  # the empty corner was never written
@@ -292,10 +292,13 @@ def test_missing_chunk_is_fill(tmp_path):
     chunk.unlink()
     loader = ZarrLoader(path)
     np.testing.assert_array_equal(loader.read_brick(0, (0, 0, 0)), np.zeros(BRICK, np.uint16))
-    np.testing.assert_array_equal(loader.read_brick(0, (1, 2, 1)), np.full(BRICK, loader.pyramid.fill_value, np.uint16))
     slot = np.full(BRICK, 9, np.uint16)
-    loader.read_brick_into(0, (1, 2, 1), slot)
-    np.testing.assert_array_equal(slot, np.full(BRICK, loader.pyramid.fill_value, np.uint16))
+    loader.read_brick_into(0, (0, 0, 0), slot)
+    np.testing.assert_array_equal(slot, np.zeros(BRICK, np.uint16))
+    # a deleted chunk whose statistics say it holds data is a failure, never an empty brick
+    for read in (lambda: loader.read_brick(0, (1, 2, 1)), lambda: loader.read_brick_into(0, (1, 2, 1), slot)):
+        with pytest.raises(BrickIntegrityError, match=r"\(level 0, 1, 2, 1\).*missing"):
+            read()
 
 
 @pytest.mark.parametrize("codec", ["lz4", "zstd", "none"])

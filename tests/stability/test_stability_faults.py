@@ -244,13 +244,15 @@ def test_truncated_uncompressed_chunk(tmp_path):
         ZarrLoader(out).read_brick(0, (0, 1, 1))
 
 
-def test_deleted_chunk_is_fill_value(store):
+def test_deleted_chunk_of_a_brick_with_data_fails_not_fill_value(store):
+    """A deleted chunk is the fill value only where the statistics say the brick is empty;
+    otherwise it is a failure (issue 15: a deleted chunk used to render as empty)."""
     vol, out = store
+    assert vol[16:24, 8:16, 8:16].max() > 0
     (out / "0" / "c" / "2" / "1" / "1").unlink()
     loader = ZarrLoader(out)
-    b = loader.read_brick(0, (2, 1, 1))
-    assert b.shape == (8, 8, 8) and b.dtype == np.uint16
-    assert np.all(b == loader.pyramid.fill_value)
+    with pytest.raises(InputFormatError, match=r"\(level 0, 2, 1, 1\).*missing"):
+        loader.read_brick(0, (2, 1, 1))
     np.testing.assert_array_equal(loader.read_brick(0, (2, 1, 0)), vol[16:24, 8:16, :8])
 
 

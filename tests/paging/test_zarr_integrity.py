@@ -1,0 +1,227 @@
+"""The zarr loader never returns wrong data as if right: checksums, statistics, missing chunks, paths.
+
+Stores are written by ``brick_volume``; damage is done to the chunk files in the test; the
+references are the source array itself and zarr-python's own reader (which verifies the crc32c
+codec independently of our code).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import warnings
+
+import numpy as np
+import pytest
+import zarr
+
+from clipvol.bricking.pipeline import brick_volume
+from clipvol.bricking.pyramid import pad_to_brick
+from clipvol.errors import BrickIntegrityError, ClipvolError, InputFormatError
+from clipvol.loaders.zarr_store import UnverifiedStoreWarning, ZarrLoader
+from clipvol.paging.cliptexture import BrickState, ClipTexture
+
+B = 16
+
+
+@pytest.fixture(scope="module")
+def vol():
+    """12-bit CT-like data (max 4095) with structure in every brick."""
+    z, y, x = np.indices((40, 48, 44))
+    v = 2000 + 1500 * np.sin(z / 4.0) * np.cos(y / 6.0) + 500 * np.sin(x / 3.0)
+    return np.clip(v, 0, 4095).astype(np.uint16)
+
+
+@pytest.fixture
+def store(tmp_path, vol):
+    path = tmp_path / "s.zarr"
+    brick_volume(vol, path, brick=B, progress=False, workers=1)
+    return path
+
+
+def _chunk(path, L, idx):
+    return path / str(L) / "c" / str(idx[0]) / str(idx[1]) / str(idx[2])
+
+
+def test_every_chunk_carries_a_crc32c_that_zarr_python_verifies(store, vol):
+    meta = json.loads((store / "0" / "zarr.json").read_text())
+    assert [c["name"] for c in meta["codecs"]][-1] == "crc32c"
+    np.testing.assert_array_equal(zarr.open_array(str(store / "0"), mode="r")[...], vol)
+    loader = ZarrLoader(store)
+    assert loader.checksummed
+    np.testing.assert_array_equal(loader.read_brick(0, (1, 1, 1)), vol[16:32, 16:32, 16:32])
+
+
+@pytest.mark.parametrize("damage", ["two-bit flip", "payload after a valid blosc header", "truncated"])
+def test_corruption_inside_a_chunk_is_refused(store, vol, damage):
+    chunk = _chunk(store, 0, (1, 1, 1))
+    data = bytearray(chunk.read_bytes())
+    if damage == "two-bit flip":
+        data[len(data) // 2] ^= 0x03
+    elif damage == "payload after a valid blosc header":
+        data[16:-4] = np.random.default_rng(0).integers(0, 256, len(data) - 20, dtype=np.uint8).tobytes()
+    else:
+        data = data[: len(data) // 2]
+    chunk.write_bytes(bytes(data))
+    with pytest.raises(ValueError):  # the independent reader agrees the chunk is bad
+        zarr.open_array(str(store / "0"), mode="r")[16:32, 16:32, 16:32]
+    loader = ZarrLoader(store)
+    for read in (lambda: loader.read_brick(0, (1, 1, 1)),
+                 lambda: loader.read_brick_into(0, (1, 1, 1), np.empty((B, B, B), np.uint16))):
+        with pytest.raises(BrickIntegrityError, match=r"\(level 0, 1, 1, 1\).*0/c/1/1/1"):
+            read()
+    np.testing.assert_array_equal(loader.read_brick(0, (1, 1, 0)), vol[16:32, 16:32, 0:16])  # others still read
+
+
+def test_deleted_chunk_with_data_fails_not_zeros(store, vol):
+    _chunk(store, 0, (0, 1, 1)).unlink()
+    loader = ZarrLoader(store)
+    assert loader.brick_statistics(0)["max"][0, 1, 1] == vol[0:16, 16:32, 16:32].max() > 0
+    with pytest.raises(BrickIntegrityError, match="missing.*holds data"):
+        loader.read_brick(0, (0, 1, 1))
+
+
+def test_chunk_substituted_by_another_bricks_valid_chunk_fails(store):
+    """A chunk file copied over another passes its own checksum; the crc32c recorded per brick
+    catches it, and without that record the statistics do."""
+    _chunk(store, 0, (1, 1, 1)).write_bytes(_chunk(store, 0, (0, 0, 0)).read_bytes())
+    with pytest.raises(BrickIntegrityError, match="not the one written for this brick"):
+        ZarrLoader(store).read_brick(0, (1, 1, 1))
+    shutil.rmtree(store / "clipvol_stats" / "0" / "chunk_crc32c")
+    with pytest.raises(BrickIntegrityError, match="statistics"):
+        ZarrLoader(store).read_brick(0, (1, 1, 1))
+
+
+def test_substitution_between_bricks_with_equal_bounds_is_caught(tmp_path):
+    """Saturated CT bricks share min 0 and max 4095: only the per-brick checksum tells them apart."""
+    rng = np.random.default_rng(5)
+    v = rng.integers(0, 4096, (32, 32, 32)).astype(np.uint16)
+    v[::16, ::16, ::16] = 0
+    v[1::16, 1::16, 1::16] = 4095
+    path = tmp_path / "sat.zarr"
+    brick_volume(v, path, brick=B, progress=False, workers=1)
+    st = ZarrLoader(path).brick_statistics(0)
+    assert st["min"][0, 0, 0] == st["min"][1, 1, 1] == 0 and st["max"][0, 0, 0] == st["max"][1, 1, 1] == 4095
+    _chunk(path, 0, (1, 1, 1)).write_bytes(_chunk(path, 0, (0, 0, 0)).read_bytes())
+    loader = ZarrLoader(path)
+    for read in (lambda: loader.read_brick(0, (1, 1, 1)),
+                 lambda: loader.read_brick_into(0, (1, 1, 1), np.empty((B, B, B), np.uint16))):
+        with pytest.raises(BrickIntegrityError, match="another brick"):
+            read()
+
+
+def test_a_chunk_where_none_was_written_is_caught(tmp_path, vol):
+    v = vol.copy()
+    v[:16, :16, :16] = 0  # an empty brick: no chunk written
+    path = tmp_path / "e.zarr"
+    brick_volume(v, path, brick=B, progress=False, workers=1)
+    assert not _chunk(path, 0, (0, 0, 0)).exists()
+    loader = ZarrLoader(path)
+    np.testing.assert_array_equal(loader.read_brick(0, (0, 0, 0)), 0)
+    _chunk(path, 0, (0, 0, 0)).parent.mkdir(parents=True, exist_ok=True)
+    _chunk(path, 0, (0, 0, 0)).write_bytes(_chunk(path, 0, (1, 1, 1)).read_bytes())
+    with pytest.raises(BrickIntegrityError, match="no chunk was written"):
+        ZarrLoader(path).read_brick(0, (0, 0, 0))
+
+
+def test_old_store_without_checksum_opens_unverified_and_statistics_still_catch_garbage(tmp_path, vol):
+    """A store written before checksums (the chain without crc32c, rewritten here with zarr-python)."""
+    path = tmp_path / "old.zarr"
+    brick_volume(vol, path, brick=B, progress=False, workers=1)
+    for L in range(len(list(path.glob("[0-9]*")))):
+        arr_meta = json.loads((path / str(L) / "zarr.json").read_text())
+        data = zarr.open_array(str(path / str(L)), mode="r")[...]
+        for c in (path / str(L) / "c").rglob("*"):
+            if c.is_file():
+                c.unlink()
+        arr_meta["codecs"] = arr_meta["codecs"][:-1]
+        (path / str(L) / "zarr.json").write_text(json.dumps(arr_meta))
+        a = zarr.open_array(str(path / str(L)), mode="r+")
+        a[...] = data
+    with pytest.warns(UnverifiedStoreWarning, match="unverified"):
+        loader = ZarrLoader(path)
+    assert not loader.checksummed
+    np.testing.assert_array_equal(loader.read_brick(0, (1, 1, 1)), vol[16:32, 16:32, 16:32])
+    chunk = _chunk(path, 0, (1, 1, 1))
+    data = bytearray(chunk.read_bytes())
+    data[16:] = np.random.default_rng(1).integers(0, 256, len(data) - 16, dtype=np.uint8).tobytes()
+    chunk.write_bytes(bytes(data))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UnverifiedStoreWarning)
+        loader = ZarrLoader(path)
+    with pytest.raises(BrickIntegrityError):
+        loader.read_brick(0, (1, 1, 1))
+
+
+def test_float_nan_bricks_pass_and_a_lost_nan_is_caught(tmp_path):
+    v = np.linspace(0, 1, 32 ** 3, dtype=np.float32).reshape(32, 32, 32)
+    v[3, 4, 5] = np.nan
+    v[20, 20, 20] = np.inf
+    path = tmp_path / "f.zarr"
+    brick_volume(v, path, brick=B, progress=False, workers=1)
+    loader = ZarrLoader(path)
+    np.testing.assert_array_equal(loader.read_brick(0, (0, 0, 0)), v[:16, :16, :16])
+    np.testing.assert_array_equal(loader.read_brick(0, (1, 1, 1)), v[16:, 16:, 16:])
+    shutil.rmtree(path / "clipvol_stats" / "0" / "chunk_crc32c")  # unproven bytes: the full check applies
+    stale = ZarrLoader(path)
+    st = stale.brick_statistics(0)
+    st["nan_count"].setflags(write=True)
+    st["nan_count"][0, 0, 0] = 0  # the statistics now disagree with the data
+    with pytest.raises(BrickIntegrityError, match="1 NaN"):
+        stale.read_brick(0, (0, 0, 0))
+
+
+@pytest.mark.parametrize("bad", ["../other.zarr/0", "/abs/other.zarr/0", "0/../../other.zarr/0", "."])
+def test_ome_dataset_paths_must_stay_inside_the_store(tmp_path, vol, bad):
+    other = zarr.open_group(str(tmp_path / "other.zarr"), mode="w", zarr_format=3)
+    other.create_array("0", data=vol, chunks=(B, B, B))
+    img = tmp_path / "img.zarr"
+    g = zarr.open_group(str(img), mode="w", zarr_format=3)
+    g.create_array("0", data=np.zeros((16, 16, 16), np.uint16), chunks=(B, B, B))
+    if bad.startswith("/abs"):
+        bad = str(tmp_path / "other.zarr" / "0")
+    g.attrs["ome"] = {"version": "0.5", "multiscales": [{"axes": [{"name": a, "type": "space"} for a in "zyx"],
+                      "datasets": [{"path": bad, "coordinateTransformations": [{"type": "scale", "scale": [1, 1, 1]}]}]}]}
+    with pytest.raises(InputFormatError, match="dataset path"):
+        ZarrLoader(img)
+
+
+def test_symlinked_level_outside_the_store_is_refused(tmp_path, vol):
+    other = zarr.open_group(str(tmp_path / "other.zarr"), mode="w", zarr_format=3)
+    other.create_array("0", data=vol, chunks=(B, B, B))
+    img = tmp_path / "img.zarr"
+    g = zarr.open_group(str(img), mode="w", zarr_format=3)
+    g.attrs["ome"] = {"version": "0.5", "multiscales": [{"axes": [{"name": a, "type": "space"} for a in "zyx"],
+                      "datasets": [{"path": "0", "coordinateTransformations": [{"type": "scale", "scale": [1, 1, 1]}]}]}]}
+    (img / "0").symlink_to(tmp_path / "other.zarr" / "0")
+    with pytest.raises(InputFormatError, match="outside the store"):
+        ZarrLoader(img)
+
+
+def test_cliptexture_marks_a_corrupt_brick_failed_at_once_and_never_shows_it(store, vol):
+    data = bytearray(_chunk(store, 0, (1, 1, 1)).read_bytes())
+    data[100] ^= 0x10
+    _chunk(store, 0, (1, 1, 1)).write_bytes(bytes(data))
+    loader = ZarrLoader(store)
+    errors = []
+    with ClipTexture(loader, "64MB", threads=2, retries=3, retry_backoff=0.01,
+                     on_error=lambda k, e: errors.append((k, e))) as ct:
+        assert ct.wait_until_idle(timeout=30)
+        assert ct.state(0, (1, 1, 1)) == BrickState.FAILED
+        assert ct.get_brick(0, (1, 1, 1)) is None
+        assert ct.stats.retries == 0  # deterministic corruption is not retried
+        assert [(k.level, k.index) for k, _ in errors] == [(0, (1, 1, 1))]
+        assert isinstance(errors[0][1], BrickIntegrityError)
+        # its ancestor is sound and resident, so the renderer can draw it there instead
+        assert ct.state(1, (0, 0, 0)) == BrickState.RESIDENT
+        for idx in [(0, 0, 0), (1, 1, 0), (2, 2, 2)]:
+            got = ct.get_brick(0, idx)
+            assert got is not None
+            s = tuple(slice(i * B, (i + 1) * B) for i in idx)
+            np.testing.assert_array_equal(got, pad_to_brick(vol[s], (B, B, B)))
+
+
+def test_every_failure_is_a_clipvol_error(store):
+    _chunk(store, 1, (0, 0, 0)).write_bytes(b"\x00" * 3)
+    with pytest.raises(ClipvolError):
+        ZarrLoader(store).read_brick(1, (0, 0, 0))

@@ -1,0 +1,325 @@
+"""Integrity benchmark: what the crc32c checksum and the statistics check cost per brick, and where
+the zarr loader's time goes against the decode floor.
+
+Why these references: a brick of a clipvol store is one zarr chunk, so the fastest anything can
+load it is "read the chunk file, decode it with numcodecs" (the *floor*, outside our code path:
+``open().read()`` then ``numcodecs.Blosc().decode``, as ``tools/bench_paging.py`` defines it).
+The loader is measured on the same bricks, on the same number of threads, in one run, page cache
+warm, rounds interleaved, median of rounds:
+
+* ``floor``: file read + numcodecs decode;
+* ``loader, no checks``: ``ZarrLoader.read_brick_into`` with ``verify_checksums`` and
+  ``check_plausibility`` off (the bare read path);
+* ``loader, checksum``: crc32c verified;
+* ``loader, checksum + statistics``: the default.
+
+Reported: MB/s (decoded bytes) of each, the cost of the checks as a fraction of the bare loader's
+throughput (target <= 5 %), the loader against the floor (target >= 0.85 with 2 threads), and a
+single-thread breakdown in microseconds per brick (file open+read, crc32c, blosc decode into the
+slot, sampled statistics check, the whole call) and a ClipTexture filled by its own loader threads
+against the floor on the same bricks (target >= 0.8).
+
+Run ``python -m clipvol.tools.bench_integrity`` (a procedural fractal store, cached under
+``bench-data/``) or ``--quick``. Results: ``docs/bench_integrity.csv`` and a summary on stdout;
+``docs/benchmarks.md`` discusses them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import statistics
+import sys
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+FULL = {"size": "256x512x512", "brick": 64}  # 256 MiB of float32
+QUICK = {"size": "128x128x128", "brick": 32}
+
+
+def build_store(size: str, brick: int, data_dir: Path, dtype: str = "float32") -> Path:
+    """The procedural fractal bricked (cached). ``uint16``: the same field quantised to 12 bits, like
+    CT data (it compresses about twice as well as the float32 field, so the checksum covers fewer bytes)."""
+    import numpy as np
+
+    from clipvol.bricking.generators import parse_procedural
+    from clipvol.bricking.pipeline import brick_volume
+
+    path = data_dir / f"fractal-{size}-b{brick}-{dtype}-crc.zarr"
+    attrs = path / "zarr.json"
+    if attrs.is_file() and json.loads(attrs.read_text())["attributes"]["clipvol"].get("complete"):
+        return path
+    data_dir.mkdir(parents=True, exist_ok=True)
+    url = f"procedural:fractal?size={size}&seed=1"
+    source = url
+    if dtype == "uint16":
+        gen = parse_procedural(url)
+        v = gen.region(0, (0, 0, 0), gen.shape)
+        lo, hi = float(v.min()), float(v.max())
+        source = np.rint((v - lo) / (hi - lo) * 4095).astype(np.uint16)
+    brick_volume(source, path, brick=brick, codec="lz4", progress=True, overwrite=True)
+    return path
+
+
+def chunk_keys(store: Path, levels: int) -> list[tuple[int, tuple[int, int, int]]]:
+    """Every written chunk (non-empty brick) of every level, interior bricks only (the slot path)."""
+    from clipvol.loaders.zarr_store import ZarrLoader
+
+    pyr = ZarrLoader(store).pyramid
+    keys = []
+    for L in range(levels):
+        for p in sorted((store / str(L) / "c").glob("*/*/*")):
+            idx = tuple(int(v) for v in p.parts[-3:])
+            s, e = pyr.brick_voxel_box(L, idx)
+            if all(b - a == n for a, b, n in zip(s, e, pyr.brick_shape)):
+                keys.append((L, idx))
+    return keys
+
+
+def _chunk_path(store: Path, level: int, idx) -> str:
+    return f"{store}/{level}/c/{idx[0]}/{idx[1]}/{idx[2]}"
+
+
+def floor_run(store: Path, keys, pool: ThreadPoolExecutor) -> tuple[float, float]:
+    """``(wall, cpu)`` seconds: read each chunk file and decode it with numcodecs (the floor,
+    outside our code); ``cpu`` sums the loader threads' CPU time (user + system) over the bricks."""
+    import numcodecs
+
+    codec = numcodecs.Blosc()
+
+    def one(key):
+        c = time.thread_time()
+        with open(_chunk_path(store, *key), "rb") as f:
+            data = f.read()
+        codec.decode(data)
+        return time.thread_time() - c
+
+    t = time.perf_counter()
+    cpu = sum(pool.map(one, keys))
+    return time.perf_counter() - t, cpu
+
+
+def loader_run(loader, keys, pool: ThreadPoolExecutor) -> tuple[float, float]:
+    """``(wall, cpu)`` seconds: ``read_brick_into`` of every key into a per-thread slot (as the
+    clip-texture does)."""
+    import numpy as np
+
+    local = threading.local()
+    pyr = loader.pyramid
+
+    def one(key):
+        slot = getattr(local, "slot", None)
+        if slot is None:
+            slot = local.slot = np.empty(pyr.brick_shape, dtype=pyr.dtype)
+        c = time.thread_time()
+        loader.read_brick_into(key[0], key[1], slot)
+        return time.thread_time() - c
+
+    t = time.perf_counter()
+    cpu = sum(pool.map(one, keys))
+    return time.perf_counter() - t, cpu
+
+
+def cliptexture_fill(store: Path, threads: int, rounds: int, pool: ThreadPoolExecutor) -> dict[str, float]:
+    """A ClipTexture filled by its own loader threads (budget large enough to hold the whole store,
+    so it loads every brick once) against the floor on the same bricks, interleaved rounds.
+
+    Wall: best round of each. CPU: the process's CPU time (all threads) during the fill, against
+    the floor threads' CPU time, median of rounds; the clip-texture's own bookkeeping (queue,
+    locks, generation checks) shows up here, the machine's other load does not.
+    """
+    from clipvol.loaders.zarr_store import ZarrLoader
+    from clipvol.paging.cliptexture import ClipTexture
+
+    class Recording:
+        def __init__(self, loader):
+            self.loader, self.pyramid, self.keys = loader, loader.pyramid, []
+            self.brick_ranges = loader.brick_ranges
+
+        def read_brick(self, level, index):
+            return self.loader.read_brick(level, index)
+
+        def read_brick_into(self, level, index, out):
+            self.keys.append((level, tuple(index)))
+            self.loader.read_brick_into(level, index, out)
+
+    walls, cpus, fwalls, fcpus, nbytes = [], [], [], [], 0
+    budget = sum(p.stat().st_size for p in store.rglob("*") if p.is_file()) * 3 + (64 << 20)
+    for _ in range(rounds):
+        rec = Recording(ZarrLoader(store))
+        rec.loader.brick_statistics(0)  # opening zarr for the statistics is a one-off, not paging
+        c, t = time.process_time(), time.perf_counter()
+        ct = ClipTexture(rec, budget, threads=threads)
+        ct.wait_until_idle()
+        walls.append(time.perf_counter() - t)
+        cpus.append(time.process_time() - c)
+        nbytes = ct.stats.bytes_loaded
+        ct.close()
+        fw, fc = floor_run(store, rec.keys, pool)
+        fwalls.append(fw)
+        fcpus.append(fc)
+    return {"bricks": len(rec.keys), "MB_s": nbytes / min(walls) / 1e6, "floor_MB_s": nbytes / min(fwalls) / 1e6,
+            "wall_ratio": min(fwalls) / min(walls), "cpu_ratio": statistics.median(fcpus) / statistics.median(cpus)}
+
+
+def breakdown(store: Path, keys, loader) -> dict[str, float]:
+    """Single-thread CPU microseconds per brick of each step of the loader's read path."""
+    import google_crc32c
+    import numpy as np
+
+    pyr = loader.pyramid
+    slot = np.empty(pyr.brick_shape, dtype=pyr.dtype)
+    u8 = slot.reshape(-1).view(np.uint8)
+    dec = loader._arrays[0].decoder
+    paths = [_chunk_path(store, *k) for k in keys]
+    def read_all():
+        out = []
+        for p in paths:
+            with open(p, "rb") as f:
+                out.append(f.read())
+        return out
+
+    def best(fn, reps: int = 5) -> float:  # CPU time of this thread, best of reps
+        out = []
+        for _ in range(reps):
+            t = time.thread_time()
+            fn()
+            out.append(time.thread_time() - t)
+        return min(out)
+
+    datas = read_all()
+
+    def crcs():
+        for d in datas:
+            google_crc32c.value(d)
+
+    def decodes():
+        for d in datas:
+            dec.decode(memoryview(d)[:-4], out=u8)
+
+    def minmaxes():  # the check of a brick whose bytes the recorded crc32c proves: every 8th plane
+        for _ in datas:
+            part = slot[::8]
+            part.min(), part.max()
+
+    def loads():
+        for L, idx in keys:
+            loader.read_brick_into(L, idx, slot)
+
+    def reads():  # each chunk read and dropped, as the loader does (no heap growth)
+        for p in paths:
+            with open(p, "rb") as f:
+                f.read()
+
+    read, crc, decode, minmax, total = (best(f) for f in (reads, crcs, decodes, minmaxes, loads))
+    n = len(keys)
+    us = {k: 1e6 * v / n for k, v in (("file open+read", read), ("crc32c", crc), ("blosc decode into slot", decode),
+                                      ("statistics check (sampled)", minmax), ("read_brick_into total", total))}
+    us["Python around them"] = us["read_brick_into total"] - sum(v for k, v in us.items() if k != "read_brick_into total")
+    return us
+
+
+def main(argv: list[str] | None = None) -> int:
+    import numpy as np
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="small store (seconds)")
+    ap.add_argument("--size", help="ZxYxX of the fractal (default 256x512x512 float32)")
+    ap.add_argument("--brick", type=int)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--dtype", choices=("float32", "uint16"), default="float32")
+    ap.add_argument("--rounds", type=int, default=7)
+    ap.add_argument("--data-dir", type=Path, default=REPO / "bench-data")
+    ap.add_argument("--csv", type=Path, help="output (default docs/bench_integrity.csv; --quick: bench-data/...)")
+    args = ap.parse_args(argv)
+    if args.csv is None:
+        args.csv = args.data_dir / "bench_integrity_quick.csv" if args.quick else REPO / "docs" / "bench_integrity.csv"
+    cfg = dict(QUICK if args.quick else FULL)
+    for k in ("size", "brick"):
+        if getattr(args, k) is not None:
+            cfg[k] = getattr(args, k)
+    from clipvol.loaders.zarr_store import ZarrLoader
+
+    store = build_store(cfg["size"], int(cfg["brick"]), args.data_dir, args.dtype)
+    probe = ZarrLoader(store)
+    keys = chunk_keys(store, probe.pyramid.num_levels)
+    for k in keys:  # warm the page cache: every path reads from memory
+        Path(_chunk_path(store, *k)).read_bytes()
+    nbytes = len(keys) * probe.pyramid.brick_nbytes
+    variants = {}
+    for name, crc, stats in (("no checks", False, False), ("checksum", True, False), ("checksum + statistics", True, True)):
+        ld = ZarrLoader(store)
+        ld.verify_checksums, ld.check_plausibility = crc, stats
+        ld.brick_statistics(0)
+        variants[name] = ld
+    pool = ThreadPoolExecutor(args.threads)
+    list(pool.map(time.sleep, [0.01] * args.threads))
+    times: dict[str, list[float]] = {"floor": [], **{k: [] for k in variants}}
+    cpus: dict[str, list[float]] = {k: [] for k in times}
+    for _ in range(args.rounds):  # interleaved rounds
+        for name in times:
+            w, c = floor_run(store, keys, pool) if name == "floor" else loader_run(variants[name], keys, pool)
+            times[name].append(w)
+            cpus[name].append(c)
+    fill = cliptexture_fill(store, args.threads, args.rounds, pool)
+    pool.shutdown()
+    # Two measures. Wall time, best round of each: other processes only ever add time, so the
+    # fastest round is the closest to the variant's own speed. CPU time (user + system) of the
+    # loader threads, median of rounds: what each brick costs, nearly blind to a crowded machine
+    # (waiting for a core is not counted). Both are ratios of the same bricks in the same run.
+    best = {k: min(v) for k, v in times.items()}
+    cpu = {k: statistics.median(v) for k, v in cpus.items()}
+    mbs = {k: nbytes / best[k] / 1e6 for k in times}
+    med = {k: nbytes / statistics.median(v) / 1e6 for k, v in times.items()}
+    r = lambda a, b: best[b] / best[a]  # noqa: E731  wall throughput of a / of b
+    rc = lambda a, b: cpu[b] / cpu[a]  # noqa: E731  CPU throughput of a / of b
+    cost_crc = 1 - rc("checksum", "no checks")
+    cost_all = 1 - rc("checksum + statistics", "no checks")
+    bd = breakdown(store, keys[: min(len(keys), 400)], variants["checksum + statistics"])
+    comp = sum(os.path.getsize(_chunk_path(store, *k)) for k in keys)
+    rows = [
+        ("store", f"procedural:fractal size={cfg['size']} {args.dtype} brick={cfg['brick']} blosc-lz4 + crc32c", "", ""),
+        ("bricks", len(keys), "", "interior written bricks of every level, page cache warm"),
+        ("compression_ratio", round(nbytes / comp, 2), "x", "decoded / stored bytes"),
+        ("threads", args.threads, "", ""),
+        ("rounds", args.rounds, "", "interleaved; best round of each (median in the note)"),
+        ("load_average_1min", round(os.getloadavg()[0], 2), "", "other processes on the machine"),
+    ]
+    for k, v in mbs.items():
+        what = "floor = file read + numcodecs decode" if k == "floor" else f"ZarrLoader.read_brick_into, {k}"
+        rows.append((f"MB_s {k}", round(v, 1), "MB/s", f"{what}; wall, best round (median {med[k]:.0f})"))
+        rows.append((f"cpu_us_per_brick {k}", round(1e6 * cpu[k] / len(keys), 1), "us", "CPU time of the threads, median round"))
+    rows += [
+        ("cost checksum", round(100 * cost_crc, 1), "% of throughput", "CPU time vs the loader with no checks"),
+        ("cost checksum + statistics", round(100 * cost_all, 1), "% of throughput", "CPU time vs the loader with no checks; target <= 5"),
+        ("loader (default) / floor, CPU", round(rc("checksum + statistics", "floor"), 2), "x", "throughput ratio; target >= 0.85"),
+        ("loader (no checks) / floor, CPU", round(rc("no checks", "floor"), 2), "x", "throughput ratio"),
+        ("loader (default) / floor, wall", round(r("checksum + statistics", "floor"), 2), "x", f"{args.threads} threads, best rounds; target >= 0.85"),
+        ("loader (no checks) / floor, wall", round(r("no checks", "floor"), 2), "x", f"{args.threads} threads, best rounds"),
+    ]
+    rows += [
+        ("ClipTexture fill MB_s", round(fill["MB_s"], 1), "MB/s", f"{fill['bricks']} bricks loaded by its own threads; best round"),
+        ("ClipTexture fill floor MB_s", round(fill["floor_MB_s"], 1), "MB/s", "file read + numcodecs decode of the same bricks; best round"),
+        ("ClipTexture fill / floor, wall", round(fill["wall_ratio"], 2), "x", "target >= 0.8"),
+        ("ClipTexture fill / floor, CPU", round(fill["cpu_ratio"], 2), "x", "process CPU during the fill vs the floor threads' CPU"),
+    ]
+    rows += [(f"us/brick {k}", round(v, 1), "us", "one thread, CPU time, best of 5; separate loops, not additive")
+             for k, v in bd.items() if k != "Python around them"]
+    args.csv.parent.mkdir(parents=True, exist_ok=True)
+    with open(args.csv, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["metric", "value", "unit", "note"])
+        w.writerows(rows)
+    for row in rows:
+        print(f"{row[0]:>36}: {row[1]} {row[2]}  {row[3]}")
+    print(f"wrote {args.csv}")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,136 @@
+"""Rebuild the bad bricks of a clipvol store, and their ancestors, from the original input.
+
+Every brick is checked as ``clipvol check --all`` does (checksum, statistics, filter). Each bad
+level-0 brick is re-read from ``--source``; each bad coarser brick, and every ancestor of a bad
+brick, is recomputed with the store's filter from its (by then sound) children, exactly as
+``clipvol brick`` computes it. Chunks and statistics are rewritten in place (a chunk through a
+temporary file and an atomic rename); nothing else is touched. The input must be the one the store
+was built from (its recorded identity: size, modification time, sampled-content hash, dtype,
+shape); the repaired bricks are checked again before the command reports success.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("store", metavar="STORE", help="a store written by `clipvol brick`")
+    parser.add_argument("--source", required=True, metavar="INPUT", help="the input the store was built from")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _ancestors(bad, num_levels: int) -> dict[int, set]:
+    todo: dict[int, set] = {L: set() for L in range(num_levels)}
+    for L, idx in bad:
+        while L < num_levels:
+            todo[L].add(tuple(idx))
+            idx = tuple(i // 2 for i in idx)
+            L += 1
+    return todo
+
+
+def rebuild_brick(loader, src, L: int, idx):
+    """The valid voxels of brick ``(L, idx)``: from the input at level 0, else the filter over its children."""
+    import numpy as np
+
+    from clipvol.bricking.pyramid import downsample
+
+    pyr = loader.pyramid
+    start, stop = pyr.brick_voxel_box(L, idx)
+    if L == 0:
+        return src.read(start, stop)
+    fine = pyr.levels[L - 1].shape
+    lo = [2 * a for a in start]
+    hi = [min(2 * b, n) for b, n in zip(stop, fine)]
+    region = np.empty(tuple(h - l for l, h in zip(lo, hi)), dtype=pyr.dtype)
+    for child in pyr.children(L, idx):
+        cs, ce = pyr.brick_voxel_box(L - 1, child)
+        region[tuple(slice(a - o, b - o) for a, b, o in zip(cs, ce, lo))] = \
+            loader.read_brick(L - 1, child)[tuple(slice(0, b - a) for a, b in zip(cs, ce))]
+    return downsample(region, pyr.filter)
+
+
+def run(args: argparse.Namespace) -> int:
+    import os
+    import sys
+    from pathlib import Path
+
+    import numpy as np
+    import zarr
+
+    from clipvol.bricking.pipeline import chunk_encoder, output_lock
+    from clipvol.bricking.sources import identity_changes, open_source, source_identity
+    from clipvol.bricking.stats import StatsComputer
+    from clipvol.bricking.store import STATS_GROUP
+    from clipvol.errors import SourceChangedError, StoreIncompleteError
+    from clipvol.tools.cmd_check import bad_bricks, open_checked
+
+    path = Path(args.store)
+    with output_lock(path):
+        meta, loader = open_checked(path)
+        if not meta.complete:
+            raise StoreIncompleteError(f"{path}: incomplete store (an interrupted build): re-run the same clipvol brick "
+                                       "command to finish it instead")
+        pyr = loader.pyramid
+        src = open_source(args.source)
+        try:
+            group = zarr.open_group(str(path), mode="r+")
+            recorded = group.attrs["clipvol"].get("source_identity")
+            ident = source_identity(src)
+            if recorded is not None:
+                changes = identity_changes(recorded, ident)
+            else:
+                print(f"note: {path} records no source identity; checking shape and dtype only", file=sys.stderr)
+                changes = [c for c in identity_changes({"shape": list(pyr.shape), "dtype": pyr.dtype.name}, ident)
+                           if c.startswith(("shape", "dtype"))]
+            if changes:
+                raise SourceChangedError(f"{args.source}: not the input {path} was built from ({'; '.join(changes)})")
+            keys = [(L, idx) for L in range(pyr.num_levels) for idx in np.ndindex(*pyr.grid(L))]
+            bad, checked, _ = bad_bricks(loader, meta, keys, progress=not args.quiet)
+            if not bad:
+                print(f"{path}: nothing to repair ({checked} bricks checked)")
+                return 0
+            todo = _ancestors(bad, pyr.num_levels)
+            stats = StatsComputer(pyr.dtype, pyr.value_range, meta.histogram_bins)
+            B = pyr.brick_shape
+            n = 0
+            for L in range(pyr.num_levels):
+                if not todo[L]:
+                    continue
+                am = loader._arrays[L]
+                encode = chunk_encoder(meta.codec, pyr.dtype, am.checksum)
+                sg = group[f"{STATS_GROUP}/{L}"]
+                for idx in sorted(todo[L]):
+                    block = rebuild_brick(loader, src, L, idx)
+                    chunk = path / str(L) / "c" / str(idx[0]) / str(idx[1]) / str(idx[2])
+                    crc = -1
+                    if block.view(f"u{block.dtype.itemsize}").any():
+                        full = np.zeros(B, dtype=pyr.dtype)  # an edge brick is padded with the fill value, as zarr does
+                        full[tuple(slice(0, s) for s in block.shape)] = block
+                        chunk.parent.mkdir(parents=True, exist_ok=True)
+                        tmp = chunk.with_name(chunk.name + ".repair")
+                        data = encode(full)
+                        tmp.write_bytes(data)
+                        os.replace(tmp, chunk)
+                        if am.checksum:
+                            crc = int.from_bytes(data[-4:], "little")
+                    else:
+                        chunk.unlink(missing_ok=True)  # empty bricks are not written
+                    if "chunk_crc32c" in sg:
+                        sg["chunk_crc32c"][idx] = crc
+                    st = stats.compute(block)
+                    for name in ("min", "max", "mean", "std", "nan_count", "inf_count"):
+                        sg[name][idx] = getattr(st, name)
+                    sg["histogram"][idx] = st.histogram
+                    sg["done"][idx] = True
+                    n += 1
+                loader.refresh_statistics()
+            again, _, _ = bad_bricks(loader, meta, [(L, idx) for L in todo for idx in todo[L]])
+        finally:
+            src.close()
+    for (L, idx), problems in sorted(again.items()):
+        print(f"clipvol repair: {path}: level {L} brick {idx} still bad: {'; '.join(problems)}", file=sys.stderr)
+    names = ", ".join(f"level {L} brick {idx}" for L, idx in sorted(bad))
+    print(f"{path}: rebuilt {n} bricks ({len(bad)} bad: {names}; the rest their ancestors)")
+    return 1 if again else 0
