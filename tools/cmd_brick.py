@@ -44,6 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--labels", action="append", default=[], metavar="FILE[:NAME]",
                         help="a label volume (integer ids, the image's shape) to brick into OUTPUT/labels/NAME with "
                              "the mode filter (OME-Zarr labels; NAME defaults to the file's stem); repeatable")
+    parser.add_argument("--no-summary", action="store_true",
+                        help="skip the summary tables of image-based level of detail (add them later with `clipvol summarize`)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -65,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     meta = build(
         args.input, args.output, brick=args.brick, filter=args.filter, codec=args.codec, spacing=spacing,
         unit=args.unit, workers=args.workers, overwrite=args.overwrite, progress=not args.quiet,
-        raw_shape=shape, raw_dtype=args.dtype, byte_order=args.byte_order,
+        raw_shape=shape, raw_dtype=args.dtype, byte_order=args.byte_order, summary=not args.no_summary,
     )
     for spec in args.labels:
         from pathlib import Path

@@ -209,6 +209,16 @@ def run(args: argparse.Namespace) -> int:
         tot_raw += raw
         ratio = f"{raw / disk:.2f}" if disk else "-"
         print(f"{L:>5} {shape:>22} {grid:>14} {pyr.num_bricks(L):>8} {n:>9} {format_bytes(disk):>10} {format_bytes(raw):>10} {ratio:>6}")
+    from clipvol.bricking.summary import summary_bytes
+
+    sb = summary_bytes(path)
+    if meta is None:
+        pass  # summary tables belong to clipvol stores (`clipvol brick` an OME-Zarr to get them)
+    elif sb is None:
+        print(f"summary    none (image-based level of detail needs them: clipvol summarize {path})")
+    else:
+        share = f", {100.0 * sb / tot_disk:.1f} % of the bricks on disk" if tot_disk else ""
+        print(f"summary    tables {format_bytes(sb)}{share}")
     vox = pyr.shape[0] * pyr.shape[1] * pyr.shape[2] * it
     print(f"total      {format_bytes(tot_disk)} on disk for {format_bytes(vox)} of level 0; "
           f"compression ratio {tot_raw / tot_disk:.2f} (voxels in written chunks, no padding, over their files)"

@@ -75,6 +75,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="--policy distance: refine nodes closer to the eye than this many of their diagonals")
     r.add_argument("--fov-fraction", type=float, default=0.5,
                    help="--policy field-of-view: refine nodes subtending more than this fraction of the view")
+    r.add_argument("--block-budget", type=int, default=None,
+                   help="--policy image: most bricks drawn, the most important refined first (default 128)")
+    r.add_argument("--no-visibility", action="store_true",
+                   help="--policy image: no visibility estimate (every brick counts as fully visible)")
     r.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel projects to more than this many pixels")
     from clipvol.tools.tf_args import add_tf_arguments
 
@@ -196,7 +200,7 @@ def run(args) -> int:
         mode=args.mode, policy=args.policy, level=args.level, lod_threshold=args.lod_threshold,
         max_texels_drawn=args.max_texels_drawn, distance_factor=args.distance_factor, fov_fraction=args.fov_fraction,
         texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget, step=args.step,
-        background=args.background,
+        background=args.background, block_budget=args.block_budget, visibility=not args.no_visibility,
     ).check_for(pyr)
     tf = transfer_function_from_args(args, loader)
     if args.workers is not None:  # sort-last on Dask: groups of bricks in worker processes
@@ -218,6 +222,10 @@ def run(args) -> int:
           f"converged {st.converged} after {st.passes} pass(es)", file=sys.stderr)
     print(f"uploaded {format_bytes(st.bytes_uploaded)} in {st.bricks_uploaded} bricks; textures "
           f"{format_bytes(st.texture_bytes)} of {format_bytes(st.texture_budget)}", file=sys.stderr)
+    if params.policy == "image":
+        est = getattr(action.last_policy, "estimated_error", float("nan"))
+        print(f"image policy: block budget {params.block_budget}, {st.bricks_distinct} bricks drawn, "
+              f"estimated error {est:.3f}", file=sys.stderr)
     print("time: " + ", ".join(f"{k} {v * 1000:.1f} ms" for k, v in t.items()), file=sys.stderr)
     return 0
 

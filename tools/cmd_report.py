@@ -54,6 +54,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-frames", type=int, default=8, help="as-it-comes frames per view at most")
     p.add_argument("--reference-cap", default="1GB", help="most bytes the full-resolution reference may hold")
     p.add_argument("--no-plots", action="store_true", help="skip the matplotlib plots")
+    p.add_argument("--block-budgets", default=None,
+                   help="block budgets of the policy comparison (image-based LOD, after Wang, Garcia & Shen 2007, "
+                        "Fig. 6), comma-separated, or 'none' (default 8,16,32,64,128,256)")
+
+
+def _budgets(text):
+    from clipvol.errors import ParameterError
+
+    if text is None:
+        return None
+    if text.strip().lower() == "none":
+        return ()
+    try:
+        vals = [int(t) for t in text.split(",") if t.strip()]
+    except ValueError:
+        vals = []
+    if not vals or min(vals) < 1:
+        raise ParameterError(f"--block-budgets: expected comma-separated integers >= 1 or 'none', got {text!r}")
+    return vals
 
 
 def run(args) -> int:
@@ -71,6 +90,7 @@ def run(args) -> int:
         memory_budgets=args.memory_budgets, texture_budgets=args.texture_budgets, tf=tf, mode=args.mode,
         step=args.step, threads=args.threads, timeout=args.timeout, max_frames=args.max_frames,
         reference_cap=args.reference_cap, log=lambda s: print(s, flush=True), plots=not args.no_plots,
+        block_budgets=_budgets(args.block_budgets),
     )
     print(f"wrote {res.csv}, {res.markdown}" + "".join(f", {p}" for p in res.plots))
     return 0

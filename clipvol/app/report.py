@@ -43,6 +43,7 @@ from ..scene.metrics import percent_delta_e, psnr, rmse
 from ..scene.params import RenderParams
 from ..scene.paths import make_path
 from ..units import format_bytes, parse_bytes
+from .lod_sweep import DEFAULT_BLOCK_BUDGETS, blocks_to_reach, lod_sweep, plot_lod_sweep
 from .session import RenderSession, open_loader
 
 #: the papers the report's measures and tables come from, numbered as the report cites them
@@ -85,6 +86,8 @@ class ReportResult:
     rows: list[dict] = field(default_factory=list)
     reference_level: int = 0
     skipped: list[str] = field(default_factory=list)
+    #: rows of the block-budget sweep (:mod:`clipvol.app.lod_sweep`, the seed's Fig. 6)
+    lod_rows: list[dict] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -238,6 +241,7 @@ def run_report(
     ctx=None,
     log: Callable[[str], None] | None = None,
     plots: bool = True,
+    block_budgets: Sequence[int] | None = None,
 ) -> ReportResult:
     """Measure image error against frame time and bytes for a sweep of settings; write the report.
 
@@ -279,6 +283,12 @@ def run_report(
         Progress lines go here (e.g. ``print``).
     plots : bool
         Write the PNG plots (needs matplotlib).
+    block_budgets : sequence of int, optional
+        Block budgets of the policy comparison after Wang, Garcia & Shen's Fig. 6
+        (:mod:`clipvol.app.lod_sweep`: projected size, distance, image-based with and without
+        visibility; ``lod_budget.csv`` / ``lod_budget.png``). Default
+        :data:`~clipvol.app.lod_sweep.DEFAULT_BLOCK_BUDGETS`; ``()`` skips it. The image-based
+        curves need the store's summary tables (else they are reported as skipped).
 
     Returns
     -------
@@ -344,6 +354,17 @@ def run_report(
                 result.skipped.append(f"{s.label}: {e}")
                 if log:
                     log(f"  {s.label}: skipped ({e})")
+        # 3. error against block budget per policy (seed Fig. 6), on the same views
+        budgets = DEFAULT_BLOCK_BUDGETS if block_budgets is None else tuple(int(b) for b in block_budgets)
+        if budgets:
+            if log:
+                log(f"block budgets {list(budgets)}: projected size, distance, image-based")
+            with RenderSession(loader, ctx, memory_budget=full_mem, texture_budget=full_tex, threads=threads,
+                               params=RenderParams(mode=mode, step=step), tf=tf) as sess:
+                lsk = []
+                result.lod_rows = lod_sweep(sess, cams, refs, budgets, timeout=timeout,
+                                            log=lambda m: (lsk.append(m) if "skipped" in m else None, log and log(m)))
+                result.skipped += [m.strip() for m in lsk]
         for t in thresholds:
             img = frames.get((f"lod={t:g}", 0))
             if img is not None:
@@ -357,8 +378,17 @@ def run_report(
         w = csv.DictWriter(fh, fieldnames=list(REPORT_COLUMNS))
         w.writeheader()
         w.writerows(result.rows)
+    if result.lod_rows:
+        with open(out / "lod_budget.csv", "w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(result.lod_rows[0]))
+            w.writeheader()
+            w.writerows(result.lod_rows)
     if plots:
         result.plots.extend(_plots(result.rows, out))
+        if result.lod_rows:
+            p = plot_lod_sweep(result.lod_rows, out / "lod_budget.png")
+            if p is not None:
+                result.plots.append(p)
     _markdown(result, pyr, size=size, path=path, tf=tf, mode=mode, step=step, cap=cap)
     return result
 
@@ -513,6 +543,21 @@ def _markdown(result: ReportResult, pyr, *, size, path, tf, mode, step, cap) -> 
             ratio = float(f["bytes_needed"]) / max(float(m["bytes_needed"]), 1.0)
             lines.append(f"| {v} | {format_bytes(float(f['bytes_needed']))} | {format_bytes(float(m['bytes_needed']))} | {ratio:.1f}x | "
                          f"{format_bytes(float(f['bytes_loaded']))} | {format_bytes(float(m['bytes_loaded']))} |")
+    if result.lod_rows:
+        lines += ["", "## Error against block budget (after Wang, Garcia & Shen 2007, Fig. 6)", "",
+                  "Bricks drawn (distinct) for each policy at the same block budgets; `% dE>=6` against the "
+                  "full-resolution frame, mean over views. Raw rows: `lod_budget.csv`.", "",
+                  "| policy | budget | bricks | % px dE>=6 |", "| --- | ---: | ---: | ---: |"]
+        seen: dict = {}
+        for r in result.lod_rows:
+            seen.setdefault((r["policy"], r["budget"]), []).append(r)
+        for (pol, b), rs in seen.items():
+            lines.append(f"| {pol} | {b} | {np.mean([r['blocks'] for r in rs]):.0f} | "
+                         f"{np.mean([r['pct_de6'] for r in rs]):.2f} |")
+        for pol in dict.fromkeys(r["policy"] for r in result.lod_rows):
+            best = blocks_to_reach(result.lod_rows, pol, 5.0)
+            lines.append(f"\n{pol}: fewest bricks at <= 5 % pixels dE>=6 on some view: "
+                         + (f"{best['blocks']} (view {best['view']})" if best else "not reached"))
     if result.plots:
         lines += ["", "## Plots", ""]
         for p in result.plots:

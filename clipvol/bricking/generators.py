@@ -30,7 +30,7 @@ import numpy as np
 
 from ..errors import ParameterError
 
-__all__ = ["GENERATORS", "Generator", "Fractal", "Sparse", "parse_procedural"]
+__all__ = ["GENERATORS", "Generator", "Fractal", "Sparse", "parse_procedural", "ct_head"]
 
 MAX_AXIS = 2**40  # keeps float64 voxel coordinates exact
 
@@ -265,3 +265,51 @@ def parse_procedural(url: str) -> Generator:
     if params:
         raise ParameterError(f"{url}: unknown parameter(s) {', '.join(sorted(params))}; expected size, seed" + (", count" if name == "sparse" else ""))
     return GENERATORS[name](**kwargs)
+
+
+def ct_head(shape=(192, 192, 192), seed: int = 0) -> np.ndarray:
+    """A CT-like head as ``uint8`` ``(z, y, x)``: flat air, skin, a bone skull shell, brain, ventricles.
+
+    A procedural stand-in for real CT (benchmarks of image-based level of detail need what real
+    heads have: an opaque shell that hides most of the interior, soft tissue with low-contrast
+    texture, fine relief on the face (``z < -0.25``) and a smooth back of the head, and a large flat
+    background). Values: air 0, skin ~70, skull ~215 with a spongier
+    diploe (~170), brain ~100 with a gyrus-like texture (+-12), ventricles ~35, edges blurred over
+    about 1.5 voxels as a scanner's point spread does (hard steps would alias into voxel-scale
+    patterns no real scan has), and a little deterministic noise (``seed``) inside the head only
+    (the background stays exactly 0).
+    """
+    shp = tuple(int(v) for v in shape)
+    if len(shp) != 3 or min(shp) < 8:
+        raise ParameterError(f"shape: expected three sizes >= 8 (z, y, x), got {shape!r}")
+    rng = np.random.default_rng(seed)
+    out = np.empty(shp, dtype=np.uint8)
+    Z, Y, X = shp
+    y = (np.arange(Y) + 0.5) / Y * 2.0 - 1.0
+    x = (np.arange(X) + 0.5) / X * 2.0 - 1.0
+    yy, xx = np.meshgrid(y, x, indexing="ij")
+    w = 1.5 * 2.0 / min(shp)  # edges blur over ~1.5 voxels, like a scanner's point spread
+
+    def step(d):  # 0 -> 1 across an edge at d = 0
+        return 0.5 * (1.0 + np.tanh(d / w))
+
+    for z0 in range(0, Z, 16):
+        z1 = min(Z, z0 + 16)
+        z = ((np.arange(z0, z1) + 0.5) / Z * 2.0 - 1.0)[:, None, None]
+        # normalised ellipsoid radius (the head slightly longer front to back)
+        r = np.sqrt((xx / 0.78) ** 2 + (yy / 0.88) ** 2 + ((z + 0.05) / 0.86) ** 2)
+        # the face (front, z < -0.25) has fine relief on a few-voxel scale; the back of the head is smooth
+        face = np.clip((-0.25 - z) / 0.2, 0.0, 1.0)
+        r = r + face * 0.015 * np.sin(70.0 * xx + 9.0 * yy) * np.sin(63.0 * yy - 7.0 * xx)
+        skin = step(1.0 - r)
+        bone = step(0.95 - r) * step(r - 0.83)
+        diploe = step(0.90 - r) * step(r - 0.86)  # the spongy layer between the tables
+        brain = step(0.81 - r)
+        gyri = 12.0 * np.sin(23.0 * xx + 3.0 * z) * np.sin(19.0 * yy - 2.0 * z) * np.cos(17.0 * z + 5.0 * xx)
+        q = np.sqrt(((np.abs(xx) - 0.12) / 0.07) ** 2 + ((yy + 0.05) / 0.22) ** 2 + ((z - 0.1) / 0.18) ** 2)
+        vent = step((1.0 - q) * 0.07) * brain
+        v = 70.0 * skin + 145.0 * bone - 45.0 * diploe + (30.0 + gyri) * brain - (65.0 + gyri) * vent
+        inside = skin > 0.5
+        v[inside] += rng.normal(0.0, 2.0, size=int(inside.sum()))
+        out[z0:z1] = np.clip(np.rint(v), 0, 255).astype(np.uint8)
+    return out

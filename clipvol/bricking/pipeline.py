@@ -506,6 +506,7 @@ def brick_volume(
     raw_shape: Sequence[int] | None = None,
     raw_dtype=None,
     byte_order: str = "little",
+    summary: bool = True,
 ) -> StoreMeta:
     """Brick ``source`` into a multiresolution clipvol store at ``output`` (a local directory).
 
@@ -535,6 +536,9 @@ def brick_volume(
         Show a tqdm progress bar on stderr.
     raw_shape, raw_dtype, byte_order
         Layout of a raw binary input.
+    summary : bool
+        Also build the summary tables of image-based level of detail
+        (:func:`clipvol.bricking.summary.build_summary`) once the pyramid is complete.
 
     Returns
     -------
@@ -565,6 +569,10 @@ def brick_volume(
                 group = zarr.open_group(str(output), mode="r+")
             _sweep(src, group, pyramid, output, codec, pool, progress)
             mark_complete(group)  # the very last write
+        if summary:  # summary tables (image-based LOD): their own completion marker, resumable
+            from .summary import build_summary
+
+            build_summary(output, workers=workers, progress=progress)
         return parse_metadata(dict(group.attrs), str(output))
     finally:
         src.close()

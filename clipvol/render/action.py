@@ -308,6 +308,12 @@ class ClipRenderAction:
         """
         t_start = time.perf_counter()
         cam = self._selection_camera(camera)
+        if policy is None and self.params.policy == "image":  # image-based LOD (issue 10): tables + visibility
+            from .image_lod import ImageLod
+
+            self.image_lod = getattr(self, "image_lod", None) or ImageLod(self.ctx, self.clip_texture)
+            policy = self.image_lod.policy(cam, transfer_function, self.params)
+        self.last_policy = policy
         plan = self.frame_loop.run(cam, self.params, transparent=self._transparent(transfer_function),
                                    policy=policy, wait=wait, timeout=timeout)
         sel, times = plan.selection, dict(plan.times)
@@ -611,6 +617,8 @@ class ClipRenderAction:
     def close(self) -> None:
         """Release every GL object of the action (the context stays)."""
         self.cache.release()
+        if getattr(self, "image_lod", None) is not None:
+            self.image_lod.close()
         for obj in (self._vao, self._vbo, self.program, self._tf_tex, self._fbo, getattr(self, "_fbo_color", None),
                     self._fbo_copy):
             if obj is not None:

@@ -20,10 +20,12 @@ from ..errors import ParameterError
 from ..units import parse_bytes
 from .geometry import Shape
 
-__all__ = ["RenderParams", "MODES", "POLICY_ALIASES"]
+__all__ = ["RenderParams", "MODES", "POLICY_ALIASES", "DEFAULT_BLOCK_BUDGET"]
 
 #: compositing modes of the volume action
 MODES = ("composite", "mip")
+#: bricks the "image" policy may draw when no block_budget is given
+DEFAULT_BLOCK_BUDGET = 128
 #: older names of selection policies, still accepted (``selection="multiresolution"``)
 POLICY_ALIASES = {"multiresolution": "projected-size", "projected": "projected-size", "fov": "field-of-view",
                   "budget": "texel-budget"}
@@ -60,8 +62,9 @@ class RenderParams:
         (refine while a voxel projects to more than ``lod_threshold`` pixels; the default),
         ``"fixed"`` (``level`` everywhere), ``"roaming"`` (one level for the frame),
         ``"texel-budget"`` (largest projected voxels first until ``max_texels_drawn``),
-        ``"distance"`` and ``"field-of-view"`` (the filters of LaMar, Hamann & Joy). The older
-        names ``"multiresolution"`` (= ``"projected-size"``) are accepted.
+        ``"distance"`` and ``"field-of-view"`` (the filters of LaMar, Hamann & Joy), ``"image"``
+        (image-based importance of Wang, Garcia & Shen under ``block_budget``; needs the store's
+        summary tables). The older names ``"multiresolution"`` (= ``"projected-size"``) are accepted.
     lod_threshold : float
         Pixels a voxel of a drawn level may project to before the brick is refined (> 0).
     level : int, optional
@@ -89,6 +92,15 @@ class RenderParams:
         Draw complete sibling sets of one level as one box over their parent (same image).
     background : 4 floats
         Straight RGBA in ``[0, 1]`` behind the volume.
+    block_budget : int, optional
+        ``"image"`` policy: most bricks in the cut (>= 1; default
+        :data:`DEFAULT_BLOCK_BUDGET`); the highest-importance brick is refined first.
+    visibility : bool
+        ``"image"`` policy: estimate each brick's visibility from a low-resolution front-to-back
+        pass and weight its importance by it (False: every brick counts as fully visible).
+    visibility_threshold : float
+        ``"image"`` policy with ``visibility``: bricks less visible than this (in ``[0, 1)``) are
+        neither loaded nor drawn, like empty space.
     shape : Shape, optional
         Region of interest and clip planes.
     """
@@ -108,6 +120,9 @@ class RenderParams:
     merge_boxes: bool = True
     background: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
     shape: Shape | None = None
+    block_budget: int | None = None
+    visibility: bool = True
+    visibility_threshold: float = 0.01
 
     def __post_init__(self) -> None:
         from .selection.policies import (
@@ -151,6 +166,17 @@ class RenderParams:
         if self.shape is not None and not isinstance(self.shape, Shape):
             raise ParameterError(f"shape: expected a clipvol Shape or None, got {type(self.shape).__name__}")
         s(self, "early_termination", bool(self.early_termination))
+        s(self, "block_budget", _count_or_none(self.block_budget, "block_budget"))
+        if policy == "image" and self.block_budget is None:
+            s(self, "block_budget", DEFAULT_BLOCK_BUDGET)
+        s(self, "visibility", bool(self.visibility))
+        try:
+            vt = float(self.visibility_threshold)
+        except (TypeError, ValueError):
+            vt = float("nan")
+        if not (0.0 <= vt < 1.0):
+            raise ParameterError(f"visibility_threshold: expected a number in [0, 1), got {self.visibility_threshold!r}")
+        s(self, "visibility_threshold", vt)
         s(self, "merge_boxes", bool(self.merge_boxes))
 
     # -- helpers ---------------------------------------------------------------------------------

@@ -25,12 +25,14 @@ from ..errors import ParameterError
 from ..scene.camera import Camera
 from ..scene.paths import fit_distance, volume_center
 
-__all__ = ["OrbitControls", "ViewState", "KEY_HELP", "MODES", "MOVE_KEYS"]
+__all__ = ["OrbitControls", "ViewState", "KEY_HELP", "MODES", "ALL_MODES", "MOVE_KEYS"]
 
 UP = np.array([0.0, -1.0, 0.0])
 
 #: selection modes cycled by M
 MODES = ("multiresolution", "roaming", "fixed")
+#: every mode a ViewState may hold: M's cycle plus the image-based policy (L, and < > for its budget)
+ALL_MODES = MODES + ("image",)
 
 #: WASD/QE: (forward, right, up) unit steps in the camera's frame
 MOVE_KEYS = {
@@ -50,6 +52,8 @@ KEY_HELP = (
     ("W A S D / Q E", "fly: move camera and centre of interest (forward/left/back/right, down/up)"),
     ("M", "selection mode: multiresolution -> roaming -> fixed level"),
     ("[ ]", "fixed level finer / coarser (switches to fixed mode)"),
+    ("G", "image-based level of detail on / off (needs the store's summary tables)"),
+    ("< >", "block budget of image-based LOD halved / doubled (switches it on)"),
     ("+ / -", "LOD threshold up (coarser, faster) / down (finer)"),
     ("I", "MIP / composite"),
     ("T", "next colour map over the same window"),
@@ -62,6 +66,8 @@ KEY_HELP = (
     ("P / Shift+P", "screenshot (PNG) with / without the HUD, into --screenshot-dir"),
     ("H", "HUD on / off"),
     ("R", "reset the view"),
+    ("L", "slice mode: axial, coronal, sagittal and 3D; wheel steps a slice, click sets the point of "
+          "interest, drag tilts a slice"),
     ("Esc", "quit"),
 )
 
@@ -315,6 +321,7 @@ class ViewState:
     mode: str = "multiresolution"
     level: int = 0
     lod_threshold: float = 1.0
+    block_budget: int = 128
     render_mode: str = "composite"
     tf_index: int = 0
     outlines: bool = False
@@ -327,8 +334,8 @@ class ViewState:
     def __post_init__(self) -> None:
         if int(self.num_levels) < 1:
             raise ParameterError(f"num_levels: expected >= 1, got {self.num_levels!r}")
-        if self.mode not in MODES:
-            raise ParameterError(f"mode: expected one of {', '.join(MODES)}, got {self.mode!r}")
+        if self.mode not in ALL_MODES:
+            raise ParameterError(f"mode: expected one of {', '.join(ALL_MODES)}, got {self.mode!r}")
         if self.render_mode not in ("composite", "mip"):
             raise ParameterError(f"render_mode: expected 'composite' or 'mip', got {self.render_mode!r}")
         if not self.tf_presets:
@@ -347,7 +354,7 @@ class ViewState:
         """
         k = key.upper() if len(key) == 1 else key
         if k == "M":
-            self.mode = MODES[(MODES.index(self.mode) + 1) % len(MODES)]
+            self.mode = MODES[(MODES.index(self.mode) + 1) % len(MODES)] if self.mode in MODES else MODES[0]
             self.message = f"mode {self.mode}" + (f" (level {self.level})" if self.mode == "fixed" else "")
         elif k in ("[", "]"):
             self.level = int(np.clip(self.level + (1 if k == "]" else -1), 0, self.num_levels - 1))
@@ -359,6 +366,14 @@ class ViewState:
         elif k in ("-", "_"):
             self.lod_threshold = max(self.lod_threshold / 2.0, 1.0 / 16.0)
             self.message = f"LOD threshold {self.lod_threshold:g} px"
+        elif k == "G":
+            self.mode = "multiresolution" if self.mode == "image" else "image"
+            self.message = f"mode {self.mode}" + (f" (block budget {self.block_budget})" if self.mode == "image" else "")
+        elif k in ("<", ",", ">", "."):
+            grow = k in (">", ".")
+            self.block_budget = int(np.clip(self.block_budget * 2 if grow else self.block_budget // 2, 1, 1 << 16))
+            self.mode = "image"
+            self.message = f"image-based LOD, block budget {self.block_budget}"
         elif k == "I":
             self.render_mode = "mip" if self.render_mode == "composite" else "composite"
             self.message = self.render_mode

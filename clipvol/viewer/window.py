@@ -243,7 +243,7 @@ class Viewer:
         self.screenshot_dir = Path(screenshot_dir)
         self.background = tuple(float(v) for v in background)
         self.held: set[str] = set()
-        self._drag: tuple[int, float, float] | None = None
+        self._drag: tuple[int, float, float, float] | None = None  # button, x, y, distance moved
         self._dirty = True
         self._frame = None
         self._frame_camera = None
@@ -256,6 +256,7 @@ class Viewer:
         self._version = None
         self._view = None
         self.last_screenshot: Path | None = None
+        self.slices = None  # slice mode (key L): clipvol.viewer.slice_layout, built on first use
         self._install_callbacks()
 
     # -- GL objects ---------------------------------------------------------------------------
@@ -334,48 +335,75 @@ class Viewer:
         if action == glfw.PRESS:
             self.key(name)
 
+    def toggle_slices(self) -> None:
+        """Slice mode on / off: three orthogonal slices beside the 3D view (:mod:`.slice_layout`)."""
+        if self.slices is None:
+            from .slice_layout import SliceLayout
+
+            self.slices = SliceLayout(self.session)
+        self.slices.active = not self.slices.active
+        self._hud_text = None
+        self._dirty = True
+
     def _on_char(self, win, codepoint) -> None:
         ch = chr(codepoint)
-        if ch in "+-=_[]":
+        if ch in "+-=_[]<>,.":
             self.key(ch)
 
     def _on_button(self, win, button, action, mods) -> None:
         glfw = self._glfw
         if action == glfw.PRESS:
             x, y = glfw.get_cursor_pos(win)
-            self._drag = (button, x, y)
+            self._drag = (button, x, y, 0.0)  # (button, x, y, distance moved so far)
             r = self._strip_rect if self.state.hud else None
             sx = self.framebuffer_size[0] / max(glfw.get_window_size(win)[0], 1)
             if r is not None and r[0] <= x * sx < r[2] and r[1] <= y * sx < r[3]:
-                self._drag = (("strip", button), x, y)  # a drag on the histogram edits the window
+                self._drag = (("strip", button), x, y, 0.0)  # a drag on the histogram edits the window
         elif action == glfw.RELEASE:
+            if self.slices is not None and self.slices.active and self._drag is not None and self._drag[3] < 3 \
+                    and not isinstance(self._drag[0], tuple):
+                self.slices.click(*self._slice_panel(win))  # a click, not a drag: set the point of interest
+                self._dirty = True
             self._drag = None
 
     def _on_cursor(self, win, x, y) -> None:
         if self._drag is None:
             return
-        button, x0, y0 = self._drag
-        self._drag = (button, x, y)
+        button, x0, y0, moved = self._drag
+        self._drag = (button, x, y, moved + abs(x - x0) + abs(y - y0))
         # cursor positions are in screen coordinates; pan in framebuffer pixels
         sx = self.framebuffer_size[0] / max(self._glfw.get_window_size(win)[0], 1)
         dx, dy = (x - x0) * sx, (y - y0) * sx
         if isinstance(button, tuple):
             self.drag_window(dx, widen=button[1] != self._glfw.MOUSE_BUTTON_LEFT)
             return
-        if button == self._glfw.MOUSE_BUTTON_LEFT:
+        if self.slices is not None and self.slices.active and self._slice_panel(win)[0] != "3d":
+            self.slices.tilt(self._slice_panel(win)[0], dx, dy)
+        elif button == self._glfw.MOUSE_BUTTON_LEFT:
             self.controls.orbit(dx, dy)
         else:
             self.controls.pan(dx, dy, self.framebuffer_size)
         self._dirty = True
 
     def _on_scroll(self, win, xoff, yoff) -> None:
-        self.controls.zoom(yoff)
+        if self.slices is not None and self.slices.active and self._slice_panel(win)[0] != "3d":
+            self.slices.step_plane(self._slice_panel(win)[0], yoff)
+        else:
+            self.controls.zoom(yoff)
         self._dirty = True
+
+    def _slice_panel(self, win) -> tuple[str, float, float]:
+        """The slice-mode panel under the cursor and the cursor in its framebuffer pixels."""
+        x, y = self._glfw.get_cursor_pos(win)
+        sx = self.framebuffer_size[0] / max(self._glfw.get_window_size(win)[0], 1)
+        return self.slices.panel_at(x * sx, y * sx, self.framebuffer_size)
 
     def key(self, name: str) -> None:
         """Apply one key as if pressed (``'M'``, ``'+'``, ``'P'``, ``'shift+P'``, ``'shift+S'``,
-        ``'C'``, ``'LEFT'``/``'RIGHT'``/``'UP'``/``'DOWN'``, ...)."""
-        if name in ("LEFT", "RIGHT", "UP", "DOWN"):
+        ``'C'``, ``'L'`` for slice mode, ``'LEFT'``/``'RIGHT'``/``'UP'``/``'DOWN'``, ...)."""
+        if name == "L":
+            self.toggle_slices()
+        elif name in ("LEFT", "RIGHT", "UP", "DOWN"):
             self.nudge_window(name)
         elif name == "shift+S":
             self.save_transfer_function()
@@ -488,6 +516,7 @@ class Viewer:
         self.session.update(
             lod_threshold=st.lod_threshold, policy=st.mode, level=st.level if st.mode == "fixed" else None,
             mode=st.render_mode, tf=tf,
+            block_budget=st.block_budget,
         )
         if self.adaptive is not None:
             self.adaptive.invalidate()
@@ -539,8 +568,18 @@ class Viewer:
             if sess.params.step != step:
                 sess.update(step=step)
             t0 = time.perf_counter()
-            img = sess.render(cam, self.controls.center_of_interest, wait=False)
-            if self.state.outlines:
+            if self.slices is not None and self.slices.active:
+                img = self.slices.render(lambda size: self.controls.camera(size), self.framebuffer_size)
+            else:
+                try:
+                    img = sess.render(cam, self.controls.center_of_interest, wait=False)
+                except ClipvolError as e:  # e.g. image-based LOD on a store without summary tables
+                    if self.state.mode != "image":
+                        raise
+                    self.state.mode, self.state.message = "multiresolution", str(e)
+                    self._apply_state()
+                    img = sess.render(cam, self.controls.center_of_interest, wait=False)
+            if self.state.outlines and not (self.slices is not None and self.slices.active):
                 from ..app.overlay import draw_outlines
 
                 img = draw_outlines(img, cam, sess.last_items())
@@ -580,6 +619,13 @@ class Viewer:
             self._draw_hud(w, h)
         ctx.disable(mgl.BLEND)
 
+    def _image_lod_settings(self) -> dict:
+        """HUD entries of image-based LOD: block budget and its estimated error (else none)."""
+        if self.state.mode != "image":
+            return {}
+        est = getattr(getattr(self.session.action, "last_policy", None), "estimated_error", float("nan"))
+        return {"budget": f"{self.state.block_budget} blocks", "est.err": f"{est:.3f}"}
+
     def _orientation(self) -> dict[str, str] | None:
         """The view edges' anatomical (or world-axis) labels when the store records its affine."""
         frame = getattr(getattr(self.session, "loader", None), "frame", None)
@@ -597,6 +643,7 @@ class Viewer:
             settings = {
                 "mode": st.mode + (f" L{st.level}" if st.mode == "fixed" else ""),
                 "lod": f"{st.lod_threshold:g}px",
+                **self._image_lod_settings(),
                 "render": st.render_mode,
                 "tf": self.tf.name or "custom",
             }
@@ -612,6 +659,8 @@ class Viewer:
                               texture_stats=self.session.texture_stats, settings=settings, message=st.message,
                               orientation=self._orientation())
             lines.insert(1, quality)
+            if self.slices is not None and self.slices.active:
+                lines = lines + self.slices.hud_lines()
             self._hud_text = lines
             self._hud_time = now
             from .hud import stack_images, tf_strip
@@ -709,6 +758,9 @@ class Viewer:
     def close(self) -> None:
         """Stop the loader threads, release GL objects, destroy the window."""
         try:
+            if getattr(self, "slices", None) is not None:
+                self.slices.close()
+                self.slices = None
             if self.session is not None:
                 self.session.close()
                 self.session = None

@@ -34,7 +34,7 @@ def test_files_and_columns(report):
     res, _ = report
     for p in [res.csv, res.markdown, *res.plots, *res.images]:
         assert p.is_file() and p.stat().st_size > 0, p
-    assert {p.name for p in res.plots} == {"error_vs_time.png", "error_vs_bytes.png"}
+    assert {p.name for p in res.plots} == {"error_vs_time.png", "error_vs_bytes.png", "lod_budget.png"}
     with open(res.csv, newline="") as fh:
         header = next(csv.reader(fh))
     assert tuple(header) == REPORT_COLUMNS

@@ -117,6 +117,10 @@ def test_every_policy_gives_a_valid_cut_that_covers_the_view_once():
     cam = whole_view(EYES[1])
     pts = np.random.default_rng(0).uniform(-0.4, N - 0.6, size=(4000, 3))
     for name in sorted(POLICIES):
+        if hasattr(POLICIES[name], "keep"):
+            continue  # its own culling restricts the region (a cutting plane): tests/scene/test_plane_policy.py
+        if name == "image":  # needs per-brick errors from a store's tables: tests/scene/test_image_policy.py
+            continue
         params = RenderParams(policy=name, max_texels_drawn=40 * B**3 if name == "texel-budget" else None,
                               lod_threshold=2.0)
         sel = select(PYR, cam, params)

@@ -12,6 +12,8 @@ from .base import RefinePolicy, SelectionPolicy
 from .distance import Distance
 from .field_of_view import FieldOfView
 from .fixed_level import FixedLevel
+from .image_based import ImageBased
+from .plane import PlaneCut
 from .projected_size import ProjectedSize, TexelBudget
 from .roaming import ROAMING_MAX_BRICKS, Roaming
 
@@ -25,6 +27,8 @@ POLICIES: dict[str, type] = {
     Roaming.name: Roaming,
     Distance.name: Distance,
     FieldOfView.name: FieldOfView,
+    ImageBased.name: ImageBased,
+    PlaneCut.name: PlaneCut,
 }
 
 

@@ -1,0 +1,128 @@
+"""Image error against block budget for several selection policies on the same views (seed Fig. 6).
+
+After Wang, Garcia & Shen (2007), Fig. 6: the percentage of pixels with CIELUV Delta E >= 6 against
+the full-resolution image, as a function of the number of bricks drawn. Every policy gets the same
+budgets: the ``"image"`` policy through ``block_budget``, the others (projected size, distance)
+through their greedy form under ``max_texels_drawn = budget * texels per brick`` - the same
+traversal, refining the node their own rule ranks first. Each point is a converged frame; the
+x value is the distinct bricks actually drawn.
+
+Used by ``clipvol report`` (its ``lod_budget.png``) and ``tools/bench_lod.py``.
+
+References
+----------
+C. Wang, A. Garcia, H.-W. Shen, "Interactive Level-of-Detail Selection Using Image-Based Quality
+Metric for Large Volume Visualization", IEEE TVCG 13(1), 2007.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..scene.metrics import percent_delta_e
+
+__all__ = ["LOD_POLICIES", "DEFAULT_BLOCK_BUDGETS", "policy_changes", "lod_sweep", "blocks_to_reach", "plot_lod_sweep"]
+
+#: label -> RenderParams changes of the compared policies (budget applied by :func:`policy_changes`)
+#: (the refine predicates of projected size and distance are opened wide so that the budget, not
+#: their threshold, decides how far they refine; their rule still decides the order)
+LOD_POLICIES = {
+    "projected size": dict(policy="projected-size", lod_threshold=1.0 / 64.0),
+    "distance": dict(policy="distance", distance_factor=1e9),
+    "image (no visibility)": dict(policy="image", visibility=False),
+    "image": dict(policy="image", visibility=True),
+}
+DEFAULT_BLOCK_BUDGETS = (8, 16, 32, 64, 128, 256)
+
+
+def policy_changes(label: str, budget: int, texels_per_brick: int) -> dict:
+    """The :class:`~clipvol.scene.params.RenderParams` changes of policy ``label`` at ``budget`` bricks."""
+    ch = dict(LOD_POLICIES[label])
+    if ch["policy"] == "image":
+        ch.update(block_budget=int(budget), max_texels_drawn=None)
+    else:
+        ch.update(max_texels_drawn=int(budget) * int(texels_per_brick), block_budget=None)
+    return ch
+
+
+def lod_sweep(session, views, refs, budgets: Sequence[int] = DEFAULT_BLOCK_BUDGETS,
+              policies: Sequence[str] = tuple(LOD_POLICIES), *, timeout: float = 120.0, repeats: int = 1,
+              log: Callable[[str], None] | None = None) -> list[dict]:
+    """Converged frames of every policy and budget on every view, compared with ``refs``.
+
+    ``session`` is a :class:`~clipvol.app.session.RenderSession` whose budgets hold the views;
+    ``views`` a list of ``(camera, centre)``; ``refs`` the full-resolution images. Returns rows with
+    ``policy``, ``budget``, ``view``, ``blocks`` (distinct bricks drawn), ``pct_de6`` and ``frame_s``
+    (the best of ``repeats`` warm frames). A policy the data cannot serve (no summary tables) is
+    reported once through ``log`` and left out.
+    """
+    from ..errors import ClipvolError
+
+    texels = int(np.prod(session.pyramid.brick_shape))
+    rows: list[dict] = []
+    for label in policies:
+        try:
+            for b in budgets:
+                session.update(**policy_changes(label, b, texels))
+                for v, (cam, coi) in enumerate(views):
+                    session.render(cam, coi, wait=True, timeout=timeout)
+                    best, img = float("inf"), None
+                    for _ in range(max(1, repeats)):
+                        t0 = time.perf_counter()
+                        img = session.render(cam, coi, wait=False)
+                        best = min(best, time.perf_counter() - t0)
+                    fs = session.frame_stats
+                    rows.append(dict(policy=label, budget=int(b), view=v, blocks=int(fs.bricks_distinct),
+                                     pct_de6=round(percent_delta_e(img, refs[v]), 4), frame_s=round(best, 6),
+                                     converged=int(fs.converged)))
+                    if log:
+                        log(f"  {label:>22} budget {b:5d} view {v}: {fs.bricks_distinct:5d} bricks, "
+                            f"{rows[-1]['pct_de6']:6.2f} % pixels dE>=6, {best * 1e3:7.1f} ms")
+        except ClipvolError as e:
+            rows = [r for r in rows if r["policy"] != label]
+            if log:
+                log(f"  {label}: skipped ({e})")
+    return rows
+
+
+def blocks_to_reach(rows: list[dict], policy: str, target: float = 5.0, view: int | None = None) -> dict | None:
+    """The row with the fewest bricks drawn whose error is at most ``target`` % (None: none reached it)."""
+    ok = [r for r in rows if r["policy"] == policy and r["pct_de6"] <= target and (view is None or r["view"] == view)]
+    return min(ok, key=lambda r: (r["blocks"], r["pct_de6"])) if ok else None
+
+
+def plot_lod_sweep(rows: list[dict], path: Path, title: str = "", target: float = 5.0) -> Path | None:
+    """``% pixels dE >= 6`` against bricks drawn, one curve per policy (mean over views); None
+    without matplotlib."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:  # pragma: no cover
+        return None
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    for label in dict.fromkeys(r["policy"] for r in rows):
+        pts: dict[int, list] = {}
+        for r in rows:
+            if r["policy"] == label:
+                pts.setdefault(r["budget"], []).append((r["blocks"], r["pct_de6"]))
+        xs = [np.mean([p[0] for p in v]) for _, v in sorted(pts.items())]
+        ys = [np.mean([p[1] for p in v]) for _, v in sorted(pts.items())]
+        ax.plot(xs, ys, marker="o", label=label)
+    ax.axhline(target, color="grey", lw=0.8, ls="--")
+    ax.set_xscale("log")
+    ax.set_xlabel("bricks drawn (distinct, mean over views)")
+    ax.set_ylabel("% of pixels with CIELUV ΔE ≥ 6\nagainst the full-resolution frame")
+    ax.set_title(title or "error against block budget (after Wang, Garcia & Shen 2007, Fig. 6)", fontsize=9)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

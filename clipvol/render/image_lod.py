@@ -1,0 +1,80 @@
+"""What the ``"image"`` policy needs per frame, kept between frames: errors per transfer function,
+the visibility estimate per view.
+
+:class:`ImageLod` belongs to one :class:`~clipvol.render.action.ClipRenderAction`. It reads the
+store's summary tables once (:func:`clipvol.bricking.summary.open_summary`; a store without them is a
+:class:`~clipvol.bricking.summary.SummaryMissingError` naming ``clipvol summarize``), recomputes the
+multiresolution errors only when the transfer function changes
+(:func:`clipvol.scene.lod_error.lod_errors`), and re-runs the visibility estimate
+(:class:`~clipvol.render.visibility.VisibilityEstimator`) only when the view turned or moved
+noticeably, or the transfer function or shape changed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..bricking.summary import SummaryMissingError, open_summary
+from ..scene.lod_error import lod_errors
+from ..scene.selection.policies.image_based import ImageBased
+
+__all__ = ["ImageLod", "REUSE_ANGLE_DEG"]
+
+#: a visibility estimate is reused while the view direction turns less than this
+REUSE_ANGLE_DEG = 3.0
+
+
+def _tf_key(tf):
+    return (tf.table.tobytes(), tf.value_range)
+
+
+class ImageLod:
+    """Summary tables, errors and visibility estimate of one render action (see the module docstring)."""
+
+    def __init__(self, ctx, clip_texture) -> None:
+        loader = clip_texture.loader
+        path = getattr(loader, "path", None)
+        if path is None or not getattr(loader, "is_clipvol_store", True):
+            raise SummaryMissingError(f"policy 'image': the loader {type(loader).__name__} has no summary tables; it "
+                                      "needs a clipvol store (`clipvol brick` writes them, `clipvol summarize STORE` "
+                                      "adds them to an existing store)")
+        self.tables = open_summary(path)
+        self.ctx, self.clip_texture = ctx, clip_texture
+        self.errors = None
+        self._errors_key = None
+        self.estimator = None
+        self.layers = None
+        self.estimates = 0
+        lo, hi = clip_texture.pyramid.volume_box()
+        self._diag = float(np.linalg.norm(hi - lo))
+
+    def errors_for(self, tf):
+        key = _tf_key(tf)
+        if key != self._errors_key:
+            self.errors = lod_errors(self.tables, tf)
+            self._errors_key = key
+        return self.errors
+
+    def visibility_for(self, camera, tf, params):
+        from .visibility import VisibilityEstimator
+
+        key = (_tf_key(tf), params.shape)
+        if self.layers is not None and self.layers.reusable(camera, key, REUSE_ANGLE_DEG, 0.02, self._diag):
+            return self.layers
+        if self.estimator is None:
+            self.estimator = VisibilityEstimator(self.ctx, self.clip_texture)
+        self.layers = self.estimator.estimate(camera, tf, params.shape, key)
+        self.estimates += 1
+        return self.layers
+
+    def policy(self, camera, tf, params) -> ImageBased:
+        """The frame's :class:`ImageBased` policy for ``camera``, ``tf`` and ``params``."""
+        errors = self.errors_for(tf)
+        # MIP has no occlusion: a brick behind another can still hold the maximum
+        vis = self.visibility_for(camera, tf, params) if params.visibility and params.mode == "composite" else None
+        return ImageBased(params, errors=errors, visibility=vis)
+
+    def close(self) -> None:
+        if self.estimator is not None:
+            self.estimator.close()
+            self.estimator = None

@@ -1,0 +1,536 @@
+"""The slice render action: multiresolution cutting planes over the clip-texture and the GPU cache.
+
+After LaMar, Hamann & Joy, *Multiresolution cutting planes*: a plane of any orientation is drawn
+at full resolution near a point of interest and coarser away from it, from the very bricks, per
+level 3D textures and budgets the volume action uses. Per frame (:meth:`SliceAction.render`):
+
+1. **Select** - the frame loop (:class:`~clipvol.render.frame_loop.FrameLoop`) runs the
+   ``"plane"`` policy (:class:`~clipvol.scene.selection.policies.plane.PlaneCut`) with an
+   orthographic camera that sees exactly the slice's pixels: nodes the plane crosses, refined by
+   projected voxel size and by distance to the point of interest, balanced so 26-neighbours
+   differ by at most one level, with per-corner blend ratios. Bricks still loading are drawn from
+   their nearest resident ancestor (coarser fallback, as the volume does).
+2. **Upload** - the cache's sub-loads, plus the parent bricks ("low tiles") of the nodes that
+   blend, within the same ``texels_per_frame`` budget.
+3. **Draw** - per tile, the plane's polygon inside the node box (a triangle fan) into a float32
+   target. The fragment shader (``shaders/slice.frag.glsl``) samples the node's level texture
+   trilinearly at the pixel's world point and, where the node's trilinearly interpolated corner
+   ratio is above 0, its parent's level too, and mixes them: the paper's high/low tiles with
+   per-vertex ratios, done per pixel. Tiles partition the plane, so no blending between draws.
+4. **Read back** - the values (``raw = a * texel + b`` in float64, NaN where no tile covers the
+   pixel: outside the volume, or nothing resident yet), mapped to RGBA through a transfer
+   function's colours or a grey window/level; every covered pixel is opaque.
+
+References
+----------
+E. LaMar, B. Hamann, K. I. Joy, "Multiresolution cutting planes" (the copy we work from states no
+year or venue).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..scene.params import RenderParams
+from ..scene.plane import Plane, default_pixel_size, default_size
+from ..scene.selection.policies.plane import PlaneCut
+from .frame_loop import FrameLoop
+from .glsl import load_shader
+from .gpu_cache import GpuBrickCache
+
+__all__ = ["SliceAction", "SliceStats", "window_level_grey"]
+
+
+@dataclass(frozen=True, slots=True)
+class SliceStats:
+    """What one :meth:`SliceAction.render` call did.
+
+    Attributes
+    ----------
+    tiles_per_level : dict[int, int]
+        Tiles drawn per level (a tile drawn from an ancestor counts at the ancestor's level).
+    tiles : int
+        Tiles drawn.
+    blended : int
+        Tiles that blend towards their parent (low tile) somewhere.
+    bricks_needed : int
+        Distinct bricks the drawn slice reads: the tiles' bricks and the low tiles' parents.
+    bytes_needed : int
+        ``bricks_needed`` times the bytes of one brick in memory: what a loader must read for
+        this slice (LaMar, Hamann & Joy's "data transferred").
+    bytes_loaded : int
+        Bytes the clip-texture's loader threads read during the call (its window prefetch included).
+    bytes_uploaded, bricks_uploaded : int
+        Texture sub-loads of the call.
+    converged : bool
+        Every wanted tile (and low tile) was drawn at its own level.
+    balance_splits : int
+        Leaves split to balance the cut.
+    times : dict[str, float]
+        Seconds in ``select`` (selection, balancing, ratios), ``upload``, ``wait``, ``draw``,
+        ``readback`` and ``total``.
+    """
+
+    tiles_per_level: dict[int, int]
+    tiles: int
+    blended: int
+    bricks_needed: int
+    bytes_needed: int
+    bytes_loaded: int
+    bytes_uploaded: int
+    bricks_uploaded: int
+    converged: bool
+    balance_splits: int
+    times: dict = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        """JSON-ready dict (``clipvol slice --stats``)."""
+        return dict(tiles_per_level={str(k): v for k, v in self.tiles_per_level.items()}, tiles=self.tiles,
+                    blended=self.blended, bricks_needed=self.bricks_needed, bytes_needed=self.bytes_needed,
+                    bytes_loaded=self.bytes_loaded, bytes_uploaded=self.bytes_uploaded,
+                    bricks_uploaded=self.bricks_uploaded, converged=self.converged,
+                    balance_splits=self.balance_splits, times=dict(self.times))
+
+
+def window_level_grey(values: np.ndarray, center: float, width: float) -> np.ndarray:
+    """``(h, w, 4)`` uint8 grey RGBA of ``values`` for a window ``center``/``width`` (clinicians'
+    window/level: ``C - W/2`` is black, ``C + W/2`` white); NaN pixels are transparent."""
+    if not (math.isfinite(center) and math.isfinite(width) and width > 0):
+        raise ParameterError(f"window: expected a finite centre and a width > 0, got {center!r}, {width!r}")
+    v = np.asarray(values, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        g = np.clip((v - (center - width / 2.0)) / width, 0.0, 1.0)
+    ok = np.isfinite(v)
+    g8 = np.rint(np.where(ok, g, 0.0) * 255.0).astype(np.uint8)
+    return np.stack([g8, g8, g8, np.where(ok, 255, 0).astype(np.uint8)], axis=-1)
+
+
+def _vec(v) -> tuple[float, float, float]:
+    return tuple(float(x) for x in v)  # type: ignore[return-value]
+
+
+class SliceAction:
+    """Draw cutting planes of a :class:`~clipvol.paging.cliptexture.ClipTexture`.
+
+    Parameters
+    ----------
+    ctx : moderngl.Context
+    clip_texture : ClipTexture
+    params : RenderParams, optional
+        ``focus`` (the point of interest), ``distance_factor``, ``lod_threshold``, ``level`` (a
+        fixed level; 0 = full resolution), ``texture_budget``, ``texels_per_frame``; the policy is
+        always ``"plane"``.
+    cache : GpuBrickCache, optional
+        Share the volume action's GPU cache (same textures, same budget) instead of making one.
+    **kwargs
+        :class:`~clipvol.scene.params.RenderParams` fields applied over ``params``.
+    """
+
+    def __init__(self, ctx, clip_texture, params: RenderParams | None = None, *, cache: GpuBrickCache | None = None,
+                 **kwargs) -> None:
+        import moderngl
+
+        self._mgl = moderngl
+        self.ctx = ctx
+        self.clip_texture = clip_texture
+        self.pyramid = clip_texture.pyramid
+        kwargs["policy"] = "plane"
+        self.params = RenderParams.from_kwargs(params, **kwargs).check_for(self.pyramid)
+        self._own_cache = cache is None
+        self.cache = cache if cache is not None else GpuBrickCache(ctx, self.pyramid, self.params.texture_budget)
+        self.frame_loop = FrameLoop(clip_texture, self.cache)
+        self.program = ctx.program(vertex_shader=load_shader("slice.vert"), fragment_shader=load_shader("slice.frag"))
+        self.program["u_volume"].value = 0
+        self.program["u_volume_low"].value = 1
+        self._fbo = self._color = None
+        self._fbo_size = None
+        self._default_fbo = None
+        self.last_stats: SliceStats | None = None
+        self.last_selection = None
+        self.last_values: np.ndarray | None = None
+        self.last_levels: np.ndarray | None = None
+        self.last_ratios: np.ndarray | None = None
+        #: blend high and low tiles at level changes (False shows the seams: the paper's Fig. 6a)
+        self.blend = True
+
+    def set_params(self, params: RenderParams) -> None:
+        """Use ``params`` from the next frame on (policy forced to ``"plane"``)."""
+        from dataclasses import replace
+
+        if not isinstance(params, RenderParams):
+            raise ParameterError(f"params: expected a RenderParams, got {type(params).__name__}")
+        params = replace(params, policy="plane").check_for(self.pyramid)
+        if params.texture_budget != self.params.texture_budget and self._own_cache:
+            self.cache.release()
+            self.cache = GpuBrickCache(self.ctx, self.pyramid, params.texture_budget)
+            self.frame_loop = FrameLoop(self.clip_texture, self.cache)
+        self.params = params
+
+    # -- the frame ---------------------------------------------------------------------------------
+    def render(self, plane: Plane, size=None, pixel_size: float | None = None, *, transfer_function=None,
+               window: tuple[float, float] | None = None, wait: bool = False, timeout: float | None = None,
+               return_values: bool = False):
+        """Draw ``plane``; returns ``(h, w, 4)`` uint8 RGBA (and the float32 values if ``return_values``).
+
+        Parameters
+        ----------
+        plane : Plane
+        size : (w, h), optional
+            Pixels; default: enough to cover the plane's cut through the volume.
+        pixel_size : float, optional
+            World units per pixel; default the level-0 voxel size in the plane.
+        transfer_function : TransferFunction, optional
+            Colours of the values (its opacity is not used: a slice is opaque).
+        window : (center, width), optional
+            Grey window/level instead of a transfer function (default: the data's value range).
+        wait, timeout
+            Wait (at most ``timeout`` seconds) until the wanted tiles and low tiles are drawn.
+        return_values : bool
+            Also return the resampled values, ``(h, w)`` float32, NaN where no tile covers a pixel.
+        """
+        if not isinstance(plane, Plane):
+            raise ParameterError(f"plane: expected a clipvol Plane, got {type(plane).__name__}")
+        pyr = self.pyramid
+        px = default_pixel_size(pyr, plane) if pixel_size is None else float(pixel_size)
+        if not (math.isfinite(px) and px > 0):
+            raise ParameterError(f"pixel_size: expected a finite size > 0 (world units), got {pixel_size!r}")
+        vlo, vhi = pyr.volume_box()
+        if not plane.crosses(vlo, vhi)[0]:
+            raise ParameterError(f"plane: expected a plane that meets the volume {tuple(vlo)}..{tuple(vhi)}, "
+                                 f"got origin {plane.origin} normal {plane.normal}")
+        size = default_size(pyr, plane, px) if size is None else tuple(int(v) for v in size)
+        if len(size) != 2 or not all(1 <= v <= 16384 for v in size):
+            raise ParameterError(f"size: expected (w, h) with 1..16384 pixels per side, got {size!r}")
+        t_start = time.perf_counter()
+        loaded0 = self.clip_texture.stats.bytes_loaded
+        cam = plane.camera(size, px).fit_depth(vlo, vhi)
+        deadline = None if timeout is None else t_start + float(timeout)
+        policy = PlaneCut(self.params, plane)
+        up_bytes = up_bricks = 0
+        times = dict(select=0.0, upload=0.0, wait=0.0)
+        while True:
+            left = None if deadline is None else max(0.0, deadline - time.perf_counter())
+            plan = self.frame_loop.run(cam, self.params, policy=policy, wait=wait, timeout=left)
+            for k in times:
+                times[k] += plan.times.get(k, 0.0)
+            up_bytes += plan.bytes_uploaded
+            up_bricks += plan.bricks_uploaded
+            t0 = time.perf_counter()
+            sel = plan.selection
+            low, missing_low = self._reserve_low_tiles(sel, policy.node_data if self.blend else {})
+            up_bytes += self.cache.commit()
+            up_bricks += self.cache.bricks_uploaded
+            times["upload"] += time.perf_counter() - t0
+            converged = plan.converged and not missing_low
+            if not wait or converged:
+                break
+            ct = self.clip_texture
+            # only parents that may still arrive in RAM (a parent held in RAM but without a free GPU
+            # slot this frame cannot be waited for: the tile is then drawn unblended)
+            waitable = [k for k in missing_low
+                        if bool(np.asarray(ct.in_window_mask(k[0], np.array([k[1]])))[0])
+                        and not bool(np.asarray(ct.resident_mask(k[0], np.array([k[1]])))[0])
+                        and ct.state(k[0], k[1]).name in ("QUEUED", "LOADING")]
+            left = None if deadline is None else deadline - time.perf_counter()
+            if not waitable or (left is not None and left <= 0):
+                break
+            t0 = time.perf_counter()
+            self.clip_texture.wait_for(waitable, timeout=left)
+            times["wait"] += time.perf_counter() - t0
+        values, levels, ratios, draw_t, read_t = self._draw(plane, size, px, sel, low)
+        times["draw"], times["readback"] = draw_t, read_t
+        if window is not None:
+            rgba = window_level_grey(values, float(window[0]), float(window[1]))
+        elif transfer_function is not None:
+            rgb = transfer_function.lookup(values, pyr.value_range)[..., :3]
+            ok = np.isfinite(values)
+            rgba = np.concatenate([np.rint(np.clip(rgb, 0, 1) * 255), np.where(ok, 255, 0)[..., None]], axis=-1)
+            rgba = np.where(ok[..., None], rgba, 0).astype(np.uint8)
+        else:
+            lo_v, hi_v = pyr.value_range
+            rgba = window_level_grey(values, (lo_v + hi_v) / 2.0, max(hi_v - lo_v, 1e-300))
+        times["total"] = time.perf_counter() - t_start
+        per_level: dict[int, int] = {}
+        for it in sel.items:
+            per_level[it.level] = per_level.get(it.level, 0) + 1
+        needed = {(it.level, tuple(it.index)) for it in sel.items} | set(low.values())
+        self.last_selection = sel
+        self.last_values, self.last_levels, self.last_ratios = values, levels, ratios
+        self.last_stats = SliceStats(
+            tiles_per_level=dict(sorted(per_level.items())), tiles=len(sel.items), blended=len(low),
+            bricks_needed=len(needed), bytes_needed=len(needed) * pyr.brick_nbytes,
+            bytes_loaded=self.clip_texture.stats.bytes_loaded - loaded0, bytes_uploaded=up_bytes,
+            bricks_uploaded=up_bricks, converged=converged, balance_splits=int(sel.counts.get("balance_splits", 0)),
+            times=times)
+        return (rgba, values) if return_values else rgba
+
+    def render_in_view(self, volume_action, camera, transfer_function, plane: Plane, *, opacity: float = 1.0,
+                       cut: bool = True, wait: bool = False, timeout: float | None = None) -> np.ndarray:
+        """The plane drawn inside a 3D view of the volume, so users see where the slice lies.
+
+        A separate pass beside the volume action (which is not changed): with ``cut`` the volume is
+        rendered with one extra clip plane that removes the half-space in front of the plane (on the
+        camera's side), then the slice's tiles are drawn through ``camera`` - each pixel's ray meets
+        the plane in the fragment shader - coloured by ``transfer_function`` and laid over the
+        volume with ``opacity`` (1: opaque; below 1 and ``cut=False``: a translucent plane over the
+        whole volume, not depth-sorted against it). Returns ``(h, w, 4)`` uint8 straight RGBA.
+        """
+        from dataclasses import replace
+
+        from ..scene.geometry import Shape
+
+        if not (0.0 <= float(opacity) <= 1.0):
+            raise ParameterError(f"opacity: expected a value in [0, 1], got {opacity!r}")
+        pyr = self.pyramid
+        vlo, vhi = pyr.volume_box()
+        if not plane.crosses(vlo, vhi)[0]:
+            raise ParameterError(f"plane: expected a plane that meets the volume {tuple(vlo)}..{tuple(vhi)}, "
+                                 f"got origin {plane.origin} normal {plane.normal}")
+        vparams = volume_action.params
+        if cut:
+            n = np.asarray(plane.normal)
+            s = -1.0 if float(n @ (np.asarray(camera.eye) - np.asarray(plane.origin))) > 0 else 1.0
+            clip = tuple((s * n).tolist()) + (float(-s * n @ np.asarray(plane.origin)),)
+            shape = vparams.shape
+            box = shape.box if shape is not None else None
+            planes = (tuple(shape.planes) if shape is not None else ()) + (clip,)
+            volume_action.set_params(replace(vparams, shape=Shape(box=box, planes=planes)))
+        try:
+            vol = volume_action.render(camera, transfer_function, wait=wait, timeout=timeout)
+        finally:
+            volume_action.set_params(vparams)
+        # tiles: the plane's cut through the volume at about the view's pixel size at the plane
+        w, h = camera.size
+        if camera.orthographic:
+            px = float(camera.height) / h
+        else:
+            depth = max(float((np.asarray(plane.origin) - camera.eye) @ camera.forward), 1e-9)
+            px = 2.0 * depth * math.tan(math.radians(float(camera.fov_y)) / 2.0) / h
+        px = max(px, default_pixel_size(pyr, plane))
+        size = default_size(pyr, plane, px)
+        cam = plane.camera(size, px).fit_depth(vlo, vhi)
+        policy = PlaneCut(self.params, plane)
+        plan = self.frame_loop.run(cam, self.params, policy=policy, wait=wait, timeout=timeout)
+        low, _ = self._reserve_low_tiles(plan.selection, policy.node_data if self.blend else {})
+        self.cache.commit()
+        values, _, _, _, _ = self._draw(plane, (w, h), px, plan.selection, low, view=camera.fit_depth(vlo, vhi))
+        ok = np.isfinite(values)
+        rgb = transfer_function.lookup(values, pyr.value_range)[..., :3]
+        a_s = np.where(ok, float(opacity), 0.0)[..., None]
+        va = vol[..., 3:4].astype(np.float64) / 255.0
+        prem = a_s * rgb + (1.0 - a_s) * vol[..., :3].astype(np.float64) / 255.0 * va
+        alpha = a_s + (1.0 - a_s) * va
+        with np.errstate(invalid="ignore", divide="ignore"):
+            straight = np.where(alpha > 0, prem / np.maximum(alpha, 1e-300), 0.0)
+        out = np.concatenate([straight, alpha], axis=-1)
+        return np.rint(np.clip(out, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+    def _reserve_low_tiles(self, sel, node_data) -> tuple[dict, list]:
+        """For each item drawn at its own node with blend ratios: reserve (upload) its parent brick.
+
+        Returns ``{item position: (level + 1, parent index)}`` for the items that can blend now,
+        and the parents that could not be made drawable (those items are drawn unblended).
+        """
+        pyr = self.pyramid
+        want: dict[int, tuple] = {}
+        for i, it in enumerate(sel.items):
+            key = (int(it.level), tuple(int(v) for v in it.index))
+            if key not in node_data or it.level + 1 >= pyr.num_levels:
+                continue
+            lo, hi = pyr.node_box(it.level, np.array(it.index))
+            if tuple(lo.tolist()) != tuple(it.lo) or tuple(hi.tolist()) != tuple(it.hi):
+                continue  # a sub-box drawn from an ancestor: no blending while it loads
+            want[i] = (it.level + 1, tuple(int(v) // 2 for v in it.index))
+        ok_keys: set = set()
+        missing = []
+        by_level: dict[int, list] = {}
+        for k in set(want.values()):
+            by_level.setdefault(k[0], []).append(k[1])
+        for L, keys in by_level.items():
+            mask = self.cache.resident_mask(L, np.array(keys, dtype=np.int64))
+            for k, m in zip(keys, mask):
+                (ok_keys.add if m else missing.append)((L, k))
+        return {i: k for i, k in want.items() if k in ok_keys}, missing
+
+    def _ensure_fbo(self, size):
+        if self._fbo_size != size:
+            if self._fbo is not None:
+                self._fbo.release()
+                self._color.release()
+            self._color = self.ctx.texture(size, 4, dtype="f4")
+            self._fbo = self.ctx.framebuffer(color_attachments=[self._color])
+            self._fbo_size = size
+        return self._fbo
+
+    def _brick_uniforms(self, suffix: str, level: int, index, plane_origin: np.ndarray, clamp) -> None:
+        pyr, prog = self.pyramid, self.program
+        lv = pyr.levels[level]
+        B = np.asarray(pyr.brick_shape, dtype=np.int64)
+        scale = np.asarray(lv.scale[::-1], dtype=np.float64)
+        trans = np.asarray(lv.translation[::-1], dtype=np.float64)
+        win = np.asarray(self.cache.windows[level], dtype=np.int64)
+        bidx = np.asarray(index, dtype=np.int64)
+        first = trans + bidx[::-1] * B[::-1] * scale
+        prog["u_o_minus_b" + suffix].value = _vec(plane_origin - first)
+        prog["u_inv_scale" + suffix].value = _vec(1.0 / scale)
+        prog["u_slot_origin" + suffix].value = _vec(((bidx % win) * B)[::-1])
+        prog["u_inv_tex_size" + suffix].value = _vec(1.0 / (win[::-1] * B[::-1]))
+        prog["u_clamp_lo" + suffix].value = _vec(clamp[0])
+        prog["u_clamp_hi" + suffix].value = _vec(clamp[1])
+
+    def _clamps(self, keys) -> dict:
+        """Per brick ``(level, index)``: brick-local voxel bounds ``(lo, hi)`` (``(x, y, z)``), half a
+        voxel beyond the faces whose neighbours are on the GPU (seamless filtering), else clamped to
+        the brick's own voxel centres."""
+        B = np.asarray(self.pyramid.brick_shape, dtype=np.float64)
+        by_level: dict[int, set] = {}
+        for L, idx in keys:
+            by_level.setdefault(int(L), set()).add(tuple(int(v) for v in idx))
+        out = {}
+        for L, idxs in by_level.items():
+            arr = np.array(sorted(idxs), dtype=np.int64)
+            of = self.cache.open_faces(L, arr)  # (n, 3 zyx, 2)
+            lo = np.where(of[:, :, 0], -0.5, 0.0)[:, ::-1]
+            hi = np.where(of[:, :, 1], B - 0.5, B - 1.0)[:, ::-1]
+            for k, a, b in zip(arr, lo, hi):
+                out[(L, tuple(int(v) for v in k))] = (a, b)
+        return out
+
+    def _draw(self, plane: Plane, size, px: float, sel, low: dict, view=None):
+        mgl, ctx, prog = self._mgl, self.ctx, self.program
+        w, h = size
+        t0 = time.perf_counter()
+        origin = np.asarray(plane.origin, dtype=np.float64)
+        # one vertex buffer for every tile's triangle fan, in NDC
+        items = sel.items
+        ranges: list = [None] * len(items)
+        tris = np.zeros((0, 4))
+        n = 0
+        if items:
+            lo = np.array([it.lo for it in items], dtype=np.float64)
+            hi = np.array([it.hi for it in items], dtype=np.float64)
+            polys, counts = plane.box_polygons(lo, hi)
+            if view is None:
+                pix = plane.to_pixels(polys.reshape(-1, 3), size, px).reshape(len(items), 6, 2)
+                ndc = np.stack([pix[..., 0] / w * 2.0 - 1.0, 1.0 - pix[..., 1] / h * 2.0,
+                                np.zeros(pix.shape[:2]), np.ones(pix.shape[:2])], axis=-1)
+            else:  # clip coordinates of the 3D view (GL clips what lies behind the eye)
+                vp = view.view_projection()
+                hom = np.concatenate([polys, np.ones(polys.shape[:2] + (1,))], axis=-1)
+                ndc = hom @ vp.T
+                ndc[..., 2] = 0.0 * ndc[..., 3]  # no depth test: the plane is the only surface drawn
+            chunks = []
+            for i, (it, k) in enumerate(zip(items, counts)):
+                if k < 3 or self.cache.textures[it.level] is None:
+                    continue
+                fan = np.repeat(np.arange(1, k - 1), 3)
+                fan[0::3] = 0
+                fan[2::3] += 1
+                chunks.append(ndc[i, fan])
+                ranges[i] = (n, len(fan))
+                n += len(fan)
+            if chunks:
+                tris = np.concatenate(chunks)
+        clamps = self._clamps([(int(it.level), it.index) for it in items]
+                              + [low[i] for i in sorted(low)])
+        fbo = self._ensure_fbo((int(w), int(h)))
+        previous = ctx.fbo
+        fbo.use()
+        ctx.viewport = (0, 0, int(w), int(h))
+        fbo.clear(0.0, 0.0, -1.0, 0.0)
+        ctx.disable(mgl.BLEND | mgl.DEPTH_TEST | mgl.CULL_FACE)
+        vbo = vao = None
+        if n:
+            vbo = ctx.buffer(tris.astype(np.float32).tobytes())
+            vao = ctx.vertex_array(prog, [(vbo, "4f", "in_clip")])
+            prog["u_viewport"].value = (float(w), float(h))
+            prog["u_in_view"].value = view is not None
+            if view is not None:
+                prog["u_ortho"].value = bool(view.orthographic)
+                prog["u_normal"].value = _vec(plane.normal)
+                prog["u_eye_rel"].value = _vec(np.asarray(view.eye, dtype=np.float64) - origin)
+                prog["u_cam_forward"].value = _vec(view.forward)
+                prog["u_cam_right"].value = _vec(view.right)
+                prog["u_cam_up"].value = _vec(view.up)
+                if view.orthographic:
+                    prog["u_cam_half"].value = (float(view.width) / 2.0, float(view.height) / 2.0)
+                else:
+                    ty = math.tan(math.radians(float(view.fov_y)) / 2.0)
+                    prog["u_cam_half"].value = (ty * w / h, ty)
+            prog["u_pixel"].value = float(px)
+            prog["u_right"].value = _vec(plane.right)
+            prog["u_up"].value = _vec(plane.up)
+            for i, (it, rg) in enumerate(zip(sel.items, ranges)):
+                if rg is None:
+                    continue
+                L = int(it.level)
+                self.cache.textures[L].use(location=0)
+                prog["u_level"].value = float(L)
+                self._brick_uniforms("", L, it.index, origin, clamps[(L, tuple(int(v) for v in it.index))])
+                parent = low.get(i)
+                if parent is not None:
+                    PL, pidx = parent
+                    self.cache.textures[PL].use(location=1)
+                    self._brick_uniforms("_low", PL, pidx, origin, clamps[(PL, tuple(pidx))])
+                    r = sel.node_data[(L, tuple(int(v) for v in it.index))]
+                    prog["u_ratio"].write(np.asarray(r, dtype=np.float32).reshape(-1).tobytes())
+                    nlo = np.asarray(it.lo, dtype=np.float64)
+                    nhi = np.asarray(it.hi, dtype=np.float64)
+                    prog["u_node_lo"].value = _vec(nlo - origin)
+                    prog["u_node_inv_ext"].value = _vec(1.0 / np.maximum(nhi - nlo, 1e-300))
+                    prog["u_blend"].value = True
+                else:
+                    self.cache.textures[L].use(location=1)  # a valid binding; never sampled
+                    prog["u_blend"].value = False
+                vao.render(mgl.TRIANGLES, vertices=rg[1], first=rg[0])
+        ctx.finish()
+        t1 = time.perf_counter()
+        raw = np.frombuffer(fbo.read(components=4, dtype="f4"), dtype=np.float32).reshape(int(h), int(w), 4)[::-1]
+        if vao is not None:
+            vao.release()
+            vbo.release()
+        if previous is None:
+            if self._default_fbo is None:
+                self._default_fbo = ctx.detect_framebuffer(0)
+            previous = self._default_fbo
+        previous.use()
+        err = ctx.error
+        if err != "GL_NO_ERROR":
+            raise RuntimeError(f"OpenGL error after drawing the slice: expected GL_NO_ERROR, got {err}")
+        covered = raw[..., 1] > 0.5
+        fmt = self.cache.format
+        with np.errstate(invalid="ignore", over="ignore"):
+            v64 = np.where(covered, fmt.a * raw[..., 0].astype(np.float64) + fmt.b, np.nan)
+            if self.pyramid.dtype.kind in "iu":
+                # the GPU's normalised-integer -> float conversion is good to about one float32 ulp
+                # of the texel, i.e. of a * texel before the offset b cancels: snap values that close
+                # to an integer back onto it (so a slice through voxel centres of integer data is
+                # exact); interpolated values keep their fraction
+                r = np.rint(v64)
+                eps = 4 * float(np.finfo(np.float32).eps)
+                tol = eps * (np.abs(fmt.a * raw[..., 0].astype(np.float64)) + abs(fmt.b) + np.maximum(np.abs(r), 1.0))
+                v64 = np.where(np.abs(v64 - r) <= tol, r, v64)
+            values = v64.astype(np.float32)
+        levels = np.where(covered, np.rint(raw[..., 2]), -1).astype(np.int16)
+        ratios = np.where(covered, raw[..., 3], 0.0).astype(np.float32)
+        return values, levels, ratios, t1 - t0, time.perf_counter() - t1
+
+    def close(self) -> None:
+        """Release the action's GL objects (and its cache, unless it was shared)."""
+        if self._own_cache and self.cache is not None:
+            self.cache.release()
+        for obj in (self.program, self._fbo, self._color):
+            if obj is not None:
+                obj.release()
+        self.program = self._fbo = self._color = self._default_fbo = None
+
+    def __enter__(self) -> "SliceAction":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

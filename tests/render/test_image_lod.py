@@ -1,0 +1,121 @@
+"""The image policy end to end (GL): occluded bricks are neither requested nor drawn, at equal
+block budget its image is at least as close to full resolution as projected size's, its error
+falls as the budget grows, and a store without summary tables is refused with the fix named."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from clipvol.bricking.generators import ct_head
+from clipvol.bricking.pipeline import brick_volume
+from clipvol.bricking.summary import SummaryMissingError
+from clipvol.errors import ParameterError
+from clipvol.paging.cliptexture import ClipTexture
+from clipvol.paging.open import open_store
+from clipvol.render.action import ClipRenderAction
+from clipvol.scene.camera import Camera
+from clipvol.scene.metrics import percent_delta_e
+from clipvol.scene.params import RenderParams
+from clipvol.scene.transfer import TransferFunction
+from render_helpers import render_converged
+
+TF = TransferFunction.from_points([(0.0, (0, 0, 0, 0)), (0.3, (0, 0, 0, 0)), (0.45, (0.2, 0.9, 0.3, 0.5)),
+                                   (1.0, (1, 1, 1, 1))])
+
+
+@pytest.fixture(scope="module")
+def slab_store(tmp_path_factory):
+    """An opaque slab in front (small z) of a visible blob (large z)."""
+    vol = np.zeros((48, 32, 32), np.uint8)
+    vol[4:12] = 255
+    vol[30:44, 8:24, 8:24] = 128
+    path = tmp_path_factory.mktemp("slab") / "slab.zarr"
+    brick_volume(vol, path, brick=8, progress=False)
+    return path
+
+
+@pytest.fixture(scope="module")
+def head_store(tmp_path_factory):
+    path = tmp_path_factory.mktemp("head") / "head.zarr"
+    brick_volume(ct_head((64, 64, 64), seed=1), path, brick=8, progress=False)
+    return path
+
+
+def _slab_camera():
+    return Camera.perspective((16.0, 16.0, -60.0), (16.0, 16.0, 24.0), up=(0, -1, 0), fov_y=30, size=(64, 64))
+
+
+def test_bricks_behind_an_opaque_slab_are_not_requested(gl, slab_store):
+    loader = open_store(slab_store)
+    with ClipTexture(loader, "64MB") as clip, ClipRenderAction(gl, clip, policy="image", block_budget=10_000) as act:
+        render_converged(act, _slab_camera(), TF)
+        wanted = act.last_selection.wanted
+        behind = [(L, b) for L, b in wanted if (b[0] + 1) * 8 * 2**L > 12 and b[0] * 8 * 2**L >= 24]
+        assert not behind, behind
+        assert not any(it.level == 0 and it.index[0] >= 3 for it in act.last_selection.items)
+        # the estimate itself: the blob's level-0 bricks are (almost) invisible, the slab's are visible
+        layers = act.image_lod.layers
+        lo, hi = loader.pyramid.node_box(0, np.array([[4, 2, 2], [0, 2, 2]]))
+        v = layers.visibility(lo, hi, _slab_camera())
+        assert v[0] < 0.01 and v[1] > 0.99
+        # without the estimate the same budget asks for the blob's bricks: the cull above is visibility's
+        act.set_params(replace(act.params, visibility=False))
+        render_converged(act, _slab_camera(), TF)
+        assert any(b[0] * 8 * 2**L >= 24 for L, b in act.last_selection.wanted)
+
+
+def _head_view(pyr, size=96):
+    lo, hi = pyr.volume_box()
+    c = (lo + hi) / 2
+    d = np.array([0.3, 0.2, 1.0])
+    d /= np.linalg.norm(d)
+    return Camera.perspective(tuple(c - d * 0.62 * float(np.linalg.norm(hi - lo))), tuple(c), up=(0, -1, 0),
+                              fov_y=40, size=(size, size))
+
+
+def _errors(gl, store, policy_params, budgets):
+    loader = open_store(store)
+    tf = TransferFunction.preset("bone", value_range=loader.pyramid.value_range)
+    cam = _head_view(loader.pyramid)
+    out = []
+    with ClipTexture(loader, "256MB") as clip, ClipRenderAction(gl, clip, policy="fixed", level=0) as act:
+        ref = render_converged(act, cam, tf)
+        for b in budgets:
+            act.set_params(RenderParams(**policy_params(b)))
+            img = render_converged(act, cam, tf)
+            out.append((act.last_frame_stats.bricks_distinct, percent_delta_e(img, ref)))
+    return out
+
+
+def test_image_policy_beats_projected_size_at_equal_budget(gl, head_store):
+    budgets = [32, 64, 96]
+    image = _errors(gl, head_store, lambda b: dict(policy="image", block_budget=b), budgets)
+    proj = _errors(gl, head_store, lambda b: dict(policy="texel-budget", max_texels_drawn=b * 512), budgets)
+    for b, (n_i, e_i), (n_p, e_p) in zip(budgets, image, proj):
+        assert n_i <= b and n_p <= b
+        assert e_i <= e_p, (b, image, proj)
+
+
+def test_image_error_falls_as_the_budget_grows(gl, head_store):
+    budgets = [8, 16, 32, 64, 128, 256]
+    errs = [e for _, e in _errors(gl, head_store, lambda b: dict(policy="image", block_budget=b), budgets)]
+    assert all(b <= a + 0.25 for a, b in zip(errs, errs[1:])), errs
+    assert errs[-1] < 0.5 * errs[0], errs
+
+
+def test_store_without_tables_is_refused(gl, tmp_path):
+    path = tmp_path / "bare.zarr"
+    brick_volume(np.zeros((16, 16, 16), np.uint8), path, brick=8, progress=False, summary=False)
+    for loader in (open_store(path), open_store("procedural:fractal?size=16", brick=8)):
+        with ClipTexture(loader, "16MB") as clip, ClipRenderAction(gl, clip, policy="image") as act:
+            with pytest.raises(SummaryMissingError, match="clipvol summarize"):
+                act.render(_slab_camera(), TF)
+
+
+def test_block_budget_must_be_positive():
+    with pytest.raises(ParameterError, match="block_budget"):
+        RenderParams(policy="image", block_budget=0)
+    assert RenderParams(policy="image").block_budget >= 1

@@ -1,0 +1,73 @@
+"""The image policy over the shared traversal (pure numpy): a valid octree cut within the block
+budget, the most important region refined first, and a clear error without errors/tables."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clipvol.bricking.pipeline import brick_volume
+from clipvol.bricking.summary import open_summary
+from clipvol.errors import ParameterError
+from clipvol.scene.camera import Camera
+from clipvol.scene.lod_error import lod_errors
+from clipvol.scene.params import RenderParams
+from clipvol.scene.selection import select
+from clipvol.scene.selection.policies.image_based import ImageBased
+from clipvol.scene.transfer import TransferFunction
+
+TF = TransferFunction.from_points([(0.0, (0, 0, 0, 0)), (0.2, (0, 0, 0, 0)), (1.0, (1, 0.8, 0.6, 1))])
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory, ):
+    rng = np.random.default_rng(7)
+    vol = np.zeros((64, 64, 64), np.uint8)
+    vol[:, :, 32:] = rng.integers(60, 255, size=(64, 64, 32))  # detail on the right half (x >= 32)
+    vol[:, :, :32] = 120  # flat on the left
+    path = tmp_path_factory.mktemp("pol") / "p.zarr"
+    brick_volume(vol, path, brick=8, progress=False)
+    return path
+
+
+def _cam():
+    return Camera.perspective((32.0, 32.0, -90.0), (32.0, 32.0, 32.0), up=(0, -1, 0), fov_y=45, size=(128, 128))
+
+
+def _leaves(sel):
+    return [(L, np.array(b)) for L, b in sel.wanted]
+
+
+@pytest.mark.parametrize("budget", [1, 8, 29, 120])
+def test_cut_is_valid_and_within_budget(store, budget):
+    tabs = open_summary(store)
+    pyr = tabs.pyramid
+    params = RenderParams(policy="image", block_budget=budget, visibility=False)
+    pol = ImageBased(params, errors=lod_errors(tabs, TF))
+    sel = select(pyr, _cam(), params, policy=pol)
+    leaves = _leaves(sel)
+    assert 1 <= len(leaves) <= budget
+    # no leaf is an ancestor of another, and together they cover the level-0 grid exactly once
+    cover = np.zeros(pyr.grid(0), int)
+    for L, b in leaves:
+        f = 2**L
+        lo = b * f
+        hi = np.minimum(lo + f, pyr.grid(0))
+        cover[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]] += 1
+    assert cover.max() == 1 and cover.min() == 1  # nothing culled here: every brick is visible
+    assert pol.estimated_error >= 0 and set(pol.node_data) == {(L, tuple(int(v) for v in b)) for L, b in leaves}
+
+
+def test_detail_is_refined_before_flat(store):
+    tabs = open_summary(store)
+    params = RenderParams(policy="image", block_budget=40, visibility=False)
+    sel = select(tabs.pyramid, _cam(), params, policy=ImageBased(params, errors=lod_errors(tabs, TF)))
+    mean_level = {side: np.mean([L for L, b in _leaves(sel) if ((b[2] * 2**L) >= 4) == side]) for side in (False, True)}
+    assert mean_level[True] < mean_level[False], mean_level  # the detailed half is finer
+
+
+def test_without_errors_the_cut_names_the_fix(store):
+    tabs = open_summary(store)
+    params = RenderParams(policy="image")
+    with pytest.raises(ParameterError, match="clipvol summarize"):
+        select(tabs.pyramid, _cam(), params)

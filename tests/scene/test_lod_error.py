@@ -1,0 +1,122 @@
+"""Multiresolution error from the summary tables equals the same error computed from the voxels
+(Wang, Garcia & Shen 2007, Eqns. 1 and 6-10), and a transfer-function change needs no voxel."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+import zarr
+
+from clipvol.bricking.pipeline import brick_volume
+from clipvol.bricking.summary import open_summary
+from clipvol.scene.lod_error import C1, C2, lod_errors
+from clipvol.scene.transfer import TransferFunction
+
+# -- an independent CIE L*u*v* (sRGB, D65), written out from the standard ---------------------------
+_M = np.array([[0.4124564, 0.3575761, 0.1804375], [0.2126729, 0.7151522, 0.0721750], [0.0193339, 0.1191920, 0.9503041]])
+
+
+def _luv(rgb):
+    c = np.clip(rgb, 0, 1)
+    lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    X, Y, Z = np.moveaxis(lin @ _M.T, -1, 0)
+    Xn, Yn, Zn = _M.sum(axis=1)
+    L = np.where(Y / Yn > (6 / 29) ** 3, 116 * np.cbrt(Y / Yn) - 16, (29 / 3) ** 3 * Y / Yn)
+    d = X + 15 * Y + 3 * Z
+    dn = Xn + 15 * Yn + 3 * Zn
+    up = np.where(d > 0, 4 * X / np.where(d > 0, d, 1), 0)
+    vp = np.where(d > 0, 9 * Y / np.where(d > 0, d, 1), 0)
+    return np.stack([L, 13 * L * (up - 4 * Xn / dn), 13 * L * (vp - 9 * Yn / dn)], -1)
+
+
+def _colour(tf, v, rng_):
+    rgba = tf.lookup(v, rng_)
+    return _luv(rgba[..., :3] * rgba[..., 3:4])
+
+
+def _direct_eps(path, tf):
+    """Eqns. 1 and 6-10 evaluated voxel by voxel on the store's own levels (read with zarr-python)."""
+    g = zarr.open_group(str(path), mode="r")
+    tabs = open_summary(path)
+    pyr = tabs.pyramid
+    vr = pyr.value_range
+    lv = [np.asarray(g[str(L)][...]).astype(np.float64) for L in range(pyr.num_levels)]
+    B = pyr.brick_shape
+    stats = {}
+    for L in range(pyr.num_levels):
+        for idx in np.ndindex(*pyr.grid(L)):
+            v = lv[L][tuple(slice(i * b, (i + 1) * b) for i, b in zip(idx, B))].reshape(-1)
+            mu = v.mean()
+            cmu = _colour(tf, np.array([mu]), vr)[0]
+            dev = np.linalg.norm(_colour(tf, v, vr) - cmu, axis=1)
+            stats[L, idx] = (cmu[0], (dev**2).sum() / max(len(v) - 1, 1), len(v))
+    raw = {(0, idx): 0.0 for idx in np.ndindex(*pyr.grid(0))}
+    for L in range(1, pyr.num_levels):
+        for pidx in np.ndindex(*pyr.grid(L)):
+            total, worst = 0.0, 0.0
+            for o in np.ndindex(2, 2, 2):
+                c = tuple(2 * p + d for p, d in zip(pidx, o))
+                if any(ci >= gi for ci, gi in zip(c, pyr.grid(L - 1))):
+                    continue
+                gidx = [np.arange(ci * b, min((ci + 1) * b, s)) for ci, b, s in zip(c, B, lv[L - 1].shape)]
+                child = lv[L - 1][np.ix_(*gidx)].reshape(-1)
+                parent = lv[L][np.ix_(*(a // 2 for a in gidx))].reshape(-1)
+                de = np.linalg.norm(_colour(tf, parent, vr) - _colour(tf, child, vr), axis=1)
+                mi, vi, _ = stats[L, pidx]
+                mj, vj, n = stats[L - 1, c]
+                sig = np.sqrt((de**2).sum() / max(n - 1, 1))
+                lum = (mi**2 + mj**2 + C1) / (2 * mi * mj + C1)
+                con = (vi + vj + C2) / (2 * np.sqrt(vi * vj) + C2)
+                total += sig * lum * con
+                worst = max(worst, raw[L - 1, c])
+            raw[L, pidx] = total + worst
+    return raw
+
+
+def _head(rng):
+    from clipvol.bricking.generators import ct_head
+
+    return ct_head((40, 36, 44), seed=3)
+
+
+TF_A = TransferFunction.preset("bone")
+TF_B = TransferFunction.from_points([(0.0, (0, 0, 0, 0)), (0.5, (0.2, 0.6, 1.0, 0.1)), (1.0, (1, 0.3, 0.1, 0.9))])
+
+
+@pytest.mark.parametrize("tf", [TF_A, TF_B], ids=["bone", "blue-red"])
+def test_table_error_equals_voxel_error(tmp_path, rng, tf):
+    path = tmp_path / "h.zarr"
+    brick_volume(_head(rng), path, brick=8, progress=False)
+    got = lod_errors(open_summary(path), tf)
+    ref = _direct_eps(path, tf)
+    for (L, idx), want in ref.items():
+        assert got.raw_eps[L][idx] == pytest.approx(want, rel=1e-6, abs=1e-6), (L, idx)
+    assert max(float(e.max()) for e in got.eps) == pytest.approx(1.0)
+
+
+def test_float_store_error_within_quantisation(tmp_path, rng):
+    vol = _head(rng).astype(np.float32) / 7.0  # uniform 256-level quantisation of a float store
+    path = tmp_path / "f.zarr"
+    brick_volume(vol, path, brick=8, progress=False)
+    got = lod_errors(open_summary(path), TF_B)
+    ref = _direct_eps(path, TF_B)
+    L = max(k[0] for k in ref)
+    for (lv, idx), want in ref.items():
+        if lv >= 1:
+            assert got.raw_eps[lv][idx] == pytest.approx(want, rel=0.1, abs=0.02 * ref[L, (0, 0, 0)]), (lv, idx)
+
+
+def test_transfer_function_change_needs_only_the_tables(tmp_path, rng):
+    path = tmp_path / "h.zarr"
+    brick_volume(_head(rng), path, brick=8, progress=False)
+    want = _direct_eps(path, TF_B)
+    tabs = open_summary(path)
+    a = lod_errors(tabs, TF_A)
+    for L in range(tabs.pyramid.num_levels):  # the voxels are gone: only the tables are left
+        shutil.rmtree(path / str(L))
+    b = lod_errors(tabs, TF_B)
+    assert any(not np.allclose(x, y) for x, y in zip(a.raw_eps, b.raw_eps))
+    for (L, idx), w in want.items():
+        assert b.raw_eps[L][idx] == pytest.approx(w, rel=1e-6, abs=1e-6)

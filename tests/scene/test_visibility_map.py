@@ -1,0 +1,63 @@
+"""Per-brick visibility from occlusion layers: the summed-area-table mean equals numpy's mean over
+the same pixels, and a box behind an opaque region of the map is invisible."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clipvol.scene.camera import Camera
+from clipvol.scene.visibility import OcclusionLayers, rect_mean, screen_rects, summed_area_table
+
+
+def test_rect_mean_equals_numpy(rng):
+    img = rng.random((37, 53))
+    sat = summed_area_table(img)
+    x0 = rng.integers(0, 52, 200)
+    y0 = rng.integers(0, 36, 200)
+    x1 = x0 + 1 + rng.integers(0, 53 - x0)
+    y1 = y0 + 1 + rng.integers(0, 37 - y0)
+    got = rect_mean(sat, x0, y0, x1, y1)
+    want = [img[a:b, c:d].mean() for a, b, c, d in zip(y0, y1, x0, x1)]
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+
+
+def _cam():
+    return Camera.orthographic((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, -1.0, 0.0), 20.0, 20.0, size=(40, 40))
+
+
+def test_screen_rects_match_projected_corners():
+    cam = _cam()  # 2 pixels per world unit, centre of the image at x = y = 0
+    r, behind = screen_rects(cam, np.array([[-5.0, -5.0, 3.0]]), np.array([[5.0, 0.0, 6.0]]))
+    assert not behind[0]
+    # x in [-5, 5] -> pixels [10, 30]; up is -y so y = -5 is at the top of the image (row 10) ... y = 0 at row 20
+    np.testing.assert_allclose(sorted(r[0, [0, 2]]), [10.0, 30.0], atol=1e-9)
+    np.testing.assert_allclose(sorted(r[0, [1, 3]]), [10.0, 20.0], atol=1e-9)
+
+
+def test_box_behind_an_opaque_patch_is_invisible():
+    cam = _cam()
+    eye_depth = float(np.dot(np.asarray(cam.center) - cam.eye, cam.forward))
+    alpha = np.zeros((2, 20, 20))  # a map at half the camera's resolution
+    alpha[1, :, :10] = 1.0  # everything behind depth d1 on the left half is hidden
+    layers = OcclusionLayers(cam, np.array([0.0, eye_depth + 2.0]), alpha)
+    lo = np.array([[-8.0, -8.0, 5.0], [2.0, -8.0, 5.0], [-8.0, -8.0, -1.0], [-2.0, -8.0, 5.0]])
+    hi = np.array([[-2.0, 8.0, 7.0], [8.0, 8.0, 7.0], [-2.0, 8.0, 1.0], [2.0, 8.0, 7.0]])
+    v = layers.visibility(lo, hi)
+    assert v[0] == pytest.approx(0.0)  # behind the patch
+    assert v[1] == pytest.approx(1.0)  # beside it
+    assert v[2] == pytest.approx(1.0)  # in front of the layer's depth
+    assert v[3] == pytest.approx(0.5)  # half its footprint hidden
+
+
+def test_reuse_only_for_small_turns():
+    cam = _cam()
+    layers = OcclusionLayers(cam, np.array([0.0]), np.zeros((1, 4, 4)), key="tf")
+    assert layers.reusable(cam, "tf")
+    assert not layers.reusable(cam, "other tf")
+    turned = Camera.orthographic((0.0, 0.0, 0.0), (np.sin(np.radians(10)), 0.0, np.cos(np.radians(10))), (0.0, -1.0, 0.0),
+                                 20.0, 20.0, size=(40, 40))
+    assert not layers.reusable(turned, "tf", max_angle=3.0)
+    slight = Camera.orthographic((0.0, 0.0, 0.0), (np.sin(np.radians(1)), 0.0, np.cos(np.radians(1))), (0.0, -1.0, 0.0),
+                                 20.0, 20.0, size=(40, 40))
+    assert layers.reusable(slight, "tf", max_angle=3.0, scale=100.0)

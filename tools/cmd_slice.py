@@ -1,0 +1,191 @@
+"""Draw a cutting plane of a store: axial, coronal, sagittal or oblique, fine near a point of interest.
+
+The plane is ``--plane z=94`` (an axis letter and a level-0 voxel index), ``--axis coronal
+--index 120``, or ``--origin x,y,z --normal x,y,z`` (world units; ``--up`` sets the image's up).
+Without ``--poi`` and ``--level`` the slice is as fine as its pixels need; with ``--poi`` it is full
+resolution near that point and coarser away from it, balanced and blended so no seam shows
+(LaMar, Hamann & Joy, "Multiresolution cutting planes"); ``--level 0`` is full resolution
+everywhere. Outputs: a PNG (grey ``--window C,W`` or a ``--tf`` colour map), the float32 values
+(``--npy``, NaN outside the volume) and statistics (``--stats``, JSON; with the image edges'
+anatomical labels, R/L A/P S/I, when the store records its patient frame). Outputs are written
+to a temporary name and renamed when complete.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+from clipvol.errors import ParameterError
+
+from .cmd_render import _size, _triple
+
+
+def _window(text: str) -> tuple[float, float]:
+    try:
+        c, w = (float(t) for t in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected C,W (window centre and width), got {text!r}") from None
+    if not (math.isfinite(c) and math.isfinite(w) and w > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite centre and a width > 0, got {text!r}")
+    return c, w
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, or a .npy file")
+    g = p.add_argument_group("plane (one of)")
+    g.add_argument("--plane", default=None, help="AXIS=INDEX with AXIS z (axial), y (coronal) or x (sagittal), e.g. z=94")
+    g.add_argument("--axis", choices=("axial", "coronal", "sagittal"), default=None, help="preset plane")
+    g.add_argument("--index", type=float, default=None, help="--axis: level-0 voxel index along the axis (default: middle)")
+    g.add_argument("--origin", type=_triple, default=None, help="oblique plane: a point x,y,z of it (world units)")
+    g.add_argument("--normal", type=_triple, default=None, help="oblique plane: its normal x,y,z (the view direction)")
+    g.add_argument("--up", type=_triple, default=None, help="oblique plane: the image's up x,y,z")
+    s = p.add_argument_group("image")
+    s.add_argument("--size", type=_size, default=None, help="WxH pixels (default: the plane's cut through the volume)")
+    s.add_argument("--pixel-size", type=float, default=None, help="world units per pixel (default: the level-0 voxel)")
+    s.add_argument("--window", type=_window, default=None, help="grey window/level C,W (default: the value range)")
+    s.add_argument("--tf", default=None, help="colour the values with a transfer-function preset instead of grey")
+    s.add_argument("--out", "-o", default=None, help="output PNG")
+    s.add_argument("--npy", default=None, help="write the resampled values (float32, NaN outside the volume)")
+    s.add_argument("--stats", default=None, help="write statistics as JSON (bytes_loaded, tiles per level, time)")
+    r = p.add_argument_group("resolution")
+    r.add_argument("--poi", type=_triple, default=None, help="point of interest x,y,z: full resolution near it")
+    r.add_argument("--level", type=int, default=None, help="one level everywhere (0 = full resolution)")
+    r.add_argument("--distance-factor", type=float, default=1.0,
+                   help="--poi: refine nodes closer to it than this many of their diagonals (default 1)")
+    r.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel covers more pixels than this")
+    r.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default 64)")
+    r.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
+    r.add_argument("--texture-budget", default="256MB", help="GPU brick cache budget")
+    r.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
+    r.add_argument("--no-wait", action="store_true", help="draw what is resident after one pass (coarser fallback)")
+    r.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for the slice's bricks (default 300)")
+
+
+def plane_from_args(pyramid, args):
+    """The :class:`~clipvol.scene.plane.Plane` the arguments name (default: the middle axial plane).
+
+    Errors name the command-line option (``--plane: index: expected 0..255 ...``)."""
+    option = "--plane" if args.plane is not None else "--axis/--index" if args.axis is not None else "--origin/--normal/--up"
+    try:
+        return _plane_from_args(pyramid, args)
+    except ParameterError as e:
+        text = str(e)
+        raise ParameterError(text if text.startswith("--") else f"{option}: {text}") from None
+
+
+def _plane_from_args(pyramid, args):
+    from clipvol.scene.plane import AXIS_LETTERS, Plane
+
+    given = [name for name, v in (("--plane", args.plane), ("--axis", args.axis), ("--origin/--normal",
+             args.origin if args.origin is not None else args.normal)) if v is not None]
+    if len(given) > 1:
+        raise ParameterError(f"plane: expected one of --plane, --axis, --origin/--normal, got {' and '.join(given)}")
+    if args.index is not None and args.axis is None:
+        raise ParameterError("--index: expected together with --axis, got --index alone")
+    if args.plane is not None:
+        letter, _, index = args.plane.partition("=")
+        if letter.strip().lower() not in AXIS_LETTERS or not index:
+            raise ParameterError(f"--plane: expected AXIS=INDEX with AXIS x, y or z, got {args.plane!r}")
+        try:
+            i = float(index)
+        except ValueError:
+            raise ParameterError(f"--plane: expected a number after '=', got {args.plane!r}") from None
+        return Plane.axis(pyramid, AXIS_LETTERS[letter.strip().lower()], i)
+    if args.axis is not None:
+        return Plane.axis(pyramid, args.axis, args.index)
+    if args.origin is not None or args.normal is not None:
+        if args.origin is None or args.normal is None:
+            raise ParameterError("--origin/--normal: expected both for an oblique plane, got one")
+        return Plane.through(args.origin, args.normal, args.up)
+    return Plane.axis(pyramid, "axial")
+
+
+def _write_atomic(path: str, write) -> None:
+    import os
+
+    tmp = f"{path}.partial"
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def run(args) -> int:
+    import json
+
+    import numpy as np
+    from PIL import Image
+
+    from clipvol.paging.cliptexture import ClipTexture
+    from clipvol.paging.open import open_store
+    from clipvol.render import create_context
+    from clipvol.render.slice_action import SliceAction
+    from clipvol.scene.params import RenderParams
+    from clipvol.scene.transfer import TransferFunction
+    from clipvol.units import format_bytes
+
+    if args.out is None and args.npy is None and args.stats is None:
+        raise ParameterError("--out: expected at least one output (--out PNG, --npy, --stats), got none")
+    if args.out is not None and not str(args.out).lower().endswith(".png"):
+        raise ParameterError(f"--out: expected a .png file name, got {args.out!r}")
+    if args.npy is not None and not str(args.npy).lower().endswith(".npy"):
+        raise ParameterError(f"--npy: expected a .npy file name, got {args.npy!r}")
+    if args.tf is not None and args.tf not in TransferFunction.names():
+        raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())}, got {args.tf!r}")
+    if args.tf is not None and args.window is not None:
+        raise ParameterError("--window: expected either --window or --tf, got both")
+    if args.pixel_size is not None and not (math.isfinite(args.pixel_size) and args.pixel_size > 0):
+        raise ParameterError(f"--pixel-size: expected a finite size > 0 (world units), got {args.pixel_size}")
+    kwargs = {} if args.brick is None else {"brick": args.brick}
+    loader = open_store(args.source, **kwargs)
+    pyr = loader.pyramid
+    plane = plane_from_args(pyr, args)
+    lo, hi = pyr.volume_box()
+    if not plane.crosses(lo, hi)[0]:
+        raise ParameterError(f"plane: expected a plane that meets the volume {tuple(lo.tolist())}..{tuple(hi.tolist())}, "
+                             f"got origin {plane.origin} normal {plane.normal}")
+    if args.level is not None and not (0 <= args.level < pyr.num_levels):
+        raise ParameterError(f"--level: expected 0..{pyr.num_levels - 1} for this store, got {args.level}")
+    frame = getattr(loader, "frame", None)  # the source's voxel-to-world affine (NIfTI, DICOM, ...)
+    edges = None
+    if frame is not None:
+        from clipvol.scene.orientation import view_labels
+
+        edges = view_labels(frame.affine, plane.right, plane.up, frame.frame)
+    params = RenderParams(policy="plane", focus=args.poi, level=args.level, distance_factor=args.distance_factor,
+                          lod_threshold=args.lod_threshold, texture_budget=args.texture_budget)
+    centre = np.clip(np.asarray(args.poi if args.poi is not None else plane.origin, dtype=np.float64), lo, hi)
+    tf = TransferFunction.preset(args.tf) if args.tf is not None else None
+    ctx = create_context()
+    try:
+        with ClipTexture(loader, args.memory_budget, args.threads, center=centre) as clip, \
+                SliceAction(ctx, clip, params) as action:
+            rgba, values = action.render(plane, args.size, args.pixel_size, transfer_function=tf, window=args.window,
+                                         wait=not args.no_wait, timeout=args.timeout, return_values=True)
+            st = action.last_stats
+    finally:
+        ctx.release()
+    h, w = values.shape
+    if args.out is not None:
+        _write_atomic(args.out, lambda p: Image.fromarray(rgba, "RGBA").save(p, format="PNG"))
+    if args.npy is not None:
+        def save_npy(p):
+            with open(p, "wb") as f:
+                np.save(f, values)
+        _write_atomic(args.npy, save_npy)
+    if args.stats is not None:
+        doc = dict(st.as_dict(), size=[w, h], plane=dict(origin=list(plane.origin), normal=list(plane.normal),
+                                                         up=list(plane.up)), poi=args.poi, level=args.level,
+                   edges=edges)
+        _write_atomic(args.stats, lambda p: open(p, "w").write(json.dumps(doc, indent=1) + "\n"))
+    levels = ", ".join(f"L{L}: {n}" for L, n in st.tiles_per_level.items()) or "none"
+    print(f"slice {w}x{h}: tiles {st.tiles} ({levels}), {st.blended} blended, converged {st.converged}", file=sys.stderr)
+    print(f"bricks needed {st.bricks_needed} ({format_bytes(st.bytes_needed)}); loaded {format_bytes(st.bytes_loaded)}; "
+          f"uploaded {format_bytes(st.bytes_uploaded)}; total {st.times['total'] * 1000:.1f} ms", file=sys.stderr)
+    if edges is not None:
+        print("edges: " + ", ".join(f"{k} {v}" for k, v in edges.items()), file=sys.stderr)
+    return 0
