@@ -225,6 +225,7 @@ def brick_volume_dask(
     byte_order: str = "little",
     span: int = DEFAULT_SPAN,
     client=None,
+    summary: bool = True,
 ) -> StoreMeta:
     """Brick ``source`` into ``output`` on Dask; the store is byte-identical to
     :func:`clipvol.bricking.pipeline.brick_volume`'s with the same arguments.
@@ -240,6 +241,9 @@ def brick_volume_dask(
         Levels per tier task (>= 1); see the module docstring for the memory it implies.
     client : distributed.Client, optional
         Use this client instead of making one from ``scheduler``.
+    summary : bool
+        Then build the summary tables of image-based level of detail, as the local path does
+        (:func:`clipvol.bricking.summary.build_summary`, on the client, from the finished store).
 
     The other parameters are :func:`~clipvol.bricking.pipeline.brick_volume`'s.
     """
@@ -281,6 +285,10 @@ def brick_volume_dask(
                 group = zarr.open_group(str(output), mode="r+")
             _build(client, spec, group, pyramid, output, codec, span, progress)
             mark_complete(group)  # the very last write, by the client
+        if summary:  # the same tables as the local path, with their own completion marker
+            from .summary import build_summary
+
+            build_summary(output, workers=workers, progress=progress)
         return parse_metadata(dict(group.attrs), str(output))
     finally:
         if own is not None:
