@@ -128,8 +128,11 @@ class SliceLayout:
         self.planes[name] = Plane(pl.origin, tuple(n2), tuple(u2))
 
     # -- drawing ----------------------------------------------------------------------------------
-    def render(self, camera_for_size, size) -> np.ndarray:
-        """The 2x2 grid as ``(h, w, 4)`` uint8; ``camera_for_size((w, h))`` gives the 3D panel's camera."""
+    def render(self, camera_for_size, size, *, wait: bool = False, timeout: float | None = None) -> np.ndarray:
+        """The 2x2 grid as ``(h, w, 4)`` uint8; ``camera_for_size((w, h))`` gives the 3D panel's camera.
+
+        The viewer draws what is resident (``wait=False``) and refines over the next frames;
+        ``wait=True`` waits for each panel's bricks (offscreen use, tests)."""
         self.size = (int(size[0]), int(size[1]))
         w, h = self.size
         out = np.zeros((h, w, 4), dtype=np.uint8)
@@ -149,7 +152,7 @@ class SliceLayout:
                 # the 3D view cut open at the axial plane, the plane drawn in it (orientation)
                 sess.set_center(self.poi)
                 img = self.action.render_in_view(sess.action, camera_for_size((pw, ph)), sess.transfer_function,
-                                                 self.planes["axial"])
+                                                 self.planes["axial"], wait=wait, timeout=timeout)
                 self.stats[name] = sess.frame_stats
             else:
                 pl = self.planes[name]
@@ -157,7 +160,8 @@ class SliceLayout:
                 if not pl.crosses(lo, hi)[0]:
                     continue
                 img = self.action.render(pl, (pw, ph), self.pixel_size(name, (pw, ph)),
-                                         window=((lo_v + hi_v) / 2.0, max(hi_v - lo_v, 1e-30)))
+                                         window=((lo_v + hi_v) / 2.0, max(hi_v - lo_v, 1e-30)), wait=wait,
+                                         timeout=timeout)
                 self.stats[name] = self.action.last_stats
             a = img[..., 3:4].astype(np.float32) / 255.0
             out[y0:y0 + ph, x0:x0 + pw, :3] = np.rint(img[..., :3] * a).astype(np.uint8)

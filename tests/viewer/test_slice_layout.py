@@ -31,7 +31,7 @@ def _cam(size):
 def test_panels_show_the_planes_in_radiological_order(session):
     lay = SliceLayout(session)
     lay.set_poi((20.0, 24.0, 10.0))
-    img = lay.render(_cam, (160, 120))
+    img = lay.render(_cam, (160, 120), wait=True, timeout=60)
     assert img.shape == (120, 160, 4)
     grey = np.where((img[..., 0] == img[..., 1]) & (img[..., 1] == img[..., 2]), img[..., 0], 0).astype(float)
     ax = grey[0:60, 0:80]  # (the yellow cross at the point of interest is left out)
@@ -73,7 +73,7 @@ def test_step_and_tilt(session):
     n = np.asarray(pl.normal)
     assert np.linalg.norm(n) == pytest.approx(1) and abs(n @ np.asarray(pl.up)) < 1e-9
     assert np.degrees(np.arccos(abs(n @ np.array([-1.0, 0, 0])))) > 5  # oblique now
-    img = lay.render(_cam, (160, 120))
+    img = lay.render(_cam, (160, 120), wait=True, timeout=60)
     assert img[60:, 0:80, 0].any()  # the oblique sagittal panel still draws
 
 
