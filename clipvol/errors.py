@@ -22,6 +22,7 @@ __all__ = [
     "OutputLockedError",
     "SourceChangedError",
     "MissingExtraError",
+    "RemoteStoreError",
 ]
 
 
@@ -77,3 +78,8 @@ class SourceChangedError(OutputExistsError):
 
 class MissingExtraError(ClipvolError, ImportError):
     """An optional dependency is not installed; the message names the extra that brings it."""
+
+
+class RemoteStoreError(ClipvolError, OSError):
+    """A remote store (S3, HTTP, any fsspec URL) cannot be read: unreachable, no credentials,
+    access denied, or retries exhausted (names the URL, never the credentials)."""

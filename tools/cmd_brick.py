@@ -36,6 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dtype", help="raw input: numpy dtype, e.g. uint16")
     parser.add_argument("--byte-order", default="little", help="raw input: little | big (default little)")
     parser.add_argument("--workers", type=int, default=None, help="threads (default: number of cores)")
+    parser.add_argument("--scheduler", default=None, metavar="S",
+                        help="build on Dask: threads | processes | tcp://HOST:PORT of a dask.distributed scheduler "
+                             "(default: the local thread pool, no Dask needed; needs clipvol[dask])")
     parser.add_argument("--overwrite", action="store_true", help="remove an existing OUTPUT first")
     parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     parser.add_argument("--labels", action="append", default=[], metavar="FILE[:NAME]",
@@ -54,7 +57,14 @@ def run(args: argparse.Namespace) -> int:
     spacing = _triple(args.spacing, "spacing") if args.spacing else None
     shape = _triple(args.shape, "shape", int) if args.shape else None
     t0 = time.perf_counter()
-    meta = brick_volume(
+    build = brick_volume
+    if args.scheduler:
+        from functools import partial
+
+        from clipvol.bricking.dask_build import brick_volume_dask
+
+        build = partial(brick_volume_dask, scheduler=args.scheduler)
+    meta = build(
         args.input, args.output, brick=args.brick, filter=args.filter, codec=args.codec, spacing=spacing,
         unit=args.unit, workers=args.workers, overwrite=args.overwrite, progress=not args.quiet,
         raw_shape=shape, raw_dtype=args.dtype, byte_order=args.byte_order, summary=not args.no_summary,

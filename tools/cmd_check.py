@@ -129,6 +129,18 @@ def open_checked(path):
     from clipvol.bricking.store import open_store_meta
     from clipvol.loaders.zarr_store import UnverifiedStoreWarning, ZarrLoader
 
+    from clipvol.paging.bytesource import is_remote_url
+
+    if is_remote_url(str(path)):  # a store behind a URL: the same checks through the remote loader
+        from clipvol.loaders.zarr_remote import RemoteZarrLoader, remote_store_meta
+
+        meta, _ = remote_store_meta(str(path))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", UnverifiedStoreWarning)
+            loader = RemoteZarrLoader(str(path), allow_incomplete=True)
+        for w in caught:
+            print(f"note: {w.message}", file=sys.stderr)
+        return meta, loader
     meta = open_store_meta(path)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UnverifiedStoreWarning)
@@ -154,7 +166,9 @@ def run(args: argparse.Namespace) -> int:
         return point_cli.check(args.store)
     if args.samples < 1:
         raise ParameterError(f"--samples: expected an integer >= 1, got {args.samples}")
-    path = Path(args.store)
+    from clipvol.paging.bytesource import is_remote_url
+
+    path = args.store if is_remote_url(args.store) else Path(args.store)
     meta, loader = open_checked(path)
     pyr = loader.pyramid
     rng = np.random.default_rng(args.seed)

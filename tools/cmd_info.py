@@ -28,7 +28,11 @@ _META_FILES = {"zarr.json", ".zarray", ".zattrs", ".zgroup", ".zmetadata"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("store", metavar="STORE", help="a store written by `clipvol brick`, or any OME-Zarr image")
+    parser.add_argument("store", metavar="STORE", help="a store written by `clipvol brick`, or any OME-Zarr image "
+                        "(a directory or a URL: s3://, https://, ...)")
+    from clipvol.tools.remote_args import add_remote_arguments
+
+    add_remote_arguments(parser)
 
 
 def chunk_files(array_dir: Path) -> list[tuple[Path, tuple[int, ...] | None]]:
@@ -139,6 +143,12 @@ def run(args: argparse.Namespace) -> int:
     from clipvol.loaders.zarr_store import ZarrLoader
     from clipvol.units import format_bytes
 
+    from clipvol.paging.bytesource import is_remote_url
+
+    if is_remote_url(args.store):  # a store behind a URL: see clipvol.tools.remote_info
+        from clipvol.tools.remote_info import run_remote_info
+
+        return run_remote_info(args)
     path = Path(args.store)
     if not path.exists():
         raise InputNotFoundError(f"{path}: no such store")

@@ -43,7 +43,8 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, or a .npy file")
+    p.add_argument("source", help="a clipvol store / OME-Zarr directory or URL (s3://, https://, ...), procedural:NAME?size=N, "
+                                  "or a .npy file")
     p.add_argument("--out", "-o", required=True, help="output PNG")
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default 64)")
     d = p.add_argument_group("data")
@@ -92,6 +93,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--no-wait", action="store_true", help="do not wait for the view's bricks (draw what is resident)")
     r.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for convergence (default 300)")
     r.add_argument("--tolerance", default="0.01", help="point stores: largest splat, a fraction of the screen (0.05), '5%%' or '12px' (default 0.01)")
+    sl = p.add_argument_group("sort-last rendering on Dask (needs clipvol[dask])")
+    sl.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="draw N spatially disjoint brick groups in N worker processes and composite them")
+    sl.add_argument("--scheduler", default="processes", metavar="S",
+                    help="with --workers: processes (a local cluster, default) or tcp://HOST:PORT of a dask.distributed scheduler")
+    from clipvol.tools.remote_args import add_remote_arguments
+
+    add_remote_arguments(p)
 
 
 def check_output_file(path, suffix: str, flag: str) -> None:
@@ -179,9 +188,11 @@ def run(args) -> int:
         from clipvol.tools import point_cli
 
         return point_cli.render(args)
+    from clipvol.tools.remote_args import remote_kwargs
+
     kwargs = {} if args.brick is None else {"brick": args.brick}
     kwargs.update({k: v for k, v in (("t", args.t), ("c", args.c)) if v is not None})
-    loader = open_store(args.source, **kwargs)
+    loader = open_store(args.source, **kwargs, **remote_kwargs(args))
     if args.hide_labels:
         loader = hidden_labels(args.source, loader, args.hide_labels)
     pyr = loader.pyramid
@@ -199,6 +210,8 @@ def run(args) -> int:
         background=args.background, block_budget=args.block_budget, visibility=not args.no_visibility,
     ).check_for(pyr)
     tf = transfer_function_from_args(args, loader)
+    if args.workers is not None:  # sort-last on Dask: groups of bricks in worker processes
+        return _run_sort_last(args, params, cam, tf, kwargs)
     ctx = create_context()
     try:
         with ClipTexture(loader, args.memory_budget, args.threads, center=centre) as clip, \
@@ -221,4 +234,32 @@ def run(args) -> int:
         print(f"image policy: block budget {params.block_budget}, {st.bricks_distinct} bricks drawn, "
               f"estimated error {est:.3f}", file=sys.stderr)
     print("time: " + ", ".join(f"{k} {v * 1000:.1f} ms" for k, v in t.items()), file=sys.stderr)
+    return 0
+
+
+def _run_sort_last(args, params, cam, tf, kwargs) -> int:
+    """``--workers N``: :class:`clipvol.app.sortlast.DistributedRenderer` instead of one action."""
+    from PIL import Image
+
+    from clipvol.app.sortlast import DistributedRenderer
+    from clipvol.tools.remote_args import remote_kwargs
+
+    if args.workers < 1:
+        raise ParameterError(f"--workers: expected an integer >= 1, got {args.workers}")
+    if args.no_wait:
+        raise ParameterError("--no-wait: sort-last frames are always converged; drop --no-wait or --workers")
+    if args.hide_labels:
+        raise ParameterError("--hide-labels: not available with --workers (the workers draw the image alone)")
+    with DistributedRenderer(args.source, args.workers, params, scheduler=args.scheduler,
+                             memory_budget=args.memory_budget, timeout=args.timeout,
+                             source_kwargs={**kwargs, **remote_kwargs(args)}) as dr:
+        image = dr.render(cam, tf)
+        st = dr.last_stats
+    Image.fromarray(image, "RGBA").save(args.out)
+    print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, {args.mode}, {params.policy}, sort-last over "
+          f"{args.workers} workers)", file=sys.stderr)
+    print(f"converged {st.converged}", file=sys.stderr)
+    print("time: frame {:.1f} ms, groups {}, compositing {:.1f} ms".format(
+        st.frame_seconds * 1000, ", ".join(f"{t * 1000:.1f} ms" for t in st.group_seconds), st.composite_seconds * 1000),
+        file=sys.stderr)
     return 0

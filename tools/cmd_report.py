@@ -29,7 +29,11 @@ def _sizes(text: str) -> list[str]:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from clipvol.tools.cmd_view import _size
 
-    p.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, or a .npy file")
+    p.add_argument("source", help="a clipvol store / OME-Zarr directory or URL (s3://, https://, ...), procedural:NAME?size=N, "
+                                  "or a .npy file")
+    from clipvol.tools.remote_args import add_remote_arguments
+
+    add_remote_arguments(p)
     p.add_argument("--out", required=True, help="output directory (created)")
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources")
     p.add_argument("--path", choices=("orbit", "fly", "zoom"), default="orbit", help="camera path the views come from")
@@ -77,7 +81,9 @@ def run(args) -> int:
 
     from clipvol.tools.tf_args import transfer_function_from_args
 
-    loader = open_loader(args.source, **({} if args.brick is None else {"brick": args.brick}))
+    from clipvol.tools.remote_args import remote_kwargs
+
+    loader = open_loader(args.source, **({} if args.brick is None else {"brick": args.brick}), **remote_kwargs(args))
     tf = transfer_function_from_args(args, loader)
     res = run_report(
         loader, args.out, path=args.path, views=args.views, size=args.size, thresholds=args.thresholds,

@@ -31,9 +31,12 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, a .npy file, or a NIfTI / "
-                   "DICOM folder / FILE.h5:/dataset / MRC input (bricked first into --store)")
+    p.add_argument("source", help="a clipvol store / OME-Zarr directory or URL (s3://, https://, ...), procedural:NAME?size=N, "
+                   "a .npy file, or a NIfTI / DICOM folder / FILE.h5:/dataset / MRC input (bricked first into --store)")
     p.add_argument("--store", default=None, help="where a NIfTI/DICOM/HDF5/MRC input is bricked (default ./NAME.zarr; reused when it exists)")
+    from clipvol.tools.remote_args import add_remote_arguments
+
+    add_remote_arguments(p)
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default: the loader's, 64)")
     g = p.add_argument_group("rendering")
     g.add_argument("--mode", choices=("composite", "mip"), default="composite", help="compositing or maximum intensity projection")
@@ -62,6 +65,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     o.add_argument("--fps", type=float, default=12.0, help="GIF or movie frame rate")
     o.add_argument("--quality", type=float, default=8.0, help="movie quality, 0 (smallest) .. 10 (best), default 8")
     o.add_argument("--no-labels", action="store_true", help="do not write anatomical edge labels on the frames")
+    o.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="draw each frame sort-last in N Dask worker processes (PNG frames; needs clipvol[dask])")
+    o.add_argument("--scheduler", default="processes", metavar="S", help="with --workers: processes or tcp://HOST:PORT")
     w = p.add_argument_group("window")
     w.add_argument("--screenshot-dir", default="clipvol-screenshots",
                    help="folder where P (with the HUD) and Shift+P (without) save screenshots, S the transfer "
@@ -94,8 +100,12 @@ def _bricked(args) -> str:
     import os
     from pathlib import Path
 
+    from clipvol.paging.bytesource import is_remote_url
+
     text = args.source
     p = Path(text)
+    if is_remote_url(text):  # a store behind a URL is opened as it is
+        return text
     if text.startswith("procedural:") or p.suffix.lower() == ".npy" or (p.is_dir() and any((p / m).exists() for m in ("zarr.json", ".zgroup"))):
         return text
     from clipvol.bricking.formats import open_format
@@ -134,12 +144,26 @@ def run(args) -> int:
         lod_threshold=args.lod_threshold, policy=args.selection, level=args.level, mode=args.mode,
         step=args.step, texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget,
     )
+    from clipvol.tools.remote_args import remote_kwargs
+
     kwargs = {} if args.brick is None else {"brick": args.brick}
     source = _bricked(args)
-    loader = open_loader(source, **kwargs)
+    loader = open_loader(source, **kwargs, **remote_kwargs(args))
     if params.level is not None and params.level >= loader.pyramid.num_levels:
         raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {params.level}")
     tf = transfer_function_from_args(args, loader)
+    if args.workers is not None and not args.offscreen:
+        raise ParameterError("--workers: sort-last frames are drawn offscreen only; add --offscreen")
+    if args.offscreen and args.workers is not None:  # sort-last frames on Dask
+        from clipvol.app.sortlast import render_path_sort_last
+
+        rows = render_path_sort_last(source, args.out, workers=args.workers, scheduler=args.scheduler,
+                                     path=args.path, frames=args.frames, size=args.size or (256, 256), params=params,
+                                     tf=tf, memory_budget=args.memory_budget, source_kwargs={**kwargs, **remote_kwargs(args)},
+                                     progress=lambda r: print(f"frame {r['frame']:4d}  {r['frame_s'] * 1e3:7.1f} ms  "
+                                                              f"compositing {r['composite_s'] * 1e3:5.1f} ms", flush=True))
+        print(f"wrote {len(rows)} frames to {args.out}; per-frame times in {args.out}/frames.csv")
+        return 0
     if args.offscreen:
         from clipvol.app.flythrough import render_path
 

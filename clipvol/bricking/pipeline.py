@@ -58,7 +58,7 @@ from .store import (
 )
 
 __all__ = ["brick_volume", "CODECS", "BRICK_RANGE", "store_codecs", "chunk_encoder", "output_lock", "job_spec",
-           "prepare_output", "mark_complete"]
+           "prepare_output", "mark_complete", "encode_brick"]
 
 CODECS = ("lz4", "zstd", "none")
 BRICK_RANGE = (8, 256)
@@ -121,6 +121,19 @@ def chunk_encoder(codec: str, dtype: np.dtype, checksum: bool = True) -> Callabl
         return data + google_crc32c.value(data).to_bytes(4, "little")
 
     return with_crc
+
+
+def encode_brick(block: np.ndarray, brick_shape, encode: Callable[[np.ndarray], bytes]) -> bytes | None:
+    """The chunk file's bytes for a brick's valid voxels ``block`` (an edge brick is padded with the
+    fill value, as zarr does), or ``None`` for an empty brick (all fill bytes: not written).
+    Shared by the local sweep and the Dask build, so both write the same bytes."""
+    if not block.view(f"u{block.dtype.itemsize}").any():  # not all fill (0) bytes
+        return None
+    full = block
+    if block.shape != tuple(brick_shape):
+        full = np.zeros(brick_shape, dtype=block.dtype)
+        full[: block.shape[0], : block.shape[1], : block.shape[2]] = block
+    return encode(full)
 
 
 def _check_params(filter: str, codec: str, spacing, unit: str, workers) -> tuple[tuple[float, float, float] | None, int]:
@@ -369,12 +382,8 @@ class _Builder:
         if write:
             st = self.stats.compute(block)
             crc = -1  # no chunk written
-            if block.view(f"u{block.dtype.itemsize}").any():  # not all fill (0) bytes
-                full = block
-                if block.shape != B:
-                    full = np.zeros(B, dtype=block.dtype)
-                    full[: block.shape[0], : block.shape[1], : block.shape[2]] = block
-                data = self.encode(full)
+            data = encode_brick(block, B, self.encode)
+            if data is not None:
                 if self.checksum:
                     crc = int.from_bytes(data[-4:], "little")
                 d = self.out / str(L) / "c" / str(k) / str(by)

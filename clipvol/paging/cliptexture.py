@@ -170,7 +170,8 @@ class ClipTexture:
     memory_budget : int or str
         Bytes for the brick slot pool (``"256MB"``, ``"1GiB"``, ...); never exceeded.
     threads : int, optional
-        Loader threads; default ``os.cpu_count()``.
+        Loader threads; default the loader's ``preferred_threads`` if it has one (a remote
+        store asks for as many as it keeps requests in flight), else ``os.cpu_count()``.
     center : (x, y, z), optional
         Initial centre of interest in world units; default the volume's centre.
     retries : int
@@ -204,7 +205,9 @@ class ClipTexture:
         self.loader = loader
         self.pyramid = loader.pyramid
         self.memory_budget: int = parse_bytes(memory_budget, "memory_budget")
-        nthreads = _count((os.cpu_count() or 1) if threads is None else threads, "threads", 1)
+        if threads is None:  # an I/O-bound loader (a remote store) may ask for more threads than cores
+            threads = getattr(loader, "preferred_threads", None) or os.cpu_count() or 1
+        nthreads = _count(threads, "threads", 1)
         retries = _count(retries, "retries", 0)
         try:
             backoff = float(retry_backoff)

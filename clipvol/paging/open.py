@@ -14,6 +14,7 @@ from importlib.metadata import entry_points
 from pathlib import Path
 
 from ..errors import InputFormatError, InputNotFoundError
+from .bytesource import is_remote_url
 from .loader import Loader
 
 __all__ = ["open_store", "loader_plugins"]
@@ -37,6 +38,9 @@ def open_store(path_or_url: str | Path, **kwargs) -> Loader:
           plain OME-Zarr image -> :class:`clipvol.loaders.zarr_store.ZarrLoader`;
         * a ``.npy`` file -> :class:`clipvol.loaders.numpy_array.NumpyLoader` (memory-mapped);
         * ``procedural:NAME?...`` -> :class:`clipvol.loaders.procedural.ProceduralLoader`;
+        * ``s3://...``, ``https://...``, ``gs://...`` or any other fsspec URL of a clipvol store or
+          OME-Zarr image -> :class:`clipvol.loaders.zarr_remote.RemoteZarrLoader` (read-only;
+          ``cache=DIR`` keeps fetched chunks on disk, ``storage_options={...}`` go to fsspec);
         * ``SCHEME:...`` -> the ``clipvol.loaders`` entry point named ``SCHEME``, called with the
           full URL and ``kwargs``.
     **kwargs
@@ -58,6 +62,10 @@ def open_store(path_or_url: str | Path, **kwargs) -> Loader:
 
             return ProceduralLoader(text, **kwargs)
         plugins = loader_plugins()
+        if scheme not in plugins and is_remote_url(text):
+            from ..loaders.zarr_remote import RemoteZarrLoader
+
+            return RemoteZarrLoader(text, **kwargs)
         if scheme not in plugins:
             raise InputFormatError(
                 f"{text}: no loader for the scheme {scheme!r}; expected a path, 'procedural:...', or one of the "

@@ -181,6 +181,7 @@ class ClipRenderAction:
         self.occlusion_passes = 0
         self.boxes_drawn = 0  # proxy boxes of the last frame, after merge_items
         self.last_selection = None
+        self.last_raw: np.ndarray | None = None  # (h, w, 4) float32 target of the last frame, rows top first
         self._moderngl = moderngl
         self.program["u_volume"].value = 0
         self.program["u_tf"].value = 1
@@ -533,6 +534,7 @@ class ClipRenderAction:
         ctx.finish()
         t1 = time.perf_counter()
         raw = np.frombuffer(fbo.read(components=4, dtype="f4"), dtype=np.float32).reshape(int(h), int(w), 4)[::-1]
+        self.last_raw = raw  # the target before the background (sort-last compositing reads it)
         # give the binding back (a released framebuffer left bound breaks later framebuffers)
         if previous is None:
             if self._default_fbo is None:

@@ -1,0 +1,268 @@
+"""Read a clipvol store or OME-Zarr image from object storage or a web server (any fsspec URL).
+
+The remote loader *is* the local :class:`~clipvol.loaders.zarr_store.ZarrLoader` with one thing
+swapped: where chunk bytes come from. Its ``_chunk_bytes`` asks a
+:class:`~clipvol.paging.bytesource.FsspecByteSource` (many requests in flight, retries with
+backoff, optional on-disk cache) instead of opening a file, so decoding, validation, OME-Zarr
+handling and error messages are the local loader's, unchanged.
+
+Metadata (a few kB of JSON, plus the per-brick statistics arrays) is fetched once, concurrently,
+into a private temporary directory that mirrors the store's layout, and the local loader reads
+it from there. Statistics of a level are fetched the first time the renderer asks for them.
+Chunks of arrays whose codecs the fast path does not decode (sharding, transposes, ...) are read
+with zarr-python over its own fsspec store: same values, without this loader's retries or cache.
+
+Read-only: nothing is ever written to the remote store.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import shutil
+import tempfile
+import threading
+import weakref
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from clipvol.bricking.store import STATS_GROUP, STAT_ARRAYS
+from clipvol.errors import ClipvolError, InputFormatError, RemoteStoreError
+from clipvol.paging.bytesource import DEFAULT_IN_FLIGHT, FsspecByteSource
+
+from .zarr_store import ZarrLoader
+
+__all__ = ["RemoteZarrLoader"]
+
+#: statistics arrays with more chunks than this are not mirrored (the renderer then reads bricks
+#: to learn they are empty, as for a plain OME-Zarr image)
+MAX_STATS_CHUNKS = 4096
+
+
+def _json(data: bytes | None, where: str) -> dict | None:
+    if data is None:
+        return None
+    try:
+        doc = json.loads(data)
+    except ValueError as e:
+        raise InputFormatError(f"{where}: not JSON ({e})") from None
+    return doc if isinstance(doc, dict) else None
+
+
+def _chunk_keys(meta: dict) -> list[str]:
+    """Every chunk key of a small zarr v3 array described by ``meta`` (default or v2 key encoding)."""
+    shape = meta.get("shape")
+    chunks = ((meta.get("chunk_grid") or {}).get("configuration") or {}).get("chunk_shape")
+    if not (isinstance(shape, list) and isinstance(chunks, list) and len(shape) == len(chunks)
+            and all(isinstance(v, int) and v > 0 for v in shape + chunks)):
+        return []
+    grid = [math.ceil(s / c) for s, c in zip(shape, chunks)]
+    if math.prod(grid) > MAX_STATS_CHUNKS:
+        return []
+    cke = meta.get("chunk_key_encoding") or {"name": "default"}
+    default = cke.get("name") == "default"
+    sep = (cke.get("configuration") or {}).get("separator", "/" if default else ".")
+    prefix = "c" + sep if default else ""
+    import itertools
+
+    return [prefix + sep.join(map(str, idx)) for idx in itertools.product(*(range(g) for g in grid))] or [prefix + "0"]
+
+
+class RemoteZarrLoader(ZarrLoader):
+    """A :class:`ZarrLoader` over a remote URL (``s3://``, ``https://``, ``gs://``, any fsspec URL).
+
+    Parameters
+    ----------
+    url : str
+        The store's root URL.
+    cache : str or Path, optional
+        Directory of an on-disk chunk cache (kept between sessions; one namespace per store
+        version, so a rebuilt store is never read stale).
+    storage_options : dict, optional
+        fsspec options, e.g. ``{"anon": True}`` or ``{"endpoint_url": "http://..."}``;
+        credentials otherwise come from the environment.
+    max_in_flight : int
+        Requests outstanding at once; also the number of loader threads a clip-texture uses by
+        default (:attr:`preferred_threads`).
+    retries, timeout
+        See :class:`~clipvol.paging.bytesource.FsspecByteSource`.
+    **loader_kwargs
+        Passed to :class:`ZarrLoader` (``t``, ``c``, ``allow_incomplete``).
+
+    Raises
+    ------
+    RemoteStoreError
+        Unreachable, no credentials, access denied, retries exhausted (one line naming the URL).
+    InputFormatError, StoreFormatError, StoreIncompleteError
+        As :class:`ZarrLoader`, naming the URL: not a zarr store, not clipvol / OME-Zarr, ...
+    """
+
+    def __init__(self, url: str, *, cache: str | Path | None = None, storage_options: dict | None = None,
+                 max_in_flight: int = DEFAULT_IN_FLIGHT, retries: int = 5, timeout: float = 30.0,
+                 **loader_kwargs) -> None:
+        self.source = FsspecByteSource(url, storage_options=storage_options, max_in_flight=max_in_flight,
+                                       retries=retries, timeout=timeout, cache=cache)
+        self.url = self.source.display_url
+        self._storage_options = storage_options
+        self._mirror = Path(tempfile.mkdtemp(prefix="clipvol-remote-meta-"))
+        self._finalizer = weakref.finalize(self, shutil.rmtree, str(self._mirror), True)
+        self._stats_lock = threading.Lock()
+        self._stats_mirrored: set[int] = set()
+        try:
+            self._mirror_metadata()
+            super().__init__(self._mirror, **loader_kwargs)
+        except ClipvolError as e:
+            self._finalizer()
+            raise self._renamed(e) from None
+        except BaseException:
+            self._finalizer()
+            raise
+        self._where = self.url
+
+    @property
+    def preferred_threads(self) -> int:
+        """Loader threads that keep ``max_in_flight`` requests busy (more than cores: they wait on I/O)."""
+        return self.source.max_in_flight
+
+    def _renamed(self, e: ClipvolError) -> ClipvolError:
+        """``e`` with the private mirror's path replaced by the URL (messages name what the user gave)."""
+        text = str(e).replace(str(self._mirror), self.url)
+        try:
+            return type(e)(text)
+        except TypeError:  # pragma: no cover - every ClipvolError takes one message
+            return e
+
+    def _put(self, key: str, data: bytes) -> None:
+        p = self._mirror / key
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_bytes(data)
+
+    def _mirror_metadata(self) -> None:
+        src = self.source
+        got = src.get_many(["zarr.json", ".zgroup", ".zattrs"])
+        root = got["zarr.json"] if got["zarr.json"] is not None else None
+        if root is None and got[".zgroup"] is None:
+            raise InputFormatError(f"{self.url}: not a zarr store (neither zarr.json nor .zgroup found at this URL)")
+        seed = b""
+        for k, v in got.items():
+            if v is not None:
+                self._put(k, v)
+                seed += k.encode() + b"\0" + v
+        src.enable_cache(seed)
+        doc = _json(root, f"{self.url}/zarr.json") if root is not None else None
+        if root is not None:
+            attrs = (doc or {}).get("attributes") or {}
+        else:
+            attrs = _json(got[".zattrs"], f"{self.url}/.zattrs") or {}
+        paths: list[str] = []
+        ome = attrs.get("ome") if isinstance(attrs.get("ome"), dict) else attrs
+        ms = ome.get("multiscales") if isinstance(ome, dict) else None
+        if isinstance(ms, list) and ms and isinstance(ms[0], dict) and isinstance(ms[0].get("datasets"), list):
+            paths += [d["path"] for d in ms[0]["datasets"] if isinstance(d, dict) and isinstance(d.get("path"), str)]
+        cv = attrs.get("clipvol")
+        if isinstance(cv, dict) and isinstance(cv.get("levels"), list):
+            paths += [str(L) for L in range(len(cv["levels"]))]
+        paths = list(dict.fromkeys(p.strip("/") for p in paths if re.fullmatch(r"[A-Za-z0-9_.\-/]+", p)))
+        keys = [f"{p}/{name}" for p in paths for name in ("zarr.json", ".zarray", ".zattrs")]
+        for k, v in src.get_many(keys).items():
+            if v is not None:
+                self._put(k, v)
+
+    # -- the one swapped piece: chunk bytes ------------------------------------------------------
+    def _chunk_bytes(self, level: int, index) -> bytes | None:
+        am = self._arrays[level]
+        key = am.chunk_path(self._chunk_lead + tuple(index)).relative_to(self._mirror).as_posix()
+        return self.source.get(key)
+
+    def _read_zarr(self, level: int, start, stop):
+        """Arrays the fast path cannot decode: zarr-python over its own fsspec store."""
+        arr = self._zarr_arrays.get(level)
+        if arr is None:
+            import zarr
+            from zarr.storage import FsspecStore
+
+            with self._lock:
+                arr = self._zarr_arrays.get(level)
+                if arr is None:
+                    rel = self._arrays[level].path.relative_to(self._mirror).as_posix()
+                    store = FsspecStore.from_url(self.source.url, storage_options=self._storage_options, read_only=True)
+                    arr = zarr.open_array(store, path=rel, mode="r")
+                    self._zarr_arrays[level] = arr
+        sl = self._select + tuple(slice(a, b) for a, b in zip(start, stop))
+        try:
+            return np.asarray(arr[sl])
+        except (OSError, RuntimeError) as e:
+            raise RemoteStoreError(f"{self.url}: level {level}: {type(e).__name__}: {str(e)[:160]}") from None
+
+    def brick_statistics(self, level: int):
+        """As :meth:`ZarrLoader.brick_statistics`; the level's statistics arrays are fetched first."""
+        self._pyramid.check_key(level, (0, 0, 0))
+        if self.is_clipvol_store:
+            with self._stats_lock:
+                if level not in self._stats_mirrored:
+                    self._mirror_stats(level)
+                    self._stats_mirrored.add(level)
+        return super().brick_statistics(level)
+
+    def _mirror_stats(self, level: int) -> None:
+        base = f"{STATS_GROUP}/{level}"
+        metas = self.source.get_many([f"{STATS_GROUP}/zarr.json", f"{base}/zarr.json"]
+                                     + [f"{base}/{n}/zarr.json" for n in STAT_ARRAYS])
+        chunk_keys: list[str] = []
+        for k, v in metas.items():
+            if v is None:
+                continue
+            self._put(k, v)
+            doc: Any = _json(v, f"{self.url}/{k}")
+            if doc and doc.get("node_type") == "array":
+                arr = k[: -len("/zarr.json")]
+                keys = _chunk_keys(doc)
+                if not keys:  # too many chunks to mirror: leave this array out
+                    shutil.rmtree(self._mirror / arr, ignore_errors=True)
+                    continue
+                chunk_keys += [f"{arr}/{c}" for c in keys]
+        for k, v in self.source.get_many(chunk_keys).items():
+            if v is not None:
+                self._put(k, v)
+
+    def close(self) -> None:
+        """Remove the private metadata mirror (also done when the loader is collected)."""
+        self._finalizer()
+
+    def __repr__(self) -> str:
+        kind = "clipvol store" if self.is_clipvol_store else "OME-Zarr"
+        return f"RemoteZarrLoader({self.url!r}, {kind}, {self._pyramid.num_levels} levels, brick {self._pyramid.brick_shape})"
+
+
+def remote_store_meta(url: str, *, storage_options: dict | None = None, **source_kwargs):
+    """The validated clipvol metadata of the store at ``url`` (complete or not), read without
+    opening data, and a function ``level -> (chunks, bytes) | None`` giving the chunk objects
+    stored for a level where the server can list them (object stores can; plain HTTP cannot).
+
+    For ``clipvol info`` / ``clipvol check`` on a URL. Raises as :class:`RemoteZarrLoader`.
+    """
+    from clipvol.bricking.store import parse_metadata
+
+    src = FsspecByteSource(url, storage_options=storage_options, **source_kwargs)
+    root = src.get("zarr.json")
+    if root is None:
+        raise InputFormatError(f"{src.display_url}: not a clipvol store (no zarr.json at this URL)")
+    doc = _json(root, f"{src.display_url}/zarr.json") or {}
+    meta = parse_metadata(doc.get("attributes") or {}, src.display_url)
+
+    def level_objects(level: int) -> tuple[int, int] | None:
+        if src.url.split(":", 1)[0].lower() in ("http", "https"):
+            return None  # HTTP has no listing; fsspec scrapes index pages, without sizes
+        try:
+            found = src.fs.find(f"{src._full(str(level))}/c", detail=True)
+        except Exception:  # listing is optional (HTTP has none): the caller prints "-"
+            return None
+        sizes = [v.get("size") for v in found.values() if v.get("type", "file") == "file"]
+        if not all(isinstance(x, int) for x in sizes):
+            return None
+        return len(sizes), sum(sizes)
+
+    return meta, level_objects

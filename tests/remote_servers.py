@@ -1,0 +1,112 @@
+"""Real servers on 127.0.0.1 for the remote-store tests: a static HTTP server over a directory
+(optionally slow, failing with 503 or refusing with 403) and a moto S3 server.
+
+Shared by the paging, CLI and benchmark code that needs a store behind a network socket.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import http.server
+import os
+import threading
+import time
+from collections import Counter
+from pathlib import Path
+
+
+class _Handler(http.server.SimpleHTTPRequestHandler):
+    """Static files with injected latency and faults; counts requests per path."""
+
+    def log_message(self, *args) -> None:  # quiet
+        pass
+
+    def do_GET(self) -> None:  # noqa: N802 - http.server's naming
+        srv = self.server
+        with srv.lock:
+            srv.counts[self.path] += 1
+            n = srv.counts[self.path]
+        if srv.latency:
+            time.sleep(srv.latency)
+        if any(self.path.startswith(p) for p in srv.forbid):
+            self.send_error(403, "Forbidden")
+            return
+        if srv.fail_first and n <= srv.fail_first:
+            with srv.lock:
+                srv.failures += 1
+            self.send_error(503, "Service Unavailable (injected)")
+            return
+        super().do_GET()
+
+
+@contextlib.contextmanager
+def serve_directory(root: str | Path, *, latency: float = 0.0, fail_first: int = 0, forbid: tuple[str, ...] = ()):
+    """Serve ``root`` on ``http://127.0.0.1:PORT``; yields ``(base_url, server)``.
+
+    ``latency`` seconds are slept before every answer; the first ``fail_first`` requests of every
+    path get HTTP 503; paths starting with a prefix in ``forbid`` get 403. ``server.counts``
+    (per path) and ``server.failures`` say what was asked and what was refused.
+    """
+    handler = functools.partial(_Handler, directory=str(root))
+    srv = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    srv.daemon_threads = True
+    srv.lock = threading.Lock()
+    srv.counts = Counter()
+    srv.failures = 0
+    srv.latency, srv.fail_first, srv.forbid = latency, fail_first, forbid
+    t = threading.Thread(target=srv.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
+    t.start()
+    try:
+        yield f"http://127.0.0.1:{srv.server_address[1]}", srv
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        t.join(5)
+
+
+@contextlib.contextmanager
+def moto_s3():
+    """A moto S3 server on 127.0.0.1 (its own thread, real HTTP); yields the endpoint URL.
+
+    Sets the AWS environment for the duration (dummy keys, the endpoint, no instance metadata
+    look-ups) and restores it afterwards.
+    """
+    import logging
+
+    from moto.server import ThreadedMotoServer
+
+    logging.getLogger("werkzeug").setLevel(logging.ERROR)
+    server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
+    server.start()
+    host, port = server.get_host_and_port()
+    endpoint = f"http://{host}:{port}"
+    env = {"AWS_ACCESS_KEY_ID": "testing", "AWS_SECRET_ACCESS_KEY": "testing", "AWS_DEFAULT_REGION": "us-east-1",
+           "AWS_ENDPOINT_URL": endpoint, "AWS_EC2_METADATA_DISABLED": "true"}
+    old = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)
+    try:
+        yield endpoint
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+        server.stop()
+
+
+def upload_directory(endpoint: str, root: str | Path, bucket: str, prefix: str) -> int:
+    """Put every file under ``root`` into ``s3://bucket/prefix/`` with boto3; returns the count."""
+    import boto3
+
+    s3 = boto3.client("s3", endpoint_url=endpoint, region_name="us-east-1")
+    with contextlib.suppress(s3.exceptions.BucketAlreadyOwnedByYou):
+        s3.create_bucket(Bucket=bucket)
+    n = 0
+    root = Path(root)
+    for p in sorted(root.rglob("*")):
+        if p.is_file():
+            s3.put_object(Bucket=bucket, Key=f"{prefix}/{p.relative_to(root).as_posix()}", Body=p.read_bytes())
+            n += 1
+    return n
