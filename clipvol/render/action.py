@@ -57,11 +57,13 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..paging.loader import HasBrickRanges
+from ..paging.properties import may_hold_nonfinite
 from ..scene.params import MODES, RenderParams
+from ..scene.transfer import correct_opacity
 from ..scene.selection import merge_items
 from ..scene.selection.policies import POLICIES
 from .frame_loop import FrameLoop
-from .glsl import load_shader
+from .glsl import ProgramCache
 from .gpu_cache import GpuBrickCache
 
 __all__ = ["ClipRenderAction", "FrameStats", "MODES", "SELECTIONS"]
@@ -168,9 +170,12 @@ class ClipRenderAction:
         self.params = RenderParams.from_kwargs(params, **kwargs).check_for(self.pyramid)
         self.cache = GpuBrickCache(ctx, self.pyramid, self.params.texture_budget)
         self.frame_loop = FrameLoop(clip_texture, self.cache)
-        self.program = ctx.program(vertex_shader=load_shader("brick.vert"), fragment_shader=load_shader("brick.frag"))
+        self.programs = ProgramCache(ctx)
+        self._vaos: dict = {}
+        self.program = None  # the variant of the last frame
+        self._vao = None
         self._vbo = ctx.buffer(_cube_triangles().tobytes())
-        self._vao = ctx.vertex_array(self.program, [(self._vbo, "3f", "in_corner")])
+        self.nonfinite = may_hold_nonfinite(clip_texture.loader)
         self._tf_tex = None
         self._tf_key = None
         self._fbo = None
@@ -182,11 +187,25 @@ class ClipRenderAction:
         self.boxes_drawn = 0  # proxy boxes of the last frame, after merge_items
         self.last_selection = None
         self._moderngl = moderngl
-        self.program["u_volume"].value = 0
-        self.program["u_tf"].value = 1
-        self.program["u_acc"].value = 2
-        self.program["u_max_steps"].value = MAX_STEPS_PER_BOX
-        self.program["u_opaque"].value = OPAQUE
+
+    # -- shader variants ---------------------------------------------------------------------------
+    def defines(self) -> dict:
+        """The ``#define``\\ s of this frame's volume shader variant (see :mod:`clipvol.render.glsl`)."""
+        return {"MODE_MIP": self.params.mode == "mip", "HAS_NAN": self.nonfinite}
+
+    def _brick_program(self):
+        """The brick shader variant for the current parameters (compiled once per variant)."""
+        prog = self.programs.get("brick.vert", "brick.frag", self.defines())
+        if prog not in self._vaos:
+            self._vaos[prog] = self.ctx.vertex_array(prog, [(self._vbo, "3f", "in_corner")])
+            _uset(prog, "u_volume", 0)
+            _uset(prog, "u_tf", 1)
+            _uset(prog, "u_acc", 2)
+            _uset(prog, "u_max_steps", MAX_STEPS_PER_BOX)
+            _uset(prog, "u_opaque", OPAQUE)
+        self.program = prog
+        self._vao = self._vaos[prog]
+        return prog
 
     # -- helpers -----------------------------------------------------------------------------------
     def _check_samples(self, cam, items) -> None:
@@ -253,16 +272,25 @@ class ClipRenderAction:
         return self._fbo
 
     def _ensure_tf(self, tf):
+        """The per-level corrected colour table (row ``L``: opacity corrected for level ``L``'s step),
+        rebuilt only when the table or the step changes."""
         table = np.ascontiguousarray(np.asarray(tf.table, dtype=np.float32))
-        key = (table.shape, table.tobytes())
+        key = (table.shape, table.tobytes(), self.params.step)
         if self._tf_key != key:
             if self._tf_tex is not None:
                 self._tf_tex.release()
-            tex = self.ctx.texture((table.shape[0], 1), 4, table.tobytes(), dtype="f4")
+            rows = corrected_tables(table, self.level_ratios())
+            tex = self.ctx.texture((table.shape[0], len(rows)), 4, rows.astype(np.float32).tobytes(), dtype="f4")
             tex.filter = (self._moderngl.LINEAR, self._moderngl.LINEAR)
             tex.repeat_x = tex.repeat_y = False
             self._tf_tex, self._tf_key = tex, key
         return self._tf_tex
+
+    def level_ratios(self) -> np.ndarray:
+        """Per level, the sample spacing ``step * min(scale)`` over the level-0 voxel size (the
+        transfer function's reference length)."""
+        ref = float(min(self.pyramid.spacing))
+        return np.array([self.params.step * float(min(lv.scale)) / ref for lv in self.pyramid.levels])
 
     def set_params(self, params: RenderParams) -> None:
         """Use ``params`` from the next frame on (the GPU cache is kept unless the texture budget
@@ -382,9 +410,9 @@ class ClipRenderAction:
         else:  # zero-width window: a step at lo (0 below, 0.5 at, 1 above; clamped in the shader)
             big = 1e30 / max(abs(fmt.a), 1e-300)
             scale, offset = fmt.a * big, (fmt.b - lo) * big + 0.5
-        prog["u_t_scale"].value = float(np.clip(scale, -3e38, 3e38))
-        prog["u_t_offset"].value = float(np.clip(offset, -3e38, 3e38))
-        prog["u_mode"].value = 1 if self.params.mode == "mip" else 0
+        _uset(prog, "u_t_scale", float(np.clip(scale, -3e38, 3e38)))
+        _uset(prog, "u_t_offset", float(np.clip(offset, -3e38, 3e38)))
+        _uset(prog, "u_jitter", 1.0 if self.params.jitter else 0.0)
         if self.params.shape is None:
             box = np.array([[-1e30] * 3, [1e30] * 3])
             planes = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (6, 1))
@@ -450,11 +478,12 @@ class ClipRenderAction:
             fbo.clear(r * a, g * a, b * a, a)
         else:
             fbo.clear(_MIP_EMPTY, 0.0, 0.0, 0.0)
+        self._brick_program()
         origin, M = self._frame_uniforms(cam, tf)
         self.program["u_near"].value = 0.0 if cam.orthographic else float(cam.near)
         ctx.enable(mgl.CULL_FACE | mgl.BLEND)
         ctx.disable(mgl.DEPTH_TEST)
-        self.program["u_use_acc"].value = False  # no opacity snapshot until the first batch is drawn
+        _uset(self.program, "u_use_acc", False)  # no opacity snapshot until the first batch is drawn
         ctx.enable_direct(_GL_DEPTH_CLAMP)  # no near/far clipping of the proxy boxes
         ctx.front_face = self._front_face(M, cam)
         ctx.cull_face = "front"
@@ -466,11 +495,11 @@ class ClipRenderAction:
                 ctx.blend_func = mgl.ONE_MINUS_DST_ALPHA, mgl.ONE
             else:  # "over": dst = src + (1 - src.a) * dst
                 ctx.blend_func = mgl.ONE, mgl.ONE_MINUS_SRC_ALPHA
-        self._ensure_tf(tf).use(location=1)
+        if composite:
+            self._ensure_tf(tf).use(location=1)
         prog = self.program
         pyr = self.pyramid
         B = np.asarray(pyr.brick_shape, dtype=np.float64)
-        ref_spacing = float(min(pyr.spacing))
         clamps = self._block_clamps(items)
         bound_level = None
         n_items = len(items)
@@ -496,9 +525,9 @@ class ClipRenderAction:
                 win = np.asarray(self.cache.windows[L], dtype=np.int64)
                 delta = self.params.step * float(min(lv.scale))
                 prog["u_delta"].value = delta
-                prog["u_alpha_ratio"].value = delta / ref_spacing
+                _uset(prog, "u_tf_row", (L + 0.5) / pyr.num_levels)
                 prog["u_inv_scale"].value = _vec(1.0 / scale)
-                prog["u_inv_tex_size"].value = _vec(1.0 / (win[::-1] * B[::-1]))
+                _uset(prog, "u_inv_tex_size", _vec(1.0 / (win[::-1] * B[::-1])))
                 bound_level = L
             bidx = np.asarray(it.index, dtype=np.int64)
             first = trans + bidx[::-1] * B[::-1] * scale
@@ -590,16 +619,18 @@ class ClipRenderAction:
         """Snapshot the target for the boxes' opacity test (early ray termination across boxes)."""
         self.ctx.copy_framebuffer(self._fbo_copy, fbo)
         self._fbo_copy.use(location=2)
-        self.program["u_use_acc"].value = True
+        _uset(self.program, "u_use_acc", True)
         self.occlusion_passes += 1
 
     def close(self) -> None:
         """Release every GL object of the action (the context stays)."""
         self.cache.release()
-        for obj in (self._vao, self._vbo, self.program, self._tf_tex, self._fbo, getattr(self, "_fbo_color", None),
+        for obj in (*self._vaos.values(), self._vbo, self._tf_tex, self._fbo, getattr(self, "_fbo_color", None),
                     self._fbo_copy):
             if obj is not None:
                 obj.release()
+        self._vaos = {}
+        self.programs.release()
         self._tf_tex = self._fbo = self._fbo_copy = self._fbo_color = self._default_fbo = None
         self._vao = self._vbo = self.program = None  # a second close() releases nothing twice
 
@@ -608,6 +639,25 @@ class ClipRenderAction:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _uset(prog, name: str, value) -> None:
+    """Set a uniform if this shader variant has it (a variant compiles unused ones away)."""
+    u = prog.get(name, None)
+    if u is not None:
+        u.value = value
+
+
+def corrected_tables(table: np.ndarray, ratios) -> np.ndarray:
+    """``(len(ratios), n, 4)`` float64: ``table`` (straight RGBA) with its opacity corrected by each
+    ratio (:func:`clipvol.scene.transfer.correct_opacity`: ``1 - (1 - a) ** ratio``, in the stable
+    log1p/expm1 form), one row per level. Computed on the CPU when the table or the step changes,
+    so the shader does one lookup per sample and no log/exp."""
+    tab = np.asarray(table, dtype=np.float64)
+    rows = np.repeat(tab[None], len(ratios), axis=0)
+    for i, r in enumerate(ratios):
+        rows[i, :, 3] = correct_opacity(tab[:, 3], float(r))
+    return rows
 
 
 def premultiplied_to_uint8(prem: np.ndarray) -> np.ndarray:

@@ -87,6 +87,11 @@ class RenderParams:
         Composite: draw front to back and stop rays that are opaque (same image, faster).
     merge_boxes : bool
         Draw complete sibling sets of one level as one box over their parent (same image).
+    jitter : bool
+        Start each pixel's sample lattice at a stable per-pixel hashed offset (a fraction of the
+        step), which turns the wood-grain rings of a constant-distance lattice on opaque surfaces
+        into fine noise; the lattice stays constant-distance along each ray. Off by default (and for
+        reference comparisons); the viewer and the flythrough turn it on.
     background : 4 floats
         Straight RGBA in ``[0, 1]`` behind the volume.
     shape : Shape, optional
@@ -106,6 +111,7 @@ class RenderParams:
     step: float = 0.5
     early_termination: bool = True
     merge_boxes: bool = True
+    jitter: bool = False
     background: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
     shape: Shape | None = None
 
@@ -152,6 +158,7 @@ class RenderParams:
             raise ParameterError(f"shape: expected a clipvol Shape or None, got {type(self.shape).__name__}")
         s(self, "early_termination", bool(self.early_termination))
         s(self, "merge_boxes", bool(self.merge_boxes))
+        s(self, "jitter", bool(self.jitter))
 
     # -- helpers ---------------------------------------------------------------------------------
     @classmethod
