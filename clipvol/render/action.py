@@ -58,6 +58,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..paging.loader import HasBrickRanges
 from ..paging.properties import may_hold_nonfinite
+from ..scene.page_table import build_page_table
 from ..scene.params import MODES, RenderParams
 from ..scene.transfer import correct_opacity
 from ..scene.selection import merge_items
@@ -79,6 +80,10 @@ OPAQUE = 0.9995
 #: composite: an occlusion pass after every len(items) / OCCLUSION_PASSES boxes (at least this many)
 OCCLUSION_PASSES = 32
 OCCLUSION_MIN_BATCH = 1
+#: single-pass path: most pyramid levels (one texture unit each) and page-table entries
+MAX_SINGLE_PASS_LEVELS = 16
+MAX_PAGE_TABLE_ENTRIES = 1 << 24
+PAGE_TABLE_WIDTH = 1024
 
 # unit cube, 12 triangles wound counter-clockwise seen from outside
 _CUBE_FACES = [
@@ -178,6 +183,8 @@ class ClipRenderAction:
         self.nonfinite = may_hold_nonfinite(clip_texture.loader)
         self._tf_tex = None
         self._tf_key = None
+        self._pt_tex = None
+        self.path_drawn = None  # "single-pass" or "bricks": what drew the last frame
         self._fbo = None
         self._fbo_size = None
         self._fbo_copy = None
@@ -456,6 +463,12 @@ class ClipRenderAction:
         mgl = self._moderngl
         ctx = self.ctx
         items = list(sel.items)
+        self.path_drawn = "bricks"
+        if self.params.path == "single-pass" and items:
+            out = self._draw_single_pass(cam, tf, items)
+            if out is not None:
+                self.path_drawn = "single-pass"
+                return out
         if self.params.merge_boxes:
             merged = merge_items(items, self.pyramid, self.cache.windows, self._may_cover())
             if self._samples_per_box(cam, merged) <= MAX_STEPS_PER_BOX:  # else the rays would be cut
@@ -540,6 +553,13 @@ class ClipRenderAction:
             prog["u_clamp_hi"].value = _vec(chi)
             self._vao.render(mgl.TRIANGLES)
         ctx.disable_direct(_GL_DEPTH_CLAMP)
+        return self._read_back(fbo, previous, tf, front_to_back, t0)
+
+    def _read_back(self, fbo, previous, tf, front_to_back: bool, t0: float) -> tuple[np.ndarray, float, float]:
+        """Finish the frame, read the target back, give the previous framebuffer back, map MIP
+        values through the transfer function and put the background under a front-to-back image."""
+        ctx, pyr = self.ctx, self.pyramid
+        h, w = fbo.size[1], fbo.size[0]
         ctx.finish()
         t1 = time.perf_counter()
         raw = np.frombuffer(fbo.read(components=4, dtype="f4"), dtype=np.float32).reshape(int(h), int(w), 4)[::-1]
@@ -569,6 +589,98 @@ class ClipRenderAction:
                 prem = prem + (1.0 - prem[..., 3:4]) * np.array([r * ba, g * ba, b * ba, ba])
         image = premultiplied_to_uint8(prem)
         return image, t1 - t0, time.perf_counter() - t1
+
+    def _ensure_page_table(self, entries: np.ndarray):
+        """The page-table texture (R32UI, :data:`PAGE_TABLE_WIDTH` entries per row), rewritten per frame."""
+        rows = max(1, -(-len(entries) // PAGE_TABLE_WIDTH))
+        data = np.zeros(rows * PAGE_TABLE_WIDTH, dtype=np.uint32)
+        data[:len(entries)] = entries
+        if self._pt_tex is None or self._pt_tex.size[1] < rows:
+            if self._pt_tex is not None:
+                self._pt_tex.release()
+            self._pt_tex = self.ctx.texture((PAGE_TABLE_WIDTH, rows), 1, dtype="u4")
+            self._pt_tex.filter = (self._moderngl.NEAREST, self._moderngl.NEAREST)
+        self._pt_tex.write(data.tobytes(), viewport=(0, 0, PAGE_TABLE_WIDTH, rows))
+        return self._pt_tex
+
+    def _draw_single_pass(self, cam, tf, items):
+        """One pass over the volume box through the cut's page table (``shaders/raymarch.frag.glsl``);
+        None when this cut or pyramid cannot be drawn that way (the per-brick path then draws it)."""
+        pyr = self.pyramid
+        nlev = pyr.num_levels
+        if nlev > MAX_SINGLE_PASS_LEVELS:
+            return None
+        table = build_page_table(items, pyr, self.cache.open_faces)
+        if table is None or len(table.entries) > MAX_PAGE_TABLE_ENTRIES:
+            return None
+        self._check_samples(cam, items)
+        self.boxes_drawn = 1
+        mgl, ctx = self._moderngl, self.ctx
+        t0 = time.perf_counter()
+        vlo, vhi = pyr.volume_box()
+        cam = cam.fit_depth(vlo, vhi)
+        w, h = cam.size
+        fbo = self._ensure_fbo((int(w), int(h)))
+        previous = ctx.fbo
+        fbo.use()
+        ctx.viewport = (0, 0, int(w), int(h))
+        mip = self.params.mode == "mip"
+        fbo.clear(_MIP_EMPTY if mip else 0.0, 0.0, 0.0, 0.0)
+        defines = dict(self.defines(), NUM_LEVELS=nlev)
+        prog = self.programs.get("brick.vert", "raymarch.frag", defines)
+        if prog not in self._vaos:
+            self._vaos[prog] = ctx.vertex_array(prog, [(self._vbo, "3f", "in_corner")])
+        self.program, self._vao = prog, self._vaos[prog]
+        origin, M = self._frame_uniforms(cam, tf)
+        prog["u_near"].value = 0.0 if cam.orthographic else float(cam.near)
+        prog["u_box_lo"].value = _vec(vlo - origin)
+        prog["u_box_hi"].value = _vec(vhi - origin)
+        _uset(prog, "u_vol_lo", _vec(vlo - origin))
+        _uset(prog, "u_vol_hi", _vec(vhi - origin))
+        sp = np.array(pyr.spacing[::-1], dtype=np.float64)
+        B = np.array(pyr.brick_shape[::-1], dtype=np.float64)
+        c0 = table.c0[:, ::-1].astype(np.float64)  # (nlev, 3) x, y, z
+        ext = np.array([B * 2.0**L * sp for L in range(nlev)])
+        scale = np.array([lv.scale[::-1] for lv in pyr.levels], dtype=np.float64)
+        trans = np.array([lv.translation[::-1] for lv in pyr.levels], dtype=np.float64)
+        win = np.array([(wnd[::-1] if wnd is not None else (1, 1, 1)) for wnd in self.cache.windows], dtype=np.float64)
+        f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32).tobytes()  # noqa: E731
+        i32 = lambda a: np.ascontiguousarray(a, dtype=np.int32).tobytes()  # noqa: E731
+        uniforms = {
+            "u_pt_base": i32(table.base), "u_pt_size": i32(table.size[:, ::-1]), "u_pt_c0": i32(table.c0[:, ::-1]),
+            "u_pt_origin": f32(vlo + c0 * ext - origin), "u_pt_ext": f32(ext),
+            "u_lv_vox0": f32(trans + c0 * B * scale - origin), "u_lv_inv_scale": f32(1.0 / scale),
+            "u_lv_win": i32(win), "u_lv_inv_tex_size": f32(1.0 / (win * B)),
+            "u_lv_delta": f32([self.params.step * float(min(lv.scale)) for lv in pyr.levels]),
+        }
+        for name, data in uniforms.items():
+            u = prog.get(name, None)
+            if u is not None:
+                u.write(data)
+        _uset(prog, "u_brick", _vec(B))
+        _uset(prog, "u_top", nlev - 1)
+        _uset(prog, "u_nudge", 1e-3 * float(sp.min()))
+        _uset(prog, "u_max_regions", int(16 + sum(sum(pyr.grid(L)) for L in range(nlev))))
+        _uset(prog, "u_max_steps", MAX_STEPS_PER_BOX)
+        _uset(prog, "u_opaque", OPAQUE)
+        _uset(prog, "u_pt_width", PAGE_TABLE_WIDTH)
+        _uset(prog, "u_page_table", 2)
+        _uset(prog, "u_tf", 1)
+        self._ensure_page_table(table.entries).use(location=2)
+        if not mip:
+            self._ensure_tf(tf).use(location=1)
+        for L, tex in enumerate(self.cache.textures):
+            if tex is not None:
+                _uset(prog, f"u_level{L}", 3 + L)
+                tex.use(location=3 + L)
+        ctx.enable(mgl.CULL_FACE)
+        ctx.disable(mgl.DEPTH_TEST | mgl.BLEND)
+        ctx.enable_direct(_GL_DEPTH_CLAMP)
+        ctx.front_face = self._front_face(M, cam)
+        ctx.cull_face = "front"
+        self._vao.render(mgl.TRIANGLES)
+        ctx.disable_direct(_GL_DEPTH_CLAMP)
+        return self._read_back(fbo, previous, tf, not mip, t0)
 
     def _may_cover(self):
         """``may_cover`` for :func:`merge_items`: a culled node whose bricks of the drawn level are
@@ -625,13 +737,13 @@ class ClipRenderAction:
     def close(self) -> None:
         """Release every GL object of the action (the context stays)."""
         self.cache.release()
-        for obj in (*self._vaos.values(), self._vbo, self._tf_tex, self._fbo, getattr(self, "_fbo_color", None),
+        for obj in (*self._vaos.values(), self._vbo, self._tf_tex, self._pt_tex, self._fbo, getattr(self, "_fbo_color", None),
                     self._fbo_copy):
             if obj is not None:
                 obj.release()
         self._vaos = {}
         self.programs.release()
-        self._tf_tex = self._fbo = self._fbo_copy = self._fbo_color = self._default_fbo = None
+        self._tf_tex = self._pt_tex = self._fbo = self._fbo_copy = self._fbo_color = self._default_fbo = None
         self._vao = self._vbo = self.program = None  # a second close() releases nothing twice
 
     def __enter__(self) -> "ClipRenderAction":
