@@ -60,7 +60,7 @@ from ..paging.loader import HasBrickRanges
 from ..paging.properties import may_hold_nonfinite
 from ..scene.page_table import build_page_table
 from ..scene.params import MODES, RenderParams
-from ..scene.transfer import correct_opacity
+from ..scene.transfer import correct_opacity, transparency_filter
 from ..scene.selection import merge_items
 from ..scene.selection.policies import POLICIES
 from .frame_loop import FrameLoop
@@ -249,20 +249,12 @@ class ClipRenderAction:
         return float(np.max(path / delta)) * 1.1
 
     def _transparent(self, tf):
-        """``(level, idx) -> bool mask`` from the loader's brick ranges, or None."""
+        """``(level, idx) -> bool mask`` from the loader's brick ranges over each brick's sampling
+        footprint (:func:`clipvol.scene.transfer.transparency_filter`), or None."""
         loader = self.clip_texture.loader
         if self.params.mode != "composite" or not isinstance(loader, HasBrickRanges):
             return None
-        data_range = self.pyramid.value_range
-
-        def transparent(level: int, idx: np.ndarray) -> np.ndarray:
-            idx = np.asarray(idx, dtype=np.int64).reshape(-1, 3)
-            ranges = loader.brick_ranges(level, idx)
-            if ranges is None:
-                return np.zeros(len(idx), dtype=bool)
-            return np.asarray(tf.transparent_mask(np.asarray(ranges, dtype=np.float64), data_range), dtype=bool)
-
-        return transparent
+        return transparency_filter(tf, loader)
 
     def _ensure_fbo(self, size: tuple[int, int]):
         if self._fbo_size != size:
