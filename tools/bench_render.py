@@ -71,6 +71,118 @@ class _WholeVolume:
         return out
 
 
+# -- the honest reference: a minimal raw one-texture ray caster (a fixture, not a product path) ---
+_RAW_VERT = """#version 330
+out vec2 v_ndc;
+void main() {
+    vec2 p = vec2((gl_VertexID << 1) & 2, gl_VertexID & 2) * 2.0 - 1.0;  // one full-screen triangle
+    v_ndc = p;
+    gl_Position = vec4(p, 0.0, 1.0);
+}
+"""
+_RAW_FRAG = """#version 330
+in vec2 v_ndc;
+out vec4 f_color;
+uniform sampler3D u_vol;        // the whole volume, GL_LINEAR, clamp to edge
+uniform sampler2D u_tf;         // the table, opacity corrected for the step on the CPU
+uniform vec3 u_eye, u_right, u_up, u_forward;
+uniform vec2 u_half;
+uniform vec3 u_lo, u_hi;        // the volume box (world)
+uniform float u_delta, u_t_scale, u_t_offset;
+void main() {
+    vec3 dir = normalize(u_forward + v_ndc.x * u_half.x * u_right + v_ndc.y * u_half.y * u_up);
+    vec3 inv = 1.0 / dir;
+    vec3 ta = (u_lo - u_eye) * inv, tb = (u_hi - u_eye) * inv;
+    float t0 = max(max(max(min(ta.x, tb.x), min(ta.y, tb.y)), min(ta.z, tb.z)), 0.0);
+    float t1 = min(min(max(ta.x, tb.x), max(ta.y, tb.y)), max(ta.z, tb.z));
+    if (!(t1 > t0)) discard;
+    vec4 acc = vec4(0.0);
+    vec3 isz = 1.0 / (u_hi - u_lo);
+    for (float t = ceil(t0 / u_delta) * u_delta; t < t1; t += u_delta) {
+        float v = texture(u_vol, (u_eye + t * dir - u_lo) * isz).r;
+        vec4 c = texture(u_tf, vec2(v * u_t_scale + u_t_offset, 0.5));
+        acc += (1.0 - acc.a) * c.a * vec4(c.rgb, 1.0);
+        if (acc.a >= 0.9995) break;
+    }
+    f_color = acc;
+}
+"""
+
+
+class RawCaster:
+    """A plain one-texture moderngl ray caster: one 3D texture, one table lookup, front to back.
+
+    The benchmarks' reference *outside* clipvol's render path (the shader above is all there is:
+    no bricks, no page table, no variants, no shape clipping), drawing the same view with the same
+    step, lattice (``t = k * delta`` from the eye) and opacity-corrected table, so clipvol's
+    frame time can be stated as a ratio to what a minimal caster costs on the same GL.
+    Perspective cameras only. ``volume``: ``(z, y, x)`` float32, spacing 1.
+    """
+
+    def __init__(self, ctx, volume: np.ndarray, value_range) -> None:
+        import moderngl
+
+        self.ctx = ctx
+        vol = np.ascontiguousarray(volume, dtype=np.float32)
+        self.shape = vol.shape
+        self.tex = ctx.texture3d(vol.shape[::-1], 1, vol.tobytes(), dtype="f4")
+        self.tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        self.tex.repeat_x = self.tex.repeat_y = self.tex.repeat_z = False
+        self.prog = ctx.program(vertex_shader=_RAW_VERT, fragment_shader=_RAW_FRAG)
+        self.vao = ctx.vertex_array(self.prog, [])
+        self.value_range = tuple(float(v) for v in value_range)
+        self._fbo = None
+        self._tf = None
+
+    def render(self, cam, tf, step: float) -> np.ndarray:
+        """Draw ``cam``'s view; returns ``(h, w, 4)`` premultiplied float32 RGBA, row 0 at the top."""
+        import moderngl
+
+        from clipvol.scene.transfer import correct_opacity
+
+        ctx = self.ctx
+        w, h = cam.size
+        if self._fbo is None or self._fbo.size != (w, h):
+            self._fbo = ctx.simple_framebuffer((w, h), components=4, dtype="f4")
+        if self._tf is None:
+            table = np.array(tf.table, dtype=np.float64)
+            table[:, 3] = correct_opacity(table[:, 3], step)
+            self._tf = ctx.texture((len(table), 1), 4, table.astype(np.float32).tobytes(), dtype="f4")
+            self._tf.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            self._tf.repeat_x = self._tf.repeat_y = False
+        lo, hi = tf.window(self.value_range)
+        p = self.prog
+        p["u_vol"].value, p["u_tf"].value = 0, 1
+        self.tex.use(0)
+        self._tf.use(1)
+        p["u_eye"].value = tuple(float(v) for v in cam.eye)
+        p["u_right"].value = tuple(float(v) for v in cam.right)
+        p["u_up"].value = tuple(float(v) for v in cam.up)
+        p["u_forward"].value = tuple(float(v) for v in cam.forward)
+        ty = np.tan(np.radians(float(cam.fov_y)) / 2.0)
+        p["u_half"].value = (float(ty * w / h), float(ty))
+        n = np.array(self.shape[::-1], dtype=np.float64)
+        p["u_lo"].value = (-0.5, -0.5, -0.5)
+        p["u_hi"].value = tuple(float(v) for v in n - 0.5)
+        p["u_delta"].value = float(step)
+        p["u_t_scale"].value = 1.0 / (hi - lo)
+        p["u_t_offset"].value = -lo / (hi - lo)
+        previous = ctx.fbo
+        self._fbo.use()
+        self._fbo.clear(0.0, 0.0, 0.0, 0.0)
+        ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        self.vao.render(moderngl.TRIANGLES, vertices=3)
+        ctx.finish()
+        out = np.frombuffer(self._fbo.read(components=4, dtype="f4"), np.float32).reshape(h, w, 4)[::-1]
+        previous.use()  # give the binding back (a released framebuffer left bound breaks later ones)
+        return out
+
+    def release(self) -> None:
+        for o in (self.tex, self.prog, self.vao, self._fbo, self._tf):
+            if o is not None:
+                o.release()
+
+
 def _frames(action, cam, tf, repeat: int) -> tuple[float, float, np.ndarray]:
     """Median total and draw seconds of ``repeat`` warm frames, and the last image."""
     tot, draw = [], []
@@ -140,6 +252,117 @@ def _subload_vs_raw(action, clip, repeat: int = 3) -> tuple[float, float]:
     return best_cache, best_raw
 
 
+def _p(values, q: float) -> float:
+    return float(np.percentile(np.asarray(values, dtype=np.float64), q))
+
+
+def vs_raw(sizes, image: int, repeat: int, step: float, out_dir: Path, fly_frames: int = 48,
+           texels_per_frame: int = 8 * 64**3, log=print) -> list[dict]:
+    """clipvol's full-resolution frame (single pass and per-brick), its own shader on one texture,
+    and the multiresolution frame, each as a ratio to :class:`RawCaster` on the same volume, view,
+    step and table; interleaved rounds, medians of ``repeat``. Then the fly path's frame times
+    (median, 95th percentile) on a cold clip-texture with uploads limited per frame.
+
+    Volumes: ``procedural:fractal?size=N`` (float32), generated in memory.
+    """
+    from clipvol.loaders.numpy_array import NumpyLoader
+    from clipvol.loaders.procedural import ProceduralLoader
+    from clipvol.paging.cliptexture import ClipTexture
+    from clipvol.render import create_context
+    from clipvol.render.action import ClipRenderAction, premultiplied_to_uint8
+    from clipvol.scene.camera import Camera
+    from clipvol.scene.paths import make_path
+    from clipvol.scene.transfer import TransferFunction
+
+    ctx = create_context()
+    rows = []
+    for n in sizes:
+        t0 = time.perf_counter()
+        vol = ProceduralLoader(f"procedural:fractal?size={n}", brick=64).generator.region(0, (0, 0, 0), (n, n, n))
+        vol = np.ascontiguousarray(vol, dtype=np.float32)
+        log(f"{n}^3: generated in {time.perf_counter() - t0:.1f} s")
+        loader = NumpyLoader(vol, brick=64, value_range=(float(vol.min()), float(vol.max())))
+        pyr = loader.pyramid
+        lo, hi = pyr.volume_box()
+        centre = (lo + hi) / 2.0
+        d = np.array([0.55, 0.45, 0.7])
+        d /= np.linalg.norm(d)
+        # the volume fills the view: 1 pixel is about 1 voxel at 512^2 and 512^3
+        cam = Camera.perspective(tuple(centre - d * 1.05 * float(np.linalg.norm(hi - lo))), tuple(centre), up=(0, -1, 0),
+                                 fov_y=35, size=(image, image))
+        tf = TransferFunction.preset("bone", value_range=pyr.value_range)
+        budget = int(sum(pyr.num_bricks(L) for L in range(pyr.num_levels)) * pyr.brick_nbytes * 1.2) + (64 << 20)
+        clip = ClipTexture(loader, budget, threads=2)
+        one_loader = NumpyLoader(vol, brick=n, value_range=pyr.value_range)
+        clip1 = ClipTexture(one_loader, vol.nbytes + (16 << 20), threads=1)
+        common = dict(step=step, texture_budget=budget)
+        actions = {
+            "single-pass": ClipRenderAction(ctx, clip, policy="fixed", level=0, path="single-pass", **common),
+            "bricks": ClipRenderAction(ctx, clip, policy="fixed", level=0, path="bricks", **common),
+            "own shader, one texture": ClipRenderAction(ctx, clip1, policy="fixed", level=0, path="bricks", step=step,
+                                                        texture_budget=vol.nbytes + (16 << 20)),
+            "multiresolution": ClipRenderAction(ctx, clip, lod_threshold=1.0, **common),
+        }
+        raw = RawCaster(ctx, vol, pyr.value_range)
+        imgs = {}
+        for name, a in actions.items():
+            imgs[name] = a.render(cam, tf, wait=True, timeout=1800)
+        raw.render(cam, tf, step)
+        times = {k: [] for k in [*actions, "raw"]}
+        for _ in range(repeat):  # interleaved: the shared machine's load hits every configuration alike
+            t = time.perf_counter()
+            imgs["raw"] = premultiplied_to_uint8(raw.render(cam, tf, step).astype(np.float64))
+            times["raw"].append(time.perf_counter() - t)
+            for name, a in actions.items():
+                imgs[name] = a.render(cam, tf, wait=False)
+                times[name].append(a.last_frame_stats.times["total"])
+        med = {k: statistics.median(v) for k, v in times.items()}
+        diff = {k: int(np.abs(imgs[k].astype(int) - imgs["raw"].astype(int)).max()) for k in actions}
+        row = dict(size=n, image=image, repeat=repeat, raw_s=med["raw"],
+                   **{f"{k}_s": med[k] for k in actions},
+                   **{f"{k}_over_raw": med[k] / med["raw"] for k in actions},
+                   multires_over_full=med["multiresolution"] / med["single-pass"],
+                   single_over_bricks=med["single-pass"] / med["bricks"],
+                   **{f"maxdiff_{k}_vs_raw": diff[k] for k in actions},
+                   multires_levels=str(actions["multiresolution"].last_frame_stats.bricks_drawn))
+        log(f"{n}^3 at {image}^2 (median of {repeat}): raw {med['raw']:.3f} s; " + ", ".join(
+            f"{k} {med[k]:.3f} s = {med[k] / med['raw']:.2f}x raw (max |diff| {diff[k]})" for k in actions))
+        for a in actions.values():
+            a.close()
+        raw.release()
+        clip1.close()
+        clip.close()
+        # frame-time stability along the fly path: cold clip-texture, uploads limited per frame
+        clip = ClipTexture(loader, budget, threads=2)
+        fly = ClipRenderAction(ctx, clip, lod_threshold=1.0, texels_per_frame=texels_per_frame, jitter=True,
+                               **common)
+        ft, up = [], []
+        for fcam, _ in make_path("fly", pyr, fly_frames, size=(image, image)):
+            fly.render(fcam, tf, wait=False)
+            ft.append(fly.last_frame_stats.times["total"])
+            up.append(fly.last_frame_stats.bricks_uploaded)
+        fly.close()
+        clip.close()
+        m = statistics.median(ft)
+        row.update(fly_frames=fly_frames, fly_median_s=m, fly_p95_s=_p(ft, 95), fly_max_s=max(ft),
+                   fly_hitches_over_2x_median=int(sum(t > 2 * m for t in ft)), fly_bricks_uploaded=int(sum(up)),
+                   texels_per_frame=texels_per_frame)
+        log(f"{n}^3 fly path, {fly_frames} frames, texels_per_frame {texels_per_frame}: median {m:.3f} s, "
+            f"p95 {_p(ft, 95):.3f} s, max {max(ft):.3f} s, {row['fly_hitches_over_2x_median']} frames > 2x median; "
+            f"{sum(up)} bricks uploaded")
+        rows.append(row)
+        del vol, loader, one_loader
+    out_dir.mkdir(parents=True, exist_ok=True)
+    keys = list(rows[0])
+    with open(out_dir / "bench_render_raw.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=keys)
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (f"{v:.4g}" if isinstance(v, float) else v) for k, v in r.items()})
+    ctx.release()
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--source", default=None, help="store or procedural URL (default: the 2 GiB bench store)")
@@ -148,7 +371,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeat", type=int, default=3, help="warm frames per configuration and round (median)")
     ap.add_argument("--step", type=float, default=0.5)
     ap.add_argument("--out-dir", type=Path, default=REPO / "docs")
+    ap.add_argument("--vs-raw", default=None, metavar="SIZES",
+                    help="only the comparison with the raw one-texture caster, on procedural fractal volumes of "
+                         "these edges (e.g. 256,512); writes docs/bench_render_raw.csv")
+    ap.add_argument("--fly-frames", type=int, default=48, help="--vs-raw: frames of the fly path (frame-time stability)")
     args = ap.parse_args(argv)
+    if args.vs_raw:
+        sizes = [int(v) for v in args.vs_raw.split(",")]
+        vs_raw(sizes, args.size, max(args.repeat, 5), args.step, args.out_dir, args.fly_frames,
+               log=lambda *a: print(*a, file=sys.stderr, flush=True))
+        return 0
 
     from PIL import Image
 
