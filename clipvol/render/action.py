@@ -10,32 +10,44 @@ Per frame (:meth:`ClipRenderAction.render`):
    being read (composite mode only: in MIP a transparent value can still be the maximum).
 2. **Upload** - :meth:`GpuBrickCache.commit`, the one place that writes textures: sub-loads of the
    newly selected bricks into their toroidal slots of the per-level 3D textures.
-3. **Draw** - one proxy box per :class:`~clipvol.scene.selection.DrawItem` into a float32 RGBA offscreen
-   target. The box's *back* faces are rasterised (front faces culled; depth clamp on and a far
-   plane never applied), so the camera may sit inside a box. The fragment shader
-   (``shaders/brick.frag.glsl``) rebuilds the pixel's ray from ``gl_FragCoord`` and the camera
-   basis (per-frame uniforms, so bit-identical for every box), intersects it with the item's box
-   (and the :class:`~clipvol.scene.geometry.Shape`'s box and planes) and samples the half-open interval
-   ``[t_entry, t_exit)`` at ``t = k * delta``: spherical shells around the eye (perspective,
-   seed 003) or planes parallel to the image through the camera centre (orthographic). Adjacent
-   boxes therefore share no sample and skip none, and because ``delta_L = 2**L * delta_0`` the
-   lattice of a coarse level is a subset of a fine level's: no seams between bricks or levels.
-   Each sample is trilinear in the level's texture, mapped by the 1-D transfer-function texture
-   (``GL_LINEAR``, texel centres at ``(i + 0.5) / n``), its opacity corrected for ``delta``
-   relative to the level-0 voxel size with ``1 - exp(r * log1p(-a))`` (evaluated with accurate
-   ``log1p``/``expm1`` so it is stable at alpha near 0 and 1), and composited front to back inside
-   the box with premultiplied colour.
+3. **Draw**, by one of two paths (``RenderParams.path``; the same image within 1 LSB):
 
-   Between boxes, composite mode uses the selection's exact visibility order in one of two
-   equivalent ways (the operator is associative). Default (``early_termination=True``): *front to
-   back* (the back-to-front list reversed) with the "under" operator ``(ONE_MINUS_DST_ALPHA,
-   ONE)``; every ``len(items) / 32`` boxes (at least every box) the target is copied, and a box's
-   fragment whose pixel is already opaque in the copy returns at once - early ray termination across bricks, which a
-   one-pass ray caster gets for free and back-to-front drawing never can (5x on opaque data
-   here). ``early_termination=False``: *back to front* with ``(ONE, ONE_MINUS_SRC_ALPHA)`` over
-   the background, exactly as ``vzClipRenderAction``. MIP writes the largest raw value with the
-   ``MAX`` blend equation and maps it through the transfer function on read-back. NaN/Inf samples
-   are transparent.
+   * ``"single-pass"`` (default; ``shaders/raymarch.frag.glsl``) - the ray-guided path of
+     BigVolumeViewer and the ray-guided renderers of the large-volume literature: the selection's
+     cut becomes a per-level **page table** (:mod:`clipvol.scene.page_table`: per node EMPTY,
+     REFINED or DRAWN-from-level-``Ld``, plus the faces filtering may cross), uploaded as one
+     small integer texture. One proxy box - the volume's - is drawn; each pixel's ray walks the
+     table from the coarsest level down at its current point, samples the node's box from the data
+     level's toroidal texture on that level's lattice, skips EMPTY nodes in one step, switches
+     level at node faces and stops when opaque. No framebuffer copies, no per-box set-up, no
+     blending. A cut the table cannot express (more than 16 levels) falls back to the bricks path.
+   * ``"bricks"`` - one proxy box per :class:`~clipvol.scene.selection.DrawItem` into a float32
+     RGBA offscreen target (the method of Bhaniramka & Demange's OpenGL Volumizer, and the reference). The box's *back* faces are
+     rasterised (front faces culled; depth clamp on and a far plane never applied), so the
+     camera may sit inside a box. Between boxes composite mode uses the selection's exact
+     visibility order in one of two equivalent ways (the operator is associative). Default
+     (``early_termination=True``): *front to back* (the back-to-front list reversed) with the
+     "under" operator ``(ONE_MINUS_DST_ALPHA, ONE)``; every ``len(items) / 32`` boxes the target
+     is copied, and a box's fragment whose pixel is already opaque in the copy returns at once.
+     ``early_termination=False``: *back to front* with ``(ONE, ONE_MINUS_SRC_ALPHA)`` over the
+     background, exactly as ``vzClipRenderAction``. MIP uses the ``MAX`` blend equation.
+
+   Both paths share ``shaders/volume_common.glsl``: the fragment shader rebuilds the pixel's ray
+   from ``gl_FragCoord`` and the camera basis (per-frame uniforms, so bit-identical for every box
+   and both paths), intersects it with the box (and the :class:`~clipvol.scene.geometry.Shape`'s
+   box and planes) and samples the half-open interval ``[t_entry, t_exit)`` at
+   ``t = off + k * delta``: spherical shells around the eye (perspective, after LaMar, Hamann & Joy) or planes
+   parallel to the image through the camera centre (orthographic); ``off`` is 0, or with
+   ``jitter=True`` a stable per-pixel hash times ``delta`` (rings on opaque surfaces become fine
+   noise; the lattice stays constant-distance along the ray). Adjacent boxes share no sample and
+   skip none. Each sample is trilinear in the level's texture (in the ``HAS_NAN`` variant over the
+   finite neighbours only, weights renormalised) and looked up once in a **per-level corrected
+   colour table**: row ``L`` holds the transfer function with its opacity corrected for level
+   ``L``'s step relative to the level-0 voxel size, ``1 - exp(r * log1p(-a))``, computed on the
+   CPU in float64 when the table or the step changes - no log/exp per sample. Compositing is
+   front to back with premultiplied colour; MIP keeps the largest raw value and maps it through
+   the transfer function on read-back. Per-frame constants (mode, NaN in the data) are compiled
+   in as shader variants (:mod:`clipvol.render.glsl`), not branched on per sample.
 4. **Read back** - ``(h, w, 4)`` uint8 straight RGBA, composited over ``background``, row 0 at top.
 
 Precision: box corners and the brick origin are made relative to the eye in float64 and only then
@@ -45,6 +57,19 @@ rounded to float32, and samples are addressed in brick-local voxel coordinates, 
 ``wait=True`` repeats select -> ``clip_texture.wait_for`` (the wanted bricks) -> upload, without
 drawing, until the selection is converged (everything wanted is drawn at its own level), nothing
 more can arrive, or ``timeout`` passes; each pass honours ``texels_per_frame``.
+
+References
+----------
+* P. Bhaniramka and Y. Demange, "OpenGL Volumizer: A Toolkit for High Quality Volume Rendering of
+  Large Data Sets", SGI, 2002 (the clip render action, back-to-front bricks, budgets).
+* E. LaMar, B. Hamann and K. I. Joy, "Multiresolution Techniques for Interactive Texture-Based
+  Volume Visualization", IEEE Visualization 1999 (spherical shells, opacity correction per level).
+* M. Hadwiger, J. Beyer, W.-K. Jeong and H. Pfister, "Interactive Volume Exploration of Petascale
+  Microscopy Data Streams Using a Visualization-Driven Virtual Memory Approach", IEEE TVCG 2012,
+  and T. Fogal, A. Schiewe and J. Krüger, "An Analysis of Scalable GPU-Based Ray-Guided Volume
+  Rendering", IEEE LDAV 2013 (ray-guided single-pass casting through a page table).
+* T. Pietzsch, BigVolumeViewer (the Fiji / ImgLib2 GPU volume viewer, software, 2019 on):
+  single-pass multiresolution casting through a cache of bricks addressed by a lookup texture.
 """
 
 from __future__ import annotations

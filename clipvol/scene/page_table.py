@@ -2,7 +2,7 @@
 
 Why a page table: the per-brick path draws one proxy box per draw item and composites boxes in
 the selection's visibility order; a single-pass ray caster (after BigVolumeViewer and the
-ray-guided renderers of the large-volume literature, e.g. Hadwiger et al. and Beyer et al.)
+ray-guided renderers of the large-volume literature; references below)
 instead marches each ray through the volume once and needs to answer, at any point, "which
 brick, of which level, is drawn here?". The selection's cut answers it as a tree: this module
 flattens it into one small integer table per level that the shader walks from the coarsest level
@@ -21,6 +21,12 @@ Entry of node ``(L, cell)`` (``uint32``):
 
 Each level's table covers the bounding box (in cells) of the nodes of that level that are drawn
 or refined; a cell outside it is ``EMPTY``. The tables are concatenated into one flat array.
+
+References: M. Hadwiger, J. Beyer, W.-K. Jeong and H. Pfister, "Interactive Volume Exploration of
+Petascale Microscopy Data Streams Using a Visualization-Driven Virtual Memory Approach", IEEE TVCG
+2012; T. Fogal, A. Schiewe and J. Krüger, "An Analysis of Scalable GPU-Based Ray-Guided Volume
+Rendering", IEEE LDAV 2013; E. LaMar, B. Hamann and K. I. Joy, "Multiresolution Techniques for
+Interactive Texture-Based Volume Visualization", IEEE Visualization 1999 (the octree cut).
 """
 
 from __future__ import annotations
