@@ -309,24 +309,31 @@ def vs_raw(sizes, image: int, repeat: int, step: float, out_dir: Path, fly_frame
             imgs[name] = a.render(cam, tf, wait=True, timeout=1800)
         raw.render(cam, tf, step)
         times = {k: [] for k in [*actions, "raw"]}
+        cpu = {k: [] for k in [*actions, "raw"]}  # process CPU seconds (all llvmpipe threads): steadier
         for _ in range(repeat):  # interleaved: the shared machine's load hits every configuration alike
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             imgs["raw"] = premultiplied_to_uint8(raw.render(cam, tf, step).astype(np.float64))
             times["raw"].append(time.perf_counter() - t)
+            cpu["raw"].append(time.process_time() - c)
             for name, a in actions.items():
+                c = time.process_time()
                 imgs[name] = a.render(cam, tf, wait=False)
+                cpu[name].append(time.process_time() - c)
                 times[name].append(a.last_frame_stats.times["total"])
         med = {k: statistics.median(v) for k, v in times.items()}
+        mcpu = {k: statistics.median(v) for k, v in cpu.items()}
         diff = {k: int(np.abs(imgs[k].astype(int) - imgs["raw"].astype(int)).max()) for k in actions}
         row = dict(size=n, image=image, repeat=repeat, raw_s=med["raw"],
                    **{f"{k}_s": med[k] for k in actions},
                    **{f"{k}_over_raw": med[k] / med["raw"] for k in actions},
+                   raw_cpu_s=mcpu["raw"], **{f"{k}_cpu_over_raw": mcpu[k] / mcpu["raw"] for k in actions},
                    multires_over_full=med["multiresolution"] / med["single-pass"],
                    single_over_bricks=med["single-pass"] / med["bricks"],
                    **{f"maxdiff_{k}_vs_raw": diff[k] for k in actions},
                    multires_levels=str(actions["multiresolution"].last_frame_stats.bricks_drawn))
         log(f"{n}^3 at {image}^2 (median of {repeat}): raw {med['raw']:.3f} s; " + ", ".join(
-            f"{k} {med[k]:.3f} s = {med[k] / med['raw']:.2f}x raw (max |diff| {diff[k]})" for k in actions))
+            f"{k} {med[k]:.3f} s = {med[k] / med['raw']:.2f}x raw, CPU {mcpu[k] / mcpu['raw']:.2f}x "
+            f"(max |diff| {diff[k]})" for k in actions))
         for a in actions.values():
             a.close()
         raw.release()
