@@ -256,6 +256,42 @@ def _p(values, q: float) -> float:
     return float(np.percentile(np.asarray(values, dtype=np.float64), q))
 
 
+def fly_stability(ctx, loader, tf, image: int, step: float, budget: int, frames: int, texels_per_frame: int,
+                  log=print) -> dict:
+    """Frame times along the ``fly`` path from a cold clip-texture, uploads limited per frame
+    (``texels_per_frame``), multiresolution, jitter on (the viewer's settings): median, 95th
+    percentile, frames above twice the median, wall and process CPU time, and the upload share."""
+    from clipvol.paging.cliptexture import ClipTexture
+    from clipvol.render.action import ClipRenderAction
+    from clipvol.scene.paths import make_path
+
+    clip = ClipTexture(loader, budget, threads=2)
+    fly = ClipRenderAction(ctx, clip, lod_threshold=1.0, texels_per_frame=texels_per_frame, jitter=True, step=step,
+                           texture_budget=budget)
+    ft, cpu, up, upt = [], [], [], []
+    for fcam, _ in make_path("fly", loader.pyramid, frames, size=(image, image)):
+        c = time.process_time()
+        fly.render(fcam, tf, wait=False)
+        cpu.append(time.process_time() - c)
+        st = fly.last_frame_stats
+        ft.append(st.times["total"])
+        up.append(st.bricks_uploaded)
+        upt.append(st.times["upload"])
+    fly.close()
+    clip.close()
+    m, mc = statistics.median(ft), statistics.median(cpu)
+    out = dict(fly_frames=frames, fly_median_s=m, fly_p95_s=_p(ft, 95), fly_max_s=max(ft),
+               fly_hitches_over_2x_median=int(sum(t > 2 * m for t in ft)), fly_cpu_median_s=mc,
+               fly_cpu_p95_s=_p(cpu, 95), fly_cpu_hitches_over_2x_median=int(sum(t > 2 * mc for t in cpu)),
+               fly_upload_max_s=max(upt), fly_bricks_uploaded=int(sum(up)), fly_max_bricks_per_frame=max(up),
+               texels_per_frame=texels_per_frame)
+    log(f"fly path, {frames} frames, texels_per_frame {texels_per_frame}: wall median {m:.3f} s, p95 {_p(ft, 95):.3f} s, "
+        f"{out['fly_hitches_over_2x_median']} frames > 2x median; CPU median {mc:.3f} s, p95 {_p(cpu, 95):.3f} s, "
+        f"{out['fly_cpu_hitches_over_2x_median']} > 2x; uploads {sum(up)} bricks, at most {max(up)} and "
+        f"{max(upt) * 1e3:.0f} ms in a frame")
+    return out
+
+
 def vs_raw(sizes, image: int, repeat: int, step: float, out_dir: Path, fly_frames: int = 48,
            texels_per_frame: int = 8 * 64**3, log=print) -> list[dict]:
     """clipvol's full-resolution frame (single pass and per-brick), its own shader on one texture,
@@ -339,24 +375,7 @@ def vs_raw(sizes, image: int, repeat: int, step: float, out_dir: Path, fly_frame
         raw.release()
         clip1.close()
         clip.close()
-        # frame-time stability along the fly path: cold clip-texture, uploads limited per frame
-        clip = ClipTexture(loader, budget, threads=2)
-        fly = ClipRenderAction(ctx, clip, lod_threshold=1.0, texels_per_frame=texels_per_frame, jitter=True,
-                               **common)
-        ft, up = [], []
-        for fcam, _ in make_path("fly", pyr, fly_frames, size=(image, image)):
-            fly.render(fcam, tf, wait=False)
-            ft.append(fly.last_frame_stats.times["total"])
-            up.append(fly.last_frame_stats.bricks_uploaded)
-        fly.close()
-        clip.close()
-        m = statistics.median(ft)
-        row.update(fly_frames=fly_frames, fly_median_s=m, fly_p95_s=_p(ft, 95), fly_max_s=max(ft),
-                   fly_hitches_over_2x_median=int(sum(t > 2 * m for t in ft)), fly_bricks_uploaded=int(sum(up)),
-                   texels_per_frame=texels_per_frame)
-        log(f"{n}^3 fly path, {fly_frames} frames, texels_per_frame {texels_per_frame}: median {m:.3f} s, "
-            f"p95 {_p(ft, 95):.3f} s, max {max(ft):.3f} s, {row['fly_hitches_over_2x_median']} frames > 2x median; "
-            f"{sum(up)} bricks uploaded")
+        row.update(fly_stability(ctx, loader, tf, image, step, budget, fly_frames, texels_per_frame, log))
         rows.append(row)
         del vol, loader, one_loader
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -381,8 +400,28 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--vs-raw", default=None, metavar="SIZES",
                     help="only the comparison with the raw one-texture caster, on procedural fractal volumes of "
                          "these edges (e.g. 256,512); writes docs/bench_render_raw.csv")
+    ap.add_argument("--fly-only", type=int, default=None, metavar="N",
+                    help="only the fly-path frame times on procedural:fractal?size=N (virtual: bricks generated "
+                         "on demand, e.g. 4096); writes docs/bench_render_fly.csv")
     ap.add_argument("--fly-frames", type=int, default=48, help="--vs-raw: frames of the fly path (frame-time stability)")
     args = ap.parse_args(argv)
+    if args.fly_only:
+        from clipvol.loaders.procedural import ProceduralLoader
+        from clipvol.render import create_context
+        from clipvol.scene.transfer import TransferFunction
+
+        loader = ProceduralLoader(f"procedural:fractal?size={args.fly_only}", brick=64)
+        budget = 512 << 20
+        ctx = create_context()
+        row = fly_stability(ctx, loader, TransferFunction.preset("bone", value_range=loader.pyramid.value_range),
+                            args.size, args.step, budget, args.fly_frames, 8 * 64**3,
+                            log=lambda *a: print(*a, file=sys.stderr, flush=True))
+        args.out_dir.mkdir(parents=True, exist_ok=True)
+        with open(args.out_dir / "bench_render_fly.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=["size", *row])
+            w.writeheader()
+            w.writerow({"size": args.fly_only, **{k: (f"{v:.4g}" if isinstance(v, float) else v) for k, v in row.items()}})
+        return 0
     if args.vs_raw:
         sizes = [int(v) for v in args.vs_raw.split(",")]
         vs_raw(sizes, args.size, max(args.repeat, 5), args.step, args.out_dir, args.fly_frames,
