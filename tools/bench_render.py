@@ -16,9 +16,13 @@ noise of a shared machine cancels as far as it can:
   frame's bricks, against bare ``texture.write(viewport=...)`` calls of the same bricks into the
   same slots. Target >= 0.8. One big ``texture.write`` of as many bytes into one texture is
   reported beside it (what llvmpipe's memcpy reaches without sub-image addressing).
-* **bricks vs one texture** - the full-resolution frame drawn as bricks against a one-pass ray
-  caster: the same shader with the whole level 0 as a single brick in a single 3D texture (one
-  draw), same view and step. Target <= 1.5x the time.
+* **bricks vs one texture** - the full-resolution frame drawn as bricks against clipvol's *own*
+  shader with the whole level 0 as a single brick in a single 3D texture (one draw), same view and
+  step. Target <= 1.5x the time.
+* **against a raw caster** - the full-resolution frame and clipvol's own one-texture frame, each
+  divided by :class:`RawCaster`'s time (a plain one-texture caster outside clipvol's render path,
+  same volume, view, step and table). Targets <= 1.1x and <= 1.05x. ``--vs-raw 256,512`` runs
+  only this comparison on procedural volumes, ``--fly-only N`` only the fly-path frame times.
 
 Run ``python -m clipvol.tools.bench_render`` (uses ``bench-data/fractal-640-b64.zarr``, 640^3
 float32 = 1.05 GB, bricking it with ``clipvol brick`` first if it is missing) or ``--quick`` for a
@@ -497,6 +501,9 @@ def main(argv: list[str] | None = None) -> int:
     one = ClipRenderAction(ctx, clip1, texture_budget=vol_bytes + (16 << 20), selection="fixed", level=0, step=args.step)
     stack.callback(one.close)
     one.render(cam, tf, wait=True, timeout=1800)
+    raw = RawCaster(ctx, whole.read_brick(0, (0, 0, 0)), pyr.value_range)  # the reference outside clipvol
+    stack.callback(raw.release)
+    raw.render(cam, tf, args.step)
 
     t0 = time.perf_counter()
     clip2 = stack.enter_context(ClipTexture(loader, "512MB", center=centre))
@@ -528,7 +535,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{pct_far:.2f} % pixels dE>=6")
 
     # -- warm frames: two rounds of blocks, so that the load of a shared machine hits all alike --
-    times: dict[str, list] = {"full": [], "one": [], "multi": []}
+    times: dict[str, list] = {"full": [], "one": [], "multi": [], "raw": []}
     draws: dict[str, list] = {"full": [], "one": [], "multi": []}
     images = {}
     for _ in range(2):  # two rounds of blocks: a warm-up frame, then args.repeat timed frames each
@@ -538,7 +545,11 @@ def main(argv: list[str] | None = None) -> int:
                 images[name] = action.render(cam, tf, wait=False)
                 times[name].append(action.last_frame_stats.times["total"])
                 draws[name].append(action.last_frame_stats.times["draw"])
-    t_full, t_one, t_multi = (statistics.median(times[k]) for k in ("full", "one", "multi"))
+        for _ in range(args.repeat):
+            t = time.perf_counter()
+            raw.render(cam, tf, args.step)
+            times["raw"].append(time.perf_counter() - t)
+    t_full, t_one, t_multi, t_raw = (statistics.median(times[k]) for k in ("full", "one", "multi", "raw"))
     d_full, d_one, d_multi = (statistics.median(draws[k]) for k in ("full", "one", "multi"))
     img_full, img_one, img_multi = images["full"], images["one"], images["multi"]
     log("multiresolution warm frame stages: " + ", ".join(f"{k} {v:.3f}" for k, v in multi.last_frame_stats.times.items()))
@@ -567,6 +578,10 @@ def main(argv: list[str] | None = None) -> int:
          full_bytes / max(loaded_at_convergence, 1), "reported", ""),
         ("subload_MBps", sub_mbps, "raw_write_MBps", raw_mbps, sub_mbps / raw_mbps, ">= 0.8", sub_mbps / raw_mbps >= 0.8),
         ("subload_MBps", sub_mbps, "one_big_write_MBps", big_mbps, sub_mbps / big_mbps, "reported", ""),
+        ("full_res_frame_s", t_full, "raw_one_texture_caster_frame_s", t_raw, t_full / t_raw, "<= 1.1x",
+         t_full / t_raw <= 1.1),
+        ("own_shader_one_texture_frame_s", t_one, "raw_one_texture_caster_frame_s", t_raw, t_one / t_raw, "<= 1.05x",
+         t_one / t_raw <= 1.05),
         ("bricks_frame_s", t_full, "one_texture_frame_s", t_one, t_full / t_one, "<= 1.5x", t_full / t_one <= 1.5),
         ("bricks_draw_s", d_full, "one_texture_draw_s", d_one, d_full / d_one, "reported", ""),
         ("max_abs_diff_bricks_vs_one_texture", same, "-", "", "", "reported", ""),
