@@ -117,10 +117,25 @@ class NumpyLoader:
         self.cache_bytes = int(cache_bytes)
         self._levels: dict[int, np.ndarray] = {}
         self._lock = threading.RLock()
+        self._nonfinite: bool | None = None
 
     @property
     def pyramid(self) -> Pyramid:
         return self._pyramid
+
+    @property
+    def nonfinite(self) -> bool:
+        """Whether the array holds NaN or Inf (scanned once in slabs, on first use; integer
+        arrays: False without a scan). Lets a renderer pick its NaN-free shader variant."""
+        if self._nonfinite is None:
+            arr = self.array
+            if arr.dtype.kind != "f":
+                self._nonfinite = False
+            else:
+                step = _slab_steps(arr.shape, arr.dtype.itemsize)
+                self._nonfinite = any(not np.isfinite(np.asarray(arr[z:z + step])).all()
+                                      for z in range(0, arr.shape[0], step))
+        return self._nonfinite
 
     def _cacheable(self, level: int) -> bool:
         return level > 0 and math.prod(self._pyramid.levels[level].shape) * self._pyramid.dtype.itemsize <= self.cache_bytes

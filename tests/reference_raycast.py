@@ -8,7 +8,8 @@ plain array with clamp-to-edge, table lookup (``GL_LINEAR`` with texel centres a
 Lattice (the renderer's contract): samples at ``t = k * delta`` along each ray, ``k`` integer,
 inside the half-open interval ``[t_entry, t_exit)`` of the ray with the volume box; ``t`` is the
 distance from the eye (perspective, ``t >= 0``) or from the plane through the camera centre
-perpendicular to the view (orthographic, any sign). Non-finite samples are transparent.
+perpendicular to the view (orthographic, any sign). Trilinear sampling is over the finite voxels
+only (weights renormalised); a sample with no finite voxel of non-zero weight is transparent.
 """
 
 from __future__ import annotations
@@ -18,18 +19,29 @@ import numpy as np
 __all__ = ["trilinear", "tf_lookup", "correct_opacity", "raycast", "raycast_levels", "to_uint8"]
 
 
+#: per-axis fraction within which a sample counts as on a voxel centre (NaN-aware filtering)
+SNAP = 1.0 / 4096.0
+
+
 def trilinear(vol: np.ndarray, u: np.ndarray) -> np.ndarray:
     """Sample ``vol`` ``(z, y, x)`` at voxel coordinates ``u`` ``(..., 3)`` ``(x, y, z)`` (centres at integers).
 
-    Clamp-to-edge outside ``[0, n - 1]``; computed in float64.
+    Clamp-to-edge outside ``[0, n - 1]``; computed in float64. NaN-aware: non-finite voxels are
+    left out and the weights of the finite ones renormalised, so a sample is NaN only where every
+    voxel of non-zero weight is non-finite. Fractions within ``SNAP`` of a voxel centre snap to it
+    (the renderer's contract: float32 positions of a sample meant to be at a centre are a few
+    1e-6 voxel off, and a renormalised weight of 1e-6 would otherwise hand a NaN voxel's centre
+    its neighbour's value).
     """
     v = np.asarray(vol, dtype=np.float64)
     n = np.array(v.shape[::-1], dtype=np.float64)  # (x, y, z)
     u = np.clip(u, 0.0, n - 1.0)
     i0 = np.minimum(np.floor(u), np.maximum(n - 2.0, 0.0)).astype(np.int64)
     f = u - i0
+    f = np.where(f < SNAP, 0.0, np.where(f > 1.0 - SNAP, 1.0, f))  # a centre sample stays one
     i1 = np.minimum(i0 + 1, (n - 1).astype(np.int64))
-    out = 0.0
+    total = 0.0
+    weight = 0.0
     for dz in (0, 1):
         wz = f[..., 2] if dz else 1.0 - f[..., 2]
         iz = i1[..., 2] if dz else i0[..., 2]
@@ -39,8 +51,12 @@ def trilinear(vol: np.ndarray, u: np.ndarray) -> np.ndarray:
             for dx in (0, 1):
                 wx = f[..., 0] if dx else 1.0 - f[..., 0]
                 ix = i1[..., 0] if dx else i0[..., 0]
-                out = out + wz * wy * wx * v[iz, iy, ix]
-    return out
+                x = v[iz, iy, ix]
+                w = np.where(np.isfinite(x) & (wz * wy * wx > 0), wz * wy * wx, 0.0)
+                total = total + w * np.where(w > 0, x, 0.0)
+                weight = weight + w
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(weight > 0, total / np.where(weight > 0, weight, 1.0), np.nan)
 
 
 def tf_lookup(table: np.ndarray, t: np.ndarray) -> np.ndarray:

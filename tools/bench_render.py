@@ -16,9 +16,13 @@ noise of a shared machine cancels as far as it can:
   frame's bricks, against bare ``texture.write(viewport=...)`` calls of the same bricks into the
   same slots. Target >= 0.8. One big ``texture.write`` of as many bytes into one texture is
   reported beside it (what llvmpipe's memcpy reaches without sub-image addressing).
-* **bricks vs one texture** - the full-resolution frame drawn as bricks against a one-pass ray
-  caster: the same shader with the whole level 0 as a single brick in a single 3D texture (one
-  draw), same view and step. Target <= 1.5x the time.
+* **bricks vs one texture** - the full-resolution frame drawn as bricks against clipvol's *own*
+  shader with the whole level 0 as a single brick in a single 3D texture (one draw), same view and
+  step. Target <= 1.5x the time.
+* **against a raw caster** - the full-resolution frame and clipvol's own one-texture frame, each
+  divided by :class:`RawCaster`'s time (a plain one-texture caster outside clipvol's render path,
+  same volume, view, step and table). Targets <= 1.1x and <= 1.05x. ``--vs-raw 256,512`` runs
+  only this comparison on procedural volumes, ``--fly-only N`` only the fly-path frame times.
 
 Run ``python -m clipvol.tools.bench_render`` (uses ``bench-data/fractal-640-b64.zarr``, 640^3
 float32 = 1.05 GB, bricking it with ``clipvol brick`` first if it is missing) or ``--quick`` for a
@@ -69,6 +73,118 @@ class _WholeVolume:
                     brick = self._src.read_brick(0, (bz, by, bx))
                     out[z0:z1, y0:y1, x0:x1] = brick[: z1 - z0, : y1 - y0, : x1 - x0]
         return out
+
+
+# -- the honest reference: a minimal raw one-texture ray caster (a fixture, not a product path) ---
+_RAW_VERT = """#version 330
+out vec2 v_ndc;
+void main() {
+    vec2 p = vec2((gl_VertexID << 1) & 2, gl_VertexID & 2) * 2.0 - 1.0;  // one full-screen triangle
+    v_ndc = p;
+    gl_Position = vec4(p, 0.0, 1.0);
+}
+"""
+_RAW_FRAG = """#version 330
+in vec2 v_ndc;
+out vec4 f_color;
+uniform sampler3D u_vol;        // the whole volume, GL_LINEAR, clamp to edge
+uniform sampler2D u_tf;         // the table, opacity corrected for the step on the CPU
+uniform vec3 u_eye, u_right, u_up, u_forward;
+uniform vec2 u_half;
+uniform vec3 u_lo, u_hi;        // the volume box (world)
+uniform float u_delta, u_t_scale, u_t_offset;
+void main() {
+    vec3 dir = normalize(u_forward + v_ndc.x * u_half.x * u_right + v_ndc.y * u_half.y * u_up);
+    vec3 inv = 1.0 / dir;
+    vec3 ta = (u_lo - u_eye) * inv, tb = (u_hi - u_eye) * inv;
+    float t0 = max(max(max(min(ta.x, tb.x), min(ta.y, tb.y)), min(ta.z, tb.z)), 0.0);
+    float t1 = min(min(max(ta.x, tb.x), max(ta.y, tb.y)), max(ta.z, tb.z));
+    if (!(t1 > t0)) discard;
+    vec4 acc = vec4(0.0);
+    vec3 isz = 1.0 / (u_hi - u_lo);
+    for (float t = ceil(t0 / u_delta) * u_delta; t < t1; t += u_delta) {
+        float v = texture(u_vol, (u_eye + t * dir - u_lo) * isz).r;
+        vec4 c = texture(u_tf, vec2(v * u_t_scale + u_t_offset, 0.5));
+        acc += (1.0 - acc.a) * c.a * vec4(c.rgb, 1.0);
+        if (acc.a >= 0.9995) break;
+    }
+    f_color = acc;
+}
+"""
+
+
+class RawCaster:
+    """A plain one-texture moderngl ray caster: one 3D texture, one table lookup, front to back.
+
+    The benchmarks' reference *outside* clipvol's render path (the shader above is all there is:
+    no bricks, no page table, no variants, no shape clipping), drawing the same view with the same
+    step, lattice (``t = k * delta`` from the eye) and opacity-corrected table, so clipvol's
+    frame time can be stated as a ratio to what a minimal caster costs on the same GL.
+    Perspective cameras only. ``volume``: ``(z, y, x)`` float32, spacing 1.
+    """
+
+    def __init__(self, ctx, volume: np.ndarray, value_range) -> None:
+        import moderngl
+
+        self.ctx = ctx
+        vol = np.ascontiguousarray(volume, dtype=np.float32)
+        self.shape = vol.shape
+        self.tex = ctx.texture3d(vol.shape[::-1], 1, vol.tobytes(), dtype="f4")
+        self.tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        self.tex.repeat_x = self.tex.repeat_y = self.tex.repeat_z = False
+        self.prog = ctx.program(vertex_shader=_RAW_VERT, fragment_shader=_RAW_FRAG)
+        self.vao = ctx.vertex_array(self.prog, [])
+        self.value_range = tuple(float(v) for v in value_range)
+        self._fbo = None
+        self._tf = None
+
+    def render(self, cam, tf, step: float) -> np.ndarray:
+        """Draw ``cam``'s view; returns ``(h, w, 4)`` premultiplied float32 RGBA, row 0 at the top."""
+        import moderngl
+
+        from clipvol.scene.transfer import correct_opacity
+
+        ctx = self.ctx
+        w, h = cam.size
+        if self._fbo is None or self._fbo.size != (w, h):
+            self._fbo = ctx.simple_framebuffer((w, h), components=4, dtype="f4")
+        if self._tf is None:
+            table = np.array(tf.table, dtype=np.float64)
+            table[:, 3] = correct_opacity(table[:, 3], step)
+            self._tf = ctx.texture((len(table), 1), 4, table.astype(np.float32).tobytes(), dtype="f4")
+            self._tf.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            self._tf.repeat_x = self._tf.repeat_y = False
+        lo, hi = tf.window(self.value_range)
+        p = self.prog
+        p["u_vol"].value, p["u_tf"].value = 0, 1
+        self.tex.use(0)
+        self._tf.use(1)
+        p["u_eye"].value = tuple(float(v) for v in cam.eye)
+        p["u_right"].value = tuple(float(v) for v in cam.right)
+        p["u_up"].value = tuple(float(v) for v in cam.up)
+        p["u_forward"].value = tuple(float(v) for v in cam.forward)
+        ty = np.tan(np.radians(float(cam.fov_y)) / 2.0)
+        p["u_half"].value = (float(ty * w / h), float(ty))
+        n = np.array(self.shape[::-1], dtype=np.float64)
+        p["u_lo"].value = (-0.5, -0.5, -0.5)
+        p["u_hi"].value = tuple(float(v) for v in n - 0.5)
+        p["u_delta"].value = float(step)
+        p["u_t_scale"].value = 1.0 / (hi - lo)
+        p["u_t_offset"].value = -lo / (hi - lo)
+        previous = ctx.fbo
+        self._fbo.use()
+        self._fbo.clear(0.0, 0.0, 0.0, 0.0)
+        ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        self.vao.render(moderngl.TRIANGLES, vertices=3)
+        ctx.finish()
+        out = np.frombuffer(self._fbo.read(components=4, dtype="f4"), np.float32).reshape(h, w, 4)[::-1]
+        previous.use()  # give the binding back (a released framebuffer left bound breaks later ones)
+        return out
+
+    def release(self) -> None:
+        for o in (self.tex, self.prog, self.vao, self._fbo, self._tf):
+            if o is not None:
+                o.release()
 
 
 def _frames(action, cam, tf, repeat: int) -> tuple[float, float, np.ndarray]:
@@ -140,6 +256,143 @@ def _subload_vs_raw(action, clip, repeat: int = 3) -> tuple[float, float]:
     return best_cache, best_raw
 
 
+def _p(values, q: float) -> float:
+    return float(np.percentile(np.asarray(values, dtype=np.float64), q))
+
+
+def fly_stability(ctx, loader, tf, image: int, step: float, budget: int, frames: int, texels_per_frame: int,
+                  log=print) -> dict:
+    """Frame times along the ``fly`` path from a cold clip-texture, uploads limited per frame
+    (``texels_per_frame``), multiresolution, jitter on (the viewer's settings): median, 95th
+    percentile, frames above twice the median, wall and process CPU time, and the upload share."""
+    from clipvol.paging.cliptexture import ClipTexture
+    from clipvol.render.action import ClipRenderAction
+    from clipvol.scene.paths import make_path
+
+    clip = ClipTexture(loader, budget, threads=2)
+    fly = ClipRenderAction(ctx, clip, lod_threshold=1.0, texels_per_frame=texels_per_frame, jitter=True, step=step,
+                           texture_budget=budget)
+    ft, cpu, up, upt = [], [], [], []
+    for fcam, _ in make_path("fly", loader.pyramid, frames, size=(image, image)):
+        c = time.process_time()
+        fly.render(fcam, tf, wait=False)
+        cpu.append(time.process_time() - c)
+        st = fly.last_frame_stats
+        ft.append(st.times["total"])
+        up.append(st.bricks_uploaded)
+        upt.append(st.times["upload"])
+    fly.close()
+    clip.close()
+    m, mc = statistics.median(ft), statistics.median(cpu)
+    out = dict(fly_frames=frames, fly_median_s=m, fly_p95_s=_p(ft, 95), fly_max_s=max(ft),
+               fly_hitches_over_2x_median=int(sum(t > 2 * m for t in ft)), fly_cpu_median_s=mc,
+               fly_cpu_p95_s=_p(cpu, 95), fly_cpu_hitches_over_2x_median=int(sum(t > 2 * mc for t in cpu)),
+               fly_upload_max_s=max(upt), fly_bricks_uploaded=int(sum(up)), fly_max_bricks_per_frame=max(up),
+               texels_per_frame=texels_per_frame)
+    log(f"fly path, {frames} frames, texels_per_frame {texels_per_frame}: wall median {m:.3f} s, p95 {_p(ft, 95):.3f} s, "
+        f"{out['fly_hitches_over_2x_median']} frames > 2x median; CPU median {mc:.3f} s, p95 {_p(cpu, 95):.3f} s, "
+        f"{out['fly_cpu_hitches_over_2x_median']} > 2x; uploads {sum(up)} bricks, at most {max(up)} and "
+        f"{max(upt) * 1e3:.0f} ms in a frame")
+    return out
+
+
+def vs_raw(sizes, image: int, repeat: int, step: float, out_dir: Path, fly_frames: int = 48,
+           texels_per_frame: int = 8 * 64**3, log=print) -> list[dict]:
+    """clipvol's full-resolution frame (single pass and per-brick), its own shader on one texture,
+    and the multiresolution frame, each as a ratio to :class:`RawCaster` on the same volume, view,
+    step and table; interleaved rounds, medians of ``repeat``. Then the fly path's frame times
+    (median, 95th percentile) on a cold clip-texture with uploads limited per frame.
+
+    Volumes: ``procedural:fractal?size=N`` (float32), generated in memory.
+    """
+    from clipvol.loaders.numpy_array import NumpyLoader
+    from clipvol.loaders.procedural import ProceduralLoader
+    from clipvol.paging.cliptexture import ClipTexture
+    from clipvol.render import create_context
+    from clipvol.render.action import ClipRenderAction, premultiplied_to_uint8
+    from clipvol.scene.camera import Camera
+    from clipvol.scene.paths import make_path
+    from clipvol.scene.transfer import TransferFunction
+
+    ctx = create_context()
+    rows = []
+    for n in sizes:
+        t0 = time.perf_counter()
+        vol = ProceduralLoader(f"procedural:fractal?size={n}", brick=64).generator.region(0, (0, 0, 0), (n, n, n))
+        vol = np.ascontiguousarray(vol, dtype=np.float32)
+        log(f"{n}^3: generated in {time.perf_counter() - t0:.1f} s")
+        loader = NumpyLoader(vol, brick=64, value_range=(float(vol.min()), float(vol.max())))
+        pyr = loader.pyramid
+        lo, hi = pyr.volume_box()
+        centre = (lo + hi) / 2.0
+        d = np.array([0.55, 0.45, 0.7])
+        d /= np.linalg.norm(d)
+        # the volume fills the view: 1 pixel is about 1 voxel at 512^2 and 512^3
+        cam = Camera.perspective(tuple(centre - d * 1.05 * float(np.linalg.norm(hi - lo))), tuple(centre), up=(0, -1, 0),
+                                 fov_y=35, size=(image, image))
+        tf = TransferFunction.preset("bone", value_range=pyr.value_range)
+        budget = int(sum(pyr.num_bricks(L) for L in range(pyr.num_levels)) * pyr.brick_nbytes * 1.2) + (64 << 20)
+        clip = ClipTexture(loader, budget, threads=2)
+        one_loader = NumpyLoader(vol, brick=n, value_range=pyr.value_range)
+        clip1 = ClipTexture(one_loader, vol.nbytes + (16 << 20), threads=1)
+        common = dict(step=step, texture_budget=budget)
+        actions = {
+            "single-pass": ClipRenderAction(ctx, clip, policy="fixed", level=0, path="single-pass", **common),
+            "bricks": ClipRenderAction(ctx, clip, policy="fixed", level=0, path="bricks", **common),
+            "own shader, one texture": ClipRenderAction(ctx, clip1, policy="fixed", level=0, path="bricks", step=step,
+                                                        texture_budget=vol.nbytes + (16 << 20)),
+            "multiresolution": ClipRenderAction(ctx, clip, lod_threshold=1.0, **common),
+        }
+        raw = RawCaster(ctx, vol, pyr.value_range)
+        imgs = {}
+        for name, a in actions.items():
+            imgs[name] = a.render(cam, tf, wait=True, timeout=1800)
+        raw.render(cam, tf, step)
+        times = {k: [] for k in [*actions, "raw"]}
+        cpu = {k: [] for k in [*actions, "raw"]}  # process CPU seconds (all llvmpipe threads): steadier
+        for _ in range(repeat):  # interleaved: the shared machine's load hits every configuration alike
+            t, c = time.perf_counter(), time.process_time()
+            imgs["raw"] = premultiplied_to_uint8(raw.render(cam, tf, step).astype(np.float64))
+            times["raw"].append(time.perf_counter() - t)
+            cpu["raw"].append(time.process_time() - c)
+            for name, a in actions.items():
+                c = time.process_time()
+                imgs[name] = a.render(cam, tf, wait=False)
+                cpu[name].append(time.process_time() - c)
+                times[name].append(a.last_frame_stats.times["total"])
+        med = {k: statistics.median(v) for k, v in times.items()}
+        mcpu = {k: statistics.median(v) for k, v in cpu.items()}
+        diff = {k: int(np.abs(imgs[k].astype(int) - imgs["raw"].astype(int)).max()) for k in actions}
+        row = dict(size=n, image=image, repeat=repeat, raw_s=med["raw"],
+                   **{f"{k}_s": med[k] for k in actions},
+                   **{f"{k}_over_raw": med[k] / med["raw"] for k in actions},
+                   raw_cpu_s=mcpu["raw"], **{f"{k}_cpu_over_raw": mcpu[k] / mcpu["raw"] for k in actions},
+                   multires_over_full=med["multiresolution"] / med["bricks"],  # both on the default path
+                   single_over_bricks=med["single-pass"] / med["bricks"],
+                   **{f"maxdiff_{k}_vs_raw": diff[k] for k in actions},
+                   multires_levels=str(actions["multiresolution"].last_frame_stats.bricks_drawn))
+        log(f"{n}^3 at {image}^2 (median of {repeat}): raw {med['raw']:.3f} s; " + ", ".join(
+            f"{k} {med[k]:.3f} s = {med[k] / med['raw']:.2f}x raw, CPU {mcpu[k] / mcpu['raw']:.2f}x "
+            f"(max |diff| {diff[k]})" for k in actions))
+        for a in actions.values():
+            a.close()
+        raw.release()
+        clip1.close()
+        clip.close()
+        row.update(fly_stability(ctx, loader, tf, image, step, budget, fly_frames, texels_per_frame, log))
+        rows.append(row)
+        del vol, loader, one_loader
+    out_dir.mkdir(parents=True, exist_ok=True)
+    keys = list(rows[0])
+    with open(out_dir / "bench_render_raw.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=keys)
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (f"{v:.4g}" if isinstance(v, float) else v) for k, v in r.items()})
+    ctx.release()
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--source", default=None, help="store or procedural URL (default: the 2 GiB bench store)")
@@ -148,7 +401,36 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeat", type=int, default=3, help="warm frames per configuration and round (median)")
     ap.add_argument("--step", type=float, default=0.5)
     ap.add_argument("--out-dir", type=Path, default=REPO / "docs")
+    ap.add_argument("--vs-raw", default=None, metavar="SIZES",
+                    help="only the comparison with the raw one-texture caster, on procedural fractal volumes of "
+                         "these edges (e.g. 256,512); writes docs/bench_render_raw.csv")
+    ap.add_argument("--fly-only", type=int, default=None, metavar="N",
+                    help="only the fly-path frame times on procedural:fractal?size=N (virtual: bricks generated "
+                         "on demand, e.g. 4096); writes docs/bench_render_fly.csv")
+    ap.add_argument("--fly-frames", type=int, default=48, help="--vs-raw: frames of the fly path (frame-time stability)")
     args = ap.parse_args(argv)
+    if args.fly_only:
+        from clipvol.loaders.procedural import ProceduralLoader
+        from clipvol.render import create_context
+        from clipvol.scene.transfer import TransferFunction
+
+        loader = ProceduralLoader(f"procedural:fractal?size={args.fly_only}", brick=64)
+        budget = 512 << 20
+        ctx = create_context()
+        row = fly_stability(ctx, loader, TransferFunction.preset("bone", value_range=loader.pyramid.value_range),
+                            args.size, args.step, budget, args.fly_frames, 8 * 64**3,
+                            log=lambda *a: print(*a, file=sys.stderr, flush=True))
+        args.out_dir.mkdir(parents=True, exist_ok=True)
+        with open(args.out_dir / "bench_render_fly.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=["size", *row])
+            w.writeheader()
+            w.writerow({"size": args.fly_only, **{k: (f"{v:.4g}" if isinstance(v, float) else v) for k, v in row.items()}})
+        return 0
+    if args.vs_raw:
+        sizes = [int(v) for v in args.vs_raw.split(",")]
+        vs_raw(sizes, args.size, max(args.repeat, 5), args.step, args.out_dir, args.fly_frames,
+               log=lambda *a: print(*a, file=sys.stderr, flush=True))
+        return 0
 
     from PIL import Image
 
@@ -219,6 +501,9 @@ def main(argv: list[str] | None = None) -> int:
     one = ClipRenderAction(ctx, clip1, texture_budget=vol_bytes + (16 << 20), selection="fixed", level=0, step=args.step)
     stack.callback(one.close)
     one.render(cam, tf, wait=True, timeout=1800)
+    raw = RawCaster(ctx, whole.read_brick(0, (0, 0, 0)), pyr.value_range)  # the reference outside clipvol
+    stack.callback(raw.release)
+    raw.render(cam, tf, args.step)
 
     t0 = time.perf_counter()
     clip2 = stack.enter_context(ClipTexture(loader, "512MB", center=centre))
@@ -250,7 +535,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{pct_far:.2f} % pixels dE>=6")
 
     # -- warm frames: two rounds of blocks, so that the load of a shared machine hits all alike --
-    times: dict[str, list] = {"full": [], "one": [], "multi": []}
+    times: dict[str, list] = {"full": [], "one": [], "multi": [], "raw": []}
     draws: dict[str, list] = {"full": [], "one": [], "multi": []}
     images = {}
     for _ in range(2):  # two rounds of blocks: a warm-up frame, then args.repeat timed frames each
@@ -260,7 +545,11 @@ def main(argv: list[str] | None = None) -> int:
                 images[name] = action.render(cam, tf, wait=False)
                 times[name].append(action.last_frame_stats.times["total"])
                 draws[name].append(action.last_frame_stats.times["draw"])
-    t_full, t_one, t_multi = (statistics.median(times[k]) for k in ("full", "one", "multi"))
+        for _ in range(args.repeat):
+            t = time.perf_counter()
+            raw.render(cam, tf, args.step)
+            times["raw"].append(time.perf_counter() - t)
+    t_full, t_one, t_multi, t_raw = (statistics.median(times[k]) for k in ("full", "one", "multi", "raw"))
     d_full, d_one, d_multi = (statistics.median(draws[k]) for k in ("full", "one", "multi"))
     img_full, img_one, img_multi = images["full"], images["one"], images["multi"]
     log("multiresolution warm frame stages: " + ", ".join(f"{k} {v:.3f}" for k, v in multi.last_frame_stats.times.items()))
@@ -289,6 +578,10 @@ def main(argv: list[str] | None = None) -> int:
          full_bytes / max(loaded_at_convergence, 1), "reported", ""),
         ("subload_MBps", sub_mbps, "raw_write_MBps", raw_mbps, sub_mbps / raw_mbps, ">= 0.8", sub_mbps / raw_mbps >= 0.8),
         ("subload_MBps", sub_mbps, "one_big_write_MBps", big_mbps, sub_mbps / big_mbps, "reported", ""),
+        ("full_res_frame_s", t_full, "raw_one_texture_caster_frame_s", t_raw, t_full / t_raw, "<= 1.1x",
+         t_full / t_raw <= 1.1),
+        ("own_shader_one_texture_frame_s", t_one, "raw_one_texture_caster_frame_s", t_raw, t_one / t_raw, "<= 1.05x",
+         t_one / t_raw <= 1.05),
         ("bricks_frame_s", t_full, "one_texture_frame_s", t_one, t_full / t_one, "<= 1.5x", t_full / t_one <= 1.5),
         ("bricks_draw_s", d_full, "one_texture_draw_s", d_one, d_full / d_one, "reported", ""),
         ("max_abs_diff_bricks_vs_one_texture", same, "-", "", "", "reported", ""),

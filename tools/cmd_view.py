@@ -49,6 +49,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--texture-budget", default="256MB", help="GPU brick cache budget")
     g.add_argument("--texels-per-frame", type=int, default=None, help="most texels uploaded per frame")
     g.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
+    g.add_argument("--no-jitter", action="store_true", help="sample every pixel's ray from t = 0 (shows lattice rings; for comparisons)")
+    g.add_argument("--render-path", choices=("single-pass", "bricks"), default="bricks",
+                   help="one ray-guided pass through a page table of the cut, or one proxy box per brick")
     g.add_argument("--outlines", action="store_true", help="draw brick outlines coloured by level (key B)")
     g.add_argument("--size", type=_size, default=None, help="window or image size WxH (default 960x640 window, 256x256 offscreen)")
     from clipvol.tools.tf_args import add_tf_arguments
@@ -143,6 +146,7 @@ def run(args) -> int:
     params = RenderParams(
         lod_threshold=args.lod_threshold, policy=args.selection, level=args.level, mode=args.mode,
         step=args.step, texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget,
+        jitter=not args.no_jitter, path=args.render_path,
     )
     from clipvol.tools.remote_args import remote_kwargs
 

@@ -196,7 +196,8 @@ def render_path(
     memory_budget, texture_budget, threads
         Clip-texture and GPU cache budgets, loader threads.
     params : RenderParams, optional
-        Selection policy, LOD threshold, MIP/composite, step (``texture_budget`` above wins).
+        Selection policy, LOD threshold, MIP/composite, step (``texture_budget`` above wins);
+        default ``RenderParams(jitter=True)`` (no wood-grain rings).
     tf : str or TransferFunction
         The transfer function.
     outlines : bool
@@ -248,7 +249,8 @@ def render_path(
                 ctx = create_context()
                 own_ctx = True
             session = RenderSession(source, ctx, memory_budget=memory_budget, texture_budget=texture_budget,
-                                    threads=threads, params=params, tf=tf)
+                                    threads=threads, tf=tf,
+                                    params=params if params is not None else RenderParams(jitter=True))
             own_session = True
         cams = make_path(path, session.pyramid, frames, size=size, **(path_kwargs or {}))
         fh = open(csv_path, "w", newline="")

@@ -10,32 +10,44 @@ Per frame (:meth:`ClipRenderAction.render`):
    being read (composite mode only: in MIP a transparent value can still be the maximum).
 2. **Upload** - :meth:`GpuBrickCache.commit`, the one place that writes textures: sub-loads of the
    newly selected bricks into their toroidal slots of the per-level 3D textures.
-3. **Draw** - one proxy box per :class:`~clipvol.scene.selection.DrawItem` into a float32 RGBA offscreen
-   target. The box's *back* faces are rasterised (front faces culled; depth clamp on and a far
-   plane never applied), so the camera may sit inside a box. The fragment shader
-   (``shaders/brick.frag.glsl``) rebuilds the pixel's ray from ``gl_FragCoord`` and the camera
-   basis (per-frame uniforms, so bit-identical for every box), intersects it with the item's box
-   (and the :class:`~clipvol.scene.geometry.Shape`'s box and planes) and samples the half-open interval
-   ``[t_entry, t_exit)`` at ``t = k * delta``: spherical shells around the eye (perspective,
-   LaMar, Hamann & Joy 1999) or planes parallel to the image through the camera centre (orthographic). Adjacent
-   boxes therefore share no sample and skip none, and because ``delta_L = 2**L * delta_0`` the
-   lattice of a coarse level is a subset of a fine level's: no seams between bricks or levels.
-   Each sample is trilinear in the level's texture, mapped by the 1-D transfer-function texture
-   (``GL_LINEAR``, texel centres at ``(i + 0.5) / n``), its opacity corrected for ``delta``
-   relative to the level-0 voxel size with ``1 - exp(r * log1p(-a))`` (evaluated with accurate
-   ``log1p``/``expm1`` so it is stable at alpha near 0 and 1), and composited front to back inside
-   the box with premultiplied colour.
+3. **Draw**, by one of two paths (``RenderParams.path``; the same image within 1 LSB):
 
-   Between boxes, composite mode uses the selection's exact visibility order in one of two
-   equivalent ways (the operator is associative). Default (``early_termination=True``): *front to
-   back* (the back-to-front list reversed) with the "under" operator ``(ONE_MINUS_DST_ALPHA,
-   ONE)``; every ``len(items) / 32`` boxes (at least every box) the target is copied, and a box's
-   fragment whose pixel is already opaque in the copy returns at once - early ray termination across bricks, which a
-   one-pass ray caster gets for free and back-to-front drawing never can (5x on opaque data
-   here). ``early_termination=False``: *back to front* with ``(ONE, ONE_MINUS_SRC_ALPHA)`` over
-   the background, exactly as ``vzClipRenderAction``. MIP writes the largest raw value with the
-   ``MAX`` blend equation and maps it through the transfer function on read-back. NaN/Inf samples
-   are transparent.
+   * ``"single-pass"`` (``shaders/raymarch.frag.glsl``) - the ray-guided path of
+     BigVolumeViewer and the ray-guided renderers of the large-volume literature: the selection's
+     cut becomes a per-level **page table** (:mod:`clipvol.scene.page_table`: per node EMPTY,
+     REFINED or DRAWN-from-level-``Ld``, plus the faces filtering may cross), uploaded as one
+     small integer texture. One proxy box - the volume's - is drawn; each pixel's ray walks the
+     table from the coarsest level down at its current point, samples the node's box from the data
+     level's toroidal texture on that level's lattice, skips EMPTY nodes in one step, switches
+     level at node faces and stops when opaque. No framebuffer copies, no per-box set-up, no
+     blending. A cut the table cannot express (more than 16 levels) falls back to the bricks path.
+   * ``"bricks"`` (default: the faster one on llvmpipe, see ``docs/benchmarks.md``) - one proxy box per :class:`~clipvol.scene.selection.DrawItem` into a float32
+     RGBA offscreen target (the method of Bhaniramka & Demange's OpenGL Volumizer, and the reference). The box's *back* faces are
+     rasterised (front faces culled; depth clamp on and a far plane never applied), so the
+     camera may sit inside a box. Between boxes composite mode uses the selection's exact
+     visibility order in one of two equivalent ways (the operator is associative). Default
+     (``early_termination=True``): *front to back* (the back-to-front list reversed) with the
+     "under" operator ``(ONE_MINUS_DST_ALPHA, ONE)``; every ``len(items) / 32`` boxes the target
+     is copied, and a box's fragment whose pixel is already opaque in the copy returns at once.
+     ``early_termination=False``: *back to front* with ``(ONE, ONE_MINUS_SRC_ALPHA)`` over the
+     background, exactly as ``vzClipRenderAction``. MIP uses the ``MAX`` blend equation.
+
+   Both paths share ``shaders/volume_common.glsl``: the fragment shader rebuilds the pixel's ray
+   from ``gl_FragCoord`` and the camera basis (per-frame uniforms, so bit-identical for every box
+   and both paths), intersects it with the box (and the :class:`~clipvol.scene.geometry.Shape`'s
+   box and planes) and samples the half-open interval ``[t_entry, t_exit)`` at
+   ``t = off + k * delta``: spherical shells around the eye (perspective, after LaMar, Hamann & Joy) or planes
+   parallel to the image through the camera centre (orthographic); ``off`` is 0, or with
+   ``jitter=True`` a stable per-pixel hash times ``delta`` (rings on opaque surfaces become fine
+   noise; the lattice stays constant-distance along the ray). Adjacent boxes share no sample and
+   skip none. Each sample is trilinear in the level's texture (in the ``HAS_NAN`` variant over the
+   finite neighbours only, weights renormalised) and looked up once in a **per-level corrected
+   colour table**: row ``L`` holds the transfer function with its opacity corrected for level
+   ``L``'s step relative to the level-0 voxel size, ``1 - exp(r * log1p(-a))``, computed on the
+   CPU in float64 when the table or the step changes - no log/exp per sample. Compositing is
+   front to back with premultiplied colour; MIP keeps the largest raw value and maps it through
+   the transfer function on read-back. Per-frame constants (mode, NaN in the data) are compiled
+   in as shader variants (:mod:`clipvol.render.glsl`), not branched on per sample.
 4. **Read back** - ``(h, w, 4)`` uint8 straight RGBA, composited over ``background``, row 0 at top.
 
 Precision: box corners and the brick origin are made relative to the eye in float64 and only then
@@ -45,6 +57,19 @@ rounded to float32, and samples are addressed in brick-local voxel coordinates, 
 ``wait=True`` repeats select -> ``clip_texture.wait_for`` (the wanted bricks) -> upload, without
 drawing, until the selection is converged (everything wanted is drawn at its own level), nothing
 more can arrive, or ``timeout`` passes; each pass honours ``texels_per_frame``.
+
+References
+----------
+* P. Bhaniramka and Y. Demange, "OpenGL Volumizer: A Toolkit for High Quality Volume Rendering of
+  Large Data Sets", SGI, 2002 (the clip render action, back-to-front bricks, budgets).
+* E. LaMar, B. Hamann and K. I. Joy, "Multiresolution Techniques for Interactive Texture-Based
+  Volume Visualization", IEEE Visualization 1999 (spherical shells, opacity correction per level).
+* M. Hadwiger, J. Beyer, W.-K. Jeong and H. Pfister, "Interactive Volume Exploration of Petascale
+  Microscopy Data Streams Using a Visualization-Driven Virtual Memory Approach", IEEE TVCG 2012,
+  and T. Fogal, A. Schiewe and J. Krüger, "An Analysis of Scalable GPU-Based Ray-Guided Volume
+  Rendering", IEEE LDAV 2013 (ray-guided single-pass casting through a page table).
+* T. Pietzsch, BigVolumeViewer (the Fiji / ImgLib2 GPU volume viewer, software, 2019 on):
+  single-pass multiresolution casting through a cache of bricks addressed by a lookup texture.
 """
 
 from __future__ import annotations
@@ -57,11 +82,14 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..paging.loader import HasBrickRanges
+from ..paging.properties import may_hold_nonfinite
+from ..scene.page_table import build_page_table
 from ..scene.params import MODES, RenderParams
+from ..scene.transfer import correct_opacity, transparency_filter
 from ..scene.selection import merge_items
 from ..scene.selection.policies import POLICIES
 from .frame_loop import FrameLoop
-from .glsl import load_shader
+from .glsl import ProgramCache
 from .gpu_cache import GpuBrickCache
 
 __all__ = ["ClipRenderAction", "FrameStats", "MODES", "SELECTIONS"]
@@ -77,6 +105,10 @@ OPAQUE = 0.9995
 #: composite: an occlusion pass after every len(items) / OCCLUSION_PASSES boxes (at least this many)
 OCCLUSION_PASSES = 32
 OCCLUSION_MIN_BATCH = 1
+#: single-pass path: most pyramid levels (one texture unit each) and page-table entries
+MAX_SINGLE_PASS_LEVELS = 16
+MAX_PAGE_TABLE_ENTRIES = 1 << 24
+PAGE_TABLE_WIDTH = 1024
 
 # unit cube, 12 triangles wound counter-clockwise seen from outside
 _CUBE_FACES = [
@@ -168,11 +200,16 @@ class ClipRenderAction:
         self.params = RenderParams.from_kwargs(params, **kwargs).check_for(self.pyramid)
         self.cache = GpuBrickCache(ctx, self.pyramid, self.params.texture_budget)
         self.frame_loop = FrameLoop(clip_texture, self.cache)
-        self.program = ctx.program(vertex_shader=load_shader("brick.vert"), fragment_shader=load_shader("brick.frag"))
+        self.programs = ProgramCache(ctx)
+        self._vaos: dict = {}
+        self.program = None  # the variant of the last frame
+        self._vao = None
         self._vbo = ctx.buffer(_cube_triangles().tobytes())
-        self._vao = ctx.vertex_array(self.program, [(self._vbo, "3f", "in_corner")])
+        self.nonfinite = may_hold_nonfinite(clip_texture.loader)
         self._tf_tex = None
         self._tf_key = None
+        self._pt_tex = None
+        self.path_drawn = None  # "single-pass" or "bricks": what drew the last frame
         self._fbo = None
         self._fbo_size = None
         self._fbo_copy = None
@@ -183,11 +220,25 @@ class ClipRenderAction:
         self.last_selection = None
         self.last_raw: np.ndarray | None = None  # (h, w, 4) float32 target of the last frame, rows top first
         self._moderngl = moderngl
-        self.program["u_volume"].value = 0
-        self.program["u_tf"].value = 1
-        self.program["u_acc"].value = 2
-        self.program["u_max_steps"].value = MAX_STEPS_PER_BOX
-        self.program["u_opaque"].value = OPAQUE
+
+    # -- shader variants ---------------------------------------------------------------------------
+    def defines(self) -> dict:
+        """The ``#define``\\ s of this frame's volume shader variant (see :mod:`clipvol.render.glsl`)."""
+        return {"MODE_MIP": self.params.mode == "mip", "HAS_NAN": self.nonfinite}
+
+    def _brick_program(self):
+        """The brick shader variant for the current parameters (compiled once per variant)."""
+        prog = self.programs.get("brick.vert", "brick.frag", self.defines())
+        if prog not in self._vaos:
+            self._vaos[prog] = self.ctx.vertex_array(prog, [(self._vbo, "3f", "in_corner")])
+            _uset(prog, "u_volume", 0)
+            _uset(prog, "u_tf", 1)
+            _uset(prog, "u_acc", 2)
+            _uset(prog, "u_max_steps", MAX_STEPS_PER_BOX)
+            _uset(prog, "u_opaque", OPAQUE)
+        self.program = prog
+        self._vao = self._vaos[prog]
+        return prog
 
     # -- helpers -----------------------------------------------------------------------------------
     def _check_samples(self, cam, items) -> None:
@@ -224,20 +275,12 @@ class ClipRenderAction:
         return float(np.max(path / delta)) * 1.1
 
     def _transparent(self, tf):
-        """``(level, idx) -> bool mask`` from the loader's brick ranges, or None."""
+        """``(level, idx) -> bool mask`` from the loader's brick ranges over each brick's sampling
+        footprint (:func:`clipvol.scene.transfer.transparency_filter`), or None."""
         loader = self.clip_texture.loader
         if self.params.mode != "composite" or not isinstance(loader, HasBrickRanges):
             return None
-        data_range = self.pyramid.value_range
-
-        def transparent(level: int, idx: np.ndarray) -> np.ndarray:
-            idx = np.asarray(idx, dtype=np.int64).reshape(-1, 3)
-            ranges = loader.brick_ranges(level, idx)
-            if ranges is None:
-                return np.zeros(len(idx), dtype=bool)
-            return np.asarray(tf.transparent_mask(np.asarray(ranges, dtype=np.float64), data_range), dtype=bool)
-
-        return transparent
+        return transparency_filter(tf, loader)
 
     def _ensure_fbo(self, size: tuple[int, int]):
         if self._fbo_size != size:
@@ -254,16 +297,25 @@ class ClipRenderAction:
         return self._fbo
 
     def _ensure_tf(self, tf):
+        """The per-level corrected colour table (row ``L``: opacity corrected for level ``L``'s step),
+        rebuilt only when the table or the step changes."""
         table = np.ascontiguousarray(np.asarray(tf.table, dtype=np.float32))
-        key = (table.shape, table.tobytes())
+        key = (table.shape, table.tobytes(), self.params.step)
         if self._tf_key != key:
             if self._tf_tex is not None:
                 self._tf_tex.release()
-            tex = self.ctx.texture((table.shape[0], 1), 4, table.tobytes(), dtype="f4")
+            rows = corrected_tables(table, self.level_ratios())
+            tex = self.ctx.texture((table.shape[0], len(rows)), 4, rows.astype(np.float32).tobytes(), dtype="f4")
             tex.filter = (self._moderngl.LINEAR, self._moderngl.LINEAR)
             tex.repeat_x = tex.repeat_y = False
             self._tf_tex, self._tf_key = tex, key
         return self._tf_tex
+
+    def level_ratios(self) -> np.ndarray:
+        """Per level, the sample spacing ``step * min(scale)`` over the level-0 voxel size (the
+        transfer function's reference length)."""
+        ref = float(min(self.pyramid.spacing))
+        return np.array([self.params.step * float(min(lv.scale)) / ref for lv in self.pyramid.levels])
 
     def set_params(self, params: RenderParams) -> None:
         """Use ``params`` from the next frame on (the GPU cache is kept unless the texture budget
@@ -402,9 +454,9 @@ class ClipRenderAction:
         else:  # zero-width window: a step at lo (0 below, 0.5 at, 1 above; clamped in the shader)
             big = 1e30 / max(abs(fmt.a), 1e-300)
             scale, offset = fmt.a * big, (fmt.b - lo) * big + 0.5
-        prog["u_t_scale"].value = float(np.clip(scale, -3e38, 3e38))
-        prog["u_t_offset"].value = float(np.clip(offset, -3e38, 3e38))
-        prog["u_mode"].value = 1 if self.params.mode == "mip" else 0
+        _uset(prog, "u_t_scale", float(np.clip(scale, -3e38, 3e38)))
+        _uset(prog, "u_t_offset", float(np.clip(offset, -3e38, 3e38)))
+        _uset(prog, "u_jitter", 1.0 if self.params.jitter else 0.0)
         if self.params.shape is None:
             box = np.array([[-1e30] * 3, [1e30] * 3])
             planes = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (6, 1))
@@ -448,6 +500,12 @@ class ClipRenderAction:
         mgl = self._moderngl
         ctx = self.ctx
         items = list(sel.items)
+        self.path_drawn = "bricks"
+        if self.params.path == "single-pass" and items:
+            out = self._draw_single_pass(cam, tf, items)
+            if out is not None:
+                self.path_drawn = "single-pass"
+                return out
         if self.params.merge_boxes:
             merged = merge_items(items, self.pyramid, self.cache.windows, self._may_cover())
             if self._samples_per_box(cam, merged) <= MAX_STEPS_PER_BOX:  # else the rays would be cut
@@ -470,11 +528,12 @@ class ClipRenderAction:
             fbo.clear(r * a, g * a, b * a, a)
         else:
             fbo.clear(_MIP_EMPTY, 0.0, 0.0, 0.0)
+        self._brick_program()
         origin, M = self._frame_uniforms(cam, tf)
         self.program["u_near"].value = 0.0 if cam.orthographic else float(cam.near)
         ctx.enable(mgl.CULL_FACE | mgl.BLEND)
         ctx.disable(mgl.DEPTH_TEST)
-        self.program["u_use_acc"].value = False  # no opacity snapshot until the first batch is drawn
+        _uset(self.program, "u_use_acc", False)  # no opacity snapshot until the first batch is drawn
         ctx.enable_direct(_GL_DEPTH_CLAMP)  # no near/far clipping of the proxy boxes
         ctx.front_face = self._front_face(M, cam)
         ctx.cull_face = "front"
@@ -486,11 +545,11 @@ class ClipRenderAction:
                 ctx.blend_func = mgl.ONE_MINUS_DST_ALPHA, mgl.ONE
             else:  # "over": dst = src + (1 - src.a) * dst
                 ctx.blend_func = mgl.ONE, mgl.ONE_MINUS_SRC_ALPHA
-        self._ensure_tf(tf).use(location=1)
+        if composite:
+            self._ensure_tf(tf).use(location=1)
         prog = self.program
         pyr = self.pyramid
         B = np.asarray(pyr.brick_shape, dtype=np.float64)
-        ref_spacing = float(min(pyr.spacing))
         clamps = self._block_clamps(items)
         bound_level = None
         n_items = len(items)
@@ -516,9 +575,9 @@ class ClipRenderAction:
                 win = np.asarray(self.cache.windows[L], dtype=np.int64)
                 delta = self.params.step * float(min(lv.scale))
                 prog["u_delta"].value = delta
-                prog["u_alpha_ratio"].value = delta / ref_spacing
+                _uset(prog, "u_tf_row", (L + 0.5) / pyr.num_levels)
                 prog["u_inv_scale"].value = _vec(1.0 / scale)
-                prog["u_inv_tex_size"].value = _vec(1.0 / (win[::-1] * B[::-1]))
+                _uset(prog, "u_inv_tex_size", _vec(1.0 / (win[::-1] * B[::-1])))
                 bound_level = L
             bidx = np.asarray(it.index, dtype=np.int64)
             first = trans + bidx[::-1] * B[::-1] * scale
@@ -531,6 +590,13 @@ class ClipRenderAction:
             prog["u_clamp_hi"].value = _vec(chi)
             self._vao.render(mgl.TRIANGLES)
         ctx.disable_direct(_GL_DEPTH_CLAMP)
+        return self._read_back(fbo, previous, tf, front_to_back, t0)
+
+    def _read_back(self, fbo, previous, tf, front_to_back: bool, t0: float) -> tuple[np.ndarray, float, float]:
+        """Finish the frame, read the target back, give the previous framebuffer back, map MIP
+        values through the transfer function and put the background under a front-to-back image."""
+        ctx, pyr = self.ctx, self.pyramid
+        h, w = fbo.size[1], fbo.size[0]
         ctx.finish()
         t1 = time.perf_counter()
         raw = np.frombuffer(fbo.read(components=4, dtype="f4"), dtype=np.float32).reshape(int(h), int(w), 4)[::-1]
@@ -561,6 +627,98 @@ class ClipRenderAction:
                 prem = prem + (1.0 - prem[..., 3:4]) * np.array([r * ba, g * ba, b * ba, ba])
         image = premultiplied_to_uint8(prem)
         return image, t1 - t0, time.perf_counter() - t1
+
+    def _ensure_page_table(self, entries: np.ndarray):
+        """The page-table texture (R32UI, :data:`PAGE_TABLE_WIDTH` entries per row), rewritten per frame."""
+        rows = max(1, -(-len(entries) // PAGE_TABLE_WIDTH))
+        data = np.zeros(rows * PAGE_TABLE_WIDTH, dtype=np.uint32)
+        data[:len(entries)] = entries
+        if self._pt_tex is None or self._pt_tex.size[1] < rows:
+            if self._pt_tex is not None:
+                self._pt_tex.release()
+            self._pt_tex = self.ctx.texture((PAGE_TABLE_WIDTH, rows), 1, dtype="u4")
+            self._pt_tex.filter = (self._moderngl.NEAREST, self._moderngl.NEAREST)
+        self._pt_tex.write(data.tobytes(), viewport=(0, 0, PAGE_TABLE_WIDTH, rows))
+        return self._pt_tex
+
+    def _draw_single_pass(self, cam, tf, items):
+        """One pass over the volume box through the cut's page table (``shaders/raymarch.frag.glsl``);
+        None when this cut or pyramid cannot be drawn that way (the per-brick path then draws it)."""
+        pyr = self.pyramid
+        nlev = pyr.num_levels
+        if nlev > MAX_SINGLE_PASS_LEVELS:
+            return None
+        table = build_page_table(items, pyr, self.cache.open_faces)
+        if table is None or len(table.entries) > MAX_PAGE_TABLE_ENTRIES:
+            return None
+        self._check_samples(cam, items)
+        self.boxes_drawn = 1
+        mgl, ctx = self._moderngl, self.ctx
+        t0 = time.perf_counter()
+        vlo, vhi = pyr.volume_box()
+        cam = cam.fit_depth(vlo, vhi)
+        w, h = cam.size
+        fbo = self._ensure_fbo((int(w), int(h)))
+        previous = ctx.fbo
+        fbo.use()
+        ctx.viewport = (0, 0, int(w), int(h))
+        mip = self.params.mode == "mip"
+        fbo.clear(_MIP_EMPTY if mip else 0.0, 0.0, 0.0, 0.0)
+        defines = dict(self.defines(), NUM_LEVELS=nlev)
+        prog = self.programs.get("brick.vert", "raymarch.frag", defines)
+        if prog not in self._vaos:
+            self._vaos[prog] = ctx.vertex_array(prog, [(self._vbo, "3f", "in_corner")])
+        self.program, self._vao = prog, self._vaos[prog]
+        origin, M = self._frame_uniforms(cam, tf)
+        prog["u_near"].value = 0.0 if cam.orthographic else float(cam.near)
+        prog["u_box_lo"].value = _vec(vlo - origin)
+        prog["u_box_hi"].value = _vec(vhi - origin)
+        _uset(prog, "u_vol_lo", _vec(vlo - origin))
+        _uset(prog, "u_vol_hi", _vec(vhi - origin))
+        sp = np.array(pyr.spacing[::-1], dtype=np.float64)
+        B = np.array(pyr.brick_shape[::-1], dtype=np.float64)
+        c0 = table.c0[:, ::-1].astype(np.float64)  # (nlev, 3) x, y, z
+        ext = np.array([B * 2.0**L * sp for L in range(nlev)])
+        scale = np.array([lv.scale[::-1] for lv in pyr.levels], dtype=np.float64)
+        trans = np.array([lv.translation[::-1] for lv in pyr.levels], dtype=np.float64)
+        win = np.array([(wnd[::-1] if wnd is not None else (1, 1, 1)) for wnd in self.cache.windows], dtype=np.float64)
+        f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32).tobytes()  # noqa: E731
+        i32 = lambda a: np.ascontiguousarray(a, dtype=np.int32).tobytes()  # noqa: E731
+        uniforms = {
+            "u_pt_base": i32(table.base), "u_pt_size": i32(table.size[:, ::-1]), "u_pt_c0": i32(table.c0[:, ::-1]),
+            "u_pt_origin": f32(vlo + c0 * ext - origin), "u_pt_ext": f32(ext),
+            "u_lv_vox0": f32(trans + c0 * B * scale - origin), "u_lv_inv_scale": f32(1.0 / scale),
+            "u_lv_win": i32(win), "u_lv_inv_tex_size": f32(1.0 / (win * B)),
+            "u_lv_delta": f32([self.params.step * float(min(lv.scale)) for lv in pyr.levels]),
+        }
+        for name, data in uniforms.items():
+            u = prog.get(name, None)
+            if u is not None:
+                u.write(data)
+        _uset(prog, "u_brick", _vec(B))
+        _uset(prog, "u_top", nlev - 1)
+        _uset(prog, "u_nudge", 1e-3 * float(sp.min()))
+        _uset(prog, "u_max_regions", int(16 + sum(sum(pyr.grid(L)) for L in range(nlev))))
+        _uset(prog, "u_max_steps", MAX_STEPS_PER_BOX)
+        _uset(prog, "u_opaque", OPAQUE)
+        _uset(prog, "u_pt_width", PAGE_TABLE_WIDTH)
+        _uset(prog, "u_page_table", 2)
+        _uset(prog, "u_tf", 1)
+        self._ensure_page_table(table.entries).use(location=2)
+        if not mip:
+            self._ensure_tf(tf).use(location=1)
+        for L, tex in enumerate(self.cache.textures):
+            if tex is not None:
+                _uset(prog, f"u_level{L}", 3 + L)
+                tex.use(location=3 + L)
+        ctx.enable(mgl.CULL_FACE)
+        ctx.disable(mgl.DEPTH_TEST | mgl.BLEND)
+        ctx.enable_direct(_GL_DEPTH_CLAMP)
+        ctx.front_face = self._front_face(M, cam)
+        ctx.cull_face = "front"
+        self._vao.render(mgl.TRIANGLES)
+        ctx.disable_direct(_GL_DEPTH_CLAMP)
+        return self._read_back(fbo, previous, tf, not mip, t0)
 
     def _may_cover(self):
         """``may_cover`` for :func:`merge_items`: a culled node whose bricks of the drawn level are
@@ -611,7 +769,7 @@ class ClipRenderAction:
         """Snapshot the target for the boxes' opacity test (early ray termination across boxes)."""
         self.ctx.copy_framebuffer(self._fbo_copy, fbo)
         self._fbo_copy.use(location=2)
-        self.program["u_use_acc"].value = True
+        _uset(self.program, "u_use_acc", True)
         self.occlusion_passes += 1
 
     def close(self) -> None:
@@ -619,11 +777,13 @@ class ClipRenderAction:
         self.cache.release()
         if getattr(self, "image_lod", None) is not None:
             self.image_lod.close()
-        for obj in (self._vao, self._vbo, self.program, self._tf_tex, self._fbo, getattr(self, "_fbo_color", None),
+        for obj in (*self._vaos.values(), self._vbo, self._tf_tex, self._pt_tex, self._fbo, getattr(self, "_fbo_color", None),
                     self._fbo_copy):
             if obj is not None:
                 obj.release()
-        self._tf_tex = self._fbo = self._fbo_copy = self._fbo_color = self._default_fbo = None
+        self._vaos = {}
+        self.programs.release()
+        self._tf_tex = self._pt_tex = self._fbo = self._fbo_copy = self._fbo_color = self._default_fbo = None
         self._vao = self._vbo = self.program = None  # a second close() releases nothing twice
 
     def __enter__(self) -> "ClipRenderAction":
@@ -631,6 +791,25 @@ class ClipRenderAction:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _uset(prog, name: str, value) -> None:
+    """Set a uniform if this shader variant has it (a variant compiles unused ones away)."""
+    u = prog.get(name, None)
+    if u is not None:
+        u.value = value
+
+
+def corrected_tables(table: np.ndarray, ratios) -> np.ndarray:
+    """``(len(ratios), n, 4)`` float64: ``table`` (straight RGBA) with its opacity corrected by each
+    ratio (:func:`clipvol.scene.transfer.correct_opacity`: ``1 - (1 - a) ** ratio``, in the stable
+    log1p/expm1 form), one row per level. Computed on the CPU when the table or the step changes,
+    so the shader does one lookup per sample and no log/exp."""
+    tab = np.asarray(table, dtype=np.float64)
+    rows = np.repeat(tab[None], len(ratios), axis=0)
+    for i, r in enumerate(ratios):
+        rows[i, :, 3] = correct_opacity(tab[:, 3], float(r))
+    return rows
 
 
 def premultiplied_to_uint8(prem: np.ndarray) -> np.ndarray:

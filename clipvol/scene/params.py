@@ -20,10 +20,12 @@ from ..errors import ParameterError
 from ..units import parse_bytes
 from .geometry import Shape
 
-__all__ = ["RenderParams", "MODES", "POLICY_ALIASES", "DEFAULT_BLOCK_BUDGET"]
+__all__ = ["RenderParams", "MODES", "PATHS", "POLICY_ALIASES", "DEFAULT_BLOCK_BUDGET"]
 
 #: compositing modes of the volume action
 MODES = ("composite", "mip")
+#: how the volume action draws a cut (see RenderParams.path)
+PATHS = ("single-pass", "bricks")
 #: bricks the "image" policy may draw when no block_budget is given
 DEFAULT_BLOCK_BUDGET = 128
 #: older names of selection policies, still accepted (``selection="multiresolution"``)
@@ -90,6 +92,17 @@ class RenderParams:
         Composite: draw front to back and stop rays that are opaque (same image, faster).
     merge_boxes : bool
         Draw complete sibling sets of one level as one box over their parent (same image).
+    path : {"single-pass", "bricks"}
+        ``"bricks"`` (default): one proxy box per draw item composited in visibility order (the
+        method of LaMar, Hamann & Joy and of OpenGL Volumizer; merged boxes), the faster of the two
+        on Mesa llvmpipe (docs/benchmarks.md); ``"single-pass"``: one ray-guided pass over the
+        volume box through a per-level page table of the cut (rays stop early per pixel, no
+        framebuffer copies). Same image within 1 LSB.
+    jitter : bool
+        Start each pixel's sample lattice at a stable per-pixel hashed offset (a fraction of the
+        step), which turns the wood-grain rings of a constant-distance lattice on opaque surfaces
+        into fine noise; the lattice stays constant-distance along each ray. Off by default (and for
+        reference comparisons); the viewer and the flythrough turn it on.
     background : 4 floats
         Straight RGBA in ``[0, 1]`` behind the volume.
     block_budget : int, optional
@@ -118,6 +131,8 @@ class RenderParams:
     step: float = 0.5
     early_termination: bool = True
     merge_boxes: bool = True
+    jitter: bool = False
+    path: str = "bricks"
     background: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
     shape: Shape | None = None
     block_budget: int | None = None
@@ -130,6 +145,8 @@ class RenderParams:
         )
 
         s = object.__setattr__
+        if self.path not in PATHS:
+            raise ParameterError(f"path: expected one of {', '.join(PATHS)}, got {self.path!r}")
         if self.mode not in MODES:
             raise ParameterError(f"mode: expected one of {', '.join(MODES)}, got {self.mode!r}")
         policy = POLICY_ALIASES.get(self.policy, self.policy)
@@ -178,6 +195,7 @@ class RenderParams:
             raise ParameterError(f"visibility_threshold: expected a number in [0, 1), got {self.visibility_threshold!r}")
         s(self, "visibility_threshold", vt)
         s(self, "merge_boxes", bool(self.merge_boxes))
+        s(self, "jitter", bool(self.jitter))
 
     # -- helpers ---------------------------------------------------------------------------------
     @classmethod

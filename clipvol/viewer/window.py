@@ -209,7 +209,8 @@ class Viewer:
             glfw.swap_interval(1 if visible else 0)
             self.ctx = create_context(standalone=False, backend=None)
             self.session = RenderSession(source, self.ctx, memory_budget=memory_budget, texture_budget=texture_budget,
-                                         threads=threads, params=params, tf=tf)
+                                         threads=threads, tf=tf,
+                                         params=params if params is not None else RenderParams(jitter=True))
             self._setup_gl()
         except BaseException:
             self.close()

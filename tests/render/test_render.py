@@ -104,12 +104,13 @@ def visible(img) -> float:
 
 
 # ---------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("path", ["single-pass", "bricks"])
 @pytest.mark.parametrize("view", sorted(CAMERAS))
-def test_composite_matches_reference_and_has_no_seams(scenes, view):
+def test_composite_matches_reference_and_has_no_seams(scenes, view, path):
     vol = smooth_volume()
     cam = CAMERAS[view](centre_of(vol.shape))
-    small = scenes(vol, 16, selection="fixed", level=0)
-    big = scenes(vol, 128, selection="fixed", level=0)
+    small = scenes(vol, 16, selection="fixed", level=0, path=path)
+    big = scenes(vol, 128, selection="fixed", level=0, path=path)
     a, b = small.render(cam), big.render(cam)
     assert small.action.last_frame_stats.converged and big.action.last_frame_stats.converged
     assert sum(small.action.last_frame_stats.bricks_drawn.values()) > 8  # really many bricks
@@ -119,6 +120,7 @@ def test_composite_matches_reference_and_has_no_seams(scenes, view):
     assert diff(a, b).max() <= 2, "seams between bricks"
     assert diff(a, r).max() <= 2
     assert diff(b, r).max() <= 2
+    assert small.action.path_drawn == path
 
 
 @pytest.mark.parametrize("brick", [16, 64])
@@ -169,7 +171,7 @@ def test_mixed_level_cut_where_centre_sorting_fails(scenes):
     x = np.broadcast_to(np.arange(n, dtype=np.float32) / (n - 1), (n, n, n))
     vol = np.ascontiguousarray(x)
     tf = TransferFunction.from_points([(0, (0, 0, 1, 0.3)), (0.46, (0, 0, 1, 0.3)), (0.54, (1, 1, 0, 0.3)), (1, (1, 1, 0, 0.3))])
-    s = scenes(vol, 16)
+    s = scenes(vol, 16, path="bricks")  # render_items draws in the given order: the brick path
     pyr = s.pyramid
     s.clip.wait_until_idle(20)
     # the level-2 brick (0,0,0) (a 64^3 box) next to level-0 bricks (16^3)
@@ -193,14 +195,15 @@ def test_mixed_level_cut_where_centre_sorting_fails(scenes):
     assert diff(bad, expect).max() > 40, "the scene must be one where centre sorting is wrong"
     assert diff(good, expect).max() <= 2
     # and the selection's own order for a similar multiresolution view agrees with the reference
-    s2 = scenes(vol, 16, lod_threshold=4.0)
-    img = s2.render(cam, tf)
-    sel = s2.action.last_selection
-    assert len({it.level for it in sel.items}) >= 2
-    expect2 = ref.to_uint8(ref.raycast_levels(levels, [(it.level, it.lo, it.hi) for it in sel.items], fc, tf.table,
-                                              pyr.value_range, 0.5, "composite", 1.0))
-    d = diff(img, expect2)
-    assert np.percentile(d, 99) <= 2 and d.mean() < 0.2  # faces next to bricks not on the GPU clamp
+    for path in ("bricks", "single-pass"):  # both paths, each against the reference of its own cut
+        s2 = scenes(vol, 16, lod_threshold=4.0, path=path)
+        img = s2.render(cam, tf)
+        sel = s2.action.last_selection
+        assert len({it.level for it in sel.items}) >= 2 and s2.action.path_drawn == path
+        expect2 = ref.to_uint8(ref.raycast_levels(levels, [(it.level, it.lo, it.hi) for it in sel.items], fc,
+                                                  tf.table, pyr.value_range, 0.5, "composite", 1.0))
+        d = diff(img, expect2)
+        assert np.percentile(d, 99) <= 2 and d.mean() < 0.2  # faces next to bricks not on the GPU clamp
 
 
 def test_error_falls_as_lod_threshold_falls(scenes):
@@ -378,13 +381,16 @@ def test_front_to_back_with_early_termination_equals_back_to_front_over(scenes):
     opaque = TransferFunction.from_points([(0.0, (0, 0, 1, 0.1)), (1.0, (1, 0.5, 0, 0.9))])
     cam = Camera.perspective((-30.0, -20.0, -40.0), centre_of(vol.shape), size=(64, 64), fov_y=40)
     bg = (0.2, 0.3, 0.4, 1.0)
-    a = scenes(vol, 8, selection="fixed", level=0, background=bg, merge_boxes=False)
-    b = scenes(vol, 8, selection="fixed", level=0, background=bg, early_termination=False, merge_boxes=False)
-    c = scenes(vol, 8, selection="fixed", level=0, background=bg)  # merged boxes, front to back
-    ia, ib, ic = a.render(cam, opaque), b.render(cam, opaque), c.render(cam, opaque)
+    a = scenes(vol, 8, selection="fixed", level=0, background=bg, merge_boxes=False, path="bricks")
+    b = scenes(vol, 8, selection="fixed", level=0, background=bg, early_termination=False, merge_boxes=False,
+               path="bricks")
+    c = scenes(vol, 8, selection="fixed", level=0, background=bg, path="bricks")  # merged boxes, front to back
+    d = scenes(vol, 8, selection="fixed", level=0, background=bg, path="single-pass")
+    ia, ib, ic, id_ = a.render(cam, opaque), b.render(cam, opaque), c.render(cam, opaque), d.render(cam, opaque)
     assert a.action.occlusion_passes > 0 and b.action.occlusion_passes == 0
     assert a.action.boxes_drawn == 216 and c.action.boxes_drawn < 216
-    assert diff(ia, ib).max() <= 1 and diff(ia, ic).max() <= 1
+    assert d.action.path_drawn == "single-pass" and d.action.boxes_drawn == 1
+    assert diff(ia, ib).max() <= 1 and diff(ia, ic).max() <= 1 and diff(ia, id_).max() <= 1
     # and both equal the reference composited over the background
     r = ref.raycast(vol, (1, 1, 1), cam.fit_depth(*a.pyramid.volume_box()), opaque.table, a.pyramid.value_range, 0.5)
     bgp = np.array([bg[0] * bg[3], bg[1] * bg[3], bg[2] * bg[3], bg[3]])
@@ -396,8 +402,8 @@ def test_merged_boxes_never_cut_rays_short(scenes):
     vol = (np.random.default_rng(0).random((64, 64, 64)) * 0.2).astype(np.float32)
     tf = TransferFunction.from_points([(0.0, (1, 1, 1, 0.0)), (1.0, (1, 1, 1, 0.02))], value_range=(0, 1))
     cam = Camera.perspective((150.0, 130.0, 170.0), (32.0, 32.0, 32.0), fov_y=30, size=(12, 12))
-    merged = scenes(vol, 8, selection="fixed", level=0, step=0.001)
-    single = scenes(vol, 8, selection="fixed", level=0, step=0.001, merge_boxes=False)
+    merged = scenes(vol, 8, selection="fixed", level=0, step=0.001, path="bricks")
+    single = scenes(vol, 8, selection="fixed", level=0, step=0.001, merge_boxes=False, path="bricks")
     a, b = merged.render(cam, tf), single.render(cam, tf)
     assert merged.action.boxes_drawn == single.action.boxes_drawn == len(single.action.last_selection.items)
     np.testing.assert_array_equal(a, b)

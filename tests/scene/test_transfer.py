@@ -145,21 +145,30 @@ def test_invalid_input_raises_parameter_error(make):
         make()
 
 
-def test_transparency_filter_uses_brick_ranges():
+def test_transparency_filter_uses_brick_ranges_over_the_sampling_footprint():
+    """A brick is transparent only if it and its neighbours are: samples near its faces
+    interpolate the neighbours' edge voxels."""
+    z_ranges = {0: (0.0, 10.0), 1: (0.0, 10.0), 2: (0.0, 90.0), 3: (0.0, 10.0)}
+
     class L:
         class pyramid:
             value_range = (0.0, 100.0)
 
+            @staticmethod
+            def grid(level):
+                return (4, 1, 1)
+
         def brick_ranges(self, level, idx):
-            return np.where(idx[:, :1] == 0, [[0.0, 10.0]], [[0.0, 90.0]]) if level == 0 else None
+            return np.array([z_ranges[int(z)] for z in idx[:, 0]]) if level == 0 else None
 
     tf = TransferFunction.preset("bone")
     f = transparency_filter(tf, L())
-    idx = np.array([[0, 0, 0], [1, 0, 0]])
-    ref = tf.transparent_mask([[0, 10], [0, 90]], (0, 100))
+    idx = np.array([[0, 0, 0], [1, 0, 0], [3, 0, 0]])
+    # footprints by hand: {0, 1} -> [0, 10]; {0, 1, 2} -> [0, 90]; {2, 3} -> [0, 90]
+    ref = tf.transparent_mask([[0, 10], [0, 90], [0, 90]], (0, 100))
     np.testing.assert_array_equal(f(0, idx), ref)
-    assert ref.tolist() == [True, False]
-    np.testing.assert_array_equal(f(1, idx), [False, False])
+    assert ref.tolist() == [True, False, False]
+    np.testing.assert_array_equal(f(1, idx), [False, False, False])
     assert transparency_filter(tf, object()) is None
 
 

@@ -1,0 +1,134 @@
+// Shared by the volume shaders (brick.frag.glsl, raymarch.frag.glsl): rays, the sample lattice,
+// sampling and the transfer function. Compiled as variants (see clipvol/render/glsl.py):
+//   MODE_MIP  maximum intensity projection (absent: composite, front to back)
+//   HAS_NAN   the data may hold NaN/Inf: trilinear over the finite neighbours only
+uniform vec2 u_viewport;
+uniform bool u_ortho;
+uniform vec3 u_forward;         // camera basis (unit) and half extents of the view
+uniform vec3 u_right;           // (at depth 1 for perspective, world units for orthographic)
+uniform vec3 u_up;
+uniform vec2 u_half;
+uniform vec3 u_center_rel;      // ortho: a point of the lattice's plane t = 0, relative to O
+
+uniform vec3 u_shape_lo;        // region of interest relative to O (+-1e30 without a box)
+uniform vec3 u_shape_hi;
+uniform vec4 u_planes[6];       // clip planes (n, d) relative to O: keep n.p + d >= 0
+uniform bool u_has_box;
+uniform int u_n_planes;
+
+uniform float u_t_scale;        // transfer-function coordinate t = texel * scale + offset
+uniform float u_t_offset;       // (raw = a * texel + b folded in, in float64 on the CPU)
+uniform float u_jitter;         // 1: the lattice starts at a per-pixel offset hash * delta; 0: at 0
+uniform float u_opaque;         // early ray termination
+uniform sampler2D u_tf;         // row L: the table with opacity corrected for level L's step
+
+// The pixel's ray: origin relative to O and unit direction.
+void pixel_ray(out vec3 origin, out vec3 dir) {
+    vec2 ndc = gl_FragCoord.xy / u_viewport * 2.0 - 1.0;
+    vec3 off = (ndc.x * u_half.x) * u_right + (ndc.y * u_half.y) * u_up;
+    if (u_ortho) {              // rays start on the plane through the camera centre
+        dir = u_forward;
+        origin = u_center_rel + off;
+    } else {                    // rays start at the eye (O itself)
+        dir = normalize(u_forward + off);
+        origin = vec3(0.0);
+    }
+}
+
+vec3 safe_inverse(vec3 dir) {
+    return 1.0 / mix(dir, vec3(1e-30), equal(dir, vec3(0.0)));
+}
+
+// [t0, t1] of the ray with a box (t1 < t0: missed)
+vec2 box_interval(vec3 origin, vec3 inv, vec3 lo, vec3 hi) {
+    vec3 ta = (lo - origin) * inv;
+    vec3 tb = (hi - origin) * inv;
+    vec3 tmin = min(ta, tb);
+    vec3 tmax = max(ta, tb);
+    return vec2(max(max(tmin.x, tmin.y), tmin.z), min(min(tmax.x, tmax.y), tmax.z));
+}
+
+// Narrow [t.x, t.y] to the shape (its box, then its planes) and to the eye's front; false: empty.
+bool clip_to_shape(vec3 origin, vec3 dir, vec3 inv, inout vec2 t) {
+    if (u_has_box) {
+        vec2 s = box_interval(origin, inv, u_shape_lo, u_shape_hi);
+        t = vec2(max(t.x, s.x), min(t.y, s.y));
+    }
+    for (int i = 0; i < u_n_planes; ++i) {
+        float nd = dot(u_planes[i].xyz, dir);
+        float no = dot(u_planes[i].xyz, origin) + u_planes[i].w;
+        if (nd == 0.0) {
+            if (no < 0.0) return false;
+        } else if (nd > 0.0) {
+            t.x = max(t.x, -no / nd);
+        } else {
+            t.y = min(t.y, -no / nd);
+        }
+    }
+    if (!u_ortho) t.x = max(t.x, 0.0);
+    return t.y > t.x;
+}
+
+// Stable per-pixel offset in [0, 1) (a 2-D integer hash of the pixel; the same every frame).
+float pixel_hash() {
+    uvec2 p = uvec2(gl_FragCoord.xy);
+    uint h = p.x * 1597334677u ^ p.y * 3812015801u;
+    h = (h ^ (h >> 16)) * 2246822519u;
+    h = (h ^ (h >> 13)) * 3266489917u;
+    h ^= h >> 16;
+    return float(h >> 8) * (1.0 / 16777216.0);
+}
+
+// Lattice indices [k0, k1] of t = off + k * delta inside the half-open [t0, t1).
+vec2 lattice_range(float t0, float t1, float off, float delta) {
+    float k0 = ceil((t0 - off) / delta);
+    if (off + k0 * delta < t0) k0 += 1.0;
+    float k1 = ceil((t1 - off) / delta) - 1.0;
+    if (off + (k1 + 1.0) * delta < t1) k1 += 1.0;
+    return vec2(k0, k1);
+}
+
+#ifdef HAS_NAN
+// Trilinear over the finite neighbours only, weights renormalised: a sample is non-finite only
+// where every neighbour of non-zero weight is. Fractions within 1/4096 of a voxel centre snap to
+// it (float32 positions meant to be on a centre are a few 1e-6 off; a renormalised weight of 1e-6
+// would otherwise give a NaN voxel's centre its neighbour's value). p: texel coordinates (centres
+// at integers); the texture is toroidal (wrapped by hand, as REPEAT would).
+float sample_texels(sampler3D tex, vec3 p, vec3 inv_size) {
+    ivec3 size = textureSize(tex, 0);
+    vec3 fl = floor(p);
+    vec3 f = p - fl;
+    f = mix(f, vec3(0.0), lessThan(f, vec3(1.0 / 4096.0)));
+    f = mix(f, vec3(1.0), greaterThan(f, vec3(1.0 - 1.0 / 4096.0)));
+    ivec3 i0 = ivec3(fl);
+    float s = 0.0;
+    float w = 0.0;
+    for (int c = 0; c < 8; ++c) {
+        ivec3 o = ivec3(c & 1, (c >> 1) & 1, (c >> 2) & 1);
+        vec3 wv = mix(1.0 - f, f, vec3(o));
+        float wt = wv.x * wv.y * wv.z;
+        ivec3 q = (i0 + o) % size;
+        q += size * ivec3(lessThan(q, ivec3(0)));
+        float v = texelFetch(tex, q, 0).r;
+        if (wt > 0.0 && !isnan(v) && !isinf(v)) {
+            s += wt * v;
+            w += wt;
+        }
+    }
+    return w > 0.0 ? s / w : uintBitsToFloat(0x7fc00000u);
+}
+#define SAMPLE_OK(v) (!isnan(v) && !isinf(v))
+#else
+float sample_texels(sampler3D tex, vec3 p, vec3 inv_size) {
+    return texture(tex, (p + 0.5) * inv_size).r;
+}
+#define SAMPLE_OK(v) true
+#endif
+
+// Front-to-back "under" of one sample (colour straight, opacity already corrected in the table row)
+void composite_sample(inout vec4 acc, float texel, float row) {
+    vec4 c = texture(u_tf, vec2(texel * u_t_scale + u_t_offset, row));
+    float w = (1.0 - acc.a) * c.a;
+    acc.rgb += w * c.rgb;
+    acc.a += w;
+}

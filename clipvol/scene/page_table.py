@@ -1,0 +1,163 @@
+"""The per-level page table of a selection's cut, for the single-pass ray-guided path (pure numpy).
+
+Why a page table: the per-brick path draws one proxy box per draw item and composites boxes in
+the selection's visibility order; a single-pass ray caster (after BigVolumeViewer and the
+ray-guided renderers of the large-volume literature; references below)
+instead marches each ray through the volume once and needs to answer, at any point, "which
+brick, of which level, is drawn here?". The selection's cut answers it as a tree: this module
+flattens it into one small integer table per level that the shader walks from the coarsest level
+down. The selection, its policies and its budgets stay as they are; the table is their output.
+
+Entry of node ``(L, cell)`` (``uint32``):
+
+* bits 0-1, kind: ``EMPTY`` (0; nothing drawn in the node's box - culled, transparent, outside the
+  window or the table: the ray skips the whole box in one step), ``REFINED`` (1; an ancestor of
+  drawn nodes: look at level ``L - 1``), ``DRAWN`` (2; sample the node's box);
+* bits 2-6, ``DRAWN`` only: the data level ``Ld >= L`` - the node's own brick, or the resident
+  ancestor the selection drew over it (the brick is then ``cell >> (Ld - L)`` of level ``Ld``);
+* bits 8-13, ``DRAWN`` only: which faces of the data brick filtering may read across (the
+  neighbour is in texture memory), ``x-lo, x-hi, y-lo, y-hi, z-lo, z-hi`` - as the per-brick
+  path clamps its sampling.
+
+Each level's table covers the bounding box (in cells) of the nodes of that level that are drawn
+or refined; a cell outside it is ``EMPTY``. The tables are concatenated into one flat array.
+
+References: M. Hadwiger, J. Beyer, W.-K. Jeong and H. Pfister, "Interactive Volume Exploration of
+Petascale Microscopy Data Streams Using a Visualization-Driven Virtual Memory Approach", IEEE TVCG
+2012; T. Fogal, A. Schiewe and J. Krüger, "An Analysis of Scalable GPU-Based Ray-Guided Volume
+Rendering", IEEE LDAV 2013; E. LaMar, B. Hamann and K. I. Joy, "Multiresolution Techniques for
+Interactive Texture-Based Volume Visualization", IEEE Visualization 1999 (the octree cut).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["PageTable", "build_page_table", "EMPTY", "REFINED", "DRAWN", "item_nodes"]
+
+EMPTY, REFINED, DRAWN = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class PageTable:
+    """Flattened per-level tables of a cut.
+
+    Attributes
+    ----------
+    entries : ndarray of uint32
+        All levels' entries, level after level; each level's box in ``(z, y, x)`` C order.
+    base : ndarray (num_levels,) of int64
+        First entry of each level.
+    c0, size : ndarray (num_levels, 3) of int64
+        First cell ``(z, y, x)`` of each level's box and its extent in cells (0: empty level).
+    """
+
+    entries: np.ndarray
+    base: np.ndarray
+    c0: np.ndarray
+    size: np.ndarray
+
+    def lookup(self, level: int, cells) -> np.ndarray:
+        """Entries of ``cells`` ``(n, 3)`` ``(z, y, x)`` of ``level`` (``EMPTY`` outside its box)."""
+        c = np.asarray(cells, dtype=np.int64).reshape(-1, 3) - self.c0[level]
+        s = self.size[level]
+        inside = np.all((c >= 0) & (c < s), axis=1)
+        out = np.zeros(len(c), dtype=np.uint32)
+        ci = c[inside]
+        flat = self.base[level] + (ci[:, 0] * s[1] + ci[:, 1]) * s[2] + ci[:, 2]
+        out[inside] = self.entries[flat]
+        return out
+
+
+def item_nodes(items, pyramid) -> list[tuple[int, tuple[int, int, int]]] | None:
+    """The octree node ``(level, index)`` whose box each draw item covers, or None if an item's box
+    is not exactly one node's box (merged items, or a cut this table cannot express)."""
+    if not items:
+        return []
+    lo = np.array([it.lo for it in items], dtype=np.float64)
+    hi = np.array([it.hi for it in items], dtype=np.float64)
+    vlo, _ = pyramid.volume_box()
+    sp = np.array(pyramid.spacing[::-1], dtype=np.float64)
+    B = np.array(pyramid.brick_shape[::-1], dtype=np.float64)
+    out_level = np.full(len(items), -1)
+    out_idx = np.zeros((len(items), 3), dtype=np.int64)
+    top = np.array([it.level for it in items])
+    for L in range(pyramid.num_levels - 1, -1, -1):
+        cand = (out_level < 0) & (top >= L)
+        if not cand.any():
+            continue
+        ext = B * 2.0**L * sp
+        idx_xyz = np.rint((lo[cand] - vlo) / ext).astype(np.int64)
+        idx = idx_xyz[:, ::-1]
+        g = np.array(pyramid.grid(L))
+        ok = np.all((idx >= 0) & (idx < g), axis=1)
+        nlo, nhi = pyramid.node_box(L, np.clip(idx, 0, g - 1))
+        tol = 1e-9 * np.maximum(1.0, np.abs(ext).max())
+        ok &= np.all(np.abs(nlo - lo[cand]) <= tol, axis=1) & np.all(np.abs(nhi - hi[cand]) <= tol, axis=1)
+        w = np.nonzero(cand)[0][ok]
+        out_level[w] = L
+        out_idx[w] = idx[ok]
+    if np.any(out_level < 0):
+        return None
+    spans = np.array([it.span for it in items])
+    if np.any(spans != 1):
+        return None
+    return [(int(L), (int(a), int(b), int(c))) for L, (a, b, c) in zip(out_level, out_idx)]
+
+
+def build_page_table(items, pyramid, open_faces=None) -> PageTable | None:
+    """The page table of a cut given as draw items (not merged), or None if the items are not
+    node boxes (see :func:`item_nodes`).
+
+    ``open_faces(level, idx) -> (n, 3, 2) bool`` (axes ``z, y, x``; sides lo, hi): which faces of
+    data bricks filtering may read across (the GPU cache's answer); None: none.
+    """
+    nodes = item_nodes(items, pyramid)
+    if nodes is None:
+        return None
+    nlev = pyramid.num_levels
+    per_level_cells: list[list[np.ndarray]] = [[] for _ in range(nlev)]
+    drawn = [(L, np.array(idx, dtype=np.int64), int(it.level), np.array(it.index, dtype=np.int64))
+             for (L, idx), it in zip(nodes, items)]
+    for L, idx, Ld, didx in drawn:
+        for A in range(L, nlev):
+            per_level_cells[A].append(idx >> (A - L))
+    c0 = np.zeros((nlev, 3), dtype=np.int64)
+    size = np.zeros((nlev, 3), dtype=np.int64)
+    for L in range(nlev):
+        if per_level_cells[L]:
+            cells = np.array(per_level_cells[L])
+            c0[L] = cells.min(axis=0)
+            size[L] = cells.max(axis=0) - c0[L] + 1
+    counts = size.prod(axis=1)
+    base = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    entries = np.zeros(int(counts.sum()), dtype=np.uint32)
+
+    def flat(L, cells):
+        c = np.asarray(cells, dtype=np.int64).reshape(-1, 3) - c0[L]
+        s = size[L]
+        return base[L] + (c[:, 0] * s[1] + c[:, 1]) * s[2] + c[:, 2]
+
+    for L in range(nlev):  # refined ancestors first; drawn nodes overwrite nothing of theirs
+        anc = [cells for cells in per_level_cells[L]]
+        if anc:
+            entries[flat(L, np.array(anc))] = REFINED
+    by_data: dict[int, list[int]] = {}
+    for i, (L, idx, Ld, didx) in enumerate(drawn):
+        by_data.setdefault(Ld, []).append(i)
+    for Ld, rows in by_data.items():
+        didx = np.array([drawn[i][3] for i in rows])
+        if open_faces is not None:
+            of = np.asarray(open_faces(Ld, didx), dtype=bool)  # (n, 3 zyx, 2)
+        else:
+            of = np.zeros((len(rows), 3, 2), dtype=bool)
+        bits = np.zeros(len(rows), dtype=np.uint32)
+        for k, axis in enumerate((2, 1, 0)):  # x, y, z
+            bits |= of[:, axis, 0].astype(np.uint32) << np.uint32(2 * k)
+            bits |= of[:, axis, 1].astype(np.uint32) << np.uint32(2 * k + 1)
+        for j, i in enumerate(rows):
+            L, idx = drawn[i][0], drawn[i][1]
+            entries[flat(L, idx[None])] = np.uint32(DRAWN | (Ld << 2) | (int(bits[j]) << 8))
+    return PageTable(entries, base, c0, size)
