@@ -305,7 +305,7 @@ class ClipRenderAction:
             if self._tf_tex is not None:
                 self._tf_tex.release()
             rows = corrected_tables(table, self.level_ratios())
-            tex = self.ctx.texture((table.shape[0], len(rows)), 4, rows.astype(np.float32).tobytes(), dtype="f4")
+            tex = self.ctx.texture((rows.shape[1], len(rows)), 4, rows.astype(np.float32).tobytes(), dtype="f4")
             tex.filter = (self._moderngl.LINEAR, self._moderngl.LINEAR)
             tex.repeat_x = tex.repeat_y = False
             self._tf_tex, self._tf_key = tex, key
@@ -800,15 +800,29 @@ def _uset(prog, name: str, value) -> None:
         u.value = value
 
 
-def corrected_tables(table: np.ndarray, ratios) -> np.ndarray:
-    """``(len(ratios), n, 4)`` float64: ``table`` (straight RGBA) with its opacity corrected by each
-    ratio (:func:`clipvol.scene.transfer.correct_opacity`: ``1 - (1 - a) ** ratio``, in the stable
-    log1p/expm1 form), one row per level. Computed on the CPU when the table or the step changes,
-    so the shader does one lookup per sample and no log/exp."""
+def corrected_tables(table: np.ndarray, ratios, oversample: int = 16) -> np.ndarray:
+    """``(len(ratios), n * k, 4)`` float64: ``table`` (straight RGBA, ``n`` entries) resampled ``k``
+    times finer, with its opacity corrected by each ratio (:func:`clipvol.scene.transfer.correct_opacity`:
+    ``1 - (1 - a) ** ratio``, in the stable log1p/expm1 form), one row per level. Computed on the
+    CPU when the table or the step changes, so the shader does one lookup per sample and no log/exp.
+
+    Why resample: the shader interpolates the *corrected* table linearly, while the exact result is
+    the correction of the *interpolated* opacity; the correction is strongly non-linear for large
+    ratios (coarse levels, anisotropic voxels), so between two coarse entries the two differ by
+    many 8-bit steps. Entry ``j`` of the fine table is the coarse table as ``GL_LINEAR`` reads it at
+    the fine texel's centre (the same texture coordinate convention), so the error shrinks with
+    ``k**2``; ``k`` is capped so the row stays within 8192 texels.
+    """
     tab = np.asarray(table, dtype=np.float64)
-    rows = np.repeat(tab[None], len(ratios), axis=0)
-    for i, r in enumerate(ratios):
-        rows[i, :, 3] = correct_opacity(tab[:, 3], float(r))
+    n = len(tab)
+    k = max(1, min(int(oversample), 8192 // max(n, 1)))
+    x = (np.arange(n * k) + 0.5) / k - 0.5  # fine texel centres in coarse texel units
+    i = np.floor(x)
+    f = (x - i)[:, None]
+    fine = tab[np.clip(i, 0, n - 1).astype(np.int64)] * (1.0 - f) + tab[np.clip(i + 1, 0, n - 1).astype(np.int64)] * f
+    rows = np.repeat(fine[None], len(ratios), axis=0)
+    for r_i, r in enumerate(ratios):
+        rows[r_i, :, 3] = correct_opacity(fine[:, 3], float(r))
     return rows
 
 

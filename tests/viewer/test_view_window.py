@@ -220,7 +220,9 @@ def test_window_saves_tf_and_camera_and_takes_screenshots_without_hud(xdisplay, 
     assert img.shape == (72, 96, 4)
     ctx = create_context()
     try:
-        with RenderSession(loader, ctx) as s:
+        from clipvol.scene.params import RenderParams
+
+        with RenderSession(loader, ctx, params=RenderParams(jitter=True)) as s:  # the viewer's default
             s.update(tf=tf)
             ref = s.render(cam, None, wait=True)
     finally:
