@@ -28,6 +28,20 @@ def ctx():
     c.release()
 
 
+@pytest.fixture(autouse=True)
+def _current_gl_context(request):
+    """Make the session's context current before every test that uses it.
+
+    A window test (GLFW) or a test that creates and releases its own context leaves another
+    context - or none - current on this thread; moderngl calls GL on whatever is current, so
+    without this a later test's first texture would fail to be created (``glGenTextures`` gives 0).
+    """
+    if "ctx" in request.fixturenames or "gl" in request.fixturenames:
+        c = request.getfixturevalue("ctx")
+        c.mglo.__enter__()
+    yield
+
+
 @pytest.fixture
 def gl(ctx):
     """``ctx``, checked to hold no GL error before and after the test."""

@@ -15,7 +15,7 @@ measured in one run on this machine (Mesa llvmpipe, no GPU):
   the time to recompute every brick's error after a transfer-function change - on the head's
   pyramid, and on a 1024^3 (1 GiB of uint8) pyramid of 32^3 bricks whose tables are drawn from
   the head's (the error's cost depends only on the tables' sizes). Target < 0.5 s for 10^4 bricks.
-* the seed's Fig. 6: % pixels against bricks drawn for projected size, distance and image-based
+* Wang, Garcia & Shen's Fig. 6: % pixels against bricks drawn for projected size, distance and image-based
   with and without visibility (``docs/bench_lod.png``).
 
 Run ``python -m clipvol.tools.bench_lod`` (256^3 head, 16^3 bricks, 256^2 images) or ``--quick``.
@@ -85,6 +85,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--image", type=int, default=256, help="image edge in pixels (default 256)")
     ap.add_argument("--distance", type=float, default=0.6, help="eye distance from the centre in volume diagonals")
     ap.add_argument("--quick", action="store_true", help="small smoke run (128^3, 128^2 images)")
+    ap.add_argument("--path", choices=("bricks", "single-pass"), default="bricks",
+                    help="how the volume action draws every frame of the run (RenderParams.path)")
     ap.add_argument("--out-dir", type=Path, default=REPO / "docs")
     args = ap.parse_args(argv)
     if args.quick:
@@ -154,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[dict] = []
     full_s, full_blocks, refs = [], [], []
     with RenderSession(loader, ctx, memory_budget=budget, texture_budget=budget, tf=tf,
-                       params=RenderParams(policy="fixed", level=0)) as sess:
+                       params=RenderParams(policy="fixed", level=0, path=args.path)) as sess:
         for cam, coi in views:
             refs.append(sess.render(cam, coi, wait=True, timeout=600))
             best = float("inf")
