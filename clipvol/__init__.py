@@ -41,6 +41,8 @@ _LAZY = {
     "ClipRenderAction": "clipvol.render.action",
     # preprocessing
     "brick_volume": "clipvol.bricking.pipeline",
+    # notebooks (anywidget, an optional extra)
+    "show": "clipvol.app.notebook",
 }
 
 __all__ = sorted(_LAZY) + ["__version__"]

@@ -18,6 +18,7 @@ __all__ = [
     "OutputExistsError",
     "LoaderError",
     "BrickLoadError",
+    "MissingExtraError",
 ]
 
 
@@ -55,3 +56,7 @@ class LoaderError(ClipvolError, RuntimeError):
 
 class BrickLoadError(ClipvolError, RuntimeError):
     """Loading a brick failed after its retries; the original exception is ``__cause__``."""
+
+
+class MissingExtraError(ClipvolError, ImportError):
+    """An optional dependency is not installed; the message names the extra that brings it."""

@@ -218,6 +218,10 @@ class ZarrLoader:
     path : str or Path
         The store's directory (a ``zarr:`` prefix is accepted, for :func:`clipvol.open_store`
         plug-in URLs).
+    t, c : int, optional
+        For an OME-Zarr image with time and/or channel axes (``t, c, z, y, x``, as microscopes
+        write them): the time point and channel to read (default 0). The loader is then the 3-D
+        volume at that ``(t, c)``; open one loader per time point or channel.
 
     Raises
     ------
@@ -229,7 +233,7 @@ class ZarrLoader:
         Metadata that is inconsistent, absurd, or describes unsupported data.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, *, t: int | None = None, c: int | None = None) -> None:
         if isinstance(path, str) and path.startswith("zarr:"):
             path = path[len("zarr:"):]
         self.path = Path(path)
@@ -250,6 +254,12 @@ class ZarrLoader:
         self._stats: dict[int, dict[str, np.ndarray] | None] = {}
         self._derived: OrderedDict[tuple, np.ndarray] = OrderedDict()
         self._derived_bytes = 0
+        self._want = {"t": t, "c": c}
+        self._select: tuple[int, ...] = ()  # index of the leading (t, c) axes
+        self._chunk_lead: tuple[int, ...] = ()  # ... as chunk grid index
+        self._within: tuple[int, ...] = ()  # ... inside that chunk
+        self.axes: tuple[str, ...] = ()  # names of the leading axes ("t", "c")
+        self.lead_shape: tuple[int, ...] = ()
         if "clipvol" in attrs:
             self._open_clipvol(attrs)
         else:
@@ -264,8 +274,12 @@ class ZarrLoader:
                 "interrupted; re-run `clipvol brick` with the same arguments to resume it"
             )
         pyr = meta.pyramid
+        self.frame = meta.frame  # the source's voxel-to-world affine (NIfTI, DICOM, ...) or None
         self.is_clipvol_store = True
         self._lead = 0
+        for name, v in self._want.items():
+            if v is not None and v != 0:
+                raise ParameterError(f"{name}: this store has no {name!r} axis (a 3-D clipvol store), got {name}={v}")
         self._arrays: list[_ArrayMeta] = []
         for L, lv in enumerate(pyr.levels):
             where = f"{self._where} level {L}"
@@ -290,14 +304,14 @@ class ZarrLoader:
         if not isinstance(datasets, list) or not datasets or not all(isinstance(d, dict) and isinstance(d.get("path"), str) for d in datasets):
             raise InputFormatError(f"{self._where}: OME-Zarr 'multiscales'[0]['datasets'] is malformed")
         self.is_clipvol_store = False
+        self.frame = None  # a plain OME-Zarr image: no affine beyond scale and translation
         first = _array_meta(self.path / datasets[0]["path"], f"{self._where} level 0")
         nd = len(first.shape)
-        if nd < 3 or any(s != 1 for s in first.shape[:-3]):
-            raise InputFormatError(
-                f"{self._where}: expected a 3-D image (z, y, x) with any leading time/channel axes of size 1, got "
-                f"shape {list(first.shape)}; several channels or time points are not supported yet"
-            )
+        if nd < 3 or nd > 5:
+            raise InputFormatError(f"{self._where}: expected an image (t, c, z, y, x) with 3 to 5 axes, got shape "
+                                   f"{list(first.shape)}")
         self._lead = nd - 3
+        self._choose_lead(ms, first)
         brick: Int3 = tuple(first.chunks[-3:])  # type: ignore[assignment]
         expect = level_shapes(first.shape[-3:], brick)
         arrays = [first]
@@ -324,6 +338,31 @@ class ZarrLoader:
         if vr is None:
             self._pyramid = replace(self._pyramid, value_range=self._coarsest_range())
 
+    def _choose_lead(self, ms: dict, first: "_ArrayMeta") -> None:
+        """Resolve the requested ``t``/``c`` against the leading axes named in the metadata."""
+        axes = ms.get("axes")
+        names = []
+        if isinstance(axes, list) and len(axes) == len(first.shape):
+            names = [a.get("name") if isinstance(a, dict) else a for a in axes][: self._lead]
+        if len(names) != self._lead or not all(isinstance(n, str) for n in names):
+            names = ["t", "c"][2 - self._lead:] if self._lead else []  # OME order: t before c
+        for name, v in self._want.items():
+            if v is not None and name not in names and v != 0:
+                raise ParameterError(f"{name}: {self._where} has no {name!r} axis (axes {names + ['z', 'y', 'x']}), "
+                                     f"got {name}={v}")
+        sel = []
+        for name, size in zip(names, first.shape[: self._lead]):
+            v = self._want.get(name) or 0
+            if isinstance(v, bool) or int(v) != v or not 0 <= v < size:
+                raise ParameterError(f"{name}: expected 0..{size - 1} for {self._where}, got {v!r}")
+            sel.append(int(v))
+        self._select = tuple(sel)
+        lead_chunks = first.chunks[: self._lead]
+        self._chunk_lead = tuple(v // ch for v, ch in zip(sel, lead_chunks))
+        self._within = tuple(v % ch for v, ch in zip(sel, lead_chunks))
+        self.axes = tuple(names)
+        self.lead_shape = tuple(first.shape[: self._lead])
+
     def _ome_levels(self, ms: dict, shapes: list) -> list[LevelInfo]:
         out = []
         try:
@@ -339,7 +378,8 @@ class ZarrLoader:
     def _ome_value_range(self, ome: dict, dtype: np.dtype) -> tuple[float, float] | None:
         omero = ome.get("omero")
         chans = omero.get("channels") if isinstance(omero, dict) else None
-        first = chans[0] if isinstance(chans, list) and chans else None
+        ci = self._select[self.axes.index("c")] if "c" in self.axes else 0
+        first = chans[ci] if isinstance(chans, list) and len(chans) > ci else None
         win = first.get("window") if isinstance(first, dict) else None  # written by other tools: trust nothing
         if isinstance(win, dict):
             try:
@@ -421,7 +461,7 @@ class ZarrLoader:
     def _read_fast(self, am: _ArrayMeta, level: int, index: Int3, buf: np.ndarray | None = None) -> np.ndarray | None:
         """Decode one chunk file; into ``buf`` (uint8, chunk bytes) when given, where a missing
         chunk returns None instead of a filled array."""
-        cpath = am.chunk_path((0,) * self._lead + tuple(index))
+        cpath = am.chunk_path(self._chunk_lead + tuple(index))
         nbytes = math.prod(am.chunks) * am.dtype.itemsize
         out = np.empty(nbytes, dtype=np.uint8) if buf is None else buf
         try:
@@ -455,7 +495,7 @@ class ZarrLoader:
                 raise self._corrupt(level, index, cpath, e) from None
         arr = out.view(am.dtype).reshape(am.chunks)
         if self._lead:
-            arr = arr[(0,) * self._lead]
+            arr = arr[self._within]
         return arr
 
     def _corrupt(self, level: int, index: Int3, cpath: Path, e: BaseException) -> InputFormatError:
@@ -474,7 +514,7 @@ class ZarrLoader:
                 if arr is None:
                     arr = zarr.open_array(str(self._arrays[level].path), mode="r")
                     self._zarr_arrays[level] = arr
-        sl = (0,) * self._lead + tuple(slice(a, b) for a, b in zip(start, stop))
+        sl = self._select + tuple(slice(a, b) for a, b in zip(start, stop))
         return np.asarray(arr[sl])
 
     def _derived_brick(self, level: int, index: Int3) -> np.ndarray:

@@ -24,19 +24,23 @@ def _triple(text: str, name: str, kind=float) -> tuple:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", metavar="INPUT", help=".npy, raw file (with --shape/--dtype), TIFF stack directory or glob, "
-                        "multi-page TIFF, zarr array / OME-Zarr image, or procedural:NAME?size=N")
+                        "multi-page TIFF, zarr array / OME-Zarr image, NIfTI .nii/.nii.gz, DICOM series folder, "
+                        "HDF5 FILE.h5:/dataset, MRC .mrc/.map, or procedural:NAME?size=N")
     parser.add_argument("output", metavar="OUTPUT", help="store directory to create (or resume)")
     parser.add_argument("--brick", type=int, default=64, help="brick edge in voxels, even, 8..256 (default 64)")
-    parser.add_argument("--filter", default="mean", help="down-sampling filter: mean | subsample | max (default mean)")
+    parser.add_argument("--filter", default="mean", help="down-sampling filter: mean | subsample | max | mode (label volumes) (default mean)")
     parser.add_argument("--codec", default="lz4", help="lz4 | zstd | none (default lz4: blosc lz4 + shuffle)")
     parser.add_argument("--spacing", help="level-0 voxel size z,y,x (default: the input's, else 1,1,1)")
-    parser.add_argument("--unit", default="micrometer", help="unit of the spacing (default micrometer)")
+    parser.add_argument("--unit", default=None, help="unit of the spacing (default: the input's, e.g. millimeter for NIfTI/DICOM, else micrometer)")
     parser.add_argument("--shape", help="raw input: shape Z,Y,X")
     parser.add_argument("--dtype", help="raw input: numpy dtype, e.g. uint16")
     parser.add_argument("--byte-order", default="little", help="raw input: little | big (default little)")
     parser.add_argument("--workers", type=int, default=None, help="threads (default: number of cores)")
     parser.add_argument("--overwrite", action="store_true", help="remove an existing OUTPUT first")
     parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    parser.add_argument("--labels", action="append", default=[], metavar="FILE[:NAME]",
+                        help="a label volume (integer ids, the image's shape) to brick into OUTPUT/labels/NAME with "
+                             "the mode filter (OME-Zarr labels; NAME defaults to the file's stem); repeatable")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -53,6 +57,17 @@ def run(args: argparse.Namespace) -> int:
         unit=args.unit, workers=args.workers, overwrite=args.overwrite, progress=not args.quiet,
         raw_shape=shape, raw_dtype=args.dtype, byte_order=args.byte_order,
     )
+    for spec in args.labels:
+        from pathlib import Path
+
+        from clipvol.bricking.labels import brick_labels
+
+        path, _, name = spec.partition(":") if not Path(spec).exists() else (spec, "", "")
+        name = name or Path(path).stem.split(".")[0] or "labels"
+        brick_labels(args.output, path, name, codec=args.codec, workers=args.workers, overwrite=args.overwrite,
+                     progress=not args.quiet)
+        if not args.quiet:
+            print(f"{args.output}: labels {name!r} from {path} in {args.output}/labels/{name}")
     if not args.quiet:
         pyr = meta.pyramid
         nbytes = int(pyr.dtype.itemsize) * pyr.shape[0] * pyr.shape[1] * pyr.shape[2]

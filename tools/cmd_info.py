@@ -1,4 +1,9 @@
-"""Describe a clipvol store: levels, shapes, bricks, bytes on disk, compression, value range."""
+"""Describe a clipvol store: levels, shapes, bricks, bytes on disk, compression, value range, geometry.
+
+For a store built from a file that records its geometry (NIfTI, DICOM, MRC, ...) it also prints
+the origin, the voxel-to-world affine and which anatomical direction (R/L, A/P, S/I) each array
+axis points to.
+"""
 
 from __future__ import annotations
 
@@ -21,6 +26,24 @@ def _dir_bytes(path) -> tuple[int, int]:
     return n, size
 
 
+def _print_geometry(meta) -> None:
+    """Origin, affine and axis directions (only for stores that record them)."""
+    if meta.frame is None and not any(meta.origin):
+        return
+    print(f"origin     {', '.join(f'{v:g}' for v in meta.origin)} {meta.unit} (z, y, x; world position of voxel 0)")
+    if meta.frame is None:
+        return
+    from clipvol.scene.orientation import axis_codes
+
+    codes = axis_codes(meta.frame.affine, meta.frame.frame)
+    world = "patient RAS+" if meta.frame.frame == "RAS" else "world"
+    print(f"frame      {world}; array axes point to x {codes[0]}, y {codes[1]}, z {codes[2]} "
+          f"(orientation {''.join(codes)}{', oblique' if meta.frame.oblique else ''})")
+    for k, row in enumerate(meta.frame.affine[:3]):
+        head = "affine    " if k == 0 else "          "
+        print(f"{head} [{'  '.join(f'{v:10.4g}' for v in row)}]")
+
+
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -39,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"codec      {meta.codec}")
     print(f"spacing    {', '.join(f'{s:g}' for s in pyr.spacing)} {meta.unit} (z, y, x)")
     print(f"value range {pyr.value_range[0]:g} .. {pyr.value_range[1]:g}")
+    _print_geometry(meta)
     print(f"{'level':>5} {'shape (z, y, x)':>22} {'grid':>14} {'bricks':>8} {'non-empty':>9} {'on disk':>10} {'raw':>10} {'ratio':>6}")
     tot_disk = tot_raw = 0
     for L, lv in enumerate(pyr.levels):

@@ -46,6 +46,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, or a .npy file")
     p.add_argument("--out", "-o", required=True, help="output PNG")
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default 64)")
+    d = p.add_argument_group("data")
+    d.add_argument("--t", type=int, default=None, help="time point of an OME-Zarr image with a t axis (default 0)")
+    d.add_argument("--c", type=int, default=None, help="channel of an OME-Zarr image with a c axis (default 0)")
+    d.add_argument("--hide-labels", default=None, metavar="NAME:ID,ID",
+                   help="hide the voxels of these label ids of the store's labels/NAME (from clipvol brick --labels)")
     v = p.add_argument_group("camera")
     v.add_argument("--view", choices=VIEWS, default="iso", help="preset direction towards the volume centre (default iso)")
     v.add_argument("--eye", type=_triple, default=None, help="eye position x,y,z (world units; overrides --view)")
@@ -80,6 +85,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
     r.add_argument("--no-wait", action="store_true", help="do not wait for the view's bricks (draw what is resident)")
     r.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for convergence (default 300)")
+
+
+def hidden_labels(source, loader, spec: str):
+    """``loader`` with the voxels of ``NAME:ID,ID`` (a label image of the store) hidden."""
+    from pathlib import Path
+
+    from clipvol.bricking.labels import label_names
+    from clipvol.paging.open import open_store
+    from clipvol.paging.tagging import TaggedLoader
+
+    name, _, ids = spec.partition(":")
+    names = label_names(source)
+    if name not in names:
+        raise ParameterError(f"--hide-labels: expected one of the store's labels {names or '(none)'}, got {name!r}")
+    try:
+        hidden = [int(v) for v in ids.split(",") if v.strip()]
+    except ValueError:
+        raise ParameterError(f"--hide-labels: expected NAME:ID,ID with integer ids, got {spec!r}") from None
+    return TaggedLoader(loader, open_store(Path(source) / "labels" / name), hidden)
 
 
 def view_camera(pyramid, view: str, size, *, eye=None, target=None, up=None, fov=35.0, distance=None, ortho=False):
@@ -132,7 +156,10 @@ def run(args) -> int:
     if args.tf not in TransferFunction.names():
         raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())}, got {args.tf!r}")
     kwargs = {} if args.brick is None else {"brick": args.brick}
+    kwargs.update({k: v for k, v in (("t", args.t), ("c", args.c)) if v is not None})
     loader = open_store(args.source, **kwargs)
+    if args.hide_labels:
+        loader = hidden_labels(args.source, loader, args.hide_labels)
     pyr = loader.pyramid
     cam = view_camera(pyr, args.view, args.size, eye=args.eye, target=args.target, up=args.up, fov=args.fov,
                       distance=args.distance, ortho=args.ortho)

@@ -1,4 +1,5 @@
-"""Offscreen flythroughs: render a camera path to PNG frames or an animated GIF, with a per-frame CSV.
+"""Offscreen flythroughs: render a camera path to PNG frames, an animated GIF or a movie (MP4, WebM,
+MKV, MOV through imageio's ffmpeg), with a per-frame CSV.
 
 This is ``clipvol view --offscreen``. By default every frame is rendered *as it comes*
 (``wait=False``): what is resident is drawn, coarse levels stand in for bricks still loading, and
@@ -9,6 +10,13 @@ bricks are all drawn at their own level, which gives reproducible frames.
 Ctrl-C stops cleanly: the CSV is flushed and closed, the frames written so far stay (a GIF is
 written with the frames rendered so far), the loader threads are joined, then the
 ``KeyboardInterrupt`` propagates (the CLI exits with 130).
+
+A movie is encoded as the frames come (never held in memory) into a hidden ``.NAME.partial.EXT``
+beside the output and renamed when it is closed: an error leaves no file that looks complete
+(Ctrl-C keeps the frames so far, like the GIF). Frames are composited over black and padded to
+even sizes (H.264 with 4:2:0 chroma needs them). A store built from a patient-frame file
+(NIfTI, DICOM) can be labelled: ``orientation`` writes the anatomical direction of each image
+edge (R/L, A/P, S/I) on every frame.
 """
 
 from __future__ import annotations
@@ -26,7 +34,10 @@ from ..scene.params import RenderParams
 from ..scene.paths import make_path
 from .session import RenderSession
 
-__all__ = ["PathResult", "render_path", "frame_row", "save_gif", "CSV_BASE_COLUMNS"]
+__all__ = ["PathResult", "render_path", "frame_row", "save_gif", "MovieWriter", "MOVIE_SUFFIXES", "CSV_BASE_COLUMNS"]
+
+#: output suffixes written as movies through imageio-ffmpeg
+MOVIE_SUFFIXES = (".mp4", ".webm", ".mkv", ".mov", ".avi")
 
 CSV_BASE_COLUMNS = (
     "frame", "frame_s", "elapsed_s", "converged", "bricks_drawn", "texels_drawn", "bytes_loaded",
@@ -42,7 +53,63 @@ class PathResult:
     files: list[Path] = field(default_factory=list)
     csv: Path | None = None
     gif: Path | None = None
+    movie: Path | None = None
     rows: list[dict] = field(default_factory=list)
+
+
+def _over_black(img: np.ndarray) -> np.ndarray:
+    """RGB of an RGBA frame over black (the renderer's colours are premultiplied-equivalent here)."""
+    a = img[..., 3:4].astype(np.float32) / 255.0
+    return np.clip(img[..., :3].astype(np.float32) * a + 0.5, 0, 255).astype(np.uint8)
+
+
+class MovieWriter:
+    """Frames to a movie file through imageio + imageio-ffmpeg, encoded as they come.
+
+    Parameters
+    ----------
+    path : Path
+        The movie (``.mp4``, ``.webm``, ``.mkv``, ``.mov``, ``.avi``).
+    fps : float
+        Frame rate.
+    quality : float
+        imageio's 0 (smallest) .. 10 (best) scale.
+    """
+
+    def __init__(self, path: Path, fps: float = 24.0, quality: float = 8.0) -> None:
+        try:
+            import imageio.v2 as iio
+            import imageio_ffmpeg  # noqa: F401  (the ffmpeg binary ships in this wheel)
+        except ImportError:
+            from ..errors import MissingExtraError
+
+            raise MissingExtraError(f"{path}: writing a movie needs imageio and imageio-ffmpeg: pip install 'clipvol[movie]'") from None
+        if not (0 < float(fps) <= 240):
+            raise ParameterError(f"fps: expected 0 < fps <= 240, got {fps!r}")
+        if not (0 <= float(quality) <= 10):
+            raise ParameterError(f"quality: expected 0..10, got {quality!r}")
+        self.path = Path(path)
+        self.partial = self.path.with_name(f".{self.path.stem}.partial{self.path.suffix}")
+        self.frames = 0
+        self._writer = iio.get_writer(self.partial, fps=float(fps), quality=float(quality), macro_block_size=1,
+                                      ffmpeg_log_level="error")
+
+    def append(self, img: np.ndarray) -> None:
+        """Add an RGBA or RGB frame (composited over black, padded to even width and height)."""
+        rgb = _over_black(img) if img.shape[-1] == 4 else np.asarray(img, dtype=np.uint8)
+        h, w = rgb.shape[:2]
+        if h % 2 or w % 2:
+            rgb = np.pad(rgb, ((0, h % 2), (0, w % 2), (0, 0)))
+        self._writer.append_data(rgb)
+        self.frames += 1
+
+    def close(self, keep: bool = True) -> None:
+        """Finish the file and give it its name (``keep``), or delete it."""
+        self._writer.close()
+        if keep and self.frames:
+            self.partial.replace(self.path)
+        else:
+            self.partial.unlink(missing_ok=True)
 
 
 def frame_row(session: RenderSession, frame: int, frame_s: float, elapsed_s: float, bytes_before: int) -> dict:
@@ -104,6 +171,8 @@ def render_path(
     session: RenderSession | None = None,
     progress: Callable[[dict], None] | None = None,
     path_kwargs: dict | None = None,
+    quality: float = 8.0,
+    orientation=None,
 ) -> PathResult:
     """Render ``frames`` views along camera path ``path`` of ``source`` and write them to ``out``.
 
@@ -112,9 +181,9 @@ def render_path(
     source : loader, path or URL
         The data (see :func:`clipvol.paging.open.open_store`).
     out : str or Path
-        A directory (PNG frames ``frame_0000.png``... and ``frames.csv``) or a ``.gif`` file (with
-        ``<name>.csv`` beside it).
-    path : {'orbit', 'fly', 'zoom'}
+        A directory (PNG frames ``frame_0000.png``... and ``frames.csv``), a ``.gif`` file or a
+        movie (``.mp4``, ``.webm``, ``.mkv``, ``.mov``, ``.avi``), with ``<name>.csv`` beside it.
+    path : {'orbit', 'turntable', 'fly', 'zoom'}
         The camera path (:mod:`clipvol.scene.paths`).
     frames : int
         Number of frames.
@@ -134,7 +203,7 @@ def render_path(
     outlines : bool
         Draw each frame's bricks outlined in their level's colour.
     fps : float
-        GIF frame rate.
+        GIF or movie frame rate.
     ctx : moderngl.Context, optional
         A GL context to use; default a standalone EGL one (created and released here).
     session : RenderSession, optional
@@ -143,6 +212,10 @@ def render_path(
         Called with each frame's CSV row.
     path_kwargs : dict, optional
         Extra keyword arguments for the path function.
+    quality : float
+        Movie quality on imageio's 0..10 scale.
+    orientation : WorldFrame, optional
+        Write each frame's edge labels (R/L, A/P, S/I, or +X/-X... for a non-anatomical frame).
 
     Returns
     -------
@@ -151,7 +224,8 @@ def render_path(
 
     out = Path(out)
     gif = out.suffix.lower() == ".gif"
-    if gif:
+    movie = out.suffix.lower() in MOVIE_SUFFIXES
+    if gif or movie:
         out.parent.mkdir(parents=True, exist_ok=True)
         csv_path = out.with_suffix(".csv")
     else:
@@ -160,10 +234,14 @@ def render_path(
         out.mkdir(parents=True, exist_ok=True)
         csv_path = out / "frames.csv"
     own_ctx = own_session = False
-    result = PathResult(csv=csv_path, gif=out if gif else None)
+    result = PathResult(csv=csv_path, gif=out if gif else None, movie=out if movie else None)
     gif_frames: list[np.ndarray] = []
     fh = None
+    movie_writer: MovieWriter | None = None
+    keep_movie = False
     try:
+        if movie:
+            movie_writer = MovieWriter(out, fps=fps, quality=quality)
         if session is None:
             if ctx is None:
                 from ..render.context import create_context
@@ -187,12 +265,19 @@ def render_path(
                 from .overlay import draw_outlines
 
                 img = draw_outlines(img, cam, session.last_items())
+            if orientation is not None:
+                from ..scene.orientation import view_labels
+                from .annotate import label_edges
+
+                img = label_edges(img, view_labels(orientation.affine, cam.right, cam.up, orientation.frame))
             row = frame_row(session, k, dt, time.perf_counter() - t_start, before)
             before = row["bytes_loaded_total"]
             writer.writerow(row)
             result.rows.append(row)
             if gif:
                 gif_frames.append(img)
+            elif movie_writer is not None:
+                movie_writer.append(img)
             else:
                 from PIL import Image
 
@@ -202,9 +287,17 @@ def render_path(
             result.frames += 1
             if progress is not None:
                 progress(row)
+        keep_movie = True
+    except KeyboardInterrupt:
+        keep_movie = True  # like the GIF: the frames rendered so far stay
+        raise
     finally:
         if fh is not None:
             fh.close()
+        if movie_writer is not None:
+            movie_writer.close(keep=keep_movie)
+            if keep_movie and movie_writer.frames:
+                result.files.append(out)
         if gif and gif_frames:
             save_gif(gif_frames, out, fps=fps)
             result.files.append(out)

@@ -316,13 +316,14 @@ class _Builder:
         self.done[L][k] = True
 
 
-def _create_store(output: Path, pyramid: Pyramid, codec: str, unit: str, source_desc: str):
+def _create_store(output: Path, pyramid: Pyramid, codec: str, unit: str, source_desc: str, frame=None):
     import zarr
 
     group = zarr.open_group(str(output), mode="w-", zarr_format=3)
+    origin = frame.origin if frame is not None else (0.0, 0.0, 0.0)
     attrs = {
-        "ome": ome_metadata(pyramid, name=output.stem or "image", unit=unit),
-        "clipvol": clipvol_metadata(pyramid, unit=unit, codec=codec, complete=False, source=source_desc),
+        "ome": ome_metadata(pyramid, name=output.stem or "image", unit=unit, origin=origin),
+        "clipvol": clipvol_metadata(pyramid, unit=unit, codec=codec, complete=False, source=source_desc, frame=frame),
     }
     compressors = store_codecs(codec, pyramid.dtype)
     for L, lv in enumerate(pyramid.levels):
@@ -357,7 +358,7 @@ def brick_volume(
     filter: str = "mean",
     codec: str = "lz4",
     spacing: Sequence[float] | None = None,
-    unit: str = "micrometer",
+    unit: str | None = None,
     workers: int | None = None,
     overwrite: bool = False,
     progress: bool = True,
@@ -375,14 +376,15 @@ def brick_volume(
         The store directory to create (or resume).
     brick : int or (int, int, int)
         Brick edge in voxels, even, 8..256.
-    filter : {'mean', 'subsample', 'max'}
+    filter : {'mean', 'subsample', 'max', 'mode'}
         The 2x2x2 down-sampling filter.
     codec : {'lz4', 'zstd', 'none'}
         Blosc lz4 (clevel 5) or zstd (clevel 1) with byte shuffle (bit shuffle for 8-bit data).
     spacing : (z, y, x) or None
         Level-0 voxel size; None takes the input's own, else 1.
-    unit : str
-        Unit of ``spacing`` in the OME metadata.
+    unit : str or None
+        Unit of ``spacing`` in the OME metadata; None takes the input's own (``millimeter`` for
+        NIfTI and DICOM, ``angstrom`` for MRC), else ``micrometer``.
     workers : int or None
         Threads for compression and filtering (default: number of cores).
     overwrite : bool
@@ -399,19 +401,21 @@ def brick_volume(
         The validated metadata of the finished store.
     """
     bshape = _brick_shape(brick)
-    spacing, workers = _check_params(filter, codec, spacing, unit, workers)
+    spacing, workers = _check_params(filter, codec, spacing, unit or "micrometer", workers)
     output = Path(output)
     src = open_source(source, raw_shape=raw_shape, raw_dtype=raw_dtype, byte_order=byte_order)
     try:
         sp = spacing or src.spacing or (1.0, 1.0, 1.0)
         sp = tuple(float(v) for v in sp)
+        unit = unit or src.unit or "micrometer"
+        frame = src.frame.with_spacing(sp) if src.frame is not None else None
         job = _job(src, src.shape, bshape, filter, codec, sp, unit)
         attrs = _prepare_output(output, job, overwrite)
         with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="clipvol-brick") as pool:
             if attrs is None:
                 vr = _scan_range(src, pool, workers)
                 pyramid = Pyramid.build(src.shape, bshape, sp, filter, src.dtype, vr, 0.0)
-                group = _create_store(output, pyramid, codec, unit, job["source"])
+                group = _create_store(output, pyramid, codec, unit, job["source"], frame)
             else:
                 import zarr
 

@@ -37,7 +37,9 @@ __all__ = [
     "validate_dtype",
 ]
 
-FILTERS = ("mean", "subsample", "max")
+#: ``mode`` is for label volumes (integer ids): the most frequent id of each 2x2x2 block, never a
+#: blend of ids
+FILTERS = ("mean", "subsample", "max", "mode")
 
 Int3 = tuple[int, int, int]
 Float3 = tuple[float, float, float]
@@ -321,6 +323,21 @@ def _mean_int(b6: np.ndarray, dtype: np.dtype) -> np.ndarray:
     return (q << 32) + low
 
 
+def _mode(p: np.ndarray) -> np.ndarray:
+    """Most frequent value of each 2x2x2 block of the even-shaped ``p``, smallest among ties.
+
+    Edge replication (:func:`_pad_even`) repeats each existing voxel of a partial block equally
+    often, so the mode over the padded block is the mode over the voxels that exist.
+    """
+    v = np.stack([p[z::2, y::2, x::2] for z in (0, 1) for y in (0, 1) for x in (0, 1)], axis=-1)
+    v.sort(axis=-1)
+    counts = np.zeros(v.shape, dtype=np.int8)
+    for j in range(8):  # counts[..., i] = how many of the 8 equal v[..., i]
+        counts += v == v[..., j : j + 1]
+    first = np.argmax(counts, axis=-1)  # sorted ascending: the first maximum is the smallest tie
+    return np.ascontiguousarray(np.take_along_axis(v, first[..., None], axis=-1)[..., 0])
+
+
 def downsample(block: np.ndarray, filter: str = "mean") -> np.ndarray:
     """Reduce a ``(z, y, x)`` block by 2 on every axis (ceil) with ``filter``; same dtype out.
 
@@ -329,6 +346,8 @@ def downsample(block: np.ndarray, filter: str = "mean") -> np.ndarray:
       only NaN stays NaN).
     * ``max``: the maximum, NaN ignored.
     * ``subsample``: voxel ``2i`` (``B_i = A_{2i}``).
+    * ``mode``: the most frequent of the 8 values, the smallest among ties (label volumes: a coarse
+      voxel keeps an id that occurs in its block, where a mean would invent one).
 
     Odd axes: the last block holds the voxels that exist, as if repeated (see module docstring).
     Slabs passed in one at a time give the same result as the whole volume as long as every slab
@@ -344,6 +363,8 @@ def downsample(block: np.ndarray, filter: str = "mean") -> np.ndarray:
     p = _pad_even(block)
     # Pairwise reductions axis by axis on strided views: an order of magnitude faster than a
     # 6-D reshape + reduce, and bit-identical (the filter dominates bricking time).
+    if filter == "mode":
+        return _mode(p)
     if filter == "max":
         f = np.fmax if dtype.kind == "f" else np.maximum  # fmax ignores NaN
         m = f(p[:, :, 0::2], p[:, :, 1::2])

@@ -28,6 +28,7 @@ import numpy as np
 from ..errors import InputFormatError, InputNotFoundError, ParameterError
 from .generators import parse_procedural
 from .pyramid import validate_dtype
+from .worldframe import WorldFrame
 
 __all__ = [
     "Source",
@@ -56,11 +57,17 @@ class Source:
         Native-byte-order dtype of the values :meth:`read` returns.
     spacing : tuple of float or None
         ``(z, y, x)`` voxel size if the input records it (OME-Zarr, TIFF resolution), else None.
+    frame : WorldFrame or None
+        The input's voxel-to-world affine (NIfTI, DICOM, MRC, ...), else None.
+    unit : str or None
+        The unit of ``spacing`` and ``frame`` if the input says, else None.
     """
 
     shape: Int3
     dtype: np.dtype
     spacing: tuple[float, float, float] | None = None
+    frame: "WorldFrame | None" = None
+    unit: str | None = None
     name: str = "source"
     #: identifies the input across runs (absolute path or URL): a resumed build must match it
     key: str = ""
@@ -347,6 +354,11 @@ def _open_path_or_url(text: str, raw_shape, raw_dtype, byte_order: str) -> Sourc
         if not files:
             raise InputNotFoundError(f"{text}: no file matches this pattern")
         return TiffStackSource(files, text)
+    from .formats import open_format  # NIfTI, DICOM, HDF5, MRC (each an optional extra)
+
+    src = open_format(text)
+    if src is not None:
+        return src
     path = Path(text)
     if not path.exists():
         raise InputNotFoundError(f"{path}: no such file or directory")
@@ -355,7 +367,7 @@ def _open_path_or_url(text: str, raw_shape, raw_dtype, byte_order: str) -> Sourc
             return ZarrSource(path)
         files = sorted((p for p in path.iterdir() if p.suffix.lower() in _TIFF_EXT), key=_natural_key)
         if not files:
-            raise InputFormatError(f"{path}: a directory that is neither a zarr store nor holds .tif/.tiff files")
+            raise InputFormatError(f"{path}: a directory that is neither a zarr store nor holds .tif/.tiff or DICOM files")
         return TiffStackSource(files, str(path))
     if not os.access(path, os.R_OK):
         raise InputNotFoundError(f"{path}: not readable (permission denied)")
@@ -366,7 +378,8 @@ def _open_path_or_url(text: str, raw_shape, raw_dtype, byte_order: str) -> Sourc
         return _open_tiff(path)
     raise InputFormatError(
         f"{path}: unknown input format {suffix or '(no extension)'!r}; expected .npy, .tif/.tiff, a TIFF directory "
-        "or glob, a zarr store, procedural:NAME?size=N, or a raw file with --shape and --dtype"
+        "or glob, a zarr store, .nii/.nii.gz, a DICOM folder, FILE.h5:/dataset, .mrc/.map, procedural:NAME?size=N, "
+        "or a raw file with --shape and --dtype"
     )
 
 

@@ -11,7 +11,9 @@ A store is a zarr v3 group (full description in ``docs/format.md``)::
 
 ``attrs["clipvol"]`` holds ``format_version``, ``brick_shape``, ``filter``, ``dtype``,
 ``value_range`` (finite min/max of level 0), ``fill_value``, ``spacing``, ``unit``, ``codec``,
-``histogram_bins``, ``levels`` (shapes) and ``complete``. ``complete`` becomes ``true`` in the very
+``histogram_bins``, ``levels`` (shapes) and ``complete``; stores built from a file that records
+its geometry (NIfTI, DICOM, MRC, ...) add ``origin`` (level-0 translation, z, y, x, also added to
+every OME ``translation``), ``affine`` and ``world_frame`` (:mod:`clipvol.bricking.worldframe`). ``complete`` becomes ``true`` in the very
 last write of a build, so a reader can tell an interrupted build from a finished one.
 
 This module only builds and validates metadata dictionaries (pure Python); it never reads data.
@@ -27,6 +29,7 @@ import numpy as np
 
 from ..errors import InputNotFoundError, StoreFormatError, StoreIncompleteError
 from .pyramid import FILTERS, LevelInfo, Pyramid, validate_dtype
+from .worldframe import WorldFrame
 
 __all__ = [
     "FORMAT_VERSION",
@@ -61,10 +64,17 @@ class StoreMeta:
     complete: bool
     format_version: int
     histogram_bins: int = HIST_BINS
+    #: world position of voxel 0 along the array axes (z, y, x); added to every OME translation
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: the source's voxel-to-world affine and frame, when it recorded one
+    frame: WorldFrame | None = None
 
 
-def ome_metadata(pyramid: Pyramid, name: str = "image", unit: str = "micrometer") -> dict[str, Any]:
-    """The OME-Zarr 0.5 ``attrs["ome"]`` block for ``pyramid`` (axes z, y, x of type space)."""
+def ome_metadata(pyramid: Pyramid, name: str = "image", unit: str = "micrometer", origin=(0.0, 0.0, 0.0)) -> dict[str, Any]:
+    """The OME-Zarr 0.5 ``attrs["ome"]`` block for ``pyramid`` (axes z, y, x of type space).
+
+    ``origin`` (z, y, x) shifts every level's translation: the world position of voxel 0.
+    """
     datasets = []
     for L, lv in enumerate(pyramid.levels):
         datasets.append(
@@ -72,7 +82,7 @@ def ome_metadata(pyramid: Pyramid, name: str = "image", unit: str = "micrometer"
                 "path": str(L),
                 "coordinateTransformations": [
                     {"type": "scale", "scale": list(lv.scale)},
-                    {"type": "translation", "translation": list(lv.translation)},
+                    {"type": "translation", "translation": [t + float(o) for t, o in zip(lv.translation, origin)]},
                 ],
             }
         )
@@ -83,15 +93,18 @@ def ome_metadata(pyramid: Pyramid, name: str = "image", unit: str = "micrometer"
                 "name": name,
                 "axes": [{"name": a, "type": "space", "unit": unit} for a in ("z", "y", "x")],
                 "datasets": datasets,
-                "type": {"mean": "mean", "max": "max", "subsample": "subsample"}[pyramid.filter],
+                "type": {"mean": "mean", "max": "max", "subsample": "subsample", "mode": "mode"}[pyramid.filter],
                 "metadata": {"method": f"clipvol.bricking.pyramid.downsample(filter={pyramid.filter!r})"},
             }
         ],
     }
 
 
-def clipvol_metadata(pyramid: Pyramid, *, unit: str, codec: str, complete: bool, source: str = "") -> dict[str, Any]:
-    """The ``attrs["clipvol"]`` block."""
+def clipvol_metadata(
+    pyramid: Pyramid, *, unit: str, codec: str, complete: bool, source: str = "", frame: WorldFrame | None = None
+) -> dict[str, Any]:
+    """The ``attrs["clipvol"]`` block (with ``origin``, ``affine``, ``world_frame`` when ``frame`` is given)."""
+    geometry = {} if frame is None else {"origin": list(frame.origin), **frame.to_attrs()}
     return {
         "format_version": FORMAT_VERSION,
         "brick_shape": list(pyramid.brick_shape),
@@ -106,6 +119,7 @@ def clipvol_metadata(pyramid: Pyramid, *, unit: str, codec: str, complete: bool,
         "levels": [list(lv.shape) for lv in pyramid.levels],
         "source": source,
         "complete": bool(complete),
+        **geometry,
     }
 
 
@@ -181,6 +195,8 @@ def parse_metadata(attrs: dict[str, Any], where: str) -> StoreMeta:
             f"{w}['levels']: expected the halving sequence {[list(lv.shape) for lv in expect.levels]} "
             f"for level 0 {list(shapes[0])} and brick {list(brick)}, got {levels_raw}"
         )
+    origin = _float_list(cv.get("origin", [0.0, 0.0, 0.0]), 3, f"{w}['origin']")
+    frame = WorldFrame.from_attrs(cv, where)
     # The OME block must agree with what we derive (other tools read it, we must not contradict it).
     ome = attrs.get("ome")
     if ome is not None:
@@ -190,8 +206,9 @@ def parse_metadata(attrs: dict[str, Any], where: str) -> StoreMeta:
                 tr = {t["type"]: t for t in ds["coordinateTransformations"]}
                 sc = tuple(float(v) for v in tr["scale"]["scale"])
                 tl = tuple(float(v) for v in tr.get("translation", {"translation": [0, 0, 0]})["translation"])
-                if not (np.allclose(sc, lv.scale) and np.allclose(tl, lv.translation)):
-                    raise StoreFormatError(f"{where}: attrs['ome'] level {L}: scale/translation {sc}/{tl} disagree with clipvol's {lv.scale}/{lv.translation}")
+                want = tuple(t + o for t, o in zip(lv.translation, origin))
+                if not (np.allclose(sc, lv.scale) and np.allclose(tl, want)):
+                    raise StoreFormatError(f"{where}: attrs['ome'] level {L}: scale/translation {sc}/{tl} disagree with clipvol's {lv.scale}/{want}")
         except StoreFormatError:
             raise
         except (KeyError, IndexError, TypeError, ValueError) as e:
@@ -199,7 +216,7 @@ def parse_metadata(attrs: dict[str, Any], where: str) -> StoreMeta:
     unit = cv.get("unit", "micrometer")
     codec = cv.get("codec", "unknown")
     bins = cv.get("histogram_bins", HIST_BINS)
-    return StoreMeta(expect, str(unit), str(codec), bool(cv.get("complete", False)), int(version), int(bins))
+    return StoreMeta(expect, str(unit), str(codec), bool(cv.get("complete", False)), int(version), int(bins), origin, frame)
 
 
 def level_info_from_ome(attrs: dict[str, Any], shapes: list[tuple[int, int, int]], where: str) -> list[LevelInfo]:

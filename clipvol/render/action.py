@@ -328,6 +328,19 @@ class ClipRenderAction:
             self.frame_loop = FrameLoop(self.clip_texture, self.cache)
         self.params = params
 
+    def use_clip_texture(self, clip_texture) -> None:
+        """Draw from another clip-texture of the same brick geometry from the next frame on (the
+        next time step of a series): the GPU cache is emptied, the program and targets are kept."""
+        pyr = clip_texture.pyramid
+        if pyr.brick_shape != self.pyramid.brick_shape or [lv.shape for lv in pyr.levels] != \
+                [lv.shape for lv in self.pyramid.levels] or pyr.dtype != self.pyramid.dtype:
+            raise ParameterError("clip_texture: expected the same levels, brick shape and dtype as the current one, "
+                                 f"got levels {[lv.shape for lv in pyr.levels]} brick {pyr.brick_shape} {pyr.dtype}")
+        self.cache.release()
+        self.clip_texture, self.pyramid = clip_texture, pyr
+        self.cache = GpuBrickCache(self.ctx, pyr, self.params.texture_budget)
+        self.frame_loop = FrameLoop(clip_texture, self.cache)
+
     # -- the frame ---------------------------------------------------------------------------------
     def render(self, camera, transfer_function, wait: bool = False, timeout: float | None = None,
                policy=None) -> np.ndarray:

@@ -25,7 +25,7 @@ from ..bricking.pyramid import Pyramid
 from ..errors import ParameterError
 from .camera import Camera
 
-__all__ = ["PATHS", "orbit", "fly", "zoom", "make_path", "volume_center", "volume_radius", "UP"]
+__all__ = ["PATHS", "orbit", "turntable", "fly", "zoom", "make_path", "volume_center", "volume_radius", "UP"]
 
 #: world "up" of every path: -y, so images look like numpy's vol.max(axis=0) from the front
 UP = (0.0, -1.0, 0.0)
@@ -135,6 +135,82 @@ def orbit(
         az = start_azimuth + 360.0 * turns * k / n
         eye = c + d * _direction(az, elevation)
         yield _perspective(eye, c, fov_y, size, pyramid), c.copy()
+
+
+def turntable(
+    pyramid: Pyramid,
+    frames: int = 72,
+    *,
+    size=(256, 256),
+    fov_y: float = 30.0,
+    up=UP,
+    front=(0.0, 0.0, -1.0),
+    elevation: float = 0.0,
+    distance: float | None = None,
+    azimuth: float = 0.0,
+) -> Iterator[tuple[object, np.ndarray]]:
+    """The volume spinning upright once about ``up`` as on a turntable, first seen from ``front``.
+
+    A movie preset: ``frames`` views at equal steps over exactly one turn (frame ``frames`` would
+    repeat frame 0, so the movie loops without a stutter). For a patient-frame store pass the
+    array-axis directions of *superior* and *anterior* (:func:`clipvol.scene.orientation.anatomical_axes`):
+    the first frame is then the frontal view, head up, the patient's left on screen right.
+
+    Parameters
+    ----------
+    pyramid : Pyramid
+        The data's pyramid (volume box: centre and default distance).
+    frames : int
+        Number of views (e.g. 72 at 24 fps: a 3 s turn).
+    size : (int, int)
+        Image ``(width, height)``.
+    fov_y : float
+        Vertical field of view in degrees.
+    up, front : (x, y, z)
+        The spin axis (screen up) and the direction from the centre to the first eye position;
+        ``front`` need not be perpendicular to ``up`` (its perpendicular part is used).
+    elevation : float
+        Degrees the eye is raised towards ``up`` (-89..89).
+    distance : float, optional
+        Eye distance from the centre; default: the whole volume fits.
+    azimuth : float
+        Degrees the first view is turned from ``front`` (right-handed about ``up``).
+
+    Yields
+    ------
+    (Camera, ndarray)
+        The camera and the centre of interest (the volume centre).
+    """
+    n = _check_frames(frames)
+    size = _check_size(size)
+    if not -89.0 <= float(elevation) <= 89.0:
+        raise ParameterError(f"elevation: expected -89..89 degrees, got {elevation!r}")
+    if not np.isfinite(float(azimuth)):
+        raise ParameterError(f"azimuth: expected a finite angle in degrees, got {azimuth!r}")
+    u = np.asarray(up, dtype=np.float64)
+    f = np.asarray(front, dtype=np.float64)
+    if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0:
+        raise ParameterError(f"up: expected a non-zero (x, y, z) direction, got {up!r}")
+    u = u / np.linalg.norm(u)
+    f = f - (f @ u) * u if f.shape == (3,) and np.all(np.isfinite(f)) else np.zeros(3)
+    if np.linalg.norm(f) < 1e-9:
+        raise ParameterError(f"front: expected a direction not parallel to up {tuple(u)}, got {front!r}")
+    f = f / np.linalg.norm(f)
+    side = np.cross(u, f)  # f rotated by +90 degrees about u
+    c = volume_center(pyramid)
+    d = fit_distance(pyramid, fov_y, size) if distance is None else float(distance)
+    if not (np.isfinite(d) and d > 0):
+        raise ParameterError(f"distance: expected a finite value > 0, got {distance!r}")
+    el = np.radians(float(elevation))
+    lo, hi = pyramid.volume_box()
+    from .camera import Camera
+
+    for k in range(n):
+        a = 2.0 * np.pi * k / n + np.radians(float(azimuth))
+        horiz = np.cos(a) * f + np.sin(a) * side
+        eye = c + d * (np.cos(el) * horiz + np.sin(el) * u)
+        cam = Camera.perspective(tuple(eye), tuple(c), up=tuple(u), fov_y=fov_y, size=size)
+        yield cam.fit_depth(lo, hi), c.copy()
 
 
 def _fly_points(pyramid: Pyramid, t: np.ndarray) -> np.ndarray:
@@ -289,11 +365,11 @@ def zoom(
         yield _perspective(eye, look, fov_y, size, pyramid), np.clip(look, lo, hi)
 
 
-PATHS = {"orbit": orbit, "fly": fly, "zoom": zoom}
+PATHS = {"orbit": orbit, "turntable": turntable, "fly": fly, "zoom": zoom}
 
 
 def make_path(name: str, pyramid: Pyramid, frames: int, *, size=(256, 256), **kwargs) -> Iterator[tuple[object, np.ndarray]]:
-    """The path called ``name`` (``orbit``, ``fly`` or ``zoom``) with ``frames`` views of ``size``."""
+    """The path called ``name`` (``orbit``, ``turntable``, ``fly`` or ``zoom``) with ``frames`` views of ``size``."""
     if name not in PATHS:
         raise ParameterError(f"path: expected one of {', '.join(PATHS)}, got {name!r}")
     return PATHS[name](pyramid, frames, size=size, **kwargs)

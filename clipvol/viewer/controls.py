@@ -61,9 +61,9 @@ KEY_HELP = (
 )
 
 
-def _basis(forward: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _basis(forward: np.ndarray, world_up: np.ndarray = UP) -> tuple[np.ndarray, np.ndarray]:
     """Camera ``right`` and ``up`` for a unit ``forward`` (right = forward x up, right-handed)."""
-    right = np.cross(forward, UP)
+    right = np.cross(forward, world_up)
     n = np.linalg.norm(right)
     if n < 1e-12:  # looking straight along world up: any right will do
         right = np.array([1.0, 0.0, 0.0])
@@ -95,6 +95,10 @@ class OrbitControls:
         Degrees per pixel of drag.
     zoom_step : float
         Distance factor per wheel step (> 1).
+    rotation : (3, 3) array, optional
+        Turns the rig's own frame (up ``-y``, first eye on the ``-z`` side) into the data's: for a
+        patient-frame store, :meth:`for_pyramid` with ``up``/``front`` (superior / anterior) makes
+        the rig orbit head-up and start from the front. None: the identity.
     """
 
     target: np.ndarray
@@ -106,6 +110,7 @@ class OrbitControls:
     rotate_speed: float = 0.3
     zoom_step: float = 1.15
     min_distance: float = 1e-6
+    rotation: np.ndarray | None = None
     _home: tuple = field(default=(), repr=False)
 
     def __post_init__(self) -> None:
@@ -123,12 +128,31 @@ class OrbitControls:
             lo, hi = (np.asarray(b, dtype=np.float64) for b in self.bounds)
             self.bounds = (lo, hi)
         self.elevation = float(np.clip(self.elevation, -89.0, 89.0))
+        if self.rotation is not None:
+            m = np.asarray(self.rotation, dtype=np.float64)
+            if m.shape != (3, 3) or not np.allclose(m @ m.T, np.eye(3), atol=1e-6):
+                raise ParameterError(f"rotation: expected an orthonormal 3x3 matrix, got {self.rotation!r}")
+            self.rotation = m
         self._home = (self.target.copy(), self.distance, self.azimuth, self.elevation)
 
     @classmethod
-    def for_pyramid(cls, pyramid, size=(640, 480), fov_y: float = 35.0, azimuth: float = 30.0, elevation: float = 25.0) -> "OrbitControls":
-        """A rig looking at the whole volume of ``pyramid`` from ``azimuth``/``elevation``."""
+    def for_pyramid(cls, pyramid, size=(640, 480), fov_y: float = 35.0, azimuth: float = 30.0, elevation: float = 25.0,
+                    up=None, front=None) -> "OrbitControls":
+        """A rig looking at the whole volume of ``pyramid`` from ``azimuth``/``elevation``.
 
+        ``up`` and ``front`` (data directions, e.g. superior and anterior from
+        :func:`clipvol.scene.orientation.anatomical_axes`) orient the rig: world up becomes ``up``
+        and azimuth 0, elevation 0 looks from ``front``.
+        """
+
+        rotation = None
+        if up is not None and front is not None:
+            u = np.asarray(up, dtype=np.float64)
+            u = u / np.linalg.norm(u)
+            f = np.asarray(front, dtype=np.float64)
+            f = f - (f @ u) * u
+            f = f / np.linalg.norm(f)
+            rotation = np.stack([np.cross(u, f), -u, -f], axis=1)  # rig x, y (= -up), z (= -front)
         lo, hi = pyramid.volume_box()
         return cls(
             target=volume_center(pyramid),
@@ -138,6 +162,7 @@ class OrbitControls:
             fov_y=fov_y,
             bounds=(lo, hi),
             min_distance=0.25 * float(min(pyramid.spacing)),
+            rotation=rotation,
         )
 
     # -- state ----------------------------------------------------------------------------------
@@ -146,7 +171,13 @@ class OrbitControls:
         """Unit vector from the target to the eye."""
         az = np.radians(self.azimuth)
         el = np.radians(self.elevation)
-        return np.array([np.cos(el) * np.sin(az), -np.sin(el), -np.cos(el) * np.cos(az)])
+        d = np.array([np.cos(el) * np.sin(az), -np.sin(el), -np.cos(el) * np.cos(az)])
+        return d if self.rotation is None else self.rotation @ d
+
+    @property
+    def world_up(self) -> np.ndarray:
+        """The data direction shown upwards (``-y`` unless a ``rotation`` says otherwise)."""
+        return UP.copy() if self.rotation is None else self.rotation @ UP
 
     @property
     def eye(self) -> np.ndarray:
@@ -160,7 +191,7 @@ class OrbitControls:
     def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(forward, right, up)`` unit vectors of the current view (as the Camera has them)."""
         f = self.forward
-        r, u = _basis(f)
+        r, u = _basis(f, self.world_up)
         return f, r, u
 
     @property
@@ -173,7 +204,7 @@ class OrbitControls:
     def camera(self, size=(640, 480)):
         """The :class:`~clipvol.scene.camera.Camera` of the current view for an image of ``size``."""
 
-        cam = Camera.perspective(tuple(self.eye), tuple(self.target), up=tuple(UP), fov_y=self.fov_y, size=tuple(size))
+        cam = Camera.perspective(tuple(self.eye), tuple(self.target), up=tuple(self.world_up), fov_y=self.fov_y, size=tuple(size))
         if self.bounds is not None:
             cam = cam.fit_depth(self.bounds[0], self.bounds[1])
         return cam

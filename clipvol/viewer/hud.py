@@ -49,6 +49,7 @@ def hud_lines(
     texture_stats=None,
     settings: Mapping[str, object] | None = None,
     message: str = "",
+    orientation: Mapping[str, str] | None = None,
 ) -> list[str]:
     """The HUD's lines of text.
 
@@ -64,8 +65,12 @@ def hud_lines(
         Current viewer settings (mode, level, LOD threshold, MIP/composite, transfer function).
     message : str
         A transient status line (e.g. the last key's effect).
+    orientation : mapping, optional
+        Anatomical labels of the view's edges (:func:`clipvol.scene.orientation.view_labels`).
     """
     lines: list[str] = []
+    if orientation:
+        lines.append("  ".join(f"{k} {orientation[k]}" for k in ("left", "right", "top", "bottom") if k in orientation))
     if fps is not None:
         lines.append(f"{fps:5.1f} fps")
     if settings:

@@ -100,6 +100,17 @@ class _EglUnbound:
             self._saved = None
 
 
+def _anatomical_rig(loader) -> dict:
+    """For a patient-frame store: orbit head-up, first seen from the front (else the default rig)."""
+    frame = getattr(loader, "frame", None)
+    if frame is None or frame.frame != "RAS":
+        return {}
+    from clipvol.scene.orientation import anatomical_axes
+
+    up, front = anatomical_axes(frame.affine)
+    return {"up": up, "front": front, "azimuth": 0.0, "elevation": 0.0}
+
+
 def _quad(ctx, x0: float, y0: float, x1: float, y1: float):
     """A textured quad in NDC; texture row 0 (image top) at ``y1``."""
     data = np.array([
@@ -197,7 +208,7 @@ class Viewer:
             lod_threshold=s.lod_threshold, render_mode=s.mode,
             tf_index=presets.index(tf) if isinstance(tf, str) and tf in presets else (0 if self._custom_tf is not None else 1),
         )
-        self.controls = OrbitControls.for_pyramid(pyr, size=self.framebuffer_size)
+        self.controls = OrbitControls.for_pyramid(pyr, size=self.framebuffer_size, **_anatomical_rig(self.session.loader))
         self.screenshot_dir = Path(screenshot_dir)
         self.background = tuple(float(v) for v in background)
         self.held: set[str] = set()
@@ -400,6 +411,16 @@ class Viewer:
             self._draw_hud(w, h)
         ctx.disable(mgl.BLEND)
 
+    def _orientation(self) -> dict[str, str] | None:
+        """The view edges' anatomical (or world-axis) labels when the store records its affine."""
+        frame = getattr(getattr(self.session, "loader", None), "frame", None)
+        if frame is None:
+            return None
+        from clipvol.scene.orientation import view_labels
+
+        cam = self.camera()
+        return view_labels(frame.affine, cam.right, cam.up, frame.frame)
+
     def _draw_hud(self, w: int, h: int) -> None:
         now = time.perf_counter()
         if self._hud_text is None or now - self._hud_time > 0.25:
@@ -411,7 +432,8 @@ class Viewer:
                 "tf": st.tf_name,
             }
             lines = hud_lines(fps=self._fps, frame_stats=self.session.frame_stats,
-                              texture_stats=self.session.texture_stats, settings=settings, message=st.message)
+                              texture_stats=self.session.texture_stats, settings=settings, message=st.message,
+                              orientation=self._orientation())
             self._hud_text = lines
             self._hud_time = now
             img = render_text(lines)

@@ -43,3 +43,49 @@ def test_render_refuses_bad_arguments(tmp_path, capsys):
     assert main(["render", "procedural:fractal?size=16", "--out", str(tmp_path / "x.png"), "--tf", "nope"]) == 2
     assert "--tf" in capsys.readouterr().err
     assert main(["render", str(tmp_path / "missing.zarr"), "--out", str(tmp_path / "x.png")]) == 2
+
+
+def test_render_a_time_point_and_hide_labels(tmp_path):
+    """--t picks a time point of a (t, z, y, x) OME-Zarr; --hide-labels removes a label's voxels.
+    References: the same render of a store holding only that time point / of the image with the
+    hidden voxels set to NaN by numpy."""
+    import zarr
+
+    from clipvol.bricking.labels import brick_labels
+    from clipvol.bricking.pipeline import brick_volume
+
+    rng = np.random.default_rng(3)
+    data = rng.random((2, 16, 16, 16), dtype=np.float32)
+    data[1] *= 0.25
+    g = zarr.open_group(str(tmp_path / "ts.zarr"), mode="w")
+    g.create_array("0", shape=data.shape, chunks=(1, 8, 8, 8), dtype="float32")[...] = data
+    axes = [{"name": "t", "type": "time"}] + [{"name": a, "type": "space"} for a in "zyx"]
+    g.attrs.update({"ome": {"version": "0.5", "multiscales": [{"axes": axes, "datasets": [
+        {"path": "0", "coordinateTransformations": [{"type": "scale", "scale": [1, 1, 1, 1]}]}]}],
+        "omero": {"channels": [{"window": {"min": 0.0, "max": 1.0}}]}}})
+    common = ["--size", "32x32", "--view", "front", "--ortho", "--mode", "mip", "--policy", "fixed", "--tf", "grey"]
+    assert main(["render", str(tmp_path / "ts.zarr"), "--t", "1", "--out", str(tmp_path / "t1.png")] + common) == 0
+    np.save(tmp_path / "t1.npy", data[1])
+    assert main(["render", str(tmp_path / "t1.npy"), "--brick", "8", "--out", str(tmp_path / "ref.png"),
+                 "--tf-range", "0,1"] + common) == 0
+    a, b = np.asarray(Image.open(tmp_path / "t1.png")), np.asarray(Image.open(tmp_path / "ref.png"))
+    assert np.abs(a.astype(int) - b).max() <= 1
+    assert main(["render", str(tmp_path / "ts.zarr"), "--t", "2", "--out", str(tmp_path / "x.png")] + common) == 2
+
+    img = data[0]
+    lab = np.zeros(img.shape, np.uint8)
+    lab[:, :, 8:] = 4
+    np.save(tmp_path / "img.npy", img)
+    np.save(tmp_path / "lab.npy", lab)
+    brick_volume(tmp_path / "img.npy", tmp_path / "img.zarr", brick=8, progress=False)
+    brick_labels(tmp_path / "img.zarr", tmp_path / "lab.npy", "seg", progress=False)
+    assert main(["render", str(tmp_path / "img.zarr"), "--hide-labels", "seg:4", "--out", str(tmp_path / "h.png")]
+                + common) == 0
+    hidden = np.asarray(Image.open(tmp_path / "h.png"))
+    shown = np.asarray(Image.open(tmp_path / "t1.png"))  # (a render of the whole cube, for its footprint)
+    cols = np.nonzero(shown[..., 3].max(axis=0))[0]
+    left, right = cols[: len(cols) // 2 - 1], cols[len(cols) // 2 + 1:]
+    # the half with label 4 is gone (transparent), the other half is drawn
+    assert hidden[:, right, 3].max() == 0 and hidden[:, left, 3].max(axis=0).min() > 0
+    assert main(["render", str(tmp_path / "img.zarr"), "--hide-labels", "nope:1", "--out", str(tmp_path / "n.png")]
+                + common) == 2

@@ -12,7 +12,7 @@ import pytest
 import zarr
 from zarr.codecs import BloscCodec, BytesCodec, Crc32cCodec, GzipCodec, ZstdCodec
 
-from clipvol.errors import ClipvolError, InputFormatError, InputNotFoundError, StoreFormatError, StoreIncompleteError
+from clipvol.errors import ClipvolError, InputFormatError, InputNotFoundError, ParameterError, StoreFormatError, StoreIncompleteError
 from clipvol.loaders.numpy_array import NumpyLoader, finite_range
 from clipvol.loaders.procedural import ProceduralLoader
 from clipvol.loaders.zarr_store import ZarrLoader
@@ -376,13 +376,50 @@ def test_absurd_metadata_refused(tmp_path):
         ZarrLoader(path2)
 
 
-def test_ome_extra_axes_refused(tmp_path):
-    root = tmp_path / "c.zarr"
+def _tczyx_store(root, chunks):
+    """A 5-D OME-Zarr (t=3, c=2) written with zarr itself, every (t, c) volume different."""
     g = zarr.open_group(str(root), mode="w")
-    g.create_array("0", shape=(3, 8, 8, 8), chunks=(1, 8, 8, 8), dtype="uint8")
-    g.attrs.update({"ome": {"version": "0.5", "multiscales": [{"datasets": [{"path": "0", "coordinateTransformations": [{"type": "scale", "scale": [1, 1, 1, 1]}]}]}]}})
-    with pytest.raises(InputFormatError, match="channels"):
-        ZarrLoader(root)
+    rng = np.random.default_rng(5)
+    data = rng.integers(0, 60000, size=(3, 2, 12, 16, 10), dtype=np.uint16)
+    g.create_array("0", shape=data.shape, chunks=chunks, dtype="uint16")[...] = data
+    axes = [{"name": "t", "type": "time"}, {"name": "c", "type": "channel"}] + \
+        [{"name": n, "type": "space"} for n in ("z", "y", "x")]
+    g.attrs.update({"ome": {"version": "0.5", "multiscales": [{"axes": axes, "datasets": [
+        {"path": "0", "coordinateTransformations": [{"type": "scale", "scale": [1, 1, 2, 1, 1]}]}]}],
+        "omero": {"channels": [{"window": {"min": 0, "max": 1000}}, {"window": {"min": 10, "max": 50000}}]}}})
+    return data
+
+
+@pytest.mark.parametrize("chunks", [(1, 1, 8, 8, 8), (2, 2, 8, 8, 8)])
+def test_ome_time_and_channel_axes_select_one_volume(tmp_path, chunks):
+    root = tmp_path / "tc.zarr"
+    data = _tczyx_store(root, chunks)
+    for t, c in [(0, 0), (2, 1), (1, 0)]:
+        loader = ZarrLoader(root, t=t, c=c)
+        assert loader.axes == ("t", "c") and loader.lead_shape == (3, 2)
+        assert loader.pyramid.levels[0].shape == (12, 16, 10) and loader.pyramid.spacing == (2.0, 1.0, 1.0)
+        assert loader.pyramid.value_range == ((0.0, 1000.0) if c == 0 else (10.0, 50000.0))  # the channel's window
+        vol = data[t, c]
+        for idx in [(0, 0, 0), (1, 1, 1), (0, 1, 0)]:
+            b = loader.read_brick(0, idx)
+            sl = tuple(slice(8 * i, min(8 * i + 8, n)) for i, n in zip(idx, vol.shape))
+            np.testing.assert_array_equal(b[tuple(slice(0, s.stop - s.start) for s in sl)], vol[sl])
+    assert np.array_equal(ZarrLoader(root).read_brick(0, (0, 0, 0))[:8, :8, :8], data[0, 0, :8, :8, :8])
+
+
+def test_ome_time_and_channel_out_of_range_are_named(tmp_path):
+    root = tmp_path / "tc.zarr"
+    _tczyx_store(root, (1, 1, 8, 8, 8))
+    with pytest.raises(ParameterError, match="t: expected 0..2"):
+        ZarrLoader(root, t=3)
+    with pytest.raises(ParameterError, match="c: expected 0..1"):
+        ZarrLoader(root, c=-1)
+    one = tmp_path / "c.zarr"
+    g = zarr.open_group(str(one), mode="w")
+    g.create_array("0", shape=(8, 8, 8), chunks=(8, 8, 8), dtype="uint8")
+    g.attrs.update({"ome": {"version": "0.5", "multiscales": [{"datasets": [{"path": "0", "coordinateTransformations": [{"type": "scale", "scale": [1, 1, 1]}]}]}]}})
+    with pytest.raises(ParameterError, match="no 't' axis"):
+        ZarrLoader(one, t=1)
 
 
 def test_ome_derived_levels_equal_global_downsample(tmp_path):

@@ -97,7 +97,7 @@ def test_zoom_goes_from_whole_view_to_close_up(pyr):
 
 
 def test_make_path_and_errors(pyr):
-    assert set(PATHS) == {"orbit", "fly", "zoom"}
+    assert set(PATHS) == {"orbit", "turntable", "fly", "zoom"}
     assert len(list(make_path("zoom", pyr, 3, size=(8, 8)))) == 3
     with pytest.raises(ParameterError, match="path"):
         make_path("spiral", pyr, 3)

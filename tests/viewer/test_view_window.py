@@ -154,3 +154,21 @@ def test_no_display_is_a_clear_error(monkeypatch, capsys):
     assert main(["view", "procedural:fractal?size=16", "--max-frames", "1"]) == 2
     err = capsys.readouterr().err
     assert "display" in err and "--offscreen" in err and err.count("\n") == 1
+
+
+def test_window_on_a_dicom_store_is_head_up_and_labelled(xdisplay, tmp_path):
+    """A patient-frame store opens seen from the front, head up, and the HUD names the edges."""
+    pytest.importorskip("pydicom")
+    from format_files import write_dicom_series
+
+    from clipvol.bricking.pipeline import brick_volume
+    from clipvol.viewer.window import Viewer
+
+    vol = np.zeros((16, 16, 16), np.uint16)
+    vol[10:14, 4:12, 10:14] = 1000  # patient's left (high x), superior (high z)
+    write_dicom_series(tmp_path / "ct", vol, spacing=(1.0, 1.0, 1.0))
+    brick_volume(tmp_path / "ct", tmp_path / "ct.zarr", brick=8, progress=False)
+    with Viewer(str(tmp_path / "ct.zarr"), size=(96, 96), tf="grey") as viewer:
+        _converge(viewer)
+        assert viewer._orientation() == {"right": "L", "left": "R", "top": "S", "bottom": "I"}
+        assert any("left R  right L  top S  bottom I" in ln for ln in (viewer._hud_text or []))

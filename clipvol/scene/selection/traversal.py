@@ -190,7 +190,7 @@ class Traversal:
                     counter += 1
 
         push(level, idx, lo, hi)
-        used = cost(len(nodes), tree.texels)
+        drawn_from_parent = 0  # records of children outside the window, drawn from their parent
         while heap:
             _, _, key = heap[0]
             lv, b = key
@@ -199,14 +199,13 @@ class Traversal:
             c = self.expand(lv, one)
             c, clo, chi = self.cull(lv - 1, c) if len(c) else (c, _EMPTY3, _EMPTY3)
             n_out = sum(len(r[1]) for r in self.rec[rec0:])
-            new = cost(len(nodes) - 1 + len(c) + n_out, tree.texels)
-            if new > budget:
+            if cost(len(nodes) - 1 + len(c) + drawn_from_parent + n_out, tree.texels) > budget:
                 del self.rec[rec0:]  # undo the out-of-window records and counts of this refusal
                 self.counts.clear()
                 self.counts.update(counts0)
                 break
             heapq.heappop(heap)
-            used = new
+            drawn_from_parent += n_out
             self.counts["refined"] += 1
             del nodes[key]
             push(lv - 1, c, clo, chi)

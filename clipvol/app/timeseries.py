@@ -1,0 +1,142 @@
+"""Time-varying volumes: play a series of time steps, prefetching the next under the same budget.
+
+OpenGL Volumizer pages time-varying data through the same clip-texture machinery as space
+(Bhaniramka & Demange 2002, section 3.4). A series here is a list of loaders of one brick geometry,
+one per time step (``[open_store(path, t=k) for k in range(n)]`` for an OME-Zarr with a ``t``
+axis). :class:`TimeSeriesPlayer` splits the memory budget between two clip-textures: the one being
+drawn, and the next step's, which its loader threads fill around the same centre of interest
+(coarse levels first, as any clip-texture) while the current step is on screen. Stepping swaps
+them and starts prefetching the step after; with ``prefetch=False`` the whole budget goes to the
+current step and each step loads from scratch (the baseline of ``tools/bench_timeseries.py``).
+The render action is kept across steps (its GPU cache is emptied: the data changed).
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..paging.cliptexture import ClipTexture
+from ..render.action import ClipRenderAction
+from ..scene.params import RenderParams
+from ..units import parse_bytes
+
+__all__ = ["TimeSeriesPlayer"]
+
+
+class TimeSeriesPlayer:
+    """Render time step after time step of ``loaders`` with one render action.
+
+    Parameters
+    ----------
+    loaders : sequence of Loader
+        One per time step, all with the same levels, brick shape and dtype.
+    ctx : moderngl.Context
+    memory_budget : int or str
+        Main memory for bricks, for the current step and the prefetched one together.
+    params : RenderParams, optional
+        Render parameters (texture budget included).
+    prefetch : bool
+        Fill the next step's clip-texture while the current one is drawn.
+    threads : int, optional
+        Loader threads per clip-texture.
+    """
+
+    def __init__(self, loaders: Sequence, ctx, *, memory_budget="256MB", params: RenderParams | None = None,
+                 prefetch: bool = True, threads: int | None = None) -> None:
+        self.loaders = list(loaders)
+        if not self.loaders:
+            raise ParameterError("loaders: expected at least one time step, got none")
+        first = self.loaders[0].pyramid
+        for k, ld in enumerate(self.loaders[1:], start=1):
+            p = ld.pyramid
+            if p.brick_shape != first.brick_shape or [lv.shape for lv in p.levels] != [lv.shape for lv in first.levels] \
+                    or p.dtype != first.dtype:
+                raise ParameterError(f"loaders[{k}]: expected the levels, brick shape and dtype of time step 0, got "
+                                     f"levels {[lv.shape for lv in p.levels]} brick {p.brick_shape} {p.dtype}")
+        self.prefetch = bool(prefetch) and len(self.loaders) > 1
+        budget = parse_bytes(memory_budget, "memory_budget")
+        self._part = budget // 2 if self.prefetch else budget
+        self.memory_budget = budget
+        self._threads = threads
+        self.step = 0
+        self._center = None
+        self.current = ClipTexture(self.loaders[0], self._part, threads)
+        self.next: ClipTexture | None = None
+        try:
+            self.action = ClipRenderAction(ctx, self.current, params)
+        except BaseException:
+            self.current.close()
+            raise
+        self._start_prefetch()
+
+    def __len__(self) -> int:
+        return len(self.loaders)
+
+    def _start_prefetch(self) -> None:
+        if not self.prefetch:
+            return
+        k = (self.step + 1) % len(self.loaders)
+        self.next = ClipTexture(self.loaders[k], self._part, self._threads,
+                                center=self._center if self._center is not None else None)
+
+    def set_center(self, xyz) -> None:
+        """Move the centre of interest of the current and the prefetched step."""
+        self._center = np.asarray(xyz, dtype=np.float64)
+        for ct in (self.current, self.next):
+            if ct is not None:
+                ct.set_center(self._center)
+
+    def go_to(self, step: int) -> None:
+        """Show time step ``step`` from the next frame on (the prefetched one if it is next)."""
+        step = int(step) % len(self.loaders)
+        if step == self.step:
+            return
+        if self.next is not None and step == (self.step + 1) % len(self.loaders):
+            old, self.current, self.next = self.current, self.next, None
+        else:
+            old = self.current
+            if self.next is not None:
+                self.next.close()
+                self.next = None
+            self.current = ClipTexture(self.loaders[step], self._part, self._threads, center=self._center)
+        self.action.use_clip_texture(self.current)
+        old.close()
+        self.step = step
+        self._start_prefetch()
+
+    def advance(self) -> None:
+        """Go to the next time step (wrapping around)."""
+        self.go_to(self.step + 1)
+
+    def render(self, camera, transfer_function, *, wait: bool = False, timeout: float | None = None) -> np.ndarray:
+        """One frame of the current step (see :meth:`ClipRenderAction.render`)."""
+        return self.action.render(camera, transfer_function, wait=wait, timeout=timeout)
+
+    @property
+    def resident_bytes(self) -> int:
+        """Bricks held in main memory by the current and the prefetched step together."""
+        return sum(ct.stats.resident_bytes for ct in (self.current, self.next) if ct is not None)
+
+    @property
+    def prefetch_state(self) -> str:
+        """``"ready"``, ``"loading"`` or ``"off"``: the next step's clip-texture."""
+        if self.next is None:
+            return "off"
+        return "ready" if self.next.stats.queued == 0 and self.next.stats.loading == 0 else "loading"
+
+    def close(self) -> None:
+        try:
+            self.action.close()
+        finally:
+            for ct in (self.current, self.next):
+                if ct is not None:
+                    ct.close()
+
+    def __enter__(self) -> "TimeSeriesPlayer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
