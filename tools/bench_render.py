@@ -16,9 +16,13 @@ noise of a shared machine cancels as far as it can:
   frame's bricks, against bare ``texture.write(viewport=...)`` calls of the same bricks into the
   same slots. Target >= 0.8. One big ``texture.write`` of as many bytes into one texture is
   reported beside it (what llvmpipe's memcpy reaches without sub-image addressing).
-* **bricks vs one texture** - the full-resolution frame drawn as bricks against a one-pass ray
-  caster: the same shader with the whole level 0 as a single brick in a single 3D texture (one
-  draw), same view and step. Target <= 1.5x the time.
+* **bricks vs one texture** - the full-resolution frame drawn as bricks against clipvol's *own*
+  shader with the whole level 0 as a single brick in a single 3D texture (one draw), same view and
+  step. Target <= 1.5x the time.
+* **against a raw caster** - the full-resolution frame and clipvol's own one-texture frame, each
+  divided by :class:`RawCaster`'s time (a plain one-texture caster outside clipvol's render path,
+  same volume, view, step and table). Targets <= 1.1x and <= 1.05x. ``--vs-raw 256,512`` runs
+  only this comparison on procedural volumes, ``--fly-only N`` only the fly-path frame times.
 
 Run ``python -m clipvol.tools.bench_render`` (uses ``bench-data/fractal-640-b64.zarr``, 640^3
 float32 = 1.05 GB, bricking it with ``clipvol brick`` first if it is missing) or ``--quick`` for a
@@ -256,6 +260,42 @@ def _p(values, q: float) -> float:
     return float(np.percentile(np.asarray(values, dtype=np.float64), q))
 
 
+def fly_stability(ctx, loader, tf, image: int, step: float, budget: int, frames: int, texels_per_frame: int,
+                  log=print) -> dict:
+    """Frame times along the ``fly`` path from a cold clip-texture, uploads limited per frame
+    (``texels_per_frame``), multiresolution, jitter on (the viewer's settings): median, 95th
+    percentile, frames above twice the median, wall and process CPU time, and the upload share."""
+    from clipvol.paging.cliptexture import ClipTexture
+    from clipvol.render.action import ClipRenderAction
+    from clipvol.scene.paths import make_path
+
+    clip = ClipTexture(loader, budget, threads=2)
+    fly = ClipRenderAction(ctx, clip, lod_threshold=1.0, texels_per_frame=texels_per_frame, jitter=True, step=step,
+                           texture_budget=budget)
+    ft, cpu, up, upt = [], [], [], []
+    for fcam, _ in make_path("fly", loader.pyramid, frames, size=(image, image)):
+        c = time.process_time()
+        fly.render(fcam, tf, wait=False)
+        cpu.append(time.process_time() - c)
+        st = fly.last_frame_stats
+        ft.append(st.times["total"])
+        up.append(st.bricks_uploaded)
+        upt.append(st.times["upload"])
+    fly.close()
+    clip.close()
+    m, mc = statistics.median(ft), statistics.median(cpu)
+    out = dict(fly_frames=frames, fly_median_s=m, fly_p95_s=_p(ft, 95), fly_max_s=max(ft),
+               fly_hitches_over_2x_median=int(sum(t > 2 * m for t in ft)), fly_cpu_median_s=mc,
+               fly_cpu_p95_s=_p(cpu, 95), fly_cpu_hitches_over_2x_median=int(sum(t > 2 * mc for t in cpu)),
+               fly_upload_max_s=max(upt), fly_bricks_uploaded=int(sum(up)), fly_max_bricks_per_frame=max(up),
+               texels_per_frame=texels_per_frame)
+    log(f"fly path, {frames} frames, texels_per_frame {texels_per_frame}: wall median {m:.3f} s, p95 {_p(ft, 95):.3f} s, "
+        f"{out['fly_hitches_over_2x_median']} frames > 2x median; CPU median {mc:.3f} s, p95 {_p(cpu, 95):.3f} s, "
+        f"{out['fly_cpu_hitches_over_2x_median']} > 2x; uploads {sum(up)} bricks, at most {max(up)} and "
+        f"{max(upt) * 1e3:.0f} ms in a frame")
+    return out
+
+
 def vs_raw(sizes, image: int, repeat: int, step: float, out_dir: Path, fly_frames: int = 48,
            texels_per_frame: int = 8 * 64**3, log=print) -> list[dict]:
     """clipvol's full-resolution frame (single pass and per-brick), its own shader on one texture,
@@ -309,47 +349,37 @@ def vs_raw(sizes, image: int, repeat: int, step: float, out_dir: Path, fly_frame
             imgs[name] = a.render(cam, tf, wait=True, timeout=1800)
         raw.render(cam, tf, step)
         times = {k: [] for k in [*actions, "raw"]}
+        cpu = {k: [] for k in [*actions, "raw"]}  # process CPU seconds (all llvmpipe threads): steadier
         for _ in range(repeat):  # interleaved: the shared machine's load hits every configuration alike
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             imgs["raw"] = premultiplied_to_uint8(raw.render(cam, tf, step).astype(np.float64))
             times["raw"].append(time.perf_counter() - t)
+            cpu["raw"].append(time.process_time() - c)
             for name, a in actions.items():
+                c = time.process_time()
                 imgs[name] = a.render(cam, tf, wait=False)
+                cpu[name].append(time.process_time() - c)
                 times[name].append(a.last_frame_stats.times["total"])
         med = {k: statistics.median(v) for k, v in times.items()}
+        mcpu = {k: statistics.median(v) for k, v in cpu.items()}
         diff = {k: int(np.abs(imgs[k].astype(int) - imgs["raw"].astype(int)).max()) for k in actions}
         row = dict(size=n, image=image, repeat=repeat, raw_s=med["raw"],
                    **{f"{k}_s": med[k] for k in actions},
                    **{f"{k}_over_raw": med[k] / med["raw"] for k in actions},
+                   raw_cpu_s=mcpu["raw"], **{f"{k}_cpu_over_raw": mcpu[k] / mcpu["raw"] for k in actions},
                    multires_over_full=med["multiresolution"] / med["single-pass"],
                    single_over_bricks=med["single-pass"] / med["bricks"],
                    **{f"maxdiff_{k}_vs_raw": diff[k] for k in actions},
                    multires_levels=str(actions["multiresolution"].last_frame_stats.bricks_drawn))
         log(f"{n}^3 at {image}^2 (median of {repeat}): raw {med['raw']:.3f} s; " + ", ".join(
-            f"{k} {med[k]:.3f} s = {med[k] / med['raw']:.2f}x raw (max |diff| {diff[k]})" for k in actions))
+            f"{k} {med[k]:.3f} s = {med[k] / med['raw']:.2f}x raw, CPU {mcpu[k] / mcpu['raw']:.2f}x "
+            f"(max |diff| {diff[k]})" for k in actions))
         for a in actions.values():
             a.close()
         raw.release()
         clip1.close()
         clip.close()
-        # frame-time stability along the fly path: cold clip-texture, uploads limited per frame
-        clip = ClipTexture(loader, budget, threads=2)
-        fly = ClipRenderAction(ctx, clip, lod_threshold=1.0, texels_per_frame=texels_per_frame, jitter=True,
-                               **common)
-        ft, up = [], []
-        for fcam, _ in make_path("fly", pyr, fly_frames, size=(image, image)):
-            fly.render(fcam, tf, wait=False)
-            ft.append(fly.last_frame_stats.times["total"])
-            up.append(fly.last_frame_stats.bricks_uploaded)
-        fly.close()
-        clip.close()
-        m = statistics.median(ft)
-        row.update(fly_frames=fly_frames, fly_median_s=m, fly_p95_s=_p(ft, 95), fly_max_s=max(ft),
-                   fly_hitches_over_2x_median=int(sum(t > 2 * m for t in ft)), fly_bricks_uploaded=int(sum(up)),
-                   texels_per_frame=texels_per_frame)
-        log(f"{n}^3 fly path, {fly_frames} frames, texels_per_frame {texels_per_frame}: median {m:.3f} s, "
-            f"p95 {_p(ft, 95):.3f} s, max {max(ft):.3f} s, {row['fly_hitches_over_2x_median']} frames > 2x median; "
-            f"{sum(up)} bricks uploaded")
+        row.update(fly_stability(ctx, loader, tf, image, step, budget, fly_frames, texels_per_frame, log))
         rows.append(row)
         del vol, loader, one_loader
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -374,8 +404,28 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--vs-raw", default=None, metavar="SIZES",
                     help="only the comparison with the raw one-texture caster, on procedural fractal volumes of "
                          "these edges (e.g. 256,512); writes docs/bench_render_raw.csv")
+    ap.add_argument("--fly-only", type=int, default=None, metavar="N",
+                    help="only the fly-path frame times on procedural:fractal?size=N (virtual: bricks generated "
+                         "on demand, e.g. 4096); writes docs/bench_render_fly.csv")
     ap.add_argument("--fly-frames", type=int, default=48, help="--vs-raw: frames of the fly path (frame-time stability)")
     args = ap.parse_args(argv)
+    if args.fly_only:
+        from clipvol.loaders.procedural import ProceduralLoader
+        from clipvol.render import create_context
+        from clipvol.scene.transfer import TransferFunction
+
+        loader = ProceduralLoader(f"procedural:fractal?size={args.fly_only}", brick=64)
+        budget = 512 << 20
+        ctx = create_context()
+        row = fly_stability(ctx, loader, TransferFunction.preset("bone", value_range=loader.pyramid.value_range),
+                            args.size, args.step, budget, args.fly_frames, 8 * 64**3,
+                            log=lambda *a: print(*a, file=sys.stderr, flush=True))
+        args.out_dir.mkdir(parents=True, exist_ok=True)
+        with open(args.out_dir / "bench_render_fly.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=["size", *row])
+            w.writeheader()
+            w.writerow({"size": args.fly_only, **{k: (f"{v:.4g}" if isinstance(v, float) else v) for k, v in row.items()}})
+        return 0
     if args.vs_raw:
         sizes = [int(v) for v in args.vs_raw.split(",")]
         vs_raw(sizes, args.size, max(args.repeat, 5), args.step, args.out_dir, args.fly_frames,
@@ -451,6 +501,9 @@ def main(argv: list[str] | None = None) -> int:
     one = ClipRenderAction(ctx, clip1, texture_budget=vol_bytes + (16 << 20), selection="fixed", level=0, step=args.step)
     stack.callback(one.close)
     one.render(cam, tf, wait=True, timeout=1800)
+    raw = RawCaster(ctx, whole.read_brick(0, (0, 0, 0)), pyr.value_range)  # the reference outside clipvol
+    stack.callback(raw.release)
+    raw.render(cam, tf, args.step)
 
     t0 = time.perf_counter()
     clip2 = stack.enter_context(ClipTexture(loader, "512MB", center=centre))
@@ -482,7 +535,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{pct_far:.2f} % pixels dE>=6")
 
     # -- warm frames: two rounds of blocks, so that the load of a shared machine hits all alike --
-    times: dict[str, list] = {"full": [], "one": [], "multi": []}
+    times: dict[str, list] = {"full": [], "one": [], "multi": [], "raw": []}
     draws: dict[str, list] = {"full": [], "one": [], "multi": []}
     images = {}
     for _ in range(2):  # two rounds of blocks: a warm-up frame, then args.repeat timed frames each
@@ -492,7 +545,11 @@ def main(argv: list[str] | None = None) -> int:
                 images[name] = action.render(cam, tf, wait=False)
                 times[name].append(action.last_frame_stats.times["total"])
                 draws[name].append(action.last_frame_stats.times["draw"])
-    t_full, t_one, t_multi = (statistics.median(times[k]) for k in ("full", "one", "multi"))
+        for _ in range(args.repeat):
+            t = time.perf_counter()
+            raw.render(cam, tf, args.step)
+            times["raw"].append(time.perf_counter() - t)
+    t_full, t_one, t_multi, t_raw = (statistics.median(times[k]) for k in ("full", "one", "multi", "raw"))
     d_full, d_one, d_multi = (statistics.median(draws[k]) for k in ("full", "one", "multi"))
     img_full, img_one, img_multi = images["full"], images["one"], images["multi"]
     log("multiresolution warm frame stages: " + ", ".join(f"{k} {v:.3f}" for k, v in multi.last_frame_stats.times.items()))
@@ -521,6 +578,10 @@ def main(argv: list[str] | None = None) -> int:
          full_bytes / max(loaded_at_convergence, 1), "reported", ""),
         ("subload_MBps", sub_mbps, "raw_write_MBps", raw_mbps, sub_mbps / raw_mbps, ">= 0.8", sub_mbps / raw_mbps >= 0.8),
         ("subload_MBps", sub_mbps, "one_big_write_MBps", big_mbps, sub_mbps / big_mbps, "reported", ""),
+        ("full_res_frame_s", t_full, "raw_one_texture_caster_frame_s", t_raw, t_full / t_raw, "<= 1.1x",
+         t_full / t_raw <= 1.1),
+        ("own_shader_one_texture_frame_s", t_one, "raw_one_texture_caster_frame_s", t_raw, t_one / t_raw, "<= 1.05x",
+         t_one / t_raw <= 1.05),
         ("bricks_frame_s", t_full, "one_texture_frame_s", t_one, t_full / t_one, "<= 1.5x", t_full / t_one <= 1.5),
         ("bricks_draw_s", d_full, "one_texture_draw_s", d_one, d_full / d_one, "reported", ""),
         ("max_abs_diff_bricks_vs_one_texture", same, "-", "", "", "reported", ""),

@@ -45,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--texels-per-frame", type=int, default=None, help="most texels uploaded per frame")
     g.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
     g.add_argument("--no-jitter", action="store_true", help="sample every pixel's ray from t = 0 (shows lattice rings; for comparisons)")
-    g.add_argument("--render-path", choices=("single-pass", "bricks"), default="single-pass",
+    g.add_argument("--render-path", choices=("single-pass", "bricks"), default="bricks",
                    help="one ray-guided pass through a page table of the cut, or one proxy box per brick")
     g.add_argument("--outlines", action="store_true", help="draw brick outlines coloured by level (key B)")
     g.add_argument("--size", type=_size, default=None, help="window or image size WxH (default 960x640 window, 256x256 offscreen)")

@@ -12,7 +12,7 @@ Per frame (:meth:`ClipRenderAction.render`):
    newly selected bricks into their toroidal slots of the per-level 3D textures.
 3. **Draw**, by one of two paths (``RenderParams.path``; the same image within 1 LSB):
 
-   * ``"single-pass"`` (default; ``shaders/raymarch.frag.glsl``) - the ray-guided path of
+   * ``"single-pass"`` (``shaders/raymarch.frag.glsl``) - the ray-guided path of
      BigVolumeViewer and the ray-guided renderers of the large-volume literature: the selection's
      cut becomes a per-level **page table** (:mod:`clipvol.scene.page_table`: per node EMPTY,
      REFINED or DRAWN-from-level-``Ld``, plus the faces filtering may cross), uploaded as one
@@ -21,7 +21,7 @@ Per frame (:meth:`ClipRenderAction.render`):
      level's toroidal texture on that level's lattice, skips EMPTY nodes in one step, switches
      level at node faces and stops when opaque. No framebuffer copies, no per-box set-up, no
      blending. A cut the table cannot express (more than 16 levels) falls back to the bricks path.
-   * ``"bricks"`` - one proxy box per :class:`~clipvol.scene.selection.DrawItem` into a float32
+   * ``"bricks"`` (default: the faster one on llvmpipe, see ``docs/benchmarks.md``) - one proxy box per :class:`~clipvol.scene.selection.DrawItem` into a float32
      RGBA offscreen target (the method of Bhaniramka & Demange's OpenGL Volumizer, and the reference). The box's *back* faces are
      rasterised (front faces culled; depth clamp on and a far plane never applied), so the
      camera may sit inside a box. Between boxes composite mode uses the selection's exact

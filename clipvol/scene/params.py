@@ -90,10 +90,11 @@ class RenderParams:
     merge_boxes : bool
         Draw complete sibling sets of one level as one box over their parent (same image).
     path : {"single-pass", "bricks"}
-        ``"single-pass"``: one ray-guided pass over the volume box through a per-level page table
-        of the cut (rays stop early per pixel, no framebuffer copies); ``"bricks"``: one proxy box
-        per draw item composited in visibility order (the method of LaMar, Hamann & Joy and of
-        OpenGL Volumizer; the reference). Same image within 1 LSB.
+        ``"bricks"`` (default): one proxy box per draw item composited in visibility order (the
+        method of LaMar, Hamann & Joy and of OpenGL Volumizer; merged boxes), the faster of the two
+        on Mesa llvmpipe (docs/benchmarks.md); ``"single-pass"``: one ray-guided pass over the
+        volume box through a per-level page table of the cut (rays stop early per pixel, no
+        framebuffer copies). Same image within 1 LSB.
     jitter : bool
         Start each pixel's sample lattice at a stable per-pixel hashed offset (a fraction of the
         step), which turns the wood-grain rings of a constant-distance lattice on opaque surfaces
@@ -119,7 +120,7 @@ class RenderParams:
     early_termination: bool = True
     merge_boxes: bool = True
     jitter: bool = False
-    path: str = "single-pass"
+    path: str = "bricks"
     background: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
     shape: Shape | None = None
 

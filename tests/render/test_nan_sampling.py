@@ -49,13 +49,14 @@ def straight_to_uint8(rgba: np.ndarray) -> np.ndarray:
     return ref.to_uint8(np.concatenate([rgba[..., :3] * rgba[..., 3:], rgba[..., 3:]], axis=-1))
 
 
-def test_mip_of_a_nan_masked_map_is_numpy_nanmax(ctx):
+@pytest.mark.parametrize("path", ["bricks", "single-pass"])
+def test_mip_of_a_nan_masked_map_is_numpy_nanmax(ctx, path):
     vol = masked_map()
     nz, ny, nx = vol.shape
     # pixel centres on voxel centres, samples on voxel centres along z (step 1, lattice plane at a centre)
     centre = ((nx - 1) / 2, (ny - 1) / 2, float(nz // 2))
     cam = Camera.orthographic(centre, (0, 0, 1), (0, -1, 0), nx, ny, size=(nx, ny))
-    img, defines = render(ctx, vol, cam, mode="mip", step=1.0)
+    img, defines = render(ctx, vol, cam, mode="mip", step=1.0, path=path)
     assert defines["HAS_NAN"]
     with np.errstate(invalid="ignore"), pytest.warns(RuntimeWarning):
         m = np.nanmax(vol, axis=0)  # all-NaN columns warn and give NaN: nothing drawn there
@@ -115,6 +116,10 @@ def test_variants_fast_path_for_finite_data_and_both_agree(ctx):
     cam = Camera.perspective((55.0, 45.0, -35.0), (15.5, 15.5, 15.5), size=(64, 64), fov_y=40)
     fast, d1 = render(ctx, vol, cam, tf=tf)
     nan, d2 = render(ctx, vol, cam, tf=tf, nonfinite=True)
+    nan_sp, _ = render(ctx, vol, cam, tf=tf, nonfinite=True, path="single-pass")
+    fast_sp, _ = render(ctx, vol, cam, tf=tf, path="single-pass")
+    assert np.abs(nan_sp.astype(int) - fast.astype(int)).max() <= 1
+    assert np.abs(fast_sp.astype(int) - fast.astype(int)).max() <= 1
     assert not d1["HAS_NAN"] and d2["HAS_NAN"]
     assert (fast[..., 3] > 0).mean() > 0.3
     assert np.abs(fast.astype(int) - nan.astype(int)).max() <= 1

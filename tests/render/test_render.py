@@ -195,14 +195,15 @@ def test_mixed_level_cut_where_centre_sorting_fails(scenes):
     assert diff(bad, expect).max() > 40, "the scene must be one where centre sorting is wrong"
     assert diff(good, expect).max() <= 2
     # and the selection's own order for a similar multiresolution view agrees with the reference
-    s2 = scenes(vol, 16, lod_threshold=4.0)
-    img = s2.render(cam, tf)
-    sel = s2.action.last_selection
-    assert len({it.level for it in sel.items}) >= 2
-    expect2 = ref.to_uint8(ref.raycast_levels(levels, [(it.level, it.lo, it.hi) for it in sel.items], fc, tf.table,
-                                              pyr.value_range, 0.5, "composite", 1.0))
-    d = diff(img, expect2)
-    assert np.percentile(d, 99) <= 2 and d.mean() < 0.2  # faces next to bricks not on the GPU clamp
+    for path in ("bricks", "single-pass"):  # both paths, each against the reference of its own cut
+        s2 = scenes(vol, 16, lod_threshold=4.0, path=path)
+        img = s2.render(cam, tf)
+        sel = s2.action.last_selection
+        assert len({it.level for it in sel.items}) >= 2 and s2.action.path_drawn == path
+        expect2 = ref.to_uint8(ref.raycast_levels(levels, [(it.level, it.lo, it.hi) for it in sel.items], fc,
+                                                  tf.table, pyr.value_range, 0.5, "composite", 1.0))
+        d = diff(img, expect2)
+        assert np.percentile(d, 99) <= 2 and d.mean() < 0.2  # faces next to bricks not on the GPU clamp
 
 
 def test_error_falls_as_lod_threshold_falls(scenes):
@@ -384,7 +385,7 @@ def test_front_to_back_with_early_termination_equals_back_to_front_over(scenes):
     b = scenes(vol, 8, selection="fixed", level=0, background=bg, early_termination=False, merge_boxes=False,
                path="bricks")
     c = scenes(vol, 8, selection="fixed", level=0, background=bg, path="bricks")  # merged boxes, front to back
-    d = scenes(vol, 8, selection="fixed", level=0, background=bg)  # the single-pass path
+    d = scenes(vol, 8, selection="fixed", level=0, background=bg, path="single-pass")
     ia, ib, ic, id_ = a.render(cam, opaque), b.render(cam, opaque), c.render(cam, opaque), d.render(cam, opaque)
     assert a.action.occlusion_passes > 0 and b.action.occlusion_passes == 0
     assert a.action.boxes_drawn == 216 and c.action.boxes_drawn < 216

@@ -111,20 +111,34 @@ bool march(sampler3D tex, int L, vec3 origin, vec3 dir, float ta, float tb, vec3
     vec3 isc = u_lv_inv_scale[L];
     vec3 its = u_lv_inv_tex_size[L];
     float row = (float(L) + 0.5) / float(NUM_LEVELS);
+#ifdef HAS_NAN
     for (int i = 0; i < n; ++i) {
         float ts = off + (k.x + float(i)) * delta;
         vec3 u = clamp((base + ts * dir) * isc, clo, chi);
         float texel = sample_texels(tex, slot + u, its);
+#else
+    // texture coordinates step linearly along the ray: one multiply-add per sample
+    vec3 c0 = (slot + (base + (off + k.x * delta) * dir) * isc + 0.5) * its;
+    vec3 dc = dir * (delta * isc * its);
+    vec3 clo_t = (slot + clo + 0.5) * its;
+    vec3 chi_t = (slot + chi + 0.5) * its;
+    for (int i = 0; i < n; ++i) {
+        float texel = texture(tex, clamp(c0 + float(i) * dc, clo_t, chi_t)).r;
+#endif
         if (!SAMPLE_OK(texel)) continue;
 #ifdef MODE_MIP
         vmax = max(vmax, texel);
         hit = true;
 #else
         composite_sample(acc, texel, row);
-        if (acc.a >= u_opaque) return false;
+        if (acc.a >= u_opaque) break;
 #endif
     }
+#ifdef MODE_MIP
     return true;
+#else
+    return acc.a < u_opaque;
+#endif
 }
 
 void main() {
