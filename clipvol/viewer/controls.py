@@ -52,6 +52,7 @@ KEY_HELP = (
     ("[ ]", "fixed level finer / coarser (switches to fixed mode)"),
     ("+ / -", "LOD threshold up (coarser, faster) / down (finer)"),
     ("I", "MIP / composite"),
+    ("L", "gradient lighting on / off (composite)"),
     ("T", "next transfer-function preset"),
     ("B", "brick outlines coloured by level"),
     ("P", "screenshot (PNG)"),
@@ -287,6 +288,7 @@ class ViewState:
     level: int = 0
     lod_threshold: float = 1.0
     render_mode: str = "composite"
+    shading: bool = False
     tf_index: int = 0
     outlines: bool = False
     hud: bool = True
@@ -333,6 +335,9 @@ class ViewState:
         elif k == "I":
             self.render_mode = "mip" if self.render_mode == "composite" else "composite"
             self.message = self.render_mode
+        elif k == "L":
+            self.shading = not self.shading
+            self.message = "lighting " + ("on" if self.shading else "off")
         elif k == "T":
             self.tf_index = (self.tf_index + 1) % len(self.tf_presets)
             self.message = f"transfer function {self.tf_name}"

@@ -205,7 +205,7 @@ class Viewer:
             presets = ("custom",) + presets
         self.state = ViewState(
             num_levels=pyr.num_levels, tf_presets=presets, mode=s.selection, level=s.level or 0,
-            lod_threshold=s.lod_threshold, render_mode=s.mode,
+            lod_threshold=s.lod_threshold, render_mode=s.mode, shading=s.shading,
             tf_index=presets.index(tf) if isinstance(tf, str) and tf in presets else (0 if self._custom_tf is not None else 1),
         )
         self.controls = OrbitControls.for_pyramid(pyr, size=self.framebuffer_size, **_anatomical_rig(self.session.loader))
@@ -333,7 +333,7 @@ class Viewer:
             self._glfw.set_window_should_close(self.window, True)
         self.session.update(
             lod_threshold=st.lod_threshold, policy=st.mode, level=st.level if st.mode == "fixed" else None,
-            mode=st.render_mode, tf=self._custom_tf if st.tf_name == "custom" else st.tf_name,
+            mode=st.render_mode, shading=st.shading, tf=self._custom_tf if st.tf_name == "custom" else st.tf_name,
         )
         self._hud_text = None
         self._dirty = True
@@ -428,7 +428,7 @@ class Viewer:
             settings = {
                 "mode": st.mode + (f" L{st.level}" if st.mode == "fixed" else ""),
                 "lod": f"{st.lod_threshold:g}px",
-                "render": st.render_mode,
+                "render": st.render_mode + (" lit" if st.shading and st.render_mode == "composite" else ""),
                 "tf": st.tf_name,
             }
             lines = hud_lines(fps=self._fps, frame_stats=self.session.frame_stats,
