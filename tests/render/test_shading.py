@@ -49,9 +49,10 @@ def stores(tmp_path_factory):
     return vol, out
 
 
-def _render(ctx, store, cam, tf, **kw):
+def _render(ctx, store, cam, tf, nan_variant=False, **kw):
     clip = ClipTexture(ZarrLoader(store), "64MB", threads=2)
     action = ClipRenderAction(ctx, clip, policy="fixed", level=0, **kw)
+    action.nonfinite = nan_variant or action.nonfinite  # the HAS_NAN + SHADING variant on finite data
     try:
         img = action.render(cam, tf, wait=True, timeout=30)
         assert action.last_frame_stats.converged
@@ -89,6 +90,9 @@ def test_lit_render_equals_the_reference_and_one_brick(ctx, stores, path):
     d_one = np.abs(lit16.astype(int) - lit128.astype(int))
     assert d_ref.max() <= 2, f"{int((d_ref.max(axis=2) > 2).sum())} pixels differ from the reference"
     assert d_one.max() <= 1, f"{int((d_one.max(axis=2) > 1).sum())} pixels differ from one brick (seams)"
+    # the NaN-aware variant lights finite data the same way
+    lit_nan = _render(ctx, paths[16], cam, tf, nan_variant=True, path=path, shading=True, **LIGHT)
+    assert np.abs(lit_nan.astype(int) - r.astype(int)).max() <= 2
 
 
 def test_mip_ignores_shading_and_bad_weights_are_refused(ctx, stores):
