@@ -69,7 +69,6 @@ def test_mismatched_label_pyramid_is_refused(stores, tmp_path):
 
 
 @pytest.mark.gl
-@pytest.mark.xfail(strict=True, reason="finite voxels next to NaN are lost until sampling is NaN-aware")
 def test_mip_with_a_label_hidden_equals_numpys_masked_max(stores, ctx):
     """Orthographic MIP along z at level 0, rays through voxel centres: hiding label 2 gives
     numpy's max over the voxels whose label is not 2 (the bright structure disappears)."""
