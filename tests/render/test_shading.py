@@ -69,12 +69,13 @@ def _camera():
     return Camera.perspective((c[0] + 1.2 * n, c[1] + 0.8 * n, c[2] - 1.0 * n), c, size=(80, 80), fov_y=35)
 
 
-@pytest.mark.parametrize("path", ["bricks", "single-pass"])
-def test_lit_render_equals_the_reference_and_one_brick(ctx, stores, path):
+@pytest.mark.parametrize("path,merge", [("bricks", True), ("bricks", False), ("single-pass", True)],
+                         ids=["bricks-merged", "bricks", "single-pass"])
+def test_lit_render_equals_the_reference_and_one_brick(ctx, stores, path, merge):
     vol, paths = stores
     tf = TransferFunction.preset("bone")
     cam = _camera()
-    lit16 = _render(ctx, paths[16], cam, tf, path=path, shading=True, **LIGHT)
+    lit16 = _render(ctx, paths[16], cam, tf, path=path, merge_boxes=merge, shading=True, **LIGHT)
     lit128 = _render(ctx, paths[128], cam, tf, path=path, shading=True, **LIGHT)
     unlit = _render(ctx, paths[16], cam, tf, path=path)
     fc = cam.fit_depth(*ZarrLoader(paths[16]).pyramid.volume_box())
