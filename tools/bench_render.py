@@ -367,7 +367,7 @@ def vs_raw(sizes, image: int, repeat: int, step: float, out_dir: Path, fly_frame
                    **{f"{k}_s": med[k] for k in actions},
                    **{f"{k}_over_raw": med[k] / med["raw"] for k in actions},
                    raw_cpu_s=mcpu["raw"], **{f"{k}_cpu_over_raw": mcpu[k] / mcpu["raw"] for k in actions},
-                   multires_over_full=med["multiresolution"] / med["single-pass"],
+                   multires_over_full=med["multiresolution"] / med["bricks"],  # both on the default path
                    single_over_bricks=med["single-pass"] / med["bricks"],
                    **{f"maxdiff_{k}_vs_raw": diff[k] for k in actions},
                    multires_levels=str(actions["multiresolution"].last_frame_stats.bricks_drawn))
