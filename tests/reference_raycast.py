@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["trilinear", "tf_lookup", "correct_opacity", "raycast", "raycast_levels", "to_uint8"]
+__all__ = ["trilinear", "gradient_field", "light", "tf_lookup", "correct_opacity", "raycast", "raycast_levels", "to_uint8"]
 
 
 #: per-axis fraction within which a sample counts as on a voxel centre (NaN-aware filtering)
@@ -121,22 +121,47 @@ def _clip_to_shape(o, d, t0, t1, shape):
 
 
 def raycast(vol, spacing, camera, table, value_range, step: float = 0.5, mode: str = "composite", shape=None,
-            origin=(0.0, 0.0, 0.0)):
+            origin=(0.0, 0.0, 0.0), lighting=None):
     """Reference render of a level-0 volume; returns premultiplied float RGBA ``(h, w, 4)``.
 
     ``spacing`` ``(z, y, x)``; ``value_range`` the transfer function's window ``(lo, hi)``;
     ``step`` in level-0 smallest voxels. ``mode`` ``"mip"`` returns the TF of the maximum.
     ``shape``: ``(box_lo, box_hi, planes)`` clipping the rays. ``origin``: world ``(x, y, z)`` of
     ``vol``'s first voxel (a sub-volume of a larger one); the drawn box is then ``vol``'s own cells.
+    ``lighting``: ``(ambient, diffuse, specular, shininess)`` for gradient lighting (see
+    :func:`gradient_field`, :func:`light`), or None.
     """
     sp = np.asarray(spacing, dtype=np.float64)[::-1]
     n = np.array(vol.shape[::-1], dtype=np.float64)
     org = np.asarray(origin, dtype=np.float64)
     return raycast_levels([(vol, sp, org)], [(0, org - 0.5 * sp, org + (n - 0.5) * sp)], camera, table,
-                          value_range, step, mode, float(sp.min()), shape)
+                          value_range, step, mode, float(sp.min()), shape, lighting)
 
 
-def raycast_levels(levels, regions, camera, table, value_range, step, mode="composite", ref_spacing=None, shape=None):
+def gradient_field(vol: np.ndarray, scale) -> np.ndarray:
+    """World gradient ``(z, y, x, 3)`` ``(gx, gy, gz)`` of ``vol`` at its voxels: central differences
+    over the whole array, edges replicated (``np.pad(mode="edge")``), divided by the voxel size
+    ``scale`` ``(x, y, z)``. Trilinear interpolation of this field at ``u`` equals the difference
+    of the clamped-trilinear data at ``u`` +- one voxel, halved (interpolation commutes with
+    integer shifts), which is how the renderer defines a sample's gradient."""
+    v = np.pad(np.asarray(vol, dtype=np.float64), 1, mode="edge")
+    gx = (v[1:-1, 1:-1, 2:] - v[1:-1, 1:-1, :-2]) / (2.0 * scale[0])
+    gy = (v[1:-1, 2:, 1:-1] - v[1:-1, :-2, 1:-1]) / (2.0 * scale[1])
+    gz = (v[2:, 1:-1, 1:-1] - v[:-2, 1:-1, 1:-1]) / (2.0 * scale[2])
+    return np.stack([gx, gy, gz], axis=-1)
+
+
+def light(rgb: np.ndarray, g: np.ndarray, d: np.ndarray, lighting) -> np.ndarray:
+    """Blinn-Phong with the light at the eye (light = view = half vector = -d), two-sided:
+    ``min(rgb * (ka + kd * c) + ks * c ** n, 1)`` with ``c = |g . d| / |g|`` (0 where g = 0)."""
+    ka, kd, ks, n = lighting
+    gl = np.linalg.norm(g, axis=-1)
+    c = np.where(gl > 0, np.abs((g * d).sum(-1)) / np.where(gl > 0, gl, 1.0), 0.0)
+    return np.minimum(rgb * (ka + kd * c)[:, None] + (ks * c**n)[:, None], 1.0)
+
+
+def raycast_levels(levels, regions, camera, table, value_range, step, mode="composite", ref_spacing=None, shape=None,
+                   lighting=None):
     """Reference render of a multi-level cut.
 
     ``levels``: per level ``(array (z, y, x), scale (x, y, z), translation (x, y, z))``;
@@ -148,7 +173,7 @@ def raycast_levels(levels, regions, camera, table, value_range, step, mode="comp
     o, d = _rays(camera)
     npix = len(o)
     lo_v, hi_v = value_range
-    pix_l, t_l, val_l = [], [], []
+    pix_l, t_l, val_l, grad_l, dir_l = [], [], [], [], []
     ratio_of = {}
     for L, lo, hi in regions:
         arr, scale, trans = levels[L]
@@ -171,6 +196,10 @@ def raycast_levels(levels, regions, camera, table, value_range, step, mode="comp
         pix_l.append(pix)
         t_l.append(t)
         val_l.append((trilinear(arr, u), np.full(len(t), L)))
+        if lighting is not None:
+            gf = gradient_field(arr, scale)
+            grad_l.append(np.stack([trilinear(gf[..., a], u) for a in range(3)], axis=-1))
+            dir_l.append(d[pix])
     img = np.zeros((npix, 4))
     if not pix_l:
         return img.reshape(h, w, 4)
@@ -180,6 +209,9 @@ def raycast_levels(levels, regions, camera, table, value_range, step, mode="comp
     lev = np.concatenate([lv for _, lv in val_l])
     ok = np.isfinite(val)
     pix, t, val, lev = pix[ok], t[ok], val[ok], lev[ok]
+    if lighting is not None and mode != "mip":
+        grad = np.concatenate(grad_l)[ok]
+        dirs = np.concatenate(dir_l)[ok]
     if mode == "mip":
         m = np.full(npix, -np.inf)
         np.maximum.at(m, pix, val)
@@ -193,6 +225,8 @@ def raycast_levels(levels, regions, camera, table, value_range, step, mode="comp
     pix, t, val, lev = pix[order], t[order], val[order], lev[order]
     tt = (val - lo_v) / (hi_v - lo_v) if hi_v > lo_v else np.full(len(val), 0.5)
     rgba = tf_lookup(table, tt)
+    if lighting is not None:
+        rgba[:, :3] = light(rgba[:, :3], grad[order], dirs[order], lighting)
     ratio = np.vectorize(ratio_of.get)(lev) if len(lev) else lev
     a = correct_opacity(rgba[:, 3], ratio)
     # transmittance before each sample, per pixel: exclusive cumulative product within the pixel's run

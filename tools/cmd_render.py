@@ -86,6 +86,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
     r.add_argument("--background", type=lambda s: tuple(float(t) for t in s.split(",")), default=(0.0, 0.0, 0.0, 0.0),
                    help="straight RGBA r,g,b,a in [0, 1] behind the volume (default transparent)")
+    r.add_argument("--shading", action="store_true",
+                   help="composite: Blinn-Phong gradient lighting, light at the eye (ignored for mip)")
+    r.add_argument("--light", type=lambda s: tuple(float(t) for t in s.split(",")), default=(0.3, 0.7, 0.3, 20.0),
+                   metavar="KA,KD,KS,N", help="--shading: ambient, diffuse, specular weights and shininess "
+                                              "(default 0.3,0.7,0.3,20)")
     r.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
     r.add_argument("--texture-budget", default="256MB", help="GPU brick cache budget")
     r.add_argument("--texels-per-frame", type=int, default=None, help="most texels uploaded per pass")
@@ -113,6 +118,13 @@ def check_output_file(path, suffix: str, flag: str) -> None:
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.is_dir():
         raise ParameterError(f"{flag}: {str(path)!r}: the folder {str(parent)!r} does not exist")
+
+
+def _light(values) -> dict:
+    """``--light KA,KD,KS,N`` as RenderParams fields."""
+    if len(values) != 4:
+        raise ParameterError(f"--light: expected four numbers ambient,diffuse,specular,shininess, got {values!r}")
+    return dict(zip(("ambient", "diffuse", "specular", "shininess"), values))
 
 
 def hidden_labels(source, loader, spec: str):
@@ -208,6 +220,7 @@ def run(args) -> int:
         max_texels_drawn=args.max_texels_drawn, distance_factor=args.distance_factor, fov_fraction=args.fov_fraction,
         texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget, step=args.step,
         background=args.background, block_budget=args.block_budget, visibility=not args.no_visibility,
+        shading=args.shading, **_light(args.light),
     ).check_for(pyr)
     tf = transfer_function_from_args(args, loader)
     if args.workers is not None:  # sort-last on Dask: groups of bricks in worker processes

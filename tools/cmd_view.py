@@ -52,6 +52,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--no-jitter", action="store_true", help="sample every pixel's ray from t = 0 (shows lattice rings; for comparisons)")
     g.add_argument("--render-path", choices=("single-pass", "bricks"), default="bricks",
                    help="one ray-guided pass through a page table of the cut, or one proxy box per brick")
+    g.add_argument("--shading", action="store_true", help="start with gradient lighting on (key L)")
     g.add_argument("--outlines", action="store_true", help="draw brick outlines coloured by level (key B)")
     g.add_argument("--size", type=_size, default=None, help="window or image size WxH (default 960x640 window, 256x256 offscreen)")
     from clipvol.tools.tf_args import add_tf_arguments
@@ -146,7 +147,7 @@ def run(args) -> int:
     params = RenderParams(
         lod_threshold=args.lod_threshold, policy=args.selection, level=args.level, mode=args.mode,
         step=args.step, texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget,
-        jitter=not args.no_jitter, path=args.render_path,
+        jitter=not args.no_jitter, path=args.render_path, shading=args.shading,
     )
     from clipvol.tools.remote_args import remote_kwargs
 

@@ -224,7 +224,8 @@ class ClipRenderAction:
     # -- shader variants ---------------------------------------------------------------------------
     def defines(self) -> dict:
         """The ``#define``\\ s of this frame's volume shader variant (see :mod:`clipvol.render.glsl`)."""
-        return {"MODE_MIP": self.params.mode == "mip", "HAS_NAN": self.nonfinite}
+        mip = self.params.mode == "mip"
+        return {"MODE_MIP": mip, "HAS_NAN": self.nonfinite, "SHADING": self.params.shading and not mip}
 
     def _brick_program(self):
         """The brick shader variant for the current parameters (compiled once per variant)."""
@@ -457,6 +458,8 @@ class ClipRenderAction:
         _uset(prog, "u_t_scale", float(np.clip(scale, -3e38, 3e38)))
         _uset(prog, "u_t_offset", float(np.clip(offset, -3e38, 3e38)))
         _uset(prog, "u_jitter", 1.0 if self.params.jitter else 0.0)
+        p = self.params
+        _uset(prog, "u_light", (p.ambient, p.diffuse, p.specular, p.shininess))  # SHADING variant only
         if self.params.shape is None:
             box = np.array([[-1e30] * 3, [1e30] * 3])
             planes = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (6, 1))

@@ -22,7 +22,8 @@ The mechanism (how to add a feature)
 
 Defines used by the volume shaders today: ``MODE_MIP`` (maximum intensity projection; absent:
 composite), ``HAS_NAN`` (the data may hold NaN/Inf: NaN-aware trilinear filtering over the finite
-neighbours, non-finite samples skipped; absent: one hardware trilinear fetch, no test).
+neighbours, non-finite samples skipped; absent: one hardware trilinear fetch, no test), ``SHADING``
+(composite only: Blinn-Phong gradient lighting from central differences, ``volume_common.glsl``).
 """
 
 from __future__ import annotations

@@ -116,6 +116,18 @@ class RenderParams:
         neither loaded nor drawn, like empty space.
     shape : Shape, optional
         Region of interest and clip planes.
+    shading : bool
+        Composite only: Blinn-Phong gradient lighting with the light fixed to the camera (the
+        ``SHADING`` shader variant, :mod:`clipvol.render.glsl`); ignored for MIP. A sample's
+        colour becomes ``min(rgb * (ambient + diffuse * d) + specular * d ** shininess, 1)`` with
+        ``d = |g . v| / |g|``, ``g`` the central-difference gradient in world units, ``v`` the view
+        direction (0 where ``g`` is 0); its opacity is unchanged (Blinn, *Models of light
+        reflection for computer synthesized pictures*, 1977; Levoy, *Display of surfaces from volume
+        data*, 1988).
+    ambient, diffuse, specular : float
+        Lighting weights (>= 0).
+    shininess : float
+        Specular exponent (> 0).
     """
 
     mode: str = "composite"
@@ -138,6 +150,11 @@ class RenderParams:
     block_budget: int | None = None
     visibility: bool = True
     visibility_threshold: float = 0.01
+    shading: bool = False
+    ambient: float = 0.3
+    diffuse: float = 0.7
+    specular: float = 0.3
+    shininess: float = 20.0
 
     def __post_init__(self) -> None:
         from .selection.policies import (
@@ -196,6 +213,17 @@ class RenderParams:
         s(self, "visibility_threshold", vt)
         s(self, "merge_boxes", bool(self.merge_boxes))
         s(self, "jitter", bool(self.jitter))
+        s(self, "shading", bool(self.shading))
+        for name in ("ambient", "diffuse", "specular"):
+            v = getattr(self, name)
+            try:
+                f = float(v)
+            except (TypeError, ValueError):
+                f = -1.0
+            if not (math.isfinite(f) and f >= 0):
+                raise ParameterError(f"{name}: expected a finite lighting weight >= 0, got {v!r}")
+            s(self, name, f)
+        s(self, "shininess", _positive(self.shininess, "shininess", "specular exponent"))
 
     # -- helpers ---------------------------------------------------------------------------------
     @classmethod

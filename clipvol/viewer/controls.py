@@ -56,6 +56,7 @@ KEY_HELP = (
     ("< >", "block budget of image-based LOD halved / doubled (switches it on)"),
     ("+ / -", "LOD threshold up (coarser, faster) / down (finer)"),
     ("I", "MIP / composite"),
+    ("N", "gradient lighting on / off (composite)"),
     ("T", "next colour map over the same window"),
     ("Left / Right", "move the transfer-function window down / up (5 % of the data range)"),
     ("Up / Down", "widen / narrow the transfer-function window"),
@@ -323,6 +324,7 @@ class ViewState:
     lod_threshold: float = 1.0
     block_budget: int = 128
     render_mode: str = "composite"
+    shading: bool = False
     tf_index: int = 0
     outlines: bool = False
     hud: bool = True
@@ -377,6 +379,9 @@ class ViewState:
         elif k == "I":
             self.render_mode = "mip" if self.render_mode == "composite" else "composite"
             self.message = self.render_mode
+        elif k == "N":
+            self.shading = not self.shading
+            self.message = "lighting " + ("on" if self.shading else "off")
         elif k == "T":
             self.tf_index = (self.tf_index + 1) % len(self.tf_presets)
             self.message = f"transfer function {self.tf_name}"

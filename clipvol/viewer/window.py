@@ -231,7 +231,7 @@ class Viewer:
         self.tf = self._first_tf
         self.state = ViewState(
             num_levels=pyr.num_levels, tf_presets=presets, mode=s.selection, level=s.level or 0,
-            lod_threshold=s.lod_threshold, render_mode=s.mode, tf_index=0,
+            lod_threshold=s.lod_threshold, render_mode=s.mode, shading=s.shading, tf_index=0,
         )
         self.controls = OrbitControls.for_pyramid(pyr, size=self.framebuffer_size, **_anatomical_rig(self.session.loader))
         if camera is not None:
@@ -516,7 +516,7 @@ class Viewer:
         self.tf = tf
         self.session.update(
             lod_threshold=st.lod_threshold, policy=st.mode, level=st.level if st.mode == "fixed" else None,
-            mode=st.render_mode, tf=tf,
+            mode=st.render_mode, shading=st.shading, tf=tf,
             block_budget=st.block_budget,
         )
         if self.adaptive is not None:
@@ -645,7 +645,7 @@ class Viewer:
                 "mode": st.mode + (f" L{st.level}" if st.mode == "fixed" else ""),
                 "lod": f"{st.lod_threshold:g}px",
                 **self._image_lod_settings(),
-                "render": st.render_mode,
+                "render": st.render_mode + (" lit" if st.shading and st.render_mode == "composite" else ""),
                 "tf": self.tf.name or "custom",
             }
             q = self._quality

@@ -89,3 +89,19 @@ def test_render_a_time_point_and_hide_labels(tmp_path):
     assert hidden[:, right, 3].max() == 0 and hidden[:, left, 3].max(axis=0).min() > 0
     assert main(["render", str(tmp_path / "img.zarr"), "--hide-labels", "nope:1", "--out", str(tmp_path / "n.png")]
                 + common) == 2
+
+
+def test_render_shading_changes_colour_not_opacity(tmp_path, capsys):
+    """--shading lights the colours (Blinn-Phong) and leaves every pixel's opacity as it was;
+    --light with the wrong count of numbers is refused naming it."""
+    base = ["render", "procedural:fractal?size=32", "--brick", "16", "--size", "48x48", "--selection", "fixed",
+            "--tf", "bone"]
+    assert main(base + ["--out", str(tmp_path / "u.png")]) == 0
+    assert main(base + ["--out", str(tmp_path / "l.png"), "--shading", "--light", "0.1,0.9,0.5,10"]) == 0
+    u = np.asarray(Image.open(tmp_path / "u.png")).astype(int)
+    lit = np.asarray(Image.open(tmp_path / "l.png")).astype(int)
+    assert np.abs(u[..., 3] - lit[..., 3]).max() <= 1
+    assert np.abs(u[..., :3] - lit[..., :3])[u[..., 3] > 50].mean() > 5
+    capsys.readouterr()
+    assert main(base + ["--out", str(tmp_path / "x.png"), "--shading", "--light", "1,2"]) == 2
+    assert "--light" in capsys.readouterr().err

@@ -136,6 +136,14 @@ def test_window_controls_change_the_view(xdisplay, loader):
         assert v.session.params.policy == "fixed" and v.session.params.level == 1
         v.step()
         assert set(v.session.frame_stats.bricks_drawn) <= {1, 2}
+        unlit = v.read_screen()
+        v.key("N")  # gradient lighting: the lit shader variant draws, opacity unchanged
+        v.step()
+        assert v.session.action.params.shading and v.session.action.defines()["SHADING"]
+        lit = v.read_screen()
+        assert np.abs(lit.astype(int) - unlit)[..., :3].max() > 10
+        v.key("N")
+        assert not v.session.params.shading
         v.key("I")
         v.step()
         assert v.session.action.params.mode == "mip"

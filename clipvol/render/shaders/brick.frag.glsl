@@ -48,7 +48,12 @@ void main() {
 #else
     vec4 acc = vec4(0.0);
 #endif
-#ifdef HAS_NAN
+#ifdef SHADING
+    vec3 glo;
+    vec3 ghi;
+    gradient_bounds(u_clamp_lo, u_clamp_hi, glo, ghi);
+#endif
+#if defined(HAS_NAN) || defined(SHADING)
     for (int i = 0; i < n; ++i) {
         float ts = off + (k.x + float(i)) * u_delta;
         vec3 u = clamp((base + ts * dir) * u_inv_scale, u_clamp_lo, u_clamp_hi);
@@ -67,7 +72,12 @@ void main() {
         vmax = max(vmax, texel);       // the largest texel; mapped to a value on the CPU
         hit = true;
 #else
+#ifdef SHADING
+        composite_lit(acc, texel, u_tf_row,
+                      gradient_at(u_volume, u_slot_origin, u, glo, ghi, u_inv_tex_size, u_inv_scale, texel), dir);
+#else
         composite_sample(acc, texel, u_tf_row);
+#endif
         if (acc.a >= u_opaque) break;
 #endif
     }

@@ -7,7 +7,7 @@
 // ancestor). Within a node's box the samples lie on the constant-distance lattice
 // t = off + k * delta_Ld of the data level, exactly as the per-brick path samples that box, so the
 // two paths draw the same image; the ray stops early per pixel with no framebuffer copies.
-// Variants: MODE_MIP, HAS_NAN (volume_common.glsl); NUM_LEVELS: levels of the pyramid (<= 16).
+// Variants: MODE_MIP, HAS_NAN, SHADING (volume_common.glsl); NUM_LEVELS: levels of the pyramid (<= 16).
 #include "volume_common.glsl"
 
 #define PT_EMPTY 0u
@@ -111,7 +111,12 @@ bool march(sampler3D tex, int L, vec3 origin, vec3 dir, float ta, float tb, vec3
     vec3 isc = u_lv_inv_scale[L];
     vec3 its = u_lv_inv_tex_size[L];
     float row = (float(L) + 0.5) / float(NUM_LEVELS);
-#ifdef HAS_NAN
+#ifdef SHADING
+    vec3 glo;
+    vec3 ghi;
+    gradient_bounds(clo, chi, glo, ghi);
+#endif
+#if defined(HAS_NAN) || defined(SHADING)
     for (int i = 0; i < n; ++i) {
         float ts = off + (k.x + float(i)) * delta;
         vec3 u = clamp((base + ts * dir) * isc, clo, chi);
@@ -130,7 +135,11 @@ bool march(sampler3D tex, int L, vec3 origin, vec3 dir, float ta, float tb, vec3
         vmax = max(vmax, texel);
         hit = true;
 #else
+#ifdef SHADING
+        composite_lit(acc, texel, row, gradient_at(tex, slot, u, glo, ghi, its, isc, texel), dir);
+#else
         composite_sample(acc, texel, row);
+#endif
         if (acc.a >= u_opaque) break;
 #endif
     }

@@ -2,6 +2,7 @@
 // sampling and the transfer function. Compiled as variants (see clipvol/render/glsl.py):
 //   MODE_MIP  maximum intensity projection (absent: composite, front to back)
 //   HAS_NAN   the data may hold NaN/Inf: trilinear over the finite neighbours only
+//   SHADING   composite only: Blinn-Phong lighting from central-difference gradients, light at the eye
 uniform vec2 u_viewport;
 uniform bool u_ortho;
 uniform vec3 u_forward;         // camera basis (unit) and half extents of the view
@@ -132,3 +133,46 @@ void composite_sample(inout vec4 acc, float texel, float row) {
     acc.rgb += w * c.rgb;
     acc.a += w;
 }
+
+#ifdef SHADING
+// Gradient lighting (Blinn-Phong, light fixed to the camera: light, view and half vector all equal
+// -dir, two-sided so the sign of the gradient does not matter). The gradient is a central
+// difference of the interpolated data one voxel either side along each brick-local axis, read from
+// the same toroidal level texture (neighbour bricks of an open face are on the GPU: gpu_cache.py),
+// divided by the voxel size of the level (anisotropic spacing). The difference positions are
+// clamped like the samples, widened by one voxel on open faces: on a closed face (the volume's
+// edge, a missing neighbour, a level change) the data is clamped to the brick's own voxel centres,
+// so the gradient there is one-sided - the documented seam at level changes.
+uniform vec4 u_light;           // ambient, diffuse, specular, shininess
+
+// clamp bounds of the gradient positions: one voxel further on open faces (x.5 bounds)
+void gradient_bounds(vec3 clo, vec3 chi, out vec3 glo, out vec3 ghi) {
+    glo = clo - vec3(notEqual(fract(clo), vec3(0.0)));
+    ghi = chi + vec3(notEqual(fract(chi), vec3(0.0)));
+}
+
+// gradient of the texel value per world unit at brick-local texel position u (already clamped)
+vec3 gradient_at(sampler3D tex, vec3 slot, vec3 u, vec3 glo, vec3 ghi, vec3 its, vec3 inv_scale, float centre) {
+    vec3 g;
+    for (int a = 0; a < 3; ++a) {
+        vec3 e = vec3(0.0);
+        e[a] = 1.0;
+        float hi = sample_texels(tex, slot + clamp(u + e, glo, ghi), its);
+        float lo = sample_texels(tex, slot + clamp(u - e, glo, ghi), its);
+        if (!SAMPLE_OK(hi)) hi = centre;    // non-finite neighbours: one-sided difference
+        if (!SAMPLE_OK(lo)) lo = centre;
+        g[a] = 0.5 * (hi - lo) * inv_scale[a];
+    }
+    return g;
+}
+
+void composite_lit(inout vec4 acc, float texel, float row, vec3 g, vec3 dir) {
+    vec4 c = texture(u_tf, vec2(texel * u_t_scale + u_t_offset, row));
+    float gl = length(g);
+    float d = gl > 0.0 ? abs(dot(g, dir)) / gl : 0.0;
+    vec3 rgb = min(c.rgb * (u_light.x + u_light.y * d) + u_light.z * pow(d, u_light.w), vec3(1.0));
+    float w = (1.0 - acc.a) * c.a;
+    acc.rgb += w * rgb;
+    acc.a += w;
+}
+#endif
