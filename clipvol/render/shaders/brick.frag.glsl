@@ -48,39 +48,8 @@ void main() {
 #else
     vec4 acc = vec4(0.0);
 #endif
-#ifdef SHADING
-    vec3 glo;
-    vec3 ghi;
-    gradient_bounds(u_clamp_lo, u_clamp_hi, glo, ghi);
-#endif
-#if defined(HAS_NAN) || defined(SHADING)
-    for (int i = 0; i < n; ++i) {
-        float ts = off + (k.x + float(i)) * u_delta;
-        vec3 u = clamp((base + ts * dir) * u_inv_scale, u_clamp_lo, u_clamp_hi);
-        float texel = sample_texels(u_volume, u_slot_origin + u, u_inv_tex_size);
-#else
-    // texture coordinates step linearly along the ray: one multiply-add per sample
-    vec3 c0 = (u_slot_origin + (base + (off + k.x * u_delta) * dir) * u_inv_scale + 0.5) * u_inv_tex_size;
-    vec3 dc = dir * (u_delta * u_inv_scale * u_inv_tex_size);
-    vec3 clo_t = (u_slot_origin + u_clamp_lo + 0.5) * u_inv_tex_size;
-    vec3 chi_t = (u_slot_origin + u_clamp_hi + 0.5) * u_inv_tex_size;
-    for (int i = 0; i < n; ++i) {
-        float texel = texture(u_volume, clamp(c0 + float(i) * dc, clo_t, chi_t)).r;
-#endif
-        if (!SAMPLE_OK(texel)) continue;   // non-finite data is transparent
-#ifdef MODE_MIP
-        vmax = max(vmax, texel);       // the largest texel; mapped to a value on the CPU
-        hit = true;
-#else
-#ifdef SHADING
-        composite_lit(acc, texel, u_tf_row,
-                      gradient_at(u_volume, u_slot_origin, u, glo, ghi, u_inv_tex_size, u_inv_scale, texel), dir);
-#else
-        composite_sample(acc, texel, u_tf_row);
-#endif
-        if (acc.a >= u_opaque) break;
-#endif
-    }
+    march_segment(u_volume, base, dir, off, k.x, n, u_delta, u_inv_scale, u_inv_tex_size, u_slot_origin,
+                  u_clamp_lo, u_clamp_hi, u_tf_row, STATE_ARGS);
 #ifdef MODE_MIP
     if (!hit) discard;
     f_color = vec4(vmax, 0.0, 0.0, 1.0);

@@ -91,14 +91,6 @@ uint pt_fetch(int L, ivec3 cell) {
     return texelFetch(u_page_table, ivec2(i % u_pt_width, i / u_pt_width), 0).r;
 }
 
-#ifdef MODE_MIP
-#define STATE inout float vmax, inout bool hit
-#define STATE_ARGS vmax, hit
-#else
-#define STATE inout vec4 acc
-#define STATE_ARGS acc
-#endif
-
 // Sample [ta, tb) of the ray from level L's texture (data brick origin vox0, slot texel base,
 // brick-local clamp [clo, chi]); false: the ray is opaque.
 bool march(sampler3D tex, int L, vec3 origin, vec3 dir, float ta, float tb, vec3 vox0, vec3 slot,
@@ -111,38 +103,7 @@ bool march(sampler3D tex, int L, vec3 origin, vec3 dir, float ta, float tb, vec3
     vec3 isc = u_lv_inv_scale[L];
     vec3 its = u_lv_inv_tex_size[L];
     float row = (float(L) + 0.5) / float(NUM_LEVELS);
-#ifdef SHADING
-    vec3 glo;
-    vec3 ghi;
-    gradient_bounds(clo, chi, glo, ghi);
-#endif
-#if defined(HAS_NAN) || defined(SHADING)
-    for (int i = 0; i < n; ++i) {
-        float ts = off + (k.x + float(i)) * delta;
-        vec3 u = clamp((base + ts * dir) * isc, clo, chi);
-        float texel = sample_texels(tex, slot + u, its);
-#else
-    // texture coordinates step linearly along the ray: one multiply-add per sample
-    vec3 c0 = (slot + (base + (off + k.x * delta) * dir) * isc + 0.5) * its;
-    vec3 dc = dir * (delta * isc * its);
-    vec3 clo_t = (slot + clo + 0.5) * its;
-    vec3 chi_t = (slot + chi + 0.5) * its;
-    for (int i = 0; i < n; ++i) {
-        float texel = texture(tex, clamp(c0 + float(i) * dc, clo_t, chi_t)).r;
-#endif
-        if (!SAMPLE_OK(texel)) continue;
-#ifdef MODE_MIP
-        vmax = max(vmax, texel);
-        hit = true;
-#else
-#ifdef SHADING
-        composite_lit(acc, texel, row, gradient_at(tex, slot, u, glo, ghi, its, isc, texel), dir);
-#else
-        composite_sample(acc, texel, row);
-#endif
-        if (acc.a >= u_opaque) break;
-#endif
-    }
+    march_segment(tex, base, dir, off, k.x, n, delta, isc, its, slot, clo, chi, row, STATE_ARGS);
 #ifdef MODE_MIP
     return true;
 #else

@@ -176,3 +176,52 @@ void composite_lit(inout vec4 acc, float texel, float row, vec3 g, vec3 dir) {
     acc.a += w;
 }
 #endif
+
+#ifdef MODE_MIP
+#define STATE inout float vmax, inout bool hit
+#define STATE_ARGS vmax, hit
+#else
+#define STATE inout vec4 acc
+#define STATE_ARGS acc
+#endif
+
+// Samples k0 .. k0 + n - 1 of the lattice t = off + k * delta along base + t * dir (base: the ray
+// origin relative to the centre of the brick's first voxel) in one level's texture: brick-local
+// voxel coordinates u = (base + t * dir) * isc clamped to [clo, chi], texel slot + u, colour table
+// row `row`. Both volume paths march through this one loop, so they sample, light and composite
+// identically. Composite stops once the accumulated opacity reaches u_opaque.
+void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int n, float delta, vec3 isc,
+                   vec3 its, vec3 slot, vec3 clo, vec3 chi, float row, STATE) {
+#ifdef SHADING
+    vec3 glo;
+    vec3 ghi;
+    gradient_bounds(clo, chi, glo, ghi);
+#endif
+#if defined(HAS_NAN) || defined(SHADING)
+    for (int i = 0; i < n; ++i) {
+        float ts = off + (k0 + float(i)) * delta;
+        vec3 u = clamp((base + ts * dir) * isc, clo, chi);
+        float texel = sample_texels(tex, slot + u, its);
+#else
+    // texture coordinates step linearly along the ray: one multiply-add per sample
+    vec3 c0 = (slot + (base + (off + k0 * delta) * dir) * isc + 0.5) * its;
+    vec3 dc = dir * (delta * isc * its);
+    vec3 clo_t = (slot + clo + 0.5) * its;
+    vec3 chi_t = (slot + chi + 0.5) * its;
+    for (int i = 0; i < n; ++i) {
+        float texel = texture(tex, clamp(c0 + float(i) * dc, clo_t, chi_t)).r;
+#endif
+        if (!SAMPLE_OK(texel)) continue;   // non-finite data is transparent
+#ifdef MODE_MIP
+        vmax = max(vmax, texel);       // the largest texel; mapped to a value on the CPU
+        hit = true;
+#else
+#ifdef SHADING
+        composite_lit(acc, texel, row, gradient_at(tex, slot, u, glo, ghi, its, isc, texel), dir);
+#else
+        composite_sample(acc, texel, row);
+#endif
+        if (acc.a >= u_opaque) break;
+#endif
+    }
+}
