@@ -91,6 +91,7 @@ from ..scene.selection.policies import POLICIES
 from .frame_loop import FrameLoop
 from .glsl import ProgramCache
 from .gpu_cache import GpuBrickCache
+from .image_lod import ImageLod
 
 __all__ = ["ClipRenderAction", "FrameStats", "MODES", "SELECTIONS"]
 
@@ -219,6 +220,7 @@ class ClipRenderAction:
         self.boxes_drawn = 0  # proxy boxes of the last frame, after merge_items
         self.last_selection = None
         self.last_raw: np.ndarray | None = None  # (h, w, 4) float32 target of the last frame, rows top first
+        self.image_lod: ImageLod | None = None  # the image policy's tables and visibility, made on first use
         self._moderngl = moderngl
 
     # -- shader variants ---------------------------------------------------------------------------
@@ -361,10 +363,9 @@ class ClipRenderAction:
         """
         t_start = time.perf_counter()
         cam = self._selection_camera(camera)
-        if policy is None and self.params.policy == "image":  # image-based LOD (issue 10): tables + visibility
-            from .image_lod import ImageLod
-
-            self.image_lod = getattr(self, "image_lod", None) or ImageLod(self.ctx, self.clip_texture)
+        if policy is None and self.params.policy == "image":  # image-based LOD: tables + visibility, kept per action
+            if self.image_lod is None:
+                self.image_lod = ImageLod(lambda p: type(self)(self.ctx, self.clip_texture, p), self.clip_texture)
             policy = self.image_lod.policy(cam, transfer_function, self.params)
         self.last_policy = policy
         plan = self.frame_loop.run(cam, self.params, transparent=self._transparent(transfer_function),
@@ -778,8 +779,9 @@ class ClipRenderAction:
     def close(self) -> None:
         """Release every GL object of the action (the context stays)."""
         self.cache.release()
-        if getattr(self, "image_lod", None) is not None:
+        if getattr(self, "image_lod", None) is not None:  # (close() may follow a failed __init__)
             self.image_lod.close()
+            self.image_lod = None
         for obj in (*self._vaos.values(), self._vbo, self._tf_tex, self._pt_tex, self._fbo, getattr(self, "_fbo_color", None),
                     self._fbo_copy):
             if obj is not None:

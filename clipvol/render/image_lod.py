@@ -1,7 +1,8 @@
 """What the ``"image"`` policy needs per frame, kept between frames: errors per transfer function,
 the visibility estimate per view.
 
-:class:`ImageLod` belongs to one :class:`~clipvol.render.action.ClipRenderAction`. It reads the
+:class:`ImageLod` belongs to one :class:`~clipvol.render.action.ClipRenderAction`, which hands it a
+factory for the coarse visibility pass's own action. It reads the
 store's summary tables once (:func:`clipvol.bricking.summary.open_summary`; a store without them is a
 :class:`~clipvol.bricking.summary.SummaryMissingError` naming ``clipvol summarize``), recomputes the
 multiresolution errors only when the transfer function changes
@@ -17,6 +18,7 @@ import numpy as np
 from ..bricking.summary import SummaryMissingError, open_summary
 from ..scene.lod_error import lod_errors
 from ..scene.selection.policies.image_based import ImageBased
+from .visibility import VisibilityEstimator
 
 __all__ = ["ImageLod", "REUSE_ANGLE_DEG"]
 
@@ -31,7 +33,7 @@ def _tf_key(tf):
 class ImageLod:
     """Summary tables, errors and visibility estimate of one render action (see the module docstring)."""
 
-    def __init__(self, ctx, clip_texture) -> None:
+    def __init__(self, make_action, clip_texture) -> None:
         loader = clip_texture.loader
         path = getattr(loader, "path", None)
         if path is None or not getattr(loader, "is_clipvol_store", True):
@@ -39,7 +41,7 @@ class ImageLod:
                                       "needs a clipvol store (`clipvol brick` writes them, `clipvol summarize STORE` "
                                       "adds them to an existing store)")
         self.tables = open_summary(path)
-        self.ctx, self.clip_texture = ctx, clip_texture
+        self.make_action, self.clip_texture = make_action, clip_texture
         self.errors = None
         self._errors_key = None
         self.estimator = None
@@ -56,13 +58,11 @@ class ImageLod:
         return self.errors
 
     def visibility_for(self, camera, tf, params):
-        from .visibility import VisibilityEstimator
-
         key = (_tf_key(tf), params.shape)
         if self.layers is not None and self.layers.reusable(camera, key, REUSE_ANGLE_DEG, 0.02, self._diag):
             return self.layers
         if self.estimator is None:
-            self.estimator = VisibilityEstimator(self.ctx, self.clip_texture)
+            self.estimator = VisibilityEstimator(self.make_action, self.clip_texture)
         self.layers = self.estimator.estimate(camera, tf, params.shape, key)
         self.estimates += 1
         return self.layers

@@ -39,7 +39,10 @@ class VisibilityEstimator:
 
     Parameters
     ----------
-    ctx : moderngl.Context
+    make_action : callable
+        ``make_action(params) -> ClipRenderAction`` over the same clip-texture: the renderer of the
+        coarse pass (handed in by the action that owns the estimate, so this module does not
+        import the action module that uses it).
     clip_texture : ClipTexture
     size : int
         Pixels of the estimate's image on its long side.
@@ -49,9 +52,7 @@ class VisibilityEstimator:
         The level drawn (default: the finest with at most :data:`MAX_VISIBILITY_BRICKS` bricks).
     """
 
-    def __init__(self, ctx, clip_texture, *, size: int = 64, layers: int = 8, level: int | None = None) -> None:
-        from .action import ClipRenderAction
-
+    def __init__(self, make_action, clip_texture, *, size: int = 64, layers: int = 8, level: int | None = None) -> None:
         pyr = clip_texture.pyramid
         if level is None:
             texels = int(np.prod(pyr.brick_shape))
@@ -62,7 +63,7 @@ class VisibilityEstimator:
         budget = max(8 << 20, 2 * pyr.num_bricks(self.level) * int(np.prod(pyr.brick_shape)) * 4)
         self.base = RenderParams(policy="fixed", level=self.level, step=1.0, texture_budget=budget)
         self.pyramid = pyr
-        self.action = ClipRenderAction(ctx, clip_texture, self.base)
+        self.action = make_action(self.base)
         self.renders = 0
 
     def _small(self, camera):
