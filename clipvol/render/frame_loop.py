@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..paging.cliptexture import ClipTexture
+from ..paging.cliptexture import BrickState, ClipTexture
 from ..scene.params import RenderParams
 from ..scene.selection import Selection, select
 
@@ -75,10 +75,26 @@ class FrameLoop:
         cache.reserve_neighbours(sel.items)
         return sel
 
+    def _stand_in(self, level: int, idx) -> tuple[int, tuple[int, int, int]] | None:
+        """The nearest ancestor of a failed brick that has not failed too: it is drawn in its place."""
+        b = np.asarray(idx, dtype=np.int64)
+        for L in range(level + 1, self.pyramid.num_levels):
+            b = b // 2
+            key = (L, (int(b[0]), int(b[1]), int(b[2])))
+            if self.clip_texture.state(*key) != BrickState.FAILED:
+                return key
+        return None
+
     def _waitable(self, sel: Selection, neighbours) -> list:
-        """Wanted bricks and neighbours not drawn that the clip-texture may still deliver."""
+        """Wanted bricks and neighbours not drawn that the clip-texture may still deliver - and for a
+        wanted brick that failed, the ancestor that stands in for it (else the frame would be drawn
+        from whatever coarser level happened to be resident: a different picture on every run)."""
         missing = sel.missing_wanted()
+        ct = self.clip_texture
+        stand_ins = [self._stand_in(L, idx) for L, idx in missing if ct.state(L, idx) == BrickState.FAILED]
         seen = set(missing)
+        missing += [k for k in stand_ins if k is not None and k not in seen]
+        seen |= set(missing)
         missing += [k for k in neighbours if k not in seen]
         ct, cache = self.clip_texture, self.cache
         out = []

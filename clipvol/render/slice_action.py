@@ -42,6 +42,7 @@ from ..scene.selection.policies.plane import PlaneCut
 from .frame_loop import FrameLoop
 from .glsl import load_shader
 from .gpu_cache import GpuBrickCache
+from .target import FloatTarget
 
 __all__ = ["SliceAction", "SliceStats", "window_level_grey"]
 
@@ -147,9 +148,7 @@ class SliceAction:
         self.program = ctx.program(vertex_shader=load_shader("slice.vert"), fragment_shader=load_shader("slice.frag"))
         self.program["u_volume"].value = 0
         self.program["u_volume_low"].value = 1
-        self._fbo = self._color = None
-        self._fbo_size = None
-        self._default_fbo = None
+        self._target = FloatTarget(ctx)
         self.last_stats: SliceStats | None = None
         self.last_selection = None
         self.last_values: np.ndarray | None = None
@@ -357,16 +356,6 @@ class SliceAction:
                 (ok_keys.add if m else missing.append)((L, k))
         return {i: k for i, k in want.items() if k in ok_keys}, missing
 
-    def _ensure_fbo(self, size):
-        if self._fbo_size != size:
-            if self._fbo is not None:
-                self._fbo.release()
-                self._color.release()
-            self._color = self.ctx.texture(size, 4, dtype="f4")
-            self._fbo = self.ctx.framebuffer(color_attachments=[self._color])
-            self._fbo_size = size
-        return self._fbo
-
     def _brick_uniforms(self, suffix: str, level: int, index, plane_origin: np.ndarray, clamp) -> None:
         pyr, prog = self.pyramid, self.program
         lv = pyr.levels[level]
@@ -438,7 +427,7 @@ class SliceAction:
                 tris = np.concatenate(chunks)
         clamps = self._clamps([(int(it.level), it.index) for it in items]
                               + [low[i] for i in sorted(low)])
-        fbo = self._ensure_fbo((int(w), int(h)))
+        fbo = self._target.ensure((int(w), int(h)))
         previous = ctx.fbo
         fbo.use()
         ctx.viewport = (0, 0, int(w), int(h))
@@ -494,11 +483,7 @@ class SliceAction:
         if vao is not None:
             vao.release()
             vbo.release()
-        if previous is None:
-            if self._default_fbo is None:
-                self._default_fbo = ctx.detect_framebuffer(0)
-            previous = self._default_fbo
-        previous.use()
+        self._target.restore(previous)
         err = ctx.error
         if err != "GL_NO_ERROR":
             raise RuntimeError(f"OpenGL error after drawing the slice: expected GL_NO_ERROR, got {err}")
@@ -524,10 +509,10 @@ class SliceAction:
         """Release the action's GL objects (and its cache, unless it was shared)."""
         if self._own_cache and self.cache is not None:
             self.cache.release()
-        for obj in (self.program, self._fbo, self._color):
-            if obj is not None:
-                obj.release()
-        self.program = self._fbo = self._color = self._default_fbo = None
+        if self.program is not None:
+            self.program.release()
+        self._target.release()
+        self.program = None
 
     def __enter__(self) -> "SliceAction":
         return self

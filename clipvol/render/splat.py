@@ -35,6 +35,7 @@ from ..errors import ParameterError
 from ..scene.splat_select import SplatSelection, select_splat_nodes
 from .action import premultiplied_to_uint8
 from .glsl import load_shader
+from .target import FloatTarget
 
 __all__ = ["SplatRenderAction", "SplatFrameStats"]
 
@@ -110,13 +111,11 @@ class SplatRenderAction:
         self.prog = ctx.program(vertex_shader=load_shader("splat.vert"), fragment_shader=load_shader("splat.frag"))
         rng = ctx.info.get("GL_POINT_SIZE_RANGE") or ctx.info.get("GL_ALIASED_POINT_SIZE_RANGE") or (1.0, 64.0)
         self._max_size = float(rng[1])
-        self._fbo = self._color = None
-        self._fbo_size = None
+        self._target = FloatTarget(ctx)
         self._tf_tex = None
         self._tf_key = None
         self._vbo = None
         self._vao = None
-        self._default_fbo = None
         self.last_frame_stats = SplatFrameStats()
         self.last_selection: SplatSelection | None = None
 
@@ -197,13 +196,7 @@ class SplatRenderAction:
 
     def _ensure(self, size, tf):
         mgl = self._mgl
-        if self._fbo_size != size:
-            if self._fbo is not None:
-                self._fbo.release()
-                self._color.release()
-            self._color = self.ctx.texture(size, 4, dtype="f4")
-            self._fbo = self.ctx.framebuffer(color_attachments=[self._color])
-            self._fbo_size = size
+        self._target.ensure(size)
         table = np.ascontiguousarray(np.asarray(tf.table, dtype=np.float32))
         key = table.tobytes()
         if self._tf_key != key:
@@ -235,7 +228,7 @@ class SplatRenderAction:
         data[:, 3] = val
         data[:, 4] = h
         previous = ctx.fbo
-        self._fbo.use()
+        self._target.fbo.use()
         ctx.viewport = (0, 0, w, hgt)
         ctx.clear(0.0, 0.0, 0.0, 0.0)
         ctx.disable(mgl.DEPTH_TEST | mgl.CULL_FACE)
@@ -267,15 +260,11 @@ class SplatRenderAction:
             self._vbo.write(data.tobytes())
             self._vao.render(mgl.POINTS, vertices=len(data))
         ctx.finish()
-        raw = np.frombuffer(self._fbo.read(components=4, dtype="f4"), np.float32).reshape(hgt, w, 4)[::-1]
+        raw = np.frombuffer(self._target.fbo.read(components=4, dtype="f4"), np.float32).reshape(hgt, w, 4)[::-1]
         ctx.blend_equation = mgl.FUNC_ADD
         ctx.disable(mgl.BLEND)
         ctx.disable_direct(_GL_PROGRAM_POINT_SIZE)
-        if previous is None:  # give the binding back (a released framebuffer left bound breaks later ones)
-            if self._default_fbo is None:
-                self._default_fbo = ctx.detect_framebuffer(0)
-            previous = self._default_fbo
-        previous.use()
+        self._target.restore(previous)  # a released framebuffer left bound breaks later ones
         err = ctx.error
         if err != "GL_NO_ERROR":
             raise RuntimeError(f"OpenGL error after drawing splats: expected GL_NO_ERROR, got {err}")
@@ -294,12 +283,12 @@ class SplatRenderAction:
 
     def close(self) -> None:
         """Release the GL objects (the clip-texture is the caller's)."""
-        for o in (self._vao, self._vbo, self._fbo, self._color, self._tf_tex, self.prog):
+        for o in (self._vao, self._vbo, self._tf_tex, self.prog):
             if o is not None:
                 o.release()
-        self._vao = self._vbo = self._fbo = self._color = self._tf_tex = None
+        self._target.release()
+        self._vao = self._vbo = self._tf_tex = None
         self.prog = None
-        self._fbo_size = None
 
     def __enter__(self) -> "SplatRenderAction":
         return self

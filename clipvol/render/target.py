@@ -1,0 +1,46 @@
+"""The float offscreen target the slice and splat actions draw into, and giving the binding back.
+
+Each action keeps one RGBA float32 framebuffer that follows the requested image size (float, so
+premultiplied colour is not quantised before read-back), and after drawing binds back whatever was
+bound before - or the default framebuffer, found once: a framebuffer released while still bound
+breaks every later one in the context.
+"""
+
+from __future__ import annotations
+
+__all__ = ["FloatTarget"]
+
+
+class FloatTarget:
+    """An RGBA float32 framebuffer of the last size asked for, on ``ctx``."""
+
+    def __init__(self, ctx) -> None:
+        self.ctx = ctx
+        self.fbo = None
+        self._color = None
+        self._size = None
+        self._default = None
+
+    def ensure(self, size: tuple[int, int]):
+        """The framebuffer, (re)allocated when ``size`` (width, height) changed."""
+        size = (int(size[0]), int(size[1]))
+        if self._size != size:
+            self.release()
+            self._color = self.ctx.texture(size, 4, dtype="f4")
+            self.fbo = self.ctx.framebuffer(color_attachments=[self._color])
+            self._size = size
+        return self.fbo
+
+    def restore(self, previous) -> None:
+        """Bind ``previous`` (``ctx.fbo`` before drawing), or the default framebuffer if it was None."""
+        if previous is None:
+            if self._default is None:
+                self._default = self.ctx.detect_framebuffer(0)
+            previous = self._default
+        previous.use()
+
+    def release(self) -> None:
+        for obj in (self.fbo, self._color):
+            if obj is not None:
+                obj.release()
+        self.fbo = self._color = self._size = None
