@@ -53,6 +53,13 @@ def _check_frames(frames: int) -> int:
     return n
 
 
+def _check_orbit(frames: int, size, elevation: float) -> tuple[int, tuple[int, int]]:
+    """Frames and size of an orbit-like path, checked with its elevation (-89..89 degrees)."""
+    if not -89.0 <= float(elevation) <= 89.0:
+        raise ParameterError(f"elevation: expected -89..89 degrees, got {elevation!r}")
+    return _check_frames(frames), _check_size(size)
+
+
 def _check_size(size) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in size)
@@ -123,10 +130,7 @@ def orbit(
     (Camera, ndarray)
         The camera and the centre of interest (the volume centre).
     """
-    n = _check_frames(frames)
-    size = _check_size(size)
-    if not -89.0 <= float(elevation) <= 89.0:
-        raise ParameterError(f"elevation: expected -89..89 degrees, got {elevation!r}")
+    n, size = _check_orbit(frames, size, elevation)
     c = volume_center(pyramid)
     d = fit_distance(pyramid, fov_y, size) if distance is None else float(distance)
     if not (np.isfinite(d) and d > 0):
@@ -181,10 +185,7 @@ def turntable(
     (Camera, ndarray)
         The camera and the centre of interest (the volume centre).
     """
-    n = _check_frames(frames)
-    size = _check_size(size)
-    if not -89.0 <= float(elevation) <= 89.0:
-        raise ParameterError(f"elevation: expected -89..89 degrees, got {elevation!r}")
+    n, size = _check_orbit(frames, size, elevation)
     if not np.isfinite(float(azimuth)):
         raise ParameterError(f"azimuth: expected a finite angle in degrees, got {azimuth!r}")
     u = np.asarray(up, dtype=np.float64)

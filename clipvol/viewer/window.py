@@ -302,23 +302,11 @@ class Viewer:
 
     def _on_key(self, win, key, scancode, action, mods) -> None:
         glfw = self._glfw
-        name = None
         if glfw.KEY_A <= key <= glfw.KEY_Z:
             name = chr(ord("A") + key - glfw.KEY_A)
-        elif key == glfw.KEY_ESCAPE:
-            name = "ESCAPE"
-        elif key == glfw.KEY_KP_ADD:
-            name = "+"
-        elif key == glfw.KEY_KP_SUBTRACT:
-            name = "-"
-        elif key == glfw.KEY_LEFT:
-            name = "LEFT"
-        elif key == glfw.KEY_RIGHT:
-            name = "RIGHT"
-        elif key == glfw.KEY_UP:
-            name = "UP"
-        elif key == glfw.KEY_DOWN:
-            name = "DOWN"
+        else:  # the other keys the viewer knows by name (printable ones arrive through _on_char)
+            name = {glfw.KEY_ESCAPE: "ESCAPE", glfw.KEY_KP_ADD: "+", glfw.KEY_KP_SUBTRACT: "-",
+                    glfw.KEY_LEFT: "LEFT", glfw.KEY_RIGHT: "RIGHT", glfw.KEY_UP: "UP", glfw.KEY_DOWN: "DOWN"}.get(key)
         if name is None:
             return
         if action in (glfw.PRESS, glfw.REPEAT) and name in ("LEFT", "RIGHT", "UP", "DOWN"):
