@@ -31,6 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--filter", default="mean", help="down-sampling filter: mean | subsample | max | mode (label volumes) (default mean)")
     parser.add_argument("--codec", default="lz4", help="lz4 | zstd | none (default lz4: blosc lz4 + shuffle)")
     parser.add_argument("--spacing", help="level-0 voxel size z,y,x (default: the input's, else 1,1,1)")
+    parser.add_argument("--origin", default=None, metavar="Z,Y,X",
+                        help="world position of voxel 0 (OME translation; default: the input's, else 0,0,0): "
+                             "co-registered volumes drawn as overlays (render --overlay) are placed by it")
     parser.add_argument("--unit", default=None, help="unit of the spacing (default: the input's, e.g. millimeter for NIfTI/DICOM, else micrometer)")
     parser.add_argument("--shape", help="raw input: shape Z,Y,X")
     parser.add_argument("--dtype", help="raw input: numpy dtype, e.g. uint16")
@@ -58,16 +61,21 @@ def run(args: argparse.Namespace) -> int:
     shape = _triple(args.shape, "shape", int) if args.shape else None
     t0 = time.perf_counter()
     build = brick_volume
+    extra = {}
+    if args.origin is not None:
+        extra["origin"] = _triple(args.origin, "origin")
     if args.scheduler:
         from functools import partial
 
         from clipvol.bricking.dask_build import brick_volume_dask
 
+        if extra:
+            raise ParameterError("--origin: not available with --scheduler yet; brick with local threads")
         build = partial(brick_volume_dask, scheduler=args.scheduler)
     meta = build(
         args.input, args.output, brick=args.brick, filter=args.filter, codec=args.codec, spacing=spacing,
         unit=args.unit, workers=args.workers, overwrite=args.overwrite, progress=not args.quiet,
-        raw_shape=shape, raw_dtype=args.dtype, byte_order=args.byte_order, summary=not args.no_summary,
+        raw_shape=shape, raw_dtype=args.dtype, byte_order=args.byte_order, summary=not args.no_summary, **extra,
     )
     for spec in args.labels:
         from pathlib import Path

@@ -128,6 +128,10 @@ class RenderParams:
         Lighting weights (>= 0).
     shininess : float
         Specular exponent (> 0).
+    overlays : tuple of Overlay
+        Co-registered volumes composited over the primary at each of its samples, in one ray cast
+        (:mod:`clipvol.scene.overlay`; at most :data:`~clipvol.scene.overlay.MAX_OVERLAYS`, the first
+        on top). Composite mode and the ``"bricks"`` path only.
     """
 
     mode: str = "composite"
@@ -155,6 +159,7 @@ class RenderParams:
     diffuse: float = 0.7
     specular: float = 0.3
     shininess: float = 20.0
+    overlays: tuple = ()
 
     def __post_init__(self) -> None:
         from .selection.policies import (
@@ -224,6 +229,27 @@ class RenderParams:
                 raise ParameterError(f"{name}: expected a finite lighting weight >= 0, got {v!r}")
             s(self, name, f)
         s(self, "shininess", _positive(self.shininess, "shininess", "specular exponent"))
+        self._check_overlays()
+
+    def _check_overlays(self) -> None:
+        from .overlay import MAX_OVERLAYS, Overlay
+
+        ovs = self.overlays
+        if isinstance(ovs, Overlay):
+            ovs = (ovs,)
+        ovs = tuple(ovs or ())
+        for ov in ovs:
+            if not isinstance(ov, Overlay):
+                raise ParameterError(f"overlays: expected clipvol.scene.overlay.Overlay objects, got {type(ov).__name__}")
+        if len(ovs) > MAX_OVERLAYS:
+            raise ParameterError(f"overlays: expected at most {MAX_OVERLAYS}, got {len(ovs)}")
+        if ovs and self.mode != "composite":
+            raise ParameterError(f"overlays: expected mode 'composite' (an overlay is composited over the primary), "
+                                 f"got mode {self.mode!r} with overlay {ovs[0].name}")
+        if ovs and self.path != "bricks":
+            raise ParameterError(f"overlays: expected path 'bricks' (the single-pass path draws no overlay), "
+                                 f"got path {self.path!r} with overlay {ovs[0].name}")
+        object.__setattr__(self, "overlays", ovs)
 
     # -- helpers ---------------------------------------------------------------------------------
     @classmethod

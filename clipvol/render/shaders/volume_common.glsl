@@ -3,6 +3,7 @@
 //   MODE_MIP  maximum intensity projection (absent: composite, front to back)
 //   HAS_NAN   the data may hold NaN/Inf: trilinear over the finite neighbours only
 //   SHADING   composite only: Blinn-Phong lighting from central-difference gradients, light at the eye
+//   OVERLAY   composite only: the number (1..3) of co-registered overlay volumes sampled at each sample
 uniform vec2 u_viewport;
 uniform bool u_ortho;
 uniform vec3 u_forward;         // camera basis (unit) and half extents of the view
@@ -134,6 +135,59 @@ void composite_sample(inout vec4 acc, float texel, float row) {
     acc.a += w;
 }
 
+#ifdef OVERLAY
+// Overlays of co-registered volumes (clipvol/scene/overlay.py): each one whole level in one float32
+// texture with its own transfer-function table (rows per primary level, opacity corrected for the
+// primary's step). At each sample of the primary, every overlay is sampled at the same point (its
+// texture coordinate is affine in the position relative to O: c = p * a + b) and composited under
+// the ray before the primary's sample: the overlays' colours over the primary's, the first on top.
+vec3 g_ov_origin;               // the pixel ray's origin relative to O (set by the fragment's main)
+uniform sampler3D u_ov0_tex;
+uniform sampler2D u_ov0_tf;
+uniform vec3 u_ov0_a;           // texture coordinate c = p * a + b (p relative to O)
+uniform vec3 u_ov0_b;
+uniform vec2 u_ov0_t;           // table coordinate t = value * t.x + t.y
+#if OVERLAY > 1
+uniform sampler3D u_ov1_tex;
+uniform sampler2D u_ov1_tf;
+uniform vec3 u_ov1_a;
+uniform vec3 u_ov1_b;
+uniform vec2 u_ov1_t;
+#endif
+#if OVERLAY > 2
+uniform sampler3D u_ov2_tex;
+uniform sampler2D u_ov2_tf;
+uniform vec3 u_ov2_a;
+uniform vec3 u_ov2_b;
+uniform vec2 u_ov2_t;
+#endif
+
+void overlay_one(inout vec4 acc, sampler3D tex, sampler2D tf, vec3 a, vec3 b, vec2 tm, vec3 p, float row) {
+    vec3 c = p * a + b;
+    if (any(lessThan(c, vec3(0.0))) || any(greaterThan(c, vec3(1.0)))) return;   // outside its box
+    float v = texture(tex, c).r;
+    if (isnan(v) || isinf(v)) return;
+    vec4 s = texture(tf, vec2(v * tm.x + tm.y, row));
+    float w = (1.0 - acc.a) * s.a;
+    acc.rgb += w * s.rgb;
+    acc.a += w;
+}
+
+void overlay_under(inout vec4 acc, float ts, vec3 dir, float row) {
+    vec3 p = g_ov_origin + ts * dir;
+    overlay_one(acc, u_ov0_tex, u_ov0_tf, u_ov0_a, u_ov0_b, u_ov0_t, p, row);
+#if OVERLAY > 1
+    overlay_one(acc, u_ov1_tex, u_ov1_tf, u_ov1_a, u_ov1_b, u_ov1_t, p, row);
+#endif
+#if OVERLAY > 2
+    overlay_one(acc, u_ov2_tex, u_ov2_tf, u_ov2_a, u_ov2_b, u_ov2_t, p, row);
+#endif
+}
+#define OVERLAY_UNDER(acc, ts, dir, row) overlay_under(acc, ts, dir, row)
+#else
+#define OVERLAY_UNDER(acc, ts, dir, row)
+#endif
+
 #ifdef SHADING
 // Gradient lighting (Blinn-Phong, light fixed to the camera: light, view and half vector all equal
 // -dir, two-sided so the sign of the gradient does not matter). The gradient is a central
@@ -211,6 +265,7 @@ void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int 
     for (int i = 0; i < n; ++i) {
         float texel = texture(tex, clamp(c0 + float(i) * dc, clo_t, chi_t)).r;
 #endif
+        OVERLAY_UNDER(acc, off + (k0 + float(i)) * delta, dir, row);   // overlays over this sample
         if (!SAMPLE_OK(texel)) continue;   // non-finite data is transparent
 #ifdef MODE_MIP
         vmax = max(vmax, texel);       // the largest texel; mapped to a value on the CPU
