@@ -33,7 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--spacing", help="level-0 voxel size z,y,x (default: the input's, else 1,1,1)")
     parser.add_argument("--origin", default=None, metavar="Z,Y,X",
                         help="world position of voxel 0 (OME translation; default: the input's, else 0,0,0): "
-                             "co-registered volumes drawn as overlays (render --overlay) are placed by it")
+                             "co-registered volumes drawn as overlays (render --overlay) are placed by it; "
+                             "write --origin=-4,2,3 when the first value is negative")
     parser.add_argument("--unit", default=None, help="unit of the spacing (default: the input's, e.g. millimeter for NIfTI/DICOM, else micrometer)")
     parser.add_argument("--shape", help="raw input: shape Z,Y,X")
     parser.add_argument("--dtype", help="raw input: numpy dtype, e.g. uint16")

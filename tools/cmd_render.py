@@ -80,9 +80,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--no-visibility", action="store_true",
                    help="--policy image: no visibility estimate (every brick counts as fully visible)")
     r.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel projects to more than this many pixels")
+    from clipvol.tools.overlay_args import add_overlay_arguments
     from clipvol.tools.tf_args import add_tf_arguments
 
     add_tf_arguments(p.add_argument_group("transfer function"))
+    add_overlay_arguments(p.add_argument_group("overlays of co-registered volumes"))
     r.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
     r.add_argument("--background", type=lambda s: tuple(float(t) for t in s.split(",")), default=(0.0, 0.0, 0.0, 0.0),
                    help="straight RGBA r,g,b,a in [0, 1] behind the volume (default transparent)")
@@ -220,7 +222,7 @@ def run(args) -> int:
         max_texels_drawn=args.max_texels_drawn, distance_factor=args.distance_factor, fov_fraction=args.fov_fraction,
         texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget, step=args.step,
         background=args.background, block_budget=args.block_budget, visibility=not args.no_visibility,
-        shading=args.shading, **_light(args.light),
+        shading=args.shading, **_light(args.light), overlays=_overlays(args),
     ).check_for(pyr)
     tf = transfer_function_from_args(args, loader)
     if args.workers is not None:  # sort-last on Dask: groups of bricks in worker processes
@@ -231,6 +233,7 @@ def run(args) -> int:
                 ClipRenderAction(ctx, clip, params) as action:
             image = action.render(cam, tf, wait=not args.no_wait, timeout=args.timeout)
             st = action.last_frame_stats
+            overlay_levels = action.overlays.levels()
     finally:
         ctx.release()
     Image.fromarray(image, "RGBA").save(args.out)
@@ -246,6 +249,8 @@ def run(args) -> int:
         est = getattr(action.last_policy, "estimated_error", float("nan"))
         print(f"image policy: block budget {params.block_budget}, {st.bricks_distinct} bricks drawn, "
               f"estimated error {est:.3f}", file=sys.stderr)
+    if overlay_levels:
+        print("overlays: " + "; ".join(f"{name} (level {L})" for name, L in overlay_levels.items()), file=sys.stderr)
     print("time: " + ", ".join(f"{k} {v * 1000:.1f} ms" for k, v in t.items()), file=sys.stderr)
     return 0
 
@@ -261,6 +266,8 @@ def _run_sort_last(args, params, cam, tf, kwargs) -> int:
         raise ParameterError(f"--workers: expected an integer >= 1, got {args.workers}")
     if args.no_wait:
         raise ParameterError("--no-wait: sort-last frames are always converged; drop --no-wait or --workers")
+    if params.overlays:
+        raise ParameterError("--overlay: not available with --workers (each worker draws a part of the primary alone)")
     if args.hide_labels:
         raise ParameterError("--hide-labels: not available with --workers (the workers draw the image alone)")
     with DistributedRenderer(args.source, args.workers, params, scheduler=args.scheduler,
@@ -276,3 +283,9 @@ def _run_sort_last(args, params, cam, tf, kwargs) -> int:
         st.frame_seconds * 1000, ", ".join(f"{t * 1000:.1f} ms" for t in st.group_seconds), st.composite_seconds * 1000),
         file=sys.stderr)
     return 0
+
+
+def _overlays(args) -> tuple:
+    from clipvol.tools.overlay_args import overlays_from_args
+
+    return overlays_from_args(args)

@@ -55,9 +55,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--shading", action="store_true", help="start with gradient lighting on (key L)")
     g.add_argument("--outlines", action="store_true", help="draw brick outlines coloured by level (key B)")
     g.add_argument("--size", type=_size, default=None, help="window or image size WxH (default 960x640 window, 256x256 offscreen)")
+    from clipvol.tools.overlay_args import add_overlay_arguments
     from clipvol.tools.tf_args import add_tf_arguments
 
     add_tf_arguments(p.add_argument_group("transfer function"))
+    add_overlay_arguments(p.add_argument_group("overlays of co-registered volumes"))
     o = p.add_argument_group("offscreen")
     o.add_argument("--offscreen", action="store_true", help="render a camera path to files instead of opening a window")
     o.add_argument("--path", choices=("orbit", "turntable", "fly", "zoom"), default="orbit",
@@ -147,7 +149,7 @@ def run(args) -> int:
     params = RenderParams(
         lod_threshold=args.lod_threshold, policy=args.selection, level=args.level, mode=args.mode,
         step=args.step, texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget,
-        jitter=not args.no_jitter, path=args.render_path, shading=args.shading,
+        jitter=not args.no_jitter, path=args.render_path, shading=args.shading, overlays=_overlays(args),
     )
     from clipvol.tools.remote_args import remote_kwargs
 
@@ -159,6 +161,8 @@ def run(args) -> int:
     tf = transfer_function_from_args(args, loader)
     if args.workers is not None and not args.offscreen:
         raise ParameterError("--workers: sort-last frames are drawn offscreen only; add --offscreen")
+    if args.workers is not None and params.overlays:
+        raise ParameterError("--overlay: not available with --workers (each worker draws a part of the primary alone)")
     if args.offscreen and args.workers is not None:  # sort-last frames on Dask
         from clipvol.app.sortlast import render_path_sort_last
 
@@ -208,3 +212,9 @@ def run(args) -> int:
         if args.outlines:
             viewer.key("B")
         return viewer.run(max_frames=args.max_frames)
+
+
+def _overlays(args) -> tuple:
+    from clipvol.tools.overlay_args import overlays_from_args
+
+    return overlays_from_args(args)

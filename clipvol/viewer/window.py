@@ -502,6 +502,8 @@ class Viewer:
 
             tf = TransferFunction.preset(name, value_range=self.tf.window(self.session.pyramid.value_range))
         self.tf = tf
+        if st.render_mode == "mip" and self.session.params.overlays:  # overlays are composited over the primary
+            st.render_mode, st.message = "composite", "MIP: not with overlays (they are composited over the volume)"
         self.session.update(
             lod_threshold=st.lod_threshold, policy=st.mode, level=st.level if st.mode == "fixed" else None,
             mode=st.render_mode, shading=st.shading, tf=tf,

@@ -271,3 +271,53 @@ def test_window_on_a_dicom_store_is_head_up_and_labelled(xdisplay, tmp_path):
         _converge(viewer)
         assert viewer._orientation() == {"right": "L", "left": "R", "top": "S", "bottom": "I"}
         assert any("left R  right L  top S  bottom I" in ln for ln in (viewer._hud_text or []))
+
+
+def test_window_draws_an_overlay_like_the_offscreen_session(xdisplay, loader, tmp_path):
+    """``Viewer(params=RenderParams(overlays=...))``: the OVERLAY variant draws, the screen equals an
+    offscreen session with the same overlay, and MIP (key I) is refused with a message, not a crash."""
+    from clipvol.app.session import RenderSession
+    from clipvol.loaders.numpy_array import NumpyLoader
+    from clipvol.render.context import create_context
+    from clipvol.scene.overlay import Overlay
+    from clipvol.scene.params import RenderParams
+    from clipvol.viewer.window import Viewer
+
+    z, y, x = np.mgrid[0:20, 0:20, 0:20].astype(np.float32)
+    blob = np.exp(-((x - 10) ** 2 + (y - 10) ** 2 + (z - 10) ** 2) / 30.0) * 4.0 - 1.0
+    from clipvol.scene.transfer import TransferFunction
+
+    tf = TransferFunction.preset("diverging", value_range=(-0.5, 0.5))
+    prim = TransferFunction.preset("grey", value_range=(0.6, 1.0))  # see-through: the overlay shows
+    ov = Overlay(NumpyLoader(blob, brick=16, spacing=(1.5, 1.5, 1.5)), tf, origin=(10.0, 10.0, 10.0))
+    params = RenderParams(jitter=True, overlays=(ov,))
+    ctx = create_context()
+    with Viewer(loader, size=(80, 64), tf=prim, params=params, visible=False) as v:
+        v.key("H")
+        _converge(v)
+        assert v.session.action.defines()["OVERLAY"] == 1
+        screen = v.read_screen()
+        cam, coi = v.camera(), v.controls.center_of_interest
+        v.key("I")  # MIP: refused while overlays are drawn
+        v.step()
+        assert v.session.params.mode == "composite" and "overlay" in v.state.message
+    try:
+        with RenderSession(loader, ctx, tf=prim, params=params) as s:
+            ref = s.render(cam, coi, wait=True)
+        with RenderSession(loader, ctx, tf=prim, params=RenderParams(jitter=True)) as s:
+            plain = s.render(cam, coi, wait=True)
+    finally:
+        ctx.release()
+    assert np.abs(_over_black(ref) - _over_black(plain)).max() > 40  # the overlay shows
+    diff = np.abs(screen.astype(np.float64) - _over_black(ref))
+    assert diff.max() <= 3.0 and diff.mean() < 0.6, (diff.max(), diff.mean())
+
+
+def test_view_cli_with_an_overlay_runs_a_few_frames(xdisplay, tmp_path):
+    from clipvol.tools.cli import main
+
+    np.save(tmp_path / "m.npy", np.linspace(-1, 1, 16 ** 3, dtype=np.float32).reshape(16, 16, 16))
+    assert main(["brick", str(tmp_path / "m.npy"), str(tmp_path / "m.zarr"), "--brick", "8", "--quiet", "--no-summary",
+                 "--origin", "4,4,4"]) == 0
+    assert main(["view", "procedural:fractal?size=32", "--brick", "16", "--size", "64x48", "--max-frames", "3",
+                 "--overlay", f"{tmp_path / 'm.zarr'}:diverging"]) == 0
