@@ -255,6 +255,10 @@ def raycast_overlays(vol, spacing, camera, table, value_range, overlays, step: f
     its own table and window, its opacity corrected like the primary's (per the primary's smallest
     level-0 voxel). The sample's colour is the overlays' premultiplied colours over the primary's
     (the first overlay on top), composited front to back.
+
+    A label overlay is ``("labels", array (z, y, x) of ints, spacing, origin, rgba)``, ``rgba`` a
+    function from an int array of ids to their straight RGBA ``(n, 4)``: each sample takes the id
+    of the voxel whose cell holds the point (``floor(u + 0.5)``, never interpolated).
     """
     from scipy.ndimage import map_coordinates
 
@@ -279,20 +283,30 @@ def raycast_overlays(vol, spacing, camera, table, value_range, overlays, step: f
     t = (np.repeat(k0[hit], cnt) + (np.arange(cnt.sum()) - start)) * delta
     p = o[pix] + t[:, None] * d[pix]
     # the layers of each sample, top first: the overlays, then the primary
-    layers = []
-    for ovol, osp, oorg, otab, orng in overlays:
+    layers = []  # (straight RGBA per sample, inside its box)
+    for ov in overlays:
+        labels = isinstance(ov[0], str) and ov[0] == "labels"
+        ovol, osp, oorg = ov[1:4] if labels else ov[:3]
         osp = np.asarray(osp, dtype=np.float64)[::-1]
         on = np.array(ovol.shape[::-1], dtype=np.float64)
         u = (p - np.asarray(oorg, dtype=np.float64)[::-1]) / osp  # (x, y, z) voxel coordinates
         inside = np.all((u >= -0.5) & (u <= on - 0.5), axis=1)
-        v = map_coordinates(np.asarray(ovol, dtype=np.float64), u[:, ::-1].T, order=1, mode="nearest")
-        layers.append((v, inside, otab, orng))
-    layers.append((trilinear(vol, p / sp), np.ones(len(p), dtype=bool), table, value_range))
+        if labels:
+            q = np.minimum(np.floor(u + 0.5), on - 1).astype(np.int64)
+            q = np.maximum(q, 0)
+            ids = np.asarray(ovol)[q[:, 2], q[:, 1], q[:, 0]]
+            layers.append((ov[4](ids), inside))
+        else:
+            otab, (vlo, vhi) = ov[3], ov[4]
+            v = map_coordinates(np.asarray(ovol, dtype=np.float64), u[:, ::-1].T, order=1, mode="nearest")
+            layers.append((tf_lookup(otab, (v - vlo) / (vhi - vlo)), inside & np.isfinite(v)))
+    vlo, vhi = value_range
+    v = trilinear(vol, p / sp)
+    layers.append((tf_lookup(table, (v - vlo) / (vhi - vlo)), np.isfinite(v)))
     C = np.zeros((len(p), 3))
     A = np.zeros(len(p))
-    for v, inside, tab, (vlo, vhi) in layers:  # per sample: "under" each layer, top first
-        rgba = tf_lookup(tab, (v - vlo) / (vhi - vlo))
-        a = np.where(inside & np.isfinite(v), correct_opacity(rgba[:, 3], ratio), 0.0)
+    for rgba, inside in layers:  # per sample: "under" each layer, top first
+        a = np.where(inside, correct_opacity(rgba[:, 3], ratio), 0.0)
         C += ((1.0 - A) * a)[:, None] * rgba[:, :3]
         A += (1.0 - A) * a
     order = np.lexsort((t, pix))

@@ -222,7 +222,7 @@ def run(args) -> int:
         max_texels_drawn=args.max_texels_drawn, distance_factor=args.distance_factor, fov_fraction=args.fov_fraction,
         texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget, step=args.step,
         background=args.background, block_budget=args.block_budget, visibility=not args.no_visibility,
-        shading=args.shading, **_light(args.light), overlays=_overlays(args),
+        shading=args.shading, **_light(args.light), overlays=_overlays(args, loader),
     ).check_for(pyr)
     tf = transfer_function_from_args(args, loader)
     if args.workers is not None:  # sort-last on Dask: groups of bricks in worker processes
@@ -285,7 +285,7 @@ def _run_sort_last(args, params, cam, tf, kwargs) -> int:
     return 0
 
 
-def _overlays(args) -> tuple:
+def _overlays(args, loader) -> tuple:
     from clipvol.tools.overlay_args import overlays_from_args
 
-    return overlays_from_args(args)
+    return overlays_from_args(args, args.source, loader)

@@ -149,7 +149,7 @@ def run(args) -> int:
     params = RenderParams(
         lod_threshold=args.lod_threshold, policy=args.selection, level=args.level, mode=args.mode,
         step=args.step, texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget,
-        jitter=not args.no_jitter, path=args.render_path, shading=args.shading, overlays=_overlays(args),
+        jitter=not args.no_jitter, path=args.render_path, shading=args.shading,
     )
     from clipvol.tools.remote_args import remote_kwargs
 
@@ -159,6 +159,10 @@ def run(args) -> int:
     if params.level is not None and params.level >= loader.pyramid.num_levels:
         raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {params.level}")
     tf = transfer_function_from_args(args, loader)
+    if args.overlay or args.label_overlay:
+        from dataclasses import replace
+
+        params = replace(params, overlays=_overlays(args, loader, source))
     if args.workers is not None and not args.offscreen:
         raise ParameterError("--workers: sort-last frames are drawn offscreen only; add --offscreen")
     if args.workers is not None and params.overlays:
@@ -214,7 +218,7 @@ def run(args) -> int:
         return viewer.run(max_frames=args.max_frames)
 
 
-def _overlays(args) -> tuple:
+def _overlays(args, loader, source) -> tuple:
     from clipvol.tools.overlay_args import overlays_from_args
 
-    return overlays_from_args(args)
+    return overlays_from_args(args, source, loader)

@@ -92,7 +92,7 @@ from .frame_loop import FrameLoop
 from .glsl import ProgramCache
 from .gpu_cache import GpuBrickCache
 from .image_lod import ImageLod
-from .overlay_binding import OverlayTextures
+from .overlay_binding import OverlayTextures, overlay_defines
 
 __all__ = ["ClipRenderAction", "FrameStats", "MODES", "SELECTIONS"]
 
@@ -231,7 +231,7 @@ class ClipRenderAction:
         """The ``#define``\\ s of this frame's volume shader variant (see :mod:`clipvol.render.glsl`)."""
         mip = self.params.mode == "mip"
         return {"MODE_MIP": mip, "HAS_NAN": self.nonfinite, "SHADING": self.params.shading and not mip,
-                "OVERLAY": len(self.params.overlays) or None}
+                **overlay_defines(self.params.overlays)}
 
     def _brick_program(self):
         """The brick shader variant for the current parameters (compiled once per variant)."""

@@ -12,9 +12,22 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ParameterError
-from ..scene.overlay import check_overlay, overlay_level, overlay_placement, read_level, store_origin
+from ..scene.overlay import check_overlay, label_indices, overlay_level, overlay_placement, read_level, store_origin
 
-__all__ = ["OverlayTextures", "FIRST_UNIT"]
+__all__ = ["OverlayTextures", "FIRST_UNIT", "overlay_defines"]
+
+#: widest row of a label overlay's colour table (ids present beyond it go on further rows)
+LABEL_TABLE_WIDTH = 4096
+
+
+def overlay_defines(overlays) -> dict:
+    """The shader ``#define``\\ s of ``overlays``: ``OVERLAY`` (their number) and ``OVERLAYk_LABELS``
+    for each label overlay ``k`` (see ``shaders/volume_common.glsl``)."""
+    if not overlays:
+        return {}
+    out: dict = {"OVERLAY": len(overlays)}
+    out.update({f"OVERLAY{k}_LABELS": True for k, ov in enumerate(overlays) if ov.labels})
+    return out
 
 #: texture unit of the first overlay's volume (0: the primary's level, 1: its table, 2: the occlusion copy)
 FIRST_UNIT = 3
@@ -45,14 +58,21 @@ class OverlayTextures:
             if id(ov) in self._volumes:
                 continue
             L = overlay_level(ov.loader.pyramid, ov.texture_budget, max3d)
-            data = read_level(ov.loader, L)
-            if int(data.nbytes) > ov.texture_budget:
-                raise ParameterError(f"overlay {ov.name}: texture_budget: expected at least {data.nbytes} bytes for its "
+            data = read_level(ov.loader, L, dtype=None if ov.labels else np.float32)
+            nbytes = data.size * 4
+            if nbytes > ov.texture_budget:
+                raise ParameterError(f"overlay {ov.name}: texture_budget: expected at least {nbytes} bytes for its "
                                      f"coarsest level {L} {data.shape}, got {ov.texture_budget}")
-            tex = self.ctx.texture3d(data.shape[::-1], 1, np.ascontiguousarray(data).tobytes(), dtype="f4")
-            tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            label_table = None
+            if ov.labels:  # ids -> their index among the ids present (exact in float32), nearest only
+                data, label_table = label_indices(data, ov.tf)
+            tex = self.ctx.texture3d(data.shape[::-1], 1, np.ascontiguousarray(data, dtype=np.float32).tobytes(), dtype="f4")
+            filt = moderngl.NEAREST if ov.labels else moderngl.LINEAR
+            tex.filter = (filt, filt)
             tex.repeat_x = tex.repeat_y = tex.repeat_z = False  # clamp to edge
             self._volumes[id(ov)] = (ov, tex, L)
+            if label_table is not None:
+                self._tables[id(ov)] = (("labels",), self._label_texture(label_table))
 
     def levels(self) -> dict[str, int]:
         """Name of each overlay -> the level drawn."""
@@ -62,10 +82,26 @@ class OverlayTextures:
     def texture_bytes(self) -> int:
         return sum(int(np.prod(t.size)) * 4 for _, t, _ in self._volumes.values())
 
+    def _label_texture(self, table: np.ndarray):
+        """Straight RGBA per id index, :data:`LABEL_TABLE_WIDTH` per row (fetched, never filtered)."""
+        import moderngl
+
+        n = len(table)
+        w = min(max(n, 1), LABEL_TABLE_WIDTH)
+        h = -(-max(n, 1) // w)
+        data = np.zeros((h * w, 4), dtype=np.float32)
+        data[:n] = table
+        tex = self.ctx.texture((w, h), 4, data.tobytes(), dtype="f4")
+        tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        return tex
+
     def _table(self, ov, ratios) -> object:
         import moderngl
 
         from .action import corrected_tables
+
+        if ov.labels:  # made with the volume; its opacity is corrected in the shader
+            return self._tables[id(ov)][1]
 
         table = np.ascontiguousarray(np.asarray(ov.tf.table, dtype=np.float32))
         key = (table.tobytes(), tuple(float(r) for r in ratios))
@@ -85,12 +121,15 @@ class OverlayTextures:
         """Bind the overlays' textures and set their uniforms for a frame whose origin is ``origin`` (x, y, z)."""
         po = store_origin(self.primary_loader)
         O = np.asarray(origin, dtype=np.float64)
+        u = prog.get("u_ov_inv_ref", None)
+        if u is not None:  # label overlays: opacity per the primary's smallest level-0 voxel
+            u.value = 1.0 / float(min(self.primary_loader.pyramid.spacing))
         for k, ov in enumerate(overlays):
             _, tex, L = self._volumes[id(ov)]
             first, scale, shape = overlay_placement(ov, L, po)
             a = 1.0 / (scale * shape)
             b = ((O - first) / scale + 0.5) / shape
-            lo, hi = ov.tf.window(ov.loader.pyramid.value_range)
+            lo, hi = (0.0, 1.0) if ov.labels else ov.tf.window(ov.loader.pyramid.value_range)
             if hi > lo:
                 tm = (1.0 / (hi - lo), -lo / (hi - lo))
             else:  # zero-width window: a step at lo

@@ -21,6 +21,10 @@ Design (pragmatic, documented in ``docs/rendering.md``)
 * Outside its own box (voxel coordinates ``[-0.5, n - 0.5]`` per axis) an overlay is transparent;
   inside, trilinear with clamp-to-edge, like the primary. Non-finite overlay voxels make the samples
   that touch them transparent.
+* A **label overlay** (a segmentation, ``tf`` a :class:`~clipvol.scene.label_colors.LabelColors`)
+  is sampled nearest: the id of the voxel whose cell holds the point (``texelFetch``), looked up in
+  a per-id table (the ids present are numbered on the CPU, so any integer ids fit), its opacity
+  corrected for the primary's step in the shader. Opacity 0 hides a label.
 
 Geometry: a store's voxel ``i`` of level ``L`` is at ``translation_L + i * scale_L + origin``
 (world, z/y/x, ``origin`` the store's own, ``clipvol brick --origin``). The primary is drawn in its
@@ -46,9 +50,10 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..units import parse_bytes
+from .label_colors import LabelColors
 from .transfer import TransferFunction
 
-__all__ = ["Overlay", "store_origin", "store_unit", "overlay_level", "overlay_placement", "read_level",
+__all__ = ["Overlay", "store_origin", "store_unit", "overlay_level", "overlay_placement", "read_level", "label_indices",
            "check_overlay", "MAX_OVERLAYS", "DEFAULT_OVERLAY_BUDGET"]
 
 #: most overlays one frame composites (each takes two texture units and one shader block)
@@ -78,9 +83,11 @@ class Overlay:
     ----------
     loader : Loader
         The overlay's data (any clipvol loader: a store, ``.npy``, a procedural volume).
-    tf : TransferFunction or str
+    tf : TransferFunction, LabelColors or str
         Its transfer function, or a preset name (``"diverging"``: blue-grey-red, transparent around
-        the centre; the window is then made symmetric about 0 from the data's range).
+        the centre; the window is then made symmetric about 0 from the data's range), or for a label
+        volume (integer ids) a :class:`~clipvol.scene.label_colors.LabelColors`: each sample takes
+        the id of the voxel holding the point (nearest, never interpolated) and that id's colour.
     origin : (z, y, x), optional
         World position of voxel 0 (default: the loader's own, ``clipvol brick --origin``).
     unit : str, optional
@@ -98,6 +105,11 @@ class Overlay:
     texture_budget: int | str = DEFAULT_OVERLAY_BUDGET
     name: str = ""
 
+    @property
+    def labels(self) -> bool:
+        """True for a label overlay (nearest ids through a :class:`LabelColors`)."""
+        return isinstance(self.tf, LabelColors)
+
     def __post_init__(self) -> None:
         s = object.__setattr__
         if not (hasattr(self.loader, "pyramid") and hasattr(self.loader, "read_brick")):
@@ -106,7 +118,10 @@ class Overlay:
         s(self, "name", name)
         pyr = self.loader.pyramid
         tf = self.tf
-        if isinstance(tf, str):
+        if isinstance(tf, LabelColors):
+            if pyr.dtype.kind not in "iub":
+                raise ParameterError(f"overlay {name}: label colours: expected an integer label volume, got dtype {pyr.dtype}")
+        elif isinstance(tf, str):
             if tf not in TransferFunction.names():
                 raise ParameterError(f"overlay {name}: transfer function: expected one of "
                                      f"{', '.join(TransferFunction.names())} or a TransferFunction, got {tf!r}")
@@ -128,6 +143,15 @@ class Overlay:
             s(self, "origin", o)
         s(self, "unit", self.unit or store_unit(self.loader))
         s(self, "texture_budget", parse_bytes(self.texture_budget, f"overlay {name}: texture_budget"))
+
+
+def label_indices(data: np.ndarray, colors: LabelColors) -> tuple[np.ndarray, np.ndarray]:
+    """``(index, table)``: per voxel the index of its id among the ids present (float32, exact below
+    2**24 distinct ids) and per index the id's straight RGBA ``(n, 4)``."""
+    ids, inv = np.unique(data, return_inverse=True)
+    if len(ids) >= 1 << 24:
+        raise ParameterError(f"label overlay: expected fewer than {1 << 24} distinct ids, got {len(ids)}")
+    return inv.reshape(data.shape).astype(np.float32), colors.table(ids)
 
 
 def overlay_level(pyramid, budget: int, max_size: int = 2048, itemsize: int = 4) -> int:
@@ -179,12 +203,12 @@ def _box(lo, hi) -> str:
     return "[" + ", ".join(f"{a:g}..{b:g}" for a, b in zip(lo, hi)) + "]"
 
 
-def read_level(loader, level: int) -> np.ndarray:
-    """The whole ``level`` of ``loader`` as one float32 ``(z, y, x)`` array, brick by brick."""
+def read_level(loader, level: int, dtype=np.float32) -> np.ndarray:
+    """The whole ``level`` of ``loader`` as one ``(z, y, x)`` array (``dtype``; None: the data's), brick by brick."""
     pyr = loader.pyramid
     shape = pyr.levels[level].shape
     B = pyr.brick_shape
-    out = np.empty(shape, dtype=np.float32)
+    out = np.empty(shape, dtype=dtype or pyr.dtype)
     for idx in np.ndindex(*pyr.grid(level)):
         sl = tuple(slice(i * b, min((i + 1) * b, n)) for i, b, n in zip(idx, B, shape))
         brick = np.asarray(loader.read_brick(level, idx))

@@ -173,19 +173,54 @@ void overlay_one(inout vec4 acc, sampler3D tex, sampler2D tf, vec3 a, vec3 b, ve
     acc.a += w;
 }
 
-void overlay_under(inout vec4 acc, float ts, vec3 dir, float row) {
+// A label overlay (OVERLAYk_LABELS): the texture holds per voxel the index of its id among the
+// ids present; the id's colour is texel (k % w, k / w) of the table (straight RGBA, opacity per the
+// primary's level-0 voxel, corrected here for the step delta). Nearest: the voxel whose cell holds p.
+uniform float u_ov_inv_ref;     // 1 / the primary's smallest level-0 voxel size
+
+void overlay_label(inout vec4 acc, sampler3D tex, sampler2D tab, vec3 a, vec3 b, vec3 p, float delta) {
+    vec3 c = p * a + b;
+    if (any(lessThan(c, vec3(0.0))) || any(greaterThan(c, vec3(1.0)))) return;
+    ivec3 size = textureSize(tex, 0);
+    ivec3 q = min(ivec3(c * vec3(size)), size - 1);
+    int k = int(texelFetch(tex, q, 0).r + 0.5);
+    int w = textureSize(tab, 0).x;
+    vec4 s = texelFetch(tab, ivec2(k % w, k / w), 0);
+    float al = 1.0 - pow(1.0 - s.a, delta * u_ov_inv_ref);
+    float wt = (1.0 - acc.a) * al;
+    acc.rgb += wt * s.rgb;
+    acc.a += wt;
+}
+
+#ifdef OVERLAY0_LABELS
+#define OVERLAY0(p, row, delta) overlay_label(acc, u_ov0_tex, u_ov0_tf, u_ov0_a, u_ov0_b, p, delta)
+#else
+#define OVERLAY0(p, row, delta) overlay_one(acc, u_ov0_tex, u_ov0_tf, u_ov0_a, u_ov0_b, u_ov0_t, p, row)
+#endif
+#ifdef OVERLAY1_LABELS
+#define OVERLAY1(p, row, delta) overlay_label(acc, u_ov1_tex, u_ov1_tf, u_ov1_a, u_ov1_b, p, delta)
+#else
+#define OVERLAY1(p, row, delta) overlay_one(acc, u_ov1_tex, u_ov1_tf, u_ov1_a, u_ov1_b, u_ov1_t, p, row)
+#endif
+#ifdef OVERLAY2_LABELS
+#define OVERLAY2(p, row, delta) overlay_label(acc, u_ov2_tex, u_ov2_tf, u_ov2_a, u_ov2_b, p, delta)
+#else
+#define OVERLAY2(p, row, delta) overlay_one(acc, u_ov2_tex, u_ov2_tf, u_ov2_a, u_ov2_b, u_ov2_t, p, row)
+#endif
+
+void overlay_under(inout vec4 acc, float ts, vec3 dir, float row, float delta) {
     vec3 p = g_ov_origin + ts * dir;
-    overlay_one(acc, u_ov0_tex, u_ov0_tf, u_ov0_a, u_ov0_b, u_ov0_t, p, row);
+    OVERLAY0(p, row, delta);
 #if OVERLAY > 1
-    overlay_one(acc, u_ov1_tex, u_ov1_tf, u_ov1_a, u_ov1_b, u_ov1_t, p, row);
+    OVERLAY1(p, row, delta);
 #endif
 #if OVERLAY > 2
-    overlay_one(acc, u_ov2_tex, u_ov2_tf, u_ov2_a, u_ov2_b, u_ov2_t, p, row);
+    OVERLAY2(p, row, delta);
 #endif
 }
-#define OVERLAY_UNDER(acc, ts, dir, row) overlay_under(acc, ts, dir, row)
+#define OVERLAY_UNDER(acc, ts, dir, row, delta) overlay_under(acc, ts, dir, row, delta)
 #else
-#define OVERLAY_UNDER(acc, ts, dir, row)
+#define OVERLAY_UNDER(acc, ts, dir, row, delta)
 #endif
 
 #ifdef SHADING
@@ -265,7 +300,7 @@ void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int 
     for (int i = 0; i < n; ++i) {
         float texel = texture(tex, clamp(c0 + float(i) * dc, clo_t, chi_t)).r;
 #endif
-        OVERLAY_UNDER(acc, off + (k0 + float(i)) * delta, dir, row);   // overlays over this sample
+        OVERLAY_UNDER(acc, off + (k0 + float(i)) * delta, dir, row, delta);   // overlays over this sample
         if (!SAMPLE_OK(texel)) continue;   // non-finite data is transparent
 #ifdef MODE_MIP
         vmax = max(vmax, texel);       // the largest texel; mapped to a value on the CPU
