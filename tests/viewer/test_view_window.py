@@ -321,3 +321,66 @@ def test_view_cli_with_an_overlay_runs_a_few_frames(xdisplay, tmp_path):
                  "--origin", "4,4,4"]) == 0
     assert main(["view", "procedural:fractal?size=32", "--brick", "16", "--size", "64x48", "--max-frames", "3",
                  "--overlay", f"{tmp_path / 'm.zarr'}:diverging"]) == 0
+
+
+def test_window_plays_pauses_and_steps_a_time_series(xdisplay):
+    """Space plays (a step is shown once it is drawn), J / K step, the HUD shows t, the rate and the
+    prefetch state; the frame of step t is the frame of a session over step t alone."""
+    from clipvol.app.session import RenderSession
+    from clipvol.loaders.numpy_array import NumpyLoader
+    from clipvol.render.context import create_context
+    from clipvol.scene.params import RenderParams
+    from clipvol.viewer.window import Viewer
+
+    z, y, x = np.mgrid[:24, :24, :24].astype(np.float32)
+    steps = [np.exp(-((x - 6 - 6 * t) ** 2 + (y - 12) ** 2 + (z - 12) ** 2) / 20.0).astype(np.float32) for t in range(3)]
+    loaders = [NumpyLoader(s, brick=16, value_range=(0.0, 1.0)) for s in steps]
+    with Viewer(loaders[0], size=(64, 64), tf="viridis", series=loaders, rate=50.0, visible=False, frame_time=None) as v:
+        v.key("H")
+        _converge(v)
+        first = v.read_screen()
+        v.key("K")
+        assert v.session.step == 1 and not v.playback.playing
+        _converge(v)
+        second = v.read_screen()
+        cam, coi = v.camera(), v.controls.center_of_interest
+        v.key("H")
+        v.step(force=True)
+        assert any(line.startswith("t 1/2 paused") for line in v._hud_text)
+        v.key("SPACE")
+        seen = {v.session.step}
+        for _ in range(400):  # bounded: 3 steps at <= 50 steps/s, each drawn before the next
+            v.step()
+            seen.add(v.session.step)
+            if len(seen) == 3:
+                break
+            time.sleep(0.005)
+        assert seen == {0, 1, 2}
+        v.key("SPACE")
+        assert not v.playback.playing
+    assert np.abs(first.astype(int) - second).max() > 30  # the blob moved
+    ctx = create_context()
+    try:
+        with RenderSession(loaders[1], ctx, tf="viridis", params=RenderParams(jitter=True)) as s:
+            ref = s.render(cam, coi, wait=True)
+    finally:
+        ctx.release()
+    diff = np.abs(second.astype(np.float64) - _over_black(ref))
+    assert diff.max() <= 3.0, diff.max()
+
+
+def test_view_cli_plays_a_t_axis_and_refuses_a_store_without_one(xdisplay, tmp_path, capsys):
+    import zarr
+
+    from clipvol.tools.cli import main
+
+    data = np.random.default_rng(0).random((3, 16, 16, 16)).astype(np.float32)
+    g = zarr.open_group(str(tmp_path / "ts.zarr"), mode="w")
+    g.create_array("0", shape=data.shape, chunks=(1, 16, 16, 16), dtype="float32")[...] = data
+    axes = [{"name": "t", "type": "time"}] + [{"name": a, "type": "space"} for a in "zyx"]
+    g.attrs.update({"ome": {"version": "0.5", "multiscales": [{"axes": axes, "datasets": [
+        {"path": "0", "coordinateTransformations": [{"type": "scale", "scale": [1, 1, 1, 1]}]}]}]}})
+    assert main(["view", str(tmp_path / "ts.zarr"), "--play", "--size", "48x48", "--max-frames", "4"]) == 0
+    capsys.readouterr()
+    assert main(["view", "procedural:fractal?size=32", "--brick", "16", "--play", "--max-frames", "2"]) == 2
+    assert "--play" in capsys.readouterr().err
