@@ -244,7 +244,7 @@ def raycast_levels(levels, regions, camera, table, value_range, step, mode="comp
     return img.reshape(h, w, 4)
 
 
-def raycast_overlays(vol, spacing, camera, table, value_range, overlays, step: float = 0.5):
+def raycast_overlays(vol, spacing, camera, table, value_range, overlays, step: float = 0.5, blend: str = "over"):
     """Reference render of a level-0 volume with co-registered overlays; premultiplied float RGBA ``(h, w, 4)``.
 
     ``overlays``: ``(array (z, y, x), spacing (z, y, x), origin (z, y, x), table, value_range)``,
@@ -259,6 +259,9 @@ def raycast_overlays(vol, spacing, camera, table, value_range, overlays, step: f
     A label overlay is ``("labels", array (z, y, x) of ints, spacing, origin, rgba)``, ``rgba`` a
     function from an int array of ids to their straight RGBA ``(n, 4)``: each sample takes the id
     of the voxel whose cell holds the point (``floor(u + 0.5)``, never interpolated).
+
+    ``blend="additive"`` (channels): a sample's colour is the sum of every layer's premultiplied
+    colour (the primary's included), its opacity ``1 - prod(1 - a)``.
     """
     from scipy.ndimage import map_coordinates
 
@@ -305,10 +308,16 @@ def raycast_overlays(vol, spacing, camera, table, value_range, overlays, step: f
     layers.append((tf_lookup(table, (v - vlo) / (vhi - vlo)), np.isfinite(v)))
     C = np.zeros((len(p), 3))
     A = np.zeros(len(p))
-    for rgba, inside in layers:  # per sample: "under" each layer, top first
+    T = np.ones(len(p))
+    for rgba, inside in layers:  # per sample: "under" each layer, top first (or their sum)
         a = np.where(inside, correct_opacity(rgba[:, 3], ratio), 0.0)
-        C += ((1.0 - A) * a)[:, None] * rgba[:, :3]
-        A += (1.0 - A) * a
+        if blend == "additive":
+            C += a[:, None] * rgba[:, :3]
+            T *= 1.0 - a
+            A = 1.0 - T
+        else:
+            C += ((1.0 - A) * a)[:, None] * rgba[:, :3]
+            A += (1.0 - A) * a
     order = np.lexsort((t, pix))
     pix, C, A = pix[order], C[order], A[order]
     log1m = np.log1p(-np.minimum(A, 1.0 - 1e-15))

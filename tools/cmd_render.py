@@ -50,6 +50,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     d = p.add_argument_group("data")
     d.add_argument("--t", type=int, default=None, help="time point of an OME-Zarr image with a t axis (default 0)")
     d.add_argument("--c", type=int, default=None, help="channel of an OME-Zarr image with a c axis (default 0)")
+    d.add_argument("--channels", default=None, metavar="C:COLOUR,...",
+                   help="several channels of an image with a c axis in one ray cast, each its colour (a name or "
+                        "#RRGGBB) with a ramp opacity over its window (--tf-range for all), e.g. 0:green,1:magenta")
+    d.add_argument("--blend", choices=("additive", "over"), default=None,
+                   help="--channels / --overlay: colours add up (additive, default for --channels) or the "
+                        "later layers over the first (over, default for --overlay)")
     d.add_argument("--hide-labels", default=None, metavar="NAME:ID,ID",
                    help="hide the voxels of these label ids of the store's labels/NAME (from clipvol brick --labels)")
     v = p.add_argument_group("camera")
@@ -206,7 +212,17 @@ def run(args) -> int:
 
     kwargs = {} if args.brick is None else {"brick": args.brick}
     kwargs.update({k: v for k, v in (("t", args.t), ("c", args.c)) if v is not None})
-    loader = open_store(args.source, **kwargs, **remote_kwargs(args))
+    channel_overlays, channel_tf = (), None
+    if args.channels:
+        from clipvol.app.channels import open_channels
+
+        if args.c is not None:
+            raise ParameterError("--c: expected either --c or --channels, got both")
+        loader, channel_tf, channel_overlays = open_channels(
+            args.source, args.channels, windows=args.tf_range, overlay_budget=args.overlay_budget,
+            **kwargs, **remote_kwargs(args))
+    else:
+        loader = open_store(args.source, **kwargs, **remote_kwargs(args))
     if args.hide_labels:
         loader = hidden_labels(args.source, loader, args.hide_labels)
     pyr = loader.pyramid
@@ -222,9 +238,10 @@ def run(args) -> int:
         max_texels_drawn=args.max_texels_drawn, distance_factor=args.distance_factor, fov_fraction=args.fov_fraction,
         texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget, step=args.step,
         background=args.background, block_budget=args.block_budget, visibility=not args.no_visibility,
-        shading=args.shading, **_light(args.light), overlays=_overlays(args, loader),
+        shading=args.shading, **_light(args.light), overlays=channel_overlays + _overlays(args, loader),
+        blend=args.blend or ("additive" if args.channels else "over"),
     ).check_for(pyr)
-    tf = transfer_function_from_args(args, loader)
+    tf = channel_tf or transfer_function_from_args(args, loader)
     if args.workers is not None:  # sort-last on Dask: groups of bricks in worker processes
         return _run_sort_last(args, params, cam, tf, kwargs)
     ctx = create_context()

@@ -231,7 +231,7 @@ class ClipRenderAction:
         """The ``#define``\\ s of this frame's volume shader variant (see :mod:`clipvol.render.glsl`)."""
         mip = self.params.mode == "mip"
         return {"MODE_MIP": mip, "HAS_NAN": self.nonfinite, "SHADING": self.params.shading and not mip,
-                **overlay_defines(self.params.overlays)}
+                **overlay_defines(self.params.overlays, self.params.blend)}
 
     def _brick_program(self):
         """The brick shader variant for the current parameters (compiled once per variant)."""

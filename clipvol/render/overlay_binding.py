@@ -20,12 +20,12 @@ __all__ = ["OverlayTextures", "FIRST_UNIT", "overlay_defines"]
 LABEL_TABLE_WIDTH = 4096
 
 
-def overlay_defines(overlays) -> dict:
+def overlay_defines(overlays, blend: str = "over") -> dict:
     """The shader ``#define``\\ s of ``overlays``: ``OVERLAY`` (their number) and ``OVERLAYk_LABELS``
     for each label overlay ``k`` (see ``shaders/volume_common.glsl``)."""
     if not overlays:
         return {}
-    out: dict = {"OVERLAY": len(overlays)}
+    out: dict = {"OVERLAY": len(overlays), "OVERLAY_ADDITIVE": blend == "additive"}
     out.update({f"OVERLAY{k}_LABELS": True for k, ov in enumerate(overlays) if ov.labels})
     return out
 
