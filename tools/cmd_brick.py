@@ -62,6 +62,12 @@ def run(args: argparse.Namespace) -> int:
     shape = _triple(args.shape, "shape", int) if args.shape else None
     t0 = time.perf_counter()
     build = brick_volume
+    from clipvol.bricking.channels import brick_channels, channel_count
+
+    if channel_count(args.input) is not None:  # a (c, z, y, x) input: one store per channel
+        if args.scheduler or args.labels:
+            raise ParameterError("INPUT: a 4-D (c, z, y, x) input is bricked with local threads and without --labels")
+        build = brick_channels
     extra = {}
     if args.origin is not None:
         extra["origin"] = _triple(args.origin, "origin")
@@ -78,6 +84,8 @@ def run(args: argparse.Namespace) -> int:
         unit=args.unit, workers=args.workers, overwrite=args.overwrite, progress=not args.quiet,
         raw_shape=shape, raw_dtype=args.dtype, byte_order=args.byte_order, summary=not args.no_summary, **extra,
     )
+    channels = len(meta) if isinstance(meta, list) else 0
+    meta = meta[0] if channels else meta
     for spec in args.labels:
         from pathlib import Path
 
@@ -93,6 +101,8 @@ def run(args: argparse.Namespace) -> int:
         pyr = meta.pyramid
         nbytes = int(pyr.dtype.itemsize) * pyr.shape[0] * pyr.shape[1] * pyr.shape[2]
         dt = time.perf_counter() - t0
-        print(f"{args.output}: {pyr.num_levels} levels, level 0 {pyr.shape} {pyr.dtype}, "
-              f"{format_bytes(nbytes)} in {dt:.1f} s ({format_bytes(nbytes / max(dt, 1e-9))}/s)")
+        nbytes *= max(channels, 1)
+        print(f"{args.output}: {pyr.num_levels} levels, level 0 {pyr.shape} {pyr.dtype}"
+              + (f" x {channels} channels (one store each in {args.output}/c/)" if channels else "")
+              + f", {format_bytes(nbytes)} in {dt:.1f} s ({format_bytes(nbytes / max(dt, 1e-9))}/s)")
     return 0

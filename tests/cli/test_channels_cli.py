@@ -82,3 +82,28 @@ def test_channels_the_image_lacks_are_refused(image, tmp_path, capsys):
     assert "chartreuse" in capsys.readouterr().err
     assert main(base[:1] + [str(path)] + base[1:] + ["--channels", "0:green,1:red", "--shading", "--blend", "additive"]) == 2
     assert "additive" in capsys.readouterr().err
+
+
+def test_brick_a_4d_input_and_render_its_channels(image, tmp_path, capsys):
+    """``clipvol brick cells.npy`` of shape (c, z, y, x): one store per channel; open_store(c=k) reads
+    channel k's bytes; --channels renders the set exactly as the OME-Zarr image of the same data."""
+    path, data = image
+    np.save(tmp_path / "cells.npy", data)
+    assert main(["brick", str(tmp_path / "cells.npy"), str(tmp_path / "set.zarr"), "--brick", "16",
+                 "--spacing", "1.2,1.0,0.9", "--no-summary"]) == 0
+    assert "3 channels" in capsys.readouterr().out
+    from clipvol.paging.open import open_store
+
+    for c in range(3):
+        ld = open_store(tmp_path / "set.zarr", c=c)
+        assert ld.axes == ("c",) and ld.lead_shape == (3,)
+        np.testing.assert_array_equal(ld.read_brick(0, (0, 0, 0))[:16, :16, :16], data[c, :16, :16, :16])
+    with pytest.raises(Exception, match=r"c: expected 0\.\.2"):
+        open_store(tmp_path / "set.zarr", c=3)
+    common = ["--size", "40x40", "--policy", "fixed", "--level", "0", "--channels", "0:green,1:magenta,2:cyan",
+              "--tf-range", "0.2,1"]
+    assert main(["render", str(tmp_path / "set.zarr"), "--out", str(tmp_path / "a.png")] + common) == 0
+    assert main(["render", str(path), "--out", str(tmp_path / "b.png")] + common) == 0
+    a = np.asarray(Image.open(tmp_path / "a.png")).astype(int)
+    b = np.asarray(Image.open(tmp_path / "b.png")).astype(int)
+    assert a[..., 3].max() > 100 and np.abs(a - b).max() <= 1
