@@ -10,7 +10,9 @@ Frame times of
 
 * ``raw``: :class:`bench_render.RawCaster`, the plain one-texture ray caster written for the
   benchmarks outside clipvol's render path - the baseline;
-* clipvol's per-brick path without and with the overlay (one and two overlays).
+* clipvol's per-brick path without and with the overlay (one and two overlays), with a label
+  overlay instead (the map thresholded into 8 ids, nearest ids through a colour table), and with
+  the overlay blended additively (``blend="additive"``, as channels are).
 
 Rounds are interleaved (the shared machine's load hits every configuration alike); medians of
 wall-clock and of process CPU time. Printed and written to ``docs/bench_overlay.csv``: every time
@@ -48,6 +50,7 @@ def run(sizes, image: int, repeat: int, step: float, log=print) -> list[dict]:
     from clipvol.render import create_context
     from clipvol.render.action import ClipRenderAction
     from clipvol.scene.camera import Camera
+    from clipvol.scene.label_colors import LabelColors
     from clipvol.scene.overlay import Overlay
     from clipvol.scene.transfer import TransferFunction
 
@@ -69,12 +72,17 @@ def run(sizes, image: int, repeat: int, step: float, log=print) -> list[dict]:
         ovs = [Overlay(NumpyLoader(_signed_map(m, s), brick=64, spacing=(2.0, 2.0, 2.0)),
                        TransferFunction.preset("diverging", value_range=(-3.0, 3.0)), origin=(n / 4.0,) * 3,
                        name=f"map{s}") for s in (1, 2)]
+        ids = np.digitize(_signed_map(m, 1), [-4, -2, -1, 0, 1, 2, 4]).astype(np.uint16)  # 8 labels
+        lab = Overlay(NumpyLoader(ids, brick=64, spacing=(2.0, 2.0, 2.0), value_range=(0.0, 7.0)), LabelColors(),
+                      origin=(n / 4.0,) * 3, name="labels")
         budget = int(sum(pyr.num_bricks(L) for L in range(pyr.num_levels)) * pyr.brick_nbytes * 1.2) + (64 << 20)
         clip = ClipTexture(loader, budget, threads=2)
         common = dict(policy="fixed", level=0, step=step, texture_budget=budget)
         actions = {"single": ClipRenderAction(ctx, clip, **common),
                    "1 overlay": ClipRenderAction(ctx, clip, overlays=tuple(ovs[:1]), **common),
-                   "2 overlays": ClipRenderAction(ctx, clip, overlays=tuple(ovs), **common)}
+                   "2 overlays": ClipRenderAction(ctx, clip, overlays=tuple(ovs), **common),
+                   "label overlay": ClipRenderAction(ctx, clip, overlays=(lab,), **common),
+                   "1 overlay additive": ClipRenderAction(ctx, clip, overlays=tuple(ovs[:1]), blend="additive", **common)}
         raw = RawCaster(ctx, vol, pyr.value_range)
         for a in actions.values():
             a.render(cam, tf, wait=True, timeout=600)
@@ -99,7 +107,8 @@ def run(sizes, image: int, repeat: int, step: float, log=print) -> list[dict]:
             row[f"{key}_s"] = round(mw[k], 4)
             row[f"{key}_over_raw"] = round(mw[k] / mw["raw"], 3)
             row[f"{key}_cpu_over_raw"] = round(mc[k] / mc["raw"], 3)
-        for k in ("1 overlay", "2 overlays"):
+        extra = ("1 overlay", "2 overlays", "label overlay", "1 overlay additive")
+        for k in extra:
             key = k.replace(" ", "_")
             row[f"{key}_over_single"] = round(mw[k] / mw["single"], 3)
             row[f"{key}_over_single_cpu"] = round(mc[k] / mc["single"], 3)
@@ -107,7 +116,7 @@ def run(sizes, image: int, repeat: int, step: float, log=print) -> list[dict]:
             f"{k} {mw[k]:.3f} s = {mw[k] / mw['raw']:.2f}x raw (CPU {mc[k] / mc['raw']:.2f}x)" for k in actions))
         log("  ÷ single volume: " + ", ".join(f"{k} {row[k.replace(' ', '_') + '_over_single']:.2f}x wall, "
                                               f"{row[k.replace(' ', '_') + '_over_single_cpu']:.2f}x CPU"
-                                              for k in ("1 overlay", "2 overlays")))
+                                              for k in extra))
         rows.append(row)
         for a in actions.values():
             a.close()
