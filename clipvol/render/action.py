@@ -285,8 +285,10 @@ class ClipRenderAction:
         """``(level, idx) -> bool mask`` from the loader's brick ranges over each brick's sampling
         footprint (:func:`clipvol.scene.transfer.transparency_filter`), or None."""
         loader = self.clip_texture.loader
-        if self.params.mode != "composite" or not isinstance(loader, HasBrickRanges) or self.params.overlays:
+        if self.params.mode != "composite" or not isinstance(loader, HasBrickRanges):
             return None
+        if self.params.overlays:  # a transparent brick still carries the rays through an overlay
+            return self.overlays.cull_outside(transparency_filter(tf, loader), self.params.overlays)
         return transparency_filter(tf, loader)
 
     def _ensure_fbo(self, size: tuple[int, int]):

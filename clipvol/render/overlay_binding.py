@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ParameterError
-from ..scene.overlay import check_overlay, label_indices, overlay_level, overlay_placement, read_level, store_origin
+from ..scene.overlay import (check_overlay, cull_outside, label_indices, overlay_box, overlay_level, overlay_placement,
+                             read_level, store_origin)
 
 __all__ = ["OverlayTextures", "FIRST_UNIT", "overlay_defines"]
 
@@ -73,6 +74,11 @@ class OverlayTextures:
             self._volumes[id(ov)] = (ov, tex, L)
             if label_table is not None:
                 self._tables[id(ov)] = (("labels",), self._label_texture(label_table))
+
+    def cull_outside(self, transparent, overlays):
+        """The primary's transparent-brick filter, culling only bricks clear of every overlay's box."""
+        po = store_origin(self.primary_loader)
+        return cull_outside(transparent, self.primary_loader.pyramid, [overlay_box(ov, po) for ov in overlays])
 
     def levels(self) -> dict[str, int]:
         """Name of each overlay -> the level drawn."""

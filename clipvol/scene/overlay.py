@@ -54,6 +54,7 @@ from .label_colors import LabelColors
 from .transfer import TransferFunction
 
 __all__ = ["Overlay", "store_origin", "store_unit", "overlay_level", "overlay_placement", "read_level", "label_indices",
+           "overlay_box", "cull_outside",
            "check_overlay", "MAX_OVERLAYS", "DEFAULT_OVERLAY_BUDGET"]
 
 #: most overlays one frame composites (each takes two texture units and one shader block)
@@ -197,6 +198,28 @@ def check_overlay(overlay: Overlay, primary_loader) -> None:
     if np.any(np.minimum(hi, phi) <= np.maximum(lo, plo)):
         raise ParameterError(f"overlay {name}: expected its world box to overlap the primary's, got overlay "
                              f"{_box(lo + po[::-1], hi + po[::-1])} and primary {_box(plo + po[::-1], phi + po[::-1])} (x, y, z)")
+
+
+def cull_outside(transparent, pyramid, boxes):
+    """The primary's transparent-brick filter ``transparent(level, idx) -> mask`` restricted to bricks
+    whose node box (widened by one voxel of their level: the sampling footprint) is clear of every
+    overlay box ``(lo, hi)`` (x, y, z, the primary's frame): a brick the primary's table makes
+    transparent still carries the rays that sample an overlay, so only those far from every overlay
+    are culled. None stays None."""
+    if transparent is None:
+        return None
+    boxes = [(np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)) for lo, hi in boxes]
+
+    def f(level: int, idx) -> np.ndarray:
+        idx = np.asarray(idx).reshape(-1, 3)
+        mask = np.array(transparent(level, idx), dtype=bool, copy=True)
+        lo, hi = pyramid.node_box(level, idx)
+        vox = np.asarray(pyramid.levels[level].scale, dtype=np.float64)[::-1]
+        for blo, bhi in boxes:
+            mask &= ~np.all((lo - vox < bhi) & (hi + vox > blo), axis=-1)
+        return mask
+
+    return f
 
 
 def _box(lo, hi) -> str:

@@ -133,3 +133,34 @@ def test_bad_overlays_are_refused_naming_them(ctx, stores, tmp_path):
         RenderParams(mode="mip", overlays=(ov,))
     with pytest.raises(ParameterError, match="single-pass"):
         RenderParams(path="single-pass", overlays=(ov,))
+
+
+def test_transparent_primary_bricks_carry_the_overlay_and_are_culled_elsewhere(ctx, tmp_path):
+    """The primary is air (transparent) but for one corner: bricks in the overlay's box are drawn
+    (the map shows as in the reference), bricks clear of it are still culled."""
+    prim = np.zeros((48, 48, 48), dtype=np.float32)
+    prim[2:12, 2:12, 2:12] = 0.8
+    brick_volume(prim, tmp_path / "air.zarr", brick=16, progress=False, workers=1, summary=False)
+    zmap = _smooth((12, 12, 12), 6, signed=True)
+    brick_volume(zmap, tmp_path / "m.zarr", brick=8, spacing=(1.5, 1.5, 1.5), origin=(26.0, 26.0, 26.0),
+                 progress=False, workers=1, summary=False)
+    tf = TransferFunction.preset("grey", value_range=(0.3, 1.0))
+    m_tf = TransferFunction.preset("diverging", value_range=(-0.6, 0.6))
+    lo, hi = ZarrLoader(tmp_path / "air.zarr").pyramid.volume_box()
+    c = (lo + hi) / 2
+    cam = Camera.perspective(tuple(c + np.array([1.0, 0.7, -1.2]) * 60), tuple(c), size=(64, 64), fov_y=40)
+    clip = ClipTexture(ZarrLoader(tmp_path / "air.zarr"), "64MB", threads=2)
+    try:
+        with ClipRenderAction(ctx, clip, policy="fixed", level=0,
+                              overlays=(Overlay(ZarrLoader(tmp_path / "m.zarr"), m_tf),)) as action:
+            img = action.render(cam, tf, wait=True, timeout=30)
+            drawn = {tuple(it.index) for it in action.last_selection.items}
+    finally:
+        clip.close()
+    assert {(1, 1, 1), (2, 2, 2), (1, 2, 1)} <= drawn  # air bricks in the map's box (25..44) are drawn
+    assert (0, 0, 0) in drawn and not drawn & {(0, 2, 2), (2, 0, 0), (0, 0, 2)}  # air clear of it is culled
+    r = ref.to_uint8(ref.raycast_overlays(prim, (1, 1, 1), cam.fit_depth(lo, hi), tf.table, (0.3, 1.0),
+                                          [(zmap, (1.5, 1.5, 1.5), (26.0, 26.0, 26.0), m_tf.table, (-0.6, 0.6))]))
+    assert (r[..., 3] > 100).sum() > 50
+    diff = np.abs(img.astype(int) - r.astype(int))
+    assert diff.max() <= 3 and (diff > 1).mean() < 0.01, (diff.max(), (diff > 1).mean())
