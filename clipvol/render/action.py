@@ -224,7 +224,11 @@ class ClipRenderAction:
         self.image_lod: ImageLod | None = None  # the image policy's tables and visibility, made on first use
         self._moderngl = moderngl
         self.overlays = OverlayTextures(ctx, clip_texture.loader)  # co-registered volumes (scene/overlay.py)
-        self.overlays.sync(self.params.overlays)
+        try:
+            self.overlays.sync(self.params.overlays)
+        except BaseException:  # an overlay refused: give back what was made
+            self.close()
+            raise
 
     # -- shader variants ---------------------------------------------------------------------------
     def defines(self) -> dict:

@@ -115,7 +115,7 @@ class Overlay:
         s = object.__setattr__
         if not (hasattr(self.loader, "pyramid") and hasattr(self.loader, "read_brick")):
             raise ParameterError(f"overlay: expected a loader (with pyramid and read_brick), got {type(self.loader).__name__}")
-        name = self.name or str(getattr(self.loader, "path", "") or getattr(self.loader, "_where", "") or "overlay")
+        name = self.name or str(getattr(self.loader, "path", "") or "overlay")
         s(self, "name", name)
         pyr = self.loader.pyramid
         tf = self.tf

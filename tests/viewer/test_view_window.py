@@ -321,6 +321,16 @@ def test_view_cli_with_an_overlay_runs_a_few_frames(xdisplay, tmp_path):
                  "--origin", "4,4,4"]) == 0
     assert main(["view", "procedural:fractal?size=32", "--brick", "16", "--size", "64x48", "--max-frames", "3",
                  "--overlay", f"{tmp_path / 'm.zarr'}:diverging"]) == 0
+    # a segmentation of the store, each label its colour, one hidden
+    img = np.random.default_rng(1).random((16, 16, 16)).astype(np.float32)
+    seg = np.zeros((16, 16, 16), dtype=np.uint8)
+    seg[4:10, 4:10, 4:10], seg[10:14, 2:8, 8:14] = 3, 7
+    np.save(tmp_path / "img.npy", img)
+    np.save(tmp_path / "seg.npy", seg)
+    assert main(["brick", str(tmp_path / "img.npy"), str(tmp_path / "img.zarr"), "--brick", "8", "--quiet", "--no-summary",
+                 "--labels", f"{tmp_path / 'seg.npy'}:seg"]) == 0
+    assert main(["view", str(tmp_path / "img.zarr"), "--size", "48x48", "--max-frames", "2", "--label-overlay", "seg",
+                 "--label-colors", "3=#ff0000:0.6,7=hide"]) == 0
 
 
 def test_window_plays_pauses_and_steps_a_time_series(xdisplay):
