@@ -339,6 +339,8 @@ class ZarrLoader:
         self._within: tuple[int, ...] = ()  # ... inside that chunk
         self.axes: tuple[str, ...] = ()  # names of the leading axes ("t", "c")
         self.lead_shape: tuple[int, ...] = ()
+        self.origin: tuple[float, float, float] = (0.0, 0.0, 0.0)  # world z, y, x of voxel 0 beyond the translations
+        self.unit: str | None = None  # spatial unit, when the store says
         if "clipvol" in attrs:
             self._open_clipvol(attrs)
         else:
@@ -374,6 +376,7 @@ class ZarrLoader:
             )
         pyr = meta.pyramid
         self.frame = meta.frame  # the source's voxel-to-world affine (NIfTI, DICOM, ...) or None
+        self.origin, self.unit = tuple(float(v) for v in meta.origin), meta.unit
         self.is_clipvol_store = True
         self._lead = 0
         for name, v in self._want.items():

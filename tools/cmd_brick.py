@@ -31,6 +31,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--filter", default="mean", help="down-sampling filter: mean | subsample | max | mode (label volumes) (default mean)")
     parser.add_argument("--codec", default="lz4", help="lz4 | zstd | none (default lz4: blosc lz4 + shuffle)")
     parser.add_argument("--spacing", help="level-0 voxel size z,y,x (default: the input's, else 1,1,1)")
+    parser.add_argument("--origin", default=None, metavar="Z,Y,X",
+                        help="world position of voxel 0 (OME translation; default: the input's, else 0,0,0): "
+                             "co-registered volumes drawn as overlays (render --overlay) are placed by it; "
+                             "write --origin=-4,2,3 when the first value is negative")
     parser.add_argument("--unit", default=None, help="unit of the spacing (default: the input's, e.g. millimeter for NIfTI/DICOM, else micrometer)")
     parser.add_argument("--shape", help="raw input: shape Z,Y,X")
     parser.add_argument("--dtype", help="raw input: numpy dtype, e.g. uint16")
@@ -58,17 +62,30 @@ def run(args: argparse.Namespace) -> int:
     shape = _triple(args.shape, "shape", int) if args.shape else None
     t0 = time.perf_counter()
     build = brick_volume
+    from clipvol.bricking.channels import brick_channels, channel_count
+
+    if channel_count(args.input) is not None:  # a (c, z, y, x) input: one store per channel
+        if args.scheduler or args.labels:
+            raise ParameterError("INPUT: a 4-D (c, z, y, x) input is bricked with local threads and without --labels")
+        build = brick_channels
+    extra = {}
+    if args.origin is not None:
+        extra["origin"] = _triple(args.origin, "origin")
     if args.scheduler:
         from functools import partial
 
         from clipvol.bricking.dask_build import brick_volume_dask
 
+        if extra:
+            raise ParameterError("--origin: not available with --scheduler yet; brick with local threads")
         build = partial(brick_volume_dask, scheduler=args.scheduler)
     meta = build(
         args.input, args.output, brick=args.brick, filter=args.filter, codec=args.codec, spacing=spacing,
         unit=args.unit, workers=args.workers, overwrite=args.overwrite, progress=not args.quiet,
-        raw_shape=shape, raw_dtype=args.dtype, byte_order=args.byte_order, summary=not args.no_summary,
+        raw_shape=shape, raw_dtype=args.dtype, byte_order=args.byte_order, summary=not args.no_summary, **extra,
     )
+    channels = len(meta) if isinstance(meta, list) else 0
+    meta = meta[0] if channels else meta
     for spec in args.labels:
         from pathlib import Path
 
@@ -84,6 +101,8 @@ def run(args: argparse.Namespace) -> int:
         pyr = meta.pyramid
         nbytes = int(pyr.dtype.itemsize) * pyr.shape[0] * pyr.shape[1] * pyr.shape[2]
         dt = time.perf_counter() - t0
-        print(f"{args.output}: {pyr.num_levels} levels, level 0 {pyr.shape} {pyr.dtype}, "
-              f"{format_bytes(nbytes)} in {dt:.1f} s ({format_bytes(nbytes / max(dt, 1e-9))}/s)")
+        nbytes *= max(channels, 1)
+        print(f"{args.output}: {pyr.num_levels} levels, level 0 {pyr.shape} {pyr.dtype}"
+              + (f" x {channels} channels (one store each in {args.output}/c/)" if channels else "")
+              + f", {format_bytes(nbytes)} in {dt:.1f} s ({format_bytes(nbytes / max(dt, 1e-9))}/s)")
     return 0

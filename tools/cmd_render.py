@@ -50,6 +50,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     d = p.add_argument_group("data")
     d.add_argument("--t", type=int, default=None, help="time point of an OME-Zarr image with a t axis (default 0)")
     d.add_argument("--c", type=int, default=None, help="channel of an OME-Zarr image with a c axis (default 0)")
+    d.add_argument("--channels", default=None, metavar="C:COLOUR,...",
+                   help="several channels of an image with a c axis in one ray cast, each its colour (a name or "
+                        "#RRGGBB) with a ramp opacity over its window (--tf-range for all), e.g. 0:green,1:magenta")
+    d.add_argument("--blend", choices=("additive", "over"), default=None,
+                   help="--channels / --overlay: colours add up (additive, default for --channels) or the "
+                        "later layers over the first (over, default for --overlay)")
     d.add_argument("--hide-labels", default=None, metavar="NAME:ID,ID",
                    help="hide the voxels of these label ids of the store's labels/NAME (from clipvol brick --labels)")
     v = p.add_argument_group("camera")
@@ -80,9 +86,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--no-visibility", action="store_true",
                    help="--policy image: no visibility estimate (every brick counts as fully visible)")
     r.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel projects to more than this many pixels")
+    from clipvol.tools.overlay_args import add_overlay_arguments
     from clipvol.tools.tf_args import add_tf_arguments
 
     add_tf_arguments(p.add_argument_group("transfer function"))
+    add_overlay_arguments(p.add_argument_group("overlays of co-registered volumes"))
     r.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
     r.add_argument("--background", type=lambda s: tuple(float(t) for t in s.split(",")), default=(0.0, 0.0, 0.0, 0.0),
                    help="straight RGBA r,g,b,a in [0, 1] behind the volume (default transparent)")
@@ -204,7 +212,17 @@ def run(args) -> int:
 
     kwargs = {} if args.brick is None else {"brick": args.brick}
     kwargs.update({k: v for k, v in (("t", args.t), ("c", args.c)) if v is not None})
-    loader = open_store(args.source, **kwargs, **remote_kwargs(args))
+    channel_overlays, channel_tf = (), None
+    if args.channels:
+        from clipvol.app.channels import open_channels
+
+        if args.c is not None:
+            raise ParameterError("--c: expected either --c or --channels, got both")
+        loader, channel_tf, channel_overlays = open_channels(
+            args.source, args.channels, windows=args.tf_range, overlay_budget=args.overlay_budget,
+            **kwargs, **remote_kwargs(args))
+    else:
+        loader = open_store(args.source, **kwargs, **remote_kwargs(args))
     if args.hide_labels:
         loader = hidden_labels(args.source, loader, args.hide_labels)
     pyr = loader.pyramid
@@ -220,9 +238,10 @@ def run(args) -> int:
         max_texels_drawn=args.max_texels_drawn, distance_factor=args.distance_factor, fov_fraction=args.fov_fraction,
         texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget, step=args.step,
         background=args.background, block_budget=args.block_budget, visibility=not args.no_visibility,
-        shading=args.shading, **_light(args.light),
+        shading=args.shading, **_light(args.light), overlays=channel_overlays + _overlays(args, loader),
+        blend=args.blend or ("additive" if args.channels else "over"),
     ).check_for(pyr)
-    tf = transfer_function_from_args(args, loader)
+    tf = channel_tf or transfer_function_from_args(args, loader)
     if args.workers is not None:  # sort-last on Dask: groups of bricks in worker processes
         return _run_sort_last(args, params, cam, tf, kwargs)
     ctx = create_context()
@@ -231,6 +250,7 @@ def run(args) -> int:
                 ClipRenderAction(ctx, clip, params) as action:
             image = action.render(cam, tf, wait=not args.no_wait, timeout=args.timeout)
             st = action.last_frame_stats
+            overlay_levels = action.overlays.levels()
     finally:
         ctx.release()
     Image.fromarray(image, "RGBA").save(args.out)
@@ -246,6 +266,8 @@ def run(args) -> int:
         est = getattr(action.last_policy, "estimated_error", float("nan"))
         print(f"image policy: block budget {params.block_budget}, {st.bricks_distinct} bricks drawn, "
               f"estimated error {est:.3f}", file=sys.stderr)
+    if overlay_levels:
+        print("overlays: " + "; ".join(f"{name} (level {L})" for name, L in overlay_levels.items()), file=sys.stderr)
     print("time: " + ", ".join(f"{k} {v * 1000:.1f} ms" for k, v in t.items()), file=sys.stderr)
     return 0
 
@@ -261,6 +283,8 @@ def _run_sort_last(args, params, cam, tf, kwargs) -> int:
         raise ParameterError(f"--workers: expected an integer >= 1, got {args.workers}")
     if args.no_wait:
         raise ParameterError("--no-wait: sort-last frames are always converged; drop --no-wait or --workers")
+    if params.overlays:
+        raise ParameterError("--overlay: not available with --workers (each worker draws a part of the primary alone)")
     if args.hide_labels:
         raise ParameterError("--hide-labels: not available with --workers (the workers draw the image alone)")
     with DistributedRenderer(args.source, args.workers, params, scheduler=args.scheduler,
@@ -276,3 +300,9 @@ def _run_sort_last(args, params, cam, tf, kwargs) -> int:
         st.frame_seconds * 1000, ", ".join(f"{t * 1000:.1f} ms" for t in st.group_seconds), st.composite_seconds * 1000),
         file=sys.stderr)
     return 0
+
+
+def _overlays(args, loader) -> tuple:
+    from clipvol.tools.overlay_args import overlays_from_args
+
+    return overlays_from_args(args, args.source, loader)

@@ -53,11 +53,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--render-path", choices=("single-pass", "bricks"), default="bricks",
                    help="one ray-guided pass through a page table of the cut, or one proxy box per brick")
     g.add_argument("--shading", action="store_true", help="start with gradient lighting on (key L)")
+    g.add_argument("--play", action="store_true",
+                   help="an OME-Zarr image with a t axis: play its time steps (Space play/pause, J/K step, { } rate; "
+                        "the next step prefetched under the same memory budget)")
+    g.add_argument("--rate", type=float, default=4.0, help="--play: most time steps per second (default 4)")
+    g.add_argument("--c", type=int, default=None, help="channel of an OME-Zarr image with a c axis (default 0)")
     g.add_argument("--outlines", action="store_true", help="draw brick outlines coloured by level (key B)")
     g.add_argument("--size", type=_size, default=None, help="window or image size WxH (default 960x640 window, 256x256 offscreen)")
+    from clipvol.tools.overlay_args import add_overlay_arguments
     from clipvol.tools.tf_args import add_tf_arguments
 
     add_tf_arguments(p.add_argument_group("transfer function"))
+    add_overlay_arguments(p.add_argument_group("overlays of co-registered volumes"))
     o = p.add_argument_group("offscreen")
     o.add_argument("--offscreen", action="store_true", help="render a camera path to files instead of opening a window")
     o.add_argument("--path", choices=("orbit", "turntable", "fly", "zoom"), default="orbit",
@@ -152,13 +159,22 @@ def run(args) -> int:
     from clipvol.tools.remote_args import remote_kwargs
 
     kwargs = {} if args.brick is None else {"brick": args.brick}
+    if args.c is not None:
+        kwargs["c"] = args.c
     source = _bricked(args)
     loader = open_loader(source, **kwargs, **remote_kwargs(args))
+    series = _series(args, source, loader, {**kwargs, **remote_kwargs(args)}) if args.play else None
     if params.level is not None and params.level >= loader.pyramid.num_levels:
         raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {params.level}")
     tf = transfer_function_from_args(args, loader)
+    if args.overlay or args.label_overlay:
+        from dataclasses import replace
+
+        params = replace(params, overlays=_overlays(args, loader, source))
     if args.workers is not None and not args.offscreen:
         raise ParameterError("--workers: sort-last frames are drawn offscreen only; add --offscreen")
+    if args.workers is not None and params.overlays:
+        raise ParameterError("--overlay: not available with --workers (each worker draws a part of the primary alone)")
     if args.offscreen and args.workers is not None:  # sort-last frames on Dask
         from clipvol.app.sortlast import render_path_sort_last
 
@@ -204,7 +220,31 @@ def run(args) -> int:
     with Viewer(loader, size=args.size or (960, 640), memory_budget=args.memory_budget,
                 texture_budget=args.texture_budget, threads=args.threads, params=params, tf=tf,
                 screenshot_dir=args.screenshot_dir, title=f"clipvol - {args.source}",
-                frame_time=args.frame_time / 1000.0 or None, camera=camera) as viewer:
+                frame_time=args.frame_time / 1000.0 or None, camera=camera, series=series, rate=args.rate) as viewer:
         if args.outlines:
             viewer.key("B")
         return viewer.run(max_frames=args.max_frames)
+
+
+def _overlays(args, loader, source) -> tuple:
+    from clipvol.tools.overlay_args import overlays_from_args
+
+    return overlays_from_args(args, source, loader)
+
+
+def _series(args, source, loader, kwargs) -> list:
+    """``--play``: one loader per time step of ``source`` (an OME-Zarr image with a ``t`` axis)."""
+    from clipvol.app.session import open_loader
+    from clipvol.errors import ParameterError
+
+    axes = tuple(getattr(loader, "axes", ()) or ())
+    if "t" not in axes:
+        raise ParameterError(f"--play: expected an OME-Zarr image with a t axis, got {args.source} with axes "
+                             f"{list(axes) + ['z', 'y', 'x']}")
+    if args.offscreen or args.workers is not None:
+        raise ParameterError("--play: plays in the window only; drop --offscreen / --workers")
+    if not args.rate > 0:
+        raise ParameterError(f"--rate: expected steps per second > 0, got {args.rate}")
+    n = int(loader.lead_shape[axes.index("t")])
+    return [loader] + [open_loader(source, t=k, **kwargs) for k in range(1, n)]
+

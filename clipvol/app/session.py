@@ -22,7 +22,7 @@ from ..render.action import ClipRenderAction
 from ..scene.params import RenderParams
 from ..scene.transfer import TransferFunction
 
-__all__ = ["RenderSession", "open_loader"]
+__all__ = ["RenderSession", "open_loader", "make_overlays"]
 
 
 def open_loader(source, **kwargs):
@@ -30,6 +30,22 @@ def open_loader(source, **kwargs):
     if hasattr(source, "read_brick") and hasattr(source, "pyramid"):
         return source
     return open_store(source, **kwargs)
+
+
+def make_overlays(specs) -> tuple:
+    """:class:`~clipvol.scene.overlay.Overlay` objects from ``specs``: each an ``Overlay``, a source
+    (store path, URL or loader; transfer function ``diverging``) or a ``(source, tf)`` pair."""
+    from ..scene.overlay import Overlay
+
+    out = []
+    for spec in specs or ():
+        if isinstance(spec, Overlay):
+            out.append(spec)
+            continue
+        source, tf = (spec if isinstance(spec, tuple) and len(spec) == 2 else (spec, "diverging"))
+        name = source if isinstance(source, str) else ""
+        out.append(Overlay(open_loader(source), tf, name=str(name)))
+    return tuple(out)
 
 
 def _check_tf(tf):
@@ -57,11 +73,16 @@ class RenderSession:
         The transfer function: a preset name or an object.
     texture_budget, background : optional
         Shorthands for the same fields of ``params``.
+    overlays : sequence, optional
+        Co-registered volumes drawn over the source in the same ray cast (see :func:`make_overlays`
+        and :mod:`clipvol.scene.overlay`): ``[("zmap.zarr", "diverging")]``.
     """
 
     def __init__(self, source, ctx, *, memory_budget="256MB", threads=None, params: RenderParams | None = None,
-                 tf="viridis", texture_budget=None, background=None) -> None:
+                 tf="viridis", texture_budget=None, background=None, overlays=None) -> None:
         over = {k: v for k, v in (("texture_budget", texture_budget), ("background", background)) if v is not None}
+        if overlays is not None:
+            over["overlays"] = make_overlays(overlays)
         self.params = RenderParams.from_kwargs(params, **over)
         self.tf = _check_tf(tf)
         self.loader = open_loader(source)
@@ -86,6 +107,8 @@ class RenderSession:
         The new :class:`RenderParams` is built (and so validated) first; the render action takes it
         for the next frame and keeps its GPU cache, and the clip-texture keeps its bricks.
         """
+        if "overlays" in changes:
+            changes["overlays"] = make_overlays(changes["overlays"])
         new = RenderParams.from_kwargs(self.params, **changes).check_for(self.pyramid)
         changed = False
         if tf is not None and (tf is not self.tf and tf != self.tf):

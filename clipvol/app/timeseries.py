@@ -22,8 +22,9 @@ from ..paging.cliptexture import ClipTexture
 from ..render.action import ClipRenderAction
 from ..scene.params import RenderParams
 from ..units import parse_bytes
+from .session import RenderSession, _check_tf
 
-__all__ = ["TimeSeriesPlayer"]
+__all__ = ["TimeSeriesPlayer", "SeriesSession"]
 
 
 class TimeSeriesPlayer:
@@ -140,3 +141,57 @@ class TimeSeriesPlayer:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class SeriesSession(RenderSession):
+    """A :class:`~clipvol.app.session.RenderSession` over a time series: what the viewer holds to
+    play one (:mod:`clipvol.viewer.playback`). Its ``clip_texture`` and ``action`` are those of the
+    current step of one :class:`TimeSeriesPlayer` (the next step prefetched under the same budget);
+    :meth:`go_to` changes the step. Parameters as :class:`RenderSession`, with ``loaders`` (one per
+    time step) for ``source``; ``prefetch`` as :class:`TimeSeriesPlayer`.
+    """
+
+    def __init__(self, loaders, ctx, *, memory_budget="256MB", threads=None, params: RenderParams | None = None,
+                 tf="viridis", texture_budget=None, background=None, prefetch: bool = True) -> None:
+        over = {k: v for k, v in (("texture_budget", texture_budget), ("background", background)) if v is not None}
+        self.params = RenderParams.from_kwargs(params, **over)
+        self.tf = _check_tf(tf)
+        self.player = TimeSeriesPlayer(loaders, ctx, memory_budget=memory_budget, params=self.params,
+                                       prefetch=prefetch, threads=threads)
+        self.loader = self.player.loaders[0]
+        self.pyramid = self.loader.pyramid
+        self.ctx = ctx
+        self._tf = None
+        self._tf_name = None
+        self._center = None
+
+    @property
+    def clip_texture(self):
+        return self.player.current
+
+    @property
+    def action(self):
+        return self.player.action
+
+    @property
+    def step(self) -> int:
+        """The time step shown."""
+        return self.player.step
+
+    def go_to(self, step: int) -> None:
+        """Show time step ``step`` from the next frame on."""
+        self.player.go_to(step)
+        self.loader = self.player.loaders[self.player.step]
+        if self._center is not None:
+            self.player.set_center(self._center)
+
+    def set_center(self, xyz) -> None:
+        lo, hi = self.pyramid.volume_box()
+        c = np.clip(np.asarray(xyz, dtype=np.float64), lo, hi)
+        if self._center is None or not np.array_equal(c, self._center):
+            self.player.set_center(c)
+            self._center = c
+
+    def close(self) -> None:
+        self.player.close()
+

@@ -90,8 +90,8 @@ def brick_labels(image, labels, name: str = "labels", *, codec: str = "lz4", wor
     out = image / LABELS_GROUP / name
     group = zarr.open_group(str(image / LABELS_GROUP), mode="a")
     result = brick_volume(labels, out, brick=pyr.brick_shape, filter="mode", codec=codec, spacing=pyr.spacing,
-                          unit=meta.unit, workers=workers,
-                          overwrite=overwrite, progress=progress)
+                          unit=meta.unit, workers=workers, overwrite=overwrite, progress=progress,
+                          origin=tuple(meta.origin) if any(meta.origin) else None)  # the image's place in the world
     label_group = zarr.open_group(str(out), mode="r+")
     ome = dict(label_group.attrs.get("ome", {}))
     ome["image-label"] = {"version": ome.get("version", "0.5"), "source": {"image": "../../"}}

@@ -48,6 +48,7 @@ from ..errors import OutputExistsError, OutputLockedError, ParameterError, Sourc
 from .pyramid import FILTERS, Pyramid, downsample
 from .sources import Source, identity_changes, open_source, source_identity
 from .stats import StatsComputer, finite_range
+from .worldframe import WorldFrame
 from .store import (
     STAT_ARRAYS,
     STATS_GROUP,
@@ -507,6 +508,7 @@ def brick_volume(
     raw_dtype=None,
     byte_order: str = "little",
     summary: bool = True,
+    origin: Sequence[float] | None = None,
 ) -> StoreMeta:
     """Brick ``source`` into a multiresolution clipvol store at ``output`` (a local directory).
 
@@ -539,6 +541,9 @@ def brick_volume(
     summary : bool
         Also build the summary tables of image-based level of detail
         (:func:`clipvol.bricking.summary.build_summary`) once the pyramid is complete.
+    origin : (z, y, x) or None
+        World position of voxel 0 (OME ``translation``); None takes the input's own (NIfTI, DICOM,
+        MRC), else 0. Co-registered volumes (overlays, :mod:`clipvol.scene.overlay`) are placed by it.
 
     Returns
     -------
@@ -554,6 +559,8 @@ def brick_volume(
         sp = tuple(float(v) for v in sp)
         unit = unit or src.unit or "micrometer"
         frame = src.frame.with_spacing(sp) if src.frame is not None else None
+        if origin is not None:
+            frame = (frame or WorldFrame.from_spacing(sp)).with_origin(origin)
         job = job_spec(src, src.shape, bshape, filter, codec, sp, unit)
         with output_lock(output), \
                 ThreadPoolExecutor(max_workers=workers, thread_name_prefix="clipvol-brick") as pool:

@@ -88,6 +88,16 @@ class WorldFrame:
         m[:3, :3] = self.directions * np.array([sx, sy, sz])
         return WorldFrame(tuple(tuple(r) for r in m), self.frame)
 
+    def with_origin(self, origin_zyx) -> "WorldFrame":
+        """The same axes and voxel size with voxel 0 at ``origin_zyx`` along the array's axes (a
+        user's ``--origin`` wins; for an oblique frame the translation is ``directions @ origin``)."""
+        o = np.asarray([float(v) for v in origin_zyx], dtype=np.float64)
+        if o.shape != (3,) or not np.all(np.isfinite(o)):
+            raise ParameterError(f"origin: expected three finite numbers z,y,x, got {origin_zyx!r}")
+        m = self.matrix
+        m[:3, 3] = self.directions @ o[::-1]
+        return WorldFrame(tuple(tuple(r) for r in m), self.frame)
+
     # -- derived values ------------------------------------------------------------------------
     @property
     def matrix(self) -> np.ndarray:

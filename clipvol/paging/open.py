@@ -88,6 +88,9 @@ def open_store(path_or_url: str | Path, **kwargs) -> Loader:
                 )
             from ..loaders.zarr_store import ZarrLoader
 
+            n = _channel_set(path)
+            if n is not None:  # clipvol brick of a (c, z, y, x) input: one store per channel
+                return _open_channel(path, n, kwargs)
             return ZarrLoader(path, **kwargs)
         raise InputFormatError(f"{path}: expected a zarr store (a directory with zarr.json or .zgroup), found neither")
     if path.suffix.lower() == ".npy":
@@ -98,3 +101,38 @@ def open_store(path_or_url: str | Path, **kwargs) -> Loader:
         f"{path}: unknown format (suffix {path.suffix or 'none'!r}); expected a zarr store directory, a .npy file "
         "or a URL such as 'procedural:fractal?size=256'"
     )
+
+
+def _channel_set(path: Path) -> int | None:
+    """Channels of a channel set (:mod:`clipvol.bricking.channels`), or None for any other group."""
+    import json
+
+    try:
+        attrs = json.loads((path / "zarr.json").read_text()).get("attributes", {})
+    except (OSError, ValueError, AttributeError):
+        return None
+    cs = attrs.get("clipvol_channels") if isinstance(attrs, dict) else None
+    if not isinstance(cs, dict):
+        return None
+    try:
+        return int(cs["channels"])
+    except (KeyError, TypeError, ValueError):
+        raise InputFormatError(f"{path}: attributes['clipvol_channels'] is malformed: {cs!r}") from None
+
+
+def _open_channel(path: Path, n: int, kwargs: dict):
+    """Channel ``c`` (default 0) of a channel set, its loader reporting the ``c`` axis."""
+    from ..errors import ParameterError
+    from ..loaders.zarr_store import ZarrLoader
+
+    kwargs = dict(kwargs)
+    c, t = kwargs.pop("c", None), kwargs.pop("t", None)
+    if t not in (None, 0):
+        raise ParameterError(f"t: {path} has no 't' axis (a channel set: c, z, y, x), got t={t}")
+    c = 0 if c is None else c
+    if isinstance(c, bool) or int(c) != c or not 0 <= c < n:
+        raise ParameterError(f"c: expected 0..{n - 1} for {path} ({n} channels), got {c!r}")
+    loader = ZarrLoader(path / "c" / str(int(c)), **kwargs)
+    loader.axes, loader.lead_shape = ("c",), (n,)
+    return loader
+

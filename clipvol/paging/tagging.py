@@ -48,6 +48,8 @@ class TaggedLoader:
         self.image, self.labels = image, labels
         self.hidden = np.array(sorted({int(h) for h in hidden}), dtype=np.int64)
         self._pyramid = replace(pi, dtype=np.dtype(np.float32))
+        # where the image sits in the world (overlays are placed relative to it)
+        self.origin, self.unit, self.frame = (getattr(image, k, None) for k in ("origin", "unit", "frame"))
 
     @property
     def pyramid(self):

@@ -92,6 +92,7 @@ from .frame_loop import FrameLoop
 from .glsl import ProgramCache
 from .gpu_cache import GpuBrickCache
 from .image_lod import ImageLod
+from .overlay_binding import OverlayTextures, overlay_defines
 
 __all__ = ["ClipRenderAction", "FrameStats", "MODES", "SELECTIONS"]
 
@@ -222,12 +223,19 @@ class ClipRenderAction:
         self.last_raw: np.ndarray | None = None  # (h, w, 4) float32 target of the last frame, rows top first
         self.image_lod: ImageLod | None = None  # the image policy's tables and visibility, made on first use
         self._moderngl = moderngl
+        self.overlays = OverlayTextures(ctx, clip_texture.loader)  # co-registered volumes (scene/overlay.py)
+        try:
+            self.overlays.sync(self.params.overlays)
+        except BaseException:  # an overlay refused: give back what was made
+            self.close()
+            raise
 
     # -- shader variants ---------------------------------------------------------------------------
     def defines(self) -> dict:
         """The ``#define``\\ s of this frame's volume shader variant (see :mod:`clipvol.render.glsl`)."""
         mip = self.params.mode == "mip"
-        return {"MODE_MIP": mip, "HAS_NAN": self.nonfinite, "SHADING": self.params.shading and not mip}
+        return {"MODE_MIP": mip, "HAS_NAN": self.nonfinite, "SHADING": self.params.shading and not mip,
+                **overlay_defines(self.params.overlays, self.params.blend)}
 
     def _brick_program(self):
         """The brick shader variant for the current parameters (compiled once per variant)."""
@@ -283,6 +291,8 @@ class ClipRenderAction:
         loader = self.clip_texture.loader
         if self.params.mode != "composite" or not isinstance(loader, HasBrickRanges):
             return None
+        if self.params.overlays:  # a transparent brick still carries the rays through an overlay
+            return self.overlays.cull_outside(transparency_filter(tf, loader), self.params.overlays)
         return transparency_filter(tf, loader)
 
     def _ensure_fbo(self, size: tuple[int, int]):
@@ -326,6 +336,7 @@ class ClipRenderAction:
         if not isinstance(params, RenderParams):
             raise ParameterError(f"params: expected a RenderParams, got {type(params).__name__}")
         params.check_for(self.pyramid)
+        self.overlays.sync(params.overlays)
         if params.texture_budget != self.params.texture_budget:
             self.cache.release()
             self.cache = GpuBrickCache(self.ctx, self.pyramid, params.texture_budget)
@@ -551,6 +562,8 @@ class ClipRenderAction:
                 ctx.blend_func = mgl.ONE, mgl.ONE_MINUS_SRC_ALPHA
         if composite:
             self._ensure_tf(tf).use(location=1)
+        if self.params.overlays:  # co-registered volumes sampled at each sample (render/overlay_binding.py)
+            self.overlays.bind(self.program, self.params.overlays, origin, self.level_ratios())
         prog = self.program
         pyr = self.pyramid
         B = np.asarray(pyr.brick_shape, dtype=np.float64)
@@ -779,6 +792,8 @@ class ClipRenderAction:
     def close(self) -> None:
         """Release every GL object of the action (the context stays)."""
         self.cache.release()
+        if getattr(self, "overlays", None) is not None:
+            self.overlays.release()
         if getattr(self, "image_lod", None) is not None:  # (close() may follow a failed __init__)
             self.image_lod.close()
             self.image_lod = None

@@ -24,6 +24,8 @@ __all__ = ["RenderParams", "MODES", "PATHS", "POLICY_ALIASES", "DEFAULT_BLOCK_BU
 
 #: compositing modes of the volume action
 MODES = ("composite", "mip")
+#: how overlays (channels) combine with the primary at each sample (see RenderParams.blend)
+BLENDS = ("over", "additive")
 #: how the volume action draws a cut (see RenderParams.path)
 PATHS = ("single-pass", "bricks")
 #: bricks the "image" policy may draw when no block_budget is given
@@ -128,6 +130,14 @@ class RenderParams:
         Lighting weights (>= 0).
     shininess : float
         Specular exponent (> 0).
+    overlays : tuple of Overlay
+        Co-registered volumes composited over the primary at each of its samples, in one ray cast
+        (:mod:`clipvol.scene.overlay`; at most :data:`~clipvol.scene.overlay.MAX_OVERLAYS`, the first
+        on top). Composite mode and the ``"bricks"`` path only.
+    blend : {"over", "additive"}
+        How overlays combine with the primary at each sample: ``"over"`` (their premultiplied
+        colours over the primary's, the first on top) or ``"additive"`` (channels of one image:
+        the colours add up, ``sum(a_k * rgb_k)``, opacity ``1 - prod(1 - a_k)``; not with shading).
     """
 
     mode: str = "composite"
@@ -155,6 +165,8 @@ class RenderParams:
     diffuse: float = 0.7
     specular: float = 0.3
     shininess: float = 20.0
+    overlays: tuple = ()
+    blend: str = "over"
 
     def __post_init__(self) -> None:
         from .selection.policies import (
@@ -224,6 +236,31 @@ class RenderParams:
                 raise ParameterError(f"{name}: expected a finite lighting weight >= 0, got {v!r}")
             s(self, name, f)
         s(self, "shininess", _positive(self.shininess, "shininess", "specular exponent"))
+        self._check_overlays()
+
+    def _check_overlays(self) -> None:
+        from .overlay import MAX_OVERLAYS, Overlay
+
+        ovs = self.overlays
+        if isinstance(ovs, Overlay):
+            ovs = (ovs,)
+        ovs = tuple(ovs or ())
+        for ov in ovs:
+            if not isinstance(ov, Overlay):
+                raise ParameterError(f"overlays: expected clipvol.scene.overlay.Overlay objects, got {type(ov).__name__}")
+        if len(ovs) > MAX_OVERLAYS:
+            raise ParameterError(f"overlays: expected at most {MAX_OVERLAYS}, got {len(ovs)}")
+        if ovs and self.mode != "composite":
+            raise ParameterError(f"overlays: expected mode 'composite' (an overlay is composited over the primary), "
+                                 f"got mode {self.mode!r} with overlay {ovs[0].name}")
+        if ovs and self.path != "bricks":
+            raise ParameterError(f"overlays: expected path 'bricks' (the single-pass path draws no overlay), "
+                                 f"got path {self.path!r} with overlay {ovs[0].name}")
+        object.__setattr__(self, "overlays", ovs)
+        if self.blend not in BLENDS:
+            raise ParameterError(f"blend: expected one of {', '.join(BLENDS)}, got {self.blend!r}")
+        if self.blend == "additive" and self.shading and ovs:
+            raise ParameterError("blend: expected 'over' with shading (additive channels are not lit), got 'additive'")
 
     # -- helpers ---------------------------------------------------------------------------------
     @classmethod

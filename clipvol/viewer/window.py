@@ -163,12 +163,18 @@ class Viewer:
         Window title.
     background : (r, g, b)
         Colour behind the volume, 0..1.
+    series : sequence of Loader, optional
+        A time series (one loader per step, ``source`` is then only its name): the viewer plays,
+        pauses and steps it (Space, J / K, { / }; :mod:`clipvol.viewer.playback`), the next step
+        prefetched under the same memory budget (:class:`clipvol.app.timeseries.SeriesSession`).
+    rate : float
+        Playing rate of a series, steps per second (a ceiling).
     """
 
     def __init__(self, source, *, size=(960, 640), memory_budget="256MB", texture_budget="256MB", threads=None,
                  params: RenderParams | None = None, tf="viridis", screenshot_dir=".", visible: bool = True,
                  title: str = "clipvol", background=(0.0, 0.0, 0.0), frame_time: float | None = 0.1,
-                 camera=None) -> None:
+                 camera=None, series=None, rate: float = 4.0) -> None:
         try:
             import glfw
         except ImportError as e:  # pragma: no cover - glfw is a dependency
@@ -208,9 +214,15 @@ class Viewer:
             glfw.make_context_current(self.window)
             glfw.swap_interval(1 if visible else 0)
             self.ctx = create_context(standalone=False, backend=None)
-            self.session = RenderSession(source, self.ctx, memory_budget=memory_budget, texture_budget=texture_budget,
-                                         threads=threads, tf=tf,
-                                         params=params if params is not None else RenderParams(jitter=True))
+            params = params if params is not None else RenderParams(jitter=True)
+            if series is not None:  # a time series: play / pause / step (viewer/playback.py)
+                from ..app.timeseries import SeriesSession
+
+                self.session = SeriesSession(series, self.ctx, memory_budget=memory_budget,
+                                             texture_budget=texture_budget, threads=threads, tf=tf, params=params)
+            else:
+                self.session = RenderSession(source, self.ctx, memory_budget=memory_budget,
+                                             texture_budget=texture_budget, threads=threads, tf=tf, params=params)
             self._setup_gl()
         except BaseException:
             self.close()
@@ -258,6 +270,11 @@ class Viewer:
         self._view = None
         self.last_screenshot: Path | None = None
         self.slices = None  # slice mode (key L): clipvol.viewer.slice_layout, built on first use
+        self.playback = None  # a time series' play / pause / step (viewer/playback.py)
+        if series is not None:
+            from .playback import Playback
+
+            self.playback = Playback(len(self.session.player), rate=rate)
         self._install_callbacks()
 
     # -- GL objects ---------------------------------------------------------------------------
@@ -306,7 +323,8 @@ class Viewer:
             name = chr(ord("A") + key - glfw.KEY_A)
         else:  # the other keys the viewer knows by name (printable ones arrive through _on_char)
             name = {glfw.KEY_ESCAPE: "ESCAPE", glfw.KEY_KP_ADD: "+", glfw.KEY_KP_SUBTRACT: "-",
-                    glfw.KEY_LEFT: "LEFT", glfw.KEY_RIGHT: "RIGHT", glfw.KEY_UP: "UP", glfw.KEY_DOWN: "DOWN"}.get(key)
+                    glfw.KEY_LEFT: "LEFT", glfw.KEY_RIGHT: "RIGHT", glfw.KEY_UP: "UP", glfw.KEY_DOWN: "DOWN",
+                    glfw.KEY_SPACE: "SPACE"}.get(key)
         if name is None:
             return
         if action in (glfw.PRESS, glfw.REPEAT) and name in ("LEFT", "RIGHT", "UP", "DOWN"):
@@ -324,6 +342,13 @@ class Viewer:
         if action == glfw.PRESS:
             self.key(name)
 
+    def _show_step(self, step: int) -> None:
+        """Show time step ``step`` of the series (the prefetched one when it is the next)."""
+        if self.session.step != step:
+            self.session.go_to(step)
+            self._dirty = True
+            self._hud_text = None
+
     def toggle_slices(self) -> None:
         """Slice mode on / off: three orthogonal slices beside the 3D view (:mod:`.slice_layout`)."""
         if self.slices is None:
@@ -336,7 +361,7 @@ class Viewer:
 
     def _on_char(self, win, codepoint) -> None:
         ch = chr(codepoint)
-        if ch in "+-=_[]<>,.":
+        if ch in "+-=_[]<>,.{}":
             self.key(ch)
 
     def _on_button(self, win, button, action, mods) -> None:
@@ -400,6 +425,9 @@ class Viewer:
             self.screenshot(hud=False)
         elif name.upper() == "C" and len(name) == 1:
             self.save_camera()
+        elif self.playback is not None and self.playback.handle_key(name):
+            self.state.message = self.playback.message
+            self._show_step(self.playback.step)
         elif self.state.handle_key(name):
             self._apply_state()
 
@@ -502,6 +530,8 @@ class Viewer:
 
             tf = TransferFunction.preset(name, value_range=self.tf.window(self.session.pyramid.value_range))
         self.tf = tf
+        if st.render_mode == "mip" and self.session.params.overlays:  # overlays are composited over the primary
+            st.render_mode, st.message = "composite", "MIP: not with overlays (they are composited over the volume)"
         self.session.update(
             lod_threshold=st.lod_threshold, policy=st.mode, level=st.level if st.mode == "fixed" else None,
             mode=st.render_mode, shading=st.shading, tf=tf,
@@ -532,6 +562,10 @@ class Viewer:
             glfw.poll_events()
         now = time.perf_counter()
         dt, self._t_last = now - self._t_last, now
+        if self.playback is not None:  # a time series playing: the next step once this one is drawn
+            fs = self.session.frame_stats
+            if self.playback.due(now, ready=fs is not None and fs.converged):
+                self._show_step(self.playback.advance(now))
         if self.held and self.controls.move_keys(self.held, min(dt, 0.1), speed=0.5 * self.controls.distance):
             self._dirty = True
         sess = self.session
@@ -648,6 +682,8 @@ class Viewer:
                               texture_stats=self.session.texture_stats, settings=settings, message=st.message,
                               orientation=self._orientation())
             lines.insert(1, quality)
+            if self.playback is not None:
+                lines.insert(2, self.playback.hud_line(self.session.player.prefetch_state))
             if self.slices is not None and self.slices.active:
                 lines = lines + self.slices.hud_lines()
             self._hud_text = lines

@@ -271,3 +271,126 @@ def test_window_on_a_dicom_store_is_head_up_and_labelled(xdisplay, tmp_path):
         _converge(viewer)
         assert viewer._orientation() == {"right": "L", "left": "R", "top": "S", "bottom": "I"}
         assert any("left R  right L  top S  bottom I" in ln for ln in (viewer._hud_text or []))
+
+
+def test_window_draws_an_overlay_like_the_offscreen_session(xdisplay, loader, tmp_path):
+    """``Viewer(params=RenderParams(overlays=...))``: the OVERLAY variant draws, the screen equals an
+    offscreen session with the same overlay, and MIP (key I) is refused with a message, not a crash."""
+    from clipvol.app.session import RenderSession
+    from clipvol.loaders.numpy_array import NumpyLoader
+    from clipvol.render.context import create_context
+    from clipvol.scene.overlay import Overlay
+    from clipvol.scene.params import RenderParams
+    from clipvol.viewer.window import Viewer
+
+    z, y, x = np.mgrid[0:20, 0:20, 0:20].astype(np.float32)
+    blob = np.exp(-((x - 10) ** 2 + (y - 10) ** 2 + (z - 10) ** 2) / 30.0) * 4.0 - 1.0
+    from clipvol.scene.transfer import TransferFunction
+
+    tf = TransferFunction.preset("diverging", value_range=(-0.5, 0.5))
+    prim = TransferFunction.preset("grey", value_range=(0.6, 1.0))  # see-through: the overlay shows
+    ov = Overlay(NumpyLoader(blob, brick=16, spacing=(1.5, 1.5, 1.5)), tf, origin=(10.0, 10.0, 10.0))
+    params = RenderParams(jitter=True, overlays=(ov,))
+    ctx = create_context()
+    with Viewer(loader, size=(80, 64), tf=prim, params=params, visible=False) as v:
+        v.key("H")
+        _converge(v)
+        assert v.session.action.defines()["OVERLAY"] == 1
+        screen = v.read_screen()
+        cam, coi = v.camera(), v.controls.center_of_interest
+        v.key("I")  # MIP: refused while overlays are drawn
+        v.step()
+        assert v.session.params.mode == "composite" and "overlay" in v.state.message
+    try:
+        with RenderSession(loader, ctx, tf=prim, params=params) as s:
+            ref = s.render(cam, coi, wait=True)
+        with RenderSession(loader, ctx, tf=prim, params=RenderParams(jitter=True)) as s:
+            plain = s.render(cam, coi, wait=True)
+    finally:
+        ctx.release()
+    assert np.abs(_over_black(ref) - _over_black(plain)).max() > 40  # the overlay shows
+    diff = np.abs(screen.astype(np.float64) - _over_black(ref))
+    assert diff.max() <= 3.0 and diff.mean() < 0.6, (diff.max(), diff.mean())
+
+
+def test_view_cli_with_an_overlay_runs_a_few_frames(xdisplay, tmp_path):
+    from clipvol.tools.cli import main
+
+    np.save(tmp_path / "m.npy", np.linspace(-1, 1, 16 ** 3, dtype=np.float32).reshape(16, 16, 16))
+    assert main(["brick", str(tmp_path / "m.npy"), str(tmp_path / "m.zarr"), "--brick", "8", "--quiet", "--no-summary",
+                 "--origin", "4,4,4"]) == 0
+    assert main(["view", "procedural:fractal?size=32", "--brick", "16", "--size", "64x48", "--max-frames", "3",
+                 "--overlay", f"{tmp_path / 'm.zarr'}:diverging"]) == 0
+    # a segmentation of the store, each label its colour, one hidden
+    img = np.random.default_rng(1).random((16, 16, 16)).astype(np.float32)
+    seg = np.zeros((16, 16, 16), dtype=np.uint8)
+    seg[4:10, 4:10, 4:10], seg[10:14, 2:8, 8:14] = 3, 7
+    np.save(tmp_path / "img.npy", img)
+    np.save(tmp_path / "seg.npy", seg)
+    assert main(["brick", str(tmp_path / "img.npy"), str(tmp_path / "img.zarr"), "--brick", "8", "--quiet", "--no-summary",
+                 "--labels", f"{tmp_path / 'seg.npy'}:seg"]) == 0
+    assert main(["view", str(tmp_path / "img.zarr"), "--size", "48x48", "--max-frames", "2", "--label-overlay", "seg",
+                 "--label-colors", "3=#ff0000:0.6,7=hide"]) == 0
+
+
+def test_window_plays_pauses_and_steps_a_time_series(xdisplay):
+    """Space plays (a step is shown once it is drawn), J / K step, the HUD shows t, the rate and the
+    prefetch state; the frame of step t is the frame of a session over step t alone."""
+    from clipvol.app.session import RenderSession
+    from clipvol.loaders.numpy_array import NumpyLoader
+    from clipvol.render.context import create_context
+    from clipvol.scene.params import RenderParams
+    from clipvol.viewer.window import Viewer
+
+    z, y, x = np.mgrid[:24, :24, :24].astype(np.float32)
+    steps = [np.exp(-((x - 6 - 6 * t) ** 2 + (y - 12) ** 2 + (z - 12) ** 2) / 20.0).astype(np.float32) for t in range(3)]
+    loaders = [NumpyLoader(s, brick=16, value_range=(0.0, 1.0)) for s in steps]
+    with Viewer(loaders[0], size=(64, 64), tf="viridis", series=loaders, rate=50.0, visible=False, frame_time=None) as v:
+        v.key("H")
+        _converge(v)
+        first = v.read_screen()
+        v.key("K")
+        assert v.session.step == 1 and not v.playback.playing
+        _converge(v)
+        second = v.read_screen()
+        cam, coi = v.camera(), v.controls.center_of_interest
+        v.key("H")
+        v.step(force=True)
+        assert any(line.startswith("t 1/2 paused") for line in v._hud_text)
+        v.key("SPACE")
+        seen = {v.session.step}
+        for _ in range(400):  # bounded: 3 steps at <= 50 steps/s, each drawn before the next
+            v.step()
+            seen.add(v.session.step)
+            if len(seen) == 3:
+                break
+            time.sleep(0.005)
+        assert seen == {0, 1, 2}
+        v.key("SPACE")
+        assert not v.playback.playing
+    assert np.abs(first.astype(int) - second).max() > 30  # the blob moved
+    ctx = create_context()
+    try:
+        with RenderSession(loaders[1], ctx, tf="viridis", params=RenderParams(jitter=True)) as s:
+            ref = s.render(cam, coi, wait=True)
+    finally:
+        ctx.release()
+    diff = np.abs(second.astype(np.float64) - _over_black(ref))
+    assert diff.max() <= 3.0, diff.max()
+
+
+def test_view_cli_plays_a_t_axis_and_refuses_a_store_without_one(xdisplay, tmp_path, capsys):
+    import zarr
+
+    from clipvol.tools.cli import main
+
+    data = np.random.default_rng(0).random((3, 16, 16, 16)).astype(np.float32)
+    g = zarr.open_group(str(tmp_path / "ts.zarr"), mode="w")
+    g.create_array("0", shape=data.shape, chunks=(1, 16, 16, 16), dtype="float32")[...] = data
+    axes = [{"name": "t", "type": "time"}] + [{"name": a, "type": "space"} for a in "zyx"]
+    g.attrs.update({"ome": {"version": "0.5", "multiscales": [{"axes": axes, "datasets": [
+        {"path": "0", "coordinateTransformations": [{"type": "scale", "scale": [1, 1, 1, 1]}]}]}]}})
+    assert main(["view", str(tmp_path / "ts.zarr"), "--play", "--size", "48x48", "--max-frames", "4"]) == 0
+    capsys.readouterr()
+    assert main(["view", "procedural:fractal?size=32", "--brick", "16", "--play", "--max-frames", "2"]) == 2
+    assert "--play" in capsys.readouterr().err

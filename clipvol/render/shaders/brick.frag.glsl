@@ -41,6 +41,9 @@ void main() {
     int n = int(min(k.y - k.x + 1.0, float(u_max_steps)));
     if (n <= 0) discard;
 
+#ifdef OVERLAY
+    g_ov_origin = origin;
+#endif
     vec3 base = origin + u_o_minus_b;   // ray origin relative to the brick's first voxel centre
 #ifdef MODE_MIP
     float vmax = -3.0e38;

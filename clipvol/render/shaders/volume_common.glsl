@@ -3,6 +3,7 @@
 //   MODE_MIP  maximum intensity projection (absent: composite, front to back)
 //   HAS_NAN   the data may hold NaN/Inf: trilinear over the finite neighbours only
 //   SHADING   composite only: Blinn-Phong lighting from central-difference gradients, light at the eye
+//   OVERLAY   composite only: the number (1..3) of co-registered overlay volumes sampled at each sample
 uniform vec2 u_viewport;
 uniform bool u_ortho;
 uniform vec3 u_forward;         // camera basis (unit) and half extents of the view
@@ -134,6 +135,112 @@ void composite_sample(inout vec4 acc, float texel, float row) {
     acc.a += w;
 }
 
+#ifdef OVERLAY
+// Overlays of co-registered volumes (clipvol/scene/overlay.py): each one whole level in one float32
+// texture with its own transfer-function table (rows per primary level, opacity corrected for the
+// primary's step). At each sample of the primary, every overlay is sampled at the same point (its
+// texture coordinate is affine in the position relative to O: c = p * a + b) and composited under
+// the ray before the primary's sample: the overlays' colours over the primary's, the first on top.
+vec3 g_ov_origin;               // the pixel ray's origin relative to O (set by the fragment's main)
+uniform sampler3D u_ov0_tex;
+uniform sampler2D u_ov0_tf;
+uniform vec3 u_ov0_a;           // texture coordinate c = p * a + b (p relative to O)
+uniform vec3 u_ov0_b;
+uniform vec2 u_ov0_t;           // table coordinate t = value * t.x + t.y
+#if OVERLAY > 1
+uniform sampler3D u_ov1_tex;
+uniform sampler2D u_ov1_tf;
+uniform vec3 u_ov1_a;
+uniform vec3 u_ov1_b;
+uniform vec2 u_ov1_t;
+#endif
+#if OVERLAY > 2
+uniform sampler3D u_ov2_tex;
+uniform sampler2D u_ov2_tf;
+uniform vec3 u_ov2_a;
+uniform vec3 u_ov2_b;
+uniform vec2 u_ov2_t;
+#endif
+
+// One overlay's sample at p: straight colour and opacity (0 outside its box or where not finite).
+vec4 overlay_one(sampler3D tex, sampler2D tf, vec3 a, vec3 b, vec2 tm, vec3 p, float row) {
+    vec3 c = p * a + b;
+    if (any(lessThan(c, vec3(0.0))) || any(greaterThan(c, vec3(1.0)))) return vec4(0.0);   // outside its box
+    float v = texture(tex, c).r;
+    if (isnan(v) || isinf(v)) return vec4(0.0);
+    return texture(tf, vec2(v * tm.x + tm.y, row));
+}
+
+// A label overlay (OVERLAYk_LABELS): the texture holds per voxel the index of its id among the
+// ids present; the id's colour is texel (k % w, k / w) of the table (straight RGBA, opacity per the
+// primary's level-0 voxel, corrected here for the step delta). Nearest: the voxel whose cell holds p.
+uniform float u_ov_inv_ref;     // 1 / the primary's smallest level-0 voxel size
+
+vec4 overlay_label(sampler3D tex, sampler2D tab, vec3 a, vec3 b, vec3 p, float delta) {
+    vec3 c = p * a + b;
+    if (any(lessThan(c, vec3(0.0))) || any(greaterThan(c, vec3(1.0)))) return vec4(0.0);
+    ivec3 size = textureSize(tex, 0);
+    ivec3 q = min(ivec3(c * vec3(size)), size - 1);
+    int k = int(texelFetch(tex, q, 0).r + 0.5);
+    int w = textureSize(tab, 0).x;
+    vec4 s = texelFetch(tab, ivec2(k % w, k / w), 0);
+    return vec4(s.rgb, 1.0 - pow(1.0 - s.a, delta * u_ov_inv_ref));
+}
+
+#ifdef OVERLAY0_LABELS
+#define OVERLAY0(p, row, delta) overlay_label(u_ov0_tex, u_ov0_tf, u_ov0_a, u_ov0_b, p, delta)
+#else
+#define OVERLAY0(p, row, delta) overlay_one(u_ov0_tex, u_ov0_tf, u_ov0_a, u_ov0_b, u_ov0_t, p, row)
+#endif
+#ifdef OVERLAY1_LABELS
+#define OVERLAY1(p, row, delta) overlay_label(u_ov1_tex, u_ov1_tf, u_ov1_a, u_ov1_b, p, delta)
+#else
+#define OVERLAY1(p, row, delta) overlay_one(u_ov1_tex, u_ov1_tf, u_ov1_a, u_ov1_b, u_ov1_t, p, row)
+#endif
+#ifdef OVERLAY2_LABELS
+#define OVERLAY2(p, row, delta) overlay_label(u_ov2_tex, u_ov2_tf, u_ov2_a, u_ov2_b, p, delta)
+#else
+#define OVERLAY2(p, row, delta) overlay_one(u_ov2_tex, u_ov2_tf, u_ov2_a, u_ov2_b, u_ov2_t, p, row)
+#endif
+
+// "over" (default): each overlay's sample under the ray, then the primary's (the overlays' colours
+// over the primary's). OVERLAY_ADDITIVE (channels): the sample's premultiplied colours add up,
+// c = sum(a_k * rgb_k), opacity 1 - prod(1 - a_k), the primary's sample included; the whole
+// sample then goes under the ray, and the primary's own compositing is skipped (the hook continues).
+#ifdef OVERLAY_ADDITIVE
+#define OVERLAY_TAKE(s) { vec4 s_ = (s); sum_c += s_.a * s_.rgb; sum_t *= 1.0 - s_.a; }
+#else
+#define OVERLAY_TAKE(s) { vec4 s_ = (s); float w_ = (1.0 - acc.a) * s_.a; acc.rgb += w_ * s_.rgb; acc.a += w_; }
+#endif
+
+void overlay_under(inout vec4 acc, float ts, vec3 dir, float row, float delta, float texel) {
+    vec3 p = g_ov_origin + ts * dir;
+#ifdef OVERLAY_ADDITIVE
+    vec3 sum_c = vec3(0.0);
+    float sum_t = 1.0;
+#endif
+    OVERLAY_TAKE(OVERLAY0(p, row, delta));
+#if OVERLAY > 1
+    OVERLAY_TAKE(OVERLAY1(p, row, delta));
+#endif
+#if OVERLAY > 2
+    OVERLAY_TAKE(OVERLAY2(p, row, delta));
+#endif
+#ifdef OVERLAY_ADDITIVE
+    if (SAMPLE_OK(texel)) OVERLAY_TAKE(texture(u_tf, vec2(texel * u_t_scale + u_t_offset, row)));
+    acc.rgb += (1.0 - acc.a) * sum_c;
+    acc.a += (1.0 - acc.a) * (1.0 - sum_t);
+#endif
+}
+#ifdef OVERLAY_ADDITIVE
+#define OVERLAY_UNDER(acc, ts, dir, row, delta, texel) { overlay_under(acc, ts, dir, row, delta, texel); if (acc.a >= u_opaque) break; continue; }
+#else
+#define OVERLAY_UNDER(acc, ts, dir, row, delta, texel) overlay_under(acc, ts, dir, row, delta, texel)
+#endif
+#else
+#define OVERLAY_UNDER(acc, ts, dir, row, delta, texel)
+#endif
+
 #ifdef SHADING
 // Gradient lighting (Blinn-Phong, light fixed to the camera: light, view and half vector all equal
 // -dir, two-sided so the sign of the gradient does not matter). The gradient is a central
@@ -211,6 +318,7 @@ void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int 
     for (int i = 0; i < n; ++i) {
         float texel = texture(tex, clamp(c0 + float(i) * dc, clo_t, chi_t)).r;
 #endif
+        OVERLAY_UNDER(acc, off + (k0 + float(i)) * delta, dir, row, delta, texel);   // overlays at this sample
         if (!SAMPLE_OK(texel)) continue;   // non-finite data is transparent
 #ifdef MODE_MIP
         vmax = max(vmax, texel);       // the largest texel; mapped to a value on the CPU

@@ -1,0 +1,239 @@
+"""Overlays of co-registered volumes: a second (third, ...) store drawn in the same ray cast as the primary.
+
+A neuroscientist's statistical map over the T1 scan, a dose over a CT: each volume keeps its own
+shape, voxel size and origin (OME-Zarr ``scale`` + ``translation``; ``clipvol brick --origin``),
+its own transfer function (thresholded, diverging for signed data), and is sampled at the *same
+world point* as the primary at every sample of the primary's rays (Bhaniramka & Demange's
+Volumizer composes several volumes in one shader the same way).
+
+Design (pragmatic, documented in ``docs/rendering.md``)
+-------------------------------------------------------
+* An overlay is small beside the primary (a statistical map is a few MB): it is drawn from **one
+  level**, the finest whose whole volume fits the overlay's ``texture_budget`` (and GL's largest 3-D
+  texture), read once from its loader into one float32 texture. It is not paged around a centre.
+* The primary's rays carry it: an overlay shows only inside the primary's volume box, on the
+  primary's sample lattice (step and per-level opacity correction of the primary; the overlay's
+  table opacity is per the primary's level-0 smallest voxel, like the primary's own).
+* The operator at each sample: the overlays' premultiplied colours *over* the primary's, the first
+  overlay on top, then the whole sample composited front to back under what the ray holds.
+  Equivalently: for each sample, ``under(acc, overlay_0)``, ``under(acc, overlay_1)``, ...,
+  ``under(acc, primary)`` with ``under(acc, c) = acc + (1 - acc.a) * (c.a * c.rgb, c.a)``.
+* Outside its own box (voxel coordinates ``[-0.5, n - 0.5]`` per axis) an overlay is transparent;
+  inside, trilinear with clamp-to-edge, like the primary. Non-finite overlay voxels make the samples
+  that touch them transparent.
+* A **label overlay** (a segmentation, ``tf`` a :class:`~clipvol.scene.label_colors.LabelColors`)
+  is sampled nearest: the id of the voxel whose cell holds the point (``texelFetch``), looked up in
+  a per-id table (the ids present are numbered on the CPU, so any integer ids fit), its opacity
+  corrected for the primary's step in the shader. Opacity 0 hides a label.
+
+Geometry: a store's voxel ``i`` of level ``L`` is at ``translation_L + i * scale_L + origin``
+(world, z/y/x, ``origin`` the store's own, ``clipvol brick --origin``). The primary is drawn in its
+own frame (its origin at the frame's zero), so an overlay is placed at ``its origin - the primary's``.
+Overlays in another unit, rotated differently (oblique frames), or not overlapping the primary's
+box are refused with a :class:`~clipvol.errors.ParameterError` naming the overlay.
+
+This module is pure numpy (the GL side is :mod:`clipvol.render.overlay_binding`).
+
+References
+----------
+* P. Bhaniramka and Y. Demange, "OpenGL Volumizer: A Toolkit for High Quality Volume Rendering of
+  Large Data Sets", Proc. IEEE/ACM Symposium on Volume Visualization and Graphics, 2002 (several
+  volumes and their lookup tables in one volumetric shader).
+* T. Porter and T. Duff, "Compositing Digital Images", SIGGRAPH 1984 (the *over* operator).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..units import parse_bytes
+from .label_colors import LabelColors
+from .transfer import TransferFunction
+
+__all__ = ["Overlay", "store_origin", "store_unit", "overlay_level", "overlay_placement", "read_level", "label_indices",
+           "overlay_box", "cull_outside",
+           "check_overlay", "MAX_OVERLAYS", "DEFAULT_OVERLAY_BUDGET"]
+
+#: most overlays one frame composites (each takes two texture units and one shader block)
+MAX_OVERLAYS = 3
+#: default texture budget of one overlay (bytes of its float32 texture)
+DEFAULT_OVERLAY_BUDGET = 64 << 20
+
+
+def store_origin(loader) -> np.ndarray:
+    """World ``(z, y, x)`` of a loader's voxel 0 beyond its levels' translations (a clipvol store's
+    ``origin``; 0 for loaders that do not say)."""
+    o = getattr(loader, "origin", None)
+    return np.zeros(3) if o is None else np.asarray(o, dtype=np.float64).reshape(3)
+
+
+def store_unit(loader) -> str | None:
+    """The spatial unit a loader declares (``"millimeter"``), or None when it does not say."""
+    u = getattr(loader, "unit", None)
+    return str(u) if u else None
+
+
+@dataclass(frozen=True, eq=False)
+class Overlay:
+    """A co-registered volume drawn over the primary in the same ray cast.
+
+    Parameters
+    ----------
+    loader : Loader
+        The overlay's data (any clipvol loader: a store, ``.npy``, a procedural volume).
+    tf : TransferFunction, LabelColors or str
+        Its transfer function, or a preset name (``"diverging"``: blue-grey-red, transparent around
+        the centre; the window is then made symmetric about 0 from the data's range), or for a label
+        volume (integer ids) a :class:`~clipvol.scene.label_colors.LabelColors`: each sample takes
+        the id of the voxel holding the point (nearest, never interpolated) and that id's colour.
+    origin : (z, y, x), optional
+        World position of voxel 0 (default: the loader's own, ``clipvol brick --origin``).
+    unit : str, optional
+        Spatial unit (default: the loader's own); an overlay in another unit than the primary is refused.
+    texture_budget : int or str
+        Bytes its one float32 texture may take; the finest level that fits is drawn.
+    name : str
+        What errors call it (default: the loader's path, else ``overlay``).
+    """
+
+    loader: object
+    tf: object = "diverging"
+    origin: tuple | None = None
+    unit: str | None = None
+    texture_budget: int | str = DEFAULT_OVERLAY_BUDGET
+    name: str = ""
+
+    @property
+    def labels(self) -> bool:
+        """True for a label overlay (nearest ids through a :class:`LabelColors`)."""
+        return isinstance(self.tf, LabelColors)
+
+    def __post_init__(self) -> None:
+        s = object.__setattr__
+        if not (hasattr(self.loader, "pyramid") and hasattr(self.loader, "read_brick")):
+            raise ParameterError(f"overlay: expected a loader (with pyramid and read_brick), got {type(self.loader).__name__}")
+        name = self.name or str(getattr(self.loader, "path", "") or "overlay")
+        s(self, "name", name)
+        pyr = self.loader.pyramid
+        tf = self.tf
+        if isinstance(tf, LabelColors):
+            if pyr.dtype.kind not in "iub":
+                raise ParameterError(f"overlay {name}: label colours: expected an integer label volume, got dtype {pyr.dtype}")
+        elif isinstance(tf, str):
+            if tf not in TransferFunction.names():
+                raise ParameterError(f"overlay {name}: transfer function: expected one of "
+                                     f"{', '.join(TransferFunction.names())} or a TransferFunction, got {tf!r}")
+            rng = None
+            if tf == "diverging":
+                lo, hi = pyr.value_range
+                r = max(abs(lo), abs(hi)) or 1.0
+                rng = (-r, r)
+            tf = TransferFunction.preset(tf, value_range=rng)
+        elif not hasattr(tf, "table") or not hasattr(tf, "window"):
+            raise ParameterError(f"overlay {name}: tf: expected a preset name or a TransferFunction, got {type(tf).__name__}")
+        s(self, "tf", tf)
+        if self.origin is None:
+            s(self, "origin", tuple(float(v) for v in store_origin(self.loader)))
+        else:
+            o = tuple(float(v) for v in np.asarray(self.origin, dtype=np.float64).reshape(-1))
+            if len(o) != 3 or not all(np.isfinite(o)):
+                raise ParameterError(f"overlay {name}: origin: expected three finite numbers z,y,x, got {self.origin!r}")
+            s(self, "origin", o)
+        s(self, "unit", self.unit or store_unit(self.loader))
+        s(self, "texture_budget", parse_bytes(self.texture_budget, f"overlay {name}: texture_budget"))
+
+
+def label_indices(data: np.ndarray, colors: LabelColors) -> tuple[np.ndarray, np.ndarray]:
+    """``(index, table)``: per voxel the index of its id among the ids present (float32, exact below
+    2**24 distinct ids) and per index the id's straight RGBA ``(n, 4)``."""
+    ids, inv = np.unique(data, return_inverse=True)
+    if len(ids) >= 1 << 24:
+        raise ParameterError(f"label overlay: expected fewer than {1 << 24} distinct ids, got {len(ids)}")
+    return inv.reshape(data.shape).astype(np.float32), colors.table(ids)
+
+
+def overlay_level(pyramid, budget: int, max_size: int = 2048, itemsize: int = 4) -> int:
+    """The finest level whose whole volume fits ``budget`` bytes and ``max_size`` texels per axis."""
+    for L, lv in enumerate(pyramid.levels):
+        if int(np.prod(lv.shape)) * itemsize <= budget and max(lv.shape) <= max_size:
+            return L
+    return pyramid.num_levels - 1
+
+
+def overlay_placement(overlay: Overlay, level: int, primary_origin) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(first, scale, shape)`` as ``(x, y, z)`` float64: the world position (in the primary's frame)
+    of the centre of voxel 0 of the overlay's ``level``, its voxel size and its voxel counts."""
+    pyr = overlay.loader.pyramid
+    lv = pyr.levels[level]
+    first = (np.asarray(lv.translation, dtype=np.float64) - np.asarray(pyr.levels[0].translation, dtype=np.float64)
+             + np.asarray(overlay.origin, dtype=np.float64) - np.asarray(primary_origin, dtype=np.float64))
+    return first[::-1].copy(), np.asarray(lv.scale, dtype=np.float64)[::-1].copy(), np.asarray(lv.shape, dtype=np.float64)[::-1].copy()
+
+
+def overlay_box(overlay: Overlay, primary_origin) -> tuple[np.ndarray, np.ndarray]:
+    """World box ``(lo, hi)`` ``(x, y, z)`` of the overlay's level-0 cells in the primary's frame."""
+    first, scale, shape = overlay_placement(overlay, 0, primary_origin)
+    return first - 0.5 * scale, first + (shape - 0.5) * scale
+
+
+def check_overlay(overlay: Overlay, primary_loader) -> None:
+    """Refuse an overlay the primary cannot carry: another unit, another rotation, no overlap."""
+    name = overlay.name
+    pu = store_unit(primary_loader)
+    if pu is not None and overlay.unit is not None and pu != overlay.unit:
+        raise ParameterError(f"overlay {name}: expected the primary's unit {pu!r}, got {overlay.unit!r} "
+                             "(convert the spacing, e.g. clipvol brick --spacing ... --unit ...)")
+    fp, fo = getattr(primary_loader, "frame", None), getattr(overlay.loader, "frame", None)
+    dp = np.eye(3) if fp is None else fp.directions
+    do = np.eye(3) if fo is None else fo.directions
+    if not np.allclose(dp, do, atol=1e-6):
+        raise ParameterError(f"overlay {name}: expected the primary's axes (an overlay may be shifted and scaled, "
+                             "not rotated), got a rotated world frame")
+    po = store_origin(primary_loader)
+    lo, hi = overlay_box(overlay, po)
+    plo, phi = primary_loader.pyramid.volume_box()
+    if np.any(np.minimum(hi, phi) <= np.maximum(lo, plo)):
+        raise ParameterError(f"overlay {name}: expected its world box to overlap the primary's, got overlay "
+                             f"{_box(lo + po[::-1], hi + po[::-1])} and primary {_box(plo + po[::-1], phi + po[::-1])} (x, y, z)")
+
+
+def cull_outside(transparent, pyramid, boxes):
+    """The primary's transparent-brick filter ``transparent(level, idx) -> mask`` restricted to bricks
+    whose node box (widened by one voxel of their level: the sampling footprint) is clear of every
+    overlay box ``(lo, hi)`` (x, y, z, the primary's frame): a brick the primary's table makes
+    transparent still carries the rays that sample an overlay, so only those far from every overlay
+    are culled. None stays None."""
+    if transparent is None:
+        return None
+    boxes = [(np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)) for lo, hi in boxes]
+
+    def f(level: int, idx) -> np.ndarray:
+        idx = np.asarray(idx).reshape(-1, 3)
+        mask = np.array(transparent(level, idx), dtype=bool, copy=True)
+        lo, hi = pyramid.node_box(level, idx)
+        vox = np.asarray(pyramid.levels[level].scale, dtype=np.float64)[::-1]
+        for blo, bhi in boxes:
+            mask &= ~np.all((lo - vox < bhi) & (hi + vox > blo), axis=-1)
+        return mask
+
+    return f
+
+
+def _box(lo, hi) -> str:
+    return "[" + ", ".join(f"{a:g}..{b:g}" for a, b in zip(lo, hi)) + "]"
+
+
+def read_level(loader, level: int, dtype=np.float32) -> np.ndarray:
+    """The whole ``level`` of ``loader`` as one ``(z, y, x)`` array (``dtype``; None: the data's), brick by brick."""
+    pyr = loader.pyramid
+    shape = pyr.levels[level].shape
+    B = pyr.brick_shape
+    out = np.empty(shape, dtype=dtype or pyr.dtype)
+    for idx in np.ndindex(*pyr.grid(level)):
+        sl = tuple(slice(i * b, min((i + 1) * b, n)) for i, b, n in zip(idx, B, shape))
+        brick = np.asarray(loader.read_brick(level, idx))
+        out[sl] = brick[tuple(slice(0, s.stop - s.start) for s in sl)]
+    return out

@@ -1,0 +1,147 @@
+"""Benchmark: the cost of an overlay (the ``OVERLAY`` shader variant) against the single volume.
+
+``python tools/bench_overlay.py --sizes 128,256 --image 256 --repeat 5``
+
+For each primary (``procedural:fractal?size=N``, float32, in memory, 64^3 bricks, all of level 0
+drawn, the ``bone`` table, step 0.5, one view the volume fills) and one overlay: a signed smooth
+map of ``N/2`` voxels per axis at twice the primary's voxel size, shifted by a quarter of the
+volume (a statistical map: another shape, spacing and origin), drawn with the ``diverging`` table.
+Frame times of
+
+* ``raw``: :class:`bench_render.RawCaster`, the plain one-texture ray caster written for the
+  benchmarks outside clipvol's render path - the baseline;
+* clipvol's per-brick path without and with the overlay (one and two overlays), with a label
+  overlay instead (the map thresholded into 8 ids, nearest ids through a colour table), and with
+  the overlay blended additively (``blend="additive"``, as channels are).
+
+Rounds are interleaved (the shared machine's load hits every configuration alike); medians of
+wall-clock and of process CPU time. Printed and written to ``docs/bench_overlay.csv``: every time
+as a ratio to the raw caster's, and overlay / single volume.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_render import RawCaster  # noqa: E402  (the baseline outside clipvol's render path)
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def _signed_map(n: int, seed: int) -> np.ndarray:
+    from scipy.ndimage import gaussian_filter
+
+    v = gaussian_filter(np.random.default_rng(seed).standard_normal((n, n, n)), 3.0)
+    return (6.0 * v / np.abs(v).max()).astype(np.float32)
+
+
+def run(sizes, image: int, repeat: int, step: float, log=print) -> list[dict]:
+    from clipvol.loaders.numpy_array import NumpyLoader
+    from clipvol.loaders.procedural import ProceduralLoader
+    from clipvol.paging.cliptexture import ClipTexture
+    from clipvol.render import create_context
+    from clipvol.render.action import ClipRenderAction
+    from clipvol.scene.camera import Camera
+    from clipvol.scene.label_colors import LabelColors
+    from clipvol.scene.overlay import Overlay
+    from clipvol.scene.transfer import TransferFunction
+
+    ctx = create_context()
+    rows = []
+    for n in sizes:
+        vol = ProceduralLoader(f"procedural:fractal?size={n}", brick=64).generator.region(0, (0, 0, 0), (n, n, n))
+        vol = np.ascontiguousarray(vol, dtype=np.float32)
+        loader = NumpyLoader(vol, brick=64, value_range=(float(vol.min()), float(vol.max())))
+        pyr = loader.pyramid
+        lo, hi = pyr.volume_box()
+        centre = (lo + hi) / 2.0
+        d = np.array([0.55, 0.45, 0.7])
+        d /= np.linalg.norm(d)
+        cam = Camera.perspective(tuple(centre - d * 1.05 * float(np.linalg.norm(hi - lo))), tuple(centre),
+                                 up=(0, -1, 0), fov_y=35, size=(image, image))
+        tf = TransferFunction.preset("bone", value_range=pyr.value_range)
+        m = n // 2
+        ovs = [Overlay(NumpyLoader(_signed_map(m, s), brick=64, spacing=(2.0, 2.0, 2.0)),
+                       TransferFunction.preset("diverging", value_range=(-3.0, 3.0)), origin=(n / 4.0,) * 3,
+                       name=f"map{s}") for s in (1, 2)]
+        ids = np.digitize(_signed_map(m, 1), [-4, -2, -1, 0, 1, 2, 4]).astype(np.uint16)  # 8 labels
+        lab = Overlay(NumpyLoader(ids, brick=64, spacing=(2.0, 2.0, 2.0), value_range=(0.0, 7.0)), LabelColors(),
+                      origin=(n / 4.0,) * 3, name="labels")
+        budget = int(sum(pyr.num_bricks(L) for L in range(pyr.num_levels)) * pyr.brick_nbytes * 1.2) + (64 << 20)
+        clip = ClipTexture(loader, budget, threads=2)
+        common = dict(policy="fixed", level=0, step=step, texture_budget=budget)
+        actions = {"single": ClipRenderAction(ctx, clip, **common),
+                   "1 overlay": ClipRenderAction(ctx, clip, overlays=tuple(ovs[:1]), **common),
+                   "2 overlays": ClipRenderAction(ctx, clip, overlays=tuple(ovs), **common),
+                   "label overlay": ClipRenderAction(ctx, clip, overlays=(lab,), **common),
+                   "1 overlay additive": ClipRenderAction(ctx, clip, overlays=tuple(ovs[:1]), blend="additive", **common)}
+        raw = RawCaster(ctx, vol, pyr.value_range)
+        for a in actions.values():
+            a.render(cam, tf, wait=True, timeout=600)
+        raw.render(cam, tf, step)
+        wall = {k: [] for k in ["raw", *actions]}
+        cpu = {k: [] for k in ["raw", *actions]}
+        for _ in range(repeat):
+            t, c = time.perf_counter(), time.process_time()
+            raw.render(cam, tf, step)
+            wall["raw"].append(time.perf_counter() - t)
+            cpu["raw"].append(time.process_time() - c)
+            for name, a in actions.items():
+                t, c = time.perf_counter(), time.process_time()
+                a.render(cam, tf, wait=False)
+                wall[name].append(time.perf_counter() - t)
+                cpu[name].append(time.process_time() - c)
+        mw = {k: statistics.median(v) for k, v in wall.items()}
+        mc = {k: statistics.median(v) for k, v in cpu.items()}
+        row = dict(size=n, overlay_size=m, image=image, repeat=repeat, raw_s=round(mw["raw"], 4))
+        for k in actions:
+            key = k.replace(" ", "_")
+            row[f"{key}_s"] = round(mw[k], 4)
+            row[f"{key}_over_raw"] = round(mw[k] / mw["raw"], 3)
+            row[f"{key}_cpu_over_raw"] = round(mc[k] / mc["raw"], 3)
+        extra = ("1 overlay", "2 overlays", "label overlay", "1 overlay additive")
+        for k in extra:
+            key = k.replace(" ", "_")
+            row[f"{key}_over_single"] = round(mw[k] / mw["single"], 3)
+            row[f"{key}_over_single_cpu"] = round(mc[k] / mc["single"], 3)
+        log(f"{n}^3 (+ {m}^3 overlays) at {image}^2, median of {repeat}: raw {mw['raw']:.3f} s; " + "; ".join(
+            f"{k} {mw[k]:.3f} s = {mw[k] / mw['raw']:.2f}x raw (CPU {mc[k] / mc['raw']:.2f}x)" for k in actions))
+        log("  ÷ single volume: " + ", ".join(f"{k} {row[k.replace(' ', '_') + '_over_single']:.2f}x wall, "
+                                              f"{row[k.replace(' ', '_') + '_over_single_cpu']:.2f}x CPU"
+                                              for k in extra))
+        rows.append(row)
+        for a in actions.values():
+            a.close()
+        raw.release()
+        clip.close()
+    ctx.release()
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default="128,256", help="primary edge lengths N (comma-separated)")
+    ap.add_argument("--image", type=int, default=256, help="image edge in pixels")
+    ap.add_argument("--repeat", type=int, default=5, help="interleaved rounds (medians)")
+    ap.add_argument("--step", type=float, default=0.5)
+    ap.add_argument("--out", default=str(REPO / "docs" / "bench_overlay.csv"))
+    args = ap.parse_args(argv)
+    rows = run([int(s) for s in args.sizes.split(",")], args.image, args.repeat, args.step)
+    with open(args.out, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
