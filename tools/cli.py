@@ -58,6 +58,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _caused_by_interrupt(e: BaseException) -> bool:
+    """Whether a KeyboardInterrupt lies in ``e``'s chain of causes: a Ctrl-C that landed inside a C
+    extension (numpy's sort, a codec) may be re-raised by it as a ``TypeError`` or ``SystemError``
+    whose context is the interrupt; the user still pressed Ctrl-C and expects exit 130."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -86,6 +99,11 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except BrokenPipeError:  # `clipvol info | head`
         return 0
+    except Exception as e:
+        if _caused_by_interrupt(e):  # Ctrl-C inside a C extension can surface as another error
+            print(f"clipvol {args.command}: interrupted", file=sys.stderr)
+            return 130
+        raise
     finally:
         warnings.showwarning = show
 

@@ -1,0 +1,40 @@
+"""Ctrl-C always ends the CLI with exit 130, even when a C extension re-raises it as another error."""
+
+from __future__ import annotations
+
+import pytest
+
+from clipvol.tools import cli
+
+
+def _main_with(monkeypatch, run):
+    parser = cli.build_parser()
+    real_parse = parser.parse_args
+
+    def parse(argv=None):
+        args = real_parse(["info", "procedural:fractal?size=16"])
+        args._run = run
+        return args
+
+    monkeypatch.setattr(parser, "parse_args", parse)
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    return cli.main([])
+
+
+def test_interrupt_wrapped_by_an_extension_exits_130(monkeypatch, capsys):
+    def run(args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise TypeError("an extension's error while the interrupt was pending")
+
+    assert _main_with(monkeypatch, run) == 130
+    assert "interrupted" in capsys.readouterr().err
+
+
+def test_other_errors_still_raise(monkeypatch):
+    def run(args):
+        raise TypeError("a real bug")
+
+    with pytest.raises(TypeError, match="a real bug"):
+        _main_with(monkeypatch, run)
