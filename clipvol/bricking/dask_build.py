@@ -32,7 +32,6 @@ Schedulers: ``threads`` (one in-process worker with ``workers`` threads), ``proc
 
 from __future__ import annotations
 
-import math
 import sys
 from itertools import product
 from pathlib import Path

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import InputFormatError, InputNotFoundError
-from ..sources import Source, _squeeze3
+from ..source_types import Source, _squeeze3
 from . import require
 
 __all__ = ["Hdf5Source", "list_datasets"]

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import InputFormatError
-from ..sources import FileArraySource
+from ..source_types import FileArraySource
 from ..worldframe import WorldFrame
 from . import require
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import InputFormatError
-from ..sources import Source
+from ..source_types import Source
 from ..worldframe import WorldFrame
 from . import require
 

@@ -44,7 +44,7 @@ def open_ome_tiff(path: Path):
     """A TIFF source with its OME voxel size and unit."""
     import tifffile
 
-    from ..sources import _open_tiff
+    from ..source_types import _open_tiff
 
     src = _open_tiff(Path(path))
     try:
