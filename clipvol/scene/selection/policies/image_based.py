@@ -40,12 +40,15 @@ from __future__ import annotations
 import numpy as np
 
 from ....errors import ParameterError
+from ...metrics import rgb_to_luv
 from ...visibility import box_depths, screen_rects
 
-__all__ = ["ImageBased", "VOXEL_WEIGHT"]
+__all__ = ["ImageBased", "VOXEL_WEIGHT", "JND_DELTA_E"]
 
 #: exponent of the projected voxel size (pixels per voxel) in the importance (see the module docstring)
-VOXEL_WEIGHT = 3.0
+VOXEL_WEIGHT = 6.0
+#: a brick whose visible colour over black (``v`` times a slab of it) is below this Delta E is left out
+JND_DELTA_E = 0.0
 
 
 class _FrozenView:
@@ -73,12 +76,19 @@ class ImageBased:
         (:func:`clipvol.scene.lod_error.lod_errors`); required to cut.
     visibility : OcclusionLayers, optional
         The current visibility estimate (ignored when ``params.visibility`` is False).
+    reuse : tuple, optional
+        A previous policy's :attr:`recorded` cut to replay instead of running the greedy queue
+        (:class:`~clipvol.render.image_lod.ImageLod` passes it while the view turns less than a few
+        degrees and nothing else changed); :attr:`reused` says whether it was.
     """
 
     name = "image"
 
-    def __init__(self, params, errors=None, visibility=None) -> None:
+    def __init__(self, params, errors=None, visibility=None, reuse=None) -> None:
         self.params = params
+        self.reuse = reuse
+        self.reused = False
+        self.recorded = None
         self.errors = errors
         self.visibility = visibility if params.visibility else None
         self.node_data: dict = {}
@@ -145,6 +155,21 @@ class ImageBased:
     def refine(self, t, level, lo, hi):
         return self.importance(t, level, lo, hi) > 0
 
+    def _thickness(self, t, lo, hi) -> np.ndarray:
+        """Mean thickness along the view (volume over projected area) in level-0 voxels."""
+        ext = hi - lo
+        d = np.abs(np.asarray(self._camera(t).forward, dtype=np.float64))
+        proj = d[0] * ext[:, 1] * ext[:, 2] + d[1] * ext[:, 0] * ext[:, 2] + d[2] * ext[:, 0] * ext[:, 1]
+        return np.prod(ext, axis=1) / np.maximum(proj, 1e-300) / float(min(t.tree.sp))
+
+    def visible_delta_e(self, t, level, idx, lo, hi, vis) -> np.ndarray:
+        """``(n,)`` Delta E over black of what a brick can add to a pixel: ``Luv(v * A * c)`` with ``c``
+        its opacity-weighted mean colour, ``A = 1 - exp(-tau * t)`` the opacity of a slab of its mean
+        extinction ``tau`` and thickness ``t``, ``v`` its visibility."""
+        col, tau = self.errors.slab(level, idx)
+        a = -np.expm1(-tau * self._thickness(t, lo, hi))
+        return np.linalg.norm(rgb_to_luv(col * (vis * a)[:, None]), axis=1)
+
     def keep(self, t, level, lo, hi):
         if level > t.tree.top or self.errors is None:
             return np.ones(len(lo), dtype=bool)
@@ -152,7 +177,10 @@ class ImageBased:
         eps, em, _ = self.errors.lookup(level, idx)
         keep = (em > 0) | (eps > 0)
         if self.visibility is not None and self.params.visibility_threshold > 0:
-            keep &= self._vis(t, lo, hi) >= self.params.visibility_threshold
+            vis = self._vis(t, lo, hi)
+            keep &= vis >= self.params.visibility_threshold
+            if self.errors.colour is not None and JND_DELTA_E > 0:
+                keep &= self.visible_delta_e(t, level, idx, lo, hi, vis) >= JND_DELTA_E
         return keep
 
     def budget_blocks(self, texels_per_brick: int) -> int:
@@ -168,6 +196,12 @@ class ImageBased:
             raise ParameterError("policy 'image': expected the store's multiresolution errors (summary tables); render "
                                  "through ClipRenderAction on a clipvol store, or pass ImageBased(params, errors=...); "
                                  "build the tables with `clipvol summarize STORE`")
+        if self.reuse is not None:  # the previous frame's cut, for a view that turned less than a few degrees
+            rec, counts, self.node_data, self.estimated_error = self.reuse
+            t.rec.extend(rec)
+            t.counts.update(counts)
+            self.reused = True
+            return
         self._importance, self._last = {}, None
         t.greedy(self.budget_blocks(t.tree.texels), cost=lambda n, texels: n)
         leaves = [(lv, tuple(int(v) for v in b)) for lv, idx, rl, _ in t.rec if lv == rl for b in idx]
@@ -176,3 +210,5 @@ class ImageBased:
         left = float(sum(self._importance.get(k, 0.0) for k in leaves if k[0] > 0 and np.isfinite(self._importance.get(k, 0.0))))
         self.estimated_error = left / total if total > 0 else 0.0
         self.node_data = {k: self._importance.get(k, 0.0) for k in leaves}
+        self.recorded = (list(t.rec), dict(t.counts), self.node_data, self.estimated_error)
+        self.reuse = self.recorded  # a second selection in the same frame (upload planning) gets the same cut
