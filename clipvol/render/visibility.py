@@ -164,9 +164,17 @@ class CpuVisibilityEstimator:
         depths = np.array([0.0] + [d0 + (d1 - d0) * j / self.layers for j in range(1, self.layers)])
         lv = self.pyramid.levels[self.level]
         vr = self.pyramid.value_range
-        alpha = march_occlusion(self.volume(), lv.scale, lv.translation, small,
-                                lambda v: tf.lookup(v, vr)[..., 3], depths, float(min(self.pyramid.spacing)),
-                                self.step, shape)
+        # the transfer function's opacity tabulated 16x finer than its own table, read by nearest entry
+        n = 16 * len(tf.table)
+        lo_v, hi_v = float(vr[0]), float(vr[1])
+        a_tab = tf.lookup(np.linspace(lo_v, hi_v, n + 1), vr)[:, 3].astype(np.float32)
+        k = n / (hi_v - lo_v) if hi_v > lo_v else 0.0
+
+        def alpha_of(v):
+            return a_tab[np.clip(np.rint((np.nan_to_num(v, nan=lo_v) - lo_v) * k), 0, n).astype(np.int64)]
+
+        alpha = march_occlusion(self.volume(), lv.scale, lv.translation, small, alpha_of, depths,
+                                float(min(self.pyramid.spacing)), self.step, shape)
         self.renders += 1
         return OcclusionLayers(camera, depths, alpha, key=key)
 

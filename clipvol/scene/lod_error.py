@@ -60,16 +60,6 @@ class LodErrors:
     emission: list[np.ndarray]
     seconds: float
     opacity: list[np.ndarray] | None = None  # per level: mean alpha over the histogram
-    #: per level ``(..., 3)``: opacity-weighted mean straight colour (what a thick slab of the brick shows)
-    colour: list[np.ndarray] | None = None
-    #: per level: mean extinction ``-log(1 - alpha)`` per level-0 voxel over the histogram
-    extinction: list[np.ndarray] | None = None
-
-    def slab(self, level: int, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(colour (n, 3), extinction (n,))`` of bricks ``idx`` ``(n, 3)`` of ``level``."""
-        i = np.asarray(idx, dtype=np.int64).reshape(-1, 3)
-        k = (i[:, 0], i[:, 1], i[:, 2])
-        return self.colour[level][k], self.extinction[level][k]
 
     def lookup(self, level: int, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(eps, emission, opacity)`` of bricks ``idx`` ``(n, 3)`` of ``level``."""
@@ -97,12 +87,9 @@ def lod_errors(tables: SummaryTables, tf) -> LodErrors:
     F = colour_table(tf, centres, data_range)  # (256, 3)
     D2 = np.sum((F[:, None, :] - F[None, :, :]) ** 2, axis=-1).reshape(-1)  # squared Delta E, by code
     absF = np.linalg.norm(F, axis=1)
-    rgba = tf.lookup(centres, data_range)
-    alpha = rgba[:, 3]
-    tau = -np.log1p(-np.minimum(alpha, 1.0 - 1e-9))  # extinction per level-0 voxel
-    prem = rgba[:, :3] * alpha[:, None]
+    alpha = tf.lookup(centres, data_range)[:, 3]
     nlev = pyr.num_levels
-    mean_l, var, emission, count, opacity, colour, extinction = [], [], [], [], [], [], []
+    mean_l, var, emission, count, opacity = [], [], [], [], []
     for L in range(nlev):
         H = tables.histogram[L].reshape(-1, SUMMARY_BINS).astype(np.float64)
         N = H.sum(axis=1)
@@ -115,9 +102,6 @@ def lod_errors(tables: SummaryTables, tf) -> LodErrors:
         mean_l.append(Fmu[:, 0])
         emission.append((H @ absF) / safe)
         opacity.append((H @ alpha) / safe)
-        wa = H @ alpha
-        colour.append((H @ prem) / np.maximum(wa, 1e-300)[:, None])
-        extinction.append((H @ tau) / safe)
         count.append(N)
     raw = [np.zeros(pyr.num_bricks(L)) for L in range(nlev)]
     for L in range(1, nlev):
@@ -146,6 +130,4 @@ def lod_errors(tables: SummaryTables, tf) -> LodErrors:
     eps = [r * scale for r in raw_g]
     em = [e.reshape(g) for e, g in zip(emission, grids)]
     op = [o.reshape(g) for o, g in zip(opacity, grids)]
-    col = [c.reshape(tuple(g) + (3,)) for c, g in zip(colour, grids)]
-    ext = [x.reshape(g) for x, g in zip(extinction, grids)]
-    return LodErrors(eps, raw_g, em, time.perf_counter() - t0, op, col, ext)
+    return LodErrors(eps, raw_g, em, time.perf_counter() - t0, op)

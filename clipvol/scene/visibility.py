@@ -173,8 +173,6 @@ def march_occlusion(volume: np.ndarray, scale_zyx, translation_zyx, camera: Came
     """
     from scipy.ndimage import map_coordinates
 
-    from .transfer import correct_opacity
-
     vol = np.asarray(volume, dtype=np.float32)
     sc = np.asarray(scale_zyx, dtype=np.float64)[::-1]  # (x, y, z)
     tr = np.asarray(translation_zyx, dtype=np.float64)[::-1]
@@ -195,16 +193,22 @@ def march_occlusion(volume: np.ndarray, scale_zyx, translation_zyx, camera: Came
     eye = np.asarray(camera.eye, dtype=np.float64)
     cos = np.maximum(dirs @ f, 1e-6)  # (h, w)
     o_depth = (origins - eye) @ f
-    tpar = (dj[:, None, None] - o_depth[None]) / cos[None]  # (n, h, w) ray parameter at each plane
-    pts = origins[None] + dirs[None] * tpar[..., None]  # (n, h, w, 3) world
-    idx = (pts - tr) / sc  # voxel coordinates (x, y, z)
-    inside = np.all((idx >= -0.5) & (idx <= n_xyz - 0.5), axis=-1)
+    # voxel coordinates (z, y, x) of each ray's sample on each plane: start + t * slope, in float32
+    start = ((origins - o_depth[..., None] / cos[..., None] * dirs - tr) / sc)[..., ::-1].astype(np.float32)
+    slope = (dirs / cos[..., None] / sc)[..., ::-1].astype(np.float32)
+    coords = start[None] + dj.astype(np.float32)[:, None, None, None] * slope[None]  # (n, h, w, 3)
+    n_zyx = np.asarray(vol.shape, dtype=np.float32)
+    inside = np.all((coords >= -0.5) & (coords <= n_zyx - 0.5), axis=-1)
     if shape is not None and not shape.is_everything:
-        inside &= shape.contains(pts.reshape(-1, 3)).reshape(inside.shape)
-    coords = np.clip(idx[..., ::-1], 0.0, np.asarray(vol.shape, dtype=np.float64) - 1.0)  # (z, y, x)
-    vals = map_coordinates(vol, coords.reshape(-1, 3).T, order=1, mode="nearest").reshape(inside.shape)
-    a = np.where(inside, np.asarray(alpha_of(vals), dtype=np.float64), 0.0)
-    a = correct_opacity(a, np.broadcast_to((dd / cos / float(ref_length))[None], a.shape))
+        world = coords[..., ::-1].astype(np.float64) * sc + tr
+        inside &= shape.contains(world.reshape(-1, 3)).reshape(inside.shape)
+    np.clip(coords, 0.0, n_zyx - 1.0, out=coords)
+    a = np.zeros(inside.shape, dtype=np.float32)
+    vals = map_coordinates(vol, coords[inside].T, order=1, mode="nearest")  # only samples inside
+    a[inside] = alpha_of(vals)
+    # opacity for the ray's length between two planes: 1 - (1 - a) ** ratio
+    ratio = (dd / cos / float(ref_length)).astype(np.float32)
+    a = -np.expm1(ratio[None] * np.log1p(-np.minimum(a, np.float32(1.0 - 1e-7))))
     trans = np.cumprod(1.0 - a, axis=0)  # transmittance after each sample
     for k, d in enumerate(depths):
         m = int(np.searchsorted(dj, d, side="left"))  # samples with d_j < d

@@ -40,15 +40,12 @@ from __future__ import annotations
 import numpy as np
 
 from ....errors import ParameterError
-from ...metrics import rgb_to_luv
 from ...visibility import box_depths, screen_rects
 
-__all__ = ["ImageBased", "VOXEL_WEIGHT", "JND_DELTA_E"]
+__all__ = ["ImageBased", "VOXEL_WEIGHT"]
 
 #: exponent of the projected voxel size (pixels per voxel) in the importance (see the module docstring)
 VOXEL_WEIGHT = 6.0
-#: a brick whose visible colour over black (``v`` times a slab of it) is below this Delta E is left out
-JND_DELTA_E = 0.0
 
 
 class _FrozenView:
@@ -133,10 +130,7 @@ class ImageBased:
         cam = self._camera(t)
         rect, behind = screen_rects(cam, lo, hi)
         area = (rect[:, 2] - rect[:, 0]) * (rect[:, 3] - rect[:, 1])
-        ext = hi - lo
-        d = np.abs(np.asarray(cam.forward, dtype=np.float64))
-        proj = d[0] * ext[:, 1] * ext[:, 2] + d[1] * ext[:, 0] * ext[:, 2] + d[2] * ext[:, 0] * ext[:, 1]
-        thick = np.prod(ext, axis=1) / np.maximum(proj, 1e-300) / float(min(t.tree.sp))  # level-0 voxels
+        thick = self._thickness(t, lo, hi)
         # emission of a slab of the brick's mean opacity and this thickness: E * t while thin (the
         # paper's linear term), saturating at the colour's magnitude once opaque
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -162,14 +156,6 @@ class ImageBased:
         proj = d[0] * ext[:, 1] * ext[:, 2] + d[1] * ext[:, 0] * ext[:, 2] + d[2] * ext[:, 0] * ext[:, 1]
         return np.prod(ext, axis=1) / np.maximum(proj, 1e-300) / float(min(t.tree.sp))
 
-    def visible_delta_e(self, t, level, idx, lo, hi, vis) -> np.ndarray:
-        """``(n,)`` Delta E over black of what a brick can add to a pixel: ``Luv(v * A * c)`` with ``c``
-        its opacity-weighted mean colour, ``A = 1 - exp(-tau * t)`` the opacity of a slab of its mean
-        extinction ``tau`` and thickness ``t``, ``v`` its visibility."""
-        col, tau = self.errors.slab(level, idx)
-        a = -np.expm1(-tau * self._thickness(t, lo, hi))
-        return np.linalg.norm(rgb_to_luv(col * (vis * a)[:, None]), axis=1)
-
     def keep(self, t, level, lo, hi):
         if level > t.tree.top or self.errors is None:
             return np.ones(len(lo), dtype=bool)
@@ -177,10 +163,7 @@ class ImageBased:
         eps, em, _ = self.errors.lookup(level, idx)
         keep = (em > 0) | (eps > 0)
         if self.visibility is not None and self.params.visibility_threshold > 0:
-            vis = self._vis(t, lo, hi)
-            keep &= vis >= self.params.visibility_threshold
-            if self.errors.colour is not None and JND_DELTA_E > 0:
-                keep &= self.visible_delta_e(t, level, idx, lo, hi, vis) >= JND_DELTA_E
+            keep &= self._vis(t, lo, hi) >= self.params.visibility_threshold
         return keep
 
     def budget_blocks(self, texels_per_brick: int) -> int:
