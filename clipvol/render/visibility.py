@@ -160,8 +160,13 @@ class CpuVisibilityEstimator:
         small = replace(camera, size=(max(1, round(w * k)), max(1, round(h * k))))
         vlo, vhi = self.pyramid.volume_box()
         near, far = box_depths(camera, vlo[None], vhi[None])
-        d0, d1 = max(float(near[0]), 0.0), max(float(far[0]), 0.0)
-        depths = np.array([0.0] + [d0 + (d1 - d0) * j / self.layers for j in range(1, self.layers)])
+        if camera.orthographic:  # signed depths: the first (empty) layer at the volume's near face
+            d0, d1 = float(near[0]), float(far[0])
+            first = d0
+        else:
+            d0, d1 = max(float(near[0]), 0.0), max(float(far[0]), 0.0)
+            first = 0.0
+        depths = np.array([first] + [d0 + (d1 - d0) * j / self.layers for j in range(1, self.layers)])
         lv = self.pyramid.levels[self.level]
         vr = self.pyramid.value_range
         # the transfer function's opacity tabulated 16x finer than its own table, read by nearest entry

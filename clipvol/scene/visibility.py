@@ -90,7 +90,8 @@ def screen_rects(camera: Camera, lo, hi) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass
 class OcclusionLayers:
-    """Accumulated opacity in front of ``depths`` (``(K,)`` ascending, ``depths[0] = 0`` with an empty
+    """Accumulated opacity in front of ``depths`` (``(K,)`` ascending, ``depths[0] = 0`` - orthographic: the
+    volume's signed near depth - with an empty
     map) as ``alpha`` ``(K, h, w)`` in ``[0, 1]`` (row 0 at the top) for ``camera`` (its pixel size
     may differ from the maps': rectangles are scaled)."""
 
@@ -182,7 +183,8 @@ def march_occlusion(volume: np.ndarray, scale_zyx, translation_zyx, camera: Came
     out = np.zeros((len(depths), h, w))
     lo, hi = tr - 0.5 * sc, tr + (n_xyz - 0.5) * sc
     near, far = box_depths(camera, lo[None], hi[None])
-    d0, d1 = max(float(near[0]), 0.0), float(far[0])
+    d0 = float(near[0]) if camera.orthographic else max(float(near[0]), 0.0)  # (orthographic depths are signed)
+    d1 = float(far[0])
     dd = float(step) * float(sc.min())
     if d1 <= d0 or dd <= 0:
         return out

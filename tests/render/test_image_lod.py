@@ -119,3 +119,54 @@ def test_block_budget_must_be_positive():
     with pytest.raises(ParameterError, match="block_budget"):
         RenderParams(policy="image", block_budget=0)
     assert RenderParams(policy="image").block_budget >= 1
+
+
+def _turned(cam, deg):
+    """``cam`` with its eye turned by ``deg`` degrees about the vertical axis through its target."""
+    th = np.radians(deg)
+    r = np.array([[np.cos(th), 0.0, np.sin(th)], [0.0, 1.0, 0.0], [-np.sin(th), 0.0, np.cos(th)]])
+    t = np.asarray(cam.target)
+    return Camera.perspective(tuple(t + r @ (np.asarray(cam.eye) - t)), tuple(t), up=(0, -1, 0), fov_y=cam.fov_y,
+                              size=tuple(cam.size))
+
+
+def test_cut_is_replayed_only_for_small_turns(gl, head_store):
+    """A turn of 1 degree replays the last cut (the same bricks, drawn in the new view's back-to-front
+    order); 10 degrees, a new transfer function or a new budget make a new cut; the stored cut is the
+    one a fresh action makes for the same view."""
+    loader = open_store(head_store)
+    tf = TransferFunction.preset("bone", value_range=loader.pyramid.value_range)
+    cam = _head_view(loader.pyramid)
+    with ClipTexture(loader, "256MB") as clip, ClipRenderAction(gl, clip, policy="image", block_budget=48) as act:
+        render_converged(act, cam, tf)
+        lod = act.image_lod
+        first = sorted(act.last_selection.wanted)
+        cuts = lod.cuts
+        render_converged(act, _turned(cam, 1.0), tf)
+        assert lod.cuts == cuts and act.last_policy.reused
+        assert sorted(act.last_selection.wanted) == first
+        # the replayed items are drawn back to front for the turned eye: box a can hide box b only if
+        # the eye lies on a's side of every axis-aligned plane that separates them; then a comes later
+        eye = np.asarray(_turned(cam, 1.0).eye)
+        items = act.last_selection.items
+        assert len(items) > 1
+        for i, a in enumerate(items):
+            for b in items[i + 1:]:
+                sides = []
+                for ax in range(3):
+                    if a.hi[ax] <= b.lo[ax]:
+                        sides.append(eye[ax] <= a.hi[ax])
+                    elif b.hi[ax] <= a.lo[ax]:
+                        sides.append(eye[ax] >= a.lo[ax])
+                assert sides and not all(sides), (a, b)
+        render_converged(act, _turned(cam, 10.0), tf)
+        assert lod.cuts == cuts + 1 and not act.last_policy.reused
+        render_converged(act, _turned(cam, 10.0), TransferFunction.preset("viridis", value_range=loader.pyramid.value_range))
+        assert lod.cuts == cuts + 2
+        act.set_params(replace(act.params, block_budget=64))
+        render_converged(act, _turned(cam, 10.0), TransferFunction.preset("viridis", value_range=loader.pyramid.value_range))
+        assert lod.cuts == cuts + 3
+    # the replayed cut is the cut a fresh action makes for the first view (the cache returns what it stored)
+    with ClipTexture(loader, "256MB") as clip, ClipRenderAction(gl, clip, policy="image", block_budget=48) as act:
+        render_converged(act, cam, tf)
+        assert sorted(act.last_selection.wanted) == first
