@@ -15,14 +15,17 @@ Two changes to the paper's formula, both measured on the benchmark head (``docs/
 ``E * t`` becomes the emission of a slab of the brick's mean opacity and thickness ``t``
 (``E / alpha * (1 - (1 - alpha)**t)``: the paper's linear term while thin, saturating once opaque -
 else a brick of opaque bone outranks everything by its thickness alone), and the product is
-weighted by ``p**3`` (:data:`VOXEL_WEIGHT`), ``p`` the pixels one of the brick's voxels covers
+weighted by ``p**6`` (:data:`VOXEL_WEIGHT`), ``p`` the pixels one of the brick's voxels covers
 (as the projected-size policy measures it): without it a brick whose voxels are already below a
 pixel keeps being refined while a neighbour still shows four-pixel voxels - on the benchmark head
 the paper's formula needs about 1.3x (face view) and 2.7x (side view) the bricks for 5 % of
-pixels with Delta E >= 6. A priority queue
-refines the most important node until the cut holds ``block_budget`` nodes (or the texel budget's
-worth of bricks); the cut stays a valid octree cut, so back-to-front order and ancestor fallback
-work as for every policy.
+pixels with Delta E >= 6. The exponent was 3 until the visibility estimate got finer depth layers;
+with them, 6 needs about 0.85x (face) and 0.96x (side) the bricks of 3 (weights 2 to 20 measured: 2 needs
+more, 6 to 20 about the same). A priority queue refines the most important nodes until the cut
+holds ``block_budget`` nodes (or the texel budget's worth of bricks), in batches while much of
+the budget is left (:meth:`ImageBased._greedy`); the cut stays a valid octree cut, so
+back-to-front order and ancestor fallback work as for every policy. A cut can be replayed for the
+next frames (``reuse``) while the view turns less than a few degrees.
 
 Two culls come with the policy (its ``keep``): a brick whose visibility is below
 ``visibility_threshold`` is neither loaded nor drawn (occluded space is left out like empty
