@@ -42,8 +42,10 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-VIEWS = {"face": (0.3, 0.2, 1.0), "side": (1.0, 0.25, 0.35)}
-THRESHOLDS = (16, 12, 10, 9, 8, 7.5, 7, 6.5, 6, 5.5, 5, 4.5, 4, 3, 2, 1.5, 1)
+#: view direction and eye distance in volume diagonals (None: ``--distance``); the face and side views
+#: fill the image (the last round's views), the overview shows the whole head from further away
+VIEWS = {"face": ((0.3, 0.2, 1.0), None), "side": ((1.0, 0.25, 0.35), None), "overview": ((-0.5, 0.35, 1.0), 1.5)}
+THRESHOLDS = (16, 12, 10, 9, 8, 7.5, 7, 6.5, 6, 5.5, 5, 4.5, 4, 3.5, 3, 2.5, 2, 1.5, 1)
 BUDGETS = (16, 24, 32, 40, 48, 56, 64, 72, 80, 96, 112, 128, 144, 160, 192, 256, 384, 512)
 TURN_FRAMES, TURN_DEG = 12, 0.5  # the timed sequence: the view turns 0.5 degrees per frame about the target
 
@@ -104,7 +106,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--size", type=int, default=256, help="head volume edge in voxels (default 256)")
     ap.add_argument("--brick", type=int, default=16, help="brick edge (default 16)")
     ap.add_argument("--image", type=int, default=256, help="image edge in pixels (default 256)")
-    ap.add_argument("--distance", type=float, default=0.6, help="eye distance from the centre in volume diagonals")
+    ap.add_argument("--distance", type=float, default=0.6,
+                    help="eye distance from the centre in volume diagonals of the face and side views")
     ap.add_argument("--quick", action="store_true", help="small smoke run (128^3, 128^2 images)")
     ap.add_argument("--path", choices=("bricks", "single-pass"), default="bricks",
                     help="how the volume action draws every frame of the run (RenderParams.path)")
@@ -167,9 +170,9 @@ def main(argv: list[str] | None = None) -> int:
     c = (lo + hi) / 2.0
     diag = float(np.linalg.norm(hi - lo))
     views = []
-    for d in VIEWS.values():
+    for d, dist in VIEWS.values():
         d = np.asarray(d, dtype=np.float64) / np.linalg.norm(d)
-        cam = Camera.perspective(tuple(c - d * args.distance * diag), tuple(c), up=(0, -1, 0), fov_y=40,
+        cam = Camera.perspective(tuple(c - d * (dist or args.distance) * diag), tuple(c), up=(0, -1, 0), fov_y=40,
                                  size=(args.image, args.image))
         views.append((cam, tuple(c)))
     budget = int(n_bricks * pyr.brick_nbytes * 1.2) + (64 << 20)
