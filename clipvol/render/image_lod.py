@@ -58,6 +58,7 @@ class ImageLod:
         self._last = None  # (camera, errors, visibility, params, policy) of the last cut made
         lo, hi = clip_texture.pyramid.volume_box()
         self._diag = float(np.linalg.norm(hi - lo))
+        self._centre = (lo + hi) / 2.0
 
     def errors_for(self, tf):
         key = _tf_key(tf)
@@ -68,7 +69,7 @@ class ImageLod:
 
     def visibility_for(self, camera, tf, params):
         key = (_tf_key(tf), params.shape)
-        if self.layers is not None and self.layers.reusable(camera, key, REUSE_ANGLE_DEG, 0.02, self._diag):
+        if self.layers is not None and self.layers.reusable(camera, key, REUSE_ANGLE_DEG, 0.02, self._diag, self._centre):
             return self.layers
         if self.estimator is None:
             self.estimator = (CpuVisibilityEstimator(self.clip_texture.loader) if self.estimator_kind == "cpu"
@@ -79,16 +80,18 @@ class ImageLod:
 
     def policy(self, camera, tf, params) -> ImageBased:
         """The frame's :class:`ImageBased` policy for ``camera``, ``tf`` and ``params``: the previous
-        frame's cut is replayed while the view turned less than :data:`REUSE_ANGLE_DEG` and moved
-        less than 2 % of the volume diagonal since that cut was made, and the errors, the visibility
-        estimate and the parameters are the same objects."""
+        frame's cut is replayed while the view turned less than :data:`REUSE_ANGLE_DEG` and the eye
+        moved less than 2 % of the volume diagonal - or turned less than that angle about the volume's
+        centre at a distance within 2 % (an orbit; :func:`~clipvol.scene.visibility.view_close`) - since
+        that cut was made, and the errors, the visibility estimate and the parameters are the same
+        objects."""
         errors = self.errors_for(tf)
         # MIP has no occlusion: a brick behind another can still hold the maximum
         vis = self.visibility_for(camera, tf, params) if params.visibility and params.mode == "composite" else None
         reuse = None
         last = self._last
         if self.reuse_cut and last is not None and last[1] is errors and last[2] is vis and last[3] == params \
-                and last[4].recorded is not None and view_close(last[0], camera, REUSE_ANGLE_DEG, 0.02 * self._diag):
+                and last[4].recorded is not None and view_close(last[0], camera, REUSE_ANGLE_DEG, 0.02 * self._diag, self._centre, 0.02):
             reuse = last[4].recorded
         policy = ImageBased(params, errors=errors, visibility=vis, reuse=reuse)
         if reuse is None:

@@ -123,24 +123,43 @@ class OcclusionLayers:
         return np.clip(1.0 - mean, 0.0, 1.0)
 
     def reusable(self, camera: Camera, key=None, max_angle: float = 3.0, max_move: float = 0.02,
-                 scale: float = 1.0) -> bool:
+                 scale: float = 1.0, centre=None) -> bool:
         """Whether this estimate still serves ``camera``: the same ``key``, the same projection and
-        image size, a view direction within ``max_angle`` degrees and an eye moved less than
-        ``max_move * scale`` (``scale``: e.g. the volume's diagonal)."""
-        return key == self.key and view_close(self.camera, camera, max_angle, max_move * scale)
+        image size, a view direction within ``max_angle`` degrees, and an eye moved less than
+        ``max_move * scale`` (``scale``: e.g. the volume's diagonal) - or, with ``centre`` (e.g. the
+        volume's), an eye whose direction from ``centre`` turned less than ``max_angle`` and whose
+        distance to it changed by less than the fraction ``max_move`` (see :func:`view_close`)."""
+        return key == self.key and view_close(self.camera, camera, max_angle, max_move * scale, centre, max_move)
 
 
-def view_close(a: Camera, b: Camera, max_angle: float, max_move: float) -> bool:
-    """Whether view ``b`` is within ``max_angle`` degrees and an eye move of ``max_move`` (world units)
-    of view ``a``, with the same projection and image size."""
+def view_close(a: Camera, b: Camera, max_angle: float, max_move: float, centre=None, zoom: float = 0.02) -> bool:
+    """Whether view ``b`` is close to view ``a``: the same projection and image size, a view direction
+    within ``max_angle`` degrees, and an eye moved by at most ``max_move`` (world units).
+
+    With ``centre``, an eye that moved further still counts as close when, seen from ``centre``, it
+    turned by at most ``max_angle`` degrees and its distance changed by at most the fraction
+    ``zoom``: an orbit about the volume is judged by its angle (as Wang, Garcia & Shen judge the
+    view direction), so the test scales with the zoom instead of with the volume's size.
+    """
     if a.orthographic != b.orthographic or tuple(a.size) != tuple(b.size):
         return False
     if (a.fov_y, a.width, a.height) != (b.fov_y, b.width, b.height):
         return False
-    cosang = float(np.clip(np.dot(a.forward, b.forward), -1.0, 1.0))
-    if math.degrees(math.acos(cosang)) > max_angle:
+    if _degrees(a.forward, b.forward) > max_angle:
         return False
-    return float(np.linalg.norm(np.subtract(a.eye, b.eye))) <= max_move
+    if float(np.linalg.norm(np.subtract(a.eye, b.eye))) <= max_move:
+        return True
+    if centre is None:
+        return False
+    ra, rb = np.subtract(a.eye, centre), np.subtract(b.eye, centre)
+    na, nb = float(np.linalg.norm(ra)), float(np.linalg.norm(rb))
+    if na <= 0 or nb <= 0 or abs(nb - na) > zoom * na:
+        return False
+    return _degrees(ra / na, rb / nb) <= max_angle
+
+
+def _degrees(u, v) -> float:
+    return math.degrees(math.acos(float(np.clip(np.dot(u, v), -1.0, 1.0))))
 
 
 def march_occlusion(volume: np.ndarray, scale_zyx, translation_zyx, camera: Camera, alpha_of, depths,

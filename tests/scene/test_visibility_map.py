@@ -63,6 +63,31 @@ def test_reuse_only_for_small_turns():
     assert layers.reusable(slight, "tf", max_angle=3.0, scale=100.0)
 
 
+def test_orbit_is_judged_by_its_angle_about_the_centre():
+    """Far from the volume a 2-degree orbit moves the eye by more than 2 % of the diagonal: without a
+    centre the estimate is redone, with the volume's centre it is kept; a 5-degree orbit, a zoom of
+    10 % or a sideways step of the same length as the 2-degree arc (which turns the eye about the
+    centre by less but the view direction by more) are not all kept."""
+    centre = np.array([0.0, 0.0, 0.0])
+
+    def orbit(deg, r=100.0):
+        th = np.radians(deg)
+        eye = (r * np.sin(th), 0.0, -r * np.cos(th))
+        return Camera.perspective(eye, tuple(centre), up=(0, 1, 0), fov_y=30, size=(32, 32))
+
+    layers = OcclusionLayers(orbit(0.0), np.array([0.0]), np.zeros((1, 4, 4)), key="tf")
+    diag = 10.0  # eye moves 3.5 units for 2 degrees at r = 100: far more than 2 % of 10
+    assert not layers.reusable(orbit(2.0), "tf", 3.0, 0.02, diag)
+    assert layers.reusable(orbit(2.0), "tf", 3.0, 0.02, diag, centre)
+    assert not layers.reusable(orbit(5.0), "tf", 3.0, 0.02, diag, centre)
+    assert not layers.reusable(orbit(0.0, r=90.0), "tf", 3.0, 0.02, diag, centre)
+    step = Camera.perspective((3.5, 0.0, -100.0), (3.5, 0.0, 0.0), up=(0, 1, 0), fov_y=30, size=(32, 32))
+    assert layers.reusable(step, "tf", 3.0, 0.02, diag, centre)  # a 2-degree shift seen from the centre, same direction
+    side = Camera.perspective((3.5, 0.0, -100.0), (3.5 + 100 * np.tan(np.radians(4)), 0.0, 0.0), up=(0, 1, 0),
+                              fov_y=30, size=(32, 32))
+    assert not layers.reusable(side, "tf", 3.0, 0.02, diag, centre)  # the view direction turned by 4 degrees
+
+
 def test_cpu_march_follows_beer_lambert_along_each_ray():
     """In a uniform medium of opacity ``a`` per unit length, the opacity in front of depth ``d`` is
     ``1 - (1 - a) ** L`` with ``L`` the ray's length between the volume's near face and the last
