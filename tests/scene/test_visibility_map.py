@@ -65,9 +65,9 @@ def test_reuse_only_for_small_turns():
 
 def test_orbit_is_judged_by_its_angle_about_the_centre():
     """Far from the volume a 2-degree orbit moves the eye by more than 2 % of the diagonal: without a
-    centre the estimate is redone, with the volume's centre it is kept; a 5-degree orbit, a zoom of
-    10 % or a sideways step of the same length as the 2-degree arc (which turns the eye about the
-    centre by less but the view direction by more) are not all kept."""
+    centre the estimate is redone, with the volume's centre it is kept, and so is a sideways step of
+    the arc's length that keeps the view direction; a 5-degree orbit, a 10 % zoom and a view
+    direction turned by 4 degrees are not kept."""
     centre = np.array([0.0, 0.0, 0.0])
 
     def orbit(deg, r=100.0):
