@@ -252,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
         w.writerows(rows)
     plot = plot_lod_sweep([r for r in rows if r["policy"] in LOD_POLICIES], out / f"{stem}.png",
                           title=f"CT-like head {args.size}^3, {args.brick}^3 bricks, {args.image}^2 images, "
-                                f"{len(views)} views (ratio to the full-resolution frame)")
+                                f"{len(views)} views, {args.path} path")
     lines = [f"Path: {args.path}. Frame times: mean (median) wall over a {TURN_FRAMES}-frame turn of "
              f"{TURN_DEG} degrees per frame, full-resolution and image frames interleaved; CPU: process CPU "
              f"time (llvmpipe's threads included) of the full frames over the image frames.", "",
