@@ -136,10 +136,13 @@ class CpuVisibilityEstimator:
         self.level = coarse_level(pyr) if level is None else int(level)
         self.size, self.layers, self.step = int(size), max(2, int(layers)), float(step)
         self.renders = 0
+        self.failed: list = []  # ((level, brick), error) of coarse bricks the loader could not read
         self._volume = None
 
     def volume(self) -> np.ndarray:
-        """The coarse level's voxels ``(z, y, x)``, read brick by brick on first use."""
+        """The coarse level's voxels ``(z, y, x)``, read brick by brick on first use. A brick the
+        loader fails to read is NaN, which the estimate treats as empty (nothing hidden behind it:
+        the cautious answer); :attr:`failed` lists such bricks."""
         if self._volume is None:
             pyr, L = self.pyramid, self.level
             shape = pyr.levels[L].shape
@@ -147,7 +150,12 @@ class CpuVisibilityEstimator:
             vol = np.empty(shape, dtype=np.float32)
             for b in np.ndindex(*pyr.grid(L)):
                 sl = tuple(slice(i * n, min((i + 1) * n, s)) for i, n, s in zip(b, B, shape))
-                data = np.asarray(self.loader.read_brick(L, b))
+                try:
+                    data = np.asarray(self.loader.read_brick(L, b))
+                except Exception as e:  # noqa: BLE001 - a loader may raise anything; the frame goes on
+                    self.failed.append(((L, b), f"{type(e).__name__}: {e}"))
+                    vol[sl] = np.nan
+                    continue
                 vol[sl] = data[tuple(slice(0, x.stop - x.start) for x in sl)]
             self._volume = vol
         return self._volume
@@ -175,8 +183,9 @@ class CpuVisibilityEstimator:
         a_tab = tf.lookup(np.linspace(lo_v, hi_v, n + 1), vr)[:, 3].astype(np.float32)
         k = n / (hi_v - lo_v) if hi_v > lo_v else 0.0
 
-        def alpha_of(v):
-            return a_tab[np.clip(np.rint((np.nan_to_num(v, nan=lo_v) - lo_v) * k), 0, n).astype(np.int64)]
+        def alpha_of(v):  # NaN (unread or undefined data): empty, so that it hides nothing
+            a = a_tab[np.clip(np.rint((np.nan_to_num(v, nan=lo_v) - lo_v) * k), 0, n).astype(np.int64)]
+            return np.where(np.isnan(v), np.float32(0.0), a)
 
         alpha = march_occlusion(self.volume(), lv.scale, lv.translation, small, alpha_of, depths,
                                 float(min(self.pyramid.spacing)), self.step, shape)

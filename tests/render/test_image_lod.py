@@ -170,3 +170,32 @@ def test_cut_is_replayed_only_for_small_turns(gl, head_store):
     with ClipTexture(loader, "256MB") as clip, ClipRenderAction(gl, clip, policy="image", block_budget=48) as act:
         render_converged(act, cam, tf)
         assert sorted(act.last_selection.wanted) == first
+
+
+def test_cpu_estimate_sees_through_a_coarse_brick_the_loader_fails_to_read(slab_store):
+    """An unreadable coarse brick hides nothing (the cautious answer): the blob behind the lost quarter
+    of the slab counts as visible, the blob behind the rest stays hidden, and the failure is listed."""
+    from clipvol.render.visibility import CpuVisibilityEstimator
+
+    inner = open_store(slab_store)
+
+    class Failing:
+        pyramid = inner.pyramid
+
+        def read_brick(self, level, index):
+            if (level, tuple(index)) == (1, (0, 1, 1)):
+                raise OSError("disk gone")
+            return inner.read_brick(level, index)
+
+    est = CpuVisibilityEstimator(Failing())
+    assert est.level == 1
+    layers = est.estimate(_slab_camera(), TF)
+    assert [k for k, _ in est.failed] == [(1, (0, 1, 1))]
+    # the blob's first level-0 bricks (z 24..32: nothing but the slab in front), one behind the lost
+    # quarter (y, x >= 16), one behind the intact slab
+    lo, hi = inner.pyramid.node_box(0, np.array([[3, 2, 2], [3, 1, 1]]))
+    v = layers.visibility(lo, hi, _slab_camera())
+    assert v[0] > 0.9 and v[1] < 0.1, v  # (the second's footprint rectangle touches the lost quarter's edge)
+    # with every brick readable both are hidden
+    v_all = CpuVisibilityEstimator(inner).estimate(_slab_camera(), TF).visibility(lo, hi, _slab_camera())
+    assert np.all(v_all < 0.01), v_all
