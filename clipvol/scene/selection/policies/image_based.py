@@ -120,7 +120,7 @@ class ImageBased:
         return self._cam[1]
 
     def importance(self, t, level: int, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-        """``(n,)`` ``I = E * eps * t * a * v * p**3`` of nodes of ``level`` (virtual levels: inf)."""
+        """``(n,)`` ``I = E * eps * t * a * v * p**6`` of nodes of ``level`` (virtual levels: inf)."""
         last = self._last
         if last is not None and last[0] == level and last[1] is lo:
             return last[2]  # the greedy traversal asks refine() and priority() for the same nodes
@@ -183,7 +183,7 @@ class ImageBased:
     def _greedy(self, t, budget: int) -> None:
         """The greedy refinement of :meth:`Traversal.greedy` with ``cost = number of nodes``, in batches.
 
-        While ``r`` nodes of budget remain, the ``max(1, r // 8)`` most important refinable nodes are
+        While ``r >= 16`` nodes of budget remain, the ``r // 8`` most important refinable nodes are
         refined together - one vectorised expand, cull and importance evaluation per level instead
         of one per node (a refinement replaces one node by at most eight, so the batch cannot
         overrun the budget). Children are ranked against the queue from the next batch on; with
