@@ -103,6 +103,7 @@ def plot_lod_sweep(rows: list[dict], path: Path, title: str = "", target: float 
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
+        import matplotlib.ticker
     except ImportError:  # pragma: no cover
         return None
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
@@ -116,6 +117,10 @@ def plot_lod_sweep(rows: list[dict], path: Path, title: str = "", target: float 
         ax.plot(xs, ys, marker="o", label=label)
     ax.axhline(target, color="grey", lw=0.8, ls="--")
     ax.set_xscale("log")
+    xs_all = [r["blocks"] for r in rows] or [1]
+    ticks = [b for b in (8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096) if min(xs_all) / 1.5 <= b <= max(xs_all) * 1.5]
+    ax.set_xticks(ticks, [str(b) for b in ticks])
+    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     ax.set_xlabel("bricks drawn (distinct, mean over views)")
     ax.set_ylabel("% of pixels with CIELUV ΔE ≥ 6\nagainst the full-resolution frame")
     ax.set_title(title or "error against block budget (after Wang, Garcia & Shen 2007, Fig. 6)", fontsize=9)

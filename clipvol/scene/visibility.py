@@ -11,6 +11,11 @@ so a frame's thousands of bricks cost one ``cumsum`` per layer.
 
 A brick that reaches the eye plane (a corner at or behind the eye) gets visibility 1.
 
+:func:`march_occlusion` computes the layers on the CPU: it ray-casts a coarse level (a few
+hundred thousand voxels) into the small image with samples on planes of constant depth, so the
+opacity in front of *every* depth plane comes out of one pass (one cumulative product per ray) and
+the layers can be as fine as the samples - where the GL estimate needs one render per layer.
+
 References
 ----------
 C. Wang, A. Garcia, H.-W. Shen, "Interactive Level-of-Detail Selection Using Image-Based Quality
@@ -27,7 +32,8 @@ import numpy as np
 
 from .camera import Camera
 
-__all__ = ["OcclusionLayers", "summed_area_table", "rect_mean", "screen_rects", "box_depths"]
+__all__ = ["OcclusionLayers", "summed_area_table", "rect_mean", "screen_rects", "box_depths", "march_occlusion",
+           "view_close"]
 
 
 def summed_area_table(img: np.ndarray) -> np.ndarray:
@@ -84,7 +90,8 @@ def screen_rects(camera: Camera, lo, hi) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass
 class OcclusionLayers:
-    """Accumulated opacity in front of ``depths`` (``(K,)`` ascending, ``depths[0] = 0`` with an empty
+    """Accumulated opacity in front of ``depths`` (``(K,)`` ascending, ``depths[0] = 0`` - orthographic: the
+    volume's signed near depth - with an empty
     map) as ``alpha`` ``(K, h, w)`` in ``[0, 1]`` (row 0 at the top) for ``camera`` (its pixel size
     may differ from the maps': rectangles are scaled)."""
 
@@ -116,16 +123,116 @@ class OcclusionLayers:
         return np.clip(1.0 - mean, 0.0, 1.0)
 
     def reusable(self, camera: Camera, key=None, max_angle: float = 3.0, max_move: float = 0.02,
-                 scale: float = 1.0) -> bool:
+                 scale: float = 1.0, centre=None) -> bool:
         """Whether this estimate still serves ``camera``: the same ``key``, the same projection and
-        image size, a view direction within ``max_angle`` degrees and an eye moved less than
-        ``max_move * scale`` (``scale``: e.g. the volume's diagonal)."""
-        c = self.camera
-        if key != self.key or c.orthographic != camera.orthographic or tuple(c.size) != tuple(camera.size):
-            return False
-        if (c.fov_y, c.width, c.height) != (camera.fov_y, camera.width, camera.height):
-            return False
-        cosang = float(np.clip(np.dot(c.forward, camera.forward), -1.0, 1.0))
-        if math.degrees(math.acos(cosang)) > max_angle:
-            return False
-        return float(np.linalg.norm(np.subtract(c.eye, camera.eye))) <= max_move * scale
+        image size, a view direction within ``max_angle`` degrees, and an eye moved less than
+        ``max_move * scale`` (``scale``: e.g. the volume's diagonal) - or, with ``centre`` (e.g. the
+        volume's), an eye whose direction from ``centre`` turned less than ``max_angle`` and whose
+        distance to it changed by less than the fraction ``max_move`` (see :func:`view_close`)."""
+        return key == self.key and view_close(self.camera, camera, max_angle, max_move * scale, centre, max_move)
+
+
+def view_close(a: Camera, b: Camera, max_angle: float, max_move: float, centre=None, zoom: float = 0.02) -> bool:
+    """Whether view ``b`` is close to view ``a``: the same projection and image size, a view direction
+    within ``max_angle`` degrees, and an eye moved by at most ``max_move`` (world units).
+
+    With ``centre``, an eye that moved further still counts as close when, seen from ``centre``, it
+    turned by at most ``max_angle`` degrees and its distance changed by at most the fraction
+    ``zoom``: an orbit about the volume is judged by its angle (as Wang, Garcia & Shen judge the
+    view direction), so the test scales with the zoom instead of with the volume's size.
+    """
+    if a.orthographic != b.orthographic or tuple(a.size) != tuple(b.size):
+        return False
+    if (a.fov_y, a.width, a.height) != (b.fov_y, b.width, b.height):
+        return False
+    if _degrees(a.forward, b.forward) > max_angle:
+        return False
+    if float(np.linalg.norm(np.subtract(a.eye, b.eye))) <= max_move:
+        return True
+    if centre is None:
+        return False
+    ra, rb = np.subtract(a.eye, centre), np.subtract(b.eye, centre)
+    na, nb = float(np.linalg.norm(ra)), float(np.linalg.norm(rb))
+    if na <= 0 or nb <= 0 or abs(nb - na) > zoom * na:
+        return False
+    return _degrees(ra / na, rb / nb) <= max_angle
+
+
+def _degrees(u, v) -> float:
+    return math.degrees(math.acos(float(np.clip(np.dot(u, v), -1.0, 1.0))))
+
+
+def march_occlusion(volume: np.ndarray, scale_zyx, translation_zyx, camera: Camera, alpha_of, depths,
+                    ref_length: float, step: float = 1.0, shape=None) -> np.ndarray:
+    """``(K, h, w)`` opacity accumulated in front of each of ``depths`` (ascending, along the view
+    axis) per pixel of ``camera``, by front-to-back ray casting of ``volume`` on the CPU.
+
+    Parameters
+    ----------
+    volume : ndarray
+        ``(z, y, x)`` voxels of one level; voxel ``i`` has its centre at ``translation + i * scale``.
+    scale_zyx, translation_zyx : sequence of float
+        The level's voxel-to-world transform (``(z, y, x)``).
+    camera : Camera
+        The (small) view; row 0 of the maps is the top of its image.
+    alpha_of : callable
+        ``alpha_of(values) -> opacity`` per reference length (the transfer function's alpha).
+    depths : array-like
+        ``(K,)`` depths along :attr:`Camera.forward` from the eye.
+    ref_length : float
+        The length the transfer function's opacity is defined for (the level-0 voxel).
+    step : float
+        Sample spacing in voxels of ``volume`` (depth planes ``step * min(scale)`` apart).
+    shape : Shape, optional
+        Samples outside it are empty.
+
+    Samples lie on planes of constant depth ``d_j`` (``j + 1/2`` steps past the volume's nearest
+    depth), trilinearly interpolated (edges clamped, outside the volume empty), with opacity corrected
+    for the ray's length between two planes (``1 - (1 - a) ** (length / ref_length)``). Layer ``k``
+    holds ``1 - prod (1 - a_j)`` over the samples with ``d_j < depths[k]``.
+    """
+    from scipy.ndimage import map_coordinates
+
+    vol = np.asarray(volume, dtype=np.float32)
+    sc = np.asarray(scale_zyx, dtype=np.float64)[::-1]  # (x, y, z)
+    tr = np.asarray(translation_zyx, dtype=np.float64)[::-1]
+    n_xyz = np.asarray(vol.shape[::-1], dtype=np.float64)
+    depths = np.asarray(depths, dtype=np.float64)
+    w, h = camera.size
+    out = np.zeros((len(depths), h, w))
+    lo, hi = tr - 0.5 * sc, tr + (n_xyz - 0.5) * sc
+    near, far = box_depths(camera, lo[None], hi[None])
+    d0 = float(near[0]) if camera.orthographic else max(float(near[0]), 0.0)  # (orthographic depths are signed)
+    d1 = float(far[0])
+    dd = float(step) * float(sc.min())
+    if d1 <= d0 or dd <= 0:
+        return out
+    n = int(math.ceil((d1 - d0) / dd))
+    dj = d0 + (np.arange(n) + 0.5) * dd  # (n,)
+    origins, dirs = camera.rays()
+    f = np.asarray(camera.forward, dtype=np.float64)
+    eye = np.asarray(camera.eye, dtype=np.float64)
+    cos = np.maximum(dirs @ f, 1e-6)  # (h, w)
+    o_depth = (origins - eye) @ f
+    # voxel coordinates (z, y, x) of each ray's sample on each plane: start + t * slope, in float32
+    start = ((origins - o_depth[..., None] / cos[..., None] * dirs - tr) / sc)[..., ::-1].astype(np.float32)
+    slope = (dirs / cos[..., None] / sc)[..., ::-1].astype(np.float32)
+    coords = start[None] + dj.astype(np.float32)[:, None, None, None] * slope[None]  # (n, h, w, 3)
+    n_zyx = np.asarray(vol.shape, dtype=np.float32)
+    inside = np.all((coords >= -0.5) & (coords <= n_zyx - 0.5), axis=-1)
+    if shape is not None and not shape.is_everything:
+        world = coords[..., ::-1].astype(np.float64) * sc + tr
+        inside &= shape.contains(world.reshape(-1, 3)).reshape(inside.shape)
+    np.clip(coords, 0.0, n_zyx - 1.0, out=coords)
+    a = np.zeros(inside.shape, dtype=np.float32)
+    vals = map_coordinates(vol, coords[inside].T, order=1, mode="nearest")  # only samples inside
+    a[inside] = alpha_of(vals)
+    # opacity for the ray's length between two planes: 1 - (1 - a) ** ratio
+    ratio = (dd / cos / float(ref_length)).astype(np.float32)
+    a = -np.expm1(ratio[None] * np.log1p(-np.minimum(a, np.float32(1.0 - 1e-7))))
+    trans = np.cumprod(1.0 - a, axis=0)  # transmittance after each sample
+    for k, d in enumerate(depths):
+        m = int(np.searchsorted(dj, d, side="left"))  # samples with d_j < d
+        if m > 0:
+            out[k] = 1.0 - trans[m - 1]
+    return out

@@ -119,3 +119,83 @@ def test_block_budget_must_be_positive():
     with pytest.raises(ParameterError, match="block_budget"):
         RenderParams(policy="image", block_budget=0)
     assert RenderParams(policy="image").block_budget >= 1
+
+
+def _turned(cam, deg):
+    """``cam`` with its eye turned by ``deg`` degrees about the vertical axis through its target."""
+    th = np.radians(deg)
+    r = np.array([[np.cos(th), 0.0, np.sin(th)], [0.0, 1.0, 0.0], [-np.sin(th), 0.0, np.cos(th)]])
+    t = np.asarray(cam.target)
+    return Camera.perspective(tuple(t + r @ (np.asarray(cam.eye) - t)), tuple(t), up=(0, -1, 0), fov_y=cam.fov_y,
+                              size=tuple(cam.size))
+
+
+def test_cut_is_replayed_only_for_small_turns(gl, head_store):
+    """A turn of 1 degree replays the last cut (the same bricks, drawn in the new view's back-to-front
+    order); 10 degrees, a new transfer function or a new budget make a new cut; the stored cut is the
+    one a fresh action makes for the same view."""
+    loader = open_store(head_store)
+    tf = TransferFunction.preset("bone", value_range=loader.pyramid.value_range)
+    cam = _head_view(loader.pyramid)
+    with ClipTexture(loader, "256MB") as clip, ClipRenderAction(gl, clip, policy="image", block_budget=48) as act:
+        render_converged(act, cam, tf)
+        lod = act.image_lod
+        first = sorted(act.last_selection.wanted)
+        cuts = lod.cuts
+        render_converged(act, _turned(cam, 1.0), tf)
+        assert lod.cuts == cuts and act.last_policy.reused
+        assert sorted(act.last_selection.wanted) == first
+        # the replayed items are drawn back to front for the turned eye: box a can hide box b only if
+        # the eye lies on a's side of every axis-aligned plane that separates them; then a comes later
+        eye = np.asarray(_turned(cam, 1.0).eye)
+        items = act.last_selection.items
+        assert len(items) > 1
+        for i, a in enumerate(items):
+            for b in items[i + 1:]:
+                sides = []
+                for ax in range(3):
+                    if a.hi[ax] <= b.lo[ax]:
+                        sides.append(eye[ax] <= a.hi[ax])
+                    elif b.hi[ax] <= a.lo[ax]:
+                        sides.append(eye[ax] >= a.lo[ax])
+                assert sides and not all(sides), (a, b)
+        render_converged(act, _turned(cam, 10.0), tf)
+        assert lod.cuts == cuts + 1 and not act.last_policy.reused
+        render_converged(act, _turned(cam, 10.0), TransferFunction.preset("viridis", value_range=loader.pyramid.value_range))
+        assert lod.cuts == cuts + 2
+        act.set_params(replace(act.params, block_budget=64))
+        render_converged(act, _turned(cam, 10.0), TransferFunction.preset("viridis", value_range=loader.pyramid.value_range))
+        assert lod.cuts == cuts + 3
+    # the replayed cut is the cut a fresh action makes for the first view (the cache returns what it stored)
+    with ClipTexture(loader, "256MB") as clip, ClipRenderAction(gl, clip, policy="image", block_budget=48) as act:
+        render_converged(act, cam, tf)
+        assert sorted(act.last_selection.wanted) == first
+
+
+def test_cpu_estimate_sees_through_a_coarse_brick_the_loader_fails_to_read(slab_store):
+    """An unreadable coarse brick hides nothing (the cautious answer): the blob behind the lost quarter
+    of the slab counts as visible, the blob behind the rest stays hidden, and the failure is listed."""
+    from clipvol.render.visibility import CpuVisibilityEstimator
+
+    inner = open_store(slab_store)
+
+    class Failing:
+        pyramid = inner.pyramid
+
+        def read_brick(self, level, index):
+            if (level, tuple(index)) == (1, (0, 1, 1)):
+                raise OSError("disk gone")
+            return inner.read_brick(level, index)
+
+    est = CpuVisibilityEstimator(Failing())
+    assert est.level == 1
+    layers = est.estimate(_slab_camera(), TF)
+    assert [k for k, _ in est.failed] == [(1, (0, 1, 1))]
+    # the blob's first level-0 bricks (z 24..32: nothing but the slab in front), one behind the lost
+    # quarter (y, x >= 16), one behind the intact slab
+    lo, hi = inner.pyramid.node_box(0, np.array([[3, 2, 2], [3, 1, 1]]))
+    v = layers.visibility(lo, hi, _slab_camera())
+    assert v[0] > 0.9 and v[1] < 0.1, v  # (the second's footprint rectangle touches the lost quarter's edge)
+    # with every brick readable both are hidden
+    v_all = CpuVisibilityEstimator(inner).estimate(_slab_camera(), TF).visibility(lo, hi, _slab_camera())
+    assert np.all(v_all < 0.01), v_all

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from clipvol.scene.camera import Camera
-from clipvol.scene.visibility import OcclusionLayers, rect_mean, screen_rects, summed_area_table
+from clipvol.scene.visibility import OcclusionLayers, march_occlusion, rect_mean, screen_rects, summed_area_table
 
 
 def test_rect_mean_equals_numpy(rng):
@@ -61,3 +61,68 @@ def test_reuse_only_for_small_turns():
     slight = Camera.orthographic((0.0, 0.0, 0.0), (np.sin(np.radians(1)), 0.0, np.cos(np.radians(1))), (0.0, -1.0, 0.0),
                                  20.0, 20.0, size=(40, 40))
     assert layers.reusable(slight, "tf", max_angle=3.0, scale=100.0)
+
+
+def test_orbit_is_judged_by_its_angle_about_the_centre():
+    """Far from the volume a 2-degree orbit moves the eye by more than 2 % of the diagonal: without a
+    centre the estimate is redone, with the volume's centre it is kept, and so is a sideways step of
+    the arc's length that keeps the view direction; a 5-degree orbit, a 10 % zoom and a view
+    direction turned by 4 degrees are not kept."""
+    centre = np.array([0.0, 0.0, 0.0])
+
+    def orbit(deg, r=100.0):
+        th = np.radians(deg)
+        eye = (r * np.sin(th), 0.0, -r * np.cos(th))
+        return Camera.perspective(eye, tuple(centre), up=(0, 1, 0), fov_y=30, size=(32, 32))
+
+    layers = OcclusionLayers(orbit(0.0), np.array([0.0]), np.zeros((1, 4, 4)), key="tf")
+    diag = 10.0  # eye moves 3.5 units for 2 degrees at r = 100: far more than 2 % of 10
+    assert not layers.reusable(orbit(2.0), "tf", 3.0, 0.02, diag)
+    assert layers.reusable(orbit(2.0), "tf", 3.0, 0.02, diag, centre)
+    assert not layers.reusable(orbit(5.0), "tf", 3.0, 0.02, diag, centre)
+    assert not layers.reusable(orbit(0.0, r=90.0), "tf", 3.0, 0.02, diag, centre)
+    step = Camera.perspective((3.5, 0.0, -100.0), (3.5, 0.0, 0.0), up=(0, 1, 0), fov_y=30, size=(32, 32))
+    assert layers.reusable(step, "tf", 3.0, 0.02, diag, centre)  # a 2-degree shift seen from the centre, same direction
+    side = Camera.perspective((3.5, 0.0, -100.0), (3.5 + 100 * np.tan(np.radians(4)), 0.0, 0.0), up=(0, 1, 0),
+                              fov_y=30, size=(32, 32))
+    assert not layers.reusable(side, "tf", 3.0, 0.02, diag, centre)  # the view direction turned by 4 degrees
+
+
+def test_cpu_march_follows_beer_lambert_along_each_ray():
+    """In a uniform medium of opacity ``a`` per unit length, the opacity in front of depth ``d`` is
+    ``1 - (1 - a) ** L`` with ``L`` the ray's length between the volume's near face and the last
+    sample plane before ``d``: ``m`` planes of spacing 1 along the view, ``m / cos`` along an
+    oblique ray (closed form, per pixel)."""
+    vol = np.full((40, 40, 40), 0.5, np.float32)  # voxel centres 0..39, box -0.5..39.5 on every axis
+    a = 0.05
+    cam = Camera.perspective((19.5, 19.5, -30.0), (19.5, 19.5, 19.5), up=(0, 1, 0), fov_y=20, size=(9, 9))
+    near = -0.5 - (-30.0)  # the box's nearest depth along +z
+    m = np.array([0, 3, 10, 25])
+    depths = np.concatenate([[0.0], near + m[1:].astype(float)])
+    out = march_occlusion(vol, (1.0, 1.0, 1.0), (0.0, 0.0, 0.0), cam, lambda v: np.full(np.shape(v), a), depths,
+                          ref_length=1.0, step=1.0)
+    _, dirs = cam.rays()
+    cos = dirs @ np.array([0.0, 0.0, 1.0])
+    for k, mk in enumerate(m):
+        want = 1.0 - (1.0 - a) ** (mk / cos)
+        np.testing.assert_allclose(out[k], want, atol=1e-5)
+    # and nothing is in front of the volume: outside samples are empty
+    assert np.all(out[0] == 0.0)
+
+
+def test_cpu_march_leaves_out_what_the_shape_cuts_away():
+    vol = np.full((20, 20, 20), 1.0, np.float32)
+    cam = Camera.orthographic((9.5, 9.5, 9.5), (0, 0, 1), (0, 1, 0), 20.0, 20.0, size=(8, 8))
+    from clipvol.scene.geometry import Shape
+
+    depth_far = float(np.dot(np.array([9.5, 9.5, 30.0]) - cam.eye, cam.forward))
+    kw = dict(ref_length=1.0, step=1.0)
+    full = march_occlusion(vol, (1,) * 3, (0,) * 3, cam, lambda v: np.full(np.shape(v), 0.1), [0.0, depth_far], **kw)
+    left = Shape(planes=((-1.0, 0.0, 0.0, 9.5),))  # keeps x <= 9.5: the left half of the image
+    cut = march_occlusion(vol, (1,) * 3, (0,) * 3, cam, lambda v: np.full(np.shape(v), 0.1), [0.0, depth_far],
+                          shape=left, **kw)
+    np.testing.assert_allclose(full[1], 1.0 - 0.9**20, atol=1e-5)
+    x = (np.arange(8) + 0.5) / 8 * 20.0 - 0.5  # pixel centres in world x (the image's x runs along +x here)
+    inside_cols = x <= 9.5 if cam.right[0] > 0 else x[::-1] <= 9.5
+    assert np.allclose(cut[1][:, inside_cols], full[1][:, inside_cols], atol=1e-5)
+    assert np.all(cut[1][:, ~inside_cols] == 0.0)
