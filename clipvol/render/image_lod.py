@@ -83,15 +83,16 @@ class ImageLod:
         frame's cut is replayed while the view turned less than :data:`REUSE_ANGLE_DEG` and the eye
         moved less than 2 % of the volume diagonal - or turned less than that angle about the volume's
         centre at a distance within 2 % (an orbit; :func:`~clipvol.scene.visibility.view_close`) - since
-        that cut was made, and the errors, the visibility estimate and the parameters are the same
-        objects."""
+        that cut was made, the errors, the visibility estimate and the parameters are the same
+        objects, and no node the frustum culled then is in view now (:meth:`ImageBased.covers`)."""
         errors = self.errors_for(tf)
         # MIP has no occlusion: a brick behind another can still hold the maximum
         vis = self.visibility_for(camera, tf, params) if params.visibility and params.mode == "composite" else None
         reuse = None
         last = self._last
         if self.reuse_cut and last is not None and last[1] is errors and last[2] is vis and last[3] == params \
-                and last[4].recorded is not None and view_close(last[0], camera, REUSE_ANGLE_DEG, 0.02 * self._diag, self._centre, 0.02):
+                and last[4].recorded is not None and view_close(last[0], camera, REUSE_ANGLE_DEG, 0.02 * self._diag, self._centre, 0.02) \
+                and last[4].covers(camera):
             reuse = last[4].recorded
         policy = ImageBased(params, errors=errors, visibility=vis, reuse=reuse)
         if reuse is None:

@@ -199,3 +199,30 @@ def test_cpu_estimate_sees_through_a_coarse_brick_the_loader_fails_to_read(slab_
     # with every brick readable both are hidden
     v_all = CpuVisibilityEstimator(inner).estimate(_slab_camera(), TF).visibility(lo, hi, _slab_camera())
     assert np.all(v_all < 0.01), v_all
+
+
+def test_cut_is_not_replayed_when_a_culled_region_turns_into_view(gl, head_store):
+    """A close view sees part of the head (the frustum culls the rest); a turn smaller than the reuse
+    angle that brings culled bricks into view must make a new cut - a replay would leave those
+    bricks out and draw a hole at the image's edge. The turned frame equals a fresh action's frame."""
+    loader = open_store(head_store)
+    # faint everywhere but air: nothing is occluded, so the cut refines to level 0 up to the frustum's edge
+    tf = TransferFunction.from_points([(0.0, (0, 0, 0, 0)), (0.1, (0.5, 0.5, 0.5, 0.02)), (1.0, (1, 1, 1, 0.05))])
+    lo, hi = loader.pyramid.volume_box()
+    c = (lo + hi) / 2
+    eye = c - np.array([0.0, 0.0, 40.0])
+    cam = Camera.perspective(tuple(eye), tuple(c), up=(0, -1, 0), fov_y=30, size=(64, 64))
+    th = np.radians(2.0)  # the view direction turns about the eye
+    turned = Camera.perspective(tuple(eye), tuple(eye + 40.0 * np.array([np.sin(th), 0.0, np.cos(th)])), up=(0, -1, 0),
+                                fov_y=30, size=(64, 64))
+    with ClipTexture(loader, "256MB") as clip, ClipRenderAction(gl, clip, policy="image", block_budget=400) as act:
+        render_converged(act, cam, tf)
+        policy = act.last_policy
+        assert len(policy._culled[0]), "the close view must cull part of the head for this test to mean anything"
+        assert not policy.covers(turned)
+        cuts = act.image_lod.cuts
+        img = render_converged(act, turned, tf)
+        assert act.image_lod.cuts == cuts + 1 and not act.last_policy.reused
+    with ClipTexture(loader, "256MB") as clip, ClipRenderAction(gl, clip, policy="image", block_budget=400) as act:
+        fresh = render_converged(act, turned, tf)
+    assert np.abs(img.astype(int) - fresh.astype(int)).max() <= 1

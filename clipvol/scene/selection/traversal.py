@@ -57,10 +57,19 @@ class Traversal:
         # records: data node (level, idx) drawn over region node (level, idx)
         self.rec: list[tuple[int, np.ndarray, int, np.ndarray]] = []
         self._keep = getattr(policy, "keep", None)
+        # boxes (lo, hi) the frustum culled, kept only when a policy asks (set it to a list): a cut
+        # replayed for a turned camera is valid only while none of them enters the new frustum
+        self.frustum_culled: list[tuple[np.ndarray, np.ndarray]] | None = None
 
     # -- the shared tests ----------------------------------------------------------------------
-    def _keep_mask(self, level: int, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    def _in_frustum(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         keep = self.camera.boxes_in_frustum(lo, hi)
+        if self.frustum_culled is not None and not keep.all():
+            self.frustum_culled.append((lo[~keep], hi[~keep]))
+        return keep
+
+    def _keep_mask(self, level: int, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        keep = self._in_frustum(lo, hi)
         if self.shape is not None and not self.shape.is_everything:
             keep &= ~self.shape.boxes_outside(lo, hi)
         if self._keep is not None:
@@ -71,7 +80,7 @@ class Traversal:
         """Drop nodes outside the frustum, the shape or the policy's ``keep``; returns kept ``(idx, lo, hi)``."""
         lo, hi = self.tree.boxes(level, idx)
         self.counts["visited"] += len(idx)
-        keep = self.camera.boxes_in_frustum(lo, hi)
+        keep = self._in_frustum(lo, hi)
         self.counts["culled_frustum"] += int((~keep).sum())
         if self.shape is not None and not self.shape.is_everything:
             out = self.shape.boxes_outside(lo, hi) & keep

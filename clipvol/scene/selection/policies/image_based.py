@@ -92,6 +92,7 @@ class ImageBased:
         self.reuse = reuse
         self.reused = False
         self.recorded = None
+        self._culled = (_EMPTY3, _EMPTY3)  # boxes the frustum culled while the recorded cut was made
         self.errors = errors
         self.visibility = visibility if params.visibility else None
         self.node_data: dict = {}
@@ -250,6 +251,15 @@ class ImageBased:
         for lv, rows in by_lv.items():
             t.leaves(lv, np.array(rows, dtype=np.int64))
 
+    def covers(self, camera) -> bool:
+        """Whether the recorded cut still holds every node ``camera`` sees: none of the boxes the
+        frustum culled while the cut was made enters ``camera``'s frustum (else a replay would leave
+        a hole at the image's edge, drawn as if empty)."""
+        if self.recorded is None:
+            return False
+        lo, hi = self._culled
+        return not (len(lo) and camera.boxes_in_frustum(lo, hi).any())
+
     def cut(self, t) -> None:
         if self.errors is None:
             raise ParameterError("policy 'image': expected the store's multiresolution errors (summary tables); render "
@@ -262,7 +272,12 @@ class ImageBased:
             self.reused = True
             return
         self._importance, self._last = {}, None
+        t.frustum_culled = []
         self._greedy(t, self.budget_blocks(t.tree.texels))
+        culled = t.frustum_culled
+        t.frustum_culled = None
+        self._culled = ((np.concatenate([c[0] for c in culled]), np.concatenate([c[1] for c in culled]))
+                        if culled else (_EMPTY3, _EMPTY3))
         leaves = [(lv, tuple(int(v) for v in b)) for lv, idx, rl, _ in t.rec if lv == rl for b in idx]
         tops = [v for (lv, _), v in self._importance.items() if lv == t.tree.top and np.isfinite(v)]
         total = float(sum(tops))
