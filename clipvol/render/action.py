@@ -626,8 +626,8 @@ class ClipRenderAction:
             prem = prem + (1.0 - a[..., None]) * bgp
         else:
             prem = raw.astype(np.float64)
-            if front_to_back:  # the background goes under everything, last
-                r, g, b, ba = self.params.background
+            r, g, b, ba = self.params.background
+            if front_to_back and ba > 0.0:  # the background goes under everything, last (none: nothing to add)
                 prem = prem + (1.0 - prem[..., 3:4]) * np.array([r * ba, g * ba, b * ba, ba])
         image = premultiplied_to_uint8(prem)
         return image, t1 - t0, time.perf_counter() - t1
