@@ -22,7 +22,9 @@ noise of a shared machine cancels as far as it can:
 * **against a raw caster** - the full-resolution frame and clipvol's own one-texture frame, each
   divided by :class:`RawCaster`'s time (a plain one-texture caster outside clipvol's render path,
   same volume, view, step and table). Targets <= 1.1x and <= 1.05x. ``--vs-raw 256,512`` runs
-  only this comparison on procedural volumes, ``--fly-only N`` only the fly-path frame times.
+  only this comparison on procedural volumes, ``--fly-only N`` only the fly-path frame times,
+  ``--vs-raw-large 1024`` a 1024^3 uint8 volume (1 GiB: a float32 one would not fit beside the raw
+  caster's texture) against the raw caster, with a virtual 4096^3 multiresolution frame beside it.
 
 Run ``python -m clipvol.tools.bench_render`` (uses ``bench-data/fractal-640-b64.zarr``, 640^3
 float32 = 1.05 GB, bricking it with ``clipvol brick`` first if it is missing) or ``--quick`` for a

@@ -255,6 +255,7 @@ class ClipTexture:
         self._read_into: Callable[[int, Int3, np.ndarray], None] | None = into if callable(into) else None
         # empty bricks (bounds [fill, fill], see HasBrickRanges) are filled here, never read
         self._ranges = loader.brick_ranges if isinstance(loader, HasBrickRanges) else None
+        self._ranges_failed: set[int] = set()  # levels whose bounds call failed: not asked again
         self._fill_brick = np.full(pyr.brick_shape, pyr.fill_value, dtype=pyr.dtype)
         self._fill_brick.setflags(write=False)
         self._skipped_empty = 0
@@ -779,10 +780,11 @@ class ClipTexture:
         One vectorised call when bricks enter a window (not one per load in the loader threads,
         where its small numpy steps held the GIL against the other threads' reads). Bounds that are
         unknown - or a bounds call that fails - leave the brick to be read: its load reports any
-        real failure.
+        real failure. After a failed call the level's bounds are not asked again (this runs under
+        the lock, and a remote store's bounds may need the network).
         """
         n = len(keys)
-        if self._ranges is None or n == 0:
+        if self._ranges is None or n == 0 or level in self._ranges_failed:
             return np.zeros(n, dtype=bool)
         try:
             r = self._ranges(level, np.asarray(keys, dtype=np.int64).reshape(-1, 3))
@@ -790,6 +792,7 @@ class ClipTexture:
                 return np.zeros(n, dtype=bool)
             r = np.asarray(r, dtype=np.float64).reshape(n, 2)
         except Exception:  # a loader's bounds are an optimisation: never a reason to fail a move
+            self._ranges_failed.add(level)
             return np.zeros(n, dtype=bool)
         fill = self.pyramid.fill_value
         return (r[:, 0] == fill) & (r[:, 1] == fill)

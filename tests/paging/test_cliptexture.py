@@ -637,3 +637,8 @@ def test_failing_bounds_only_mean_every_brick_is_read(no_leaked_threads):
             assert np.array_equal(ct.get_brick(L, idx), loader.reference(L, idx))
         assert set(keys) <= set(loader.calls)
         assert ct.stats.failures == 0 and ct.stats.empty_skipped == 0
+        # a failed bounds call is not repeated on every move (it runs under the lock)
+        calls = loader.bounds_calls
+        ct.set_center(np.array(loader.pyramid.volume_box()[1]) - 1.0)
+        assert ct.wait_until_idle(20)
+        assert loader.bounds_calls == calls
