@@ -728,14 +728,17 @@ class ClipRenderAction:
         """``may_cover`` for :func:`merge_items`: a culled node whose bricks of the drawn level are
         all in texture memory may be covered by a merged box (it then shows its real data)."""
         pyr = self.pyramid
+        cache = self.cache
 
         def may_cover(level: int, node_level: int, node_index) -> bool:
+            if node_level == level:  # one brick (most calls: culled siblings of a full-resolution cut)
+                return cache.on_gpu(level, node_index)
             f = 2 ** (node_level - level)
             grid = np.asarray(pyr.grid(level))
             first = np.asarray(node_index, dtype=np.int64) * f
             stop = np.minimum(first + f, grid)
             idx = np.stack(np.meshgrid(*(np.arange(a, b) for a, b in zip(first, stop)), indexing="ij"), -1).reshape(-1, 3)
-            return bool(np.all(self.cache.on_gpu_mask(level, idx)))
+            return bool(np.all(cache.on_gpu_mask(level, idx)))
 
         return may_cover
 
