@@ -22,7 +22,9 @@ noise of a shared machine cancels as far as it can:
 * **against a raw caster** - the full-resolution frame and clipvol's own one-texture frame, each
   divided by :class:`RawCaster`'s time (a plain one-texture caster outside clipvol's render path,
   same volume, view, step and table). Targets <= 1.1x and <= 1.05x. ``--vs-raw 256,512`` runs
-  only this comparison on procedural volumes, ``--fly-only N`` only the fly-path frame times.
+  only this comparison on procedural volumes, ``--fly-only N`` only the fly-path frame times,
+  ``--vs-raw-large 1024`` a 1024^3 uint8 volume (1 GiB: a float32 one would not fit beside the raw
+  caster's texture) against the raw caster, with a virtual 4096^3 multiresolution frame beside it.
 
 Run ``python -m clipvol.tools.bench_render`` (uses ``bench-data/fractal-640-b64.zarr``, 640^3
 float32 = 1.05 GB, bricking it with ``clipvol brick`` first if it is missing) or ``--quick`` for a
@@ -120,16 +122,24 @@ class RawCaster:
     no bricks, no page table, no variants, no shape clipping), drawing the same view with the same
     step, lattice (``t = k * delta`` from the eye) and opacity-corrected table, so clipvol's
     frame time can be stated as a ratio to what a minimal caster costs on the same GL.
-    Perspective cameras only. ``volume``: ``(z, y, x)`` float32, spacing 1.
+    Perspective cameras only. ``volume``: ``(z, y, x)``, spacing 1; float32, or uint8 / uint16 held
+    as a normalised 8 / 16-bit texture (a 1024^3 volume then fits in memory: 1 or 2 GiB), its
+    texel times 255 / 65535 being the value.
     """
 
     def __init__(self, ctx, volume: np.ndarray, value_range) -> None:
         import moderngl
 
         self.ctx = ctx
-        vol = np.ascontiguousarray(volume, dtype=np.float32)
+        gl = {np.dtype(np.uint8): ("f1", 255.0), np.dtype(np.uint16): ("nu2", 65535.0)}.get(np.asarray(volume).dtype)
+        if gl is None:
+            vol = np.ascontiguousarray(volume, dtype=np.float32)
+            gl = ("f4", 1.0)
+        else:
+            vol = np.ascontiguousarray(volume)
+        self.norm = gl[1]  # value = texel * norm
         self.shape = vol.shape
-        self.tex = ctx.texture3d(vol.shape[::-1], 1, vol.tobytes(), dtype="f4")
+        self.tex = ctx.texture3d(vol.shape[::-1], 1, vol, dtype=gl[0], alignment=1)
         self.tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
         self.tex.repeat_x = self.tex.repeat_y = self.tex.repeat_z = False
         self.prog = ctx.program(vertex_shader=_RAW_VERT, fragment_shader=_RAW_FRAG)
@@ -169,7 +179,7 @@ class RawCaster:
         p["u_lo"].value = (-0.5, -0.5, -0.5)
         p["u_hi"].value = tuple(float(v) for v in n - 0.5)
         p["u_delta"].value = float(step)
-        p["u_t_scale"].value = 1.0 / (hi - lo)
+        p["u_t_scale"].value = self.norm / (hi - lo)
         p["u_t_offset"].value = -lo / (hi - lo)
         previous = ctx.fbo
         self._fbo.use()
@@ -393,6 +403,130 @@ def vs_raw(sizes, image: int, repeat: int, step: float, out_dir: Path, fly_frame
     return rows
 
 
+def quantised_fractal(n: int, dtype: str, data_dir: Path, log=print) -> np.ndarray:
+    """``procedural:fractal?size=n`` quantised to ``dtype`` (uint8 / uint16) over the generator's value
+    range, generated in slabs (never the float32 volume whole) and cached as ``.npy`` under
+    ``data_dir``; returned in memory."""
+    from clipvol.loaders.procedural import ProceduralLoader
+
+    path = data_dir / f"fractal-{n}-{dtype}.npy"
+    if path.is_file():
+        return np.load(path)
+    gen = ProceduralLoader(f"procedural:fractal?size={n}", brick=64)
+    lo, hi = gen.pyramid.value_range
+    top = float(np.iinfo(np.dtype(dtype)).max)
+    vol = np.empty((n, n, n), dtype=dtype)
+    t = time.perf_counter()
+    for z in range(0, n, 32):
+        slab = gen.generator.region(0, (z, 0, 0), (min(n, z + 32), n, n))
+        vol[z:z + len(slab)] = np.clip(np.rint((slab - lo) * (top / (hi - lo))), 0, top)
+    log(f"{n}^3 {dtype}: generated in {time.perf_counter() - t:.0f} s")
+    data_dir.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".part.npy")
+    np.save(tmp, vol)
+    tmp.replace(path)  # never a half-written cache file under the final name
+    return vol
+
+
+def vs_raw_large(n: int, dtype: str, image: int, repeat: int, step: float, out_dir: Path, virtual: int = 4096,
+                 budget: int = 1536 << 20, log=print) -> dict:
+    """An ``n``^3 integer volume (1 GiB at 1024^3 uint8) against :class:`RawCaster`, and a virtual
+    ``virtual``^3 multiresolution frame beside them.
+
+    Same view geometry as :func:`vs_raw` (the volume fills the ``image``^2 view), same step and
+    table; interleaved rounds, medians. Measured: the full-resolution per-brick frame and the
+    multiresolution frame (``lod_threshold=1``) of the ``n``^3 volume, each divided by the raw
+    caster's frame of the same volume (one ``n``^3 texture); and the multiresolution frame of
+    ``procedural:fractal?size=virtual`` (float32 bricks generated on demand, 64 GiB at 4096^3 if it
+    were whole) divided by the same raw caster's ``n``^3 frame - what a view of a volume 64x larger
+    costs against what a plain caster pays for the largest texture it can hold here.
+    """
+    from clipvol.loaders.numpy_array import NumpyLoader, finite_range
+    from clipvol.loaders.procedural import ProceduralLoader
+    from clipvol.paging.cliptexture import ClipTexture
+    from clipvol.render import create_context
+    from clipvol.render.action import ClipRenderAction, premultiplied_to_uint8
+    from clipvol.scene.camera import Camera
+    from clipvol.scene.transfer import TransferFunction
+
+    def view(pyr):
+        lo, hi = pyr.volume_box()
+        centre = (lo + hi) / 2.0
+        d = np.array([0.55, 0.45, 0.7])
+        d /= np.linalg.norm(d)
+        return Camera.perspective(tuple(centre - d * 1.05 * float(np.linalg.norm(hi - lo))), tuple(centre),
+                                  up=(0, -1, 0), fov_y=35, size=(image, image))
+
+    vol = quantised_fractal(n, dtype, REPO / "bench-data", log)
+    vr = finite_range(vol)
+    loader = NumpyLoader(vol, brick=64, value_range=vr)
+    pyr = loader.pyramid
+    cam = view(pyr)
+    tf = TransferFunction.preset("bone", value_range=pyr.value_range)
+    ctx = create_context()
+    t0 = time.perf_counter()
+    clip = ClipTexture(loader, budget, threads=2)
+    actions = {"bricks": ClipRenderAction(ctx, clip, policy="fixed", level=0, path="bricks", step=step,
+                                          texture_budget=budget),
+               "multiresolution": ClipRenderAction(ctx, clip, lod_threshold=1.0, step=step, texture_budget=budget)}
+    imgs = {k: a.render(cam, tf, wait=True, timeout=3600) for k, a in actions.items()}
+    log(f"{n}^3 {dtype}: loaded and uploaded in {time.perf_counter() - t0:.0f} s")
+    raw = RawCaster(ctx, vol, pyr.value_range)
+    raw.render(cam, tf, step)
+    vloader = ProceduralLoader(f"procedural:fractal?size={virtual}", brick=64)
+    vcam = view(vloader.pyramid)
+    vtf = TransferFunction.preset("bone", value_range=vloader.pyramid.value_range)
+    vclip = ClipTexture(vloader, budget, threads=2)
+    vact = ClipRenderAction(ctx, vclip, lod_threshold=1.0, step=step, texture_budget=budget)
+    t0 = time.perf_counter()
+    vact.render(vcam, vtf, wait=True, timeout=3600)
+    log(f"virtual {virtual}^3: converged={vact.last_frame_stats.converged} in {time.perf_counter() - t0:.0f} s, "
+        f"{vact.last_frame_stats.bricks_drawn} bricks per level")
+    names = [*actions, f"virtual {virtual}^3 multiresolution", "raw"]
+    times = {k: [] for k in names}
+    cpu = {k: [] for k in names}
+    parts = {k: [] for k in names[:3]}  # select / upload / draw / readback seconds of each frame
+    for _ in range(repeat):  # interleaved rounds
+        t, c = time.perf_counter(), time.process_time()
+        imgs["raw"] = premultiplied_to_uint8(raw.render(cam, tf, step).astype(np.float64))
+        times["raw"].append(time.perf_counter() - t)
+        cpu["raw"].append(time.process_time() - c)
+        for name, a, cm, f in [(k, a, cam, tf) for k, a in actions.items()] + [(names[2], vact, vcam, vtf)]:
+            c = time.process_time()
+            imgs[name] = a.render(cm, f, wait=False)
+            cpu[name].append(time.process_time() - c)
+            times[name].append(a.last_frame_stats.times["total"])
+            parts[name].append(a.last_frame_stats.times)
+    med = {k: statistics.median(v) for k, v in times.items()}
+    mcpu = {k: statistics.median(v) for k, v in cpu.items()}
+    diff = int(np.abs(imgs["bricks"].astype(int) - imgs["raw"].astype(int)).max())
+    row = dict(size=n, dtype=dtype, image=image, repeat=repeat, raw_s=med["raw"], raw_cpu_s=mcpu["raw"],
+               **{f"{k}_s": med[k] for k in names[:3]},
+               **{f"{k}_over_raw": med[k] / med["raw"] for k in names[:3]},
+               **{f"{k}_cpu_over_raw": mcpu[k] / mcpu["raw"] for k in names[:3]},
+               **{f"{k}_{p}_s": statistics.median(t[p] for t in parts[k]) for k in names[:3]
+                  for p in ("select", "draw", "readback")},
+               maxdiff_bricks_vs_raw=diff, boxes_full=actions["bricks"].boxes_drawn,
+               multires_levels=str(actions["multiresolution"].last_frame_stats.bricks_drawn),
+               virtual_levels=str(vact.last_frame_stats.bricks_drawn),
+               virtual_converged=int(vact.last_frame_stats.converged))
+    log(f"{n}^3 {dtype} at {image}^2 (median of {repeat}): raw {med['raw']:.3f} s; " + ", ".join(
+        f"{k} {med[k]:.3f} s = {med[k] / med['raw']:.2f}x raw (CPU {mcpu[k] / mcpu['raw']:.2f}x)" for k in names[:3])
+        + f"; full-resolution image vs raw: max |diff| {diff}")
+    for a in (*actions.values(), vact):
+        a.close()
+    raw.release()
+    clip.close()
+    vclip.close()
+    ctx.release()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with open(out_dir / "bench_render_large.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(row))
+        w.writeheader()
+        w.writerow({k: (f"{v:.4g}" if isinstance(v, float) else v) for k, v in row.items()})
+    return row
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--source", default=None, help="store or procedural URL (default: the 2 GiB bench store)")
@@ -408,7 +542,16 @@ def main(argv: list[str] | None = None) -> int:
                     help="only the fly-path frame times on procedural:fractal?size=N (virtual: bricks generated "
                          "on demand, e.g. 4096); writes docs/bench_render_fly.csv")
     ap.add_argument("--fly-frames", type=int, default=48, help="--vs-raw: frames of the fly path (frame-time stability)")
+    ap.add_argument("--vs-raw-large", type=int, default=None, metavar="N",
+                    help="only N^3 (e.g. 1024) quantised to --dtype against the raw caster, and a virtual "
+                         "--virtual^3 multiresolution frame beside it; writes docs/bench_render_large.csv")
+    ap.add_argument("--dtype", choices=("uint8", "uint16"), default="uint8", help="--vs-raw-large: the volume's type")
+    ap.add_argument("--virtual", type=int, default=4096, help="--vs-raw-large: edge of the virtual volume")
     args = ap.parse_args(argv)
+    if args.vs_raw_large:
+        vs_raw_large(args.vs_raw_large, args.dtype, args.size, max(args.repeat, 5), args.step, args.out_dir,
+                     args.virtual, log=lambda *a: print(*a, file=sys.stderr, flush=True))
+        return 0
     if args.fly_only:
         from clipvol.loaders.procedural import ProceduralLoader
         from clipvol.render import create_context

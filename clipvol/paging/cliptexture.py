@@ -61,6 +61,8 @@ RATE_WINDOW_S = 5.0
 LATENCY_SAMPLES = 2048
 #: longest sleep of an idle loader thread before it checks that its clip-texture still exists
 IDLE_POLL_S = 1.0
+#: bytes between the writes that pre-fault the slot pool (the smallest page size of the platforms we run on)
+_PAGE = 4096
 
 
 class BrickState(IntEnum):
@@ -139,17 +141,24 @@ class _Countdown:
 class _Level:
     """Slot bookkeeping of one level: its pool and, per slot, brick, state, generation, attempts."""
 
-    __slots__ = ("level", "grid", "whole", "shape", "start", "stop", "pool", "key", "state", "gen", "attempts", "not_before", "busy")
+    __slots__ = ("level", "grid", "whole", "shape", "start", "stop", "pool", "key", "state", "gen", "attempts", "not_before",
+                 "busy", "empty")
 
-    def __init__(self, level: int, grid: Int3, whole: bool, capacity: int, brick_shape: Int3, dtype: np.dtype):
+    def __init__(self, level: int, grid: Int3, whole: bool, capacity: int, brick_shape: Int3, dtype: np.dtype,
+                 prefault: bool = True):
         self.level = level
         self.grid = grid
         self.whole = whole
         self.shape: Int3 = (0, 0, 0)
         self.start: Int3 = (0, 0, 0)
         self.stop: Int3 = (0, 0, 0)
-        # allocated once; np.empty leaves pages untouched until a brick is written
+        # allocated once. np.empty leaves its pages unmapped, so the first write of every page would
+        # fault (the kernel maps and zeroes it, hundreds of MB on a first fill) inside the loader
+        # threads, where it cost more than the decode; ``prefault`` writes one byte per page here
+        # instead, once, so a first fill runs at the speed of every later one
         self.pool = np.empty((capacity, *brick_shape), dtype=dtype)
+        if prefault and self.pool.nbytes:
+            self.pool.reshape(-1).view(np.uint8)[::_PAGE] = 0
         self.key = np.full((capacity, 3), -1, dtype=np.int64)
         self.state = np.zeros(capacity, dtype=np.int8)
         self.gen = np.zeros(capacity, dtype=np.int64)
@@ -158,6 +167,9 @@ class _Level:
         # a thread is writing into the slot outside the lock (``read_brick_into``): the slot's next
         # brick waits ("parked") until that write is over, even if the write is for an evicted brick
         self.busy = np.zeros(capacity, dtype=bool)
+        # the loader's bounds say the slot's brick holds only the fill value: filled, never read
+        # (decided once per brick when it enters the window, in one vectorised bounds call)
+        self.empty = np.zeros(capacity, dtype=bool)
 
 
 class ClipTexture:
@@ -183,6 +195,11 @@ class ClipTexture:
         ``on_error(key: BrickKey, exc)`` called (from a loader thread) when a brick fails for good.
     predictive : bool
         Bias the queue towards the direction the centre has been moving.
+    prefault : bool
+        Touch every page of the slot pool at construction (the pool is then resident from the
+        start), so the first fill does not pay a page fault per 4 KiB inside the loader threads.
+        ``False`` maps pages only as bricks are written (a budget far above what a session visits
+        then costs no memory).
 
     Notes
     -----
@@ -201,6 +218,7 @@ class ClipTexture:
         retry_backoff: float = 0.05,
         on_error: Callable[[BrickKey, BaseException], None] | None = None,
         predictive: bool = True,
+        prefault: bool = True,
     ) -> None:
         self.loader = loader
         self.pyramid = loader.pyramid
@@ -225,7 +243,8 @@ class ClipTexture:
         self.whole_levels: tuple[int, ...] = self.allocation.whole_levels
         pyr = self.pyramid
         self._levels = [
-            _Level(L, pyr.grid(L), L in self.whole_levels, self.allocation.capacity[L], pyr.brick_shape, pyr.dtype)
+            _Level(L, pyr.grid(L), L in self.whole_levels, self.allocation.capacity[L], pyr.brick_shape, pyr.dtype,
+                   bool(prefault))
             for L in range(pyr.num_levels)
         ]
         self._window = self.allocation.window
@@ -236,6 +255,7 @@ class ClipTexture:
         self._read_into: Callable[[int, Int3, np.ndarray], None] | None = into if callable(into) else None
         # empty bricks (bounds [fill, fill], see HasBrickRanges) are filled here, never read
         self._ranges = loader.brick_ranges if isinstance(loader, HasBrickRanges) else None
+        self._ranges_failed: set[int] = set()  # levels whose bounds call failed: not asked again
         self._fill_brick = np.full(pyr.brick_shape, pyr.fill_value, dtype=pyr.dtype)
         self._fill_brick.setflags(write=False)
         self._skipped_empty = 0
@@ -576,6 +596,7 @@ class ClipTexture:
             lv.state[s] = _QUEUED
             lv.attempts[s] = 0
             lv.not_before[s] = 0.0
+            lv.empty[s] = self._empty_mask(lv.level, enter)
             lv.start, lv.stop = start, stop
             return evicted
         # a new window shape (or the first placement): slots are re-assigned; bricks kept move along
@@ -595,6 +616,7 @@ class ClipTexture:
         data = lv.pool[old_slot[moved & (old_state == _RESIDENT)]].copy() if moved.any() else None
         keep_attempts = lv.attempts[old_slot].copy()
         keep_nb = lv.not_before[old_slot].copy()
+        keep_empty = lv.empty[old_slot].copy()
         # every slot not kept in place gets a new generation: late results for it are dropped
         kept_slots = np.zeros(len(lv.state), dtype=bool)
         kept_slots[new_slot[in_place]] = True
@@ -603,14 +625,18 @@ class ClipTexture:
         lv.state[~kept_slots] = _ABSENT
         lv.attempts[~kept_slots] = 0
         lv.not_before[~kept_slots] = 0.0
+        lv.empty[~kept_slots] = False
         enter = ~in_place
         lv.key[new_slot[enter]] = bricks[enter]
         lv.state[new_slot[enter]] = _QUEUED
+        fresh = enter & ~moved
+        lv.empty[new_slot[fresh]] = self._empty_mask(lv.level, bricks[fresh])
         if moved.any():
             ms = new_slot[moved]
             lv.state[ms] = old_state[moved]
             lv.attempts[ms] = keep_attempts[moved]
             lv.not_before[ms] = keep_nb[moved]
+            lv.empty[ms] = keep_empty[moved]
             if data is not None and len(data):
                 lv.pool[new_slot[moved & (old_state == _RESIDENT)]] = data
         lv.start, lv.stop, lv.shape = start, stop, shape
@@ -651,10 +677,11 @@ class ClipTexture:
         self._queue.promote(now, cost, lambda L, s, gen: self._valid(L, s, gen, _QUEUED))
         return self._queue.next_retry_in(now)
 
-    def _pop_job(self) -> tuple[tuple[int, int, int, Int3] | None, float | None]:
+    def _pop_job(self) -> tuple[tuple[int, int, int, Int3, bool] | None, float | None]:
         """Pop the front of the queue (lazy invalidation): ``(job, None)``, or ``(None, seconds)``
-        until the next retry is due (``None``: nothing scheduled)."""
-        wait = self._promote_due(time.monotonic())
+        until the next retry is due (``None``: nothing scheduled). A job is ``(level, slot,
+        generation, index, empty)``; ``empty``: fill the slot, read nothing."""
+        wait = self._promote_due(time.monotonic()) if self._queue.has_delayed() else None
         if not self._closing:
             while (entry := self._queue.pop()) is not None:
                 _, _, bz, by, bx, L, s, gen = entry
@@ -664,24 +691,26 @@ class ClipTexture:
                         self._queue.park(L, s, entry)  # back in the queue when the writer is done
                         continue
                     lv.state[s] = _LOADING
-                    if self._read_into is not None:
+                    empty = bool(lv.empty[s])
+                    if self._read_into is not None and not empty:
                         lv.busy[s] = True
-                    return (L, s, gen, (bz, by, bx)), None
+                    return (L, s, gen, (bz, by, bx), empty), None
         return None, wait
 
-    def _load(self, job: tuple[int, int, int, Int3]) -> bool:
+    def _load(self, job: tuple[int, int, int, Int3, bool]) -> bool:
         """Load one brick: read outside the lock, validate, copy and publish under the lock.
 
         Returns ``False`` when the clip-texture is closing (the thread then ends).
         """
-        L, s, gen, idx = job
+        L, s, gen, idx, empty = job
+        into = self._read_into is not None and not empty
         t0 = time.perf_counter()
         err: BaseException | None = None
         brick = None
         try:
-            if self._known_empty(L, idx):
+            if empty:
                 brick = self._fill_brick  # copied into the slot below; the loader is not called
-            elif self._read_into is not None:
+            elif into:
                 self._read_into(L, idx, self._levels[L].pool[s])  # straight into the slot
             else:
                 brick = check_brick(self.loader, L, idx, self.loader.read_brick(L, idx))
@@ -690,7 +719,7 @@ class ClipTexture:
         latency = time.perf_counter() - t0
         report = None
         with self._cv:
-            if self._read_into is not None:
+            if into:
                 self._levels[L].busy[s] = False
                 if self._queue.unpark(L, s):
                     self._cv.notify_all()
@@ -745,15 +774,28 @@ class ClipTexture:
                 warnings.warn(f"ClipTexture on_error callback raised {type(e).__name__}: {e}", RuntimeWarning)
         return True
 
-    def _known_empty(self, level: int, idx: Int3) -> bool:
-        """True if the loader's bounds say the brick holds only its fill value (nothing to read)."""
-        if self._ranges is None:
-            return False
-        r = self._ranges(level, np.array([idx], dtype=np.int64))
-        if r is None:
-            return False
-        lo, hi = (float(v) for v in np.asarray(r, dtype=np.float64).reshape(-1, 2)[0])
-        return lo == hi == self.pyramid.fill_value
+    def _empty_mask(self, level: int, keys: np.ndarray) -> np.ndarray:
+        """``(n,)`` bool: which bricks ``keys`` the loader's bounds show to hold only the fill value.
+
+        One vectorised call when bricks enter a window (not one per load in the loader threads,
+        where its small numpy steps held the GIL against the other threads' reads). Bounds that are
+        unknown - or a bounds call that fails - leave the brick to be read: its load reports any
+        real failure. After a failed call the level's bounds are not asked again (this runs under
+        the lock, and a remote store's bounds may need the network).
+        """
+        n = len(keys)
+        if self._ranges is None or n == 0 or level in self._ranges_failed:
+            return np.zeros(n, dtype=bool)
+        try:
+            r = self._ranges(level, np.asarray(keys, dtype=np.int64).reshape(-1, 3))
+            if r is None:
+                return np.zeros(n, dtype=bool)
+            r = np.asarray(r, dtype=np.float64).reshape(n, 2)
+        except Exception:  # a loader's bounds are an optimisation: never a reason to fail a move
+            self._ranges_failed.add(level)
+            return np.zeros(n, dtype=bool)
+        fill = self.pyramid.fill_value
+        return (r[:, 0] == fill) & (r[:, 1] == fill)
 
     def _count_down(self, level: int, idx: Int3) -> bool:
         """A watched brick settled: count down its waiters; ``True`` if one of them is due."""

@@ -81,6 +81,10 @@ class LoadQueue:
             _, L, s, gen = heapq.heappop(self._delayed)
             yield L, s, gen
 
+    def has_delayed(self) -> bool:
+        """True while a retry waits (the loader threads skip the retry step otherwise)."""
+        return bool(self._delayed)
+
     def next_retry_in(self, now: float) -> float | None:
         """Seconds until the next retry is due (None: none scheduled)."""
         return self._delayed[0][0] - now if self._delayed else None

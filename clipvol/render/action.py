@@ -639,8 +639,8 @@ class ClipRenderAction:
             prem = prem + (1.0 - a[..., None]) * bgp
         else:
             prem = raw.astype(np.float64)
-            if front_to_back:  # the background goes under everything, last
-                r, g, b, ba = self.params.background
+            r, g, b, ba = self.params.background
+            if front_to_back and ba > 0.0:  # the background goes under everything, last (none: nothing to add)
                 prem = prem + (1.0 - prem[..., 3:4]) * np.array([r * ba, g * ba, b * ba, ba])
         image = premultiplied_to_uint8(prem)
         return image, t1 - t0, time.perf_counter() - t1
@@ -741,14 +741,17 @@ class ClipRenderAction:
         """``may_cover`` for :func:`merge_items`: a culled node whose bricks of the drawn level are
         all in texture memory may be covered by a merged box (it then shows its real data)."""
         pyr = self.pyramid
+        cache = self.cache
 
         def may_cover(level: int, node_level: int, node_index) -> bool:
+            if node_level == level:  # one brick (most calls: culled siblings of a full-resolution cut)
+                return cache.on_gpu(level, node_index)
             f = 2 ** (node_level - level)
             grid = np.asarray(pyr.grid(level))
             first = np.asarray(node_index, dtype=np.int64) * f
             stop = np.minimum(first + f, grid)
             idx = np.stack(np.meshgrid(*(np.arange(a, b) for a, b in zip(first, stop)), indexing="ij"), -1).reshape(-1, 3)
-            return bool(np.all(self.cache.on_gpu_mask(level, idx)))
+            return bool(np.all(cache.on_gpu_mask(level, idx)))
 
         return may_cover
 

@@ -259,6 +259,16 @@ class GpuBrickCache:
     def _slots(self, level: int, idx: np.ndarray) -> np.ndarray:
         return idx % np.asarray(self.windows[level], dtype=np.int64)
 
+    def on_gpu(self, level: int, index) -> bool:
+        """Brick ``index`` ``(bz, by, bx)`` is in its slot of the level's texture now (one brick, no
+        array set-up: ``merge_items`` asks this for every culled sibling of a full-resolution cut)."""
+        keys = self._slot_key[level]
+        if keys is None:
+            return False
+        bz, by, bx = (int(v) for v in index)
+        wz, wy, wx = self.windows[level]
+        return keys[bz % wz, by % wy, bx % wx].tolist() == [bz, by, bx]
+
     def on_gpu_mask(self, level: int, indices) -> np.ndarray:
         """``(n,)`` bool: brick ``indices[i]`` is in its slot of the level's texture now."""
         idx = np.asarray(indices, dtype=np.int64).reshape(-1, 3)

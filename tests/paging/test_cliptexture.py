@@ -566,3 +566,79 @@ def test_invariants_hold_for_any_sequence_of_moves(ops, into):
                     assert ct.state(L, tuple(b)) == BrickState.ABSENT
         assert ct.wait_until_idle(10)
         assert all(ct.state(L, i) == BrickState.RESIDENT for L, i in _window_keys(ct))
+
+
+class SparseIntoLoader(IntoLoader):
+    """A volume that is zero (the fill value) outside a few blobs, with bounds per brick computed
+    here from the numpy levels (the reference) - or a bounds call that always fails."""
+
+    def __init__(self, vol: np.ndarray, brick=(8, 8, 8), failing_bounds: bool = False):
+        super().__init__(vol, brick)
+        self.failing_bounds = failing_bounds
+        self.bounds_calls = 0
+
+    def brick_ranges(self, level, indices):
+        with self._lock:
+            self.bounds_calls += 1
+        if self.failing_bounds:
+            raise OSError("bounds unavailable")
+        out = []
+        for idx in np.asarray(indices).reshape(-1, 3):
+            b = self.reference(level, tuple(int(v) for v in idx))
+            out.append((float(b.min()), float(b.max())))
+        return np.array(out, dtype=np.float64).reshape(-1, 2)
+
+
+def _sparse_vol() -> np.ndarray:
+    vol = np.zeros((40, 48, 56), dtype=np.float32)
+    vol[2:9, 30:44, 5:12] = _VOL[2:9, 30:44, 5:12] + 0.5
+    vol[25:37, 3:10, 40:50] = 2.0
+    return vol
+
+
+@pytest.mark.parametrize("prefault", [True, False])
+def test_empty_bricks_decided_once_per_window_entry_and_data_exact(prefault, no_leaked_threads):
+    """Bricks whose bounds are [fill, fill] are filled without a read, the bounds are asked once
+    per level and move (not once per load), and every brick equals the numpy reference - also
+    after a window resize moves bricks (and their empty flag) to other slots."""
+    loader = SparseIntoLoader(_sparse_vol())
+    pyr = loader.pyramid
+    rng = np.random.default_rng(7)
+    lo, hi = pyr.volume_box()
+    with ClipTexture(loader, 60 * pyr.brick_nbytes, threads=2, prefault=prefault) as ct:
+        assert loader.bounds_calls <= pyr.num_levels  # one vectorised call per placed level
+        moves = 0
+        for step in range(12):
+            ct.set_center(rng.uniform(lo, hi))
+            moves += 1
+            if step % 4 == 3:
+                ct.set_roaming_window(int(rng.integers(2, 5)))
+                moves += 1
+            assert ct.wait_until_idle(20)
+            for L, idx in _window_keys(ct):
+                assert ct.state(L, idx) == BrickState.RESIDENT
+                assert np.array_equal(ct.get_brick(L, idx), loader.reference(L, idx)), (L, idx)
+        assert loader.bounds_calls <= pyr.num_levels * (moves + 1)
+        read = set(loader.calls)
+        empty_seen = [(L, idx) for L, idx in _window_keys(ct) if not loader.reference(L, idx).any()]
+        assert empty_seen and not (set(empty_seen) & read)  # empty bricks were never read
+        assert ct.stats.empty_skipped >= len(empty_seen)
+
+
+def test_failing_bounds_only_mean_every_brick_is_read(no_leaked_threads):
+    """Bounds are an optimisation: when the call fails, bricks are read (and right), none fails."""
+    loader = SparseIntoLoader(_sparse_vol(), failing_bounds=True)
+    with ClipTexture(loader, "8MB", threads=2) as ct:
+        assert ct.wait_until_idle(20)
+        ct.set_center(np.array(loader.pyramid.volume_box()[0]) + 1.0)
+        assert ct.wait_until_idle(20)
+        keys = list(_window_keys(ct))
+        for L, idx in keys:
+            assert np.array_equal(ct.get_brick(L, idx), loader.reference(L, idx))
+        assert set(keys) <= set(loader.calls)
+        assert ct.stats.failures == 0 and ct.stats.empty_skipped == 0
+        # a failed bounds call is not repeated on every move (it runs under the lock)
+        calls = loader.bounds_calls
+        ct.set_center(np.array(loader.pyramid.volume_box()[1]) - 1.0)
+        assert ct.wait_until_idle(20)
+        assert loader.bounds_calls == calls

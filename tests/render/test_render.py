@@ -407,3 +407,27 @@ def test_merged_boxes_never_cut_rays_short(scenes):
     a, b = merged.render(cam, tf), single.render(cam, tf)
     assert merged.action.boxes_drawn == single.action.boxes_drawn == len(single.action.last_selection.items)
     np.testing.assert_array_equal(a, b)
+
+
+def test_may_cover_answers_whether_every_brick_of_the_node_is_in_texture_memory(scenes):
+    """``merge_items``' ``may_cover`` (one-brick fast path and multi-brick nodes) against the bricks
+    the frame actually put on the GPU, and bricks of a window the frame never drew."""
+    vol = smooth_volume((48, 40, 32))
+    s = scenes(vol, 8, selection="fixed", level=0, path="bricks")
+    # a narrow view: only some level-0 bricks are drawn (and uploaded)
+    cam = Camera.perspective((15.0, 20.0, -6.0), (15.0, 20.0, 10.0), size=(32, 32), fov_y=20)
+    s.render(cam)
+    drawn = {tuple(int(v) for v in it.index) for it in s.action.last_selection.items if it.level == 0 and it.span == 1}
+    may_cover = s.action._may_cover()
+    grid = s.pyramid.grid(0)
+    every = np.array(list(np.ndindex(*grid)))
+    on_gpu = s.action.cache.on_gpu_mask(0, every)  # the cache's own vectorised slot check
+    uploaded = {tuple(int(v) for v in k) for k in every[on_gpu]}
+    assert drawn and drawn <= uploaded and len(uploaded) < len(every)  # some bricks were never uploaded
+    for idx in every:
+        assert may_cover(0, 0, tuple(idx)) == (tuple(int(v) for v in idx) in uploaded), idx
+    # a level-1 node: all eight of its level-0 bricks on the GPU, or not
+    for node in np.ndindex(*s.pyramid.grid(1)):
+        kids = {tuple(2 * n + d for n, d in zip(node, o)) for o in np.ndindex(2, 2, 2)}
+        kids = {k for k in kids if all(i < g for i, g in zip(k, grid))}
+        assert may_cover(0, 1, node) == (kids <= uploaded), node
