@@ -90,3 +90,22 @@ def render(args) -> int:
           f"points drawn {st.points_drawn:,}; converged {st.converged}", file=sys.stderr)
     print("time: " + ", ".join(f"{k} {v * 1000:.1f} ms" for k, v in st.times.items()), file=sys.stderr)
     return 0
+
+
+def view(args) -> int:
+    """`clipvol view` on a point store: the splat viewer window ([ ] change the tolerance)."""
+    from clipvol.errors import ParameterError
+    from clipvol.viewer.point_window import PointViewer
+
+    if args.offscreen:
+        raise ParameterError(f"--offscreen: {args.source} is a point store; draw it offscreen with clipvol render --tolerance")
+    tf = "viridis" if getattr(args, "tf", None) in (None, "auto") else args.tf
+    if getattr(args, "tf", None) not in (None, "auto"):
+        from clipvol.loaders.point_store import PointStoreLoader
+        from clipvol.tools.tf_args import transfer_function_from_args
+
+        tf = transfer_function_from_args(args, PointStoreLoader(args.source))
+    with PointViewer(args.source, size=args.size or (960, 640), tolerance=args.tolerance, memory_budget=args.memory_budget,
+                     threads=args.threads, mode=args.mode, tf=tf, screenshot_dir=args.screenshot_dir,
+                     title=f"clipvol - {args.source}") as viewer:
+        return viewer.run(max_frames=args.max_frames)
