@@ -109,3 +109,20 @@ def view(args) -> int:
                      threads=args.threads, mode=args.mode, tf=tf, screenshot_dir=args.screenshot_dir,
                      title=f"clipvol - {args.source}") as viewer:
         return viewer.run(max_frames=args.max_frames)
+
+
+def report(args, source, out) -> int:
+    """`clipvol report` on a point store: frame time and image error against tolerance."""
+    from clipvol.app.point_report import DEFAULT_TOLERANCES, run_point_report
+
+    tols = DEFAULT_TOLERANCES if args.tolerances is None else [t.strip() for t in args.tolerances.split(",") if t.strip()]
+    tf = None
+    if getattr(args, "tf", None) not in (None, "auto"):
+        from clipvol.loaders.point_store import PointStoreLoader
+        from clipvol.tools.tf_args import transfer_function_from_args
+
+        tf = transfer_function_from_args(args, PointStoreLoader(source))
+    res = run_point_report(source, out, tolerances=tols, size=args.size, views=args.views, tf=tf, mode=args.mode,
+                           threads=args.threads, timeout=args.timeout, plots=not args.no_plots)
+    print(f"wrote {res.csv}, {res.markdown}" + "".join(f", {p}" for p in res.plots))
+    return 0

@@ -170,6 +170,20 @@ class SplatRenderAction:
         )
         return image
 
+    def draw_points(self, camera, transfer_function, xyz, values, h) -> np.ndarray:
+        """Draw the given points (world ``xyz`` (n, 3), raw ``values`` (n,), splat sizes ``h``), no selection.
+
+        The same splats as :meth:`render` for points that do not come from the octree's cut: drawing
+        every point (:meth:`clipvol.loaders.point_store.PointStoreLoader.leaf_points`) is the full-detail
+        picture the report and the benchmark measure the tolerance's error against.
+        """
+        pos = np.asarray(xyz, np.float64).reshape(-1, 3) - np.asarray(camera.eye, np.float64)
+        val = np.asarray(values, np.float32).reshape(-1)
+        hh = np.broadcast_to(np.asarray(h, np.float64), val.shape)
+        ok = np.isfinite(val)
+        image, _ = self._draw(camera, transfer_function, pos[ok], val[ok], hh[ok])
+        return image
+
     def _gather(self, sel: SplatSelection, camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Points of the drawn nodes: eye-relative float64 positions, values, splat sizes."""
         nodes = self.loader.nodes
