@@ -87,3 +87,22 @@ def test_report_cli_on_a_point_store_and_bad_tolerance(lattice, tmp_path):
     rows = list(csv.DictReader(open(tmp_path / "r" / "point_report.csv")))
     assert [r["tolerance"] for r in rows] == ["every point", "2px", "0.2"]
     assert main(["report", str(path), "--out", str(tmp_path / "s"), "--tolerances", "0.05,wide"]) == 2
+
+
+def test_footprint_blur_against_scipy():
+    """The yardstick's blur equals scipy's Gaussian filter of the premultiplied image (zero outside)."""
+    ndimage = pytest.importorskip("scipy.ndimage")
+    from clipvol.app.point_report import footprint_blur
+
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 256, (40, 50, 4)).astype(np.uint8)
+    img[..., 3] = np.where(rng.random((40, 50)) < 0.3, 0, img[..., 3])
+    got = footprint_blur(img, 2.0)
+    a = img / 255.0
+    prem = np.concatenate([a[..., :3] * a[..., 3:4], a[..., 3:4]], -1)
+    b = np.stack([ndimage.gaussian_filter(prem[..., c], 2.0, mode="constant", truncate=3.0) for c in range(4)], -1)
+    want_a = b[..., 3]
+    assert np.abs(got[..., 3] / 255.0 - want_a).max() <= 1 / 255 + 1e-9
+    m = want_a > 0.2
+    want_rgb = b[..., :3][m] / want_a[m][:, None]
+    assert np.abs(got[..., :3][m] / 255.0 - want_rgb).max() <= 1.5 / 255
