@@ -22,8 +22,13 @@ def _lookup(table: np.ndarray, t: np.ndarray) -> np.ndarray:
     return np.stack([np.interp(x, np.arange(n), table[:, c]) for c in range(4)], axis=-1)
 
 
-def splat_every_point(xyz, values, h, camera, table, window, unit: float) -> np.ndarray:
-    """Straight RGBA uint8 ``(H, W, 4)`` (row 0 at top) of perspective ``camera`` drawing every point."""
+def splat_every_point(xyz, values, h, camera, table, window, unit: float, gradients=None, light=None) -> np.ndarray:
+    """Straight RGBA uint8 ``(H, W, 4)`` (row 0 at top) of perspective ``camera`` drawing every point.
+
+    With ``gradients`` (n, 3) and ``light`` (ambient, diffuse, specular, shininess), each point's
+    colour is lit: ``min(rgb (ambient + diffuse d) + specular d^shininess, 1)``, ``d = |g . v| / |g|``
+    with ``v`` the unit direction from the eye to the point (0 where ``g`` is 0).
+    """
     xyz = np.asarray(xyz, np.float64)
     values = np.asarray(values, np.float64)
     h = np.broadcast_to(np.asarray(h, np.float64), values.shape)
@@ -38,6 +43,13 @@ def splat_every_point(xyz, values, h, camera, table, window, unit: float) -> np.
     sigma = np.maximum(0.5 * h * k / depth, 1e-3)
     lo, hi = window
     rgba = _lookup(np.asarray(table, np.float64), (values - lo) / (hi - lo))
+    if gradients is not None:
+        g = np.asarray(gradients, np.float64)
+        v = xyz - np.asarray(camera.eye, np.float64)
+        gn, vn = np.linalg.norm(g, axis=1), np.linalg.norm(v, axis=1)
+        d = np.where((gn > 0) & (vn > 0), np.abs((g * v).sum(1)) / np.maximum(gn * vn, 1e-300), 0.0)
+        amb, dif, spec, shin = light
+        rgba[:, :3] = np.minimum(rgba[:, :3] * (amb + dif * d)[:, None] + (spec * d**shin)[:, None], 1.0)
     img = np.zeros((H, W, 4))  # premultiplied, y up (GL rows)
     for i in np.argsort(-depth, kind="stable"):  # back to front
         if depth[i] <= 0:

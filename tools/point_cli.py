@@ -79,7 +79,9 @@ def render(args) -> int:
     ctx = create_context()
     try:
         with ClipTexture(loader, args.memory_budget, args.threads, center=loader.to_paging(centre)) as clip, \
-                SplatRenderAction(ctx, clip, tolerance=args.tolerance, mode=args.mode, background=args.background) as action:
+                SplatRenderAction(ctx, clip, tolerance=args.tolerance, mode=args.mode, background=args.background,
+                                  shading=getattr(args, "shading", False),
+                                  light=getattr(args, "light", (0.3, 0.7, 0.3, 20.0))) as action:
             image = action.render(cam, tf, wait=not args.no_wait, timeout=args.timeout)
             st = action.last_frame_stats
     finally:
@@ -106,7 +108,7 @@ def view(args) -> int:
 
         tf = transfer_function_from_args(args, PointStoreLoader(args.source))
     with PointViewer(args.source, size=args.size or (960, 640), tolerance=args.tolerance, memory_budget=args.memory_budget,
-                     threads=args.threads, mode=args.mode, tf=tf, screenshot_dir=args.screenshot_dir,
+                     threads=args.threads, mode=args.mode, tf=tf, screenshot_dir=args.screenshot_dir, shading=args.shading,
                      title=f"clipvol - {args.source}") as viewer:
         return viewer.run(max_frames=args.max_frames)
 

@@ -52,17 +52,19 @@ class PointSession:
         The value column drawn.
     background : 4 floats
         Straight RGBA behind the points.
+    shading : bool
+        Composite: lighting from each point's weighted least-squares gradient.
     """
 
     def __init__(self, source, ctx, *, memory_budget="256MB", threads=None, tolerance=0.05, mode: str = "composite",
-                 tf=None, value=0, background=(0.0, 0.0, 0.0, 0.0)) -> None:
+                 tf=None, value=0, background=(0.0, 0.0, 0.0, 0.0), shading: bool = False) -> None:
         self.loader = open_point_loader(source)
         tolerance_pixels(tolerance, (1000, 1000))  # a clear error before any thread starts
         lo, hi = self.loader.world_box()
         self.clip_texture = ClipTexture(self.loader, memory_budget, threads, center=self.loader.to_paging((lo + hi) / 2.0))
         try:
             self.action = SplatRenderAction(ctx, self.clip_texture, tolerance=tolerance, mode=mode, value=value,
-                                             background=background)
+                                             background=background, shading=shading)
         except BaseException:
             self.clip_texture.close()
             raise
@@ -85,8 +87,8 @@ class PointSession:
     def value_range(self) -> tuple[float, float]:
         return tuple(self.loader.meta.value_ranges[self.action.value])
 
-    def update(self, *, tolerance=None, mode: str | None = None, tf=None) -> None:
-        """Change the tolerance, MIP/composite or the transfer function (resident nodes are kept)."""
+    def update(self, *, tolerance=None, mode: str | None = None, tf=None, shading: bool | None = None) -> None:
+        """Change the tolerance, MIP/composite, the transfer function or lighting (resident nodes are kept)."""
         if tolerance is not None:
             tolerance_pixels(tolerance, (1000, 1000))
             self.action.tolerance = tolerance
@@ -94,6 +96,8 @@ class PointSession:
             if mode not in ("composite", "mip"):
                 raise ParameterError(f"mode: expected 'composite' or 'mip', got {mode!r}")
             self.action.mode = mode
+        if shading is not None:
+            self.action.shading = bool(shading)
         if tf is not None:
             self.tf = TransferFunction.preset(tf, value_range=self.value_range) if isinstance(tf, str) else tf
 

@@ -26,6 +26,7 @@ POINT_KEY_HELP = (
     ("W A S D / Q E", "fly: move camera and centre of interest"),
     ("[ ]", "tolerance finer (more, smaller splats) / coarser (fewer, faster)"),
     ("I", "MIP / composite"),
+    ("N", "lighting on / off (composite; gradients by weighted least squares over each node's points)"),
     ("T", "next colour map"),
     ("P", "screenshot (PNG) into --screenshot-dir"),
     ("H", "HUD on / off (points and nodes drawn, tolerance, fps)"),
@@ -49,6 +50,7 @@ class PointViewState:
     tolerance: float = 0.05
     tf_presets: tuple[str, ...] = ("viridis", "magma", "inferno", "grey")
     render_mode: str = "composite"
+    shading: bool = False
     tf_index: int = 0
     hud: bool = True
     screenshot: bool = False
@@ -102,6 +104,9 @@ class PointViewState:
         elif k == "I":
             self.render_mode = "mip" if self.render_mode == "composite" else "composite"
             self.message = self.render_mode
+        elif k == "N":
+            self.shading = not self.shading
+            self.message = "lighting " + ("on" if self.shading else "off")
         elif k == "T":
             self.tf_index = (self.tf_index + 1) % len(self.tf_presets)
             self.message = f"transfer function {self.tf_name}"

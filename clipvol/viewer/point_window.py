@@ -71,7 +71,7 @@ class PointViewer:
 
     def __init__(self, source, *, size=(960, 640), tolerance=0.05, memory_budget="256MB", threads=None,
                  mode: str = "composite", tf="viridis", screenshot_dir=".", visible: bool = True,
-                 title: str = "clipvol points", background=(0.0, 0.0, 0.0)) -> None:
+                 title: str = "clipvol points", background=(0.0, 0.0, 0.0), shading: bool = False) -> None:
         try:
             import glfw
         except ImportError as e:  # pragma: no cover - glfw is a dependency
@@ -112,7 +112,7 @@ class PointViewer:
             glfw.swap_interval(1 if visible else 0)
             self.ctx = create_context(standalone=False, backend=None)
             self.session = PointSession(source, self.ctx, memory_budget=memory_budget, threads=threads,
-                                        tolerance=tolerance, mode=mode, tf=tf)
+                                        tolerance=tolerance, mode=mode, tf=tf, shading=shading)
             self._setup_gl()
         except BaseException:
             self.close()
@@ -122,7 +122,8 @@ class PointViewer:
         first = tf if isinstance(tf, str) else (self.session.tf.name or "custom")
         presets = (first,) + tuple(n for n in TransferFunction.names() if n != first)
         self._first_tf = self.session.tf
-        self.state = PointViewState.starting_at(tolerance, self.framebuffer_size, tf_presets=presets, render_mode=mode)
+        self.state = PointViewState.starting_at(tolerance, self.framebuffer_size, tf_presets=presets, render_mode=mode,
+                                                shading=bool(shading))
         self.session.update(tolerance=self.state.tolerance)
         lo, hi = self.session.volume_box()
         meta = self.session.loader.meta
@@ -248,7 +249,7 @@ class PointViewer:
             tf = self._first_tf.with_value_range(window)
         else:
             tf = TransferFunction.preset(name, value_range=window)
-        self.session.update(tolerance=st.tolerance, mode=st.render_mode, tf=tf)
+        self.session.update(tolerance=st.tolerance, mode=st.render_mode, tf=tf, shading=st.shading)
         self._hud_text = None
         self._dirty = True
 
@@ -302,7 +303,8 @@ class PointViewer:
         st = self.state
         return point_hud_lines(fps=self._fps, frame_stats=self.session.frame_stats if self.frames_rendered else None,
                                tolerance=st.tolerance, size=self.framebuffer_size,
-                               settings={"render": st.render_mode, "tf": st.tf_name},
+                               settings={"render": st.render_mode + (" lit" if st.shading and st.render_mode == "composite" else ""),
+                                         "tf": st.tf_name},
                                texture_stats=self.session.clip_texture.stats, message=st.message)
 
     def _draw(self) -> None:

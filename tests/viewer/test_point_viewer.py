@@ -61,6 +61,7 @@ def test_other_keys_and_validation():
         st.handle_key("T")
         names.append(st.tf_name)
     assert names[0] == names[-1] and len(set(names)) == len(st.tf_presets)
+    assert not st.shading and st.handle_key("n") and st.shading and "lighting on" in st.message
     assert st.hud and st.handle_key("H") and not st.hud
     for k in ("P", "R", "ESCAPE"):
         assert st.handle_key(k)
@@ -139,6 +140,12 @@ def test_point_window_matches_offscreen_and_keys_change_the_tolerance(xdisplay, 
             assert v.state.tolerance > tol and v.session.tolerance == v.state.tolerance
             _converge(v)
             assert v.session.frame_stats.points_drawn < fine
+            unlit = v.read_screen()
+            v.key("N")  # lighting from the points' gradients
+            assert v.session.action.shading
+            v.step(force=True)
+            assert np.abs(v.read_screen().astype(int) - unlit).max() > 10
+            v.key("N")
             v.key("H")
             v.step(force=True)
             assert any("points" in line for line in v._hud_text) and any("tolerance" in line for line in v._hud_text)
