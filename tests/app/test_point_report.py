@@ -106,3 +106,16 @@ def test_footprint_blur_against_scipy():
     m = want_a > 0.2
     want_rgb = b[..., :3][m] / want_a[m][:, None]
     assert np.abs(got[..., :3][m] / 255.0 - want_rgb).max() <= 1.5 / 255
+
+
+def test_reference_cap_and_bad_points_option_are_clear_errors(lattice, tmp_path):
+    from clipvol.app.point_report import run_point_report
+    from clipvol.errors import ParameterError
+    from clipvol.tools.cli import main
+
+    with pytest.raises(ParameterError, match="cap of 100"):
+        run_point_report(lattice[0], tmp_path / "r", reference_cap=100)
+    with pytest.raises(ParameterError, match="views"):
+        run_point_report(lattice[0], tmp_path / "r", views=0)
+    assert main(["report", "procedural:fractal?size=16", "--out", str(tmp_path / "v"), "--points",
+                 str(tmp_path / "missing.zarr")]) == 2
