@@ -110,6 +110,29 @@ class PointStoreLoader:
         n = int(self.nodes.count[nid])
         return rows[:n, :3].astype(np.float64) + self.meta.origin, rows[:n, 4:]
 
+    def leaf_points(self, max_points: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every input point, read from the leaves: ``(xyz float64 (n, 3) world, values (n, k), h (n,))``.
+
+        ``h`` is each point's leaf splat size (leaf edge / cbrt(points in the leaf)): what drawing
+        every point at full detail uses (the reference of ``clipvol report`` and ``bench_splat``).
+        Reads the whole store; ``max_points`` (a cap) raises a ParameterError naming it when exceeded.
+        """
+        from clipvol.errors import ParameterError
+
+        n = self.nodes
+        leaf = np.flatnonzero(n.child_mask == 0)
+        total = int(n.count[leaf].sum())
+        if max_points is not None and total > max_points:
+            raise ParameterError(f"{self.path}: drawing every point needs all {total:,} points in memory, "
+                                 f"more than the cap of {max_points:,}; raise the cap")
+        order = np.argsort(n.offset[leaf], kind="stable")
+        leaf = leaf[order]
+        rows = np.concatenate([np.arange(o, o + c) for o, c in zip(n.offset[leaf], n.count[leaf])]) if len(leaf) else np.zeros(0, np.int64)
+        xyz = np.asarray(self._xyz.get_orthogonal_selection((rows, slice(None))), np.float64) + np.asarray(self.meta.origin)
+        vals = np.asarray(self._vals.get_orthogonal_selection((rows, slice(None))), np.float32)
+        h = np.repeat(n.edges(leaf) / np.cbrt(np.maximum(n.count[leaf], 1)), n.count[leaf])
+        return xyz, vals, h
+
     def _fill(self, nid: int, rows: np.ndarray) -> None:
         a = int(self.nodes.offset[nid])
         n = int(self.nodes.count[nid])

@@ -13,7 +13,7 @@ import argparse
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", metavar="INPUT", help=".npy, .csv, .parquet, .ply, a mesh (.vtu, .vtk, .xdmf, ...) "
                         "or clustered:N (procedural)")
-    parser.add_argument("output", metavar="OUTPUT", help="point store directory to create")
+    parser.add_argument("output", metavar="OUTPUT", help="point store directory to create (an interrupted build of the same input and parameters is resumed)")
     parser.add_argument("--max-points", type=int, default=64, help="N: most points per octree node, >= 8 (default 64)")
     parser.add_argument("--value", action="append", default=None, metavar="NAME",
                         help="value column / property / point-data array to keep (repeatable; default: all)")

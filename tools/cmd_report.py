@@ -54,6 +54,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-frames", type=int, default=8, help="as-it-comes frames per view at most")
     p.add_argument("--reference-cap", default="1GB", help="most bytes the full-resolution reference may hold")
     p.add_argument("--no-plots", action="store_true", help="skip the matplotlib plots")
+    pts = p.add_argument_group("point stores (frame time and image error against splat tolerance)")
+    pts.add_argument("--tolerances", default=None, metavar="T,T,...",
+                     help="splat tolerances of a point store, comma-separated fractions of the screen or Npx "
+                          "(default 1px,2px,4px,0.02,0.05,0.1,0.2)")
+    pts.add_argument("--points", default=None, metavar="POINTS.zarr",
+                     help="also report this point store (into OUT/points) beside the volume store")
     p.add_argument("--block-budgets", default=None,
                    help="block budgets of the policy comparison (image-based LOD, after Wang, Garcia & Shen 2007, "
                         "Fig. 6), comma-separated, or 'none' (default 8,16,32,64,128,256)")
@@ -78,6 +84,15 @@ def _budgets(text):
 def run(args) -> int:
     from clipvol.app.report import run_report
     from clipvol.app.session import open_loader
+    from clipvol.bricking.point_store import is_point_store
+    from clipvol.tools import point_cli
+
+    if is_point_store(args.source):  # scattered points: error against tolerance (tools/point_cli.py)
+        return point_cli.report(args, args.source, args.out)
+    if args.points is not None and not is_point_store(args.points):
+        from clipvol.errors import ParameterError
+
+        raise ParameterError(f"--points: expected a point store written by clipvol brick-points, got {args.points!r}")
 
     from clipvol.tools.tf_args import transfer_function_from_args
 
@@ -93,4 +108,8 @@ def run(args) -> int:
         block_budgets=_budgets(args.block_budgets),
     )
     print(f"wrote {res.csv}, {res.markdown}" + "".join(f", {p}" for p in res.plots))
+    if args.points is not None:
+        from pathlib import Path
+
+        return point_cli.report(args, args.points, Path(args.out) / "points")
     return 0

@@ -59,6 +59,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--rate", type=float, default=4.0, help="--play: most time steps per second (default 4)")
     g.add_argument("--c", type=int, default=None, help="channel of an OME-Zarr image with a c axis (default 0)")
     g.add_argument("--outlines", action="store_true", help="draw brick outlines coloured by level (key B)")
+    g.add_argument("--tolerance", default="0.05",
+                   help="point stores: starting tolerance, the largest splat as a fraction of the window (0.05), "
+                        "'5%%' or '12px'; [ and ] change it (default 0.05)")
     g.add_argument("--size", type=_size, default=None, help="window or image size WxH (default 960x640 window, 256x256 offscreen)")
     from clipvol.tools.overlay_args import add_overlay_arguments
     from clipvol.tools.tf_args import add_tf_arguments
@@ -145,6 +148,12 @@ def run(args) -> int:
     from clipvol.errors import ParameterError
     from clipvol.scene.params import RenderParams
 
+    from clipvol.bricking.point_store import is_point_store
+
+    if is_point_store(args.source):  # scattered points: splats (tools/point_cli.py)
+        from clipvol.tools import point_cli
+
+        return point_cli.view(args)
     if args.frames < 1:
         raise ParameterError(f"--frames: expected >= 1, got {args.frames}")
     if args.frame_time < 0:

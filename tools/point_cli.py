@@ -79,7 +79,9 @@ def render(args) -> int:
     ctx = create_context()
     try:
         with ClipTexture(loader, args.memory_budget, args.threads, center=loader.to_paging(centre)) as clip, \
-                SplatRenderAction(ctx, clip, tolerance=args.tolerance, mode=args.mode, background=args.background) as action:
+                SplatRenderAction(ctx, clip, tolerance=args.tolerance, mode=args.mode, background=args.background,
+                                  shading=getattr(args, "shading", False),
+                                  light=getattr(args, "light", (0.3, 0.7, 0.3, 20.0))) as action:
             image = action.render(cam, tf, wait=not args.no_wait, timeout=args.timeout)
             st = action.last_frame_stats
     finally:
@@ -89,4 +91,40 @@ def render(args) -> int:
     print(f"nodes drawn {st.nodes_drawn} ({', '.join(f'd{d}: {n}' for d, n in st.nodes_per_depth.items())}); "
           f"points drawn {st.points_drawn:,}; converged {st.converged}", file=sys.stderr)
     print("time: " + ", ".join(f"{k} {v * 1000:.1f} ms" for k, v in st.times.items()), file=sys.stderr)
+    return 0
+
+
+def view(args) -> int:
+    """`clipvol view` on a point store: the splat viewer window ([ ] change the tolerance)."""
+    from clipvol.errors import ParameterError
+    from clipvol.viewer.point_window import PointViewer
+
+    if args.offscreen:
+        raise ParameterError(f"--offscreen: {args.source} is a point store; draw it offscreen with clipvol render --tolerance")
+    tf = "viridis" if getattr(args, "tf", None) in (None, "auto") else args.tf
+    if getattr(args, "tf", None) not in (None, "auto"):
+        from clipvol.loaders.point_store import PointStoreLoader
+        from clipvol.tools.tf_args import transfer_function_from_args
+
+        tf = transfer_function_from_args(args, PointStoreLoader(args.source))
+    with PointViewer(args.source, size=args.size or (960, 640), tolerance=args.tolerance, memory_budget=args.memory_budget,
+                     threads=args.threads, mode=args.mode, tf=tf, screenshot_dir=args.screenshot_dir, shading=args.shading,
+                     title=f"clipvol - {args.source}") as viewer:
+        return viewer.run(max_frames=args.max_frames)
+
+
+def report(args, source, out) -> int:
+    """`clipvol report` on a point store: frame time and image error against tolerance."""
+    from clipvol.app.point_report import DEFAULT_TOLERANCES, run_point_report
+
+    tols = DEFAULT_TOLERANCES if args.tolerances is None else [t.strip() for t in args.tolerances.split(",") if t.strip()]
+    tf = None
+    if getattr(args, "tf", None) not in (None, "auto"):
+        from clipvol.loaders.point_store import PointStoreLoader
+        from clipvol.tools.tf_args import transfer_function_from_args
+
+        tf = transfer_function_from_args(args, PointStoreLoader(source))
+    res = run_point_report(source, out, tolerances=tols, size=args.size, views=args.views, tf=tf, mode=args.mode,
+                           threads=args.threads, timeout=args.timeout, plots=not args.no_plots)
+    print(f"wrote {res.csv}, {res.markdown}" + "".join(f", {p}" for p in res.plots))
     return 0

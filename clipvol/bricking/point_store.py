@@ -24,12 +24,22 @@ order), and each group is built in memory (sorted keys, vectorised splitting and
 selection, :mod:`clipvol.bricking.points`). A frontier node that alone exceeds ``memory_points``
 recurses. Nodes and points are appended to the store as groups finish, so memory is bounded by
 ``memory_points`` and the top of the tree, not by the input. ``complete`` is set by the very
-last write; an interrupted build is rebuilt from the start (there is no partial resume).
+last write.
+
+Resume: the root's partition is checkpointed in ``_build_tmp/``: its plan (``plan.json``, written
+once the temporary files are complete), then after every group the group's stored sets
+(``stored<g>.npz``) and, atomically, the writer's state (``state.npz``: groups done, the lengths of
+the arrays - whole chunks only until the build closes - and the partial tail still buffered). Run
+again on the same input with the same parameters (``attrs["clipvol"]["job"]``), an interrupted
+build truncates the arrays to the state and carries on with the next group, writing what the
+uninterrupted build would have written, byte for byte. An interruption before the plan, a build
+that fits in memory, or a changed input or parameter starts again from the beginning.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import sys
 from dataclasses import dataclass
@@ -138,12 +148,17 @@ def read_node_table(group) -> dict[str, np.ndarray]:
 class _Writer:
     """Appends nodes and their points to the store in whole chunks (the last chunk at ``close``)."""
 
-    def __init__(self, group, k: int) -> None:
+    def __init__(self, group, k: int, reopen: bool = False) -> None:
         self.k = k
-        self.nodes = {n: group.create_array(f"nodes/{n}", shape=(0,), chunks=(NODE_CHUNK,), dtype=dt, fill_value=0)
-                      for n, dt in NODE_ARRAYS.items()}
-        self.xyz = group.create_array("points/xyz", shape=(0, 3), chunks=(POINT_CHUNK, 3), dtype="float32", fill_value=0)
-        self.vals = group.create_array("points/values", shape=(0, k), chunks=(POINT_CHUNK, k), dtype="float32", fill_value=0)
+        if reopen:  # a resumed build: the arrays exist (their lengths come from the checkpoint)
+            self.nodes = {n: group[f"nodes/{n}"] for n in NODE_ARRAYS}
+            self.xyz, self.vals = group["points/xyz"], group["points/values"]
+        else:
+            self.nodes = {n: group.create_array(f"nodes/{n}", shape=(0,), chunks=(NODE_CHUNK,), dtype=dt, fill_value=0)
+                          for n, dt in NODE_ARRAYS.items()}
+            self.xyz = group.create_array("points/xyz", shape=(0, 3), chunks=(POINT_CHUNK, 3), dtype="float32", fill_value=0)
+            self.vals = group.create_array("points/values", shape=(0, k), chunks=(POINT_CHUNK, k), dtype="float32",
+                                           fill_value=0)
         self._nbuf: dict[str, list] = {n: [] for n in NODE_ARRAYS}
         self._pbuf: list[tuple[np.ndarray, np.ndarray]] = []
         self._nlen = 0  # nodes written
@@ -187,6 +202,17 @@ class _Writer:
                 self._nbuf[name] = [data[m:]]
             self._nlen += m
 
+    def restore(self, st) -> None:
+        """Back to a checkpoint (:meth:`_Build._save_state`): arrays truncated, the partial tail re-buffered."""
+        self._nlen, self._plen = int(st["nlen"]), int(st["plen"])
+        self.num_nodes, self.num_points, self.max_depth = int(st["num_nodes"]), int(st["num_points"]), int(st["max_depth"])
+        for name, arr in self.nodes.items():
+            arr.resize((self._nlen,))
+            self._nbuf[name] = [np.asarray(st["n_" + name])]
+        self.xyz.resize((self._plen, 3))
+        self.vals.resize((self._plen, self.k))
+        self._pbuf = [(np.asarray(st["p_xyz"]), np.asarray(st["p_vals"]))]
+
     def close(self) -> None:
         self._flush(final=True)
 
@@ -208,6 +234,7 @@ class _Build:
         self.rec = np.dtype([("xyz", "<f8", (3,)), ("v", "<f4", (k,))])
         self.bar = bar
         self._files = 0
+        self.checkpoints = True  # checkpoint the root's partition (see "Resume" in the module docstring)
 
     # -- in memory --------------------------------------------------------------------------
     def in_memory(self, xyz: np.ndarray, vals: np.ndarray, roots_depth, roots_code):
@@ -278,6 +305,59 @@ class _Build:
             res = self.in_memory(xyz, vals, [d0], [code0])[0]
             self.bar.update(n)
             return res
+        top = d0 == 0 and self.checkpoints  # the root's partition: checkpointed, so a build resumes
+        plan = self._load_plan() if top else None
+        if plan is None:
+            front, inner, groups = self._plan(reader, d0, code0)
+        else:
+            front, inner, groups = plan["front"], plan["inner"], plan["groups"]
+        paths = [self.tmp / f"part{self._files + g}.bin" for g in range(len(groups))]
+        self._files += len(groups)
+        if plan is None:
+            self._partition(reader, d0, code0, front, groups, paths)
+            if top:
+                _atomic_json(self.tmp / "plan.json", {"front": front, "inner": inner, "groups": groups})
+        stored: dict[tuple[int, int], tuple] = {}
+        done = self._load_state(stored) if top else 0
+        for g, members in enumerate(groups):
+            path = paths[g]
+            if g < done:  # built before the interruption: its stored sets came back from the checkpoint
+                self.bar.update(sum(front[i][2] for i in members))
+                continue
+            if len(members) == 1 and front[members[0]][2] > self.mem:
+                d, c, cn = front[members[0]]
+                res = [self.node(lambda p=path: self._read_file(p), cn, d0 + d, (code0 << 3 * d) | c)]
+            else:
+                xyz, vals = _concat(self._read_file(path), self.k)
+                ds = [d0 + front[i][0] for i in members]
+                cs = [(code0 << 3 * front[i][0]) | front[i][1] for i in members]
+                res = self.in_memory(xyz, vals, ds, cs)
+                self.bar.update(len(xyz))
+            for i, r in zip(members, res):
+                d, c, _ = front[i]
+                stored[(d0 + d, (code0 << 3 * d) | c)] = r
+            if top:
+                self._save_state(g, [(d0 + front[i][0], (code0 << 3 * front[i][0]) | front[i][1]) for i in members], res)
+            path.unlink()
+        # inner nodes of the top, deepest first: representatives from their children's stored sets
+        inner.sort(key=lambda t: -t[0])
+        for j, c, cn, m in inner:
+            d, code = d0 + j, (code0 << 3 * j) | c
+            kids = [stored.pop((d + 1, code * 8 + o)) for o in range(8) if m >> o & 1]
+            ck = np.concatenate([s[0] for s in kids])
+            cx = np.concatenate([s[1] for s in kids])
+            cv = np.concatenate([s[2] for s in kids])
+            sel = choose_representatives(d, self.kstep, ck, cx, self.origin, self.edge)
+            rv = cell_means(d, self.kstep, ck, cv) if self.mean else cv[sel]
+            self.w.add(np.array([d]), np.array([code]), np.array([cn]), np.array([m]), np.array([len(sel)]),
+                       (cx[sel] - self.origin).astype(np.float32), rv)
+            stored[(d, code)] = (ck[sel], cx[sel], rv, cn)
+        return stored[(d0, code0)]
+
+    def _plan(self, reader, d0: int, code0: int):
+        """The top of node ``(d0, code0)``'s subtree from a histogram ``KB`` levels down: frontier nodes
+        ``(rel depth, rel code, count)`` in Morton order, inner nodes ``(rel depth, rel code, count,
+        child mask)``, and groups of consecutive frontier nodes of at most ``mem`` points (a bigger node alone)."""
         hd = min(d0 + KB, GEO_BITS)
         rel = hd - d0
         hist = np.zeros(8 ** rel, np.int64)
@@ -300,19 +380,23 @@ class _Build:
             front += [(j + 1, int(a), int(b)) for a, b in zip(ch[f], c[f])]
             open_ = ch[~f]
         front.sort(key=lambda t: (t[1] << 3 * (rel - t[0]), t[0]))
-        fstart = np.array([c << 3 * (rel - d) for d, c, _ in front], np.int64)
-        # groups of consecutive frontier nodes, at most ``mem`` points each (a bigger node alone)
-        gid, groups, acc = [], [], self.mem + 1
+        groups, acc = [], self.mem + 1
         for i, (_, _, c) in enumerate(front):
             if acc + c > self.mem or c > self.mem:
                 groups.append([])
                 acc = 0
             groups[-1].append(i)
-            gid.append(len(groups) - 1)
             acc += c
-        gid = np.array(gid, np.int64)
-        paths = [self.tmp / f"part{self._files + g}.bin" for g in range(len(groups))]
-        self._files += len(groups)
+        return front, inner, groups
+
+    def _partition(self, reader, d0: int, code0: int, front, groups, paths) -> None:
+        """Stream the node's points into one temporary file per group."""
+        rel = max(d for d, _, _ in front)
+        hd = d0 + rel
+        fstart = np.array([c << 3 * (rel - d) for d, c, _ in front], np.int64)
+        gid = np.empty(len(front), np.int64)
+        for g, members in enumerate(groups):
+            gid[members] = g
         files = [open(p, "wb") for p in paths]
         try:
             for xyz, vals in reader():
@@ -327,36 +411,52 @@ class _Build:
         finally:
             for f in files:
                 f.close()
-        stored: dict[tuple[int, int], tuple] = {}
-        for g, members in enumerate(groups):
-            path = paths[g]
-            if len(members) == 1 and front[members[0]][2] > self.mem:
-                d, c, cn = front[members[0]]
-                res = [self.node(lambda p=path: self._read_file(p), cn, d0 + d, (code0 << 3 * d) | c)]
-            else:
-                xyz, vals = _concat(self._read_file(path), self.k)
-                ds = [d0 + front[i][0] for i in members]
-                cs = [(code0 << 3 * front[i][0]) | front[i][1] for i in members]
-                res = self.in_memory(xyz, vals, ds, cs)
-                self.bar.update(len(xyz))
-            for i, r in zip(members, res):
-                d, c, _ = front[i]
-                stored[(d0 + d, (code0 << 3 * d) | c)] = r
-            path.unlink()
-        # inner nodes of the top, deepest first: representatives from their children's stored sets
-        inner.sort(key=lambda t: -t[0])
-        for j, c, cn, m in inner:
-            d, code = d0 + j, (code0 << 3 * j) | c
-            kids = [stored.pop((d + 1, code * 8 + o)) for o in range(8) if m >> o & 1]
-            ck = np.concatenate([s[0] for s in kids])
-            cx = np.concatenate([s[1] for s in kids])
-            cv = np.concatenate([s[2] for s in kids])
-            sel = choose_representatives(d, self.kstep, ck, cx, self.origin, self.edge)
-            rv = cell_means(d, self.kstep, ck, cv) if self.mean else cv[sel]
-            self.w.add(np.array([d]), np.array([code]), np.array([cn]), np.array([m]), np.array([len(sel)]),
-                       (cx[sel] - self.origin).astype(np.float32), rv)
-            stored[(d, code)] = (ck[sel], cx[sel], rv, cn)
-        return stored[(d0, code0)]
+
+    # -- checkpoints (the root's partition only) -----------------------------------------------
+    def _load_plan(self):
+        p = self.tmp / "plan.json"
+        if not p.is_file():
+            return None
+        plan = json.loads(p.read_text())
+        return {"front": [tuple(t) for t in plan["front"]], "inner": [tuple(t) for t in plan["inner"]],
+                "groups": plan["groups"]}
+
+    def _save_state(self, g: int, roots, res) -> None:
+        """After group ``g``: its roots' stored sets, then (atomically) the writer's state and ``g + 1`` done.
+
+        The store's arrays hold whole chunks only until the build closes; the writer's partial tail
+        is saved here, so a resumed build truncates the arrays to the state and carries on
+        byte for byte as the uninterrupted build would."""
+        arrays = {"roots": np.array(roots, np.int64).reshape(-1, 2), "lens": np.array([len(r[0]) for r in res], np.int64),
+                  "count": np.array([r[3] for r in res], np.int64)}
+        for j, name in enumerate(("keys", "xyz", "vals")):
+            arrays[name] = np.concatenate([r[j] for r in res])
+        _atomic_npz(self.tmp / f"stored{g}.npz", arrays)
+        w = self.w
+        state = {"done": np.array(g + 1), "nlen": np.array(w._nlen), "plen": np.array(w._plen),
+                 "num_nodes": np.array(w.num_nodes), "num_points": np.array(w.num_points), "max_depth": np.array(w.max_depth),
+                 "files": np.array(self._files)}
+        for name in NODE_ARRAYS:
+            state["n_" + name] = np.concatenate(w._nbuf[name]) if w._nbuf[name] else np.zeros(0, NODE_ARRAYS[name])
+        state["p_xyz"] = np.concatenate([a for a, _ in w._pbuf]) if w._pbuf else np.zeros((0, 3), np.float32)
+        state["p_vals"] = np.concatenate([b for _, b in w._pbuf]) if w._pbuf else np.zeros((0, self.k), np.float32)
+        _atomic_npz(self.tmp / "state.npz", state)
+
+    def _load_state(self, stored: dict) -> int:
+        """Groups done before an interruption (0 if none); restores the writer and their stored sets."""
+        p = self.tmp / "state.npz"
+        if not p.is_file():
+            return 0
+        st = np.load(p)
+        done = int(st["done"])
+        self.w.restore(st)
+        for g in range(done):
+            z = np.load(self.tmp / f"stored{g}.npz")
+            bounds = np.r_[0, np.cumsum(z["lens"])]
+            for i, (d, c) in enumerate(z["roots"].tolist()):
+                a, b = bounds[i], bounds[i + 1]
+                stored[(d, c)] = (z["keys"][a:b], z["xyz"][a:b], z["vals"][a:b], int(z["count"][i]))
+        return done
 
     def _rel_code(self, xyz, hd: int, code0: int, rel: int) -> np.ndarray:
         q = quantise(xyz, self.origin, self.edge) >> (GEO_BITS - hd)
@@ -369,6 +469,18 @@ class _Build:
                 if not len(rec):
                     return
                 yield np.ascontiguousarray(rec["xyz"]), np.ascontiguousarray(rec["v"]).reshape(len(rec), self.k)
+
+
+def _atomic_json(path: Path, obj) -> None:
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(obj))
+    os.replace(tmp, path)
+
+
+def _atomic_npz(path: Path, arrays: dict) -> None:
+    tmp = path.with_name(path.stem + ".tmp.npz")
+    np.savez(tmp, **arrays)
+    os.replace(tmp, path)
 
 
 def _concat(chunks, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -438,41 +550,31 @@ def build_point_store(source: PointSource, output, *, max_points: int = 64, over
     if representative not in REPRESENTATIVES:
         raise ParameterError(f"--representative: expected one of {', '.join(REPRESENTATIVES)}, got {representative!r}")
     out = Path(output)
+    job = _job(source, mp, memory_points, representative, unit, box)
+    resume = None
     if out.exists():
-        if not overwrite:
-            if is_point_store(out) and not json.loads((out / "zarr.json").read_text())["attributes"]["clipvol"].get("complete"):
-                pass  # an interrupted build: rebuilt from the start
-            else:
-                raise OutputExistsError(f"{out}: output exists; pass --overwrite to replace it")
-        shutil.rmtree(out) if out.is_dir() else out.unlink()
+        cv = _clipvol_attrs(out) if is_point_store(out) else None
+        if not overwrite and (cv is None or cv.get("complete")):
+            raise OutputExistsError(f"{out}: output exists; pass --overwrite to replace it")
+        if not overwrite and cv.get("job") == job and (out / "_build_tmp" / "plan.json").is_file():
+            resume = cv  # an interrupted build of the same job: carried on from its last checkpoint
+        else:  # overwrite, or an interrupted build of other input or parameters: rebuilt from the start
+            shutil.rmtree(out) if out.is_dir() else out.unlink()
     k = len(source.value_names)
     with tqdm(total=2 * source.count, unit="pt", unit_scale=True, desc="points", file=sys.stderr,
               disable=not progress, dynamic_ncols=True) as bar:
-        lo, hi, vlo, vhi, n = _scan(source, bar)
-        if box is not None:
-            try:
-                blo, bhi = (np.asarray(b, np.float64).reshape(3) for b in box)
-            except (TypeError, ValueError):
-                raise ParameterError(f"box: expected ((x0, y0, z0), (x1, y1, z1)), got {box!r}") from None
-            if not (np.all(np.isfinite(blo)) and np.all(np.isfinite(bhi)) and np.all(bhi > blo)):
-                raise ParameterError(f"box: expected finite corners with x1 > x0, y1 > y0, z1 > z0, got {box!r}")
-            lo, hi = np.minimum(lo, blo), np.maximum(hi, bhi)
-        ext = float((hi - lo).max())
-        edge = ext * (1.0 + 2.0**-20) if ext > 0 else max(1.0, float(np.abs(lo).max()) * 1e-6)
-        origin = (lo + hi) / 2.0 - edge / 2.0
-        volume = float(np.prod(np.maximum(hi - lo, ext * 1e-3 if ext > 0 else edge)))
-        spacing = (volume / n) ** (1.0 / 3.0)
-        attrs = {
-            "kind": "points", "format_version": POINT_FORMAT_VERSION, "max_points": mp,
-            "origin": [float(v) for v in origin], "edge": edge, "bounds": [lo.tolist(), hi.tolist()],
-            "value_names": list(source.value_names), "value_ranges": [[float(a), float(b)] for a, b in zip(vlo, vhi)],
-            "num_points": n, "point_spacing": spacing, "geo_bits": GEO_BITS, "dup_bits": DUP_BITS,
-            "representative": representative, "unit": unit, "source": source.name, "complete": False,
-        }
-        group = zarr.open_group(str(out), mode="w", attributes={"clipvol": attrs})
-        writer = _Writer(group, k)
+        if resume is not None:  # the first pass's results are in the attributes
+            attrs = resume
+            origin, edge, n = np.asarray(attrs["origin"], np.float64), float(attrs["edge"]), int(attrs["num_points"])
+            bar.update(n)
+            group = zarr.open_group(str(out), mode="r+")
+            writer = _Writer(group, k, reopen=True)
+        else:
+            attrs, origin, edge, n = _first_pass(source, bar, box, mp, representative, unit, job)
+            group = zarr.open_group(str(out), mode="w", attributes={"clipvol": attrs})
+            writer = _Writer(group, k)
         tmp = out / "_build_tmp"
-        tmp.mkdir()
+        tmp.mkdir(exist_ok=True)
         build = _Build(origin, edge, writer, mp, memory_points, tmp, k, bar, representative)
         build.node(lambda: source.chunks(), n, 0, 0)
         writer.close()
@@ -480,6 +582,59 @@ def build_point_store(source: PointSource, output, *, max_points: int = 64, over
     attrs.update(depth=writer.max_depth, num_nodes=writer.num_nodes, num_stored=writer.num_points, complete=True)
     group.attrs["clipvol"] = attrs  # the very last write
     return _meta({"clipvol": attrs}, str(out))
+
+
+def _clipvol_attrs(out: Path) -> dict:
+    return json.loads((out / "zarr.json").read_text())["attributes"]["clipvol"]
+
+
+def _job(source: PointSource, max_points: int, memory_points: int, representative: str, unit: str, box) -> dict:
+    """What must match for an interrupted build to be resumed: the input's identity (name, count,
+    value names, a hash of its first chunk, a file's size and modification time) and the parameters."""
+    import hashlib
+    import os
+
+    ident = {"source": str(source.name), "count": int(source.count), "values": list(source.value_names)}
+    try:
+        st = os.stat(str(source.name))
+        ident.update(size=int(st.st_size), mtime_ns=int(st.st_mtime_ns))
+    except (OSError, ValueError):
+        pass
+    h = hashlib.sha1()
+    for xyz, vals in source.chunks():
+        h.update(np.ascontiguousarray(xyz).tobytes())
+        h.update(np.ascontiguousarray(vals).tobytes())
+        break
+    ident["first_chunk_sha1"] = h.hexdigest()
+    return {"identity": ident, "max_points": int(max_points), "memory_points": int(memory_points),
+            "representative": representative, "unit": unit,
+            "box": None if box is None else np.asarray(box, np.float64).reshape(2, 3).tolist()}
+
+
+def _first_pass(source: PointSource, bar, box, mp: int, representative: str, unit: str, job: dict):
+    """Bounds, value ranges and count of the input; the root cube; the store's attributes."""
+    lo, hi, vlo, vhi, n = _scan(source, bar)
+    if box is not None:
+        try:
+            blo, bhi = (np.asarray(b, np.float64).reshape(3) for b in box)
+        except (TypeError, ValueError):
+            raise ParameterError(f"box: expected ((x0, y0, z0), (x1, y1, z1)), got {box!r}") from None
+        if not (np.all(np.isfinite(blo)) and np.all(np.isfinite(bhi)) and np.all(bhi > blo)):
+            raise ParameterError(f"box: expected finite corners with x1 > x0, y1 > y0, z1 > z0, got {box!r}")
+        lo, hi = np.minimum(lo, blo), np.maximum(hi, bhi)
+    ext = float((hi - lo).max())
+    edge = ext * (1.0 + 2.0**-20) if ext > 0 else max(1.0, float(np.abs(lo).max()) * 1e-6)
+    origin = (lo + hi) / 2.0 - edge / 2.0
+    volume = float(np.prod(np.maximum(hi - lo, ext * 1e-3 if ext > 0 else edge)))
+    spacing = (volume / n) ** (1.0 / 3.0)
+    attrs = {
+        "kind": "points", "format_version": POINT_FORMAT_VERSION, "max_points": mp,
+        "origin": [float(v) for v in origin], "edge": edge, "bounds": [lo.tolist(), hi.tolist()],
+        "value_names": list(source.value_names), "value_ranges": [[float(a), float(b)] for a, b in zip(vlo, vhi)],
+        "num_points": n, "point_spacing": spacing, "geo_bits": GEO_BITS, "dup_bits": DUP_BITS,
+        "representative": representative, "unit": unit, "source": source.name, "complete": False, "job": job,
+    }
+    return attrs, origin, edge, n
 
 
 def check_point_store(path) -> list[str]:

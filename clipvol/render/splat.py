@@ -27,11 +27,13 @@ Meredith & Ma sort nodes only and note that per-point order barely shows).
 from __future__ import annotations
 
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import ParameterError
+from ..scene.point_gradient import wls_gradients
 from ..scene.splat_select import SplatSelection, select_splat_nodes
 from .action import premultiplied_to_uint8
 from .glsl import load_shader
@@ -76,10 +78,18 @@ class SplatRenderAction:
         World length the transfer function's opacity is defined for (default: the store's point spacing).
     background : 4 floats
         Straight RGBA behind the points.
+    shading : bool
+        Composite only: Blinn-Phong lighting with the light at the eye from each point's gradient,
+        estimated by weighted least squares over its node's points
+        (:func:`clipvol.scene.point_gradient.wls_gradients`, after Meredith & Ma section 3.2) and
+        kept per node while it is drawn.
+    light : 4 floats
+        ``(ambient, diffuse, specular, shininess)``, as the volume's ``RenderParams``.
     """
 
     def __init__(self, ctx, clip_texture, *, tolerance=0.05, mode: str = "composite", value=0,
-                 opacity_unit: float | None = None, background=(0.0, 0.0, 0.0, 0.0)) -> None:
+                 opacity_unit: float | None = None, background=(0.0, 0.0, 0.0, 0.0), shading: bool = False,
+                 light=(0.3, 0.7, 0.3, 20.0)) -> None:
         import moderngl
 
         self._mgl = moderngl
@@ -108,6 +118,12 @@ class SplatRenderAction:
         if len(bg) != 4 or not all(0.0 <= v <= 1.0 for v in bg):
             raise ParameterError(f"background: expected four values in [0, 1] (r, g, b, a), got {background!r}")
         self.background = bg
+        self.shading = bool(shading)
+        lt = tuple(float(v) for v in light)
+        if len(lt) != 4 or not all(np.isfinite(v) and v >= 0 for v in lt) or lt[3] <= 0:
+            raise ParameterError(f"light: expected (ambient, diffuse, specular, shininess) >= 0, shininess > 0, got {light!r}")
+        self.light = lt
+        self._grads: OrderedDict[int, np.ndarray] = OrderedDict()  # node id -> (count, 3) gradients
         self.prog = ctx.program(vertex_shader=load_shader("splat.vert"), fragment_shader=load_shader("splat.frag"))
         rng = ctx.info.get("GL_POINT_SIZE_RANGE") or ctx.info.get("GL_ALIASED_POINT_SIZE_RANGE") or (1.0, 64.0)
         self._max_size = float(rng[1])
@@ -155,9 +171,9 @@ class SplatRenderAction:
                 passes += 1
                 break
         t1 = time.perf_counter()
-        pos, val, h = self._gather(sel, camera)
+        pos, val, h, grad = self._gather(sel, camera)
         t2 = time.perf_counter()
-        image, clamped = self._draw(camera, transfer_function, pos, val, h)
+        image, clamped = self._draw(camera, transfer_function, pos, val, h, grad)
         t3 = time.perf_counter()
         depths = self.loader.nodes.depth[sel.draw]
         u, c = np.unique(depths, return_counts=True)
@@ -170,13 +186,29 @@ class SplatRenderAction:
         )
         return image
 
+    def draw_points(self, camera, transfer_function, xyz, values, h, gradients=None) -> np.ndarray:
+        """Draw the given points (world ``xyz`` (n, 3), raw ``values`` (n,), splat sizes ``h``), no selection.
+
+        The same splats as :meth:`render` for points that do not come from the octree's cut: drawing
+        every point (:meth:`clipvol.loaders.point_store.PointStoreLoader.leaf_points`) is the full-detail
+        picture the report and the benchmark measure the tolerance's error against.
+        """
+        pos = np.asarray(xyz, np.float64).reshape(-1, 3) - np.asarray(camera.eye, np.float64)
+        val = np.asarray(values, np.float32).reshape(-1)
+        hh = np.broadcast_to(np.asarray(h, np.float64), val.shape)
+        ok = np.isfinite(val)
+        g = np.zeros((len(val), 3)) if gradients is None else np.asarray(gradients, np.float64).reshape(-1, 3)
+        image, _ = self._draw(camera, transfer_function, pos[ok], val[ok], hh[ok], g[ok])
+        return image
+
     def _gather(self, sel: SplatSelection, camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Points of the drawn nodes: eye-relative float64 positions, values, splat sizes."""
         nodes = self.loader.nodes
         origin = np.asarray(self.loader.meta.origin, np.float64)
         levels, idx = self.loader.brick_of_nodes(sel.draw)
         hs = nodes.edges(sel.draw) / np.cbrt(np.maximum(nodes.count[sel.draw], 1))
-        rows, hh = [], []
+        rows, hh, gg = [], [], []
+        lit = self.shading and self.mode == "composite"
         for L in np.unique(levels):
             m = levels == L
             res, bricks = self.clip.get_bricks(int(L), idx[m])  # nodes evicted since the selection: next frame
@@ -184,15 +216,41 @@ class SplatRenderAction:
             keep = r[:, 3] > 0.5
             rows.append(r[keep])
             hh.append(np.repeat(hs[m][res], bricks.shape[2])[keep])
+            if lit:
+                gg.append(self._node_gradients(sel.draw[m][res], bricks[:, 0]).reshape(-1, 3)[keep])
         if not rows:
-            return np.zeros((0, 3)), np.zeros(0, np.float32), np.zeros(0)
+            return np.zeros((0, 3)), np.zeros(0, np.float32), np.zeros(0), np.zeros((0, 3))
         r = np.concatenate(rows)
         h = np.concatenate(hh)
+        g = np.concatenate(gg) if lit else np.zeros((len(r), 3))
         ok = np.isfinite(r[:, 4 + self.value])  # NaN / Inf values are not drawn (as the volume's samples)
         if not ok.all():
-            r, h = r[ok], h[ok]
+            r, h, g = r[ok], h[ok], g[ok]
         pos = r[:, :3].astype(np.float64) + (origin - np.asarray(camera.eye, np.float64))
-        return pos, r[:, 4 + self.value], h
+        return pos, r[:, 4 + self.value], h, g
+
+    #: most points whose gradients are kept between frames
+    GRADIENT_CACHE_POINTS = 4_000_000
+
+    def _node_gradients(self, ids: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """``(len(ids), max_points, 3)`` gradients of the drawn value at each node's points (cached per node)."""
+        out = np.zeros(rows.shape[:2] + (3,))
+        todo = [i for i, nid in enumerate(ids.tolist()) if nid not in self._grads]
+        if todo:
+            t = np.array(todo)
+            sub = rows[t]
+            counts = (sub[:, :, 3] > 0.5).sum(axis=1)
+            g = wls_gradients(sub[:, :, :3], sub[:, :, 4 + self.value], counts)
+            for j, i in enumerate(todo):
+                self._grads[int(ids[i])] = g[j, :counts[j]].astype(np.float32)
+        for i, nid in enumerate(ids.tolist()):
+            gi = self._grads[nid]
+            self._grads.move_to_end(nid)
+            out[i, :len(gi)] = gi
+        held = sum(len(v) for v in self._grads.values()) if len(self._grads) * self.loader.max_points > self.GRADIENT_CACHE_POINTS else 0
+        while held > self.GRADIENT_CACHE_POINTS and len(self._grads) > len(ids):
+            held -= len(self._grads.popitem(last=False)[1])
+        return out
 
     def _ensure(self, size, tf):
         mgl = self._mgl
@@ -207,7 +265,7 @@ class SplatRenderAction:
             self._tf_tex.repeat_x = self._tf_tex.repeat_y = False
             self._tf_key = key
 
-    def _draw(self, camera, tf, pos, val, h) -> tuple[np.ndarray, int]:
+    def _draw(self, camera, tf, pos, val, h, grad=None) -> tuple[np.ndarray, int]:
         mgl = self._mgl
         ctx = self.ctx
         w, hgt = camera.size
@@ -220,13 +278,17 @@ class SplatRenderAction:
         if self.mode == "composite":
             order = np.argsort(-depth, kind="stable")  # back to front
             pos, val, h, depth = pos[order], val[order], h[order], depth[order]
+        else:
+            order = slice(None)
         k = float(camera.pixels_per_unit(1.0))
         sigma_px = 0.5 * h * k / (1.0 if camera.orthographic else np.maximum(depth, 1e-6))
         clamped = int(np.count_nonzero(6.0 * sigma_px > self._max_size))
-        data = np.empty((len(val), 5), np.float32)
+        data = np.zeros((len(val), 8), np.float32)
         data[:, :3] = pos
         data[:, 3] = val
         data[:, 4] = h
+        if grad is not None and len(val):
+            data[:, 5:8] = grad[order]
         previous = ctx.fbo
         self._target.fbo.use()
         ctx.viewport = (0, 0, w, hgt)
@@ -248,6 +310,8 @@ class SplatRenderAction:
         prog["u_max_size"].value = self._max_size
         prog["u_unit"].value = self.opacity_unit
         prog["u_mip"].value = 1 if self.mode == "mip" else 0
+        prog["u_shading"].value = 1 if (self.shading and self.mode == "composite") else 0
+        prog["u_light"].value = self.light
         prog["u_tf"].value = 0
         self._tf_tex.use(location=0)
         if len(data):
@@ -256,7 +320,7 @@ class SplatRenderAction:
                     self._vao.release()
                     self._vbo.release()
                 self._vbo = ctx.buffer(reserve=max(data.nbytes, 1 << 16))
-                self._vao = ctx.vertex_array(prog, [(self._vbo, "3f 1f 1f", "in_pos", "in_value", "in_h")])
+                self._vao = ctx.vertex_array(prog, [(self._vbo, "3f 1f 1f 3f", "in_pos", "in_value", "in_h", "in_grad")])
             self._vbo.write(data.tobytes())
             self._vao.render(mgl.POINTS, vertices=len(data))
         ctx.finish()

@@ -13,7 +13,7 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-__all__ = ["hud_lines", "render_text", "composite_over", "level_counts", "tf_strip", "stack_images"]
+__all__ = ["hud_lines", "point_hud_lines", "render_text", "composite_over", "level_counts", "tf_strip", "stack_images"]
 
 
 @lru_cache(maxsize=4)
@@ -216,3 +216,40 @@ def stack_images(images) -> np.ndarray:
         out[y:y + i.shape[0], : i.shape[1]] = i
         y += i.shape[0]
     return out
+
+
+def point_hud_lines(*, fps: float | None = None, frame_stats=None, tolerance: float | None = None, size=None,
+                    settings: Mapping[str, object] | None = None, texture_stats=None, message: str = "") -> list[str]:
+    """The point viewer's HUD: fps, points and nodes drawn, the tolerance, what is loading.
+
+    ``frame_stats`` is :class:`clipvol.render.splat.SplatFrameStats`; ``tolerance`` a fraction of
+    the window's larger side (shown with its pixels for a window of ``size``).
+    """
+    lines: list[str] = []
+    if fps is not None:
+        lines.append(f"{fps:5.1f} fps")
+    if tolerance is not None:
+        px = f" = {tolerance * max(size):.1f} px" if size else ""
+        lines.append(f"tolerance {100 * tolerance:.3g} % of the screen{px}")
+    if settings:
+        lines.append("  ".join(f"{k} {v}" for k, v in settings.items()))
+    if frame_stats is not None:
+        per = getattr(frame_stats, "nodes_per_depth", None) or {}
+        depths = " ".join(f"d{d}:{n}" for d, n in sorted(per.items()))
+        lines.append(f"points {frame_stats.points_drawn:,}  nodes {frame_stats.nodes_drawn:,}" + (f"  {depths}" if depths else ""))
+        state = "converged" if frame_stats.converged else f"refining ({frame_stats.missing} nodes loading)"
+        if getattr(frame_stats, "clamped", 0):
+            state += f"  {frame_stats.clamped:,} splats clamped to the largest point size"
+        lines.append(state)
+    if texture_stats is not None:
+        q = getattr(texture_stats, "queued", None)
+        nf = getattr(texture_stats, "failures", None)
+        nf = len(nf) if isinstance(nf, (dict, list, tuple, set)) else nf
+        part = [f"queue {q}"] if q is not None else []
+        if nf:
+            part.append(f"{nf} failed")
+        if part:
+            lines.append("  ".join(part))
+    if message:
+        lines.append(message)
+    return lines

@@ -7,6 +7,7 @@
 in vec3 in_pos;     // point - eye, world units
 in float in_value;  // raw value
 in float in_h;      // splat size (world units)
+in vec3 in_grad;    // the value's gradient at the point (world units; zero: unlit or none)
 
 uniform mat4 u_vp;           // projection * rotation of the view (no translation)
 uniform float u_px_per_unit; // pixels per world unit at depth 1 (perspective) or everywhere (ortho)
@@ -18,6 +19,7 @@ out float v_t;
 out float v_sigma_px;
 out float v_size_px;
 out float v_h;
+out float v_d;      // |g . view| / |g|: the lighting term (Blinn-Phong with the light at the eye)
 
 void main() {
     vec4 clip = u_vp * vec4(in_pos, 1.0);
@@ -31,4 +33,7 @@ void main() {
     float span = u_window.y - u_window.x;
     v_t = (span > 0.0) ? (in_value - u_window.x) / span : 0.5;
     v_h = in_h;
+    float glen = length(in_grad);
+    float pl = length(in_pos);
+    v_d = (glen > 0.0 && pl > 0.0) ? abs(dot(in_grad, in_pos)) / (glen * pl) : 0.0;
 }

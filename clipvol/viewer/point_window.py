@@ -1,0 +1,409 @@
+"""The window of ``clipvol view POINTS.zarr``: splats of a point store around a :class:`PointSession`.
+
+The volume viewer's loop (:mod:`clipvol.viewer.window`) with points for bricks: each iteration
+polls input (mouse and WASD/QE through :class:`~clipvol.viewer.controls.OrbitControls`, keys through
+:class:`~clipvol.viewer.point_keys.PointViewState`) and, when the camera, a setting, the window
+size or the clip-texture's residency changed (a node arrived), or the last frame had not
+converged, draws a frame *without waiting* for I/O: resident ancestors stand in for nodes still
+loading and the picture refines as they arrive. ``[`` / ``]`` make the tolerance finer / coarser
+(Meredith & Ma 2001: the largest splat, a fraction of the screen), the HUD shows fps, points and
+nodes drawn and the tolerance. It shares the window set-up (GLFW, the EGL unbinding, the
+full-window quad) with the volume viewer.
+
+Driven programmatically (``PointViewer.step()``, ``key()``, ``read_screen()``) by
+``tests/viewer/test_point_viewer.py`` under Xvfb.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..app.point_session import PointSession
+from ..errors import ParameterError
+from ..render.context import create_context
+from .controls import MOVE_KEYS, OrbitControls
+from .hud import point_hud_lines, render_text
+from .point_keys import PointViewState
+from .window import _QUAD_FS, _QUAD_VS, WindowError, _EglUnbound, _quad
+
+__all__ = ["PointViewer"]
+
+
+class _Frame:
+    """What :meth:`OrbitControls.for_pyramid` reads of a pyramid: the box and a length scale."""
+
+    def __init__(self, lo, hi, spacing: float) -> None:
+        self._box = (np.asarray(lo, np.float64), np.asarray(hi, np.float64))
+        self.spacing = (spacing,) * 3
+
+    def volume_box(self):
+        return self._box
+
+
+class PointViewer:
+    """A GLFW window showing a point store as splats under a screen-space tolerance.
+
+    Parameters
+    ----------
+    source : path or PointStoreLoader
+        A store written by ``clipvol brick-points``.
+    size : (int, int)
+        Window size.
+    tolerance : float or str
+        The starting tolerance (``0.05``, ``"5%"``, ``"12px"``).
+    memory_budget : int or str
+        Clip-texture budget.
+    threads : int, optional
+        Loader threads.
+    mode : {"composite", "mip"}
+    tf : str or TransferFunction
+        The starting transfer function (a preset name heads the ``T`` cycle).
+    screenshot_dir : str or Path
+        Where ``P`` writes ``clipvol-points-NNNN.png``.
+    visible : bool
+        Show the window (tests render into a hidden one).
+    title : str
+    background : (r, g, b)
+    """
+
+    def __init__(self, source, *, size=(960, 640), tolerance=0.05, memory_budget="256MB", threads=None,
+                 mode: str = "composite", tf="viridis", screenshot_dir=".", visible: bool = True,
+                 title: str = "clipvol points", background=(0.0, 0.0, 0.0), shading: bool = False) -> None:
+        try:
+            import glfw
+        except ImportError as e:  # pragma: no cover - glfw is a dependency
+            raise WindowError(f"clipvol view needs the glfw package (pip install glfw), got ImportError: {e}") from e
+        w, h = (int(v) for v in size)
+        if w < 1 or h < 1:
+            raise ParameterError(f"size: expected a window size >= 1x1, got {size!r}")
+        self._glfw = glfw
+        self._glfw_up = False
+        self.session: PointSession | None = None
+        self.window = None
+        self._egl = _EglUnbound()
+        reporting = getattr(glfw, "ERROR_REPORTING", None)
+        glfw.ERROR_REPORTING = "raise"
+        try:
+            ok = glfw.init()
+        except glfw.GLFWError as e:
+            ok, why = False, str(e)
+        else:
+            why = "glfw.init() returned False"
+        finally:
+            glfw.ERROR_REPORTING = reporting if reporting is not None else "warn"
+        if not ok:
+            self._egl.restore()
+            raise WindowError(f"expected a display for the viewer window, got: {why} (set DISPLAY, or use clipvol render)")
+        self._glfw_up = True
+        try:
+            glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 3)
+            glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, 3)
+            glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
+            glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)
+            glfw.window_hint(glfw.VISIBLE, bool(visible))
+            glfw.window_hint(glfw.DOUBLEBUFFER, True)
+            self.window = glfw.create_window(w, h, title, None, None)
+            if not self.window:
+                raise WindowError("expected a window with an OpenGL 3.3 core context, but glfw.create_window failed")
+            glfw.make_context_current(self.window)
+            glfw.swap_interval(1 if visible else 0)
+            self.ctx = create_context(standalone=False, backend=None)
+            self.session = PointSession(source, self.ctx, memory_budget=memory_budget, threads=threads,
+                                        tolerance=tolerance, mode=mode, tf=tf, shading=shading)
+            self._setup_gl()
+        except BaseException:
+            self.close()
+            raise
+        from ..scene.transfer import TransferFunction
+
+        first = tf if isinstance(tf, str) else (self.session.tf.name or "custom")
+        presets = (first,) + tuple(n for n in TransferFunction.names() if n != first)
+        self._first_tf = self.session.tf
+        self.state = PointViewState.starting_at(tolerance, self.framebuffer_size, tf_presets=presets, render_mode=mode,
+                                                shading=bool(shading))
+        self.session.update(tolerance=self.state.tolerance)
+        lo, hi = self.session.volume_box()
+        meta = self.session.loader.meta
+        self.controls = OrbitControls.for_pyramid(_Frame(lo, hi, meta.point_spacing or meta.edge * 1e-3),
+                                                  size=self.framebuffer_size)
+        self.screenshot_dir = Path(screenshot_dir)
+        self.background = tuple(float(v) for v in background)
+        self.held: set[str] = set()
+        self._drag: tuple[int, float, float] | None = None
+        self._dirty = True
+        self._frame = None
+        self._hud_tex = None
+        self._hud_text = None
+        self._hud_time = 0.0
+        self._fps = 0.0
+        self._t_last = time.perf_counter()
+        self.frames_rendered = 0
+        self._version = None
+        self._view = None
+        self.last_screenshot: Path | None = None
+        self._install_callbacks()
+
+    # -- GL objects -----------------------------------------------------------------------------
+    def _setup_gl(self) -> None:
+        import moderngl
+
+        ctx = self.ctx
+        self._mgl = moderngl
+        self._prog = ctx.program(vertex_shader=_QUAD_VS, fragment_shader=_QUAD_FS)
+        self._prog["u_tex"].value = 0
+        self._full_vbo = _quad(ctx, -1.0, -1.0, 1.0, 1.0)
+        self._full_vao = ctx.vertex_array(self._prog, [(self._full_vbo, "2f 2f", "in_pos", "in_uv")])
+        self._hud_vbo = None
+        self._hud_vao = None
+        self._frame_tex = None
+
+    def _texture(self, old, img: np.ndarray):
+        h, w = img.shape[:2]
+        if old is None or old.size != (w, h):
+            if old is not None:
+                old.release()
+            old = self.ctx.texture((w, h), 4)
+            old.repeat_x = old.repeat_y = False
+            old.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
+        old.write(np.ascontiguousarray(img, dtype=np.uint8).tobytes())
+        return old
+
+    # -- input ----------------------------------------------------------------------------------
+    def _install_callbacks(self) -> None:
+        glfw = self._glfw
+        win = self.window
+        glfw.set_key_callback(win, self._on_key)
+        glfw.set_char_callback(win, self._on_char)
+        glfw.set_mouse_button_callback(win, self._on_button)
+        glfw.set_cursor_pos_callback(win, self._on_cursor)
+        glfw.set_scroll_callback(win, self._on_scroll)
+        glfw.set_framebuffer_size_callback(win, lambda *_: setattr(self, "_dirty", True))
+
+    def _on_key(self, win, key, scancode, action, mods) -> None:
+        glfw = self._glfw
+        if glfw.KEY_A <= key <= glfw.KEY_Z:
+            name = chr(ord("A") + key - glfw.KEY_A)
+        elif key == glfw.KEY_ESCAPE:
+            name = "ESCAPE"
+        else:
+            return  # printable keys such as [ ] arrive through _on_char (keyboard layouts differ)
+        if name in MOVE_KEYS:
+            if action == glfw.PRESS:
+                self.held.add(name)
+            elif action == glfw.RELEASE:
+                self.held.discard(name)
+            return
+        if action == glfw.PRESS:
+            self.key(name)
+
+    def _on_char(self, win, codepoint) -> None:
+        ch = chr(codepoint)
+        if ch in "[]":
+            self.key(ch)
+
+    def _on_button(self, win, button, action, mods) -> None:
+        glfw = self._glfw
+        if action == glfw.PRESS:
+            x, y = glfw.get_cursor_pos(win)
+            self._drag = (button, x, y)
+        elif action == glfw.RELEASE:
+            self._drag = None
+
+    def _on_cursor(self, win, x, y) -> None:
+        if self._drag is None:
+            return
+        button, x0, y0 = self._drag
+        self._drag = (button, x, y)
+        sx = self.framebuffer_size[0] / max(self._glfw.get_window_size(win)[0], 1)
+        dx, dy = (x - x0) * sx, (y - y0) * sx
+        if button == self._glfw.MOUSE_BUTTON_LEFT:
+            self.controls.orbit(dx, dy)
+        else:
+            self.controls.pan(dx, dy, self.framebuffer_size)
+        self._dirty = True
+
+    def _on_scroll(self, win, xoff, yoff) -> None:
+        self.controls.zoom(yoff)
+        self._dirty = True
+
+    def key(self, name: str) -> None:
+        """Apply one key as if pressed (``'['``, ``']'``, ``'I'``, ``'T'``, ``'H'``, ``'P'``, ``'R'``, ``'ESCAPE'``)."""
+        if self.state.handle_key(name):
+            self._apply_state()
+
+    def _apply_state(self) -> None:
+        st = self.state
+        if st.reset:
+            self.controls.reset()
+            st.reset = False
+        if st.quit:
+            self._glfw.set_window_should_close(self.window, True)
+        from ..scene.transfer import TransferFunction
+
+        name = st.tf_name
+        window = self.session.tf.window(self.session.value_range)
+        if name == st.tf_presets[0]:
+            tf = self._first_tf.with_value_range(window)
+        else:
+            tf = TransferFunction.preset(name, value_range=window)
+        self.session.update(tolerance=st.tolerance, mode=st.render_mode, tf=tf, shading=st.shading)
+        self._hud_text = None
+        self._dirty = True
+
+    # -- frame ----------------------------------------------------------------------------------
+    @property
+    def framebuffer_size(self) -> tuple[int, int]:
+        w, h = self._glfw.get_framebuffer_size(self.window)
+        return max(int(w), 1), max(int(h), 1)
+
+    def camera(self):
+        """The camera of the current view at the framebuffer's size."""
+        return self.controls.camera(self.framebuffer_size)
+
+    def should_close(self) -> bool:
+        return bool(self._glfw.window_should_close(self.window))
+
+    def step(self, *, force: bool = False, poll: bool = True) -> bool:
+        """One loop iteration: input, a new frame if anything changed, draw, swap. Returns whether it rendered."""
+        glfw = self._glfw
+        if poll:
+            glfw.poll_events()
+        now = time.perf_counter()
+        dt, self._t_last = now - self._t_last, now
+        if self.held and self.controls.move_keys(self.held, min(dt, 0.1), speed=0.5 * self.controls.distance):
+            self._dirty = True
+        sess = self.session
+        version = sess.clip_texture.residency_version
+        view = (tuple(self.controls.eye), tuple(self.controls.target), self.framebuffer_size)
+        rendered = False
+        if force or self._dirty or version != self._version or view != self._view:
+            self._version, self._view = version, view
+            self._dirty = False
+            cam = self.camera()
+            t0 = time.perf_counter()
+            img = sess.render(cam, self.controls.center_of_interest, wait=False)
+            self._frame = img
+            self._frame_tex = self._texture(self._frame_tex, img)
+            ft = time.perf_counter() - t0
+            self._fps = 0.8 * self._fps + 0.2 / max(ft, 1e-4) if self._fps else 1.0 / max(ft, 1e-4)
+            self.frames_rendered += 1
+            rendered = True
+        self._draw()
+        if self.state.screenshot:
+            self.state.screenshot = False
+            self.screenshot()
+        glfw.swap_buffers(self.window)
+        return rendered
+
+    def hud_lines(self) -> list[str]:
+        """The HUD's text for the current state."""
+        st = self.state
+        return point_hud_lines(fps=self._fps, frame_stats=self.session.frame_stats if self.frames_rendered else None,
+                               tolerance=st.tolerance, size=self.framebuffer_size,
+                               settings={"render": st.render_mode + (" lit" if st.shading and st.render_mode == "composite" else ""),
+                                         "tf": st.tf_name},
+                               texture_stats=self.session.clip_texture.stats, message=st.message)
+
+    def _draw(self) -> None:
+        ctx = self.ctx
+        mgl = self._mgl
+        w, h = self.framebuffer_size
+        ctx.screen.use()
+        ctx.viewport = (0, 0, w, h)
+        ctx.disable(mgl.DEPTH_TEST | mgl.CULL_FACE)
+        r, g, b = self.background
+        ctx.clear(r, g, b, 1.0)
+        ctx.enable(mgl.BLEND)
+        ctx.blend_equation = mgl.FUNC_ADD
+        ctx.blend_func = mgl.SRC_ALPHA, mgl.ONE_MINUS_SRC_ALPHA
+        if self._frame_tex is not None:
+            self._frame_tex.use(location=0)
+            self._full_vao.render(mgl.TRIANGLE_STRIP)
+        if self.state.hud:
+            self._draw_hud(w, h)
+        ctx.disable(mgl.BLEND)
+
+    def _draw_hud(self, w: int, h: int) -> None:
+        now = time.perf_counter()
+        if self._hud_text is None or now - self._hud_time > 0.25:
+            lines = self.hud_lines()
+            self._hud_text, self._hud_time = lines, now
+            img = render_text(lines)
+            self._hud_tex = self._texture(self._hud_tex, img)
+            ih, iw = img.shape[:2]
+            x1 = -1.0 + 2.0 * min(iw, w) / w
+            y0 = 1.0 - 2.0 * min(ih, h) / h
+            if self._hud_vbo is not None:
+                self._hud_vao.release()
+                self._hud_vbo.release()
+            self._hud_vbo = _quad(self.ctx, -1.0, y0, x1, 1.0)
+            self._hud_vao = self.ctx.vertex_array(self._prog, [(self._hud_vbo, "2f 2f", "in_pos", "in_uv")])
+        self._hud_tex.use(location=0)
+        self._hud_vao.render(self._mgl.TRIANGLE_STRIP)
+
+    def read_screen(self) -> np.ndarray:
+        """What the window shows, ``(h, w, 3)`` uint8, row 0 at top (redrawn into the back buffer)."""
+        w, h = self.framebuffer_size
+        self._draw()
+        self.ctx.finish()
+        data = self.ctx.screen.read(viewport=(0, 0, w, h), components=3, alignment=1)
+        _ = self.ctx.error  # the default framebuffer has no COLOR_ATTACHMENT0 (see Viewer.read_screen)
+        return np.frombuffer(data, dtype=np.uint8).reshape(h, w, 3)[::-1].copy()
+
+    def screenshot(self, path=None) -> Path:
+        """Save what the window shows (with the HUD) as a PNG; returns its path."""
+        from PIL import Image
+
+        if path is None:
+            self.screenshot_dir.mkdir(parents=True, exist_ok=True)
+            k = 0
+            while (self.screenshot_dir / f"clipvol-points-{k:04d}.png").exists():
+                k += 1
+            path = self.screenshot_dir / f"clipvol-points-{k:04d}.png"
+        path = Path(path)
+        Image.fromarray(self.read_screen(), "RGB").save(path)
+        self.last_screenshot = path
+        self.state.message = f"saved {path}"
+        self._hud_text = None
+        return path
+
+    def run(self, max_frames: int | None = None) -> int:
+        """The event loop until the window closes (Esc) or ``max_frames`` iterations; returns 0."""
+        glfw = self._glfw
+        n = 0
+        while not self.should_close():
+            t0 = time.perf_counter()
+            self.step()
+            n += 1
+            if max_frames is not None and n >= max_frames:
+                break
+            busy = self._dirty or bool(self.held) or self._drag is not None or not self.session.frame_stats.converged
+            left = (1.0 / 30.0 if busy else 0.05) - (time.perf_counter() - t0)
+            if left > 0:
+                glfw.wait_events_timeout(left)
+        return 0
+
+    def close(self) -> None:
+        """Stop the loader threads, release GL objects, destroy the window."""
+        try:
+            if self.session is not None:
+                self.session.close()
+                self.session = None
+        finally:
+            glfw = self._glfw
+            if self.window is not None:
+                glfw.destroy_window(self.window)
+                self.window = None
+            if self._glfw_up:
+                glfw.terminate()
+                self._glfw_up = False
+            self._egl.restore()
+
+    def __enter__(self) -> "PointViewer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
