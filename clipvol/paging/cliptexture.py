@@ -65,6 +65,9 @@ IDLE_POLL_S = 1.0
 _PAGE = 4096
 
 
+#: subtracted from a prioritised brick's cost: it sorts before every distance (see ClipTexture.prioritize)
+_URGENT = 1e18
+
 class BrickState(IntEnum):
     """Lifecycle of a brick of the clip-texture (see ``docs/cliptexture.md``).
 
@@ -448,10 +451,15 @@ class ClipTexture:
             return self._cv.wait_for(lambda: self._closing or self._idle(), timeout) and self._idle()
 
     def wait_for(self, keys: Iterable, timeout: float | None = None) -> bool:
-        """Block until each ``(level, index)`` in ``keys`` is resident, failed or out of its window."""
+        """Block until each ``(level, index)`` in ``keys`` is resident, failed or out of its window.
+
+        The bricks waited for are loaded first (:meth:`prioritize`): a frame waits for what it
+        draws, and the rest of the windows fills by distance behind them.
+        """
         ks = [(k.level, k.index) if isinstance(k, BrickKey) else (int(k[0]), tuple(int(i) for i in k[1])) for k in keys]
         for L, idx in ks:
             self.pyramid.check_key(L, idx)
+        self.prioritize(ks)
 
         def unsettled(L: int, idx: Int3) -> bool:
             lv = self._levels[L]
@@ -477,6 +485,38 @@ class ClipTexture:
                     waiters.remove(countdown)
                     if not waiters:
                         del self._watched[k]
+
+    def prioritize(self, keys: Iterable) -> int:
+        """Move the queued bricks among ``keys`` (``(level, index)``) to the front of the load queue,
+        nearest first; returns how many were moved.
+
+        The queue orders a window's bricks by distance from the centre of interest, which is right for
+        prefetching but makes a frame that needs a few bricks of a large window (a point octree's
+        sparse deep levels, a thin cut) wait behind many it does not draw. The moved bricks' old
+        entries stay in the queue and are skipped when popped (lazy invalidation); retries keep
+        their back-off.
+        """
+        moved = 0
+        with self._cv:
+            by_level: dict[int, list[tuple[int, Int3]]] = {}
+            for k in keys:
+                L, idx = (k.level, k.index) if isinstance(k, BrickKey) else (int(k[0]), tuple(int(i) for i in k[1]))
+                if not 0 <= L < len(self._levels):
+                    continue
+                lv = self._levels[L]
+                s = self._slot_if_held(lv, idx)
+                if s is not None and lv.state[s] == _QUEUED and lv.not_before[s] <= 0.0:
+                    by_level.setdefault(L, []).append((s, idx))
+            for L, items in by_level.items():
+                lv = self._levels[L]
+                slots = [s for s, _ in items]
+                cost = brick_costs(self.pyramid, L, lv.key[slots], self._interest_point(L))
+                for c, (s, idx) in zip(cost.tolist(), items):
+                    self._queue.push((c - _URGENT, -L, idx[0], idx[1], idx[2], L, s, int(lv.gen[s])))
+                    moved += 1
+            if moved:
+                self._cv.notify_all()
+        return moved
 
     def close(self, timeout: float | None = 5.0) -> bool:
         """Stop the loader threads and join them for up to ``timeout`` seconds in all.
@@ -687,6 +727,8 @@ class ClipTexture:
                 _, _, bz, by, bx, L, s, gen = entry
                 if self._valid(L, s, gen, _QUEUED):
                     lv = self._levels[L]
+                    if lv.not_before[s] > 0.0 and lv.not_before[s] > time.monotonic():
+                        continue  # a stale prioritised entry of a brick now waiting out its retry back-off
                     if lv.busy[s]:
                         self._queue.park(L, s, entry)  # back in the queue when the writer is done
                         continue

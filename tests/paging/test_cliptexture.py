@@ -642,3 +642,65 @@ def test_failing_bounds_only_mean_every_brick_is_read(no_leaked_threads):
         ct.set_center(np.array(loader.pyramid.volume_box()[1]) - 1.0)
         assert ct.wait_until_idle(20)
         assert loader.bounds_calls == calls
+
+
+def test_bricks_waited_for_are_loaded_before_the_rest_of_the_window(no_leaked_threads):
+    """``wait_for`` moves its bricks to the front of the queue: a far brick is read among the first,
+    not after every nearer brick of the window (the queue alone orders by distance)."""
+    loader = ArrayLoader(_vol((64, 64, 64)))
+    pyr = loader.pyramid
+    gate = threading.Event()
+    read = loader.read_brick
+
+    def gated(level, index):
+        assert gate.wait(10)
+        return read(level, index)
+
+    loader.read_brick = gated
+    c0 = np.array([4.0, 4.0, 4.0])
+    with ClipTexture(loader, 600 * pyr.brick_nbytes, threads=1, center=c0, predictive=False) as ct:
+        keys = list(_window_keys(ct))
+        far = max((k for k in keys if k[0] == 0), key=lambda k: _reference_cost(pyr, k[0], k[1], c0))
+        assert len(keys) > 100
+        waiter = threading.Thread(target=lambda: ct.wait_for([far], timeout=20))
+        waiter.start()
+        time.sleep(0.05)  # the waiter has prioritised its brick while the thread is held at its first read
+        gate.set()
+        waiter.join(20)
+        assert ct.state(*far) == BrickState.RESIDENT
+        order = [k for k in loader.calls]
+        assert order.index(far) <= 2, order.index(far)  # the held first read, then the far brick
+        assert ct.wait_until_idle(10)
+        assert len(set(loader.calls)) == len(loader.calls) == len(keys)  # each brick read once, none twice
+        assert all(np.array_equal(ct.get_brick(L, i), loader.reference(L, i)) for L, i in keys)
+
+
+def test_prioritised_brick_keeps_its_retry_back_off(no_leaked_threads):
+    """A brick that fails after being prioritised waits out its back-off like any other retry."""
+    base = ArrayLoader(_vol((32, 32, 32)))
+    times: dict = {}
+    lock = threading.Lock()
+    gate = threading.Event()
+
+    class FailOnce:
+        pyramid = base.pyramid
+
+        def read_brick(self, level, index):
+            assert gate.wait(10)  # the first read holds the one thread until the bricks are prioritised
+            with lock:
+                times.setdefault((level, tuple(index)), []).append(time.monotonic())
+                n = len(times[(level, tuple(index))])
+            if n == 1 and level == 0:
+                raise TimeoutError("try again")
+            return base.reference(level, index)
+
+    with ClipTexture(FailOnce(), "1MB", threads=1, retries=2, retry_backoff=0.3) as ct:
+        keys = [k for k in _window_keys(ct) if k[0] == 0]
+        assert ct.prioritize(keys) == len(keys)
+        ct.prioritize(keys)  # twice: a stale duplicate must not bypass the back-off either
+        gate.set()
+        assert ct.wait_until_idle(20)
+        for k in keys:
+            t = times[k]
+            assert len(t) == 2 and t[1] - t[0] >= 0.25, (k, t)
+        assert ct.prioritize([(0, (99, 99, 99)), (7, (0, 0, 0))]) == 0  # outside the window / no such level
