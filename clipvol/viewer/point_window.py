@@ -22,12 +22,10 @@ from pathlib import Path
 import numpy as np
 
 from ..app.point_session import PointSession
-from ..errors import ParameterError
-from ..render.context import create_context
 from .controls import MOVE_KEYS, OrbitControls
 from .hud import point_hud_lines, render_text
 from .point_keys import PointViewState
-from .window import _QUAD_FS, _QUAD_VS, WindowError, _EglUnbound, _quad
+from .gl_window import GlWindow
 
 __all__ = ["PointViewer"]
 
@@ -43,7 +41,7 @@ class _Frame:
         return self._box
 
 
-class PointViewer:
+class PointViewer(GlWindow):
     """A GLFW window showing a point store as splats under a screen-space tolerance.
 
     Parameters
@@ -72,51 +70,9 @@ class PointViewer:
     def __init__(self, source, *, size=(960, 640), tolerance=0.05, memory_budget="256MB", threads=None,
                  mode: str = "composite", tf="viridis", screenshot_dir=".", visible: bool = True,
                  title: str = "clipvol points", background=(0.0, 0.0, 0.0), shading: bool = False) -> None:
-        try:
-            import glfw
-        except ImportError as e:  # pragma: no cover - glfw is a dependency
-            raise WindowError(f"clipvol view needs the glfw package (pip install glfw), got ImportError: {e}") from e
-        w, h = (int(v) for v in size)
-        if w < 1 or h < 1:
-            raise ParameterError(f"size: expected a window size >= 1x1, got {size!r}")
-        self._glfw = glfw
-        self._glfw_up = False
-        self.session: PointSession | None = None
-        self.window = None
-        self._egl = _EglUnbound()
-        reporting = getattr(glfw, "ERROR_REPORTING", None)
-        glfw.ERROR_REPORTING = "raise"
-        try:
-            ok = glfw.init()
-        except glfw.GLFWError as e:
-            ok, why = False, str(e)
-        else:
-            why = "glfw.init() returned False"
-        finally:
-            glfw.ERROR_REPORTING = reporting if reporting is not None else "warn"
-        if not ok:
-            self._egl.restore()
-            raise WindowError(f"expected a display for the viewer window, got: {why} (set DISPLAY, or use clipvol render)")
-        self._glfw_up = True
-        try:
-            glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 3)
-            glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, 3)
-            glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
-            glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)
-            glfw.window_hint(glfw.VISIBLE, bool(visible))
-            glfw.window_hint(glfw.DOUBLEBUFFER, True)
-            self.window = glfw.create_window(w, h, title, None, None)
-            if not self.window:
-                raise WindowError("expected a window with an OpenGL 3.3 core context, but glfw.create_window failed")
-            glfw.make_context_current(self.window)
-            glfw.swap_interval(1 if visible else 0)
-            self.ctx = create_context(standalone=False, backend=None)
-            self.session = PointSession(source, self.ctx, memory_budget=memory_budget, threads=threads,
-                                        tolerance=tolerance, mode=mode, tf=tf, shading=shading)
-            self._setup_gl()
-        except BaseException:
-            self.close()
-            raise
+        self._open(size, visible=visible, title=title, no_display="set DISPLAY, or use clipvol render",
+                   make_session=lambda ctx: PointSession(source, ctx, memory_budget=memory_budget, threads=threads,
+                                                         tolerance=tolerance, mode=mode, tf=tf, shading=shading))
         from ..scene.transfer import TransferFunction
 
         first = tf if isinstance(tf, str) else (self.session.tf.name or "custom")
@@ -146,42 +102,7 @@ class PointViewer:
         self.last_screenshot: Path | None = None
         self._install_callbacks()
 
-    # -- GL objects -----------------------------------------------------------------------------
-    def _setup_gl(self) -> None:
-        import moderngl
-
-        ctx = self.ctx
-        self._mgl = moderngl
-        self._prog = ctx.program(vertex_shader=_QUAD_VS, fragment_shader=_QUAD_FS)
-        self._prog["u_tex"].value = 0
-        self._full_vbo = _quad(ctx, -1.0, -1.0, 1.0, 1.0)
-        self._full_vao = ctx.vertex_array(self._prog, [(self._full_vbo, "2f 2f", "in_pos", "in_uv")])
-        self._hud_vbo = None
-        self._hud_vao = None
-        self._frame_tex = None
-
-    def _texture(self, old, img: np.ndarray):
-        h, w = img.shape[:2]
-        if old is None or old.size != (w, h):
-            if old is not None:
-                old.release()
-            old = self.ctx.texture((w, h), 4)
-            old.repeat_x = old.repeat_y = False
-            old.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
-        old.write(np.ascontiguousarray(img, dtype=np.uint8).tobytes())
-        return old
-
     # -- input ----------------------------------------------------------------------------------
-    def _install_callbacks(self) -> None:
-        glfw = self._glfw
-        win = self.window
-        glfw.set_key_callback(win, self._on_key)
-        glfw.set_char_callback(win, self._on_char)
-        glfw.set_mouse_button_callback(win, self._on_button)
-        glfw.set_cursor_pos_callback(win, self._on_cursor)
-        glfw.set_scroll_callback(win, self._on_scroll)
-        glfw.set_framebuffer_size_callback(win, lambda *_: setattr(self, "_dirty", True))
-
     def _on_key(self, win, key, scancode, action, mods) -> None:
         glfw = self._glfw
         if glfw.KEY_A <= key <= glfw.KEY_Z:
@@ -254,18 +175,6 @@ class PointViewer:
         self._dirty = True
 
     # -- frame ----------------------------------------------------------------------------------
-    @property
-    def framebuffer_size(self) -> tuple[int, int]:
-        w, h = self._glfw.get_framebuffer_size(self.window)
-        return max(int(w), 1), max(int(h), 1)
-
-    def camera(self):
-        """The camera of the current view at the framebuffer's size."""
-        return self.controls.camera(self.framebuffer_size)
-
-    def should_close(self) -> bool:
-        return bool(self._glfw.window_should_close(self.window))
-
     def step(self, *, force: bool = False, poll: bool = True) -> bool:
         """One loop iteration: input, a new frame if anything changed, draw, swap. Returns whether it rendered."""
         glfw = self._glfw
@@ -307,84 +216,25 @@ class PointViewer:
                                          "tf": st.tf_name},
                                texture_stats=self.session.clip_texture.stats, message=st.message)
 
-    def _draw(self) -> None:
-        ctx = self.ctx
-        mgl = self._mgl
-        w, h = self.framebuffer_size
-        ctx.screen.use()
-        ctx.viewport = (0, 0, w, h)
-        ctx.disable(mgl.DEPTH_TEST | mgl.CULL_FACE)
-        r, g, b = self.background
-        ctx.clear(r, g, b, 1.0)
-        ctx.enable(mgl.BLEND)
-        ctx.blend_equation = mgl.FUNC_ADD
-        ctx.blend_func = mgl.SRC_ALPHA, mgl.ONE_MINUS_SRC_ALPHA
-        if self._frame_tex is not None:
-            self._frame_tex.use(location=0)
-            self._full_vao.render(mgl.TRIANGLE_STRIP)
-        if self.state.hud:
-            self._draw_hud(w, h)
-        ctx.disable(mgl.BLEND)
-
     def _draw_hud(self, w: int, h: int) -> None:
         now = time.perf_counter()
         if self._hud_text is None or now - self._hud_time > 0.25:
             lines = self.hud_lines()
             self._hud_text, self._hud_time = lines, now
             img = render_text(lines)
-            self._hud_tex = self._texture(self._hud_tex, img)
-            ih, iw = img.shape[:2]
-            x1 = -1.0 + 2.0 * min(iw, w) / w
-            y0 = 1.0 - 2.0 * min(ih, h) / h
-            if self._hud_vbo is not None:
-                self._hud_vao.release()
-                self._hud_vbo.release()
-            self._hud_vbo = _quad(self.ctx, -1.0, y0, x1, 1.0)
-            self._hud_vao = self.ctx.vertex_array(self._prog, [(self._hud_vbo, "2f 2f", "in_pos", "in_uv")])
-        self._hud_tex.use(location=0)
-        self._hud_vao.render(self._mgl.TRIANGLE_STRIP)
-
-    def read_screen(self) -> np.ndarray:
-        """What the window shows, ``(h, w, 3)`` uint8, row 0 at top (redrawn into the back buffer)."""
-        w, h = self.framebuffer_size
-        self._draw()
-        self.ctx.finish()
-        data = self.ctx.screen.read(viewport=(0, 0, w, h), components=3, alignment=1)
-        _ = self.ctx.error  # the default framebuffer has no COLOR_ATTACHMENT0 (see Viewer.read_screen)
-        return np.frombuffer(data, dtype=np.uint8).reshape(h, w, 3)[::-1].copy()
+            self._place_hud(img, w, h)
+        self._render_hud()
 
     def screenshot(self, path=None) -> Path:
         """Save what the window shows (with the HUD) as a PNG; returns its path."""
         from PIL import Image
 
-        if path is None:
-            self.screenshot_dir.mkdir(parents=True, exist_ok=True)
-            k = 0
-            while (self.screenshot_dir / f"clipvol-points-{k:04d}.png").exists():
-                k += 1
-            path = self.screenshot_dir / f"clipvol-points-{k:04d}.png"
-        path = Path(path)
+        path = Path(path) if path is not None else self._numbered("clipvol-points", ".png")
         Image.fromarray(self.read_screen(), "RGB").save(path)
         self.last_screenshot = path
         self.state.message = f"saved {path}"
         self._hud_text = None
         return path
-
-    def run(self, max_frames: int | None = None) -> int:
-        """The event loop until the window closes (Esc) or ``max_frames`` iterations; returns 0."""
-        glfw = self._glfw
-        n = 0
-        while not self.should_close():
-            t0 = time.perf_counter()
-            self.step()
-            n += 1
-            if max_frames is not None and n >= max_frames:
-                break
-            busy = self._dirty or bool(self.held) or self._drag is not None or not self.session.frame_stats.converged
-            left = (1.0 / 30.0 if busy else 0.05) - (time.perf_counter() - t0)
-            if left > 0:
-                glfw.wait_events_timeout(left)
-        return 0
 
     def close(self) -> None:
         """Stop the loader threads, release GL objects, destroy the window."""
@@ -393,17 +243,4 @@ class PointViewer:
                 self.session.close()
                 self.session = None
         finally:
-            glfw = self._glfw
-            if self.window is not None:
-                glfw.destroy_window(self.window)
-                self.window = None
-            if self._glfw_up:
-                glfw.terminate()
-                self._glfw_up = False
-            self._egl.restore()
-
-    def __enter__(self) -> "PointViewer":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+            self._close_window()
