@@ -376,26 +376,36 @@ class ViewState:
             self.block_budget = int(np.clip(self.block_budget * 2 if grow else self.block_budget // 2, 1, 1 << 16))
             self.mode = "image"
             self.message = f"image-based LOD, block budget {self.block_budget}"
-        elif k == "I":
-            self.render_mode = "mip" if self.render_mode == "composite" else "composite"
-            self.message = self.render_mode
-        elif k == "N":
-            self.shading = not self.shading
-            self.message = "lighting " + ("on" if self.shading else "off")
-        elif k == "T":
-            self.tf_index = (self.tf_index + 1) % len(self.tf_presets)
-            self.message = f"transfer function {self.tf_name}"
         elif k == "B":
             self.outlines = not self.outlines
             self.message = "outlines " + ("on" if self.outlines else "off")
-        elif k == "H":
-            self.hud = not self.hud
-        elif k == "P":
-            self.screenshot = True
-        elif k == "R":
-            self.reset = True
-        elif k == "ESCAPE":
-            self.quit = True
         else:
-            return False
+            return apply_common_key(self, k)
         return True
+
+
+def apply_common_key(state, k: str) -> bool:
+    """The keys every viewer shares, on any state with their fields (``render_mode``, ``shading``,
+    ``tf_index`` + ``tf_presets`` + ``tf_name``, ``hud``, ``screenshot``, ``reset``, ``quit``,
+    ``message``): ``I`` MIP/composite, ``N`` lighting, ``T`` next colour map, ``H`` HUD, ``P``
+    screenshot, ``R`` reset view, ``Esc`` quit. Returns whether ``k`` (upper case) was one of them."""
+    if k == "I":
+        state.render_mode = "mip" if state.render_mode == "composite" else "composite"
+        state.message = state.render_mode
+    elif k == "N":
+        state.shading = not state.shading
+        state.message = "lighting " + ("on" if state.shading else "off")
+    elif k == "T":
+        state.tf_index = (state.tf_index + 1) % len(state.tf_presets)
+        state.message = f"transfer function {state.tf_name}"
+    elif k == "H":
+        state.hud = not state.hud
+    elif k == "P":
+        state.screenshot = True
+    elif k == "R":
+        state.reset = True
+    elif k == "ESCAPE":
+        state.quit = True
+    else:
+        return False
+    return True

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 from ..errors import ParameterError
 from ..scene.splat_select import tolerance_pixels
+from .controls import apply_common_key
 
 __all__ = ["PointViewState", "POINT_KEY_HELP", "TOLERANCE_LADDER"]
 
@@ -101,23 +102,5 @@ class PointViewState:
         if k in ("[", "]"):
             self._step(finer=k == "[")
             self.message = f"tolerance {100 * self.tolerance:.3g} % of the screen"
-        elif k == "I":
-            self.render_mode = "mip" if self.render_mode == "composite" else "composite"
-            self.message = self.render_mode
-        elif k == "N":
-            self.shading = not self.shading
-            self.message = "lighting " + ("on" if self.shading else "off")
-        elif k == "T":
-            self.tf_index = (self.tf_index + 1) % len(self.tf_presets)
-            self.message = f"transfer function {self.tf_name}"
-        elif k == "H":
-            self.hud = not self.hud
-        elif k == "P":
-            self.screenshot = True
-        elif k == "R":
-            self.reset = True
-        elif k == "ESCAPE":
-            self.quit = True
-        else:
-            return False
-        return True
+            return True
+        return apply_common_key(self, k)
