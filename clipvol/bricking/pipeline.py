@@ -46,7 +46,8 @@ import numpy as np
 
 from ..errors import OutputExistsError, OutputLockedError, ParameterError, SourceChangedError
 from .pyramid import FILTERS, Pyramid, downsample
-from .sources import Source, identity_changes, open_source, source_identity
+from .source_types import Source
+from .sources import identity_changes, open_source, source_identity
 from .stats import StatsComputer, finite_range
 from .worldframe import WorldFrame
 from .store import (

@@ -37,27 +37,15 @@ from .source_types import (
     FileArraySource,
     ProceduralSource,
     Source,
-    TiffPagesSource,
     TiffStackSource,
     ZarrSource,
     _open_tiff,
     _squeeze3,
-    tiff_spacing,
 )
 
-__all__ = [
-    "Source",
-    "ArraySource",
-    "FileArraySource",
-    "TiffStackSource",
-    "TiffPagesSource",
-    "ZarrSource",
-    "ProceduralSource",
-    "open_source",
-    "tiff_spacing",
-    "source_identity",
-    "identity_changes",
-]
+# the Source kinds live in source_types (import them from there)
+__all__ = ["open_source", "source_identity", "identity_changes"]
+
 
 def _natural_key(p: Path):
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", p.name)]

@@ -16,7 +16,7 @@ pytest.importorskip("distributed")
 import clipvol.bricking.pipeline as brick_mod  # noqa: E402
 from clipvol.bricking.dask_build import brick_volume_dask  # noqa: E402
 from clipvol.bricking.pipeline import brick_volume  # noqa: E402
-from clipvol.bricking.sources import ArraySource  # noqa: E402
+from clipvol.bricking.source_types import ArraySource  # noqa: E402
 from clipvol.errors import ParameterError  # noqa: E402
 from clipvol.tools.cli import main  # noqa: E402
 

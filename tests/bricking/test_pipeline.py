@@ -286,7 +286,7 @@ def test_input_procedural(tmp_path):
 
 def test_streams_slab_by_slab(tmp_path, rng):
     """Level 0 is only ever read in z-slabs of at most one brick (memory bounded by slabs)."""
-    from clipvol.bricking.sources import ArraySource
+    from clipvol.bricking.source_types import ArraySource
 
     vol = rng.integers(0, 100, size=(50, 20, 24)).astype(np.int16)
     reads = []
