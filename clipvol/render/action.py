@@ -85,7 +85,7 @@ from ..paging.loader import HasBrickRanges
 from ..paging.properties import may_hold_nonfinite
 from ..scene.page_table import build_page_table
 from ..scene.params import MODES, RenderParams
-from ..scene.transfer import correct_opacity, transparency_filter
+from ..scene.transfer import corrected_tables, transparency_filter
 from ..scene.selection import merge_items
 from ..scene.selection.policies import POLICIES
 from .frame_loop import FrameLoop
@@ -821,32 +821,6 @@ def _uset(prog, name: str, value) -> None:
     u = prog.get(name, None)
     if u is not None:
         u.value = value
-
-
-def corrected_tables(table: np.ndarray, ratios, oversample: int = 16) -> np.ndarray:
-    """``(len(ratios), n * k, 4)`` float64: ``table`` (straight RGBA, ``n`` entries) resampled ``k``
-    times finer, with its opacity corrected by each ratio (:func:`clipvol.scene.transfer.correct_opacity`:
-    ``1 - (1 - a) ** ratio``, in the stable log1p/expm1 form), one row per level. Computed on the
-    CPU when the table or the step changes, so the shader does one lookup per sample and no log/exp.
-
-    Why resample: the shader interpolates the *corrected* table linearly, while the exact result is
-    the correction of the *interpolated* opacity; the correction is strongly non-linear for large
-    ratios (coarse levels, anisotropic voxels), so between two coarse entries the two differ by
-    many 8-bit steps. Entry ``j`` of the fine table is the coarse table as ``GL_LINEAR`` reads it at
-    the fine texel's centre (the same texture coordinate convention), so the error shrinks with
-    ``k**2``; ``k`` is capped so the row stays within 8192 texels.
-    """
-    tab = np.asarray(table, dtype=np.float64)
-    n = len(tab)
-    k = max(1, min(int(oversample), 8192 // max(n, 1)))
-    x = (np.arange(n * k) + 0.5) / k - 0.5  # fine texel centres in coarse texel units
-    i = np.floor(x)
-    f = (x - i)[:, None]
-    fine = tab[np.clip(i, 0, n - 1).astype(np.int64)] * (1.0 - f) + tab[np.clip(i + 1, 0, n - 1).astype(np.int64)] * f
-    rows = np.repeat(fine[None], len(ratios), axis=0)
-    for r_i, r in enumerate(ratios):
-        rows[r_i, :, 3] = correct_opacity(fine[:, 3], float(r))
-    return rows
 
 
 def premultiplied_to_uint8(prem: np.ndarray) -> np.ndarray:

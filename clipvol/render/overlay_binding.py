@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ParameterError
+from ..scene.transfer import corrected_tables
 from ..scene.overlay import (check_overlay, cull_outside, label_indices, overlay_box, overlay_level, overlay_placement,
                              read_level, store_origin)
 
@@ -104,7 +105,6 @@ class OverlayTextures:
     def _table(self, ov, ratios) -> object:
         import moderngl
 
-        from .action import corrected_tables
 
         if ov.labels:  # made with the volume; its opacity is corrected in the shader
             return self._tables[id(ov)][1]

@@ -156,7 +156,6 @@ class Plane:
         """:meth:`box_polygon` of ``n`` boxes at once: ``(points (n, 6, 3), counts (n,))``."""
         lo = np.atleast_2d(np.asarray(lo, dtype=np.float64))
         hi = np.atleast_2d(np.asarray(hi, dtype=np.float64))
-        n = len(lo)
         sel = np.array([[(i >> a) & 1 for a in range(3)] for i in range(8)], dtype=bool)  # (8, 3) x, y, z
         corners = np.where(sel[None], hi[:, None, :], lo[:, None, :])  # (n, 8, 3)
         d = (corners - np.asarray(self.origin)) @ np.asarray(self.normal)  # (n, 8)
