@@ -7,7 +7,9 @@ measured in one run on this machine (Mesa llvmpipe, no GPU):
 * **blocks to reach <= 5 % of pixels with CIELUV Delta E >= 6** against the full-resolution frame
   (fixed level 0) of the same view, for the image policy (Wang, Garcia & Shen 2007) and for the
   projected-size policy - the better of its two forms, the ``lod_threshold`` sweep (the default
-  policy) and its greedy form under a texel budget. Target: image <= 1/3 of projected size.
+  policy) and its greedy form under a texel budget. Target: image <= 1/3 of projected size. Every
+  form is read at the same resolution: a coarse sweep, then a scan around its 5 % crossing until
+  neighbouring points differ by <= 2 bricks (:func:`clipvol.app.lod_sweep.scan_crossing`).
 * **frame time at that error**: the image policy's frames (selection - a greedy cut, or the last
   cut replayed while the view turned less than 3 degrees -, visibility estimate when due, draw,
   read-back) against the full-resolution frames of the same cameras by the same renderer, while the
