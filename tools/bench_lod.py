@@ -7,7 +7,9 @@ measured in one run on this machine (Mesa llvmpipe, no GPU):
 * **blocks to reach <= 5 % of pixels with CIELUV Delta E >= 6** against the full-resolution frame
   (fixed level 0) of the same view, for the image policy (Wang, Garcia & Shen 2007) and for the
   projected-size policy - the better of its two forms, the ``lod_threshold`` sweep (the default
-  policy) and its greedy form under a texel budget. Target: image <= 1/3 of projected size.
+  policy) and its greedy form under a texel budget. Target: image <= 1/3 of projected size. Every
+  form is read at the same resolution: a coarse sweep, then a scan around its 5 % crossing until
+  neighbouring points differ by <= 2 bricks (:func:`clipvol.app.lod_sweep.scan_crossing`).
 * **frame time at that error**: the image policy's frames (selection - a greedy cut, or the last
   cut replayed while the view turned less than 3 degrees -, visibility estimate when due, draw,
   read-back) against the full-resolution frames of the same cameras by the same renderer, while the
@@ -47,6 +49,7 @@ REPO = Path(__file__).resolve().parents[1]
 VIEWS = {"face": ((0.3, 0.2, 1.0), None), "side": ((1.0, 0.25, 0.35), None), "overview": ((-0.5, 0.35, 1.0), 1.5)}
 THRESHOLDS = (16, 12, 10, 9, 8, 7.5, 7, 6.5, 6, 5.5, 5, 4.5, 4, 3.5, 3, 2.5, 2, 1.5, 1)
 BUDGETS = (16, 24, 32, 40, 48, 56, 64, 72, 80, 96, 112, 128, 144, 160, 192, 256, 384, 512)
+FINE_STEP = 2  # bricks: the resolution of "bricks needed" around the 5 % crossing, the same for every policy
 TURN_FRAMES, TURN_DEG = 12, 0.5  # the timed sequence: the view turns 0.5 degrees per frame about the target
 
 
@@ -116,7 +119,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         args.size, args.image = 128, 128
 
-    from clipvol.app.lod_sweep import LOD_POLICIES, blocks_to_reach, lod_sweep, plot_lod_sweep
+    from clipvol.app.lod_sweep import (LOD_POLICIES, blocks_to_reach, lod_sweep, plot_lod_sweep, policy_changes,
+                                       scan_crossing)
     from clipvol.app.session import RenderSession
     from clipvol.bricking.generators import ct_head
     from clipvol.bricking.pipeline import brick_volume
@@ -125,6 +129,7 @@ def main(argv: list[str] | None = None) -> int:
     from clipvol.render import create_context
     from clipvol.scene.camera import Camera
     from clipvol.scene.lod_error import lod_errors
+    from clipvol.scene.metrics import percent_delta_e
     from clipvol.scene.params import RenderParams
     from clipvol.scene.transfer import TransferFunction
 
@@ -193,12 +198,40 @@ def main(argv: list[str] | None = None) -> int:
                 t0 = time.perf_counter()
                 sess.render(cam, coi)
                 dt = time.perf_counter() - t0
-                from clipvol.scene.metrics import percent_delta_e
-
                 rows.append(dict(policy="projected size (threshold)", budget=t, view=v,
                                  blocks=sess.frame_stats.bricks_distinct, pct_de6=round(percent_delta_e(img, refs[v]), 4),
                                  frame_s=round(dt, 6), converged=int(sess.frame_stats.converged)))
         rows += lod_sweep(sess, views, refs, BUDGETS, tuple(LOD_POLICIES), timeout=600, log=log)
+        for r in rows:
+            r["stage"] = "coarse"
+        # the same resolution for every form around its 5 % crossing: scanned until neighbours differ
+        # by at most FINE_STEP bricks drawn (budgets every FINE_STEP, thresholds at geometric steps)
+        texels = int(np.prod(pyr.brick_shape))
+        forms = {"image": (True, lambda b: policy_changes("image", int(b), texels)),
+                 "projected size": (True, lambda b: policy_changes("projected size", int(b), texels)),
+                 "projected size (threshold)": (False, lambda t: dict(policy="projected-size", lod_threshold=float(t),
+                                                                      max_texels_drawn=None, block_budget=None))}
+        n_fine = {}
+        for label, (integer, changes) in forms.items():
+            for v, (cam, coi) in enumerate(views):
+                def measure(value, label=label, changes=changes, v=v, cam=cam, coi=coi):
+                    sess.update(**changes(value))
+                    sess.render(cam, coi, wait=True, timeout=600)
+                    t0 = time.perf_counter()
+                    img = sess.render(cam, coi)
+                    dt = time.perf_counter() - t0
+                    fs = sess.frame_stats
+                    rows.append(dict(policy=label, budget=value, view=v, blocks=int(fs.bricks_distinct),
+                                     pct_de6=round(percent_delta_e(img, refs[v]), 4), frame_s=round(dt, 6),
+                                     converged=int(fs.converged), stage="fine"))
+                    return rows[-1]["blocks"], rows[-1]["pct_de6"]
+
+                pts = {r["budget"]: (r["blocks"], r["pct_de6"]) for r in rows if r["policy"] == label and r["view"] == v}
+                got = scan_crossing(measure, pts, integer=integer, target=5.0, step=FINE_STEP)
+                n_fine[(label, v)] = len(got)
+                best = blocks_to_reach(rows, label, 5.0, v)
+                log(f"fine scan {label} view {v}: {len(got)} points, fewest bricks at <= 5 %: "
+                    f"{best['blocks'] if best else '-'} ({best['budget'] if best else '-'})")
         # the frame time at the 5 % point: the view turns TURN_DEG per frame; the full-resolution frame
         # and the image frame of each camera are timed one after the other (interleaved), each from
         # the same warm state (every brick of the sequence loaded and uploaded beforehand)
@@ -247,10 +280,10 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     stem = "bench_lod" if args.path == "bricks" else "bench_lod_single_pass"
     with open(out / f"{stem}.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=["policy", "budget", "view", "blocks", "pct_de6", "frame_s", "converged"])
+        w = csv.DictWriter(fh, fieldnames=["policy", "budget", "view", "blocks", "pct_de6", "frame_s", "converged", "stage"])
         w.writeheader()
         w.writerows(rows)
-    plot = plot_lod_sweep([r for r in rows if r["policy"] in LOD_POLICIES], out / f"{stem}.png",
+    plot = plot_lod_sweep([r for r in rows if r["policy"] in LOD_POLICIES and r["stage"] == "coarse"], out / f"{stem}.png",
                           title=f"CT-like head {args.size}^3, {args.brick}^3 bricks, {args.image}^2 images, "
                                 f"{len(views)} views, {args.path} path")
     lines = [f"Path: {args.path}. Frame times: mean (median) wall over a {TURN_FRAMES}-frame turn of "
@@ -269,6 +302,19 @@ def main(argv: list[str] | None = None) -> int:
                      f"{ir['blocks'] if ir else '-'} ({ir['pct_de6'] if ir else '-'}) | {ratio} | "
                      f"{s['full_ms']:.0f} ({s['full_med']:.0f}) | {s['image_ms']:.0f} ({s['image_med']:.0f}) | {speed} | "
                      f"{s['cuts']} / {s['estimates']} |")
+    lines += ["", f"Bricks needed: the fewest distinct bricks drawn of any point at <= 5 % pixels Delta E >= 6, after a "
+              f"coarse sweep ({len(BUDGETS)} block budgets, {len(THRESHOLDS)} thresholds) and a scan around each form's "
+              f"crossing until neighbouring points differ by <= {FINE_STEP} bricks (block and texel budgets every "
+              f"{FINE_STEP}, thresholds at geometric steps; points scanned per view below). Projected size is the "
+              "better of its two forms.", "",
+              "| view | image: bricks (budget) [scanned] | projected size, texel budget: bricks (budget) [scanned] | "
+              "projected size, threshold: bricks (threshold) [scanned] |", "| --- | --- | --- | --- |"]
+    for v, s in enumerate(summary):
+        cells = []
+        for label in ("image", "projected size", "projected size (threshold)"):
+            b = blocks_to_reach(rows, label, 5.0, v)
+            cells.append(f"{b['blocks']} ({b['budget']}) [{n_fine.get((label, v), 0)}]" if b else "-")
+        lines.append(f"| {s['view']} | " + " | ".join(cells) + " |")
     lines += ["", f"Summary tables: {s_bytes / 1e6:.2f} MB = {100 * s_bytes / bricks_bytes:.1f} % of the "
               f"compressed bricks ({bricks_bytes / 1e6:.1f} MB), built in {t_summary:.1f} s (bricking: {t_brick:.1f} s). "
               f"Error update after a transfer-function change: {eps_head * 1e3:.1f} ms for the head's {n_bricks} "

@@ -25,7 +25,8 @@ import numpy as np
 
 from ..scene.metrics import percent_delta_e
 
-__all__ = ["LOD_POLICIES", "DEFAULT_BLOCK_BUDGETS", "policy_changes", "lod_sweep", "blocks_to_reach", "plot_lod_sweep"]
+__all__ = ["LOD_POLICIES", "DEFAULT_BLOCK_BUDGETS", "policy_changes", "lod_sweep", "blocks_to_reach", "plot_lod_sweep",
+           "scan_crossing"]
 
 #: label -> RenderParams changes of the compared policies (budget applied by :func:`policy_changes`)
 #: (the refine predicates of projected size and distance are opened wide so that the budget, not
@@ -93,6 +94,49 @@ def blocks_to_reach(rows: list[dict], policy: str, target: float = 5.0, view: in
     """The row with the fewest bricks drawn whose error is at most ``target`` % (None: none reached it)."""
     ok = [r for r in rows if r["policy"] == policy and r["pct_de6"] <= target and (view is None or r["view"] == view)]
     return min(ok, key=lambda r: (r["blocks"], r["pct_de6"])) if ok else None
+
+
+def scan_crossing(measure: Callable[[float], tuple[int, float]], points: dict, *, integer: bool, target: float = 5.0,
+                  step: int = 2, margin: float = 1.0, max_points: int = 96) -> dict:
+    """Refine a coarse sweep around its crossing of ``target`` until neighbours differ by <= ``step`` bricks.
+
+    ``points`` maps a parameter value (a block budget, or a ``lod_threshold``) to ``(blocks, pct)``
+    of the coarse sweep; ``measure(value)`` renders one more point. The error is not monotone in the
+    bricks drawn, so nothing is bisected: every interval between two points adjacent in bricks drawn,
+    at or below the fewest-bricks point reaching ``target`` and with an end within ``margin``
+    percentage points of it, is *scanned* - integer parameters (budgets) every ``step``, real ones
+    (thresholds) at geometric steps, as many as the interval's bricks over ``step`` - and the
+    scan repeats on the new neighbours (a threshold's bricks jump) until every such interval is at
+    most ``step`` bricks wide, cannot be split further, or ``max_points`` new points were measured.
+    Returns the new points ``{value: (blocks, pct)}`` (``points`` is updated in place).
+    """
+    new: dict = {}
+    tried: set = set(points)
+    while len(new) < max_points:
+        ok = [(b, v) for v, (b, e) in points.items() if e <= target]
+        if not ok:
+            break
+        p_blocks = min(ok)[0]
+        by_blocks = sorted((b, v, e) for v, (b, e) in points.items() if b <= p_blocks)
+        todo: list = []
+        for (b0, v0, e0), (b1, v1, e1) in zip(by_blocks, by_blocks[1:]):
+            if b1 - b0 <= step or min(e0, e1) > target + margin:
+                continue
+            lo, hi = sorted((v0, v1))
+            n = int(np.ceil((b1 - b0) / step)) - 1
+            if integer:
+                cand = range(int(lo) + step, int(hi), step) if hi - lo > step else range(int(lo) + 1, int(hi))
+            elif hi / lo > 1.0 + 1e-3:
+                cand = np.geomspace(lo, hi, n + 2)[1:-1].round(4).tolist()
+            else:
+                cand = []
+            todo += [c for c in cand if c not in tried]
+        if not todo:
+            break
+        for c in todo[: max_points - len(new)]:
+            tried.add(c)
+            new[c] = points[c] = measure(c)
+    return new
 
 
 def plot_lod_sweep(rows: list[dict], path: Path, title: str = "", target: float = 5.0) -> Path | None:

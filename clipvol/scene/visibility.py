@@ -100,27 +100,52 @@ class OcclusionLayers:
     alpha: np.ndarray
     key: object = None  # what the estimate depends on besides the view (e.g. the transfer function)
     _sat: np.ndarray | None = field(default=None, repr=False)
+    _edge_sat: np.ndarray | None = field(default=None, repr=False)
 
     def visibility(self, lo, hi, camera: Camera | None = None) -> np.ndarray:
         """``(n,)`` estimated visibility ``1 - mean alpha in front`` of boxes ``lo``/``hi`` ``(n, 3)``."""
         cam = camera or self.camera
         if self._sat is None:
             self._sat = summed_area_table(np.clip(self.alpha, 0.0, 1.0))
-        rect, behind = screen_rects(cam, lo, hi)
+        x0, y0, x1, y1, behind = self._map_rects(cam, lo, hi)
         near, _ = box_depths(cam, lo, hi)
         k = np.clip(np.searchsorted(self.depths, near, side="right") - 1, 0, len(self.depths) - 1)
         k[behind] = 0
-        K, h, w = self.alpha.shape
+        s = self._sat
+        tot = s[k, y1, x1] - s[k, y0, x1] - s[k, y1, x0] + s[k, y0, x0]
+        mean = tot / ((x1 - x0) * (y1 - y0))
+        return np.clip(1.0 - mean, 0.0, 1.0)
+
+    def silhouette(self, lo, hi, camera: Camera | None = None) -> np.ndarray:
+        """``(n,)`` fraction of each box's screen rectangle on the silhouette: map pixels where the
+        total accumulated opacity (the last layer) crosses 0.5 against a 4-neighbour. A coarse level
+        shifts the blurred edge there by about a pixel, which the box's mean colour and opacity
+        (diluted by the air it also holds) do not show (see :mod:`clipvol.scene.selection.policies.image_based`)."""
+        cam = camera or self.camera
+        if self._edge_sat is None:
+            a = np.asarray(self.alpha[-1]) >= 0.5
+            e = np.zeros_like(a)
+            dx, dy = a[:, 1:] != a[:, :-1], a[1:] != a[:-1]
+            e[:, 1:] |= dx
+            e[:, :-1] |= dx
+            e[1:] |= dy
+            e[:-1] |= dy
+            self._edge_sat = summed_area_table(e.astype(np.float64))
+        x0, y0, x1, y1, _ = self._map_rects(cam, lo, hi)
+        s = self._edge_sat
+        return (s[y1, x1] - s[y0, x1] - s[y1, x0] + s[y0, x0]) / ((x1 - x0) * (y1 - y0))
+
+    def _map_rects(self, cam: Camera, lo, hi):
+        """Boxes' screen rectangles in map pixels ``x0, y0, x1, y1`` (non-empty) and ``behind``."""
+        rect, behind = screen_rects(cam, lo, hi)
+        _, h, w = self.alpha.shape
         W, H = cam.size
         sx, sy = w / W, h / H
         x0 = np.clip(np.floor(rect[:, 0] * sx), 0, w - 1).astype(np.int64)
         y0 = np.clip(np.floor(rect[:, 1] * sy), 0, h - 1).astype(np.int64)
         x1 = np.clip(np.ceil(rect[:, 2] * sx), x0 + 1, w).astype(np.int64)
         y1 = np.clip(np.ceil(rect[:, 3] * sy), y0 + 1, h).astype(np.int64)
-        s = self._sat
-        tot = s[k, y1, x1] - s[k, y0, x1] - s[k, y1, x0] + s[k, y0, x0]
-        mean = tot / ((x1 - x0) * (y1 - y0))
-        return np.clip(1.0 - mean, 0.0, 1.0)
+        return x0, y0, x1, y1, behind
 
     def reusable(self, camera: Camera, key=None, max_angle: float = 3.0, max_move: float = 0.02,
                  scale: float = 1.0, centre=None) -> bool:

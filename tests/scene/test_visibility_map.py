@@ -126,3 +126,23 @@ def test_cpu_march_leaves_out_what_the_shape_cuts_away():
     inside_cols = x <= 9.5 if cam.right[0] > 0 else x[::-1] <= 9.5
     assert np.allclose(cut[1][:, inside_cols], full[1][:, inside_cols], atol=1e-5)
     assert np.all(cut[1][:, ~inside_cols] == 0.0)
+
+
+def test_silhouette_fraction_is_the_outline_share_of_the_footprint():
+    from scipy import ndimage
+
+    cam = _cam()  # 2 pixels per world unit; the map below has half that resolution: 1 map pixel per unit
+    yy, xx = np.mgrid[0:20, 0:20]
+    disc = (xx + 0.5 - 10) ** 2 + (yy + 0.5 - 10) ** 2 <= 36.0  # an opaque disc of radius 6 map pixels
+    alpha = np.zeros((2, 20, 20))
+    alpha[1] = np.where(disc, 0.9, 0.1)
+    layers = OcclusionLayers(cam, np.array([0.0, 1.0]), alpha)
+    cross = ndimage.generate_binary_structure(2, 1)
+    outline = ndimage.binary_dilation(disc, cross) & ~ndimage.binary_erosion(disc, cross)  # both sides of the edge
+    lo = np.array([[-2.0, -2.0, 5.0], [-10.0, -10.0, 5.0], [4.0, -1.0, 5.0], [-10.0, -10.0, 5.0]])
+    hi = np.array([[2.0, 2.0, 7.0], [-8.0, -8.0, 7.0], [8.0, 1.0, 7.0], [10.0, 10.0, 7.0]])
+    s = layers.silhouette(lo, hi)
+    assert s[0] == 0.0 and s[1] == 0.0  # inside the disc, in the empty corner
+    # the box straddling the disc's edge: x in [4, 8] -> map columns 14..17, y in [-1, 1] -> rows 9..10
+    assert s[2] == pytest.approx(outline[9:11, 14:18].mean()) and s[2] > 0
+    assert s[3] == pytest.approx(outline.mean())  # the whole image
