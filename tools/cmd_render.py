@@ -15,6 +15,7 @@ import sys
 from clipvol.errors import ParameterError
 from clipvol.scene.params import POLICY_ALIASES
 from clipvol.scene.selection.policies import POLICIES
+from clipvol.tools.overlay_args import add_channel_arguments, channels_from_args
 
 #: what --policy accepts: the registry's names and their older aliases
 POLICY_CHOICES = sorted(POLICIES) + sorted(POLICY_ALIASES)
@@ -50,12 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     d = p.add_argument_group("data")
     d.add_argument("--t", type=int, default=None, help="time point of an OME-Zarr image with a t axis (default 0)")
     d.add_argument("--c", type=int, default=None, help="channel of an OME-Zarr image with a c axis (default 0)")
-    d.add_argument("--channels", default=None, metavar="C:COLOUR,...",
-                   help="several channels of an image with a c axis in one ray cast, each its colour (a name or "
-                        "#RRGGBB) with a ramp opacity over its window (--tf-range for all), e.g. 0:green,1:magenta")
-    d.add_argument("--blend", choices=("additive", "over"), default=None,
-                   help="--channels / --overlay: colours add up (additive, default for --channels) or the "
-                        "later layers over the first (over, default for --overlay)")
+    add_channel_arguments(d)
     d.add_argument("--hide-labels", default=None, metavar="NAME:ID,ID",
                    help="hide the voxels of these label ids of the store's labels/NAME (from clipvol brick --labels)")
     v = p.add_argument_group("camera")
@@ -213,14 +209,9 @@ def run(args) -> int:
     kwargs = {} if args.brick is None else {"brick": args.brick}
     kwargs.update({k: v for k, v in (("t", args.t), ("c", args.c)) if v is not None})
     channel_overlays, channel_tf = (), None
-    if args.channels:
-        from clipvol.app.channels import open_channels
-
-        if args.c is not None:
-            raise ParameterError("--c: expected either --c or --channels, got both")
-        loader, channel_tf, channel_overlays = open_channels(
-            args.source, args.channels, windows=args.tf_range, overlay_budget=args.overlay_budget,
-            **kwargs, **remote_kwargs(args))
+    channels = channels_from_args(args, args.source, {**kwargs, **remote_kwargs(args)})
+    if channels is not None:
+        loader, channel_tf, channel_overlays = channels
     else:
         loader = open_store(args.source, **kwargs, **remote_kwargs(args))
     if args.hide_labels:

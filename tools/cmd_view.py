@@ -63,9 +63,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="point stores: starting tolerance, the largest splat as a fraction of the window (0.05), "
                         "'5%%' or '12px'; [ and ] change it (default 0.05)")
     g.add_argument("--size", type=_size, default=None, help="window or image size WxH (default 960x640 window, 256x256 offscreen)")
-    from clipvol.tools.overlay_args import add_overlay_arguments
+    from clipvol.tools.overlay_args import add_channel_arguments, add_overlay_arguments
     from clipvol.tools.tf_args import add_tf_arguments
 
+    add_channel_arguments(g)
     add_tf_arguments(p.add_argument_group("transfer function"))
     add_overlay_arguments(p.add_argument_group("overlays of co-registered volumes"))
     o = p.add_argument_group("offscreen")
@@ -171,15 +172,22 @@ def run(args) -> int:
     if args.c is not None:
         kwargs["c"] = args.c
     source = _bricked(args)
-    loader = open_loader(source, **kwargs, **remote_kwargs(args))
+    from clipvol.tools.overlay_args import channels_from_args
+
+    channels = channels_from_args(args, source, {**kwargs, **remote_kwargs(args)})
+    if channels is not None and args.play:
+        raise ParameterError("--channels: expected either --channels or --play, got both")
+    loader = channels[0] if channels is not None else open_loader(source, **kwargs, **remote_kwargs(args))
     series = _series(args, source, loader, {**kwargs, **remote_kwargs(args)}) if args.play else None
     if params.level is not None and params.level >= loader.pyramid.num_levels:
         raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {params.level}")
-    tf = transfer_function_from_args(args, loader)
-    if args.overlay or args.label_overlay:
+    tf = channels[1] if channels is not None else transfer_function_from_args(args, loader)
+    if args.overlay or args.label_overlay or channels is not None:
         from dataclasses import replace
 
-        params = replace(params, overlays=_overlays(args, loader, source))
+        params = replace(params, overlays=(channels[2] if channels is not None else ())
+                         + (_overlays(args, loader, source) if args.overlay or args.label_overlay else ()),
+                         blend=args.blend or ("additive" if channels is not None else "over"))
     if args.workers is not None and not args.offscreen:
         raise ParameterError("--workers: sort-last frames are drawn offscreen only; add --offscreen")
     if args.workers is not None and params.overlays:

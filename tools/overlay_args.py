@@ -14,7 +14,8 @@ from __future__ import annotations
 
 from clipvol.errors import ParameterError
 
-__all__ = ["add_overlay_arguments", "parse_overlay", "overlays_from_args"]
+__all__ = ["add_overlay_arguments", "add_channel_arguments", "parse_overlay", "overlays_from_args",
+           "channels_from_args"]
 
 HELP = ("a co-registered volume drawn over the source in the same ray cast, placed by its own spacing and origin "
         "(repeatable, at most 3, the first on top); TF: a preset (default diverging, symmetric about 0), auto, "
@@ -35,6 +36,29 @@ def add_overlay_arguments(g) -> None:
                    help="opacity of label ids without a colour of their own (default 0.3)")
     g.add_argument("--overlay-budget", default="64MB", metavar="BYTES",
                    help="texture memory of each overlay: its finest level that fits is drawn (default 64MB)")
+
+
+def add_channel_arguments(g) -> None:
+    """``--channels C:COLOUR,...`` and ``--blend`` (``clipvol render`` and ``clipvol view``)."""
+    g.add_argument("--channels", default=None, metavar="C:COLOUR,...",
+                   help="several channels of an image with a c axis in one ray cast, each its colour (a name or "
+                        "#RRGGBB) with a ramp opacity over its window (--tf-range for all), e.g. 0:green,1:magenta")
+    g.add_argument("--blend", choices=("additive", "over"), default=None,
+                   help="--channels / --overlay: colours add up (additive, default for --channels) or the "
+                        "later layers over the first (over, default for --overlay)")
+
+
+def channels_from_args(args, source, loader_kwargs: dict):
+    """``--channels``: ``(loader of the first channel, its transfer function, overlays of the others)``,
+    or None without ``--channels`` (see :mod:`clipvol.app.channels`)."""
+    if not args.channels:
+        return None
+    from clipvol.app.channels import open_channels
+
+    if getattr(args, "c", None) is not None:
+        raise ParameterError("--c: expected either --c or --channels, got both")
+    return open_channels(source, args.channels, windows=getattr(args, "tf_range", None),
+                         overlay_budget=args.overlay_budget, **loader_kwargs)
 
 
 def _is_tf(text: str) -> bool:

@@ -107,3 +107,29 @@ def test_brick_a_4d_input_and_render_its_channels(image, tmp_path, capsys):
     a = np.asarray(Image.open(tmp_path / "a.png")).astype(int)
     b = np.asarray(Image.open(tmp_path / "b.png")).astype(int)
     assert a[..., 3].max() > 100 and np.abs(a - b).max() <= 1
+
+
+def test_view_offscreen_draws_the_channels_like_the_reference(image, tmp_path):
+    """``clipvol view --channels`` (offscreen) draws the first orbit frame as the numpy reference of the
+    same camera; with --play, or with --c, it is refused (exit 2)."""
+    path, data = image
+    out = tmp_path / "frames"
+    assert main(["view", str(path), "--offscreen", "--frames", "1", "--size", "60x56", "--out", str(out),
+                 "--converged", "--no-jitter", "--selection", "fixed", "--level", "0",
+                 "--channels", "0:green,1:magenta", "--blend", "additive"]) == 0
+    got = np.asarray(Image.open(sorted(out.glob("frame_*.png"))[0]).convert("RGBA")).astype(int)
+    from clipvol.app.channels import channel_tf
+    from clipvol.loaders.zarr_store import ZarrLoader
+    from clipvol.scene.paths import orbit
+
+    pyr = ZarrLoader(path, c=0).pyramid
+    cam, _ = next(iter(orbit(pyr, 1, size=(60, 56))))
+    sp = (1.2, 1.0, 0.9)
+    tfs = [channel_tf(col, w) for col, w in zip(("green", "magenta"), WINDOWS)]
+    r = ref.to_uint8(ref.raycast_overlays(data[0], sp, cam, tfs[0].table, WINDOWS[0],
+                                          [(data[1], sp, (0.0, 0.0, 0.0), tfs[1].table, WINDOWS[1])], blend="additive"))
+    diff = np.abs(got - r.astype(int))
+    assert r[..., 0].max() > 60 and r[..., 1].max() > 60  # both colours show in the reference
+    assert diff.max() <= 3 and (diff > 1).mean() < 0.01, (diff.max(), (diff > 1).mean())
+    assert main(["view", str(path), "--offscreen", "--frames", "1", "--out", str(tmp_path / "x"),
+                 "--channels", "0:green", "--c", "1"]) == 2
