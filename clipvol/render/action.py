@@ -212,6 +212,7 @@ class ClipRenderAction:
         self._tf_key = None
         self._pt_tex = None
         self.path_drawn = None  # "single-pass" or "bricks": what drew the last frame
+        self.page_table_nodes = 0  # single pass: drawn nodes of the last frame's table, after merge_items
         self._fbo = None
         self._fbo_size = None
         self._fbo_copy = None
@@ -665,10 +666,15 @@ class ClipRenderAction:
         nlev = pyr.num_levels
         if nlev > MAX_SINGLE_PASS_LEVELS:
             return None
+        self._check_samples(cam, items)
+        if self.params.merge_boxes:  # complete sibling sets become one node of the table (no face inside)
+            merged = merge_items(items, pyr, self.cache.windows, self._may_cover())
+            if self._samples_per_box(cam, merged) <= MAX_STEPS_PER_BOX:  # else the rays would be cut
+                items = merged
         table = build_page_table(items, pyr, self.cache.open_faces)
         if table is None or len(table.entries) > MAX_PAGE_TABLE_ENTRIES:
             return None
-        self._check_samples(cam, items)
+        self.page_table_nodes = len(items)
         self.boxes_drawn = 1
         mgl, ctx = self._moderngl, self.ctx
         t0 = time.perf_counter()
@@ -681,7 +687,8 @@ class ClipRenderAction:
         ctx.viewport = (0, 0, int(w), int(h))
         mip = self.params.mode == "mip"
         fbo.clear(_MIP_EMPTY if mip else 0.0, 0.0, 0.0, 0.0)
-        defines = dict(self.defines(), NUM_LEVELS=nlev)
+        data_levels = [it.level for it in items]  # only these get a march in the shader's level chain
+        defines = dict(self.defines(), NUM_LEVELS=nlev, LEVEL_LO=min(data_levels), LEVEL_HI=max(data_levels))
         prog = self.programs.get("brick.vert", "raymarch.frag", defines)
         if prog not in self._vaos:
             self._vaos[prog] = ctx.vertex_array(prog, [(self._vbo, "3f", "in_corner")])
@@ -704,14 +711,15 @@ class ClipRenderAction:
         uniforms = {
             "u_pt_base": i32(table.base), "u_pt_size": i32(table.size[:, ::-1]), "u_pt_c0": i32(table.c0[:, ::-1]),
             "u_pt_origin": f32(vlo + c0 * ext - origin), "u_pt_ext": f32(ext),
-            "u_lv_vox0": f32(trans + c0 * B * scale - origin), "u_lv_inv_scale": f32(1.0 / scale),
+            "u_lv_d0": i32(table.d0[:, ::-1]), "u_lv_grid": i32([pyr.grid(L)[::-1] for L in range(nlev)]),
+            "u_lv_vox0": f32(trans + table.d0[:, ::-1] * B * scale - origin), "u_lv_inv_scale": f32(1.0 / scale),
             "u_lv_win": i32(win), "u_lv_inv_tex_size": f32(1.0 / (win * B)),
             "u_lv_delta": f32([self.params.step * float(min(lv.scale)) for lv in pyr.levels]),
         }
         for name, data in uniforms.items():
             u = prog.get(name, None)
-            if u is not None:
-                u.write(data)
+            if u is not None:  # a variant may keep only an array's first elements (the levels it draws)
+                u.write(data[:len(data) // nlev * max(1, u.array_length)])
         _uset(prog, "u_brick", _vec(B))
         _uset(prog, "u_top", nlev - 1)
         _uset(prog, "u_nudge", 1e-3 * float(sp.min()))
