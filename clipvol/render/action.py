@@ -109,6 +109,11 @@ OCCLUSION_PASSES = 32
 OCCLUSION_MIN_BATCH = 1
 #: single-pass path: most pyramid levels (one texture unit each) and page-table entries
 MAX_SINGLE_PASS_LEVELS = 16
+#: single-pass path: most samples one ray may need (volume diagonal / finest step drawn). llvmpipe
+#: caps the iterations of an outermost shader loop, nested loops included, at 65535 per SIMD group
+#: (gallivm's loop limiter) and the group's iterations are the sum over nodes of its longest
+#: segment, so a ray of more samples would be cut short there; such a frame is drawn per brick.
+MAX_SINGLE_PASS_RAY_SAMPLES = 1 << 15
 MAX_PAGE_TABLE_ENTRIES = 1 << 24
 PAGE_TABLE_WIDTH = 1024
 
@@ -667,6 +672,10 @@ class ClipRenderAction:
         if nlev > MAX_SINGLE_PASS_LEVELS:
             return None
         self._check_samples(cam, items)
+        vlo, vhi = pyr.volume_box()
+        finest = self.params.step * min(float(min(pyr.levels[it.level].scale)) for it in items)
+        if float(np.linalg.norm(vhi - vlo)) / finest > MAX_SINGLE_PASS_RAY_SAMPLES:
+            return None
         if self.params.merge_boxes:  # complete sibling sets become one node of the table (no face inside)
             merged = merge_items(items, pyr, self.cache.windows, self._may_cover())
             if self._samples_per_box(cam, merged) <= MAX_STEPS_PER_BOX:  # else the rays would be cut
@@ -678,7 +687,6 @@ class ClipRenderAction:
         self.boxes_drawn = 1
         mgl, ctx = self._moderngl, self.ctx
         t0 = time.perf_counter()
-        vlo, vhi = pyr.volume_box()
         cam = cam.fit_depth(vlo, vhi)
         w, h = cam.size
         fbo = self._ensure_fbo((int(w), int(h)))
