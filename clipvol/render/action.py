@@ -731,7 +731,10 @@ class ClipRenderAction:
         _uset(prog, "u_brick", _vec(B))
         _uset(prog, "u_top", nlev - 1)
         _uset(prog, "u_nudge", 1e-3 * float(sp.min()))
-        _uset(prog, "u_max_regions", int(16 + sum(sum(pyr.grid(L)) for L in range(nlev))))
+        # one DRAWN node whose box is the volume's (a merged resident cut): every ray is one region
+        one = int(np.sum((table.entries & 3) == 2)) == 1 and len(items) == 1 and np.allclose(items[0].lo, vlo) \
+            and np.allclose(items[0].hi, vhi)
+        _uset(prog, "u_max_regions", 1 if one else int(16 + sum(sum(pyr.grid(L)) for L in range(nlev))))
         _uset(prog, "u_max_steps", MAX_STEPS_PER_BOX)
         _uset(prog, "u_opaque", OPAQUE)
         _uset(prog, "u_pt_width", PAGE_TABLE_WIDTH)

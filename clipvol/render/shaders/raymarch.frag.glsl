@@ -290,7 +290,9 @@ void main() {
     // llvmpipe a few per cent per sample (its masks), and most rays of a merged full-resolution
     // cut cross one or two nodes
     bool go = region(origin, dir, inv, t.y, ta, STATE_ARGS);
-    for (int r = 1; go && r < u_max_regions && ta < t.y; ++r) go = region(origin, dir, inv, t.y, ta, STATE_ARGS);
+    if (u_max_regions > 1) {            // uniform: a table of one node over the whole volume skips the loop
+        for (int r = 1; go && r < u_max_regions && ta < t.y; ++r) go = region(origin, dir, inv, t.y, ta, STATE_ARGS);
+    }
 #ifdef MODE_MIP
     if (!hit) discard;
     f_color = vec4(vmax, 0.0, 0.0, 1.0);
