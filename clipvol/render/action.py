@@ -14,14 +14,18 @@ Per frame (:meth:`ClipRenderAction.render`):
 
    * ``"single-pass"`` (``shaders/raymarch.frag.glsl``) - the ray-guided path of
      BigVolumeViewer and the ray-guided renderers of the large-volume literature: the selection's
-     cut becomes a per-level **page table** (:mod:`clipvol.scene.page_table`: per node EMPTY,
-     REFINED or DRAWN-from-level-``Ld``, plus the faces filtering may cross), uploaded as one
-     small integer texture. One proxy box - the volume's - is drawn; each pixel's ray walks the
-     table from the coarsest level down at its current point, samples the node's box from the data
-     level's toroidal texture on that level's lattice, skips EMPTY nodes in one step, switches
-     level at node faces and stops when opaque. No framebuffer copies, no per-box set-up, no
-     blending. A cut the table cannot express (more than 16 levels) falls back to the bricks path.
-   * ``"bricks"`` (default: the faster one on llvmpipe, see ``docs/benchmarks.md``) - one proxy box per :class:`~clipvol.scene.selection.DrawItem` into a float32
+     cut, merged like the per-brick path's boxes (a complete sibling set is one node whose data is
+     a block of finer bricks), becomes a per-level **page table** (:mod:`clipvol.scene.page_table`:
+     per node EMPTY, REFINED or DRAWN-from-level-``Ld``, plus the faces filtering may cross),
+     uploaded as one small integer texture. One proxy box - the volume's - is drawn; each pixel's
+     ray walks the table from the coarsest level down at its current point, samples the node's box
+     from the data level's toroidal texture on that level's lattice, skips EMPTY nodes in one step,
+     switches level at node faces and stops when opaque. No framebuffer copies, no per-box set-up,
+     no blending. The shader is compiled per range of data levels the table uses. A cut the table
+     cannot express (more than 16 levels) or rays of more than :data:`MAX_SINGLE_PASS_RAY_SAMPLES`
+     samples (llvmpipe's loop cap) fall back to the bricks path.
+   * ``"bricks"`` (default; on llvmpipe the two paths cost about the same, neither faster
+     everywhere, see ``docs/benchmarks.md``) - one proxy box per :class:`~clipvol.scene.selection.DrawItem` into a float32
      RGBA offscreen target (the method of Bhaniramka & Demange's OpenGL Volumizer, and the reference). The box's *back* faces are
      rasterised (front faces culled; depth clamp on and a far plane never applied), so the
      camera may sit inside a box. Between boxes composite mode uses the selection's exact
