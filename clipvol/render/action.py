@@ -526,6 +526,7 @@ class ClipRenderAction:
         ctx = self.ctx
         items = list(sel.items)
         self.path_drawn = "bricks"
+        self.page_table_nodes = 0
         if self.params.path == "single-pass" and items:
             out = self._draw_single_pass(cam, tf, items)
             if out is not None:
