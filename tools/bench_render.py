@@ -24,7 +24,12 @@ noise of a shared machine cancels as far as it can:
   same volume, view, step and table). Targets <= 1.1x and <= 1.05x. ``--vs-raw 256,512`` runs
   only this comparison on procedural volumes, ``--fly-only N`` only the fly-path frame times,
   ``--vs-raw-large 1024`` a 1024^3 uint8 volume (1 GiB: a float32 one would not fit beside the raw
-  caster's texture) against the raw caster, with a virtual 4096^3 multiresolution frame beside it.
+  caster's texture) against the raw caster (per-brick and single-pass frames), with a virtual
+  4096^3 multiresolution frame beside it.
+* **the two draw paths on image-LOD cuts** - ``--vs-lod``: the head, views and cuts of
+  ``tools/bench_lod.py`` (full resolution and the image policy at ``--block-budget`` blocks), drawn
+  by a per-brick and a single-pass session over the same store, interleaved; every ratio is the
+  single pass's time over the per-brick path's (``docs/bench_render_lod.csv``).
 
 Run ``python -m clipvol.tools.bench_render`` (uses ``bench-data/fractal-640-b64.zarr``, 640^3
 float32 = 1.05 GB, bricking it with ``clipvol brick`` first if it is missing) or ``--quick`` for a
