@@ -24,7 +24,12 @@ noise of a shared machine cancels as far as it can:
   same volume, view, step and table). Targets <= 1.1x and <= 1.05x. ``--vs-raw 256,512`` runs
   only this comparison on procedural volumes, ``--fly-only N`` only the fly-path frame times,
   ``--vs-raw-large 1024`` a 1024^3 uint8 volume (1 GiB: a float32 one would not fit beside the raw
-  caster's texture) against the raw caster, with a virtual 4096^3 multiresolution frame beside it.
+  caster's texture) against the raw caster (per-brick and single-pass frames), with a virtual
+  4096^3 multiresolution frame beside it.
+* **the two draw paths on image-LOD cuts** - ``--vs-lod``: the head, views and cuts of
+  ``tools/bench_lod.py`` (full resolution and the image policy at ``--block-budget`` blocks), drawn
+  by a per-brick and a single-pass session over the same store, interleaved; every ratio is the
+  single pass's time over the per-brick path's (``docs/bench_render_lod.csv``).
 
 Run ``python -m clipvol.tools.bench_render`` (uses ``bench-data/fractal-640-b64.zarr``, 640^3
 float32 = 1.05 GB, bricking it with ``clipvol brick`` first if it is missing) or ``--quick`` for a
@@ -403,6 +408,90 @@ def vs_raw(sizes, image: int, repeat: int, step: float, out_dir: Path, fly_frame
     return rows
 
 
+def vs_lod(size: int, brick: int, image: int, repeat: int, out_dir: Path, block_budget: int = 96,
+           log=print) -> list[dict]:
+    """The two draw paths on the image-LOD benchmark's cuts, in one run: the CT-like head of
+    ``tools/bench_lod.py`` (``size``^3 uint8, ``brick``^3 bricks, summary tables), its face, side and
+    overview views, each drawn at full resolution (``policy="fixed", level=0``) and with the image
+    policy at ``block_budget`` blocks, by a per-brick session and a single-pass session over the same
+    store; warm frames, the two paths interleaved, medians of ``repeat`` (wall and process CPU time).
+    Every ratio is the single pass's time over the per-brick path's for the same frame."""
+    import tempfile
+
+    from clipvol.app.session import RenderSession
+    from clipvol.bricking.generators import ct_head
+    from clipvol.bricking.pipeline import brick_volume
+    from clipvol.bricking.summary import build_summary
+    from clipvol.paging.open import open_store
+    from clipvol.render import create_context
+    from clipvol.scene.camera import Camera
+    from clipvol.scene.params import RenderParams
+    from clipvol.scene.transfer import TransferFunction
+    from clipvol.tools.bench_lod import VIEWS
+
+    tmp = tempfile.TemporaryDirectory(prefix="clipvol-bench-render-lod-")
+    store = Path(tmp.name) / "head.zarr"
+    brick_volume(ct_head((size,) * 3, seed=0), store, brick=brick, progress=False, summary=False)
+    build_summary(store, progress=False)
+    loader = open_store(store)
+    pyr = loader.pyramid
+    lo, hi = pyr.volume_box()
+    c = (lo + hi) / 2.0
+    diag = float(np.linalg.norm(hi - lo))
+    tf = TransferFunction.preset("bone", value_range=pyr.value_range)
+    budget = int(sum(pyr.num_bricks(L) for L in range(pyr.num_levels)) * pyr.brick_nbytes * 1.2) + (64 << 20)
+    ctx = create_context()
+    paths = ("bricks", "single-pass")
+    sessions = {p: RenderSession(loader, ctx, memory_budget=budget, texture_budget=budget, tf=tf,
+                                 params=RenderParams(policy="fixed", level=0, path=p)) for p in paths}
+    cuts = {"full": dict(policy="fixed", level=0, block_budget=None),
+            "image": dict(policy="image", level=None, visibility=True, block_budget=block_budget)}
+    rows = []
+    for view, (d, dist) in VIEWS.items():
+        d = np.asarray(d, dtype=np.float64) / np.linalg.norm(d)
+        cam = Camera.perspective(tuple(c - d * (dist or 0.6) * diag), tuple(c), up=(0, -1, 0), fov_y=40,
+                                 size=(image, image))
+        for cut, ch in cuts.items():
+            imgs = {}
+            for p, sess in sessions.items():
+                sess.update(**ch)
+                sess.render(cam, tuple(c), wait=True, timeout=600)
+            wall = {p: [] for p in paths}
+            cpu = {p: [] for p in paths}
+            for _ in range(repeat):  # interleaved
+                for p, sess in sessions.items():
+                    w0, c0 = time.perf_counter(), time.process_time()
+                    imgs[p] = sess.render(cam, tuple(c))
+                    wall[p].append(time.perf_counter() - w0)
+                    cpu[p].append(time.process_time() - c0)
+            a = sessions["single-pass"].action
+            key = lambda act: sorted((it.level, tuple(it.index), it.lo, it.hi) for it in act.last_selection.items)  # noqa: E731
+            row = dict(view=view, cut=cut, image=image, repeat=repeat,
+                       same_cut=int(key(a) == key(sessions["bricks"].action)),
+                       items=len(a.last_selection.items), single_pass_nodes=a.page_table_nodes,
+                       drawn_by=a.path_drawn, bricks_boxes=sessions["bricks"].action.boxes_drawn,
+                       bricks_s=statistics.median(wall["bricks"]), single_pass_s=statistics.median(wall["single-pass"]),
+                       single_over_bricks=statistics.median(wall["single-pass"]) / statistics.median(wall["bricks"]),
+                       single_over_bricks_cpu=statistics.median(cpu["single-pass"]) / statistics.median(cpu["bricks"]),
+                       maxdiff=int(np.abs(imgs["bricks"].astype(int) - imgs["single-pass"].astype(int)).max()))
+            rows.append(row)
+            log(f"{view} {cut}: {row['items']} items -> {row['bricks_boxes']} boxes / {row['single_pass_nodes']} nodes; "
+                f"bricks {row['bricks_s'] * 1e3:.0f} ms, single pass {row['single_pass_s'] * 1e3:.0f} ms: "
+                f"{row['single_over_bricks']:.2f}x wall, {row['single_over_bricks_cpu']:.2f}x CPU (max |diff| {row['maxdiff']}, "
+                f"same cut {bool(row['same_cut'])})")
+    for sess in sessions.values():
+        sess.close()
+    ctx.release()
+    tmp.cleanup()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with open(out_dir / "bench_render_lod.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (f"{v:.4g}" if isinstance(v, float) else v) for k, v in r.items()})
+    return rows
+
+
 def quantised_fractal(n: int, dtype: str, data_dir: Path, log=print) -> np.ndarray:
     """``procedural:fractal?size=n`` quantised to ``dtype`` (uint8 / uint16) over the generator's value
     range, generated in slabs (never the float32 volume whole) and cached as ``.npy`` under
@@ -468,6 +557,8 @@ def vs_raw_large(n: int, dtype: str, image: int, repeat: int, step: float, out_d
     clip = ClipTexture(loader, budget, threads=2)
     actions = {"bricks": ClipRenderAction(ctx, clip, policy="fixed", level=0, path="bricks", step=step,
                                           texture_budget=budget),
+               "single-pass": ClipRenderAction(ctx, clip, policy="fixed", level=0, path="single-pass", step=step,
+                                               texture_budget=budget),
                "multiresolution": ClipRenderAction(ctx, clip, lod_threshold=1.0, step=step, texture_budget=budget)}
     imgs = {k: a.render(cam, tf, wait=True, timeout=3600) for k, a in actions.items()}
     log(f"{n}^3 {dtype}: loaded and uploaded in {time.perf_counter() - t0:.0f} s")
@@ -485,13 +576,13 @@ def vs_raw_large(n: int, dtype: str, image: int, repeat: int, step: float, out_d
     names = [*actions, f"virtual {virtual}^3 multiresolution", "raw"]
     times = {k: [] for k in names}
     cpu = {k: [] for k in names}
-    parts = {k: [] for k in names[:3]}  # select / upload / draw / readback seconds of each frame
+    parts = {k: [] for k in names[:-1]}  # select / upload / draw / readback seconds of each frame
     for _ in range(repeat):  # interleaved rounds
         t, c = time.perf_counter(), time.process_time()
         imgs["raw"] = premultiplied_to_uint8(raw.render(cam, tf, step).astype(np.float64))
         times["raw"].append(time.perf_counter() - t)
         cpu["raw"].append(time.process_time() - c)
-        for name, a, cm, f in [(k, a, cam, tf) for k, a in actions.items()] + [(names[2], vact, vcam, vtf)]:
+        for name, a, cm, f in [(k, a, cam, tf) for k, a in actions.items()] + [(names[-2], vact, vcam, vtf)]:
             c = time.process_time()
             imgs[name] = a.render(cm, f, wait=False)
             cpu[name].append(time.process_time() - c)
@@ -500,18 +591,21 @@ def vs_raw_large(n: int, dtype: str, image: int, repeat: int, step: float, out_d
     med = {k: statistics.median(v) for k, v in times.items()}
     mcpu = {k: statistics.median(v) for k, v in cpu.items()}
     diff = int(np.abs(imgs["bricks"].astype(int) - imgs["raw"].astype(int)).max())
+    diff_sp = int(np.abs(imgs["single-pass"].astype(int) - imgs["raw"].astype(int)).max())
     row = dict(size=n, dtype=dtype, image=image, repeat=repeat, raw_s=med["raw"], raw_cpu_s=mcpu["raw"],
-               **{f"{k}_s": med[k] for k in names[:3]},
-               **{f"{k}_over_raw": med[k] / med["raw"] for k in names[:3]},
-               **{f"{k}_cpu_over_raw": mcpu[k] / mcpu["raw"] for k in names[:3]},
-               **{f"{k}_{p}_s": statistics.median(t[p] for t in parts[k]) for k in names[:3]
+               **{f"{k}_s": med[k] for k in names[:-1]},
+               **{f"{k}_over_raw": med[k] / med["raw"] for k in names[:-1]},
+               **{f"{k}_cpu_over_raw": mcpu[k] / mcpu["raw"] for k in names[:-1]},
+               **{f"{k}_{p}_s": statistics.median(t[p] for t in parts[k]) for k in names[:-1]
                   for p in ("select", "draw", "readback")},
-               maxdiff_bricks_vs_raw=diff, boxes_full=actions["bricks"].boxes_drawn,
+               maxdiff_bricks_vs_raw=diff, maxdiff_single_pass_vs_raw=diff_sp, boxes_full=actions["bricks"].boxes_drawn,
+               single_pass_nodes=actions["single-pass"].page_table_nodes,
+               single_pass_drawn_by=actions["single-pass"].path_drawn,
                multires_levels=str(actions["multiresolution"].last_frame_stats.bricks_drawn),
                virtual_levels=str(vact.last_frame_stats.bricks_drawn),
                virtual_converged=int(vact.last_frame_stats.converged))
     log(f"{n}^3 {dtype} at {image}^2 (median of {repeat}): raw {med['raw']:.3f} s; " + ", ".join(
-        f"{k} {med[k]:.3f} s = {med[k] / med['raw']:.2f}x raw (CPU {mcpu[k] / mcpu['raw']:.2f}x)" for k in names[:3])
+        f"{k} {med[k]:.3f} s = {med[k] / med['raw']:.2f}x raw (CPU {mcpu[k] / mcpu['raw']:.2f}x)" for k in names[:-1])
         + f"; full-resolution image vs raw: max |diff| {diff}")
     for a in (*actions.values(), vact):
         a.close()
@@ -545,9 +639,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--vs-raw-large", type=int, default=None, metavar="N",
                     help="only N^3 (e.g. 1024) quantised to --dtype against the raw caster, and a virtual "
                          "--virtual^3 multiresolution frame beside it; writes docs/bench_render_large.csv")
+    ap.add_argument("--vs-lod", action="store_true",
+                    help="only the two draw paths (per brick, single pass) on the image-LOD benchmark's head, views "
+                         "and cuts (full resolution and the image policy), interleaved; writes docs/bench_render_lod.csv")
+    ap.add_argument("--lod-size", type=int, default=256, help="--vs-lod: head volume edge (default 256)")
+    ap.add_argument("--lod-brick", type=int, default=16, help="--vs-lod: brick edge (default 16, as bench_lod)")
+    ap.add_argument("--block-budget", type=int, default=96, help="--vs-lod: the image policy's block budget")
     ap.add_argument("--dtype", choices=("uint8", "uint16"), default="uint8", help="--vs-raw-large: the volume's type")
     ap.add_argument("--virtual", type=int, default=4096, help="--vs-raw-large: edge of the virtual volume")
     args = ap.parse_args(argv)
+    if args.vs_lod:
+        vs_lod(args.lod_size, args.lod_brick, args.size, max(args.repeat, 5), args.out_dir, args.block_budget,
+               log=lambda *a: print(*a, file=sys.stderr, flush=True))
+        return 0
     if args.vs_raw_large:
         vs_raw_large(args.vs_raw_large, args.dtype, args.size, max(args.repeat, 5), args.step, args.out_dir,
                      args.virtual, log=lambda *a: print(*a, file=sys.stderr, flush=True))

@@ -14,14 +14,18 @@ Per frame (:meth:`ClipRenderAction.render`):
 
    * ``"single-pass"`` (``shaders/raymarch.frag.glsl``) - the ray-guided path of
      BigVolumeViewer and the ray-guided renderers of the large-volume literature: the selection's
-     cut becomes a per-level **page table** (:mod:`clipvol.scene.page_table`: per node EMPTY,
-     REFINED or DRAWN-from-level-``Ld``, plus the faces filtering may cross), uploaded as one
-     small integer texture. One proxy box - the volume's - is drawn; each pixel's ray walks the
-     table from the coarsest level down at its current point, samples the node's box from the data
-     level's toroidal texture on that level's lattice, skips EMPTY nodes in one step, switches
-     level at node faces and stops when opaque. No framebuffer copies, no per-box set-up, no
-     blending. A cut the table cannot express (more than 16 levels) falls back to the bricks path.
-   * ``"bricks"`` (default: the faster one on llvmpipe, see ``docs/benchmarks.md``) - one proxy box per :class:`~clipvol.scene.selection.DrawItem` into a float32
+     cut, merged like the per-brick path's boxes (a complete sibling set is one node whose data is
+     a block of finer bricks), becomes a per-level **page table** (:mod:`clipvol.scene.page_table`:
+     per node EMPTY, REFINED or DRAWN-from-level-``Ld``, plus the faces filtering may cross),
+     uploaded as one small integer texture. One proxy box - the volume's - is drawn; each pixel's
+     ray walks the table from the coarsest level down at its current point, samples the node's box
+     from the data level's toroidal texture on that level's lattice, skips EMPTY nodes in one step,
+     switches level at node faces and stops when opaque. No framebuffer copies, no per-box set-up,
+     no blending. The shader is compiled per range of data levels the table uses. A cut the table
+     cannot express (more than 16 levels) or rays of more than :data:`MAX_SINGLE_PASS_RAY_SAMPLES`
+     samples (llvmpipe's loop cap) fall back to the bricks path.
+   * ``"bricks"`` (default; on llvmpipe the two paths cost about the same, neither faster
+     everywhere, see ``docs/benchmarks.md``) - one proxy box per :class:`~clipvol.scene.selection.DrawItem` into a float32
      RGBA offscreen target (the method of Bhaniramka & Demange's OpenGL Volumizer, and the reference). The box's *back* faces are
      rasterised (front faces culled; depth clamp on and a far plane never applied), so the
      camera may sit inside a box. Between boxes composite mode uses the selection's exact
@@ -109,6 +113,11 @@ OCCLUSION_PASSES = 32
 OCCLUSION_MIN_BATCH = 1
 #: single-pass path: most pyramid levels (one texture unit each) and page-table entries
 MAX_SINGLE_PASS_LEVELS = 16
+#: single-pass path: most samples one ray may need (volume diagonal / finest step drawn). llvmpipe
+#: caps the iterations of an outermost shader loop, nested loops included, at 65535 per SIMD group
+#: (gallivm's loop limiter) and the group's iterations are the sum over nodes of its longest
+#: segment, so a ray of more samples would be cut short there; such a frame is drawn per brick.
+MAX_SINGLE_PASS_RAY_SAMPLES = 1 << 15
 MAX_PAGE_TABLE_ENTRIES = 1 << 24
 PAGE_TABLE_WIDTH = 1024
 
@@ -212,6 +221,7 @@ class ClipRenderAction:
         self._tf_key = None
         self._pt_tex = None
         self.path_drawn = None  # "single-pass" or "bricks": what drew the last frame
+        self.page_table_nodes = 0  # single pass: drawn nodes of the last frame's table, after merge_items
         self._fbo = None
         self._fbo_size = None
         self._fbo_copy = None
@@ -516,6 +526,7 @@ class ClipRenderAction:
         ctx = self.ctx
         items = list(sel.items)
         self.path_drawn = "bricks"
+        self.page_table_nodes = 0
         if self.params.path == "single-pass" and items:
             out = self._draw_single_pass(cam, tf, items)
             if out is not None:
@@ -665,14 +676,22 @@ class ClipRenderAction:
         nlev = pyr.num_levels
         if nlev > MAX_SINGLE_PASS_LEVELS:
             return None
+        self._check_samples(cam, items)
+        vlo, vhi = pyr.volume_box()
+        finest = self.params.step * min(float(min(pyr.levels[it.level].scale)) for it in items)
+        if float(np.linalg.norm(vhi - vlo)) / finest > MAX_SINGLE_PASS_RAY_SAMPLES:
+            return None
+        if self.params.merge_boxes:  # complete sibling sets become one node of the table (no face inside)
+            merged = merge_items(items, pyr, self.cache.windows, self._may_cover())
+            if self._samples_per_box(cam, merged) <= MAX_STEPS_PER_BOX:  # else the rays would be cut
+                items = merged
         table = build_page_table(items, pyr, self.cache.open_faces)
         if table is None or len(table.entries) > MAX_PAGE_TABLE_ENTRIES:
             return None
-        self._check_samples(cam, items)
+        self.page_table_nodes = len(items)
         self.boxes_drawn = 1
         mgl, ctx = self._moderngl, self.ctx
         t0 = time.perf_counter()
-        vlo, vhi = pyr.volume_box()
         cam = cam.fit_depth(vlo, vhi)
         w, h = cam.size
         fbo = self._ensure_fbo((int(w), int(h)))
@@ -681,7 +700,8 @@ class ClipRenderAction:
         ctx.viewport = (0, 0, int(w), int(h))
         mip = self.params.mode == "mip"
         fbo.clear(_MIP_EMPTY if mip else 0.0, 0.0, 0.0, 0.0)
-        defines = dict(self.defines(), NUM_LEVELS=nlev)
+        data_levels = [it.level for it in items]  # only these get a march in the shader's level chain
+        defines = dict(self.defines(), NUM_LEVELS=nlev, LEVEL_LO=min(data_levels), LEVEL_HI=max(data_levels))
         prog = self.programs.get("brick.vert", "raymarch.frag", defines)
         if prog not in self._vaos:
             self._vaos[prog] = ctx.vertex_array(prog, [(self._vbo, "3f", "in_corner")])
@@ -704,18 +724,22 @@ class ClipRenderAction:
         uniforms = {
             "u_pt_base": i32(table.base), "u_pt_size": i32(table.size[:, ::-1]), "u_pt_c0": i32(table.c0[:, ::-1]),
             "u_pt_origin": f32(vlo + c0 * ext - origin), "u_pt_ext": f32(ext),
-            "u_lv_vox0": f32(trans + c0 * B * scale - origin), "u_lv_inv_scale": f32(1.0 / scale),
+            "u_lv_d0": i32(table.d0[:, ::-1]), "u_lv_grid": i32([pyr.grid(L)[::-1] for L in range(nlev)]),
+            "u_lv_vox0": f32(trans + table.d0[:, ::-1] * B * scale - origin), "u_lv_inv_scale": f32(1.0 / scale),
             "u_lv_win": i32(win), "u_lv_inv_tex_size": f32(1.0 / (win * B)),
             "u_lv_delta": f32([self.params.step * float(min(lv.scale)) for lv in pyr.levels]),
         }
         for name, data in uniforms.items():
             u = prog.get(name, None)
-            if u is not None:
-                u.write(data)
+            if u is not None:  # a variant may keep only an array's first elements (the levels it draws)
+                u.write(data[:len(data) // nlev * max(1, u.array_length)])
         _uset(prog, "u_brick", _vec(B))
         _uset(prog, "u_top", nlev - 1)
         _uset(prog, "u_nudge", 1e-3 * float(sp.min()))
-        _uset(prog, "u_max_regions", int(16 + sum(sum(pyr.grid(L)) for L in range(nlev))))
+        # one DRAWN node whose box is the volume's (a merged resident cut): every ray is one region
+        one = int(np.sum((table.entries & 3) == 2)) == 1 and len(items) == 1 and np.allclose(items[0].lo, vlo) \
+            and np.allclose(items[0].hi, vhi)
+        _uset(prog, "u_max_regions", 1 if one else int(16 + sum(sum(pyr.grid(L)) for L in range(nlev))))
         _uset(prog, "u_max_steps", MAX_STEPS_PER_BOX)
         _uset(prog, "u_opaque", OPAQUE)
         _uset(prog, "u_pt_width", PAGE_TABLE_WIDTH)

@@ -13,11 +13,20 @@ Entry of node ``(L, cell)`` (``uint32``):
 * bits 0-1, kind: ``EMPTY`` (0; nothing drawn in the node's box - culled, transparent, outside the
   window or the table: the ray skips the whole box in one step), ``REFINED`` (1; an ancestor of
   drawn nodes: look at level ``L - 1``), ``DRAWN`` (2; sample the node's box);
-* bits 2-6, ``DRAWN`` only: the data level ``Ld >= L`` - the node's own brick, or the resident
-  ancestor the selection drew over it (the brick is then ``cell >> (Ld - L)`` of level ``Ld``);
-* bits 8-13, ``DRAWN`` only: which faces of the data brick filtering may read across (the
-  neighbour is in texture memory), ``x-lo, x-hi, y-lo, y-hi, z-lo, z-hi`` - as the per-brick
-  path clamps its sampling.
+* bits 2-6, ``DRAWN`` only: the data level ``Ld`` - the node's own brick (``Ld == L``), the
+  resident ancestor the selection drew over it (``Ld > L``: the brick ``cell >> (Ld - L)`` of
+  level ``Ld``), or a **merged block** (``Ld < L``: the ``(2 ** (L - Ld))³`` bricks of level ``Ld``
+  under the node, clipped to the level's grid, first brick ``cell << (L - Ld)``; see
+  :func:`clipvol.scene.selection.merge_items`), sampled on one lattice with no face inside;
+* bits 8-13, ``DRAWN`` only: which faces of the data brick (or block) filtering may read across
+  (the neighbour is in texture memory), ``x-lo, x-hi, y-lo, y-hi, z-lo, z-hi`` - as the
+  per-brick path clamps its sampling (a block's face is open only where it is for every brick).
+
+Why merged blocks: a ray of the single pass restarts its march at every node face it crosses,
+and on a SIMD rasteriser the pixels of one group cross faces at different samples, so each
+crossing costs the group the longest of its segments. Where the per-brick path draws one box over
+a complete sibling set, the table now holds one node as well: a full-resolution cut of a resident
+volume becomes a handful of nodes, as it becomes a handful of boxes there.
 
 Each level's table covers the bounding box (in cells) of the nodes of that level that are drawn
 or refined; a cell outside it is ``EMPTY``. The tables are concatenated into one flat array.
@@ -52,12 +61,17 @@ class PageTable:
         First entry of each level.
     c0, size : ndarray (num_levels, 3) of int64
         First cell ``(z, y, x)`` of each level's box and its extent in cells (0: empty level).
+    d0 : ndarray (num_levels, 3) of int64
+        A brick ``(z, y, x)`` of each level near the data it serves (the smallest index of the
+        level's data bricks, else ``c0``): the shader places bricks relative to it, so positions
+        stay small numbers in float32 however large the volume.
     """
 
     entries: np.ndarray
     base: np.ndarray
     c0: np.ndarray
     size: np.ndarray
+    d0: np.ndarray | None = None
 
     def lookup(self, level: int, cells) -> np.ndarray:
         """Entries of ``cells`` ``(n, 3)`` ``(z, y, x)`` of ``level`` (``EMPTY`` outside its box)."""
@@ -73,7 +87,9 @@ class PageTable:
 
 def item_nodes(items, pyramid) -> list[tuple[int, tuple[int, int, int]]] | None:
     """The octree node ``(level, index)`` whose box each draw item covers, or None if an item's box
-    is not exactly one node's box (merged items, or a cut this table cannot express)."""
+    is not exactly one node's box (a cut this table cannot express). A merged item (``span > 1``,
+    :func:`clipvol.scene.selection.merge_items`) covers the node of level ``level + log2(span)``
+    over its bricks; any other item a node of its own level or finer (a fallback octant)."""
     if not items:
         return []
     lo = np.array([it.lo for it in items], dtype=np.float64)
@@ -83,9 +99,15 @@ def item_nodes(items, pyramid) -> list[tuple[int, tuple[int, int, int]]] | None:
     B = np.array(pyramid.brick_shape[::-1], dtype=np.float64)
     out_level = np.full(len(items), -1)
     out_idx = np.zeros((len(items), 3), dtype=np.int64)
-    top = np.array([it.level for it in items])
+    spans = np.array([it.span for it in items], dtype=np.int64)
+    if np.any(spans < 1) or np.any(spans & (spans - 1)):
+        return None
+    shift = np.round(np.log2(spans)).astype(np.int64)
+    top = np.array([it.level for it in items]) + shift
+    bottom = np.where(spans > 1, top, 0)  # a merged item is its node's box, nothing finer
+    first = np.array([it.index for it in items], dtype=np.int64)
     for L in range(pyramid.num_levels - 1, -1, -1):
-        cand = (out_level < 0) & (top >= L)
+        cand = (out_level < 0) & (top >= L) & (bottom <= L)
         if not cand.any():
             continue
         ext = B * 2.0**L * sp
@@ -96,23 +118,23 @@ def item_nodes(items, pyramid) -> list[tuple[int, tuple[int, int, int]]] | None:
         nlo, nhi = pyramid.node_box(L, np.clip(idx, 0, g - 1))
         tol = 1e-9 * np.maximum(1.0, np.abs(ext).max())
         ok &= np.all(np.abs(nlo - lo[cand]) <= tol, axis=1) & np.all(np.abs(nhi - hi[cand]) <= tol, axis=1)
+        sh = shift[cand][:, None]
+        ok &= np.all(np.where(sh > 0, (idx << sh) == first[cand], True), axis=1)  # a block starts at its node
         w = np.nonzero(cand)[0][ok]
         out_level[w] = L
         out_idx[w] = idx[ok]
     if np.any(out_level < 0):
         return None
-    spans = np.array([it.span for it in items])
-    if np.any(spans != 1):
-        return None
     return [(int(L), (int(a), int(b), int(c))) for L, (a, b, c) in zip(out_level, out_idx)]
 
 
 def build_page_table(items, pyramid, open_faces=None) -> PageTable | None:
-    """The page table of a cut given as draw items (not merged), or None if the items are not
+    """The page table of a cut given as draw items (merged or not), or None if the items are not
     node boxes (see :func:`item_nodes`).
 
     ``open_faces(level, idx) -> (n, 3, 2) bool`` (axes ``z, y, x``; sides lo, hi): which faces of
-    data bricks filtering may read across (the GPU cache's answer); None: none.
+    data bricks filtering may read across (the GPU cache's answer); None: none. A merged
+    block's face is open where it is open for every brick on it.
     """
     nodes = item_nodes(items, pyramid)
     if nodes is None:
@@ -147,12 +169,24 @@ def build_page_table(items, pyramid, open_faces=None) -> PageTable | None:
     by_data: dict[int, list[int]] = {}
     for i, (L, idx, Ld, didx) in enumerate(drawn):
         by_data.setdefault(Ld, []).append(i)
+    d0 = c0.copy()
     for Ld, rows in by_data.items():
         didx = np.array([drawn[i][3] for i in rows])
+        d0[Ld] = didx.min(axis=0)
+        merged = np.array([drawn[i][0] > Ld for i in rows])
+        of = np.zeros((len(rows), 3, 2), dtype=bool)  # (n, 3 zyx, 2): faces of each row's brick or block
         if open_faces is not None:
-            of = np.asarray(open_faces(Ld, didx), dtype=bool)  # (n, 3 zyx, 2)
-        else:
-            of = np.zeros((len(rows), 3, 2), dtype=bool)
+            one = ~merged
+            if one.any():
+                of[one] = np.asarray(open_faces(Ld, didx[one]), dtype=bool)
+            grid = np.asarray(pyramid.grid(Ld), dtype=np.int64)
+            for j in np.nonzero(merged)[0]:  # a block: a face is open where it is for every brick on it
+                cnt = np.minimum(didx[j] + (1 << (drawn[rows[j]][0] - Ld)), grid) - didx[j]
+                local = np.stack(np.meshgrid(*(np.arange(c) for c in cnt), indexing="ij"), -1).reshape(-1, 3)
+                ofb = np.asarray(open_faces(Ld, didx[j] + local), dtype=bool)
+                for axis in range(3):
+                    of[j, axis, 0] = ofb[local[:, axis] == 0, axis, 0].all()
+                    of[j, axis, 1] = ofb[local[:, axis] == cnt[axis] - 1, axis, 1].all()
         bits = np.zeros(len(rows), dtype=np.uint32)
         for k, axis in enumerate((2, 1, 0)):  # x, y, z
             bits |= of[:, axis, 0].astype(np.uint32) << np.uint32(2 * k)
@@ -160,4 +194,4 @@ def build_page_table(items, pyramid, open_faces=None) -> PageTable | None:
         for j, i in enumerate(rows):
             L, idx = drawn[i][0], drawn[i][1]
             entries[flat(L, idx[None])] = np.uint32(DRAWN | (Ld << 2) | (int(bits[j]) << 8))
-    return PageTable(entries, base, c0, size)
+    return PageTable(entries, base, c0, size, d0)

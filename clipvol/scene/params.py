@@ -96,10 +96,12 @@ class RenderParams:
         Draw complete sibling sets of one level as one box over their parent (same image).
     path : {"single-pass", "bricks"}
         ``"bricks"`` (default): one proxy box per draw item composited in visibility order (the
-        method of LaMar, Hamann & Joy and of OpenGL Volumizer; merged boxes), the faster of the two
-        on Mesa llvmpipe (docs/benchmarks.md); ``"single-pass"``: one ray-guided pass over the
-        volume box through a per-level page table of the cut (rays stop early per pixel, no
-        framebuffer copies). Same image within 1 LSB.
+        method of LaMar, Hamann & Joy and of OpenGL Volumizer; merged boxes); ``"single-pass"``:
+        one ray-guided pass over the volume box through a per-level page table of the cut (merged
+        sibling sets are one node; rays stop early per pixel, no framebuffer copies). Same image
+        within 1 LSB; on Mesa llvmpipe the two cost about the same at 256³-512³ and neither is
+        faster everywhere (docs/benchmarks.md), the single pass wins where the per-brick path's
+        occlusion snapshots idle the rasteriser's threads (large full-resolution frames).
     jitter : bool
         Start each pixel's sample lattice at a stable per-pixel hashed offset (a fraction of the
         step), which turns the wood-grain rings of a constant-distance lattice on opaque surfaces

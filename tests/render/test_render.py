@@ -385,12 +385,15 @@ def test_front_to_back_with_early_termination_equals_back_to_front_over(scenes):
     b = scenes(vol, 8, selection="fixed", level=0, background=bg, early_termination=False, merge_boxes=False,
                path="bricks")
     c = scenes(vol, 8, selection="fixed", level=0, background=bg, path="bricks")  # merged boxes, front to back
-    d = scenes(vol, 8, selection="fixed", level=0, background=bg, path="single-pass")
+    d = scenes(vol, 8, selection="fixed", level=0, background=bg, path="single-pass")  # merged blocks in the table
+    e = scenes(vol, 8, selection="fixed", level=0, background=bg, merge_boxes=False, path="single-pass")
     ia, ib, ic, id_ = a.render(cam, opaque), b.render(cam, opaque), c.render(cam, opaque), d.render(cam, opaque)
+    ie = e.render(cam, opaque)
     assert a.action.occlusion_passes > 0 and b.action.occlusion_passes == 0
     assert a.action.boxes_drawn == 216 and c.action.boxes_drawn < 216
     assert d.action.path_drawn == "single-pass" and d.action.boxes_drawn == 1
-    assert diff(ia, ib).max() <= 1 and diff(ia, ic).max() <= 1 and diff(ia, id_).max() <= 1
+    assert e.action.page_table_nodes == 216 and d.action.page_table_nodes == c.action.boxes_drawn
+    assert diff(ia, ib).max() <= 1 and diff(ia, ic).max() <= 1 and diff(ia, id_).max() <= 1 and diff(ia, ie).max() <= 1
     # and both equal the reference composited over the background
     r = ref.raycast(vol, (1, 1, 1), cam.fit_depth(*a.pyramid.volume_box()), opaque.table, a.pyramid.value_range, 0.5)
     bgp = np.array([bg[0] * bg[3], bg[1] * bg[3], bg[2] * bg[3], bg[3]])
@@ -407,6 +410,11 @@ def test_merged_boxes_never_cut_rays_short(scenes):
     a, b = merged.render(cam, tf), single.render(cam, tf)
     assert merged.action.boxes_drawn == single.action.boxes_drawn == len(single.action.last_selection.items)
     np.testing.assert_array_equal(a, b)
+    # the single pass takes no ray of more samples than llvmpipe's loop cap: drawn per brick instead
+    sp = scenes(vol, 8, selection="fixed", level=0, step=0.001, path="single-pass")
+    c = sp.render(cam, tf)
+    assert sp.action.path_drawn == "bricks"
+    np.testing.assert_array_equal(a, c)
 
 
 def test_may_cover_answers_whether_every_brick_of_the_node_is_in_texture_memory(scenes):

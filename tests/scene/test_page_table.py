@@ -74,10 +74,80 @@ def test_page_table_names_the_item_holding_each_point():
     assert covered > 500
 
 
-def test_merged_items_are_refused():
+class AllResident(HalfResident):
+    def resident_mask(self, level, idx):
+        return np.ones(len(np.asarray(idx).reshape(-1, 3)), dtype=bool)
+
+
+def test_merged_items_are_nodes_over_blocks_of_bricks():
+    """merge_items' boxes over complete sibling sets are table nodes of the coarser level whose data
+    is the block of finer bricks under them; a block face is open only where every brick on it is
+    (reference: the items' boxes and a per-brick loop over a random open-face answer)."""
+    from clipvol.scene.selection import merge_items
+
+    pyr = Pyramid.build((70, 64, 90), (8, 8, 8))
+    cam = Camera.perspective((30.0, 20.0, -25.0), (45.0, 32.0, 35.0), size=(48, 40), fov_y=50)
+    sel = select(pyr, cam, RenderParams(policy="fixed", level=0), residency=AllResident())
+    windows = [tuple(pyr.grid(L)) for L in range(pyr.num_levels)]
+    items = merge_items(list(sel.items), pyr, windows)
+    assert any(it.span > 1 for it in items) and len(items) < len(sel.items)
+    rng = np.random.default_rng(3)
+    open_bits = {}  # a random open/closed answer per (brick, axis, side), fixed for the test
+
+    def open_faces(level, idx):
+        idx = np.asarray(idx).reshape(-1, 3)
+        out = np.zeros((len(idx), 3, 2), dtype=bool)
+        for n, b in enumerate(idx):
+            key = (level, tuple(int(v) for v in b))
+            if key not in open_bits:
+                open_bits[key] = rng.random((3, 2)) < 0.8
+            out[n] = open_bits[key]
+        return out
+
+    table = build_page_table(items, pyr, open_faces)
+    assert table is not None
+    lo = np.array([it.lo for it in items])
+    hi = np.array([it.hi for it in items])
+    vlo, vhi = pyr.volume_box()
+    pts = vlo + rng.random((2000, 3)) * (vhi - vlo)
+    seen_merged = 0
+    for p in pts:
+        inside = np.nonzero(np.all((lo <= p) & (p < hi), axis=1))[0]
+        kind, L, cell, Ld = walk(table, pyr, p)
+        if len(inside) == 0:
+            assert kind == EMPTY
+            continue
+        it = items[inside[0]]
+        assert kind == DRAWN and Ld == it.level
+        assert 2 ** (L - Ld) == it.span  # the node over the block
+        assert tuple(np.array(cell) << (L - Ld)) == tuple(it.index)  # the block's first brick
+        if it.span > 1:
+            seen_merged += 1
+        # faces: open where open for every brick of the block on that face (loops, per brick)
+        e = int(table.lookup(L, np.array(cell)[None])[0])
+        grid = pyr.grid(Ld)
+        first = it.index
+        stop = [min(f + it.span, g) for f, g in zip(first, grid)]
+        for k, axis in enumerate((2, 1, 0)):
+            for side in (0, 1):
+                want = True
+                for bz in range(first[0], stop[0]):
+                    for by in range(first[1], stop[1]):
+                        for bx in range(first[2], stop[2]):
+                            b = (bz, by, bx)
+                            on_face = b[axis] == (first[axis] if side == 0 else stop[axis] - 1)
+                            if on_face and not open_bits[(Ld, b)][axis, side]:
+                                want = False
+                got = bool((e >> (8 + 2 * k + side)) & 1)
+                assert got == want, (it, axis, side)
+    assert seen_merged > 100
+
+
+def test_a_block_not_on_its_node_is_refused():
     from clipvol.scene.selection import DrawItem
 
     pyr = Pyramid.build((32, 32, 32), (8, 8, 8))
     lo, hi = pyr.node_box(1, (0, 0, 0))
-    merged = [DrawItem(0, (0, 0, 0), tuple(lo), tuple(hi), 2)]
-    assert build_page_table(merged, pyr) is None
+    shifted = [DrawItem(0, (0, 0, 1), tuple(lo), tuple(hi), 2)]  # its bricks do not start at the node
+    assert build_page_table(shifted, pyr) is None
+    assert build_page_table([DrawItem(0, (0, 0, 0), tuple(lo), tuple(hi), 3)], pyr) is None  # span not 2^k
