@@ -103,3 +103,20 @@ def test_the_rule_would_catch_a_violation(tmp_path):
     found = list(imports(f, "clipvol.scene.bad", False))
     assert (1, "moderngl") in found and (2, "clipvol.render.action") in found
     assert stage_of("clipvol.render.action") > stage_of("clipvol.scene.bad")
+
+
+#: packages only the tests install (the `dev` extra): the product may not import them
+TEST_ONLY = {"scipy", "pytest", "hypothesis", "moto", "boto3"}
+
+
+def test_product_code_needs_no_test_only_package():
+    """`pip install -e .` must be enough for everything but the benchmarks: the CPU visibility pass
+    once reached for scipy, and `clipvol demo` failed on a fresh machine."""
+    bad = []
+    for path, module, is_pkg in ALL:
+        if module.startswith("clipvol.tools.bench_") or module == "clipvol.testing":
+            continue  # benchmarks may use the dev extra; the loader conformance suite is for pytest
+        for line, target in imports(path, module, is_pkg):
+            if target.split(".")[0] in TEST_ONLY:
+                bad.append(f"{path.relative_to(ROOT)}:{line} imports {target}")
+    assert not bad, "product code importing a test-only package:\n" + "\n".join(bad)

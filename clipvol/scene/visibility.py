@@ -32,7 +32,7 @@ import numpy as np
 
 from .camera import Camera
 
-__all__ = ["OcclusionLayers", "summed_area_table", "rect_mean", "screen_rects", "box_depths", "march_occlusion",
+__all__ = ["OcclusionLayers", "summed_area_table", "rect_mean", "screen_rects", "box_depths", "march_occlusion", "trilinear",
            "view_close"]
 
 
@@ -187,6 +187,24 @@ def _degrees(u, v) -> float:
     return math.degrees(math.acos(float(np.clip(np.dot(u, v), -1.0, 1.0))))
 
 
+def trilinear(volume: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """``(m,)`` float32: ``volume`` (``(z, y, x)``) interpolated trilinearly at ``points`` (``(m, 3)``
+    voxel coordinates ``(z, y, x)``, already clamped to ``[0, shape - 1]``). numpy only, so the core
+    needs no scipy (the tests check it against ``scipy.ndimage.map_coordinates(order=1)``)."""
+    vol = np.asarray(volume, dtype=np.float32)
+    p = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+    top = np.asarray(vol.shape, dtype=np.int64) - 1
+    i0 = np.minimum(np.floor(p).astype(np.int64), np.maximum(top - 1, 0))  # i0 + 1 stays inside
+    i1 = np.minimum(i0 + 1, top)
+    f = p - i0.astype(np.float32)
+    (z0, y0, x0), (z1, y1, x1), (fz, fy, fx) = i0.T, i1.T, f.T
+    c00 = vol[z0, y0, x0] * (1 - fx) + vol[z0, y0, x1] * fx
+    c01 = vol[z0, y1, x0] * (1 - fx) + vol[z0, y1, x1] * fx
+    c10 = vol[z1, y0, x0] * (1 - fx) + vol[z1, y0, x1] * fx
+    c11 = vol[z1, y1, x0] * (1 - fx) + vol[z1, y1, x1] * fx
+    return (c00 * (1 - fy) + c01 * fy) * (1 - fz) + (c10 * (1 - fy) + c11 * fy) * fz
+
+
 def march_occlusion(volume: np.ndarray, scale_zyx, translation_zyx, camera: Camera, alpha_of, depths,
                     ref_length: float, step: float = 1.0, shape=None) -> np.ndarray:
     """``(K, h, w)`` opacity accumulated in front of each of ``depths`` (ascending, along the view
@@ -216,8 +234,6 @@ def march_occlusion(volume: np.ndarray, scale_zyx, translation_zyx, camera: Came
     for the ray's length between two planes (``1 - (1 - a) ** (length / ref_length)``). Layer ``k``
     holds ``1 - prod (1 - a_j)`` over the samples with ``d_j < depths[k]``.
     """
-    from scipy.ndimage import map_coordinates
-
     vol = np.asarray(volume, dtype=np.float32)
     sc = np.asarray(scale_zyx, dtype=np.float64)[::-1]  # (x, y, z)
     tr = np.asarray(translation_zyx, dtype=np.float64)[::-1]
@@ -250,7 +266,7 @@ def march_occlusion(volume: np.ndarray, scale_zyx, translation_zyx, camera: Came
         inside &= shape.contains(world.reshape(-1, 3)).reshape(inside.shape)
     np.clip(coords, 0.0, n_zyx - 1.0, out=coords)
     a = np.zeros(inside.shape, dtype=np.float32)
-    vals = map_coordinates(vol, coords[inside].T, order=1, mode="nearest")  # only samples inside
+    vals = trilinear(vol, coords[inside])  # only samples inside
     a[inside] = alpha_of(vals)
     # opacity for the ray's length between two planes: 1 - (1 - a) ** ratio
     ratio = (dd / cos / float(ref_length)).astype(np.float32)

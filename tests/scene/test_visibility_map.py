@@ -146,3 +146,19 @@ def test_silhouette_fraction_is_the_outline_share_of_the_footprint():
     # the box straddling the disc's edge: x in [4, 8] -> map columns 14..17, y in [-1, 1] -> rows 9..10
     assert s[2] == pytest.approx(outline[9:11, 14:18].mean()) and s[2] > 0
     assert s[3] == pytest.approx(outline.mean())  # the whole image
+
+
+@pytest.mark.parametrize("shape", [(7, 5, 9), (1, 6, 4), (3, 1, 1)])
+def test_trilinear_equals_scipy(shape):
+    """The numpy trilinear sampler of the visibility pass against scipy's (order 1, clamped edges)."""
+    from scipy.ndimage import map_coordinates
+
+    from clipvol.scene.visibility import trilinear
+
+    rng = np.random.default_rng(3)
+    vol = rng.random(shape).astype(np.float32)
+    pts = rng.random((500, 3)) * (np.array(shape) - 1)
+    pts[:5] = np.array(shape) - 1  # the far corner and edges
+    pts[5:10] = 0.0
+    ref = map_coordinates(vol, pts.T, order=1, mode="nearest")
+    assert np.allclose(trilinear(vol, pts), ref, atol=1e-5)
