@@ -3,6 +3,7 @@
 Usage::
 
     python -m clipvol.tools.bench_splat [--build-sizes 1e6,4e6,16e6] [--render-points 4e6] [--size 256]
+    python -m clipvol.tools.bench_splat --build-only --build-sizes 4e6,16e6,50e6 --out docs/bench_splat_build.csv
 
 Data: :class:`clipvol.bricking.point_sources.ClusteredPointSource` (64 Gaussian clusters of varied
 width plus 20 % uniform background, like the particles of a simulation), generated chunk by chunk,
