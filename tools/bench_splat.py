@@ -3,6 +3,7 @@
 Usage::
 
     python -m clipvol.tools.bench_splat [--build-sizes 1e6,4e6,16e6] [--render-points 4e6] [--size 256]
+    python -m clipvol.tools.bench_splat --build-only --build-sizes 4e6,16e6,50e6 --out docs/bench_splat_build.csv
 
 Data: :class:`clipvol.bricking.point_sources.ClusteredPointSource` (64 Gaussian clusters of varied
 width plus 20 % uniform background, like the particles of a simulation), generated chunk by chunk,
@@ -236,6 +237,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--representative", choices=("nearest", "mean"), default="nearest", help="inner nodes' values")
     p.add_argument("--frames-png", default=str(ROOT / "docs" / "bench_splat_frames.png"))
     p.add_argument("--out", default=str(ROOT / "docs" / "bench_splat.csv"))
+    p.add_argument("--build-only", action="store_true",
+                   help="time the builds only (no frames); rows go to --out (e.g. docs/bench_splat_build.csv)")
     a = p.parse_args(argv)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -255,8 +258,8 @@ def main(argv: list[str] | None = None) -> int:
                 import shutil
 
                 shutil.rmtree(out)
-        frames = _frames(render_store, a.size, a.tolerances.split(","), Path(a.frames_png))
-    base = frames[-1]["frame_s"]
+        frames = [] if a.build_only else _frames(render_store, a.size, a.tolerances.split(","), Path(a.frames_png))
+    base = frames[-1]["frame_s"] if frames else 0.0
     for f in frames:
         f["speedup_vs_every_point"] = base / f["frame_s"]
     keys = sorted({k for r in rows + frames for k in r})
@@ -265,7 +268,8 @@ def main(argv: list[str] | None = None) -> int:
         w.writeheader()
         for r in rows + frames:
             w.writerow(r)
-    _plot(frames, Path(a.out).with_suffix(".png"), int(a.render_points))
+    if frames:
+        _plot(frames, Path(a.out).with_suffix(".png"), int(a.render_points))
     print(f"wrote {a.out}")
     return 0
 

@@ -191,7 +191,7 @@ class _Writer:
             self.xyz[self._plen:self._plen + n] = xyz[:n]
             self.vals[self._plen:self._plen + n] = vals[:n]
             self._plen += n
-            self._pbuf = [(xyz[n:], vals[n:])]
+            self._pbuf = [(xyz[n:].copy(), vals[n:].copy())]  # copies: a view would keep the whole concatenation
         pending = self.num_nodes - self._nlen
         m = pending if final else (pending // NODE_CHUNK) * NODE_CHUNK
         if m:
@@ -199,7 +199,7 @@ class _Writer:
                 data = np.concatenate(self._nbuf[name])
                 arr.resize((self._nlen + m,))
                 arr[self._nlen:self._nlen + m] = data[:m]
-                self._nbuf[name] = [data[m:]]
+                self._nbuf[name] = [data[m:].copy()]
             self._nlen += m
 
     def restore(self, st) -> None:
@@ -286,7 +286,10 @@ class _Build:
         counts = np.bincount(node, minlength=len(b.depth))
         self.w.add(b.depth, b.code, b.end - b.start, b.child_mask, counts,
                    (xyz[pt] - self.origin).astype(np.float32), val)
-        # stored sets of the roots, in the order given
+        # stored sets of the roots, in the order given: copies, never views - a root's stored set lives
+        # until its parent is built (for the root's partition, until every group is done), and a view
+        # would keep this group's whole ``val`` alive with it (about 5 bytes per input point, for the
+        # whole build: the memory that grew with N)
         out = []
         root_ids = np.flatnonzero(b.parent < 0)
         by_code = {(int(b.depth[i]), int(b.code[i])): i for i in root_ids}
@@ -294,7 +297,7 @@ class _Build:
         for d, c in zip(rd.tolist(), rc.tolist()):
             i = by_code[(d, c)]
             p = pt[bounds[i]:bounds[i + 1]]
-            out.append((keys[p], xyz[p], val[bounds[i]:bounds[i + 1]], int(b.end[i] - b.start[i])))
+            out.append((keys[p], xyz[p], val[bounds[i]:bounds[i + 1]].copy(), int(b.end[i] - b.start[i])))
         return out
 
     # -- out of core ------------------------------------------------------------------------
