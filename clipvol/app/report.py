@@ -86,7 +86,7 @@ class ReportResult:
     rows: list[dict] = field(default_factory=list)
     reference_level: int = 0
     skipped: list[str] = field(default_factory=list)
-    #: rows of the block-budget sweep (:mod:`clipvol.app.lod_sweep`, the seed's Fig. 6)
+    #: rows of the block-budget sweep (:mod:`clipvol.app.lod_sweep`, Fig. 6 of Wang, Garcia & Shen 2007)
     lod_rows: list[dict] = field(default_factory=list)
 
 
