@@ -321,10 +321,15 @@ class ClipTexture:
         lv = self._lv(level)
         idx = np.asarray(indices, dtype=np.int64).reshape(-1, 3)
         with self._lock:
-            ok = in_box(idx, lv.start, lv.stop)
-            s = slot_of(idx[ok], lv.shape)
-            res = np.zeros(len(idx), dtype=bool)
-            res[ok] = (lv.state[s] == _RESIDENT) & np.all(lv.key[s] == idx[ok], axis=1)
+            return self._resident_locked(lv, idx)
+
+    @staticmethod
+    def _resident_locked(lv: _Level, idx: np.ndarray) -> np.ndarray:
+        """``(n,)`` bool: resident among ``idx`` (``(n, 3)``); the caller holds the lock."""
+        ok = in_box(idx, lv.start, lv.stop)
+        s = slot_of(idx[ok], lv.shape)
+        res = np.zeros(len(idx), dtype=bool)
+        res[ok] = (lv.state[s] == _RESIDENT) & np.all(lv.key[s] == idx[ok], axis=1)
         return res
 
     def state(self, level: int, index) -> BrickState:
@@ -359,10 +364,7 @@ class ClipTexture:
         lv = self._lv(level)
         idx = np.asarray(indices, dtype=np.int64).reshape(-1, 3)
         with self._lock:
-            ok = in_box(idx, lv.start, lv.stop)
-            s = slot_of(idx[ok], lv.shape)
-            res = np.zeros(len(idx), dtype=bool)
-            res[ok] = (lv.state[s] == _RESIDENT) & np.all(lv.key[s] == idx[ok], axis=1)
+            res = self._resident_locked(lv, idx)
             data = lv.pool[slot_of(idx[res], lv.shape)]
         return res, data
 

@@ -527,15 +527,15 @@ class ClipRenderAction:
         items = list(sel.items)
         self.path_drawn = "bricks"
         self.page_table_nodes = 0
+        if self.params.merge_boxes and items:  # once, for either path
+            merged = merge_items(items, self.pyramid, self.cache.windows, self._may_cover())
+            if self._samples_per_box(cam, merged) <= MAX_STEPS_PER_BOX:  # else the rays would be cut
+                items = merged
         if self.params.path == "single-pass" and items:
             out = self._draw_single_pass(cam, tf, items)
             if out is not None:
                 self.path_drawn = "single-pass"
                 return out
-        if self.params.merge_boxes:
-            merged = merge_items(items, self.pyramid, self.cache.windows, self._may_cover())
-            if self._samples_per_box(cam, merged) <= MAX_STEPS_PER_BOX:  # else the rays would be cut
-                items = merged
         self._check_samples(cam, items)
         self.boxes_drawn = len(items)
         t0 = time.perf_counter()
@@ -681,10 +681,7 @@ class ClipRenderAction:
         finest = self.params.step * min(float(min(pyr.levels[it.level].scale)) for it in items)
         if float(np.linalg.norm(vhi - vlo)) / finest > MAX_SINGLE_PASS_RAY_SAMPLES:
             return None
-        if self.params.merge_boxes:  # complete sibling sets become one node of the table (no face inside)
-            merged = merge_items(items, pyr, self.cache.windows, self._may_cover())
-            if self._samples_per_box(cam, merged) <= MAX_STEPS_PER_BOX:  # else the rays would be cut
-                items = merged
+        # items come merged (complete sibling sets are one node of the table, no face inside)
         table = build_page_table(items, pyr, self.cache.open_faces)
         if table is None or len(table.entries) > MAX_PAGE_TABLE_ENTRIES:
             return None

@@ -99,22 +99,9 @@ def hud_lines(
         res = level_counts(res)
         if res:
             lines.append(f"resident {sum(res.values()) / 1e6:.1f} MB  {_per_level({k: v / 1e6 for k, v in res.items()}, '{:.1f}')}")
-        q = getattr(texture_stats, "queued", getattr(texture_stats, "queue_length", None))
-        mbs = getattr(texture_stats, "mb_per_s", None)
-        lps = getattr(texture_stats, "loads_per_s", None)
-        part = []
-        if q is not None:
-            part.append(f"queue {q}")
-        if lps is not None:
-            part.append(f"{lps:.0f} loads/s")
-        if mbs is not None:
-            part.append(f"{mbs:.1f} MB/s")
-        nf = getattr(texture_stats, "failures", None)
-        nf = len(nf) if isinstance(nf, (dict, list, tuple, set)) else nf
-        if nf:
-            part.append(f"{nf} failed")
-        if part:
-            lines.append("  ".join(part))
+        loading = _loading_line(texture_stats)
+        if loading:
+            lines.append(loading)
     if message:
         lines.append(message)
     return lines
@@ -241,15 +228,28 @@ def point_hud_lines(*, fps: float | None = None, frame_stats=None, tolerance: fl
         if getattr(frame_stats, "clamped", 0):
             state += f"  {frame_stats.clamped:,} splats clamped to the largest point size"
         lines.append(state)
-    if texture_stats is not None:
-        q = getattr(texture_stats, "queued", None)
-        nf = getattr(texture_stats, "failures", None)
-        nf = len(nf) if isinstance(nf, (dict, list, tuple, set)) else nf
-        part = [f"queue {q}"] if q is not None else []
-        if nf:
-            part.append(f"{nf} failed")
-        if part:
-            lines.append("  ".join(part))
+    loading = _loading_line(texture_stats) if texture_stats is not None else ""
+    if loading:
+        lines.append(loading)
     if message:
         lines.append(message)
     return lines
+
+
+def _loading_line(texture_stats) -> str:
+    """The clip-texture's loading line of both HUDs: queue, loads/s, MB/s and failures (what it has)."""
+    q = getattr(texture_stats, "queued", getattr(texture_stats, "queue_length", None))
+    mbs = getattr(texture_stats, "mb_per_s", None)
+    lps = getattr(texture_stats, "loads_per_s", None)
+    part = []
+    if q is not None:
+        part.append(f"queue {q}")
+    if lps is not None:
+        part.append(f"{lps:.0f} loads/s")
+    if mbs is not None:
+        part.append(f"{mbs:.1f} MB/s")
+    nf = getattr(texture_stats, "failures", None)
+    nf = len(nf) if isinstance(nf, (dict, list, tuple, set)) else nf
+    if nf:
+        part.append(f"{nf} failed")
+    return "  ".join(part)
