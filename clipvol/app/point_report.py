@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import csv
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
@@ -33,6 +33,7 @@ from ..scene.camera import Camera
 from ..scene.metrics import percent_delta_e, psnr, rmse
 from ..scene.splat_select import tolerance_pixels
 from .point_session import PointSession, open_point_loader
+from .report import ReportFiles
 
 __all__ = ["PointReportResult", "run_point_report", "POINT_REPORT_COLUMNS", "DEFAULT_TOLERANCES", "POINT_REFERENCES",
            "footprint_blur"]
@@ -52,15 +53,8 @@ POINT_REFERENCES = (
 
 
 @dataclass
-class PointReportResult:
+class PointReportResult(ReportFiles):
     """Files written by :func:`run_point_report` and its rows."""
-
-    out_dir: Path
-    csv: Path
-    markdown: Path
-    plots: list[Path] = field(default_factory=list)
-    images: list[Path] = field(default_factory=list)
-    rows: list[dict] = field(default_factory=list)
 
 
 def orbit_cameras(lo, hi, views: int, size, fov_y: float = 35.0, elevation: float = 25.0) -> list[Camera]:

@@ -75,8 +75,8 @@ REPORT_COLUMNS = (
 
 
 @dataclass
-class ReportResult:
-    """Files written by :func:`run_report` and its rows."""
+class ReportFiles:
+    """What every report writes: its folder, CSV, markdown, plots, images, and its rows."""
 
     out_dir: Path
     csv: Path
@@ -84,6 +84,12 @@ class ReportResult:
     plots: list[Path] = field(default_factory=list)
     images: list[Path] = field(default_factory=list)
     rows: list[dict] = field(default_factory=list)
+
+
+@dataclass
+class ReportResult(ReportFiles):
+    """Files written by :func:`run_report` and its rows."""
+
     reference_level: int = 0
     skipped: list[str] = field(default_factory=list)
     #: rows of the block-budget sweep (:mod:`clipvol.app.lod_sweep`, Fig. 6 of Wang, Garcia & Shen 2007)

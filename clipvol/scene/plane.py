@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ParameterError
+from .camera import _vec3 as _camera_vec3
 
 __all__ = ["Plane", "AXES", "AXIS_LETTERS", "default_pixel_size", "default_size"]
 
@@ -44,13 +45,9 @@ AXIS_LETTERS = {"z": "axial", "y": "coronal", "x": "sagittal"}
 
 
 def _vec3(value, name: str) -> np.ndarray:
-    try:
-        v = np.asarray(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        raise ParameterError(f"{name}: expected three finite numbers (x, y, z), got {value!r}") from None
-    if v.shape != (3,) or not np.all(np.isfinite(v)):
-        raise ParameterError(f"{name}: expected three finite numbers (x, y, z), got {value!r}")
-    return v
+    """:func:`clipvol.scene.camera._vec3` (three finite numbers, else a ParameterError naming
+    ``name``) as an array."""
+    return np.array(_camera_vec3(value, name))
 
 
 @dataclass(frozen=True, slots=True)
