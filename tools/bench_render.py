@@ -202,6 +202,65 @@ class RawCaster:
                 o.release()
 
 
+def fractal_scene(n: int, image: int, log=None):
+    """The benchmarks' common set-up: ``procedural:fractal?size=n`` in memory (float32), its loader
+    (64³ bricks), a camera that fills an ``image``² view with it (about one pixel per voxel at 512),
+    the ``bone`` table, and a clip-texture whose budget holds every brick. Returns ``(vol, loader,
+    camera, tf, budget, clip)``; the caller closes ``clip``."""
+    from clipvol.loaders.numpy_array import NumpyLoader
+    from clipvol.loaders.procedural import ProceduralLoader
+    from clipvol.paging.cliptexture import ClipTexture
+    from clipvol.scene.camera import Camera
+    from clipvol.scene.transfer import TransferFunction
+
+    t0 = time.perf_counter()
+    vol = ProceduralLoader(f"procedural:fractal?size={n}", brick=64).generator.region(0, (0, 0, 0), (n, n, n))
+    vol = np.ascontiguousarray(vol, dtype=np.float32)
+    if log is not None:
+        log(f"{n}^3: generated in {time.perf_counter() - t0:.1f} s")
+    loader = NumpyLoader(vol, brick=64, value_range=(float(vol.min()), float(vol.max())))
+    pyr = loader.pyramid
+    lo, hi = pyr.volume_box()
+    centre = (lo + hi) / 2.0
+    d = np.array([0.55, 0.45, 0.7])
+    d /= np.linalg.norm(d)
+    cam = Camera.perspective(tuple(centre - d * 1.05 * float(np.linalg.norm(hi - lo))), tuple(centre), up=(0, -1, 0),
+                             fov_y=35, size=(image, image))
+    tf = TransferFunction.preset("bone", value_range=pyr.value_range)
+    budget = int(sum(pyr.num_bricks(L) for L in range(pyr.num_levels)) * pyr.brick_nbytes * 1.2) + (64 << 20)
+    return vol, loader, cam, tf, budget, ClipTexture(loader, budget, threads=2)
+
+
+def interleaved_medians(raw, actions: dict, cam, tf, step: float, repeat: int) -> tuple[dict, dict]:
+    """Median wall and process-CPU seconds of the raw caster (``"raw"``) and each action, measured in
+    ``repeat`` interleaved rounds (the shared machine's load hits every configuration alike), after
+    one converged frame of each."""
+    for a in actions.values():
+        a.render(cam, tf, wait=True, timeout=600)
+    raw.render(cam, tf, step)
+    wall = {k: [] for k in ["raw", *actions]}
+    cpu = {k: [] for k in ["raw", *actions]}
+    for _ in range(repeat):
+        t, c = time.perf_counter(), time.process_time()
+        raw.render(cam, tf, step)
+        wall["raw"].append(time.perf_counter() - t)
+        cpu["raw"].append(time.process_time() - c)
+        for name, a in actions.items():
+            t, c = time.perf_counter(), time.process_time()
+            a.render(cam, tf, wait=False)
+            wall[name].append(time.perf_counter() - t)
+            cpu[name].append(time.process_time() - c)
+    return ({k: statistics.median(v) for k, v in wall.items()}, {k: statistics.median(v) for k, v in cpu.items()})
+
+
+def write_rows(path, rows: list[dict]) -> None:
+    """``rows`` as a CSV at ``path`` (columns: the first row's keys)."""
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+
+
 def _frames(action, cam, tf, repeat: int) -> tuple[float, float, np.ndarray]:
     """Median total and draw seconds of ``repeat`` warm frames, and the last image."""
     tot, draw = [], []
@@ -321,33 +380,15 @@ def vs_raw(sizes, image: int, repeat: int, step: float, out_dir: Path, fly_frame
     Volumes: ``procedural:fractal?size=N`` (float32), generated in memory.
     """
     from clipvol.loaders.numpy_array import NumpyLoader
-    from clipvol.loaders.procedural import ProceduralLoader
     from clipvol.paging.cliptexture import ClipTexture
     from clipvol.render import create_context
     from clipvol.render.action import ClipRenderAction, premultiplied_to_uint8
-    from clipvol.scene.camera import Camera
-    from clipvol.scene.paths import make_path
-    from clipvol.scene.transfer import TransferFunction
 
     ctx = create_context()
     rows = []
     for n in sizes:
-        t0 = time.perf_counter()
-        vol = ProceduralLoader(f"procedural:fractal?size={n}", brick=64).generator.region(0, (0, 0, 0), (n, n, n))
-        vol = np.ascontiguousarray(vol, dtype=np.float32)
-        log(f"{n}^3: generated in {time.perf_counter() - t0:.1f} s")
-        loader = NumpyLoader(vol, brick=64, value_range=(float(vol.min()), float(vol.max())))
+        vol, loader, cam, tf, budget, clip = fractal_scene(n, image, log)
         pyr = loader.pyramid
-        lo, hi = pyr.volume_box()
-        centre = (lo + hi) / 2.0
-        d = np.array([0.55, 0.45, 0.7])
-        d /= np.linalg.norm(d)
-        # the volume fills the view: 1 pixel is about 1 voxel at 512^2 and 512^3
-        cam = Camera.perspective(tuple(centre - d * 1.05 * float(np.linalg.norm(hi - lo))), tuple(centre), up=(0, -1, 0),
-                                 fov_y=35, size=(image, image))
-        tf = TransferFunction.preset("bone", value_range=pyr.value_range)
-        budget = int(sum(pyr.num_bricks(L) for L in range(pyr.num_levels)) * pyr.brick_nbytes * 1.2) + (64 << 20)
-        clip = ClipTexture(loader, budget, threads=2)
         one_loader = NumpyLoader(vol, brick=n, value_range=pyr.value_range)
         clip1 = ClipTexture(one_loader, vol.nbytes + (16 << 20), threads=1)
         common = dict(step=step, texture_budget=budget)

@@ -19,66 +19,30 @@ ratio lit / unlit is expected to be well above 1 on a CPU rasteriser.
 from __future__ import annotations
 
 import argparse
-import csv
-import statistics
 import sys
-import time
 from pathlib import Path
 
-import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_render import RawCaster  # noqa: E402  (the baseline outside clipvol's render path)
+from bench_render import RawCaster, fractal_scene, interleaved_medians, write_rows  # noqa: E402  (RawCaster: the baseline outside clipvol's render path)
 
 REPO = Path(__file__).resolve().parent.parent
 
 
 def run(sizes, image: int, repeat: int, step: float, log=print) -> list[dict]:
-    from clipvol.loaders.numpy_array import NumpyLoader
-    from clipvol.loaders.procedural import ProceduralLoader
-    from clipvol.paging.cliptexture import ClipTexture
     from clipvol.render import create_context
     from clipvol.render.action import ClipRenderAction
-    from clipvol.scene.camera import Camera
-    from clipvol.scene.transfer import TransferFunction
 
     ctx = create_context()
     rows = []
     for n in sizes:
-        vol = ProceduralLoader(f"procedural:fractal?size={n}", brick=64).generator.region(0, (0, 0, 0), (n, n, n))
-        vol = np.ascontiguousarray(vol, dtype=np.float32)
-        loader = NumpyLoader(vol, brick=64, value_range=(float(vol.min()), float(vol.max())))
+        vol, loader, cam, tf, budget, clip = fractal_scene(n, image)
         pyr = loader.pyramid
-        lo, hi = pyr.volume_box()
-        centre = (lo + hi) / 2.0
-        d = np.array([0.55, 0.45, 0.7])
-        d /= np.linalg.norm(d)
-        cam = Camera.perspective(tuple(centre - d * 1.05 * float(np.linalg.norm(hi - lo))), tuple(centre),
-                                 up=(0, -1, 0), fov_y=35, size=(image, image))
-        tf = TransferFunction.preset("bone", value_range=pyr.value_range)
-        budget = int(sum(pyr.num_bricks(L) for L in range(pyr.num_levels)) * pyr.brick_nbytes * 1.2) + (64 << 20)
-        clip = ClipTexture(loader, budget, threads=2)
         common = dict(policy="fixed", level=0, step=step, texture_budget=budget)
         actions = {f"{path} {'lit' if lit else 'unlit'}": ClipRenderAction(ctx, clip, path=path, shading=lit, **common)
                    for path in ("bricks", "single-pass") for lit in (False, True)}
         raw = RawCaster(ctx, vol, pyr.value_range)
-        for a in actions.values():
-            a.render(cam, tf, wait=True, timeout=600)
-        raw.render(cam, tf, step)
-        wall = {k: [] for k in ["raw", *actions]}
-        cpu = {k: [] for k in ["raw", *actions]}
-        for _ in range(repeat):
-            t, c = time.perf_counter(), time.process_time()
-            raw.render(cam, tf, step)
-            wall["raw"].append(time.perf_counter() - t)
-            cpu["raw"].append(time.process_time() - c)
-            for name, a in actions.items():
-                t, c = time.perf_counter(), time.process_time()
-                a.render(cam, tf, wait=False)
-                wall[name].append(time.perf_counter() - t)
-                cpu[name].append(time.process_time() - c)
-        mw = {k: statistics.median(v) for k, v in wall.items()}
-        mc = {k: statistics.median(v) for k, v in cpu.items()}
+        mw, mc = interleaved_medians(raw, actions, cam, tf, step, repeat)
         row = dict(size=n, image=image, repeat=repeat, raw_s=round(mw["raw"], 4), raw_cpu_s=round(mc["raw"], 4))
         for k in actions:
             key = k.replace(" ", "_").replace("-", "_")
@@ -112,10 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=str(REPO / "docs" / "bench_shading.csv"))
     args = ap.parse_args(argv)
     rows = run([int(s) for s in args.sizes.split(",")], args.image, args.repeat, args.step)
-    with open(args.out, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_rows(args.out, rows)
     print(f"wrote {args.out}")
     return 0
 
