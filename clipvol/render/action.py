@@ -17,18 +17,20 @@ Per frame (:meth:`ClipRenderAction.render`):
      cut, merged like the per-brick path's boxes (a complete sibling set is one node whose data is
      a block of finer bricks), becomes a per-level **page table** (:mod:`clipvol.scene.page_table`:
      per node EMPTY, REFINED or DRAWN-from-level-``Ld``, plus the faces filtering may cross),
-     uploaded as one small integer texture. One proxy box - the volume's - is drawn; each pixel's
+     uploaded as one small integer texture. One proxy - the volume's box - is drawn; each pixel's
      ray walks the table from the coarsest level down at its current point, samples the node's box
      from the data level's toroidal texture on that level's lattice, skips EMPTY nodes in one step,
      switches level at node faces and stops when opaque. No framebuffer copies, no per-box set-up,
-     no blending. The shader is compiled per range of data levels the table uses. A cut the table
+     no blending (one triangle under the scissor rectangle of the volume's box). The shader is compiled per range of data levels the table uses. A cut the table
      cannot express (more than 16 levels) or rays of more than :data:`MAX_SINGLE_PASS_RAY_SAMPLES`
      samples (llvmpipe's loop cap) fall back to the bricks path.
    * ``"bricks"`` (default; on llvmpipe the two paths cost about the same, neither faster
      everywhere, see ``docs/benchmarks.md``) - one proxy box per :class:`~clipvol.scene.selection.DrawItem` into a float32
-     RGBA offscreen target (the method of Bhaniramka & Demange's OpenGL Volumizer, and the reference). The box's *back* faces are
-     rasterised (front faces culled; depth clamp on and a far plane never applied), so the
-     camera may sit inside a box. Between boxes composite mode uses the selection's exact
+     RGBA offscreen target (the method of Bhaniramka & Demange's OpenGL Volumizer, and the reference). Each box is
+     drawn as one viewport-covering triangle restricted by the scissor test to the box's screen
+     rectangle (``shaders/screen.vert.glsl``: no inner triangle edges for a software rasteriser to
+     shade twice; the fragment finds its ray's interval in the box itself and returns where there
+     is none), so the camera may sit inside a box. Between boxes composite mode uses the selection's exact
      visibility order in one of two equivalent ways (the operator is associative). Default
      (``early_termination=True``): *front to back* (the back-to-front list reversed) with the
      "under" operator ``(ONE_MINUS_DST_ALPHA, ONE)``; every ``len(items) / 32`` boxes the target
@@ -105,7 +107,6 @@ SELECTIONS = tuple(POLICIES)
 #: most samples one ray takes inside one box (a smaller step is refused with ParameterError)
 MAX_STEPS_PER_BOX = 1 << 16
 _MIP_EMPTY = -3.0e38
-_GL_DEPTH_CLAMP = 0x864F
 #: accumulated opacity at which a ray stops early
 OPAQUE = 0.9995
 #: composite: an occlusion pass after every len(items) / OCCLUSION_PASSES boxes (at least this many)
@@ -121,23 +122,23 @@ MAX_SINGLE_PASS_RAY_SAMPLES = 1 << 15
 MAX_PAGE_TABLE_ENTRIES = 1 << 24
 PAGE_TABLE_WIDTH = 1024
 
-# unit cube, 12 triangles wound counter-clockwise seen from outside
-_CUBE_FACES = [
-    (0, 2, 3, 1),  # z = 0 (normal -z)
-    (4, 5, 7, 6),  # z = 1
-    (0, 1, 5, 4),  # y = 0
-    (2, 6, 7, 3),  # y = 1
-    (0, 4, 6, 2),  # x = 0
-    (1, 3, 7, 5),  # x = 1
-]
+def scissor_boxes(cam, lo, hi) -> np.ndarray:
+    """GL scissor boxes ``(n, 4)`` int ``x, y, w, h`` (origin bottom left) holding the screen
+    rectangles of boxes ``lo``/``hi`` (world, ``(n, 3)``) with a pixel of margin; a box that reaches
+    the eye plane gets the whole image, one off the image an empty box (``w`` or ``h`` 0)."""
+    from ..scene.visibility import box_depths, screen_rects
 
-
-def _cube_triangles() -> np.ndarray:
-    corners = np.array([[(i >> 0) & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=np.float32)
-    tris = []
-    for a, b, c, d in _CUBE_FACES:
-        tris += [a, b, c, a, c, d]
-    return corners[tris]
+    w, h = (int(v) for v in cam.size)
+    lo = np.asarray(lo, dtype=np.float64).reshape(-1, 3)
+    hi = np.asarray(hi, dtype=np.float64).reshape(-1, 3)
+    r, _ = screen_rects(cam, lo, hi)
+    x0 = np.clip(np.floor(r[:, 0]) - 1, 0, w)
+    x1 = np.clip(np.ceil(r[:, 2]) + 1, 0, w)
+    y0 = np.clip(h - np.ceil(r[:, 3]) - 1, 0, h)  # rows counted from the bottom
+    y1 = np.clip(h - np.floor(r[:, 1]) + 1, 0, h)
+    if not cam.orthographic:  # wholly behind the eye: no ray of the image meets it
+        x1 = np.where(box_depths(cam, lo, hi)[1] <= 0.0, x0, x1)
+    return np.stack([x0, y0, x1 - x0, y1 - y0], axis=1).astype(np.int64)
 
 
 @dataclass(frozen=True, slots=True)
@@ -215,7 +216,6 @@ class ClipRenderAction:
         self._vaos: dict = {}
         self.program = None  # the variant of the last frame
         self._vao = None
-        self._vbo = ctx.buffer(_cube_triangles().tobytes())
         self.nonfinite = may_hold_nonfinite(clip_texture.loader)
         self._tf_tex = None
         self._tf_key = None
@@ -249,9 +249,9 @@ class ClipRenderAction:
 
     def _brick_program(self):
         """The brick shader variant for the current parameters (compiled once per variant)."""
-        prog = self.programs.get("brick.vert", "brick.frag", self.defines())
+        prog = self.programs.get("screen.vert", "brick.frag", self.defines())
         if prog not in self._vaos:
-            self._vaos[prog] = self.ctx.vertex_array(prog, [(self._vbo, "3f", "in_corner")])
+            self._vaos[prog] = self.ctx.vertex_array(prog, [])
             _uset(prog, "u_volume", 0)
             _uset(prog, "u_tf", 1)
             _uset(prog, "u_acc", 2)
@@ -436,26 +436,12 @@ class ClipRenderAction:
             cam = cam.with_depth_range(min(cam.near, cam.far * 1e-7), cam.far)
         return cam
 
-    @staticmethod
-    def _draw_camera(cam, items):
-        """Near/far enclosing the drawn boxes only (back faces must not be clipped away)."""
-        if not items:
-            return cam
-        lo = np.min(np.array([it.lo for it in items], dtype=np.float64), axis=0)
-        hi = np.max(np.array([it.hi for it in items], dtype=np.float64), axis=0)
-        return cam.fit_depth(lo, hi)
-
-    def _frame_uniforms(self, cam, tf) -> tuple[np.ndarray, np.ndarray]:
-        """Set per-frame uniforms; returns the origin ``O`` (float64) and the culling matrix."""
+    def _frame_uniforms(self, cam, tf) -> np.ndarray:
+        """Set per-frame uniforms; returns the origin ``O`` (float64) the box uniforms are relative to."""
         prog = self.program
         V = cam.view_matrix()
-        P = cam.projection_matrix()
         R = V[:3, :3]
         origin = -R.T @ V[:3, 3]
-        R4 = np.eye(4)
-        R4[:3, :3] = R
-        M = P @ R4
-        prog["u_mvp"].write(M.T.astype(np.float32).tobytes())
         prog["u_right"].value = _vec(cam.right)
         prog["u_up"].value = _vec(cam.up)
         w, h = cam.size
@@ -499,27 +485,7 @@ class ClipRenderAction:
         prog["u_planes"].write(planes.astype(np.float32).tobytes())
         prog["u_n_planes"].value = int(n_planes)
         prog["u_has_box"].value = bool(has_box)
-        return origin, M
-
-    def _front_face(self, M: np.ndarray, cam) -> str:
-        """Winding that GL will call 'front' for faces turned towards the camera (so we cull those)."""
-        # a triangle whose outward normal points away from the eye, placed in front of it: a back face
-        f = np.asarray(cam.forward, dtype=np.float64)
-        u = np.asarray(cam.up, dtype=np.float64)
-        r = np.asarray(cam.right, dtype=np.float64)
-        d = 0.5 * (cam.near + cam.far) if cam.orthographic else math.sqrt(cam.near * cam.far)
-        c = f * d
-        # counter-clockwise seen from the +f side (i.e. from behind the face, outward normal +f)
-        tri = [c, c + r * d * 1e-2, c + u * d * 1e-2]
-        ndc = []
-        for p in tri:
-            q = M @ np.append(p, 1.0)
-            ndc.append(q[:2] / q[3])
-        (x0, y0), (x1, y1), (x2, y2) = ndc
-        area = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
-        # normal of (p0, p1, p2) is r x u = -f (pointing at the eye): the triangle is wound as a
-        # face turned towards the camera; GL's front_face must match its window-space winding.
-        return "ccw" if area > 0 else "cw"
+        return origin
 
     def _draw(self, cam, tf, sel) -> tuple[np.ndarray, float, float]:
         mgl = self._moderngl
@@ -539,7 +505,6 @@ class ClipRenderAction:
         self._check_samples(cam, items)
         self.boxes_drawn = len(items)
         t0 = time.perf_counter()
-        cam = self._draw_camera(cam, items)
         w, h = cam.size
         fbo = self._ensure_fbo((int(w), int(h)))
         previous = ctx.fbo
@@ -555,14 +520,10 @@ class ClipRenderAction:
         else:
             fbo.clear(_MIP_EMPTY, 0.0, 0.0, 0.0)
         self._brick_program()
-        origin, M = self._frame_uniforms(cam, tf)
-        self.program["u_near"].value = 0.0 if cam.orthographic else float(cam.near)
-        ctx.enable(mgl.CULL_FACE | mgl.BLEND)
-        ctx.disable(mgl.DEPTH_TEST)
+        origin = self._frame_uniforms(cam, tf)
+        ctx.enable(mgl.BLEND)
+        ctx.disable(mgl.DEPTH_TEST | mgl.CULL_FACE)
         _uset(self.program, "u_use_acc", False)  # no opacity snapshot until the first batch is drawn
-        ctx.enable_direct(_GL_DEPTH_CLAMP)  # no near/far clipping of the proxy boxes
-        ctx.front_face = self._front_face(M, cam)
-        ctx.cull_face = "front"
         if self.params.mode == "mip":
             ctx.blend_equation = mgl.MAX
         else:
@@ -579,6 +540,7 @@ class ClipRenderAction:
         pyr = self.pyramid
         B = np.asarray(pyr.brick_shape, dtype=np.float64)
         clamps = self._block_clamps(items)
+        rects = scissor_boxes(cam, [it.lo for it in items], [it.hi for it in items]) if items else None
         bound_level = None
         n_items = len(items)
         order = range(n_items - 1, -1, -1) if front_to_back else range(n_items)
@@ -593,7 +555,7 @@ class ClipRenderAction:
                 continue
             lo = np.asarray(it.lo, dtype=np.float64)
             hi = np.asarray(it.hi, dtype=np.float64)
-            if np.any(hi <= lo):
+            if np.any(hi <= lo) or not (rects[i, 2] and rects[i, 3]):  # empty, or off the image
                 continue
             if bound_level != L:
                 tex.use(location=0)
@@ -616,8 +578,9 @@ class ClipRenderAction:
             clo, chi = clamps[i]
             prog["u_clamp_lo"].value = _vec(clo)
             prog["u_clamp_hi"].value = _vec(chi)
-            self._vao.render(mgl.TRIANGLES)
-        ctx.disable_direct(_GL_DEPTH_CLAMP)
+            ctx.scissor = tuple(rects[i])
+            self._vao.render(mgl.TRIANGLES, vertices=3)
+        ctx.scissor = None
         return self._read_back(fbo, previous, tf, front_to_back, t0)
 
     def _read_back(self, fbo, previous, tf, front_to_back: bool, t0: float) -> tuple[np.ndarray, float, float]:
@@ -689,7 +652,6 @@ class ClipRenderAction:
         self.boxes_drawn = 1
         mgl, ctx = self._moderngl, self.ctx
         t0 = time.perf_counter()
-        cam = cam.fit_depth(vlo, vhi)
         w, h = cam.size
         fbo = self._ensure_fbo((int(w), int(h)))
         previous = ctx.fbo
@@ -699,14 +661,11 @@ class ClipRenderAction:
         fbo.clear(_MIP_EMPTY if mip else 0.0, 0.0, 0.0, 0.0)
         data_levels = [it.level for it in items]  # only these get a march in the shader's level chain
         defines = dict(self.defines(), NUM_LEVELS=nlev, LEVEL_LO=min(data_levels), LEVEL_HI=max(data_levels))
-        prog = self.programs.get("brick.vert", "raymarch.frag", defines)
+        prog = self.programs.get("screen.vert", "raymarch.frag", defines)
         if prog not in self._vaos:
-            self._vaos[prog] = ctx.vertex_array(prog, [(self._vbo, "3f", "in_corner")])
+            self._vaos[prog] = ctx.vertex_array(prog, [])
         self.program, self._vao = prog, self._vaos[prog]
-        origin, M = self._frame_uniforms(cam, tf)
-        prog["u_near"].value = 0.0 if cam.orthographic else float(cam.near)
-        prog["u_box_lo"].value = _vec(vlo - origin)
-        prog["u_box_hi"].value = _vec(vhi - origin)
+        origin = self._frame_uniforms(cam, tf)
         _uset(prog, "u_vol_lo", _vec(vlo - origin))
         _uset(prog, "u_vol_hi", _vec(vhi - origin))
         sp = np.array(pyr.spacing[::-1], dtype=np.float64)
@@ -749,13 +708,12 @@ class ClipRenderAction:
             if tex is not None:
                 _uset(prog, f"u_level{L}", 3 + L)
                 tex.use(location=3 + L)
-        ctx.enable(mgl.CULL_FACE)
-        ctx.disable(mgl.DEPTH_TEST | mgl.BLEND)
-        ctx.enable_direct(_GL_DEPTH_CLAMP)
-        ctx.front_face = self._front_face(M, cam)
-        ctx.cull_face = "front"
-        self._vao.render(mgl.TRIANGLES)
-        ctx.disable_direct(_GL_DEPTH_CLAMP)
+        ctx.disable(mgl.DEPTH_TEST | mgl.BLEND | mgl.CULL_FACE)
+        rect = scissor_boxes(cam, vlo, vhi)[0]
+        if rect[2] and rect[3]:  # else the volume is off the image: nothing to draw
+            ctx.scissor = tuple(rect)
+            self._vao.render(mgl.TRIANGLES, vertices=3)
+            ctx.scissor = None
         return self._read_back(fbo, previous, tf, not mip, t0)
 
     def _may_cover(self):
@@ -808,6 +766,7 @@ class ClipRenderAction:
 
     def _occlusion_pass(self, fbo) -> None:
         """Snapshot the target for the boxes' opacity test (early ray termination across boxes)."""
+        self.ctx.scissor = None  # a blit obeys the scissor test: copy the whole target
         self.ctx.copy_framebuffer(self._fbo_copy, fbo)
         self._fbo_copy.use(location=2)
         _uset(self.program, "u_use_acc", True)
@@ -821,14 +780,14 @@ class ClipRenderAction:
         if getattr(self, "image_lod", None) is not None:  # (close() may follow a failed __init__)
             self.image_lod.close()
             self.image_lod = None
-        for obj in (*self._vaos.values(), self._vbo, self._tf_tex, self._pt_tex, self._fbo, getattr(self, "_fbo_color", None),
+        for obj in (*self._vaos.values(), self._tf_tex, self._pt_tex, self._fbo, getattr(self, "_fbo_color", None),
                     self._fbo_copy):
             if obj is not None:
                 obj.release()
         self._vaos = {}
         self.programs.release()
         self._tf_tex = self._pt_tex = self._fbo = self._fbo_copy = self._fbo_color = self._default_fbo = None
-        self._vao = self._vbo = self.program = None  # a second close() releases nothing twice
+        self._vao = self.program = None  # a second close() releases nothing twice
 
     def __enter__(self) -> "ClipRenderAction":
         return self

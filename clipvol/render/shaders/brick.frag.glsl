@@ -1,6 +1,7 @@
 #version 330
 // Ray-cast one brick's box (see clipvol/render/action.py for the technique).
-// Back faces are rasterised (front-face culling) so the camera may be inside the box; the ray is
+// Drawn as one viewport triangle under the box's scissor rectangle (screen.vert.glsl): the ray is
+// intersected with the box here, so the camera may be inside it. The ray is
 // rebuilt from gl_FragCoord with per-frame uniforms only, so every box of a pixel sees bit-identical
 // rays, and samples lie on the lattice t = off + k * delta (spherical shells around the eye, or
 // planes parallel to the view plane through the camera centre for orthographic views; off is the

@@ -1,6 +1,6 @@
 #version 330
 // Single-pass, ray-guided ray casting through the selection's cut (see clipvol/render/action.py).
-// One proxy box (the volume's) is drawn; each pixel's ray marches front to back over the cut using
+// One viewport triangle under the scissor rectangle of the volume's box is drawn; each pixel's ray marches front to back over the cut using
 // a per-level page table (clipvol/scene/page_table.py): from the coarsest level down, an entry says
 // EMPTY (skip the node's box in one step), REFINED (look at the next finer level) or DRAWN (sample
 // this node's box from the toroidal texture of data level Ld: the node's own brick or a resident
