@@ -19,7 +19,7 @@ Conventions (see ``docs/rendering-math.md``):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -112,6 +112,8 @@ class Camera:
     size: tuple[int, int]
     near: float
     far: float
+    # (forward, up, right), computed once: a frame's selection asks for them thousands of times
+    _fur: tuple = field(default=(), init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "ortho", bool(self.ortho))
@@ -123,7 +125,7 @@ class Camera:
         if not np.any(d) or not np.isfinite(np.linalg.norm(d)) or np.linalg.norm(d) == 0:
             name = "direction" if self.ortho else "target"
             raise ParameterError(f"{name}: expected a view direction of non-zero length, got eye == target {self.position}")
-        _basis(d, self.up_hint)  # validates up
+        object.__setattr__(self, "_fur", _basis(d, self.up_hint))  # validates up
         fov = float(self.fov_y)
         if not self.ortho and not (1.0 <= fov <= 170.0):
             raise ParameterError(f"fov_y: expected degrees in [1, 170], got {self.fov_y!r}")
@@ -222,17 +224,17 @@ class Camera:
     @property
     def forward(self) -> np.ndarray:
         """Unit view direction."""
-        return _basis(np.subtract(self.aim, self.position), self.up_hint)[0]
+        return self._fur[0].copy()
 
     @property
     def up(self) -> np.ndarray:
         """Unit up vector, orthogonal to :attr:`forward` (towards image row 0)."""
-        return _basis(np.subtract(self.aim, self.position), self.up_hint)[1]
+        return self._fur[1].copy()
 
     @property
     def right(self) -> np.ndarray:
         """Unit right vector ``forward x up`` (towards the last image column)."""
-        return _basis(np.subtract(self.aim, self.position), self.up_hint)[2]
+        return self._fur[2].copy()
 
     @property
     def aspect(self) -> float:
@@ -249,7 +251,7 @@ class Camera:
     # -- matrices -----------------------------------------------------------------------------
     def view_matrix(self) -> np.ndarray:
         """4x4 world -> eye matrix (eye space looks down ``-z``, ``+y`` up)."""
-        f, u, r = _basis(np.subtract(self.aim, self.position), self.up_hint)
+        f, u, r = (v.copy() for v in self._fur)
         e = self.eye
         m = np.eye(4)
         m[0, :3], m[1, :3], m[2, :3] = r, u, -f
@@ -281,7 +283,7 @@ class Camera:
 
         Order: left, right, bottom, top, near, far.
         """
-        f, u, r = _basis(np.subtract(self.aim, self.position), self.up_hint)
+        f, u, r = (v.copy() for v in self._fur)
         sx, sy = self._half_extents()
         if self.ortho:
             normals = [r, -r, u, -u, f, -f]
@@ -368,7 +370,7 @@ class Camera:
         (the ray parameter runs from ``near`` to ``far``, possibly negative), directions are
         all :attr:`forward`.
         """
-        f, u, r = _basis(np.subtract(self.aim, self.position), self.up_hint)
+        f, u, r = (v.copy() for v in self._fur)
         sx, sy = self._half_extents()
         x, y = self.ndc_of_pixels()
         off = (x * sx)[..., None] * r + (y * sy)[..., None] * u
