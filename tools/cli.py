@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
+import threading
 
 from clipvol.errors import ClipvolError
 
@@ -89,9 +91,21 @@ def main(argv: list[str] | None = None) -> int:
             show(message, category, filename, lineno, file, line)
 
     warnings.showwarning = one_line_notes
+    interrupted = []  # set by Ctrl-C: some C code (numpy's structured compare) drops the interrupt it caught
+
+    def on_sigint(signum, frame):
+        interrupted.append(signum)
+        raise KeyboardInterrupt
+
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGINT, on_sigint)
     try:
         return int(args._run(args) or 0)
     except ClipvolError as e:
+        if interrupted:  # the interrupt stopped a step that then reported its own failure
+            print(f"clipvol {args.command}: interrupted", file=sys.stderr)
+            return 130
         print(f"clipvol {args.command}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -100,12 +114,14 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # `clipvol info | head`
         return 0
     except Exception as e:
-        if _caused_by_interrupt(e):  # Ctrl-C inside a C extension can surface as another error
+        if interrupted or _caused_by_interrupt(e):  # Ctrl-C inside a C extension can surface as another error
             print(f"clipvol {args.command}: interrupted", file=sys.stderr)
             return 130
         raise
     finally:
         warnings.showwarning = show
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -10,7 +10,8 @@ Per frame (:meth:`ClipRenderAction.render`):
    being read (composite mode only: in MIP a transparent value can still be the maximum).
 2. **Upload** - :meth:`GpuBrickCache.commit`, the one place that writes textures: sub-loads of the
    newly selected bricks into their toroidal slots of the per-level 3D textures.
-3. **Draw**, by one of two paths (``RenderParams.path``; the same image within 1 LSB):
+3. **Draw**, by one of two paths (``RenderParams.path``; the same image within 1 LSB; ``"auto"``, the
+   default, takes the single pass for cuts of at least :data:`AUTO_SINGLE_PASS_BOXES` merged boxes):
 
    * ``"single-pass"`` (``shaders/raymarch.frag.glsl``) - the ray-guided path of
      BigVolumeViewer and the ray-guided renderers of the large-volume literature: the selection's
@@ -24,8 +25,8 @@ Per frame (:meth:`ClipRenderAction.render`):
      no blending (one triangle under the scissor rectangle of the volume's box). The shader is compiled per range of data levels the table uses. A cut the table
      cannot express (more than 16 levels) or rays of more than :data:`MAX_SINGLE_PASS_RAY_SAMPLES`
      samples (llvmpipe's loop cap) fall back to the bricks path.
-   * ``"bricks"`` (default; on llvmpipe the two paths cost about the same, neither faster
-     everywhere, see ``docs/benchmarks.md``) - one proxy box per :class:`~clipvol.scene.selection.DrawItem` into a float32
+   * ``"bricks"`` (on llvmpipe faster for a few large boxes, the single pass for many, see
+     ``docs/benchmarks.md``) - one proxy box per :class:`~clipvol.scene.selection.DrawItem` into a float32
      RGBA offscreen target (the method of Bhaniramka & Demange's OpenGL Volumizer, and the reference). Each box is
      drawn as one viewport-covering triangle restricted by the scissor test to the box's screen
      rectangle (``shaders/screen.vert.glsl``: no inner triangle edges for a software rasteriser to
@@ -120,6 +121,11 @@ MAX_SINGLE_PASS_LEVELS = 16
 #: segment, so a ray of more samples would be cut short there; such a frame is drawn per brick.
 MAX_SINGLE_PASS_RAY_SAMPLES = 1 << 15
 MAX_PAGE_TABLE_ENTRIES = 1 << 24
+#: path="auto": the single pass draws cuts of at least this many (merged) boxes. Measured on Mesa
+#: llvmpipe (docs/benchmarks.md): one box (a resident 256^3-512^3 volume), the per-brick path is
+#: 3-10 % faster; 31 boxes (1024^3) the single pass 6 %; 32-42 (image-policy cuts) mostly the single
+#: pass; 160-194 (a full-resolution cut of 16^3 bricks) the single pass by 5-18 %.
+AUTO_SINGLE_PASS_BOXES = 32
 PAGE_TABLE_WIDTH = 1024
 
 def scissor_boxes(cam, lo, hi) -> np.ndarray:
@@ -497,7 +503,8 @@ class ClipRenderAction:
             merged = merge_items(items, self.pyramid, self.cache.windows, self._may_cover())
             if self._samples_per_box(cam, merged) <= MAX_STEPS_PER_BOX:  # else the rays would be cut
                 items = merged
-        if self.params.path == "single-pass" and items:
+        if items and (self.params.path == "single-pass" or (self.params.path == "auto" and not self.params.overlays
+                                                            and len(items) >= AUTO_SINGLE_PASS_BOXES)):
             out = self._draw_single_pass(cam, tf, items)
             if out is not None:
                 self.path_drawn = "single-pass"

@@ -27,7 +27,7 @@ MODES = ("composite", "mip")
 #: how overlays (channels) combine with the primary at each sample (see RenderParams.blend)
 BLENDS = ("over", "additive")
 #: how the volume action draws a cut (see RenderParams.path)
-PATHS = ("single-pass", "bricks")
+PATHS = ("auto", "bricks", "single-pass")
 #: bricks the "image" policy may draw when no block_budget is given
 DEFAULT_BLOCK_BUDGET = 128
 #: older names of selection policies, still accepted (``selection="multiresolution"``)
@@ -94,14 +94,16 @@ class RenderParams:
         Composite: draw front to back and stop rays that are opaque (same image, faster).
     merge_boxes : bool
         Draw complete sibling sets of one level as one box over their parent (same image).
-    path : {"single-pass", "bricks"}
-        ``"bricks"`` (default): one proxy box per draw item composited in visibility order (the
-        method of LaMar, Hamann & Joy and of OpenGL Volumizer; merged boxes); ``"single-pass"``:
-        one ray-guided pass over the volume box through a per-level page table of the cut (merged
+    path : {"auto", "bricks", "single-pass"}
+        ``"bricks"``: one proxy box per draw item composited in visibility order (the method of
+        LaMar, Hamann & Joy and of OpenGL Volumizer; merged boxes); ``"single-pass"``: one
+        ray-guided pass over the volume box through a per-level page table of the cut (merged
         sibling sets are one node; rays stop early per pixel, no framebuffer copies). Same image
-        within 1 LSB; on Mesa llvmpipe the two cost about the same at 256³-512³ and neither is
-        faster everywhere (docs/benchmarks.md), the single pass wins where the per-brick path's
-        occlusion snapshots idle the rasteriser's threads (large full-resolution frames).
+        within 1 LSB. ``"auto"`` (default): per frame, the single pass for a cut of at least
+        ``AUTO_SINGLE_PASS_BOXES`` (32) merged boxes and no overlays, the per-brick path otherwise -
+        on Mesa llvmpipe the per-brick path is faster for a few large boxes (a resident volume
+        merges to one), the single pass for many (its per-pixel early termination needs no
+        occlusion snapshots, which idle the rasteriser's threads); docs/benchmarks.md.
     jitter : bool
         Start each pixel's sample lattice at a stable per-pixel hashed offset (a fraction of the
         step), which turns the wood-grain rings of a constant-distance lattice on opaque surfaces
@@ -156,7 +158,7 @@ class RenderParams:
     early_termination: bool = True
     merge_boxes: bool = True
     jitter: bool = False
-    path: str = "bricks"
+    path: str = "auto"
     background: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
     shape: Shape | None = None
     block_budget: int | None = None
@@ -255,7 +257,7 @@ class RenderParams:
         if ovs and self.mode != "composite":
             raise ParameterError(f"overlays: expected mode 'composite' (an overlay is composited over the primary), "
                                  f"got mode {self.mode!r} with overlay {ovs[0].name}")
-        if ovs and self.path != "bricks":
+        if ovs and self.path == "single-pass":
             raise ParameterError(f"overlays: expected path 'bricks' (the single-pass path draws no overlay), "
                                  f"got path {self.path!r} with overlay {ovs[0].name}")
         object.__setattr__(self, "overlays", ovs)

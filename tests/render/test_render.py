@@ -400,6 +400,24 @@ def test_front_to_back_with_early_termination_equals_back_to_front_over(scenes):
     assert diff(ib, ref.to_uint8(r + (1 - r[..., 3:4]) * bgp)).max() <= 2
 
 
+def test_auto_path_draws_many_boxes_in_one_pass_and_few_per_brick(scenes):
+    """path="auto" (the default): a cut of at least AUTO_SINGLE_PASS_BOXES merged boxes is drawn by
+    the single pass, a smaller one per brick; either way the image is the numpy reference's."""
+    from clipvol.render.action import AUTO_SINGLE_PASS_BOXES
+
+    vol = smooth_volume((48, 48, 48))
+    cam = Camera.perspective((-30.0, -20.0, -40.0), centre_of(vol.shape), size=(48, 48), fov_y=40)
+    many = scenes(vol, 8, selection="fixed", level=0, merge_boxes=False)  # 216 boxes
+    few = scenes(vol, 8, selection="fixed", level=0)  # merged into a handful
+    a, b = many.render(cam), few.render(cam)
+    assert many.action.params.path == few.action.params.path == "auto"
+    assert many.action.page_table_nodes >= AUTO_SINGLE_PASS_BOXES and many.action.path_drawn == "single-pass"
+    assert few.action.boxes_drawn < AUTO_SINGLE_PASS_BOXES and few.action.path_drawn == "bricks"
+    r = many.reference(cam)
+    assert visible(r) > 0.3
+    assert diff(a, r).max() <= 2 and diff(b, r).max() <= 2
+
+
 def test_merged_boxes_never_cut_rays_short(scenes):
     """A merge whose box would need more samples per ray than the shader takes is not made."""
     vol = (np.random.default_rng(0).random((64, 64, 64)) * 0.2).astype(np.float32)
