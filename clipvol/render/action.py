@@ -22,18 +22,19 @@ Per frame (:meth:`ClipRenderAction.render`):
      ray walks the table from the coarsest level down at its current point, samples the node's box
      from the data level's toroidal texture on that level's lattice, skips EMPTY nodes in one step,
      switches level at node faces and stops when opaque. No framebuffer copies, no per-box set-up,
-     no blending (one triangle under the scissor rectangle of the volume's box). The shader is compiled per range of data levels the table uses. A cut the table
-     cannot express (more than 16 levels) or rays of more than :data:`MAX_SINGLE_PASS_RAY_SAMPLES`
-     samples (llvmpipe's loop cap) fall back to the bricks path.
+     no blending (one triangle under the scissor rectangle of the volume's box). The shader is
+     compiled per range of data levels the table uses. A cut the table cannot express (more than
+     16 levels) or rays of more than :data:`MAX_SINGLE_PASS_RAY_SAMPLES` samples (llvmpipe's loop
+     cap) fall back to the bricks path.
    * ``"bricks"`` (on llvmpipe faster for a few large boxes, the single pass for many, see
-     ``docs/benchmarks.md``) - one proxy box per :class:`~clipvol.scene.selection.DrawItem` into a float32
-     RGBA offscreen target (the method of Bhaniramka & Demange's OpenGL Volumizer, and the reference). Each box is
-     drawn as one viewport-covering triangle restricted by the scissor test to the box's screen
-     rectangle (``shaders/screen.vert.glsl``: no inner triangle edges for a software rasteriser to
-     shade twice; the fragment finds its ray's interval in the box itself and returns where there
-     is none), so the camera may sit inside a box. Between boxes composite mode uses the selection's exact
-     visibility order in one of two equivalent ways (the operator is associative). Default
-     (``early_termination=True``): *front to back* (the back-to-front list reversed) with the
+     ``docs/benchmarks.md``) - one proxy box per :class:`~clipvol.scene.selection.DrawItem` into a
+     float32 RGBA offscreen target (the method of Bhaniramka & Demange's OpenGL Volumizer, and the
+     reference). Each box is drawn as one viewport-covering triangle restricted by the scissor
+     test to the box's screen rectangle (``shaders/screen.vert.glsl``: no inner triangle edges for
+     a software rasteriser to shade twice; the fragment finds its ray's interval in the box itself
+     and returns where there is none), so the camera may sit inside a box. Between boxes composite
+     mode uses the selection's exact visibility order in one of two equivalent ways (the operator
+     is associative). Default (``early_termination=True``): *front to back* (the back-to-front list reversed) with the
      "under" operator ``(ONE_MINUS_DST_ALPHA, ONE)``; every ``len(items) / 32`` boxes the target
      is copied, and a box's fragment whose pixel is already opaque in the copy returns at once.
      ``early_termination=False``: *back to front* with ``(ONE, ONE_MINUS_SRC_ALPHA)`` over the
