@@ -28,7 +28,8 @@ uint16 words (256 MiB), which compresses like real CT (mostly air and smooth tis
 
 Run ``python -m clipvol.tools.bench_integrity [--data ct | --dtype uint16]`` (stores cached under
 ``bench-data/``) or ``--quick``. Results: ``docs/bench_integrity.csv`` (``_uint16``, ``_ct``) and
-a summary on stdout; ``docs/benchmarks.md`` discusses them.
+a summary on stdout; ``--summarize CSV...`` writes the median and range of several runs
+(``docs/bench_integrity_runs.csv``); ``docs/benchmarks.md`` discusses them.
 """
 
 from __future__ import annotations
@@ -255,24 +256,21 @@ def breakdown(keys, loader, reps: int = 5) -> dict[str, float]:
     for each brick in turn, the steps run one after another on the same bytes, as in a load (so
     the checksum reads bytes just read, from cache), each timed alone; median over bricks and
     ``reps`` passes. The checksum is timed with every CRC-32C package installed (the loader uses
-    the first of :data:`~clipvol.loaders.zarr_store.CRC32C_PACKAGES`); ``read_brick_into``
-    whole, default checks and none, is timed in the same loop."""
+    the first of :data:`~clipvol.loaders.zarr_store.CRC32C_PACKAGES`). Whole loads are not timed
+    here (the steps before them leave the brick in cache): the interleaved rounds measure those."""
     import numpy as np
 
-    from clipvol.loaders.zarr_store import CRC32C_PACKAGES, ZarrLoader, _crc32c_function
+    from clipvol.loaders.zarr_store import CRC32C_PACKAGES, _crc32c_function
 
     pyr = loader.pyramid
     slot = np.empty(pyr.brick_shape, dtype=pyr.dtype)
     u8 = slot.reshape(-1).view(np.uint8)
     dec = loader._arrays[0].decoder
-    bare = ZarrLoader(loader.path)
-    bare.verify_checksums = bare.check_plausibility = False
     crcs = {p: fn for p in CRC32C_PACKAGES if (fn := _crc32c_function(p)) is not None}
     clock = time.thread_time_ns
     steps: dict[str, list[int]] = {"file read (fresh bytes, as the floor)": [], "file read (loader's buffer)": [],
                                    **{f"crc32c {p}": [] for p in crcs}, "blosc decode into slot": [],
-                                   "statistics lookup + sampled check": [],
-                                   "read_brick_into, no checks": [], "read_brick_into, default checks": []}
+                                   "statistics lookup + sampled check": []}
     for _ in range(reps):
         for L, idx in keys:
             t = [clock()]
@@ -287,13 +285,41 @@ def breakdown(keys, loader, reps: int = 5) -> dict[str, float]:
             t.append(clock())
             loader._check_plausible(L, idx, slot, True)
             t.append(clock())
-            bare.read_brick_into(L, idx, slot)
-            t.append(clock())
-            loader.read_brick_into(L, idx, slot)
-            t.append(clock())
             for name, a, b in zip(steps, t, t[1:]):
                 steps[name].append(b - a)
     return {k: statistics.median(v) / 1e3 for k, v in steps.items()}
+
+
+#: the figures a summary over several runs keeps (median and range of each)
+SUMMARY_METRICS = (
+    "compression_ratio", "load_average_1min",
+    "cost checksum", "cost checksum + statistics", "cost checksum, wall", "cost checksum + statistics, wall",
+    "cost checksum + statistics with google-crc32c", "cost checksum + statistics with google-crc32c, wall",
+    "loader (default) / floor, CPU", "loader (default) / floor, wall",
+    "loader (no checks) / floor, CPU", "loader (no checks) / floor, wall",
+    "us/brick crc32c fastcrc", "us/brick crc32c google-crc32c", "us/brick blosc decode into slot",
+    "us/brick statistics lookup + sampled check",
+)
+
+
+def summarize(paths: list[Path], out: Path) -> list[tuple]:
+    """Median, min and max over several runs' CSVs of each data set's :data:`SUMMARY_METRICS`: one
+    run's ratios move by several points on a shared machine, the median of runs far less."""
+    runs: dict[str, dict[str, list[float]]] = {}
+    for p in paths:
+        with open(p, newline="") as f:
+            vals = {row[0]: row[1] for row in csv.reader(f)}
+        per = runs.setdefault(vals["store"], {})
+        for m in SUMMARY_METRICS:
+            if m in vals:
+                per.setdefault(m, []).append(float(vals[m]))
+    rows = [("store", "metric", "median", "min", "max", "runs")]
+    for store, per in runs.items():
+        rows += [(store, m, round(statistics.median(v), 2), min(v), max(v), len(v)) for m, v in per.items()]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with open(out, "w", newline="") as f:
+        csv.writer(f).writerows(rows)
+    return rows
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -307,10 +333,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", choices=("fractal", "ct"), default="fractal",
                     help="fractal (compresses 1.3-1.5x) or the CT-like head as 12-bit uint16 (compresses like CT)")
     ap.add_argument("--dtype", choices=("float32", "uint16"), default="float32", help="of the fractal")
-    ap.add_argument("--rounds", type=int, default=7)
+    ap.add_argument("--rounds", type=int, default=15)
     ap.add_argument("--data-dir", type=Path, default=REPO / "bench-data")
     ap.add_argument("--csv", type=Path, help="output (default docs/bench_integrity.csv; --quick: bench-data/...)")
+    ap.add_argument("--summarize", nargs="+", type=Path, metavar="CSV",
+                    help="no run: median and range over these runs' CSVs, into --csv (default docs/bench_integrity_runs.csv)")
     args = ap.parse_args(argv)
+    if args.summarize:
+        rows = summarize(args.summarize, args.csv or REPO / "docs" / "bench_integrity_runs.csv")
+        for row in rows:
+            print(*row, sep=", ")
+        return 0
     load_start = os.getloadavg()[0]
     suffix = "_ct" if args.data == "ct" else "_uint16" if args.dtype == "uint16" else ""
     if args.csv is None:
@@ -320,7 +353,7 @@ def main(argv: list[str] | None = None) -> int:
     for k in ("size", "brick"):
         if getattr(args, k) is not None:
             cfg[k] = getattr(args, k)
-    from clipvol.loaders.zarr_store import ZarrLoader, crc32c_implementation
+    from clipvol.loaders.zarr_store import CRC32C_PACKAGES, ZarrLoader, crc32c_implementation
 
     if args.data == "ct":
         store = build_ct_store(cfg["size"], int(cfg["brick"]), args.data_dir)
@@ -339,6 +372,12 @@ def main(argv: list[str] | None = None) -> int:
         ld.verify_checksums, ld.check_plausibility = crc, stats
         ld.brick_statistics(0)
         variants[name] = ld
+    from clipvol.loaders.zarr_store import _crc32c_function
+
+    google = ZarrLoader(store)  # the same checks with the fallback CRC-32C (zarr's own): the gain, in this run
+    google._crc32c = _crc32c_function("google-crc32c")
+    google.brick_statistics(0)
+    variants["checksum + statistics, google-crc32c"] = google
     pool = ThreadPoolExecutor(args.threads)
     list(pool.map(time.sleep, [0.01] * args.threads))
     times: dict[str, list[float]] = {"floor": [], **{k: [] for k in variants}}
@@ -363,7 +402,9 @@ def main(argv: list[str] | None = None) -> int:
     rc = lambda a, b: cpu[b] / cpu[a]  # noqa: E731  CPU throughput of a / of b
     cost_crc = 1 - rc("checksum", "no checks")
     cost_all = 1 - rc("checksum + statistics", "no checks")
-    bd = breakdown(keys[: min(len(keys), 400)], variants["checksum + statistics"])
+    with ThreadPoolExecutor(1) as one:  # a worker thread, like the loader's: numcodecs runs blosc's own
+        # threads only when called from the main thread, and thread CPU time would not count them
+        bd = one.submit(breakdown, keys[: min(len(keys), 400)], variants["checksum + statistics"]).result()
     comp = sum(os.path.getsize(_chunk_path(store, *k)) for k in keys)
     package = crc32c_implementation()[0]
     rows = [
@@ -391,6 +432,11 @@ def main(argv: list[str] | None = None) -> int:
         ("loader (no checks) / floor, CPU", round(rc("no checks", "floor"), 2), "x", "throughput ratio"),
         ("loader (default) / floor, wall", round(r("checksum + statistics", "floor"), 2), "x", f"{args.threads} threads, best rounds; target >= 0.85"),
         ("loader (no checks) / floor, wall", round(r("no checks", "floor"), 2), "x", f"{args.threads} threads, best rounds"),
+        ("cost checksum + statistics with google-crc32c", round(100 * (1 - rc("checksum + statistics, google-crc32c", "no checks")), 1),
+         "% of throughput", "CPU; the fallback CRC-32C (holds the GIL), same rounds"),
+        ("cost checksum + statistics with google-crc32c, wall",
+         round(100 * (1 - r("checksum + statistics, google-crc32c", "no checks")), 1), "% of throughput",
+         f"{args.threads} threads, best rounds"),
     ]
     rows += [
         ("ClipTexture fill MB_s", round(fill["MB_s"], 1), "MB/s", f"{fill['bricks']} bricks loaded by its own threads; best round"),
@@ -408,7 +454,7 @@ def main(argv: list[str] | None = None) -> int:
     ]
     rows += [(f"us/brick {k}", round(v, 1), "us", "one thread, CPU time, median; steps in turn on the same brick")
              for k, v in bd.items()]
-    for p in ("fastcrc", "crc32c", "google-crc32c"):
+    for p in CRC32C_PACKAGES:
         if f"crc32c {p}" in bd:
             rows.append((f"GB/s crc32c {p}", round(comp / len(keys) / bd[f"crc32c {p}"] / 1e3, 1), "GB/s",
                          "stored bytes / the in-situ time above"))
