@@ -23,14 +23,13 @@ from clipvol.loaders import zarr_store
 from clipvol.loaders.zarr_store import CRC32C_PACKAGES, ZarrLoader, crc32c_implementation
 
 B = 16
-INSTALLED = [p for p in CRC32C_PACKAGES if zarr_store._crc32c_function(p) is not None]
 
 
 @pytest.fixture(scope="module")
 def vol():
     """12-bit data with detail in every brick, some bricks smooth (small chunks), some noisy (large)."""
     rng = np.random.default_rng(7)
-    z, y, x = np.indices((40, 48, 44))
+    z, y, _ = np.indices((40, 48, 44))
     v = 2000 + 1500 * np.sin(z / 4.0) * np.cos(y / 6.0)
     v[16:32] += rng.normal(0, 300, v[16:32].shape)  # noisy middle slab: chunks several times larger
     return np.clip(v, 0, 4095).astype(np.uint16)
@@ -159,5 +158,30 @@ def test_a_subclass_that_fetches_elsewhere_is_used_and_still_verified(store, vol
     out = np.empty((B, B, B), np.uint16)
     loader.read_brick_into(0, (1, 0, 1), out)
     np.testing.assert_array_equal(out, vol[16:32, 0:16, 16:32])
+    with pytest.raises(BrickIntegrityError, match=r"\(level 0, 1, 1, 1\).*0/c/1/1/1"):
+        loader.read_brick_into(0, (1, 1, 1), out)
+
+
+def test_a_file_whose_size_changes_under_the_read_is_read_whole_and_verified(store, vol, monkeypatch):
+    """``fstat`` reporting fewer bytes than the file holds (it grew between fstat and read): the
+    buffered read sees the mismatch and the whole file is read again, then verified as usual."""
+    import os
+
+    real = os.fstat
+
+    class Short:
+        def __init__(self, st):
+            self.st_size = st.st_size - 10
+
+    monkeypatch.setattr(os, "fstat", lambda fd: Short(real(fd)))
+    loader, _ = _interior(store)
+    assert loader._chunk_into_buffer(0, (1, 1, 1)) == _chunk(store, 0, (1, 1, 1)).read_bytes()
+    out = np.empty((B, B, B), np.uint16)
+    loader.read_brick_into(0, (1, 1, 1), out)
+    np.testing.assert_array_equal(out, vol[16:32, 16:32, 16:32])
+    chunk = _chunk(store, 0, (1, 1, 1))
+    data = bytearray(chunk.read_bytes())
+    data[-1] ^= 0x80  # the stored checksum itself
+    chunk.write_bytes(bytes(data))
     with pytest.raises(BrickIntegrityError, match=r"\(level 0, 1, 1, 1\).*0/c/1/1/1"):
         loader.read_brick_into(0, (1, 1, 1), out)
