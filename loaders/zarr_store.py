@@ -8,10 +8,13 @@ decodes it with numcodecs, which releases the GIL, in the calling loader thread.
 ``bytes`` (+ ``blosc`` | ``zstd`` | ``gzip`` | nothing) (+ ``crc32c``) of zarr v3 and the plain
 compressors of zarr v2 take this fast path; anything else (sharding, transpose, filters) falls back
 to zarr indexing, which gives the same values, only slower. Every raw chunk fetch goes through one
-method, :meth:`ZarrLoader._chunk_bytes`, so a loader for remote storage overrides only that.
+method, :meth:`ZarrLoader._chunk_bytes`, so a loader for remote storage overrides only that (local
+files take :meth:`ZarrLoader._chunk_into_buffer`, the same bytes read into a per-thread buffer,
+unless a subclass overrides ``_chunk_bytes``).
 
-Integrity (never wrong data as if right): a ``crc32c`` codec is verified before decoding (clipvol
-stores carry it on every array); every load's decoded min/max (and NaN/Inf counts) must equal the
+Integrity (never wrong data as if right): a ``crc32c`` codec is verified over every byte of the
+chunk before decoding, on every read (clipvol stores carry it on every array; the fastest CRC-32C
+package installed computes it: :func:`crc32c_implementation`); every load's decoded min/max (and NaN/Inf counts) must equal the
 store's statistics for that brick; a missing chunk file is an empty brick (the fill value) only if
 the statistics say the brick is empty. A truncated, corrupt, substituted or lost chunk raises
 :class:`~clipvol.errors.BrickIntegrityError` naming the store, brick and chunk file. A clipvol
@@ -35,12 +38,14 @@ Bricks are returned in native byte order (a big-endian store gives native arrays
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
 import threading
 import warnings
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -75,7 +80,7 @@ from clipvol.errors import (
 )
 from clipvol.paging.loader import BrickKey
 
-__all__ = ["ZarrLoader", "UnverifiedStoreWarning"]
+__all__ = ["ZarrLoader", "UnverifiedStoreWarning", "crc32c_implementation"]
 
 
 class UnverifiedStoreWarning(UserWarning):
@@ -99,11 +104,58 @@ SAMPLE_STRIDE = 8
 _CRC32C_RESIDUE = 0x48674BC7
 
 
-def _crc32c(data) -> int:
-    """CRC-32C (Castagnoli) as zarr v3's ``crc32c`` codec computes it (google-crc32c: a zarr dependency)."""
-    import google_crc32c
+#: CRC-32C packages, fastest first on the CPUs we measured (``docs/benchmarks.md``, integrity):
+#: fastcrc folds with VPCLMULQDQ / PMULL (57 GB/s on our AVX-512 machine) and releases the GIL;
+#: crc32c uses the SSE4.2 / ARMv8 CRC instruction (28 GB/s) and releases the GIL; google-crc32c
+#: (zarr's own dependency, so always installed) is as fast as crc32c but holds the GIL.
+CRC32C_PACKAGES = ("fastcrc", "crc32c", "google-crc32c")
+#: CRC-32C of b"123456789", the check value of the iSCSI CRC (RFC 3720)
+_CRC32C_CHECK = 0xE3069283
 
-    return google_crc32c.value(data)
+
+def _crc32c_function(package: str) -> Callable[[Any], int] | None:
+    """The CRC-32C function of ``package`` (one of :data:`CRC32C_PACKAGES`), or None when it is not installed."""
+    try:
+        if package == "fastcrc":
+            from fastcrc.crc32 import iscsi as fn
+        elif package == "crc32c":
+            from crc32c import crc32c as fn
+        elif package == "google-crc32c":
+            from google_crc32c import value
+
+            def fn(data, _value=value):  # it refuses memoryviews (the loader's read buffer), not arrays
+                return _value(np.frombuffer(data, dtype=np.uint8))
+        else:
+            raise ValueError(f"expected one of {CRC32C_PACKAGES}, got {package!r}")
+    except ImportError:
+        return None
+    return fn
+
+
+def _computes_crc32c(fn: Callable[[Any], int]) -> bool:
+    """True when ``fn`` gives the standard check value, on bytes and on a memoryview of a bytearray
+    (the loader hands it both), and the codec's residue: a package that computes another CRC, or
+    a build that mishandles buffers, is never used to vouch for data."""
+    msg = bytearray(b"123456789")
+    try:
+        return (fn(bytes(msg)) == _CRC32C_CHECK and fn(memoryview(msg)) == _CRC32C_CHECK
+                and fn(bytes(msg) + _CRC32C_CHECK.to_bytes(4, "little")) == _CRC32C_RESIDUE)
+    except Exception:  # noqa: BLE001  anything a broken build raises disqualifies it
+        return False
+
+
+@functools.cache
+def crc32c_implementation() -> tuple[str, Callable[[Any], int]]:
+    """``(package, function)``: the first of :data:`CRC32C_PACKAGES` that is installed and passes
+    :func:`_computes_crc32c`. Chosen once per process; ``verify_checksums`` stays a full check of
+    every byte whichever is used, only its speed differs."""
+    for package in CRC32C_PACKAGES:
+        fn = _crc32c_function(package)
+        if fn is not None and _computes_crc32c(fn):
+            return package, fn
+    raise ImportError(f"no working CRC-32C among {CRC32C_PACKAGES} (google-crc32c is a dependency of zarr: "
+                      "reinstall it)")
+
 
 
 def inside(root: Path, rel: str, where: str) -> Path:
@@ -360,6 +412,11 @@ class ZarrLoader:
         self._direct = [L < self._stored and am.fast and not self._lead and am.chunks == pyr.brick_shape
                         and am.dtype == pyr.dtype and (am.decoder is None or am.blosc)
                         for L, am in enumerate(self._arrays)]
+        self._crc32c = crc32c_implementation()[1]
+        self._tls = threading.local()  # per loader thread: the read buffer of _chunk_into_buffer
+        # a subclass that fetches chunks elsewhere (remote stores) overrides _chunk_bytes: use it
+        local = type(self)._chunk_bytes is ZarrLoader._chunk_bytes and hasattr(os, "readv")
+        self._fetch = self._chunk_into_buffer if local else self._chunk_bytes
 
     @property
     def checksummed(self) -> bool:
@@ -578,12 +635,14 @@ class ZarrLoader:
                 if 0 <= by < grid[1] - 1 or (by == grid[1] - 1 and self._full_last[level][1]):
                     if 0 <= bx < grid[2] - 1 or (bx == grid[2] - 1 and self._full_last[level][2]):
                         am = self._arrays[level]
-                        got = self._load_chunk(am, level, index, out.reshape(-1).view(np.uint8))
+                        st = self._brick_stats(level, index) if self.verify_checksums or self.check_plausibility \
+                            else None  # looked up once for both checks
+                        got = self._load_chunk(am, level, index, out.reshape(-1).view(np.uint8), st)
                         if not got:
                             self._check_absent(level, index)
                             out.fill(am.fill_value)  # missing chunk the statistics call empty
                             return
-                        self._check_plausible(level, index, out, got == 2)
+                        self._check_plausible(level, index, out, got == 2, st)
                         return
         out[...] = self.read_brick(level, index)
 
@@ -614,13 +673,44 @@ class ZarrLoader:
         finally:
             os.close(fd)
 
-    def _load_chunk(self, am: _ArrayMeta, level: int, index: Int3, out: np.ndarray) -> int:
-        """Fetch, verify and decode one chunk into ``out`` (uint8, the chunk's bytes).
+    def _chunk_into_buffer(self, level: int, index: Int3) -> memoryview | bytes | None:
+        """:meth:`_chunk_bytes` of a local file, read into this thread's reused buffer: a memoryview
+        valid until the same thread's next read through this loader (``_load_chunk`` is done with
+        it by then), or None when the chunk is absent.
+
+        Why: a fresh ``bytes`` per ~1 MB chunk costs an allocation and, whenever the allocator has
+        handed the memory back to the kernel, a page fault per 4 KiB on the next read; one buffer
+        per thread stays mapped and in the CPU cache, so the read is cheaper and the checksum and
+        the decode that follow read the bytes from cache. It holds the largest chunk read so far,
+        per loader thread. A short read, or a file whose size changed since ``fstat``, is read
+        again whole by :meth:`_chunk_bytes`.
+        """
+        bz, by, bx = index
+        sep = self._seps[level]
+        try:
+            fd = os.open(f"{self._roots[level]}{bz}{sep}{by}{sep}{bx}", _O_RDONLY)
+        except FileNotFoundError:
+            return None
+        try:
+            size = os.fstat(fd).st_size
+            buf = getattr(self._tls, "buf", None)
+            if buf is None or len(buf) <= size:  # one byte spare: a file that grew reads long
+                buf = self._tls.buf = bytearray(size + 1 + (size >> 4))
+            n = os.readv(fd, [buf])
+        finally:
+            os.close(fd)
+        if n != size:
+            return self._chunk_bytes(level, index)
+        return memoryview(buf)[:n]
+
+    def _load_chunk(self, am: _ArrayMeta, level: int, index: Int3, out: np.ndarray, st: Any = _UNREAD) -> int:
+        """Fetch, verify and decode one chunk into ``out`` (uint8, the chunk's bytes). ``st``: the
+        brick's :meth:`_brick_stats` when the caller has looked them up already.
 
         Returns 0 when the chunk is absent, 2 when its checksum is intact *and* equals the one the
         statistics recorded for this brick (the bytes are exactly those written here), else 1.
         """
-        data = self._chunk_bytes(level, index)
+        data = self._fetch(level, index)
         if data is None:
             return 0
         nbytes = out.size
@@ -630,11 +720,14 @@ class ZarrLoader:
                 if len(data) < 4:
                     raise ValueError(f"{len(data)} bytes cannot hold a crc32c checksum")
                 # one pass, no copy: the CRC-32C of a message followed by its own CRC is a constant
-                if self.verify_checksums and _crc32c(data) != _CRC32C_RESIDUE:
-                    want, got = int.from_bytes(data[-4:], "little"), _crc32c(bytes(data[:-4]))
+                if self.verify_checksums and self._crc32c(data) != _CRC32C_RESIDUE:
+                    want, got = int.from_bytes(data[-4:], "little"), self._crc32c(bytes(data[:-4]))
                     raise _ChecksumError(f"crc32c checksum mismatch (stored {want:#010x}, computed {got:#010x})")
                 body = memoryview(data)[:-4]
-                st = self._brick_stats(level, index) if self.verify_checksums else None
+                if not self.verify_checksums:
+                    st = None
+                elif st is _UNREAD:
+                    st = self._brick_stats(level, index)
                 if st is not None and st[4] == st[4]:  # the crc recorded for this brick (not NaN)
                     have = int.from_bytes(data[-4:], "little")
                     if st[4] < 0:
@@ -716,7 +809,8 @@ class ZarrLoader:
                 f"{self._where}: {BrickKey(level, index)}: chunk {self._chunk_name(level, index)} is missing, but the "
                 f"store's statistics say the brick holds data (min {lo:g}, max {hi:g}, {nan:g} NaN, {inf:g} Inf)")
 
-    def _check_plausible(self, level: int, index: Int3, block: np.ndarray, proven: bool = False) -> None:
+    def _check_plausible(self, level: int, index: Int3, block: np.ndarray, proven: bool = False,
+                         st: Any = _UNREAD) -> None:
         """Decoded data against the statistics written with the brick (``block``: exactly its valid
         voxels; an interior brick: all of them).
 
@@ -725,15 +819,21 @@ class ZarrLoader:
         cache; NaN/Inf are counted only when that pass meets one. ``proven`` bytes (their crc32c is
         intact and is the one recorded for this brick, so they are exactly what was written here):
         a sample of every eighth z-plane must lie inside the brick's bounds, which checks the
-        decode at an eighth of the cost.
+        decode at an eighth of the cost. ``st``: the brick's :meth:`_brick_stats` when the caller
+        has looked them up already.
         """
         if not self.check_plausibility:
             return
-        st = self._brick_stats(level, index)
+        if st is _UNREAD:
+            st = self._brick_stats(level, index)
         if st is None:
             return
         lo, hi, nan, inf, _ = st
         part = block[::SAMPLE_STRIDE] if proven else block
+        if proven and block.flags.c_contiguous and part.ndim == 3:
+            # each sampled plane is contiguous: as (planes, voxels) numpy reduces each plane in one
+            # SIMD loop instead of row by row (8.6 vs 11.4 us for a float32 64^3 brick)
+            part = part.reshape(part.shape[0], -1)
         mn, mx = part.min(), part.max()
         if part.dtype.kind == "f" and not (math.isfinite(mn) and math.isfinite(mx)):
             fin = np.isfinite(part)

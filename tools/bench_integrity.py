@@ -19,9 +19,17 @@ single-thread breakdown in microseconds per brick (file open+read, crc32c, blosc
 slot, sampled statistics check, the whole call) and a ClipTexture filled by its own loader threads
 against the floor on the same bricks (target >= 0.8).
 
-Run ``python -m clipvol.tools.bench_integrity`` (a procedural fractal store, cached under
-``bench-data/``) or ``--quick``. Results: ``docs/bench_integrity.csv`` and a summary on stdout;
-``docs/benchmarks.md`` discusses them.
+Two kinds of data, because the checksum's cost scales with the *compressed* bytes and the decode's
+with the *decoded* ones. ``--data fractal`` (the default): the procedural fractal, float32 or
+(``--dtype uint16``) quantised to 12 bits; it has detail down to 2 voxels and compresses only
+1.3-1.5x, the worst case for the checksum. ``--data ct``: the CT-like head of
+:func:`clipvol.bricking.generators.ct_head` (air, skin, bone, brain) at 512^3 as 12-bit values in
+uint16 words (256 MiB), which compresses like real CT (mostly air and smooth tissue).
+
+Run ``python -m clipvol.tools.bench_integrity [--data ct | --dtype uint16]`` (stores cached under
+``bench-data/``) or ``--quick``. Results: ``docs/bench_integrity.csv`` (``_uint16``, ``_ct``) and
+a summary on stdout; ``--summarize CSV...`` writes the median and range of several runs
+(``docs/bench_integrity_runs.csv``); ``docs/benchmarks.md`` discusses them.
 """
 
 from __future__ import annotations
@@ -40,6 +48,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parent.parent
 FULL = {"size": "256x512x512", "brick": 64}  # 256 MiB of float32
 QUICK = {"size": "128x128x128", "brick": 32}
+CT_FULL = {"size": "512x512x512", "brick": 64}  # 256 MiB of uint16
 
 
 def build_store(size: str, brick: int, data_dir: Path, dtype: str = "float32") -> Path:
@@ -63,6 +72,41 @@ def build_store(size: str, brick: int, data_dir: Path, dtype: str = "float32") -
         lo, hi = float(v.min()), float(v.max())
         source = np.rint((v - lo) / (hi - lo) * 4095).astype(np.uint16)
     brick_volume(source, path, brick=brick, codec="lz4", progress=True, overwrite=True)
+    return path
+
+
+def ct_volume(shape: tuple[int, int, int], seed: int = 0):
+    """:func:`~clipvol.bricking.generators.ct_head` as 12-bit CT in uint16 words: its 8-bit values
+    times 16 (0..4080), plus a uniform dither of the 4 low bits inside the head (the generator's
+    noise, sigma 2 of 255, is 32 of 4095 here: the low bits of a real scan are noise, not zeros).
+    The air outside stays exactly 0, as the generator makes it (a scanner's padding outside its
+    field of view is constant too)."""
+    import numpy as np
+
+    from clipvol.bricking.generators import ct_head
+
+    head = ct_head(shape, seed=seed)
+    rng = np.random.default_rng(seed + 1)
+    out = np.empty(head.shape, dtype=np.uint16)
+    for z in range(0, head.shape[0], 32):  # slab by slab: no 8-byte temporaries of the whole volume
+        h = head[z:z + 32]
+        v = h.astype(np.uint16) << 4
+        v += (rng.integers(0, 16, size=h.shape, dtype=np.uint16) * (h > 0)).astype(np.uint16)
+        out[z:z + 32] = v
+    return out
+
+
+def build_ct_store(size: str, brick: int, data_dir: Path) -> Path:
+    """The CT-like head (:func:`ct_volume`) bricked with blosc lz4 + crc32c like the fractal stores (cached)."""
+    from clipvol.bricking.pipeline import brick_volume
+
+    path = data_dir / f"ct-{size}-b{brick}-uint16-crc.zarr"
+    attrs = path / "zarr.json"
+    if attrs.is_file() and json.loads(attrs.read_text())["attributes"]["clipvol"].get("complete"):
+        return path
+    data_dir.mkdir(parents=True, exist_ok=True)
+    shape = tuple(int(v) for v in size.split("x"))
+    brick_volume(ct_volume(shape), path, brick=brick, codec="lz4", progress=True, overwrite=True)
     return path
 
 
@@ -207,61 +251,75 @@ def cliptexture_fill(store: Path, threads: int, rounds: int, pool: ThreadPoolExe
             "best_round": best}
 
 
-def breakdown(store: Path, keys, loader) -> dict[str, float]:
-    """Single-thread CPU microseconds per brick of each step of the loader's read path."""
-    import google_crc32c
+def breakdown(keys, loader, reps: int = 5) -> dict[str, float]:
+    """Single-thread CPU microseconds per brick of each step of the loader's read path, in situ:
+    for each brick in turn, the steps run one after another on the same bytes, as in a load (so
+    the checksum reads bytes just read, from cache), each timed alone; median over bricks and
+    ``reps`` passes. The checksum is timed with every CRC-32C package installed (the loader uses
+    the first of :data:`~clipvol.loaders.zarr_store.CRC32C_PACKAGES`). Whole loads are not timed
+    here (the steps before them leave the brick in cache): the interleaved rounds measure those."""
     import numpy as np
+
+    from clipvol.loaders.zarr_store import CRC32C_PACKAGES, _crc32c_function
 
     pyr = loader.pyramid
     slot = np.empty(pyr.brick_shape, dtype=pyr.dtype)
     u8 = slot.reshape(-1).view(np.uint8)
     dec = loader._arrays[0].decoder
-    paths = [_chunk_path(store, *k) for k in keys]
-    def read_all():
-        out = []
-        for p in paths:
-            with open(p, "rb") as f:
-                out.append(f.read())
-        return out
-
-    def best(fn, reps: int = 5) -> float:  # CPU time of this thread, best of reps
-        out = []
-        for _ in range(reps):
-            t = time.thread_time()
-            fn()
-            out.append(time.thread_time() - t)
-        return min(out)
-
-    datas = read_all()
-
-    def crcs():
-        for d in datas:
-            google_crc32c.value(d)
-
-    def decodes():
-        for d in datas:
-            dec.decode(memoryview(d)[:-4], out=u8)
-
-    def minmaxes():  # the check of a brick whose bytes the recorded crc32c proves: every 8th plane
-        for _ in datas:
-            part = slot[::8]
-            part.min(), part.max()
-
-    def loads():
+    crcs = {p: fn for p in CRC32C_PACKAGES if (fn := _crc32c_function(p)) is not None}
+    clock = time.thread_time_ns
+    steps: dict[str, list[int]] = {"file read (fresh bytes, as the floor)": [], "file read (loader's buffer)": [],
+                                   **{f"crc32c {p}": [] for p in crcs}, "blosc decode into slot": [],
+                                   "statistics lookup + sampled check": []}
+    for _ in range(reps):
         for L, idx in keys:
-            loader.read_brick_into(L, idx, slot)
+            t = [clock()]
+            loader._chunk_bytes(L, idx)
+            t.append(clock())
+            data = loader._fetch(L, idx)
+            t.append(clock())
+            for fn in crcs.values():
+                fn(data)
+                t.append(clock())
+            dec.decode(memoryview(data)[:-4], out=u8)
+            t.append(clock())
+            loader._check_plausible(L, idx, slot, True)
+            t.append(clock())
+            for name, a, b in zip(steps, t, t[1:]):
+                steps[name].append(b - a)
+    return {k: statistics.median(v) / 1e3 for k, v in steps.items()}
 
-    def reads():  # each chunk read and dropped, as the loader does (no heap growth)
-        for p in paths:
-            with open(p, "rb") as f:
-                f.read()
 
-    read, crc, decode, minmax, total = (best(f) for f in (reads, crcs, decodes, minmaxes, loads))
-    n = len(keys)
-    us = {k: 1e6 * v / n for k, v in (("file open+read", read), ("crc32c", crc), ("blosc decode into slot", decode),
-                                      ("statistics check (sampled)", minmax), ("read_brick_into total", total))}
-    us["Python around them"] = us["read_brick_into total"] - sum(v for k, v in us.items() if k != "read_brick_into total")
-    return us
+#: the figures a summary over several runs keeps (median and range of each)
+SUMMARY_METRICS = (
+    "compression_ratio", "load_average_1min",
+    "cost checksum", "cost checksum + statistics", "cost checksum, wall", "cost checksum + statistics, wall",
+    "cost checksum + statistics with google-crc32c", "cost checksum + statistics with google-crc32c, wall",
+    "loader (default) / floor, CPU", "loader (default) / floor, wall",
+    "loader (no checks) / floor, CPU", "loader (no checks) / floor, wall",
+    "us/brick crc32c fastcrc", "us/brick crc32c google-crc32c", "us/brick blosc decode into slot",
+    "us/brick statistics lookup + sampled check",
+)
+
+
+def summarize(paths: list[Path], out: Path) -> list[tuple]:
+    """Median, min and max over several runs' CSVs of each data set's :data:`SUMMARY_METRICS`: one
+    run's ratios move by several points on a shared machine, the median of runs far less."""
+    runs: dict[str, dict[str, list[float]]] = {}
+    for p in paths:
+        with open(p, newline="") as f:
+            vals = {row[0]: row[1] for row in csv.reader(f)}
+        per = runs.setdefault(vals["store"], {})
+        for m in SUMMARY_METRICS:
+            if m in vals:
+                per.setdefault(m, []).append(float(vals[m]))
+    rows = [("store", "metric", "median", "min", "max", "runs")]
+    for store, per in runs.items():
+        rows += [(store, m, round(statistics.median(v), 2), min(v), max(v), len(v)) for m, v in per.items()]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with open(out, "w", newline="") as f:
+        csv.writer(f).writerows(rows)
+    return rows
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -272,20 +330,37 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--size", help="ZxYxX of the fractal (default 256x512x512 float32)")
     ap.add_argument("--brick", type=int)
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--dtype", choices=("float32", "uint16"), default="float32")
-    ap.add_argument("--rounds", type=int, default=7)
+    ap.add_argument("--data", choices=("fractal", "ct"), default="fractal",
+                    help="fractal (compresses 1.3-1.5x) or the CT-like head as 12-bit uint16 (compresses like CT)")
+    ap.add_argument("--dtype", choices=("float32", "uint16"), default="float32", help="of the fractal")
+    ap.add_argument("--rounds", type=int, default=15)
     ap.add_argument("--data-dir", type=Path, default=REPO / "bench-data")
     ap.add_argument("--csv", type=Path, help="output (default docs/bench_integrity.csv; --quick: bench-data/...)")
+    ap.add_argument("--summarize", nargs="+", type=Path, metavar="CSV",
+                    help="no run: median and range over these runs' CSVs, into --csv (default docs/bench_integrity_runs.csv)")
     args = ap.parse_args(argv)
+    if args.summarize:
+        rows = summarize(args.summarize, args.csv or REPO / "docs" / "bench_integrity_runs.csv")
+        for row in rows:
+            print(*row, sep=", ")
+        return 0
+    load_start = os.getloadavg()[0]
+    suffix = "_ct" if args.data == "ct" else "_uint16" if args.dtype == "uint16" else ""
     if args.csv is None:
-        args.csv = args.data_dir / "bench_integrity_quick.csv" if args.quick else REPO / "docs" / "bench_integrity.csv"
-    cfg = dict(QUICK if args.quick else FULL)
+        args.csv = args.data_dir / f"bench_integrity{suffix}_quick.csv" if args.quick \
+            else REPO / "docs" / f"bench_integrity{suffix}.csv"
+    cfg = dict(QUICK if args.quick else CT_FULL if args.data == "ct" else FULL)
     for k in ("size", "brick"):
         if getattr(args, k) is not None:
             cfg[k] = getattr(args, k)
-    from clipvol.loaders.zarr_store import ZarrLoader
+    from clipvol.loaders.zarr_store import CRC32C_PACKAGES, ZarrLoader, crc32c_implementation
 
-    store = build_store(cfg["size"], int(cfg["brick"]), args.data_dir, args.dtype)
+    if args.data == "ct":
+        store = build_ct_store(cfg["size"], int(cfg["brick"]), args.data_dir)
+        what = f"ct_head as 12-bit uint16 size={cfg['size']}"
+    else:
+        store = build_store(cfg["size"], int(cfg["brick"]), args.data_dir, args.dtype)
+        what = f"procedural:fractal size={cfg['size']} {args.dtype}"
     probe = ZarrLoader(store)
     keys = chunk_keys(store, probe.pyramid.num_levels)
     for k in keys:  # warm the page cache: every path reads from memory
@@ -297,6 +372,12 @@ def main(argv: list[str] | None = None) -> int:
         ld.verify_checksums, ld.check_plausibility = crc, stats
         ld.brick_statistics(0)
         variants[name] = ld
+    from clipvol.loaders.zarr_store import _crc32c_function
+
+    google = ZarrLoader(store)  # the same checks with the fallback CRC-32C (zarr's own): the gain, in this run
+    google._crc32c = _crc32c_function("google-crc32c")
+    google.brick_statistics(0)
+    variants["checksum + statistics, google-crc32c"] = google
     pool = ThreadPoolExecutor(args.threads)
     list(pool.map(time.sleep, [0.01] * args.threads))
     times: dict[str, list[float]] = {"floor": [], **{k: [] for k in variants}}
@@ -321,15 +402,20 @@ def main(argv: list[str] | None = None) -> int:
     rc = lambda a, b: cpu[b] / cpu[a]  # noqa: E731  CPU throughput of a / of b
     cost_crc = 1 - rc("checksum", "no checks")
     cost_all = 1 - rc("checksum + statistics", "no checks")
-    bd = breakdown(store, keys[: min(len(keys), 400)], variants["checksum + statistics"])
+    with ThreadPoolExecutor(1) as one:  # a worker thread, like the loader's: numcodecs runs blosc's own
+        # threads only when called from the main thread, and thread CPU time would not count them
+        bd = one.submit(breakdown, keys[: min(len(keys), 400)], variants["checksum + statistics"]).result()
     comp = sum(os.path.getsize(_chunk_path(store, *k)) for k in keys)
+    package = crc32c_implementation()[0]
     rows = [
-        ("store", f"procedural:fractal size={cfg['size']} {args.dtype} brick={cfg['brick']} blosc-lz4 + crc32c", "", ""),
+        ("store", f"{what} brick={cfg['brick']} blosc-lz4 + crc32c", "", ""),
         ("bricks", len(keys), "", "interior written bricks of every level, page cache warm"),
         ("compression_ratio", round(nbytes / comp, 2), "x", "decoded / stored bytes"),
+        ("stored_kB_per_brick", round(comp / len(keys) / 1e3, 1), "kB", "what the checksum reads per brick"),
+        ("crc32c package", package, "", "the loader's CRC-32C (the first installed of fastcrc, crc32c, google-crc32c)"),
         ("threads", args.threads, "", ""),
         ("rounds", args.rounds, "", "interleaved; best round of each (median in the note)"),
-        ("load_average_1min", round(os.getloadavg()[0], 2), "", "other processes on the machine"),
+        ("load_average_1min", round(os.getloadavg()[0], 2), "", f"other processes on the machine; at the start {load_start:.2f}"),
     ]
     for k, v in mbs.items():
         what = "floor = file read + numcodecs decode" if k == "floor" else f"ZarrLoader.read_brick_into, {k}"
@@ -338,10 +424,19 @@ def main(argv: list[str] | None = None) -> int:
     rows += [
         ("cost checksum", round(100 * cost_crc, 1), "% of throughput", "CPU time vs the loader with no checks"),
         ("cost checksum + statistics", round(100 * cost_all, 1), "% of throughput", "CPU time vs the loader with no checks; target <= 5"),
+        ("cost checksum, wall", round(100 * (1 - r("checksum", "no checks")), 1), "% of throughput",
+         f"{args.threads} threads, best rounds, vs the loader with no checks"),
+        ("cost checksum + statistics, wall", round(100 * (1 - r("checksum + statistics", "no checks")), 1),
+         "% of throughput", f"{args.threads} threads, best rounds, vs the loader with no checks"),
         ("loader (default) / floor, CPU", round(rc("checksum + statistics", "floor"), 2), "x", "throughput ratio; target >= 0.85"),
         ("loader (no checks) / floor, CPU", round(rc("no checks", "floor"), 2), "x", "throughput ratio"),
         ("loader (default) / floor, wall", round(r("checksum + statistics", "floor"), 2), "x", f"{args.threads} threads, best rounds; target >= 0.85"),
         ("loader (no checks) / floor, wall", round(r("no checks", "floor"), 2), "x", f"{args.threads} threads, best rounds"),
+        ("cost checksum + statistics with google-crc32c", round(100 * (1 - rc("checksum + statistics, google-crc32c", "no checks")), 1),
+         "% of throughput", "CPU; the fallback CRC-32C (holds the GIL), same rounds"),
+        ("cost checksum + statistics with google-crc32c, wall",
+         round(100 * (1 - r("checksum + statistics, google-crc32c", "no checks")), 1), "% of throughput",
+         f"{args.threads} threads, best rounds"),
     ]
     rows += [
         ("ClipTexture fill MB_s", round(fill["MB_s"], 1), "MB/s", f"{fill['bricks']} bricks loaded by its own threads; best round"),
@@ -357,8 +452,12 @@ def main(argv: list[str] | None = None) -> int:
          "the pool's pages faulted in by the loader threads during the fill"),
         ("ClipTexture fill / floor, CPU, prefault=False", round(fill_np["cpu_ratio"], 2), "x", ""),
     ]
-    rows += [(f"us/brick {k}", round(v, 1), "us", "one thread, CPU time, best of 5; separate loops, not additive")
-             for k, v in bd.items() if k != "Python around them"]
+    rows += [(f"us/brick {k}", round(v, 1), "us", "one thread, CPU time, median; steps in turn on the same brick")
+             for k, v in bd.items()]
+    for p in CRC32C_PACKAGES:
+        if f"crc32c {p}" in bd:
+            rows.append((f"GB/s crc32c {p}", round(comp / len(keys) / bd[f"crc32c {p}"] / 1e3, 1), "GB/s",
+                         "stored bytes / the in-situ time above"))
     args.csv.parent.mkdir(parents=True, exist_ok=True)
     with open(args.csv, "w", newline="") as f:
         w = csv.writer(f)
