@@ -647,6 +647,16 @@ class ZarrLoader:
         out[...] = self.read_brick(level, index)
 
     # -- the raw fetch (the one method a remote store overrides) -------------------------------
+    def _open_chunk(self, level: int, index: Int3) -> int | None:
+        """A read-only file descriptor of brick ``index``'s chunk file at ``level`` (the path from
+        precomputed per-level parts: no pathlib, no key object), or None when it is absent."""
+        bz, by, bx = index
+        sep = self._seps[level]
+        try:
+            return os.open(f"{self._roots[level]}{bz}{sep}{by}{sep}{bx}", _O_RDONLY)
+        except FileNotFoundError:
+            return None
+
     def _chunk_bytes(self, level: int, index: Int3) -> bytes | None:
         """The stored bytes of brick ``index``'s chunk at ``level``, or ``None`` when it is absent.
 
@@ -654,11 +664,8 @@ class ZarrLoader:
         (object store, HTTP) overrides only this; decoding, checksum and plausibility stay above.
         Other ``OSError``\\ s propagate (transient: the clip-texture retries them).
         """
-        bz, by, bx = index
-        sep = self._seps[level]
-        try:
-            fd = os.open(f"{self._roots[level]}{bz}{sep}{by}{sep}{bx}", _O_RDONLY)
-        except FileNotFoundError:
+        fd = self._open_chunk(level, index)
+        if fd is None:
             return None
         try:  # one fstat and (for a regular file) one read: no buffered-reader object per chunk
             size = os.fstat(fd).st_size
@@ -685,11 +692,8 @@ class ZarrLoader:
         per loader thread. A short read, or a file whose size changed since ``fstat``, is read
         again whole by :meth:`_chunk_bytes`.
         """
-        bz, by, bx = index
-        sep = self._seps[level]
-        try:
-            fd = os.open(f"{self._roots[level]}{bz}{sep}{by}{sep}{bx}", _O_RDONLY)
-        except FileNotFoundError:
+        fd = self._open_chunk(level, index)
+        if fd is None:
             return None
         try:
             size = os.fstat(fd).st_size

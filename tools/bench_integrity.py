@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import os
 import statistics
 import sys
@@ -44,6 +43,8 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+
+from .bench_paging import store_is_built
 
 REPO = Path(__file__).resolve().parent.parent
 FULL = {"size": "256x512x512", "brick": 64}  # 256 MiB of float32
@@ -60,8 +61,7 @@ def build_store(size: str, brick: int, data_dir: Path, dtype: str = "float32") -
     from clipvol.bricking.pipeline import brick_volume
 
     path = data_dir / f"fractal-{size}-b{brick}-{dtype}-crc.zarr"
-    attrs = path / "zarr.json"
-    if attrs.is_file() and json.loads(attrs.read_text())["attributes"]["clipvol"].get("complete"):
+    if store_is_built(path):
         return path
     data_dir.mkdir(parents=True, exist_ok=True)
     url = f"procedural:fractal?size={size}&seed=1"
@@ -101,8 +101,7 @@ def build_ct_store(size: str, brick: int, data_dir: Path) -> Path:
     from clipvol.bricking.pipeline import brick_volume
 
     path = data_dir / f"ct-{size}-b{brick}-uint16-crc.zarr"
-    attrs = path / "zarr.json"
-    if attrs.is_file() and json.loads(attrs.read_text())["attributes"]["clipvol"].get("complete"):
+    if store_is_built(path):
         return path
     data_dir.mkdir(parents=True, exist_ok=True)
     shape = tuple(int(v) for v in size.split("x"))
@@ -323,7 +322,6 @@ def summarize(paths: list[Path], out: Path) -> list[tuple]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import numpy as np
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small store (seconds)")

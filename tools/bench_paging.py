@@ -38,13 +38,18 @@ PASSES = 10
 QUICK = {"size": "96x192x192", "brick": 32, "budget": "12MB"}
 
 
+def store_is_built(path: Path) -> bool:
+    """A benchmark store cached under ``bench-data/`` is used again only if its build completed."""
+    attrs = path / "zarr.json"
+    return attrs.is_file() and bool(json.loads(attrs.read_text())["attributes"]["clipvol"].get("complete"))
+
+
 def build_store(size: str, brick: int, data_dir: Path) -> Path:
     """The procedural fractal bricked with ``clipvol.bricking.pipeline.brick_volume`` (cached by size and brick)."""
     from clipvol.bricking.pipeline import brick_volume
 
     path = data_dir / f"fractal-{size}-b{brick}.zarr"
-    attrs = path / "zarr.json"
-    if attrs.is_file() and json.loads(attrs.read_text())["attributes"]["clipvol"].get("complete"):
+    if store_is_built(path):
         return path
     data_dir.mkdir(parents=True, exist_ok=True)
     t = time.perf_counter()

@@ -71,7 +71,6 @@ class _WholeVolume:
     def read_brick(self, level, index):
         p = self._src.pyramid
         out = np.empty(p.shape, dtype=p.dtype)
-        B = p.brick_shape
         g = p.grid(0)
         for bz in range(g[0]):
             for by in range(g[1]):
@@ -643,7 +642,10 @@ def vs_raw_large(n: int, dtype: str, image: int, repeat: int, step: float, out_d
                single_pass_nodes=actions["single-pass"].page_table_nodes,
                single_pass_drawn_by=actions["single-pass"].path_drawn,
                multires_levels=str(actions["multiresolution"].last_frame_stats.bricks_drawn),
+               multires_drawn_by=actions["multiresolution"].path_drawn,
                virtual_levels=str(vact.last_frame_stats.bricks_drawn),
+               virtual_drawn_by=vact.path_drawn,
+               virtual_boxes=vact.boxes_drawn if vact.path_drawn == "bricks" else vact.page_table_nodes,
                virtual_converged=int(vact.last_frame_stats.converged))
     log(f"{n}^3 {dtype} at {image}^2 (median of {repeat}): raw {med['raw']:.3f} s; " + ", ".join(
         f"{k} {med[k]:.3f} s = {med[k] / med['raw']:.2f}x raw (CPU {mcpu[k] / mcpu['raw']:.2f}x)" for k in names[:-1])

@@ -17,7 +17,6 @@ import numpy as np
 import pytest
 import zarr
 
-from clipvol.bricking.pipeline import brick_volume
 from clipvol.errors import BrickIntegrityError
 from clipvol.loaders import zarr_store
 from clipvol.loaders.zarr_store import CRC32C_PACKAGES, ZarrLoader, crc32c_implementation
@@ -33,13 +32,6 @@ def vol():
     v = 2000 + 1500 * np.sin(z / 4.0) * np.cos(y / 6.0)
     v[16:32] += rng.normal(0, 300, v[16:32].shape)  # noisy middle slab: chunks several times larger
     return np.clip(v, 0, 4095).astype(np.uint16)
-
-
-@pytest.fixture
-def store(tmp_path, vol):
-    path = tmp_path / "s.zarr"
-    brick_volume(vol, path, brick=B, progress=False, workers=1)
-    return path
 
 
 def _chunk(path, L, idx):

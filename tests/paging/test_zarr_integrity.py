@@ -32,13 +32,6 @@ def vol():
     return np.clip(v, 0, 4095).astype(np.uint16)
 
 
-@pytest.fixture
-def store(tmp_path, vol):
-    path = tmp_path / "s.zarr"
-    brick_volume(vol, path, brick=B, progress=False, workers=1)
-    return path
-
-
 def _chunk(path, L, idx):
     return path / str(L) / "c" / str(idx[0]) / str(idx[1]) / str(idx[2])
 

@@ -226,7 +226,6 @@ def test_texture_memory_stays_in_budget(scenes, ctx):
     brick_bytes = 16**3 * 4
     budget = 20 * brick_bytes  # far less than the 64 + 8 + 1 bricks of the pyramid
     s = scenes(vol, 16, texture_budget=budget)
-    cam = Camera.perspective((-20.0, -10.0, -30.0), (31.5, 31.5, 31.5), size=(64, 64), fov_y=50)
     for eye in [(-20.0, -10.0, -30.0), (80.0, 70.0, 90.0), (31.0, 31.0, -50.0)]:
         s.render(Camera.perspective(eye, (31.5, 31.5, 31.5), size=(64, 64)))
         st = s.action.last_frame_stats

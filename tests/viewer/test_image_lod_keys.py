@@ -4,7 +4,6 @@ the HUD shows budget and estimated error, and a store without tables falls back 
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from clipvol.viewer.controls import MODES, ViewState
 from test_view_window import xdisplay  # noqa: F401  (the Xvfb fixture, shared)
