@@ -91,7 +91,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..paging.loader import HasBrickRanges
 from ..paging.properties import may_hold_nonfinite
-from ..scene.page_table import build_page_table
+from ..scene.page_table import block_open_faces, build_page_table
 from ..scene.params import MODES, RenderParams
 from ..scene.transfer import corrected_tables, transparency_filter
 from ..scene.selection import merge_items
@@ -751,25 +751,20 @@ class ClipRenderAction:
         :meth:`GpuBrickCache.open_faces`); otherwise sampling clamps to the item's own texels.
         """
         B = np.asarray(self.pyramid.brick_shape, dtype=np.int64)
-        blocks: dict[int, list[tuple[int, np.ndarray, np.ndarray]]] = {}
+        by_level: dict[int, list[int]] = {}
         for i, it in enumerate(items):
-            first = np.asarray(it.index, dtype=np.int64)
-            grid = np.asarray(self.pyramid.grid(it.level), dtype=np.int64)
-            cnt = np.minimum(first + it.span, grid) - first
-            local = np.stack(np.meshgrid(*(np.arange(c) for c in cnt), indexing="ij"), -1).reshape(-1, 3)
-            blocks.setdefault(it.level, []).append((i, cnt, local))
+            by_level.setdefault(it.level, []).append(i)
         out: list = [None] * len(items)
-        for L, group in blocks.items():
-            idx = np.concatenate([np.asarray(items[i].index, dtype=np.int64) + local for i, _, local in group])
-            of = self.cache.open_faces(L, idx)  # (n, 3 axes zyx, 2 sides)
-            k = 0
-            for i, cnt, local in group:
-                ofb = of[k:k + len(local)]
-                k += len(local)
-                lo_open = np.array([ofb[local[:, a] == 0, a, 0].all() for a in range(3)])
-                hi_open = np.array([ofb[local[:, a] == cnt[a] - 1, a, 1].all() for a in range(3)])
-                ext = (cnt * B).astype(np.float64)
-                out[i] = (np.where(lo_open, -0.5, 0.0)[::-1], np.where(hi_open, ext - 0.5, ext - 1.0)[::-1])
+        for L, rows in by_level.items():
+            first = np.array([items[i].index for i in rows], dtype=np.int64)
+            span = np.array([items[i].span for i in rows], dtype=np.int64)
+            cnt = np.minimum(first + span[:, None], np.asarray(self.pyramid.grid(L), dtype=np.int64)) - first
+            of = block_open_faces(self.cache.open_faces, L, first, cnt)  # (n, 3 zyx, 2 sides)
+            ext = (cnt * B).astype(np.float64)
+            lo = np.where(of[:, :, 0], -0.5, 0.0)
+            hi = np.where(of[:, :, 1], ext - 0.5, ext - 1.0)
+            for j, i in enumerate(rows):
+                out[i] = (lo[j][::-1], hi[j][::-1])
         return out
 
     def _occlusion_pass(self, fbo) -> None:

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["PageTable", "build_page_table", "EMPTY", "REFINED", "DRAWN", "item_nodes"]
+__all__ = ["PageTable", "build_page_table", "block_open_faces", "EMPTY", "REFINED", "DRAWN", "item_nodes"]
 
 EMPTY, REFINED, DRAWN = 0, 1, 2
 
@@ -128,6 +128,35 @@ def item_nodes(items, pyramid) -> list[tuple[int, tuple[int, int, int]]] | None:
     return [(int(L), (int(a), int(b), int(c))) for L, (a, b, c) in zip(out_level, out_idx)]
 
 
+def block_open_faces(open_faces, level: int, first, count) -> np.ndarray:
+    """``(n, 3, 2)`` bool ``[axis (z, y, x), side (lo, hi)]``: may filtering read across that face
+    of each block of bricks of ``level`` (first brick ``first[i]``, ``count[i]`` bricks per axis,
+    ``(n, 3)``)? A block's face is open where it is open for every brick on it.
+
+    ``open_faces(level, idx) -> (m, 3, 2) bool`` answers per brick (the GPU cache's
+    :meth:`~clipvol.render.gpu_cache.GpuBrickCache.open_faces`); it is asked once for all bricks
+    of all blocks (a frame's cut has hundreds of blocks: one call each cost 25 ms a frame).
+    Shared by the page table and the per-brick path's clamps, so both paths filter alike.
+    """
+    first = np.asarray(first, dtype=np.int64).reshape(-1, 3)
+    count = np.asarray(count, dtype=np.int64).reshape(-1, 3)
+    n = len(first)
+    out = np.zeros((n, 3, 2), dtype=bool)
+    if n == 0:
+        return out
+    locals_ = [np.stack(np.meshgrid(*(np.arange(c) for c in cnt), indexing="ij"), -1).reshape(-1, 3)
+               for cnt in count]
+    block = np.repeat(np.arange(n), [len(loc) for loc in locals_])
+    local = np.concatenate(locals_)
+    of = np.asarray(open_faces(level, first[block] + local), dtype=bool)
+    for axis in range(3):
+        for side, edge in ((0, np.zeros(len(local), dtype=np.int64)), (1, count[block, axis] - 1)):
+            on = local[:, axis] == edge  # the bricks on that face of their block
+            shut = np.bincount(block[on], weights=~of[on, axis, side], minlength=n)
+            out[:, axis, side] = shut == 0
+    return out
+
+
 def build_page_table(items, pyramid, open_faces=None) -> PageTable | None:
     """The page table of a cut given as draw items (merged or not), or None if the items are not
     node boxes (see :func:`item_nodes`).
@@ -179,14 +208,11 @@ def build_page_table(items, pyramid, open_faces=None) -> PageTable | None:
             one = ~merged
             if one.any():
                 of[one] = np.asarray(open_faces(Ld, didx[one]), dtype=bool)
-            grid = np.asarray(pyramid.grid(Ld), dtype=np.int64)
-            for j in np.nonzero(merged)[0]:  # a block: a face is open where it is for every brick on it
-                cnt = np.minimum(didx[j] + (1 << (drawn[rows[j]][0] - Ld)), grid) - didx[j]
-                local = np.stack(np.meshgrid(*(np.arange(c) for c in cnt), indexing="ij"), -1).reshape(-1, 3)
-                ofb = np.asarray(open_faces(Ld, didx[j] + local), dtype=bool)
-                for axis in range(3):
-                    of[j, axis, 0] = ofb[local[:, axis] == 0, axis, 0].all()
-                    of[j, axis, 1] = ofb[local[:, axis] == cnt[axis] - 1, axis, 1].all()
+            if merged.any():  # a block: a face is open where it is for every brick on it
+                grid = np.asarray(pyramid.grid(Ld), dtype=np.int64)
+                span = np.array([1 << (drawn[rows[j]][0] - Ld) for j in np.nonzero(merged)[0]], dtype=np.int64)
+                cnt = np.minimum(didx[merged] + span[:, None], grid) - didx[merged]
+                of[merged] = block_open_faces(open_faces, Ld, didx[merged], cnt)
         bits = np.zeros(len(rows), dtype=np.uint32)
         for k, axis in enumerate((2, 1, 0)):  # x, y, z
             bits |= of[:, axis, 0].astype(np.uint32) << np.uint32(2 * k)

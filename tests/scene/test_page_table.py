@@ -151,3 +151,33 @@ def test_a_block_not_on_its_node_is_refused():
     shifted = [DrawItem(0, (0, 0, 1), tuple(lo), tuple(hi), 2)]  # its bricks do not start at the node
     assert build_page_table(shifted, pyr) is None
     assert build_page_table([DrawItem(0, (0, 0, 0), tuple(lo), tuple(hi), 3)], pyr) is None  # span not 2^k
+
+
+def test_block_open_faces_is_open_only_where_every_brick_on_the_face_is():
+    """Against a plain loop over each block's face bricks, with a random per-brick answer."""
+    import numpy as np
+
+    from clipvol.scene.page_table import block_open_faces
+
+    rng = np.random.default_rng(3)
+    per_brick = rng.random((12, 10, 14, 3, 2)) < 0.9  # mostly open: whole faces open often enough
+    calls = []
+
+    def open_faces(level, idx):
+        calls.append(len(idx))
+        return per_brick[idx[:, 0], idx[:, 1], idx[:, 2]]
+
+    first = np.stack([rng.integers(0, 8, 40), rng.integers(0, 6, 40), rng.integers(0, 10, 40)], axis=1)
+    count = rng.integers(1, 5, (40, 3))
+    got = block_open_faces(open_faces, 0, first, count)
+    assert len(calls) == 1  # one question for all blocks
+    seen_open = 0
+    for (z, y, x), (cz, cy, cx), g in zip(first, count, got):
+        blk = per_brick[z:z + cz, y:y + cy, x:x + cx]
+        want = np.array([[blk[0, :, :, 0, 0].all(), blk[-1, :, :, 0, 1].all()],
+                         [blk[:, 0, :, 1, 0].all(), blk[:, -1, :, 1, 1].all()],
+                         [blk[:, :, 0, 2, 0].all(), blk[:, :, -1, 2, 1].all()]])
+        np.testing.assert_array_equal(g, want)
+        seen_open += int(want.sum())
+    assert 0 < seen_open < got.size  # both answers occur
+    assert block_open_faces(open_faces, 0, np.zeros((0, 3)), np.zeros((0, 3))).shape == (0, 3, 2)

@@ -252,3 +252,24 @@ def test_load_errors_name_the_file(tmp_path):
         TransferFunction.load(tmp_path / "pts.json")
     with pytest.raises(ParameterError, match="folder"):
         TransferFunction.preset("grey").save(tmp_path / "missing" / "tf.json")
+
+
+def test_footprint_ranges_span_each_brick_and_its_neighbours_inside_the_grid():
+    """Against a plain loop over the 3x3x3 neighbourhood (clipped to the grid) of each brick."""
+    from clipvol.scene.transfer import footprint_ranges
+
+    rng = np.random.default_rng(0)
+    grid = (7, 5, 9)
+    tab = np.sort(rng.random(grid + (2,)), axis=-1)
+    tab[3, 2, 4, 0] = np.nan  # an unknown bound propagates to every brick beside it
+
+    def ranges(level, idx):
+        return tab[idx[:, 0], idx[:, 1], idx[:, 2]]
+
+    idx = np.stack([rng.integers(0, n, 300) for n in grid], axis=1)
+    got = footprint_ranges(ranges, grid, 0, idx)
+    for (z, y, x), (lo, hi) in zip(idx, got):
+        nb = tab[max(z - 1, 0):z + 2, max(y - 1, 0):y + 2, max(x - 1, 0):x + 2].reshape(-1, 2)
+        want_lo = np.nan if np.isnan(nb[:, 0]).any() else nb[:, 0].min()
+        np.testing.assert_equal([lo, hi], [want_lo, nb[:, 1].max()])
+    assert footprint_ranges(lambda level, idx: None, grid, 0, idx) is None
