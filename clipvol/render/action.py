@@ -124,8 +124,8 @@ MAX_SINGLE_PASS_RAY_SAMPLES = 1 << 15
 MAX_PAGE_TABLE_ENTRIES = 1 << 24
 #: path="auto": the single pass draws cuts of at least this many (merged) boxes. Measured on Mesa
 #: llvmpipe (docs/benchmarks.md): one box (a resident 256^3-512^3 volume), the per-brick path is
-#: 3-10 % faster; 31 boxes (1024^3) the single pass 6 %; 32-42 (image-policy cuts) mostly the single
-#: pass; 160-194 (a full-resolution cut of 16^3 bricks) the single pass by 5-18 %.
+#: 3-12 % faster; 31 boxes (1024^3) the single pass 4-9 %; 32-42 (image-policy cuts) the single pass
+#: in wall time (0.80-0.97x); 159-194 (a full-resolution cut of 16^3 bricks) the single pass by 18-20 %.
 AUTO_SINGLE_PASS_BOXES = 32
 PAGE_TABLE_WIDTH = 1024
 
