@@ -14,9 +14,10 @@ unless a subclass overrides ``_chunk_bytes``).
 
 Integrity (never wrong data as if right): a ``crc32c`` codec is verified over every byte of the
 chunk before decoding, on every read (clipvol stores carry it on every array; the fastest CRC-32C
-package installed computes it: :func:`crc32c_implementation`); every load's decoded min/max (and NaN/Inf counts) must equal the
-store's statistics for that brick; a missing chunk file is an empty brick (the fill value) only if
-the statistics say the brick is empty. A truncated, corrupt, substituted or lost chunk raises
+package installed computes it: :func:`crc32c_implementation`); every load's decoded data is checked
+against the store's statistics for that brick (min/max and NaN/Inf counts equal; for bytes whose
+checksum is the one recorded for the brick, a sample of every 8th plane inside the bounds); a
+missing chunk file is an empty brick (the fill value) only if the statistics say the brick is empty. A truncated, corrupt, substituted or lost chunk raises
 :class:`~clipvol.errors.BrickIntegrityError` naming the store, brick and chunk file. A clipvol
 store without checksums opens with an :class:`UnverifiedStoreWarning`. Dataset paths of plain
 OME-Zarr metadata must resolve inside the store.
