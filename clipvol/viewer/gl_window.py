@@ -16,6 +16,7 @@ import numpy as np
 
 from ..errors import ClipvolError, ParameterError
 from ..render.context import create_context
+from .controls import MOVE_KEYS
 
 __all__ = ["GlWindow", "WindowError"]
 
@@ -106,6 +107,24 @@ class GlWindow:
     _glfw_up = False
     _egl = None
 
+    def _init_view_state(self, screenshot_dir, background) -> None:
+        """The input, frame and HUD state every viewer starts with (before :meth:`_install_callbacks`)."""
+        self.screenshot_dir = Path(screenshot_dir)
+        self.background = tuple(float(v) for v in background)
+        self.held: set[str] = set()  # movement keys held down
+        self._drag = None  # (button, x, y, ...) while a mouse button is held
+        self._dirty = True
+        self._frame = None
+        self._hud_tex = None
+        self._hud_text = None
+        self._hud_time = 0.0
+        self._fps = 0.0
+        self._t_last = time.perf_counter()
+        self.frames_rendered = 0
+        self._version = None
+        self._view = None
+        self.last_screenshot: Path | None = None
+
     def _open(self, size, *, visible: bool, title: str, no_display: str, make_session) -> None:
         """Open the window and its context, then ``self.session = make_session(ctx)``; on any
         failure close what was opened (``self.close()``) and raise. ``no_display`` ends the error
@@ -195,6 +214,30 @@ class GlWindow:
     def _mark(self) -> None:
         self._dirty = True
 
+    # -- input shared by the viewers ----------------------------------------------------------------
+    def _hold(self, name: str, action) -> bool:
+        """A movement key (``MOVE_KEYS``) held or let go: True when ``name`` is one (it was handled)."""
+        if name not in MOVE_KEYS:
+            return False
+        if action == self._glfw.PRESS:
+            self.held.add(name)
+        elif action == self._glfw.RELEASE:
+            self.held.discard(name)
+        return True
+
+    def _drag_delta(self, win, x, y, x0, y0) -> tuple[float, float]:
+        """A cursor move from ``(x0, y0)`` to ``(x, y)`` (screen coordinates) in framebuffer pixels."""
+        sx = self.framebuffer_size[0] / max(self._glfw.get_window_size(win)[0], 1)
+        return (x - x0) * sx, (y - y0) * sx
+
+    def _orbit_or_pan(self, button, dx: float, dy: float) -> None:
+        """The left button orbits the camera, the others pan it."""
+        if button == self._glfw.MOUSE_BUTTON_LEFT:
+            self.controls.orbit(dx, dy)
+        else:
+            self.controls.pan(dx, dy, self.framebuffer_size)
+        self._dirty = True
+
     # -- drawing ----------------------------------------------------------------------------------
     def _draw(self) -> None:
         """The last frame over the background, then the HUD (``self._draw_hud``) when it is on."""
@@ -227,6 +270,10 @@ class GlWindow:
             self._hud_vbo.release()
         self._hud_vbo = _quad(self.ctx, -1.0, y0, x1, 1.0)
         self._hud_vao = self.ctx.vertex_array(self._prog, [(self._hud_vbo, "2f 2f", "in_pos", "in_uv")])
+
+    def _hud_due(self) -> bool:
+        """Whether the HUD's text is to be made again (it changed, or a quarter second passed)."""
+        return self._hud_text is None or time.perf_counter() - self._hud_time > 0.25
 
     def _render_hud(self) -> None:
         self._hud_tex.use(location=0)
@@ -289,6 +336,13 @@ class GlWindow:
         while (self.screenshot_dir / f"{stem}-{k:04d}{suffix}").exists():
             k += 1
         return self.screenshot_dir / f"{stem}-{k:04d}{suffix}"
+
+    def _saved(self, path: Path) -> Path:
+        """After a screenshot to ``path``: remember it and say so in the HUD."""
+        self.last_screenshot = path
+        self.state.message = f"saved {path}"
+        self._hud_text = None
+        return path
 
     def _close_window(self) -> None:
         """Destroy the window, end GLFW, make the EGL context current again (the end of ``close``)."""

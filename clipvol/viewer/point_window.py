@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..app.point_session import PointSession
-from .controls import MOVE_KEYS, OrbitControls
+from .controls import OrbitControls
 from .hud import point_hud_lines, render_text
 from .point_keys import PointViewState
 from .gl_window import GlWindow
@@ -85,21 +85,7 @@ class PointViewer(GlWindow):
         meta = self.session.loader.meta
         self.controls = OrbitControls.for_pyramid(_Frame(lo, hi, meta.point_spacing or meta.edge * 1e-3),
                                                   size=self.framebuffer_size)
-        self.screenshot_dir = Path(screenshot_dir)
-        self.background = tuple(float(v) for v in background)
-        self.held: set[str] = set()
-        self._drag: tuple[int, float, float] | None = None
-        self._dirty = True
-        self._frame = None
-        self._hud_tex = None
-        self._hud_text = None
-        self._hud_time = 0.0
-        self._fps = 0.0
-        self._t_last = time.perf_counter()
-        self.frames_rendered = 0
-        self._version = None
-        self._view = None
-        self.last_screenshot: Path | None = None
+        self._init_view_state(screenshot_dir, background)  # _drag: (button, x, y)
         self._install_callbacks()
 
     # -- input ----------------------------------------------------------------------------------
@@ -111,11 +97,7 @@ class PointViewer(GlWindow):
             name = "ESCAPE"
         else:
             return  # printable keys such as [ ] arrive through _on_char (keyboard layouts differ)
-        if name in MOVE_KEYS:
-            if action == glfw.PRESS:
-                self.held.add(name)
-            elif action == glfw.RELEASE:
-                self.held.discard(name)
+        if self._hold(name, action):
             return
         if action == glfw.PRESS:
             self.key(name)
@@ -138,13 +120,7 @@ class PointViewer(GlWindow):
             return
         button, x0, y0 = self._drag
         self._drag = (button, x, y)
-        sx = self.framebuffer_size[0] / max(self._glfw.get_window_size(win)[0], 1)
-        dx, dy = (x - x0) * sx, (y - y0) * sx
-        if button == self._glfw.MOUSE_BUTTON_LEFT:
-            self.controls.orbit(dx, dy)
-        else:
-            self.controls.pan(dx, dy, self.framebuffer_size)
-        self._dirty = True
+        self._orbit_or_pan(button, *self._drag_delta(win, x, y, x0, y0))
 
     def _on_scroll(self, win, xoff, yoff) -> None:
         self.controls.zoom(yoff)
@@ -217,10 +193,9 @@ class PointViewer(GlWindow):
                                texture_stats=self.session.clip_texture.stats, message=st.message)
 
     def _draw_hud(self, w: int, h: int) -> None:
-        now = time.perf_counter()
-        if self._hud_text is None or now - self._hud_time > 0.25:
+        if self._hud_due():
             lines = self.hud_lines()
-            self._hud_text, self._hud_time = lines, now
+            self._hud_text, self._hud_time = lines, time.perf_counter()
             img = render_text(lines)
             self._place_hud(img, w, h)
         self._render_hud()
@@ -231,10 +206,7 @@ class PointViewer(GlWindow):
 
         path = Path(path) if path is not None else self._numbered("clipvol-points", ".png")
         Image.fromarray(self.read_screen(), "RGB").save(path)
-        self.last_screenshot = path
-        self.state.message = f"saved {path}"
-        self._hud_text = None
-        return path
+        return self._saved(path)
 
     def close(self) -> None:
         """Stop the loader threads, release GL objects, destroy the window."""

@@ -40,7 +40,7 @@ from ..app.adaptive import FULL, AdaptiveQuality
 from ..app.session import RenderSession
 from ..errors import ClipvolError, ParameterError
 from ..scene.params import RenderParams
-from .controls import MOVE_KEYS, OrbitControls, ViewState
+from .controls import OrbitControls, ViewState
 from .gl_window import GlWindow, WindowError
 from .hud import hud_lines, render_text
 
@@ -138,22 +138,8 @@ class Viewer(GlWindow):
         self._quality = FULL
         self._hist = None
         self._strip_rect = None
-        self.screenshot_dir = Path(screenshot_dir)
-        self.background = tuple(float(v) for v in background)
-        self.held: set[str] = set()
-        self._drag: tuple[int, float, float, float] | None = None  # button, x, y, distance moved
-        self._dirty = True
-        self._frame = None
+        self._init_view_state(screenshot_dir, background)  # _drag: (button, x, y, distance moved)
         self._frame_camera = None
-        self._hud_tex = None
-        self._hud_text = None
-        self._hud_time = 0.0
-        self._fps = 0.0
-        self._t_last = time.perf_counter()
-        self.frames_rendered = 0
-        self._version = None
-        self._view = None
-        self.last_screenshot: Path | None = None
         self.slices = None  # slice mode (key L): clipvol.viewer.slice_layout, built on first use
         self.playback = None  # a time series' play / pause / step (viewer/playback.py)
         if series is not None:
@@ -179,11 +165,7 @@ class Viewer(GlWindow):
         if action == glfw.PRESS and (mods & (glfw.MOD_SHIFT | glfw.MOD_CONTROL)) and name in ("S", "P"):
             self.key("shift+" + name)
             return
-        if name in MOVE_KEYS:
-            if action == glfw.PRESS:
-                self.held.add(name)
-            elif action == glfw.RELEASE:
-                self.held.discard(name)
+        if self._hold(name, action):
             return
         if action == glfw.PRESS:
             self.key(name)
@@ -231,19 +213,15 @@ class Viewer(GlWindow):
             return
         button, x0, y0, moved = self._drag
         self._drag = (button, x, y, moved + abs(x - x0) + abs(y - y0))
-        # cursor positions are in screen coordinates; pan in framebuffer pixels
-        sx = self.framebuffer_size[0] / max(self._glfw.get_window_size(win)[0], 1)
-        dx, dy = (x - x0) * sx, (y - y0) * sx
+        dx, dy = self._drag_delta(win, x, y, x0, y0)
         if isinstance(button, tuple):
             self.drag_window(dx, widen=button[1] != self._glfw.MOUSE_BUTTON_LEFT)
             return
         if self.slices is not None and self.slices.active and self._slice_panel(win)[0] != "3d":
             self.slices.tilt(self._slice_panel(win)[0], dx, dy)
-        elif button == self._glfw.MOUSE_BUTTON_LEFT:
-            self.controls.orbit(dx, dy)
+            self._dirty = True
         else:
-            self.controls.pan(dx, dy, self.framebuffer_size)
-        self._dirty = True
+            self._orbit_or_pan(button, dx, dy)
 
     def _on_scroll(self, win, xoff, yoff) -> None:
         if self.slices is not None and self.slices.active and self._slice_panel(win)[0] != "3d":
@@ -468,8 +446,7 @@ class Viewer(GlWindow):
         return view_labels(frame.affine, cam.right, cam.up, frame.frame)
 
     def _draw_hud(self, w: int, h: int) -> None:
-        now = time.perf_counter()
-        if self._hud_text is None or now - self._hud_time > 0.25:
+        if self._hud_due():
             st = self.state
             settings = {
                 "mode": st.mode + (f" L{st.level}" if st.mode == "fixed" else ""),
@@ -495,7 +472,7 @@ class Viewer(GlWindow):
             if self.slices is not None and self.slices.active:
                 lines = lines + self.slices.hud_lines()
             self._hud_text = lines
-            self._hud_time = now
+            self._hud_time = time.perf_counter()
             from .hud import stack_images, tf_strip
 
             text = render_text(lines)
@@ -538,10 +515,7 @@ class Viewer(GlWindow):
 
                 img = draw_outlines(img, cam, sess.last_items())
             Image.fromarray(img, "RGBA").save(path)
-        self.last_screenshot = path
-        self.state.message = f"saved {path}"
-        self._hud_text = None
-        return path
+        return self._saved(path)
 
     def close(self) -> None:
         """Stop the loader threads, release GL objects, destroy the window."""
