@@ -252,6 +252,48 @@ def interleaved_medians(raw, actions: dict, cam, tf, step: float, repeat: int) -
     return ({k: statistics.median(v) for k, v in wall.items()}, {k: statistics.median(v) for k, v in cpu.items()})
 
 
+def ratio_columns(mw: dict, mc: dict, names) -> dict:
+    """Per action name: its median seconds, and its wall and CPU time over the raw caster's
+    (``"raw"`` in ``mw``/``mc``, from :func:`interleaved_medians`), as CSV columns."""
+    row = {}
+    for k in names:
+        key = k.replace(" ", "_").replace("-", "_")
+        row[f"{key}_s"] = round(mw[k], 4)
+        row[f"{key}_over_raw"] = round(mw[k] / mw["raw"], 3)
+        row[f"{key}_cpu_over_raw"] = round(mc[k] / mc["raw"], 3)
+    return row
+
+
+def raw_ratio_line(mw: dict, mc: dict, names) -> str:
+    """One log line: each action's median and its ratios to the raw caster, wall and CPU."""
+    return f"raw {mw['raw']:.3f} s; " + "; ".join(
+        f"{k} {mw[k]:.3f} s = {mw[k] / mw['raw']:.2f}x raw (CPU {mc[k] / mc['raw']:.2f}x)" for k in names)
+
+
+def close_all(actions: dict, raw, clip) -> None:
+    """Release a run's actions, its raw caster and its clip-texture."""
+    for a in actions.values():
+        a.close()
+    raw.release()
+    clip.close()
+
+
+def sizes_main(argv, doc: str, run, default_out: Path, sizes_help: str) -> int:
+    """The command line of a benchmark against the raw caster over fractal volumes of ``--sizes``:
+    ``run(sizes, image, repeat, step)`` gives the CSV rows written to ``--out``."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("--sizes", default="128,256", help=sizes_help)
+    ap.add_argument("--image", type=int, default=256, help="image edge in pixels")
+    ap.add_argument("--repeat", type=int, default=5, help="interleaved rounds (medians)")
+    ap.add_argument("--step", type=float, default=0.5)
+    ap.add_argument("--out", default=str(default_out))
+    args = ap.parse_args(argv)
+    rows = run([int(s) for s in args.sizes.split(",")], args.image, args.repeat, args.step)
+    write_rows(args.out, rows)
+    print(f"wrote {args.out}")
+    return 0
+
+
 def write_rows(path, rows: list[dict]) -> None:
     """``rows`` as a CSV at ``path`` (columns: the first row's keys)."""
     with open(path, "w", newline="") as f:
