@@ -33,10 +33,9 @@ void main() {
     if (u_use_acc && texelFetch(u_acc, ivec2(gl_FragCoord.xy), 0).a >= u_opaque) discard;
     vec3 origin;
     vec3 dir;
-    pixel_ray(origin, dir);
-    vec3 inv = safe_inverse(dir);
-    vec2 t = box_interval(origin, inv, u_box_lo, u_box_hi);
-    if (!clip_to_shape(origin, dir, inv, t)) discard;
+    vec3 inv;
+    vec2 t;
+    if (!pixel_ray_in_box(u_box_lo, u_box_hi, origin, dir, inv, t)) discard;
     float off = pixel_hash() * u_jitter * u_delta;
     vec2 k = lattice_range(t.x, t.y, off, u_delta);
     int n = int(min(k.y - k.x + 1.0, float(u_max_steps)));
@@ -46,18 +45,8 @@ void main() {
     g_ov_origin = origin;
 #endif
     vec3 base = origin + u_o_minus_b;   // ray origin relative to the brick's first voxel centre
-#ifdef MODE_MIP
-    float vmax = -3.0e38;
-    bool hit = false;
-#else
-    vec4 acc = vec4(0.0);
-#endif
+    STATE_INIT
     march_segment(u_volume, base, dir, off, k.x, n, u_delta, u_inv_scale, u_inv_tex_size, u_slot_origin,
                   u_clamp_lo, u_clamp_hi, u_tf_row, STATE_ARGS);
-#ifdef MODE_MIP
-    if (!hit) discard;
-    f_color = vec4(vmax, 0.0, 0.0, 1.0);
-#else
-    f_color = acc;
-#endif
+    STATE_OUT
 }

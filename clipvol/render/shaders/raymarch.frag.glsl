@@ -275,16 +275,10 @@ bool region(vec3 origin, vec3 dir, vec3 inv, float tend, inout float ta, STATE) 
 void main() {
     vec3 origin;
     vec3 dir;
-    pixel_ray(origin, dir);
-    vec3 inv = safe_inverse(dir);
-    vec2 t = box_interval(origin, inv, u_vol_lo, u_vol_hi);
-    if (!clip_to_shape(origin, dir, inv, t)) discard;
-#ifdef MODE_MIP
-    float vmax = -3.0e38;
-    bool hit = false;
-#else
-    vec4 acc = vec4(0.0);
-#endif
+    vec3 inv;
+    vec2 t;
+    if (!pixel_ray_in_box(u_vol_lo, u_vol_hi, origin, dir, inv, t)) discard;
+    STATE_INIT
     float ta = t.x;
     // the first region outside the loop: a march nested in a loop of non-constant count costs
     // llvmpipe a few per cent per sample (its masks), and most rays of a merged full-resolution
@@ -293,10 +287,5 @@ void main() {
     if (u_max_regions > 1) {            // uniform: a table of one node over the whole volume skips the loop
         for (int r = 1; go && r < u_max_regions && ta < t.y; ++r) go = region(origin, dir, inv, t.y, ta, STATE_ARGS);
     }
-#ifdef MODE_MIP
-    if (!hit) discard;
-    f_color = vec4(vmax, 0.0, 0.0, 1.0);
-#else
-    f_color = acc;
-#endif
+    STATE_OUT
 }

@@ -71,6 +71,15 @@ bool clip_to_shape(vec3 origin, vec3 dir, vec3 inv, inout vec2 t) {
     return t.y > t.x;
 }
 
+// The pixel's ray (origin relative to O, unit direction, its safe inverse) and its interval in the
+// box [lo, hi] narrowed to the shape; false: the ray misses.
+bool pixel_ray_in_box(vec3 lo, vec3 hi, out vec3 origin, out vec3 dir, out vec3 inv, out vec2 t) {
+    pixel_ray(origin, dir);
+    inv = safe_inverse(dir);
+    t = box_interval(origin, inv, lo, hi);
+    return clip_to_shape(origin, dir, inv, t);
+}
+
 // Stable per-pixel offset in [0, 1) (a 2-D integer hash of the pixel; the same every frame).
 float pixel_hash() {
     uvec2 p = uvec2(gl_FragCoord.xy);
@@ -284,12 +293,18 @@ void composite_lit(inout vec4 acc, float texel, float row, vec3 g, vec3 dir) {
 }
 #endif
 
+// A ray's state while it marches (STATE: as parameters, STATE_ARGS: as arguments), its start
+// (STATE_INIT) and the fragment written from it at the end (STATE_OUT; MIP: nothing hit, no fragment)
 #ifdef MODE_MIP
 #define STATE inout float vmax, inout bool hit
 #define STATE_ARGS vmax, hit
+#define STATE_INIT float vmax = -3.0e38; bool hit = false;
+#define STATE_OUT { if (!hit) discard; f_color = vec4(vmax, 0.0, 0.0, 1.0); }
 #else
 #define STATE inout vec4 acc
 #define STATE_ARGS acc
+#define STATE_INIT vec4 acc = vec4(0.0);
+#define STATE_OUT f_color = acc;
 #endif
 
 // Samples k0 .. k0 + n - 1 of the lattice t = off + k * delta along base + t * dir (base: the ray
