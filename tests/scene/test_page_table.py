@@ -16,6 +16,22 @@ from clipvol.scene.params import RenderParams
 from clipvol.scene.selection import select
 
 
+def probes(table, pyr, items, rng, n):
+    """For ``n`` random points of the volume: the indices of the items whose boxes hold the point
+    (the reference) and the table's walk there, for points some item holds; a point no item
+    holds must walk to EMPTY."""
+    lo = np.array([it.lo for it in items])
+    hi = np.array([it.hi for it in items])
+    vlo, vhi = pyr.volume_box()
+    for p in vlo + rng.random((n, 3)) * (vhi - vlo):
+        inside = np.nonzero(np.all((lo <= p) & (p < hi), axis=1))[0]
+        found = walk(table, pyr, p)
+        if len(inside) == 0:
+            assert found[0] == EMPTY
+            continue
+        yield inside, found
+
+
 class HalfResident:
     """Residency: level 0 bricks with an even x index and every coarser brick are resident, so the
     cut holds fallback items (ancestors drawn over the missing children's boxes)."""
@@ -51,19 +67,9 @@ def test_page_table_names_the_item_holding_each_point():
     assert len({it.level for it in items}) >= 2 and sel.counts["fallback"] > 0
     table = build_page_table(items, pyr)
     assert table is not None
-    lo = np.array([it.lo for it in items])
-    hi = np.array([it.hi for it in items])
-    rng = np.random.default_rng(1)
-    vlo, vhi = pyr.volume_box()
-    pts = vlo + rng.random((3000, 3)) * (vhi - vlo)
     nodes = item_nodes(items, pyr)
     covered = 0
-    for p in pts:
-        inside = np.nonzero(np.all((lo <= p) & (p < hi), axis=1))[0]
-        kind, L, cell, Ld = walk(table, pyr, p)
-        if len(inside) == 0:
-            assert kind == EMPTY
-            continue
+    for inside, (kind, L, cell, Ld) in probes(table, pyr, items, np.random.default_rng(1), 3000):
         assert len(inside) == 1  # the items tile what they cover
         it = items[inside[0]]
         covered += 1
@@ -106,17 +112,8 @@ def test_merged_items_are_nodes_over_blocks_of_bricks():
 
     table = build_page_table(items, pyr, open_faces)
     assert table is not None
-    lo = np.array([it.lo for it in items])
-    hi = np.array([it.hi for it in items])
-    vlo, vhi = pyr.volume_box()
-    pts = vlo + rng.random((2000, 3)) * (vhi - vlo)
     seen_merged = 0
-    for p in pts:
-        inside = np.nonzero(np.all((lo <= p) & (p < hi), axis=1))[0]
-        kind, L, cell, Ld = walk(table, pyr, p)
-        if len(inside) == 0:
-            assert kind == EMPTY
-            continue
+    for inside, (kind, L, cell, Ld) in probes(table, pyr, items, rng, 2000):
         it = items[inside[0]]
         assert kind == DRAWN and Ld == it.level
         assert 2 ** (L - Ld) == it.span  # the node over the block
