@@ -127,6 +127,32 @@ class Traversal:
         if len(idx):
             self.rec.append((level, idx, level, idx))
 
+    def leaves_of(self, nodes) -> None:
+        """Record ``(level, index)`` nodes, in any order, as leaves of the cut (per level at once)."""
+        by_level: dict[int, list] = {}
+        for lv, b in nodes:
+            by_level.setdefault(lv, []).append(b)
+        for lv, rows in by_level.items():
+            self.leaves(lv, np.array(rows, dtype=np.int64))
+
+    def refine_one(self, level: int, index, fits):
+        """Expand node ``index`` of ``level`` and cull its children, if ``fits(children, n_out)``
+        says the cut may grow by them (``n_out``: its children outside the window, recorded as drawn
+        from it); else undo the records and counts this made and return None. The budgeted greedy
+        refinements (texel budget here, block budget in the image policy) grow the cut this way,
+        one node at a time. Returns ``(children, lo, hi, n_out)``."""
+        rec0, counts0 = len(self.rec), dict(self.counts)
+        c = self.expand(level, np.array([index], dtype=np.int64))
+        c, clo, chi = self.cull(level - 1, c) if len(c) else (c, _EMPTY3, _EMPTY3)
+        n_out = sum(len(r[1]) for r in self.rec[rec0:])
+        if not fits(len(c), n_out):
+            del self.rec[rec0:]
+            self.counts.clear()
+            self.counts.update(counts0)
+            return None
+        self.counts["refined"] += 1
+        return c, clo, chi, n_out
+
     def expand(self, level: int, idx: np.ndarray) -> np.ndarray:
         """Children of ``idx`` in the clip-texture's window; children outside the window (but in
         the frustum and shape) become records drawn from their parent."""
@@ -203,26 +229,16 @@ class Traversal:
         while heap:
             _, _, key = heap[0]
             lv, b = key
-            one = np.array([b], dtype=np.int64)
-            rec0, counts0 = len(self.rec), dict(self.counts)
-            c = self.expand(lv, one)
-            c, clo, chi = self.cull(lv - 1, c) if len(c) else (c, _EMPTY3, _EMPTY3)
-            n_out = sum(len(r[1]) for r in self.rec[rec0:])
-            if cost(len(nodes) - 1 + len(c) + drawn_from_parent + n_out, tree.texels) > budget:
-                del self.rec[rec0:]  # undo the out-of-window records and counts of this refusal
-                self.counts.clear()
-                self.counts.update(counts0)
+            got = self.refine_one(lv, b, lambda n_c, n_out: cost(len(nodes) - 1 + n_c + drawn_from_parent + n_out,
+                                                                    tree.texels) <= budget)
+            if got is None:
                 break
             heapq.heappop(heap)
+            c, clo, chi, n_out = got
             drawn_from_parent += n_out
-            self.counts["refined"] += 1
             del nodes[key]
             push(lv - 1, c, clo, chi)
-        by_level: dict[int, list] = {}
-        for lv, b in nodes:
-            by_level.setdefault(lv, []).append(b)
-        for lv, rows in by_level.items():
-            self.leaves(lv, np.array(rows, dtype=np.int64))
+        self.leaves_of(nodes)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -247,25 +247,15 @@ class ImageBased:
         while heap:  # the tail, one node at a time
             _, _, key = heap[0]
             lv, b = key
-            rec0, counts0 = len(t.rec), dict(t.counts)
-            c = t.expand(lv, np.array([b], dtype=np.int64))
-            c, clo, chi = t.cull(lv - 1, c) if len(c) else (c, _EMPTY3, _EMPTY3)
-            n_out = sum(len(r[1]) for r in t.rec[rec0:])
-            if len(nodes) - 1 + len(c) + from_parent + n_out > budget:
-                del t.rec[rec0:]  # undo this refusal's out-of-window records and counts
-                t.counts.clear()
-                t.counts.update(counts0)
+            got = t.refine_one(lv, b, lambda n_c, n_out: len(nodes) - 1 + n_c + from_parent + n_out <= budget)
+            if got is None:
                 break
             heapq.heappop(heap)
+            c, clo, chi, n_out = got
             from_parent += n_out
-            t.counts["refined"] += 1
             nodes.discard(key)
             push(lv - 1, c, clo, chi)
-        by_lv: dict = {}
-        for lv, b in nodes:
-            by_lv.setdefault(lv, []).append(b)
-        for lv, rows in by_lv.items():
-            t.leaves(lv, np.array(rows, dtype=np.int64))
+        t.leaves_of(nodes)
 
     def covers(self, camera) -> bool:
         """Whether the recorded cut still holds every node ``camera`` sees: none of the boxes the
