@@ -142,8 +142,12 @@ class RenderSession:
         lo, hi = self.pyramid.volume_box()
         c = np.clip(np.asarray(xyz, dtype=np.float64), lo, hi)
         if self._center is None or not np.array_equal(c, self._center):
-            self.clip_texture.set_center(c)
+            self._move_center(c)
             self._center = c
+
+    def _move_center(self, c: np.ndarray) -> None:
+        """Where a new centre of interest goes: the clip-texture (a series: every step it holds)."""
+        self.clip_texture.set_center(c)
 
     def render(self, camera, center=None, *, wait: bool = False, timeout: float | None = None) -> np.ndarray:
         """Render one frame (``(h, w, 4)`` uint8, row 0 at top); ``center`` moves the centre of interest first."""

@@ -185,12 +185,8 @@ class SeriesSession(RenderSession):
         if self._center is not None:
             self.player.set_center(self._center)
 
-    def set_center(self, xyz) -> None:
-        lo, hi = self.pyramid.volume_box()
-        c = np.clip(np.asarray(xyz, dtype=np.float64), lo, hi)
-        if self._center is None or not np.array_equal(c, self._center):
-            self.player.set_center(c)
-            self._center = c
+    def _move_center(self, c: np.ndarray) -> None:
+        self.player.set_center(c)  # the current step's clip-texture and the prefetched one
 
     def close(self) -> None:
         self.player.close()
