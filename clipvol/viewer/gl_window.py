@@ -238,6 +238,31 @@ class GlWindow:
             self.controls.pan(dx, dy, self.framebuffer_size)
         self._dirty = True
 
+    # -- one loop iteration (a viewer's ``step``: begin, maybe a new frame, end) --------------------
+    def _begin_step(self, poll: bool) -> float:
+        """Take input (``poll``), move the camera by the keys held since the last step; returns now."""
+        if poll:
+            self._glfw.poll_events()
+        now = time.perf_counter()
+        dt, self._t_last = now - self._t_last, now
+        if self.held and self.controls.move_keys(self.held, min(dt, 0.1), speed=0.5 * self.controls.distance):
+            self._dirty = True
+        return now
+
+    def _frame_done(self, seconds: float) -> None:
+        """Count a new frame that took ``seconds`` into the smoothed frame rate the HUD shows."""
+        rate = 1.0 / max(seconds, 1e-4)
+        self._fps = 0.8 * self._fps + 0.2 * rate if self._fps else rate
+        self.frames_rendered += 1
+
+    def _end_step(self) -> None:
+        """Draw the last frame and HUD, take an asked-for screenshot, swap."""
+        self._draw()
+        if self.state.screenshot:
+            self.state.screenshot = False
+            self.screenshot()
+        self._glfw.swap_buffers(self.window)
+
     # -- drawing ----------------------------------------------------------------------------------
     def _draw(self) -> None:
         """The last frame over the background, then the HUD (``self._draw_hud``) when it is on."""

@@ -153,13 +153,7 @@ class PointViewer(GlWindow):
     # -- frame ----------------------------------------------------------------------------------
     def step(self, *, force: bool = False, poll: bool = True) -> bool:
         """One loop iteration: input, a new frame if anything changed, draw, swap. Returns whether it rendered."""
-        glfw = self._glfw
-        if poll:
-            glfw.poll_events()
-        now = time.perf_counter()
-        dt, self._t_last = now - self._t_last, now
-        if self.held and self.controls.move_keys(self.held, min(dt, 0.1), speed=0.5 * self.controls.distance):
-            self._dirty = True
+        self._begin_step(poll)
         sess = self.session
         version = sess.clip_texture.residency_version
         view = (tuple(self.controls.eye), tuple(self.controls.target), self.framebuffer_size)
@@ -172,15 +166,9 @@ class PointViewer(GlWindow):
             img = sess.render(cam, self.controls.center_of_interest, wait=False)
             self._frame = img
             self._frame_tex = self._texture(self._frame_tex, img)
-            ft = time.perf_counter() - t0
-            self._fps = 0.8 * self._fps + 0.2 / max(ft, 1e-4) if self._fps else 1.0 / max(ft, 1e-4)
-            self.frames_rendered += 1
+            self._frame_done(time.perf_counter() - t0)
             rendered = True
-        self._draw()
-        if self.state.screenshot:
-            self.state.screenshot = False
-            self.screenshot()
-        glfw.swap_buffers(self.window)
+        self._end_step()
         return rendered
 
     def hud_lines(self) -> list[str]:

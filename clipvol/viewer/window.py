@@ -362,17 +362,11 @@ class Viewer(GlWindow):
     # -- frame --------------------------------------------------------------------------------
     def step(self, *, force: bool = False, poll: bool = True) -> bool:
         """One loop iteration: input, a new frame if anything changed, draw, swap. Returns whether it rendered."""
-        glfw = self._glfw
-        if poll:
-            glfw.poll_events()
-        now = time.perf_counter()
-        dt, self._t_last = now - self._t_last, now
+        now = self._begin_step(poll)
         if self.playback is not None:  # a time series playing: the next step once this one is drawn
             fs = self.session.frame_stats
             if self.playback.due(now, ready=fs is not None and fs.converged):
                 self._show_step(self.playback.advance(now))
-        if self.held and self.controls.move_keys(self.held, min(dt, 0.1), speed=0.5 * self.controls.distance):
-            self._dirty = True
         sess = self.session
         fs = sess.frame_stats
         # not converged and the last frame still uploaded something: the next frame shows more.
@@ -418,14 +412,9 @@ class Viewer(GlWindow):
             if self.adaptive is not None:
                 self.adaptive.done(q, ft)
             self._quality = q
-            self._fps = 0.8 * self._fps + 0.2 / max(ft, 1e-4) if self._fps else 1.0 / max(ft, 1e-4)
-            self.frames_rendered += 1
+            self._frame_done(ft)
             rendered = True
-        self._draw()
-        if self.state.screenshot:
-            self.state.screenshot = False
-            self.screenshot()
-        glfw.swap_buffers(self.window)
+        self._end_step()
         return rendered
 
     def _image_lod_settings(self) -> dict:
