@@ -27,9 +27,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-# RawCaster: the baseline outside clipvol's render path
-from bench_render import (RawCaster, close_all, fractal_scene, interleaved_medians, ratio_columns,  # noqa: E402
-                          raw_ratio_line, sizes_main)
+# raw_runs times every configuration against RawCaster, the baseline outside clipvol's render path
+from bench_render import ratio_columns, raw_ratio_line, raw_runs, sizes_main  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -43,17 +42,12 @@ def _signed_map(n: int, seed: int) -> np.ndarray:
 
 def run(sizes, image: int, repeat: int, step: float, log=print) -> list[dict]:
     from clipvol.loaders.numpy_array import NumpyLoader
-    from clipvol.render import create_context
     from clipvol.render.action import ClipRenderAction
     from clipvol.scene.label_colors import LabelColors
     from clipvol.scene.overlay import Overlay
     from clipvol.scene.transfer import TransferFunction
 
-    ctx = create_context()
-    rows = []
-    for n in sizes:
-        vol, loader, cam, tf, budget, clip = fractal_scene(n, image)
-        pyr = loader.pyramid
+    def make_actions(ctx, n, clip, common):
         m = n // 2
         ovs = [Overlay(NumpyLoader(_signed_map(m, s), brick=64, spacing=(2.0, 2.0, 2.0)),
                        TransferFunction.preset("diverging", value_range=(-3.0, 3.0)), origin=(n / 4.0,) * 3,
@@ -61,14 +55,15 @@ def run(sizes, image: int, repeat: int, step: float, log=print) -> list[dict]:
         ids = np.digitize(_signed_map(m, 1), [-4, -2, -1, 0, 1, 2, 4]).astype(np.uint16)  # 8 labels
         lab = Overlay(NumpyLoader(ids, brick=64, spacing=(2.0, 2.0, 2.0), value_range=(0.0, 7.0)), LabelColors(),
                       origin=(n / 4.0,) * 3, name="labels")
-        common = dict(policy="fixed", level=0, step=step, texture_budget=budget)
-        actions = {"single": ClipRenderAction(ctx, clip, **common),
-                   "1 overlay": ClipRenderAction(ctx, clip, overlays=tuple(ovs[:1]), **common),
-                   "2 overlays": ClipRenderAction(ctx, clip, overlays=tuple(ovs), **common),
-                   "label overlay": ClipRenderAction(ctx, clip, overlays=(lab,), **common),
-                   "1 overlay additive": ClipRenderAction(ctx, clip, overlays=tuple(ovs[:1]), blend="additive", **common)}
-        raw = RawCaster(ctx, vol, pyr.value_range)
-        mw, mc = interleaved_medians(raw, actions, cam, tf, step, repeat)
+        return {"single": ClipRenderAction(ctx, clip, **common),
+                "1 overlay": ClipRenderAction(ctx, clip, overlays=tuple(ovs[:1]), **common),
+                "2 overlays": ClipRenderAction(ctx, clip, overlays=tuple(ovs), **common),
+                "label overlay": ClipRenderAction(ctx, clip, overlays=(lab,), **common),
+                "1 overlay additive": ClipRenderAction(ctx, clip, overlays=tuple(ovs[:1]), blend="additive", **common)}
+
+    rows = []
+    for n, actions, mw, mc in raw_runs(sizes, image, repeat, step, make_actions):
+        m = n // 2
         row = dict(size=n, overlay_size=m, image=image, repeat=repeat, raw_s=round(mw["raw"], 4),
                    **ratio_columns(mw, mc, actions))
         extra = ("1 overlay", "2 overlays", "label overlay", "1 overlay additive")
@@ -81,8 +76,6 @@ def run(sizes, image: int, repeat: int, step: float, log=print) -> list[dict]:
                                               f"{row[k.replace(' ', '_') + '_over_single_cpu']:.2f}x CPU"
                                               for k in extra))
         rows.append(row)
-        close_all(actions, raw, clip)
-    ctx.release()
     return rows
 
 

@@ -270,12 +270,30 @@ def raw_ratio_line(mw: dict, mc: dict, names) -> str:
         f"{k} {mw[k]:.3f} s = {mw[k] / mw['raw']:.2f}x raw (CPU {mc[k] / mc['raw']:.2f}x)" for k in names)
 
 
-def close_all(actions: dict, raw, clip) -> None:
-    """Release a run's actions, its raw caster and its clip-texture."""
-    for a in actions.values():
-        a.close()
-    raw.release()
-    clip.close()
+def raw_runs(sizes, image: int, repeat: int, step: float, make_actions):
+    """Per ``procedural:fractal`` volume of ``sizes`` (:func:`fractal_scene`): the render actions
+    ``make_actions(ctx, n, clip, common)`` makes (``common``: full resolution at ``step`` under the
+    scene's texture budget) timed against a :class:`RawCaster` of the same volume, interleaved,
+    medians of ``repeat`` (:func:`interleaved_medians`). Yields ``(n, actions, wall, cpu)``; what a
+    run made is released before the next."""
+    from clipvol.render import create_context
+
+    ctx = create_context()
+    try:
+        for n in sizes:
+            vol, loader, cam, tf, budget, clip = fractal_scene(n, image)
+            actions = make_actions(ctx, n, clip, dict(policy="fixed", level=0, step=step, texture_budget=budget))
+            raw = RawCaster(ctx, vol, loader.pyramid.value_range)
+            try:
+                mw, mc = interleaved_medians(raw, actions, cam, tf, step, repeat)
+                yield n, actions, mw, mc
+            finally:
+                for a in actions.values():
+                    a.close()
+                raw.release()
+                clip.close()
+    finally:
+        ctx.release()
 
 
 def sizes_main(argv, doc: str, run, default_out: Path, sizes_help: str) -> int:

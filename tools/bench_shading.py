@@ -23,27 +23,21 @@ from pathlib import Path
 
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-# RawCaster: the baseline outside clipvol's render path
-from bench_render import (RawCaster, close_all, fractal_scene, interleaved_medians, ratio_columns,  # noqa: E402
-                          raw_ratio_line, sizes_main)
+# raw_runs times every configuration against RawCaster, the baseline outside clipvol's render path
+from bench_render import ratio_columns, raw_ratio_line, raw_runs, sizes_main  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 
 
 def run(sizes, image: int, repeat: int, step: float, log=print) -> list[dict]:
-    from clipvol.render import create_context
     from clipvol.render.action import ClipRenderAction
 
-    ctx = create_context()
+    def make_actions(ctx, n, clip, common):
+        return {f"{path} {'lit' if lit else 'unlit'}": ClipRenderAction(ctx, clip, path=path, shading=lit, **common)
+                for path in ("bricks", "single-pass") for lit in (False, True)}
+
     rows = []
-    for n in sizes:
-        vol, loader, cam, tf, budget, clip = fractal_scene(n, image)
-        pyr = loader.pyramid
-        common = dict(policy="fixed", level=0, step=step, texture_budget=budget)
-        actions = {f"{path} {'lit' if lit else 'unlit'}": ClipRenderAction(ctx, clip, path=path, shading=lit, **common)
-                   for path in ("bricks", "single-pass") for lit in (False, True)}
-        raw = RawCaster(ctx, vol, pyr.value_range)
-        mw, mc = interleaved_medians(raw, actions, cam, tf, step, repeat)
+    for n, actions, mw, mc in raw_runs(sizes, image, repeat, step, make_actions):
         row = dict(size=n, image=image, repeat=repeat, raw_s=round(mw["raw"], 4), raw_cpu_s=round(mc["raw"], 4),
                    **ratio_columns(mw, mc, actions))
         for path in ("bricks", "single-pass"):
@@ -55,8 +49,6 @@ def run(sizes, image: int, repeat: int, step: float, log=print) -> list[dict]:
                                            f"{row[p.replace('-', '_') + '_lit_over_unlit_cpu']:.2f}x CPU"
                                            for p in ("bricks", "single-pass")))
         rows.append(row)
-        close_all(actions, raw, clip)
-    ctx.release()
     return rows
 
 
