@@ -239,6 +239,15 @@ class GlWindow:
         self._dirty = True
 
     # -- one loop iteration (a viewer's ``step``: begin, maybe a new frame, end) --------------------
+    def _apply_view_keys(self) -> None:
+        """The state's reset (view back to the start) and quit (close the window) requests."""
+        st = self.state
+        if st.reset:
+            self.controls.reset()
+            st.reset = False
+        if st.quit:
+            self._glfw.set_window_should_close(self.window, True)
+
     def _begin_step(self, poll: bool) -> float:
         """Take input (``poll``), move the camera by the keys held since the last step; returns now."""
         if poll:
@@ -362,9 +371,8 @@ class GlWindow:
             k += 1
         return self.screenshot_dir / f"{stem}-{k:04d}{suffix}"
 
-    def _saved(self, path: Path) -> Path:
-        """After a screenshot to ``path``: remember it and say so in the HUD."""
-        self.last_screenshot = path
+    def _note_saved(self, path: Path) -> Path:
+        """After saving ``path`` (a screenshot, a table, a camera): say so in the HUD; returns it."""
         self.state.message = f"saved {path}"
         self._hud_text = None
         return path

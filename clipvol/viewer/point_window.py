@@ -133,11 +133,7 @@ class PointViewer(GlWindow):
 
     def _apply_state(self) -> None:
         st = self.state
-        if st.reset:
-            self.controls.reset()
-            st.reset = False
-        if st.quit:
-            self._glfw.set_window_should_close(self.window, True)
+        self._apply_view_keys()
         from ..scene.transfer import TransferFunction
 
         name = st.tf_name
@@ -194,7 +190,8 @@ class PointViewer(GlWindow):
 
         path = Path(path) if path is not None else self._numbered("clipvol-points", ".png")
         Image.fromarray(self.read_screen(), "RGB").save(path)
-        return self._saved(path)
+        self.last_screenshot = path
+        return self._note_saved(path)
 
     def close(self) -> None:
         """Stop the loader threads, release GL objects, destroy the window."""

@@ -305,19 +305,13 @@ class Viewer(GlWindow):
 
     def save_transfer_function(self, path=None) -> Path:
         """Save the current transfer function as JSON (Shift+S); returns its path."""
-        path = self.tf.save(path if path is not None else self._numbered("tf", ".json"))
-        self.state.message = f"saved {path}"
-        self._hud_text = None
-        return path
+        return self._note_saved(self.tf.save(path if path is not None else self._numbered("tf", ".json")))
 
     def save_camera(self, path=None) -> Path:
         """Save the current camera as JSON (C); returns its path."""
         from ..scene.bookmarks import save_camera
 
-        path = save_camera(self.camera(), path if path is not None else self._numbered("camera", ".json"))
-        self.state.message = f"saved {path}"
-        self._hud_text = None
-        return path
+        return self._note_saved(save_camera(self.camera(), path if path is not None else self._numbered("camera", ".json")))
 
     def _histogram(self):
         if self._hist is None:
@@ -331,11 +325,7 @@ class Viewer(GlWindow):
 
     def _apply_state(self) -> None:
         st = self.state
-        if st.reset:
-            self.controls.reset()
-            st.reset = False
-        if st.quit:
-            self._glfw.set_window_should_close(self.window, True)
+        self._apply_view_keys()
         name = st.tf_name
         label = self.tf.name or "custom"
         if name == self._first_label:
@@ -504,7 +494,8 @@ class Viewer(GlWindow):
 
                 img = draw_outlines(img, cam, sess.last_items())
             Image.fromarray(img, "RGBA").save(path)
-        return self._saved(path)
+        self.last_screenshot = path
+        return self._note_saved(path)
 
     def close(self) -> None:
         """Stop the loader threads, release GL objects, destroy the window."""
