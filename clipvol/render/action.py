@@ -94,6 +94,7 @@ from ..paging.properties import may_hold_nonfinite
 from ..scene.page_table import block_open_faces, build_page_table
 from ..scene.params import MODES, RenderParams
 from ..scene.transfer import corrected_tables, transparency_filter
+from ..scene.visibility import box_depths, screen_rects
 from ..scene.selection import merge_items
 from ..scene.selection.policies import POLICIES
 from .frame_loop import FrameLoop
@@ -133,8 +134,6 @@ def scissor_boxes(cam, lo, hi) -> np.ndarray:
     """GL scissor boxes ``(n, 4)`` int ``x, y, w, h`` (origin bottom left) holding the screen
     rectangles of boxes ``lo``/``hi`` (world, ``(n, 3)``) with a pixel of margin; a box that reaches
     the eye plane gets the whole image, one off the image an empty box (``w`` or ``h`` 0)."""
-    from ..scene.visibility import box_depths, screen_rects
-
     w, h = (int(v) for v in cam.size)
     lo = np.asarray(lo, dtype=np.float64).reshape(-1, 3)
     hi = np.asarray(hi, dtype=np.float64).reshape(-1, 3)
