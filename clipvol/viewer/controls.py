@@ -25,7 +25,7 @@ from ..errors import ParameterError
 from ..scene.camera import Camera
 from ..scene.paths import fit_distance, volume_center
 
-__all__ = ["OrbitControls", "ViewState", "KEY_HELP", "MODES", "ALL_MODES", "MOVE_KEYS"]
+__all__ = ["OrbitControls", "ViewState", "KeyState", "KEY_HELP", "MODES", "ALL_MODES", "MOVE_KEYS"]
 
 UP = np.array([0.0, -1.0, 0.0])
 
@@ -305,8 +305,28 @@ class OrbitControls:
             self.target = np.clip(self.target, self.bounds[0], self.bounds[1])
 
 
+@dataclass(kw_only=True)
+class KeyState:
+    """What the keys every viewer shares change (:func:`apply_common_key`): MIP or composite,
+    lighting, the colour map (``tf_index`` into the subclass's ``tf_presets``), the HUD, and the
+    one-shot requests (screenshot, reset, quit) with the message the HUD shows."""
+
+    render_mode: str = "composite"
+    shading: bool = False
+    tf_index: int = 0
+    hud: bool = True
+    screenshot: bool = False
+    quit: bool = False
+    reset: bool = False
+    message: str = ""
+
+    @property
+    def tf_name(self) -> str:
+        return self.tf_presets[self.tf_index % len(self.tf_presets)]
+
+
 @dataclass
-class ViewState:
+class ViewState(KeyState):
     """Renderer settings the viewer's keys change.
 
     Parameters
@@ -323,15 +343,7 @@ class ViewState:
     level: int = 0
     lod_threshold: float = 1.0
     block_budget: int = 128
-    render_mode: str = "composite"
-    shading: bool = False
-    tf_index: int = 0
     outlines: bool = False
-    hud: bool = True
-    screenshot: bool = False
-    quit: bool = False
-    reset: bool = False
-    message: str = ""
 
     def __post_init__(self) -> None:
         if int(self.num_levels) < 1:
@@ -343,10 +355,6 @@ class ViewState:
         if not self.tf_presets:
             raise ParameterError("tf_presets: expected at least one preset name")
         self.level = int(np.clip(self.level, 0, self.num_levels - 1))
-
-    @property
-    def tf_name(self) -> str:
-        return self.tf_presets[self.tf_index % len(self.tf_presets)]
 
     def handle_key(self, key: str) -> bool:
         """Apply one key (``'M'``, ``'['``, ``'+'``, ...; letters upper case). Returns whether it was used.
@@ -385,9 +393,7 @@ class ViewState:
 
 
 def apply_common_key(state, k: str) -> bool:
-    """The keys every viewer shares, on any state with their fields (``render_mode``, ``shading``,
-    ``tf_index`` + ``tf_presets`` + ``tf_name``, ``hud``, ``screenshot``, ``reset``, ``quit``,
-    ``message``): ``I`` MIP/composite, ``N`` lighting, ``T`` next colour map, ``H`` HUD, ``P``
+    """The keys every viewer shares, on a :class:`KeyState`: ``I`` MIP/composite, ``N`` lighting, ``T`` next colour map, ``H`` HUD, ``P``
     screenshot, ``R`` reset view, ``Esc`` quit. Returns whether ``k`` (upper case) was one of them."""
     if k == "I":
         state.render_mode = "mip" if state.render_mode == "composite" else "composite"

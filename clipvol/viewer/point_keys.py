@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 from ..errors import ParameterError
 from ..scene.splat_select import tolerance_pixels
-from .controls import apply_common_key
+from .controls import KeyState, apply_common_key
 
 __all__ = ["PointViewState", "POINT_KEY_HELP", "TOLERANCE_LADDER"]
 
@@ -37,7 +37,7 @@ POINT_KEY_HELP = (
 
 
 @dataclass
-class PointViewState:
+class PointViewState(KeyState):
     """Settings the point viewer's keys change.
 
     Parameters
@@ -50,14 +50,6 @@ class PointViewState:
 
     tolerance: float = 0.05
     tf_presets: tuple[str, ...] = ("viridis", "magma", "inferno", "grey")
-    render_mode: str = "composite"
-    shading: bool = False
-    tf_index: int = 0
-    hud: bool = True
-    screenshot: bool = False
-    quit: bool = False
-    reset: bool = False
-    message: str = ""
 
     def __post_init__(self) -> None:
         t = float(self.tolerance)
@@ -74,10 +66,6 @@ class PointViewState:
         """A state whose tolerance is ``tolerance`` (``0.05``, ``"5%"``, ``"12px"``) for a window of ``size``."""
         frac = tolerance_pixels(tolerance, size) / max(size)
         return cls(tolerance=min(max(frac, 1e-6), 0.999), **kwargs)
-
-    @property
-    def tf_name(self) -> str:
-        return self.tf_presets[self.tf_index % len(self.tf_presets)]
 
     def tolerance_px(self, size) -> float:
         """The tolerance in pixels of a window of ``size``."""
