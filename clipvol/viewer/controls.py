@@ -393,8 +393,9 @@ class ViewState(KeyState):
 
 
 def apply_common_key(state, k: str) -> bool:
-    """The keys every viewer shares, on a :class:`KeyState`: ``I`` MIP/composite, ``N`` lighting, ``T`` next colour map, ``H`` HUD, ``P``
-    screenshot, ``R`` reset view, ``Esc`` quit. Returns whether ``k`` (upper case) was one of them."""
+    """The keys every viewer shares, on a :class:`KeyState`: ``I`` MIP/composite, ``N`` lighting,
+    ``T`` next colour map, ``H`` HUD, ``P`` screenshot, ``R`` reset view, ``Esc`` quit. Returns
+    whether ``k`` (upper case) was one of them."""
     if k == "I":
         state.render_mode = "mip" if state.render_mode == "composite" else "composite"
         state.message = state.render_mode
