@@ -102,6 +102,7 @@ from .glsl import ProgramCache
 from .gpu_cache import GpuBrickCache
 from .image_lod import ImageLod
 from .overlay_binding import OverlayTextures, overlay_defines
+from .resolve import Resolve
 
 __all__ = ["ClipRenderAction", "FrameStats", "MODES", "SELECTIONS"]
 
@@ -236,7 +237,8 @@ class ClipRenderAction:
         self.occlusion_passes = 0
         self.boxes_drawn = 0  # proxy boxes of the last frame, after merge_items
         self.last_selection = None
-        self.last_raw: np.ndarray | None = None  # (h, w, 4) float32 target of the last frame, rows top first
+        self._last_raw: np.ndarray | None = None  # see last_raw
+        self._resolve = None  # the GL pass to the 8-bit image (render/resolve.py), made on first use
         self.image_lod: ImageLod | None = None  # the image policy's tables and visibility, made on first use
         self._moderngl = moderngl
         self.overlays = OverlayTextures(ctx, clip_texture.loader)  # co-registered volumes (scene/overlay.py)
@@ -591,14 +593,22 @@ class ClipRenderAction:
         return self._read_back(fbo, previous, tf, front_to_back, t0)
 
     def _read_back(self, fbo, previous, tf, front_to_back: bool, t0: float) -> tuple[np.ndarray, float, float]:
-        """Finish the frame, read the target back, give the previous framebuffer back, map MIP
-        values through the transfer function and put the background under a front-to-back image."""
+        """Finish the frame, turn the target into the 8-bit image and give the previous framebuffer
+        back. Composite: on the GL (:class:`~clipvol.render.resolve.Resolve`: the background under a
+        front-to-back image, un-premultiplied, rounded), reading 4 bytes a pixel; MIP: the maximum
+        read back and mapped through the transfer function here."""
         ctx, pyr = self.ctx, self.pyramid
         h, w = fbo.size[1], fbo.size[0]
         ctx.finish()
         t1 = time.perf_counter()
-        raw = np.frombuffer(fbo.read(components=4, dtype="f4"), dtype=np.float32).reshape(int(h), int(w), 4)[::-1]
-        self.last_raw = raw  # the target before the background (sort-last compositing reads it)
+        self._last_raw = None
+        image = None
+        if self.params.mode != "mip":
+            if self._resolve is None:
+                self._resolve = Resolve(ctx)
+            image = self._resolve(self._fbo_color, self.params.background if front_to_back else (0.0, 0.0, 0.0, 0.0))
+        else:
+            self._last_raw = self._read_raw(fbo)
         # give the binding back (a released framebuffer left bound breaks later framebuffers)
         if previous is None:
             if self._default_fbo is None:
@@ -608,8 +618,8 @@ class ClipRenderAction:
         err = ctx.error
         if err != "GL_NO_ERROR":
             raise RuntimeError(f"OpenGL error after drawing the frame: expected GL_NO_ERROR, got {err}")
-        if self.params.mode == "mip":
-            m = raw[..., 0].astype(np.float64)
+        if image is None:  # MIP
+            m = self._last_raw[..., 0].astype(np.float64)
             hit = m > _MIP_EMPTY * 0.5
             fmt = self.cache.format
             rgba = tf.lookup(np.where(hit, fmt.a * m + fmt.b, fmt.b), pyr.value_range)
@@ -618,13 +628,22 @@ class ClipRenderAction:
             r, g, b, ba = self.params.background
             bgp = np.array([r * ba, g * ba, b * ba, ba])
             prem = prem + (1.0 - a[..., None]) * bgp
-        else:
-            prem = raw.astype(np.float64)
-            r, g, b, ba = self.params.background
-            if front_to_back and ba > 0.0:  # the background goes under everything, last (none: nothing to add)
-                prem = prem + (1.0 - prem[..., 3:4]) * np.array([r * ba, g * ba, b * ba, ba])
-        image = premultiplied_to_uint8(prem)
+            image = premultiplied_to_uint8(prem)
         return image, t1 - t0, time.perf_counter() - t1
+
+    @staticmethod
+    def _read_raw(fbo) -> np.ndarray:
+        w, h = fbo.size
+        return np.frombuffer(fbo.read(components=4, dtype="f4"), dtype=np.float32).reshape(int(h), int(w), 4)[::-1]
+
+    @property
+    def last_raw(self) -> np.ndarray | None:
+        """``(h, w, 4)`` float32 target of the last frame before the background, rows top first
+        (sort-last compositing reads it); read from the target when first asked, so valid until the
+        next frame is drawn."""
+        if self._last_raw is None and self._fbo is not None and self.last_frame_stats is not None:
+            self._last_raw = self._read_raw(self._fbo)
+        return self._last_raw
 
     def _ensure_page_table(self, entries: np.ndarray):
         """The page-table texture (R32UI, :data:`PAGE_TABLE_WIDTH` entries per row), rewritten per frame."""
@@ -782,6 +801,9 @@ class ClipRenderAction:
         if getattr(self, "image_lod", None) is not None:  # (close() may follow a failed __init__)
             self.image_lod.close()
             self.image_lod = None
+        if getattr(self, "_resolve", None) is not None:
+            self._resolve.release()
+            self._resolve = None
         for obj in (*self._vaos.values(), self._tf_tex, self._pt_tex, self._fbo, getattr(self, "_fbo_color", None),
                     self._fbo_copy):
             if obj is not None:
@@ -789,6 +811,7 @@ class ClipRenderAction:
         self._vaos = {}
         self.programs.release()
         self._tf_tex = self._pt_tex = self._fbo = self._fbo_copy = self._fbo_color = self._default_fbo = None
+        self._last_raw = None
         self._vao = self.program = None  # a second close() releases nothing twice
 
     def __enter__(self) -> "ClipRenderAction":
