@@ -20,7 +20,7 @@ PACKAGES = {"clipvol": "clipvol", "loaders": "clipvol.loaders", "tools": "clipvo
 
 #: stage of each module prefix; a module may import its own stage and lower ranks only
 STAGES = [
-    ("clipvol.errors", 0), ("clipvol.units", 0),
+    ("clipvol.errors", 0), ("clipvol.units", 0), ("clipvol.rows", 0),
     ("clipvol.bricking", 1),
     ("clipvol.paging", 2), ("clipvol.loaders", 2), ("clipvol.testing", 2),
     ("clipvol.scene", 3),

@@ -73,7 +73,7 @@ class Selection:
     def is_converged(self) -> bool:
         """Every wanted brick is drawn at its own level."""
         drawn = {(it.level, tuple(it.index)) for it in self.items}
-        return all((int(L), tuple(int(i) for i in idx)) in drawn for L, idx in self.wanted)
+        return drawn.issuperset((L, tuple(idx)) for L, idx in self.wanted)  # numpy ints hash as ints
 
     def missing_wanted(self) -> list[tuple[int, tuple[int, int, int]]]:
         """Wanted bricks not drawn at their own level, in load-priority order."""

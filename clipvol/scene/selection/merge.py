@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...rows import unique_rows
 from .cut import DrawItem
 
 __all__ = ["merge_items"]
@@ -56,7 +57,7 @@ def merge_items(items: list[DrawItem], pyramid, windows, may_cover=None) -> list
     for L in np.unique(levels[full]):
         idx = index[full & (levels == L)]
         for n in range(int(L), pyramid.num_levels):
-            touched.update((n, (int(a), int(b), int(c))) for a, b, c in np.unique(idx >> (n - int(L)), axis=0))
+            touched.update((n, (int(a), int(b), int(c))) for a, b, c in unique_rows(idx >> (n - int(L))).tolist())
     fb_lo, fb_hi = boxes_lo[~full], boxes_hi[~full]
 
     def undrawn(level: int, node_level: int, node_index) -> bool:

@@ -30,6 +30,7 @@ from typing import Callable
 import numpy as np
 
 from ...errors import ParameterError
+from ...rows import unique_rows
 from ..camera import Camera
 from ..params import RenderParams
 from .cut import DrawItem, Residency, Selection
@@ -251,7 +252,7 @@ def _resolve(t: Traversal, data_lv, data_idx):
         if not len(rows):
             continue
         # ask once per distinct brick (a wrapper may reserve GPU slots on each positive answer)
-        uniq, inv = np.unique(src_idx[rows], axis=0, return_inverse=True)
+        uniq, inv = unique_rows(src_idx[rows], return_inverse=True)
         res = t.resident(lv, uniq)[inv.reshape(-1)]
         done[rows[res]] = True
         up = rows[~res]
@@ -271,7 +272,7 @@ def _merge_fallback(tree: Octree, src_lv, src_idx, reg_lv, reg_idx):
             continue
         parent = reg_idx[sel] // 2
         key = np.concatenate([parent, src_lv[sel, None], src_idx[sel]], axis=1)
-        uniq, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+        uniq, inv, cnt = unique_rows(key, return_inverse=True, return_counts=True)
         inv = inv.reshape(-1)
         full = cnt == tree.n_children(lv + 1, uniq[:, :3])
         if not full.any():
@@ -335,7 +336,7 @@ def select(pyramid, camera: Camera, params: RenderParams | None = None, *, resid
 
     # the ideal cut: unique data bricks, coarse first, then nearest first
     if len(data_lv):
-        u = np.unique(np.concatenate([data_lv[:, None], data_idx], axis=1), axis=0)
+        u = unique_rows(np.concatenate([data_lv[:, None], data_idx], axis=1))
         wo = load_order(tree, camera, u[:, 0], u[:, 1:])
         wanted = [(int(u[i, 0]), (int(u[i, 1]), int(u[i, 2]), int(u[i, 3]))) for i in wo]
     else:
