@@ -91,7 +91,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..paging.loader import HasBrickRanges
 from ..paging.properties import may_hold_nonfinite
-from ..scene.page_table import block_open_faces, build_page_table
+from ..scene.page_table import block_cells, block_open_faces, build_page_table
 from ..scene.params import MODES, RenderParams
 from ..scene.transfer import corrected_tables, transparency_filter
 from ..scene.visibility import box_depths, screen_rects
@@ -752,11 +752,9 @@ class ClipRenderAction:
             if node_level == level:  # one brick (most calls: culled siblings of a full-resolution cut)
                 return cache.on_gpu(level, node_index)
             f = 2 ** (node_level - level)
-            grid = np.asarray(pyr.grid(level))
             first = np.asarray(node_index, dtype=np.int64) * f
-            stop = np.minimum(first + f, grid)
-            idx = np.stack(np.meshgrid(*(np.arange(a, b) for a, b in zip(first, stop)), indexing="ij"), -1).reshape(-1, 3)
-            return bool(np.all(cache.on_gpu_mask(level, idx)))
+            count = np.minimum(first + f, np.asarray(pyr.grid(level))) - first
+            return bool(np.all(cache.on_gpu_mask(level, first + block_cells(count)[1])))
 
         return may_cover
 

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["PageTable", "build_page_table", "block_open_faces", "EMPTY", "REFINED", "DRAWN", "item_nodes"]
+__all__ = ["PageTable", "build_page_table", "block_cells", "block_open_faces", "EMPTY", "REFINED", "DRAWN", "item_nodes"]
 
 EMPTY, REFINED, DRAWN = 0, 1, 2
 
@@ -128,6 +128,19 @@ def item_nodes(items, pyramid) -> list[tuple[int, tuple[int, int, int]]] | None:
     return [(int(L), (int(a), int(b), int(c))) for L, (a, b, c) in zip(out_level, out_idx)]
 
 
+def block_cells(count) -> tuple[np.ndarray, np.ndarray]:
+    """Every cell of every block of ``count[i]`` cells per axis (``(n, 3)``): ``(block, local)``,
+    the block of each cell and its ``(z, y, x)`` offset in it, blocks in order, cells in C order.
+    Vectorised (one meshgrid per block cost ~0.1 ms each, hundreds a frame)."""
+    count = np.asarray(count, dtype=np.int64).reshape(-1, 3)
+    sizes = np.prod(count, axis=1)
+    block = np.repeat(np.arange(len(count)), sizes)
+    k = np.arange(int(sizes.sum())) - np.repeat(np.cumsum(sizes) - sizes, sizes)  # C-order rank in its block
+    c = count[block]
+    local = np.stack([k // (c[:, 1] * c[:, 2]), (k // c[:, 2]) % c[:, 1], k % c[:, 2]], axis=1)
+    return block, local
+
+
 def block_open_faces(open_faces, level: int, first, count) -> np.ndarray:
     """``(n, 3, 2)`` bool ``[axis (z, y, x), side (lo, hi)]``: may filtering read across that face
     of each block of bricks of ``level`` (first brick ``first[i]``, ``count[i]`` bricks per axis,
@@ -144,10 +157,7 @@ def block_open_faces(open_faces, level: int, first, count) -> np.ndarray:
     out = np.zeros((n, 3, 2), dtype=bool)
     if n == 0:
         return out
-    locals_ = [np.stack(np.meshgrid(*(np.arange(c) for c in cnt), indexing="ij"), -1).reshape(-1, 3)
-               for cnt in count]
-    block = np.repeat(np.arange(n), [len(loc) for loc in locals_])
-    local = np.concatenate(locals_)
+    block, local = block_cells(count)
     of = np.asarray(open_faces(level, first[block] + local), dtype=bool)
     for axis in range(3):
         for side, edge in ((0, np.zeros(len(local), dtype=np.int64)), (1, count[block, axis] - 1)):

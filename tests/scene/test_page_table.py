@@ -178,3 +178,22 @@ def test_block_open_faces_is_open_only_where_every_brick_on_the_face_is():
         seen_open += int(want.sum())
     assert 0 < seen_open < got.size  # both answers occur
     assert block_open_faces(open_faces, 0, np.zeros((0, 3)), np.zeros((0, 3))).shape == (0, 3, 2)
+
+
+def test_block_cells_lists_every_cell_of_every_block_in_c_order(rng):
+    from clipvol.scene.page_table import block_cells
+
+    count = rng.integers(1, 4, size=(9, 3))
+    count[3] = (1, 1, 1)
+    block, local = block_cells(count)
+    want_block, want_local = [], []
+    for b, (cz, cy, cx) in enumerate(count):  # the plain loop
+        for z in range(cz):
+            for y in range(cy):
+                for x in range(cx):
+                    want_block.append(b)
+                    want_local.append((z, y, x))
+    np.testing.assert_array_equal(block, want_block)
+    np.testing.assert_array_equal(local, np.array(want_local).reshape(-1, 3))
+    b0, l0 = block_cells(np.zeros((0, 3), np.int64))
+    assert len(b0) == 0 and l0.shape == (0, 3)
