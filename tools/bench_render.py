@@ -406,7 +406,8 @@ def fly_stability(ctx, loader, tf, image: int, step: float, budget: int, frames:
     fly = ClipRenderAction(ctx, clip, lod_threshold=1.0, texels_per_frame=texels_per_frame, jitter=True, step=step,
                            texture_budget=budget)
     ft, cpu, up, upt = [], [], [], []
-    for fcam, _ in make_path("fly", loader.pyramid, frames, size=(image, image)):
+    cams = [fcam for fcam, _ in make_path("fly", loader.pyramid, frames, size=(image, image))]
+    for fcam in cams:
         c = time.process_time()
         fly.render(fcam, tf, wait=False)
         cpu.append(time.process_time() - c)
@@ -414,18 +415,28 @@ def fly_stability(ctx, loader, tf, image: int, step: float, budget: int, frames:
         ft.append(st.times["total"])
         up.append(st.bricks_uploaded)
         upt.append(st.times["upload"])
+    # the same cameras again, warm: the path's own cost per view (it draws 3x more near its end than
+    # at its start), so a frame's time over its warm time is what loading added to it
+    warm = []
+    for fcam in cams:
+        fly.render(fcam, tf, wait=False)
+        warm.append(fly.last_frame_stats.times["total"])
     fly.close()
     clip.close()
     m, mc = statistics.median(ft), statistics.median(cpu)
+    over = [a / b for a, b in zip(ft, warm)]
     out = dict(fly_frames=frames, fly_median_s=m, fly_p95_s=_p(ft, 95), fly_max_s=max(ft),
                fly_hitches_over_2x_median=int(sum(t > 2 * m for t in ft)), fly_cpu_median_s=mc,
                fly_cpu_p95_s=_p(cpu, 95), fly_cpu_hitches_over_2x_median=int(sum(t > 2 * mc for t in cpu)),
                fly_upload_max_s=max(upt), fly_bricks_uploaded=int(sum(up)), fly_max_bricks_per_frame=max(up),
-               texels_per_frame=texels_per_frame)
+               texels_per_frame=texels_per_frame, fly_warm_median_s=statistics.median(warm),
+               fly_over_warm_median=statistics.median(over), fly_over_warm_max=max(over),
+               fly_hitches_over_2x_warm=int(sum(r > 2 for r in over)))
     log(f"fly path, {frames} frames, texels_per_frame {texels_per_frame}: wall median {m:.3f} s, p95 {_p(ft, 95):.3f} s, "
         f"{out['fly_hitches_over_2x_median']} frames > 2x median; CPU median {mc:.3f} s, p95 {_p(cpu, 95):.3f} s, "
         f"{out['fly_cpu_hitches_over_2x_median']} > 2x; uploads {sum(up)} bricks, at most {max(up)} and "
-        f"{max(upt) * 1e3:.0f} ms in a frame")
+        f"{max(upt) * 1e3:.0f} ms in a frame; each frame over the same view warm: median {statistics.median(over):.2f}, "
+        f"max {max(over):.2f}, {out['fly_hitches_over_2x_warm']} > 2x")
     return out
 
 
@@ -467,9 +478,10 @@ def vs_raw(sizes, image: int, repeat: int, step: float, out_dir: Path, fly_frame
         cpu = {k: [] for k in [*actions, "raw"]}  # process CPU seconds (all llvmpipe threads): steadier
         for _ in range(repeat):  # interleaved: the shared machine's load hits every configuration alike
             t, c = time.perf_counter(), time.process_time()
-            imgs["raw"] = premultiplied_to_uint8(raw.render(cam, tf, step).astype(np.float64))
+            raw_img = raw.render(cam, tf, step)  # timed as drawn and read back (float), like clipvol's frame
             times["raw"].append(time.perf_counter() - t)
             cpu["raw"].append(time.process_time() - c)
+            imgs["raw"] = premultiplied_to_uint8(raw_img.astype(np.float64))  # for the image check, not timed
             for name, a in actions.items():
                 c = time.process_time()
                 imgs[name] = a.render(cam, tf, wait=False)
@@ -679,9 +691,10 @@ def vs_raw_large(n: int, dtype: str, image: int, repeat: int, step: float, out_d
     parts = {k: [] for k in names[:-1]}  # select / upload / draw / readback seconds of each frame
     for _ in range(repeat):  # interleaved rounds
         t, c = time.perf_counter(), time.process_time()
-        imgs["raw"] = premultiplied_to_uint8(raw.render(cam, tf, step).astype(np.float64))
+        raw_img = raw.render(cam, tf, step)  # timed as drawn and read back (float), like clipvol's frame
         times["raw"].append(time.perf_counter() - t)
         cpu["raw"].append(time.process_time() - c)
+        imgs["raw"] = premultiplied_to_uint8(raw_img.astype(np.float64))  # for the image check, not timed
         for name, a, cm, f in [(k, a, cam, tf) for k, a in actions.items()] + [(names[-2], vact, vcam, vtf)]:
             c = time.process_time()
             imgs[name] = a.render(cm, f, wait=False)
