@@ -71,3 +71,49 @@ def test_without_errors_the_cut_names_the_fix(store):
     params = RenderParams(policy="image")
     with pytest.raises(ParameterError, match="clipvol summarize"):
         select(tabs.pyramid, _cam(), params)
+
+
+@pytest.fixture(scope="module")
+def cube_store(tmp_path_factory):
+    """Air (transparent under TF) around a central cube of detail."""
+    rng = np.random.default_rng(3)
+    vol = np.zeros((64, 64, 64), np.uint8)
+    vol[16:48, 16:48, 16:48] = rng.integers(60, 255, size=(32, 32, 32))
+    path = tmp_path_factory.mktemp("cube") / "c.zarr"
+    brick_volume(vol, path, brick=8, progress=False)
+    return path
+
+
+def _cam_at(eye, target, fov):
+    return Camera.perspective(eye, target, up=(0, -1, 0), fov_y=fov, size=(96, 96))
+
+
+def test_culled_empty_space_does_not_forbid_a_replay(cube_store):
+    """The frustum culls air in front of the cube (the view widens with depth); a node that shows
+    nothing at any level cannot leave a hole when it turns into view, so it is not among the boxes
+    a replay must keep out of view. Nodes of the cube the frustum culls still are."""
+    from clipvol.scene.selection.octree import Octree
+    from clipvol.scene.selection.traversal import Traversal
+
+    tabs = open_summary(cube_store)
+    params = RenderParams(policy="image", block_budget=400, visibility=False)
+    errors = lod_errors(tabs, TF)
+    centre = (31.5, 31.5, 31.5)
+
+    def cut(cam):
+        pol = ImageBased(params, errors=errors)
+        t = Traversal(Octree(tabs.pyramid), cam, params, pol, None, None)
+        pol.cut(t)
+        return pol, t.counts["culled_frustum"]
+
+    eye = (31.5, 31.5, -10.0)
+    pol, culled = cut(_cam_at(eye, centre, 30))
+    assert culled > 0  # air in front was culled (else this test means nothing)
+    assert len(pol._culled[0]) == 0  # ... and none of it is kept as a box a replay must avoid
+    assert pol.covers(_cam_at(eye, (36.0, 31.5, 31.5), 30))  # turning brings more air into view: replay
+    # close to the cube with a narrow view: cube bricks at the front corners are culled and kept
+    eye = (31.5, 31.5, -4.0)
+    pol, culled = cut(_cam_at(eye, centre, 20))
+    lo, hi = pol._culled
+    assert np.any(np.all((lo < 47.5) & (hi > 15.5), axis=1))  # a culled box of the cube is kept
+    assert not pol.covers(_cam_at(eye, (20.0, 31.5, 31.5), 20))  # turning towards them: no replay

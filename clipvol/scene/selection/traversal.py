@@ -63,10 +63,17 @@ class Traversal:
         self.frustum_culled: list[tuple[np.ndarray, np.ndarray]] | None = None
 
     # -- the shared tests ----------------------------------------------------------------------
-    def _in_frustum(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    def _in_frustum(self, lo: np.ndarray, hi: np.ndarray, level: int | None = None) -> np.ndarray:
         keep = self.camera.boxes_in_frustum(lo, hi)
         if self.frustum_culled is not None and not keep.all():
-            self.frustum_culled.append((lo[~keep], hi[~keep]))
+            out = np.nonzero(~keep)[0]
+            empty = getattr(self.policy, "subtree_empty", None)
+            if empty is not None and level is not None and level <= self.tree.top:
+                # a node that draws nothing at any level (itself and every descendant transparent)
+                # cannot leave a hole when it comes into view, so it does not forbid a replay
+                out = out[~np.asarray(empty(self, level, lo[out], hi[out]), dtype=bool)]
+            if len(out):
+                self.frustum_culled.append((lo[out], hi[out]))
         return keep
 
     def _keep_mask(self, level: int, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -81,7 +88,7 @@ class Traversal:
         """Drop nodes outside the frustum, the shape or the policy's ``keep``; returns kept ``(idx, lo, hi)``."""
         lo, hi = self.tree.boxes(level, idx)
         self.counts["visited"] += len(idx)
-        keep = self._in_frustum(lo, hi)
+        keep = self._in_frustum(lo, hi, level)
         self.counts["culled_frustum"] += int((~keep).sum())
         if self.shape is not None and not self.shape.is_everything:
             out = self.shape.boxes_outside(lo, hi) & keep

@@ -25,7 +25,9 @@ more, 6 to 20 about the same). A priority queue refines the most important nodes
 holds ``block_budget`` nodes (or the texel budget's worth of bricks), in batches while much of
 the budget is left (:meth:`ImageBased._greedy`); the cut stays a valid octree cut, so
 back-to-front order and ancestor fallback work as for every policy. A cut can be replayed for the
-next frames (``reuse``) while the view turns less than a few degrees.
+next frames (``reuse``) while the view turns less than a few degrees and nothing the frustum culled
+comes into view (:meth:`covers`; nodes that show nothing at any level, :meth:`subtree_empty`, do
+not count).
 
 Silhouette bricks: where the skin meets the air, a coarse level's blurred edge lands about a
 pixel away from level 0's, a ring of pixels with Delta E >= 6 along the whole outline. The terms
@@ -188,6 +190,15 @@ class ImageBased:
         if self.visibility is not None and self.params.visibility_threshold > 0:
             keep &= self._vis(t, lo, hi) >= self.params.visibility_threshold
         return keep
+
+    def subtree_empty(self, t, level, lo, hi) -> np.ndarray:
+        """``(n,)`` True where a node and all its descendants show nothing under the transfer
+        function (no emission, no error against any finer level): the traversal leaves such nodes
+        out of the boxes a replayed cut must keep out of view (:meth:`covers`)."""
+        if self.errors is None:
+            return np.zeros(len(lo), dtype=bool)
+        eps, em, _ = self.errors.lookup(level, self._indices(t, level, lo))
+        return (em <= 0) & (eps <= 0)
 
     def budget_blocks(self, texels_per_brick: int) -> int:
         """The cut's size limit in bricks: ``block_budget``, and the texel budget's worth of bricks."""
