@@ -70,51 +70,63 @@ def merge_items(items: list[DrawItem], pyramid, windows, may_cover=None) -> list
                 return False
         return bool(may_cover(level, node_level, node_index))
 
-    # a sibling set can merge only once all its drawn members are on the stack, so no merge is tried
-    # while the next item is a whole-node sibling of the one just pushed (7 of 8 tries for a full
-    # cut; each costs a set of children and a walk down the stack)
-    parents = index >> 1
-    same_next = np.zeros(len(items), dtype=bool)
-    same_next[:-1] = full[:-1] & full[1:] & (levels[:-1] == levels[1:]) & np.all(parents[:-1] == parents[1:], axis=1)
-    stack: list[tuple[DrawItem, tuple[int, tuple[int, int, int]] | None]] = []
-    for it, f, wait in zip(items, full, same_next):
-        stack.append((it, (it.level, tuple(it.index)) if f else None))
-        if wait:
+    # Level by level, bottom-up: at node level n, a run of consecutive whole items of one data level
+    # under one parent is a sibling set (depth-first order keeps siblings consecutive); it merges into
+    # one item over the parent where its missing siblings may be covered and the block fits the
+    # level's GPU window. The merged item takes the run's place, so the order stays back to front,
+    # and may merge again at level n + 1. Vectorised per level: a full-resolution cut of thousands of
+    # bricks is a handful of numpy passes, not one stack walk per item.
+    out = list(items)
+    data_lv = levels.copy()
+    node_lv = np.where(full, levels, -1)  # -1: a fallback item, never merged
+    node_idx = index.copy()
+    top = pyramid.num_levels - 1
+    n = int(node_lv[full].min()) if full.any() else top
+    while n < top:
+        cand = node_lv == n
+        if not cand.any():
+            n += 1
             continue
-        while _merge_top(stack, pyramid, windows, undrawn if may_cover is not None else None):
-            pass
-    return [it for it, _ in stack]
-
-
-def _merge_top(stack, pyramid, windows, may_cover) -> bool:
-    top, node = stack[-1]
-    if node is None:
-        return False
-    n, nidx = node
-    if n + 1 >= pyramid.num_levels:
-        return False
-    L = top.level
-    win = windows[L] if L < len(windows) else None
-    if win is None:
-        return False
-    parent = tuple(i // 2 for i in nidx)
-    kids = set(pyramid.children(n + 1, parent))
-    present: set = set()
-    for it, nd in reversed(stack):  # the contiguous run of drawn siblings at the top
-        if nd is None or nd[0] != n or it.level != L or nd[1] not in kids or nd[1] in present:
-            break
-        present.add(nd[1])
-    missing = kids - present
-    if missing and (may_cover is None or not all(may_cover(L, n, m) for m in missing)):
-        return False
-    span = 2 ** (n + 1 - L)
-    first = tuple(p * span for p in parent)
-    grid = pyramid.grid(L)
-    counts = [min(f + span, g) - f for f, g in zip(first, grid)]
-    if any(cnt > w for cnt, w in zip(counts, win)):
-        return False
-    lo, hi = pyramid.node_box(n + 1, parent)
-    merged = DrawItem(L, first, tuple(float(v) for v in lo), tuple(float(v) for v in hi), span)
-    del stack[len(stack) - len(present):]
-    stack.append((merged, (n + 1, parent)))
-    return True
+        parent = node_idx >> 1
+        same = np.zeros(len(out), dtype=bool)  # entry i continues the run of entry i - 1
+        same[1:] = cand[1:] & cand[:-1] & (data_lv[1:] == data_lv[:-1]) & np.all(parent[1:] == parent[:-1], axis=1)
+        start = np.nonzero(cand & ~same)[0]
+        run = np.cumsum(cand & ~same) - 1  # run number of each candidate entry
+        present = np.bincount(run[cand], minlength=len(start))
+        grid_n = np.asarray(pyramid.grid(n), dtype=np.int64)
+        p_run = parent[start]
+        kids = np.prod(np.clip(grid_n - 2 * p_run, 0, 2), axis=1)
+        L_run = data_lv[start]
+        span = 2 ** (n + 1 - L_run)
+        first = p_run * span[:, None]
+        ok = np.zeros(len(start), dtype=bool)
+        for L in np.unique(L_run):  # the merged block must fit the data level's GPU window
+            win = windows[int(L)] if int(L) < len(windows) else None
+            if win is None:
+                continue
+            r = L_run == L
+            cnt = np.minimum(first[r] + span[r, None], np.asarray(pyramid.grid(int(L)), dtype=np.int64)) - first[r]
+            ok[r] = np.all(cnt <= np.asarray(win, dtype=np.int64), axis=1)
+        for k in np.nonzero(ok & (present < kids))[0]:  # missing siblings: each must be coverable
+            if may_cover is None:
+                ok[k] = False
+                continue
+            members = {tuple(v) for v in node_idx[start[k]:start[k] + present[k]].tolist()}
+            pk = tuple(int(v) for v in p_run[k])
+            ok[k] = all(undrawn(int(L_run[k]), n, m) for m in pyramid.children(n + 1, pk) if m not in members)
+        if not ok.any():
+            n += 1
+            continue
+        lo, hi = pyramid.node_box(n + 1, p_run[ok])
+        keep = np.ones(len(out), dtype=bool)
+        for j, k in enumerate(np.nonzero(ok)[0]):
+            s0 = int(start[k])
+            out[s0] = DrawItem(int(L_run[k]), tuple(int(v) for v in first[k]), tuple(float(v) for v in lo[j]),
+                               tuple(float(v) for v in hi[j]), int(span[k]))
+            keep[s0 + 1:s0 + int(present[k])] = False
+            node_lv[s0] = n + 1
+            node_idx[s0] = p_run[k]
+        out = [it for it, kp in zip(out, keep) if kp]
+        data_lv, node_lv, node_idx = data_lv[keep], node_lv[keep], node_idx[keep]
+        n += 1
+    return out
