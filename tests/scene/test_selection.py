@@ -487,3 +487,48 @@ def test_merge_covers_a_culled_sibling_only_when_allowed_and_never_twice():
     out = merge_items(mixed, PYR, windows, lambda *a: True)
     pts = visible_points(cam, PYR)
     np.testing.assert_array_equal(coverage(out, pts), 1)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_merge_of_mixed_cuts_keeps_order_coverage_and_levels(seed):
+    """merge_items on cuts with ancestor fallbacks, culled items and small GPU windows: every
+    visible point is covered as often as before and sampled from the same level, the order stays
+    back to front, and no merged block is wider than its level's window."""
+    rng = np.random.default_rng(seed)
+    pyr = Pyramid.build((61, 37, 83), (8, 8, 8))
+    lo, hi = pyr.volume_box()
+    c = (lo + hi) / 2
+    d = rng.normal(size=3)
+    d /= np.linalg.norm(d)
+    cam = cam_at(tuple(c + d * float(np.linalg.norm(hi - lo)) * rng.uniform(0.4, 1.5)), target=tuple(c), pyr=pyr,
+                 up=(0, 1, 0) if abs(d[1]) < 0.9 else (1, 0, 0))
+    gone = {}
+
+    class Residency:  # a fifth of the bricks below the top level not resident: their ancestors stand in
+        def in_window_mask(self, level, idx):
+            return np.ones(len(idx), bool)
+
+        def resident_mask(self, level, idx):
+            return np.array([level == pyr.num_levels - 1 or not gone.setdefault((level, tuple(b)), rng.random() < 0.2)
+                             for b in np.asarray(idx).tolist()], bool)
+
+    sel = select(pyr, cam, RenderParams(lod_threshold=float(rng.uniform(0.5, 2.0))), residency=Residency())
+    items = [it for it in sel.items if rng.random() > 0.1]  # some culled, as if transparent
+    windows = [(2, 3, 4)] + [pyr.grid(L) for L in range(1, pyr.num_levels)]
+    merged = merge_items(items, pyr, windows, lambda *a: bool(rng.random() < 0.5))
+    assert 0 < len(merged) <= len(items)
+    assert order_violations(cam, *boxes(merged))[0] == 0
+    pts = visible_points(cam, pyr)
+    cov_items, cov_merged = coverage(items, pts), coverage(merged, pts)
+    assert np.all(cov_merged[cov_items == 1] == 1)  # what was drawn still is, once
+    assert cov_merged.max() <= 1  # a culled sibling may be covered, nothing twice
+
+    def level_at(its, p):
+        return [it.level for it in its if np.all(p > it.lo) and np.all(p < it.hi)]
+
+    for p in pts[:300]:
+        before = level_at(items, p)
+        assert before == [] or level_at(merged, p) == before
+    for it in merged:
+        if it.level == 0:
+            assert it.span <= 2  # the (2, 3, 4) window: at most two bricks per axis
