@@ -345,7 +345,7 @@ def select(pyramid, camera: Camera, params: RenderParams | None = None, *, resid
     if len(data_lv):
         u = unique_rows(np.concatenate([data_lv[:, None], data_idx], axis=1))
         wo = load_order(tree, camera, u[:, 0], u[:, 1:])
-        wanted = [(int(u[i, 0]), (int(u[i, 1]), int(u[i, 2]), int(u[i, 3]))) for i in wo]
+        wanted = [(r[0], (r[1], r[2], r[3])) for r in u[wo].tolist()]  # (one tolist: per-element numpy indexing is slow)
     else:
         wanted = []
 
@@ -362,8 +362,9 @@ def select(pyramid, camera: Camera, params: RenderParams | None = None, *, resid
     for L in np.unique(reg_lv):  # one vectorised call per level
         rows = reg_lv == L
         box_lo[rows], box_hi[rows] = tree.boxes(int(L), reg_idx[rows])
-    items = [DrawItem(int(src_lv[i]), (int(src_idx[i, 0]), int(src_idx[i, 1]), int(src_idx[i, 2])),
-                      tuple(box_lo[i].tolist()), tuple(box_hi[i].tolist())) for i in order]
+    items = [DrawItem(L, (i[0], i[1], i[2]), (a[0], a[1], a[2]), (b[0], b[1], b[2]))
+             for L, i, a, b in zip(src_lv[order].tolist(), src_idx[order].tolist(), box_lo[order].tolist(),
+                                   box_hi[order].tolist())]
     t.counts["texels"] = len(items) * tree.texels
     node_data = getattr(policy, "node_data", None)
     return Selection(items, wanted, t.counts, params.policy, dict(node_data) if node_data else {})
