@@ -34,7 +34,8 @@ from ..scene.params import RenderParams
 from ..scene.paths import make_path
 from .session import RenderSession
 
-__all__ = ["PathResult", "render_path", "frame_row", "save_gif", "MovieWriter", "MOVIE_SUFFIXES", "CSV_BASE_COLUMNS"]
+__all__ = ["PathResult", "render_path", "frame_row", "save_gif", "save_png", "MovieWriter", "MOVIE_SUFFIXES",
+           "CSV_BASE_COLUMNS"]
 
 #: output suffixes written as movies through imageio-ffmpeg
 MOVIE_SUFFIXES = (".mp4", ".webm", ".mkv", ".mov", ".avi")
@@ -133,6 +134,21 @@ def frame_row(session: RenderSession, frame: int, frame_s: float, elapsed_s: flo
     for L in range(session.pyramid.num_levels):  # distinct bricks per level: they add up to bricks_drawn
         row[f"bricks_L{L}"] = sum(1 for lv, _ in distinct if lv == L)
     return row
+
+
+def save_png(img: np.ndarray, path: Path) -> None:
+    """Write straight RGBA ``img`` as a PNG at ``path``, all or nothing: into ``<path>.part`` first,
+    renamed when complete (and the part removed if writing stops), so a frame file that exists is
+    whole - also after a Ctrl-C in the middle of writing it."""
+    from PIL import Image
+
+    path = Path(path)
+    tmp = path.with_name(path.name + ".part")
+    try:
+        Image.fromarray(img, "RGBA").save(tmp, format="PNG")
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def save_gif(frames: list[np.ndarray], path: Path, fps: float = 12.0, background=(0, 0, 0)) -> None:
@@ -272,18 +288,16 @@ def render_path(
                 img = label_edges(img, view_labels(orientation.affine, cam.right, cam.up, orientation.frame))
             row = frame_row(session, k, dt, time.perf_counter() - t_start, before)
             before = row["bytes_loaded_total"]
-            writer.writerow(row)
-            result.rows.append(row)
             if gif:
                 gif_frames.append(img)
             elif movie_writer is not None:
                 movie_writer.append(img)
             else:
-                from PIL import Image
-
                 f = out / f"frame_{k:04d}.png"
-                Image.fromarray(img, "RGBA").save(f)
+                save_png(img, f)
                 result.files.append(f)
+            writer.writerow(row)  # after its frame: a row names a frame that is there
+            result.rows.append(row)
             result.frames += 1
             if progress is not None:
                 progress(row)

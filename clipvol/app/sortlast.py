@@ -233,10 +233,9 @@ def render_path_sort_last(source, out, *, workers: int = 2, scheduler: str = "pr
     import csv
     from pathlib import Path
 
-    from PIL import Image
-
     from ..scene.paths import make_path
     from ..scene.transfer import TransferFunction
+    from .flythrough import save_png
 
     out = Path(out)
     if out.suffix.lower() == ".gif" or (out.exists() and not out.is_dir()):
@@ -252,7 +251,7 @@ def render_path_sort_last(source, out, *, workers: int = 2, scheduler: str = "pr
         writer.writeheader()
         for k, (cam, _coi) in enumerate(make_path(path, dr.pyramid, frames, size=size)):
             img = dr.render(cam, tfn)
-            Image.fromarray(img, "RGBA").save(out / f"frame_{k:04d}.png")
+            save_png(img, out / f"frame_{k:04d}.png")
             st = dr.last_stats
             row = {"frame": k, "frame_s": round(st.frame_seconds, 6), "composite_s": round(st.composite_seconds, 6),
                    "converged": st.converged,

@@ -108,3 +108,29 @@ def test_dicom_series_to_labelled_frontal_view(tmp_path, capsys):
     changed = np.any(with_labels != plain, axis=-1)
     assert changed[40:56, :10].any() and changed[40:56, -10:].any() and changed[:10, 40:56].any()
     assert not changed[30:66, 30:66].any()  # labels stay at the edges
+
+
+def test_png_frame_interrupted_mid_write_leaves_no_file(tmp_path, monkeypatch):
+    """A frame file that exists is whole: a Ctrl-C while PIL writes it leaves neither the frame nor
+    its part file; a finished one reads back as written."""
+    from PIL import Image
+
+    from clipvol.app.flythrough import save_png
+
+    img = np.random.default_rng(0).integers(0, 256, size=(8, 6, 4), dtype=np.uint8)
+    f = tmp_path / "frame_0000.png"
+    save_png(img, f)
+    np.testing.assert_array_equal(np.asarray(Image.open(f)), img)
+    real_save = Image.Image.save
+
+    def save_then_interrupt(self, fp, *a, **k):
+        real_save(self, fp, *a, **k)
+        with open(fp, "r+b") as fh:  # as if cut off half-way
+            fh.truncate(10)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Image.Image, "save", save_then_interrupt)
+    g = tmp_path / "frame_0001.png"
+    with pytest.raises(KeyboardInterrupt):
+        save_png(img, g)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frame_0000.png"]
