@@ -35,7 +35,13 @@ __all__ = [
     "downsample",
     "pad_to_brick",
     "validate_dtype",
+    "NEIGHBOUR_OFFSETS",
 ]
+
+#: the 27 offsets ``(z, y, x)`` of a brick's 3x3x3 neighbourhood in its level's grid, itself included
+#: (trilinear filtering near a face reads the neighbour: the transparency footprint and the GPU
+#: cache's neighbour uploads both walk it)
+NEIGHBOUR_OFFSETS = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij"), -1).reshape(27, 3)
 
 #: ``mode`` is for label volumes (integer ids): the most frequent id of each 2x2x2 block, never a
 #: blend of ids

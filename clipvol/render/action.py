@@ -598,7 +598,6 @@ class ClipRenderAction:
         front-to-back image, un-premultiplied, rounded), reading 4 bytes a pixel; MIP: the maximum
         read back and mapped through the transfer function here."""
         ctx, pyr = self.ctx, self.pyramid
-        h, w = fbo.size[1], fbo.size[0]
         ctx.finish()
         t1 = time.perf_counter()
         self._last_raw = None

@@ -36,6 +36,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ..bricking.pyramid import NEIGHBOUR_OFFSETS
 from ..errors import ParameterError
 from ..rows import unique_rows
 
@@ -450,9 +451,6 @@ class TransferFunction:
         return (hits == 0) & ~bad
 
 
-#: the 27 offsets (z, y, x) of a brick's 3x3x3 neighbourhood, itself included
-_OFFSETS_27 = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij"), -1).reshape(27, 3)
-
 
 def footprint_ranges(ranges_fn, grid, level: int, idx) -> np.ndarray | None:
     """``(n, 2)`` bounds of every value the samples inside each brick's box can read.
@@ -468,7 +466,7 @@ def footprint_ranges(ranges_fn, grid, level: int, idx) -> np.ndarray | None:
     if len(idx) == 0:
         return np.zeros((0, 2))
     g = np.asarray(grid, dtype=np.int64)
-    nb = np.clip(idx[:, None, :] + _OFFSETS_27[None], 0, g - 1).reshape(-1, 3)
+    nb = np.clip(idx[:, None, :] + NEIGHBOUR_OFFSETS[None], 0, g - 1).reshape(-1, 3)
     uniq, inv = unique_rows(nb, return_inverse=True)  # the distinct neighbours (clipvol/rows.py: why not np.unique)
     r = ranges_fn(level, uniq)
     if r is None:

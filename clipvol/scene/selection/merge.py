@@ -57,7 +57,7 @@ def merge_items(items: list[DrawItem], pyramid, windows, may_cover=None) -> list
     for L in np.unique(levels[full]):
         idx = index[full & (levels == L)]
         for n in range(int(L), pyramid.num_levels):
-            touched.update((n, (int(a), int(b), int(c))) for a, b, c in unique_rows(idx >> (n - int(L))).tolist())
+            touched.update((n, tuple(r)) for r in unique_rows(idx >> (n - int(L))).tolist())
     fb_lo, fb_hi = boxes_lo[~full], boxes_hi[~full]
 
     def undrawn(level: int, node_level: int, node_index) -> bool:
