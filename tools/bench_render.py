@@ -604,6 +604,50 @@ def vs_lod(size: int, brick: int, image: int, repeat: int, out_dir: Path, block_
     return rows
 
 
+def vs_paths(n: int, image: int, repeat: int, step: float, out_dir: Path, log=print) -> list[dict]:
+    """Which draw path is faster for how many boxes: the same full-resolution cut of the fractal
+    ``n``³ drawn unmerged as 1, 2, 4, 8 and 64 boxes (the volume or part of it cut into bricks of
+    ``n``, ``n/2`` and ``n/4``), per brick and in one pass, each against :class:`RawCaster` on the
+    same voxels, interleaved, medians of ``repeat``. The row that sets ``AUTO_SINGLE_PASS_BOXES``."""
+    from clipvol.loaders.numpy_array import NumpyLoader
+    from clipvol.paging.cliptexture import ClipTexture
+    from clipvol.render import create_context
+    from clipvol.render.action import ClipRenderAction
+
+    ctx = create_context()
+    vol, loader, cam, tf, budget, clip = fractal_scene(n, image, log)
+    clip.close()
+    h, q = n // 2, n // 4
+    cases = [((n, n, n), n), ((n, h, h), h), ((n, n, h), h), ((n, n, n), h), ((n, n, n), q)]
+    rows = []
+    for shape, brick in cases:
+        part = np.ascontiguousarray(vol[:shape[0], :shape[1], :shape[2]])
+        ld = NumpyLoader(part, brick=brick, value_range=loader.pyramid.value_range)
+        clip = ClipTexture(ld, budget, threads=2)
+        common = dict(policy="fixed", level=0, step=step, texture_budget=budget, merge_boxes=False)
+        actions = {p: ClipRenderAction(ctx, clip, path=p, **common) for p in ("bricks", "single-pass")}
+        raw = RawCaster(ctx, part, loader.pyramid.value_range)
+        try:
+            mw, mc = interleaved_medians(raw, actions, cam, tf, step, repeat)
+            boxes = actions["bricks"].boxes_drawn
+            row = dict(size=n, image=image, shape="x".join(map(str, shape[::-1])), brick=brick, boxes=boxes,
+                       raw_s=round(mw["raw"], 4), **ratio_columns(mw, mc, actions),
+                       single_over_bricks=round(mw["single-pass"] / mw["bricks"], 3),
+                       single_over_bricks_cpu=round(mc["single-pass"] / mc["bricks"], 3))
+            rows.append(row)
+            log(f"{boxes} boxes ({row['shape']}, bricks of {brick}): {raw_ratio_line(mw, mc, actions)}; "
+                f"single pass / per brick {row['single_over_bricks']:.2f} (CPU {row['single_over_bricks_cpu']:.2f})")
+        finally:
+            for a in actions.values():
+                a.close()
+            raw.release()
+            clip.close()
+    ctx.release()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_rows(out_dir / "bench_render_paths.csv", rows)
+    return rows
+
+
 def quantised_fractal(n: int, dtype: str, data_dir: Path, log=print) -> np.ndarray:
     """``procedural:fractal?size=n`` quantised to ``dtype`` (uint8 / uint16) over the generator's value
     range, generated in slabs (never the float32 volume whole) and cached as ``.npy`` under
@@ -758,6 +802,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--vs-lod", action="store_true",
                     help="only the two draw paths (per brick, single pass) on the image-LOD benchmark's head, views "
                          "and cuts (full resolution and the image policy), interleaved; writes docs/bench_render_lod.csv")
+    ap.add_argument("--vs-paths", type=int, default=None, metavar="N",
+                    help="only the two draw paths on the same cut of procedural:fractal?size=N drawn as 1, 2, 4, 8 "
+                         "and 64 unmerged boxes, against the raw caster; writes docs/bench_render_paths.csv")
     ap.add_argument("--lod-size", type=int, default=256, help="--vs-lod: head volume edge (default 256)")
     ap.add_argument("--lod-brick", type=int, default=16, help="--vs-lod: brick edge (default 16, as bench_lod)")
     ap.add_argument("--block-budget", type=int, default=96, help="--vs-lod: the image policy's block budget")
@@ -767,6 +814,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.vs_lod:
         vs_lod(args.lod_size, args.lod_brick, args.size, max(args.repeat, 5), args.out_dir, args.block_budget,
                log=lambda *a: print(*a, file=sys.stderr, flush=True))
+        return 0
+    if args.vs_paths:
+        vs_paths(args.vs_paths, args.size, max(args.repeat, 5), args.step, args.out_dir,
+                 log=lambda *a: print(*a, file=sys.stderr, flush=True))
         return 0
     if args.vs_raw_large:
         vs_raw_large(args.vs_raw_large, args.dtype, args.size, max(args.repeat, 5), args.step, args.out_dir,

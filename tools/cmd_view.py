@@ -52,7 +52,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--no-jitter", action="store_true", help="sample every pixel's ray from t = 0 (shows lattice rings; for comparisons)")
     g.add_argument("--render-path", choices=("auto", "bricks", "single-pass"), default="auto",
                    help="single-pass: one ray-guided pass through a page table of the cut; bricks: one proxy box per "
-                        "(merged) brick; auto (default): the single pass for cuts of 32 boxes or more")
+                        "(merged) brick; auto (default): the single pass for cuts of 4 boxes or more")
     g.add_argument("--shading", action="store_true", help="start with gradient lighting on (key L)")
     g.add_argument("--play", action="store_true",
                    help="an OME-Zarr image with a t axis: play its time steps (Space play/pause, J/K step, { } rate; "

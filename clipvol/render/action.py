@@ -125,10 +125,11 @@ MAX_SINGLE_PASS_LEVELS = 16
 MAX_SINGLE_PASS_RAY_SAMPLES = 1 << 15
 MAX_PAGE_TABLE_ENTRIES = 1 << 24
 #: path="auto": the single pass draws cuts of at least this many (merged) boxes. Measured on Mesa
-#: llvmpipe (docs/benchmarks.md): one box (a resident 256^3-512^3 volume), the per-brick path is
-#: 3-12 % faster; 31 boxes (1024^3) the single pass 4-9 %; 32-42 (image-policy cuts) the single pass
-#: in wall time (0.80-0.97x); 159-194 (a full-resolution cut of 16^3 bricks) the single pass by 18-20 %.
-AUTO_SINGLE_PASS_BOXES = 32
+#: llvmpipe (docs/benchmarks.md, "Which path draws a frame"), the single pass over the per-brick
+#: path, same cut: 1 box 1.04-1.06x, 2 boxes 1.04x, 4 boxes 0.94-0.97x, 8 boxes 0.90x, 10-18 boxes
+#: (a loading frame whose cut cannot merge yet) 0.55-0.85x, 64 boxes 0.81x; below 32 boxes the
+#: per-brick path takes an occlusion snapshot after every box, each a wait for both rasteriser threads.
+AUTO_SINGLE_PASS_BOXES = 4
 PAGE_TABLE_WIDTH = 1024
 
 def scissor_boxes(cam, lo, hi) -> np.ndarray:

@@ -100,9 +100,9 @@ class RenderParams:
         ray-guided pass over the volume box through a per-level page table of the cut (merged
         sibling sets are one node; rays stop early per pixel, no framebuffer copies). Same image
         within 1 LSB. ``"auto"`` (default): per frame, the single pass for a cut of at least
-        ``AUTO_SINGLE_PASS_BOXES`` (32) merged boxes and no overlays, the per-brick path otherwise -
-        on Mesa llvmpipe the per-brick path is faster for a few large boxes (a resident volume
-        merges to one), the single pass for many (its per-pixel early termination needs no
+        ``AUTO_SINGLE_PASS_BOXES`` (4) merged boxes and no overlays, the per-brick path otherwise -
+        on Mesa llvmpipe the per-brick path is faster for one or two large boxes (a resident volume
+        merges to one), the single pass from four (its per-pixel early termination needs no
         occlusion snapshots, which idle the rasteriser's threads); docs/benchmarks.md.
     jitter : bool
         Start each pixel's sample lattice at a stable per-pixel hashed offset (a fraction of the
