@@ -503,7 +503,7 @@ class ClipRenderAction:
         self.path_drawn = "bricks"
         self.page_table_nodes = 0
         if self.params.merge_boxes and items:  # once, for either path
-            merged = merge_items(items, self.pyramid, self.cache.windows, self._may_cover())
+            merged = merge_items(items, self.pyramid, self.cache.windows, self._may_cover(cam))
             if self._samples_per_box(cam, merged) <= MAX_STEPS_PER_BOX:  # else the rays would be cut
                 items = merged
         if items and (self.params.path == "single-pass" or (self.params.path == "auto" and not self.params.overlays
@@ -742,19 +742,34 @@ class ClipRenderAction:
             ctx.scissor = None
         return self._read_back(fbo, previous, tf, not mip, t0)
 
-    def _may_cover(self):
-        """``may_cover`` for :func:`merge_items`: a culled node whose bricks of the drawn level are
-        all in texture memory may be covered by a merged box (it then shows its real data)."""
+    def _may_cover(self, cam):
+        """``may_cover`` for :func:`merge_items`: may a merged box cover this culled node?
+
+        Yes where the node's bricks of the drawn level are all in texture memory (the box then
+        shows their real data: outside the view, or transparent). Yes also where they are not but
+        the node, grown by one voxel of that level (trilinear filtering reads half a voxel beyond a
+        sample), lies wholly beside the view (:meth:`Camera.boxes_beside_view`): no ray of the
+        image samples there, so whatever the slots hold is never read. That lets a frame merge
+        over bricks at the edge of the view that were never loaded - a warm 1024^3 frame with a
+        few such bricks at its corners, a loading frame - instead of drawing the block in pieces.
+        A culled node inside the view (transparent, shape-culled) must be in texture memory.
+        """
         pyr = self.pyramid
         cache = self.cache
 
+        def beside_view(level: int, node_level: int, node_index) -> bool:
+            lo, hi = pyr.node_box(node_level, node_index)
+            pad = float(max(pyr.levels[level].scale))
+            return bool(cam.boxes_beside_view(np.asarray(lo) - pad, np.asarray(hi) + pad)[0])
+
         def may_cover(level: int, node_level: int, node_index) -> bool:
             if node_level == level:  # one brick (most calls: culled siblings of a full-resolution cut)
-                return cache.on_gpu(level, node_index)
+                return cache.on_gpu(level, node_index) or beside_view(level, node_level, node_index)
             f = 2 ** (node_level - level)
             first = np.asarray(node_index, dtype=np.int64) * f
             count = np.minimum(first + f, np.asarray(pyr.grid(level))) - first
-            return bool(np.all(cache.on_gpu_mask(level, first + block_cells(count)[1])))
+            return bool(np.all(cache.on_gpu_mask(level, first + block_cells(count)[1]))) or beside_view(
+                level, node_level, node_index)
 
         return may_cover
 

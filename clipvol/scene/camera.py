@@ -319,6 +319,20 @@ class Camera:
         reach = c @ p[:, :3].T + h @ np.abs(p[:, :3]).T + p[:, 3]  # (n, 6) max over the box
         return np.all(reach >= 0, axis=1)
 
+    def boxes_beside_view(self, lo, hi) -> np.ndarray:
+        """``(n,)`` bool: True for boxes wholly outside one of the four side planes of the view.
+
+        No ray of the image passes through such a box at any depth, so nothing drawn there can
+        show, whatever the box holds. (The near and far planes are left out: a box in front of the
+        near plane or past the far one may still lie on a pixel's ray.)
+        """
+        lo = np.atleast_2d(np.asarray(lo, dtype=np.float64)) - self.eye
+        hi = np.atleast_2d(np.asarray(hi, dtype=np.float64)) - self.eye
+        c, h = (lo + hi) * 0.5, (hi - lo) * 0.5
+        p = self._planes_rel()[:4]
+        reach = c @ p[:, :3].T + h @ np.abs(p[:, :3]).T + p[:, 3]
+        return np.any(reach < 0, axis=1)
+
     def pixels_per_unit(self, depth=1.0) -> np.ndarray:
         """Pixels spanned by one world unit parallel to the image at ``depth`` (any depth if ortho)."""
         sx, sy = self._half_extents()

@@ -417,6 +417,28 @@ def test_auto_path_draws_many_boxes_in_one_pass_and_few_per_brick(scenes):
     assert diff(a, r).max() <= 2 and diff(b, r).max() <= 2
 
 
+def test_merge_covers_bricks_beside_the_view_that_were_never_loaded(scenes):
+    """A narrow view of a 48^3 volume loads only the bricks its rays reach (and their neighbours):
+    the rest were never loaded. Where such bricks lie wholly beside the view, the merge still draws
+    the volume as one box (no ray samples their slots), and the image is the unmerged frame's and
+    the numpy reference's."""
+    import itertools
+
+    vol = smooth_volume((48, 48, 48))
+    cam = Camera.perspective((-30.0, -20.0, -40.0), centre_of(vol.shape), size=(64, 64), fov_y=10)
+    merged = scenes(vol, 8, selection="fixed", level=0, path="bricks")
+    pieces = scenes(vol, 8, selection="fixed", level=0, path="bricks", merge_boxes=False)
+    a, b = merged.render(cam), pieces.render(cam)
+    grid = merged.pyramid.grid(0)
+    every = np.array(list(itertools.product(*(range(k) for k in grid))))
+    never_loaded = ~merged.action.cache.on_gpu_mask(0, every)
+    assert never_loaded.sum() >= 10  # bricks the merged box covers without their data
+    assert merged.action.boxes_drawn == 1 and pieces.action.boxes_drawn > 50
+    r = merged.reference(cam)
+    assert visible(r) > 0.9
+    assert diff(a, b).max() <= 1 and diff(a, r).max() <= 2
+
+
 def test_merged_boxes_never_cut_rays_short(scenes):
     """A merge whose box would need more samples per ray than the shader takes is not made."""
     vol = (np.random.default_rng(0).random((64, 64, 64)) * 0.2).astype(np.float32)
@@ -434,25 +456,44 @@ def test_merged_boxes_never_cut_rays_short(scenes):
     np.testing.assert_array_equal(a, c)
 
 
-def test_may_cover_answers_whether_every_brick_of_the_node_is_in_texture_memory(scenes):
+def _pixel_rays_meet(cam, lo, hi) -> bool:
+    """Does any pixel's ray (``cam.rays()``, in front of the eye) pass through box ``[lo, hi]``? (slab test)"""
+    o, d = (v.reshape(-1, 3) for v in cam.rays())
+    inv = 1.0 / np.where(np.abs(d) < 1e-300, 1e-300, d)
+    t0, t1 = (np.asarray(lo) - o) * inv, (np.asarray(hi) - o) * inv
+    near, far = np.minimum(t0, t1).max(axis=1), np.maximum(t0, t1).min(axis=1)
+    return bool(np.any((near <= far) & (far >= 0)))
+
+
+def test_may_cover_answers_whether_the_node_is_in_texture_memory_or_beside_the_view(scenes):
     """``merge_items``' ``may_cover`` (one-brick fast path and multi-brick nodes) against the bricks
-    the frame actually put on the GPU, and bricks of a window the frame never drew."""
+    the frame actually put on the GPU and, for the others, against the pixels' rays: a node none of
+    whose bricks' data a ray could read (its box grown by one voxel meets no ray) may be covered."""
     vol = smooth_volume((48, 40, 32))
     s = scenes(vol, 8, selection="fixed", level=0, path="bricks")
     # a narrow view: only some level-0 bricks are drawn (and uploaded)
     cam = Camera.perspective((15.0, 20.0, -6.0), (15.0, 20.0, 10.0), size=(32, 32), fov_y=20)
     s.render(cam)
     drawn = {tuple(int(v) for v in it.index) for it in s.action.last_selection.items if it.level == 0 and it.span == 1}
-    may_cover = s.action._may_cover()
+    may_cover = s.action._may_cover(cam)
     grid = s.pyramid.grid(0)
     every = np.array(list(np.ndindex(*grid)))
     on_gpu = s.action.cache.on_gpu_mask(0, every)  # the cache's own vectorised slot check
     uploaded = {tuple(int(v) for v in k) for k in every[on_gpu]}
     assert drawn and drawn <= uploaded and len(uploaded) < len(every)  # some bricks were never uploaded
+
+    def unseen(level, node):
+        lo, hi = s.pyramid.node_box(level, node)
+        return not _pixel_rays_meet(cam, lo - 1.0, hi + 1.0)
+
+    answers = []
     for idx in every:
-        assert may_cover(0, 0, tuple(idx)) == (tuple(int(v) for v in idx) in uploaded), idx
-    # a level-1 node: all eight of its level-0 bricks on the GPU, or not
+        key = tuple(int(v) for v in idx)
+        answers.append((key in uploaded, unseen(0, key)))
+        assert may_cover(0, 0, key) == (key in uploaded or answers[-1][1]), idx
+    assert any(not up and un for up, un in answers)  # never-loaded bricks beside the view: the new answer
+    # a level-1 node: all eight of its level-0 bricks on the GPU, or the node beside the view
     for node in np.ndindex(*s.pyramid.grid(1)):
         kids = {tuple(2 * n + d for n, d in zip(node, o)) for o in np.ndindex(2, 2, 2)}
         kids = {k for k in kids if all(i < g for i, g in zip(k, grid))}
-        assert may_cover(0, 1, node) == (kids <= uploaded), node
+        assert may_cover(0, 1, node) == (kids <= uploaded or unseen(1, node)), node

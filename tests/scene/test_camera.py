@@ -86,6 +86,35 @@ def test_boxes_in_frustum_is_conservative(ci):
     assert (~got).sum() > 20  # and does cull
 
 
+@pytest.mark.parametrize("ci", range(4))
+def test_boxes_beside_view_meet_no_pixel_ray(ci):
+    """A box reported beside the view is hit by no pixel's ray (slab test on cam.rays(), in front
+    of the eye; the whole line for orthographic rays); boxes straddling the view are not reported."""
+    cam = _cams()[ci]
+    rng = np.random.default_rng(20 + ci)
+    lo = cam.center + rng.uniform(-25, 25, size=(300, 3))
+    hi = lo + rng.uniform(0.01, 6, size=(300, 3))
+    got = cam.boxes_beside_view(lo, hi)
+    o, d = cam.rays()
+    o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / np.where(np.abs(d) < 1e-300, 1e-300, d)
+    hit = np.zeros(len(lo), dtype=bool)
+    for k in range(len(lo)):
+        t0, t1 = (lo[k] - o) * inv, (hi[k] - o) * inv
+        near = np.minimum(t0, t1).max(axis=1)
+        far = np.maximum(t0, t1).min(axis=1)
+        ok = near <= far
+        if not cam.ortho:
+            ok &= far >= 0
+        hit[k] = ok.any()
+    assert not np.any(hit & got)  # never a box some pixel's ray passes through
+    assert got.sum() > 20  # and it does find boxes beside the view
+    # a box around the point of interest is in view, at any size
+    c = np.asarray(cam.center, dtype=np.float64)
+    assert not cam.boxes_beside_view(c - 0.01, c + 0.01)[0] and not cam.boxes_beside_view(c - 100, c + 100)[0]
+
+
 def test_projected_size_matches_projection_of_a_segment():
     cam = Camera.perspective((0, 0, -10), (0, 0, 0), up=(0, 1, 0), fov_y=40, size=(200, 100))
     for z0 in (-5.0, 0.0, 7.0):
