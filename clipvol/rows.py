@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["unique_rows"]
+__all__ = ["unique_rows", "rows_in"]
 
 _MAX_KEY = 1 << 62  # keys stay exact in int64 below this; wider spans fall back to np.unique(axis=0)
 
@@ -40,3 +40,26 @@ def unique_rows(a, return_inverse: bool = False, return_counts: bool = False):
     if return_counts:
         out.append(rest.pop(0))
     return out[0] if len(out) == 1 else tuple(out)
+
+
+def rows_in(a, b) -> np.ndarray:
+    """``(len(a),)`` bool: row ``i`` of ``a`` occurs among the rows of ``b`` (2-D integer arrays
+    of the same width) - a set test of brick keys without a Python tuple per row."""
+    a = np.asarray(a)
+    b = np.asarray(b)
+    if a.ndim != 2 or b.ndim != 2 or a.shape[1] != b.shape[1] or not (
+            np.issubdtype(a.dtype, np.integer) and np.issubdtype(b.dtype, np.integer)):
+        raise ValueError(f"rows_in: expected 2-D integer arrays of one width, got {a.shape} {a.dtype} and "
+                         f"{b.shape} {b.dtype}")
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros(len(a), dtype=bool)
+    both = np.concatenate([a, b]).astype(np.int64, copy=False)
+    lo = both.min(axis=0)
+    span = both.max(axis=0) - lo + 1
+    if float(np.prod(span.astype(np.float64))) >= _MAX_KEY:
+        seen = set(map(tuple, b.tolist()))
+        return np.fromiter((tuple(r) in seen for r in a.tolist()), dtype=bool, count=len(a))
+    key = both[:, 0] - lo[0]
+    for j in range(1, both.shape[1]):
+        key = key * span[j] + (both[:, j] - lo[j])
+    return np.isin(key[:len(a)], key[len(a):])

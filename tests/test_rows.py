@@ -25,3 +25,19 @@ def test_empty_and_bad_input():
     assert unique_rows(np.zeros((0, 3), np.int64)).shape == (0, 3)
     with pytest.raises(ValueError, match="2-D integer"):
         unique_rows(np.zeros((4, 3)))
+
+
+@pytest.mark.parametrize("lo, hi", [(0, 5), (-4, 4), (-(1 << 40), 1 << 40)])  # the last: too wide, a set
+def test_rows_in_is_set_membership(rng, lo, hi):
+    from clipvol.rows import rows_in
+
+    a = rng.integers(lo, hi, size=(400, 4), dtype=np.int64)
+    b = np.concatenate([a[rng.random(len(a)) < 0.4], rng.integers(lo, hi, size=(50, 4), dtype=np.int64)])
+    want = np.array([tuple(r) in set(map(tuple, b.tolist())) for r in a.tolist()])
+    got = rows_in(a, b)
+    np.testing.assert_array_equal(got, want)
+    assert want.any() and (~want).any()
+    assert rows_in(a, b[:0]).shape == (400,) and not rows_in(a, b[:0]).any()
+    assert rows_in(a[:0], b).shape == (0,)
+    with pytest.raises(ValueError, match="2-D integer"):
+        rows_in(a, b[:, :3])

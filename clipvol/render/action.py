@@ -91,6 +91,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..paging.loader import HasBrickRanges
 from ..paging.properties import may_hold_nonfinite
+from ..rows import unique_rows
 from ..scene.page_table import block_cells, block_open_faces, build_page_table
 from ..scene.params import MODES, RenderParams
 from ..scene.transfer import corrected_tables, transparency_filter
@@ -404,10 +405,10 @@ class ClipRenderAction:
         image, draw_t, read_t = self._draw(cam, transfer_function, sel)
         times["draw"], times["readback"] = draw_t, read_t
         times["total"] = time.perf_counter() - t_start
-        per_level: dict[int, int] = {}
-        for it in sel.items:
-            per_level[it.level] = per_level.get(it.level, 0) + 1
-        distinct = len({(it.level, tuple(it.index)) for it in sel.items})
+        keys = sel.item_keys()
+        levels, per = np.unique(keys[:, 0], return_counts=True)
+        per_level = dict(zip(levels.tolist(), per.tolist()))
+        distinct = len(unique_rows(keys)) if len(keys) else 0
         self.last_selection = sel
         self.last_frame_stats = FrameStats(
             bricks_drawn=dict(sorted(per_level.items())), bricks_distinct=distinct,
@@ -499,13 +500,14 @@ class ClipRenderAction:
     def _draw(self, cam, tf, sel) -> tuple[np.ndarray, float, float]:
         mgl = self._moderngl
         ctx = self.ctx
-        items = list(sel.items)
+        items = sel.items  # a full cut's DrawItems stay arrays: the merge reads those
         self.path_drawn = "bricks"
         self.page_table_nodes = 0
-        if self.params.merge_boxes and items:  # once, for either path
+        if self.params.merge_boxes and len(items):  # once, for either path
             merged = merge_items(items, self.pyramid, self.cache.windows, self._may_cover(cam))
             if self._samples_per_box(cam, merged) <= MAX_STEPS_PER_BOX:  # else the rays would be cut
                 items = merged
+        items = list(items)
         if items and (self.params.path == "single-pass" or (self.params.path == "auto" and not self.params.overlays
                                                             and len(items) >= AUTO_SINGLE_PASS_BOXES)):
             out = self._draw_single_pass(cam, tf, items)

@@ -66,13 +66,13 @@ class FrameLoop:
         if budget is not None:  # dry run to choose the uploads coarse-first
             residency = cache.begin_frame(self.clip_texture, None)
             dry = select(self.pyramid, camera, params, residency=residency, transparent=transparent, policy=policy)
-            cache.reserve_neighbours(dry.items)
+            cache.reserve_neighbours(dry)
             if len(cache.pending_keys()) * cache.brick_texels <= budget:
                 return dry  # the budget does not bind (the steady state): the real run would be the same
-            allow = cache.plan_uploads(budget, dry.items)
+            allow = cache.plan_uploads(budget, dry)
         residency = cache.begin_frame(self.clip_texture, budget, allow)
         sel = select(self.pyramid, camera, params, residency=residency, transparent=transparent, policy=policy)
-        cache.reserve_neighbours(sel.items)
+        cache.reserve_neighbours(sel)
         return sel
 
     def _stand_in(self, level: int, idx) -> tuple[int, tuple[int, int, int]] | None:
@@ -127,7 +127,7 @@ class FrameLoop:
             times["select"] += t1 - t0
             times["upload"] += time.perf_counter() - t1
             passes += 1
-            neighbours = cache.missing_neighbours(sel.items)
+            neighbours = cache.missing_neighbours(sel)
             converged = sel.is_converged() and not neighbours
             if not wait or converged:
                 break

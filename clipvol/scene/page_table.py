@@ -158,6 +158,8 @@ def block_open_faces(open_faces, level: int, first, count) -> np.ndarray:
     if n == 0:
         return out
     block, local = block_cells(count)
+    surface = np.any((local == 0) | (local == count[block] - 1), axis=1)  # only these lie on a face
+    block, local = block[surface], local[surface]
     of = np.asarray(open_faces(level, first[block] + local), dtype=bool)
     for axis in range(3):
         for side, edge in ((0, np.zeros(len(local), dtype=np.int64)), (1, count[block, axis] - 1)):

@@ -287,6 +287,39 @@ def test_fallback_to_nearest_resident_ancestor_without_holes_or_overlaps(seed):
     assert order_violations(cam, lo, hi)[0] == 0
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_selection_arrays_agree_with_its_items_and_sets(seed):
+    """select() hands its items over as arrays (DrawItems): the arrays, the DrawItem objects made
+    from them, the key arrays and the convergence answers all say the same as plain Python sets
+    over the items and the wanted list."""
+    from clipvol.scene.selection import DrawItems, Selection
+
+    rng = np.random.default_rng(seed)
+    cam = cam_at(EYES[seed])
+    missing = {(lv, b) for lv in range(PYR.num_levels - 1) for b in np.ndindex(PYR.grid(lv)) if rng.uniform() < 0.35}
+    sel = select(PYR, cam, RenderParams(lod_threshold=2),
+                 residency=FakeResidency(PYR, _window_around(PYR, (20, 20, 20), 4), missing))
+    assert isinstance(sel.items, DrawItems) and len(sel.items) > 20
+    items = list(sel.items)
+    assert all(isinstance(it, DrawItem) for it in items) and sel.items == items
+    assert [tuple(r) for r in sel.item_keys().tolist()] == [(it.level, *it.index) for it in items]
+    np.testing.assert_array_equal(sel.items.lo, [it.lo for it in items])
+    assert [(L, tuple(i)) for L, i in ((r[0], r[1:]) for r in sel.wanted_keys().tolist())] == sel.wanted
+    drawn = {(it.level, tuple(it.index)) for it in items}
+    want_missing = [(L, tuple(i)) for L, i in sel.wanted if (L, tuple(i)) not in drawn]
+    assert want_missing and sel.missing_wanted() == want_missing and not sel.is_converged()
+    # a Selection built from a plain list answers alike
+    plain = Selection(items, sel.wanted, dict(sel.counts))
+    assert plain.missing_wanted() == want_missing and not plain.is_converged()
+    done = Selection(items, [w for w in sel.wanted if w not in want_missing])
+    assert done.is_converged() and done.missing_wanted() == []
+    # the merge reads the arrays or the list, and returns the same boxes
+    wins = [tuple(min(g, 4) for g in PYR.grid(L)) for L in range(PYR.num_levels)]
+    full = select(PYR, cam, RenderParams(lod_threshold=2))
+    merged = merge_items(full.items, PYR, wins, lambda *a: True)
+    assert merged == merge_items(list(full.items), PYR, wins, lambda *a: True) and len(merged) < len(full.items)
+
+
 def test_nothing_resident_draws_nothing_and_window_limits_refinement():
     cam = cam_at((-20, 10, -30))
     none = FakeResidency(PYR, missing={(lv, b) for lv in range(PYR.num_levels) for b in np.ndindex(PYR.grid(lv))})

@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...rows import unique_rows
-from .cut import DrawItem
+from .cut import DrawItem, DrawItems
 
 __all__ = ["merge_items"]
 
 
-def merge_items(items: list[DrawItem], pyramid, windows, may_cover=None) -> list[DrawItem]:
+def merge_items(items: list[DrawItem] | DrawItems, pyramid, windows, may_cover=None) -> list[DrawItem]:
     """Replace each complete set of sibling items of one level by one item over their parent node.
 
     Where all existing children of an octree node are drawn from the same level, one box over the
@@ -37,15 +36,17 @@ def merge_items(items: list[DrawItem], pyramid, windows, may_cover=None) -> list
     this says so - the renderer answers True when the node's bricks of ``level`` are all in texture
     memory: the merged box then shows the real data there (outside the view, or transparent).
     A sibling that any item overlaps is never covered, so no region is drawn twice.
+
+    Works on the items' arrays (:class:`DrawItems`, as :func:`select` gives them; a plain list is
+    turned into one) and makes ``DrawItem`` objects only for the boxes it returns.
     """
-    if not items:
+    if not len(items):
         return []
-    boxes_lo = np.array([it.lo for it in items], dtype=np.float64)
-    boxes_hi = np.array([it.hi for it in items], dtype=np.float64)
+    arr = DrawItems.from_items(items)
+    boxes_lo, boxes_hi = arr.lo, arr.hi
+    levels, index = arr.rows[:, 0], arr.rows[:, 1:]
     # which items are whole node boxes (not fallback octants), vectorised per level
-    levels = np.array([it.level for it in items])
-    index = np.array([it.index for it in items], dtype=np.int64)
-    full = np.array([it.span == 1 for it in items])
+    full = arr.span == 1
     for L in np.unique(levels):
         sel = levels == L
         lo_n, hi_n = pyramid.node_box(int(L), index[sel])
@@ -53,15 +54,22 @@ def merge_items(items: list[DrawItem], pyramid, windows, may_cover=None) -> list
         same = np.all(np.abs(lo_n - boxes_lo[sel]) <= tol, axis=1) & np.all(np.abs(hi_n - boxes_hi[sel]) <= tol, axis=1)
         full[sel] &= same
     # nodes holding a drawn item (every ancestor of each whole-node item), and fallback boxes
-    touched: set[tuple[int, tuple[int, int, int]]] = set()
-    for L in np.unique(levels[full]):
+    # (per node level, a set of flat int keys: no tuple per brick and ancestor, thousands a frame)
+    grids = [np.asarray(pyramid.grid(n), dtype=np.int64) for n in range(pyramid.num_levels)]
+    parts: dict[int, list[np.ndarray]] = {}
+    for L in np.unique(levels[full]).tolist():
         idx = index[full & (levels == L)]
-        for n in range(int(L), pyramid.num_levels):
-            touched.update((n, tuple(r)) for r in unique_rows(idx >> (n - int(L))).tolist())
+        for n in range(L, pyramid.num_levels):
+            a = idx >> (n - L)
+            g = grids[n]
+            parts.setdefault(n, []).append((a[:, 0] * g[1] + a[:, 1]) * g[2] + a[:, 2])
+    touched = {n: set(np.concatenate(v).tolist()) for n, v in parts.items()}
     fb_lo, fb_hi = boxes_lo[~full], boxes_hi[~full]
 
     def undrawn(level: int, node_level: int, node_index) -> bool:
-        if (node_level, tuple(node_index)) in touched:
+        g = grids[node_level]
+        z, y, x = (int(v) for v in node_index)
+        if (z * int(g[1]) + y) * int(g[2]) + x in touched.get(node_level, ()):
             return False
         if len(fb_lo):
             lo, hi = pyramid.node_box(node_level, node_index)
@@ -76,7 +84,7 @@ def merge_items(items: list[DrawItem], pyramid, windows, may_cover=None) -> list
     # level's GPU window. The merged item takes the run's place, so the order stays back to front,
     # and may merge again at level n + 1. Vectorised per level: a full-resolution cut of thousands of
     # bricks is a handful of numpy passes, not one stack walk per item.
-    out = list(items)
+    out_lo, out_hi, out_idx, out_span = boxes_lo.copy(), boxes_hi.copy(), index.copy(), arr.span.copy()
     data_lv = levels.copy()
     node_lv = np.where(full, levels, -1)  # -1: a fallback item, never merged
     node_idx = index.copy()
@@ -88,7 +96,7 @@ def merge_items(items: list[DrawItem], pyramid, windows, may_cover=None) -> list
             n += 1
             continue
         parent = node_idx >> 1
-        same = np.zeros(len(out), dtype=bool)  # entry i continues the run of entry i - 1
+        same = np.zeros(len(data_lv), dtype=bool)  # entry i continues the run of entry i - 1
         same[1:] = cand[1:] & cand[:-1] & (data_lv[1:] == data_lv[:-1]) & np.all(parent[1:] == parent[:-1], axis=1)
         start = np.nonzero(cand & ~same)[0]
         run = np.cumsum(cand & ~same) - 1  # run number of each candidate entry
@@ -117,16 +125,17 @@ def merge_items(items: list[DrawItem], pyramid, windows, may_cover=None) -> list
         if not ok.any():
             n += 1
             continue
-        lo, hi = pyramid.node_box(n + 1, p_run[ok])
-        keep = np.ones(len(out), dtype=bool)
-        for j, k in enumerate(np.nonzero(ok)[0]):
-            s0 = int(start[k])
-            out[s0] = DrawItem(int(L_run[k]), tuple(int(v) for v in first[k]), tuple(float(v) for v in lo[j]),
-                               tuple(float(v) for v in hi[j]), int(span[k]))
-            keep[s0 + 1:s0 + int(present[k])] = False
-            node_lv[s0] = n + 1
-            node_idx[s0] = p_run[k]
-        out = [it for it, kp in zip(out, keep) if kp]
+        ks = np.nonzero(ok)[0]
+        s0 = start[ks]  # the merged item takes the place of its run's first entry
+        out_lo[s0], out_hi[s0] = pyramid.node_box(n + 1, p_run[ks])
+        out_idx[s0], out_span[s0] = first[ks], span[ks]
+        node_lv[s0], node_idx[s0] = n + 1, p_run[ks]
+        keep = np.ones(len(data_lv), dtype=bool)
+        drop = np.zeros(len(data_lv) + 1, dtype=np.int64)  # the rest of each merged run goes
+        np.add.at(drop, s0 + 1, 1)
+        np.add.at(drop, s0 + present[ks], -1)
+        keep &= np.cumsum(drop[:-1]) == 0
         data_lv, node_lv, node_idx = data_lv[keep], node_lv[keep], node_idx[keep]
+        out_lo, out_hi, out_idx, out_span = out_lo[keep], out_hi[keep], out_idx[keep], out_span[keep]
         n += 1
-    return out
+    return list(DrawItems(np.concatenate([data_lv[:, None], out_idx], axis=1), out_lo, out_hi, out_span))

@@ -33,7 +33,7 @@ from ...errors import ParameterError
 from ...rows import unique_rows
 from ..camera import Camera
 from ..params import RenderParams
-from .cut import DrawItem, Residency, Selection
+from .cut import DrawItems, Residency, Selection
 from .octree import Octree
 from .order import load_order, order_nodes
 from .policies import policy_for
@@ -345,8 +345,10 @@ def select(pyramid, camera: Camera, params: RenderParams | None = None, *, resid
     if len(data_lv):
         u = unique_rows(np.concatenate([data_lv[:, None], data_idx], axis=1))
         wo = load_order(tree, camera, u[:, 0], u[:, 1:])
-        wanted = [(r[0], (r[1], r[2], r[3])) for r in u[wo].tolist()]  # (one tolist: per-element numpy indexing is slow)
+        wanted_rows = u[wo]
+        wanted = [(r[0], (r[1], r[2], r[3])) for r in wanted_rows.tolist()]  # (one tolist: per-element numpy indexing is slow)
     else:
+        wanted_rows = np.zeros((0, 4), dtype=np.int64)
         wanted = []
 
     src_lv, src_idx = _resolve(t, data_lv, data_idx)
@@ -362,9 +364,8 @@ def select(pyramid, camera: Camera, params: RenderParams | None = None, *, resid
     for L in np.unique(reg_lv):  # one vectorised call per level
         rows = reg_lv == L
         box_lo[rows], box_hi[rows] = tree.boxes(int(L), reg_idx[rows])
-    items = [DrawItem(L, (i[0], i[1], i[2]), (a[0], a[1], a[2]), (b[0], b[1], b[2]))
-             for L, i, a, b in zip(src_lv[order].tolist(), src_idx[order].tolist(), box_lo[order].tolist(),
-                                   box_hi[order].tolist())]
+    items = DrawItems(np.concatenate([src_lv[order, None], src_idx[order]], axis=1), box_lo[order], box_hi[order])
     t.counts["texels"] = len(items) * tree.texels
     node_data = getattr(policy, "node_data", None)
-    return Selection(items, wanted, t.counts, params.policy, dict(node_data) if node_data else {})
+    return Selection(items, wanted, t.counts, params.policy, dict(node_data) if node_data else {},
+                     item_rows=items.rows, wanted_rows=wanted_rows)

@@ -1,0 +1,111 @@
+"""The GPU cache's per-frame bookkeeping against plain-Python statements of the same rules.
+
+``resident_mask`` reserves texture slots in call order (a slot holds one brick a frame; a brick
+not on the GPU takes a slot only if it is allowed and the upload budget lasts); ``_neighbours`` is
+every brick within one step (26-neighbourhood) of a drawn one, inside the grid. The cache answers
+both from arrays; the references here loop over bricks with dicts and sets, as the cache once did.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clipvol.loaders.numpy_array import NumpyLoader
+from clipvol.render.gpu_cache import GpuBrickCache
+from clipvol.scene.selection import DrawItem
+
+pytestmark = pytest.mark.gl
+
+
+class FakeClip:
+    """A clip-texture stand-in: a fixed random set of bricks in RAM, some of whose reads fail."""
+
+    def __init__(self, rng, grid_by_level):
+        self.ram = {L: rng.random(g) < 0.5 for L, g in grid_by_level.items()}
+        self.fails = {L: rng.random(g) < 0.2 for L, g in grid_by_level.items()}
+
+    def resident_mask(self, level, idx):
+        idx = np.asarray(idx)
+        return self.ram[level][idx[:, 0], idx[:, 1], idx[:, 2]]
+
+    def get_brick(self, level, key):
+        return None if self.fails[level][key] else np.zeros(1)
+
+
+def reference_resident(cache, state, level, idx, on_gpu, clip):
+    """The rule, brick by brick in order (``state``: slot -> brick, pending, budget left)."""
+    out = np.zeros(len(idx), dtype=bool)
+    w = cache.windows[level]
+    for i, k in enumerate(map(tuple, idx.tolist())):
+        if not (on_gpu[i] or clip.ram[level][k]):
+            continue
+        slot = (level,) + tuple(v % s for v, s in zip(k, w))
+        if slot in state["held"]:
+            out[i] = state["held"][slot] == k
+            continue
+        if not on_gpu[i]:
+            if state["left"] < cache.brick_texels or clip.get_brick(level, k) is None:
+                continue
+            state["pending"].add((level, k))
+            state["left"] -= cache.brick_texels
+        state["held"][slot] = k
+        out[i] = True
+    return out
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_resident_mask_reserves_slots_in_call_order(ctx, seed):
+    rng = np.random.default_rng(seed)
+    pyr = NumpyLoader(np.zeros((96, 80, 64), np.float32), brick=8).pyramid  # grid 12 x 10 x 8 at level 0
+    cache = GpuBrickCache(ctx, pyr, 40 * pyr.brick_nbytes)  # windows smaller than the grid: slots alias
+    try:
+        levels = [L for L, w in enumerate(cache.windows) if w is not None]
+        assert any(np.any(np.asarray(pyr.grid(L)) > np.asarray(cache.windows[L])) for L in levels)
+        clip = FakeClip(rng, {L: tuple(pyr.grid(L)) for L in levels})
+        for L in levels:  # some bricks already on the GPU (the cache's slot keys)
+            g = np.asarray(pyr.grid(L))
+            for k in rng.integers(0, g, size=(int(g.prod()) // 3, 3)):
+                cache._slot_key[L][tuple(k % np.asarray(cache.windows[L]))] = k
+        budget = 20 * cache.brick_texels
+        cache.begin_frame(clip, budget)
+        state = {"held": {}, "pending": set(), "left": budget}
+        for _ in range(40):  # several calls a frame, with repeats and aliasing slots
+            L = int(rng.choice(levels))
+            g = np.asarray(pyr.grid(L))
+            idx = rng.integers(0, g, size=(int(rng.integers(1, 40)), 3))
+            on_gpu = cache.on_gpu_mask(L, idx)
+            want = reference_resident(cache, state, L, idx, on_gpu, clip)
+            np.testing.assert_array_equal(cache.resident_mask(L, idx), want)
+        assert set(cache.pending_keys()) == state["pending"]
+        assert any(state["held"].values()) and state["pending"]
+    finally:
+        cache.release()
+
+
+def test_neighbours_are_the_26_neighbourhood_inside_the_grid(ctx, rng):
+    pyr = NumpyLoader(np.zeros((96, 80, 64), np.float32), brick=8).pyramid
+    cache = GpuBrickCache(ctx, pyr, 10_000 * pyr.brick_nbytes)
+    try:
+        items = []
+        for L in (0, 1, 2):
+            g = np.asarray(pyr.grid(L))
+            for k in rng.integers(0, g, size=(15, 3)).tolist() + [[0, 0, 0], (g - 1).tolist()]:
+                items.append(DrawItem(L, tuple(k), (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)))
+        cache.begin_frame(None, None)
+        got = cache._neighbours(items)
+        for L in (0, 1, 2):
+            g = pyr.grid(L)
+            want = set()
+            for it in items:
+                if it.level != L:
+                    continue
+                for dz in (-1, 0, 1):
+                    for dy in (-1, 0, 1):
+                        for dx in (-1, 0, 1):
+                            n = (it.index[0] + dz, it.index[1] + dy, it.index[2] + dx)
+                            if all(0 <= v < s for v, s in zip(n, g)):
+                                want.add(n)
+            assert sorted(want) == [tuple(r) for r in got[L].tolist()]  # the set, in lexicographic order
+    finally:
+        cache.release()
