@@ -8,12 +8,12 @@ types.
 
 from __future__ import annotations
 
-from .cut import DrawItem, DrawItems, Residency, Selection
+from .cut import BrickKeys, DrawItem, DrawItems, Residency, Selection
 from .merge import merge_items
 from .octree import Octree
 from .order import back_to_front
 from .policies import POLICIES, ROAMING_MAX_BRICKS, policy_for
 from .traversal import Traversal, select
 
-__all__ = ["select", "Selection", "DrawItem", "DrawItems", "Residency", "Traversal", "Octree", "back_to_front", "merge_items",
+__all__ = ["select", "Selection", "DrawItem", "DrawItems", "BrickKeys", "Residency", "Traversal", "Octree", "back_to_front", "merge_items",
            "POLICIES", "policy_for", "ROAMING_MAX_BRICKS"]

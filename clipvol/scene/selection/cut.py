@@ -14,7 +14,7 @@ import numpy as np
 
 from ...rows import rows_in
 
-__all__ = ["DrawItem", "DrawItems", "Selection", "Residency"]
+__all__ = ["DrawItem", "DrawItems", "BrickKeys", "Selection", "Residency"]
 
 
 class Residency(Protocol):
@@ -99,6 +99,40 @@ class DrawItems(Sequence):
         return f"DrawItems({len(self)} items)"
 
 
+class BrickKeys(Sequence):
+    """A list of brick keys ``(level, (z, y, x))`` held as one ``(n, 4)`` int64 array, made into
+    tuples only when an element is asked for (the frame itself reads the array: see
+    :class:`DrawItems`). Behaves as the plain list it stands for."""
+
+    __slots__ = ("rows", "_list")
+
+    def __init__(self, rows) -> None:
+        self.rows = np.asarray(rows, dtype=np.int64).reshape(-1, 4)
+        self._list: list | None = None
+
+    def _keys(self) -> list[tuple[int, tuple[int, int, int]]]:
+        if self._list is None:
+            self._list = [(r[0], (r[1], r[2], r[3])) for r in self.rows.tolist()]
+        return self._list
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __getitem__(self, i):
+        return self._keys()[i]
+
+    def __iter__(self):
+        return iter(self._keys())
+
+    def __eq__(self, other) -> bool:
+        if isinstance(other, (list, tuple, BrickKeys)):
+            return list(self) == list(other)
+        return NotImplemented
+
+    def __repr__(self) -> str:
+        return f"BrickKeys({len(self)} bricks)"
+
+
 @dataclass
 class Selection:
     """The result of :func:`~clipvol.scene.selection.select`.
@@ -108,7 +142,7 @@ class Selection:
     items : list of DrawItem, or DrawItems
         What to draw, in exact back-to-front order for the camera (:func:`select` gives a
         :class:`DrawItems`: the same list, held as arrays).
-    wanted : list of (level, index)
+    wanted : list of (level, index), or BrickKeys
         The ideal cut ignoring residency (inside the window), coarse levels first, then nearest
         first: the load priority and the target of ``wait``.
     counts : dict
@@ -126,7 +160,7 @@ class Selection:
     """
 
     items: list[DrawItem] | DrawItems
-    wanted: list[tuple[int, tuple[int, int, int]]]
+    wanted: list[tuple[int, tuple[int, int, int]]] | BrickKeys
     counts: dict = field(default_factory=dict)
     policy: str = ""
     node_data: dict = field(default_factory=dict)
@@ -145,7 +179,8 @@ class Selection:
     def wanted_keys(self) -> np.ndarray:
         """``(m, 4)`` int64 ``(level, z, y, x)`` of :attr:`wanted`, in order."""
         if self.wanted_rows is None:
-            self.wanted_rows = _rows([(L, *idx) for L, idx in self.wanted])
+            self.wanted_rows = self.wanted.rows if isinstance(self.wanted, BrickKeys) else _rows(
+                [(L, *idx) for L, idx in self.wanted])
         return self.wanted_rows
 
     def is_converged(self) -> bool:

@@ -33,7 +33,7 @@ from ...errors import ParameterError
 from ...rows import unique_rows
 from ..camera import Camera
 from ..params import RenderParams
-from .cut import DrawItems, Residency, Selection
+from .cut import BrickKeys, DrawItems, Residency, Selection
 from .octree import Octree
 from .order import load_order, order_nodes
 from .policies import policy_for
@@ -345,11 +345,9 @@ def select(pyramid, camera: Camera, params: RenderParams | None = None, *, resid
     if len(data_lv):
         u = unique_rows(np.concatenate([data_lv[:, None], data_idx], axis=1))
         wo = load_order(tree, camera, u[:, 0], u[:, 1:])
-        wanted_rows = u[wo]
-        wanted = [(r[0], (r[1], r[2], r[3])) for r in wanted_rows.tolist()]  # (one tolist: per-element numpy indexing is slow)
+        wanted = BrickKeys(u[wo])  # tuples only if someone reads them: the frame reads the array
     else:
-        wanted_rows = np.zeros((0, 4), dtype=np.int64)
-        wanted = []
+        wanted = BrickKeys(np.zeros((0, 4), dtype=np.int64))
 
     src_lv, src_idx = _resolve(t, data_lv, data_idx)
     drawn = src_lv >= 0
@@ -368,4 +366,4 @@ def select(pyramid, camera: Camera, params: RenderParams | None = None, *, resid
     t.counts["texels"] = len(items) * tree.texels
     node_data = getattr(policy, "node_data", None)
     return Selection(items, wanted, t.counts, params.policy, dict(node_data) if node_data else {},
-                     item_rows=items.rows, wanted_rows=wanted_rows)
+                     item_rows=items.rows, wanted_rows=wanted.rows)
