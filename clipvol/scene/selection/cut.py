@@ -42,26 +42,61 @@ class DrawItem:
     span: int = 1
 
 
-class DrawItems(Sequence):
+class _RowList(Sequence):
+    """A list held as an ``(n, 4)`` int64 array ``rows`` (plus whatever a subclass keeps beside
+    it), whose Python elements are made by :meth:`_make` only when one is asked for. Indexing,
+    iterating and comparing behave as the plain list it stands for."""
+
+    __slots__ = ("rows", "_list")
+
+    def __init__(self, rows) -> None:
+        self.rows = np.asarray(rows, dtype=np.int64).reshape(-1, 4)
+        self._list: list | None = None
+
+    def _make(self) -> list:
+        raise NotImplementedError
+
+    def _elements(self) -> list:
+        if self._list is None:
+            self._list = self._make()
+        return self._list
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __getitem__(self, i):
+        return self._elements()[i]
+
+    def __iter__(self):
+        return iter(self._elements())
+
+    def __eq__(self, other) -> bool:
+        if isinstance(other, (list, tuple, _RowList)):
+            return list(self) == list(other)
+        return NotImplemented
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({len(self)} rows)"
+
+
+class DrawItems(_RowList):
     """A list of :class:`DrawItem` held as arrays, made into objects only when an element is asked for.
 
     Why: a full-resolution cut holds thousands of items, and the frame itself needs only their
     arrays - the merge, the neighbour set, the convergence test read ``rows``/``lo``/``hi`` - and
     then draws a handful of merged boxes. Building a ``DrawItem`` (and its three tuples) per brick
-    cost 5-8 ms of a 4 096-brick frame, and their garbage collection as much again. Indexing,
-    iterating or comparing behaves as the plain list of ``DrawItem`` it stands for.
+    cost 5-8 ms of a 4 096-brick frame, and their garbage collection as much again.
     """
 
-    __slots__ = ("rows", "lo", "hi", "span", "_list")
+    __slots__ = ("lo", "hi", "span")
 
     def __init__(self, rows, lo, hi, span=None) -> None:
-        #: ``(n, 4)`` int64 ``(level, z, y, x)``; ``(n, 3)`` float64 world ``lo``/``hi`` ``(x, y, z)``;
-        #: ``(n,)`` int64 span (all 1 unless merged)
-        self.rows = np.asarray(rows, dtype=np.int64).reshape(-1, 4)
+        #: ``rows``: ``(n, 4)`` int64 ``(level, z, y, x)``; ``lo``/``hi``: ``(n, 3)`` float64 world
+        #: ``(x, y, z)``; ``span``: ``(n,)`` int64 (all 1 unless merged)
+        super().__init__(rows)
         self.lo = np.asarray(lo, dtype=np.float64).reshape(-1, 3)
         self.hi = np.asarray(hi, dtype=np.float64).reshape(-1, 3)
         self.span = np.ones(len(self.rows), dtype=np.int64) if span is None else np.asarray(span, dtype=np.int64)
-        self._list: list[DrawItem] | None = None
 
     @classmethod
     def from_items(cls, items) -> "DrawItems":
@@ -74,63 +109,20 @@ class DrawItems(Sequence):
         out._list = items
         return out
 
-    def _items(self) -> list[DrawItem]:
-        if self._list is None:
-            self._list = [DrawItem(r[0], (r[1], r[2], r[3]), (a[0], a[1], a[2]), (b[0], b[1], b[2]), s)
-                          for r, a, b, s in zip(self.rows.tolist(), self.lo.tolist(), self.hi.tolist(),
-                                                self.span.tolist())]
-        return self._list
-
-    def __len__(self) -> int:
-        return len(self.rows)
-
-    def __getitem__(self, i):
-        return self._items()[i]
-
-    def __iter__(self):
-        return iter(self._items())
-
-    def __eq__(self, other) -> bool:
-        if isinstance(other, (list, tuple, DrawItems)):
-            return list(self) == list(other)
-        return NotImplemented
-
-    def __repr__(self) -> str:
-        return f"DrawItems({len(self)} items)"
+    def _make(self) -> list[DrawItem]:
+        return [DrawItem(r[0], (r[1], r[2], r[3]), (a[0], a[1], a[2]), (b[0], b[1], b[2]), s)
+                for r, a, b, s in zip(self.rows.tolist(), self.lo.tolist(), self.hi.tolist(), self.span.tolist())]
 
 
-class BrickKeys(Sequence):
+class BrickKeys(_RowList):
     """A list of brick keys ``(level, (z, y, x))`` held as one ``(n, 4)`` int64 array, made into
     tuples only when an element is asked for (the frame itself reads the array: see
-    :class:`DrawItems`). Behaves as the plain list it stands for."""
+    :class:`DrawItems`)."""
 
-    __slots__ = ("rows", "_list")
+    __slots__ = ()
 
-    def __init__(self, rows) -> None:
-        self.rows = np.asarray(rows, dtype=np.int64).reshape(-1, 4)
-        self._list: list | None = None
-
-    def _keys(self) -> list[tuple[int, tuple[int, int, int]]]:
-        if self._list is None:
-            self._list = [(r[0], (r[1], r[2], r[3])) for r in self.rows.tolist()]
-        return self._list
-
-    def __len__(self) -> int:
-        return len(self.rows)
-
-    def __getitem__(self, i):
-        return self._keys()[i]
-
-    def __iter__(self):
-        return iter(self._keys())
-
-    def __eq__(self, other) -> bool:
-        if isinstance(other, (list, tuple, BrickKeys)):
-            return list(self) == list(other)
-        return NotImplemented
-
-    def __repr__(self) -> str:
-        return f"BrickKeys({len(self)} bricks)"
+    def _make(self) -> list[tuple[int, tuple[int, int, int]]]:
+        return [(r[0], (r[1], r[2], r[3])) for r in self.rows.tolist()]
 
 
 @dataclass
