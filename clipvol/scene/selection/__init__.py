@@ -15,5 +15,5 @@ from .order import back_to_front
 from .policies import POLICIES, ROAMING_MAX_BRICKS, policy_for
 from .traversal import Traversal, select
 
-__all__ = ["select", "Selection", "DrawItem", "DrawItems", "BrickKeys", "Residency", "Traversal", "Octree", "back_to_front", "merge_items",
-           "POLICIES", "policy_for", "ROAMING_MAX_BRICKS"]
+__all__ = ["select", "Selection", "DrawItem", "DrawItems", "BrickKeys", "Residency", "Traversal", "Octree",
+           "back_to_front", "merge_items", "POLICIES", "policy_for", "ROAMING_MAX_BRICKS"]

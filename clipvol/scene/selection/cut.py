@@ -156,8 +156,8 @@ class Selection:
     counts: dict = field(default_factory=dict)
     policy: str = ""
     node_data: dict = field(default_factory=dict)
-    #: ``(n, 4)`` int64 ``(level, z, y, x)`` of ``items`` and of ``wanted``, in their order: made by
-    #: :func:`select` from the arrays it already holds, else on first use (see :meth:`item_keys`)
+    #: ``(n, 4)`` int64 ``(level, z, y, x)`` of ``items`` and of ``wanted``, in their order: the
+    #: arrays of :class:`DrawItems` / :class:`BrickKeys`, else made on first use (:meth:`item_keys`)
     item_rows: np.ndarray | None = field(default=None, repr=False)
     wanted_rows: np.ndarray | None = field(default=None, repr=False)
 

@@ -365,5 +365,4 @@ def select(pyramid, camera: Camera, params: RenderParams | None = None, *, resid
     items = DrawItems(np.concatenate([src_lv[order, None], src_idx[order]], axis=1), box_lo[order], box_hi[order])
     t.counts["texels"] = len(items) * tree.texels
     node_data = getattr(policy, "node_data", None)
-    return Selection(items, wanted, t.counts, params.policy, dict(node_data) if node_data else {},
-                     item_rows=items.rows, wanted_rows=wanted.rows)
+    return Selection(items, wanted, t.counts, params.policy, dict(node_data) if node_data else {})
