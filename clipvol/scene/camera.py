@@ -114,6 +114,8 @@ class Camera:
     far: float
     # (forward, up, right), computed once: a frame's selection asks for them thousands of times
     _fur: tuple = field(default=(), init=False, repr=False, compare=False)
+    # the six frustum planes relative to the eye, made on first use (culling and the merge ask often)
+    _planes: tuple = field(default=(), init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "ortho", bool(self.ortho))
@@ -283,6 +285,8 @@ class Camera:
 
         Order: left, right, bottom, top, near, far.
         """
+        if self._planes:
+            return self._planes[0].copy()
         f, u, r = (v.copy() for v in self._fur)
         sx, sy = self._half_extents()
         if self.ortho:
@@ -296,7 +300,8 @@ class Camera:
             k = np.linalg.norm(nv)
             out[i, :3] = nv / k
             out[i, 3] = d / k
-        return out
+        object.__setattr__(self, "_planes", (out,))
+        return out.copy()
 
     def frustum_planes(self) -> np.ndarray:
         """(6, 4) unit-normal planes ``(a, b, c, d)``; a point is inside where ``a x + b y + c z + d >= 0``.
