@@ -191,17 +191,26 @@ def trilinear(volume: np.ndarray, points: np.ndarray) -> np.ndarray:
     """``(m,)`` float32: ``volume`` (``(z, y, x)``) interpolated trilinearly at ``points`` (``(m, 3)``
     voxel coordinates ``(z, y, x)``, already clamped to ``[0, shape - 1]``). numpy only, so the core
     needs no scipy (the tests check it against ``scipy.ndimage.map_coordinates(order=1)``)."""
-    vol = np.asarray(volume, dtype=np.float32)
+    vol = np.ascontiguousarray(volume, dtype=np.float32)
     p = np.asarray(points, dtype=np.float32).reshape(-1, 3)
     top = np.asarray(vol.shape, dtype=np.int64) - 1
     i0 = np.minimum(np.floor(p).astype(np.int64), np.maximum(top - 1, 0))  # i0 + 1 stays inside
-    i1 = np.minimum(i0 + 1, top)
     f = p - i0.astype(np.float32)
-    (z0, y0, x0), (z1, y1, x1), (fz, fy, fx) = i0.T, i1.T, f.T
-    c00 = vol[z0, y0, x0] * (1 - fx) + vol[z0, y0, x1] * fx
-    c01 = vol[z0, y1, x0] * (1 - fx) + vol[z0, y1, x1] * fx
-    c10 = vol[z1, y0, x0] * (1 - fx) + vol[z1, y0, x1] * fx
-    c11 = vol[z1, y1, x0] * (1 - fx) + vol[z1, y1, x1] * fx
+    fz, fy, fx = f.T
+    # the eight corners as one flat gather each from the voxel base (a step of 0 on an axis of one
+    # voxel): faster than indexing with three index arrays per corner
+    nz, ny, nx = vol.shape
+    sz, sy, sx = (ny * nx if nz > 1 else 0), (nx if ny > 1 else 0), (1 if nx > 1 else 0)
+    base = (i0[:, 0] * ny + i0[:, 1]) * nx + i0[:, 2]
+    flat = vol.ravel()
+
+    def at(offset: int) -> np.ndarray:
+        return flat.take(base + offset) if offset else flat.take(base)
+
+    c00 = at(0) * (1 - fx) + at(sx) * fx
+    c01 = at(sy) * (1 - fx) + at(sy + sx) * fx
+    c10 = at(sz) * (1 - fx) + at(sz + sx) * fx
+    c11 = at(sz + sy) * (1 - fx) + at(sz + sy + sx) * fx
     return (c00 * (1 - fy) + c01 * fy) * (1 - fz) + (c10 * (1 - fy) + c11 * fy) * fz
 
 
