@@ -101,6 +101,10 @@ def convert_brick(brick: np.ndarray, fmt: TextureFormat) -> np.ndarray:
         return ((brick.astype(np.float64) - fmt.b) / fmt.a).astype(np.float32)
 
 
+#: the neighbour set of a level's drawn bricks is a dilation of their occupancy over their bounding
+#: box of up to this many cells (4 MB of bools, a few ms); bricks scattered wider go row by row
+DILATE_MAX_CELLS = 1 << 22
+
 #: largest single texture (bytes); Mesa's llvmpipe refuses 3D textures of about 2 GiB
 MAX_TEXTURE_BYTES = 1 << 30
 
@@ -379,6 +383,10 @@ class GpuBrickCache:
             idx = keys[keys[:, 0] == level, 1:]
             lo = np.maximum(idx.min(axis=0) - 1, 0)
             hi = np.minimum(idx.max(axis=0) + 2, grid)
+            if np.prod((hi - lo).astype(np.float64)) > DILATE_MAX_CELLS:  # scattered wide: row by row
+                nb = (idx[:, None, :] + NEIGHBOUR_OFFSETS[None]).reshape(-1, 3)
+                out[level] = unique_rows(nb[np.all((nb >= 0) & (nb < grid), axis=1)])
+                continue
             occ = np.zeros(tuple(hi - lo), dtype=bool)
             occ[tuple((idx - lo).T)] = True
             for axis in range(3):  # separable: grow by one brick along each axis in turn

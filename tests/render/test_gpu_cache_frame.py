@@ -83,7 +83,12 @@ def test_resident_mask_reserves_slots_in_call_order(ctx, seed):
         cache.release()
 
 
-def test_neighbours_are_the_26_neighbourhood_inside_the_grid(ctx, rng):
+@pytest.mark.parametrize("dilate", [True, False])  # the occupancy dilation, and the row-by-row fallback
+def test_neighbours_are_the_26_neighbourhood_inside_the_grid(ctx, rng, monkeypatch, dilate):
+    import clipvol.render.gpu_cache as gc_module
+
+    if not dilate:
+        monkeypatch.setattr(gc_module, "DILATE_MAX_CELLS", 0)
     pyr = NumpyLoader(np.zeros((96, 80, 64), np.float32), brick=8).pyramid
     cache = GpuBrickCache(ctx, pyr, 10_000 * pyr.brick_nbytes)
     try:
