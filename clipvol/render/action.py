@@ -766,12 +766,13 @@ class ClipRenderAction:
 
         def may_cover(level: int, node_level: int, node_index) -> bool:
             if node_level == level:  # one brick (most calls: culled siblings of a full-resolution cut)
-                return cache.on_gpu(level, node_index) or beside_view(level, node_level, node_index)
-            f = 2 ** (node_level - level)
-            first = np.asarray(node_index, dtype=np.int64) * f
-            count = np.minimum(first + f, np.asarray(pyr.grid(level))) - first
-            return bool(np.all(cache.on_gpu_mask(level, first + block_cells(count)[1]))) or beside_view(
-                level, node_level, node_index)
+                resident = cache.on_gpu(level, node_index)
+            else:
+                f = 2 ** (node_level - level)
+                first = np.asarray(node_index, dtype=np.int64) * f
+                count = np.minimum(first + f, np.asarray(pyr.grid(level))) - first
+                resident = bool(np.all(cache.on_gpu_mask(level, first + block_cells(count)[1])))
+            return resident or beside_view(level, node_level, node_index)
 
         return may_cover
 

@@ -164,10 +164,8 @@ def allocate_gpu_windows(pyramid: Pyramid, budget: int, itemsize: int, max_textu
 
 def _item_keys(items) -> np.ndarray:
     """``(n, 4)`` int64 ``(level, z, y, x)`` of a frame's draw items: a
-    :class:`~clipvol.scene.selection.Selection`'s own key array, else gathered from the items."""
-    if hasattr(items, "item_keys"):
-        return items.item_keys()
-    return DrawItems.from_items(items).rows
+    :class:`~clipvol.scene.selection.Selection`'s (its items' array), or a list of draw items'."""
+    return DrawItems.from_items(getattr(items, "items", items)).rows
 
 
 class GpuBrickCache:

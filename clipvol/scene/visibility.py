@@ -205,7 +205,7 @@ def trilinear(volume: np.ndarray, points: np.ndarray) -> np.ndarray:
     flat = vol.ravel()
 
     def at(offset: int) -> np.ndarray:
-        return flat.take(base + offset) if offset else flat.take(base)
+        return flat.take(base + offset)
 
     c00 = at(0) * (1 - fx) + at(sx) * fx
     c01 = at(sy) * (1 - fx) + at(sy + sx) * fx

@@ -121,6 +121,16 @@ class BrickKeys(_RowList):
 
     __slots__ = ()
 
+    @classmethod
+    def from_keys(cls, keys) -> "BrickKeys":
+        """The array of a sequence of ``(level, (z, y, x))`` keys (itself if it is one already)."""
+        if isinstance(keys, BrickKeys):
+            return keys
+        keys = list(keys)
+        out = cls([(L, *idx) for L, idx in keys])
+        out._list = keys
+        return out
+
     def _make(self) -> list[tuple[int, tuple[int, int, int]]]:
         return [(r[0], (r[1], r[2], r[3])) for r in self.rows.tolist()]
 
@@ -131,12 +141,13 @@ class Selection:
 
     Attributes
     ----------
-    items : list of DrawItem, or DrawItems
-        What to draw, in exact back-to-front order for the camera (:func:`select` gives a
-        :class:`DrawItems`: the same list, held as arrays).
-    wanted : list of (level, index), or BrickKeys
+    items : DrawItems
+        What to draw, in exact back-to-front order for the camera: a list of :class:`DrawItem`
+        held as arrays (a plain list given here is taken as one).
+    wanted : BrickKeys
         The ideal cut ignoring residency (inside the window), coarse levels first, then nearest
-        first: the load priority and the target of ``wait``.
+        first: the load priority and the target of ``wait``; a list of ``(level, index)`` held as
+        one array (a plain list given here is taken as one).
     counts : dict
         ``visited``, ``culled_frustum``, ``culled_shape``, ``culled_transparent``,
         ``culled_policy`` (nodes a policy's own test left out), ``refined``, ``outside_window``
@@ -151,29 +162,25 @@ class Selection:
         blend ratios); empty for the built-in volume policies.
     """
 
-    items: list[DrawItem] | DrawItems
-    wanted: list[tuple[int, tuple[int, int, int]]] | BrickKeys
+    items: DrawItems
+    wanted: BrickKeys
     counts: dict = field(default_factory=dict)
     policy: str = ""
     node_data: dict = field(default_factory=dict)
-    #: ``(n, 4)`` int64 ``(level, z, y, x)`` of ``items`` and of ``wanted``, in their order: the
-    #: arrays of :class:`DrawItems` / :class:`BrickKeys`, else made on first use (:meth:`item_keys`)
-    item_rows: np.ndarray | None = field(default=None, repr=False)
-    wanted_rows: np.ndarray | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        # one form whoever builds it: the frame's set tests read the arrays, callers the elements
+        self.items = DrawItems.from_items(self.items)
+        self.wanted = BrickKeys.from_keys(self.wanted)
 
     def item_keys(self) -> np.ndarray:
         """``(n, 4)`` int64 ``(level, z, y, x)`` of each item, in order: what the frame's set tests
         (convergence, neighbours, merge) work on, without a Python tuple per brick."""
-        if self.item_rows is None:
-            self.item_rows = DrawItems.from_items(self.items).rows
-        return self.item_rows
+        return self.items.rows
 
     def wanted_keys(self) -> np.ndarray:
         """``(m, 4)`` int64 ``(level, z, y, x)`` of :attr:`wanted`, in order."""
-        if self.wanted_rows is None:
-            self.wanted_rows = self.wanted.rows if isinstance(self.wanted, BrickKeys) else _rows(
-                [(L, *idx) for L, idx in self.wanted])
-        return self.wanted_rows
+        return self.wanted.rows
 
     def is_converged(self) -> bool:
         """Every wanted brick is drawn at its own level."""
@@ -185,6 +192,3 @@ class Selection:
         miss = w[~rows_in(w, self.item_keys())]
         return [(L, (z, y, x)) for L, z, y, x in miss.tolist()]
 
-
-def _rows(keys: list) -> np.ndarray:
-    return np.array(keys, dtype=np.int64).reshape(-1, 4)
