@@ -399,6 +399,35 @@ def test_front_to_back_with_early_termination_equals_back_to_front_over(scenes):
     assert diff(ib, ref.to_uint8(r + (1 - r[..., 3:4]) * bgp)).max() <= 2
 
 
+def _black_wall_before_white():
+    """A black front half whose opacity grows along x before an opaque white back half: the light
+    that reaches the eye through the wall sweeps from visible to nothing across the image, so some
+    pixels hold the last few 8-bit levels of white that a ray stopping early leaves out."""
+    vol = np.ones((40, 24, 48), dtype=np.float32)  # z (towards the back), y, x
+    vol[:20] = np.linspace(0.2, 0.6, 48, dtype=np.float32)[None, None, :]
+    tf = TransferFunction.from_points([(0.0, (0, 0, 0, 0.0)), (0.6, (0, 0, 0, 0.35)), (0.61, (1, 1, 1, 1.0)),
+                                       (1.0, (1, 1, 1, 1.0))], value_range=(0.0, 1.0))
+    cam = Camera.perspective((23.5, 11.5, -90.0), (23.5, 11.5, 20.0), size=(96, 48), fov_y=20)
+    return vol, tf, cam
+
+
+@pytest.mark.parametrize("path", ["single-pass", "bricks"])
+def test_early_termination_changes_no_pixel_by_more_than_one_level(scenes, monkeypatch, path):
+    """A ray stops at OPAQUE = 1 - 0.5/255: what it leaves out is under half an 8-bit step, so the
+    image is within 1 of the reference integrated to the end of every ray (no termination)."""
+    import clipvol.render.action as action_mod
+
+    vol, tf, cam = _black_wall_before_white()
+    s = scenes(vol, 16, selection="fixed", level=0, path=path, merge_boxes=False)
+    r = s.reference(cam, tf)
+    assert visible(r) > 0.5
+    assert diff(s.render(cam, tf), r).max() <= 1
+    # the scene tells thresholds apart: a ray stopping at 0.99 leaves out up to 2.5 levels of the white
+    monkeypatch.setattr(action_mod, "OPAQUE", 0.99)
+    loose = scenes(vol, 16, selection="fixed", level=0, path=path, merge_boxes=False).render(cam, tf)
+    assert diff(loose, r).max() >= 2
+
+
 def test_auto_path_draws_many_boxes_in_one_pass_and_few_per_brick(scenes):
     """path="auto" (the default): a cut of at least AUTO_SINGLE_PASS_BOXES merged boxes is drawn by
     the single pass, a smaller one per brick; either way the image is the numpy reference's."""
