@@ -28,6 +28,9 @@ noise of a shared machine cancels as far as it can:
   ``--vs-raw-large 1024`` a 1024^3 uint8 volume (1 GiB: a float32 one would not fit beside the raw
   caster's texture) against the raw caster (per-brick and single-pass frames), with a virtual
   4096^3 multiresolution frame beside it.
+* **where a ray stops** - ``--vs-stop N``: the full-resolution frame of the fractal and of the
+  CT-like head (``N``³) stopping rays at 0.9995 and at clipvol's ``OPAQUE`` (1 - 0.5/255): time
+  ratio and the largest 8-bit difference of the two images (``docs/bench_render_stop.csv``).
 * **the two draw paths on image-LOD cuts** - ``--vs-lod``: the head, views and cuts of
   ``tools/bench_lod.py`` (full resolution and the image policy at ``--block-budget`` blocks), drawn
   by a per-brick and a single-pass session over the same store, interleaved; every ratio is the
@@ -686,6 +689,73 @@ def vs_paths(n: int, image: int, repeat: int, step: float, out_dir: Path, log=pr
     return rows
 
 
+def vs_stop(n: int, image: int, repeat: int, step: float, out_dir: Path, log=print) -> list[dict]:
+    """What stopping rays at ``OPAQUE`` (1 - 0.5/255) instead of 0.9995 gives, per data set: the
+    full-resolution frame of the fractal ``n``³ (the raw-caster view) and of the CT-like head ``n``³
+    (the image-LOD benchmark's face, side and overview views), drawn by two actions that differ
+    only in the stop, interleaved, medians of ``repeat``; the time ratio and the largest 8-bit
+    difference between the two images. The stop is the module constant ``OPAQUE`` of
+    ``clipvol.render.action``, read when a frame is drawn; it is switched here for the benchmark
+    only and restored after."""
+    import clipvol.render.action as action_mod
+    from clipvol.bricking.generators import ct_head
+    from clipvol.loaders.numpy_array import NumpyLoader
+    from clipvol.paging.cliptexture import ClipTexture
+    from clipvol.render import create_context
+    from clipvol.scene.camera import Camera
+    from clipvol.scene.transfer import TransferFunction
+    from clipvol.tools.bench_lod import VIEWS
+
+    stops = {"0.9995": RAW_OPAQUE, "1-0.5/255": action_mod.OPAQUE}
+    kept = action_mod.OPAQUE
+    ctx = create_context()
+    rows = []
+    try:
+        vol, loader, fcam, ftf, budget, clip = fractal_scene(n, image, log)
+        head = NumpyLoader(ct_head((n,) * 3, seed=0), brick=32)
+        hclip = ClipTexture(head, budget, threads=2)
+        hp = head.pyramid
+        lo, hi = hp.volume_box()
+        c, diag = (lo + hi) / 2.0, float(np.linalg.norm(hi - lo))
+        scenes = [("fractal", "raw-caster view", clip, fcam, ftf)]
+        for name, (d, zoom) in VIEWS.items():
+            d = np.asarray(d, dtype=np.float64) / np.linalg.norm(d)
+            cam = Camera.perspective(tuple(c + d * diag * (zoom or 1.0)), tuple(c), up=(0, -1, 0), fov_y=35,
+                                     size=(image, image))
+            scenes.append(("ct head", name, hclip, cam, TransferFunction.preset("bone", value_range=hp.value_range)))
+        for data, view, cl, cam, tf in scenes:
+            acts = {k: action_mod.ClipRenderAction(ctx, cl, policy="fixed", level=0, step=step, texture_budget=budget)
+                    for k in stops}
+            imgs, wall = {}, {k: [] for k in stops}
+            for k, a in acts.items():
+                action_mod.OPAQUE = stops[k]
+                imgs[k] = a.render(cam, tf, wait=True, timeout=600)
+            for _ in range(repeat):
+                for k, a in acts.items():
+                    action_mod.OPAQUE = stops[k]
+                    t = time.perf_counter()
+                    imgs[k] = a.render(cam, tf)
+                    wall[k].append(time.perf_counter() - t)
+            med = {k: statistics.median(v) for k, v in wall.items()}
+            diff = np.abs(imgs["0.9995"].astype(int) - imgs["1-0.5/255"].astype(int)).max(axis=2)
+            row = dict(data=data, view=view, size=n, image=image, repeat=repeat, stop_0_9995_s=round(med["0.9995"], 4),
+                       stop_new_s=round(med["1-0.5/255"], 4), new_over_old=round(med["1-0.5/255"] / med["0.9995"], 3),
+                       maxdiff=int(diff.max()), pixels_differing=round(float((diff > 0).mean()), 4),
+                       path=acts["1-0.5/255"].path_drawn)
+            rows.append(row)
+            log(f"{data}, {view}: {row['stop_0_9995_s']:.3f} s at 0.9995, {row['stop_new_s']:.3f} s at 1 - 0.5/255 "
+                f"({row['new_over_old']:.2f}x); max |diff| {row['maxdiff']}, {100 * row['pixels_differing']:.1f} % of pixels")
+            for a in acts.values():
+                a.close()
+        clip.close()
+        hclip.close()
+    finally:
+        action_mod.OPAQUE = kept
+        ctx.release()
+    write_rows(out_dir / "bench_render_stop.csv", rows)
+    return rows
+
+
 def quantised_fractal(n: int, dtype: str, data_dir: Path, log=print) -> np.ndarray:
     """``procedural:fractal?size=n`` quantised to ``dtype`` (uint8 / uint16) over the generator's value
     range, generated in slabs (never the float32 volume whole) and cached as ``.npy`` under
@@ -847,6 +917,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--vs-paths", type=int, default=None, metavar="N",
                     help="only the two draw paths on the same cut of procedural:fractal?size=N drawn as 1, 2, 4, 8 "
                          "and 64 unmerged boxes, against the raw caster; writes docs/bench_render_paths.csv")
+    ap.add_argument("--vs-stop", type=int, default=None, metavar="N",
+                    help="only the early-termination stop, 0.9995 against 1 - 0.5/255, on the fractal N^3 and the "
+                         "CT-like head N^3; writes docs/bench_render_stop.csv")
     ap.add_argument("--lod-size", type=int, default=256, help="--vs-lod: head volume edge (default 256)")
     ap.add_argument("--lod-brick", type=int, default=16, help="--vs-lod: brick edge (default 16, as bench_lod)")
     ap.add_argument("--block-budget", type=int, default=96, help="--vs-lod: the image policy's block budget")
@@ -856,6 +929,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.vs_lod:
         vs_lod(args.lod_size, args.lod_brick, args.size, max(args.repeat, 5), args.out_dir, args.block_budget,
                log=lambda *a: print(*a, file=sys.stderr, flush=True))
+        return 0
+    if args.vs_stop:
+        vs_stop(args.vs_stop, args.size, max(args.repeat, 5), args.step, args.out_dir,
+                log=lambda *a: print(*a, file=sys.stderr, flush=True))
         return 0
     if args.vs_paths:
         vs_paths(args.vs_paths, args.size, max(args.repeat, 5), args.step, args.out_dir,
