@@ -146,6 +146,42 @@ def test_old_store_without_checksum_opens_unverified_and_statistics_still_catch_
         loader.read_brick(0, (1, 1, 1))
 
 
+class _SwappingDecoder:
+    """A codec that decodes right and then swaps the bytes of every value: what a decoder set up
+    with the wrong byte order gives. ``rows``: only these z-planes go wrong (a fault in one blosc
+    block); None: all of them."""
+
+    def __init__(self, inner, rows=None):
+        self.inner, self.rows = inner, rows
+
+    def decode(self, buf, out=None):
+        raw = np.frombuffer(self.inner.decode(buf), dtype=np.uint16).reshape(B, B, B).copy()
+        sel = slice(None) if self.rows is None else self.rows
+        raw[sel] = raw[sel].byteswap()
+        if out is not None:
+            np.asarray(out).reshape(-1)[:] = raw.view(np.uint8).reshape(-1)
+            return out
+        return raw.tobytes()
+
+
+@pytest.mark.parametrize("rows", [None, slice(B // 2, B)], ids=["whole brick", "second half"])
+def test_a_proven_brick_whose_decode_goes_wrong_is_caught(store, vol, rows):
+    """Intact stored bytes (their crc32c is the one recorded for the brick) still have their decode
+    checked on a sample of the decoded voxels: a decoder that returns wrong values is refused."""
+    import dataclasses
+
+    loader = ZarrLoader(store)
+    slot = np.empty((B, B, B), dtype=np.uint16)
+    loader.read_brick_into(0, (1, 1, 1), slot)  # the right decoder: proven, decoded, checked
+    np.testing.assert_array_equal(slot, vol[16:32, 16:32, 16:32])
+    am = loader._arrays[0]
+    loader._arrays[0] = dataclasses.replace(am, decoder=_SwappingDecoder(am.decoder, rows))
+    with pytest.raises(BrickIntegrityError, match="sample"):
+        loader.read_brick_into(0, (1, 1, 1), slot)
+    with pytest.raises(BrickIntegrityError):
+        loader.read_brick(0, (1, 1, 1))
+
+
 def test_float_nan_bricks_pass_and_a_lost_nan_is_caught(tmp_path):
     v = np.linspace(0, 1, 32 ** 3, dtype=np.float32).reshape(32, 32, 32)
     v[3, 4, 5] = np.nan
