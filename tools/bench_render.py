@@ -696,8 +696,9 @@ def vs_stop(n: int, image: int, repeat: int, step: float, out_dir: Path, log=pri
     (the image-LOD benchmark's face, side and overview views), drawn by two actions that differ
     only in the stop, interleaved, medians of ``repeat``; the time ratio and the largest 8-bit
     difference between the two images. The stop is the module constant ``OPAQUE`` of
-    ``clipvol.render.action``, read when a frame is drawn; it is switched here for the benchmark
-    only and restored after."""
+    ``clipvol.render.action``: the per-brick path reads it when an action first uses its program,
+    the single pass every frame, so it is set here before each action's every frame (its own
+    programs, one per action) and restored after; a switch for this benchmark only."""
     import clipvol.render.action as action_mod
     from clipvol.bricking.generators import ct_head
     from clipvol.loaders.numpy_array import NumpyLoader
