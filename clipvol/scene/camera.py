@@ -285,8 +285,12 @@ class Camera:
 
         Order: left, right, bottom, top, near, far.
         """
+        return self._plane_table().copy()
+
+    def _plane_table(self) -> np.ndarray:
+        """:meth:`_planes_rel`'s array itself, made once per camera (read it, never write it)."""
         if self._planes:
-            return self._planes[0].copy()
+            return self._planes[0]
         f, u, r = (v.copy() for v in self._fur)
         sx, sy = self._half_extents()
         if self.ortho:
@@ -301,7 +305,7 @@ class Camera:
             out[i, :3] = nv / k
             out[i, 3] = d / k
         object.__setattr__(self, "_planes", (out,))
-        return out.copy()
+        return out
 
     def frustum_planes(self) -> np.ndarray:
         """(6, 4) unit-normal planes ``(a, b, c, d)``; a point is inside where ``a x + b y + c z + d >= 0``.
@@ -317,12 +321,7 @@ class Camera:
 
         Conservative (a box near a frustum corner may be reported inside).
         """
-        lo = np.atleast_2d(np.asarray(lo, dtype=np.float64)) - self.eye
-        hi = np.atleast_2d(np.asarray(hi, dtype=np.float64)) - self.eye
-        c, h = (lo + hi) * 0.5, (hi - lo) * 0.5
-        p = self._planes_rel()
-        reach = c @ p[:, :3].T + h @ np.abs(p[:, :3]).T + p[:, 3]  # (n, 6) max over the box
-        return np.all(reach >= 0, axis=1)
+        return np.all(self._box_reach(lo, hi, 6) >= 0, axis=1)
 
     def boxes_beside_view(self, lo, hi) -> np.ndarray:
         """``(n,)`` bool: True for boxes wholly outside one of the four side planes of the view.
@@ -331,12 +330,16 @@ class Camera:
         show, whatever the box holds. (The near and far planes are left out: a box in front of the
         near plane or past the far one may still lie on a pixel's ray.)
         """
+        return np.any(self._box_reach(lo, hi, 4) < 0, axis=1)
+
+    def _box_reach(self, lo, hi, planes: int) -> np.ndarray:
+        """``(n, planes)``: the largest signed distance any point of each box ``[lo, hi]`` reaches
+        past each of the first ``planes`` frustum planes (< 0: the box lies wholly outside it)."""
         lo = np.atleast_2d(np.asarray(lo, dtype=np.float64)) - self.eye
         hi = np.atleast_2d(np.asarray(hi, dtype=np.float64)) - self.eye
         c, h = (lo + hi) * 0.5, (hi - lo) * 0.5
-        p = self._planes_rel()[:4]
-        reach = c @ p[:, :3].T + h @ np.abs(p[:, :3]).T + p[:, 3]
-        return np.any(reach < 0, axis=1)
+        p = self._plane_table()[:planes]
+        return c @ p[:, :3].T + h @ np.abs(p[:, :3]).T + p[:, 3]
 
     def pixels_per_unit(self, depth=1.0) -> np.ndarray:
         """Pixels spanned by one world unit parallel to the image at ``depth`` (any depth if ortho)."""
