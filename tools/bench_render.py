@@ -296,10 +296,22 @@ def ratio_columns(mw: dict, mc: dict, names) -> dict:
     for k in names:
         key = k.replace(" ", "_").replace("-", "_")
         row[f"{key}_s"] = round(mw[k], 4)
-        for r in raw_stops():
-            row[f"{key}_over_{r}"] = round(mw[k] / mw[r], 3)
-            row[f"{key}_cpu_over_{r}"] = round(mc[k] / mc[r], 3)
+        row.update(stop_ratios(mw, mc, [k], key, digits=3))
     return row
+
+
+def stop_ratios(mw: dict, mc: dict, names, key=None, digits=None) -> dict:
+    """``{name}_over_{stop}`` and ``{name}_cpu_over_{stop}`` columns: each action's median wall and
+    CPU time over the raw caster's at each of :func:`raw_stops` (``key``: the column name for a
+    single action, default the action's name; ``digits``: rounding)."""
+    out = {}
+    for k in names:
+        col = key or k
+        for r in raw_stops():
+            w, c = mw[k] / mw[r], mc[k] / mc[r]
+            out[f"{col}_over_{r}"] = w if digits is None else round(w, digits)
+            out[f"{col}_cpu_over_{r}"] = c if digits is None else round(c, digits)
+    return out
 
 
 def raw_ratio_line(mw: dict, mc: dict, names) -> str:
@@ -529,11 +541,8 @@ def vs_raw(sizes, image: int, repeat: int, step: float, out_dir: Path, fly_frame
         diff = {k: int(np.abs(imgs[k].astype(int) - imgs["raw"].astype(int)).max()) for k in actions}
         row = dict(size=n, image=image, repeat=repeat, raw_s=med["raw"],
                    **{f"{k}_s": med[k] for k in actions},
-                   **{f"{k}_over_raw": med[k] / med["raw"] for k in actions},
-                   raw_cpu_s=mcpu["raw"], **{f"{k}_cpu_over_raw": mcpu[k] / mcpu["raw"] for k in actions},
-                   raw_same_stop_s=med["raw_same_stop"],
-                   **{f"{k}_over_raw_same_stop": med[k] / med["raw_same_stop"] for k in actions},
-                   **{f"{k}_cpu_over_raw_same_stop": mcpu[k] / mcpu["raw_same_stop"] for k in actions},
+                   raw_cpu_s=mcpu["raw"], raw_same_stop_s=med["raw_same_stop"],
+                   **stop_ratios(med, mcpu, actions),
                    multires_over_full=med["multiresolution"] / med["bricks"],  # both on the default path
                    single_over_bricks=med["single-pass"] / med["bricks"],
                    **{f"maxdiff_{k}_vs_raw": diff[k] for k in actions},
@@ -865,8 +874,7 @@ def vs_raw_large(n: int, dtype: str, image: int, repeat: int, step: float, out_d
     row = dict(size=n, dtype=dtype, image=image, repeat=repeat, raw_s=med["raw"], raw_cpu_s=mcpu["raw"],
                raw_same_stop_s=med["raw_same_stop"],
                **{f"{k}_s": med[k] for k in names},
-               **{f"{k}_over_{r}": med[k] / med[r] for r in raw_stops() for k in names},
-               **{f"{k}_cpu_over_{r}": mcpu[k] / mcpu[r] for r in raw_stops() for k in names},
+               **stop_ratios(med, mcpu, names),
                **{f"{k}_{p}_s": statistics.median(t[p] for t in parts[k]) for k in names
                   for p in ("select", "draw", "readback")},
                maxdiff_bricks_vs_raw=diff, maxdiff_single_pass_vs_raw=diff_sp, boxes_full=actions["bricks"].boxes_drawn,
