@@ -168,6 +168,20 @@ def loader_run(loader, keys, pool: ThreadPoolExecutor) -> tuple[float, float]:
     return time.perf_counter() - t, cpu
 
 
+def interleaved_loads(store: Path, keys, loaders: dict, rounds: int, pool: ThreadPoolExecutor) -> tuple[dict, dict]:
+    """``(wall, cpu)``: per name, the seconds of each of ``rounds`` interleaved rounds of the floor
+    (``"floor"``, :func:`floor_run`) and of each loader of ``loaders`` (:func:`loader_run`), all
+    on the same keys and pool: the machine's load hits every variant alike."""
+    wall: dict[str, list[float]] = {"floor": [], **{k: [] for k in loaders}}
+    cpu: dict[str, list[float]] = {k: [] for k in wall}
+    for _ in range(rounds):
+        for name in wall:
+            w, c = floor_run(store, keys, pool) if name == "floor" else loader_run(loaders[name], keys, pool)
+            wall[name].append(w)
+            cpu[name].append(c)
+    return wall, cpu
+
+
 def floor_kept_run(store: Path, keys, pool: ThreadPoolExecutor, dest) -> tuple[float, float]:
     """``(wall, cpu)``: the floor, but each brick decoded by numcodecs into its own row of ``dest``
     (a pre-faulted array of one row per brick), as any cache that keeps the bricks must: the plain
@@ -378,13 +392,7 @@ def main(argv: list[str] | None = None) -> int:
     variants["checksum + statistics, google-crc32c"] = google
     pool = ThreadPoolExecutor(args.threads)
     list(pool.map(time.sleep, [0.01] * args.threads))
-    times: dict[str, list[float]] = {"floor": [], **{k: [] for k in variants}}
-    cpus: dict[str, list[float]] = {k: [] for k in times}
-    for _ in range(args.rounds):  # interleaved rounds
-        for name in times:
-            w, c = floor_run(store, keys, pool) if name == "floor" else loader_run(variants[name], keys, pool)
-            times[name].append(w)
-            cpus[name].append(c)
+    times, cpus = interleaved_loads(store, keys, variants, args.rounds, pool)
     fill = cliptexture_fill(store, args.threads, args.rounds, pool)
     fill_np = cliptexture_fill(store, args.threads, args.rounds, pool, prefault=False)
     pool.shutdown()

@@ -32,7 +32,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from .bench_integrity import FULL, QUICK, _chunk_path, build_store, chunk_keys, cliptexture_fill, floor_run, loader_run
+from .bench_integrity import FULL, QUICK, _chunk_path, build_store, chunk_keys, cliptexture_fill, interleaved_loads
 from .bench_render import REPO, raw_runs
 
 FRAME_TARGET = 1.0
@@ -76,13 +76,7 @@ def paging_rows(cfg: dict, rounds: int, threads: int, data_dir: Path, log=print)
     loader.brick_statistics(0)
     with ThreadPoolExecutor(threads) as pool:
         list(pool.map(time.sleep, [0.01] * threads))
-        wall = {"floor": [], "loader": []}
-        cpu = {"floor": [], "loader": []}
-        for _ in range(rounds):  # interleaved
-            for name in wall:
-                w, c = floor_run(store, keys, pool) if name == "floor" else loader_run(loader, keys, pool)
-                wall[name].append(w)
-                cpu[name].append(c)
+        wall, cpu = interleaved_loads(store, keys, {"loader": loader}, rounds, pool)
         fill = cliptexture_fill(store, threads, rounds, pool)
     # throughput ratios: the floor's time over the loader's (best round for wall: other processes
     # only ever add time; median for thread CPU)
