@@ -233,9 +233,12 @@ def _time_block(entries, views, rounds: int, base: RenderParams, timeout: float,
     """Time every ``(session, setting)`` entry on every view, warm and interleaved.
 
     Each entry is first warmed (its views converged and drawn once untimed). Then each of
-    ``rounds`` rounds draws every entry's views once, the entries in forward order on even rounds
-    and in reverse order on odd ones, so that a slow drift of the machine (another process, a
-    clock change) falls on every setting alike instead of on whichever comes first. Returns
+    ``rounds`` rounds draws every entry's views, the entries in forward order on even rounds and
+    in reverse order on odd ones, so that a slow drift of the machine (another process, a clock
+    change) falls on every setting alike instead of on whichever comes first. Each view is drawn
+    twice in a row and the second frame is timed: the first takes what a change of setting or
+    view costs once (a new cut, the image policy's visibility estimate), so the time is that of
+    the frames a user gets while holding or slowly turning a view. Returns
     ``{(label, view): [seconds per round]}`` and appends one raw row per timed frame to ``raw``.
     """
     for sess, s in entries:
@@ -249,6 +252,7 @@ def _time_block(entries, views, rounds: int, base: RenderParams, timeout: float,
         for sess, s in (entries if r % 2 == 0 else entries[::-1]):
             _apply(sess, base, s)
             for v, (cam, coi) in enumerate(views):
+                sess.render(cam, coi, wait=False)  # what a change of setting or view costs once
                 dt = _warm_frame_s(sess, cam, coi, timeout)
                 times.setdefault((s.label, v), []).append(dt)
                 raw.append({"block": block, "round": r, "sweep": s.sweep, "setting": s.label, "view": v,
@@ -706,7 +710,9 @@ def _markdown(result: ReportResult, pyr, *, size, path, tf, mode, step, cap) -> 
         "",
         f"Timing: every setting and the reference are warmed (their views loaded and drawn once), then "
         f"drawn over {result.rounds} interleaved rounds in this process (settings in forward order on even "
-        "rounds, reverse on odd ones). `frame ms` is the median of the rounds (mean over views), `spread` "
+        "rounds, reverse on odd ones; each view drawn twice in a row, the second frame timed, so that what "
+        "a change of setting or view costs once is not counted). `frame ms` is the median of the rounds "
+        "(mean over views), `spread` "
         "their minimum and maximum; `speed-up` is the reference's median frame time over the setting's, "
         "the reference timed in the same interleaved block. `converge ms` is the time from a new, cold "
         "clip-texture (view 0; later views: from the previous view) until the frame is converged. "

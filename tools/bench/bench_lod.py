@@ -45,7 +45,7 @@ import numpy as np
 
 from common import RESULTS  # noqa: E402  (tools/bench/common.py)
 #: view direction and eye distance in volume diagonals (None: ``--distance``); the face and side views
-#: fill the image (the last round's views), the overview shows the whole head from further away
+#: fill the image, the overview shows the whole head from further away
 VIEWS = {"face": ((0.3, 0.2, 1.0), None), "side": ((1.0, 0.25, 0.35), None), "overview": ((-0.5, 0.35, 1.0), 1.5)}
 THRESHOLDS = (16, 12, 10, 9, 8, 7.5, 7, 6.5, 6, 5.5, 5, 4.5, 4, 3.5, 3, 2.5, 2, 1.5, 1)
 BUDGETS = (16, 24, 32, 40, 48, 56, 64, 72, 80, 96, 112, 128, 144, 160, 192, 256, 384, 512)

@@ -21,8 +21,8 @@ noise of a shared machine cancels as far as it can:
   step. Target <= 1.5x the time.
 * **against a raw caster** - the full-resolution frame and clipvol's own one-texture frame, each
   divided by :class:`RawCaster`'s time (a plain one-texture caster outside clipvol's render path,
-  same volume, view, step and table), timed in every round at two stops: 0.9995, the fixture's
-  stop since it was written (``*_over_raw``) and clipvol's own ``OPAQUE`` (``*_over_raw_same_stop``:
+  same volume, view, step and table), timed in every round at two stops: 0.9995, the raw
+  caster's own (``*_over_raw``), and clipvol's ``OPAQUE`` (``*_over_raw_same_stop``:
   the same samples as clipvol). Targets <= 1.1x and <= 1.05x. ``--vs-raw 256,512`` runs
   only this comparison on procedural volumes, ``--fly-only N`` only the fly-path frame times,
   ``--vs-raw-large 1024`` a 1024^3 uint8 volume (1 GiB: a float32 one would not fit beside the raw

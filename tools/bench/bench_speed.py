@@ -1,4 +1,4 @@
-"""The speed issue's "done when", measured in one run: the full-resolution frame against a plain
+"""The frame and loading targets, measured in one run: the full-resolution frame against a plain
 one-texture caster, and the paging path against the decode floor.
 
 Both halves reuse the benchmarks that explain them (``tools/bench/bench_render.py`` for the frame,
@@ -9,7 +9,7 @@ other, and prints each figure beside its target:
   ``path="auto"``: what a user gets) of ``procedural:fractal?size=N`` (float32, 64³ bricks, the
   volume filling a ``--size``² view, step 0.5, ``bone`` table) divided by :class:`RawCaster`'s frame
   of the same volume, view, step and table: interleaved rounds, medians, wall and process CPU. The
-  raw caster is timed at two stops: its own since it was written (``RAW_OPAQUE`` 0.9995) and where
+  raw caster is timed at two stops: its own (``RAW_OPAQUE`` 0.9995) and where
   clipvol stops (``OPAQUE``, 1 - 0.5/255), so the second ratio shows what the shader and the frame
   around it cost when both do exactly the same samples. Target: <= 1 against the first.
 * **paging** - ``ZarrLoader.read_brick_into`` with its checksum and statistics checks (the default)
@@ -55,7 +55,7 @@ def frame_rows(sizes, image: int, repeat: int, step: float, log=print) -> list[t
             f"at clipvol's stop {mw['raw_same_stop']:.3f} s")
         rows += [
             (f"frame {n}^3 / raw caster, wall", round(mw[k] / mw["raw"], 3), f"<= {FRAME_TARGET}",
-             f"full-resolution frame ({drawn} path) / RawCaster stopping at 0.9995 (the fixture as written)"),
+             f"full-resolution frame ({drawn} path) / RawCaster stopping at 0.9995 (its own stop)"),
             (f"frame {n}^3 / raw caster, CPU", round(mc[k] / mc["raw"], 3), f"<= {FRAME_TARGET}", "process CPU time"),
             (f"frame {n}^3 / raw caster at clipvol's stop, wall", round(mw[k] / mw["raw_same_stop"], 3), "-",
              "the same caster stopping where clipvol stops: the shader and the frame around it"),

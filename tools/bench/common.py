@@ -147,7 +147,7 @@ class WholeVolume:
         return out
 
 
-# -- the honest reference: a minimal raw one-texture ray caster (a fixture, not a product path) ---
+# -- the reference: a minimal raw one-texture ray caster (outside clipvol's render path) ----------
 _RAW_VERT = """#version 330
 out vec2 v_ndc;
 void main() {
