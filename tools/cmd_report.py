@@ -2,8 +2,8 @@
 
 ``clipvol report STORE --out DIR`` renders a few views along a camera path for each setting: cold
 (as the bricks come, and the time to converge from an empty clip-texture) and warm (every setting
-and the full-resolution reference timed over ``--rounds`` interleaved rounds in one process, median
-and spread). It compares each frame with the full-resolution render of the same view (% pixels
+and the full-resolution reference timed over ``--rounds`` interleaved rounds in one process, each
+frame paired with a reference frame drawn next to it; median and spread). It compares each frame with the full-resolution render of the same view (% pixels
 with ΔE ≥ 6 in CIELUV, RMSE, PSNR), prints the answer in one line - how much faster frames are at
 <= 5 % of pixels visibly different, and with which setting - and writes ``report.csv``,
 ``timing.csv``, plots of error against frame time and bytes, and ``report.md``. The work is done

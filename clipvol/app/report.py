@@ -19,9 +19,10 @@ selection policy:
   whichever setting comes first, and can show two settings that draw the same bricks as 1.9x apart.
 
 Every frame is compared with the **full-resolution reference** of the same view (fixed level 0,
-converged, with budgets that hold everything), drawn by the same renderer and path, and the
-**speed-up** of a setting is the reference's median frame time over its own, both timed in the same
-interleaved block. When level 0 of a huge volume exceeds ``reference_cap`` bytes, the reference
+converged, with budgets that hold everything), drawn by the same renderer and path. Every warm
+frame of a setting is paired with a frame of the reference drawn right before or after it, and the
+**speed-up** is the median over the pairs of the reference's time over the setting's: the load of a
+shared machine drifts over seconds, and a pair sees the same load. When level 0 of a huge volume exceeds ``reference_cap`` bytes, the reference
 uses the finest level that fits and the report says so. Errors are the "% of pixels with ΔE ≥ 6 in
 CIELUV" of Wang, Garcia & Shen (2007) plus RMSE and PSNR (:mod:`clipvol.scene.metrics`).
 
@@ -85,8 +86,9 @@ REPORT_COLUMNS = (
 )
 
 #: the raw timings, one row per warm frame (``timing.csv``): block 0 holds every setting drawn by the
-#: session that holds everything, block k > 0 one budget setting beside the reference
-TIMING_COLUMNS = ("block", "round", "sweep", "setting", "view", "frame_s")
+#: session that holds everything, block k > 0 one budget setting beside the reference; the two
+#: frames of a ``pair`` (the reference's and a setting's) were drawn one right after the other
+TIMING_COLUMNS = ("block", "pair", "round", "sweep", "setting", "view", "frame_s")
 
 #: the error the report's one-line answer is held to: % of pixels with CIELUV ΔE >= 6
 VISIBLE_TARGET = 5.0
@@ -228,45 +230,59 @@ def _warm_frame_s(sess, cam, coi, timeout: float) -> float:
     return sess.timed_render(cam, coi, wait=False)[1]
 
 
-def _time_block(entries, views, rounds: int, base: RenderParams, timeout: float, block: int,
+def _time_block(ref, entries, views, rounds: int, base: RenderParams, timeout: float, block: int,
                 raw: list[dict]) -> dict:
-    """Time every ``(session, setting)`` entry on every view, warm and interleaved.
+    """Time every ``(session, setting)`` entry on every view against the reference ``ref`` (a
+    ``(session, setting)`` too), warm, interleaved and paired.
 
-    Each entry is first warmed (its views converged and drawn once untimed). Then each of
-    ``rounds`` rounds draws every entry's views, the entries in forward order on even rounds and
-    in reverse order on odd ones, so that a slow drift of the machine (another process, a clock
-    change) falls on every setting alike instead of on whichever comes first. Each view is drawn
-    twice in a row and the second frame is timed: the first takes what a change of setting or
-    view costs once (a new cut, the image policy's visibility estimate), so the time is that of
-    the frames a user gets while holding or slowly turning a view. Returns
-    ``{(label, view): [seconds per round]}`` and appends one raw row per timed frame to ``raw``.
+    Every entry and the reference are first warmed (their views converged and drawn once,
+    untimed). Then each of ``rounds`` rounds goes through the entries (forward on even rounds,
+    backward on odd ones) and, per view, draws a **pair**: the reference frame and the setting's
+    frame one right after the other (which comes first alternates), so that the load of a shared
+    machine, which drifts over seconds, weighs on both frames of a pair alike. Each frame is the
+    second of two drawn in a row for its setting and view: the first takes what a change of
+    setting or view costs once (a new cut, the image policy's visibility estimate), so the time is
+    that of the frames a user gets while holding or slowly turning a view. Returns
+    ``{"times": {(label, view): [s, ...]}, "ratios": {(label, view): [reference s / setting s per
+    pair]}}`` and appends one raw row per timed frame to ``raw`` (its ``pair`` column joins the
+    two frames of a pair).
     """
-    for sess, s in entries:
+    for sess, s in [ref, *entries]:
         _apply(sess, base, s)
         for cam, coi in views:
             sess.render(cam, coi, wait=True, timeout=timeout)
             _settle(sess, cam, coi, timeout)
             _warm_frame_s(sess, cam, coi, timeout)
     times: dict = {}
+    ratios: dict = {}
+    pair = 0
     for r in range(rounds):
-        for sess, s in (entries if r % 2 == 0 else entries[::-1]):
-            _apply(sess, base, s)
+        for entry in (entries if r % 2 == 0 else entries[::-1]):
             for v, (cam, coi) in enumerate(views):
-                sess.render(cam, coi, wait=False)  # what a change of setting or view costs once
-                dt = _warm_frame_s(sess, cam, coi, timeout)
-                times.setdefault((s.label, v), []).append(dt)
-                raw.append({"block": block, "round": r, "sweep": s.sweep, "setting": s.label, "view": v,
-                            "frame_s": round(dt, 6)})
-    return times
+                got = {}
+                for sess, s in ((ref, entry) if (r + v) % 2 == 0 else (entry, ref)):
+                    _apply(sess, base, s)
+                    sess.render(cam, coi, wait=False)  # what a change of setting or view costs once
+                    dt = _warm_frame_s(sess, cam, coi, timeout)
+                    got[s.label] = dt
+                    times.setdefault((s.label, v), []).append(dt)
+                    raw.append({"block": block, "pair": pair, "round": r, "sweep": s.sweep, "setting": s.label,
+                                "view": v, "frame_s": round(dt, 6)})
+                label = entry[1].label
+                ratios.setdefault((label, v), []).append(got[ref[1].label] / max(got[label], 1e-9))
+                pair += 1
+    return {"times": times, "ratios": ratios}
 
 
-def _timing_values(times: dict, ref_label: str, label: str, view: int) -> dict:
-    """Median, spread and speed-up of one setting on one view, against the reference of its block."""
-    t = np.asarray(times[(label, view)], dtype=np.float64)
-    ref = float(np.median(times[(ref_label, view)]))
+def _timing_values(block: dict, ref_label: str, label: str, view: int) -> dict:
+    """Median, spread and speed-up of one setting on one view: the speed-up is the median over its
+    pairs of the reference's frame time over its own (:func:`_time_block`)."""
+    t = np.asarray(block["times"][(label, view)], dtype=np.float64)
+    ref = float(np.median(block["times"][(ref_label, view)]))
     med = float(np.median(t))
     return dict(frame_s=round(med, 6), frame_min_s=round(float(t.min()), 6), frame_max_s=round(float(t.max()), 6),
-                rounds=len(t), ref_frame_s=round(ref, 6), speedup=round(ref / max(med, 1e-9), 4))
+                rounds=len(t), ref_frame_s=round(ref, 6),
+                speedup=round(float(np.median(block["ratios"][(label, view)])), 4))
 
 
 def _cold_setting(s: _Setting, loader, ctx, views, refs, *, base: RenderParams, tf, threads, timeout, max_frames,
@@ -501,20 +517,29 @@ def run_report(
                                            full_mem, full_tex, ch.pop("policy"), None, tuple(sorted(ch.items()))))
             if log:
                 log(f"timing: {len(shared)} settings x {len(cams)} views, warm, {rounds} interleaved rounds")
-            times = _time_block([(main, s) for s in shared], cams, rounds, base, timeout, 0, result.timing_rows)
-            timing.update({s.label: (times, 0) for s in shared})
+            others = [s for s in shared if s is not fixed]
+            blk = _time_block((main, fixed), [(main, s) for s in others], cams, rounds, base, timeout, 0,
+                              result.timing_rows)
+            timing.update({s.label: blk for s in others})
             for k, s in enumerate(own, 1):
                 with RenderSession(loader, ctx, memory_budget=s.memory_budget, texture_budget=s.texture_budget,
                                    threads=threads, params=s.params(base), tf=tf) as sess:
-                    times = _time_block([(main, fixed), (sess, s)], cams, rounds, base, timeout, k, result.timing_rows)
-                timing[s.label] = (times, k)
+                    timing[s.label] = _time_block((main, fixed), [(sess, s)], cams, rounds, base, timeout, k,
+                                                  result.timing_rows)
         for r in result.rows:
-            if r["kind"] == "converged" and r["setting"] in timing:
-                times, _ = timing[r["setting"]]
-                r.update(_timing_values(times, fixed.label, r["setting"], int(r["view"])))
+            if r["kind"] != "converged":
+                continue
+            if r["setting"] == fixed.label:  # the reference against itself: its own frames, speed-up 1
+                t = blk["times"].get((fixed.label, int(r["view"])))
+                if not t:  # no other setting shares its session: nothing was paired with it
+                    continue
+                r.update(_timing_values({"times": {(fixed.label, 0): t}, "ratios": {(fixed.label, 0): [1.0]}},
+                                        fixed.label, fixed.label, 0))
+            elif r["setting"] in timing:
+                r.update(_timing_values(timing[r["setting"]], fixed.label, r["setting"], int(r["view"])))
         for r in result.lod_rows:
-            times, _ = timing[f"{r['policy']} b={r['budget']}"]
-            r.update(_timing_values(times, fixed.label, f"{r['policy']} b={r['budget']}", int(r["view"])))
+            label = f"{r['policy']} b={r['budget']}"
+            r.update(_timing_values(timing[label], fixed.label, label, int(r["view"])))
         if log:
             for s in summarise(result.rows, result.lod_rows):
                 log(f"  {s['setting']:>24}: {s['frame_s'] * 1e3:8.1f} ms [{s['frame_min_s'] * 1e3:.1f}-"
@@ -570,10 +595,10 @@ def _nan(v) -> float:
 
 def summarise(rows: list[dict], lod_rows: Sequence[dict] = ()) -> list[dict]:
     """Per setting, over views: the warm frame time (mean of the per-view medians, and of their
-    minima and maxima), the speed-up against the full-resolution reference timed in the same block
-    (sum of the reference's medians over the sum of the setting's), time to converge, bricks, bytes
-    and errors (mean, and the worst view's ``% ΔE ≥ 6``). ``lod_rows`` adds the block-budget
-    policies (sweep ``"block_budget"``)."""
+    minima and maxima), the speed-up against the full-resolution reference (the geometric mean over
+    views of each view's speed-up, itself the median over its pairs of the reference's frame time
+    over the setting's), time to converge, bricks, bytes and errors (mean, and the worst view's
+    ``% ΔE ≥ 6``). ``lod_rows`` adds the block-budget policies (sweep ``"block_budget"``)."""
     groups = [(rs[0]["sweep"], label, rs) for label, rs in _by_setting(_converged(rows)).items()]
     by_pb: dict = {}
     for r in lod_rows:
@@ -586,12 +611,12 @@ def summarise(rows: list[dict], lod_rows: Sequence[dict] = ()) -> list[dict]:
         def mean(k):
             return float(np.mean([_nan(r.get(k, "")) for r in rs]))
 
-        ref = sum(_nan(r.get("ref_frame_s", "")) for r in rs)
-        fr = sum(_nan(r.get("frame_s", "")) for r in rs)
+        sp = np.array([_nan(r.get("speedup", "")) for r in rs])
         out.append({
             "sweep": sweep, "setting": label, "lod_threshold": rs[0]["lod_threshold"],
             "frame_s": mean("frame_s"), "frame_min_s": mean("frame_min_s"), "frame_max_s": mean("frame_max_s"),
-            "ref_frame_s": mean("ref_frame_s"), "speedup": ref / fr if fr > 0 else float("nan"),
+            "ref_frame_s": mean("ref_frame_s"),
+            "speedup": float(np.exp(np.mean(np.log(sp)))) if np.all(sp > 0) else float("nan"),
             "converge_s": mean("converge_s"), "bricks_drawn": mean("bricks_drawn"),
             "bytes_needed": mean("bytes_needed"), "bytes_loaded": mean("bytes_loaded"), "pct_de6": mean("pct_de6"),
             "pct_de6_max": max(_nan(r["pct_de6"]) for r in rs),
@@ -606,7 +631,8 @@ def headline(summary: Sequence[dict], *, rounds: int, views: int, target: float 
     setting does. The speed-up is against the full-resolution frame drawn by the same path."""
     ref = next((s for s in summary if s["sweep"] == "fixed"), None)
     rest = [s for s in summary if s["sweep"] != "fixed" and np.isfinite(s["speedup"])]
-    how = f"warm frames, medians of {rounds} interleaved rounds over {views} view{'s' * (views != 1)}"
+    how = (f"warm frames, each paired with a reference frame; medians of {rounds} interleaved rounds over "
+           f"{views} view{'s' * (views != 1)}")
     if ref is None or not rest:
         return "no setting was timed against the full-resolution reference"
     ok = [s for s in rest if s["pct_de6_max"] <= target]
@@ -713,8 +739,9 @@ def _markdown(result: ReportResult, pyr, *, size, path, tf, mode, step, cap) -> 
         "rounds, reverse on odd ones; each view drawn twice in a row, the second frame timed, so that what "
         "a change of setting or view costs once is not counted). `frame ms` is the median of the rounds "
         "(mean over views), `spread` "
-        "their minimum and maximum; `speed-up` is the reference's median frame time over the setting's, "
-        "the reference timed in the same interleaved block. `converge ms` is the time from a new, cold "
+        "their minimum and maximum. Each of the setting's frames is paired with a frame of the reference "
+        "drawn right before or after it; `speed-up` is the median over the pairs of the reference's time "
+        "over the setting's (geometric mean over views). `converge ms` is the time from a new, cold "
         "clip-texture (view 0; later views: from the previous view) until the frame is converged. "
         "Raw timings: `timing.csv`.",
         "",

@@ -98,32 +98,43 @@ def test_csv_errors_match_the_saved_images(report):
         assert float(r["rmse"]) == pytest.approx(rmse, abs=0.6), (t, r["rmse"], rmse)
 
 
-def test_frame_times_are_medians_of_the_timed_rounds(report):
-    """Every converged row's frame time is the median of its own warm rounds in ``timing.csv``, and
-    its speed-up is the reference's median (same block, same view) over it."""
-    res, _ = report
-    raw = _rows(res.timing_csv)
-    times: dict = {}
+def _paired(raw, ref="fixed L0"):
+    """From the raw rows alone: per (block, setting, view), the frame times and the reference-over-
+    setting ratio of every pair."""
+    times, ratios, pairs = {}, {}, {}
     for r in raw:
         times.setdefault((r["block"], r["setting"], r["view"]), []).append(float(r["frame_s"]))
-    assert all(len(t) == 2 for t in times.values())  # rounds=2, every setting on every view
-    block_of = {setting: block for block, setting, _ in times if setting != "fixed L0"}
-    block_of["fixed L0"] = "0"
+        pairs.setdefault((r["block"], r["pair"]), []).append(r)
+    for (block, _), two in pairs.items():
+        assert len(two) == 2 and {t["round"] for t in two} == {two[0]["round"]} and two[0]["view"] == two[1]["view"]
+        (f,), (o,) = [t for t in two if t["setting"] == ref], [t for t in two if t["setting"] != ref]
+        ratios.setdefault((block, o["setting"], o["view"]), []).append(float(f["frame_s"]) / float(o["frame_s"]))
+    return times, ratios
+
+
+def test_frame_times_and_speedups_come_from_the_paired_rounds(report):
+    """Every converged row's frame time is the median of its own warm rounds in ``timing.csv``, and
+    its speed-up the median over its pairs (each a reference frame drawn next to one of the
+    setting's) of the reference's time over the setting's."""
+    res, _ = report
+    times, ratios = _paired(_rows(res.timing_csv))
+    settings = {s for _, s, _ in ratios}
+    assert all(len(t) == 2 for k, t in ratios.items())  # rounds=2: one pair per round and view
+    block_of = {setting: block for block, setting, _ in ratios}
     assert block_of["lod=2"] == "0" and block_of["tex=40.0 kB"] != "0"
-    assert ("1", "fixed L0", "0") in times  # the budget setting's block times the reference again
     conv = [r for r in _rows(res.csv) if r["kind"] == "converged"]
-    assert {r["setting"] for r in conv} <= set(block_of)
+    assert {r["setting"] for r in conv} - settings == {"fixed L0"}
     for r in conv:
-        b = block_of[r["setting"]]
+        b = block_of.get(r["setting"], "0")
         med = np.median(times[(b, r["setting"], r["view"])])
-        ref = np.median(times[(b, "fixed L0", r["view"])])
         assert float(r["frame_s"]) == pytest.approx(med, abs=2e-6)
-        assert float(r["ref_frame_s"]) == pytest.approx(ref, abs=2e-6)
-        assert float(r["speedup"]) == pytest.approx(ref / med, rel=1e-3)
+        assert float(r["ref_frame_s"]) == pytest.approx(np.median(times[(b, "fixed L0", r["view"])]), abs=2e-6)
+        want = 1.0 if r["setting"] == "fixed L0" else np.median(ratios[(b, r["setting"], r["view"])])
+        assert float(r["speedup"]) == pytest.approx(want, rel=1e-3)
         assert float(r["frame_min_s"]) <= float(r["frame_s"]) <= float(r["frame_max_s"])
-    # the block-budget policies are timed in the reference's block too
+    # the block-budget policies are paired with the reference in its block too
     lod = _rows(res.out_dir / "lod_budget.csv")
-    assert lod and all(("0", f"{r['policy']} b={r['budget']}", r["view"]) in times for r in lod)
+    assert lod and all(("0", f"{r['policy']} b={r['budget']}", r["view"]) in ratios for r in lod)
     assert res.headline.startswith("at <= 5 %") and res.headline[1:] in res.markdown.read_text()
 
 
@@ -144,9 +155,11 @@ def test_two_settings_drawing_the_same_cut_take_the_same_time(tmp_path, ctx):
         assert int(conv[("lod=0.01", v)]["bricks_drawn"]) == int(conv[("fixed L0", v)]["bricks_drawn"]) \
             == loader.pyramid.num_bricks(0)
         assert float(conv[("lod=0.01", v)]["pct_de6"]) == 0.0
-    # the ratio of medians, recomputed from the raw rounds
-    raw = _rows(res.timing_csv)
-    med = {s: np.median([float(r["frame_s"]) for r in raw if r["setting"] == s]) for s in ("fixed L0", "lod=0.01")}
+    # recomputed from the raw rounds: the median of the paired ratios, and the ratio of the medians
+    times, ratios = _paired(_rows(res.timing_csv))
+    paired = np.median(ratios[("0", "lod=0.01", "0")] + ratios[("0", "lod=0.01", "1")])
+    assert 0.8 <= paired <= 1.25, paired
+    med = {s: np.median(times[("0", s, "0")] + times[("0", s, "1")]) for s in ("fixed L0", "lod=0.01")}
     assert 0.8 <= med["fixed L0"] / med["lod=0.01"] <= 1.25, med
     s = {x["setting"]: x for x in summarise(res.rows)}
     assert 0.8 <= s["lod=0.01"]["speedup"] <= 1.25, s["lod=0.01"]
@@ -169,3 +182,24 @@ def test_headline_names_the_fastest_setting_within_the_target():
     assert line.startswith("no setting reaches") and "lod=16" in line
     line = headline([ref, _summary("lod=1", 0.8, 0.0)], rounds=5, views=3)
     assert "no setting is faster" in line and "1.25x its time" in line
+
+
+@pytest.mark.parametrize("bad", ["0", "-2", "five"])
+def test_cli_rounds_must_be_a_positive_integer(tmp_path, capsys, bad):
+    """``--rounds`` is checked before any data is opened: one line naming it, exit 2."""
+    from clipvol.tools.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["report", str(tmp_path / "absent.zarr"), "--out", str(tmp_path / "rep"), "--rounds", bad])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "--rounds" in err and "expected an integer >= 1" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "rep").exists()
+
+
+def test_run_report_rejects_bad_rounds(tmp_path):
+    from clipvol.app.report import run_report
+    from clipvol.errors import ParameterError
+
+    with pytest.raises(ParameterError, match="rounds"):
+        run_report("procedural:fractal?size=16", tmp_path, rounds=0)
