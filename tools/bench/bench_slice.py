@@ -3,7 +3,8 @@
 Every figure is a ratio measured in one run on this machine (Mesa llvmpipe, no GPU):
 
 * **bytes for a slice** - the distinct bricks a multiresolution slice with a point of interest
-  reads (its tiles and the parents its blending samples: ``SliceStats.bytes_needed``) against the
+  needs (its tiles and the parents its blending samples: ``SliceStats.bytes_needed``, computed as
+  bricks x brick size, not bytes read: the clip-texture loads whole windows) against the
   same slice at full resolution (``--level 0``: every level-0 brick the plane crosses). Target
   >= 8x fewer (LaMar, Hamann & Joy's Table 1: 56 MB -> 7 MB), at <= 1 % of pixels with CIELUV
   Delta E >= 6 against the full-resolution slice and 0 % inside the focus radius (the disc around
