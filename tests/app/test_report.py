@@ -140,27 +140,26 @@ def test_frame_times_and_speedups_come_from_the_paired_rounds(report):
 
 def test_two_settings_drawing_the_same_cut_take_the_same_time(tmp_path, ctx):
     """Fixed level 0 and a threshold so fine that it picks every level-0 brick draw the same bricks
-    the same way: warm and interleaved, their median frame times agree within noise. (A frame timed
-    once per setting in sequence charges first-frame costs to the first setting and fails this.)
-    A test of the timing method, not a speed target."""
+    the same way: warm, interleaved and paired, the report gives them the same time within noise,
+    so a bias towards whichever setting is timed first (a cold first frame) shows here. A test of
+    the timing method, not a speed target."""
     from clipvol.loaders.procedural import ProceduralLoader
     from clipvol.app.report import run_report, summarise
 
     loader = ProceduralLoader("procedural:fractal?size=32&seed=3", brick=8)
     res = run_report(loader, tmp_path, views=2, size=(32, 32), thresholds=(0.01,), memory_budgets=(),
-                     texture_budgets=(), block_budgets=(), tf="grey", ctx=ctx, max_frames=2, rounds=15,
+                     texture_budgets=(), block_budgets=(), tf="grey", ctx=ctx, max_frames=2, rounds=21,
                      plots=False)
     conv = {(r["setting"], r["view"]): r for r in _rows(res.csv) if r["kind"] == "converged"}
     for v in ("0", "1"):  # the same cut: every level-0 brick, identical images
         assert int(conv[("lod=0.01", v)]["bricks_drawn"]) == int(conv[("fixed L0", v)]["bricks_drawn"]) \
             == loader.pyramid.num_bricks(0)
         assert float(conv[("lod=0.01", v)]["pct_de6"]) == 0.0
-    # recomputed from the raw rounds: the median of the paired ratios, and the ratio of the medians
-    times, ratios = _paired(_rows(res.timing_csv))
+    # recomputed from the raw rounds: the median of the paired ratios (the load of a shared machine
+    # drifts over seconds; the two frames of a pair are drawn one right after the other)
+    _, ratios = _paired(_rows(res.timing_csv))
     paired = np.median(ratios[("0", "lod=0.01", "0")] + ratios[("0", "lod=0.01", "1")])
     assert 0.8 <= paired <= 1.25, paired
-    med = {s: np.median(times[("0", s, "0")] + times[("0", s, "1")]) for s in ("fixed L0", "lod=0.01")}
-    assert 0.8 <= med["fixed L0"] / med["lod=0.01"] <= 1.25, med
     s = {x["setting"]: x for x in summarise(res.rows)}
     assert 0.8 <= s["lod=0.01"]["speedup"] <= 1.25, s["lod=0.01"]
 
