@@ -66,7 +66,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for a converged frame")
     p.add_argument("--max-frames", type=int, default=8, help="as-it-comes frames per view at most")
     p.add_argument("--rounds", type=_rounds, default=5,
-                   help="warm interleaved rounds per setting and view; frame times are their median (default 5)")
+                   help="warm interleaved rounds per setting and view, each frame paired with a reference frame; "
+                        "frame times and speed-ups are medians over them (default 5; each round costs four "
+                        "frames per setting and view)")
     p.add_argument("--reference-cap", default="1GB", help="most bytes the full-resolution reference may hold")
     p.add_argument("--no-plots", action="store_true", help="skip the matplotlib plots")
     pts = p.add_argument_group("point stores (frame time and image error against splat tolerance)")

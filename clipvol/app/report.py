@@ -417,7 +417,11 @@ def run_report(
         curves need the store's summary tables (else they are reported as skipped).
     rounds : int
         Warm interleaved rounds per setting and view; the frame time is their median, the spread
-        their minimum and maximum.
+        their minimum and maximum, the speed-up the median of the paired ratios. Each round draws
+        four frames per setting and view (the setting's and the reference's, each twice), so the
+        warm half costs about ``4 * rounds`` frames per setting and view. The reference's session
+        stays open while each memory / texture budget setting is timed beside it in a session of
+        its own: up to twice the reference's budgets are held then.
 
     Returns
     -------
