@@ -497,13 +497,13 @@ def run_report(
                 result.skipped.append(f"{s.label}: {e}")
                 if log:
                     log(f"  {s.label}: skipped ({e})")
-        # 2. warm: every setting drawn by one session that holds everything is timed in one
-        #    interleaved block with the reference; each budget setting has its own session, timed in
-        #    a block of its own interleaved with the reference session again
+        # 2. warm: every setting drawn by one session that holds everything is timed in one block,
+        #    each frame paired with a reference frame; each budget setting has its own session,
+        #    timed in a block of its own paired with the reference session again
         budgets = DEFAULT_BLOCK_BUDGETS if block_budgets is None else tuple(int(b) for b in block_budgets)
         shared = [s for s in measured if s.memory_budget == full_mem and s.texture_budget == full_tex]
         own = [s for s in measured if s not in shared]
-        timing: dict = {}  # label -> (block times, block)
+        timing: dict = {}  # label -> its block's times and paired ratios
         with RenderSession(loader, ctx, memory_budget=full_mem, texture_budget=full_tex, threads=threads,
                            params=fixed.params(base), tf=tf) as main:
             # error against block budget per policy (Wang, Garcia & Shen 2007, Fig. 6), same views
@@ -534,8 +534,9 @@ def run_report(
             if r["kind"] != "converged":
                 continue
             if r["setting"] == fixed.label:  # the reference against itself: its own frames, speed-up 1
-                t = blk["times"].get((fixed.label, int(r["view"])))
-                if not t:  # no other setting shares its session: nothing was paired with it
+                key = (fixed.label, int(r["view"]))
+                t = next((b["times"][key] for b in (blk, *timing.values()) if b["times"].get(key)), None)
+                if t is None:  # no setting was timed: nothing was paired with it
                     continue
                 r.update(_timing_values({"times": {(fixed.label, 0): t}, "ratios": {(fixed.label, 0): [1.0]}},
                                         fixed.label, fixed.label, 0))
