@@ -783,7 +783,7 @@ def _markdown(result: ReportResult, pyr, *, size, path, tf, mode, step, cap) -> 
             f, m = fixed[v], multi[v]
             sp = float(m["speedup"])
             lines.append(f"| {v} | {f['bricks_drawn']} | {_fmt_ms(float(f['frame_s']))} | {m['bricks_drawn']} | "
-                         f"{_fmt_ms(float(m['frame_s']))} | {sp:.1f}x | {float(m['pct_de6']):.2f} |")
+                         f"{_fmt_ms(float(m['frame_s']))} | {sp:.2f}x | {float(m['pct_de6']):.2f} |")
         lines += [
             "",
             "## Bytes, fixed vs multiresolution (as tabulated in [3])",
