@@ -19,7 +19,7 @@ selection policy:
   whichever setting comes first, and can show two settings that draw the same bricks as 1.9x apart.
 
 Every frame is compared with the **full-resolution reference** of the same view (fixed level 0,
-converged, with budgets that hold everything), drawn by the same renderer and path. Every warm
+converged, with budgets that hold everything), drawn by the same renderer with the same parameters. Every warm
 frame of a setting is paired with a frame of the reference drawn right before or after it, and the
 **speed-up** is the median over the pairs of the reference's time over the setting's: the load of a
 shared machine drifts over seconds, and a pair sees the same load. When level 0 of a huge volume exceeds ``reference_cap`` bytes, the reference
@@ -736,7 +736,7 @@ def _markdown(result: ReportResult, pyr, *, size, path, tf, mode, step, cap) -> 
         "",
         f"Reference: `{ref_label}` (fixed level {result.reference_level}, converged"
         + (", level 0 exceeds the reference cap of " + format_bytes(cap) if result.reference_level else "")
-        + "), drawn by the same renderer and path as every setting. Error: % of pixels with ΔE ≥ 6 in CIELUV "
+        + "), drawn by the same renderer with the same parameters as every setting. Error: % of pixels with ΔE ≥ 6 in CIELUV "
           "(a difference people notice; the quality measure of [4]), RMSE and PSNR on 8-bit RGB.",
         "",
         f"Timing: every setting and the reference are warmed (their views loaded and drawn once), then "
