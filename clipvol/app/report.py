@@ -19,12 +19,13 @@ selection policy:
   whichever setting comes first, and can show two settings that draw the same bricks as 1.9x apart.
 
 Every frame is compared with the **full-resolution reference** of the same view (fixed level 0,
-converged, with budgets that hold everything), drawn by the same renderer with the same parameters. Every warm
-frame of a setting is paired with a frame of the reference drawn right before or after it, and the
-**speed-up** is the median over the pairs of the reference's time over the setting's: the load of a
-shared machine drifts over seconds, and a pair sees the same load. When level 0 of a huge volume exceeds ``reference_cap`` bytes, the reference
-uses the finest level that fits and the report says so. Errors are the "% of pixels with ΔE ≥ 6 in
-CIELUV" of Wang, Garcia & Shen (2007) plus RMSE and PSNR (:mod:`clipvol.scene.metrics`).
+converged, with budgets that hold everything), drawn by the same renderer with the same parameters.
+Every warm frame of a setting is paired with a frame of the reference drawn right before or after
+it, and the **speed-up** is the median over the pairs of the reference's time over the setting's:
+the load of a shared machine drifts over seconds, and a pair sees the same load. When level 0 of a
+huge volume exceeds ``reference_cap`` bytes, the reference uses the finest level that fits and the
+report says so. Errors are the "% of pixels with ΔE ≥ 6 in CIELUV" of Wang, Garcia & Shen (2007)
+plus RMSE and PSNR (:mod:`clipvol.scene.metrics`).
 
 The answer in one line (:func:`headline`): at <= 5 % of pixels visibly different on every view,
 how much faster frames are, and with which setting, or that no setting gets there.
