@@ -15,8 +15,8 @@ measured (full quality, converged: every brick it wants loaded and drawn at its 
 
 Ratios, each against a reference measured in the same run:
 
-* drag fps with adaptation against the **same drag at full quality** (the viewer before this
-  change: every frame at 960x640 and the base step);
+* drag fps with adaptation against the **same drag at full quality** (the viewer without
+  adaptive quality: every frame at 960x640 and the base step);
 * the full-quality frame against a **one-texture, one-pass ray caster** of level 0 (the whole
   volume in a single 3D texture, one draw, same view and step: the paging and bricking code out
   of the path), the two measured alternately - so the numbers can be compared with
