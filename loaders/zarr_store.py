@@ -827,11 +827,11 @@ class ZarrLoader:
         every eighth row of every eighth z-plane must lie inside the brick's bounds. That checks
         the decode, not the bytes: a wrong decoder (byte order, shuffle, type size) makes every
         voxel wrong, and a blosc block decoded wrong makes a contiguous run of kilobytes wrong -
-        whole rows, so a bad block holding a sampled plane holds sampled rows too, exactly as it
-        was caught when whole planes were sampled. A sixty-fourth of the voxels instead of the
-        eighth sampled until the sixth session: numpy holds the GIL over these small reductions,
-        so with two loader threads the eighth cost about 30 us a float32 64^3 brick, and the
-        sixty-fourth gives the loader 2-2.5 % of throughput (paired runs, float32 and uint16). ``st``: the brick's :meth:`_brick_stats` when the caller
+        whole rows, so a bad block holding a sampled plane holds sampled rows too, as whole sampled
+        planes would. A sixty-fourth of the voxels rather than every eighth plane: numpy holds the
+        GIL over these small reductions, so with two loader threads sampling an eighth costs about
+        30 us a float32 64^3 brick, and the sixty-fourth gives the loader 2-2.5 % of throughput
+        (paired runs, float32 and uint16). ``st``: the brick's :meth:`_brick_stats` when the caller
         has looked them up already.
         """
         if not self.check_plausibility:
