@@ -76,7 +76,9 @@ def transfer_function_from_args(args, loader):
     if name == "auto":
         if rng is None:
             return auto_transfer_function(loader, opacity=opacity)
-        return TransferFunction.preset("viridis", value_range=rng, opacity=opacity)
+        from clipvol.scene.auto_tf import default_preset
+
+        return TransferFunction.preset(default_preset(loader), value_range=rng, opacity=opacity)
     if name not in TransferFunction.names():
         raise ParameterError(f"--tf: expected auto, one of {', '.join(TransferFunction.names())} "
                              f"or a .json file, got {name!r}")
