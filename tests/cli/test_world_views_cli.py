@@ -1,0 +1,104 @@
+"""`clipvol render scan.nii.gz --view anterior` and the turntable: the patient head-up, facing us,
+whatever the file's storage order.
+
+A synthetic RAS volume carries a bright marker at the patient's left-anterior-superior corner; its
+LAS copy (x flipped) and a permuted-axes copy hold the same patient (nibabel's ``aff2axcodes`` and
+``apply_affine`` say so). Seen from the front with the head up the marker must sit top right (the
+patient's left is on the viewer's right), in every copy, and the three images must agree.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from clipvol.tools.cli import main
+
+nib = pytest.importorskip("nibabel")
+pytest.importorskip("moderngl")
+
+SHAPE = (20, 16, 12)
+RAS = np.array([[2.0, 0, 0, -19], [0, 2.0, 0, -15], [0, 0, 2.0, -11], [0, 0, 0, 1]])
+
+
+def _volume() -> np.ndarray:
+    v = np.zeros(SHAPE, dtype=np.float32)
+    v[4:16, 3:13, 2:10] = 100.0  # a dim body
+    v[0:3, -3:, -3:] = 1000.0  # the marker: left (low i), anterior (high j), superior (high k)
+    return v
+
+
+def _write(tmp_path, name: str) -> str:
+    v, a = _volume(), RAS
+    if name == "las":
+        flip = np.array([[-1.0, 0, 0, SHAPE[0] - 1], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+        v, a = v[::-1], RAS @ flip
+        assert nib.aff2axcodes(a) == ("L", "A", "S")
+    elif name == "perm":
+        perm = np.array([[0.0, 1, 0, 0], [0, 0, 1, 0], [1, 0, 0, 0], [0, 0, 0, 1]])  # new (a, b, c) = old (k, i, j)
+        v, a = v.transpose(2, 0, 1), RAS @ perm
+        assert nib.aff2axcodes(a) == ("S", "R", "A")
+    p = tmp_path / f"{name}.nii.gz"
+    nib.save(nib.Nifti1Image(np.ascontiguousarray(v), a), p)
+    return str(p)
+
+
+def _render(tmp_path, name: str, *extra: str) -> np.ndarray:
+    src = _write(tmp_path, name)
+    out = tmp_path / f"{name}.png"
+    assert main(["render", src, "--store", str(tmp_path / f"{name}.zarr"), "--out", str(out), "--view", "anterior",
+                 "--size", "64x64", "--mode", "mip", "--tf", "grey", "--tf-range", "0,1000", "--ortho", *extra]) == 0
+    return np.asarray(Image.open(out).convert("RGBA"), dtype=np.float64)
+
+
+def _marker_centre(img: np.ndarray) -> np.ndarray:
+    bright = img[..., 0] > 200
+    assert bright.any()
+    rows, cols = np.nonzero(bright)
+    return np.array([rows.mean(), cols.mean()])
+
+
+def test_anterior_view_shows_the_marker_top_right_in_every_storage_order(tmp_path):
+    imgs = {n: _render(tmp_path, n, "--no-labels") for n in ("ras", "las", "perm")}
+    for n, img in imgs.items():
+        r, c = _marker_centre(img)
+        assert r < 32 and c > 32, f"{n}: marker at row {r:.1f}, column {c:.1f}, expected top right"
+    for n in ("las", "perm"):
+        np.testing.assert_allclose(_marker_centre(imgs[n]), _marker_centre(imgs["ras"]), atol=1.0)
+        assert np.abs(imgs[n] - imgs["ras"]).mean() < 4.0, n
+
+
+def test_anterior_view_is_lettered_unless_no_labels(tmp_path):
+    plain = _render(tmp_path, "las", "--no-labels")
+    lettered = _render(tmp_path, "las")
+    differs = np.any(plain != lettered, axis=-1)
+    # letters at the middle of each edge (R left, L right, S top, I bottom), nothing in the centre
+    assert differs[28:36, :10].any() and differs[28:36, -10:].any() and differs[:10, 28:36].any() and differs[-10:, 28:36].any()
+    assert not differs[20:44, 20:44].any()
+
+
+def test_turntable_starts_from_the_front_head_up(tmp_path):
+    for name in ("ras", "las"):
+        src = _write(tmp_path, name)
+        out = tmp_path / f"{name}_frames"
+        assert main(["view", src, "--store", str(tmp_path / f"{name}.zarr"), "--offscreen", "--path", "turntable",
+                     "--frames", "1", "--size", "64x64", "--mode", "mip", "--tf", "grey", "--tf-range", "0,1000",
+                     "--no-labels", "--out", str(out)]) == 0
+        img = np.asarray(Image.open(out / "frame_0000.png").convert("RGBA"), dtype=np.float64)
+        r, c = _marker_centre(img)
+        assert r < 32 and c > 32, f"{name}: marker at row {r:.1f}, column {c:.1f}, expected top right"
+
+
+def test_show_takes_a_nifti_and_shows_it_head_up_in_grey(tmp_path):
+    pytest.importorskip("anywidget")
+    import clipvol
+
+    src = _write(tmp_path, "las")
+    with clipvol.show(src, store=str(tmp_path / "las.zarr"), size=(64, 64), mode="mip", threads=2, labels=False) as v:
+        img = v.snapshot().astype(np.float64)
+        assert v.tf == "grey"  # a scan in a patient frame is shown in grey
+        np.testing.assert_array_equal(img[..., 0], img[..., 1])
+        lum = img[..., 0]
+        rows, cols = np.nonzero(lum > 0.9 * lum.max())
+        assert rows.mean() < 32 and cols.mean() > 32, "the marker (left, anterior, superior) top right from the front"
