@@ -21,6 +21,13 @@ Conventions:
   ``+y`` as numpy prints ``vol[k]``), ``back`` along ``-z``, ``side`` along ``+x``, ``top`` along
   ``+y``, ``iso`` along ``(0.55, 0.45, 0.7)``; the anatomical names are refused (the store does
   not say where anterior is).
+* **Slices** of a patient-frame store are cut in the patient's planes and shown in the
+  **radiological** convention (the default of 3D Slicer's slice views and of most PACS): axial
+  with anterior up and the patient's right on the image's left, coronal with superior up and the
+  patient's right on the left, sagittal with superior up and anterior on the left.
+  ``convention="neurological"`` puts the patient's right on the right of axial and coronal
+  slices (FSLeyes' default); sagittal slices are the same in both. Two co-registered stores give
+  the same slice image whatever their storage order (:func:`anatomical_plane`).
 * **Mirrored storage**: a patient frame whose affine has a negative determinant (LAS, the usual
   FSL storage, or any odd number of flips) is a mirror image of the patient in array axes. A
   right-handed camera in array axes then sees the patient mirrored, so :func:`mirrored` is True
@@ -41,7 +48,8 @@ from ..errors import ParameterError
 
 __all__ = [
     "ANATOMICAL_VIEWS", "ALIASES", "VIEW_CHOICES", "is_anatomical", "mirrored", "world_to_array_directions",
-    "view_directions", "preset_camera", "screen_axes", "edge_labels",
+    "view_directions", "preset_camera", "screen_axes", "edge_labels", "SLICES", "CONVENTIONS", "slice_axes",
+    "anatomical_plane",
 ]
 
 #: anatomical view -> (RAS direction from the target to the eye, RAS up)
@@ -164,3 +172,55 @@ def edge_labels(cam, frame) -> dict[str, str]:
     right, up = screen_axes(cam, frame)
     return view_labels(frame.affine, right, up, frame.frame)
 
+
+
+#: slice name -> (RAS image up, RAS image right in the radiological convention)
+SLICES = {
+    "axial": ((0.0, 1.0, 0.0), (-1.0, 0.0, 0.0)),
+    "coronal": ((0.0, 0.0, 1.0), (-1.0, 0.0, 0.0)),
+    "sagittal": ((0.0, 0.0, 1.0), (0.0, -1.0, 0.0)),
+}
+#: slice display conventions: radiological (patient's right on the image left) or neurological
+CONVENTIONS = ("radiological", "neurological")
+
+
+def slice_axes(name: str, frame, convention: str = "radiological") -> tuple[np.ndarray, np.ndarray]:
+    """``(normal, up)``: array-axis directions of a patient-frame slice, for
+    :class:`~clipvol.scene.plane.Plane` (whose ``right = normal x up``)."""
+    if name not in SLICES:
+        raise ParameterError(f"--axis: expected one of {', '.join(SLICES)}, got {name!r}")
+    if convention not in CONVENTIONS:
+        raise ParameterError(f"convention: expected one of {', '.join(CONVENTIONS)}, got {convention!r}")
+    up_w, right_w = (np.asarray(v, dtype=np.float64) for v in SLICES[name])
+    if convention == "neurological" and name != "sagittal":
+        right_w = -right_w
+    up, right = world_to_array_directions(frame, np.array([up_w, right_w]))
+    normal = np.cross(up, right)  # so that Plane's normal x up is the wanted right
+    return normal / np.linalg.norm(normal), up
+
+
+def anatomical_plane(pyramid, frame, name: str, index: float | None = None, convention: str = "radiological"):
+    """The ``axial`` / ``coronal`` / ``sagittal`` :class:`~clipvol.scene.plane.Plane` of a patient-frame store.
+
+    The plane is the patient's (for an oblique acquisition it is resampled, as Slicer's slice
+    views are), through the volume centre, or through level-0 voxel ``index`` of the array axis
+    most nearly along its normal (``index`` in ``[0, n - 1]`` of that axis).
+    """
+    import math
+
+    from .plane import Plane
+
+    normal, up = slice_axes(name, frame, convention)
+    lo, hi = pyramid.volume_box()
+    origin = (lo + hi) / 2.0
+    if index is not None:
+        c = int(np.argmax(np.abs(normal)))  # array axis x, y or z
+        n = pyramid.shape[2 - c]
+        try:
+            i = float(index)
+        except (TypeError, ValueError):
+            i = math.nan
+        if not (0.0 <= i <= n - 1):
+            raise ParameterError(f"index: expected 0..{n - 1} for the {name} plane (array axis {'xyz'[c]}), got {index!r}")
+        origin[c] = i * pyramid.spacing[2 - c]
+    return Plane(tuple(origin), tuple(normal), tuple(up))

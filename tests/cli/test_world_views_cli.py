@@ -18,30 +18,7 @@ from clipvol.tools.cli import main
 nib = pytest.importorskip("nibabel")
 pytest.importorskip("moderngl")
 
-SHAPE = (20, 16, 12)
-RAS = np.array([[2.0, 0, 0, -19], [0, 2.0, 0, -15], [0, 0, 2.0, -11], [0, 0, 0, 1]])
-
-
-def _volume() -> np.ndarray:
-    v = np.zeros(SHAPE, dtype=np.float32)
-    v[4:16, 3:13, 2:10] = 100.0  # a dim body
-    v[0:3, -3:, -3:] = 1000.0  # the marker: left (low i), anterior (high j), superior (high k)
-    return v
-
-
-def _write(tmp_path, name: str) -> str:
-    v, a = _volume(), RAS
-    if name == "las":
-        flip = np.array([[-1.0, 0, 0, SHAPE[0] - 1], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
-        v, a = v[::-1], RAS @ flip
-        assert nib.aff2axcodes(a) == ("L", "A", "S")
-    elif name == "perm":
-        perm = np.array([[0.0, 1, 0, 0], [0, 0, 1, 0], [1, 0, 0, 0], [0, 0, 0, 1]])  # new (a, b, c) = old (k, i, j)
-        v, a = v.transpose(2, 0, 1), RAS @ perm
-        assert nib.aff2axcodes(a) == ("S", "R", "A")
-    p = tmp_path / f"{name}.nii.gz"
-    nib.save(nib.Nifti1Image(np.ascontiguousarray(v), a), p)
-    return str(p)
+from world_volumes import RAS, SHAPE, marker_volume as _volume, write_copy as _write  # noqa: E402
 
 
 def _render(tmp_path, name: str, *extra: str) -> np.ndarray:
