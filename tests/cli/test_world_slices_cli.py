@@ -73,3 +73,17 @@ def test_slice_png_is_lettered_unless_no_labels(tmp_path):
     differs = np.any(imgs[0] != imgs[1], axis=-1)
     assert differs[26:38, :12].any() and differs[26:38, -12:].any() and differs[:12, 26:38].any() and differs[-12:, 26:38].any()
     assert not differs[20:44, 20:44].any()
+
+
+def test_info_prints_voxel_0_in_the_ras_frame(tmp_path, capsys):
+    # an LAS map with 3 mm voxels: voxel 0 lies 78 mm to the patient's right (x = +78 in RAS)
+    aff = np.array([[-3.0, 0, 0, 78.0], [0, 3.0, 0, -112.0], [0, 0, 3.0, -50.0], [0, 0, 0, 1]])
+    assert nib.aff2axcodes(aff) == ("L", "A", "S")
+    nib.save(nib.Nifti1Image(np.ones((6, 5, 4), np.float32), aff), tmp_path / "map.nii.gz")
+    store = tmp_path / "map.zarr"
+    assert main(["brick", str(tmp_path / "map.nii.gz"), str(store), "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["info", str(store)]) == 0
+    line = next(t for t in capsys.readouterr().out.splitlines() if t.startswith("origin"))
+    x, y, z = nib.affines.apply_affine(aff, (0, 0, 0))
+    assert line.split()[1:4] == [f"{x:g},", f"{y:g},", f"{z:g}"] and "RAS" in line
