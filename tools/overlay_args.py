@@ -12,6 +12,8 @@ overlays are drawn.
 
 from __future__ import annotations
 
+import sys
+
 from clipvol.errors import ParameterError
 
 __all__ = ["add_overlay_arguments", "add_channel_arguments", "parse_overlay", "overlays_from_args",
@@ -117,6 +119,9 @@ def overlays_from_args(args, source=None, primary=None) -> tuple:
                            texture_budget=args.overlay_budget))
     for spec in getattr(args, "overlay", None) or []:
         source, name, rng = parse_overlay(spec)
+        from clipvol.app.autobrick import bricked_source
+
+        source = bricked_source(source, None, log=lambda line: print(line, file=sys.stderr))  # NIfTI etc.: bricked once
         loader = open_store(source)
         if name == "labels":
             tf = colors or LabelColors(default_opacity=getattr(args, "label_opacity", 0.3))

@@ -74,6 +74,10 @@ def transfer_function_from_args(args, loader):
             tf = tf.with_value_range(rng)
         return tf if opacity is None else tf.with_opacity(opacity)
     if name == "auto":
+        if rng is None and opacity is None and getattr(args, "overlay", None):
+            from clipvol.scene.auto_tf import context_transfer_function
+
+            return context_transfer_function(loader)  # translucent grey: the overlay inside it shows
         if rng is None:
             return auto_transfer_function(loader, opacity=opacity)
         from clipvol.scene.auto_tf import default_preset

@@ -35,7 +35,8 @@ import numpy as np
 from ..bricking.stats import histogram_edges
 from .transfer import TransferFunction
 
-__all__ = ["ValueHistogram", "value_histogram", "auto_window", "auto_transfer_function", "default_preset"]
+__all__ = ["ValueHistogram", "value_histogram", "auto_window", "auto_transfer_function", "default_preset",
+           "context_transfer_function", "CONTEXT_OPACITY"]
 
 #: most bricks summed from the stored statistics (one level); a finer level with more is skipped
 MAX_STAT_BRICKS = 1 << 18
@@ -195,3 +196,21 @@ def auto_transfer_function(loader, preset: str | None = None, opacity: str | Non
     name = preset or ("diverging" if aw.signed else default_preset(loader))
     tf = TransferFunction.preset(name, value_range=aw.window, opacity=None if name == "diverging" else opacity)
     return tf.with_name(f"auto: {tf.name} {aw.window[0]:.4g}..{aw.window[1]:.4g}")
+
+
+#: the opacity of the primary under an overlay, as a fraction of its automatic opacity
+CONTEXT_OPACITY = 0.1
+
+
+def context_transfer_function(loader, hist: ValueHistogram | None = None) -> TransferFunction:
+    """The automatic transfer function of a primary drawn under an overlay: translucent grey context.
+
+    An opaque scan hides a map inside it (a statistical map lies within the brain), so when the
+    user gives an overlay and leaves the primary's colours automatic, the primary keeps its
+    automatic window but in grey with :data:`CONTEXT_OPACITY` of its opacity: the anatomy shows
+    as a faint shell and the map inside it in full colour.
+    """
+    tf = auto_transfer_function(loader, preset="grey", hist=hist)
+    table = np.array(tf.table, dtype=np.float64)
+    table[:, 3] *= CONTEXT_OPACITY
+    return TransferFunction(table, tf.value_range, name=f"{tf.name} (context, opacity x{CONTEXT_OPACITY:g})")

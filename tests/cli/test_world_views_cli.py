@@ -79,3 +79,41 @@ def test_show_takes_a_nifti_and_shows_it_head_up_in_grey(tmp_path):
         lum = img[..., 0]
         rows, cols = np.nonzero(lum > 0.9 * lum.max())
         assert rows.mean() < 32 and cols.mean() > 32, "the marker (left, anterior, superior) top right from the front"
+
+
+def test_render_scan_with_a_map_in_another_orientation_and_grid_shows_the_map(tmp_path):
+    # a T1-like RAS scan (a solid head) and a signed map stored LAS on a coarser grid (3 mm), its
+    # positive blob at the patient's left-anterior-superior: with no flags the map shows, in place
+    t1 = np.zeros((40, 40, 40), np.float32)
+    ii, jj, kk = np.meshgrid(*(np.arange(40),) * 3, indexing="ij")
+    t1[(ii - 19.5) ** 2 + (jj - 19.5) ** 2 + (kk - 19.5) ** 2 < 18 ** 2] = 300.0
+    t1_aff = np.array([[2.0, 0, 0, -39], [0, 2.0, 0, -39], [0, 0, 2.0, -39], [0, 0, 0, 1]])
+    nib.save(nib.Nifti1Image(t1, t1_aff), tmp_path / "t1.nii.gz")
+    m = np.zeros((26, 26, 26), np.float32)
+    m_aff = np.array([[-3.0, 0, 0, 37.5], [0, 3.0, 0, -37.5], [0, 0, 3.0, -37.5], [0, 0, 0, 1]])  # LAS
+    assert nib.aff2axcodes(m_aff) == ("L", "A", "S")
+    centre = np.linalg.solve(m_aff, [-15.0, 15.0, 15.0, 1.0])[:3]  # left (-x), anterior, superior, in mm
+    a, b, c = np.meshgrid(*(np.arange(26),) * 3, indexing="ij")
+    m[(a - centre[0]) ** 2 + (b - centre[1]) ** 2 + (c - centre[2]) ** 2 < 3.5 ** 2] = 5.0
+    m[0, 0, 0] = -5.0  # signed: the diverging map
+    nib.save(nib.Nifti1Image(m, m_aff), tmp_path / "map.nii.gz")
+    out = tmp_path / "both.png"
+    cwd = tmp_path / "cache"
+    cwd.mkdir()
+    import os
+
+    old = os.getcwd()
+    os.chdir(cwd)  # the bricked stores go to the working folder
+    try:
+        assert main(["render", str(tmp_path / "t1.nii.gz"), "--overlay", str(tmp_path / "map.nii.gz"), "--view", "anterior",
+                     "--size", "96x96", "--ortho", "--no-labels", "--out", str(out)]) == 0
+    finally:
+        os.chdir(old)
+    assert (cwd / "t1.zarr").is_dir() and (cwd / "map.zarr").is_dir()
+    img = np.asarray(Image.open(out).convert("RGBA"), dtype=np.float64)
+    red = (img[..., 0] - np.maximum(img[..., 1], img[..., 2])) > 40  # the map's positive colour
+    assert red.sum() > 10, "the map is hidden"
+    rows, cols = np.nonzero(red)
+    assert rows.mean() < 48 and cols.mean() > 48, f"map at row {rows.mean():.1f}, column {cols.mean():.1f}: expected top right"
+    grey = (np.abs(img[..., 0] - img[..., 2]) < 3) & (img[..., 3] > 0)
+    assert grey.sum() > 1000  # the scan shows as grey context around it
