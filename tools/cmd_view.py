@@ -89,6 +89,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="folder where P (with the HUD) and Shift+P (without) save screenshots, S the transfer "
                         "function and C the camera (created; default ./clipvol-screenshots)")
     w.add_argument("--camera", default=None, metavar="FILE.json", help="start from a camera saved with C")
+    from clipvol.scene.views import VIEW_CHOICES
+
+    p.add_argument("--view", choices=VIEW_CHOICES, default=None, type=str.lower,
+                   help="the side the eye starts on, as for clipvol render (window; --path turntable: its first frame): "
+                        "anterior, posterior, left, right, superior, inferior, iso for a patient-frame store, "
+                        "front/back/side/top/iso otherwise")
     w.add_argument("--frame-time", type=float, default=100.0, metavar="MS",
                    help="target frame time while the camera moves, in ms: the viewer lowers resolution and "
                         "sampling to hold it and refines to full quality when still (default 100; 0 turns it off)")
@@ -176,6 +182,13 @@ def run(args) -> int:
 
             up, front = anatomical_axes(frame.affine)
             path_kwargs = {"up": tuple(up), "front": tuple(front)}
+        if args.path == "turntable" and args.view is not None:  # start from the side --view names
+            from clipvol.scene.views import view_directions
+
+            path_kwargs["front"] = tuple(-view_directions(args.view, frame)[0])
+        elif args.view is not None:
+            raise ParameterError(f"--view: sets the window's first view or the turntable's first frame; "
+                                 f"expected --path turntable, got --path {args.path}")
         res = render_path(
             loader, args.out, path=args.path, frames=args.frames, size=args.size or (256, 256),
             converged=args.converged, timeout=args.timeout, memory_budget=args.memory_budget,
@@ -192,6 +205,11 @@ def run(args) -> int:
         from clipvol.scene.bookmarks import load_camera
 
         camera = load_camera(args.camera)
+    elif args.view is not None:  # the named view of clipvol render (clipvol.scene.views)
+        from clipvol.scene.views import preset_camera
+
+        lo, hi = loader.pyramid.volume_box()
+        camera = preset_camera(lo, hi, args.view, args.size or (960, 640), frame=getattr(loader, "frame", None))
 
     with Viewer(loader, size=args.size or (960, 640), memory_budget=args.memory_budget,
                 texture_budget=args.texture_budget, threads=args.threads, params=params, tf=tf,

@@ -117,3 +117,16 @@ def test_render_scan_with_a_map_in_another_orientation_and_grid_shows_the_map(tm
     assert rows.mean() < 48 and cols.mean() > 48, f"map at row {rows.mean():.1f}, column {cols.mean():.1f}: expected top right"
     grey = (np.abs(img[..., 0] - img[..., 2]) < 3) & (img[..., 3] > 0)
     assert grey.sum() > 1000  # the scan shows as grey context around it
+
+
+def test_turntable_starts_from_the_side_view_names(tmp_path):
+    # from the patient's left, head up: anterior is on the image's left, so the marker is top left
+    src = _write(tmp_path, "las")
+    out = tmp_path / "left"
+    assert main(["view", src, "--store", str(tmp_path / "las.zarr"), "--offscreen", "--path", "turntable", "--view", "left",
+                 "--frames", "1", "--size", "64x64", "--mode", "mip", "--tf", "grey", "--tf-range", "0,1000",
+                 "--no-labels", "--out", str(out)]) == 0
+    r, c = _marker_centre(np.asarray(Image.open(out / "frame_0000.png").convert("RGBA"), dtype=np.float64))
+    assert r < 32 and c < 32, f"marker at row {r:.1f}, column {c:.1f}, expected top left"
+    assert main(["view", src, "--store", str(tmp_path / "las.zarr"), "--offscreen", "--path", "orbit", "--view", "left",
+                 "--frames", "1", "--out", str(tmp_path / "o")]) == 2
