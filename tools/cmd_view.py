@@ -11,8 +11,9 @@ the transfer-function window, Shift+S save it, C save the camera, B brick outlin
 
 ``--offscreen --path orbit|turntable|fly|zoom --frames N --out DIR|anim.gif|movie.mp4`` renders a
 camera path without a window (EGL) and writes PNG frames, a GIF or a movie (imageio-ffmpeg; ``--fps``,
-``--quality``) plus a per-frame CSV. For a store built from NIfTI or DICOM the turntable spins the
-patient head-up, starting from the front, and every frame's edges are labelled R/L, A/P, S/I.
+``--quality``) plus a per-frame CSV. For a store built from NIfTI or DICOM the turntable (and the
+orbit, a turntable raised 25 degrees) spins the patient head-up, starting from the front (or the
+side ``--view`` names), and every frame's edges are labelled R/L, A/P, S/I.
 """
 
 from __future__ import annotations
@@ -177,11 +178,14 @@ def run(args) -> int:
 
         frame = getattr(loader, "frame", None)  # the store's voxel-to-world affine, if it records one
         path_kwargs = {}
-        if args.path == "turntable" and frame is not None and frame.frame == "RAS":
+        path = args.path
+        if args.path in ("turntable", "orbit") and frame is not None and frame.frame == "RAS":
             from clipvol.scene.orientation import anatomical_axes
 
             up, front = anatomical_axes(frame.affine)
             path_kwargs = {"up": tuple(up), "front": tuple(front)}
+            if args.path == "orbit":  # head-up for a patient: the orbit is a turntable raised 25 degrees
+                path, path_kwargs["elevation"] = "turntable", 25.0
         if args.path == "turntable" and args.view is not None:  # start from the side --view names
             from clipvol.scene.views import view_directions
 
@@ -190,7 +194,7 @@ def run(args) -> int:
             raise ParameterError(f"--view: sets the window's first view or the turntable's first frame; "
                                  f"expected --path turntable, got --path {args.path}")
         res = render_path(
-            loader, args.out, path=args.path, frames=args.frames, size=args.size or (256, 256),
+            loader, args.out, path=path, frames=args.frames, size=args.size or (256, 256),
             converged=args.converged, timeout=args.timeout, memory_budget=args.memory_budget,
             texture_budget=args.texture_budget, threads=args.threads, params=params, tf=tf, outlines=args.outlines,
             fps=args.fps, progress=show, path_kwargs=path_kwargs, quality=args.quality,

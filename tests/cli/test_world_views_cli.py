@@ -130,3 +130,13 @@ def test_turntable_starts_from_the_side_view_names(tmp_path):
     assert r < 32 and c < 32, f"marker at row {r:.1f}, column {c:.1f}, expected top left"
     assert main(["view", src, "--store", str(tmp_path / "las.zarr"), "--offscreen", "--path", "orbit", "--view", "left",
                  "--frames", "1", "--out", str(tmp_path / "o")]) == 2
+
+
+def test_orbit_of_a_patient_is_head_up(tmp_path):
+    # the default offscreen path: a patient-frame store circles head-up from the front, raised 25 degrees
+    src = _write(tmp_path, "perm")
+    out = tmp_path / "orbit"
+    assert main(["view", src, "--store", str(tmp_path / "perm.zarr"), "--offscreen", "--frames", "1", "--size", "64x64",
+                 "--mode", "mip", "--tf", "grey", "--tf-range", "0,1000", "--no-labels", "--out", str(out)]) == 0
+    r, c = _marker_centre(np.asarray(Image.open(out / "frame_0000.png").convert("RGBA"), dtype=np.float64))
+    assert r < 32 and c > 32, f"marker at row {r:.1f}, column {c:.1f}, expected top right"
