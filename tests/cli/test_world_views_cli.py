@@ -140,3 +140,10 @@ def test_orbit_of_a_patient_is_head_up(tmp_path):
                  "--mode", "mip", "--tf", "grey", "--tf-range", "0,1000", "--no-labels", "--out", str(out)]) == 0
     r, c = _marker_centre(np.asarray(Image.open(out / "frame_0000.png").convert("RGBA"), dtype=np.float64))
     assert r < 32 and c > 32, f"marker at row {r:.1f}, column {c:.1f}, expected top right"
+
+
+def test_anatomical_view_of_a_store_without_a_patient_frame_is_refused(tmp_path, capsys):
+    np.save(tmp_path / "v.npy", np.ones((8, 8, 8), np.float32))
+    assert main(["render", str(tmp_path / "v.npy"), "--view", "anterior", "--out", str(tmp_path / "v.png")]) == 2
+    assert "--view anterior: expected a store with a patient frame" in capsys.readouterr().err
+    assert not (tmp_path / "v.png").exists()
