@@ -159,6 +159,9 @@ class SliceLayout:
                 sess.set_center(self.poi)
                 img = self.action.render_in_view(sess.action, camera_for_size((pw, ph)), sess.transfer_function,
                                                  self.planes["axial"], wait=wait, timeout=timeout)
+                from ..app.annotate import present
+
+                img = present(img, None, getattr(sess.loader, "frame", None), labels=False)  # a mirrored store: un-mirrored
                 self.stats[name] = sess.frame_stats
             else:
                 pl = self.planes[name]
