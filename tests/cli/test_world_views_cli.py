@@ -59,7 +59,7 @@ def test_turntable_starts_from_the_front_head_up(tmp_path):
     for name in ("ras", "las"):
         src = _write(tmp_path, name)
         out = tmp_path / f"{name}_frames"
-        assert main(["view", src, "--store", str(tmp_path / f"{name}.zarr"), "--offscreen", "--path", "turntable",
+        assert main(["view", src, "--store", str(tmp_path / f"{name}.zarr"), "--offscreen", "--converged", "--path", "turntable",
                      "--frames", "1", "--size", "64x64", "--mode", "mip", "--tf", "grey", "--tf-range", "0,1000",
                      "--no-labels", "--out", str(out)]) == 0
         img = np.asarray(Image.open(out / "frame_0000.png").convert("RGBA"), dtype=np.float64)
@@ -123,12 +123,12 @@ def test_turntable_starts_from_the_side_view_names(tmp_path):
     # from the patient's left, head up: anterior is on the image's left, so the marker is top left
     src = _write(tmp_path, "las")
     out = tmp_path / "left"
-    assert main(["view", src, "--store", str(tmp_path / "las.zarr"), "--offscreen", "--path", "turntable", "--view", "left",
+    assert main(["view", src, "--store", str(tmp_path / "las.zarr"), "--offscreen", "--converged", "--path", "turntable", "--view", "left",
                  "--frames", "1", "--size", "64x64", "--mode", "mip", "--tf", "grey", "--tf-range", "0,1000",
                  "--no-labels", "--out", str(out)]) == 0
     r, c = _marker_centre(np.asarray(Image.open(out / "frame_0000.png").convert("RGBA"), dtype=np.float64))
     assert r < 32 and c < 32, f"marker at row {r:.1f}, column {c:.1f}, expected top left"
-    assert main(["view", src, "--store", str(tmp_path / "las.zarr"), "--offscreen", "--path", "orbit", "--view", "left",
+    assert main(["view", src, "--store", str(tmp_path / "las.zarr"), "--offscreen", "--converged", "--path", "orbit", "--view", "left",
                  "--frames", "1", "--out", str(tmp_path / "o")]) == 2
 
 
@@ -136,7 +136,7 @@ def test_orbit_of_a_patient_is_head_up(tmp_path):
     # the default offscreen path: a patient-frame store circles head-up from the front, raised 25 degrees
     src = _write(tmp_path, "perm")
     out = tmp_path / "orbit"
-    assert main(["view", src, "--store", str(tmp_path / "perm.zarr"), "--offscreen", "--frames", "1", "--size", "64x64",
+    assert main(["view", src, "--store", str(tmp_path / "perm.zarr"), "--offscreen", "--converged", "--frames", "1", "--size", "64x64",
                  "--mode", "mip", "--tf", "grey", "--tf-range", "0,1000", "--no-labels", "--out", str(out)]) == 0
     r, c = _marker_centre(np.asarray(Image.open(out / "frame_0000.png").convert("RGBA"), dtype=np.float64))
     assert r < 32 and c > 32, f"marker at row {r:.1f}, column {c:.1f}, expected top right"
