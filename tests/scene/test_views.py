@@ -99,3 +99,23 @@ def test_array_views_without_a_frame_and_anatomical_names_refused():
         view_directions("anterior", None)
     with pytest.raises(ParameterError, match="--view: expected one of"):
         view_directions("sideways", None)
+
+
+def test_oblique_acquisition_is_viewed_in_the_patient_frame():
+    # a grid tilted 20 degrees about the left-right axis: the anterior view still faces the patient,
+    # head up (nibabel's apply_affine places the marker; the camera only projects it)
+    t = np.radians(20.0)
+    tilt = np.array([[1.0, 0, 0, 0], [0, np.cos(t), -np.sin(t), 0], [0, np.sin(t), np.cos(t), 0], [0, 0, 0, 1]])
+    affine = tilt @ RAS
+    frame = WorldFrame(tuple(map(tuple, affine)), "RAS")
+    assert frame.oblique and nib.aff2axcodes(affine) == ("R", "A", "S")
+    fwd, up = view_directions("anterior", frame)
+    np.testing.assert_allclose(frame.directions @ fwd, [0, -1, 0], atol=1e-12)  # looking posteriorly
+    np.testing.assert_allclose(frame.directions @ up, [0, 0, 1], atol=1e-12)  # superior up
+    world = apply_affine(affine, MARKER)
+    index = apply_affine(np.linalg.inv(affine), world)
+    sp = np.linalg.norm(affine[:3, :3], axis=0)
+    cam = preset_camera(-0.5 * sp, (np.array(SHAPE) - 0.5) * sp, "anterior", (64, 64), frame=frame)
+    clip = cam.view_projection() @ np.append(index * sp, 1.0)
+    assert clip[0] / clip[3] > 0 and clip[1] / clip[3] > 0  # left-anterior-superior: top right
+    assert edge_labels(cam, frame) == {"right": "L", "left": "R", "top": "S", "bottom": "I"}
