@@ -116,7 +116,7 @@ def overlays_from_args(args, source=None, primary=None) -> tuple:
         # a label image of the store shares its frame (OME image-label): placed at the image's origin
         out.append(Overlay(open_store(Path(str(source)) / "labels" / name), colors, name=f"labels/{name}",
                            origin=tuple(store_origin(primary)[:]) if primary is not None else None,
-                           texture_budget=args.overlay_budget))
+                           frame=getattr(primary, "frame", None), texture_budget=args.overlay_budget))
     for spec in getattr(args, "overlay", None) or []:
         source, name, rng = parse_overlay(spec)
         from clipvol.app.autobrick import bricked_source

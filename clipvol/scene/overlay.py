@@ -104,6 +104,9 @@ class Overlay:
         Bytes its one float32 texture may take; the finest level that fits is drawn.
     name : str
         What errors call it (default: the loader's path, else ``overlay``).
+    frame : WorldFrame, optional
+        Its voxel-to-world affine (default: the loader's own). A label image of a store shares the
+        store's frame (OME image-label) without recording it: ``--label-overlay`` passes the image's.
     """
 
     loader: object
@@ -112,6 +115,7 @@ class Overlay:
     unit: str | None = None
     texture_budget: int | str = DEFAULT_OVERLAY_BUDGET
     name: str = ""
+    frame: object = None
 
     @property
     def labels(self) -> bool:
@@ -150,6 +154,8 @@ class Overlay:
                 raise ParameterError(f"overlay {name}: origin: expected three finite numbers z,y,x, got {self.origin!r}")
             s(self, "origin", o)
         s(self, "unit", self.unit or store_unit(self.loader))
+        if self.frame is None:
+            s(self, "frame", getattr(self.loader, "frame", None))
         s(self, "texture_budget", parse_bytes(self.texture_budget, f"overlay {name}: texture_budget"))
 
 
@@ -170,15 +176,15 @@ def overlay_level(pyramid, budget: int, max_size: int = 2048, itemsize: int = 4)
     return pyramid.num_levels - 1
 
 
-def voxel_to_world(loader, origin=None) -> np.ndarray:
+def voxel_to_world(loader, origin=None, frame=None) -> np.ndarray:
     """``(4, 4)``: a loader's level-0 voxel index ``(x, y, z, 1)`` to its world position.
 
     A store with a recorded affine (NIfTI, DICOM, MRC: :class:`~clipvol.bricking.worldframe.WorldFrame`)
     uses it, moved to ``origin`` (z, y, x along its axes) when one is given that differs from the
     store's; any other loader is axis-aligned: its spacing, and voxel 0 at ``origin`` (default the
-    loader's own, :func:`store_origin`).
+    loader's own, :func:`store_origin`). ``frame`` replaces the loader's own affine.
     """
-    frame = getattr(loader, "frame", None)
+    frame = getattr(loader, "frame", None) if frame is None else frame
     own = store_origin(loader)
     o = own if origin is None else np.asarray(origin, dtype=np.float64).reshape(3)
     if frame is not None:
@@ -217,7 +223,7 @@ def overlay_texture_transform(overlay: Overlay, level: int, primary_loader) -> n
     grid = np.eye(4)  # level-0 voxel index -> texture coordinate of the level
     grid[:3, :3] = np.diag(s0 / sl / shape)
     grid[:3, 3] = (-off * s0 / sl + 0.5) / shape
-    inv_o = np.linalg.inv(voxel_to_world(overlay.loader, overlay.origin))
+    inv_o = np.linalg.inv(voxel_to_world(overlay.loader, overlay.origin, overlay.frame))
     return grid @ inv_o @ _render_to_world(primary_loader)
 
 
@@ -226,7 +232,7 @@ def overlay_box(overlay: Overlay, primary_loader) -> tuple[np.ndarray, np.ndarra
     level-0 cells (their corners' bounding box, for a rotated overlay larger than the cells)."""
     n = np.asarray(overlay.loader.pyramid.shape, dtype=np.float64)[::-1]
     corners = np.array([[(-0.5, n[a] - 0.5)[(k >> a) & 1] for a in range(3)] for k in range(8)])
-    m = np.linalg.inv(_render_to_world(primary_loader)) @ voxel_to_world(overlay.loader, overlay.origin)
+    m = np.linalg.inv(_render_to_world(primary_loader)) @ voxel_to_world(overlay.loader, overlay.origin, overlay.frame)
     pts = corners @ m[:3, :3].T + m[:3, 3]
     return pts.min(axis=0), pts.max(axis=0)
 
@@ -238,7 +244,7 @@ def check_overlay(overlay: Overlay, primary_loader) -> None:
     if pu is not None and overlay.unit is not None and pu != overlay.unit:
         raise ParameterError(f"overlay {name}: expected the primary's unit {pu!r}, got {overlay.unit!r} "
                              "(convert the spacing, e.g. clipvol brick --spacing ... --unit ...)")
-    fp, fo = getattr(primary_loader, "frame", None), getattr(overlay.loader, "frame", None)
+    fp, fo = getattr(primary_loader, "frame", None), overlay.frame
     kp, ko = (getattr(f, "frame", "") if f is not None else "" for f in (fp, fo))
     if kp != ko and fp is not None and fo is not None:
         raise ParameterError(f"overlay {name}: expected the primary's world frame {kp or 'non-anatomical'!r}, got "

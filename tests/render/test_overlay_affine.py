@@ -145,3 +145,27 @@ def test_overlay_in_another_unit_or_elsewhere_is_refused_naming_it(stores, tmp_p
         check_overlay(Overlay(ZarrLoader(tmp_path / "far.zarr"), "grey"), primary)
     with pytest.raises(ParameterError, match="expected the primary's unit 'millimeter', got 'micrometer'"):
         check_overlay(Overlay(ZarrLoader(stores["las"]), "grey", unit="micrometer"), primary)
+
+
+def test_label_image_of_a_mirrored_store_sits_on_its_voxels(stores, tmp_path):
+    # a store's own label image shares its frame (OME image-label) without recording it: under an
+    # LAS store, --label-overlay must put label voxel i on image voxel i (not mirrored, not refused)
+    import argparse
+    import shutil
+
+    from clipvol.bricking.labels import brick_labels
+    from clipvol.tools.overlay_args import overlays_from_args
+
+    img = tmp_path / "las.zarr"
+    shutil.copytree(stores["las"], img)
+    zyx = _copy("las")[0].transpose(2, 1, 0)  # the store's (z, y, x) array
+    brick_labels(img, (zyx > 0.5).astype(np.uint8), "marker", progress=False)
+    primary = ZarrLoader(img)
+    args = argparse.Namespace(label_overlay=["marker"], overlay=[], label_colors=None, label_opacity=0.5,
+                              overlay_budget=64 << 20)
+    (ov,) = overlays_from_args(args, img, primary)
+    check_overlay(ov, primary)
+    m = overlay_texture_transform(ov, 0, primary)
+    idx = np.stack(np.meshgrid(*(np.arange(0, n, 3) for n in SHAPE), indexing="ij"), -1).reshape(-1, 3).astype(float)
+    got = (idx * 2.0) @ m[:3, :3].T + m[:3, 3]
+    np.testing.assert_allclose(got * np.array(SHAPE) - 0.5, idx, atol=1e-9)
