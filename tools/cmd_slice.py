@@ -98,6 +98,13 @@ def _plane_from_args(pyramid, args, frame=None):
         raise ParameterError(f"plane: expected one of --plane, --axis, --origin/--normal, got {' and '.join(given)}")
     if args.index is not None and args.axis is None:
         raise ParameterError("--index: expected together with --axis, got --index alone")
+    from clipvol.scene.views import anatomical_plane, is_anatomical
+
+    neuro = getattr(args, "neurological", False)
+    if neuro and not (is_anatomical(frame) and args.plane is None and args.origin is None and args.normal is None):
+        raise ParameterError("--neurological: expected an --axis slice (or the default) of a store with a patient frame "
+                             "(from NIfTI or DICOM), got " + ("a store without one" if not is_anatomical(frame)
+                                                               else "--plane or --origin/--normal"))
     if args.plane is not None:
         letter, _, index = args.plane.partition("=")
         if letter.strip().lower() not in AXIS_LETTERS or not index:
@@ -108,22 +115,15 @@ def _plane_from_args(pyramid, args, frame=None):
             raise ParameterError(f"--plane: expected a number after '=', got {args.plane!r}") from None
         return Plane.axis(pyramid, AXIS_LETTERS[letter.strip().lower()], i)
     if args.axis is not None:
-        from clipvol.scene.views import anatomical_plane, is_anatomical
-
         if is_anatomical(frame):
-            return anatomical_plane(pyramid, frame, args.axis, args.index,
-                                    "neurological" if getattr(args, "neurological", False) else "radiological")
+            return anatomical_plane(pyramid, frame, args.axis, args.index, "neurological" if neuro else "radiological")
         return Plane.axis(pyramid, args.axis, args.index)
     if args.origin is not None or args.normal is not None:
         if args.origin is None or args.normal is None:
             raise ParameterError("--origin/--normal: expected both for an oblique plane, got one")
         return Plane.through(args.origin, args.normal, args.up)
-    if frame is not None:
-        from clipvol.scene.views import anatomical_plane, is_anatomical
-
-        if is_anatomical(frame):
-            return anatomical_plane(pyramid, frame, "axial", None,
-                                    "neurological" if getattr(args, "neurological", False) else "radiological")
+    if is_anatomical(frame):
+        return anatomical_plane(pyramid, frame, "axial", None, "neurological" if neuro else "radiological")
     return Plane.axis(pyramid, "axial")
 
 

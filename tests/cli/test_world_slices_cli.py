@@ -87,3 +87,13 @@ def test_info_prints_voxel_0_in_the_ras_frame(tmp_path, capsys):
     line = next(t for t in capsys.readouterr().out.splitlines() if t.startswith("origin"))
     x, y, z = nib.affines.apply_affine(aff, (0, 0, 0))
     assert line.split()[1:4] == [f"{x:g},", f"{y:g},", f"{z:g}"] and "RAS" in line
+
+
+def test_neurological_needs_a_patient_plane(tmp_path, capsys):
+    np.save(tmp_path / "v.npy", np.ones((8, 8, 8), np.float32))
+    assert main(["slice", str(tmp_path / "v.npy"), "--axis", "axial", "--neurological", "--npy", str(tmp_path / "a.npy")]) == 2
+    assert "--neurological: expected an --axis slice" in capsys.readouterr().err
+    src = _write(tmp_path, "ras")
+    assert main(["slice", src, "--store", str(tmp_path / "ras.zarr"), "--plane", "z=3", "--neurological",
+                 "--npy", str(tmp_path / "b.npy")]) == 2
+    assert "got --plane or --origin/--normal" in capsys.readouterr().err
