@@ -123,9 +123,14 @@ def _print_geometry(meta) -> None:
     """Origin, affine and axis directions (only for stores that record them)."""
     if meta.frame is None and not any(meta.origin):
         return
-    print(f"origin     {', '.join(f'{v:g}' for v in meta.origin)} {meta.unit} (z, y, x; world position of voxel 0)")
     if meta.frame is None:
+        print(f"origin     {', '.join(f'{v:g}' for v in meta.origin)} {meta.unit} (z, y, x; world position of voxel 0)")
         return
+    # voxel 0 in the world frame the store names (the affine's translation), x, y, z as RAS+ reads them
+    x, y, z = (float(v) for v in meta.frame.matrix[:3, 3])
+    world_name = "patient RAS+" if meta.frame.frame == "RAS" else "world"
+    print(f"origin     {x:g}, {y:g}, {z:g} {meta.unit} (x, y, z in the {world_name} frame; world position of voxel 0)")
+    print(f"translation {', '.join(f'{v:g}' for v in meta.origin)} {meta.unit} (z, y, x along the array axes: OME's level-0 translation)")
     from clipvol.scene.orientation import axis_codes
 
     codes = axis_codes(meta.frame.affine, meta.frame.frame)

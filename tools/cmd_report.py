@@ -43,7 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from clipvol.tools.cmd_view import _size
 
     p.add_argument("source", help="a clipvol store / OME-Zarr directory or URL (s3://, https://, ...), procedural:NAME?size=N, "
-                                  "or a .npy file")
+                                  "a .npy file, or a NIfTI / DICOM folder / FILE.h5:/dataset / MRC input (bricked once into ./NAME.zarr)")
     from clipvol.tools.remote_args import add_remote_arguments
 
     add_remote_arguments(p)
@@ -115,6 +115,9 @@ def run(args) -> int:
 
     from clipvol.tools.remote_args import remote_kwargs
 
+    from clipvol.app.autobrick import bricked_source
+
+    args.source = bricked_source(args.source, None)  # a NIfTI / DICOM / HDF5 / MRC input: bricked once into ./NAME.zarr
     loader = open_loader(args.source, **({} if args.brick is None else {"brick": args.brick}), **remote_kwargs(args))
     tf = transfer_function_from_args(args, loader)
     res = run_report(

@@ -471,9 +471,12 @@ def run_report(
         result.rows.extend(rows)
         from PIL import Image
 
+        from .annotate import present
+
+        frame = getattr(loader, "frame", None)  # a patient-frame store's images: un-mirrored and lettered
         for v, ref in enumerate(refs):
             p = out / f"reference_view{v}.png"
-            Image.fromarray(ref, "RGBA").save(p)
+            Image.fromarray(present(ref, cams[v][0], frame), "RGBA").save(p)
             result.images.append(p)
         settings = [_Setting("lod_threshold", f"lod={t:g}", t, full_mem, full_tex) for t in thresholds]
         total = _holding_budget(pyr, 0)
@@ -554,7 +557,7 @@ def run_report(
             img = frames.get((f"lod={t:g}", 0))
             if img is not None:
                 p = out / f"view0_lod{t:g}.png"
-                Image.fromarray(img, "RGBA").save(p)
+                Image.fromarray(present(img, cams[0][0], frame), "RGBA").save(p)
                 result.images.append(p)
     finally:
         if own_ctx:
