@@ -316,8 +316,15 @@ class output_lock:
 
 
 def mark_complete(group) -> None:
-    """Set ``attrs['clipvol']['complete']``: the very last write of any build path."""
-    cv = dict(group.attrs["clipvol"])
+    """Write the store's manifest (:mod:`clipvol.bricking.manifest`) and set
+    ``attrs['clipvol']['complete']`` with the manifest's checksum: the very last write of any build path."""
+    from .manifest import write_manifest
+
+    attrs = dict(group.attrs)
+    cv = dict(attrs["clipvol"])
+    root = Path(group.store.root) / group.path if group.path else Path(group.store.root)
+    pyramid = parse_metadata(attrs, str(root)).pyramid
+    cv["manifest"] = write_manifest(root, [pyramid.grid(L) for L in range(pyramid.num_levels)])
     cv["complete"] = True
     group.attrs.update({"clipvol": cv})
 
