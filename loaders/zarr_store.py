@@ -449,6 +449,11 @@ class ZarrLoader:
         self._fetch = self._chunk_into_buffer if local else self._chunk_bytes
 
     @property
+    def manifest(self) -> Manifest | None:
+        """The store's verified manifest (:mod:`clipvol.bricking.manifest`), or None (unverified or foreign)."""
+        return self._manifest
+
+    @property
     def checksummed(self) -> bool:
         """True when every stored level carries zarr v3's ``crc32c`` codec (each chunk is verified on read)."""
         return all(am.checksum for am in self._arrays)

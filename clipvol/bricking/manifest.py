@@ -98,6 +98,8 @@ class Manifest:
         """What differs between the statistics arrays read for ``level`` and the manifest (empty: they agree)."""
         want = self.stats[level]
         have = stats or {}
+        if want and not any(name in have for name in want):
+            return [f"{STATS_GROUP}/{level} is missing (all {len(want)} statistics arrays)"]
         out = []
         for name, digest in want.items():
             if name not in have:
