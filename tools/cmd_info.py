@@ -180,6 +180,9 @@ def run(args: argparse.Namespace) -> int:
 
     from clipvol.paging.bytesource import is_remote_url
 
+    from clipvol.tools.remote_args import remote_kwargs
+
+    remote_kwargs(args)  # remote options on a local store are refused, naming the option
     if is_remote_url(args.store):  # a store behind a URL: see clipvol.tools.remote_info
         from clipvol.tools.remote_info import run_remote_info
 
