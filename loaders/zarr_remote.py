@@ -219,9 +219,9 @@ class RemoteZarrLoader(ZarrLoader):
         if data is None:
             return None
         if len(data) > cap or (want and len(data) != want):
-            what = f"the store's manifest says {want}" if want else f"more than the {cap} a chunk may hold"
-            raise BrickIntegrityError(f"{self.url}: {BrickKey(level, tuple(index))}: chunk {key}: {len(data)} bytes, "
-                                      f"but {what}")
+            what = f"truncated or corrupt: {len(data)} bytes, but the store's manifest says {want}" if want \
+                else f"{len(data)} bytes, more than the {cap} a chunk may hold"
+            raise BrickIntegrityError(f"{self.url}: {BrickKey(level, tuple(index))}: chunk {key}: {what}")
         tls.pending = (key, data)
         return data
 

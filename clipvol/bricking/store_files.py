@@ -92,7 +92,7 @@ def check_opened(fd: int, path: str, cap: int | None, exact: int | None = None) 
     if not stat.S_ISREG(st.st_mode):
         raise InputFormatError(f"{path}: {_kind(st.st_mode)}, not a regular file: refused")
     if exact is not None and st.st_size != exact:
-        raise InputFormatError(f"{path}: {st.st_size} bytes, but the store's manifest says {exact}")
+        raise InputFormatError(f"{path}: truncated or corrupt: {st.st_size} bytes, but the store's manifest says {exact}")
     if cap is not None and st.st_size > cap:
         raise InputFormatError(f"{path}: {st.st_size} bytes, more than the {cap} a file of this kind may hold: refused")
     return st.st_size

@@ -263,7 +263,7 @@ def test_an_oversize_chunk_is_refused_by_its_size(store, vol):
     chunk = _chunk(store, 0, (1, 1, 1))
     with open(chunk, "ab") as f:
         f.write(b"\0" * 10)
-    with pytest.raises(BrickIntegrityError, match=r"0/c/1/1/1: \d+ bytes, but the store's manifest says \d+"):
+    with pytest.raises(BrickIntegrityError, match=r"0/c/1/1/1: truncated or corrupt: \d+ bytes, but the store's manifest says \d+"):
         ZarrLoader(store).read_brick(0, (1, 1, 1))
     # without a manifest, the cap from the chunk shape (decoded size + 1/8 + 64 KiB)
     g = zarr.open_group(str(store), mode="r+")

@@ -167,7 +167,7 @@ def test_a_file_whose_size_changes_under_the_read_is_read_whole_and_verified(sto
 
     monkeypatch.setattr(os, "fstat", lambda fd: Short(real(fd)))
     loader, _ = _interior(store)
-    with pytest.raises(BrickIntegrityError, match=r"0/c/1/1/1: \d+ bytes, but the store's manifest says"):
+    with pytest.raises(BrickIntegrityError, match=r"0/c/1/1/1: truncated or corrupt: \d+ bytes, but the store's manifest says"):
         loader._chunk_into_buffer(0, (1, 1, 1))  # a verified store knows each chunk's exact size
     loader._sizes = [None] * len(loader._sizes)  # a store without one reads on, bounded by the cap
     assert loader._chunk_into_buffer(0, (1, 1, 1)) == _chunk(store, 0, (1, 1, 1)).read_bytes()
