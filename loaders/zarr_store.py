@@ -18,9 +18,18 @@ package installed computes it: :func:`crc32c_implementation`); every load's deco
 against the store's statistics for that brick (min/max and NaN/Inf counts equal; for bytes whose
 checksum is the one recorded for the brick, every 8th row of every 8th plane inside the bounds); a
 missing chunk file is an empty brick (the fill value) only if the statistics say the brick is empty. A truncated, corrupt, substituted or lost chunk raises
-:class:`~clipvol.errors.BrickIntegrityError` naming the store, brick and chunk file. A clipvol
-store without checksums opens with an :class:`UnverifiedStoreWarning`. Dataset paths of plain
-OME-Zarr metadata must resolve inside the store.
+:class:`~clipvol.errors.BrickIntegrityError` naming the store, brick and chunk file. Dataset paths
+of plain OME-Zarr metadata must resolve inside the store.
+
+The store's manifest (:mod:`clipvol.bricking.manifest`) is verified first, on opening: when it
+verifies (:attr:`ZarrLoader.verified`), "the statistics" above are its per-brick records - each
+chunk's exact size and crc32c and the brick's bounds, keyed by brick index - so deleting or
+replacing the statistics arrays changes nothing a load trusts, and each statistics array is
+compared with its digest when read. A clipvol store without one, or whose manifest does not
+verify, or without checksums, opens *unverified* (:attr:`ZarrLoader.trust` says why) with an
+:class:`UnverifiedStoreWarning`, and the checks fall back to the statistics arrays. Every file is
+opened as what it claims to be (:mod:`clipvol.bricking.store_files`): a regular file inside the
+store, never a FIFO, device or link out, its size capped before it is read.
 
 Metadata is read as JSON and validated *before* zarr opens anything: absurd shapes or chunk
 shapes, and object, string, structured or complex dtypes, are refused (nothing is ever unpickled).
