@@ -137,3 +137,22 @@ def test_render_of_a_foreign_ome_zarr_notes_it_once_and_draws(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("unverified, foreign") == 1, err
     assert (np.asarray(Image.open(tmp_path / "f.png"))[..., 3] > 0).any()
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this platform")
+def test_a_root_zarr_json_that_is_a_fifo_or_dev_zero_exits_2_without_blocking(tmp_path, capsys):
+    store = tmp_path / "x.zarr"
+    store.mkdir()
+    for make, what in ((lambda p: os.mkfifo(p), "FIFO"), (lambda p: p.symlink_to("/dev/zero"), "")):
+        meta = store / "zarr.json"
+        if meta.exists() or meta.is_symlink():
+            meta.unlink()
+        make(meta)
+        for argv in (["info", str(store)], ["check", str(store)], ["render", str(store), "--out", str(tmp_path / "a.png")]):
+            res = {}
+            t = threading.Thread(target=lambda: res.setdefault("rc", main(argv)), daemon=True)
+            t.start()
+            t.join(60)
+            assert not t.is_alive() and res["rc"] == 2, argv
+            err = capsys.readouterr().err
+            assert err.count("\n") == 1 and str(store) in err and what in err, err
