@@ -302,6 +302,8 @@ class FsspecByteSource:
             opts.setdefault("config_kwargs", {}).setdefault("connect_timeout", self.connect_timeout)
             opts["config_kwargs"].setdefault("read_timeout", self.read_timeout)
             opts["config_kwargs"].setdefault("max_pool_connections", max(10, self.max_in_flight))
+            # one attempt per call: the retries (and their time budget) are this class's, not botocore's on top
+            opts["config_kwargs"].setdefault("retries", {"max_attempts": 1, "mode": "standard"})
         try:
             # a fresh instance: fsspec caches file systems by their arguments, which would keep
             # credentials (or their absence) from an earlier session alive
