@@ -83,6 +83,7 @@ from clipvol.bricking.store import (
 )
 from clipvol.bricking.store_files import (
     MAX_METADATA_BYTES,
+    StoreFileError,
     check_opened,
     check_tree,
     chunk_cap,
@@ -208,8 +209,8 @@ def _read_json(path: Path, where: str, root: Path | None = None) -> dict[str, An
         doc = json.loads(read_file(path, path.parent if root is None else root, MAX_METADATA_BYTES))
     except FileNotFoundError:
         raise
-    except InputFormatError as e:
-        raise InputFormatError(f"{where}: {e}") from None
+    except InputFormatError as e:  # StoreFileError stays one: callers must not skip such a file
+        raise type(e)(f"{where}: {e}") from None
     except (OSError, ValueError) as e:
         raise InputFormatError(f"{where}: cannot read {path.name} as JSON ({type(e).__name__}: {e})") from None
     if not isinstance(doc, dict):
@@ -537,6 +538,8 @@ class ZarrLoader:
             lpath = inside(self.path, ds["path"], f"{self._where} level {L}")  # outside the store: an error, not a skip
             try:
                 am = _array_meta(lpath, f"{self._where} level {L}", self.path)
+            except StoreFileError:
+                raise  # a level file that is not what it claims is refused, never skipped
             except (InputFormatError, FileNotFoundError):
                 break
             if am.shape[-3:] != expect[L] or am.chunks[-3:] != brick or am.dtype != first.dtype or len(am.shape) != nd:

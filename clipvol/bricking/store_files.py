@@ -13,7 +13,9 @@ kilobytes belongs fills memory. Every file a reader of a local store opens goes 
   bound from the chunk shape for any other store; :data:`MAX_METADATA_BYTES` for JSON metadata),
   and it is never read past that cap even if it grows while being read.
 
-Each refusal is a :class:`~clipvol.errors.InputFormatError` naming the path.
+Each refusal is a :class:`StoreFileError` (an :class:`~clipvol.errors.InputFormatError`) naming
+the path: a reader that tolerates a missing or malformed optional file (a foreign image's coarser
+level) still stops at a file that is not what it claims.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from pathlib import Path
 from ..errors import InputFormatError
 
 __all__ = [
+    "StoreFileError",
     "MAX_METADATA_BYTES",
     "O_SAFE",
     "open_inside",
@@ -35,6 +38,11 @@ __all__ = [
     "check_tree",
     "chunk_cap",
 ]
+
+class StoreFileError(InputFormatError):
+    """A store file that is not what it claims: a link out of the store, a FIFO, a device, a
+    socket, a directory, or more bytes than its kind may hold (names the path)."""
+
 
 #: the largest JSON metadata file read (OME metadata of even large plates is well under this)
 MAX_METADATA_BYTES = 16 * 2**20
@@ -78,7 +86,7 @@ def open_inside(path: str, root_real: str) -> int | None:
             raise
     target = os.path.realpath(path)
     if not _inside(root_real, target):
-        raise InputFormatError(f"{path}: a symbolic link to {target}, outside the store {root_real}")
+        raise StoreFileError(f"{path}: a symbolic link to {target}, outside the store {root_real}")
     try:
         return os.open(target, _O_RESOLVED)
     except (FileNotFoundError, NotADirectoryError):
@@ -90,11 +98,11 @@ def check_opened(fd: int, path: str, cap: int | None, exact: int | None = None) 
     when it is a FIFO, device, socket or directory, larger than ``cap``, or not ``exact`` bytes."""
     st = os.fstat(fd)
     if not stat.S_ISREG(st.st_mode):
-        raise InputFormatError(f"{path}: {_kind(st.st_mode)}, not a regular file: refused")
+        raise StoreFileError(f"{path}: {_kind(st.st_mode)}, not a regular file: refused")
     if exact is not None and st.st_size != exact:
-        raise InputFormatError(f"{path}: truncated or corrupt: {st.st_size} bytes, but the store's manifest says {exact}")
+        raise StoreFileError(f"{path}: truncated or corrupt: {st.st_size} bytes, but the store's manifest says {exact}")
     if cap is not None and st.st_size > cap:
-        raise InputFormatError(f"{path}: {st.st_size} bytes, more than the {cap} a file of this kind may hold: refused")
+        raise StoreFileError(f"{path}: {st.st_size} bytes, more than the {cap} a file of this kind may hold: refused")
     return st.st_size
 
 
@@ -111,11 +119,11 @@ def read_capped(fd: int, size: int, cap: int, path: str) -> bytes:
                 break
             total += len(more)
             if total > cap:
-                raise InputFormatError(f"{path}: grew past {cap} bytes while being read: refused")
+                raise StoreFileError(f"{path}: grew past {cap} bytes while being read: refused")
             parts.append(more)
         data = b"".join(parts)
     if len(data) > cap:
-        raise InputFormatError(f"{path}: grew past {cap} bytes while being read: refused")
+        raise StoreFileError(f"{path}: grew past {cap} bytes while being read: refused")
     return data
 
 
@@ -127,7 +135,7 @@ def read_file(path: str | Path, root: str | Path, cap: int = MAX_METADATA_BYTES)
     p = str(path)
     parent = os.path.realpath(os.path.dirname(p) or ".")
     if not _inside(root_real, parent):
-        raise InputFormatError(f"{p}: its folder resolves to {parent}, outside the store {root_real}")
+        raise StoreFileError(f"{p}: its folder resolves to {parent}, outside the store {root_real}")
     fd = open_inside(p, root_real)
     if fd is None:
         raise FileNotFoundError(errno.ENOENT, "no such file", p)
@@ -145,7 +153,7 @@ def check_tree(directory: str | Path, root: str | Path, cap: int) -> None:
     root_real = os.path.realpath(root)
     top = os.path.realpath(directory)
     if not _inside(root_real, top):
-        raise InputFormatError(f"{directory}: resolves to {top}, outside the store {root_real}")
+        raise StoreFileError(f"{directory}: resolves to {top}, outside the store {root_real}")
     for base, dirs, files in os.walk(directory):
         for name in dirs + files:
             p = os.path.join(base, name)
@@ -153,11 +161,11 @@ def check_tree(directory: str | Path, root: str | Path, cap: int) -> None:
             if stat.S_ISLNK(st.st_mode):
                 target = os.path.realpath(p)
                 if not _inside(root_real, target):
-                    raise InputFormatError(f"{p}: a symbolic link to {target}, outside the store {root_real}")
+                    raise StoreFileError(f"{p}: a symbolic link to {target}, outside the store {root_real}")
                 st = os.stat(p)
             if stat.S_ISDIR(st.st_mode):
                 continue
             if not stat.S_ISREG(st.st_mode):
-                raise InputFormatError(f"{p}: {_kind(st.st_mode)}, not a regular file: refused")
+                raise StoreFileError(f"{p}: {_kind(st.st_mode)}, not a regular file: refused")
             if st.st_size > cap:
-                raise InputFormatError(f"{p}: {st.st_size} bytes, more than the {cap} a file of this kind may hold: refused")
+                raise StoreFileError(f"{p}: {st.st_size} bytes, more than the {cap} a file of this kind may hold: refused")

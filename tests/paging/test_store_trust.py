@@ -297,3 +297,20 @@ def test_a_foreign_ome_zarr_is_unverified_foreign_without_a_warning(tmp_path, vo
         loader = ZarrLoader(tmp_path / "img.zarr")
     assert not loader.verified and loader.trust.startswith("unverified, foreign")
     np.testing.assert_array_equal(_valid(loader, 0, (0, 1, 1)), _ref(vol, (1, 1, 1)))
+
+
+def test_a_foreign_images_level_metadata_linked_outside_is_refused_not_skipped(tmp_path, vol):
+    """A plain OME-Zarr image's level 1 ``zarr.json`` linked out of the store: refused, not taken as
+    a level that is simply absent (which would be derived and drawn)."""
+    g = zarr.open_group(str(tmp_path / "img.zarr"), mode="w", zarr_format=3)
+    g.create_array("0", data=vol[:32, :32, :32], chunks=(B, B, B))
+    g.create_array("1", data=vol[:32:2, :32:2, :32:2], chunks=(B, B, B))
+    g.attrs["ome"] = {"version": "0.5", "multiscales": [{"axes": [{"name": a, "type": "space"} for a in "zyx"],
+                      "datasets": [{"path": str(L), "coordinateTransformations": [{"type": "scale", "scale": [2 ** L] * 3}]}
+                                   for L in (0, 1)]}]}
+    meta = tmp_path / "img.zarr" / "1" / "zarr.json"
+    shutil.copyfile(meta, tmp_path / "outside.json")
+    meta.unlink()
+    meta.symlink_to(tmp_path / "outside.json")
+    with pytest.raises(InputFormatError, match=r"level 1: .*zarr\.json: a symbolic link to .*outside\.json, outside the store"):
+        ZarrLoader(tmp_path / "img.zarr")
