@@ -113,15 +113,10 @@ class Manifest:
 def build_tables(path: Path, grids: list[tuple[int, int, int]]) -> tuple[list[np.ndarray], list[dict[str, str]]]:
     """The brick tables and statistics digests of the store at ``path``, from its statistics arrays
     (as the build recorded them) and the sizes of its chunk files."""
-    import zarr
-
     tables, digests = [], []
+    all_stats = _read_stats(path, len(grids))
     for L, grid in enumerate(grids):
-        base = path / STATS_GROUP / str(L)
-        stats = {}
-        for name in PINNED_STATS:
-            if (base / name).is_dir():
-                stats[name] = np.asarray(zarr.open_array(str(base / name), mode="r")[...])
+        stats = all_stats[L]
         for need in ("min", "max", "chunk_crc32c"):
             if need not in stats:
                 raise ManifestError(f"{path}: {STATS_GROUP}/{L}/{need} is missing: no manifest can be derived")
@@ -132,16 +127,40 @@ def build_tables(path: Path, grids: list[tuple[int, int, int]]) -> tuple[list[np
         for name in ("nan_count", "inf_count"):
             if name in stats:
                 t[name] = stats[name]
-        level_dir = path / str(L) / "c"
-        for idx in zip(*np.nonzero(t["crc32c"] >= 0)):
-            p = level_dir / str(int(idx[0])) / str(int(idx[1])) / str(int(idx[2]))
+        level_dir = f"{path}{os.sep}{L}{os.sep}c{os.sep}"
+        nbytes = t["nbytes"]
+        for bz, by, bx in np.argwhere(t["crc32c"] >= 0).tolist():  # plain strings: no pathlib per brick
+            p = f"{level_dir}{bz}{os.sep}{by}{os.sep}{bx}"
             try:
-                t["nbytes"][idx] = os.lstat(p).st_size
+                nbytes[bz, by, bx] = os.lstat(p).st_size
             except FileNotFoundError:
                 raise ManifestError(f"{p}: the statistics record a chunk for this brick but there is no file") from None
         tables.append(t)
         digests.append({name: stats_digest(a) for name, a in stats.items()})
     return tables, digests
+
+
+def _read_stats(path: Path, levels: int) -> list[dict[str, np.ndarray]]:
+    """Every level's statistics arrays, read concurrently in one pass of zarr's event loop (one
+    array at a time costs a round trip through it per array: most of a manifest's write time)."""
+    import asyncio
+
+    import zarr
+    from zarr.core.sync import sync
+
+    names = [(L, n) for L in range(levels) for n in PINNED_STATS if (path / STATS_GROUP / str(L) / n).is_dir()]
+
+    async def one(L: int, name: str) -> np.ndarray:
+        arr = await zarr.api.asynchronous.open_array(store=str(path / STATS_GROUP / str(L) / name), mode="r")
+        return np.asarray(await arr.getitem(...))
+
+    async def every() -> list[np.ndarray]:
+        return await asyncio.gather(*(one(L, n) for L, n in names))
+
+    out: list[dict[str, np.ndarray]] = [{} for _ in range(levels)]
+    for (L, n), a in zip(names, sync(every())):
+        out[L][n] = a
+    return out
 
 
 def write_manifest(path: str | Path, grids: list[tuple[int, int, int]]) -> dict:
