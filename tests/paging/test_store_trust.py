@@ -20,7 +20,6 @@ import pytest
 import zarr
 
 from clipvol.bricking.manifest import MANIFEST_DIR, TABLE_DTYPE
-from clipvol.bricking.pipeline import brick_volume
 from clipvol.errors import BrickIntegrityError, InputFormatError, StoreFormatError
 from clipvol.loaders.zarr_store import UnverifiedStoreWarning, ZarrLoader
 
