@@ -114,9 +114,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="draw N spatially disjoint brick groups in N worker processes and composite them")
     sl.add_argument("--scheduler", default="processes", metavar="S",
                     help="with --workers: processes (a local cluster, default) or tcp://HOST:PORT of a dask.distributed scheduler")
-    from clipvol.tools.remote_args import add_remote_arguments
+    from clipvol.tools.remote_args import add_remote_arguments, add_trust_arguments
 
     add_remote_arguments(p)
+    add_trust_arguments(p)
 
 
 def check_output_file(path, suffix: str, flag: str) -> None:
@@ -189,7 +190,7 @@ def run(args) -> int:
         from clipvol.tools import point_cli
 
         return point_cli.render(args)
-    from clipvol.tools.remote_args import remote_kwargs
+    from clipvol.tools.remote_args import check_trust, remote_kwargs
 
     from clipvol.app.autobrick import bricked_source
 
@@ -202,6 +203,7 @@ def run(args) -> int:
         loader, channel_tf, channel_overlays = channels
     else:
         loader = open_store(args.source, **kwargs, **remote_kwargs(args))
+        check_trust(loader, args, "render")
     if args.hide_labels:
         loader = hidden_labels(args.source, loader, args.hide_labels)
     pyr = loader.pyramid
