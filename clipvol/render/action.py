@@ -100,7 +100,7 @@ from ..scene.selection import merge_items
 from ..scene.selection.policies import POLICIES
 from .frame_loop import FrameLoop
 from .glsl import ProgramCache
-from .gpu_cache import GpuBrickCache
+from .gpu_cache import GpuBrickCache, t_scale_offset, texel_to_raw
 from .image_lod import ImageLod
 from .overlay_binding import OverlayTextures, overlay_defines
 from .resolve import Resolve
@@ -470,13 +470,7 @@ class ClipRenderAction:
         prog["u_forward"].value = _vec(cam.forward)
         prog["u_center_rel"].value = _vec(np.asarray(cam.center, dtype=np.float64) - origin)
         # t = (raw - lo) / (hi - lo) with raw = a * texel + b, folded in float64
-        fmt = self.cache.format
-        lo, hi = tf.window(self.pyramid.value_range)
-        if hi > lo:
-            scale, offset = fmt.a / (hi - lo), (fmt.b - lo) / (hi - lo)
-        else:  # zero-width window: a step at lo (0 below, 0.5 at, 1 above; clamped in the shader)
-            big = 1e30 / max(abs(fmt.a), 1e-300)
-            scale, offset = fmt.a * big, (fmt.b - lo) * big + 0.5
+        scale, offset = t_scale_offset(self.cache.format, tf.window(self.pyramid.value_range))
         _uset(prog, "u_t_scale", float(np.clip(scale, -3e38, 3e38)))
         _uset(prog, "u_t_offset", float(np.clip(offset, -3e38, 3e38)))
         _uset(prog, "u_jitter", 1.0 if self.params.jitter else 0.0)
@@ -628,7 +622,7 @@ class ClipRenderAction:
             m = self._last_raw[..., 0].astype(np.float64)
             hit = m > _MIP_EMPTY * 0.5
             fmt = self.cache.format
-            rgba = tf.lookup(np.where(hit, fmt.a * m + fmt.b, fmt.b), pyr.value_range)
+            rgba = tf.lookup(np.where(hit, texel_to_raw(fmt, m), fmt.b), pyr.value_range)
             a = np.where(hit, rgba[..., 3], 0.0)
             prem = np.concatenate([rgba[..., :3] * a[..., None], a[..., None]], axis=-1)
             r, g, b, ba = self.params.background
