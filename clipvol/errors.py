@@ -24,6 +24,7 @@ __all__ = [
     "OutputLockedError",
     "SourceChangedError",
     "OutputWriteError",
+    "FrameIncompleteError",
     "OPERATIONAL_ERRNOS",
     "describe_os_error",
     "MissingExtraError",
@@ -89,6 +90,14 @@ class MissingExtraError(ClipvolError, ImportError):
 class RemoteStoreError(ClipvolError, OSError):
     """A remote store (S3, HTTP, any fsspec URL) cannot be read: unreachable, no credentials,
     access denied, or retries exhausted (names the URL, never the credentials)."""
+
+
+class FrameIncompleteError(ClipvolError, RuntimeError):
+    """Some bricks of a frame failed and no verified ancestor stands in for them: the image would
+    show a hole as if it were data (names the bricks and their causes). The CLI exits with
+    :attr:`exit_code` 3 and writes nothing unless ``--allow-partial`` is given."""
+
+    exit_code = 3
 
 
 class OutputWriteError(ClipvolError, OSError):

@@ -20,10 +20,10 @@ import signal
 import sys
 import threading
 
-from clipvol.errors import OPERATIONAL_ERRNOS, ClipvolError, describe_os_error
+from clipvol.errors import OPERATIONAL_ERRNOS, ClipvolError, FrameIncompleteError, describe_os_error
 
 #: exit status of a frame some of whose bricks failed and were not replaced (clipvol.tools.partial)
-EXIT_PARTIAL = 3
+EXIT_PARTIAL = FrameIncompleteError.exit_code
 
 #: sub-command -> one-line help; the module is clipvol.tools.cmd_<name>
 COMMANDS = {
@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"clipvol {args.command}: interrupted", file=sys.stderr)
             return 130
         print(f"clipvol {args.command}: error: {e}", file=sys.stderr)
-        return 2
+        return int(getattr(e, "exit_code", 2))
     except KeyboardInterrupt:
         print(f"clipvol {args.command}: interrupted", file=sys.stderr)
         return 130

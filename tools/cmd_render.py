@@ -107,8 +107,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="draw N spatially disjoint brick groups in N worker processes and composite them")
     sl.add_argument("--scheduler", default="processes", metavar="S",
                     help="with --workers: processes (a local cluster, default) or tcp://HOST:PORT of a dask.distributed scheduler")
+    from clipvol.tools.partial import add_partial_argument
     from clipvol.tools.remote_args import add_remote_arguments
 
+    add_partial_argument(r)
     add_remote_arguments(p)
 
 
@@ -194,7 +196,9 @@ def run(args) -> int:
     from clipvol.scene.params import RenderParams
     from clipvol.units import format_bytes
 
+    from clipvol.render.failures import hatch_failed
     from clipvol.scene.bookmarks import load_camera
+    from clipvol.tools.partial import settle_failed
     from clipvol.tools.tf_args import transfer_function_from_args
 
     check_output_file(args.out, ".png", "--out")
@@ -244,6 +248,8 @@ def run(args) -> int:
             overlay_levels = action.overlays.levels()
     finally:
         ctx.release()
+    image = settle_failed("render", args.out, st.failed_bricks, image,
+                          lambda im: hatch_failed(im, cam, pyr, st.failed_bricks), args.allow_partial)
     Image.fromarray(image, "RGBA").save(args.out)
     t = st.times
     levels = ", ".join(f"L{L}: {n}" for L, n in st.bricks_drawn.items()) or "none"

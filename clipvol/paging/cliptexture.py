@@ -377,6 +377,12 @@ class ClipTexture:
                     out.append((lv.level, (int(k[0]), int(k[1]), int(k[2]))))
         return out
 
+    def failure_snapshot(self) -> dict:
+        """``{BrickKey: exception}`` of the bricks failed now, copied under the lock (loader
+        threads add to :attr:`failures` while a frame reads it)."""
+        with self._lock:
+            return dict(self.failures)
+
     @property
     def stats(self) -> ClipTextureStats:
         """A :class:`ClipTextureStats` snapshot."""

@@ -98,6 +98,7 @@ from ..scene.transfer import corrected_tables, transparency_filter
 from ..scene.visibility import box_depths, screen_rects
 from ..scene.selection import merge_items
 from ..scene.selection.policies import POLICIES
+from .failures import failed_bricks
 from .frame_loop import FrameLoop
 from .glsl import ProgramCache
 from .gpu_cache import GpuBrickCache, t_scale_offset, texel_to_raw
@@ -178,6 +179,9 @@ class FrameStats:
         Select/upload passes made (more than one only with ``wait=True``).
     counts : dict
         The selection's counts (culled, refined, fallback).
+    failed_bricks : tuple of FailedBrick
+        Wanted bricks that failed to load, each with its cause and the ancestor drawn in its place
+        (:mod:`clipvol.render.failures`); :attr:`unreplaced` are those drawn by nothing.
     """
 
     bricks_drawn: dict[int, int]
@@ -192,6 +196,12 @@ class FrameStats:
     passes: int = 1
     items_drawn: int = 0
     counts: dict = field(default_factory=dict)
+    failed_bricks: tuple = ()
+
+    @property
+    def unreplaced(self) -> tuple:
+        """The failed bricks no verified ancestor stands in for: regions missing from the image."""
+        return tuple(f for f in self.failed_bricks if not f.replaced)
 
 
 def _vec(v) -> tuple[float, float, float]:
@@ -419,7 +429,7 @@ class ClipRenderAction:
             texels_drawn=distinct * self.cache.brick_texels, bytes_uploaded=plan.bytes_uploaded,
             bricks_uploaded=plan.bricks_uploaded, texture_bytes=self.cache.texture_bytes,
             texture_budget=self.params.texture_budget, times=times, converged=plan.converged, passes=plan.passes,
-            items_drawn=len(sel.items), counts=dict(sel.counts),
+            items_drawn=len(sel.items), counts=dict(sel.counts), failed_bricks=failed_bricks(sel, self.clip_texture),
         )
         return image
 
