@@ -51,6 +51,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
     p.add_argument("--threads", type=int, default=None, help="loader threads")
     p.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for a converged frame")
+    from clipvol.tools.partial import add_partial_argument
+
+    add_partial_argument(p)
     p.add_argument("--max-frames", type=int, default=8, help="as-it-comes frames per view at most")
     p.add_argument("--reference-cap", default="1GB", help="most bytes the full-resolution reference may hold")
     p.add_argument("--no-plots", action="store_true", help="skip the matplotlib plots")
@@ -105,7 +108,7 @@ def run(args) -> int:
         memory_budgets=args.memory_budgets, texture_budgets=args.texture_budgets, tf=tf, mode=args.mode,
         step=args.step, threads=args.threads, timeout=args.timeout, max_frames=args.max_frames,
         reference_cap=args.reference_cap, log=lambda s: print(s, flush=True), plots=not args.no_plots,
-        block_budgets=_budgets(args.block_budgets),
+        block_budgets=_budgets(args.block_budgets), allow_partial=args.allow_partial,
     )
     print(f"wrote {res.csv}, {res.markdown}" + "".join(f", {p}" for p in res.plots))
     if args.points is not None:

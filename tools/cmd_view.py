@@ -75,6 +75,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     o.add_argument("--path", choices=("orbit", "turntable", "fly", "zoom"), default="orbit",
                    help="camera path (turntable: one upright turn, head-up for patient-frame stores)")
     o.add_argument("--frames", type=int, default=36, help="frames along the path")
+    from clipvol.tools.partial import add_partial_argument
+
+    add_partial_argument(o)
     o.add_argument("--out", default="frames", help="output directory (PNG frames), anim.gif or movie.mp4/.webm/.mkv/.mov")
     o.add_argument("--converged", action="store_true", help="wait each frame until its bricks are drawn at their own level")
     o.add_argument("--timeout", type=float, default=60.0, help="seconds to wait per frame with --converged")
@@ -224,6 +227,7 @@ def run(args) -> int:
             texture_budget=args.texture_budget, threads=args.threads, params=params, tf=tf, outlines=args.outlines,
             fps=args.fps, progress=show, path_kwargs=path_kwargs, quality=args.quality,
             orientation=None if args.no_labels or frame is None or frame.frame != "RAS" else frame,
+            on_failed=_on_failed(args, loader.pyramid),
         )
         print(f"wrote {res.frames} frames to {args.out}; per-frame statistics in {res.csv}")
         return 0
@@ -266,3 +270,16 @@ def _series(args, source, loader, kwargs) -> list:
     n = int(loader.lead_shape[axes.index("t")])
     return [loader] + [open_loader(source, t=k, **kwargs) for k in range(1, n)]
 
+
+def _on_failed(args, pyramid):
+    """``render_path``'s ``on_failed``: a frame with failed bricks that nothing stands in for stops
+    the path (exit 3), or with ``--allow-partial`` is written hatched (:mod:`clipvol.tools.partial`)."""
+    from clipvol.render.failures import hatch_failed
+    from clipvol.tools.partial import settle_failed
+
+    def on_failed(k, cam, img, failed):
+        return settle_failed("view", f"{args.out} frame {k}", failed, img,
+                             lambda im: hatch_failed(im, cam, pyramid, failed), args.allow_partial,
+                             stopped=f"stopped there, the {k} frame(s) before it are written")
+
+    return on_failed

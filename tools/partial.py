@@ -23,9 +23,10 @@ def add_partial_argument(p) -> None:
                         "them, their regions hatched in red (without it: nothing written, exit status 3)")
 
 
-def settle_failed(command: str, out, failed, image, hatch, allow: bool):
+def settle_failed(command: str, out, failed, image, hatch, allow: bool, stopped: str = "nothing written"):
     """``image`` when no failed brick is left unreplaced; else raise, or with ``allow`` return
-    ``hatch(image)`` after a warning. ``failed``: :class:`~clipvol.render.failures.FailedBrick` s."""
+    ``hatch(image)`` after a warning. ``failed``: :class:`~clipvol.render.failures.FailedBrick` s;
+    ``stopped`` says what the refusal leaves behind."""
     from clipvol.render.failures import describe_failed
 
     failed = list(failed)
@@ -39,7 +40,7 @@ def settle_failed(command: str, out, failed, image, hatch, allow: bool):
     if not allow:
         raise FrameIncompleteError(
             f"{out}: {len(missing)} brick(s) of the view failed and no verified ancestor stands in for them: "
-            f"{describe_failed(missing)}; nothing written (--allow-partial writes it with these regions hatched)")
+            f"{describe_failed(missing)}; {stopped} (--allow-partial writes it with these regions hatched)")
     print(f"clipvol {command}: warning: {out}: {len(missing)} brick(s) of the view failed and are hatched in red "
           f"(no data drawn there): {describe_failed(missing)}", file=sys.stderr)
     return hatch(image)

@@ -29,6 +29,7 @@ LaMar et al. 2000 do) - and a References section (:data:`REFERENCES`).
 from __future__ import annotations
 
 import csv
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,7 +37,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..errors import ClipvolError, ParameterError
+from ..errors import ClipvolError, FrameIncompleteError, ParameterError
 from ..paging.toroidal import minimum_budget
 from ..render.context import create_context
 from ..scene.metrics import percent_delta_e, psnr, rmse
@@ -168,8 +169,24 @@ def _settle(sess, cam, coi, timeout: float, max_passes: int = 32) -> int:
     return uploaded
 
 
+def _check_failed(s: _Setting, view: int, fs, allow_partial: bool, log) -> None:
+    """A converged frame with failed bricks that no verified ancestor stands in for measures the
+    error of a hole: refuse (:class:`~clipvol.errors.FrameIncompleteError`), or with
+    ``allow_partial`` say so and go on."""
+    from ..render.failures import describe_failed
+
+    if not fs.unreplaced:
+        return
+    text = (f"{s.label} view {view}: {len(fs.unreplaced)} brick(s) failed and no verified ancestor stands in for them: "
+            f"{describe_failed(fs.unreplaced)}")
+    if not allow_partial:
+        raise FrameIncompleteError(f"{text}; the report would measure a hole as data (allow_partial / --allow-partial "
+                                   "writes it anyway)")
+    print(f"clipvol report: warning: {text}; its numbers include the missing regions", file=sys.stderr)
+
+
 def _run_setting(s: _Setting, loader, ctx, views, refs, *, tf, mode, step, threads, timeout, max_frames,
-                 log, keep_frames: dict | None, repeats: int = 3) -> list[dict]:
+                 log, keep_frames: dict | None, repeats: int = 3, allow_partial: bool = False) -> list[dict]:
     params = RenderParams(lod_threshold=s.lod_threshold, policy=s.selection, level=s.level, mode=mode, step=step)
     rows: list[dict] = []
     brick_bytes = loader.pyramid.brick_nbytes
@@ -207,6 +224,7 @@ def _run_setting(s: _Setting, loader, ctx, views, refs, *, tf, mode, step, threa
                 img, t_one = sess.timed_render(cam, coi, wait=False)
                 dt = min(dt, t_one)
             fs = sess.frame_stats
+            _check_failed(s, v, fs, allow_partial, log)
             values = dict(
                 elapsed_s=round(time.perf_counter() - t_view, 6), frame_s=round(dt, 6), converge_s=round(converge_s, 6),
                 converged=int(fs.converged), bricks_drawn=fs.bricks_distinct,
@@ -248,6 +266,7 @@ def run_report(
     log: Callable[[str], None] | None = None,
     plots: bool = True,
     block_budgets: Sequence[int] | None = None,
+    allow_partial: bool = False,
 ) -> ReportResult:
     """Measure image error against frame time and bytes for a sweep of settings; write the report.
 
@@ -295,6 +314,10 @@ def run_report(
         visibility; ``lod_budget.csv`` / ``lod_budget.png``). Default
         :data:`~clipvol.app.lod_sweep.DEFAULT_BLOCK_BUDGETS`; ``()`` skips it. The image-based
         curves need the store's summary tables (else they are reported as skipped).
+    allow_partial : bool
+        Go on (with a warning on stderr) when a converged frame has failed bricks that no verified
+        ancestor stands in for; without it such a frame raises
+        :class:`~clipvol.errors.FrameIncompleteError`.
 
     Returns
     -------
@@ -322,7 +345,8 @@ def run_report(
     if own_ctx:
 
         ctx = create_context()
-    kw = dict(tf=tf, mode=mode, step=step, threads=threads, timeout=timeout, max_frames=int(max_frames), log=log)
+    kw = dict(tf=tf, mode=mode, step=step, threads=threads, timeout=timeout, max_frames=int(max_frames), log=log,
+              allow_partial=bool(allow_partial))
     try:
         # 1. the full-resolution reference of every view (also the "fixed" row of the tables)
         if log:
@@ -356,6 +380,8 @@ def run_report(
             try:
                 result.rows.extend(_run_setting(s, loader, ctx, cams, refs,
                                                 keep_frames=frames if s.sweep == "lod_threshold" else None, **kw))
+            except FrameIncompleteError:
+                raise
             except ClipvolError as e:  # a budget too small for this pyramid: say so, go on
                 result.skipped.append(f"{s.label}: {e}")
                 if log:

@@ -107,10 +107,13 @@ def _hull(points: np.ndarray) -> np.ndarray:
         return pts
     pts = pts[np.lexsort((pts[:, 1], pts[:, 0]))]
 
+    def cross(o, a, b) -> float:
+        return float((a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]))
+
     def half(seq):
         h: list = []
         for p in seq:
-            while len(h) >= 2 and np.cross(h[-1] - h[-2], p - h[-2]) <= 0:
+            while len(h) >= 2 and cross(h[-2], h[-1], p) <= 0:
                 h.pop()
             h.append(p)
         return h
