@@ -159,8 +159,7 @@ def run(args) -> int:
         from clipvol.tools import point_cli
 
         return point_cli.view(args)
-    if args.frames < 1:
-        raise ParameterError(f"--frames: expected >= 1, got {args.frames}")
+    _check_frames(args)
     if args.frame_time < 0:
         raise ParameterError(f"--frame-time: expected milliseconds >= 0, got {args.frame_time}")
     from clipvol.tools.tf_args import transfer_function_from_args
@@ -283,3 +282,27 @@ def _on_failed(args, pyramid):
                              stopped=f"stopped there, the {k} frame(s) before it are written")
 
     return on_failed
+
+
+#: most frames of one offscreen path (an hour at 24 fps)
+MAX_FRAMES = 86_400
+#: most bytes of frames a GIF holds in memory before it is written
+MAX_GIF_BYTES = 2 << 30
+
+
+def _check_frames(args) -> None:
+    """``--frames`` in 1..:data:`MAX_FRAMES`, and for a GIF (every frame held in memory until it is
+    written) no more than :data:`MAX_GIF_BYTES` of frames."""
+    from clipvol.errors import ParameterError
+    from clipvol.units import format_bytes
+
+    n = args.frames
+    if not 1 <= n <= MAX_FRAMES:
+        raise ParameterError(f"--frames: expected 1..{MAX_FRAMES}, got {n}")
+    if args.offscreen and str(args.out).lower().endswith(".gif"):
+        w, h = args.size or (256, 256)
+        need = n * w * h * 4
+        if need > MAX_GIF_BYTES:
+            raise ParameterError(f"--frames: a GIF holds every frame in memory until it is written: {n} frames of "
+                                 f"{w}x{h} need {format_bytes(need)}, expected at most {format_bytes(MAX_GIF_BYTES)} "
+                                 f"({MAX_GIF_BYTES // (w * h * 4)} frames); write PNG frames (--out DIR) or a movie")
