@@ -39,7 +39,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import MissingExtraError, ParameterError
+from ..errors import InputFormatError, MissingExtraError, ParameterError
 from .pipeline import (_brick_shape, _check_params, _create_store, check_overwrite_spares, chunk_encoder, encode_brick,
                        job_spec, mark_complete, output_lock, prepare_output, write_errors)
 from .pyramid import Pyramid, downsample
@@ -254,6 +254,8 @@ def brick_volume_dask(
     output = Path(output).absolute()
     src = open_source(source, raw_shape=raw_shape, raw_dtype=raw_dtype, byte_order=byte_order)
     try:
+        if spacing is None and getattr(src, "spacing_required", None):  # the input records no voxel size
+            raise InputFormatError(src.spacing_required)
         sp = tuple(float(v) for v in (spacing or src.spacing or (1.0, 1.0, 1.0)))
         unit = unit or getattr(src, "unit", None) or "micrometer"  # as the local path decides them
         frame = src.frame.with_spacing(sp) if getattr(src, "frame", None) is not None else None

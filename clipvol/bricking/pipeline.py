@@ -44,8 +44,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ..errors import (OPERATIONAL_ERRNOS, ClipvolError, OutputExistsError, OutputLockedError, OutputWriteError, ParameterError,
-                      SourceChangedError, describe_os_error)
+from ..errors import (OPERATIONAL_ERRNOS, ClipvolError, InputFormatError, OutputExistsError, OutputLockedError,
+                      OutputWriteError, ParameterError, SourceChangedError, describe_os_error)
 from .pyramid import FILTERS, Pyramid, downsample
 from .source_types import Source
 from .sources import check_source_unchanged, file_inodes, identity_changes, open_source, source_identity
@@ -575,6 +575,8 @@ def brick_volume(
     output = Path(output)
     src = open_source(source, raw_shape=raw_shape, raw_dtype=raw_dtype, byte_order=byte_order)
     try:
+        if spacing is None and getattr(src, "spacing_required", None):  # the input records no voxel size
+            raise InputFormatError(src.spacing_required)
         sp = spacing or src.spacing or (1.0, 1.0, 1.0)
         sp = tuple(float(v) for v in sp)
         unit = unit or src.unit or "micrometer"
