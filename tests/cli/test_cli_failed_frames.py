@@ -69,6 +69,21 @@ def test_a_level_whose_zarr_json_is_broken_draws_from_the_next_and_says_so(store
     assert out.exists()
 
 
+@pytest.mark.parametrize("key,value,needle", [("data_type", "uint16", "dtype"), ("chunk_grid", None, "chunks")])
+def test_a_level_zarr_json_with_another_dtype_or_chunk_shape_is_one_line(store, tmp_path, capsys, key, value, needle):
+    p = store / "1" / "zarr.json"
+    meta = json.loads(p.read_text())
+    if key == "chunk_grid":
+        meta["chunk_grid"]["configuration"]["chunk_shape"] = [4, 8, 8]
+    else:
+        meta[key] = value
+    p.write_text(json.dumps(meta))
+    assert main(["render", str(store), "-o", str(tmp_path / "a.png"), *FIXED]) == 2
+    err = _err(capsys).strip()
+    assert len(err.splitlines()) == 1 and "level 1" in err and needle in err
+    assert not (tmp_path / "a.png").exists()
+
+
 def test_every_level_broken_exits_3_naming_bricks_and_writes_nothing(store, tmp_path, capsys):
     for L in range(3):
         _swap_codecs(store, L)
