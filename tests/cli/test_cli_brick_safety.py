@@ -179,3 +179,13 @@ def test_disk_full_writing_a_png_is_one_line(tmp_path, capsys, monkeypatch):
     rc = main(["render", "procedural:fractal?size=16", "--brick", "8", "--size", "16x16", "-o", str(tmp_path / "a.png")])
     assert rc == 2
     _one_error_line(capsys, "No space left on device", "a.png")
+
+
+def test_brick_points_overwrite_refuses_an_output_that_holds_the_input(tmp_path, capsys):
+    out = tmp_path / "p.zarr"
+    out.mkdir()
+    pts = out / "pts.npy"
+    np.save(pts, np.random.default_rng(0).random((100, 4)))
+    assert main(["brick-points", str(pts), str(out), "--overwrite", "--quiet"]) == 2
+    _one_error_line(capsys, "--overwrite", "pts.npy")
+    assert pts.exists()
