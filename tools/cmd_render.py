@@ -289,6 +289,11 @@ def _run_sort_last(args, params, cam, tf, kwargs) -> int:
                              source_kwargs={**kwargs, **remote_kwargs(args)}) as dr:
         image = dr.render(cam, tf)
         st = dr.last_stats
+    from clipvol.render.failures import hatch_failed
+    from clipvol.tools.partial import settle_failed
+
+    image = settle_failed("render", args.out, st.failed_bricks, image,
+                          lambda im: hatch_failed(im, cam, dr.pyramid, st.failed_bricks), args.allow_partial)
     Image.fromarray(image, "RGBA").save(args.out)
     print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, {args.mode}, {params.policy}, sort-last over "
           f"{args.workers} workers)", file=sys.stderr)

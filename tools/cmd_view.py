@@ -201,6 +201,7 @@ def run(args) -> int:
         rows = render_path_sort_last(source, args.out, workers=args.workers, scheduler=args.scheduler,
                                      path=args.path, frames=args.frames, size=args.size or (256, 256), params=params,
                                      tf=tf, memory_budget=args.memory_budget, source_kwargs={**kwargs, **remote_kwargs(args)},
+                                     on_failed=_on_failed(args, loader.pyramid),
                                      progress=lambda r: print(f"frame {r['frame']:4d}  {r['frame_s'] * 1e3:7.1f} ms  "
                                                               f"compositing {r['composite_s'] * 1e3:5.1f} ms", flush=True))
         print(f"wrote {len(rows)} frames to {args.out}; per-frame times in {args.out}/frames.csv")

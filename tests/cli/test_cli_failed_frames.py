@@ -152,3 +152,15 @@ def test_report_exits_3(store, tmp_path, capsys):
     assert main(["report", str(store), "--out", str(tmp_path / "r"), "--views", "1", "--size", "32x32",
                  "--no-plots", "--thresholds", "1", "--block-budgets", "none"]) == 3
     assert "no verified ancestor" in _err(capsys)
+
+
+def test_sort_last_render_exits_3_and_allow_partial_hatches(store, tmp_path, capsys):
+    for L in range(3):
+        _damage_chunks(store, L, lambda z, y, x: x == 0)
+    out = tmp_path / "a.png"
+    sl = ["--workers", "2", "--scheduler", "inline"]
+    assert main(["render", str(store), "-o", str(out), *FIXED, *sl]) == 3
+    assert "no verified ancestor" in _err(capsys) and not out.exists()
+    assert main(["render", str(store), "-o", str(out), *FIXED, *sl, "--allow-partial"]) == 0
+    assert "hatched" in _err(capsys)
+    assert np.all(np.asarray(Image.open(out)) == HATCH_RGBA, axis=-1).any()

@@ -55,3 +55,24 @@ def test_automatic_transfer_function_shows_a_constant_volume(dtype):
     tf = auto_transfer_function(loader)
     assert tf.value_range == (1000.0, 1000.0)
     assert tf.lookup(np.array([1000.0]))[0, 3] > 0.0
+
+
+@pytest.mark.parametrize("dtype", ["uint16", "int16"])
+def test_sort_last_mip_of_a_constant_volume_draws_its_constant(ctx, tmp_path, dtype):
+    """The sort-last compositor maps the groups' maximum texel back to a value as the action does."""
+    from clipvol.app.sortlast import DistributedRenderer, release_worker_state
+    from clipvol.bricking.pipeline import brick_volume
+    from clipvol.scene.params import RenderParams
+
+    brick_volume(np.full((16, 16, 16), 1234, dtype=dtype), tmp_path / "c.zarr", brick=8, progress=False, workers=1,
+                 summary=False)
+    tf = TransferFunction.from_points([(0.0, (0, 0, 0, 0)), (0.2, COLOUR), (1.0, COLOUR)])
+    cam = Camera.orthographic((7.5, 7.5, 7.5), (0, 0, 1), (0, -1, 0), 12.0, 12.0, size=(24, 24))
+    try:
+        with DistributedRenderer(tmp_path / "c.zarr", 2, RenderParams(mode="mip"), scheduler="inline",
+                                 memory_budget="16MB") as dr:
+            img = dr.render(cam, tf)
+    finally:
+        release_worker_state()
+    expected = np.array([*np.round(np.array(COLOUR[:3]) * 255), 204])
+    assert np.abs(img.astype(int) - expected).max() <= 1, img[12, 12]
