@@ -233,7 +233,7 @@ class ClipTexture:
         self.pyramid = loader.pyramid
         self.memory_budget: int = parse_bytes(memory_budget, "memory_budget")
         if threads is None:  # an I/O-bound loader (a remote store) may ask for more threads than cores
-            threads = getattr(loader, "preferred_threads", None) or os.cpu_count() or 1
+            threads = min(int(getattr(loader, "preferred_threads", None) or os.cpu_count() or 1), MAX_LOADER_THREADS)
         nthreads = _count(threads, "threads", 1, MAX_LOADER_THREADS)
         retries = _count(retries, "retries", 0)
         try:

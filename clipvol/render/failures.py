@@ -51,10 +51,13 @@ class FailedBrick:
 
 
 def _cause(err: BaseException) -> str:
-    text = str(err).strip().splitlines()
-    line = text[0] if text else type(err).__name__
-    if err.__cause__ is not None and not text:
-        line = f"{type(err).__name__}: {err.__cause__}"
+    """The first line of ``err``; a foreign exception (a plug-in loader's) keeps its type's name."""
+    from ..errors import ClipvolError
+
+    text = str(err).strip()
+    line = text.splitlines()[0] if text else ""
+    if not isinstance(err, ClipvolError):
+        line = f"{type(err).__name__}: {line}" if line else type(err).__name__
     return line if len(line) <= CAUSE_CHARS else line[: CAUSE_CHARS - 3] + "..."
 
 
