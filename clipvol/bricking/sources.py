@@ -229,7 +229,8 @@ def check_source_unchanged(src: Source, identity: dict, inodes: dict, output) ->
     now_inodes = file_inodes(src)
     moved = sorted(p for p, ino in inodes.items() if now_inodes.get(p) != ino)
     if moved:
-        raise changed([f"file replaced or removed: {moved[0]}" + (f" and {len(moved) - 1} more" if len(moved) > 1 else "")])
+        more = f" and {len(moved) - 1} more" if len(moved) > 1 else ""
+        raise changed([f"file replaced or removed: {moved[0]}{more}"])
     files = src.files()
     if files and isinstance(identity, dict):  # sizes and times first: reading a truncated memory map faults
         try:

@@ -34,7 +34,8 @@ def failed_lines(frame_stats, shown: int = 2) -> list[str]:
     if not failed:
         return []
     holes = sum(1 for f in failed if not f.replaced)
-    head = f"FAILED {len(failed)} brick(s): " + (f"{holes} missing from the image" if holes else "drawn from a coarser level")
+    what = f"{holes} missing from the image" if holes else "drawn from a coarser level"
+    head = f"FAILED {len(failed)} brick(s): {what}"
     out = [AlertLine(head)]
     for f in failed[:shown]:
         text = str(f)

@@ -141,8 +141,8 @@ class DicomSeriesSource(Source):
                 raise InputFormatError(f"{f}: ImageOrientationPatient differs from {f0.name}'s; not one volume")
             psf = _floats(ds, "PixelSpacing", 2, f)
             if np.any(np.abs(psf - ps) > SPACING_TOLERANCE * ps):
-                raise InputFormatError(f"{f}: PixelSpacing {tuple(psf.tolist())} mm differs from {f0.name}'s {tuple(ps.tolist())} "
-                                       f"(by more than {SPACING_TOLERANCE:.1%}); not one grid")
+                raise InputFormatError(f"{f}: PixelSpacing {tuple(psf.tolist())} mm differs from {f0.name}'s "
+                                       f"{tuple(ps.tolist())} (by more than {SPACING_TOLERANCE:.1%}); not one grid")
             if int(getattr(ds, "SamplesPerPixel", 1)) != 1:
                 raise InputFormatError(f"{f}: expected grey slices (SamplesPerPixel 1), got {ds.SamplesPerPixel}")
             positions.append(_floats(ds, "ImagePositionPatient", 3, f))
