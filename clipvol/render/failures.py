@@ -25,7 +25,7 @@ HATCH_RGBA = (255, 0, 0, 255)
 #: stripe period in pixels (half red, half the image)
 HATCH_PERIOD = 6
 #: causes are cut to this many characters (one line each)
-CAUSE_CHARS = 160
+CAUSE_CHARS = 300
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,19 +76,24 @@ def failed_bricks(selection, clip_texture) -> tuple[FailedBrick, ...]:
     by_key = {(k.level, tuple(k.index)): e for k, e in failures.items()}
     items = selection.item_keys()
     span = np.asarray(selection.items.span, dtype=np.int64)
+    single = {tuple(r) for r in items[span == 1].tolist()}  # one brick each: a set lookup
+    merged_items, merged_span = items[span > 1], span[span > 1]  # few: scanned
+    top = int(items[:, 0].max(initial=-1))
     out = []
     for L, z, y, x in wanted.tolist():
         err = by_key.get((L, (z, y, x)))
         if err is None or clip_texture.state(L, (z, y, x)) != BrickState.FAILED:
             continue
         stand_in = None
-        b = np.array([z, y, x], dtype=np.int64)
-        for La in range(L + 1, int(items[:, 0].max(initial=-1)) + 1):
-            a = b >> (La - L)
-            at = items[:, 0] == La
-            cover = at & np.all((items[:, 1:] <= a) & (a < items[:, 1:] + span[:, None]), axis=1)
+        for La in range(L + 1, top + 1):
+            a = (z >> (La - L), y >> (La - L), x >> (La - L))
+            if (La, *a) in single:
+                stand_in = (La, a)
+                break
+            cover = (merged_items[:, 0] == La) & np.all(
+                (merged_items[:, 1:] <= a) & (np.asarray(a) < merged_items[:, 1:] + merged_span[:, None]), axis=1)
             if cover.any():
-                stand_in = (La, tuple(int(v) for v in items[np.argmax(cover), 1:]))
+                stand_in = (La, tuple(int(v) for v in merged_items[np.argmax(cover), 1:]))
                 break
         out.append(FailedBrick(L, (z, y, x), _cause(err), stand_in))
     return tuple(out)
