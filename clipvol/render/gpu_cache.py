@@ -91,8 +91,8 @@ def t_scale_offset(fmt: TextureFormat, window: tuple[float, float]) -> tuple[flo
     is a step at ``lo`` (0 below, 0.5 at, 1 above; the shader clamps). For the integer formats
     (``r8``/``r16``, whose raw values are whole numbers) the step is one unit of ``t`` per raw
     unit: a texel's float32 rounding error (~1e-7 of its value) then moves ``t`` by far less than a
-    table entry. A steeper step would amplify that rounding error past the table - a constant
-    uint16 volume, whose window is zero wide, then mapped its one value below the window and drew
+    table entry. A steeper step would amplify that rounding error past the table: a constant
+    uint16 volume, whose window is zero wide, would map its one value below the window and draw
     nothing. Float formats keep a steep step: their raw values can differ by far less than one.
     """
     lo, hi = (float(v) for v in window)
