@@ -277,10 +277,15 @@ def _on_failed(args, pyramid):
     from clipvol.render.failures import hatch_failed
     from clipvol.tools.partial import settle_failed
 
+    noted: set = set()
+
     def on_failed(k, cam, img, failed):
+        replaced = {(f.level, f.index) for f in failed if f.replaced}
+        note = not replaced <= noted  # each replaced brick noted once along the path
+        noted.update(replaced)
         return settle_failed("view", f"{args.out} frame {k}", failed, img,
                              lambda im: hatch_failed(im, cam, pyramid, failed), args.allow_partial,
-                             stopped=f"stopped there, the {k} frame(s) before it are written")
+                             stopped=f"stopped there, the {k} frame(s) before it are written", note=note)
 
     return on_failed
 

@@ -23,16 +23,18 @@ def add_partial_argument(p) -> None:
                         "them, their regions hatched in red (without it: nothing written, exit status 3)")
 
 
-def settle_failed(command: str, out, failed, image, hatch, allow: bool, stopped: str = "nothing written"):
+def settle_failed(command: str, out, failed, image, hatch, allow: bool, stopped: str = "nothing written",
+                  note: bool = True):
     """``image`` when no failed brick is left unreplaced; else raise, or with ``allow`` return
     ``hatch(image)`` after a warning. ``failed``: :class:`~clipvol.render.failures.FailedBrick` s;
-    ``stopped`` says what the refusal leaves behind."""
+    ``stopped`` says what the refusal leaves behind; ``note=False`` leaves out the note about
+    replaced bricks (a path's frames note a set of them once)."""
     from clipvol.render.failures import describe_failed
 
     failed = list(failed)
     replaced = [f for f in failed if f.replaced]
     missing = [f for f in failed if not f.replaced]
-    if replaced:
+    if replaced and note:
         print(f"clipvol {command}: note: {len(replaced)} failed brick(s) drawn from a coarser verified ancestor: "
               f"{describe_failed(replaced, 2)}", file=sys.stderr)
     if not missing:
