@@ -64,6 +64,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
     p.add_argument("--threads", type=int, default=None, help="loader threads")
     p.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for a converged frame")
+    from clipvol.tools.partial import add_partial_argument
+
+    add_partial_argument(p)
     p.add_argument("--max-frames", type=int, default=8, help="as-it-comes frames per view at most")
     p.add_argument("--rounds", type=_rounds, default=5,
                    help="warm interleaved rounds per setting and view, each frame paired with a reference frame; "
@@ -125,7 +128,7 @@ def run(args) -> int:
         memory_budgets=args.memory_budgets, texture_budgets=args.texture_budgets, tf=tf, mode=args.mode,
         step=args.step, threads=args.threads, timeout=args.timeout, max_frames=args.max_frames,
         reference_cap=args.reference_cap, log=lambda s: print(s, flush=True), plots=not args.no_plots,
-        block_budgets=_budgets(args.block_budgets), rounds=args.rounds,
+        block_budgets=_budgets(args.block_budgets), rounds=args.rounds, allow_partial=args.allow_partial,
     )
     print(f"wrote {res.csv}, {res.timing_csv}, {res.markdown}" + "".join(f", {p}" for p in res.plots))
     print(res.headline[:1].upper() + res.headline[1:] + ".")

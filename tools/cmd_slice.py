@@ -72,6 +72,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
     r.add_argument("--no-wait", action="store_true", help="draw what is resident after one pass (coarser fallback)")
     r.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for the slice's bricks (default 300)")
+    from clipvol.tools.partial import add_partial_argument
+
+    add_partial_argument(r)
 
 
 def plane_from_args(pyramid, args, frame=None):
@@ -196,6 +199,12 @@ def run(args) -> int:
             st = action.last_stats
     finally:
         ctx.release()
+    from clipvol.render.failures import hatch_failed
+    from clipvol.tools.partial import settle_failed
+
+    cam = action.last_camera
+    rgba = settle_failed("slice", args.out or args.npy or args.stats, st.failed_bricks, rgba,
+                         lambda im: hatch_failed(im, cam, pyr, st.failed_bricks, plane=plane), args.allow_partial)
     h, w = values.shape
     if args.out is not None:
         if edges is not None and frame.frame == "RAS" and not args.no_labels:

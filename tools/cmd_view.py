@@ -76,6 +76,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     o.add_argument("--path", choices=("orbit", "turntable", "fly", "zoom"), default="orbit",
                    help="camera path (turntable: one upright turn, head-up for patient-frame stores)")
     o.add_argument("--frames", type=int, default=36, help="frames along the path")
+    from clipvol.tools.partial import add_partial_argument
+
+    add_partial_argument(o)
     o.add_argument("--out", default="frames", help="output directory (PNG frames), anim.gif or movie.mp4/.webm/.mkv/.mov")
     o.add_argument("--converged", action="store_true", help="wait each frame until its bricks are drawn at their own level")
     o.add_argument("--timeout", type=float, default=60.0, help="seconds to wait per frame with --converged")
@@ -121,8 +124,7 @@ def run(args) -> int:
         from clipvol.tools import point_cli
 
         return point_cli.view(args)
-    if args.frames < 1:
-        raise ParameterError(f"--frames: expected >= 1, got {args.frames}")
+    _check_frames(args)
     if args.frame_time < 0:
         raise ParameterError(f"--frame-time: expected milliseconds >= 0, got {args.frame_time}")
     from clipvol.tools.tf_args import transfer_function_from_args
@@ -164,6 +166,7 @@ def run(args) -> int:
         rows = render_path_sort_last(source, args.out, workers=args.workers, scheduler=args.scheduler,
                                      path=args.path, frames=args.frames, size=args.size or (256, 256), params=params,
                                      tf=tf, memory_budget=args.memory_budget, source_kwargs={**kwargs, **remote_kwargs(args)},
+                                     on_failed=_on_failed(args, loader.pyramid),
                                      progress=lambda r: print(f"frame {r['frame']:4d}  {r['frame_s'] * 1e3:7.1f} ms  "
                                                               f"compositing {r['composite_s'] * 1e3:5.1f} ms", flush=True))
         print(f"wrote {len(rows)} frames to {args.out}; per-frame times in {args.out}/frames.csv")
@@ -199,6 +202,7 @@ def run(args) -> int:
             texture_budget=args.texture_budget, threads=args.threads, params=params, tf=tf, outlines=args.outlines,
             fps=args.fps, progress=show, path_kwargs=path_kwargs, quality=args.quality,
             orientation=None if args.no_labels or frame is None or frame.frame != "RAS" else frame,
+            on_failed=_on_failed(args, loader.pyramid),
         )
         print(f"wrote {res.frames} frames to {args.out}; per-frame statistics in {res.csv}")
         return 0
@@ -246,3 +250,45 @@ def _series(args, source, loader, kwargs) -> list:
     n = int(loader.lead_shape[axes.index("t")])
     return [loader] + [open_loader(source, t=k, **kwargs) for k in range(1, n)]
 
+
+def _on_failed(args, pyramid):
+    """``render_path``'s ``on_failed``: a frame with failed bricks that nothing stands in for stops
+    the path (exit 3), or with ``--allow-partial`` is written hatched (:mod:`clipvol.tools.partial`)."""
+    from clipvol.render.failures import hatch_failed
+    from clipvol.tools.partial import settle_failed
+
+    noted: set = set()
+
+    def on_failed(k, cam, img, failed):
+        replaced = {(f.level, f.index) for f in failed if f.replaced}
+        note = not replaced <= noted  # each replaced brick noted once along the path
+        noted.update(replaced)
+        return settle_failed("view", f"{args.out} frame {k}", failed, img,
+                             lambda im: hatch_failed(im, cam, pyramid, failed), args.allow_partial,
+                             stopped=f"stopped there, the {k} frame(s) before it are written", note=note)
+
+    return on_failed
+
+
+#: most frames of one offscreen path (an hour at 24 fps)
+MAX_FRAMES = 86_400
+#: most bytes of frames a GIF holds in memory before it is written
+MAX_GIF_BYTES = 2 << 30
+
+
+def _check_frames(args) -> None:
+    """``--frames`` in 1..:data:`MAX_FRAMES`, and for a GIF (every frame held in memory until it is
+    written) no more than :data:`MAX_GIF_BYTES` of frames."""
+    from clipvol.errors import ParameterError
+    from clipvol.units import format_bytes
+
+    n = args.frames
+    if not 1 <= n <= MAX_FRAMES:
+        raise ParameterError(f"--frames: expected 1..{MAX_FRAMES}, got {n}")
+    if args.offscreen and str(args.out).lower().endswith(".gif"):
+        w, h = args.size or (256, 256)
+        need = n * w * h * 4
+        if need > MAX_GIF_BYTES:
+            raise ParameterError(f"--frames: a GIF holds every frame in memory until it is written: {n} frames of "
+                                 f"{w}x{h} need {format_bytes(need)}, expected at most {format_bytes(MAX_GIF_BYTES)} "
+                                 f"({MAX_GIF_BYTES // (w * h * 4)} frames); write PNG frames (--out DIR) or a movie")

@@ -80,6 +80,9 @@ def brick_channels(source, output, **kwargs) -> list:
     if kwargs.get("overwrite") and output.exists():
         import shutil
 
+        from .pipeline import check_overwrite_spares
+
+        check_overwrite_spares(output, [source] if isinstance(source, (str, Path)) else [])
         shutil.rmtree(output)
         kwargs = {**kwargs, "overwrite": False}
     metas = [brick_volume(np.asarray(arr[c]), output / "c" / str(c), **kwargs) for c in range(arr.shape[0])]

@@ -119,16 +119,22 @@ class ClipTextureStats:
     empty_skipped: int = 0
 
 
-def _count(value, name: str, minimum: int) -> int:
-    """``value`` as an int >= ``minimum`` (numpy integers welcome, bools and floats refused)."""
+#: most loader threads: more only add stacks and lock contention (each thread's loads are I/O or a
+#: decode; a remote store's latency is covered by a few dozen), and 100000 would exhaust the process
+MAX_LOADER_THREADS = 256
+
+
+def _count(value, name: str, minimum: int, maximum: int | None = None) -> int:
+    """``value`` as an int in ``[minimum, maximum]`` (numpy integers welcome, bools and floats refused)."""
+    want = f"an integer >= {minimum}" if maximum is None else f"an integer in {minimum}..{maximum}"
     if isinstance(value, bool):
-        raise ParameterError(f"{name}: expected an integer >= {minimum}, got {value!r}")
+        raise ParameterError(f"{name}: expected {want}, got {value!r}")
     try:
         n = operator.index(value)
     except TypeError:
-        raise ParameterError(f"{name}: expected an integer >= {minimum}, got {value!r}") from None
-    if n < minimum:
-        raise ParameterError(f"{name}: expected an integer >= {minimum}, got {value!r}")
+        raise ParameterError(f"{name}: expected {want}, got {value!r}") from None
+    if n < minimum or (maximum is not None and n > maximum):
+        raise ParameterError(f"{name}: expected {want}, got {value!r}")
     return n
 
 
@@ -227,8 +233,8 @@ class ClipTexture:
         self.pyramid = loader.pyramid
         self.memory_budget: int = parse_bytes(memory_budget, "memory_budget")
         if threads is None:  # an I/O-bound loader (a remote store) may ask for more threads than cores
-            threads = getattr(loader, "preferred_threads", None) or os.cpu_count() or 1
-        nthreads = _count(threads, "threads", 1)
+            threads = min(int(getattr(loader, "preferred_threads", None) or os.cpu_count() or 1), MAX_LOADER_THREADS)
+        nthreads = _count(threads, "threads", 1, MAX_LOADER_THREADS)
         retries = _count(retries, "retries", 0)
         try:
             backoff = float(retry_backoff)
@@ -376,6 +382,12 @@ class ClipTexture:
                 for k in lv.key[lv.state == BrickState.RESIDENT]:
                     out.append((lv.level, (int(k[0]), int(k[1]), int(k[2]))))
         return out
+
+    def failure_snapshot(self) -> dict:
+        """``{BrickKey: exception}`` of the bricks failed now, copied under the lock (loader
+        threads add to :attr:`failures` while a frame reads it)."""
+        with self._lock:
+            return dict(self.failures)
 
     @property
     def stats(self) -> ClipTextureStats:

@@ -13,7 +13,7 @@ import re
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from ..errors import InputFormatError, InputNotFoundError
+from ..errors import InputFormatError, InputNotFoundError, ParameterError
 from .bytesource import is_remote_url
 from .loader import Loader
 
@@ -60,12 +60,12 @@ def open_store(path_or_url: str | Path, **kwargs) -> Loader:
         if scheme == "procedural":
             from ..loaders.procedural import ProceduralLoader
 
-            return ProceduralLoader(text, **kwargs)
+            return _construct(ProceduralLoader, text, kwargs)
         plugins = loader_plugins()
         if scheme not in plugins and is_remote_url(text):
             from ..loaders.zarr_remote import RemoteZarrLoader
 
-            return RemoteZarrLoader(text, **kwargs)
+            return _construct(RemoteZarrLoader, text, kwargs)
         if scheme not in plugins:
             raise InputFormatError(
                 f"{text}: no loader for the scheme {scheme!r}; expected a path, 'procedural:...', or one of the "
@@ -91,16 +91,36 @@ def open_store(path_or_url: str | Path, **kwargs) -> Loader:
             n = _channel_set(path)
             if n is not None:  # clipvol brick of a (c, z, y, x) input: one store per channel
                 return _open_channel(path, n, kwargs)
-            return ZarrLoader(path, **kwargs)
+            return _construct(ZarrLoader, path, kwargs)
         raise InputFormatError(f"{path}: expected a zarr store (a directory with zarr.json or .zgroup), found neither")
     if path.suffix.lower() == ".npy":
         from ..loaders.numpy_array import NumpyLoader
 
-        return NumpyLoader(path, **kwargs)
+        return _construct(NumpyLoader, path, kwargs)
     raise InputFormatError(
         f"{path}: unknown format (suffix {path.suffix or 'none'!r}); expected a zarr store directory, a .npy file "
         "or a URL such as 'procedural:fractal?size=256'"
     )
+
+
+def _construct(loader_class, where, kwargs: dict):
+    """``loader_class(where, **kwargs)``, refusing in one line the keywords it does not take (a
+    command's ``--brick`` for a store whose bricks were fixed when it was built) instead of
+    Python's ``TypeError``."""
+    import inspect
+
+    try:
+        params = inspect.signature(loader_class).parameters
+    except (TypeError, ValueError):
+        return loader_class(where, **kwargs)
+    if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        extra = sorted(k for k in kwargs if k not in params)
+        if extra:
+            k = extra[0]
+            raise ParameterError(f"{where}: {k} (--{k.replace('_', '-')}): not an option of a {loader_class.__name__} "
+                                 f"source, which takes {', '.join(n for n in list(params)[1:]) or 'no options'}; "
+                                 f"drop --{k.replace('_', '-')}")
+    return loader_class(where, **kwargs)
 
 
 def _channel_set(path: Path) -> int | None:

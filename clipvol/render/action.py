@@ -98,9 +98,10 @@ from ..scene.transfer import corrected_tables, transparency_filter
 from ..scene.visibility import box_depths, screen_rects
 from ..scene.selection import merge_items
 from ..scene.selection.policies import POLICIES
+from .failures import failed_bricks
 from .frame_loop import FrameLoop
 from .glsl import ProgramCache
-from .gpu_cache import GpuBrickCache
+from .gpu_cache import GpuBrickCache, t_scale_offset, texel_to_raw
 from .image_lod import ImageLod
 from .overlay_binding import OverlayTextures, overlay_defines
 from .resolve import Resolve
@@ -178,6 +179,9 @@ class FrameStats:
         Select/upload passes made (more than one only with ``wait=True``).
     counts : dict
         The selection's counts (culled, refined, fallback).
+    failed_bricks : tuple of FailedBrick
+        Wanted bricks that failed to load, each with its cause and the ancestor drawn in its place
+        (:mod:`clipvol.render.failures`); :attr:`unreplaced` are those drawn by nothing.
     """
 
     bricks_drawn: dict[int, int]
@@ -192,6 +196,12 @@ class FrameStats:
     passes: int = 1
     items_drawn: int = 0
     counts: dict = field(default_factory=dict)
+    failed_bricks: tuple = ()
+
+    @property
+    def unreplaced(self) -> tuple:
+        """The failed bricks no verified ancestor stands in for: regions missing from the image."""
+        return tuple(f for f in self.failed_bricks if not f.replaced)
 
 
 def _vec(v) -> tuple[float, float, float]:
@@ -419,7 +429,7 @@ class ClipRenderAction:
             texels_drawn=distinct * self.cache.brick_texels, bytes_uploaded=plan.bytes_uploaded,
             bricks_uploaded=plan.bricks_uploaded, texture_bytes=self.cache.texture_bytes,
             texture_budget=self.params.texture_budget, times=times, converged=plan.converged, passes=plan.passes,
-            items_drawn=len(sel.items), counts=dict(sel.counts),
+            items_drawn=len(sel.items), counts=dict(sel.counts), failed_bricks=failed_bricks(sel, self.clip_texture),
         )
         return image
 
@@ -470,13 +480,7 @@ class ClipRenderAction:
         prog["u_forward"].value = _vec(cam.forward)
         prog["u_center_rel"].value = _vec(np.asarray(cam.center, dtype=np.float64) - origin)
         # t = (raw - lo) / (hi - lo) with raw = a * texel + b, folded in float64
-        fmt = self.cache.format
-        lo, hi = tf.window(self.pyramid.value_range)
-        if hi > lo:
-            scale, offset = fmt.a / (hi - lo), (fmt.b - lo) / (hi - lo)
-        else:  # zero-width window: a step at lo (0 below, 0.5 at, 1 above; clamped in the shader)
-            big = 1e30 / max(abs(fmt.a), 1e-300)
-            scale, offset = fmt.a * big, (fmt.b - lo) * big + 0.5
+        scale, offset = t_scale_offset(self.cache.format, tf.window(self.pyramid.value_range))
         _uset(prog, "u_t_scale", float(np.clip(scale, -3e38, 3e38)))
         _uset(prog, "u_t_offset", float(np.clip(offset, -3e38, 3e38)))
         _uset(prog, "u_jitter", 1.0 if self.params.jitter else 0.0)
@@ -628,7 +632,7 @@ class ClipRenderAction:
             m = self._last_raw[..., 0].astype(np.float64)
             hit = m > _MIP_EMPTY * 0.5
             fmt = self.cache.format
-            rgba = tf.lookup(np.where(hit, fmt.a * m + fmt.b, fmt.b), pyr.value_range)
+            rgba = tf.lookup(np.where(hit, texel_to_raw(fmt, m), fmt.b), pyr.value_range)
             a = np.where(hit, rgba[..., 3], 0.0)
             prem = np.concatenate([rgba[..., :3] * a[..., None], a[..., None]], axis=-1)
             r, g, b, ba = self.params.background

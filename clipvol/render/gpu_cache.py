@@ -48,7 +48,7 @@ from ..paging.cliptexture import BrickState
 from ..rows import unique_rows
 from ..scene.selection.cut import DrawItems
 
-__all__ = ["GpuBrickCache", "TextureFormat", "texture_format", "allocate_gpu_windows"]
+__all__ = ["GpuBrickCache", "TextureFormat", "texture_format", "t_scale_offset", "texel_to_raw", "allocate_gpu_windows"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,6 +82,39 @@ def texture_format(dtype, value_range: tuple[float, float]) -> TextureFormat:
     # normalised over the data's range: 64-bit types, and floats whose range float32 arithmetic
     # on the GPU would lose (denormal or zero-width ranges, magnitudes near the float32 limit)
     return TextureFormat("f4", 4, (hi - lo) if hi > lo else 1.0, lo)
+
+
+def t_scale_offset(fmt: TextureFormat, window: tuple[float, float]) -> tuple[float, float]:
+    """``(scale, offset)`` with ``t = texel * scale + offset`` for the transfer function's ``window``.
+
+    Folded in float64 so that ``raw = a * texel + b`` never exists in float32. A zero-width window
+    is a step at ``lo`` (0 below, 0.5 at, 1 above; the shader clamps). For the integer formats
+    (``r8``/``r16``, whose raw values are whole numbers) the step is one unit of ``t`` per raw
+    unit: a texel's float32 rounding error (~1e-7 of its value) then moves ``t`` by far less than a
+    table entry. A steeper step would amplify that rounding error past the table: a constant
+    uint16 volume, whose window is zero wide, would map its one value below the window and draw
+    nothing. Float formats keep a steep step: their raw values can differ by far less than one.
+    """
+    lo, hi = (float(v) for v in window)
+    if hi > lo:
+        scale, offset = fmt.a / (hi - lo), (fmt.b - lo) / (hi - lo)
+    elif fmt.gl_dtype in ("f1", "nu2"):
+        scale, offset = fmt.a, fmt.b - lo + 0.5
+    else:
+        big = 1e30 / max(abs(fmt.a), 1e-300)
+        scale, offset = fmt.a * big, (fmt.b - lo) * big + 0.5
+    return float(np.clip(scale, -3e38, 3e38)), float(np.clip(offset, -3e38, 3e38))
+
+
+def texel_to_raw(fmt: TextureFormat, texel) -> np.ndarray:
+    """float64 data values of texels read back (MIP): ``a * texel + b``, rounded to whole numbers
+    for the integer formats, whose stored values are whole: the float32 texel carries a rounding
+    error that would otherwise put a value just below or above itself (and a zero-width window's
+    step then draws it as nothing, or as the top of the table)."""
+    raw = fmt.a * np.asarray(texel, dtype=np.float64)
+    if fmt.gl_dtype in ("f1", "nu2"):
+        raw = np.rint(raw)
+    return raw + fmt.b
 
 
 def convert_brick(brick: np.ndarray, fmt: TextureFormat) -> np.ndarray:
