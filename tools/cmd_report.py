@@ -44,9 +44,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("source", help="a clipvol store / OME-Zarr directory or URL (s3://, https://, ...), procedural:NAME?size=N, "
                                   "a .npy file, or a NIfTI / DICOM folder / FILE.h5:/dataset / MRC input (bricked once into ./NAME.zarr)")
-    from clipvol.tools.remote_args import add_remote_arguments
+    from clipvol.tools.remote_args import add_remote_arguments, add_trust_arguments
 
     add_remote_arguments(p)
+    add_trust_arguments(p)
     p.add_argument("--out", required=True, help="output directory (created)")
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources")
     p.add_argument("--path", choices=("orbit", "fly", "zoom"), default="orbit", help="camera path the views come from")
@@ -116,12 +117,13 @@ def run(args) -> int:
 
     from clipvol.tools.tf_args import transfer_function_from_args
 
-    from clipvol.tools.remote_args import remote_kwargs
+    from clipvol.tools.remote_args import check_trust, remote_kwargs
 
     from clipvol.app.autobrick import bricked_source
 
     args.source = bricked_source(args.source, None)  # a NIfTI / DICOM / HDF5 / MRC input: bricked once into ./NAME.zarr
     loader = open_loader(args.source, **({} if args.brick is None else {"brick": args.brick}), **remote_kwargs(args))
+    check_trust(loader, args, "report")
     tf = transfer_function_from_args(args, loader)
     res = run_report(
         loader, args.out, path=args.path, views=args.views, size=args.size, thresholds=args.thresholds,

@@ -35,9 +35,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", help="a clipvol store / OME-Zarr directory or URL (s3://, https://, ...), procedural:NAME?size=N, "
                    "a .npy file, or a NIfTI / DICOM folder / FILE.h5:/dataset / MRC input (bricked first into --store)")
     p.add_argument("--store", default=None, help="where a NIfTI/DICOM/HDF5/MRC input is bricked (default ./NAME.zarr; reused when it exists)")
-    from clipvol.tools.remote_args import add_remote_arguments
+    from clipvol.tools.remote_args import add_remote_arguments, add_trust_arguments
 
     add_remote_arguments(p)
+    add_trust_arguments(p)
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default: the loader's, 64)")
     g = p.add_argument_group("rendering")
     g.add_argument("--mode", choices=("composite", "mip"), default="composite", help="compositing or maximum intensity projection")
@@ -134,7 +135,7 @@ def run(args) -> int:
         step=args.step, texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget,
         jitter=not args.no_jitter, path=args.render_path, shading=args.shading,
     )
-    from clipvol.tools.remote_args import remote_kwargs
+    from clipvol.tools.remote_args import check_trust, remote_kwargs
 
     kwargs = {} if args.brick is None else {"brick": args.brick}
     if args.c is not None:
@@ -146,6 +147,7 @@ def run(args) -> int:
     if channels is not None and args.play:
         raise ParameterError("--channels: expected either --channels or --play, got both")
     loader = channels[0] if channels is not None else open_loader(source, **kwargs, **remote_kwargs(args))
+    check_trust(loader, args, "view")
     series = _series(args, source, loader, {**kwargs, **remote_kwargs(args)}) if args.play else None
     if params.level is not None and params.level >= loader.pyramid.num_levels:
         raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {params.level}")
