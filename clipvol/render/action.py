@@ -129,6 +129,8 @@ MAX_SINGLE_PASS_LEVELS = 16
 #: segment, so a ray of more samples would be cut short there; such a frame is drawn per brick.
 MAX_SINGLE_PASS_RAY_SAMPLES = 1 << 15
 MAX_PAGE_TABLE_ENTRIES = 1 << 24
+#: texture unit of the empty-space cells (after the single pass's 3 + 16 level textures)
+OCCUPANCY_UNIT = 20
 #: path="auto": the single pass draws cuts of at least this many (merged) boxes. Measured on Mesa
 #: llvmpipe (docs/benchmarks.md, "Which path draws a frame"), the single pass over the per-brick
 #: path, same cut: 1 box 1.04-1.06x, 2 boxes 1.04x, 4 boxes 0.94-0.97x, 8 boxes 0.90x, 10-18 boxes
@@ -234,6 +236,7 @@ class ClipRenderAction:
         self._tf_key = None
         self._pt_tex = None
         self.path_drawn = None  # "single-pass" or "bricks": what drew the last frame
+        self._skip = False  # this frame leaps over empty cells (EMPTY_SKIP, see _bind_occupancy)
         self.page_table_nodes = 0  # single pass: drawn nodes of the last frame's table, after merge_items
         self._fbo = None
         self._fbo_size = None
@@ -259,7 +262,7 @@ class ClipRenderAction:
         """The ``#define``\\ s of this frame's volume shader variant (see :mod:`clipvol.render.glsl`)."""
         mip = self.params.mode == "mip"
         return {"MODE_MIP": mip, "HAS_NAN": self.nonfinite, "SHADING": self.params.shading and not mip,
-                **overlay_defines(self.params.overlays, self.params.blend)}
+                "EMPTY_SKIP": self._skip, **overlay_defines(self.params.overlays, self.params.blend)}
 
     def _brick_program(self):
         """The brick shader variant for the current parameters (compiled once per variant)."""
@@ -347,6 +350,32 @@ class ClipRenderAction:
             tex.repeat_x = tex.repeat_y = False
             self._tf_tex, self._tf_key = tex, key
         return self._tf_tex
+
+    def _skips(self, tf) -> bool:
+        """Does this frame leap over empty cells? Composite without overlays (an overlay is sampled
+        wherever the primary is, and in MIP a transparent value can still be the maximum), with
+        ``skip_empty``, cells for this brick shape, and a window of non-zero width (a zero-width
+        window is a step whose float32 table coordinate the cells' test cannot bound)."""
+        p = self.params
+        if not p.skip_empty or p.mode != "composite" or p.overlays or self.cache.cell_edges is None:
+            return False
+        lo, hi = tf.window(self.pyramid.value_range)
+        return bool(hi > lo)
+
+    def _bind_occupancy(self, prog, tf) -> None:
+        """Bind the cache's cell flags for ``tf`` (:meth:`GpuBrickCache.occupancy_texture`) to
+        :data:`OCCUPANCY_UNIT` (EMPTY_SKIP variants only)."""
+        if self._skip:
+            self.cache.occupancy_texture(tf, self.pyramid.value_range).use(location=OCCUPANCY_UNIT)
+            _uset(prog, "u_occ", OCCUPANCY_UNIT)
+            _uset(prog, "u_occ_shift", _vec(0.5 / np.asarray(self.cache.cell_edges[::-1], dtype=np.float64)))
+
+    def _occupancy_uniforms(self, level: int) -> tuple[tuple[float, float, float], float]:
+        """Cells per axis ``(x, y, z)`` of ``level`` in the occupancy texture, and its first z there."""
+        lv = self.cache.occupancy_levels[level]
+        if lv is None:
+            return (1.0, 1.0, 1.0), 0.0
+        return _vec(lv[0]), float(lv[1])
 
     def level_ratios(self) -> np.ndarray:
         """Per level, the sample spacing ``step * min(scale)`` over the level-0 voxel size (the
@@ -512,6 +541,7 @@ class ClipRenderAction:
             if self._samples_per_box(cam, merged) <= MAX_STEPS_PER_BOX:  # else the rays would be cut
                 items = merged
         items = list(items)
+        self._skip = self._skips(tf)
         if items and (self.params.path == "single-pass" or (self.params.path == "auto" and not self.params.overlays
                                                             and len(items) >= AUTO_SINGLE_PASS_BOXES)):
             out = self._draw_single_pass(cam, tf, items)
@@ -550,6 +580,7 @@ class ClipRenderAction:
                 ctx.blend_func = mgl.ONE, mgl.ONE_MINUS_SRC_ALPHA
         if composite:
             self._ensure_tf(tf).use(location=1)
+        self._bind_occupancy(self.program, tf)
         if self.params.overlays:  # co-registered volumes sampled at each sample (render/overlay_binding.py)
             self.overlays.bind(self.program, self.params.overlays, origin, self.level_ratios())
         prog = self.program
@@ -584,6 +615,10 @@ class ClipRenderAction:
                 _uset(prog, "u_tf_row", (L + 0.5) / pyr.num_levels)
                 prog["u_inv_scale"].value = _vec(1.0 / scale)
                 _uset(prog, "u_inv_tex_size", _vec(1.0 / (win[::-1] * B[::-1])))
+                if self._skip:
+                    occ_size, occ_z0 = self._occupancy_uniforms(L)
+                    _uset(prog, "u_occ_size", occ_size)
+                    _uset(prog, "u_occ_z0", occ_z0)
                 bound_level = L
             bidx = np.asarray(it.index, dtype=np.int64)
             first = trans + bidx[::-1] * B[::-1] * scale
@@ -717,6 +752,10 @@ class ClipRenderAction:
             "u_lv_win": i32(win), "u_lv_inv_tex_size": f32(1.0 / (win * B)),
             "u_lv_delta": f32([self.params.step * float(min(lv.scale)) for lv in pyr.levels]),
         }
+        if self._skip:
+            occ = [self._occupancy_uniforms(L) for L in range(nlev)]
+            uniforms["u_lv_occ_size"] = f32([o[0] for o in occ])
+            uniforms["u_lv_occ_z0"] = f32([o[1] for o in occ])
         for name, data in uniforms.items():
             u = prog.get(name, None)
             if u is not None:  # a variant may keep only an array's first elements (the levels it draws)
@@ -736,6 +775,7 @@ class ClipRenderAction:
         self._ensure_page_table(table.entries).use(location=2)
         if not mip:
             self._ensure_tf(tf).use(location=1)
+        self._bind_occupancy(prog, tf)
         for L, tex in enumerate(self.cache.textures):
             if tex is not None:
                 _uset(prog, f"u_level{L}", 3 + L)

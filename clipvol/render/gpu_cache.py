@@ -26,6 +26,17 @@ drawn and a slot drawn this frame is never overwritten in the same frame. Evicti
 an evicted brick was not drawn this frame, and the window always holds the most recently used
 brick of each slot.
 
+Cells for empty-space skipping
+------------------------------
+Beside each level texture the cache keeps, per cell of ``cell_edges`` voxels of every slot, the
+cell's ``[min, max]`` (:mod:`clipvol.scene.occupancy`), written by :meth:`GpuBrickCache.commit`
+from the very texels it uploads, so a cell's range always describes what its slot holds.
+:meth:`GpuBrickCache.occupancy_texture` turns them into one byte per cell for a transfer function
+(the ranges widened over the 26 neighbouring cells of the toroidal window, so trilinear filtering
+across a face is covered) - recomputed for every level when the table or its window changes, and
+for the levels that received bricks otherwise - in one small ``r8`` 3D texture, the levels stacked
+along z, each at the same toroidal addressing as its level texture divided by the cell edge.
+
 Texture formats: ``uint8``/``int8`` as normalised ``r8``, ``uint16``/``int16`` as normalised
 ``r16`` (signed types shifted to unsigned), ``float16``/``float32`` as ``r32f`` raw values (NaN and
 Inf kept; the shader treats non-finite samples as transparent), every other type (32/64-bit
@@ -46,6 +57,7 @@ from ..bricking.pyramid import NEIGHBOUR_OFFSETS, Pyramid
 from ..errors import ParameterError
 from ..paging.cliptexture import BrickState
 from ..rows import unique_rows
+from ..scene.occupancy import cell_edges, cell_ranges, occupancy, widen
 from ..scene.selection.cut import DrawItems
 
 __all__ = ["GpuBrickCache", "TextureFormat", "texture_format", "allocate_gpu_windows"]
@@ -218,6 +230,27 @@ class GpuBrickCache:
         self.bricks_uploaded = 0
         self.total_texels_uploaded = 0
         self._nb_cache: tuple | None = None  # (items, neighbours) of the current frame
+        # empty-space skipping below the brick (module docstring, "Cells"): per level the cells'
+        # ranges in stored units (+inf/-inf: nothing known yet), the occupancy texture, what it shows
+        self.cell_edges = cell_edges(B)
+        self._cell_lo: list[np.ndarray | None] = []
+        self._cell_hi: list[np.ndarray | None] = []
+        self.occupancy_levels: list[tuple[tuple[int, int, int], int] | None] = []  # ((cx, cy, cz) cells, z0)
+        z0 = 0
+        for w in self.windows:
+            if w is None or self.cell_edges is None:
+                self._cell_lo.append(None)
+                self._cell_hi.append(None)
+                self.occupancy_levels.append(None)
+                continue
+            cells = tuple(int(wa * b // e) for wa, b, e in zip(w, B, self.cell_edges))  # (z, y, x)
+            self._cell_lo.append(np.full(cells, np.inf, dtype=np.float32))
+            self._cell_hi.append(np.full(cells, -np.inf, dtype=np.float32))
+            self.occupancy_levels.append((cells[::-1], z0))
+            z0 += cells[0]
+        self._occ_tex = None
+        self._occ_key = None
+        self._occ_dirty: set[int] = set()
 
     # -- per frame ---------------------------------------------------------------------------------
     def begin_frame(self, clip_texture, texels_per_frame: int | None, allow=None) -> "GpuBrickCache":
@@ -438,6 +471,13 @@ class GpuBrickCache:
             )
             self._slot_key[level][slot] = key
             nbytes += texels.nbytes
+            if self._cell_lo[level] is not None:  # the cells' ranges of exactly what was written
+                lo, hi = cell_ranges(texels, self.cell_edges)
+                k = lo.shape
+                region = tuple(slice(s * n, (s + 1) * n) for s, n in zip(slot, k))
+                self._cell_lo[level][region] = lo
+                self._cell_hi[level][region] = hi
+                self._occ_dirty.add(level)
         n = len(self._pending)
         self._pending = {}
         self.bytes_uploaded = nbytes
@@ -474,8 +514,42 @@ class GpuBrickCache:
                 out[:, a, side] = face_exists & np.all(ok[:, slab], axis=1) & (w[a] >= 2)
         return out
 
+    def occupancy_texture(self, tf, data_range):
+        """The ``r8`` 3D texture of every level's cell flags for ``tf`` (1: may be visible, 0: every
+        sample in the cell is transparent), levels stacked along z at :attr:`occupancy_levels`;
+        None without cells (an odd brick extent). Levels are recomputed when the table or its window
+        changed since the last call, else only those that received bricks."""
+        if self.cell_edges is None:
+            return None
+        import moderngl
+
+        key = (np.asarray(tf.table)[:, 3].tobytes(), tuple(float(v) for v in tf.window(data_range)))
+        if self._occ_tex is None:
+            used = [lv for lv in self.occupancy_levels if lv is not None]
+            size = (max(c[0] for c, _ in used), max(c[1] for c, _ in used), sum(c[2] for c, _ in used))
+            self._occ_tex = self.ctx.texture3d(size, 1, dtype="f1")
+            self._occ_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        todo = range(len(self.windows)) if key != self._occ_key else sorted(self._occ_dirty)
+        scale = {"f1": 255.0, "nu2": 65535.0}.get(self.format.gl_dtype, 1.0)  # stored units per texel
+        a, b = self.format.a / scale, self.format.b
+        for L in todo:
+            lv = self.occupancy_levels[L]
+            if lv is None:
+                continue
+            lo, hi = widen(self._cell_lo[L], self._cell_hi[L])
+            flags = occupancy(lo, hi, tf, data_range, a, b)
+            (cx, cy, cz), z0 = lv
+            self._occ_tex.write(np.ascontiguousarray(flags) * np.uint8(255), viewport=(0, 0, z0, cx, cy, cz),
+                                alignment=1)
+        self._occ_key = key
+        self._occ_dirty = set()
+        return self._occ_tex
+
     def release(self) -> None:
         for t in self.textures:
             if t is not None:
                 t.release()
         self.textures = [None] * len(self.windows)
+        if self._occ_tex is not None:
+            self._occ_tex.release()
+            self._occ_tex = None
