@@ -131,6 +131,10 @@ MAX_SINGLE_PASS_RAY_SAMPLES = 1 << 15
 MAX_PAGE_TABLE_ENTRIES = 1 << 24
 #: texture unit of the empty-space cells (after the single pass's 3 + 16 level textures)
 OCCUPANCY_UNIT = 20
+#: a frame leaps over empty cells only when at least this fraction of the cells holding data is
+#: empty under the transfer function: with none empty, the cell lookups (one per 8 samples) cost
+#: 5-10 % of a frame on llvmpipe (tools/bench/bench_skip.py, a table visible everywhere)
+MIN_EMPTY_FRACTION = 0.1
 #: path="auto": the single pass draws cuts of at least this many (merged) boxes. Measured on Mesa
 #: llvmpipe (docs/benchmarks.md, "Which path draws a frame"), the single pass over the per-brick
 #: path, same cut: 1 box 1.04-1.06x, 2 boxes 1.04x, 4 boxes 0.94-0.97x, 8 boxes 0.90x, 10-18 boxes
@@ -354,13 +358,18 @@ class ClipRenderAction:
     def _skips(self, tf) -> bool:
         """Does this frame leap over empty cells? Composite without overlays (an overlay is sampled
         wherever the primary is, and in MIP a transparent value can still be the maximum), with
-        ``skip_empty``, cells for this brick shape, and a window of non-zero width (a zero-width
-        window is a step whose float32 table coordinate the cells' test cannot bound)."""
+        ``skip_empty``, cells for this brick shape, a window of non-zero width (a zero-width window
+        is a step whose float32 table coordinate the cells' test cannot bound), and at least
+        :data:`MIN_EMPTY_FRACTION` of the cells holding data empty under ``tf`` (the lookups cost
+        samples where there is little to leap). Derives the cells' flags for ``tf``."""
         p = self.params
         if not p.skip_empty or p.mode != "composite" or p.overlays or self.cache.cell_edges is None:
             return False
         lo, hi = tf.window(self.pyramid.value_range)
-        return bool(hi > lo)
+        if not hi > lo:
+            return False
+        self.cache.occupancy_texture(tf, self.pyramid.value_range)
+        return self.cache.empty_fraction() >= MIN_EMPTY_FRACTION
 
     def _bind_occupancy(self, prog, tf) -> None:
         """Bind the cache's cell flags for ``tf`` (:meth:`GpuBrickCache.occupancy_texture`) to

@@ -250,7 +250,10 @@ class GpuBrickCache:
             z0 += cells[0]
         self._occ_tex = None
         self._occ_key = None
-        self._occ_dirty: set[int] = set()
+        self._occ_dirty: dict[int, set] = {}  # level -> slots written since the flags were derived
+        self._occ_flags: list[np.ndarray | None] = [None] * len(self.windows)  # the flags, as uploaded
+        #: per level, (cells holding data, of them empty) under the last transfer function
+        self.occupancy_counts: list[tuple[int, int]] = [(0, 0)] * len(self.windows)
 
     # -- per frame ---------------------------------------------------------------------------------
     def begin_frame(self, clip_texture, texels_per_frame: int | None, allow=None) -> "GpuBrickCache":
@@ -477,7 +480,7 @@ class GpuBrickCache:
                 region = tuple(slice(s * n, (s + 1) * n) for s, n in zip(slot, k))
                 self._cell_lo[level][region] = lo
                 self._cell_hi[level][region] = hi
-                self._occ_dirty.add(level)
+                self._occ_dirty.setdefault(level, set()).add(slot)
         n = len(self._pending)
         self._pending = {}
         self.bytes_uploaded = nbytes
@@ -516,9 +519,14 @@ class GpuBrickCache:
 
     def occupancy_texture(self, tf, data_range):
         """The ``r8`` 3D texture of every level's cell flags for ``tf`` (1: may be visible, 0: every
-        sample in the cell is transparent), levels stacked along z at :attr:`occupancy_levels`;
-        None without cells (an odd brick extent). Levels are recomputed when the table or its window
-        changed since the last call, else only those that received bricks."""
+        sample assigned to the cell is transparent), levels stacked along z at
+        :attr:`occupancy_levels`; None without cells (an odd brick extent).
+
+        Every level is derived again when the table's opacity or its window changed since the last
+        call; otherwise only the cells that bricks written since then can change - each written
+        slot's cells and the layer before them (:func:`~clipvol.scene.occupancy.widen` looks one
+        cell ahead) - or the whole level when more than an eighth of its slots were written.
+        """
         if self.cell_edges is None:
             return None
         import moderngl
@@ -529,21 +537,48 @@ class GpuBrickCache:
             size = (max(c[0] for c, _ in used), max(c[1] for c, _ in used), sum(c[2] for c, _ in used))
             self._occ_tex = self.ctx.texture3d(size, 1, dtype="f1")
             self._occ_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        todo = range(len(self.windows)) if key != self._occ_key else sorted(self._occ_dirty)
         scale = {"f1": 255.0, "nu2": 65535.0}.get(self.format.gl_dtype, 1.0)  # stored units per texel
         a, b = self.format.a / scale, self.format.b
+        whole = key != self._occ_key
+        todo = range(len(self.windows)) if whole else sorted(self._occ_dirty)
         for L in todo:
             lv = self.occupancy_levels[L]
             if lv is None:
                 continue
-            lo, hi = widen(self._cell_lo[L], self._cell_hi[L])
-            flags = occupancy(lo, hi, tf, data_range, a, b)
+            lo, hi = self._cell_lo[L], self._cell_hi[L]
+            slots = self._occ_dirty.get(L, ())
+            if whole or self._occ_flags[L] is None or len(slots) * 8 > int(np.prod(self.windows[L])):
+                flags = occupancy(*widen(lo, hi), tf, data_range, a, b)
+            else:
+                flags = self._occ_flags[L]
+                K = np.asarray(lo.shape) // np.asarray(self.windows[L])  # cells per brick (z, y, x)
+                for slot in slots:
+                    # the slot's cells, the layer before them, and the layer after (read only)
+                    axes = [np.arange(s * k - 1, (s + 1) * k + 1) % n for s, k, n in zip(slot, K, lo.shape)]
+                    box = np.ix_(*axes)
+                    wl, wh = lo[box], hi[box]
+                    for ax in range(3):  # widen() without the wrap, within the box
+                        head = [slice(None)] * 3
+                        head[ax] = slice(0, -1)
+                        tail = [slice(None)] * 3
+                        tail[ax] = slice(1, None)
+                        wl = np.minimum(wl[tuple(head)], wl[tuple(tail)])
+                        wh = np.maximum(wh[tuple(head)], wh[tuple(tail)])
+                    flags[np.ix_(*(x[:-1] for x in axes))] = occupancy(wl, wh, tf, data_range, a, b)
+            self._occ_flags[L] = flags
+            has_data = lo <= hi
+            self.occupancy_counts[L] = (int(has_data.sum()), int((has_data & (flags == 0)).sum()))
             (cx, cy, cz), z0 = lv
             self._occ_tex.write(np.ascontiguousarray(flags) * np.uint8(255), viewport=(0, 0, z0, cx, cy, cz),
                                 alignment=1)
         self._occ_key = key
-        self._occ_dirty = set()
+        self._occ_dirty = {}
         return self._occ_tex
+
+    def empty_fraction(self) -> float:
+        """Of the cells holding data (every level), the fraction the last derived flags mark empty."""
+        total = sum(c[0] for c in self.occupancy_counts)
+        return sum(c[1] for c in self.occupancy_counts) / total if total else 0.0
 
     def release(self) -> None:
         for t in self.textures:

@@ -125,3 +125,51 @@ def test_no_skipping_in_mip_or_with_an_odd_brick(ctx):
             assert a.cache.cell_edges is None and not a._skip
     finally:
         clip.close()
+
+
+@pytest.mark.parametrize("variant", ["shading", "nan"])
+def test_skipping_in_the_lit_and_nan_aware_variants_changes_no_pixel(ctx, variant):
+    """The general march (HAS_NAN, SHADING) leaps like the fast one: same image as without skipping."""
+    from clipvol.render.action import ClipRenderAction
+
+    vol = shell_volume()
+    if variant == "nan":
+        vol[:6] = np.nan  # a slab of NaN in the air, and some next to the shell
+        vol[30:34, 2:12, 28:36] = np.nan
+    loader = NumpyLoader(vol, brick=16, value_range=(0.0, 1.0))
+    clip = ClipTexture(loader, "64MB", threads=2)
+    try:
+        for path in ("bricks", "single-pass"):
+            kw = dict(policy="fixed", level=0, path=path, shading=variant == "shading")
+            with ClipRenderAction(ctx, clip, **kw) as a, ClipRenderAction(ctx, clip, skip_empty=False, **kw) as b:
+                img = a.render(camera(), SHELL, wait=True, timeout=30)
+                assert a._skip and a.defines()["HAS_NAN" if variant == "nan" else "SHADING"]
+                full = b.render(camera(), SHELL, wait=True, timeout=30)
+                assert (full[..., 3] > 0).mean() > 0.3
+                assert diff(img, full) <= 1
+    finally:
+        clip.close()
+    assert ctx.error == "GL_NO_ERROR"
+
+
+def test_cells_derived_brick_by_brick_equal_the_whole_level(scene):
+    """A few bricks per frame: each frame updates only the cells next to the new bricks; the flags
+    (and the texture the shader reads) must equal the level derived whole from the cells' ranges."""
+    from clipvol.scene.occupancy import occupancy, widen
+
+    vol, pyr, action = scene
+    a = action(path="bricks", texels_per_frame=3 * 16 ** 3)
+    cache = a.cache
+    assert a.clip_texture.wait_until_idle(30)  # in RAM: the upload budget alone paces the frames
+    arrived = []
+    for _ in range(8):
+        a.render(camera(), SHELL)
+        for L in range(pyr.num_levels):
+            lo, hi = cache._cell_lo[L], cache._cell_hi[L]
+            assert np.array_equal(cache._occ_flags[L], occupancy(*widen(lo, hi), SHELL, pyr.value_range))
+        arrived.append(int(np.isfinite(cache._cell_lo[0]).sum()))
+    assert arrived[-1] > arrived[-3] > 0  # level-0 bricks did arrive over several frames
+    (cx, cy, cz), z0 = cache.occupancy_levels[0]
+    tex = cache._occ_tex
+    shown = np.frombuffer(tex.read(), dtype=np.uint8).reshape(tex.size[2], tex.size[1], tex.size[0])
+    assert np.array_equal(shown[z0:z0 + cz, :cy, :cx], cache._occ_flags[0] * 255)

@@ -316,6 +316,9 @@ void composite_lit(inout vec4 acc, float texel, float row, vec3 g, vec3 dir) {
 // first z in u_occ (both set by the caller of march_segment). The march looks the flag up at the
 // sample that enters a cell and, where it is 0, goes on at the first sample past the cell, so an
 // empty cell costs one lookup instead of its samples; the lattice is untouched.
+#ifndef SKIP_BLOCK
+#define SKIP_BLOCK 4
+#endif
 uniform sampler3D u_occ;
 vec3 g_occ_size;
 float g_occ_z0;
@@ -331,9 +334,9 @@ int cell_exit(int i, int n, vec3 q0, vec3 cs, vec3 ics, vec3 side, out bool visi
     vec3 f = q - cf;
     vec3 ex = (cf + mix(vec3(OCC_MARGIN), vec3(1.0 - OCC_MARGIN), side) - q0) * ics;
     int e = int(clamp(ceil(min(min(ex.x, ex.y), ex.z)), float(i + 1), float(n)));
-    vec3 w = cf - g_occ_size * floor(cf / g_occ_size);     // toroidal, as REPEAT wraps the level texture
+    vec3 w = mod(cf, g_occ_size);     // toroidal, as REPEAT wraps the level texture
     bool flag = texelFetch(u_occ, ivec3(w) + ivec3(0, 0, int(g_occ_z0)), 0).r > 0.5;
-    bool near = any(lessThan(f, vec3(OCC_MARGIN))) || any(greaterThan(f, vec3(1.0 - OCC_MARGIN)));
+    bool near = any(greaterThan(abs(f - 0.5), vec3(0.5 - OCC_MARGIN)));
     visible = flag || near;
     return (flag || !near) ? e : i + 1;     // a visible cell: its samples are taken without a lookup
 }
@@ -413,11 +416,42 @@ void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int 
     vec3 clo_t = (slot + clo + 0.5) * its;
     vec3 chi_t = (slot + chi + 0.5) * its;
 #ifdef EMPTY_SKIP
-    // one loop: whether a sample needs the clamp is not worth finding once samples are leapt
+    // One loop, one cell lookup per SKIP_BLOCK samples: a SIMD rasteriser (llvmpipe) pays for the
+    // lookup on every pass whether a lane needs it or not, so in visible space it is amortised over
+    // a block of samples (taking samples past a visible cell's exit is always right); an empty
+    // cell is leapt from the block's first sample. Whether a sample needs the clamp is not worth
+    // finding once samples are leapt.
     SKIP_SETUP(c0, dc)
-    for (int i = 0; i < n; ++i) {
-        SKIP_CHECK(i, n)
+    for (int i = 0; i < n; i += SKIP_BLOCK) {
+        bool vis_;
+        int e_ = cell_exit(i, n, q0_, cs_, ics_, side_, vis_);
+        while (!vis_ && e_ < n) {   // leap over a run of empty cells with lookups only
+            i = e_;
+            e_ = cell_exit(i, n, q0_, cs_, ics_, side_, vis_);
+        }
+        if (!vis_) break;           // empty to the end of the segment
         FAST_TAKE(clamp(c0 + float(i) * dc, clo_t, chi_t));
+#if SKIP_BLOCK > 1
+        if (i + 1 < n) FAST_TAKE(clamp(c0 + float(i + 1) * dc, clo_t, chi_t));
+#endif
+#if SKIP_BLOCK > 2
+        if (i + 2 < n) FAST_TAKE(clamp(c0 + float(i + 2) * dc, clo_t, chi_t));
+#endif
+#if SKIP_BLOCK > 3
+        if (i + 3 < n) FAST_TAKE(clamp(c0 + float(i + 3) * dc, clo_t, chi_t));
+#endif
+#if SKIP_BLOCK > 4
+        if (i + 4 < n) FAST_TAKE(clamp(c0 + float(i + 4) * dc, clo_t, chi_t));
+#endif
+#if SKIP_BLOCK > 5
+        if (i + 5 < n) FAST_TAKE(clamp(c0 + float(i + 5) * dc, clo_t, chi_t));
+#endif
+#if SKIP_BLOCK > 6
+        if (i + 6 < n) FAST_TAKE(clamp(c0 + float(i + 6) * dc, clo_t, chi_t));
+#endif
+#if SKIP_BLOCK > 7
+        if (i + 7 < n) FAST_TAKE(clamp(c0 + float(i + 7) * dc, clo_t, chi_t));
+#endif
     }
 #else
     // [ia, ib): sample indices whose coordinates lie in [clo_t, chi_t] on every axis, with a margin
