@@ -37,6 +37,7 @@ import numpy as np
 from ..bricking.pyramid import Int3
 from ..errors import InputFormatError, LoaderError, ParameterError
 from ..units import parse_bytes
+from .cells import cell_edges, cell_ranges
 from .loader import BrickKey, HasBrickRanges, Loader, check_brick
 from .queue import LoadQueue
 from .toroidal import (
@@ -145,10 +146,10 @@ class _Level:
     """Slot bookkeeping of one level: its pool and, per slot, brick, state, generation, attempts."""
 
     __slots__ = ("level", "grid", "whole", "shape", "start", "stop", "pool", "key", "state", "gen", "attempts", "not_before",
-                 "busy", "empty")
+                 "busy", "empty", "cell_lo", "cell_hi")
 
     def __init__(self, level: int, grid: Int3, whole: bool, capacity: int, brick_shape: Int3, dtype: np.dtype,
-                 prefault: bool = True):
+                 prefault: bool = True, cells: Int3 | None = None):
         self.level = level
         self.grid = grid
         self.whole = whole
@@ -173,6 +174,10 @@ class _Level:
         # the loader's bounds say the slot's brick holds only the fill value: filled, never read
         # (decided once per brick when it enters the window, in one vectorised bounds call)
         self.empty = np.zeros(capacity, dtype=bool)
+        # per slot, its brick's cells' value ranges (clipvol.paging.cells), written with the brick
+        shape = (capacity, *cells) if cells is not None else (0,)
+        self.cell_lo = np.full(shape, np.inf, dtype=np.float32)
+        self.cell_hi = np.full(shape, -np.inf, dtype=np.float32)
 
 
 class ClipTexture:
@@ -245,9 +250,12 @@ class ClipTexture:
         self.allocation: Allocation = allocate(self.pyramid, self.memory_budget)
         self.whole_levels: tuple[int, ...] = self.allocation.whole_levels
         pyr = self.pyramid
+        #: cells of each brick whose value ranges the loader threads compute (None: an odd brick extent)
+        self.cell_edges = cell_edges(pyr.brick_shape)
+        cells = None if self.cell_edges is None else tuple(b // e for b, e in zip(pyr.brick_shape, self.cell_edges))
         self._levels = [
             _Level(L, pyr.grid(L), L in self.whole_levels, self.allocation.capacity[L], pyr.brick_shape, pyr.dtype,
-                   bool(prefault))
+                   bool(prefault), cells)
             for L in range(pyr.num_levels)
         ]
         self._window = self.allocation.window
@@ -261,6 +269,7 @@ class ClipTexture:
         self._ranges_failed: set[int] = set()  # levels whose bounds call failed: not asked again
         self._fill_brick = np.full(pyr.brick_shape, pyr.fill_value, dtype=pyr.dtype)
         self._fill_brick.setflags(write=False)
+        self._fill_cells = None if cells is None else cell_ranges(self._fill_brick, self.cell_edges)
         self._skipped_empty = 0
         self._closing = False
         self._pending = 0  # bricks QUEUED or LOADING (recounted on every move, decremented per outcome)
@@ -367,6 +376,18 @@ class ClipTexture:
             res = self._resident_locked(lv, idx)
             data = lv.pool[slot_of(idx[res], lv.shape)]
         return res, data
+
+    def cell_ranges(self, level: int, index) -> tuple[np.ndarray, np.ndarray] | None:
+        """Copies of the resident brick's per-cell ``(min, max)`` (:func:`clipvol.paging.cells.cell_ranges`,
+        computed by the loader thread that loaded it), or None if it is not resident or the brick
+        shape has no cells."""
+        idx = self.pyramid.check_key(level, index)
+        lv = self._levels[level]
+        with self._lock:
+            s = self._slot_if_held(lv, idx)
+            if s is None or lv.state[s] != _RESIDENT or self.cell_edges is None:
+                return None
+            return lv.cell_lo[s].copy(), lv.cell_hi[s].copy()
 
     def resident_bricks(self) -> list[tuple[int, tuple[int, int, int]]]:
         """Every resident brick as ``(level, (bz, by, bx))``, coarsest level first."""
@@ -656,6 +677,9 @@ class ClipTexture:
         moved &= ~lv.busy[new_slot]  # never copy into a slot a late writer is still filling: reload instead
         # bricks that change slot (only when the window shape changes) carry their data along
         data = lv.pool[old_slot[moved & (old_state == _RESIDENT)]].copy() if moved.any() else None
+        if data is not None and self.cell_edges is not None:
+            cells = (lv.cell_lo[old_slot[moved & (old_state == _RESIDENT)]].copy(),
+                     lv.cell_hi[old_slot[moved & (old_state == _RESIDENT)]].copy())
         keep_attempts = lv.attempts[old_slot].copy()
         keep_nb = lv.not_before[old_slot].copy()
         keep_empty = lv.empty[old_slot].copy()
@@ -681,6 +705,9 @@ class ClipTexture:
             lv.empty[ms] = keep_empty[moved]
             if data is not None and len(data):
                 lv.pool[new_slot[moved & (old_state == _RESIDENT)]] = data
+                if self.cell_edges is not None:
+                    lv.cell_lo[new_slot[moved & (old_state == _RESIDENT)]] = cells[0]
+                    lv.cell_hi[new_slot[moved & (old_state == _RESIDENT)]] = cells[1]
         lv.start, lv.stop, lv.shape = start, stop, shape
         still = int(np.count_nonzero(lv.state == _RESIDENT))
         return was_resident - still
@@ -761,6 +788,9 @@ class ClipTexture:
         except Exception as e:  # a loader's failure never kills the thread
             err = e
         latency = time.perf_counter() - t0
+        cells = None
+        if err is None and self.cell_edges is not None:  # here, outside the lock (numpy releases the GIL)
+            cells = self._fill_cells if empty else cell_ranges(self._levels[L].pool[s] if into else brick, self.cell_edges)
         report = None
         with self._cv:
             if into:
@@ -777,6 +807,8 @@ class ClipTexture:
             if err is None:
                 if brick is not None:
                     lv.pool[s] = brick  # under the lock, after the generation check
+                if cells is not None:
+                    lv.cell_lo[s], lv.cell_hi[s] = cells
                 lv.state[s] = _RESIDENT
                 self._pending -= 1
                 if self.failures:

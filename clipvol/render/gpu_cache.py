@@ -30,7 +30,10 @@ Cells for empty-space skipping
 ------------------------------
 Beside each level texture the cache keeps, per cell of ``cell_edges`` voxels of every slot, the
 cell's ``[min, max]`` (:mod:`clipvol.scene.occupancy`), written by :meth:`GpuBrickCache.commit`
-from the very texels it uploads, so a cell's range always describes what its slot holds.
+with the brick's texels, so a cell's range always describes what its slot holds. The ranges come
+from the clip-texture, whose loader threads computed them from the decoded brick
+(:meth:`ClipTexture.cell_ranges`), so an upload only copies a few kilobytes more; they are
+computed here only for a residency source that has none.
 :meth:`GpuBrickCache.occupancy_texture` turns them into one byte per cell for a transfer function
 (the ranges widened over the 26 neighbouring cells of the toroidal window, so trilinear filtering
 across a face is covered) - recomputed for every level when the table or its window changes, and
@@ -231,7 +234,7 @@ class GpuBrickCache:
         self.total_texels_uploaded = 0
         self._nb_cache: tuple | None = None  # (items, neighbours) of the current frame
         # empty-space skipping below the brick (module docstring, "Cells"): per level the cells'
-        # ranges in stored units (+inf/-inf: nothing known yet), the occupancy texture, what it shows
+        # value ranges (+inf/-inf: nothing known yet), the occupancy texture, what it shows
         self.cell_edges = cell_edges(B)
         self._cell_lo: list[np.ndarray | None] = []
         self._cell_hi: list[np.ndarray | None] = []
@@ -474,8 +477,9 @@ class GpuBrickCache:
             )
             self._slot_key[level][slot] = key
             nbytes += texels.nbytes
-            if self._cell_lo[level] is not None:  # the cells' ranges of exactly what was written
-                lo, hi = cell_ranges(texels, self.cell_edges)
+            if self._cell_lo[level] is not None:  # the cells' ranges of the brick written
+                got = self._clip.cell_ranges(level, key) if hasattr(self._clip, "cell_ranges") else None
+                lo, hi = got if got is not None else cell_ranges(np.asarray(data), self.cell_edges)
                 k = lo.shape
                 region = tuple(slice(s * n, (s + 1) * n) for s, n in zip(slot, k))
                 self._cell_lo[level][region] = lo
@@ -537,8 +541,6 @@ class GpuBrickCache:
             size = (max(c[0] for c, _ in used), max(c[1] for c, _ in used), sum(c[2] for c, _ in used))
             self._occ_tex = self.ctx.texture3d(size, 1, dtype="f1")
             self._occ_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        scale = {"f1": 255.0, "nu2": 65535.0}.get(self.format.gl_dtype, 1.0)  # stored units per texel
-        a, b = self.format.a / scale, self.format.b
         whole = key != self._occ_key
         todo = range(len(self.windows)) if whole else sorted(self._occ_dirty)
         for L in todo:
@@ -548,7 +550,7 @@ class GpuBrickCache:
             lo, hi = self._cell_lo[L], self._cell_hi[L]
             slots = self._occ_dirty.get(L, ())
             if whole or self._occ_flags[L] is None or len(slots) * 8 > int(np.prod(self.windows[L])):
-                flags = occupancy(*widen(lo, hi), tf, data_range, a, b)
+                flags = occupancy(*widen(lo, hi), tf, data_range)
             else:
                 flags = self._occ_flags[L]
                 K = np.asarray(lo.shape) // np.asarray(self.windows[L])  # cells per brick (z, y, x)
@@ -564,7 +566,7 @@ class GpuBrickCache:
                         tail[ax] = slice(1, None)
                         wl = np.minimum(wl[tuple(head)], wl[tuple(tail)])
                         wh = np.maximum(wh[tuple(head)], wh[tuple(tail)])
-                    flags[np.ix_(*(x[:-1] for x in axes))] = occupancy(wl, wh, tf, data_range, a, b)
+                    flags[np.ix_(*(x[:-1] for x in axes))] = occupancy(wl, wh, tf, data_range)
             self._occ_flags[L] = flags
             has_data = lo <= hi
             self.occupancy_counts[L] = (int(has_data.sum()), int((has_data & (flags == 0)).sum()))

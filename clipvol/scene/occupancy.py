@@ -3,9 +3,10 @@
 Why cells: a brick is culled only when *all* of it is transparent (:func:`clipvol.scene.transfer.
 transparency_filter`), but on a scan most of a ray's samples are air in front of the object or
 tissue the transfer function hides, inside bricks that also hold something visible. Each brick is
-cut into cells of ``CELL``\\ ³ voxels (fewer where the brick shape is not a multiple of it); the
-GPU cache keeps each cell's ``[min, max]`` beside the brick's texels, in the same toroidal layout
-as its level texture, and turns them into one flag per cell - *may be visible* - whenever the
+cut into cells of ``CELL``\\ ³ voxels (fewer where the brick shape is not a multiple of it); each
+cell's ``[min, max]`` is computed from the decoded brick in the clip-texture's loader threads
+(:mod:`clipvol.paging.cells`), the GPU cache keeps them beside the brick's texels, in the same
+toroidal layout as its level texture, and turns them into one flag per cell - *may be visible* - whenever the
 transfer function changes or bricks arrive. The ray caster looks the flag up at a sample and leaps
 over a cell that is empty in one step (``render/shaders/volume_common.glsl``).
 
@@ -33,51 +34,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..paging.cells import CELL, cell_edges, cell_ranges
+
 __all__ = ["CELL", "cell_edges", "cell_ranges", "widen", "occupancy"]
-
-#: default cell edge in voxels (per axis, the largest of 8, 4, 2 that divides the brick shape)
-CELL = 8
-
-
-def cell_edges(brick_shape, cell: int = CELL) -> tuple[int, int, int] | None:
-    """Cell edge per axis ``(z, y, x)`` for bricks of ``brick_shape``: the largest power of two
-    ``<= cell`` (and ``>= 2``) dividing the brick's extent; None where an axis has none (an odd
-    brick extent: no cells, no skipping below the brick)."""
-    out = []
-    for b in brick_shape:
-        c = int(cell)
-        while c >= 2 and int(b) % c:
-            c //= 2
-        if c < 2:
-            return None
-        out.append(c)
-    return tuple(out)  # type: ignore[return-value]
-
-
-def cell_ranges(brick: np.ndarray, edges) -> tuple[np.ndarray, np.ndarray]:
-    """Per cell of ``brick`` ``(z, y, x)`` cut into ``edges`` voxels, the smallest and largest
-    finite value as float32 arrays of ``brick.shape // edges`` cells (``+inf``/``-inf`` where a
-    cell holds no finite value; NaN is ignored, an infinite value widens the range to it)."""
-    b = np.asarray(brick)
-    if b.dtype.kind == "f":
-        lo = _reduce_cells(np.fmin, b, edges).astype(np.float32)  # fmin/fmax skip NaN
-        hi = _reduce_cells(np.fmax, b, edges).astype(np.float32)
-        none = np.isnan(lo)  # every voxel NaN
-        lo[none], hi[none] = np.inf, -np.inf
-        return lo, hi
-    return _reduce_cells(np.minimum, b, edges).astype(np.float32), _reduce_cells(np.maximum, b, edges).astype(np.float32)
-
-
-def _reduce_cells(ufunc, b: np.ndarray, edges) -> np.ndarray:
-    """``ufunc.reduce`` over each cell, one axis at a time from the outermost: each step reduces a
-    middle axis (whole contiguous rows combined elementwise) on an array 1/edge the size of the
-    last, about 25x faster than one reduction over the three strided axes of a 6-D view."""
-    cz, cy, cx = (int(e) for e in edges)
-    Z, Y, X = b.shape
-    v = ufunc.reduce(b.reshape(Z // cz, cz, Y * X), axis=1)
-    v = ufunc.reduce(v.reshape(Z // cz, Y // cy, cy, X), axis=2)
-    return ufunc.reduce(v.reshape(Z // cz, Y // cy, X // cx, cx), axis=3)
-
 
 def widen(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each cell's range joined with the 7 cells ahead of it (``+1`` on any subset of the axes:

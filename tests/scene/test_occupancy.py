@@ -1,40 +1,12 @@
-"""Cell ranges and occupancy (clipvol.scene.occupancy) against brute force over the voxels."""
+"""Occupancy of cells (clipvol.scene.occupancy) against brute force over the voxels."""
 
 from __future__ import annotations
 
 import itertools
 
 import numpy as np
-import pytest
-
 from clipvol.scene.occupancy import cell_edges, cell_ranges, occupancy, widen
 from clipvol.scene.transfer import TransferFunction
-
-
-def test_cell_edges_divide_the_brick():
-    assert cell_edges((64, 32, 16)) == (8, 8, 8)
-    assert cell_edges((12, 20, 6)) == (4, 4, 2)
-    assert cell_edges((64, 64, 9)) is None  # an odd extent has no cells
-
-
-@pytest.mark.parametrize("dtype", [np.uint8, np.int16, np.float32])
-def test_cell_ranges_equal_loops_over_each_cell(rng, dtype):
-    b = (rng.random((8, 12, 16)) * 200 - (50 if dtype != np.uint8 else 0)).astype(dtype)
-    lo, hi = cell_ranges(b, (4, 2, 8))
-    assert lo.shape == (2, 6, 2)
-    for i, j, k in itertools.product(range(2), range(6), range(2)):
-        cell = b[4 * i:4 * i + 4, 2 * j:2 * j + 2, 8 * k:8 * k + 8].astype(np.float64)
-        assert lo[i, j, k] == np.float32(cell.min()) and hi[i, j, k] == np.float32(cell.max())
-
-
-def test_cell_ranges_ignore_nan_and_mark_all_nan_cells_empty(rng):
-    b = rng.random((4, 4, 4)).astype(np.float32)
-    b[:2, :2, :2] = np.nan
-    b[2, 2, 2] = np.nan
-    lo, hi = cell_ranges(b, (2, 2, 2))
-    assert lo[0, 0, 0] == np.inf and hi[0, 0, 0] == -np.inf
-    cell = b[2:, 2:, 2:]
-    assert lo[1, 1, 1] == np.nanmin(cell) and hi[1, 1, 1] == np.nanmax(cell)
 
 
 def test_widen_joins_the_seven_cells_ahead_with_wraparound(rng):
