@@ -342,11 +342,11 @@ int cell_exit(int i, int n, vec3 q0, vec3 cs, vec3 ics, vec3 side, out bool visi
 }
 // c0, dc: texture coordinate of sample 0 and its step (cell i of the level holds voxel coordinates
 // [e * i, e * (i + 1)), e the cell edge: q = c * size / e - 0.5 / e = c * g_occ_size - u_occ_shift);
-// then, at the top of the loop over i, a sample entering an empty cell jumps past it (continue:
-// the loop's ++i lands on the exit)
+// then, at the top of the loop over i (SKIP_CHECK, the lit and NaN-aware march), a sample entering
+// an empty cell leaps past it and the run of empty cells after it (break: empty to the end)
 uniform vec3 u_occ_shift;       // 0.5 / cell edge (x, y, z)
 #define SKIP_SETUP(c0, dc) vec3 q0_ = (c0) * g_occ_size - u_occ_shift; vec3 cs_ = (dc) * g_occ_size; vec3 ics_ = safe_inverse(cs_); vec3 side_ = vec3(greaterThanEqual(cs_, vec3(0.0))); int run_ = 0;
-#define SKIP_CHECK(i, n) if ((i) >= run_) { bool vis_; int e_ = cell_exit(i, n, q0_, cs_, ics_, side_, vis_); if (!vis_) { i = e_ - 1; continue; } run_ = e_; }
+#define SKIP_CHECK(i, n) if ((i) >= run_) { bool vis_; int e_ = cell_exit(i, n, q0_, cs_, ics_, side_, vis_); while (!vis_ && e_ < n) { i = e_; e_ = cell_exit(i, n, q0_, cs_, ics_, side_, vis_); } if (!vis_) break; run_ = e_; }
 #endif
 
 // Samples k0 .. k0 + n - 1 of the lattice t = off + k * delta along base + t * dir (base: the ray
