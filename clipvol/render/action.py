@@ -40,6 +40,11 @@ Per frame (:meth:`ClipRenderAction.render`):
      ``early_termination=False``: *back to front* with ``(ONE, ONE_MINUS_SRC_ALPHA)`` over the
      background, exactly as ``vzClipRenderAction``. MIP uses the ``MAX`` blend equation.
 
+   Both paths leap over empty space below the brick (``EMPTY_SKIP``, composite without overlays,
+   :mod:`clipvol.scene.occupancy`): each brick's cells of 8³ voxels carry their value range
+   (computed by the clip-texture's loader threads), the GPU cache turns them into one flag per cell
+   for the transfer function, and the march jumps over cells whose every sample is transparent.
+
    Both paths share ``shaders/volume_common.glsl``: the fragment shader rebuilds the pixel's ray
    from ``gl_FragCoord`` and the camera basis (per-frame uniforms, so bit-identical for every box
    and both paths), intersects it with the box (and the :class:`~clipvol.scene.geometry.Shape`'s
@@ -133,7 +138,7 @@ MAX_PAGE_TABLE_ENTRIES = 1 << 24
 OCCUPANCY_UNIT = 20
 #: a frame leaps over empty cells only when at least this fraction of the cells holding data is
 #: empty under the transfer function: with none empty, the cell lookups (one per 8 samples) cost
-#: 5-10 % of a frame on llvmpipe (tools/bench/bench_skip.py, a table visible everywhere)
+#: 5-12 % of a frame on llvmpipe (the CT-like head under a table visible everywhere, 128³-256³)
 MIN_EMPTY_FRACTION = 0.1
 #: path="auto": the single pass draws cuts of at least this many (merged) boxes. Measured on Mesa
 #: llvmpipe (docs/benchmarks.md, "Which path draws a frame"), the single pass over the per-brick

@@ -317,7 +317,7 @@ void composite_lit(inout vec4 acc, float texel, float row, vec3 g, vec3 dir) {
 // sample that enters a cell and, where it is 0, goes on at the first sample past the cell, so an
 // empty cell costs one lookup instead of its samples; the lattice is untouched.
 #ifndef SKIP_BLOCK
-#define SKIP_BLOCK 4
+#define SKIP_BLOCK 8
 #endif
 uniform sampler3D u_occ;
 vec3 g_occ_size;
