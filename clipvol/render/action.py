@@ -245,7 +245,7 @@ class ClipRenderAction:
         self._tf_key = None
         self._pt_tex = None
         self.path_drawn = None  # "single-pass" or "bricks": what drew the last frame
-        self._skip = False  # this frame leaps over empty cells (EMPTY_SKIP, see _bind_occupancy)
+        self.skipped_empty = False  # the last frame leapt over empty cells (EMPTY_SKIP, see _skips)
         self.page_table_nodes = 0  # single pass: drawn nodes of the last frame's table, after merge_items
         self._fbo = None
         self._fbo_size = None
@@ -271,7 +271,7 @@ class ClipRenderAction:
         """The ``#define``\\ s of this frame's volume shader variant (see :mod:`clipvol.render.glsl`)."""
         mip = self.params.mode == "mip"
         return {"MODE_MIP": mip, "HAS_NAN": self.nonfinite, "SHADING": self.params.shading and not mip,
-                "EMPTY_SKIP": self._skip, **overlay_defines(self.params.overlays, self.params.blend)}
+                "EMPTY_SKIP": self.skipped_empty, **overlay_defines(self.params.overlays, self.params.blend)}
 
     def _brick_program(self):
         """The brick shader variant for the current parameters (compiled once per variant)."""
@@ -379,7 +379,7 @@ class ClipRenderAction:
     def _bind_occupancy(self, prog, tf) -> None:
         """Bind the cache's cell flags for ``tf`` (:meth:`GpuBrickCache.occupancy_texture`) to
         :data:`OCCUPANCY_UNIT` (EMPTY_SKIP variants only)."""
-        if self._skip:
+        if self.skipped_empty:
             self.cache.occupancy_texture(tf, self.pyramid.value_range).use(location=OCCUPANCY_UNIT)
             _uset(prog, "u_occ", OCCUPANCY_UNIT)
             _uset(prog, "u_occ_shift", _vec(0.5 / np.asarray(self.cache.cell_edges[::-1], dtype=np.float64)))
@@ -555,7 +555,7 @@ class ClipRenderAction:
             if self._samples_per_box(cam, merged) <= MAX_STEPS_PER_BOX:  # else the rays would be cut
                 items = merged
         items = list(items)
-        self._skip = self._skips(tf)
+        self.skipped_empty = self._skips(tf)
         if items and (self.params.path == "single-pass" or (self.params.path == "auto" and not self.params.overlays
                                                             and len(items) >= AUTO_SINGLE_PASS_BOXES)):
             out = self._draw_single_pass(cam, tf, items)
@@ -629,7 +629,7 @@ class ClipRenderAction:
                 _uset(prog, "u_tf_row", (L + 0.5) / pyr.num_levels)
                 prog["u_inv_scale"].value = _vec(1.0 / scale)
                 _uset(prog, "u_inv_tex_size", _vec(1.0 / (win[::-1] * B[::-1])))
-                if self._skip:
+                if self.skipped_empty:
                     occ_size, occ_z0 = self._occupancy_uniforms(L)
                     _uset(prog, "u_occ_size", occ_size)
                     _uset(prog, "u_occ_z0", occ_z0)
@@ -766,7 +766,7 @@ class ClipRenderAction:
             "u_lv_win": i32(win), "u_lv_inv_tex_size": f32(1.0 / (win * B)),
             "u_lv_delta": f32([self.params.step * float(min(lv.scale)) for lv in pyr.levels]),
         }
-        if self._skip:
+        if self.skipped_empty:
             occ = [self._occupancy_uniforms(L) for L in range(nlev)]
             uniforms["u_lv_occ_size"] = f32([o[0] for o in occ])
             uniforms["u_lv_occ_z0"] = f32([o[1] for o in occ])

@@ -87,10 +87,10 @@ def test_skipping_draws_the_reference_image_with_air_and_a_thin_shell(scene, pat
     skip = action(path=path)
     plain = action(path=path, skip_empty=False)
     img = skip.render(cam, SHELL, wait=True, timeout=30)
-    assert skip.path_drawn == path and skip._skip
+    assert skip.path_drawn == path and skip.skipped_empty
     assert leapt_cells(skip) > 0.2  # the rays do leap
     full = plain.render(cam, SHELL, wait=True, timeout=30)
-    assert not plain._skip
+    assert not plain.skipped_empty
     r = reference(vol, pyr, cam, SHELL)
     assert (r[..., 3] > 0).mean() > 0.3
     assert diff(img, full) <= 1  # the same image as without skipping
@@ -122,7 +122,7 @@ def test_no_skipping_in_mip_or_with_an_odd_brick(ctx):
     try:
         with ClipRenderAction(ctx, clip, policy="fixed", level=0) as a:
             a.render(Camera.perspective((50.0, 40.0, -20.0), (14.5,) * 3, size=(32, 32)), SHELL, wait=True, timeout=30)
-            assert a.cache.cell_edges is None and not a._skip
+            assert a.cache.cell_edges is None and not a.skipped_empty
     finally:
         clip.close()
 
@@ -143,7 +143,7 @@ def test_skipping_in_the_lit_and_nan_aware_variants_changes_no_pixel(ctx, varian
             kw = dict(policy="fixed", level=0, path=path, shading=variant == "shading")
             with ClipRenderAction(ctx, clip, **kw) as a, ClipRenderAction(ctx, clip, skip_empty=False, **kw) as b:
                 img = a.render(camera(), SHELL, wait=True, timeout=30)
-                assert a._skip and a.defines()["HAS_NAN" if variant == "nan" else "SHADING"]
+                assert a.skipped_empty and a.defines()["HAS_NAN" if variant == "nan" else "SHADING"]
                 full = b.render(camera(), SHELL, wait=True, timeout=30)
                 assert (full[..., 3] > 0).mean() > 0.3
                 assert diff(img, full) <= 1

@@ -15,7 +15,8 @@ each first) and interleaved round by round, median of ``--repeat`` (>= 5) rounds
 
 Columns: median wall and process-CPU seconds (llvmpipe's rasteriser threads count in the CPU
 time, which is steadier than wall time on a loaded machine), each configuration over ``raw``, skip
-over plain, and the largest 8-bit difference between the skip and plain images (must be <= 1).
+over plain, the fraction of the cells holding data that the table makes empty, and the largest
+8-bit difference between the skip and plain images (must be <= 1).
 Target: ``skip`` <= 0.7x ``raw``. Rows go to ``tools/bench/results/bench_skip.csv``.
 
 Runs on whatever GL the context gets: Mesa llvmpipe on a machine without a GPU (the figures in
@@ -116,6 +117,8 @@ def run(n: int, images, repeat: int, step: float, out: Path, log=print) -> list[
                 for k in actions:
                     row[f"{k}_over_raw"] = round(mw[k] / mw["raw"], 3)
                     row[f"{k}_over_raw_cpu"] = round(mc[k] / mc["raw"], 3)
+                row["empty_cells"] = round(actions["skip"].cache.empty_fraction(), 3)
+                row["skipped"] = bool(actions["skip"].skipped_empty and actions["skip_single_pass"].skipped_empty)
                 row["skip_over_plain"] = round(mw["skip"] / mw["plain"], 3)
                 row["skip_over_plain_single_pass"] = round(mw["skip_single_pass"] / mw["plain_single_pass"], 3)
                 row["max_diff_skip_vs_plain"] = int(max(
