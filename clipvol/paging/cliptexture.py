@@ -790,7 +790,8 @@ class ClipTexture:
         latency = time.perf_counter() - t0
         cells = None
         if err is None and self.cell_edges is not None:  # here, outside the lock (numpy releases the GIL)
-            cells = self._fill_cells if empty else cell_ranges(self._levels[L].pool[s] if into else brick, self.cell_edges)
+            data = self._levels[L].pool[s] if into else brick
+            cells = self._fill_cells if empty else cell_ranges(data, self.cell_edges)
         report = None
         with self._cv:
             if into:
