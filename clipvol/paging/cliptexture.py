@@ -377,17 +377,19 @@ class ClipTexture:
             data = lv.pool[slot_of(idx[res], lv.shape)]
         return res, data
 
-    def cell_ranges(self, level: int, index) -> tuple[np.ndarray, np.ndarray] | None:
-        """Copies of the resident brick's per-cell ``(min, max)`` (:func:`clipvol.paging.cells.cell_ranges`,
-        computed by the loader thread that loaded it), or None if it is not resident or the brick
-        shape has no cells."""
-        idx = self.pyramid.check_key(level, index)
-        lv = self._levels[level]
+    def cell_ranges(self, level: int, indices) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """``(resident mask (n,), min (m, *cells), max (m, *cells))``: copies of the per-cell value
+        ranges (:func:`clipvol.paging.cells.cell_ranges`, computed by the loader thread that loaded
+        each brick) of the resident bricks among ``indices`` ``(n, 3)``, under one lock; None when
+        the brick shape has no cells."""
+        if self.cell_edges is None:
+            return None
+        lv = self._lv(level)
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1, 3)
         with self._lock:
-            s = self._slot_if_held(lv, idx)
-            if s is None or lv.state[s] != _RESIDENT or self.cell_edges is None:
-                return None
-            return lv.cell_lo[s].copy(), lv.cell_hi[s].copy()
+            res = self._resident_locked(lv, idx)
+            s = slot_of(idx[res], lv.shape)
+            return res, lv.cell_lo[s], lv.cell_hi[s]
 
     def resident_bricks(self) -> list[tuple[int, tuple[int, int, int]]]:
         """Every resident brick as ``(level, (bz, by, bx))``, coarsest level first."""

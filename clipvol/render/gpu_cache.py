@@ -32,8 +32,8 @@ Beside each level texture the cache keeps, per cell of ``cell_edges`` voxels of 
 cell's ``[min, max]`` (:mod:`clipvol.scene.occupancy`), written by :meth:`GpuBrickCache.commit`
 with the brick's texels, so a cell's range always describes what its slot holds. The ranges come
 from the clip-texture, whose loader threads computed them from the decoded brick
-(:meth:`ClipTexture.cell_ranges`), so an upload only copies a few kilobytes more; they are
-computed here only for a residency source that has none.
+(:meth:`ClipTexture.cell_ranges`), so an upload only copies a few kilobytes more per brick; they
+are computed here only for a residency source that has none.
 :meth:`GpuBrickCache.occupancy_texture` turns them into one byte per cell for a transfer function
 (the ranges widened over the 26 neighbouring cells of the toroidal window, so trilinear filtering
 across a face is covered) - recomputed for every level when the table or its window changes, and
@@ -477,14 +477,7 @@ class GpuBrickCache:
             )
             self._slot_key[level][slot] = key
             nbytes += texels.nbytes
-            if self._cell_lo[level] is not None:  # the cells' ranges of the brick written
-                got = self._clip.cell_ranges(level, key) if hasattr(self._clip, "cell_ranges") else None
-                lo, hi = got if got is not None else cell_ranges(np.asarray(data), self.cell_edges)
-                k = lo.shape
-                region = tuple(slice(s * n, (s + 1) * n) for s, n in zip(slot, k))
-                self._cell_lo[level][region] = lo
-                self._cell_hi[level][region] = hi
-                self._occ_dirty.setdefault(level, set()).add(slot)
+        self._commit_cells()
         n = len(self._pending)
         self._pending = {}
         self.bytes_uploaded = nbytes
@@ -492,6 +485,33 @@ class GpuBrickCache:
         self.texels_uploaded = n * self.brick_texels
         self.total_texels_uploaded += self.texels_uploaded
         return nbytes
+
+    def _commit_cells(self) -> None:
+        """Copy the cells' value ranges of the bricks being uploaded into their slots' cells, per
+        level in one call to the clip-texture (:meth:`ClipTexture.cell_ranges`) and one fancy-indexed
+        write; a brick whose source has none gets them computed here."""
+        by_level: dict[int, list] = {}
+        for (level, key), data in self._pending.items():
+            if self._cell_lo[level] is not None:
+                by_level.setdefault(level, []).append((key, data))
+        for level, entries in by_level.items():
+            keys = np.array([k for k, _ in entries], dtype=np.int64)
+            n = len(keys)
+            K = tuple(b // e for b, e in zip(self.pyramid.brick_shape, self.cell_edges))
+            lo = np.empty((n, *K), dtype=np.float32)
+            hi = np.empty((n, *K), dtype=np.float32)
+            got = self._clip.cell_ranges(level, keys) if hasattr(self._clip, "cell_ranges") else None
+            have = np.zeros(n, dtype=bool) if got is None else got[0]
+            if got is not None:
+                lo[have], hi[have] = got[1], got[2]
+            for i in np.nonzero(~have)[0].tolist():
+                lo[i], hi[i] = cell_ranges(np.asarray(entries[i][1]), self.cell_edges)
+            s = keys % np.asarray(self.windows[level], dtype=np.int64)
+            w = self.windows[level]
+            for arr, v in ((self._cell_lo[level], lo), (self._cell_hi[level], hi)):
+                # (w * K) per axis viewed as (wz, Kz, wy, Ky, wx, Kx): a slot's cells are one block
+                arr.reshape(w[0], K[0], w[1], K[1], w[2], K[2])[s[:, 0], :, s[:, 1], :, s[:, 2], :] = v
+            self._occ_dirty.setdefault(level, set()).update(map(tuple, s.tolist()))
 
     def open_faces(self, level: int, indices) -> np.ndarray:
         """``(n, 3, 2)`` bool ``[axis (z, y, x), side (low, high)]``: may sampling cross that face?

@@ -56,7 +56,9 @@ def test_the_clip_texture_holds_each_loaded_bricks_cell_ranges(rng):
         pyr = loader.pyramid
         for L in range(pyr.num_levels):
             for key in itertools.product(*(range(g) for g in pyr.grid(L))):
-                lo, hi = clip.cell_ranges(L, key)
+                res, lo, hi = clip.cell_ranges(L, [key])
+                assert res.tolist() == [True]
+                lo, hi = lo[0], hi[0]
                 brick = loader.read_brick(L, key).astype(np.float64)
                 for c in itertools.product(range(2), repeat=3):
                     cell = brick[tuple(slice(8 * i, 8 * i + 8) for i in c)]
