@@ -67,3 +67,23 @@ def test_the_clip_texture_holds_each_loaded_bricks_cell_ranges(rng):
                         assert (lo[c], hi[c]) == (np.float32(finite.min()), np.float32(finite.max()))
                     else:
                         assert (lo[c], hi[c]) == (np.inf, -np.inf)
+
+
+def test_cell_ranges_move_with_their_bricks_when_the_window_changes_shape(rng):
+    """A new roaming window size re-assigns slots; bricks kept carry their data and cell ranges."""
+    vol = rng.normal(size=(64, 48, 64)).astype(np.float32)
+    loader = NumpyLoader(vol, brick=8)
+    pyr = loader.pyramid
+    budget = 3 * 3 * 3 * pyr.brick_nbytes * 2 + sum(pyr.num_bricks(L) * pyr.brick_nbytes for L in range(1, pyr.num_levels))
+    with ClipTexture(loader, budget, threads=2) as clip:
+        assert clip.wait_until_idle(30)
+        for size in (2, 3, 2):
+            clip.set_roaming_window(size)
+            assert clip.wait_until_idle(30)
+            keys = [k for k in clip.resident_bricks() if k[0] == 0]
+            assert keys
+            res, lo, hi = clip.cell_ranges(0, [k for _, k in keys])
+            assert res.all()
+            for (_, key), l, h in zip(keys, lo, hi):
+                brick = loader.read_brick(0, key)  # one cell of 8^3
+                assert (l.item(), h.item()) == (brick.min(), brick.max())

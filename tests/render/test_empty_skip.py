@@ -113,7 +113,21 @@ def test_a_transfer_function_change_rederives_occupancy(scene, path):
     assert diff(img[changed], first[changed]) > 8  # drawn now, not leapt with the old flags
 
 
-def test_no_skipping_in_mip_or_with_an_odd_brick(ctx):
+def test_a_table_visible_everywhere_draws_without_lookups(scene):
+    """Under a table with no transparent value no cell is empty: the frame is drawn without the
+    EMPTY_SKIP variant (MIN_EMPTY_FRACTION), and MIP never leaps."""
+    vol, pyr, action = scene
+    everywhere = TransferFunction.from_points([(0.0, (1, 1, 1, 0.01)), (1.0, (1, 0, 0, 0.3))], value_range=(0.0, 1.0))
+    a = action(path="bricks")
+    img = a.render(camera(), everywhere, wait=True, timeout=30)
+    assert a.cache.empty_fraction() == 0.0 and not a.skipped_empty and not a.defines()["EMPTY_SKIP"]
+    assert diff(img, reference(vol, pyr, camera(), everywhere)) <= 2
+    m = action(path="bricks", mode="mip")
+    m.render(camera(), SHELL, wait=True, timeout=30)
+    assert not m.skipped_empty
+
+
+def test_no_cells_with_an_odd_brick(ctx):
     from clipvol.render.action import ClipRenderAction
 
     vol = shell_volume(30)
