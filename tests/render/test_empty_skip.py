@@ -187,3 +187,22 @@ def test_cells_derived_brick_by_brick_equal_the_whole_level(scene):
     tex = cache._occ_tex
     shown = np.frombuffer(tex.read(), dtype=np.uint8).reshape(tex.size[2], tex.size[1], tex.size[0])
     assert np.array_equal(shown[z0:z0 + cz, :cy, :cx], cache._occ_flags[0] * 255)
+
+
+def test_cells_computed_at_upload_when_the_clip_texture_takes_none(ctx):
+    """ClipTexture(cells_on_load=False): the GPU cache computes the cells itself; same flags, same image."""
+    from clipvol.render.action import ClipRenderAction
+
+    vol = shell_volume()
+    imgs, flags = [], []
+    for on_load in (True, False):
+        clip = ClipTexture(NumpyLoader(vol, brick=16, value_range=(0.0, 1.0)), "64MB", threads=2, cells_on_load=on_load)
+        try:
+            assert (clip.cell_edges is not None) == on_load
+            with ClipRenderAction(ctx, clip, policy="fixed", level=0, path="bricks") as a:
+                imgs.append(a.render(camera(), SHELL, wait=True, timeout=30))
+                assert a.skipped_empty
+                flags.append(a.cache._occ_flags[0].copy())
+        finally:
+            clip.close()
+    assert np.array_equal(flags[0], flags[1]) and diff(imgs[0], imgs[1]) == 0
