@@ -212,8 +212,9 @@ class ClipTexture:
     cells_on_load : bool
         Take each loaded brick's per-cell value ranges in the loader thread
         (:func:`clipvol.paging.cells.cell_ranges`, for the renderer's empty-space skipping; about
-        0.1 ms per MB of brick). ``False`` leaves them to whoever asks (the GPU cache then computes
-        them when it uploads a brick).
+        0.1 ms per MB of brick). Off by default: beside the other threads' decoding it made a fill
+        1.3-1.4x as long (``docs/cliptexture.md``), and paging should keep up with decoding; the GPU
+        cache then computes them once per brick when it uploads it.
     prefault : bool
         Touch every page of the slot pool at construction (the pool is then resident from the
         start), so the first fill does not pay a page fault per 4 KiB inside the loader threads.
@@ -238,7 +239,7 @@ class ClipTexture:
         on_error: Callable[[BrickKey, BaseException], None] | None = None,
         predictive: bool = True,
         prefault: bool = True,
-        cells_on_load: bool = True,
+        cells_on_load: bool = False,
     ) -> None:
         self.loader = loader
         self.pyramid = loader.pyramid

@@ -51,7 +51,7 @@ def test_the_clip_texture_holds_each_loaded_bricks_cell_ranges(rng):
     vol = rng.normal(size=(40, 24, 32)).astype(np.float32)  # bricks of 16 at the faces hold padding
     vol[:8, :8, :8] = np.nan
     loader = NumpyLoader(vol, brick=16)
-    with ClipTexture(loader, "16MB", threads=2) as clip:
+    with ClipTexture(loader, "16MB", threads=2, cells_on_load=True) as clip:
         assert clip.wait_until_idle(30)
         pyr = loader.pyramid
         for L in range(pyr.num_levels):
@@ -75,7 +75,7 @@ def test_cell_ranges_move_with_their_bricks_when_the_window_changes_shape(rng):
     loader = NumpyLoader(vol, brick=8)
     pyr = loader.pyramid
     budget = 3 * 3 * 3 * pyr.brick_nbytes * 2 + sum(pyr.num_bricks(L) * pyr.brick_nbytes for L in range(1, pyr.num_levels))
-    with ClipTexture(loader, budget, threads=2) as clip:
+    with ClipTexture(loader, budget, threads=2, cells_on_load=True) as clip:
         assert clip.wait_until_idle(30)
         for size in (2, 3, 2):
             clip.set_roaming_window(size)
