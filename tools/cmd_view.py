@@ -96,53 +96,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _store_name(text: str) -> str:
-    from pathlib import Path
+    from clipvol.app.brick_cache import store_name
 
-    base = text.split(".h5:")[0].split(".hdf5:")[0].rstrip("/\\")
-    name = Path(base).name
-    for suf in (".nii.gz", ".nii", ".hdr", ".img", ".mrc", ".map", ".mrcs", ".rec", ".st", ".h5", ".hdf5", ".hdf", ".nxs", ".dcm"):
-        if name.lower().endswith(suf):
-            return name[: -len(suf)] or "volume"
-    return name or "volume"
+    return store_name(text)
 
 
 def _bricked(args) -> str:
-    """The source itself, or for a NIfTI / DICOM / HDF5 / MRC input the store it is bricked into.
+    """The source itself, or for a NIfTI / DICOM / HDF5 / MRC input the store it is bricked into
+    (``./NAME.zarr`` or ``--store``, built once and reused: :mod:`clipvol.app.brick_cache`)."""
+    from clipvol.app.brick_cache import bricked_source
 
-    One command from a scan to a view: ``clipvol view ct_folder/`` bricks the series into
-    ``./ct_folder.zarr`` (or ``--store``) the first time and reuses that store afterwards.
-    """
-    import json
-    import os
-    from pathlib import Path
-
-    from clipvol.paging.bytesource import is_remote_url
-
-    text = args.source
-    p = Path(text)
-    if is_remote_url(text):  # a store behind a URL is opened as it is
-        return text
-    if text.startswith("procedural:") or p.suffix.lower() == ".npy" or (p.is_dir() and any((p / m).exists() for m in ("zarr.json", ".zgroup"))):
-        return text
-    from clipvol.bricking.formats import open_format
-
-    src = open_format(text)
-    if src is None:
-        return text
-    src.close()
-    store = Path(args.store) if args.store else Path.cwd() / f"{_store_name(text)}.zarr"
-    try:
-        cv = json.loads((store / "zarr.json").read_text())["attributes"]["clipvol"]
-        if cv.get("complete") and str(cv.get("source", "")).startswith(os.path.abspath(text) + " ("):
-            print(f"using {store} (bricked from {text})")
-            return str(store)
-    except (OSError, ValueError, KeyError, TypeError):
-        pass
-    from clipvol.bricking.pipeline import brick_volume
-
-    print(f"bricking {text} into {store}")
-    brick_volume(text, store, progress=True)
-    return str(store)
+    return bricked_source(args.source, args.store)
 
 
 def run(args) -> int:
