@@ -104,6 +104,10 @@ def test_npy_sidecar_and_zarr_store_keep_the_geometry(scan, tmp_path):
     ds = g.attrs["ome"]["multiscales"][0]["datasets"][0]["coordinateTransformations"]
     scale = next(t["scale"] for t in ds if t["type"] == "scale")
     np.testing.assert_allclose(scale, [1.25, 0.8, 0.75], atol=1e-6)  # (z, y, x)
+    # translation: the corner's world position along the array axes (docs/format.md: R^-1 t; x is flipped)
+    cx, cy, cz = apply_affine(src_aff, [3, 2, 1])
+    translation = next(t["translation"] for t in ds if t["type"] == "translation")
+    np.testing.assert_allclose(translation, [cz, cy, -cx], atol=1e-4)
     assert main(["info", str(tmp_path / "r.zarr")]) == 0
 
 
