@@ -246,7 +246,7 @@ def _write_nii(loader, region, tmp: Path, geom: dict, progress: bool, dtype, out
             import gzip
 
             with open(raw, "rb") as src, gzip.open(tmp, "wb", compresslevel=6) as dst:
-                shutil.copyfileobj(src, dst, 16 << 20)
+                shutil.copyfileobj(src, dst, 4 << 20)
     finally:
         if gz:
             _remove(raw)
