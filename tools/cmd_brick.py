@@ -64,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
 
     spacing = _triple(args.spacing, "spacing") if args.spacing else None
     shape = _triple(args.shape, "shape", int) if args.shape else None
+    labels = _label_specs(args.labels, args.output)  # all refused before any work
     t0 = time.perf_counter()
     build = brick_volume
     from functools import partial
@@ -93,14 +94,11 @@ def run(args: argparse.Namespace) -> int:
     )
     channels = len(meta) if isinstance(meta, list) else 0
     meta = meta[0] if channels else meta
-    for spec in args.labels:
-        from pathlib import Path
-
+    for path, name in labels:
         from clipvol.bricking.labels import brick_labels
 
-        path, _, name = spec.partition(":") if not Path(spec).exists() else (spec, "", "")
-        name = name or Path(path).stem.split(".")[0] or "labels"
-        brick_labels(args.output, path, name, codec=args.codec, workers=args.workers, overwrite=args.overwrite,
+        # never overwrite here: --overwrite cleared OUTPUT (its labels with it) before the build started
+        brick_labels(args.output, path, name, codec=args.codec, workers=args.workers, overwrite=False,
                      progress=not args.quiet)
         if not args.quiet:
             print(f"{args.output}: labels {name!r} from {path} in {args.output}/labels/{name}")
@@ -114,3 +112,29 @@ def run(args: argparse.Namespace) -> int:
                  if channels else "")
               + f", {format_bytes(nbytes)} in {dt:.1f} s ({format_bytes(nbytes / max(dt, 1e-9))}/s)")
     return 0
+
+
+def _label_specs(specs, output) -> list[tuple[str, str]]:
+    """``--labels FILE[:NAME]`` as ``(file, name)`` pairs, every name checked to be one plain folder
+    name and every file to exist, before the image is built (a bad name found after the build
+    would leave a store without the labels asked for)."""
+    from pathlib import Path
+
+    from clipvol.bricking.labels import check_label_name
+    from clipvol.errors import InputNotFoundError
+
+    out, seen = [], set()
+    for spec in specs:
+        path, _, name = spec.partition(":") if not Path(spec).exists() else (spec, "", "")
+        name = name if _ else (Path(path).stem.split(".")[0] or "labels")
+        try:
+            check_label_name(name)
+        except ParameterError as e:
+            raise ParameterError(f"--labels {spec}: {e}") from None
+        if not Path(path).exists():
+            raise InputNotFoundError(f"--labels {spec}: {path}: no such file")
+        if name in seen:
+            raise ParameterError(f"--labels {spec}: expected one label volume per name, got {name!r} twice")
+        seen.add(name)
+        out.append((path, name))
+    return out

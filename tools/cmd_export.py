@@ -78,7 +78,10 @@ def run(args: argparse.Namespace) -> int:
     from clipvol.app.volume_access import open as open_volume
 
     output_format(args.out)  # a bad name fails before anything is opened or bricked
-    vol = open_volume(args.store, store=args.brick_store, progress=not args.quiet)
+    from clipvol.app.autobrick import bricked_source
+
+    source = bricked_source(args.store, args.brick_store, log=(lambda line: None) if args.quiet else print)
+    vol = open_volume(source)
     member = []
     for name in vol.lead_axes:
         v = getattr(args, name)

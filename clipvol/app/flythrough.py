@@ -189,6 +189,7 @@ def render_path(
     path_kwargs: dict | None = None,
     quality: float = 8.0,
     orientation=None,
+    on_failed: Callable | None = None,
 ) -> PathResult:
     """Render ``frames`` views along camera path ``path`` of ``source`` and write them to ``out``.
 
@@ -232,6 +233,12 @@ def render_path(
         Movie quality on imageio's 0..10 scale.
     orientation : WorldFrame, optional
         Write each frame's edge labels (R/L, A/P, S/I, or +X/-X... for a non-anatomical frame).
+        Frames of a store whose array axes mirror the patient are flipped left-right either way
+        (:func:`clipvol.app.annotate.present`), so they show the patient as ``clipvol render`` does.
+    on_failed : callable, optional
+        Called as ``on_failed(k, camera, image, failed_bricks)`` for a frame whose wanted bricks
+        include failed ones (:attr:`~clipvol.render.action.FrameStats.failed_bricks`); returns the
+        image to write (e.g. hatched) or raises to stop the path there (the frames before stay).
 
     Returns
     -------
@@ -277,15 +284,23 @@ def render_path(
         before = 0  # bytes_loaded counts what the loader threads read since the previous row
         for k, (cam, coi) in enumerate(cams):
             img, dt = session.timed_render(cam, coi, wait=converged, timeout=timeout if converged else None)
+            st = session.frame_stats
+            if on_failed is not None and st is not None and st.failed_bricks:
+                img = on_failed(k, cam, img, st.failed_bricks)
             if outlines:
                 from .overlay import draw_outlines
 
                 img = draw_outlines(img, cam, session.last_items())
+            from .annotate import present
+
+            img = present(img, cam, getattr(session.loader, "frame", None), labels=False)  # a mirrored store: flipped
             if orientation is not None:
                 from ..scene.orientation import view_labels
+                from ..scene.views import screen_axes
                 from .annotate import label_edges
 
-                img = label_edges(img, view_labels(orientation.affine, cam.right, cam.up, orientation.frame))
+                right, up = screen_axes(cam, getattr(session.loader, "frame", None))
+                img = label_edges(img, view_labels(orientation.affine, right, up, orientation.frame))
             row = frame_row(session, k, dt, time.perf_counter() - t_start, before)
             before = row["bytes_loaded_total"]
             if gif:

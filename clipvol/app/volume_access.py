@@ -4,7 +4,7 @@ A user who has bricked a scan wants to compute on it as well as look at it: take
 level, hand a level to dask, map a world point to a voxel. :func:`open` gives a small read-only
 :class:`Volume` for anything ``clipvol view`` opens (a store, the root of a channel set or time
 series, a ``.npy``, a procedural URL, and a NIfTI / DICOM / HDF5 / MRC file, which is bricked once
-into ``./NAME.zarr`` as ``view`` does, :mod:`clipvol.app.brick_cache`).
+into ``./NAME.zarr`` as ``view`` does, :mod:`clipvol.app.autobrick`).
 
 Every voxel comes from the loader's ``read_brick`` (the custom-loader contract of
 :mod:`clipvol.paging.loader`), never from zarr directly: a clipvol store's chunks are checked
@@ -30,7 +30,7 @@ from ..bricking.pyramid import LevelInfo
 from ..bricking.worldframe import WorldFrame
 from ..errors import MissingExtraError, ParameterError
 from ..paging.loader import check_brick
-from .brick_cache import bricked_source
+from .autobrick import bricked_source
 from .session import open_loader
 
 __all__ = ["open", "Volume", "LevelArray", "read_region"]
@@ -278,7 +278,7 @@ class Volume:
                 f"spacing {self.spacing} {self.unit or ''}>")
 
 
-def open(source: str | Path, *, store: str | Path | None = None, progress: bool = False, **kwargs) -> Volume:
+def open(source: str | Path, *, store: str | Path | None = None, **kwargs) -> Volume:
     """Open anything ``clipvol view`` opens as a read-only :class:`Volume`.
 
     Parameters
@@ -289,9 +289,7 @@ def open(source: str | Path, *, store: str | Path | None = None, progress: bool 
         NIfTI / DICOM / HDF5 / MRC file (bricked once into ``store``, default ``./NAME.zarr``, and
         reused afterwards, as ``clipvol view`` does).
     store : str or Path, optional
-        Where a file format is bricked.
-    progress : bool
-        Show the progress bar while a file format is bricked.
+        Where a file format is bricked (its progress bar shows on stderr while it is).
     **kwargs
         Passed to the loader (``brick=32`` for ``.npy`` and procedural volumes; ``cache=``, ``storage_options=``
         for remote stores).
@@ -308,6 +306,6 @@ def open(source: str | Path, *, store: str | Path | None = None, progress: bool 
         if k in kwargs:
             raise ParameterError(f"{k}: clipvol.open returns every channel and time step; index them with "
                                  f"vol.level(L)[k, ...] instead of {k}=")
-    text = bricked_source(str(source), store, progress=progress, log=None)
+    text = bricked_source(str(source), store, log=lambda line: None)
     loader = open_loader(text, **kwargs)
     return Volume(text, loader, kwargs=kwargs)

@@ -104,6 +104,9 @@ def brick_set(source, output, *, axis: str = "c", **kwargs) -> list:
     if kwargs.get("overwrite") and output.exists():
         import shutil
 
+        from .pipeline import check_overwrite_spares
+
+        check_overwrite_spares(output, [source] if isinstance(source, (str, Path)) else [])
         shutil.rmtree(output)
         kwargs = {**kwargs, "overwrite": False}
     n = int(arr.shape[0])
@@ -126,8 +129,10 @@ def brick_channels(source, output, **kwargs) -> list:
 def image_set(path) -> tuple[str, int] | None:
     """``(axis, count)`` of the image set rooted at ``path`` (``("c", 3)``), or None for any other
     directory or group. Malformed set attributes are an :class:`InputFormatError` naming the key."""
-    try:
-        attrs = json.loads((Path(path) / "zarr.json").read_text()).get("attributes", {})
+    from .store_files import read_file
+
+    try:  # never a FIFO or a device, never a file outside the store (store_files refuses those)
+        attrs = json.loads(read_file(Path(path) / "zarr.json", path)).get("attributes", {})
     except (OSError, ValueError, AttributeError):
         return None
     if not isinstance(attrs, dict):

@@ -44,13 +44,15 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ..errors import OutputExistsError, OutputLockedError, ParameterError, SourceChangedError
+from ..errors import (OPERATIONAL_ERRNOS, ClipvolError, InputFormatError, OutputExistsError, OutputLockedError,
+                      OutputWriteError, ParameterError, SourceChangedError, describe_os_error)
 from .pyramid import FILTERS, Pyramid, downsample
 from .source_types import Source
-from .sources import identity_changes, open_source, source_identity
+from .sources import check_source_unchanged, file_inodes, identity_changes, open_source, source_identity
 from .stats import StatsComputer, finite_range
 from .worldframe import WorldFrame
 from .store import (
+    HIST_BINS,
     STAT_ARRAYS,
     STATS_GROUP,
     StoreMeta,
@@ -202,8 +204,26 @@ def _read_attrs(path: Path) -> dict | None:
     return attrs if isinstance(attrs, dict) else None
 
 
+def check_overwrite_spares(output: Path, keep) -> None:
+    """Refuse ``overwrite`` of an ``output`` that holds one of the paths in ``keep`` (the input's
+    files) or the current folder: removing the output would remove what the build reads."""
+    out = Path(output).absolute()
+    if out.is_symlink() or not out.is_dir():
+        return
+    out = out.resolve()
+    for what, p in [*((f"the input {p}", Path(p)) for p in keep), ("the current folder", Path.cwd())]:
+        r = p.absolute().resolve()
+        if r == out or out in r.parents:
+            raise OutputExistsError(f"{output}: --overwrite would remove {what}, which lies inside it; "
+                                    "pick another OUTPUT")
+
+
 def prepare_output(output: Path, job: dict, overwrite: bool) -> dict | None:
-    """Clear or vet an existing output; return its attrs when it is a resumable build of ``job``."""
+    """Clear or vet an existing output; return its attrs when it is a resumable build of ``job``.
+
+    ``overwrite`` removes ``output`` itself (a symlink: the link, not its target) and nothing else,
+    only here, before the first write of the build (:func:`check_overwrite_spares` has refused an
+    output that holds the input)."""
     if not output.exists() and not output.is_symlink():
         return None
     if overwrite:
@@ -316,8 +336,15 @@ class output_lock:
 
 
 def mark_complete(group) -> None:
-    """Set ``attrs['clipvol']['complete']``: the very last write of any build path."""
-    cv = dict(group.attrs["clipvol"])
+    """Write the store's manifest (:mod:`clipvol.bricking.manifest`) and set
+    ``attrs['clipvol']['complete']`` with the manifest's checksum: the very last write of any build path."""
+    from .manifest import write_manifest
+
+    attrs = dict(group.attrs)
+    cv = dict(attrs["clipvol"])
+    root = Path(group.store.root) / group.path if group.path else Path(group.store.root)
+    pyramid = parse_metadata(attrs, str(root)).pyramid
+    cv["manifest"] = write_manifest(root, [pyramid.grid(L) for L in range(pyramid.num_levels)])
     cv["complete"] = True
     group.attrs.update({"clipvol": cv})
 
@@ -462,9 +489,6 @@ def _create_store(output: Path, pyramid: Pyramid, codec: str, unit: str, source_
         cv["source_identity"] = identity
     attrs = {"ome": ome_metadata(pyramid, name=output.stem or "image", unit=unit, origin=origin), "clipvol": cv}
     compressors = store_codecs(codec, pyramid.dtype)
-    from zarr.codecs import Crc32cCodec, ZstdCodec
-
-    stat_codecs = [ZstdCodec(level=0), Crc32cCodec()]  # the statistics the loads are checked against are checked too
     for L, lv in enumerate(pyramid.levels):
         group.create_array(
             str(L),
@@ -476,21 +500,29 @@ def _create_store(output: Path, pyramid: Pyramid, codec: str, unit: str, source_
             dimension_names=["z", "y", "x"],
             config={"write_empty_chunks": False},
         )
-        g = pyramid.grid(L)
-        row = (1, g[1], g[2])
-        sg = group.require_group(f"{STATS_GROUP}/{L}")
-        for name in ("min", "max", "mean", "std"):
-            sg.create_array(name, shape=g, chunks=row, dtype="float64", fill_value=np.nan, compressors=stat_codecs)
-        for name in ("nan_count", "inf_count"):
-            sg.create_array(name, shape=g, chunks=row, dtype="int64", fill_value=0, compressors=stat_codecs)
-        sg.create_array("histogram", shape=g + (64,), chunks=row + (64,), dtype="int64", fill_value=0,
-                        compressors=stat_codecs)
-        sg.create_array("done", shape=g, chunks=row, dtype="bool", fill_value=False, compressors=stat_codecs)
-        # each written chunk's own crc32c (-1: no chunk): a chunk that is intact but belongs to another
-        # brick, or to another build, is caught at no cost (its trailing crc is compared with this)
-        sg.create_array("chunk_crc32c", shape=g, chunks=row, dtype="int64", fill_value=-1, compressors=stat_codecs)
+        create_stats_arrays(group, pyramid.grid(L), L)
     group.attrs.update(attrs)  # written after the arrays: a store is only recognised once whole
     return group
+
+
+def create_stats_arrays(group, g: tuple[int, int, int], L: int, names=STAT_ARRAYS) -> None:
+    """Create the statistics arrays ``names`` of level ``L`` (grid ``g``) under ``clipvol_stats/L``
+    (replacing any there: ``clipvol repair`` restores deleted or damaged ones with this)."""
+    from zarr.codecs import Crc32cCodec, ZstdCodec
+
+    stat_codecs = [ZstdCodec(level=0), Crc32cCodec()]  # the statistics the loads are checked against are checked too
+    row = (1, g[1], g[2])
+    sg = group.require_group(f"{STATS_GROUP}/{L}")
+    specs = {name: ("float64", np.nan) for name in ("min", "max", "mean", "std")}
+    specs.update({"nan_count": ("int64", 0), "inf_count": ("int64", 0), "histogram": ("int64", 0), "done": ("bool", False),
+                  # each written chunk's own crc32c (-1: no chunk): a chunk that is intact but belongs to another
+                  # brick, or to another build, is caught at no cost (its trailing crc is compared with this)
+                  "chunk_crc32c": ("int64", -1)})
+    for name in names:
+        dtype, fill = specs[name]
+        shape, chunks = (g + (HIST_BINS,), row + (HIST_BINS,)) if name == "histogram" else (g, row)
+        sg.create_array(name, shape=shape, chunks=chunks, dtype=dtype, fill_value=fill, compressors=stat_codecs,
+                        overwrite=True)
 
 
 def brick_volume(
@@ -556,6 +588,8 @@ def brick_volume(
     output = Path(output)
     src = open_source(source, raw_shape=raw_shape, raw_dtype=raw_dtype, byte_order=byte_order)
     try:
+        if spacing is None and getattr(src, "spacing_required", None):  # the input records no voxel size
+            raise InputFormatError(src.spacing_required)
         sp = spacing or src.spacing or (1.0, 1.0, 1.0)
         sp = tuple(float(v) for v in sp)
         unit = unit or src.unit or "micrometer"
@@ -563,7 +597,10 @@ def brick_volume(
         if origin is not None:
             frame = (frame or WorldFrame.from_spacing(sp)).with_origin(origin)
         job = job_spec(src, src.shape, bshape, filter, codec, sp, unit)
-        with output_lock(output), \
+        inodes = file_inodes(src)
+        if overwrite:
+            check_overwrite_spares(output, src.files())
+        with write_errors(output), output_lock(output), \
                 ThreadPoolExecutor(max_workers=workers, thread_name_prefix="clipvol-brick") as pool:
             attrs = prepare_output(output, job, overwrite)
             if attrs is None:
@@ -576,14 +613,37 @@ def brick_volume(
                 pyramid = parse_metadata(attrs, str(output)).pyramid
                 group = zarr.open_group(str(output), mode="r+")
             _sweep(src, group, pyramid, output, codec, pool, progress)
+            check_source_unchanged(src, job["source_identity"], inodes, output)
             mark_complete(group)  # the very last write
         if summary:  # summary tables (image-based LOD): their own completion marker, resumable
             from .summary import build_summary
 
-            build_summary(output, workers=workers, progress=progress)
+            with write_errors(output, "its summary tables"):
+                build_summary(output, workers=workers, progress=progress)
         return parse_metadata(dict(group.attrs), str(output))
     finally:
         src.close()
+
+
+class write_errors:
+    """Context manager: an :class:`OSError` of the machine's state (disk full, read-only file
+    system, permission denied: :data:`~clipvol.errors.OPERATIONAL_ERRNOS`) raised while writing
+    ``output`` becomes one :class:`~clipvol.errors.OutputWriteError` naming the output and the file.
+    A build stopped this way is never marked complete, so re-running it resumes."""
+
+    def __init__(self, output, what: str = "the store") -> None:
+        self.output, self.what = output, what
+
+    def __enter__(self) -> "write_errors":
+        return self
+
+    def __exit__(self, kind, e, tb) -> bool:
+        if isinstance(e, OSError) and not isinstance(e, ClipvolError) and e.errno in OPERATIONAL_ERRNOS:
+            err = OutputWriteError(f"{self.output}: cannot write {self.what} ({describe_os_error(e)}); "
+                                   "nothing is marked complete: fix this and re-run to resume")
+            err.errno = e.errno
+            raise err from e
+        return False
 
 
 def _sweep(src: Source, group, pyramid: Pyramid, output: Path, codec: str, pool: ThreadPoolExecutor, progress: bool) -> None:

@@ -99,10 +99,12 @@ class PointStoreMeta:
 
 def is_point_store(path) -> bool:
     """True if ``path`` is a zarr group whose clipvol attributes say ``kind: points``."""
+    from .store_files import read_file
+
     p = Path(path) / "zarr.json"
-    try:
-        attrs = json.loads(p.read_text()).get("attributes", {})
-    except (OSError, ValueError):
+    try:  # never a FIFO or a device: the store's readers refuse those with a message
+        attrs = json.loads(read_file(p, p.parent)).get("attributes", {})
+    except (OSError, ValueError, AttributeError):
         return False
     return isinstance(attrs.get("clipvol"), dict) and attrs["clipvol"].get("kind") == "points"
 
@@ -562,6 +564,9 @@ def build_point_store(source: PointSource, output, *, max_points: int = 64, over
         if not overwrite and cv.get("job") == job and (out / "_build_tmp" / "plan.json").is_file():
             resume = cv  # an interrupted build of the same job: carried on from its last checkpoint
         else:  # overwrite, or an interrupted build of other input or parameters: rebuilt from the start
+            from .pipeline import check_overwrite_spares
+
+            check_overwrite_spares(out, [p for p in (getattr(source, "path", None),) if p is not None])
             shutil.rmtree(out) if out.is_dir() else out.unlink()
     k = len(source.value_names)
     with tqdm(total=2 * source.count, unit="pt", unit_scale=True, desc="points", file=sys.stderr,

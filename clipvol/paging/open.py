@@ -13,7 +13,7 @@ import re
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from ..errors import InputFormatError, InputNotFoundError
+from ..errors import InputFormatError, InputNotFoundError, ParameterError
 from .bytesource import is_remote_url
 from .loader import Loader
 
@@ -60,12 +60,12 @@ def open_store(path_or_url: str | Path, **kwargs) -> Loader:
         if scheme == "procedural":
             from ..loaders.procedural import ProceduralLoader
 
-            return ProceduralLoader(text, **kwargs)
+            return _construct(ProceduralLoader, text, kwargs)
         plugins = loader_plugins()
         if scheme not in plugins and is_remote_url(text):
             from ..loaders.zarr_remote import RemoteZarrLoader
 
-            return RemoteZarrLoader(text, **kwargs)
+            return _construct(RemoteZarrLoader, text, kwargs)
         if scheme not in plugins:
             raise InputFormatError(
                 f"{text}: no loader for the scheme {scheme!r}; expected a path, 'procedural:...', or one of the "
@@ -78,7 +78,7 @@ def open_store(path_or_url: str | Path, **kwargs) -> Loader:
     if path.is_file() and path.name in ("zarr.json", ".zgroup"):
         path = path.parent
     if path.is_dir():
-        if (path / "zarr.json").is_file() or (path / ".zgroup").is_file():
+        if (path / "zarr.json").exists() or (path / ".zgroup").exists():  # what they are: the loader checks
             from ..bricking.point_store import is_point_store
 
             if is_point_store(path):  # not a brick pyramid: PointStoreLoader + SplatRenderAction draw it
@@ -93,22 +93,41 @@ def open_store(path_or_url: str | Path, **kwargs) -> Loader:
             found = image_set(path)
             if found is not None:  # clipvol brick of a 4-D input: one store per channel or time step
                 return _open_member(path, *found, kwargs)
-            return ZarrLoader(path, **kwargs)
+            return _construct(ZarrLoader, path, kwargs)
         raise InputFormatError(f"{path}: expected a zarr store (a directory with zarr.json or .zgroup), found neither")
     if path.suffix.lower() == ".npy":
         from ..loaders.numpy_array import NumpyLoader
 
-        return NumpyLoader(path, **kwargs)
+        return _construct(NumpyLoader, path, kwargs)
     raise InputFormatError(
         f"{path}: unknown format (suffix {path.suffix or 'none'!r}); expected a zarr store directory, a .npy file "
         "or a URL such as 'procedural:fractal?size=256'"
     )
 
 
+def _construct(loader_class, where, kwargs: dict):
+    """``loader_class(where, **kwargs)``, refusing in one line the keywords it does not take (a
+    command's ``--brick`` for a store whose bricks were fixed when it was built) instead of
+    Python's ``TypeError``."""
+    import inspect
+
+    try:
+        params = inspect.signature(loader_class).parameters
+    except (TypeError, ValueError):
+        return loader_class(where, **kwargs)
+    if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        extra = sorted(k for k in kwargs if k not in params)
+        if extra:
+            k = extra[0]
+            raise ParameterError(f"{where}: {k} (--{k.replace('_', '-')}): not an option of a {loader_class.__name__} "
+                                 f"source, which takes {', '.join(n for n in list(params)[1:]) or 'no options'}; "
+                                 f"drop --{k.replace('_', '-')}")
+    return loader_class(where, **kwargs)
+
+
 def _open_member(path: Path, axis: str, n: int, kwargs: dict):
     """Member ``c`` or ``t`` (default 0) of an image set (:mod:`clipvol.bricking.channels`), its
     loader reporting the set's axis (``axes == ("c",)``, ``lead_shape == (n,)``)."""
-    from ..errors import ParameterError
     from ..loaders.zarr_store import ZarrLoader
 
     kwargs = dict(kwargs)
@@ -121,6 +140,6 @@ def _open_member(path: Path, axis: str, n: int, kwargs: dict):
     if isinstance(k, bool) or int(k) != k or not 0 <= k < n:
         what = "channels" if axis == "c" else "time steps"
         raise ParameterError(f"{axis}: expected 0..{n - 1} for {path} ({n} {what}), got {k!r}")
-    loader = ZarrLoader(path / axis / str(int(k)), **kwargs)
+    loader = _construct(ZarrLoader, path / axis / str(int(k)), kwargs)
     loader.axes, loader.lead_shape = (axis,), (n,)
     return loader

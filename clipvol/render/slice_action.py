@@ -39,6 +39,7 @@ from ..errors import ParameterError
 from ..scene.params import RenderParams
 from ..scene.plane import Plane, default_pixel_size, default_size
 from ..scene.selection.policies.plane import PlaneCut
+from .failures import failed_bricks
 from .frame_loop import FrameLoop
 from .glsl import load_shader
 from .gpu_cache import GpuBrickCache
@@ -88,6 +89,13 @@ class SliceStats:
     converged: bool
     balance_splits: int
     times: dict = field(default_factory=dict)
+    #: wanted bricks that failed to load, with cause and stand-in (:mod:`clipvol.render.failures`)
+    failed_bricks: tuple = ()
+
+    @property
+    def unreplaced(self) -> tuple:
+        """The failed bricks no verified ancestor stands in for: regions missing from the slice."""
+        return tuple(f for f in self.failed_bricks if not f.replaced)
 
     def as_dict(self) -> dict:
         """JSON-ready dict (``clipvol slice --stats``)."""
@@ -95,7 +103,10 @@ class SliceStats:
                     blended=self.blended, bricks_needed=self.bricks_needed, bytes_needed=self.bytes_needed,
                     bytes_loaded=self.bytes_loaded, bytes_uploaded=self.bytes_uploaded,
                     bricks_uploaded=self.bricks_uploaded, converged=self.converged,
-                    balance_splits=self.balance_splits, times=dict(self.times))
+                    balance_splits=self.balance_splits, times=dict(self.times),
+                    failed_bricks=[dict(level=f.level, index=list(f.index), cause=f.cause,
+                                        stand_in=None if f.stand_in is None else [f.stand_in[0], list(f.stand_in[1])])
+                                   for f in self.failed_bricks])
 
 
 def window_level_grey(values: np.ndarray, center: float, width: float) -> np.ndarray:
@@ -151,6 +162,7 @@ class SliceAction:
         self._target = FloatTarget(ctx)
         self.last_stats: SliceStats | None = None
         self.last_selection = None
+        self.last_camera = None
         self.last_values: np.ndarray | None = None
         self.last_levels: np.ndarray | None = None
         self.last_ratios: np.ndarray | None = None
@@ -258,14 +270,14 @@ class SliceAction:
         for it in sel.items:
             per_level[it.level] = per_level.get(it.level, 0) + 1
         needed = {(it.level, tuple(it.index)) for it in sel.items} | set(low.values())
-        self.last_selection = sel
+        self.last_selection, self.last_camera = sel, cam  # the camera that maps world points to its pixels
         self.last_values, self.last_levels, self.last_ratios = values, levels, ratios
         self.last_stats = SliceStats(
             tiles_per_level=dict(sorted(per_level.items())), tiles=len(sel.items), blended=len(low),
             bricks_needed=len(needed), bytes_needed=len(needed) * pyr.brick_nbytes,
             bytes_loaded=self.clip_texture.stats.bytes_loaded - loaded0, bytes_uploaded=up_bytes,
             bricks_uploaded=up_bricks, converged=converged, balance_splits=int(sel.counts.get("balance_splits", 0)),
-            times=times)
+            times=times, failed_bricks=failed_bricks(sel, self.clip_texture))
         return (rgba, values) if return_values else rgba
 
     def render_in_view(self, volume_action, camera, transfer_function, plane: Plane, *, opacity: float = 1.0,

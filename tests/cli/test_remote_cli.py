@@ -56,7 +56,7 @@ def test_render_from_slow_flaky_http_with_cache_equals_local(site, tmp_path):
 def test_bad_remote_sources_exit_2_with_one_line(site, tmp_path, capsys):
     out = str(tmp_path / "x.png")
     with serve_directory(site, forbid=("/f.zarr",)) as (url, srv):
-        cases = [(f"{url}/f.zarr", "access denied (HTTP 403)"), (f"{url}/nothing.zarr", "not a zarr store")]
+        cases = [(f"{url}/f.zarr", "permission denied (HTTP 403)"), (f"{url}/nothing.zarr", "not a zarr store")]
         for source, what in cases:
             assert main(["render", source, "--out", out]) == 2
             err = capsys.readouterr().err
