@@ -37,6 +37,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="where a NIfTI / DICOM / HDF5 / MRC input is bricked (default ./NAME.zarr)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing --out (once the new one is complete)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    from clipvol.tools.remote_args import add_remote_arguments, add_trust_arguments
+
+    add_trust_arguments(parser)
+    add_remote_arguments(parser)
 
 
 def parse_box(text: str, shape0) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
@@ -80,8 +84,11 @@ def run(args: argparse.Namespace) -> int:
     output_format(args.out)  # a bad name fails before anything is opened or bricked
     from clipvol.app.autobrick import bricked_source
 
+    from clipvol.tools.remote_args import check_trust, remote_kwargs
+
+    kwargs = remote_kwargs(args)
     source = bricked_source(args.store, args.brick_store, log=(lambda line: None) if args.quiet else print)
-    vol = open_volume(source)
+    vol = open_volume(source, **kwargs)
     member = []
     for name in vol.lead_axes:
         v = getattr(args, name)
@@ -97,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
     for name in ("c", "t"):
         if getattr(args, name) is not None and name not in vol.lead_axes:
             raise ParameterError(f"--{name}: {args.store} has no {name!r} axis (axes {', '.join(vol.axes)})")
+    check_trust(vol.member(tuple(member)), args, "export")  # an unverified store only with --unverified
     if args.box is not None:
         start, stop = parse_box(args.box, vol.levels[0].shape)
         region = region_from_voxels(vol, start, stop, args.level)

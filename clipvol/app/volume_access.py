@@ -197,6 +197,9 @@ class Volume:
         self.brick_shape = tuple(pyr.brick_shape)
         self.value_range = tuple(pyr.value_range)
         self.unit = getattr(loader, "unit", None)
+        #: False for a clipvol store whose manifest is missing or does not verify (``trust`` says why)
+        self.verified: bool = bool(getattr(loader, "verified", True))
+        self.trust: str = str(getattr(loader, "trust", "") or "")
         frame = getattr(loader, "frame", None)
         if frame is None:
             origin = getattr(loader, "origin", None) or (0.0, 0.0, 0.0)

@@ -182,3 +182,17 @@ def test_a_channel_set_exports_the_channel_named(tmp_path, capsys):
     assert main(base + [str(tmp_path / "c.npy"), "--c", "1"]) == 0
     np.testing.assert_array_equal(np.load(tmp_path / "c.npy"), data[1, 2:9, :, 3:11])
     assert main(base + [str(tmp_path / "d.npy"), "--c", "2"]) == 2 and "0..1" in capsys.readouterr().err
+
+
+def test_an_unverified_store_is_exported_only_when_asked(scan, tmp_path, capsys):
+    import shutil
+
+    d, data, _ = scan
+    copy = tmp_path / "u.zarr"
+    shutil.copytree(d / "scan.zarr", copy)
+    shutil.rmtree(copy / "clipvol_manifest")  # the root of trust gone: the store no longer verifies
+    args = ["export", str(copy), "--box", "0:5,0:6,0:7", "--out", str(tmp_path / "u.npy"), "--quiet"]
+    assert main(args) == 2
+    assert "--unverified" in capsys.readouterr().err and not (tmp_path / "u.npy").exists()
+    assert main(args + ["--unverified"]) == 0
+    np.testing.assert_array_equal(np.load(tmp_path / "u.npy"), data[:5, :6, :7])
