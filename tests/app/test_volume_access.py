@@ -185,3 +185,19 @@ def test_a_4d_brick_root_opens_as_one_volume(tmp_path, axes):
         img = zarr.open_group(str(root / p), mode="r")
         ms = img.attrs["ome"]["multiscales"][0]
         np.testing.assert_array_equal(img[ms["datasets"][0]["path"]][...], data[k])
+
+
+def test_an_ome_zarr_image_with_t_and_c_axes_opens_whole(tmp_path):
+    """An OME-Zarr image written here with zarr-python (not by clipvol): axes t, c, z, y, x."""
+    data = np.random.default_rng(6).random((2, 3, 9, 10, 11)).astype(np.float32)
+    g = zarr.open_group(str(tmp_path / "img.zarr"), mode="w", zarr_format=3)
+    g.create_array("0", shape=data.shape, chunks=(1, 1, 8, 8, 8), dtype="float32")[...] = data
+    axes = [{"name": "t", "type": "time"}, {"name": "c", "type": "channel"}] + \
+        [{"name": a, "type": "space", "unit": "micrometer"} for a in "zyx"]
+    g.attrs.update({"ome": {"version": "0.5", "multiscales": [{"axes": axes, "datasets": [
+        {"path": "0", "coordinateTransformations": [{"type": "scale", "scale": [1, 1, 2.0, 0.5, 0.5]}]}]}]}})
+    vol = clipvol.open(tmp_path / "img.zarr")
+    assert vol.axes == ("t", "c", "z", "y", "x") and vol.shape == data.shape and vol.spacing == (2.0, 0.5, 0.5)
+    np.testing.assert_array_equal(vol.level(0)[...], data)
+    np.testing.assert_array_equal(vol.level(0)[1, 2, 3:7, ::2, -1], data[1, 2, 3:7, ::2, -1])
+    np.testing.assert_allclose(vol.world_to_voxel([[1.0, 2.0, 4.0]]), [[2.0, 4.0, 2.0]])
