@@ -56,6 +56,16 @@ class Region:
     start: tuple[int, int, int]
     stop: tuple[int, int, int]
 
+    def __post_init__(self) -> None:
+        start = tuple(int(v) for v in self.start)
+        stop = tuple(int(v) for v in self.stop)
+        if int(self.level) < 0 or len(start) != 3 or len(stop) != 3 or not all(0 <= a <= b for a, b in zip(start, stop)):
+            raise ParameterError(f"Region: expected level >= 0 and 0 <= start <= stop (z, y, x), got level "
+                                 f"{self.level}, {self.start}..{self.stop}")
+        object.__setattr__(self, "level", int(self.level))
+        object.__setattr__(self, "start", start)
+        object.__setattr__(self, "stop", stop)
+
     @property
     def shape(self) -> tuple[int, int, int]:
         return tuple(b - a for a, b in zip(self.start, self.stop))  # type: ignore[return-value]
@@ -308,6 +318,10 @@ def export_region(volume: Volume, region: Region, out: str | Path, *, member: Se
         raise OutputExistsError(f"--out {out}: exists; pass --overwrite to replace it")
     if not out.parent.is_dir():
         raise ParameterError(f"--out {out}: the folder {out.parent} does not exist")
+    shape = volume.levels[_check_level(volume, region.level)].shape
+    if not all(b <= n for b, n in zip(region.stop, shape)):
+        raise ParameterError(f"--box: the region {region.start}..{region.stop} reaches past level {region.level}'s "
+                             f"shape {shape} (z, y, x)")
     if any(b <= a for a, b in zip(region.start, region.stop)):
         raise ParameterError(f"--box: the region {region.start}..{region.stop} at level {region.level} is empty")
     loader = volume.member(tuple(member))

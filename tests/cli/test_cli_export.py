@@ -196,3 +196,17 @@ def test_an_unverified_store_is_exported_only_when_asked(scan, tmp_path, capsys)
     assert "--unverified" in capsys.readouterr().err and not (tmp_path / "u.npy").exists()
     assert main(args + ["--unverified"]) == 0
     np.testing.assert_array_equal(np.load(tmp_path / "u.npy"), data[:5, :6, :7])
+
+
+def test_export_region_refuses_a_region_past_the_level(scan, tmp_path):
+    import clipvol
+    from clipvol.app.export import Region, export_region
+    from clipvol.errors import ParameterError
+
+    d, _, _ = scan
+    vol = clipvol.open(d / "scan.zarr")
+    with pytest.raises(ParameterError, match="reaches past level 1"):
+        export_region(vol, Region(1, (0, 0, 0), (5, 5, 10)), tmp_path / "x.npy")  # level 1 is 10x11x9
+    with pytest.raises(ParameterError, match="Region"):
+        Region(0, (3, 0, 0), (2, 5, 5))
+    assert not list(tmp_path.iterdir())
