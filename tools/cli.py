@@ -35,6 +35,7 @@ COMMANDS = {
     "summarize": "build the summary tables of image-based level of detail for an existing store",
     "render": "render one image of a store or procedural volume",
     "slice": "draw a cutting plane (axial, coronal, sagittal, oblique), fine near a point of interest",
+    "export": "take a region out of a store at one level: .npy, .tif, .nii(.gz) or .zarr, with its geometry",
     "view": "interactive roaming / multiresolution viewer (or --offscreen frames)",
     "report": "image error against run time for a sweep of quality settings",
     "demo": "brick the built-in dataset, fly around it, and write the report",
