@@ -38,7 +38,9 @@ Per frame (:meth:`ClipRenderAction.render`):
      "under" operator ``(ONE_MINUS_DST_ALPHA, ONE)``; every ``len(items) / 32`` boxes the target
      is copied, and a box's fragment whose pixel is already opaque in the copy returns at once.
      ``early_termination=False``: *back to front* with ``(ONE, ONE_MINUS_SRC_ALPHA)`` over the
-     background, exactly as ``vzClipRenderAction``. MIP uses the ``MAX`` blend equation.
+     background, exactly as ``vzClipRenderAction``. MIP uses the ``MAX`` blend equation, minIP
+     ``MIN``, the average adds ``(sum, length)`` pairs, and an iso-surface's opaque first hit goes
+     through the composite blending (the nearest box's hit stays); :mod:`clipvol.render.modes`.
 
    Both paths leap over empty space below the brick (``EMPTY_SKIP``, composite without overlays,
    :mod:`clipvol.scene.occupancy`): each brick's cells of 8³ voxels carry their value range
@@ -106,8 +108,9 @@ from ..scene.selection.policies import POLICIES
 from .failures import failed_bricks
 from .frame_loop import FrameLoop
 from .glsl import ProgramCache
-from .gpu_cache import GpuBrickCache, t_scale_offset, texel_to_raw
+from .gpu_cache import GpuBrickCache, t_scale_offset
 from .image_lod import ImageLod
+from .modes import REDUCED_MODES, clear_value, depth_range, iso_texel, mode_defines, reduce_image, set_blend
 from .overlay_binding import OverlayTextures, overlay_defines
 from .resolve import Resolve
 
@@ -117,7 +120,6 @@ __all__ = ["ClipRenderAction", "FrameStats", "MODES", "SELECTIONS"]
 SELECTIONS = tuple(POLICIES)
 #: most samples one ray takes inside one box (a smaller step is refused with ParameterError)
 MAX_STEPS_PER_BOX = 1 << 16
-_MIP_EMPTY = -3.0e38
 #: accumulated opacity at which a ray stops early: 1 - 0.5 / 255. What the rest of the ray could
 #: still add to a premultiplied channel is at most its transmittance, under half a step of the
 #: 8-bit image, so the image the caller gets differs from the ray integrated to its end by at most
@@ -266,6 +268,7 @@ class ClipRenderAction:
         self.boxes_drawn = 0  # proxy boxes of the last frame, after merge_items
         self.last_selection = None
         self._last_raw: np.ndarray | None = None  # see last_raw
+        self._depth = (0.0, 1.0)  # the volume box's range of ray parameters this frame (render/modes.py)
         self._resolve = None  # the GL pass to the 8-bit image (render/resolve.py), made on first use
         self.image_lod: ImageLod | None = None  # the image policy's tables and visibility, made on first use
         self._moderngl = moderngl
@@ -279,8 +282,8 @@ class ClipRenderAction:
     # -- shader variants ---------------------------------------------------------------------------
     def defines(self) -> dict:
         """The ``#define``\\ s of this frame's volume shader variant (see :mod:`clipvol.render.glsl`)."""
-        mip = self.params.mode == "mip"
-        return {"MODE_MIP": mip, "HAS_NAN": self.nonfinite, "SHADING": self.params.shading and not mip,
+        mode = self.params.mode
+        return {**mode_defines(mode), "HAS_NAN": self.nonfinite, "SHADING": self.params.shading and mode == "composite",
                 "EMPTY_SKIP": self.skipped_empty, **overlay_defines(self.params.overlays, self.params.blend)}
 
     def _brick_program(self):
@@ -529,6 +532,8 @@ class ClipRenderAction:
         _uset(prog, "u_jitter", 1.0 if self.params.jitter else 0.0)
         p = self.params
         _uset(prog, "u_light", (p.ambient, p.diffuse, p.specular, p.shininess))  # SHADING variant only
+        _uset(prog, "u_iso", iso_texel(self.cache.format, p.iso_value))  # MODE_ISO only
+        self._depth = depth_range(cam, *self.pyramid.volume_box())  # iso_color="depth" (render/modes.py)
         if self.params.shape is None:
             box = np.array([[-1e30] * 3, [1e30] * 3])
             planes = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (6, 1))
@@ -574,29 +579,25 @@ class ClipRenderAction:
         previous = ctx.fbo
         fbo.use()
         ctx.viewport = (0, 0, int(w), int(h))
-        composite = self.params.mode != "mip"
+        composite = self.params.mode in ("composite", "iso")  # ordered: under / over (iso: opaque hits)
         front_to_back = composite and self.params.early_termination
-        if front_to_back:
-            fbo.clear(0.0, 0.0, 0.0, 0.0)
-        elif composite:
+        if front_to_back or self.params.mode in REDUCED_MODES:  # (render/modes.py)
+            fbo.clear(*clear_value(self.params.mode))
+        else:
             r, g, b, a = self.params.background
             fbo.clear(r * a, g * a, b * a, a)
-        else:
-            fbo.clear(_MIP_EMPTY, 0.0, 0.0, 0.0)
         self._brick_program()
         origin = self._frame_uniforms(cam, tf)
         ctx.enable(mgl.BLEND)
         ctx.disable(mgl.DEPTH_TEST | mgl.CULL_FACE)
         _uset(self.program, "u_use_acc", False)  # no opacity snapshot until the first batch is drawn
-        if self.params.mode == "mip":
-            ctx.blend_equation = mgl.MAX
-        else:
+        if not set_blend(ctx, mgl, self.params.mode):  # MIP MAX, minIP MIN, average ONE + ONE
             ctx.blend_equation = mgl.FUNC_ADD
             if front_to_back:  # the "under" operator: dst += (1 - dst.a) * src
                 ctx.blend_func = mgl.ONE_MINUS_DST_ALPHA, mgl.ONE
             else:  # "over": dst = src + (1 - src.a) * dst
                 ctx.blend_func = mgl.ONE, mgl.ONE_MINUS_SRC_ALPHA
-        if composite:
+        if self.params.mode == "composite":
             self._ensure_tf(tf).use(location=1)
         self._bind_occupancy(self.program, tf)
         if self.params.overlays:  # co-registered volumes sampled at each sample (render/overlay_binding.py)
@@ -662,7 +663,7 @@ class ClipRenderAction:
         t1 = time.perf_counter()
         self._last_raw = None
         image = None
-        if self.params.mode != "mip":
+        if self.params.mode not in REDUCED_MODES:
             if self._resolve is None:
                 self._resolve = Resolve(ctx)
             image = self._resolve(self._fbo_color, self.params.background if front_to_back else (0.0, 0.0, 0.0, 0.0))
@@ -677,17 +678,9 @@ class ClipRenderAction:
         err = ctx.error
         if err != "GL_NO_ERROR":
             raise RuntimeError(f"OpenGL error after drawing the frame: expected GL_NO_ERROR, got {err}")
-        if image is None:  # MIP
-            m = self._last_raw[..., 0].astype(np.float64)
-            hit = m > _MIP_EMPTY * 0.5
-            fmt = self.cache.format
-            rgba = tf.lookup(np.where(hit, texel_to_raw(fmt, m), fmt.b), pyr.value_range)
-            a = np.where(hit, rgba[..., 3], 0.0)
-            prem = np.concatenate([rgba[..., :3] * a[..., None], a[..., None]], axis=-1)
-            r, g, b, ba = self.params.background
-            bgp = np.array([r * ba, g * ba, b * ba, ba])
-            prem = prem + (1.0 - a[..., None]) * bgp
-            image = premultiplied_to_uint8(prem)
+        if image is None:  # MIP, minIP, average, iso: the per-pixel values mapped here (render/modes.py)
+            image = premultiplied_to_uint8(reduce_image(self._last_raw, self.params, tf, self.cache.format,
+                                                        pyr.value_range, self._depth))
         return image, t1 - t0, time.perf_counter() - t1
 
     @staticmethod
@@ -742,8 +735,7 @@ class ClipRenderAction:
         previous = ctx.fbo
         fbo.use()
         ctx.viewport = (0, 0, int(w), int(h))
-        mip = self.params.mode == "mip"
-        fbo.clear(_MIP_EMPTY if mip else 0.0, 0.0, 0.0, 0.0)
+        fbo.clear(*clear_value(self.params.mode))
         data_levels = [it.level for it in items]  # only these get a march in the shader's level chain
         defines = dict(self.defines(), NUM_LEVELS=nlev, LEVEL_LO=min(data_levels), LEVEL_HI=max(data_levels))
         prog = self.programs.get("screen.vert", "raymarch.frag", defines)
@@ -791,7 +783,7 @@ class ClipRenderAction:
         _uset(prog, "u_page_table", 2)
         _uset(prog, "u_tf", 1)
         self._ensure_page_table(table.entries).use(location=2)
-        if not mip:
+        if self.params.mode == "composite":
             self._ensure_tf(tf).use(location=1)
         self._bind_occupancy(prog, tf)
         for L, tex in enumerate(self.cache.textures):
@@ -804,7 +796,7 @@ class ClipRenderAction:
             ctx.scissor = tuple(rect)
             self._vao.render(mgl.TRIANGLES, vertices=3)
             ctx.scissor = None
-        return self._read_back(fbo, previous, tf, not mip, t0)
+        return self._read_back(fbo, previous, tf, self.params.mode == "composite", t0)
 
     def _may_cover(self, cam):
         """``may_cover`` for :func:`merge_items`: may a merged box cover this culled node?

@@ -20,10 +20,13 @@ from ..errors import ParameterError
 from ..units import parse_bytes
 from .geometry import Shape
 
-__all__ = ["RenderParams", "MODES", "PATHS", "POLICY_ALIASES", "DEFAULT_BLOCK_BUDGET"]
+__all__ = ["RenderParams", "MODES", "ISO_COLORS", "PATHS", "POLICY_ALIASES", "DEFAULT_BLOCK_BUDGET"]
 
-#: compositing modes of the volume action
-MODES = ("composite", "mip")
+#: compositing modes of the volume action: emission-absorption, maximum / minimum intensity
+#: projection, the mean along the ray (radiograph-like) and the first hit of an iso-value
+MODES = ("composite", "mip", "minip", "average", "iso")
+#: colourings of the iso-surface (see RenderParams.iso_color)
+ISO_COLORS = ("tf", "depth")
 #: how overlays (channels) combine with the primary at each sample (see RenderParams.blend)
 BLENDS = ("over", "additive")
 #: how the volume action draws a cut (see RenderParams.path)
@@ -59,8 +62,22 @@ class RenderParams:
 
     Parameters
     ----------
-    mode : {"composite", "mip"}
-        Front-to-back emission-absorption compositing, or maximum intensity projection.
+    mode : {"composite", "mip", "minip", "average", "iso"}
+        Front-to-back emission-absorption compositing; maximum (``"mip"``) or minimum
+        (``"minip"``) intensity projection; ``"average"``, the mean of the samples inside the
+        volume along the ray, each weighted by its step (a radiograph-like projection; equal to
+        the plain sample mean on one level); ``"iso"``, the first point along the ray where the
+        data reaches ``iso_value`` (the first sample ``>= iso_value``, placed between it and the
+        sample before by linear interpolation), lit with the gradient lighting below and opaque.
+        The projections and the iso-surface map their per-pixel value through the transfer
+        function on read-back; none of them culls transparent bricks or leaps over empty cells
+        except ``"iso"``, which leaps over cells whose value range lies below ``iso_value``.
+    iso_value : float, optional
+        ``mode="iso"``: the data value of the surface (raw units of the data; required there).
+    iso_color : {"tf", "depth"}
+        ``mode="iso"``: colour the surface by the transfer function at ``iso_value`` (``"tf"``,
+        default) or by its distance along the ray across the volume box's depth range, through
+        the transfer function's colours (``"depth"``: near is the table's bottom); lit either way.
     policy : str
         The selection policy (:mod:`clipvol.scene.selection.policies`): ``"projected-size"``
         (refine while a voxel projects to more than ``lod_threshold`` pixels; the default),
@@ -149,6 +166,8 @@ class RenderParams:
     """
 
     mode: str = "composite"
+    iso_value: float | None = None
+    iso_color: str = "tf"
     policy: str = "projected-size"
     lod_threshold: float = 1.0
     level: int | None = None
@@ -187,6 +206,18 @@ class RenderParams:
             raise ParameterError(f"path: expected one of {', '.join(PATHS)}, got {self.path!r}")
         if self.mode not in MODES:
             raise ParameterError(f"mode: expected one of {', '.join(MODES)}, got {self.mode!r}")
+        if self.iso_value is not None:
+            try:
+                iso = float(self.iso_value)
+            except (TypeError, ValueError):
+                iso = float("nan")
+            if not math.isfinite(iso):
+                raise ParameterError(f"iso_value: expected a finite data value, got {self.iso_value!r}")
+            s(self, "iso_value", iso)
+        if self.mode == "iso" and self.iso_value is None:
+            raise ParameterError("iso_value: expected a data value for mode 'iso' (the surface's value), got None")
+        if self.iso_color not in ISO_COLORS:
+            raise ParameterError(f"iso_color: expected one of {', '.join(ISO_COLORS)}, got {self.iso_color!r}")
         policy = POLICY_ALIASES.get(self.policy, self.policy)
         if policy not in POLICIES:
             raise ParameterError(f"policy: expected one of {', '.join(sorted(POLICIES))}, got {self.policy!r}")

@@ -1,6 +1,9 @@
 // Shared by the volume shaders (brick.frag.glsl, raymarch.frag.glsl): rays, the sample lattice,
 // sampling and the transfer function. Compiled as variants (see clipvol/render/glsl.py):
-//   MODE_MIP  maximum intensity projection (absent: composite, front to back)
+//   MODE_MIP  maximum intensity projection (none of the MODE_*: composite, front to back)
+//   MODE_MINIP minimum intensity projection
+//   MODE_AVERAGE the mean along the ray: (sum of sample * step, sum of steps), divided on read-back
+//   MODE_ISO  the first sample >= u_iso, refined between it and the sample before, lit from its gradient
 //   HAS_NAN   the data may hold NaN/Inf: trilinear over the finite neighbours only
 //   SHADING   composite only: Blinn-Phong lighting from central-difference gradients, light at the eye
 //   OVERLAY   composite only: the number (1..3) of co-registered overlay volumes sampled at each sample
@@ -24,6 +27,12 @@ uniform float u_t_offset;       // (raw = a * texel + b folded in, in float64 on
 uniform float u_jitter;         // 1: the lattice starts at a per-pixel offset hash * delta; 0: at 0
 uniform float u_opaque;         // early ray termination
 uniform sampler2D u_tf;         // row L: the table with opacity corrected for level L's step
+#if defined(MODE_MIP) || defined(MODE_MINIP) || defined(MODE_AVERAGE)
+#define MODE_REDUCE             // a per-pixel reduction of the samples, mapped on read-back; no early stop
+#endif
+#ifdef MODE_ISO
+uniform float u_iso;            // the iso-value as a texel (raw = a * texel + b, a > 0: the same order)
+#endif
 
 // The pixel's ray: origin relative to O and unit direction.
 void pixel_ray(out vec3 origin, out vec3 dir) {
@@ -252,7 +261,7 @@ void overlay_under(inout vec4 acc, float ts, vec3 dir, float row, float delta, f
 #define OVERLAY_UNDER(acc, ts, dir, row, delta, texel)
 #endif
 
-#ifdef SHADING
+#if defined(SHADING) || defined(MODE_ISO)
 // Gradient lighting (Blinn-Phong, light fixed to the camera: light, view and half vector all equal
 // -dir, two-sided so the sign of the gradient does not matter). The gradient is a central
 // difference of the interpolated data one voxel either side along each brick-local axis, read from
@@ -284,6 +293,7 @@ vec3 gradient_at(sampler3D tex, vec3 slot, vec3 u, vec3 glo, vec3 ghi, vec3 its,
     return g;
 }
 
+#ifdef SHADING
 void composite_lit(inout vec4 acc, float texel, float row, vec3 g, vec3 dir) {
     vec4 c = texture(u_tf, vec2(texel * u_t_scale + u_t_offset, row));
     float gl = length(g);
@@ -294,14 +304,36 @@ void composite_lit(inout vec4 acc, float texel, float row, vec3 g, vec3 dir) {
     acc.a += w;
 }
 #endif
+#endif
 
 // A ray's state while it marches (STATE: as parameters, STATE_ARGS: as arguments), its start
-// (STATE_INIT) and the fragment written from it at the end (STATE_OUT; MIP: nothing hit, no fragment)
+// (STATE_INIT) and the fragment written from it at the end (STATE_OUT; MIP, minIP, average, iso:
+// nothing hit, no fragment). MIP/minIP: the extreme texel (the target blends with MAX / MIN);
+// average: (sum of texel * delta, sum of delta), additive blending (each sample weighted by its
+// length, so a cut of several levels averages over the ray's length); iso: (t of the hit, lighting
+// factor |g.v|/|g|, texel at the hit, 1): opaque, so "under" / "over" blending keeps the nearest.
+#if defined(MODE_MIP) || defined(MODE_MINIP)
 #ifdef MODE_MIP
-#define STATE inout float vmax, inout bool hit
-#define STATE_ARGS vmax, hit
-#define STATE_INIT float vmax = -3.0e38; bool hit = false;
-#define STATE_OUT { if (!hit) discard; f_color = vec4(vmax, 0.0, 0.0, 1.0); }
+#define TAKE_EXT(v) vext = max(vext, v)
+#define EXT_INIT -3.0e38
+#else
+#define TAKE_EXT(v) vext = min(vext, v)
+#define EXT_INIT 3.0e38
+#endif
+#define STATE inout float vext, inout bool hit
+#define STATE_ARGS vext, hit
+#define STATE_INIT float vext = EXT_INIT; bool hit = false;
+#define STATE_OUT { if (!hit) discard; f_color = vec4(vext, 0.0, 0.0, 1.0); }
+#elif defined(MODE_AVERAGE)
+#define STATE inout vec2 sw
+#define STATE_ARGS sw
+#define STATE_INIT vec2 sw = vec2(0.0);
+#define STATE_OUT { if (!(sw.y > 0.0)) discard; f_color = vec4(sw, 0.0, 0.0); }
+#elif defined(MODE_ISO)
+#define STATE inout vec4 acc
+#define STATE_ARGS acc
+#define STATE_INIT vec4 acc = vec4(0.0);
+#define STATE_OUT { if (acc.a <= 0.0) discard; f_color = acc; }
 #else
 #define STATE inout vec4 acc
 #define STATE_ARGS acc
@@ -355,15 +387,15 @@ uniform vec3 u_occ_shift;       // 0.5 / cell edge (x, y, z)
 // voxel coordinates u = (base + t * dir) * isc clamped to [clo, chi], texel slot + u, colour table
 // row `row`. Both volume paths march through this one loop, so they sample, light and composite
 // identically. Composite stops once the accumulated opacity reaches u_opaque.
-#if defined(HAS_NAN) || defined(SHADING) || defined(OVERLAY)
+#if defined(HAS_NAN) || defined(SHADING) || defined(OVERLAY) || defined(MODE_ISO)
 void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int n, float delta, vec3 isc,
                    vec3 its, vec3 slot, vec3 clo, vec3 chi, float row, STATE) {
-#ifdef SHADING
+#if defined(SHADING) || defined(MODE_ISO)
     vec3 glo;
     vec3 ghi;
     gradient_bounds(clo, chi, glo, ghi);
 #endif
-#if defined(HAS_NAN) || defined(SHADING)
+#if defined(HAS_NAN) || defined(SHADING) || defined(MODE_ISO)
 #ifdef EMPTY_SKIP
     SKIP_SETUP((slot + (base + (off + k0 * delta) * dir) * isc + 0.5) * its, dir * (delta * isc * its))
 #endif
@@ -384,9 +416,24 @@ void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int 
 #endif
         OVERLAY_UNDER(acc, off + (k0 + float(i)) * delta, dir, row, delta, texel);   // overlays at this sample
         if (!SAMPLE_OK(texel)) continue;   // non-finite data is transparent
-#ifdef MODE_MIP
-        vmax = max(vmax, texel);       // the largest texel; mapped to a value on the CPU
+#if defined(MODE_MIP) || defined(MODE_MINIP)
+        TAKE_EXT(texel);               // the largest / smallest texel; mapped to a value on the CPU
         hit = true;
+#elif defined(MODE_AVERAGE)
+        sw += vec2(texel * delta, delta);
+#elif defined(MODE_ISO)
+        if (texel >= u_iso) {          // the first sample at or above the iso-value
+            // the crossing, linear between the sample before (read again: it may lie in the
+            // brick before, half a voxel beyond this one's face, or clamped to the volume's edge)
+            float prev = sample_texels(tex, slot + clamp((base + (ts - delta) * dir) * isc, clo, chi), its);
+            float th = ts;
+            if (SAMPLE_OK(prev) && prev < u_iso) th = ts - delta * clamp((texel - u_iso) / (texel - prev), 0.0, 1.0);
+            vec3 uh = clamp((base + th * dir) * isc, clo, chi);
+            vec3 g = gradient_at(tex, slot, uh, glo, ghi, its, isc, texel);
+            float gl = length(g);
+            acc = vec4(th, gl > 0.0 ? abs(dot(g, dir)) / gl : 0.0, texel, 1.0);
+            break;
+        }
 #else
 #ifdef SHADING
         composite_lit(acc, texel, row, gradient_at(tex, slot, u, glo, ghi, its, isc, texel), dir);
@@ -405,8 +452,10 @@ void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int 
 // axis, found once per segment. The middle run is then exactly the raw one-texture caster's loop
 // (a sample there is the same texture read, clamped or not), which is what makes this path cost what
 // a plain caster costs.
-#ifdef MODE_MIP
-#define FAST_TAKE(c) { vmax = max(vmax, texture(tex, c).r); hit = true; }
+#if defined(MODE_MIP) || defined(MODE_MINIP)
+#define FAST_TAKE(c) { TAKE_EXT(texture(tex, c).r); hit = true; }
+#elif defined(MODE_AVERAGE)
+#define FAST_TAKE(c) { sw += vec2(texture(tex, c).r * delta, delta); }
 #else
 #define FAST_TAKE(c) { composite_sample(acc, texture(tex, c).r, row); if (acc.a >= u_opaque) break; }
 #endif
@@ -468,11 +517,11 @@ void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int 
     int ib = int(clamp(floor(fb) + 1.0, float(ia), float(n)));
     int i = 0;
     for (; i < ia; ++i) FAST_TAKE(clamp(c0 + float(i) * dc, clo_t, chi_t));
-#ifndef MODE_MIP
+#ifndef MODE_REDUCE
     if (acc.a >= u_opaque) return;
 #endif
     for (; i < ib; ++i) FAST_TAKE(c0 + float(i) * dc);
-#ifndef MODE_MIP
+#ifndef MODE_REDUCE
     if (acc.a >= u_opaque) return;
 #endif
     for (; i < n; ++i) FAST_TAKE(clamp(c0 + float(i) * dc, clo_t, chi_t));

@@ -1,0 +1,199 @@
+"""The render modes beside composite: minimum intensity projection, the average along the ray and the
+iso-surface, in both draw paths, against references that share nothing with the renderer.
+
+* minIP / average: numpy ``min`` / ``mean`` of the array along z, seen by an axis-aligned
+  orthographic camera whose pixel centres and samples lie on voxel centres (step 1), so every ray's
+  samples are exactly the voxels of one column; at a coarse level, against a 2x2x2 block mean of
+  the array computed here.
+* iso: the hit distance along each ray against the analytic sphere the volume samples (a distance
+  field, so its iso-surface is the sphere itself), within half a voxel, and against an independent
+  numpy ray march of the array (scipy's ``map_coordinates``, first sample at or above the value,
+  linear between it and the sample before).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import reference_raycast as ref
+from scipy.ndimage import map_coordinates
+
+from clipvol.errors import ParameterError
+from clipvol.loaders.numpy_array import NumpyLoader
+from clipvol.paging.cliptexture import ClipTexture
+from clipvol.render.action import ClipRenderAction
+from clipvol.scene.camera import Camera
+from clipvol.scene.params import RenderParams
+from clipvol.scene.transfer import TransferFunction
+
+pytestmark = pytest.mark.gl
+
+TF = TransferFunction.preset("viridis")
+PATHS = ["bricks", "single-pass"]
+
+
+@pytest.fixture(autouse=True)
+def _gl_clean(ctx):
+    assert ctx.error == "GL_NO_ERROR"
+    yield
+    assert ctx.error == "GL_NO_ERROR"
+
+
+def render(ctx, vol, cam, brick=8, tf=TF, **kw):
+    """(image, raw float target, the action's defines) of one converged frame."""
+    clip = ClipTexture(NumpyLoader(vol, brick=brick), "64MB", threads=2)
+    kw.setdefault("policy", "fixed")
+    kw.setdefault("level", 0)
+    action = ClipRenderAction(ctx, clip, **kw)
+    try:
+        img = action.render(cam, tf, wait=True, timeout=20)
+        assert action.last_frame_stats.converged
+        raw = action.last_raw
+        return img, None if raw is None else raw.copy(), action
+    finally:
+        action.close()
+        clip.close()
+
+
+def columns_volume(shape=(20, 24, 28)) -> np.ndarray:
+    rng = np.random.default_rng(7)
+    z, y, x = np.mgrid[0:shape[0], 0:shape[1], 0:shape[2]].astype(np.float64)
+    v = 0.5 + 0.3 * np.sin(x / 3.0 + z / 4.0) * np.cos(y / 5.0) + 0.1 * rng.random(shape)
+    v[3, 5, 7] = -0.2  # a single dark voxel must survive minIP
+    return v.astype(np.float32)
+
+
+def z_camera(shape, scale=1.0):
+    """Orthographic along +z, one pixel per voxel of a level of voxel size ``scale``; the lattice
+    plane (t = 0) through a voxel centre of that level, so step 1 samples exactly the centres."""
+    nz, ny, nx = shape
+    cz = scale * (nz // scale // 2) + 0.5 * (scale - 1.0)  # a centre of the level's voxels along z
+    centre = ((nx - 1) / 2, (ny - 1) / 2, cz)
+    return Camera.orthographic(centre, (0, 0, 1), (0, -1, 0), nx, ny, size=(int(nx / scale), int(ny / scale)))
+
+
+def expected(values, lo, hi) -> np.ndarray:
+    rgba = ref.tf_lookup(TF.table, (values - lo) / (hi - lo))
+    return ref.to_uint8(np.concatenate([rgba[..., :3] * rgba[..., 3:], rgba[..., 3:]], axis=-1))
+
+
+def diff(a, b) -> np.ndarray:
+    return np.abs(a.astype(np.int64) - b.astype(np.int64))
+
+
+@pytest.mark.parametrize("path", PATHS)
+@pytest.mark.parametrize("mode,reduce", [("minip", np.min), ("average", np.mean)])
+def test_axis_aligned_projection_is_numpy_min_or_mean(ctx, path, mode, reduce):
+    vol = columns_volume()
+    img, _, action = render(ctx, vol, z_camera(vol.shape), mode=mode, step=1.0, path=path)
+    assert action.path_drawn == path
+    assert sum(action.last_frame_stats.bricks_drawn.values()) > 1 or path == "single-pass"
+    lo, hi = float(vol.min()), float(vol.max())
+    expect = expected(reduce(vol.astype(np.float64), axis=0), lo, hi)
+    assert diff(img, expect).max() <= 1
+    assert expect[..., 3].mean() > 0.5  # the reference is mostly visible
+
+
+@pytest.mark.parametrize("path", PATHS)
+def test_minip_and_mip_differ_where_a_dark_voxel_is(ctx, path):
+    """The dark voxel shows in minIP and not in MIP (the modes really differ)."""
+    vol = columns_volume()
+    a, _, _ = render(ctx, vol, z_camera(vol.shape), mode="minip", step=1.0, path=path)
+    b, _, _ = render(ctx, vol, z_camera(vol.shape), mode="mip", step=1.0, path=path)
+    lo, hi = float(vol.min()), float(vol.max())
+    dark = expected(np.array([[-0.2]]), lo, hi)[0, 0]
+    assert diff(a[5, 7], dark).max() <= 1
+    assert diff(b[5, 7], dark).max() > 20
+
+
+@pytest.mark.parametrize("path", PATHS)
+@pytest.mark.parametrize("mode,reduce", [("minip", np.min), ("average", np.mean)])
+def test_coarse_level_frame_is_the_reduction_of_the_block_means(ctx, path, mode, reduce):
+    """A frame drawn from level 1 equals numpy's reduction of the 2x2x2 block means (the pyramid's
+    mean filter, computed here) along z."""
+    vol = columns_volume((24, 24, 28))
+    img, _, action = render(ctx, vol, z_camera(vol.shape, 2.0), mode=mode, step=1.0, path=path, level=1)
+    assert set(action.last_frame_stats.bricks_drawn) == {1}
+    v = vol.astype(np.float64)
+    coarse = v.reshape(12, 2, 12, 2, 14, 2).mean(axis=(1, 3, 5))
+    lo, hi = action.pyramid.value_range
+    expect = expected(reduce(coarse, axis=0), lo, hi)
+    assert diff(img, expect).max() <= 1
+
+
+@pytest.mark.parametrize("path", PATHS)
+def test_iso_surface_of_a_sphere_is_the_sphere(ctx, path):
+    """A distance field's iso-surface at radius R is the sphere of radius R: the first-hit distance
+    of every pixel whose ray meets it is the analytic ray-sphere distance within half a voxel, and
+    equals a numpy ray march of the same array; rays that miss the sphere draw nothing."""
+    n, R = 40, 12.0
+    z, y, x = np.mgrid[0:n, 0:n, 0:n].astype(np.float64)
+    c = (n - 1) / 2.0
+    dist = np.sqrt((x - c) ** 2 + (y - c) ** 2 + (z - c) ** 2)
+    vol = (30.0 - dist).astype(np.float32)  # >= 30 - R inside the sphere
+    iso = 30.0 - R
+    eye = np.array([c + 20.0, c - 25.0, c - 60.0])
+    cam = Camera.perspective(tuple(eye), (c, c, c), size=(48, 40), fov_y=35)
+    img, raw, action = render(ctx, vol, cam, brick=16, mode="iso", iso_value=iso, path=path)
+    assert action.path_drawn == path
+    o, d = cam.rays()
+    o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+    # analytic: |o + t d - centre| = R
+    oc = o - c
+    b = (oc * d).sum(1)
+    disc = b * b - ((oc * oc).sum(1) - R * R)
+    hit = disc > 0
+    t_exact = -b - np.sqrt(np.where(hit, disc, 0.0))
+    got_hit = raw[..., 3].reshape(-1) > 0.5
+    t_gl = raw[..., 0].reshape(-1)
+    assert hit.sum() > 200
+    # pixels whose ray grazes the sphere (within a voxel) may go either way
+    margin = np.abs(np.sqrt(np.maximum((oc * oc).sum(1) - b * b, 0.0)) - R) < 1.0
+    assert np.array_equal(got_hit[~margin], hit[~margin])
+    both = hit & got_hit & ~margin
+    assert np.abs(t_gl[both] - t_exact[both]).max() < 0.5
+    # an independent numpy march of the array: samples t = k * delta, first >= iso, linear refinement
+    delta = 0.5
+    ks = np.arange(int(30 / delta), int(110 / delta))
+    p = o[both, None, :] + (ks * delta)[None, :, None] * d[both, None, :]
+    vals = map_coordinates(vol.astype(np.float64), p[..., ::-1].reshape(-1, 3).T, order=1, mode="nearest").reshape(p.shape[:2])
+    first = np.argmax(vals >= iso, axis=1)
+    assert (first > 0).all()
+    rows = np.arange(len(first))
+    v1, v0 = vals[rows, first], vals[rows, first - 1]
+    t_ref = (ks[first] - (v1 - iso) / (v1 - v0)) * delta
+    assert np.abs(t_gl[both] - t_ref).max() < 0.05
+    # the image: opaque where the surface is, lit (brighter facing the eye), nothing elsewhere
+    alpha = img[..., 3].reshape(-1)
+    assert (alpha[both] == 255).all() and (alpha[~hit & ~margin] == 0).all()
+
+
+def test_iso_paths_agree_and_depth_colouring_follows_distance(ctx):
+    n, R = 32, 10.0
+    z, y, x = np.mgrid[0:n, 0:n, 0:n].astype(np.float64)
+    c = (n - 1) / 2.0
+    vol = (20.0 - np.sqrt((x - c) ** 2 + (y - c) ** 2 + (z - c) ** 2)).astype(np.float32)
+    cam = Camera.perspective((c + 10, c - 15, c - 50), (c, c, c), size=(40, 40), fov_y=35)
+    grey = TransferFunction.preset("grey")
+    a, ra, _ = render(ctx, vol, cam, brick=8, tf=grey, mode="iso", iso_value=10.0, path="bricks")
+    b, rb, _ = render(ctx, vol, cam, brick=8, tf=grey, mode="iso", iso_value=10.0, path="single-pass")
+    assert diff(a, b).max() <= 1
+    dimg, draw, _ = render(ctx, vol, cam, brick=8, tf=grey, mode="iso", iso_value=10.0, iso_color="depth",
+                           path="bricks", ambient=1.0, diffuse=0.0, specular=0.0)
+    hit = draw[..., 3] > 0.5
+    t = draw[..., 0][hit]
+    g = dimg[..., 0][hit].astype(float)
+    # unlit depth colouring through the grey table: nearer is darker, monotonic in distance
+    assert np.corrcoef(t, g)[0, 1] > 0.99
+
+
+def test_iso_needs_a_finite_value_and_modes_are_checked():
+    with pytest.raises(ParameterError, match="iso_value"):
+        RenderParams(mode="iso")
+    with pytest.raises(ParameterError, match="iso_value"):
+        RenderParams(mode="iso", iso_value=float("nan"))
+    with pytest.raises(ParameterError, match="iso_color"):
+        RenderParams(mode="iso", iso_value=1.0, iso_color="rainbow")
+    with pytest.raises(ParameterError, match="mode"):
+        RenderParams(mode="median")
+    assert RenderParams(mode="iso", iso_value="2.5").iso_value == 2.5
