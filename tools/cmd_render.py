@@ -73,7 +73,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     v.add_argument("--camera", default=None, metavar="FILE.json",
                    help="a camera saved by the viewer's C key (overrides --view/--eye/--target/--up/--fov/--ortho)")
     r = p.add_argument_group("rendering")
-    r.add_argument("--mode", choices=("composite", "mip"), default="composite")
+    from clipvol.scene.params import MODES
+
+    r.add_argument("--mode", choices=MODES, default="composite",
+                   help="composite, maximum / minimum intensity projection, the mean along the ray, or an iso-surface")
+    r.add_argument("--iso-value", type=float, default=None, help="--mode iso: the data value of the surface (the first point along each ray at or above it)")
     r.add_argument("--policy", "--selection", dest="policy", choices=POLICY_CHOICES, default="projected-size",
                    help="selection policy: which bricks at which level (default projected-size; "
                         "--selection multiresolution is the same)")
@@ -220,7 +224,7 @@ def run(args) -> int:
     lo, hi = pyr.volume_box()
     centre = np.clip(np.asarray(cam.center, dtype=np.float64), lo, hi)
     params = RenderParams(
-        mode=args.mode, policy=args.policy, level=args.level, lod_threshold=args.lod_threshold,
+        mode=args.mode, iso_value=args.iso_value, policy=args.policy, level=args.level, lod_threshold=args.lod_threshold,
         max_texels_drawn=args.max_texels_drawn, distance_factor=args.distance_factor, fov_fraction=args.fov_fraction,
         texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget, step=args.step,
         background=args.background, block_budget=args.block_budget, visibility=not args.no_visibility,

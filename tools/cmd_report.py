@@ -61,7 +61,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from clipvol.tools.tf_args import add_tf_arguments
 
     add_tf_arguments(p.add_argument_group("transfer function"))
-    p.add_argument("--mode", choices=("composite", "mip"), default="composite")
+    from clipvol.scene.params import MODES
+
+    p.add_argument("--mode", choices=MODES, default="composite")
+    p.add_argument("--iso-value", type=float, default=None, help="--mode iso: the data value of the surface (the first point along each ray at or above it)")
     p.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
     p.add_argument("--threads", type=int, default=None, help="loader threads")
     p.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for a converged frame")
@@ -127,7 +130,7 @@ def run(args) -> int:
     tf = transfer_function_from_args(args, loader)
     res = run_report(
         loader, args.out, path=args.path, views=args.views, size=args.size, thresholds=args.thresholds,
-        memory_budgets=args.memory_budgets, texture_budgets=args.texture_budgets, tf=tf, mode=args.mode,
+        memory_budgets=args.memory_budgets, texture_budgets=args.texture_budgets, tf=tf, mode=args.mode, iso_value=args.iso_value,
         step=args.step, threads=args.threads, timeout=args.timeout, max_frames=args.max_frames,
         reference_cap=args.reference_cap, log=lambda s: print(s, flush=True), plots=not args.no_plots,
         block_budgets=_budgets(args.block_budgets), rounds=args.rounds, allow_partial=args.allow_partial,

@@ -41,7 +41,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_trust_arguments(p)
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default: the loader's, 64)")
     g = p.add_argument_group("rendering")
-    g.add_argument("--mode", choices=("composite", "mip"), default="composite", help="compositing or maximum intensity projection")
+    from clipvol.scene.params import MODES
+
+    g.add_argument("--mode", choices=MODES, default="composite",
+                   help="composite, maximum / minimum intensity projection, the mean along the ray, or an iso-surface")
+    g.add_argument("--iso-value", type=float, default=None, help="--mode iso: the data value of the surface (the first point along each ray at or above it)")
     g.add_argument("--selection", "--policy", dest="selection", choices=("multiresolution", "roaming", "fixed"),
                    default="multiresolution", help="selection policy the viewer starts with (M cycles them)")
     g.add_argument("--level", type=int, default=None, help="level drawn with --selection fixed (default 0)")
@@ -131,7 +135,7 @@ def run(args) -> int:
     from clipvol.tools.tf_args import transfer_function_from_args
 
     params = RenderParams(
-        lod_threshold=args.lod_threshold, policy=args.selection, level=args.level, mode=args.mode,
+        lod_threshold=args.lod_threshold, policy=args.selection, level=args.level, mode=args.mode, iso_value=args.iso_value,
         step=args.step, texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget,
         jitter=not args.no_jitter, path=args.render_path, shading=args.shading,
     )

@@ -377,6 +377,7 @@ def run_report(
     texture_budgets: Sequence | None = None,
     tf="viridis",
     mode: str = "composite",
+    iso_value: float | None = None,
     step: float = 0.5,
     threads: int | None = None,
     timeout: float = 120.0,
@@ -411,8 +412,10 @@ def run_report(
         the smallest budget the clip-texture accepts). Pass ``()`` to skip a sweep.
     tf : str or TransferFunction
         Transfer-function preset name, or a transfer function.
-    mode : {'composite', 'mip'}
-        Render mode.
+    mode : {'composite', 'mip', 'minip', 'average', 'iso'}
+        Render mode (:class:`~clipvol.scene.params.RenderParams`); the reference is drawn in it too.
+    iso_value : float, optional
+        ``mode="iso"``: the surface's data value.
     step : float
         Sample spacing in voxels of each level.
     threads : int, optional
@@ -473,7 +476,7 @@ def run_report(
     cams = list(make_path(path, pyr, int(views), size=size))
     result = ReportResult(out_dir=out, csv=out / "report.csv", markdown=out / "report.md", reference_level=ref_level,
                           rounds=rounds)
-    base = RenderParams(mode=mode, step=step, texture_budget=full_tex)
+    base = RenderParams(mode=mode, iso_value=iso_value, step=step, texture_budget=full_tex)
     own_ctx = ctx is None
     if own_ctx:
         ctx = create_context()

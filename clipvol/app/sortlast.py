@@ -115,6 +115,18 @@ class SortLastStats:
         return tuple(f for f in self.failed_bricks if not f.replaced)
 
 
+#: the modes whose groups' partial images combine here (composite "over", MIP max)
+SORT_LAST_MODES = ("composite", "mip")
+
+
+def _sort_last_mode(params: RenderParams) -> RenderParams:
+    """Refuse a mode whose per-group partial images this compositor does not combine."""
+    if params.mode not in SORT_LAST_MODES:
+        raise ParameterError(f"mode: expected one of {', '.join(SORT_LAST_MODES)} for sort-last rendering (--workers), "
+                             f"got {params.mode!r}")
+    return params
+
+
 class DistributedRenderer:
     """Render frames of ``source`` with ``workers`` Dask worker processes, composited sort-last.
 
@@ -144,7 +156,7 @@ class DistributedRenderer:
 
         self.source = str(source)
         self.source_kwargs = dict(source_kwargs or {})
-        self.params = params or RenderParams()
+        self.params = _sort_last_mode(params or RenderParams())
         self.memory_budget = memory_budget
         self.timeout = float(timeout)
         self.pyramid = open_store(self.source, **self.source_kwargs).pyramid
@@ -214,7 +226,7 @@ class DistributedRenderer:
 
     def set_params(self, params: RenderParams) -> None:
         """Render the next frames with ``params`` (the workers pick them up with the next task)."""
-        self.params = params.check_for(self.pyramid)
+        self.params = _sort_last_mode(params).check_for(self.pyramid)
 
     def close(self) -> None:
         if self._inline:

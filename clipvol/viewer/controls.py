@@ -350,8 +350,10 @@ class ViewState(KeyState):
             raise ParameterError(f"num_levels: expected >= 1, got {self.num_levels!r}")
         if self.mode not in ALL_MODES:
             raise ParameterError(f"mode: expected one of {', '.join(ALL_MODES)}, got {self.mode!r}")
-        if self.render_mode not in ("composite", "mip"):
-            raise ParameterError(f"render_mode: expected 'composite' or 'mip', got {self.render_mode!r}")
+        from ..scene.params import MODES
+
+        if self.render_mode not in MODES:
+            raise ParameterError(f"render_mode: expected one of {', '.join(MODES)}, got {self.render_mode!r}")
         if not self.tf_presets:
             raise ParameterError("tf_presets: expected at least one preset name")
         self.level = int(np.clip(self.level, 0, self.num_levels - 1))

@@ -1,0 +1,68 @@
+"""``clipvol render --mode minip|average|iso``: the modes reach the renderer from the command line,
+and a mode that needs a value refuses to run without it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from clipvol.tools.cli import main
+
+pytestmark = pytest.mark.gl
+
+
+def _sphere(tmp_path, n=32, R=10.0):
+    z, y, x = np.mgrid[0:n, 0:n, 0:n].astype(np.float64)
+    c = (n - 1) / 2.0
+    vol = (20.0 - np.sqrt((x - c) ** 2 + (y - c) ** 2 + (z - c) ** 2)).astype(np.float32)  # >= 20 - R inside
+    p = tmp_path / "sphere.npy"
+    np.save(p, vol)
+    return p, vol
+
+
+def test_iso_surface_of_a_sphere_is_an_opaque_disc(tmp_path):
+    src, _ = _sphere(tmp_path)
+    out = tmp_path / "iso.png"
+    rc = main(["render", str(src), "--brick", "16", "--out", str(out), "--size", "96x96", "--view", "front", "--ortho",
+               "--mode", "iso", "--iso-value", "10", "--policy", "fixed"])
+    assert rc == 0
+    img = np.asarray(Image.open(out))
+    drawn = img[..., 3] == 255
+    assert ((img[..., 3] == 0) | drawn).all()  # opaque surface or nothing
+    rows, cols = np.nonzero(drawn)
+    h, w = rows.max() - rows.min() + 1, cols.max() - cols.min() + 1
+    assert abs(h - w) <= 2  # a disc: as high as wide, and filling pi/4 of its bounding square
+    assert abs(drawn.sum() / (h * w) - np.pi / 4) < 0.05
+    # lit from the eye: the disc's centre faces the view, brighter than its rim
+    cy, cx = (rows.min() + rows.max()) // 2, (cols.min() + cols.max()) // 2
+    assert img[cy, cx, :3].astype(int).sum() > img[rows[0], cols[0], :3].astype(int).sum()
+
+
+def test_iso_value_above_the_data_draws_nothing(tmp_path):
+    src, vol = _sphere(tmp_path)
+    out = tmp_path / "none.png"
+    assert main(["render", str(src), "--brick", "16", "--out", str(out), "--size", "48x48", "--mode", "iso",
+                 "--iso-value", str(float(vol.max()) + 1.0)]) == 0
+    assert (np.asarray(Image.open(out))[..., 3] == 0).all()
+
+
+def test_iso_without_a_value_is_refused(tmp_path, capsys):
+    src, _ = _sphere(tmp_path)
+    assert main(["render", str(src), "--out", str(tmp_path / "x.png"), "--mode", "iso"]) == 2
+    assert "iso_value" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("mode", ["minip", "average"])
+def test_projection_modes_draw_the_volume_footprint(tmp_path, mode):
+    """Every ray through the volume has samples: a projection covers the volume's whole footprint
+    (the front orthographic view of a cube is a square) and nothing beside it."""
+    src, vol = _sphere(tmp_path)
+    out = tmp_path / f"{mode}.png"
+    assert main(["render", str(src), "--brick", "16", "--out", str(out), "--size", "64x64", "--view", "front",
+                 "--ortho", "--mode", mode, "--tf-points", "0:1,1,1,1;1:1,1,1,1"]) == 0
+    a = np.asarray(Image.open(out))[..., 3] > 0
+    rows, cols = np.nonzero(a)
+    assert a[rows.min():rows.max() + 1, cols.min():cols.max() + 1].all()
+    assert abs((rows.max() - rows.min()) - (cols.max() - cols.min())) <= 1
+    assert not a.all()
