@@ -110,7 +110,8 @@ from .frame_loop import FrameLoop
 from .glsl import ProgramCache
 from .gpu_cache import GpuBrickCache, t_scale_offset
 from .image_lod import ImageLod
-from .modes import REDUCED_MODES, clear_value, depth_range, iso_texel, mode_defines, reduce_image, set_blend
+from .modes import (REDUCED_MODES, clear_value, depth_range, iso_texel, mode_defines, occupancy_tf, reduce_image,
+                    set_blend)
 from .overlay_binding import OverlayTextures, overlay_defines
 from .resolve import Resolve
 
@@ -338,7 +339,8 @@ class ClipRenderAction:
         """``(level, idx) -> bool mask`` from the loader's brick ranges over each brick's sampling
         footprint (:func:`clipvol.scene.transfer.transparency_filter`), or None."""
         loader = self.clip_texture.loader
-        if self.params.mode != "composite" or not isinstance(loader, HasBrickRanges):
+        tf = occupancy_tf(self.params, tf, self.pyramid.value_range)  # iso: values below the surface's
+        if self.params.mode not in ("composite", "iso") or not isinstance(loader, HasBrickRanges):
             return None
         if self.params.overlays:  # a transparent brick still carries the rays through an overlay
             return self.overlays.cull_outside(transparency_filter(tf, loader), self.params.overlays)
@@ -381,7 +383,8 @@ class ClipRenderAction:
         :data:`MIN_EMPTY_FRACTION` of the cells holding data empty under ``tf`` (the lookups cost
         samples where there is little to leap). Derives the cells' flags for ``tf``."""
         p = self.params
-        if not p.skip_empty or p.mode != "composite" or p.overlays or self.cache.cell_edges is None:
+        tf = occupancy_tf(p, tf, self.pyramid.value_range)  # iso: values below the surface's are "empty"
+        if not p.skip_empty or p.mode not in ("composite", "iso") or p.overlays or self.cache.cell_edges is None:
             return False
         lo, hi = tf.window(self.pyramid.value_range)
         if not hi > lo:
@@ -393,6 +396,7 @@ class ClipRenderAction:
         """Bind the cache's cell flags for ``tf`` (:meth:`GpuBrickCache.occupancy_texture`) to
         :data:`OCCUPANCY_UNIT` (EMPTY_SKIP variants only)."""
         if self.skipped_empty:
+            tf = occupancy_tf(self.params, tf, self.pyramid.value_range)
             self.cache.occupancy_texture(tf, self.pyramid.value_range).use(location=OCCUPANCY_UNIT)
             _uset(prog, "u_occ", OCCUPANCY_UNIT)
             _uset(prog, "u_occ_shift", _vec(0.5 / np.asarray(self.cache.cell_edges[::-1], dtype=np.float64)))

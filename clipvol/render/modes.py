@@ -21,16 +21,21 @@ IEEE TMI 1989):
   Blinn-Phong terms (Levoy, *Display of surfaces from volume data*, IEEE CG&A 1988; the light at
   the eye) and coloured by the transfer function at ``iso_value`` or by the hit's depth.
 
-None of these modes culls bricks the transfer function makes transparent or leaps over empty cells:
-in MIP/minIP a transparent value may still be the extreme, in the average every sample (air
-included) counts, and an iso-surface does not depend on the table's opacity.
+The projections neither cull bricks the transfer function makes transparent nor leap over empty
+cells: in MIP/minIP a transparent value may still be the extreme, and in the average every sample
+(air included) counts. An iso-surface does not depend on the table's opacity, but on whether a
+value reaches ``iso_value``: :func:`occupancy_tf` is a two-entry table, transparent below the
+value and opaque from it, through which the same brick culling and cell flags
+(:mod:`clipvol.scene.occupancy`, conservative over each brick's and cell's sampling footprint)
+skip whatever lies wholly below the surface's value - no sample there can be a hit.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["REDUCED_MODES", "mode_defines", "clear_value", "set_blend", "iso_texel", "depth_range", "reduce_image"]
+__all__ = ["REDUCED_MODES", "mode_defines", "clear_value", "set_blend", "iso_texel", "depth_range", "reduce_image",
+           "occupancy_tf"]
 
 #: modes whose target holds per-pixel values that the read-back maps through the transfer function
 REDUCED_MODES = ("mip", "minip", "average", "iso")
@@ -66,6 +71,21 @@ def set_blend(ctx, mgl, mode: str) -> bool:
     else:
         return False
     return True
+
+
+def occupancy_tf(params, tf, data_range):
+    """The table whose transparent values the frame may skip: ``tf`` itself (composite), or for
+    ``iso`` a two-entry table over the window ``iso_value -+ d`` (``d`` a thousandth of the data's
+    range): values below ``iso_value - d / 2`` reach only the transparent entry, every value from
+    ``iso_value`` on reaches the opaque one (``GL_LINEAR`` lookup, texel centres at 1/4 and 3/4)."""
+    if params.mode != "iso":
+        return tf
+    from ..scene.transfer import TransferFunction
+
+    lo, hi = (float(v) for v in data_range)
+    d = max(1e-3 * (hi - lo), 1e-6 * max(abs(params.iso_value), 1.0))
+    table = np.array([[0.0, 0.0, 0.0, 0.0], [1.0, 1.0, 1.0, 1.0]])
+    return TransferFunction(table, value_range=(params.iso_value - d, params.iso_value + d), name="iso")
 
 
 def iso_texel(fmt, iso_value: float | None) -> float:

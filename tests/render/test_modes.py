@@ -197,3 +197,38 @@ def test_iso_needs_a_finite_value_and_modes_are_checked():
     with pytest.raises(ParameterError, match="mode"):
         RenderParams(mode="median")
     assert RenderParams(mode="iso", iso_value="2.5").iso_value == 2.5
+
+
+@pytest.mark.parametrize("path", PATHS)
+def test_iso_skips_what_lies_below_its_value_and_draws_the_same(ctx, tmp_path, path):
+    """Bricks (from a store's per-brick value ranges) and cells whose values all lie below the
+    iso-value are culled / leapt - none of their samples can be a hit: the hit distances and the
+    lighting equal those of a frame over an in-memory array that culls nothing and samples everything."""
+    from clipvol.bricking.pipeline import brick_volume
+    from clipvol.loaders.zarr_store import ZarrLoader
+
+    n = 64
+    z, y, x = np.mgrid[0:n, 0:n, 0:n].astype(np.float64)
+    c = (n - 1) / 2.0
+    vol = (30.0 - np.sqrt((x - c) ** 2 + (y - c) ** 2 + (z - c) ** 2)).astype(np.float32)
+    brick_volume(vol, tmp_path / "s.zarr", brick=8, progress=False, workers=1)
+    cam = Camera.perspective((c + 15, c - 20, c - 70), (c, c, c), size=(48, 48), fov_y=35)
+    clip = ClipTexture(ZarrLoader(tmp_path / "s.zarr"), "64MB", threads=2)
+    a = ClipRenderAction(ctx, clip, policy="fixed", level=0, mode="iso", iso_value=20.0, path=path)
+    try:
+        a.render(cam, TF, wait=True, timeout=20)
+        fast = a.last_raw.copy()
+        assert a.skipped_empty and a.last_frame_stats.counts["culled_transparent"] > 0
+        # and a composite frame under a table visible everywhere culls nothing: the culling is the iso-value's
+        a.set_params(RenderParams(policy="fixed", level=0, path=path))
+        a.render(cam, TransferFunction.from_points([(0, (1, 1, 1, 0.1)), (1, (1, 1, 1, 0.1))]), wait=True, timeout=20)
+        assert a.last_frame_stats.counts["culled_transparent"] == 0
+    finally:
+        a.close()
+        clip.close()
+    _, slow, b = render(ctx, vol, cam, brick=8, mode="iso", iso_value=20.0, path=path, skip_empty=False)
+    assert not b.skipped_empty
+    hit = slow[..., 3] > 0.5
+    assert hit.sum() > 100 and np.array_equal(hit, fast[..., 3] > 0.5)
+    assert np.abs(fast[..., 0][hit] - slow[..., 0][hit]).max() < 1e-3
+    assert np.abs(fast[..., 1][hit] - slow[..., 1][hit]).max() < 1e-3
