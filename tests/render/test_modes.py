@@ -267,3 +267,42 @@ def test_iso_surface_drawn_from_a_coarse_level_is_that_level_s_surface(ctx, path
     v1, v0 = vals[rows, first], vals[rows, first - 1]
     t_ref = (ks[first] - (v1 - (30.0 - R)) / (v1 - v0)) * delta
     assert np.abs(t_gl[inner] - t_ref).max() < 0.05
+
+
+def test_average_over_a_cut_of_two_levels_weights_samples_by_their_length(ctx):
+    """Half of each ray through level 0, half through level 1 (samples twice as far apart): the
+    average is the length-weighted mean of the two halves' samples, computed here with scipy's
+    ``map_coordinates`` on the array and on its 2x2x2 block means - not the plain mean of the
+    samples, which would count the coarse half half as much."""
+    from clipvol.scene.selection import DrawItem
+
+    z, y, x = np.mgrid[0:32, 0:16, 0:16].astype(np.float64)
+    vol = (z / 31.0 + 0.1 * np.sin(x / 2.0) * np.cos(y / 3.0)).astype(np.float32)
+    coarse = vol.astype(np.float64).reshape(16, 2, 8, 2, 8, 2).mean(axis=(1, 3, 5))
+    loader = NumpyLoader(vol, brick=16)
+    pyr = loader.pyramid
+    clip = ClipTexture(loader, "64MB", threads=2)
+    action = ClipRenderAction(ctx, clip, mode="average", step=1.0, path="bricks", merge_boxes=False)
+    try:
+        clip.wait_until_idle(20)
+        lo0, hi0 = pyr.node_box(0, (0, 0, 0))  # level 0: z in [-0.5, 15.5)
+        lo1, hi1 = pyr.node_box(1, (0, 0, 0))  # level 1 drawn over z in [15.5, 31.5)
+        items = [DrawItem(1, (0, 0, 0), (lo1[0], lo1[1], hi0[2]), tuple(hi1)), DrawItem(0, (0, 0, 0), tuple(lo0), tuple(hi0))]
+        # pixels on voxel centres in x, y; the lattice plane at z = 16: level-0 samples at z = 0..15,
+        # level-1 samples (delta 2) at z = 16, 18, ..., 30
+        cam = Camera.orthographic((7.5, 7.5, 16.0), (0, 0, 1), (0, -1, 0), 16, 16, size=(16, 16))
+        img = action.render_items(cam, TF, items)
+        value_range = pyr.value_range
+    finally:
+        action.close()
+        clip.close()
+    yy, xx = np.mgrid[0:16, 0:16].astype(np.float64)
+    s0 = sum(vol.astype(np.float64)[k] for k in range(16))  # level 0: voxel centres, weight 1 each
+    zs = np.arange(16, 31, 2, dtype=np.float64)
+    pts = np.stack(np.broadcast_arrays((zs[:, None, None] - 0.5) / 2, (yy - 0.5) / 2, (xx - 0.5) / 2))
+    v1 = map_coordinates(coarse, pts.reshape(3, -1), order=1, mode="nearest").reshape(8, 16, 16)
+    weighted = (s0 * 1.0 + v1.sum(0) * 2.0) / (16 * 1.0 + 8 * 2.0)
+    plain = (s0 + v1.sum(0)) / 24.0
+    lo, hi = value_range
+    assert diff(img, expected(weighted, lo, hi)).max() <= 1
+    assert diff(img, expected(plain, lo, hi)).max() > 10
