@@ -312,6 +312,8 @@ class KeyState:
     one-shot requests (screenshot, reset, quit) with the message the HUD shows."""
 
     render_mode: str = "composite"
+    #: the modes ``I`` cycles through (a viewer whose renderer draws more widens it)
+    render_modes: tuple[str, ...] = ("composite", "mip")
     shading: bool = False
     tf_index: int = 0
     hud: bool = True
@@ -395,11 +397,13 @@ class ViewState(KeyState):
 
 
 def apply_common_key(state, k: str) -> bool:
-    """The keys every viewer shares, on a :class:`KeyState`: ``I`` MIP/composite, ``N`` lighting,
+    """The keys every viewer shares, on a :class:`KeyState`: ``I`` the next render mode, ``N`` lighting,
     ``T`` next colour map, ``H`` HUD, ``P`` screenshot, ``R`` reset view, ``Esc`` quit. Returns
     whether ``k`` (upper case) was one of them."""
-    if k == "I":
-        state.render_mode = "mip" if state.render_mode == "composite" else "composite"
+    if k == "I":  # the next of render_modes (composite <-> MIP unless the viewer widens it)
+        modes = state.render_modes
+        state.render_mode = modes[(modes.index(state.render_mode) + 1) % len(modes)] \
+            if state.render_mode in modes else modes[0]
         state.message = state.render_mode
     elif k == "N":
         state.shading = not state.shading

@@ -129,6 +129,8 @@ class Viewer(GlWindow):
         self.state = ViewState(
             num_levels=pyr.num_levels, tf_presets=presets, mode=s.selection, level=s.level or 0,
             lod_threshold=s.lod_threshold, render_mode=s.mode, shading=s.shading, tf_index=0,
+            # I: every volume mode; the iso-surface when it has a value (clipvol view --iso-value)
+            render_modes=("composite", "mip", "minip", "average") + (("iso",) if s.iso_value is not None else ()),
         )
         self.controls = OrbitControls.for_pyramid(pyr, size=self.framebuffer_size, **_anatomical_rig(self.session.loader))
         if camera is not None:
@@ -340,8 +342,9 @@ class Viewer(GlWindow):
 
             tf = TransferFunction.preset(name, value_range=self.tf.window(self.session.pyramid.value_range))
         self.tf = tf
-        if st.render_mode == "mip" and self.session.params.overlays:  # overlays are composited over the primary
-            st.render_mode, st.message = "composite", "MIP: not with overlays (they are composited over the volume)"
+        if st.render_mode != "composite" and self.session.params.overlays:  # overlays are composited over the primary
+            st.render_mode, st.message = "composite", \
+                f"{st.render_mode.upper()}: not with overlays (they are composited over the volume)"
         self.session.update(
             lod_threshold=st.lod_threshold, policy=st.mode, level=st.level if st.mode == "fixed" else None,
             mode=st.render_mode, shading=st.shading, tf=tf,
