@@ -130,13 +130,14 @@ def reduce_image(raw: np.ndarray, params, tf, fmt, value_range, depth: tuple[flo
         rgb = np.minimum(lit, 1.0)
         a = np.where(hit, 1.0, 0.0)  # the surface is opaque
     else:
-        if mode == "average":
+        if mode == "average":  # a mean of whole numbers need not be whole: not rounded like MIP's texel
             hit = r[..., 1] > 0.0
-            m = np.where(hit, r[..., 0] / np.where(hit, r[..., 1], 1.0), 0.0)
+            value = fmt.a * np.where(hit, r[..., 0] / np.where(hit, r[..., 1], 1.0), 0.0) + fmt.b
         else:
             m = r[..., 0]
             hit = (m > -0.5 * _EXTREME) if mode == "mip" else (m < 0.5 * _EXTREME)
-        rgba = tf.lookup(np.where(hit, texel_to_raw(fmt, m), fmt.b), value_range)
+            value = texel_to_raw(fmt, m)
+        rgba = tf.lookup(np.where(hit, value, fmt.b), value_range)
         rgb = rgba[..., :3]
         a = np.where(hit, rgba[..., 3], 0.0)
     prem = np.concatenate([rgb * a[..., None], a[..., None]], axis=-1)
