@@ -66,3 +66,17 @@ def test_projection_modes_draw_the_volume_footprint(tmp_path, mode):
     assert a[rows.min():rows.max() + 1, cols.min():cols.max() + 1].all()
     assert abs((rows.max() - rows.min()) - (cols.max() - cols.min())) <= 1
     assert not a.all()
+
+
+def test_view_offscreen_draws_the_iso_surface(tmp_path):
+    """``clipvol view --offscreen --mode iso --iso-value``: every frame shows the surface (opaque
+    pixels only, and some of them) - the mode and its value reach the viewer's session."""
+    src, _ = _sphere(tmp_path)
+    out = tmp_path / "frames"
+    assert main(["view", str(src), "--brick", "16", "--offscreen", "--path", "orbit", "--frames", "2", "--size", "40x30",
+                 "--mode", "iso", "--iso-value", "10", "--out", str(out)]) == 0
+    pngs = sorted(out.glob("frame_*.png"))
+    assert len(pngs) == 2
+    for p in pngs:
+        a = np.asarray(Image.open(p))[..., 3]
+        assert ((a == 0) | (a == 255)).all() and (a == 255).sum() > 20
