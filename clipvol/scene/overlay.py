@@ -13,7 +13,11 @@ Design (pragmatic, documented in ``docs/rendering.md``)
   texture), read once from its loader into one float32 texture. It is not paged around a centre.
 * The primary's rays carry it: an overlay shows only inside the primary's volume box, on the
   primary's sample lattice (step and per-level opacity correction of the primary; the overlay's
-  table opacity is per the primary's level-0 smallest voxel, like the primary's own).
+  table opacity is per the primary's level-0 smallest voxel, like the primary's own), refined
+  where the primary's step at its drawn level is longer than the overlay's own (the same step
+  fraction of the overlay's smallest voxel): ``n`` sub-samples per primary sample, each with its
+  opacity corrected for ``1/n`` of the step, so a coarse primary level never samples a finer map
+  every few of its voxels (which shows as stair-step rings on a saturated blob).
 * The operator at each sample: the overlays' premultiplied colours *over* the primary's, the first
   overlay on top, then the whole sample composited front to back under what the ray holds.
   Equivalently: for each sample, ``under(acc, overlay_0)``, ``under(acc, overlay_1)``, ...,
