@@ -16,9 +16,9 @@ import numpy as np
 from ..errors import ParameterError
 from ..scene.transfer import corrected_tables
 from ..scene.overlay import (check_overlay, cull_outside, label_indices, overlay_box, overlay_level,
-                             overlay_texture_transform, read_level)
+                             overlay_texture_transform, overlay_voxel, read_level)
 
-__all__ = ["OverlayTextures", "FIRST_UNIT", "overlay_defines", "overlay_voxel"]
+__all__ = ["OverlayTextures", "FIRST_UNIT", "overlay_defines"]
 
 #: widest row of a label overlay's colour table (ids present beyond it go on further rows)
 LABEL_TABLE_WIDTH = 4096
@@ -35,14 +35,6 @@ def overlay_defines(overlays, blend: str = "over") -> dict:
 
 #: texture unit of the first overlay's volume (0: the primary's level, 1: its table, 2: the occlusion copy)
 FIRST_UNIT = 3
-
-
-def overlay_voxel(a: np.ndarray, size) -> float:
-    """The smallest voxel edge, in the primary's drawing frame (world units), of an overlay texture of
-    ``size`` (x, y, z) texels whose texture coordinate is ``a @ p + b``: the columns of ``a``'s inverse
-    scaled by 1/size are its voxel's edges (any affine: a rotated or sheared grid included)."""
-    edges = np.linalg.inv(np.asarray(a, dtype=np.float64)) / np.asarray(size, dtype=np.float64)
-    return float(np.linalg.norm(edges, axis=0).min())
 
 
 class OverlayTextures:
@@ -157,7 +149,7 @@ class OverlayTextures:
             tex.use(location=FIRST_UNIT + 2 * k)
             self._table(ov, ratios).use(location=FIRST_UNIT + 2 * k + 1)
             values = {f"u_ov{k}_tex": FIRST_UNIT + 2 * k, f"u_ov{k}_tf": FIRST_UNIT + 2 * k + 1,
-                      f"u_ov{k}_step": step * overlay_voxel(a, tex.size),
+                      f"u_ov{k}_step": step * overlay_voxel(ov, L, self.primary_loader),
                       f"u_ov{k}_a": tuple(float(v) for v in a.T.reshape(-1)),  # column-major mat3
                       f"u_ov{k}_b": tuple(float(v) for v in b),
                       f"u_ov{k}_t": (float(np.clip(tm[0], -3e38, 3e38)), float(np.clip(tm[1], -3e38, 3e38)))}
