@@ -17,6 +17,10 @@ Conventions:
   (eye direction ``(1, 1, 1)`` in RAS). The old names are aliases of the same anatomical
   directions: ``front`` = ``anterior``, ``back`` = ``posterior``, ``side`` = ``left``,
   ``top`` = ``superior``.
+* **Explicit cameras**: ``--eye``, ``--target`` and ``--up`` of a patient-frame store are in the
+  patient's world (RAS+ millimetres, what the store's affine gives a voxel) and are carried into
+  the drawing frame by :func:`world_to_drawing`, so one point is the same anatomy in every storage
+  order; for other stores, and in the viewer's camera files, they are array-axis world positions.
 * **Other stores** (no patient frame): ``front`` looks along ``+z`` (down the stack, rows follow
   ``+y`` as numpy prints ``vol[k]``), ``back`` along ``-z``, ``side`` along ``+x``, ``top`` along
   ``+y``, ``iso`` along ``(0.55, 0.45, 0.7)``; the anatomical names are refused (the store does
