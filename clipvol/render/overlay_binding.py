@@ -6,7 +6,8 @@ per frame after the frame's uniforms (textures on units ``FIRST_UNIT + 2k`` and 
 affine (a 3x3 matrix and an offset: any voxel-to-world affine of the overlay, flips and permutations
 exactly) from a position relative to the frame origin ``O`` to texture coordinates, the table
 mapping, and the overlay's own sample spacing: the step fraction times its smallest voxel edge, from
-which the shader refines the primary's lattice where the primary's drawn level is coarser). The shader side is the ``OVERLAY`` variant of ``shaders/volume_common.glsl``.
+which the shader refines the primary's lattice where the primary's drawn level is coarser). The
+shader side is the ``OVERLAY`` variant of ``shaders/volume_common.glsl``.
 """
 
 from __future__ import annotations
