@@ -52,8 +52,8 @@ from ..errors import ParameterError
 
 __all__ = [
     "ANATOMICAL_VIEWS", "ALIASES", "VIEW_CHOICES", "is_anatomical", "mirrored", "world_to_array_directions",
-    "view_directions", "world_to_drawing", "preset_camera", "screen_axes", "edge_labels", "SLICES", "CONVENTIONS", "slice_axes",
-    "anatomical_plane",
+    "view_directions", "world_to_drawing", "preset_camera", "screen_axes", "edge_labels", "SLICES", "CONVENTIONS",
+    "slice_axes", "anatomical_plane",
 ]
 
 #: anatomical view -> (RAS direction from the target to the eye, RAS up)
