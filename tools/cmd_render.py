@@ -61,10 +61,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "patient frame (head up; front/back/side/top mean anterior/posterior/left/superior there), "
                         "front/back/side/top along the array's z/-z/x/y otherwise; iso from anterior-right-superior "
                         "(default iso)")
-    v.add_argument("--eye", type=_triple, default=None, help="eye position x,y,z (world units; overrides --view)")
-    v.add_argument("--target", type=_triple, default=None, help="point looked at x,y,z (default: the volume centre)")
-    v.add_argument("--up", type=_triple, default=None, help="up vector x,y,z (default: superior for a patient frame, "
-                                                           "-y otherwise: image rows follow +y)")
+    v.add_argument("--eye", type=_triple, default=None,
+                   help="eye position x,y,z (overrides --view): RAS millimetres in the patient's world for a store "
+                        "with a patient frame (what the affine gives), the array's axes scaled by the spacing otherwise")
+    v.add_argument("--target", type=_triple, default=None,
+                   help="point looked at x,y,z, in the same coordinates as --eye (default: the volume centre)")
+    v.add_argument("--up", type=_triple, default=None,
+                   help="up direction x,y,z, in the same frame as --eye (default: superior for a patient frame, "
+                        "-y otherwise: image rows follow +y)")
     v.add_argument("--no-labels", action="store_true", help="do not write the R/L, A/P, S/I letters at the image edges")
     v.add_argument("--fov", type=float, default=35.0, help="vertical field of view in degrees (perspective)")
     v.add_argument("--distance", type=float, default=None, help="eye distance from the target, in volume diagonals (default 1.6)")
@@ -168,7 +172,7 @@ def view_camera(pyramid, view: str, size, *, eye=None, target=None, up=None, fov
 
     lo, hi = pyramid.volume_box()
     return preset_camera(lo, hi, view, size, frame=frame, eye=eye, target=target, up=up, fov=fov, distance=distance,
-                         ortho=ortho)
+                         ortho=ortho, spacing=getattr(pyramid, "spacing", None))
 
 
 def run(args) -> int:

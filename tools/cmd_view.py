@@ -11,9 +11,10 @@ the transfer-function window, Shift+S save it, C save the camera, B brick outlin
 
 ``--offscreen --path orbit|turntable|fly|zoom --frames N --out DIR|anim.gif|movie.mp4`` renders a
 camera path without a window (EGL) and writes PNG frames, a GIF or a movie (imageio-ffmpeg; ``--fps``,
-``--quality``) plus a per-frame CSV. For a store built from NIfTI or DICOM the turntable (and the
-orbit, a turntable raised 25 degrees) spins the patient head-up, starting from the front (or the
-side ``--view`` names), and every frame's edges are labelled R/L, A/P, S/I.
+``--quality``) plus a per-frame CSV. For a store built from NIfTI or DICOM every path is head-up:
+the turntable (and the orbit, a turntable raised 25 degrees) spins the patient starting from the
+front (or the side ``--view`` names), the fly loop lies in the patient's axial plane, the zoom
+looks from anterior-left-superior; every frame's edges are labelled R/L, A/P, S/I.
 """
 
 from __future__ import annotations
@@ -184,11 +185,13 @@ def run(args) -> int:
         frame = getattr(loader, "frame", None)  # the store's voxel-to-world affine, if it records one
         path_kwargs = {}
         path = args.path
-        if args.path in ("turntable", "orbit") and frame is not None and frame.frame == "RAS":
+        if frame is not None and frame.frame == "RAS":  # every path head-up, from the patient's front
             from clipvol.scene.orientation import anatomical_axes
 
+            from clipvol.scene.views import mirrored
+
             up, front = anatomical_axes(frame.affine)
-            path_kwargs = {"up": tuple(up), "front": tuple(front)}
+            path_kwargs = {"up": tuple(up), "front": tuple(front), "mirror": mirrored(frame)}
             if args.path == "orbit":  # head-up for a patient: the orbit is a turntable raised 25 degrees
                 path, path_kwargs["elevation"] = "turntable", 25.0
         if args.path == "turntable" and args.view is not None:  # start from the side --view names
