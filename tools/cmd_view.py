@@ -183,17 +183,9 @@ def run(args) -> int:
                   + ("" if row["converged"] else "  (refining)"), flush=True)
 
         frame = getattr(loader, "frame", None)  # the store's voxel-to-world affine, if it records one
-        path_kwargs = {}
-        path = args.path
-        if frame is not None and frame.frame == "RAS":  # every path head-up, from the patient's front
-            from clipvol.scene.orientation import anatomical_axes
+        from clipvol.scene.views import patient_path
 
-            from clipvol.scene.views import mirrored
-
-            up, front = anatomical_axes(frame.affine)
-            path_kwargs = {"up": tuple(up), "front": tuple(front), "mirror": mirrored(frame)}
-            if args.path == "orbit":  # head-up for a patient: the orbit is a turntable raised 25 degrees
-                path, path_kwargs["elevation"] = "turntable", 25.0
+        path, path_kwargs = patient_path(args.path, frame)  # every path head-up, from the patient's front
         if args.path == "turntable" and args.view is not None:  # start from the side --view names
             from clipvol.scene.views import view_directions
 

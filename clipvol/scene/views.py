@@ -95,6 +95,26 @@ def mirrored(frame) -> bool:
     return is_anatomical(frame) and float(np.linalg.det(_rotation(frame))) < 0.0
 
 
+def patient_path(path: str, frame) -> tuple[str, dict]:
+    """``(path name, keyword arguments)`` of :func:`clipvol.scene.paths.make_path` that keep a camera
+    path head-up and seen the patient's way round for a patient-frame store.
+
+    Every path takes the store's superior as ``up`` and anterior as ``front`` and, for a store whose
+    array is the patient's mirror image, ``mirror`` (so it turns the world's way); the ``orbit``,
+    which has no up of its own, becomes a turntable raised 25 degrees. Other stores keep ``path``
+    and the paths' defaults (the array's frame).
+    """
+    if not is_anatomical(frame):
+        return path, {}
+    from .orientation import anatomical_axes
+
+    up, front = anatomical_axes(frame.affine)
+    kw = {"up": tuple(float(v) for v in up), "front": tuple(float(v) for v in front), "mirror": mirrored(frame)}
+    if path == "orbit":
+        return "turntable", {**kw, "elevation": 25.0}
+    return path, kw
+
+
 def world_to_array_directions(frame, world_dirs) -> np.ndarray:
     """Unit array-axis ``(x, y, z)`` directions of world (RAS) directions ``(..., 3)``."""
     d = np.asarray(world_dirs, dtype=np.float64) @ np.linalg.inv(_rotation(frame)).T
