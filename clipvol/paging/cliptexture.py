@@ -286,6 +286,8 @@ class ClipTexture:
         self._latency: deque[float] = deque(maxlen=LATENCY_SAMPLES)
         self._t0 = time.perf_counter()
         lo, hi = pyr.volume_box()
+        if center is None and region is not None:
+            center = region.center
         c = (lo + hi) / 2.0 if center is None else self._check_center(center)
         self._history: deque[np.ndarray] = deque([c], maxlen=HISTORY)
         self._region: Region | None = None  # None: cube windows, every brick of a window queued
