@@ -12,6 +12,8 @@ without a traversal:
   interest, the parent's box comes closer to it than ``distance_factor`` times the parent's
   diagonal; the coarsest level always is (the fallback under everything);
 * with ``RenderParams.level`` fixed, that level and the coarsest one;
+* with a point of interest, a level's part also takes its bricks' 26-neighbours in the slab (the
+  edge tiles filter into them, as they do with cube windows: the slice comes out the same);
 * at each level only the bricks whose box meets the slab of half-thickness half a voxel of that
   level along the normal (:mod:`clipvol.paging.slab`): the trilinear footprint of the samples on
   the plane. The blended parents of a level's tiles are bricks of the next level's slab.
@@ -28,7 +30,7 @@ import math
 import numpy as np
 
 from ..paging.region import Region
-from ..paging.slab import slab_bricks
+from ..paging.slab import slab_bricks, slab_mask
 
 __all__ = ["slice_region"]
 
@@ -37,6 +39,19 @@ def _half_voxel(pyramid, level: int, normal: np.ndarray) -> float:
     """Half a voxel of ``level`` measured along ``normal`` (anisotropic voxels: their extent along it)."""
     scale = np.asarray(pyramid.levels[level].scale[::-1], dtype=np.float64)  # (x, y, z)
     return 0.5 * float(np.abs(normal) @ scale)
+
+
+_OFFSETS = np.array([(dz, dy, dx) for dz in (-1, 0, 1) for dy in (-1, 0, 1) for dx in (-1, 0, 1)], dtype=np.int64)
+
+
+def _with_ring(pyramid, level: int, bricks: np.ndarray, origin, normal, half: float) -> np.ndarray:
+    """``bricks`` and their 26-neighbours in the slab: the tiles at the edge of a level's part of the
+    slice filter across their faces into those neighbours (as with cube windows), so they are paged
+    too and the slice is the same as one drawn from cube windows."""
+    grid = np.asarray(pyramid.grid(level), dtype=np.int64)
+    nb = (bricks[:, None, :] + _OFFSETS[None]).reshape(-1, 3)
+    nb = np.unique(nb[np.all((nb >= 0) & (nb < grid), axis=1)], axis=0)
+    return nb[slab_mask(pyramid, level, nb, origin, normal, half)]
 
 
 def slice_region(pyramid, plane, params, pixel_size: float, *, ahead: float = 0.0) -> Region:
@@ -74,9 +89,9 @@ def slice_region(pyramid, plane, params, pixel_size: float, *, ahead: float = 0.
             lo, hi = pyramid.node_box(L + 1, cand // 2)
             near = np.linalg.norm(np.clip(focus, lo, hi) - focus, axis=1)
             keep = near < params.distance_factor * np.linalg.norm(hi - lo, axis=1)
-            bricks[L] = cand[keep]
             if not keep.any():
                 break
+            bricks[L] = _with_ring(pyramid, L, cand[keep], origin, n, _half_voxel(pyramid, L, n) + widen)
     center = focus if focus is not None else np.asarray(plane.origin, dtype=np.float64)
     # the samples lie on this plane: bricks beyond half a voxel of it are never read by them
     halves = tuple(_half_voxel(pyramid, L, n) for L in range(pyramid.num_levels))
