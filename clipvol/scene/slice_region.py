@@ -12,11 +12,13 @@ without a traversal:
   interest, the parent's box comes closer to it than ``distance_factor`` times the parent's
   diagonal; the coarsest level always is (the fallback under everything);
 * with ``RenderParams.level`` fixed, that level and the coarsest one;
-* with a point of interest, a level's part also takes its bricks' 26-neighbours in the slab (the
-  edge tiles filter into them, as they do with cube windows: the slice comes out the same);
 * at each level only the bricks whose box meets the slab of half-thickness half a voxel of that
   level along the normal (:mod:`clipvol.paging.slab`): the trilinear footprint of the samples on
   the plane. The blended parents of a level's tiles are bricks of the next level's slab.
+
+A tile at the edge of a level's part filters across its faces only into neighbours that are
+paged (others are clamped, as at any face whose neighbour is missing); there the slice blends
+towards the coarser level anyway, so the region does not pay for a ring of neighbours.
 
 ``ahead`` (world units along the normal) widens every slab towards where the plane is scrolling,
 so the next slice's bricks are queued behind the current ones. Balancing may still want a few
@@ -30,7 +32,7 @@ import math
 import numpy as np
 
 from ..paging.region import Region
-from ..paging.slab import slab_bricks, slab_mask
+from ..paging.slab import slab_bricks
 
 __all__ = ["slice_region"]
 
@@ -39,19 +41,6 @@ def _half_voxel(pyramid, level: int, normal: np.ndarray) -> float:
     """Half a voxel of ``level`` measured along ``normal`` (anisotropic voxels: their extent along it)."""
     scale = np.asarray(pyramid.levels[level].scale[::-1], dtype=np.float64)  # (x, y, z)
     return 0.5 * float(np.abs(normal) @ scale)
-
-
-_OFFSETS = np.array([(dz, dy, dx) for dz in (-1, 0, 1) for dy in (-1, 0, 1) for dx in (-1, 0, 1)], dtype=np.int64)
-
-
-def _with_ring(pyramid, level: int, bricks: np.ndarray, origin, normal, half: float) -> np.ndarray:
-    """``bricks`` and their 26-neighbours in the slab: the tiles at the edge of a level's part of the
-    slice filter across their faces into those neighbours (as with cube windows), so they are paged
-    too and the slice is the same as one drawn from cube windows."""
-    grid = np.asarray(pyramid.grid(level), dtype=np.int64)
-    nb = (bricks[:, None, :] + _OFFSETS[None]).reshape(-1, 3)
-    nb = np.unique(nb[np.all((nb >= 0) & (nb < grid), axis=1)], axis=0)
-    return nb[slab_mask(pyramid, level, nb, origin, normal, half)]
 
 
 def slice_region(pyramid, plane, params, pixel_size: float, *, ahead: float = 0.0) -> Region:
@@ -91,7 +80,7 @@ def slice_region(pyramid, plane, params, pixel_size: float, *, ahead: float = 0.
             keep = near < params.distance_factor * np.linalg.norm(hi - lo, axis=1)
             if not keep.any():
                 break
-            bricks[L] = _with_ring(pyramid, L, cand[keep], origin, n, _half_voxel(pyramid, L, n) + widen)
+            bricks[L] = cand[keep]
     center = focus if focus is not None else np.asarray(plane.origin, dtype=np.float64)
     # the samples lie on this plane: bricks beyond half a voxel of it are never read by them
     halves = tuple(_half_voxel(pyramid, L, n) for L in range(pyramid.num_levels))
