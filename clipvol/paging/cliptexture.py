@@ -8,6 +8,10 @@ gives their slots to the bricks that entered, and re-sorts one load queue by dis
 before fine at equal distance, biased towards where the centre is going). Loader threads pop the
 queue front, call the loader, validate, copy into the slot and set its state to ``RESIDENT``.
 
+A render action may narrow what is read with a region of interest (:meth:`ClipTexture.set_region`,
+:mod:`clipvol.paging.region`): per level, the bricks it will draw - a slice's slab - around which
+the windows are fitted inside the same slots and of which alone the bricks are queued.
+
 The paging stage's threads live here (bricking has its own worker pool, and the loader conformance
 suite its own test threads); the load order and retry timing are :mod:`clipvol.paging.queue`. One
 lock guards all bookkeeping; loader calls run

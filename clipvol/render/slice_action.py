@@ -4,6 +4,10 @@ After LaMar, Hamann & Joy, *Multiresolution cutting planes*: a plane of any orie
 at full resolution near a point of interest and coarser away from it, from the very bricks, per
 level 3D textures and budgets the volume action uses. Per frame (:meth:`SliceAction.render`):
 
+0. **Page** - the slice's region (:func:`~clipvol.scene.slice_region.slice_region`: per level, the
+   bricks within half a voxel of the plane where the policy refines, widened towards the next
+   slice while the plane scrolls) is handed to the clip-texture, which then reads that slab
+   rather than filling cubes (``follow_plane = False`` keeps the cubes).
 1. **Select** - the frame loop (:class:`~clipvol.render.frame_loop.FrameLoop`) runs the
    ``"plane"`` policy (:class:`~clipvol.scene.selection.policies.plane.PlaneCut`) with an
    orthographic camera that sees exactly the slice's pixels: nodes the plane crosses, refined by
