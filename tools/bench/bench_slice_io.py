@@ -13,8 +13,9 @@ What it measures (one run, one process, ratios only):
   Delta E >= 6 between (a) and the exact slice computed from the generator (outside our code
   path; :func:`clipvol.scene.metrics.percent_delta_e`), grey window over the value range. Targets: (b)/(a) >= 8, (c)/(a) >= 50, Delta E >= 6 on <= 1 %.
 * **scrolling** - bytes read per slice while scrolling ``--steps`` axial slices (``--stride``
-  voxels apart) through the centre of a 4096^3 store, the whole slice in view at
-  ``--scroll-pixels`` pixels per side, the point of interest on the plane's centre.
+  voxels apart) through the centre of a 4096^3 store, ``--scroll-pixels`` pixels a side, the
+  point of interest on the plane's centre: the whole slice in view (8 voxels a pixel), and zoomed
+  to full resolution around the point of interest (1 voxel a pixel).
 
 The stores are *virtual*: a procedural fractal (:mod:`clipvol.bricking.generators`) evaluated
 per brick, and each brick read is encoded with the chunk codec ``clipvol brick`` writes (blosc
@@ -146,7 +147,9 @@ def centre_slice(ctx, args, brick, writer) -> dict:
     return rows
 
 
-def scroll(ctx, args, writer) -> list:
+def scroll(ctx, args, writer, view: str, px: float) -> list:
+    """Scroll ``args.steps`` axial slices through the centre at ``px`` voxels a pixel, ``scroll_pixels``
+    pixels a side around the plane's centre (the point of interest, moving with the plane)."""
     from clipvol.paging.cliptexture import ClipTexture
     from clipvol.paging.region import Region
     from clipvol.render.slice_action import SliceAction
@@ -154,8 +157,8 @@ def scroll(ctx, args, writer) -> list:
 
     ld = EncodedFractal(args.scroll_size, args.bricks[0])
     pyr = ld.pyramid
-    px = args.scroll_size / args.scroll_pixels
     z0 = (pyr.shape[0] - 1) / 2.0
+    size = (args.scroll_pixels, args.scroll_pixels)
     out = []
     with ClipTexture(ld, args.budget, args.threads, prefault=False, region=Region.empty(pyr.num_levels)) as ct, \
             SliceAction(ctx, ct, texture_budget=TEXTURE_BUDGET) as sa:
@@ -163,17 +166,18 @@ def scroll(ctx, args, writer) -> list:
             plane = Plane.axis(pyr, "axial", z0 + i * args.stride)
             sa.set_params(sa.params.__class__.from_kwargs(sa.params, focus=tuple(plane.origin)))
             r0 = ld.read_counter.snapshot()
-            sa.render(plane, None, px, wait=True, timeout=600)
+            sa.render(plane, size, px, wait=True, timeout=600)
             ok = sa.last_stats.converged
             ct.wait_until_idle(600)  # the prefetch of the next slab is counted with this slice
             d = ld.read_counter.snapshot() - r0
             out.append(d.bytes)
-            writer.writerow(dict(store=f"fractal {args.scroll_size}^3 float32", brick=args.bricks[0], slice=i,
-                                 z=round(plane.origin[2], 2), bytes_read=d.bytes, chunks_read=d.reads, converged=ok))
+            writer.writerow(dict(store=f"fractal {args.scroll_size}^3 float32", brick=args.bricks[0], view=view,
+                                 voxels_per_pixel=px, slice=i, z=round(plane.origin[2], 2), bytes_read=d.bytes,
+                                 chunks_read=d.reads, converged=ok))
     later = out[1:] or out
-    print(f"scroll {args.scroll_size}^3 b{args.bricks[0]}, {args.steps} slices {args.stride} voxels apart at "
-          f"{args.scroll_pixels}^2 px: first slice {out[0] / 1e6:.2f} MB, then mean {np.mean(later) / 1e6:.2f} MB, "
-          f"max {np.max(later) / 1e6:.2f} MB a slice")
+    print(f"scroll {args.scroll_size}^3 b{args.bricks[0]} {view} ({px:g} voxels/px, {args.scroll_pixels}^2 px), "
+          f"{args.steps} slices {args.stride:g} voxels apart: first slice {out[0] / 1e6:.2f} MB, then mean "
+          f"{np.mean(later) / 1e6:.2f} MB, max {np.max(later) / 1e6:.2f} MB a slice")
     return out
 
 
@@ -209,9 +213,11 @@ def main(argv=None) -> int:
         for brick in args.bricks:
             centre_slice(ctx, args, brick, w)
     with open(args.out / "bench_slice_io_scroll.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, ["store", "brick", "slice", "z", "bytes_read", "chunks_read", "converged"])
+        w = csv.DictWriter(f, ["store", "brick", "view", "voxels_per_pixel", "slice", "z", "bytes_read", "chunks_read",
+                               "converged"])
         w.writeheader()
-        scroll(ctx, args, w)
+        scroll(ctx, args, w, "whole slice", args.scroll_size / args.scroll_pixels)
+        scroll(ctx, args, w, "zoomed to full resolution", 1.0)
     return 0
 
 
