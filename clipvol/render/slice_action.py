@@ -230,7 +230,7 @@ class SliceAction:
         read0 = bytes_read_of(self.clip_texture.loader)
         region_bricks = 0
         if self.follow_plane:
-            region = slice_region(pyr, plane, self.params, px, ahead=self._scroll_step(plane))
+            region = slice_region(pyr, plane, self.params, px, size=size, ahead=self._scroll_step(plane))
             self.clip_texture.set_region(region)
             region_bricks = region.nbricks
         self._last_plane = plane

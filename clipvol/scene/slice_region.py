@@ -12,6 +12,8 @@ without a traversal:
   interest, the parent's box comes closer to it than ``distance_factor`` times the parent's
   diagonal; the coarsest level always is (the fallback under everything);
 * with ``RenderParams.level`` fixed, that level and the coarsest one;
+* with an image size, only the bricks under the image rectangle (a zoomed view of a large plane
+  reads what it shows, as the traversal culls what the view does not);
 * at each level only the bricks whose box meets the slab of half-thickness half a voxel of that
   level along the normal (:mod:`clipvol.paging.slab`): the trilinear footprint of the samples on
   the plane. The blended parents of a level's tiles are bricks of the next level's slab.
@@ -43,8 +45,22 @@ def _half_voxel(pyramid, level: int, normal: np.ndarray) -> float:
     return 0.5 * float(np.abs(normal) @ scale)
 
 
-def slice_region(pyramid, plane, params, pixel_size: float, *, ahead: float = 0.0) -> Region:
-    """The :class:`~clipvol.paging.region.Region` of ``plane`` drawn with ``params`` at ``pixel_size``."""
+def _in_view(pyramid, level: int, bricks: np.ndarray, plane, size, pixel_size: float) -> np.ndarray:
+    """``(n,)`` bool: bricks whose boxes' extents along the plane's right and up axes meet the image
+    rectangle (``size`` pixels of ``pixel_size`` centred on the plane's origin)."""
+    if not len(bricks):
+        return np.zeros(0, dtype=bool)
+    lo, hi = pyramid.node_box(level, bricks)
+    c, r = (lo + hi) * 0.5 - np.asarray(plane.origin, dtype=np.float64), (hi - lo) * 0.5
+    ok = np.ones(len(bricks), dtype=bool)
+    for axis, pixels in ((np.asarray(plane.right, dtype=np.float64), size[0]), (np.asarray(plane.up), size[1])):
+        ok &= np.abs(c @ axis) <= 0.5 * pixels * pixel_size + r @ np.abs(axis)
+    return ok
+
+
+def slice_region(pyramid, plane, params, pixel_size: float, *, size=None, ahead: float = 0.0) -> Region:
+    """The :class:`~clipvol.paging.region.Region` of ``plane`` drawn with ``params`` at ``pixel_size``;
+    with ``size`` (``(w, h)`` pixels), only bricks under the image (a zoomed view of a huge plane)."""
     n = np.asarray(plane.normal, dtype=np.float64)
     top = pyramid.num_levels - 1
     focus = None if params.focus is None else np.asarray(params.focus, dtype=np.float64)
@@ -54,8 +70,8 @@ def slice_region(pyramid, plane, params, pixel_size: float, *, ahead: float = 0.
     bricks: list[np.ndarray] = [empty] * pyramid.num_levels
 
     def slab(level: int, point=None, radius: float = math.inf) -> np.ndarray:
-        return slab_bricks(pyramid, level, origin, n, _half_voxel(pyramid, level, n) + widen, point=point,
-                           radius=radius)
+        b = slab_bricks(pyramid, level, origin, n, _half_voxel(pyramid, level, n) + widen, point=point, radius=radius)
+        return b if size is None else b[_in_view(pyramid, level, b, plane, size, pixel_size)]
 
     if params.level is not None:
         for L in {int(params.level), top}:

@@ -38,7 +38,7 @@ def test_region_holds_what_the_plane_policy_draws(normal, focus, df):
     plane = Plane.through(origin, normal)
     params = RenderParams(policy="plane", focus=focus, distance_factor=df)
     px = default_pixel_size(pyr, plane)
-    region = slice_region(pyr, plane, params, px)
+    region = slice_region(pyr, plane, params, px, size=default_size(pyr, plane, px))
     held = {(L, tuple(int(v) for v in k)) for L, b in enumerate(region.bricks) for k in b.tolist()}
     drawn = _drawn(pyr, plane, params, px)
     missing = drawn - held
@@ -63,3 +63,14 @@ def test_fixed_level_pages_that_level_and_the_coarsest():
     region = slice_region(pyr, plane, RenderParams(policy="plane", level=1), 1.0)
     counts = [len(b) for b in region.bricks]
     assert counts[1] == 16 and counts[-1] == 1 and sum(counts) == 17  # one 4x4 layer of level 1
+
+
+def test_zoomed_view_pages_only_the_bricks_under_the_image():
+    pyr = Pyramid.build((256, 512, 512), (16, 16, 16), (1.0, 1.0, 1.0), "mean", "uint8", (0.0, 255.0))
+    plane = Plane.through((200.0, 300.0, 100.0), (0, 0, 1))  # z = 100: inside brick layer 6 (voxels 96..111)
+    region = slice_region(pyr, plane, RenderParams(policy="plane", level=0), 1.0, size=(64, 32))
+    got = {tuple(int(v) for v in k) for k in region.bricks[0].tolist()}
+    # brute force: brick boxes [16 b - 0.5, 16 b + 15.5] meeting x in [168, 232], y in [284, 316]
+    want = {(6, by, bx) for by in range(32) for bx in range(32)
+            if 16 * bx - 0.5 <= 232 and 16 * bx + 15.5 >= 168 and 16 * by - 0.5 <= 316 and 16 * by + 15.5 >= 284}
+    assert got == want and len(want) == 5 * 3
