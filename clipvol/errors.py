@@ -15,6 +15,7 @@ __all__ = [
     "InputFormatError",
     "StoreFormatError",
     "StoreIncompleteError",
+    "UnverifiedStoreError",
     "OutputExistsError",
     "LoaderError",
     "BrickLoadError",
@@ -48,6 +49,11 @@ class StoreFormatError(ClipvolError, ValueError):
 
 class StoreIncompleteError(StoreFormatError):
     """A store whose completion marker is missing: a build was interrupted (re-run to resume)."""
+
+
+class UnverifiedStoreError(StoreFormatError):
+    """A clipvol store whose manifest is missing or does not verify, refused where only verified data
+    may be drawn (``clipvol render`` without ``--unverified``); says why and what to do."""
 
 
 class OutputExistsError(ClipvolError, FileExistsError):

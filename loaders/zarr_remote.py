@@ -6,9 +6,18 @@ swapped: where chunk bytes come from. Its ``_chunk_bytes`` asks a
 backoff, optional on-disk cache) instead of opening a file, so decoding, validation, OME-Zarr
 handling and error messages are the local loader's, unchanged.
 
-Metadata (a few kB of JSON, plus the per-brick statistics arrays) is fetched once, concurrently,
-into a private temporary directory that mirrors the store's layout, and the local loader reads
-it from there. Statistics of a level are fetched the first time the renderer asks for them.
+Metadata (a few kB of JSON, the store's manifest, plus the per-brick statistics arrays) is
+fetched once, concurrently, into a private temporary directory that mirrors the store's layout,
+and the local loader reads and verifies it from there: a manifest the server does not give (a
+404, an error page) makes the store *unverified*, exactly as a local one without it; a 404 on a
+statistics array is a mismatch against the manifest, never "no data". Statistics of a level are
+fetched the first time the renderer asks for them.
+
+The on-disk cache (``cache=DIR``) keeps only chunk bytes that were verified: a chunk of a
+verified store whose crc32c is the one its manifest records for the brick (of a foreign OME-Zarr:
+one that decoded to the right size and passed its own checksum where it has one). Metadata, absent
+keys, error pages and failures are never cached; cached bytes are verified again on every read,
+and dropped and fetched afresh when they fail.
 Chunks of arrays whose codecs the fast path does not decode (sharding, transposes, ...) are read
 with zarr-python over its own fsspec store: same values, without this loader's retries or cache.
 
@@ -29,11 +38,19 @@ from typing import Any
 
 import numpy as np
 
+from clipvol.bricking.manifest import MANIFEST_DIR
 from clipvol.bricking.store import STATS_GROUP, STAT_ARRAYS
-from clipvol.errors import ClipvolError, InputFormatError, RemoteStoreError
-from clipvol.paging.bytesource import DEFAULT_IN_FLIGHT, FsspecByteSource
+from clipvol.bricking.store_files import MAX_METADATA_BYTES
+from clipvol.errors import BrickIntegrityError, ClipvolError, InputFormatError, RemoteStoreError
+from clipvol.paging.bytesource import (
+    DEFAULT_CONNECT_TIMEOUT,
+    DEFAULT_IN_FLIGHT,
+    DEFAULT_READ_TIMEOUT,
+    FsspecByteSource,
+)
+from clipvol.paging.loader import BrickKey
 
-from .zarr_store import ZarrLoader
+from .zarr_store import _UNREAD, ZarrLoader
 
 __all__ = ["RemoteZarrLoader"]
 
@@ -87,8 +104,9 @@ class RemoteZarrLoader(ZarrLoader):
     max_in_flight : int
         Requests outstanding at once; also the number of loader threads a clip-texture uses by
         default (:attr:`preferred_threads`).
-    retries, timeout
-        See :class:`~clipvol.paging.bytesource.FsspecByteSource`.
+    retries, timeout, connect_timeout, read_timeout
+        See :class:`~clipvol.paging.bytesource.FsspecByteSource` (a stalled server is given up on
+        within ``timeout``, default 30 s, per key).
     **loader_kwargs
         Passed to :class:`ZarrLoader` (``t``, ``c``, ``allow_incomplete``).
 
@@ -101,10 +119,12 @@ class RemoteZarrLoader(ZarrLoader):
     """
 
     def __init__(self, url: str, *, cache: str | Path | None = None, storage_options: dict | None = None,
-                 max_in_flight: int = DEFAULT_IN_FLIGHT, retries: int = 5, timeout: float = 30.0,
+                 max_in_flight: int = DEFAULT_IN_FLIGHT, retries: int = 5, timeout: float | None = None,
+                 connect_timeout: float = DEFAULT_CONNECT_TIMEOUT, read_timeout: float = DEFAULT_READ_TIMEOUT,
                  **loader_kwargs) -> None:
         self.source = FsspecByteSource(url, storage_options=storage_options, max_in_flight=max_in_flight,
-                                       retries=retries, timeout=timeout, cache=cache)
+                                       retries=retries, timeout=timeout, connect_timeout=connect_timeout,
+                                       read_timeout=read_timeout, cache=cache)
         self.url = self.source.display_url
         self._storage_options = storage_options
         self._mirror = Path(tempfile.mkdtemp(prefix="clipvol-remote-meta-"))
@@ -136,6 +156,8 @@ class RemoteZarrLoader(ZarrLoader):
             return e
 
     def _put(self, key: str, data: bytes) -> None:
+        if len(data) > MAX_METADATA_BYTES * 16:
+            raise InputFormatError(f"{self.url}/{key}: {len(data)} bytes, more than any metadata file may hold: refused")
         p = self._mirror / key
         p.parent.mkdir(parents=True, exist_ok=True)
         p.write_bytes(data)
@@ -163,19 +185,68 @@ class RemoteZarrLoader(ZarrLoader):
         if isinstance(ms, list) and ms and isinstance(ms[0], dict) and isinstance(ms[0].get("datasets"), list):
             paths += [d["path"] for d in ms[0]["datasets"] if isinstance(d, dict) and isinstance(d.get("path"), str)]
         cv = attrs.get("clipvol")
+        manifest: list[str] = []
         if isinstance(cv, dict) and isinstance(cv.get("levels"), list):
-            paths += [str(L) for L in range(len(cv["levels"]))]
+            paths += [str(L) for L in range(min(len(cv["levels"]), 64))]
+            if "manifest" in cv:  # absent on the server: the loader finds no manifest (unverified)
+                manifest = [f"{MANIFEST_DIR}/manifest.json"] + [f"{MANIFEST_DIR}/{L}.bin"
+                                                                for L in range(min(len(cv["levels"]), 64))]
         paths = list(dict.fromkeys(p.strip("/") for p in paths if re.fullmatch(r"[A-Za-z0-9_.\-/]+", p)))
-        keys = [f"{p}/{name}" for p in paths for name in ("zarr.json", ".zarray", ".zattrs")]
+        keys = [f"{p}/{name}" for p in paths for name in ("zarr.json", ".zarray", ".zattrs")] + manifest
         for k, v in src.get_many(keys).items():
             if v is not None:
                 self._put(k, v)
 
     # -- the one swapped piece: chunk bytes ------------------------------------------------------
     def _chunk_bytes(self, level: int, index) -> bytes | None:
+        """The chunk from the cache (remembered, so that bytes failing verification are dropped)
+        or the server (remembered, so that verified bytes are kept); never more bytes than the
+        manifest records for the brick, or than the chunk shape allows. A brick the verified
+        manifest records as never written costs no request."""
         am = self._arrays[level]
         key = am.chunk_path(self._chunk_lead + tuple(index)).relative_to(self._mirror).as_posix()
-        return self.source.get(key)
+        sizes = self._sizes[level]
+        want = int(sizes[tuple(index)]) if sizes is not None else 0
+        if sizes is not None and not want:
+            return None  # the verified manifest says no chunk was written: an empty brick, no request
+        cap = want or self._caps[level]
+        tls = self._tls
+        data = None if getattr(tls, "no_cache", False) else self.source.cached(key, cap)
+        if data is not None:
+            tls.cached_key = key
+            return data
+        data = self.source.get(key)
+        if data is None:
+            return None
+        if len(data) > cap or (want and len(data) != want):
+            what = f"truncated or corrupt: {len(data)} bytes, but the store's manifest says {want}" if want \
+                else f"{len(data)} bytes, more than the {cap} a chunk may hold"
+            raise BrickIntegrityError(f"{self.url}: {BrickKey(level, tuple(index))}: chunk {key}: {what}")
+        tls.pending = (key, data)
+        return data
+
+    def _load_chunk(self, am, level: int, index, out, st=_UNREAD) -> int:
+        """As :meth:`ZarrLoader._load_chunk`; then keep verified network bytes in the cache, and
+        drop cached bytes that fail and read the chunk again from the server."""
+        tls = self._tls
+        tls.pending = tls.cached_key = None
+        try:
+            got = super()._load_chunk(am, level, index, out, st)
+        except BrickIntegrityError:
+            key = tls.cached_key
+            if key is None:
+                raise
+            self.source.forget(key)
+            tls.pending = tls.cached_key = None
+            tls.no_cache = True
+            try:
+                got = super()._load_chunk(am, level, index, out, st)
+            finally:
+                tls.no_cache = False
+        pending, tls.pending = tls.pending, None
+        if pending is not None and (got == 2 or (got == 1 and not self.is_clipvol_store)):
+            self.source.keep(*pending)
+        return got
 
     def _read_zarr(self, level: int, start, stop):
         """Arrays the fast path cannot decode: zarr-python over its own fsspec store."""

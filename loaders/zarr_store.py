@@ -18,9 +18,18 @@ package installed computes it: :func:`crc32c_implementation`); every load's deco
 against the store's statistics for that brick (min/max and NaN/Inf counts equal; for bytes whose
 checksum is the one recorded for the brick, every 8th row of every 8th plane inside the bounds); a
 missing chunk file is an empty brick (the fill value) only if the statistics say the brick is empty. A truncated, corrupt, substituted or lost chunk raises
-:class:`~clipvol.errors.BrickIntegrityError` naming the store, brick and chunk file. A clipvol
-store without checksums opens with an :class:`UnverifiedStoreWarning`. Dataset paths of plain
-OME-Zarr metadata must resolve inside the store.
+:class:`~clipvol.errors.BrickIntegrityError` naming the store, brick and chunk file. Dataset paths
+of plain OME-Zarr metadata must resolve inside the store.
+
+The store's manifest (:mod:`clipvol.bricking.manifest`) is verified first, on opening: when it
+verifies (:attr:`ZarrLoader.verified`), "the statistics" above are its per-brick records - each
+chunk's exact size and crc32c and the brick's bounds, keyed by brick index - so deleting or
+replacing the statistics arrays changes nothing a load trusts, and each statistics array is
+compared with its digest when read. A clipvol store without one, or whose manifest does not
+verify, or without checksums, opens *unverified* (:attr:`ZarrLoader.trust` says why) with an
+:class:`UnverifiedStoreWarning`, and the checks fall back to the statistics arrays. Every file is
+opened as what it claims to be (:mod:`clipvol.bricking.store_files`): a regular file inside the
+store, never a FIFO, device or link out, its size capped before it is read.
 
 Metadata is read as JSON and validated *before* zarr opens anything: absurd shapes or chunk
 shapes, and object, string, structured or complex dtypes, are refused (nothing is ever unpickled).
@@ -64,12 +73,23 @@ from clipvol.bricking.pyramid import (
     pad_to_brick,
     validate_dtype,
 )
+from clipvol.bricking.manifest import Manifest, ManifestError, load_manifest
 from clipvol.bricking.store import (
     MAX_BRICK_VOXELS,
     MAX_VOXELS,
     STAT_ARRAYS,
     STATS_GROUP,
     parse_metadata,
+)
+from clipvol.bricking.store_files import (
+    MAX_METADATA_BYTES,
+    StoreFileError,
+    check_opened,
+    check_tree,
+    chunk_cap,
+    open_inside,
+    read_capped,
+    read_file,
 )
 from clipvol.errors import (
     BrickIntegrityError,
@@ -86,8 +106,9 @@ __all__ = ["ZarrLoader", "UnverifiedStoreWarning", "crc32c_implementation"]
 
 
 class UnverifiedStoreWarning(UserWarning):
-    """A clipvol store written before chunk checksums: its bricks load, but corruption inside a chunk
-    is caught only by the statistics check."""
+    """A clipvol store whose manifest is missing or does not verify (one written before manifests,
+    or damaged), or one written before chunk checksums: its bricks load, but what the reader
+    believes about unread bricks rests on statistics nothing vouches for."""
 
 
 class _ChecksumError(ValueError):
@@ -99,7 +120,8 @@ class _IdentityError(ValueError):
 
 
 _UNREAD = object()
-_O_RDONLY = os.O_RDONLY | getattr(os, "O_BINARY", 0)
+#: the largest statistics array file read (a row of per-brick histograms of a very wide level)
+MAX_STATS_FILE_BYTES = 256 * 2**20
 #: a brick whose chunk checksum is proven checks the decode on every SAMPLE_STRIDE-th row of every
 #: SAMPLE_STRIDE-th z-plane (1/64 of its voxels; see ZarrLoader._check_plausible for why that is enough)
 SAMPLE_STRIDE = 8
@@ -180,12 +202,16 @@ _V3_NUMERIC = {
 }
 
 
-def _read_json(path: Path, where: str) -> dict[str, Any]:
+def _read_json(path: Path, where: str, root: Path | None = None) -> dict[str, Any]:
+    """A metadata file as a JSON object: a regular file inside ``root`` (default: its own folder),
+    at most :data:`~clipvol.bricking.store_files.MAX_METADATA_BYTES` (never a FIFO, a device, or a
+    link out of the store)."""
     try:
-        with open(path, "rb") as f:
-            doc = json.loads(f.read())
+        doc = json.loads(read_file(path, path.parent if root is None else root, MAX_METADATA_BYTES))
     except FileNotFoundError:
         raise
+    except InputFormatError as e:  # StoreFileError stays one: callers must not skip such a file
+        raise type(e)(f"{where}: {e}") from None
     except (OSError, ValueError) as e:
         raise InputFormatError(f"{where}: cannot read {path.name} as JSON ({type(e).__name__}: {e})") from None
     if not isinstance(doc, dict):
@@ -278,10 +304,11 @@ def _check_sizes(shape, chunks, where: str) -> tuple[tuple[int, ...], tuple[int,
     return shape, chunks
 
 
-def _array_meta(path: Path, where: str) -> _ArrayMeta:
-    """Read and validate the metadata of the array at ``path`` (zarr v3 or v2) without opening it with zarr."""
-    if (path / "zarr.json").is_file():
-        m = _read_json(path / "zarr.json", where)
+def _array_meta(path: Path, where: str, root: Path | None = None) -> _ArrayMeta:
+    """Read and validate the metadata of the array at ``path`` (zarr v3 or v2) without opening it
+    with zarr; ``root``: the store, which every metadata file must lie inside."""
+    if (path / "zarr.json").exists():
+        m = _read_json(path / "zarr.json", where, root)
         if m.get("node_type") != "array":
             raise InputFormatError(f"{where}: expected an array, got node_type {m.get('node_type')!r}")
         dt = m.get("data_type")
@@ -313,8 +340,8 @@ def _array_meta(path: Path, where: str) -> _ArrayMeta:
             decoder = "fallback"
         return _ArrayMeta(path, shape, chunks, dtype, _fill(m.get("fill_value"), dtype, where), prefix, sep, decoder,
                           checksum)
-    if (path / ".zarray").is_file():
-        m = _read_json(path / ".zarray", where)
+    if (path / ".zarray").exists():
+        m = _read_json(path / ".zarray", where, root)
         raw_dt = m.get("dtype")
         try:
             if not isinstance(raw_dt, str):
@@ -373,13 +400,20 @@ class ZarrLoader:
         self._where = str(self.path)
         if not self.path.exists():
             raise InputNotFoundError(f"{self._where}: no such store")
-        if (self.path / "zarr.json").is_file():
-            g = _read_json(self.path / "zarr.json", self._where)
+        self._root_real = os.path.realpath(self.path)
+        self._dirs_ok: set[str] = set()  # chunk folders already resolved inside the store
+        self._manifest: Manifest | None = None
+        #: True when the store's manifest verified (every brick's chunk size, crc32c and bounds are pinned)
+        self.verified = False
+        #: one line saying why the store is (un)verified
+        self.trust = ""
+        if (self.path / "zarr.json").exists():
+            g = _read_json(self.path / "zarr.json", self._where, self.path)
             if g.get("node_type") != "group":
                 raise InputFormatError(f"{self._where}: expected a zarr group, got node_type {g.get('node_type')!r}")
             attrs = g.get("attributes") or {}
-        elif (self.path / ".zgroup").is_file():
-            attrs = _read_json(self.path / ".zattrs", self._where) if (self.path / ".zattrs").is_file() else {}
+        elif (self.path / ".zgroup").exists():
+            attrs = _read_json(self.path / ".zattrs", self._where, self.path) if (self.path / ".zattrs").exists() else {}
         else:
             raise InputFormatError(f"{self._where}: expected a zarr group (zarr.json or .zgroup), found neither")
         self._lock = threading.Lock()
@@ -418,10 +452,19 @@ class ZarrLoader:
                         and am.dtype == pyr.dtype and (am.decoder is None or am.blosc)
                         for L, am in enumerate(self._arrays)]
         self._crc32c = crc32c_implementation()[1]
+        # per level: each chunk's exact size from the manifest, else one cap from the chunk shape
+        self._sizes = [self._manifest.sizes(L) if self._manifest is not None and L < self._stored else None
+                       for L in range(len(self._arrays))]
+        self._caps = [chunk_cap(am.nbytes) for am in self._arrays]
         self._tls = threading.local()  # per loader thread: the read buffer of _chunk_into_buffer
         # a subclass that fetches chunks elsewhere (remote stores) overrides _chunk_bytes: use it
         local = type(self)._chunk_bytes is ZarrLoader._chunk_bytes and hasattr(os, "readv")
         self._fetch = self._chunk_into_buffer if local else self._chunk_bytes
+
+    @property
+    def manifest(self) -> Manifest | None:
+        """The store's verified manifest (:mod:`clipvol.bricking.manifest`), or None (unverified or foreign)."""
+        return self._manifest
 
     @property
     def checksummed(self) -> bool:
@@ -447,7 +490,7 @@ class ZarrLoader:
         self._arrays: list[_ArrayMeta] = []
         for L, lv in enumerate(pyr.levels):
             where = f"{self._where} level {L}"
-            am = _array_meta(self.path / str(L), where)
+            am = _array_meta(self.path / str(L), where, self.path)
             if am.shape != lv.shape or am.chunks != pyr.brick_shape:
                 raise StoreFormatError(f"{where}: expected shape {list(lv.shape)} and chunks {list(pyr.brick_shape)}, "
                                        f"got {list(am.shape)} and {list(am.chunks)}")
@@ -457,9 +500,18 @@ class ZarrLoader:
         self._pyramid = replace(pyr, dtype=pyr.dtype.newbyteorder("="))
         self._stored = pyr.num_levels
         if not all(am.checksum for am in self._arrays):
-            warnings.warn(f"{self._where}: unverified store (written before chunk checksums): corruption inside a chunk "
-                          "is caught only by the statistics check; `clipvol check --all` reads every brick",
-                          UnverifiedStoreWarning, stacklevel=3)
+            self.trust = ("unverified: written before chunk checksums (corruption inside a chunk is caught only by the "
+                          "statistics check; `clipvol check --all` reads every brick)")
+        else:
+            try:
+                self._manifest = load_manifest(self.path, attrs["clipvol"],
+                                               [pyr.grid(L) for L in range(pyr.num_levels)])
+                self.verified = True
+                self.trust = f"verified: manifest sha256 {self._manifest.sha256[:16]}... pins every brick's chunk and statistics"
+            except ManifestError as e:
+                self.trust = f"unverified: {e}"
+        if not self.verified and (meta.complete or not self._allow_incomplete):
+            warnings.warn(f"{self._where}: {self.trust}", UnverifiedStoreWarning, stacklevel=3)
 
     def _open_ome(self, attrs: dict) -> None:
         ome = attrs.get("ome") if isinstance(attrs.get("ome"), dict) else attrs
@@ -472,8 +524,10 @@ class ZarrLoader:
         if not isinstance(datasets, list) or not datasets or not all(isinstance(d, dict) and isinstance(d.get("path"), str) for d in datasets):
             raise InputFormatError(f"{self._where}: OME-Zarr 'multiscales'[0]['datasets'] is malformed")
         self.is_clipvol_store = False
+        self.trust = "unverified, foreign: an OME-Zarr image not written by clipvol brick (no manifest)"
         self.frame = None  # a plain OME-Zarr image: no affine beyond scale and translation
-        first = _array_meta(inside(self.path, datasets[0]["path"], f"{self._where} level 0"), f"{self._where} level 0")
+        first = _array_meta(inside(self.path, datasets[0]["path"], f"{self._where} level 0"), f"{self._where} level 0",
+                            self.path)
         nd = len(first.shape)
         if nd < 3 or nd > 5:
             raise InputFormatError(f"{self._where}: expected an image (t, c, z, y, x) with 3 to 5 axes, got shape "
@@ -486,7 +540,9 @@ class ZarrLoader:
         for L, ds in enumerate(datasets[1:len(expect)], start=1):
             lpath = inside(self.path, ds["path"], f"{self._where} level {L}")  # outside the store: an error, not a skip
             try:
-                am = _array_meta(lpath, f"{self._where} level {L}")
+                am = _array_meta(lpath, f"{self._where} level {L}", self.path)
+            except StoreFileError:
+                raise  # a level file that is not what it claims is refused, never skipped
             except (InputFormatError, FileNotFoundError):
                 break
             if am.shape[-3:] != expect[L] or am.chunks[-3:] != brick or am.dtype != first.dtype or len(am.shape) != nd:
@@ -652,15 +708,40 @@ class ZarrLoader:
         out[...] = self.read_brick(level, index)
 
     # -- the raw fetch (the one method a remote store overrides) -------------------------------
-    def _open_chunk(self, level: int, index: Int3) -> int | None:
-        """A read-only file descriptor of brick ``index``'s chunk file at ``level`` (the path from
-        precomputed per-level parts: no pathlib, no key object), or None when it is absent."""
+    def _open_chunk(self, level: int, index: Int3) -> tuple[int, int] | None:
+        """``(fd, size)``: a read-only descriptor of brick ``index``'s chunk file at ``level`` (the
+        path from precomputed per-level parts: no pathlib, no key object) and its size, or None
+        when it is absent.
+
+        The file must be what it claims (:mod:`clipvol.bricking.store_files`): opened without
+        blocking and without following a link out of the store, its folder resolved inside the
+        store (once per folder), a regular file, exactly the size the manifest records (or at
+        most the cap for the chunk shape). Anything else is a :class:`BrickIntegrityError`
+        naming the file; no byte of it is read.
+        """
         bz, by, bx = index
         sep = self._seps[level]
+        path = f"{self._roots[level]}{bz}{sep}{by}{sep}{bx}"
+        folder = path.rpartition("/")[0]
         try:
-            return os.open(f"{self._roots[level]}{bz}{sep}{by}{sep}{bx}", _O_RDONLY)
-        except FileNotFoundError:
-            return None
+            if folder not in self._dirs_ok:
+                real = os.path.realpath(folder)
+                if real != self._root_real and not real.startswith(self._root_real.rstrip(os.sep) + os.sep):
+                    raise InputFormatError(f"{folder}: resolves to {real}, outside the store {self._root_real}")
+                self._dirs_ok.add(folder)
+            fd = open_inside(path, self._root_real)
+            if fd is None:
+                return None
+            try:
+                sizes = self._sizes[level]
+                size = check_opened(fd, path, self._caps[level], None if sizes is None else int(sizes[bz, by, bx]) or None)
+            except BaseException:
+                os.close(fd)
+                raise
+        except InputFormatError as e:
+            raise BrickIntegrityError(f"{self._where}: {BrickKey(level, index)}: chunk file "
+                                      f"{self._chunk_name(level, index)}: {str(e).split(': ', 1)[-1]}") from None
+        return fd, size
 
     def _chunk_bytes(self, level: int, index: Int3) -> bytes | None:
         """The stored bytes of brick ``index``'s chunk at ``level``, or ``None`` when it is absent.
@@ -669,19 +750,15 @@ class ZarrLoader:
         (object store, HTTP) overrides only this; decoding, checksum and plausibility stay above.
         Other ``OSError``\\ s propagate (transient: the clip-texture retries them).
         """
-        fd = self._open_chunk(level, index)
-        if fd is None:
+        opened = self._open_chunk(level, index)
+        if opened is None:
             return None
+        fd, size = opened
         try:  # one fstat and (for a regular file) one read: no buffered-reader object per chunk
-            size = os.fstat(fd).st_size
-            data = os.read(fd, size + 1)
-            if len(data) != size:  # a short read (or a file that grew): read on to the end
-                while True:
-                    more = os.read(fd, 1 << 20)
-                    if not more:
-                        break
-                    data += more
-            return data
+            return read_capped(fd, size, max(size, self._caps[level]) if self._sizes[level] is None else size,
+                               self._chunk_name(level, index))
+        except InputFormatError as e:
+            raise BrickIntegrityError(f"{self._where}: {BrickKey(level, index)}: chunk file {e}") from None
         finally:
             os.close(fd)
 
@@ -697,11 +774,11 @@ class ZarrLoader:
         per loader thread. A short read, or a file whose size changed since ``fstat``, is read
         again whole by :meth:`_chunk_bytes`.
         """
-        fd = self._open_chunk(level, index)
-        if fd is None:
+        opened = self._open_chunk(level, index)
+        if opened is None:
             return None
+        fd, size = opened
         try:
-            size = os.fstat(fd).st_size
             buf = getattr(self._tls, "buf", None)
             if buf is None or len(buf) <= size:  # one byte spare: a file that grew reads long
                 buf = self._tls.buf = bytearray(size + 1 + (size >> 4))
@@ -794,6 +871,9 @@ class ZarrLoader:
         lookup in a per-level table."""
         tbl = self._checks.get(level, _UNREAD)
         if tbl is _UNREAD:
+            if self._manifest is not None:  # a verified store: the manifest, never the statistics arrays
+                self._checks[level] = tbl = self._manifest.checks(level)
+                return tuple(tbl[index[0], index[1], index[2]].tolist())
             st = self.brick_statistics(level)
             tbl = None
             if st is not None:
@@ -831,11 +911,11 @@ class ZarrLoader:
         every eighth row of every eighth z-plane must lie inside the brick's bounds. That checks
         the decode, not the bytes: a wrong decoder (byte order, shuffle, type size) makes every
         voxel wrong, and a blosc block decoded wrong makes a contiguous run of kilobytes wrong -
-        whole rows, so a bad block holding a sampled plane holds sampled rows too, exactly as it
-        was caught when whole planes were sampled. A sixty-fourth of the voxels instead of the
-        eighth sampled until the sixth session: numpy holds the GIL over these small reductions,
-        so with two loader threads the eighth cost about 30 us a float32 64^3 brick, and the
-        sixty-fourth gives the loader 2-2.5 % of throughput (paired runs, float32 and uint16). ``st``: the brick's :meth:`_brick_stats` when the caller
+        whole rows, so a bad block holding a sampled plane holds sampled rows too, as whole sampled
+        planes would. A sixty-fourth of the voxels rather than every eighth plane: numpy holds the
+        GIL over these small reductions, so with two loader threads sampling an eighth costs about
+        30 us a float32 64^3 brick, and the sixty-fourth gives the loader 2-2.5 % of throughput
+        (paired runs, float32 and uint16). ``st``: the brick's :meth:`_brick_stats` when the caller
         has looked them up already.
         """
         if not self.check_plausibility:
@@ -938,18 +1018,27 @@ class ZarrLoader:
         if base.is_dir():
             import zarr
 
+            try:  # zarr-python opens these files itself: look at what they are first
+                check_tree(base, self.path, MAX_STATS_FILE_BYTES)
+            except InputFormatError as e:
+                raise StoreFormatError(f"{self._where}: {STATS_GROUP}/{level}: {e}") from None
             grid = self._pyramid.grid(level)
             for name in STAT_ARRAYS:
                 p = base / name
                 if not p.is_dir():
                     continue
-                am = _array_meta(p, f"{self._where} {STATS_GROUP}/{level}/{name}") if name != "done" else None
+                am = _array_meta(p, f"{self._where} {STATS_GROUP}/{level}/{name}", self.path) if name != "done" else None
                 if am is not None and tuple(am.shape[:3]) != grid:
                     raise StoreFormatError(f"{self._where}: {STATS_GROUP}/{level}/{name}: expected shape starting "
                                            f"{list(grid)}, got {list(am.shape)}")
                 a = np.asarray(zarr.open_array(str(p), mode="r")[...])
                 a.setflags(write=False)
                 stats[name] = a
+        if self._manifest is not None:
+            problems = self._manifest.stats_problems(level, stats)
+            if problems:
+                raise StoreFormatError(f"{self._where}: {'; '.join(problems)}: the statistics cannot be trusted "
+                                       f"(`clipvol repair {self._where} --source INPUT` rewrites them)")
         if not stats or "min" not in stats or "max" not in stats:
             stats = None
         with self._lock:
@@ -964,8 +1053,14 @@ class ZarrLoader:
 
     def brick_ranges(self, level: int, indices: np.ndarray) -> np.ndarray | None:
         """``(n, 2)`` ``[min, max]`` of each brick in ``indices`` (``(n, 3)``) from the store's
-        statistics, or ``None`` (plain OME-Zarr, or no statistics)."""
-        stats = self.brick_statistics(level)
+        statistics, or ``None`` (plain OME-Zarr, or no statistics). A verified store answers from its
+        manifest, so a deleted or replaced statistics array never makes a brick look empty."""
+        if self._manifest is not None:
+            self._pyramid.check_key(level, (0, 0, 0))
+            t = self._manifest.tables[level]
+            stats = {"min": t["min"], "max": t["max"], "nan_count": t["nan_count"], "inf_count": t["inf_count"]}
+        else:
+            stats = self.brick_statistics(level)
         if stats is None:
             return None
         idx = np.asarray(indices, dtype=np.int64).reshape(-1, 3)

@@ -1,5 +1,6 @@
 """Real servers on 127.0.0.1 for the remote-store tests: a static HTTP server over a directory
-(optionally slow, failing with 503 or refusing with 403) and a moto S3 server.
+(optionally slow, failing with 503, refusing with 403, stalling, or answering chosen paths with a
+chosen status and body) and a moto S3 server.
 
 Shared by the paging, CLI and benchmark code that needs a store behind a network socket.
 """
@@ -29,6 +30,17 @@ class _Handler(http.server.SimpleHTTPRequestHandler):
             n = srv.counts[self.path]
         if srv.latency:
             time.sleep(srv.latency)
+        if any(self.path.startswith(p) for p in srv.stall):
+            srv.stopping.wait(120)  # accept, never answer: until the server shuts down (bounded)
+            return
+        if self.path in srv.answers:
+            status, body = srv.answers[self.path]
+            self.send_response(status)
+            self.send_header("Content-Type", "text/html" if body.lstrip().startswith(b"<") else "application/octet-stream")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+            return
         if any(self.path.startswith(p) for p in srv.forbid):
             self.send_error(403, "Forbidden")
             return
@@ -41,12 +53,16 @@ class _Handler(http.server.SimpleHTTPRequestHandler):
 
 
 @contextlib.contextmanager
-def serve_directory(root: str | Path, *, latency: float = 0.0, fail_first: int = 0, forbid: tuple[str, ...] = ()):
+def serve_directory(root: str | Path, *, latency: float = 0.0, fail_first: int = 0, forbid: tuple[str, ...] = (),
+                    stall: tuple[str, ...] = (), answers: dict | None = None):
     """Serve ``root`` on ``http://127.0.0.1:PORT``; yields ``(base_url, server)``.
 
     ``latency`` seconds are slept before every answer; the first ``fail_first`` requests of every
-    path get HTTP 503; paths starting with a prefix in ``forbid`` get 403. ``server.counts``
-    (per path) and ``server.failures`` say what was asked and what was refused.
+    path get HTTP 503; paths starting with a prefix in ``forbid`` get 403; requests for paths
+    starting with a prefix in ``stall`` are accepted and never answered (until shutdown);
+    ``answers`` maps a path to ``(status, body bytes)`` sent instead of the file (a 404, an HTML
+    error page with 200). ``server.counts`` (per path) and ``server.failures`` say what was asked
+    and what was refused; all of these can be changed on ``server`` while it runs.
     """
     handler = functools.partial(_Handler, directory=str(root))
     srv = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
@@ -55,11 +71,13 @@ def serve_directory(root: str | Path, *, latency: float = 0.0, fail_first: int =
     srv.counts = Counter()
     srv.failures = 0
     srv.latency, srv.fail_first, srv.forbid = latency, fail_first, forbid
+    srv.stall, srv.answers, srv.stopping = stall, dict(answers or {}), threading.Event()
     t = threading.Thread(target=srv.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
     t.start()
     try:
         yield f"http://127.0.0.1:{srv.server_address[1]}", srv
     finally:
+        srv.stopping.set()
         srv.shutdown()
         srv.server_close()
         t.join(5)

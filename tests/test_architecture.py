@@ -40,9 +40,18 @@ def stage_of(module: str) -> int:
     raise AssertionError(f"module {module} belongs to no stage in tests/test_architecture.py")
 
 
+#: folders in the repository that the package does not install: the benchmarks, run as scripts
+NOT_INSTALLED = ("tools/bench",)
+
+
+def _installed(path: Path) -> bool:
+    rel = path.relative_to(ROOT).as_posix()
+    return not any(rel == d or rel.startswith(d + "/") for d in NOT_INSTALLED)
+
+
 def modules():
     for folder, prefix in PACKAGES.items():
-        for path in sorted((ROOT / folder).rglob("*.py")):
+        for path in sorted(p for p in (ROOT / folder).rglob("*.py") if _installed(p)):
             parts = list(path.relative_to(ROOT / folder).with_suffix("").parts)
             is_pkg = parts[-1] == "__init__"
             if is_pkg:
@@ -114,9 +123,28 @@ def test_product_code_needs_no_test_only_package():
     once reached for scipy, and `clipvol demo` failed on a fresh machine."""
     bad = []
     for path, module, is_pkg in ALL:
-        if module.startswith("clipvol.tools.bench_") or module == "clipvol.testing":
-            continue  # benchmarks may use the dev extra; the loader conformance suite is for pytest
+        if module == "clipvol.testing":
+            continue  # the loader conformance suite is for pytest (benchmarks are not in ALL: not installed)
         for line, target in imports(path, module, is_pkg):
             if target.split(".")[0] in TEST_ONLY:
                 bad.append(f"{path.relative_to(ROOT)}:{line} imports {target}")
     assert not bad, "product code importing a test-only package:\n" + "\n".join(bad)
+
+
+def test_the_benchmarks_stay_out_of_the_package():
+    """The benchmarks are scripts in ``tools/bench/`` (run from the repository, results beside them):
+    pyproject installs no package there, the folder is no package, none is left in the CLI's
+    folder, and no installed module imports one (``clipvol demo`` and the CLI run without them)."""
+    import tomllib
+
+    cfg = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert not [p for p in cfg["packages"] if "bench" in p]
+    assert all("bench" not in d for d in cfg["package-dir"].values())
+    bench = ROOT / "tools" / "bench"
+    assert sorted(bench.glob("bench_*.py")) and not (bench / "__init__.py").exists()
+    assert not sorted((ROOT / "tools").glob("bench_*.py"))
+    names = {p.stem for p in bench.glob("*.py")}
+    bad = [f"{path.relative_to(ROOT)}:{line} imports {target}"
+           for path, module, is_pkg in ALL for line, target in imports(path, module, is_pkg)
+           if target.split(".")[0] in names or target.startswith("clipvol.tools.bench")]
+    assert not bad, "installed code importing a benchmark:\n" + "\n".join(bad)

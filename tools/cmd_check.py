@@ -1,4 +1,10 @@
-"""Validate a clipvol store: metadata; every chunk's checksum, its statistics and its filter.
+"""Validate a clipvol store: its manifest; every chunk's checksum, its statistics and its filter.
+
+The store's manifest (:mod:`clipvol.bricking.manifest`) must verify: a store without one (written
+before manifests) or with one that does not match the checksum in its root metadata is
+*unverified*, and the check fails whatever the bricks say (``clipvol repair`` writes a manifest
+once every brick checks out). Every level's statistics arrays must match the manifest (a deleted,
+replaced or swapped statistics chunk fails the check, naming the array).
 
 Bricks are read through the zarr loader's own validated path (the blosc header is checked before
 decoding, never read past its end; zarr v3 ``crc32c`` checksums; decoded bounds against the
@@ -8,7 +14,9 @@ then compared exactly (NaN-aware) with :func:`clipvol.bricking.pyramid.downsampl
 
 By default a seeded random sample of bricks per level is checked; ``--all`` checks every brick
 with a progress bar. Each bad brick is printed as ``level L brick (z, y, x): what is wrong`` and a
-summary names them all; the exit status is 1 when any brick is bad or the store is incomplete.
+summary names them all; the exit status is 1 when any brick is bad, the store is unverified, its
+statistics differ from its manifest, or it is incomplete. A server that refuses access (HTTP
+401/403) or cannot be reached is an error of its own (exit 2), never reported as bad bricks.
 ``clipvol repair STORE --source INPUT`` rebuilds exactly the bricks named here.
 """
 
@@ -23,6 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the brick sample (default 0)")
     parser.add_argument("--all", action="store_true", help="check every brick of every level (progress bar on stderr)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    from clipvol.tools.remote_args import add_remote_arguments
+
+    add_remote_arguments(parser)
 
 
 def _close(x: float, y: float) -> bool:
@@ -39,17 +50,30 @@ def _valid(loader, L: int, idx):
     return loader.read_brick(L, idx)[tuple(slice(0, b - a) for a, b in zip(start, stop))]
 
 
+def level_statistics(loader, L: int) -> dict:
+    """Level ``L``'s statistics arrays, or ``{}`` when there are none or they do not match the
+    store's manifest (``run`` reports that once per level; a brick is then checked without them)."""
+    from clipvol.errors import StoreFormatError
+
+    try:
+        return loader.brick_statistics(L) or {}
+    except StoreFormatError:
+        return {}
+
+
 def check_brick(loader, stats, L: int, idx) -> list[str]:
     """Problems found with brick ``(L, idx)`` of an opened :class:`~clipvol.loaders.zarr_store.ZarrLoader`
     (empty when it is sound). ``stats`` is a :class:`~clipvol.bricking.stats.StatsComputer`."""
     import numpy as np
 
     from clipvol.bricking.pyramid import downsample
-    from clipvol.errors import ClipvolError
+    from clipvol.errors import ClipvolError, RemoteStoreError
 
     pyr = loader.pyramid
     try:
         block = _valid(loader, L, idx)
+    except RemoteStoreError:
+        raise  # the server's answer (permission denied, unreachable), not the brick's content
     except ClipvolError as e:
         return [str(e).split(": ", 1)[-1]]
     except Exception as e:  # anything a damaged chunk can make a codec raise
@@ -65,6 +89,8 @@ def check_brick(loader, stats, L: int, idx) -> list[str]:
             for child in pyr.children(L, idx):
                 cs, ce = pyr.brick_voxel_box(L - 1, child)
                 region[tuple(slice(a - o, b - o) for a, b, o in zip(cs, ce, lo))] = _valid(loader, L - 1, child)
+        except RemoteStoreError:
+            raise
         except Exception:
             pass  # a bad child is reported as itself; this brick's filter cannot be checked until it is repaired
         else:
@@ -74,7 +100,7 @@ def check_brick(loader, stats, L: int, idx) -> list[str]:
                 same |= np.isnan(block) & np.isnan(expect)
             if not same.all():
                 problems.append(f"differs from the {pyr.filter} filter of level {L - 1} in {int(np.count_nonzero(~same))} voxels")
-    sg = loader.brick_statistics(L) or {}
+    sg = level_statistics(loader, L)
     st = stats.compute(block)
     for name in ("min", "max", "mean", "std"):
         if name in sg and not _close(float(sg[name][idx]), float(getattr(st, name))):
@@ -106,7 +132,7 @@ def bad_bricks(loader, meta, keys, progress: bool = False, report=None) -> tuple
     checked = pending = 0
     keys = list(keys)
     for L, idx in tqdm(keys, unit="brick", desc="checking", file=sys.stderr, disable=not progress, dynamic_ncols=True):
-        done = (loader.brick_statistics(L) or {}).get("done")
+        done = level_statistics(loader, L).get("done")
         if done is not None and not bool(done[idx]):
             pending += 1
             continue
@@ -120,34 +146,25 @@ def bad_bricks(loader, meta, keys, progress: bool = False, report=None) -> tuple
     return bad, checked, pending
 
 
-def open_checked(path):
-    """``(meta, loader)`` for a store, incomplete ones included; a store written before checksums
-    opens with a one-line note on stderr."""
-    import sys
+def open_checked(path, **remote):
+    """``(meta, loader)`` for a store, incomplete ones included. ``remote``: options of a remote
+    store (time-outs, in-flight). Whether the store is verified is the loader's ``verified`` and
+    ``trust``, for the caller to report once (the loader's own warning is silenced here)."""
     import warnings
 
     from clipvol.bricking.store import open_store_meta
     from clipvol.loaders.zarr_store import UnverifiedStoreWarning, ZarrLoader
-
     from clipvol.paging.bytesource import is_remote_url
 
-    if is_remote_url(str(path)):  # a store behind a URL: the same checks through the remote loader
-        from clipvol.loaders.zarr_remote import RemoteZarrLoader, remote_store_meta
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UnverifiedStoreWarning)
+        if is_remote_url(str(path)):  # a store behind a URL: the same checks through the remote loader
+            from clipvol.loaders.zarr_remote import RemoteZarrLoader, remote_store_meta
 
-        meta, _ = remote_store_meta(str(path))
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", UnverifiedStoreWarning)
-            loader = RemoteZarrLoader(str(path), allow_incomplete=True)
-        for w in caught:
-            print(f"note: {w.message}", file=sys.stderr)
-        return meta, loader
-    meta = open_store_meta(path)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", UnverifiedStoreWarning)
-        loader = ZarrLoader(path, allow_incomplete=True)
-    for w in caught:
-        print(f"note: {w.message}", file=sys.stderr)
-    return meta, loader
+            remote.pop("cache", None)
+            meta, _ = remote_store_meta(str(path), **remote)
+            return meta, RemoteZarrLoader(str(path), allow_incomplete=True, **remote)
+        return open_store_meta(path), ZarrLoader(path, allow_incomplete=True)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -168,8 +185,11 @@ def run(args: argparse.Namespace) -> int:
         raise ParameterError(f"--samples: expected an integer >= 1, got {args.samples}")
     from clipvol.paging.bytesource import is_remote_url
 
+    from clipvol.errors import StoreFormatError
+    from clipvol.tools.remote_args import remote_kwargs
+
     path = args.store if is_remote_url(args.store) else Path(args.store)
-    meta, loader = open_checked(path)
+    meta, loader = open_checked(path, **remote_kwargs(args))
     pyr = loader.pyramid
     rng = np.random.default_rng(args.seed)
     keys = []
@@ -185,6 +205,13 @@ def run(args: argparse.Namespace) -> int:
     def report(L, idx, problem):
         print(f"clipvol check: {path}: level {L} brick {idx}: {problem}", file=sys.stderr)
 
+    level_bad = []
+    for L in range(pyr.num_levels):
+        try:
+            loader.brick_statistics(L)
+        except StoreFormatError as e:
+            level_bad.append(L)
+            print(f"clipvol check: {path}: level {L}: {str(e).split(': ', 1)[-1]}", file=sys.stderr)
     bad, checked, pending = bad_bricks(loader, meta, keys, progress=args.all and not args.quiet, report=report)
     if bad:
         names = ", ".join(f"level {L} brick {idx}" for L, idx in sorted(bad))
@@ -194,9 +221,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"clipvol check: {path}: incomplete store (an interrupted build; {pending} of the bricks looked at not "
               "written yet); re-run the same clipvol brick command", file=sys.stderr)
         return 1
-    if bad:
+    if not loader.verified:
+        print(f"clipvol check: {path}: {loader.trust}", file=sys.stderr)
+    if bad or level_bad or not loader.verified:
         return 1
     what = "every brick" if args.all else f"{checked} bricks"
-    verified = "checksums, " if loader.checksummed else "(no checksums: unverified store) "
-    print(f"{path}: ok ({pyr.num_levels} levels, {what} checked: {verified}statistics and filter match)")
+    print(f"{path}: ok ({pyr.num_levels} levels, {what} checked: manifest, checksums, statistics and filter match)")
     return 0

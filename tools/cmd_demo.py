@@ -110,6 +110,7 @@ def run(args) -> int:
                 loader, out / "report", views=2 if quick else 3, size=(48, 48) if quick else (160, 160),
                 thresholds=(1.0, 4.0, 16.0) if quick else (0.5, 1.0, 2.0, 4.0, 8.0, 16.0), tf=tf, ctx=ctx,
                 max_frames=3 if quick else 8, log=None if quick else (lambda s: print(s, flush=True)),
+                rounds=2 if quick else 5,
             )
             t_report = time.perf_counter() - t2
     finally:
@@ -127,7 +128,8 @@ def run(args) -> int:
 
         for s in summarise(report.rows):
             if s["sweep"] in ("fixed", "lod_threshold"):
-                print(f"          {s['setting']:>10}: {s['frame_s'] * 1e3:7.1f} ms/frame  {s['bricks_drawn']:6.0f} bricks  "
-                      f"{s['pct_de6']:6.2f} % pixels dE>=6")
+                print(f"          {s['setting']:>10}: {s['frame_s'] * 1e3:7.1f} ms/frame ({s['speedup']:.2f}x)  "
+                      f"{s['bricks_drawn']:6.0f} bricks  {s['pct_de6']:6.2f} % pixels dE>=6")
+        print(f"          {report.headline}")
     print(f"look at it interactively:  clipvol view {store} --tf demo")
     return 0

@@ -11,9 +11,14 @@ For a store built from a file that records its geometry (NIfTI, DICOM, MRC, ...)
 the origin, the voxel-to-world affine and which anatomical direction (R/L, A/P, S/I) each array
 axis points to.
 
+The first line says whether the store is *verified*: its manifest (:mod:`clipvol.bricking.manifest`)
+matches the checksum in its root metadata, or why not (no manifest: a store written before
+manifests, run ``clipvol repair``; a mismatch; a foreign OME-Zarr image, which has none).
+
 Exits 1 (after the description) when a clipvol store is incomplete (an interrupted build is not a
-store) or when bricks whose statistics say they hold data have no chunk file (lost data, not
-empty bricks).
+store), when its statistics do not match its manifest (deleted, replaced or swapped), or when
+bricks that hold data by the manifest (or, for an unverified store, by the statistics) have no
+chunk file (lost data, not empty bricks).
 """
 
 from __future__ import annotations
@@ -71,13 +76,18 @@ def level_bytes(array_dir: Path, shape, chunks, itemsize: int) -> tuple[int, int
     return n, disk, raw
 
 
-def _lost(path: Path, level: int, present: set) -> int:
-    """Bricks whose statistics say they hold data (not min = max = 0 without NaN/Inf) but whose
-    chunk file is missing: lost data, which a reader must not show as empty."""
+def _lost(path: Path, level: int, present: set, manifest=None) -> int:
+    """Bricks that hold data - by the verified ``manifest`` (a chunk was written), else by their
+    statistics (not min = max = 0 without NaN/Inf) - but whose chunk file is missing: lost data,
+    which a reader must not show as empty."""
     import numpy as np
     import zarr
 
     from clipvol.bricking.store import STATS_GROUP
+
+    if manifest is not None:
+        written = manifest.sizes(level) > 0
+        return sum(1 for idx in zip(*np.nonzero(written)) if tuple(int(i) for i in idx) not in present)
 
     try:
         sg = zarr.open_group(str(path / STATS_GROUP / str(level)), mode="r")
@@ -107,9 +117,34 @@ def _checksummed(path: Path, levels: int) -> bool:
     return True
 
 
+def _stats_problems(loader, levels: int) -> list[str]:
+    """Per level, what is wrong with the statistics arrays against the verified manifest."""
+    from clipvol.errors import StoreFormatError
+
+    out = []
+    for L in range(levels):
+        try:
+            loader.brick_statistics(L)
+        except StoreFormatError as e:
+            out.append(f"level {L}: {str(e).split(': ', 1)[-1]}")
+    return out
+
+
+def trust_line(loader) -> str:
+    """The first line's verdict: verified by the manifest, or unverified and why."""
+    if loader is None:
+        return "(incomplete: a build in progress or interrupted; no manifest yet)"
+    return f"({getattr(loader, 'trust', '') or 'unverified'})"
+
+
 def _stats_line(loader, pyr) -> str | None:
+    from clipvol.errors import StoreFormatError
+
     fn = getattr(loader, "brick_statistics", None)
-    st = fn(0) if fn is not None else None
+    try:
+        st = fn(0) if fn is not None else None
+    except StoreFormatError:
+        return None
     if not st:
         return None
     nan = int(st["nan_count"].sum()) if "nan_count" in st else 0
@@ -123,9 +158,14 @@ def _print_geometry(meta) -> None:
     """Origin, affine and axis directions (only for stores that record them)."""
     if meta.frame is None and not any(meta.origin):
         return
-    print(f"origin     {', '.join(f'{v:g}' for v in meta.origin)} {meta.unit} (z, y, x; world position of voxel 0)")
     if meta.frame is None:
+        print(f"origin     {', '.join(f'{v:g}' for v in meta.origin)} {meta.unit} (z, y, x; world position of voxel 0)")
         return
+    # voxel 0 in the world frame the store names (the affine's translation), x, y, z as RAS+ reads them
+    x, y, z = (float(v) for v in meta.frame.matrix[:3, 3])
+    world_name = "patient RAS+" if meta.frame.frame == "RAS" else "world"
+    print(f"origin     {x:g}, {y:g}, {z:g} {meta.unit} (x, y, z in the {world_name} frame; world position of voxel 0)")
+    print(f"translation {', '.join(f'{v:g}' for v in meta.origin)} {meta.unit} (z, y, x along the array axes: OME's level-0 translation)")
     from clipvol.scene.orientation import axis_codes
 
     codes = axis_codes(meta.frame.affine, meta.frame.frame)
@@ -145,6 +185,9 @@ def run(args: argparse.Namespace) -> int:
 
     from clipvol.paging.bytesource import is_remote_url
 
+    from clipvol.tools.remote_args import remote_kwargs
+
+    remote_kwargs(args)  # remote options on a local store are refused, naming the option
     if is_remote_url(args.store):  # a store behind a URL: see clipvol.tools.remote_info
         from clipvol.tools.remote_info import run_remote_info
 
@@ -158,10 +201,16 @@ def run(args: argparse.Namespace) -> int:
         from clipvol.tools import point_cli
 
         return point_cli.info(path)
+    import warnings
+
+    from clipvol.loaders.zarr_store import UnverifiedStoreWarning
+
     meta = loader = None
     attrs_say_clipvol = False
     try:
-        loader = ZarrLoader(path)
+        with warnings.catch_warnings():  # said once, in the first line
+            warnings.simplefilter("ignore", UnverifiedStoreWarning)
+            loader = ZarrLoader(path)
         attrs_say_clipvol = loader.is_clipvol_store
     except StoreIncompleteError:
         attrs_say_clipvol = True
@@ -175,9 +224,13 @@ def run(args: argparse.Namespace) -> int:
         stored = loader.stored_levels
         dirs = _ome_dataset_dirs(path)[:stored]
     it = pyr.dtype.itemsize
-    print(f"store      {path}")
+    print(f"store      {path} {trust_line(loader)}")
+    stats_bad = _stats_problems(loader, pyr.num_levels) if meta is not None and loader is not None else []
     if meta is not None:
-        print("kind       clipvol store (with per-brick statistics)")
+        if not stats_bad and _has_stats(path):
+            print("kind       clipvol store (with per-brick statistics)")
+        else:
+            print(f"kind       clipvol store (statistics {'do not match the manifest' if stats_bad else 'missing'})")
         print(f"complete   {'yes' if meta.complete else 'no (interrupted build: re-run the same clipvol brick command)'}")
         crc = _checksummed(path, pyr.num_levels)
         print(f"checksum   {'crc32c on every chunk' if crc else 'none (unverified store, written before checksums)'}")
@@ -210,7 +263,8 @@ def run(args: argparse.Namespace) -> int:
             continue
         n, disk, raw = level_bytes(dirs[L], lv.shape, pyr.brick_shape, it)
         if meta is not None:
-            lost[L] = _lost(path, L, {idx[-3:] for _, idx in chunk_files(dirs[L]) if idx and len(idx) >= 3})
+            lost[L] = _lost(path, L, {idx[-3:] for _, idx in chunk_files(dirs[L]) if idx and len(idx) >= 3},
+                            loader.manifest if loader is not None else None)
         tot_disk += disk
         tot_raw += raw
         ratio = f"{raw / disk:.2f}" if disk else "-"
@@ -229,15 +283,24 @@ def run(args: argparse.Namespace) -> int:
     print(f"total      {format_bytes(tot_disk)} on disk for {format_bytes(vox)} of level 0; "
           f"compression ratio {tot_raw / tot_disk:.2f} (voxels in written chunks, no padding, over their files)"
           if tot_disk else f"total      nothing written (every brick is empty) for {format_bytes(vox)} of level 0")
+    for problem in stats_bad:
+        print(f"clipvol info: {path}: {problem}", file=sys.stderr)
     bad = {L: k for L, k in lost.items() if k}
+    by = "manifest" if loader is not None and loader.manifest is not None else "statistics"
     for L, k in bad.items():
-        print(f"clipvol info: {path}: level {L}: {k} bricks hold data by their statistics but have no chunk file "
+        print(f"clipvol info: {path}: level {L}: {k} bricks hold data by the {by} but have no chunk file "
               "(lost data; `clipvol check --all` names them, `clipvol repair` rebuilds them)", file=sys.stderr)
     if meta is not None and not meta.complete:  # the counts above describe a partial store: not a success
         print(f"clipvol info: {path}: incomplete store (an interrupted build); re-run the same clipvol brick command",
               file=sys.stderr)
         return 1
-    return 1 if bad else 0
+    return 1 if bad or stats_bad else 0
+
+
+def _has_stats(path: Path) -> bool:
+    from clipvol.bricking.store import STATS_GROUP
+
+    return (path / STATS_GROUP / "0" / "min").is_dir()
 
 
 def _ome_dataset_dirs(path: Path) -> list[Path]:

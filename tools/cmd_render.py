@@ -20,7 +20,7 @@ from clipvol.tools.overlay_args import add_channel_arguments, channels_from_args
 #: what --policy accepts: the registry's names and their older aliases
 POLICY_CHOICES = sorted(POLICIES) + sorted(POLICY_ALIASES)
 
-VIEWS = ("front", "back", "side", "top", "iso")
+from clipvol.scene.views import VIEW_CHOICES as VIEWS
 
 
 def _triple(text: str) -> tuple[float, float, float]:
@@ -45,7 +45,8 @@ def _size(text: str) -> tuple[int, int]:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", help="a clipvol store / OME-Zarr directory or URL (s3://, https://, ...), procedural:NAME?size=N, "
-                                  "or a .npy file")
+                                  "a .npy file, or a NIfTI / DICOM folder / FILE.h5:/dataset / MRC input (bricked first into --store)")
+    p.add_argument("--store", default=None, help="where a NIfTI/DICOM/HDF5/MRC input is bricked (default ./NAME.zarr; reused when it exists)")
     p.add_argument("--out", "-o", required=True, help="output PNG")
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default 64)")
     d = p.add_argument_group("data")
@@ -55,10 +56,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     d.add_argument("--hide-labels", default=None, metavar="NAME:ID,ID",
                    help="hide the voxels of these label ids of the store's labels/NAME (from clipvol brick --labels)")
     v = p.add_argument_group("camera")
-    v.add_argument("--view", choices=VIEWS, default="iso", help="preset direction towards the volume centre (default iso)")
+    v.add_argument("--view", choices=VIEWS, default="iso", type=str.lower,
+                   help="the side the eye is on: anterior, posterior, left, right, superior, inferior for a store with a "
+                        "patient frame (head up; front/back/side/top mean anterior/posterior/left/superior there), "
+                        "front/back/side/top along the array's z/-z/x/y otherwise; iso from anterior-right-superior "
+                        "(default iso)")
     v.add_argument("--eye", type=_triple, default=None, help="eye position x,y,z (world units; overrides --view)")
     v.add_argument("--target", type=_triple, default=None, help="point looked at x,y,z (default: the volume centre)")
-    v.add_argument("--up", type=_triple, default=None, help="up vector x,y,z (default: -y, image rows follow +y)")
+    v.add_argument("--up", type=_triple, default=None, help="up vector x,y,z (default: superior for a patient frame, "
+                                                           "-y otherwise: image rows follow +y)")
+    v.add_argument("--no-labels", action="store_true", help="do not write the R/L, A/P, S/I letters at the image edges")
     v.add_argument("--fov", type=float, default=35.0, help="vertical field of view in degrees (perspective)")
     v.add_argument("--distance", type=float, default=None, help="eye distance from the target, in volume diagonals (default 1.6)")
     v.add_argument("--ortho", action="store_true", help="orthographic projection framing the volume")
@@ -107,9 +114,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="draw N spatially disjoint brick groups in N worker processes and composite them")
     sl.add_argument("--scheduler", default="processes", metavar="S",
                     help="with --workers: processes (a local cluster, default) or tcp://HOST:PORT of a dask.distributed scheduler")
-    from clipvol.tools.remote_args import add_remote_arguments
+    from clipvol.tools.remote_args import add_remote_arguments, add_trust_arguments
 
     add_remote_arguments(p)
+    add_trust_arguments(p)
 
 
 def check_output_file(path, suffix: str, flag: str) -> None:
@@ -150,37 +158,15 @@ def hidden_labels(source, loader, spec: str):
     return TaggedLoader(loader, open_store(Path(source) / "labels" / name), hidden)
 
 
-def view_camera(pyramid, view: str, size, *, eye=None, target=None, up=None, fov=35.0, distance=None, ortho=False):
-    """The camera of a preset ``view`` (or an explicit ``eye``) looking at ``target`` (default: the centre)."""
-    import numpy as np
-
-    from clipvol.scene.camera import Camera
+def view_camera(pyramid, view: str, size, *, eye=None, target=None, up=None, fov=35.0, distance=None, ortho=False,
+                frame=None):
+    """The camera of a preset ``view`` (or an explicit ``eye``) looking at ``target`` (default: the centre),
+    in the store's patient ``frame`` when it has one (:func:`clipvol.scene.views.preset_camera`)."""
+    from clipvol.scene.views import preset_camera
 
     lo, hi = pyramid.volume_box()
-    centre = (lo + hi) / 2.0
-    diag = float(np.linalg.norm(hi - lo))
-    tgt = centre if target is None else np.asarray(target, dtype=np.float64)
-    dirs = {"front": (0, 0, 1), "back": (0, 0, -1), "side": (1, 0, 0), "top": (0, 1, 0), "iso": (0.55, 0.45, 0.7)}
-    if eye is not None:
-        e = np.asarray(eye, dtype=np.float64)
-        if np.allclose(e, tgt):
-            raise ParameterError(f"--eye: expected a point other than the target {tuple(tgt)}, got {tuple(e)}")
-        fwd = (tgt - e) / np.linalg.norm(tgt - e)
-    else:
-        fwd = np.asarray(dirs[view], dtype=np.float64)
-        fwd /= np.linalg.norm(fwd)
-        dist = (1.6 if distance is None else float(distance)) * diag
-        if not (dist > 0 and math.isfinite(dist)):
-            raise ParameterError(f"--distance: expected a number > 0, got {distance}")
-        e = tgt - fwd * dist
-    if up is None:
-        up = (0.0, -1.0, 0.0) if abs(fwd[1]) < 0.9 else (0.0, 0.0, -1.0)
-    if ortho:
-        w, h = size
-        ext = diag * 1.05
-        width, height = (ext, ext * h / w) if w >= h else (ext * w / h, ext)
-        return Camera.orthographic(tuple(tgt), tuple(fwd), tuple(up), width, height, size=size)
-    return Camera.perspective(tuple(e), tuple(tgt), up=tuple(up), fov_y=fov, size=size)
+    return preset_camera(lo, hi, view, size, frame=frame, eye=eye, target=target, up=up, fov=fov, distance=distance,
+                         ortho=ortho)
 
 
 def run(args) -> int:
@@ -204,8 +190,11 @@ def run(args) -> int:
         from clipvol.tools import point_cli
 
         return point_cli.render(args)
-    from clipvol.tools.remote_args import remote_kwargs
+    from clipvol.tools.remote_args import check_trust, remote_kwargs
 
+    from clipvol.app.autobrick import bricked_source
+
+    args.source = bricked_source(args.source, args.store, log=lambda line: print(line, file=sys.stderr))
     kwargs = {} if args.brick is None else {"brick": args.brick}
     kwargs.update({k: v for k, v in (("t", args.t), ("c", args.c)) if v is not None})
     channel_overlays, channel_tf = (), None
@@ -214,14 +203,16 @@ def run(args) -> int:
         loader, channel_tf, channel_overlays = channels
     else:
         loader = open_store(args.source, **kwargs, **remote_kwargs(args))
+        check_trust(loader, args, "render")
     if args.hide_labels:
         loader = hidden_labels(args.source, loader, args.hide_labels)
     pyr = loader.pyramid
+    frame = getattr(loader, "frame", None)  # the store's voxel-to-world affine and patient frame, if any
     if args.camera is not None:
         cam = load_camera(args.camera, size=args.size)
     else:
         cam = view_camera(pyr, args.view, args.size, eye=args.eye, target=args.target, up=args.up, fov=args.fov,
-                          distance=args.distance, ortho=args.ortho)
+                          distance=args.distance, ortho=args.ortho, frame=frame)
     lo, hi = pyr.volume_box()
     centre = np.clip(np.asarray(cam.center, dtype=np.float64), lo, hi)
     params = RenderParams(
@@ -234,7 +225,7 @@ def run(args) -> int:
     ).check_for(pyr)
     tf = channel_tf or transfer_function_from_args(args, loader)
     if args.workers is not None:  # sort-last on Dask: groups of bricks in worker processes
-        return _run_sort_last(args, params, cam, tf, kwargs)
+        return _run_sort_last(args, params, cam, tf, kwargs, frame)
     ctx = create_context()
     try:
         with ClipTexture(loader, args.memory_budget, args.threads, center=centre) as clip, \
@@ -244,7 +235,9 @@ def run(args) -> int:
             overlay_levels = action.overlays.levels()
     finally:
         ctx.release()
-    Image.fromarray(image, "RGBA").save(args.out)
+    from clipvol.app.annotate import present
+
+    Image.fromarray(present(image, cam, frame, labels=not args.no_labels), "RGBA").save(args.out)
     t = st.times
     levels = ", ".join(f"L{L}: {n}" for L, n in st.bricks_drawn.items()) or "none"
     print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, {args.mode}, {params.policy}, transfer function "
@@ -263,7 +256,7 @@ def run(args) -> int:
     return 0
 
 
-def _run_sort_last(args, params, cam, tf, kwargs) -> int:
+def _run_sort_last(args, params, cam, tf, kwargs, frame=None) -> int:
     """``--workers N``: :class:`clipvol.app.sortlast.DistributedRenderer` instead of one action."""
     from PIL import Image
 
@@ -283,7 +276,9 @@ def _run_sort_last(args, params, cam, tf, kwargs) -> int:
                              source_kwargs={**kwargs, **remote_kwargs(args)}) as dr:
         image = dr.render(cam, tf)
         st = dr.last_stats
-    Image.fromarray(image, "RGBA").save(args.out)
+    from clipvol.app.annotate import present
+
+    Image.fromarray(present(image, cam, frame, labels=not args.no_labels), "RGBA").save(args.out)
     print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, {args.mode}, {params.policy}, sort-last over "
           f"{args.workers} workers)", file=sys.stderr)
     print(f"converged {st.converged}", file=sys.stderr)

@@ -7,6 +7,13 @@ brick, is recomputed with the store's filter from its (by then sound) children, 
 temporary file and an atomic rename); nothing else is touched. The input must be the one the store
 was built from (its recorded identity: size, modification time, sampled-content hash, dtype,
 shape); the repaired bricks are checked again before the command reports success.
+
+The store's manifest (:mod:`clipvol.bricking.manifest`) is the reference: a level whose statistics
+arrays were deleted, replaced or swapped has them recomputed from its bricks, which the manifest
+verifies chunk by chunk. After any change the manifest is written again and recorded in the root
+metadata. A store without a manifest (written before manifests) gets one once every brick checks
+out against its statistics; one without statistics either cannot be vouched for and is refused
+(rebuild it with ``clipvol brick``).
 """
 
 from __future__ import annotations
@@ -51,6 +58,50 @@ def rebuild_brick(loader, src, L: int, idx):
     return downsample(region, pyr.filter)
 
 
+def restore_statistics(loader, group, L: int, stats) -> int:
+    """Recompute every statistics array of level ``L`` from its bricks, each verified against the
+    manifest (size and crc32c of its chunk), and write them; returns the bricks read."""
+    import numpy as np
+
+    from clipvol.bricking.pipeline import create_stats_arrays
+    from clipvol.bricking.store import STATS_GROUP
+
+    pyr = loader.pyramid
+    grid = pyr.grid(L)
+    table = loader.manifest.tables[L]
+    cols = {n: np.empty(grid, np.float64) for n in ("min", "max", "mean", "std")}
+    cols.update({n: np.zeros(grid, np.int64) for n in ("nan_count", "inf_count")})
+    hist = np.zeros(grid + (stats.bins,), np.int64)
+    for idx in np.ndindex(*grid):
+        start, stop = pyr.brick_voxel_box(L, idx)
+        st = stats.compute(loader.read_brick(L, idx)[tuple(slice(0, b - a) for a, b in zip(start, stop))])
+        for n in cols:
+            cols[n][idx] = getattr(st, n)
+        hist[idx] = st.histogram
+    create_stats_arrays(group, grid, L)
+    sg = group[f"{STATS_GROUP}/{L}"]
+    for n, a in cols.items():
+        sg[n][...] = a
+    sg["histogram"][...] = hist
+    sg["done"][...] = np.ones(grid, bool)
+    sg["chunk_crc32c"][...] = np.asarray(table["crc32c"])
+    return int(np.prod(grid))
+
+
+def record_manifest(path, group, pyr) -> None:
+    """Write the manifest of the store at ``path`` and record its checksum in the root metadata."""
+    from clipvol.bricking.manifest import ManifestError, write_manifest
+    from clipvol.errors import StoreFormatError
+
+    try:
+        entry = write_manifest(path, [pyr.grid(L) for L in range(pyr.num_levels)])
+    except ManifestError as e:
+        raise StoreFormatError(f"{path}: cannot vouch for this store ({e}); rebuild it with clipvol brick") from None
+    cv = dict(group.attrs["clipvol"])
+    cv["manifest"] = entry
+    group.attrs.update({"clipvol": cv})
+
+
 def run(args: argparse.Namespace) -> int:
     import os
     import sys
@@ -86,13 +137,37 @@ def run(args: argparse.Namespace) -> int:
                            if c.startswith(("shape", "dtype"))]
             if changes:
                 raise SourceChangedError(f"{args.source}: not the input {path} was built from ({'; '.join(changes)})")
+            stats = StatsComputer(pyr.dtype, pyr.value_range, meta.histogram_bins)
+            restored = []
+            if loader.manifest is not None:  # statistics that differ from the manifest: recomputed from verified bricks
+                from clipvol.errors import StoreFormatError
+
+                for L in range(pyr.num_levels):
+                    try:
+                        loader.brick_statistics(L)
+                    except StoreFormatError:
+                        restore_statistics(loader, group, L, stats)
+                        restored.append(L)
+                loader.refresh_statistics()
             keys = [(L, idx) for L in range(pyr.num_levels) for idx in np.ndindex(*pyr.grid(L))]
             bad, checked, _ = bad_bricks(loader, meta, keys, progress=not args.quiet)
             if not bad:
-                print(f"{path}: nothing to repair ({checked} bricks checked)")
+                done = []
+                if restored:
+                    done.append(f"recomputed the statistics of level{'s' if len(restored) > 1 else ''} "
+                                f"{', '.join(map(str, restored))} from its verified bricks")
+                if restored or not loader.verified:
+                    record_manifest(path, group, pyr)
+                    done.append("wrote the manifest")
+                    meta, loader = open_checked(path)
+                    again, _, _ = bad_bricks(loader, meta, keys)
+                    if again or not loader.verified:
+                        print(f"clipvol repair: {path}: still bad after writing the manifest ({loader.trust})",
+                              file=sys.stderr)
+                        return 1
+                print(f"{path}: {'; '.join(done) if done else 'nothing to repair'} ({checked} bricks checked)")
                 return 0
             todo = _ancestors(bad, pyr.num_levels)
-            stats = StatsComputer(pyr.dtype, pyr.value_range, meta.histogram_bins)
             B = pyr.brick_shape
             n = 0
             for L in range(pyr.num_levels):
@@ -126,7 +201,12 @@ def run(args: argparse.Namespace) -> int:
                     sg["done"][idx] = True
                     n += 1
                 loader.refresh_statistics()
-            again, _, _ = bad_bricks(loader, meta, [(L, idx) for L in todo for idx in todo[L]])
+            repaired = [(L, idx) for L in todo for idx in todo[L]]
+            again, _, _ = bad_bricks(loader, meta, repaired)
+            if not again:  # the manifest pins what was just rebuilt; checked once more through it
+                record_manifest(path, group, pyr)
+                meta, loader = open_checked(path)
+                again, _, _ = bad_bricks(loader, meta, repaired)
         finally:
             src.close()
     for (L, idx), problems in sorted(again.items()):

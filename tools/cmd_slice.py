@@ -1,7 +1,9 @@
 """Draw a cutting plane of a store: axial, coronal, sagittal or oblique, fine near a point of interest.
 
-The plane is ``--plane z=94`` (an axis letter and a level-0 voxel index), ``--axis coronal
---index 120``, or ``--origin x,y,z --normal x,y,z`` (world units; ``--up`` sets the image's up).
+The plane is ``--plane z=94`` (an array axis letter and a level-0 voxel index: the array as
+stored), ``--axis coronal --index 120`` (for a store with a patient frame the patient's plane, shown
+the radiological way: anterior or superior up, the patient's right on the image left; ``--neurological``
+puts it on the right), or ``--origin x,y,z --normal x,y,z`` (world units; ``--up`` sets the image's up).
 Without ``--poi`` and ``--level`` the slice is as fine as its pixels need; with ``--poi`` it is full
 resolution near that point and coarser away from it, balanced and blended so no seam shows
 (LaMar, Hamann & Joy, "Multiresolution cutting planes"); ``--level 0`` is full resolution
@@ -33,11 +35,19 @@ def _window(text: str) -> tuple[float, float]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, or a .npy file")
+    p.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, a .npy file, or a NIfTI / "
+                                  "DICOM folder / FILE.h5:/dataset / MRC input (bricked first into --store)")
+    p.add_argument("--store", default=None, help="where a NIfTI/DICOM/HDF5/MRC input is bricked (default ./NAME.zarr; reused when it exists)")
     g = p.add_argument_group("plane (one of)")
     g.add_argument("--plane", default=None, help="AXIS=INDEX with AXIS z (axial), y (coronal) or x (sagittal), e.g. z=94")
-    g.add_argument("--axis", choices=("axial", "coronal", "sagittal"), default=None, help="preset plane")
-    g.add_argument("--index", type=float, default=None, help="--axis: level-0 voxel index along the axis (default: middle)")
+    g.add_argument("--axis", choices=("axial", "coronal", "sagittal"), default=None,
+                   help="preset plane: the patient's plane for a store with a patient frame (radiological display: "
+                        "axial anterior up, the patient's right on the image left; coronal and sagittal superior up), "
+                        "the array's z, y or x plane otherwise")
+    g.add_argument("--index", type=float, default=None, help="--axis: level-0 voxel index along the array axis nearest "
+                                                             "the plane's normal (default: the middle)")
+    g.add_argument("--neurological", action="store_true",
+                   help="--axis of a patient-frame store: the patient's right on the image right (default: radiological)")
     g.add_argument("--origin", type=_triple, default=None, help="oblique plane: a point x,y,z of it (world units)")
     g.add_argument("--normal", type=_triple, default=None, help="oblique plane: its normal x,y,z (the view direction)")
     g.add_argument("--up", type=_triple, default=None, help="oblique plane: the image's up x,y,z")
@@ -47,6 +57,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     s.add_argument("--window", type=_window, default=None, help="grey window/level C,W (default: the value range)")
     s.add_argument("--tf", default=None, help="colour the values with a transfer-function preset instead of grey")
     s.add_argument("--out", "-o", default=None, help="output PNG")
+    s.add_argument("--no-labels", action="store_true", help="do not write R/L, A/P, S/I at the PNG's edges (patient-frame stores)")
     s.add_argument("--npy", default=None, help="write the resampled values (float32, NaN outside the volume)")
     s.add_argument("--stats", default=None, help="write statistics as JSON (bytes_loaded, tiles per level, time)")
     r = p.add_argument_group("resolution")
@@ -63,19 +74,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for the slice's bricks (default 300)")
 
 
-def plane_from_args(pyramid, args):
+def plane_from_args(pyramid, args, frame=None):
     """The :class:`~clipvol.scene.plane.Plane` the arguments name (default: the middle axial plane).
+
+    With a patient ``frame`` the ``--axis`` presets (and the default) are the patient's planes in
+    the radiological display (``--neurological`` for the other), :func:`clipvol.scene.views.anatomical_plane`.
 
     Errors name the command-line option (``--plane: index: expected 0..255 ...``)."""
     option = "--plane" if args.plane is not None else "--axis/--index" if args.axis is not None else "--origin/--normal/--up"
     try:
-        return _plane_from_args(pyramid, args)
+        return _plane_from_args(pyramid, args, frame)
     except ParameterError as e:
         text = str(e)
         raise ParameterError(text if text.startswith("--") else f"{option}: {text}") from None
 
 
-def _plane_from_args(pyramid, args):
+def _plane_from_args(pyramid, args, frame=None):
     from clipvol.scene.plane import AXIS_LETTERS, Plane
 
     given = [name for name, v in (("--plane", args.plane), ("--axis", args.axis), ("--origin/--normal",
@@ -84,6 +98,13 @@ def _plane_from_args(pyramid, args):
         raise ParameterError(f"plane: expected one of --plane, --axis, --origin/--normal, got {' and '.join(given)}")
     if args.index is not None and args.axis is None:
         raise ParameterError("--index: expected together with --axis, got --index alone")
+    from clipvol.scene.views import anatomical_plane, is_anatomical
+
+    neuro = getattr(args, "neurological", False)
+    if neuro and not (is_anatomical(frame) and args.plane is None and args.origin is None and args.normal is None):
+        raise ParameterError("--neurological: expected an --axis slice (or the default) of a store with a patient frame "
+                             "(from NIfTI or DICOM), got " + ("a store without one" if not is_anatomical(frame)
+                                                               else "--plane or --origin/--normal"))
     if args.plane is not None:
         letter, _, index = args.plane.partition("=")
         if letter.strip().lower() not in AXIS_LETTERS or not index:
@@ -94,11 +115,15 @@ def _plane_from_args(pyramid, args):
             raise ParameterError(f"--plane: expected a number after '=', got {args.plane!r}") from None
         return Plane.axis(pyramid, AXIS_LETTERS[letter.strip().lower()], i)
     if args.axis is not None:
+        if is_anatomical(frame):
+            return anatomical_plane(pyramid, frame, args.axis, args.index, "neurological" if neuro else "radiological")
         return Plane.axis(pyramid, args.axis, args.index)
     if args.origin is not None or args.normal is not None:
         if args.origin is None or args.normal is None:
             raise ParameterError("--origin/--normal: expected both for an oblique plane, got one")
         return Plane.through(args.origin, args.normal, args.up)
+    if is_anatomical(frame):
+        return anatomical_plane(pyramid, frame, "axial", None, "neurological" if neuro else "radiological")
     return Plane.axis(pyramid, "axial")
 
 
@@ -141,17 +166,19 @@ def run(args) -> int:
         raise ParameterError("--window: expected either --window or --tf, got both")
     if args.pixel_size is not None and not (math.isfinite(args.pixel_size) and args.pixel_size > 0):
         raise ParameterError(f"--pixel-size: expected a finite size > 0 (world units), got {args.pixel_size}")
+    from clipvol.app.autobrick import bricked_source
+
     kwargs = {} if args.brick is None else {"brick": args.brick}
-    loader = open_store(args.source, **kwargs)
+    loader = open_store(bricked_source(args.source, args.store, log=lambda line: print(line, file=sys.stderr)), **kwargs)
     pyr = loader.pyramid
-    plane = plane_from_args(pyr, args)
+    frame = getattr(loader, "frame", None)  # the source's voxel-to-world affine (NIfTI, DICOM, ...)
+    plane = plane_from_args(pyr, args, frame)
     lo, hi = pyr.volume_box()
     if not plane.crosses(lo, hi)[0]:
         raise ParameterError(f"plane: expected a plane that meets the volume {tuple(lo.tolist())}..{tuple(hi.tolist())}, "
                              f"got origin {plane.origin} normal {plane.normal}")
     if args.level is not None and not (0 <= args.level < pyr.num_levels):
         raise ParameterError(f"--level: expected 0..{pyr.num_levels - 1} for this store, got {args.level}")
-    frame = getattr(loader, "frame", None)  # the source's voxel-to-world affine (NIfTI, DICOM, ...)
     edges = None
     if frame is not None:
         from clipvol.scene.orientation import view_labels
@@ -174,6 +201,10 @@ def run(args) -> int:
         ctx.release()
     h, w = values.shape
     if args.out is not None:
+        if edges is not None and frame.frame == "RAS" and not args.no_labels:
+            from clipvol.app.annotate import label_edges
+
+            rgba = label_edges(rgba, edges)
         _write_atomic(args.out, lambda p: Image.fromarray(rgba, "RGBA").save(p, format="PNG"))
     if args.npy is not None:
         def save_npy(p):

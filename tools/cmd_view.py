@@ -11,8 +11,9 @@ the transfer-function window, Shift+S save it, C save the camera, B brick outlin
 
 ``--offscreen --path orbit|turntable|fly|zoom --frames N --out DIR|anim.gif|movie.mp4`` renders a
 camera path without a window (EGL) and writes PNG frames, a GIF or a movie (imageio-ffmpeg; ``--fps``,
-``--quality``) plus a per-frame CSV. For a store built from NIfTI or DICOM the turntable spins the
-patient head-up, starting from the front, and every frame's edges are labelled R/L, A/P, S/I.
+``--quality``) plus a per-frame CSV. For a store built from NIfTI or DICOM the turntable (and the
+orbit, a turntable raised 25 degrees) spins the patient head-up, starting from the front (or the
+side ``--view`` names), and every frame's edges are labelled R/L, A/P, S/I.
 """
 
 from __future__ import annotations
@@ -89,60 +90,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="folder where P (with the HUD) and Shift+P (without) save screenshots, S the transfer "
                         "function and C the camera (created; default ./clipvol-screenshots)")
     w.add_argument("--camera", default=None, metavar="FILE.json", help="start from a camera saved with C")
+    from clipvol.scene.views import VIEW_CHOICES
+
+    p.add_argument("--view", choices=VIEW_CHOICES, default=None, type=str.lower,
+                   help="the side the eye starts on, as for clipvol render (window; --path turntable: its first frame): "
+                        "anterior, posterior, left, right, superior, inferior, iso for a patient-frame store, "
+                        "front/back/side/top/iso otherwise")
     w.add_argument("--frame-time", type=float, default=100.0, metavar="MS",
                    help="target frame time while the camera moves, in ms: the viewer lowers resolution and "
                         "sampling to hold it and refines to full quality when still (default 100; 0 turns it off)")
     w.add_argument("--max-frames", type=int, default=None, help=argparse.SUPPRESS)
 
 
-def _store_name(text: str) -> str:
-    from pathlib import Path
-
-    base = text.split(".h5:")[0].split(".hdf5:")[0].rstrip("/\\")
-    name = Path(base).name
-    for suf in (".nii.gz", ".nii", ".hdr", ".img", ".mrc", ".map", ".mrcs", ".rec", ".st", ".h5", ".hdf5", ".hdf", ".nxs", ".dcm"):
-        if name.lower().endswith(suf):
-            return name[: -len(suf)] or "volume"
-    return name or "volume"
-
-
 def _bricked(args) -> str:
-    """The source itself, or for a NIfTI / DICOM / HDF5 / MRC input the store it is bricked into.
+    """The source itself, or for a NIfTI / DICOM / HDF5 / MRC input the store it is bricked into
+    (:func:`clipvol.app.autobrick.bricked_source`: ``./NAME.zarr`` or ``--store``, reused)."""
+    from clipvol.app.autobrick import bricked_source
 
-    One command from a scan to a view: ``clipvol view ct_folder/`` bricks the series into
-    ``./ct_folder.zarr`` (or ``--store``) the first time and reuses that store afterwards.
-    """
-    import json
-    import os
-    from pathlib import Path
-
-    from clipvol.paging.bytesource import is_remote_url
-
-    text = args.source
-    p = Path(text)
-    if is_remote_url(text):  # a store behind a URL is opened as it is
-        return text
-    if text.startswith("procedural:") or p.suffix.lower() == ".npy" or (p.is_dir() and any((p / m).exists() for m in ("zarr.json", ".zgroup"))):
-        return text
-    from clipvol.bricking.formats import open_format
-
-    src = open_format(text)
-    if src is None:
-        return text
-    src.close()
-    store = Path(args.store) if args.store else Path.cwd() / f"{_store_name(text)}.zarr"
-    try:
-        cv = json.loads((store / "zarr.json").read_text())["attributes"]["clipvol"]
-        if cv.get("complete") and str(cv.get("source", "")).startswith(os.path.abspath(text) + " ("):
-            print(f"using {store} (bricked from {text})")
-            return str(store)
-    except (OSError, ValueError, KeyError, TypeError):
-        pass
-    from clipvol.bricking.pipeline import brick_volume
-
-    print(f"bricking {text} into {store}")
-    brick_volume(text, store, progress=True)
-    return str(store)
+    return bricked_source(args.source, args.store)
 
 
 def run(args) -> int:
@@ -213,13 +178,23 @@ def run(args) -> int:
 
         frame = getattr(loader, "frame", None)  # the store's voxel-to-world affine, if it records one
         path_kwargs = {}
-        if args.path == "turntable" and frame is not None and frame.frame == "RAS":
+        path = args.path
+        if args.path in ("turntable", "orbit") and frame is not None and frame.frame == "RAS":
             from clipvol.scene.orientation import anatomical_axes
 
             up, front = anatomical_axes(frame.affine)
             path_kwargs = {"up": tuple(up), "front": tuple(front)}
+            if args.path == "orbit":  # head-up for a patient: the orbit is a turntable raised 25 degrees
+                path, path_kwargs["elevation"] = "turntable", 25.0
+        if args.path == "turntable" and args.view is not None:  # start from the side --view names
+            from clipvol.scene.views import view_directions
+
+            path_kwargs["front"] = tuple(-view_directions(args.view, frame)[0])
+        elif args.view is not None:
+            raise ParameterError(f"--view: sets the window's first view or the turntable's first frame; "
+                                 f"expected --path turntable, got --path {args.path}")
         res = render_path(
-            loader, args.out, path=args.path, frames=args.frames, size=args.size or (256, 256),
+            loader, args.out, path=path, frames=args.frames, size=args.size or (256, 256),
             converged=args.converged, timeout=args.timeout, memory_budget=args.memory_budget,
             texture_budget=args.texture_budget, threads=args.threads, params=params, tf=tf, outlines=args.outlines,
             fps=args.fps, progress=show, path_kwargs=path_kwargs, quality=args.quality,
@@ -234,6 +209,11 @@ def run(args) -> int:
         from clipvol.scene.bookmarks import load_camera
 
         camera = load_camera(args.camera)
+    elif args.view is not None:  # the named view of clipvol render (clipvol.scene.views)
+        from clipvol.scene.views import preset_camera
+
+        lo, hi = loader.pyramid.volume_box()
+        camera = preset_camera(lo, hi, args.view, args.size or (960, 640), frame=getattr(loader, "frame", None))
 
     with Viewer(loader, size=args.size or (960, 640), memory_budget=args.memory_budget,
                 texture_budget=args.texture_budget, threads=args.threads, params=params, tf=tf,

@@ -12,6 +12,8 @@ overlays are drawn.
 
 from __future__ import annotations
 
+import sys
+
 from clipvol.errors import ParameterError
 
 __all__ = ["add_overlay_arguments", "add_channel_arguments", "parse_overlay", "overlays_from_args",
@@ -114,9 +116,12 @@ def overlays_from_args(args, source=None, primary=None) -> tuple:
         # a label image of the store shares its frame (OME image-label): placed at the image's origin
         out.append(Overlay(open_store(Path(str(source)) / "labels" / name), colors, name=f"labels/{name}",
                            origin=tuple(store_origin(primary)[:]) if primary is not None else None,
-                           texture_budget=args.overlay_budget))
+                           frame=getattr(primary, "frame", None), texture_budget=args.overlay_budget))
     for spec in getattr(args, "overlay", None) or []:
         source, name, rng = parse_overlay(spec)
+        from clipvol.app.autobrick import bricked_source
+
+        source = bricked_source(source, None, log=lambda line: print(line, file=sys.stderr))  # NIfTI etc.: bricked once
         loader = open_store(source)
         if name == "labels":
             tf = colors or LabelColors(default_opacity=getattr(args, "label_opacity", 0.3))

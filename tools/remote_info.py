@@ -1,7 +1,10 @@
 """``clipvol info URL``: a clipvol store behind a URL, described from its metadata over the network.
 
 Object sizes come from the server's listing where it has one (S3, GCS); over plain HTTP they are
-unknown and printed as ``-``, never as zeros."""
+unknown and printed as ``-``, never as zeros. The first line says whether the store verifies against
+its manifest, fetched with the rest of the metadata: a manifest the server does not give (404) makes
+the store unverified, and statistics it does not give (404) are reported as not matching the
+manifest (exit 1), never read as empty bricks."""
 
 from __future__ import annotations
 
@@ -16,11 +19,25 @@ def run_remote_info(args: argparse.Namespace) -> int:
 
     kw = remote_kwargs(args)
     kw.pop("cache", None)
+    import warnings
+
+    from clipvol.loaders.zarr_remote import RemoteZarrLoader
+    from clipvol.loaders.zarr_store import UnverifiedStoreWarning
+    from clipvol.tools.cmd_info import _stats_problems, trust_line
+
     meta, level_files = remote_store_meta(args.store, **kw)
     pyr = meta.pyramid
     it = pyr.dtype.itemsize
-    print(f"store      {args.store}")
-    print("kind       clipvol store (with per-brick statistics)")
+    with warnings.catch_warnings():  # said once, in the first line
+        warnings.simplefilter("ignore", UnverifiedStoreWarning)
+        loader = RemoteZarrLoader(args.store, allow_incomplete=True, **kw)
+    try:
+        stats_bad = _stats_problems(loader, pyr.num_levels)
+    finally:
+        loader.close()
+    print(f"store      {args.store} {trust_line(loader if meta.complete else None)}")
+    print("kind       clipvol store (" + ("statistics do not match the manifest or are missing)" if stats_bad
+                                         else "with per-brick statistics)"))
     print(f"complete   {'yes' if meta.complete else 'no (interrupted build: re-run the same clipvol brick command)'}")
     print(f"dtype      {pyr.dtype}")
     print(f"brick      {'x'.join(map(str, pyr.brick_shape))}")
@@ -53,8 +70,10 @@ def run_remote_info(args: argparse.Namespace) -> int:
               f"compression ratio {tot_raw / tot_disk:.2f} over written bricks (padded to full bricks)")
     else:
         print(f"total      nothing written (every brick is empty) for {format_bytes(vox)} of level 0")
+    for problem in stats_bad:
+        print(f"clipvol info: {args.store}: {problem}", file=sys.stderr)
     if not meta.complete:
         print(f"clipvol info: {args.store}: incomplete store (an interrupted build); re-run the same clipvol brick "
               "command", file=sys.stderr)
         return 1
-    return 0
+    return 1 if stats_bad else 0

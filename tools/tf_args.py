@@ -74,9 +74,15 @@ def transfer_function_from_args(args, loader):
             tf = tf.with_value_range(rng)
         return tf if opacity is None else tf.with_opacity(opacity)
     if name == "auto":
+        if rng is None and opacity is None and getattr(args, "overlay", None):
+            from clipvol.scene.auto_tf import context_transfer_function
+
+            return context_transfer_function(loader)  # translucent grey: the overlay inside it shows
         if rng is None:
             return auto_transfer_function(loader, opacity=opacity)
-        return TransferFunction.preset("viridis", value_range=rng, opacity=opacity)
+        from clipvol.scene.auto_tf import default_preset
+
+        return TransferFunction.preset(default_preset(loader), value_range=rng, opacity=opacity)
     if name not in TransferFunction.names():
         raise ParameterError(f"--tf: expected auto, one of {', '.join(TransferFunction.names())} "
                              f"or a .json file, got {name!r}")

@@ -11,7 +11,7 @@ from typing import Mapping
 
 import numpy as np
 
-__all__ = ["label_edges"]
+__all__ = ["label_edges", "present"]
 
 
 def label_edges(img: np.ndarray, labels: Mapping[str, str], *, size: int = 0, colour=(255, 255, 80, 255)) -> np.ndarray:
@@ -43,3 +43,16 @@ def label_edges(img: np.ndarray, labels: Mapping[str, str], *, size: int = 0, co
         }[edge]
         draw.text((pos[0] - x0, pos[1] - y0), text, font=font, fill=colour, stroke_width=1, stroke_fill=(0, 0, 0, 255))
     return np.asarray(im)
+
+
+def present(img: np.ndarray, cam, frame=None, *, labels: bool = True) -> np.ndarray:
+    """The image a user sees of a frame rendered with ``cam``: flipped left-right for a store whose
+    array axes mirror the patient (:func:`clipvol.scene.views.mirrored`) and, for a patient-frame
+    store, with its edge letters unless ``labels`` is False. Every offscreen entry point (render,
+    movies, the notebook) passes its frames through here, so they agree."""
+    from ..scene.views import edge_labels, is_anatomical, mirrored
+
+    out = np.ascontiguousarray(img[:, ::-1]) if mirrored(frame) else img
+    if labels and is_anatomical(frame):
+        out = label_edges(out, edge_labels(cam, frame))
+    return out

@@ -232,6 +232,8 @@ def render_path(
         Movie quality on imageio's 0..10 scale.
     orientation : WorldFrame, optional
         Write each frame's edge labels (R/L, A/P, S/I, or +X/-X... for a non-anatomical frame).
+        Frames of a store whose array axes mirror the patient are flipped left-right either way
+        (:func:`clipvol.app.annotate.present`), so they show the patient as ``clipvol render`` does.
 
     Returns
     -------
@@ -281,11 +283,16 @@ def render_path(
                 from .overlay import draw_outlines
 
                 img = draw_outlines(img, cam, session.last_items())
+            from .annotate import present
+
+            img = present(img, cam, getattr(session.loader, "frame", None), labels=False)  # a mirrored store: flipped
             if orientation is not None:
                 from ..scene.orientation import view_labels
+                from ..scene.views import screen_axes
                 from .annotate import label_edges
 
-                img = label_edges(img, view_labels(orientation.affine, cam.right, cam.up, orientation.frame))
+                right, up = screen_axes(cam, getattr(session.loader, "frame", None))
+                img = label_edges(img, view_labels(orientation.affine, right, up, orientation.frame))
             row = frame_row(session, k, dt, time.perf_counter() - t_start, before)
             before = row["bytes_loaded_total"]
             if gif:

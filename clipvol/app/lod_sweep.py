@@ -7,7 +7,7 @@ through their greedy form under ``max_texels_drawn = budget * texels per brick``
 traversal, refining the node their own rule ranks first. Each point is a converged frame; the
 x value is the distinct bricks actually drawn.
 
-Used by ``clipvol report`` (its ``lod_budget.png``) and ``tools/bench_lod.py``.
+Used by ``clipvol report`` (its ``lod_budget.png``) and ``tools/bench/bench_lod.py``.
 
 References
 ----------

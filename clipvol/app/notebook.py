@@ -22,6 +22,7 @@ from __future__ import annotations
 import base64
 import io
 from functools import lru_cache
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -130,9 +131,10 @@ class VolumeView:
     threads and release the GL context.
     """
 
-    def __init__(self, source, *, size=(384, 384), tf: str = "viridis", mode: str = "composite",
+    def __init__(self, source, *, size=(384, 384), tf: str | None = None, mode: str = "composite",
                  memory_budget="256MB", texture_budget="256MB", threads: int | None = None,
-                 lod_threshold: float = 1.0, timeout: float = 30.0, brick: int = 32) -> None:
+                 lod_threshold: float = 1.0, timeout: float = 30.0, brick: int = 32, labels: bool = True,
+                 store=None) -> None:
         from ..render.context import create_context
         from ..scene.transfer import TransferFunction
         from ..scene.params import RenderParams
@@ -141,11 +143,16 @@ class VolumeView:
         w, h = (int(v) for v in size)
         if not (16 <= w <= 2048 and 16 <= h <= 2048):
             raise ParameterError(f"size: expected (width, height) between 16 and 2048 pixels, got {size!r}")
-        if tf not in TransferFunction.names():
+        if tf is not None and tf not in TransferFunction.names():
             raise ParameterError(f"tf: expected one of {', '.join(TransferFunction.names())}, got {tf!r}")
         self.size = (w, h)
         self.timeout = float(timeout)
-        loader = _as_loader(source, brick)
+        self.labels = bool(labels)
+        loader = _as_loader(source, brick, store)
+        if tf is None:  # grey for a scan in a patient frame (CT, MRI), viridis otherwise
+            from ..scene.views import is_anatomical
+
+            tf = "grey" if is_anatomical(getattr(loader, "frame", None)) else "viridis"
         self._ctx = create_context()
         try:
             self.session = RenderSession(loader, self._ctx, memory_budget=memory_budget, texture_budget=texture_budget,
@@ -224,6 +231,9 @@ class VolumeView:
         """Render the current view (waiting for its bricks up to ``timeout``) and send it to the browser."""
         cam, coi = self.camera()
         img, dt = self.session.timed_render(cam, coi, wait=True, timeout=self.timeout)
+        from .annotate import present
+
+        img = present(img, cam, self.frame, labels=self.labels)  # head-up, un-mirrored, R/L A/P S/I letters
         self.last_image = img
         self.last_frame_s = dt
         self.widget.image = _png_data_url(img)
@@ -244,8 +254,9 @@ class VolumeView:
             parts.append("refining")
         if self.frame is not None and cam is not None:
             from ..scene.orientation import view_labels
+            from ..scene.views import screen_axes
 
-            lab = view_labels(self.frame.affine, cam.right, cam.up, self.frame.frame)
+            lab = view_labels(self.frame.affine, *screen_axes(cam, self.frame), self.frame.frame)
             parts.append(f"left {lab['left']} right {lab['right']} top {lab['top']}")
         return "  ".join(parts)
 
@@ -271,7 +282,7 @@ class VolumeView:
         self.close()
 
 
-def _as_loader(source, brick: int):
+def _as_loader(source, brick: int, store=None):
     if isinstance(source, np.ndarray):
         from ..loaders.numpy_array import NumpyLoader
 
@@ -280,6 +291,10 @@ def _as_loader(source, brick: int):
         return NumpyLoader(source, brick=brick)
     from .session import open_loader
 
+    if isinstance(source, (str, Path)):  # a NIfTI / DICOM / HDF5 / MRC input: bricked once, as `clipvol view` does
+        from .autobrick import bricked_source
+
+        source = bricked_source(str(source), store)
     return open_loader(source)
 
 
@@ -293,7 +308,10 @@ def show(source, **kwargs) -> VolumeView:
     **kwargs
         ``size=(w, h)``, ``tf``, ``mode`` (``'composite'`` or ``'mip'``), ``memory_budget``,
         ``texture_budget``, ``threads``, ``lod_threshold``, ``timeout`` (seconds per frame),
-        ``brick``; see :class:`VolumeView`.
+        ``brick``, ``labels`` (R/L, A/P, S/I letters on a patient-frame store's images, default
+        True), ``store`` (where a NIfTI / DICOM / HDF5 / MRC input is bricked, default
+        ``./NAME.zarr``); see :class:`VolumeView`. ``tf`` defaults to ``grey`` for a store with a
+        patient frame and ``viridis`` otherwise.
 
     Returns
     -------

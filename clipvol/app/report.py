@@ -1,36 +1,48 @@
 """The report of image error against run time: what each quality setting costs and what it loses.
 
 A multiresolution renderer trades image quality for time and bytes (Meredith & Ma 2001 plot
-frame rate against error tolerance; Wang, Garcia & Shen 2007 plot image quality against block budget). This module measures the trade on real frames. Along a camera path (a few views) it
-renders, for a sweep of ``lod_threshold`` and of memory / texture budgets,
+frame rate against error tolerance; Wang, Garcia & Shen 2007 plot image quality against block
+budget). This module measures the trade on real frames. Along a camera path (a few views) it
+renders, for a sweep of ``lod_threshold``, of memory / texture budgets and of block budgets per
+selection policy:
 
-* **converged** frames (every wanted brick drawn at its own level: the clip-texture is left to
-  go idle, then frames are drawn until nothing more is uploaded - bounded, so a texture budget
-  too small for the view ends with the best frame it allows) - their steady frame time (the best
-  of three renders once the data is on the GPU), the time to converge, the distinct bricks and
-  texels drawn, the bytes those bricks hold (``bytes_needed``, the "bytes transmitted" of LaMar et al. 2000),
-  the bytes the clip-texture actually loaded (it pages whole windows, so usually more), and
-* **as-it-comes** frames (``wait=False``, the viewer's default): the frames a user sees while
-  the bricks stream in after the view changed, until the frame converges (or a frame limit),
+* **cold** (each setting in a new session, so an empty clip-texture and GPU cache): the
+  **as-it-comes** frames (``wait=False``, the viewer's default) a user sees while the bricks stream
+  in, until the frame converges (or a frame limit), and the **time to converge**; the converged
+  frame's distinct bricks and texels, the bytes those bricks hold (``bytes_needed``, the "bytes
+  transmitted" of LaMar et al. 2000) and the bytes the clip-texture loaded (it pages whole windows,
+  so usually more);
+* **warm** (the way a benchmark times): every setting and the full-resolution reference are
+  warmed, then drawn over ``rounds`` interleaved rounds in this one process, and the **frame time**
+  is the median (with its minimum and maximum). A frame timed first in a process, or first after a
+  load, carries costs no later frame has; one frame per setting timed in sequence charges them to
+  whichever setting comes first, and can show two settings that draw the same bricks as 1.9x apart.
 
-and compares every frame with the **full-resolution reference** of the same view (fixed level 0,
-converged, with budgets that hold everything). When level 0 of a huge volume exceeds
-``reference_cap`` bytes, the reference uses the finest level that fits and the report says so.
-Errors are the "% of pixels with ΔE ≥ 6 in CIELUV" of Wang, Garcia & Shen (2007) plus RMSE and PSNR
-(:mod:`clipvol.scene.metrics`).
+Every frame is compared with the **full-resolution reference** of the same view (fixed level 0,
+converged, with budgets that hold everything), drawn by the same renderer with the same parameters.
+Every warm frame of a setting is paired with a frame of the reference drawn right before or after
+it, and the **speed-up** is the median over the pairs of the reference's time over the setting's:
+the load of a shared machine drifts over seconds, and a pair sees the same load. When level 0 of a
+huge volume exceeds ``reference_cap`` bytes, the reference uses the finest level that fits and the
+report says so. Errors are the "% of pixels with ΔE ≥ 6 in CIELUV" of Wang, Garcia & Shen (2007)
+plus RMSE and PSNR (:mod:`clipvol.scene.metrics`).
 
-Outputs in ``out_dir``: ``report.csv`` (one row per frame), ``error_vs_time.png`` and
-``error_vs_bytes.png`` (matplotlib, Agg; one curve per sweep / setting), ``reference_view*.png``
-and a few example frames, and ``report.md`` with two tables - bricks and time, fixed vs
-multiresolution (as LaMar, Hamann & Joy 1999 tabulate them), and bytes, fixed vs multiresolution (as
-LaMar et al. 2000 do) - and a References section (:data:`REFERENCES`).
+The answer in one line (:func:`headline`): at <= 5 % of pixels visibly different on every view,
+how much faster frames are, and with which setting, or that no setting gets there.
+
+Outputs in ``out_dir``: ``report.csv`` (one row per frame), ``timing.csv`` (one row per warm timed
+frame), ``error_vs_time.png`` and ``error_vs_bytes.png`` (matplotlib, Agg; one curve per sweep /
+setting), ``lod_budget.csv`` / ``.png``, ``reference_view*.png`` and a few example frames, and
+``report.md`` with the answer, a table per setting, two tables - bricks and time, fixed vs
+multiresolution (as LaMar, Hamann & Joy 1999 tabulate them), and bytes, fixed vs multiresolution
+(as LaMar et al. 2000 do) - and a References section (:data:`REFERENCES`).
 """
 
 from __future__ import annotations
 
 import csv
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -43,7 +55,7 @@ from ..scene.metrics import percent_delta_e, psnr, rmse
 from ..scene.params import RenderParams
 from ..scene.paths import make_path
 from ..units import format_bytes, parse_bytes
-from .lod_sweep import DEFAULT_BLOCK_BUDGETS, blocks_to_reach, lod_sweep, plot_lod_sweep
+from .lod_sweep import DEFAULT_BLOCK_BUDGETS, blocks_to_reach, lod_sweep, plot_lod_sweep, policy_changes
 from .session import RenderSession, open_loader
 
 #: the papers the report's measures and tables come from, numbered as the report cites them
@@ -62,7 +74,8 @@ REFERENCES = (
     "irregular data. IEEE Symposium on Parallel and Large-Data Visualization and Graphics, 2001.",
 )
 
-__all__ = ["ReportResult", "run_report", "REPORT_COLUMNS", "DEFAULT_THRESHOLDS"]
+__all__ = ["ReportResult", "run_report", "summarise", "headline", "REPORT_COLUMNS", "TIMING_COLUMNS", "DEFAULT_THRESHOLDS",
+           "VISIBLE_TARGET"]
 
 DEFAULT_THRESHOLDS = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0)
 
@@ -70,8 +83,16 @@ REPORT_COLUMNS = (
     "sweep", "setting", "lod_threshold", "memory_budget", "texture_budget", "selection", "level",
     "view", "kind", "frame", "elapsed_s", "frame_s", "converge_s", "converged", "bricks_drawn",
     "texels_drawn", "bytes_needed", "bytes_loaded", "bytes_uploaded", "resident_mb",
-    "pct_de6", "rmse", "psnr",
+    "pct_de6", "rmse", "psnr", "frame_min_s", "frame_max_s", "rounds", "ref_frame_s", "speedup",
 )
+
+#: the raw timings, one row per warm frame (``timing.csv``): block 0 holds every setting drawn by the
+#: session that holds everything, block k > 0 one budget setting beside the reference; the two
+#: frames of a ``pair`` (the reference's and a setting's) were drawn one right after the other
+TIMING_COLUMNS = ("block", "pair", "round", "sweep", "setting", "view", "frame_s")
+
+#: the error the report's one-line answer is held to: % of pixels with CIELUV ΔE >= 6
+VISIBLE_TARGET = 5.0
 
 
 @dataclass
@@ -94,6 +115,16 @@ class ReportResult(ReportFiles):
     skipped: list[str] = field(default_factory=list)
     #: rows of the block-budget sweep (:mod:`clipvol.app.lod_sweep`, Fig. 6 of Wang, Garcia & Shen 2007)
     lod_rows: list[dict] = field(default_factory=list)
+    #: warm interleaved rounds per setting and view
+    rounds: int = 5
+    #: one row per timed warm frame (:data:`TIMING_COLUMNS`)
+    timing_rows: list[dict] = field(default_factory=list)
+    #: the one-line answer (:func:`headline`)
+    headline: str = ""
+
+    @property
+    def timing_csv(self) -> Path:
+        return self.out_dir / "timing.csv"
 
 
 @dataclass(frozen=True)
@@ -105,6 +136,16 @@ class _Setting:
     texture_budget: int
     selection: str = "multiresolution"
     level: int | None = None
+    #: further RenderParams changes, as ``(name, value)`` pairs (the block-budget policies)
+    changes: tuple = ()
+
+    def params(self, base: RenderParams) -> RenderParams:
+        """``base`` with this setting's selection; every selection field is set, so that switching
+        a shared session from one setting to another leaves nothing of the previous one behind."""
+        ch = dict(policy=self.selection, level=self.level, lod_threshold=self.lod_threshold, block_budget=None,
+                  max_texels_drawn=None, visibility=True, distance_factor=1.0)
+        ch.update(dict(self.changes))
+        return replace(base, **ch)
 
 
 def _level_bytes(pyr, level: int) -> int:
@@ -168,13 +209,97 @@ def _settle(sess, cam, coi, timeout: float, max_passes: int = 32) -> int:
     return uploaded
 
 
-def _run_setting(s: _Setting, loader, ctx, views, refs, *, tf, mode, step, threads, timeout, max_frames,
-                 log, keep_frames: dict | None, repeats: int = 3) -> list[dict]:
-    params = RenderParams(lod_threshold=s.lod_threshold, policy=s.selection, level=s.level, mode=mode, step=step)
+def _apply(sess, base: RenderParams, s: _Setting) -> None:
+    """Switch ``sess`` to setting ``s`` (only the fields that differ, so the GPU cache is kept)."""
+    target = s.params(base)
+    ch = {f.name: getattr(target, f.name) for f in fields(target)
+          if f.name != "overlays" and getattr(target, f.name) != getattr(sess.params, f.name)}
+    if ch:
+        sess.update(**ch)
+
+
+def _warm_frame_s(sess, cam, coi, timeout: float) -> float:
+    """Wall time of one converged frame drawn from resident data (what a user waits for per frame
+    once the view is loaded). A frame that still had to upload or was not converged is settled and
+    timed again, so loading never counts as drawing; a texture budget too small to hold the view
+    keeps uploading, and its second timing is the frame that budget gives."""
+    _, dt = sess.timed_render(cam, coi, wait=False)
+    fs = sess.frame_stats
+    if fs.converged and fs.bytes_uploaded == 0:
+        return dt
+    _settle(sess, cam, coi, timeout)
+    return sess.timed_render(cam, coi, wait=False)[1]
+
+
+def _time_block(ref, entries, views, rounds: int, base: RenderParams, timeout: float, block: int,
+                raw: list[dict]) -> dict:
+    """Time every ``(session, setting)`` entry on every view against the reference ``ref`` (a
+    ``(session, setting)`` too), warm, interleaved and paired.
+
+    Every entry and the reference are first warmed (their views converged and drawn once,
+    untimed). Then each of ``rounds`` rounds goes through the entries (forward on even rounds,
+    backward on odd ones) and, per view, draws a **pair**: the reference frame and the setting's
+    frame one right after the other (which comes first alternates), so that the load of a shared
+    machine, which drifts over seconds, weighs on both frames of a pair alike. Each frame is the
+    second of two drawn in a row for its setting and view: the first takes what a change of
+    setting or view costs once (a new cut, the image policy's visibility estimate), so the time is
+    that of the frames a user gets while holding or slowly turning a view. Returns
+    ``{"times": {(label, view): [s, ...]}, "ratios": {(label, view): [reference s / setting s per
+    pair]}}`` and appends one raw row per timed frame to ``raw`` (its ``pair`` column joins the
+    two frames of a pair).
+    """
+    for sess, s in [ref, *entries]:
+        _apply(sess, base, s)
+        for cam, coi in views:
+            sess.render(cam, coi, wait=True, timeout=timeout)
+            _settle(sess, cam, coi, timeout)
+            _warm_frame_s(sess, cam, coi, timeout)
+    times: dict = {}
+    ratios: dict = {}
+    pair = 0
+    for r in range(rounds):
+        for entry in (entries if r % 2 == 0 else entries[::-1]):
+            for v, (cam, coi) in enumerate(views):
+                got = {}
+                for sess, s in ((ref, entry) if (r + v) % 2 == 0 else (entry, ref)):
+                    _apply(sess, base, s)
+                    sess.render(cam, coi, wait=False)  # what a change of setting or view costs once
+                    dt = _warm_frame_s(sess, cam, coi, timeout)
+                    got[s.label] = dt
+                    times.setdefault((s.label, v), []).append(dt)
+                    raw.append({"block": block, "pair": pair, "round": r, "sweep": s.sweep, "setting": s.label,
+                                "view": v, "frame_s": round(dt, 6)})
+                label = entry[1].label
+                ratios.setdefault((label, v), []).append(got[ref[1].label] / max(got[label], 1e-9))
+                pair += 1
+    return {"times": times, "ratios": ratios}
+
+
+def _timing_values(block: dict, ref_label: str, label: str, view: int) -> dict:
+    """Median, spread and speed-up of one setting on one view: the speed-up is the median over its
+    pairs of the reference's frame time over its own (:func:`_time_block`)."""
+    t = np.asarray(block["times"][(label, view)], dtype=np.float64)
+    ref = float(np.median(block["times"][(ref_label, view)]))
+    med = float(np.median(t))
+    return dict(frame_s=round(med, 6), frame_min_s=round(float(t.min()), 6), frame_max_s=round(float(t.max()), 6),
+                rounds=len(t), ref_frame_s=round(ref, 6),
+                speedup=round(float(np.median(block["ratios"][(label, view)])), 4))
+
+
+def _cold_setting(s: _Setting, loader, ctx, views, refs, *, base: RenderParams, tf, threads, timeout, max_frames,
+                  log, keep_frames: dict | None) -> list[dict]:
+    """The cold half of one setting: a new session (empty clip-texture and GPU cache) per setting.
+
+    Per view: the frames a user sees as the bricks stream in (``as-it-comes`` rows, until the frame
+    is converged or ``max_frames``), then the time until the view is converged (``converge_s``:
+    view 0 from the new, cold clip-texture; later views from the previous view's state) and the
+    converged frame's bricks, bytes and error. Its warm frame time is measured afterwards by
+    :func:`_time_block`, interleaved with the reference.
+    """
     rows: list[dict] = []
     brick_bytes = loader.pyramid.brick_nbytes
     with RenderSession(loader, ctx, memory_budget=s.memory_budget, texture_budget=s.texture_budget,
-                       threads=threads, params=params, tf=tf) as sess:
+                       threads=threads, params=s.params(base), tf=tf) as sess:
         for v, (cam, coi) in enumerate(views):
             ref = refs[v] if refs is not None else None
             t_view = time.perf_counter()
@@ -198,17 +323,12 @@ def _run_setting(s: _Setting, loader, ctx, views, refs, *, tf, mode, step, threa
                     ))
                 if conv:
                     break
-            # converged frame, then its steady cost with everything on the GPU
             uploaded += _settle(sess, cam, coi, timeout)
             converge_s = time.perf_counter() - t_view
-            # steady frame time: the best of a few renders (the machine may be shared; timings are noisy)
-            dt = float("inf")
-            for _ in range(repeats):
-                img, t_one = sess.timed_render(cam, coi, wait=False)
-                dt = min(dt, t_one)
+            img = sess.render(cam, coi, wait=False)
             fs = sess.frame_stats
             values = dict(
-                elapsed_s=round(time.perf_counter() - t_view, 6), frame_s=round(dt, 6), converge_s=round(converge_s, 6),
+                elapsed_s=round(time.perf_counter() - t_view, 6), converge_s=round(converge_s, 6),
                 converged=int(fs.converged), bricks_drawn=fs.bricks_distinct,
                 texels_drawn=fs.texels_drawn, bytes_needed=fs.bricks_distinct * brick_bytes,
                 bytes_loaded=int(sess.texture_stats.bytes_loaded) - loaded0, bytes_uploaded=uploaded,
@@ -222,7 +342,7 @@ def _run_setting(s: _Setting, loader, ctx, views, refs, *, tf, mode, step, threa
             if keep_frames is not None:
                 keep_frames[(s.label, v)] = img
             if log:
-                log(f"  {s.label:>14} view {v}: {values['frame_s'] * 1e3:7.1f} ms, {values['bricks_drawn']:4d} bricks, "
+                log(f"  {s.label:>14} view {v}: converged in {converge_s * 1e3:7.1f} ms, {values['bricks_drawn']:4d} bricks, "
                     f"{values['pct_de6']:.2f} % pixels dE>=6")
     return rows
 
@@ -248,6 +368,7 @@ def run_report(
     log: Callable[[str], None] | None = None,
     plots: bool = True,
     block_budgets: Sequence[int] | None = None,
+    rounds: int = 5,
 ) -> ReportResult:
     """Measure image error against frame time and bytes for a sweep of settings; write the report.
 
@@ -295,6 +416,13 @@ def run_report(
         visibility; ``lod_budget.csv`` / ``lod_budget.png``). Default
         :data:`~clipvol.app.lod_sweep.DEFAULT_BLOCK_BUDGETS`; ``()`` skips it. The image-based
         curves need the store's summary tables (else they are reported as skipped).
+    rounds : int
+        Warm interleaved rounds per setting and view; the frame time is their median, the spread
+        their minimum and maximum, the speed-up the median of the paired ratios. Each round draws
+        four frames per setting and view (the setting's and the reference's, each twice), so the
+        warm half costs about ``4 * rounds`` frames per setting and view. The reference's session
+        stays open while each memory / texture budget setting is timed beside it in a session of
+        its own: up to twice the reference's budgets are held then.
 
     Returns
     -------
@@ -310,6 +438,9 @@ def run_report(
         raise ParameterError(f"views: expected >= 1, got {views!r}")
     if int(max_frames) < 1:
         raise ParameterError(f"max_frames: expected >= 1, got {max_frames!r}")
+    if isinstance(rounds, bool) or int(rounds) != rounds or int(rounds) < 1:
+        raise ParameterError(f"rounds: expected an integer >= 1, got {rounds!r}")
+    rounds = int(rounds)
     loader = open_loader(source)
     pyr = loader.pyramid
     cap = parse_bytes(reference_cap, "reference_cap")
@@ -317,28 +448,36 @@ def run_report(
     full_mem = _holding_budget(pyr, ref_level)
     full_tex = full_mem
     cams = list(make_path(path, pyr, int(views), size=size))
-    result = ReportResult(out_dir=out, csv=out / "report.csv", markdown=out / "report.md", reference_level=ref_level)
+    result = ReportResult(out_dir=out, csv=out / "report.csv", markdown=out / "report.md", reference_level=ref_level,
+                          rounds=rounds)
+    base = RenderParams(mode=mode, step=step, texture_budget=full_tex)
     own_ctx = ctx is None
     if own_ctx:
-
         ctx = create_context()
-    kw = dict(tf=tf, mode=mode, step=step, threads=threads, timeout=timeout, max_frames=int(max_frames), log=log)
+    kw = dict(base=base, tf=tf, threads=threads, timeout=timeout, max_frames=int(max_frames), log=log)
     try:
-        # 1. the full-resolution reference of every view (also the "fixed" row of the tables)
+        # 0. one throwaway frame, so that what the process does once (shader compilation, driver
+        #    set-up) is not charged to the first setting's cold time
+        with RenderSession(loader, ctx, memory_budget=full_mem, texture_budget=full_tex, threads=threads,
+                           params=replace(base, policy="fixed", level=pyr.num_levels - 1), tf=tf) as sess:
+            sess.render(*cams[0], wait=True, timeout=timeout)
+        # 1. cold: the full-resolution reference of every view, then each setting from a new session
         if log:
             log(f"reference: fixed level {ref_level}, converged, {len(cams)} views at {size[0]}x{size[1]}")
         fixed = _Setting("fixed", f"fixed L{ref_level}", 1.0, full_mem, full_tex, "fixed", ref_level)
         frames: dict = {}
-        rows = _run_setting(fixed, loader, ctx, cams, None, keep_frames=frames, **kw)
+        rows = _cold_setting(fixed, loader, ctx, cams, None, keep_frames=frames, **kw)
         refs = [frames[(fixed.label, v)] for v in range(len(cams))]
         result.rows.extend(rows)
         from PIL import Image
 
+        from .annotate import present
+
+        frame = getattr(loader, "frame", None)  # a patient-frame store's images: un-mirrored and lettered
         for v, ref in enumerate(refs):
             p = out / f"reference_view{v}.png"
-            Image.fromarray(ref, "RGBA").save(p)
+            Image.fromarray(present(ref, cams[v][0], frame), "RGBA").save(p)
             result.images.append(p)
-        # 2. the sweeps
         settings = [_Setting("lod_threshold", f"lod={t:g}", t, full_mem, full_tex) for t in thresholds]
         total = _holding_budget(pyr, 0)
         if memory_budgets is None:
@@ -352,38 +491,86 @@ def run_report(
         for t in texture_budgets:
             t = parse_bytes(t, "texture_budgets")
             settings.append(_Setting("texture_budget", f"tex={format_bytes(t)}", 1.0, full_mem, t))
+        measured = [fixed]
         for s in settings:
             try:
-                result.rows.extend(_run_setting(s, loader, ctx, cams, refs,
-                                                keep_frames=frames if s.sweep == "lod_threshold" else None, **kw))
+                result.rows.extend(_cold_setting(s, loader, ctx, cams, refs,
+                                                 keep_frames=frames if s.sweep == "lod_threshold" else None, **kw))
+                measured.append(s)
             except ClipvolError as e:  # a budget too small for this pyramid: say so, go on
                 result.skipped.append(f"{s.label}: {e}")
                 if log:
                     log(f"  {s.label}: skipped ({e})")
-        # 3. error against block budget per policy (seed Fig. 6), on the same views
+        # 2. warm: every setting drawn by one session that holds everything is timed in one block,
+        #    each frame paired with a reference frame; each budget setting has its own session,
+        #    timed in a block of its own paired with the reference session again
         budgets = DEFAULT_BLOCK_BUDGETS if block_budgets is None else tuple(int(b) for b in block_budgets)
-        if budgets:
-            if log:
-                log(f"block budgets {list(budgets)}: projected size, distance, image-based")
-            with RenderSession(loader, ctx, memory_budget=full_mem, texture_budget=full_tex, threads=threads,
-                               params=RenderParams(mode=mode, step=step), tf=tf) as sess:
+        shared = [s for s in measured if s.memory_budget == full_mem and s.texture_budget == full_tex]
+        own = [s for s in measured if s not in shared]
+        timing: dict = {}  # label -> its block's times and paired ratios
+        with RenderSession(loader, ctx, memory_budget=full_mem, texture_budget=full_tex, threads=threads,
+                           params=fixed.params(base), tf=tf) as main:
+            # error against block budget per policy (Wang, Garcia & Shen 2007, Fig. 6), same views
+            if budgets:
+                if log:
+                    log(f"block budgets {list(budgets)}: projected size, distance, image-based")
                 lsk = []
-                result.lod_rows = lod_sweep(sess, cams, refs, budgets, timeout=timeout,
+                result.lod_rows = lod_sweep(main, cams, refs, budgets, timeout=timeout,
                                             log=lambda m: (lsk.append(m) if "skipped" in m else None, log and log(m)))
                 result.skipped += [m.strip() for m in lsk]
+                texels = int(np.prod(pyr.brick_shape))
+                for pol, b in dict.fromkeys((r["policy"], r["budget"]) for r in result.lod_rows):
+                    ch = policy_changes(pol, b, texels)
+                    shared.append(_Setting("block_budget", f"{pol} b={b}", float(ch.pop("lod_threshold", 1.0)),
+                                           full_mem, full_tex, ch.pop("policy"), None, tuple(sorted(ch.items()))))
+            if log:
+                log(f"timing: {len(shared)} settings x {len(cams)} views, warm, {rounds} interleaved rounds")
+            others = [s for s in shared if s is not fixed]
+            blk = _time_block((main, fixed), [(main, s) for s in others], cams, rounds, base, timeout, 0,
+                              result.timing_rows)
+            timing.update({s.label: blk for s in others})
+            for k, s in enumerate(own, 1):
+                with RenderSession(loader, ctx, memory_budget=s.memory_budget, texture_budget=s.texture_budget,
+                                   threads=threads, params=s.params(base), tf=tf) as sess:
+                    timing[s.label] = _time_block((main, fixed), [(sess, s)], cams, rounds, base, timeout, k,
+                                                  result.timing_rows)
+        for r in result.rows:
+            if r["kind"] != "converged":
+                continue
+            if r["setting"] == fixed.label:  # the reference against itself: its own frames, speed-up 1
+                key = (fixed.label, int(r["view"]))
+                t = next((b["times"][key] for b in (blk, *timing.values()) if b["times"].get(key)), None)
+                if t is None:  # no setting was timed: nothing was paired with it
+                    continue
+                r.update(_timing_values({"times": {(fixed.label, 0): t}, "ratios": {(fixed.label, 0): [1.0]}},
+                                        fixed.label, fixed.label, 0))
+            elif r["setting"] in timing:
+                r.update(_timing_values(timing[r["setting"]], fixed.label, r["setting"], int(r["view"])))
+        for r in result.lod_rows:
+            label = f"{r['policy']} b={r['budget']}"
+            r.update(_timing_values(timing[label], fixed.label, label, int(r["view"])))
+        if log:
+            for s in summarise(result.rows, result.lod_rows):
+                log(f"  {s['setting']:>24}: {s['frame_s'] * 1e3:8.1f} ms [{s['frame_min_s'] * 1e3:.1f}-"
+                    f"{s['frame_max_s'] * 1e3:.1f}], {s['speedup']:5.2f}x, {s['pct_de6']:6.2f} % pixels dE>=6")
         for t in thresholds:
             img = frames.get((f"lod={t:g}", 0))
             if img is not None:
                 p = out / f"view0_lod{t:g}.png"
-                Image.fromarray(img, "RGBA").save(p)
+                Image.fromarray(present(img, cams[0][0], frame), "RGBA").save(p)
                 result.images.append(p)
     finally:
         if own_ctx:
             ctx.release()
+    result.headline = headline(summarise(result.rows, result.lod_rows), rounds=rounds, views=len(cams))
     with open(result.csv, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(REPORT_COLUMNS))
         w.writeheader()
         w.writerows(result.rows)
+    with open(result.timing_csv, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(TIMING_COLUMNS))
+        w.writeheader()
+        w.writerows(result.timing_rows)
     if result.lod_rows:
         with open(out / "lod_budget.csv", "w", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=list(result.lod_rows[0]))
@@ -411,20 +598,67 @@ def _by_setting(rows: list[dict]) -> dict[str, list[dict]]:
     return out
 
 
-def summarise(rows: list[dict]) -> list[dict]:
-    """Per setting: means over views of the converged frames (time, bricks, bytes, errors)."""
-    out = []
-    for label, rs in _by_setting(_converged(rows)).items():
-        def mean(k):
-            return float(np.mean([float(r[k]) for r in rs]))
+def _nan(v) -> float:
+    return float("nan") if v in ("", None) else float(v)
 
+
+def summarise(rows: list[dict], lod_rows: Sequence[dict] = ()) -> list[dict]:
+    """Per setting, over views: the warm frame time (mean of the per-view medians, and of their
+    minima and maxima), the speed-up against the full-resolution reference (the geometric mean over
+    views of each view's speed-up, itself the median over its pairs of the reference's frame time
+    over the setting's), time to converge, bricks, bytes and errors (mean, and the worst view's
+    ``% ΔE ≥ 6``). ``lod_rows`` adds the block-budget policies (sweep ``"block_budget"``)."""
+    groups = [(rs[0]["sweep"], label, rs) for label, rs in _by_setting(_converged(rows)).items()]
+    by_pb: dict = {}
+    for r in lod_rows:
+        by_pb.setdefault(f"{r['policy']} b={r['budget']}", []).append(
+            dict(r, bricks_drawn=r["blocks"], lod_threshold="", converge_s="", bytes_needed="", bytes_loaded="",
+                 rmse="", psnr=""))
+    groups += [("block_budget", label, rs) for label, rs in by_pb.items()]
+    out = []
+    for sweep, label, rs in groups:
+        def mean(k):
+            return float(np.mean([_nan(r.get(k, "")) for r in rs]))
+
+        sp = np.array([_nan(r.get("speedup", "")) for r in rs])
         out.append({
-            "sweep": rs[0]["sweep"], "setting": label, "lod_threshold": rs[0]["lod_threshold"],
-            "frame_s": mean("frame_s"), "converge_s": mean("converge_s"), "bricks_drawn": mean("bricks_drawn"),
+            "sweep": sweep, "setting": label, "lod_threshold": rs[0]["lod_threshold"],
+            "frame_s": mean("frame_s"), "frame_min_s": mean("frame_min_s"), "frame_max_s": mean("frame_max_s"),
+            "ref_frame_s": mean("ref_frame_s"),
+            "speedup": float(np.exp(np.mean(np.log(sp)))) if np.all(sp > 0) else float("nan"),
+            "converge_s": mean("converge_s"), "bricks_drawn": mean("bricks_drawn"),
             "bytes_needed": mean("bytes_needed"), "bytes_loaded": mean("bytes_loaded"), "pct_de6": mean("pct_de6"),
-            "rmse": mean("rmse"), "psnr": float(np.mean([min(float(r["psnr"]), 99.0) for r in rs])),
+            "pct_de6_max": max(_nan(r["pct_de6"]) for r in rs),
+            "rmse": mean("rmse"), "psnr": float(np.mean([min(_nan(r["psnr"]), 99.0) for r in rs])),
         })
     return out
+
+
+def headline(summary: Sequence[dict], *, rounds: int, views: int, target: float = VISIBLE_TARGET) -> str:
+    """The report's answer in one sentence: how much faster frames are at <= ``target`` % of pixels
+    visibly different (CIELUV ΔE >= 6) on every view, with the setting that gets there, or that no
+    setting does. The speed-up is against the full-resolution frame drawn by the same path."""
+    ref = next((s for s in summary if s["sweep"] == "fixed"), None)
+    rest = [s for s in summary if s["sweep"] != "fixed" and np.isfinite(s["speedup"])]
+    how = (f"warm frames, each paired with a reference frame; medians of {rounds} interleaved rounds over "
+           f"{views} view{'s' * (views != 1)}")
+    if ref is None or not rest:
+        return "no setting was timed against the full-resolution reference"
+    ok = [s for s in rest if s["pct_de6_max"] <= target]
+    if not ok:
+        best = min(rest, key=lambda s: s["pct_de6_max"])
+        return (f"no setting reaches <= {target:g} % of pixels visibly different (CIELUV dE >= 6) on every view; "
+                f"the closest, {best['setting']}, has {best['pct_de6_max']:.2f} % at {best['speedup']:.2f}x the "
+                f"speed of the full-resolution frame ({how})")
+    best = max(ok, key=lambda s: s["speedup"])
+    times = f"{_fmt_ms(best['frame_s'])} ms against {_fmt_ms(best['ref_frame_s'])} ms for {ref['setting']}"
+    if best["speedup"] < 1.0:
+        return (f"at <= {target:g} % of pixels visibly different (CIELUV dE >= 6) no setting is faster than the "
+                f"full-resolution frame: the fastest, {best['setting']}, takes {1 / best['speedup']:.2f}x its time "
+                f"({times}; {how})")
+    return (f"at <= {target:g} % of pixels visibly different (CIELUV dE >= 6), frames are {best['speedup']:.1f}x "
+            f"faster than the full-resolution frame (setting {best['setting']}, {best['pct_de6_max']:.2f} % on its "
+            f"worst view: {times}; {how})")
 
 
 def _plots(rows: list[dict], out: Path) -> list[Path]:
@@ -484,15 +718,21 @@ def _plots(rows: list[dict], out: Path) -> list[Path]:
 
 
 def _fmt_ms(s: float) -> str:
-    return f"{s * 1e3:.1f}"
+    return "-" if not np.isfinite(s) else f"{s * 1e3:.1f}"
+
+
+def _fmt_bytes(b: float) -> str:
+    return "-" if not np.isfinite(b) else format_bytes(b)
 
 
 def _markdown(result: ReportResult, pyr, *, size, path, tf, mode, step, cap) -> None:
     rows = result.rows
-    summ = summarise(rows)
+    summ = summarise(rows, result.lod_rows)
     ref_label = f"fixed L{result.reference_level}"
     lines = [
         "# clipvol report: image error against run time",
+        "",
+        f"**{result.headline[:1].upper() + result.headline[1:]}.**",
         "",
         f"Data: {' x '.join(map(str, pyr.shape))} voxels (z, y, x), {pyr.dtype}, brick {pyr.brick_shape[0]}, "
         f"{pyr.num_levels} levels. Views: {len({r['view'] for r in rows})} along the `{path}` path, "
@@ -500,17 +740,34 @@ def _markdown(result: ReportResult, pyr, *, size, path, tf, mode, step, cap) -> 
         "",
         f"Reference: `{ref_label}` (fixed level {result.reference_level}, converged"
         + (", level 0 exceeds the reference cap of " + format_bytes(cap) if result.reference_level else "")
-        + "). Error: % of pixels with ΔE ≥ 6 in CIELUV (a difference people notice; the quality measure of [4]), RMSE and PSNR on 8-bit RGB.",
+        + "), drawn by the same renderer with the same parameters as every setting. Error: % of pixels with ΔE ≥ 6 in CIELUV "
+          "(a difference people notice; the quality measure of [4]), RMSE and PSNR on 8-bit RGB.",
+        "",
+        f"Timing: every setting and the reference are warmed (their views loaded and drawn once), then "
+        f"drawn over {result.rounds} interleaved rounds in this process (settings in forward order on even "
+        "rounds, reverse on odd ones; each view drawn twice in a row, the second frame timed, so that what "
+        "a change of setting or view costs once is not counted). `frame ms` is the median of the rounds "
+        "(mean over views), `spread` "
+        "their minimum and maximum. Each of the setting's frames is paired with a frame of the reference "
+        "drawn right before or after it; `speed-up` is the median over the pairs of the reference's time "
+        "over the setting's (geometric mean over views). `converge ms` is the time from a new, cold "
+        "clip-texture (view 0; later views: from the previous view) until the frame is converged. "
+        "Raw timings: `timing.csv`.",
         "",
         "## Converged frames per setting (means over views)",
         "",
-        "| sweep | setting | frame ms | converge ms | bricks | bytes needed | bytes loaded | % ΔE≥6 | RMSE | PSNR dB |",
-        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        "| sweep | setting | frame ms | spread ms | speed-up | converge ms | bricks | bytes needed | bytes loaded "
+        "| % ΔE≥6 | worst view | RMSE | PSNR dB |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for s in summ:
+        rm = "-" if not np.isfinite(s["rmse"]) else f"{s['rmse']:.2f}"
+        ps = "-" if not np.isfinite(s["psnr"]) else f"{s['psnr']:.1f}"
         lines.append(
-            f"| {s['sweep']} | {s['setting']} | {_fmt_ms(s['frame_s'])} | {_fmt_ms(s['converge_s'])} | {s['bricks_drawn']:.0f} | "
-            f"{format_bytes(s['bytes_needed'])} | {format_bytes(s['bytes_loaded'])} | {s['pct_de6']:.2f} | {s['rmse']:.2f} | {s['psnr']:.1f} |"
+            f"| {s['sweep']} | {s['setting']} | {_fmt_ms(s['frame_s'])} | {_fmt_ms(s['frame_min_s'])}-"
+            f"{_fmt_ms(s['frame_max_s'])} | {s['speedup']:.2f}x | {_fmt_ms(s['converge_s'])} | {s['bricks_drawn']:.0f} | "
+            f"{_fmt_bytes(s['bytes_needed'])} | {_fmt_bytes(s['bytes_loaded'])} | {s['pct_de6']:.2f} | "
+            f"{s['pct_de6_max']:.2f} | {rm} | {ps} |"
         )
     fixed = {r["view"]: r for r in _converged(rows, "fixed")}
     lods = sorted({float(r["lod_threshold"]) for r in _converged(rows, "lod_threshold")}, key=lambda t: (abs(np.log(t)), t))
@@ -528,9 +785,9 @@ def _markdown(result: ReportResult, pyr, *, size, path, tf, mode, step, cap) -> 
             if v not in multi:
                 continue
             f, m = fixed[v], multi[v]
-            sp = float(f["frame_s"]) / max(float(m["frame_s"]), 1e-9)
+            sp = float(m["speedup"])
             lines.append(f"| {v} | {f['bricks_drawn']} | {_fmt_ms(float(f['frame_s']))} | {m['bricks_drawn']} | "
-                         f"{_fmt_ms(float(m['frame_s']))} | {sp:.1f}x | {float(m['pct_de6']):.2f} |")
+                         f"{_fmt_ms(float(m['frame_s']))} | {sp:.2f}x | {float(m['pct_de6']):.2f} |")
         lines += [
             "",
             "## Bytes, fixed vs multiresolution (as tabulated in [3])",

@@ -7,7 +7,7 @@ axis). :class:`TimeSeriesPlayer` splits the memory budget between two clip-textu
 drawn, and the next step's, which its loader threads fill around the same centre of interest
 (coarse levels first, as any clip-texture) while the current step is on screen. Stepping swaps
 them and starts prefetching the step after; with ``prefetch=False`` the whole budget goes to the
-current step and each step loads from scratch (the baseline of ``tools/bench_timeseries.py``).
+current step and each step loads from scratch (the baseline of ``tools/bench/bench_timeseries.py``).
 The render action is kept across steps (its GPU cache is emptied: the data changed).
 """
 

@@ -51,6 +51,7 @@ from .sources import identity_changes, open_source, source_identity
 from .stats import StatsComputer, finite_range
 from .worldframe import WorldFrame
 from .store import (
+    HIST_BINS,
     STAT_ARRAYS,
     STATS_GROUP,
     StoreMeta,
@@ -316,8 +317,15 @@ class output_lock:
 
 
 def mark_complete(group) -> None:
-    """Set ``attrs['clipvol']['complete']``: the very last write of any build path."""
-    cv = dict(group.attrs["clipvol"])
+    """Write the store's manifest (:mod:`clipvol.bricking.manifest`) and set
+    ``attrs['clipvol']['complete']`` with the manifest's checksum: the very last write of any build path."""
+    from .manifest import write_manifest
+
+    attrs = dict(group.attrs)
+    cv = dict(attrs["clipvol"])
+    root = Path(group.store.root) / group.path if group.path else Path(group.store.root)
+    pyramid = parse_metadata(attrs, str(root)).pyramid
+    cv["manifest"] = write_manifest(root, [pyramid.grid(L) for L in range(pyramid.num_levels)])
     cv["complete"] = True
     group.attrs.update({"clipvol": cv})
 
@@ -462,9 +470,6 @@ def _create_store(output: Path, pyramid: Pyramid, codec: str, unit: str, source_
         cv["source_identity"] = identity
     attrs = {"ome": ome_metadata(pyramid, name=output.stem or "image", unit=unit, origin=origin), "clipvol": cv}
     compressors = store_codecs(codec, pyramid.dtype)
-    from zarr.codecs import Crc32cCodec, ZstdCodec
-
-    stat_codecs = [ZstdCodec(level=0), Crc32cCodec()]  # the statistics the loads are checked against are checked too
     for L, lv in enumerate(pyramid.levels):
         group.create_array(
             str(L),
@@ -476,21 +481,29 @@ def _create_store(output: Path, pyramid: Pyramid, codec: str, unit: str, source_
             dimension_names=["z", "y", "x"],
             config={"write_empty_chunks": False},
         )
-        g = pyramid.grid(L)
-        row = (1, g[1], g[2])
-        sg = group.require_group(f"{STATS_GROUP}/{L}")
-        for name in ("min", "max", "mean", "std"):
-            sg.create_array(name, shape=g, chunks=row, dtype="float64", fill_value=np.nan, compressors=stat_codecs)
-        for name in ("nan_count", "inf_count"):
-            sg.create_array(name, shape=g, chunks=row, dtype="int64", fill_value=0, compressors=stat_codecs)
-        sg.create_array("histogram", shape=g + (64,), chunks=row + (64,), dtype="int64", fill_value=0,
-                        compressors=stat_codecs)
-        sg.create_array("done", shape=g, chunks=row, dtype="bool", fill_value=False, compressors=stat_codecs)
-        # each written chunk's own crc32c (-1: no chunk): a chunk that is intact but belongs to another
-        # brick, or to another build, is caught at no cost (its trailing crc is compared with this)
-        sg.create_array("chunk_crc32c", shape=g, chunks=row, dtype="int64", fill_value=-1, compressors=stat_codecs)
+        create_stats_arrays(group, pyramid.grid(L), L)
     group.attrs.update(attrs)  # written after the arrays: a store is only recognised once whole
     return group
+
+
+def create_stats_arrays(group, g: tuple[int, int, int], L: int, names=STAT_ARRAYS) -> None:
+    """Create the statistics arrays ``names`` of level ``L`` (grid ``g``) under ``clipvol_stats/L``
+    (replacing any there: ``clipvol repair`` restores deleted or damaged ones with this)."""
+    from zarr.codecs import Crc32cCodec, ZstdCodec
+
+    stat_codecs = [ZstdCodec(level=0), Crc32cCodec()]  # the statistics the loads are checked against are checked too
+    row = (1, g[1], g[2])
+    sg = group.require_group(f"{STATS_GROUP}/{L}")
+    specs = {name: ("float64", np.nan) for name in ("min", "max", "mean", "std")}
+    specs.update({"nan_count": ("int64", 0), "inf_count": ("int64", 0), "histogram": ("int64", 0), "done": ("bool", False),
+                  # each written chunk's own crc32c (-1: no chunk): a chunk that is intact but belongs to another
+                  # brick, or to another build, is caught at no cost (its trailing crc is compared with this)
+                  "chunk_crc32c": ("int64", -1)})
+    for name in names:
+        dtype, fill = specs[name]
+        shape, chunks = (g + (HIST_BINS,), row + (HIST_BINS,)) if name == "histogram" else (g, row)
+        sg.create_array(name, shape=shape, chunks=chunks, dtype=dtype, fill_value=fill, compressors=stat_codecs,
+                        overwrite=True)
 
 
 def brick_volume(

@@ -99,10 +99,12 @@ class PointStoreMeta:
 
 def is_point_store(path) -> bool:
     """True if ``path`` is a zarr group whose clipvol attributes say ``kind: points``."""
+    from .store_files import read_file
+
     p = Path(path) / "zarr.json"
-    try:
-        attrs = json.loads(p.read_text()).get("attributes", {})
-    except (OSError, ValueError):
+    try:  # never a FIFO or a device: the store's readers refuse those with a message
+        attrs = json.loads(read_file(p, p.parent)).get("attributes", {})
+    except (OSError, ValueError, AttributeError):
         return False
     return isinstance(attrs.get("clipvol"), dict) and attrs["clipvol"].get("kind") == "points"
 

@@ -245,11 +245,13 @@ def open_store_meta(path, *, require_complete: bool = False) -> StoreMeta:
     import json
     from pathlib import Path
 
+    from .store_files import read_file
+
     p = Path(path)
     if not p.exists():
         raise InputNotFoundError(f"{p}: no such store")
-    try:
-        meta = json.loads((p / "zarr.json").read_text())
+    try:  # a regular file inside the store, size-capped: never a FIFO, a device or a link out
+        meta = json.loads(read_file(p / "zarr.json", p))
     except FileNotFoundError:
         raise StoreFormatError(f"{p}: not a zarr v3 store (no zarr.json)") from None
     except (OSError, ValueError) as e:

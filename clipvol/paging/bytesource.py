@@ -5,14 +5,18 @@ that waits for one chunk at a time spends its life waiting. :class:`FsspecByteSo
 requests be in flight at once (the loader threads call :meth:`~FsspecByteSource.get`
 concurrently; fsspec runs them on its own event loop, bounded by ``max_in_flight``), retries a
 request that failed for a passing reason (HTTP 5xx / 429, a time-out, a dropped connection) with
-exponential backoff and jitter, and may keep every chunk it fetched in an on-disk
-:class:`ChunkCache`, so a second session over the same store reads from local disk.
+exponential backoff and jitter within a time budget per key (a stalled server is given up on, not
+waited for six times over), and may keep chunks in an on-disk :class:`ChunkCache`, so a second
+session over the same store reads from local disk. The cache keeps only what the caller has
+verified (:meth:`FsspecByteSource.keep`, called by the loader once a chunk passed its checksum
+against the store's manifest): never a failure, never an absent key, never an error page.
 
 Keys are ``/``-separated paths relative to the store's root (``"0/c/1/2/3"``, ``"zarr.json"``).
 :meth:`get` returns the bytes, or ``None`` when the key does not exist (an absent chunk is an
 empty brick in zarr). Every other failure becomes a :class:`~clipvol.errors.RemoteStoreError`
 whose one-line message names the URL (credentials in the URL are masked): unreachable host,
-missing credentials, access denied, or retries exhausted.
+missing credentials, permission denied (HTTP 401/403: not corruption, nothing to repair), timed
+out, or retries exhausted.
 
 Credentials come from where the storage library looks (for S3: ``AWS_ACCESS_KEY_ID`` /
 ``AWS_SECRET_ACCESS_KEY`` / ``AWS_PROFILE``, ``AWS_ENDPOINT_URL`` for an S3-compatible server);
@@ -41,11 +45,31 @@ __all__ = [
     "is_remote_url",
     "redact_url",
     "DEFAULT_IN_FLIGHT",
+    "DEFAULT_CONNECT_TIMEOUT",
+    "DEFAULT_READ_TIMEOUT",
+    "check_timeout",
 ]
 
 #: requests in flight per remote store by default: enough to hide ~20-50 ms of latency at the
 #: decode speed of two cores, few enough not to look like a flood to a server
 DEFAULT_IN_FLIGHT = 16
+#: seconds to connect, and seconds without a byte before a request is stalled (``--connect-timeout``,
+#: ``--read-timeout``); with the default budget of 30 s per key a stalled server is left within it
+DEFAULT_CONNECT_TIMEOUT = 10.0
+DEFAULT_READ_TIMEOUT = 10.0
+#: the longest time-out accepted (an hour): anything longer is a typo, not a slow server
+MAX_TIMEOUT = 3600.0
+
+
+def check_timeout(value, name: str) -> float:
+    """``value`` as seconds, refused unless a finite number in (0, :data:`MAX_TIMEOUT`], naming ``name``."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{name}: expected seconds as a number, got {value!r}") from None
+    if isinstance(value, bool) or not 0 < v <= MAX_TIMEOUT:
+        raise ParameterError(f"{name}: expected seconds in (0, {MAX_TIMEOUT:g}], got {value!r}")
+    return v
 
 _KEY = re.compile(r"^[A-Za-z0-9_.\-]+(/[A-Za-z0-9_.\-]+)*$")
 
@@ -114,8 +138,10 @@ class ChunkCache:
 
     ``namespace`` identifies the store *and its version* (the caller hashes the URL with the root
     metadata), so a rebuilt store never reads stale chunks. Files are written to a temporary name
-    and renamed, so a reader never sees half a chunk; absent keys are remembered as empty marker
-    files under ``absent/``. Nothing is evicted: the cache grows to the bytes actually viewed.
+    and renamed, so a reader never sees half a chunk. Only bytes a caller verified are put here;
+    absent keys are never remembered (a 404 may be passing, and "absent" is a claim the store's
+    manifest must confirm each time). A cached file that later fails verification is
+    dropped (:meth:`drop`). Nothing else is evicted: the cache grows to the bytes actually viewed.
     """
 
     def __init__(self, directory: str | Path, namespace: str) -> None:
@@ -126,27 +152,35 @@ class ChunkCache:
             raise ParameterError(f"--cache: cannot create the cache directory {self.root} ({e.strerror or e})") from None
         self.hits = 0
 
-    def get(self, key: str) -> tuple[bool, bytes | None]:
-        """``(found, data)``: ``(True, None)`` for a key known to be absent, ``(False, None)`` for a miss."""
-        try:
-            with open(self.root / "data" / key, "rb") as f:
-                data = f.read()
-            self.hits += 1
-            return True, data
-        except (FileNotFoundError, NotADirectoryError):
-            pass
-        if (self.root / "absent" / key).is_file():
-            self.hits += 1
-            return True, None
-        return False, None
+    def get(self, key: str, cap: int | None = None) -> bytes | None:
+        """The cached bytes of ``key``, or None for a miss (a cached file that is not a regular file
+        inside the cache, or larger than ``cap``, is a miss and is dropped)."""
+        from ..bricking.store_files import read_file
 
-    def put(self, key: str, data: bytes | None) -> None:
-        path = self.root / ("absent" if data is None else "data") / key
+        try:
+            data = read_file(self.root / "data" / key, self.root, cap or 2**31)
+        except (FileNotFoundError, NotADirectoryError):
+            return None
+        except (OSError, ValueError):
+            self.drop(key)
+            return None
+        self.hits += 1
+        return data
+
+    def drop(self, key: str) -> None:
+        """Forget ``key`` (its cached bytes failed verification)."""
+        try:
+            (self.root / "data" / key).unlink()
+        except OSError:
+            pass
+
+    def put(self, key: str, data: bytes) -> None:
+        path = self.root / "data" / key
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
             with open(tmp, "wb") as f:
-                f.write(data or b"")
+                f.write(data)
             os.replace(tmp, path)
         except OSError:  # a full or read-only cache disk must not break viewing
             pass
@@ -196,7 +230,8 @@ def _describe(e: BaseException) -> str:
                 "or pass storage_options={'anon': True} for a public bucket)")
     st = _status(e)
     if isinstance(e, PermissionError) or st in (401, 403):
-        return f"access denied{f' (HTTP {st})' if st else ''}: check the credentials and the bucket's policy"
+        return (f"permission denied{f' (HTTP {st})' if st else ''}: the server refuses this client (check the "
+                "credentials and the bucket's policy); the store itself may be intact")
     if st is not None:
         return f"HTTP {st}"
     if name in ("ClientConnectorError", "EndpointConnectionError", "ConnectionRefusedError") or isinstance(e, ConnectionError):
@@ -222,36 +257,53 @@ class FsspecByteSource:
         Extra attempts after a passing failure (5xx, 429, time-out, dropped connection).
     backoff : float
         First wait in seconds; doubled per attempt, with +-50 % jitter, capped at 5 s.
-    timeout : float
-        Seconds for one request (HTTP: aiohttp's total time-out).
+    timeout : float, optional
+        Seconds one key may take, all its attempts and waits together: no retry starts that could
+        not finish inside it. Default: ``max(30, connect_timeout + read_timeout)``.
+    connect_timeout : float
+        Seconds to establish a connection (default 10).
+    read_timeout : float
+        Seconds without a byte arriving before a request counts as stalled (default 10).
     cache : str or Path, optional
         Directory of an on-disk :class:`ChunkCache`.
     """
 
     def __init__(self, url: str, *, storage_options: dict | None = None, max_in_flight: int = DEFAULT_IN_FLIGHT,
-                 retries: int = 5, backoff: float = 0.05, timeout: float = 30.0, cache: str | Path | None = None) -> None:
+                 retries: int = 5, backoff: float = 0.05, timeout: float | None = None,
+                 connect_timeout: float = DEFAULT_CONNECT_TIMEOUT, read_timeout: float = DEFAULT_READ_TIMEOUT,
+                 cache: str | Path | None = None) -> None:
         try:
             import fsspec
         except ImportError:  # pragma: no cover
             raise MissingExtraError(f"{redact_url(url)}: remote stores need fsspec: pip install 'clipvol[remote]'") from None
         if max_in_flight < 1:
             raise ParameterError(f"max_in_flight: expected an integer >= 1, got {max_in_flight}")
-        if retries < 0 or not backoff >= 0 or not timeout > 0:
-            raise ParameterError(f"retries/backoff/timeout: expected >= 0, >= 0, > 0, got {retries}, {backoff}, {timeout}")
+        for name, v in (("connect_timeout", connect_timeout), ("read_timeout", read_timeout)):
+            check_timeout(v, name)
+        if timeout is None:
+            timeout = max(30.0, float(connect_timeout) + float(read_timeout))
+        check_timeout(timeout, "timeout")
+        if retries < 0 or not backoff >= 0:
+            raise ParameterError(f"retries/backoff: expected >= 0, >= 0, got {retries}, {backoff}")
         self.url = url.rstrip("/")
         self.display_url = redact_url(self.url)
         self.max_in_flight = int(max_in_flight)
         self.retries, self.backoff, self.timeout = int(retries), float(backoff), float(timeout)
+        self.connect_timeout, self.read_timeout = float(connect_timeout), float(read_timeout)
         opts = dict(storage_options or {})
         proto = urlsplit(self.url).scheme.lower()
         if proto in ("http", "https") and "client_kwargs" not in opts:
             import aiohttp
 
-            opts["client_kwargs"] = {"timeout": aiohttp.ClientTimeout(total=self.timeout)}
+            opts["client_kwargs"] = {"timeout": aiohttp.ClientTimeout(
+                total=self.timeout, connect=self.connect_timeout, sock_connect=self.connect_timeout,
+                sock_read=self.read_timeout)}
         if proto == "s3":
-            opts.setdefault("config_kwargs", {}).setdefault("connect_timeout", self.timeout)
-            opts["config_kwargs"].setdefault("read_timeout", self.timeout)
+            opts.setdefault("config_kwargs", {}).setdefault("connect_timeout", self.connect_timeout)
+            opts["config_kwargs"].setdefault("read_timeout", self.read_timeout)
             opts["config_kwargs"].setdefault("max_pool_connections", max(10, self.max_in_flight))
+            # one attempt per call: the retries (and their time budget) are this class's, not botocore's on top
+            opts["config_kwargs"].setdefault("retries", {"max_attempts": 1, "mode": "standard"})
         try:
             # a fresh instance: fsspec caches file systems by their arguments, which would keep
             # credentials (or their absence) from an earlier session alive
@@ -279,20 +331,31 @@ class FsspecByteSource:
         return f"{self._root.rstrip('/')}/{key}" if self._root else key
 
     def get(self, key: str) -> bytes | None:
-        """The bytes at ``key``, ``None`` when absent; raises :class:`RemoteStoreError` otherwise."""
-        _check_key(key)
+        """The bytes at ``key`` from the server (never from the cache), ``None`` when absent; raises
+        :class:`RemoteStoreError` otherwise."""
+        return self._fetch(_check_key(key))
+
+    def cached(self, key: str, cap: int | None = None) -> bytes | None:
+        """``key``'s bytes from the on-disk cache, or None (no cache, or a miss). The caller verifies
+        them as it would fresh bytes and calls :meth:`forget` for them when they fail."""
+        if self.cache is None:
+            return None
+        return self.cache.get(_check_key(key), cap)
+
+    def keep(self, key: str, data: bytes) -> None:
+        """Put ``data`` in the cache: the caller has verified it is ``key``'s true content."""
+        if self.cache is not None and data is not None:
+            self.cache.put(_check_key(key), bytes(data))
+
+    def forget(self, key: str) -> None:
+        """Drop ``key`` from the cache (its cached bytes failed verification)."""
         if self.cache is not None:
-            found, data = self.cache.get(key)
-            if found:
-                return data
-        data = self._fetch(key)
-        if self.cache is not None:
-            self.cache.put(key, data)
-        return data
+            self.cache.drop(_check_key(key))
 
     def _fetch(self, key: str) -> bytes | None:
         path = self._full(key)
         attempt = 0
+        start = time.monotonic()
         while True:
             with self._sem:
                 with self._count_lock:
@@ -303,8 +366,14 @@ class FsspecByteSource:
                     kind = _classify(e)
                     if kind == "absent":
                         return None
-                    if kind == "fatal" or attempt >= self.retries:
+                    wait = min(5.0, self.backoff * 2 ** attempt) * random.uniform(0.5, 1.5)
+                    # no retry that could not finish within the budget: a stalled server is given up on
+                    spent = time.monotonic() - start
+                    over = kind == "retry" and spent + wait + self.read_timeout > self.timeout
+                    if kind == "fatal" or attempt >= self.retries or over:
                         tail = f" after {attempt + 1} attempts" if kind == "retry" else ""
+                        if over and attempt < self.retries:
+                            tail += f" in {spent:.0f} s (the budget per request is {self.timeout:g} s)"
                         raise RemoteStoreError(f"{self.display_url}: cannot read {key}: {_describe(e)}{tail}") from None
                 else:
                     with self._count_lock:
@@ -313,7 +382,6 @@ class FsspecByteSource:
             attempt += 1
             with self._count_lock:
                 self.retried += 1
-            wait = min(5.0, self.backoff * 2 ** (attempt - 1)) * random.uniform(0.5, 1.5)
             time.sleep(wait)
 
     def get_many(self, keys: list[str]) -> dict[str, bytes | None]:

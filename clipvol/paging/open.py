@@ -78,7 +78,7 @@ def open_store(path_or_url: str | Path, **kwargs) -> Loader:
     if path.is_file() and path.name in ("zarr.json", ".zgroup"):
         path = path.parent
     if path.is_dir():
-        if (path / "zarr.json").is_file() or (path / ".zgroup").is_file():
+        if (path / "zarr.json").exists() or (path / ".zgroup").exists():  # what they are: the loader checks
             from ..bricking.point_store import is_point_store
 
             if is_point_store(path):  # not a brick pyramid: PointStoreLoader + SplatRenderAction draw it
@@ -107,8 +107,10 @@ def _channel_set(path: Path) -> int | None:
     """Channels of a channel set (:mod:`clipvol.bricking.channels`), or None for any other group."""
     import json
 
-    try:
-        attrs = json.loads((path / "zarr.json").read_text()).get("attributes", {})
+    from ..bricking.store_files import read_file
+
+    try:  # never a FIFO or a device: the loader refuses those with a message
+        attrs = json.loads(read_file(path / "zarr.json", path)).get("attributes", {})
     except (OSError, ValueError, AttributeError):
         return None
     cs = attrs.get("clipvol_channels") if isinstance(attrs, dict) else None

@@ -117,7 +117,7 @@ _MIP_EMPTY = -3.0e38
 #: still add to a premultiplied channel is at most its transmittance, under half a step of the
 #: 8-bit image, so the image the caller gets differs from the ray integrated to its end by at most
 #: one level after rounding. (0.9995 before: 13 % of the samples of an opaque frame were spent
-#: after 0.998, changing no 8-bit pixel by more than 1; tools/bench_render.py measures both.)
+#: after 0.998, changing no 8-bit pixel by more than 1; tools/bench/bench_render.py measures both.)
 OPAQUE = 1.0 - 0.5 / 255.0
 #: composite: an occlusion pass after every len(items) / OCCLUSION_PASSES boxes (at least this many)
 OCCLUSION_PASSES = 32

@@ -3,7 +3,8 @@
 The render action calls :meth:`OverlayTextures.sync` when its parameters change (it checks each
 overlay against the primary and reads the chosen level once) and :meth:`OverlayTextures.bind` once
 per frame after the frame's uniforms (textures on units ``FIRST_UNIT + 2k`` and ``+ 2k + 1``, the
-affine from a position relative to the frame origin ``O`` to texture coordinates, the table
+affine (a 3x3 matrix and an offset: any voxel-to-world affine of the overlay, flips and permutations
+exactly) from a position relative to the frame origin ``O`` to texture coordinates, the table
 mapping). The shader side is the ``OVERLAY`` variant of ``shaders/volume_common.glsl``.
 """
 
@@ -13,8 +14,8 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..scene.transfer import corrected_tables
-from ..scene.overlay import (check_overlay, cull_outside, label_indices, overlay_box, overlay_level, overlay_placement,
-                             read_level, store_origin)
+from ..scene.overlay import (check_overlay, cull_outside, label_indices, overlay_box, overlay_level,
+                             overlay_texture_transform, read_level)
 
 __all__ = ["OverlayTextures", "FIRST_UNIT", "overlay_defines"]
 
@@ -78,8 +79,7 @@ class OverlayTextures:
 
     def cull_outside(self, transparent, overlays):
         """The primary's transparent-brick filter, culling only bricks clear of every overlay's box."""
-        po = store_origin(self.primary_loader)
-        return cull_outside(transparent, self.primary_loader.pyramid, [overlay_box(ov, po) for ov in overlays])
+        return cull_outside(transparent, self.primary_loader.pyramid, [overlay_box(ov, self.primary_loader) for ov in overlays])
 
     def levels(self) -> dict[str, int]:
         """Name of each overlay -> the level drawn."""
@@ -125,16 +125,15 @@ class OverlayTextures:
 
     def bind(self, prog, overlays, origin, ratios) -> None:
         """Bind the overlays' textures and set their uniforms for a frame whose origin is ``origin`` (x, y, z)."""
-        po = store_origin(self.primary_loader)
         O = np.asarray(origin, dtype=np.float64)
         u = prog.get("u_ov_inv_ref", None)
         if u is not None:  # label overlays: opacity per the primary's smallest level-0 voxel
             u.value = 1.0 / float(min(self.primary_loader.pyramid.spacing))
         for k, ov in enumerate(overlays):
             _, tex, L = self._volumes[id(ov)]
-            first, scale, shape = overlay_placement(ov, L, po)
-            a = 1.0 / (scale * shape)
-            b = ((O - first) / scale + 0.5) / shape
+            m = overlay_texture_transform(ov, L, self.primary_loader)  # drawing frame -> texture coordinate
+            a = m[:3, :3]
+            b = m[:3, :3] @ O + m[:3, 3]  # the shader's p is relative to the frame origin O
             lo, hi = (0.0, 1.0) if ov.labels else ov.tf.window(ov.loader.pyramid.value_range)
             if hi > lo:
                 tm = (1.0 / (hi - lo), -lo / (hi - lo))
@@ -143,7 +142,8 @@ class OverlayTextures:
             tex.use(location=FIRST_UNIT + 2 * k)
             self._table(ov, ratios).use(location=FIRST_UNIT + 2 * k + 1)
             values = {f"u_ov{k}_tex": FIRST_UNIT + 2 * k, f"u_ov{k}_tf": FIRST_UNIT + 2 * k + 1,
-                      f"u_ov{k}_a": tuple(float(v) for v in a), f"u_ov{k}_b": tuple(float(v) for v in b),
+                      f"u_ov{k}_a": tuple(float(v) for v in a.T.reshape(-1)),  # column-major mat3
+                      f"u_ov{k}_b": tuple(float(v) for v in b),
                       f"u_ov{k}_t": (float(np.clip(tm[0], -3e38, 3e38)), float(np.clip(tm[1], -3e38, 3e38)))}
             for name, v in values.items():
                 u = prog.get(name, None)

@@ -12,8 +12,9 @@ level read once):
 
 * **Background**: the most frequent bin (the mode) and its shoulders (the background's noise).
 * **Unsigned data** (or signed data whose background is not 0): the window runs from the 1st to
-  the 99.5th percentile of the values *above* the background's bins; the preset (``viridis``
-  unless asked otherwise) has opacity exactly 0 at and below the window's low end and rises
+  the 99.5th percentile of the values *above* the background's bins; the preset (``grey`` for a
+  scan in a patient frame — CT and MRI are read in grey, as every medical viewer shows them —
+  ``viridis`` otherwise, unless asked) has opacity exactly 0 at and below the window's low end and rises
   along a gentle ramp (:data:`clipvol.scene.transfer.OPACITY_CURVES`), so the background is
   transparent and the bright structure shows.
 * **Signed data** (float data whose background bin holds 0 and whose range reaches comparably far
@@ -34,7 +35,8 @@ import numpy as np
 from ..bricking.stats import histogram_edges
 from .transfer import TransferFunction
 
-__all__ = ["ValueHistogram", "value_histogram", "auto_window", "auto_transfer_function"]
+__all__ = ["ValueHistogram", "value_histogram", "auto_window", "auto_transfer_function", "default_preset",
+           "context_transfer_function", "CONTEXT_OPACITY"]
 
 #: most bricks summed from the stored statistics (one level); a finer level with more is skipped
 MAX_STAT_BRICKS = 1 << 18
@@ -175,16 +177,40 @@ def auto_window(hist: ValueHistogram, *, float_data: bool = True, low: float = 1
     return AutoWindow((w0, w1), False, background)
 
 
+def default_preset(loader) -> str:
+    """``grey`` for a store in a patient frame (a CT or MRI from NIfTI / DICOM), ``viridis`` otherwise."""
+    frame = getattr(loader, "frame", None)
+    return "grey" if frame is not None and getattr(frame, "frame", "") == "RAS" else "viridis"
+
+
 def auto_transfer_function(loader, preset: str | None = None, opacity: str | None = None,
                            hist: ValueHistogram | None = None) -> TransferFunction:
     """The automatic :class:`~clipvol.scene.transfer.TransferFunction` of ``loader``'s data.
 
-    ``preset`` replaces the chosen colour map (default ``viridis``, or ``diverging`` for signed
-    data); ``opacity`` its opacity curve. Its :attr:`~TransferFunction.name` says what was chosen,
+    ``preset`` replaces the chosen colour map (default :func:`default_preset`: ``grey`` for a
+    store with a patient frame, ``viridis`` otherwise, ``diverging`` for signed data); ``opacity`` its opacity curve. Its :attr:`~TransferFunction.name` says what was chosen,
     e.g. ``auto: viridis 12.5..230``.
     """
     hist = value_histogram(loader) if hist is None else hist
     aw = auto_window(hist, float_data=np.dtype(loader.pyramid.dtype).kind == "f")
-    name = preset or ("diverging" if aw.signed else "viridis")
+    name = preset or ("diverging" if aw.signed else default_preset(loader))
     tf = TransferFunction.preset(name, value_range=aw.window, opacity=None if name == "diverging" else opacity)
     return tf.with_name(f"auto: {tf.name} {aw.window[0]:.4g}..{aw.window[1]:.4g}")
+
+
+#: the opacity of the primary under an overlay, as a fraction of its automatic opacity
+CONTEXT_OPACITY = 0.1
+
+
+def context_transfer_function(loader, hist: ValueHistogram | None = None) -> TransferFunction:
+    """The automatic transfer function of a primary drawn under an overlay: translucent grey context.
+
+    An opaque scan hides a map inside it (a statistical map lies within the brain), so when the
+    user gives an overlay and leaves the primary's colours automatic, the primary keeps its
+    automatic window but in grey with :data:`CONTEXT_OPACITY` of its opacity: the anatomy shows
+    as a faint shell and the map inside it in full colour.
+    """
+    tf = auto_transfer_function(loader, preset="grey", hist=hist)
+    table = np.array(tf.table, dtype=np.float64)
+    table[:, 3] *= CONTEXT_OPACITY
+    return TransferFunction(table, tf.value_range, name=f"{tf.name} (context, opacity x{CONTEXT_OPACITY:g})")

@@ -26,11 +26,17 @@ Design (pragmatic, documented in ``docs/rendering.md``)
   a per-id table (the ids present are numbered on the CPU, so any integer ids fit), its opacity
   corrected for the primary's step in the shader. Opacity 0 hides a label.
 
-Geometry: a store's voxel ``i`` of level ``L`` is at ``translation_L + i * scale_L + origin``
-(world, z/y/x, ``origin`` the store's own, ``clipvol brick --origin``). The primary is drawn in its
-own frame (its origin at the frame's zero), so an overlay is placed at ``its origin - the primary's``.
-Overlays in another unit, rotated differently (oblique frames), or not overlapping the primary's
-box are refused with a :class:`~clipvol.errors.ParameterError` naming the overlay.
+Geometry: each store's level-0 voxel index maps to the world by its voxel-to-world affine (the
+NIfTI / DICOM / MRC affine a store records, :class:`~clipvol.bricking.worldframe.WorldFrame`; else
+its spacing and ``origin``, ``clipvol brick --origin``), a level's voxels by its scale and
+translation. The primary is drawn in its own array axes (voxel ``i`` at ``i * spacing``); an overlay
+is sampled through the chain *primary drawing frame -> world -> overlay voxel -> texture*
+(:func:`overlay_texture_transform`), one 4x4 matrix per overlay and frame. An overlay stored
+flipped (LAS under RAS) or with permuted axes is then drawn exactly (a signed permutation:
+voxel centres onto voxel centres); a rotated or sheared one is resampled trilinearly at each ray
+sample in the shader. Overlays in another unit, in another kind of world (a patient frame under a
+non-anatomical one), or not overlapping the primary's box are refused with a
+:class:`~clipvol.errors.ParameterError` naming the overlay and what differs.
 
 This module is pure numpy (the GL side is :mod:`clipvol.render.overlay_binding`).
 
@@ -53,7 +59,8 @@ from ..units import parse_bytes
 from .label_colors import LabelColors
 from .transfer import TransferFunction
 
-__all__ = ["Overlay", "store_origin", "store_unit", "overlay_level", "overlay_placement", "read_level", "label_indices",
+__all__ = ["Overlay", "store_origin", "store_unit", "overlay_level", "voxel_to_world", "overlay_texture_transform",
+           "read_level", "label_indices",
            "overlay_box", "cull_outside",
            "check_overlay", "MAX_OVERLAYS", "DEFAULT_OVERLAY_BUDGET"]
 
@@ -97,6 +104,9 @@ class Overlay:
         Bytes its one float32 texture may take; the finest level that fits is drawn.
     name : str
         What errors call it (default: the loader's path, else ``overlay``).
+    frame : WorldFrame, optional
+        Its voxel-to-world affine (default: the loader's own). A label image of a store shares the
+        store's frame (OME image-label) without recording it: ``--label-overlay`` passes the image's.
     """
 
     loader: object
@@ -105,6 +115,7 @@ class Overlay:
     unit: str | None = None
     texture_budget: int | str = DEFAULT_OVERLAY_BUDGET
     name: str = ""
+    frame: object = None
 
     @property
     def labels(self) -> bool:
@@ -143,6 +154,8 @@ class Overlay:
                 raise ParameterError(f"overlay {name}: origin: expected three finite numbers z,y,x, got {self.origin!r}")
             s(self, "origin", o)
         s(self, "unit", self.unit or store_unit(self.loader))
+        if self.frame is None:
+            s(self, "frame", getattr(self.loader, "frame", None))
         s(self, "texture_budget", parse_bytes(self.texture_budget, f"overlay {name}: texture_budget"))
 
 
@@ -163,41 +176,93 @@ def overlay_level(pyramid, budget: int, max_size: int = 2048, itemsize: int = 4)
     return pyramid.num_levels - 1
 
 
-def overlay_placement(overlay: Overlay, level: int, primary_origin) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(first, scale, shape)`` as ``(x, y, z)`` float64: the world position (in the primary's frame)
-    of the centre of voxel 0 of the overlay's ``level``, its voxel size and its voxel counts."""
+def voxel_to_world(loader, origin=None, frame=None) -> np.ndarray:
+    """``(4, 4)``: a loader's level-0 voxel index ``(x, y, z, 1)`` to its world position.
+
+    A store with a recorded affine (NIfTI, DICOM, MRC: :class:`~clipvol.bricking.worldframe.WorldFrame`)
+    uses it, moved to ``origin`` (z, y, x along its axes) when one is given that differs from the
+    store's; any other loader is axis-aligned: its spacing, and voxel 0 at ``origin`` (default the
+    loader's own, :func:`store_origin`). ``frame`` replaces the loader's own affine.
+    """
+    frame = getattr(loader, "frame", None) if frame is None else frame
+    own = store_origin(loader)
+    o = own if origin is None else np.asarray(origin, dtype=np.float64).reshape(3)
+    if frame is not None:
+        if np.allclose(o, frame.origin, rtol=0, atol=1e-9 * max(1.0, float(np.abs(o).max()))):
+            return frame.matrix
+        return frame.with_origin(o).matrix
+    m = np.eye(4)
+    m[:3, :3] = np.diag(np.asarray(loader.pyramid.spacing, dtype=np.float64)[::-1])
+    m[:3, 3] = o[::-1]
+    return m
+
+
+def _render_to_world(primary_loader) -> np.ndarray:
+    """``(4, 4)``: a position in the primary's drawing frame (voxel ``i`` at ``i * spacing`` along its
+    array axes, :meth:`~clipvol.bricking.pyramid.Pyramid.volume_box`) to the world."""
+    sp = np.asarray(primary_loader.pyramid.spacing, dtype=np.float64)[::-1]
+    return voxel_to_world(primary_loader) @ np.diag(np.append(1.0 / sp, 1.0))
+
+
+def overlay_texture_transform(overlay: Overlay, level: int, primary_loader) -> np.ndarray:
+    """``(4, 4)``: a position in the primary's drawing frame to the texture coordinate (``[0, 1]``
+    across the cells, x, y, z) of the overlay's ``level``.
+
+    The chain is the primary's voxel-to-world affine, the overlay's world-to-voxel (its inverse
+    affine), then the level's voxel grid (its scale and translation). A flip or a permutation of
+    the overlay's axes is a signed permutation in the 3x3 part, so voxel centres land on voxel
+    centres and nothing is resampled; a rotation or shear is resampled, trilinearly, at each ray
+    sample by the shader (``c = a * p + b``).
+    """
     pyr = overlay.loader.pyramid
-    lv = pyr.levels[level]
-    first = (np.asarray(lv.translation, dtype=np.float64) - np.asarray(pyr.levels[0].translation, dtype=np.float64)
-             + np.asarray(overlay.origin, dtype=np.float64) - np.asarray(primary_origin, dtype=np.float64))
-    return first[::-1].copy(), np.asarray(lv.scale, dtype=np.float64)[::-1].copy(), np.asarray(lv.shape, dtype=np.float64)[::-1].copy()
+    lv, l0 = pyr.levels[level], pyr.levels[0]
+    s0 = np.asarray(l0.scale, dtype=np.float64)[::-1]
+    sl = np.asarray(lv.scale, dtype=np.float64)[::-1]
+    off = (np.asarray(lv.translation, dtype=np.float64) - np.asarray(l0.translation, dtype=np.float64))[::-1] / s0
+    shape = np.asarray(lv.shape, dtype=np.float64)[::-1]
+    grid = np.eye(4)  # level-0 voxel index -> texture coordinate of the level
+    grid[:3, :3] = np.diag(s0 / sl / shape)
+    grid[:3, 3] = (-off * s0 / sl + 0.5) / shape
+    inv_o = np.linalg.inv(voxel_to_world(overlay.loader, overlay.origin, overlay.frame))
+    return grid @ inv_o @ _render_to_world(primary_loader)
 
 
-def overlay_box(overlay: Overlay, primary_origin) -> tuple[np.ndarray, np.ndarray]:
-    """World box ``(lo, hi)`` ``(x, y, z)`` of the overlay's level-0 cells in the primary's frame."""
-    first, scale, shape = overlay_placement(overlay, 0, primary_origin)
-    return first - 0.5 * scale, first + (shape - 0.5) * scale
+def overlay_box(overlay: Overlay, primary_loader) -> tuple[np.ndarray, np.ndarray]:
+    """World box ``(lo, hi)`` ``(x, y, z)`` in the primary's drawing frame that holds the overlay's
+    level-0 cells (their corners' bounding box, for a rotated overlay larger than the cells)."""
+    n = np.asarray(overlay.loader.pyramid.shape, dtype=np.float64)[::-1]
+    corners = np.array([[(-0.5, n[a] - 0.5)[(k >> a) & 1] for a in range(3)] for k in range(8)])
+    m = np.linalg.inv(_render_to_world(primary_loader)) @ voxel_to_world(overlay.loader, overlay.origin, overlay.frame)
+    pts = corners @ m[:3, :3].T + m[:3, 3]
+    return pts.min(axis=0), pts.max(axis=0)
 
 
 def check_overlay(overlay: Overlay, primary_loader) -> None:
-    """Refuse an overlay the primary cannot carry: another unit, another rotation, no overlap."""
+    """Refuse an overlay that cannot be placed on the primary: another unit, or no overlap in the world."""
     name = overlay.name
     pu = store_unit(primary_loader)
     if pu is not None and overlay.unit is not None and pu != overlay.unit:
         raise ParameterError(f"overlay {name}: expected the primary's unit {pu!r}, got {overlay.unit!r} "
                              "(convert the spacing, e.g. clipvol brick --spacing ... --unit ...)")
-    fp, fo = getattr(primary_loader, "frame", None), getattr(overlay.loader, "frame", None)
-    dp = np.eye(3) if fp is None else fp.directions
-    do = np.eye(3) if fo is None else fo.directions
-    if not np.allclose(dp, do, atol=1e-6):
-        raise ParameterError(f"overlay {name}: expected the primary's axes (an overlay may be shifted and scaled, "
-                             "not rotated), got a rotated world frame")
-    po = store_origin(primary_loader)
-    lo, hi = overlay_box(overlay, po)
+    fp, fo = getattr(primary_loader, "frame", None), overlay.frame
+    kp, ko = (getattr(f, "frame", "") if f is not None else "" for f in (fp, fo))
+    if kp != ko and fp is not None and fo is not None:
+        raise ParameterError(f"overlay {name}: expected the primary's world frame {kp or 'non-anatomical'!r}, got "
+                             f"{ko or 'non-anatomical'!r} (a patient-frame scan and a non-anatomical volume share no "
+                             "coordinates; brick the overlay from its NIfTI/DICOM so it records the patient frame)")
+    lo, hi = overlay_box(overlay, primary_loader)
     plo, phi = primary_loader.pyramid.volume_box()
     if np.any(np.minimum(hi, phi) <= np.maximum(lo, plo)):
+        to_world = _render_to_world(primary_loader)
+        w = lambda p: p @ to_world[:3, :3].T + to_world[:3, 3]  # noqa: E731
         raise ParameterError(f"overlay {name}: expected its world box to overlap the primary's, got overlay "
-                             f"{_box(lo + po[::-1], hi + po[::-1])} and primary {_box(plo + po[::-1], phi + po[::-1])} (x, y, z)")
+                             f"{_box(*_world_box(w, lo, hi))} and primary {_box(*_world_box(w, plo, phi))} (x, y, z, world)")
+
+
+def _world_box(w, lo, hi) -> tuple[np.ndarray, np.ndarray]:
+    corners = np.array([[(lo[a], hi[a])[(k >> a) & 1] for a in range(3)] for k in range(8)])
+    pts = w(corners)
+    return pts.min(axis=0), pts.max(axis=0)
 
 
 def cull_outside(transparent, pyramid, boxes):

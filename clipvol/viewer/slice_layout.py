@@ -46,7 +46,13 @@ class SliceLayout:
         self.session = session
         self.pyramid = pyr = session.pyramid
         self.active = False
-        self.planes = {name: Plane.axis(pyr, name) for name in AXES}
+        frame = getattr(session.loader, "frame", None)
+        from ..scene.views import anatomical_plane, is_anatomical
+
+        if is_anatomical(frame):  # the patient's planes, radiological display (clipvol.scene.views)
+            self.planes = {name: anatomical_plane(pyr, frame, name) for name in AXES}
+        else:
+            self.planes = {name: Plane.axis(pyr, name) for name in AXES}
         lo, hi = pyr.volume_box()
         self.poi = (lo + hi) / 2.0
         self.action = SliceAction(session.ctx, session.clip_texture, self._params(),
@@ -156,6 +162,9 @@ class SliceLayout:
                 sess.set_center(self.poi)
                 img = self.action.render_in_view(sess.action, camera_for_size((pw, ph)), sess.transfer_function,
                                                  self.planes["axial"], wait=wait, timeout=timeout)
+                from ..app.annotate import present
+
+                img = present(img, None, getattr(sess.loader, "frame", None), labels=False)  # a mirrored store: un-mirrored
                 self.stats[name] = sess.frame_stats
             else:
                 pl = self.planes[name]

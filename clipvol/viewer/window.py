@@ -221,7 +221,10 @@ class Viewer(GlWindow):
             self.slices.tilt(self._slice_panel(win)[0], dx, dy)
             self._dirty = True
         else:
-            self._orbit_or_pan(button, dx, dy)
+            from clipvol.scene.views import mirrored
+
+            # the image of a mirrored store is flipped (clipvol.scene.views): so is the drag
+            self._orbit_or_pan(button, -dx if mirrored(self._frame_of_store()) else dx, dy)
 
     def _on_scroll(self, win, xoff, yoff) -> None:
         if self.slices is not None and self.slices.active and self._slice_panel(win)[0] != "3d":
@@ -395,6 +398,10 @@ class Viewer(GlWindow):
                 from ..app.overlay import draw_outlines
 
                 img = draw_outlines(img, cam, sess.last_items())
+            if not (self.slices is not None and self.slices.active):
+                from ..app.annotate import present
+
+                img = present(img, cam, self._frame_of_store(), labels=False)  # a mirrored store: un-mirrored
             self._frame = img
             self._frame_camera = cam
             self._frame_tex = self._texture(self._frame_tex, img, smooth=not q.full)
@@ -414,15 +421,20 @@ class Viewer(GlWindow):
         est = getattr(getattr(self.session.action, "last_policy", None), "estimated_error", float("nan"))
         return {"budget": f"{self.state.block_budget} blocks", "est.err": f"{est:.3f}"}
 
+    def _frame_of_store(self):
+        """The store's :class:`~clipvol.bricking.worldframe.WorldFrame`, or None."""
+        return getattr(getattr(self.session, "loader", None), "frame", None)
+
     def _orientation(self) -> dict[str, str] | None:
         """The view edges' anatomical (or world-axis) labels when the store records its affine."""
-        frame = getattr(getattr(self.session, "loader", None), "frame", None)
+        frame = self._frame_of_store()
         if frame is None:
             return None
         from clipvol.scene.orientation import view_labels
+        from clipvol.scene.views import screen_axes
 
         cam = self.camera()
-        return view_labels(frame.affine, cam.right, cam.up, frame.frame)
+        return view_labels(frame.affine, *screen_axes(cam, frame), frame.frame)
 
     def _draw_hud(self, w: int, h: int) -> None:
         if self._hud_due():
@@ -493,7 +505,9 @@ class Viewer(GlWindow):
                 from ..app.overlay import draw_outlines
 
                 img = draw_outlines(img, cam, sess.last_items())
-            Image.fromarray(img, "RGBA").save(path)
+            from ..app.annotate import present
+
+            Image.fromarray(present(img, cam, self._frame_of_store(), labels=False), "RGBA").save(path)
         self.last_screenshot = path
         return self._note_saved(path)
 

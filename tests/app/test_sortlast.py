@@ -18,6 +18,8 @@ from clipvol.scene.params import RenderParams
 from clipvol.scene.transfer import TransferFunction
 from clipvol.tools.cmd_render import view_camera
 
+from optional import DASK
+
 pytestmark = pytest.mark.gl
 
 SIZE = (96, 80)
@@ -94,6 +96,13 @@ def test_render_cli_refuses_bad_worker_options(tmp_path, store, capsys):
     out = str(tmp_path / "x.png")
     assert main(["render", store, "--out", out, "--workers", "0"]) == 2
     assert "--workers" in capsys.readouterr().err
+
+
+@DASK
+def test_render_cli_refuses_a_scheduler_beside_workers(tmp_path, store, capsys):
+    from clipvol.tools.cli import main
+
+    out = str(tmp_path / "x.png")
     assert main(["render", store, "--out", out, "--workers", "2", "--scheduler", "threads"]) == 2
     assert "--scheduler" in capsys.readouterr().err
 

@@ -14,6 +14,8 @@ from clipvol.bricking.point_store import build_point_store, check_point_store, o
 from clipvol.bricking.points import GEO_BITS, morton_decode, morton_encode, node_box
 from clipvol.errors import ClipvolError, InputFormatError, OutputExistsError
 
+from optional import POINT_READERS
+
 
 def _hard_points(rng, n=6000):
     """Clustered points with exact duplicates, a pile of 300 coincident points and near-coincident ones."""
@@ -117,6 +119,7 @@ def test_representatives_are_input_points_nearest_their_cell_centre(tmp_path, rn
     assert checked > 40
 
 
+@POINT_READERS
 def test_readers_match_the_files_their_libraries_wrote(tmp_path, rng):
     import meshio
     import pandas as pd
@@ -145,6 +148,7 @@ def test_readers_match_the_files_their_libraries_wrote(tmp_path, rng):
         assert src.value_names == ("rho",) and src.count == n
 
 
+@POINT_READERS
 def test_bad_input_gets_a_clear_error(tmp_path, rng):
     import pandas as pd
 

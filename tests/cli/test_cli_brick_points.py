@@ -11,6 +11,8 @@ from PIL import Image
 
 from clipvol.tools.cli import main
 
+from optional import needs
+
 
 def test_brick_points_info_check_render(tmp_path, capsys, rng):
     pts = rng.random((3000, 5))
@@ -61,7 +63,7 @@ def test_check_reports_a_corrupt_node_table(tmp_path, capsys, rng):
 
 @pytest.mark.parametrize("args, message", [
     (["missing.npy"], "missing.npy: no such file"),
-    (["bad.csv", "--value", "rho"], "bad.csv: no value column named 'rho'"),
+    pytest.param(["bad.csv", "--value", "rho"], "bad.csv: no value column named 'rho'", marks=needs("pandas")),
     (["nan.npy"], "nan.npy: expected finite x, y, z coordinates"),
     (["p.npy", "--max-points", "3"], "--max-points: expected 8..65536, got 3"),
     (["p.txt"], "unknown point format"),

@@ -11,6 +11,7 @@ from clipvol.bricking.pipeline import brick_volume
 from clipvol.bricking.generators import parse_procedural
 from clipvol.tools.cli import main
 
+from optional import REMOTE_HTTP, REMOTE_S3
 from remote_servers import moto_s3, serve_directory, upload_directory
 
 RENDER = ["--size", "96x80", "--view", "iso", "--tf", "viridis", "--memory-budget", "32MB"]
@@ -29,6 +30,7 @@ def _render(source, out, *extra) -> np.ndarray:
     return np.asarray(Image.open(out))
 
 
+@REMOTE_S3
 @pytest.mark.gl
 def test_render_from_s3_equals_local(site, tmp_path):
     local = _render(site / "f.zarr", tmp_path / "local.png")
@@ -39,6 +41,7 @@ def test_render_from_s3_equals_local(site, tmp_path):
     np.testing.assert_array_equal(s3, local)
 
 
+@REMOTE_HTTP
 @pytest.mark.gl
 def test_render_from_slow_flaky_http_with_cache_equals_local(site, tmp_path):
     local = _render(site / "f.zarr", tmp_path / "local.png")
@@ -49,10 +52,11 @@ def test_render_from_slow_flaky_http_with_cache_equals_local(site, tmp_path):
     assert any((tmp_path / "cache").rglob("c/*"))
 
 
+@REMOTE_HTTP
 def test_bad_remote_sources_exit_2_with_one_line(site, tmp_path, capsys):
     out = str(tmp_path / "x.png")
     with serve_directory(site, forbid=("/f.zarr",)) as (url, srv):
-        cases = [(f"{url}/f.zarr", "access denied (HTTP 403)"), (f"{url}/nothing.zarr", "not a zarr store")]
+        cases = [(f"{url}/f.zarr", "permission denied (HTTP 403)"), (f"{url}/nothing.zarr", "not a zarr store")]
         for source, what in cases:
             assert main(["render", source, "--out", out]) == 2
             err = capsys.readouterr().err
@@ -65,6 +69,7 @@ def test_bad_remote_sources_exit_2_with_one_line(site, tmp_path, capsys):
     assert "--cache" in capsys.readouterr().err
 
 
+@REMOTE_S3
 @pytest.mark.slow
 def test_info_and_check_over_s3_and_http(site, capsys):
     with moto_s3() as endpoint:

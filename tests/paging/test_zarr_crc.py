@@ -163,10 +163,13 @@ def test_a_file_whose_size_changes_under_the_read_is_read_whole_and_verified(sto
 
     class Short:
         def __init__(self, st):
-            self.st_size = st.st_size - 10
+            self.st_size, self.st_mode = st.st_size - 10, st.st_mode
 
     monkeypatch.setattr(os, "fstat", lambda fd: Short(real(fd)))
     loader, _ = _interior(store)
+    with pytest.raises(BrickIntegrityError, match=r"0/c/1/1/1: truncated or corrupt: \d+ bytes, but the store's manifest says"):
+        loader._chunk_into_buffer(0, (1, 1, 1))  # a verified store knows each chunk's exact size
+    loader._sizes = [None] * len(loader._sizes)  # a store without one reads on, bounded by the cap
     assert loader._chunk_into_buffer(0, (1, 1, 1)) == _chunk(store, 0, (1, 1, 1)).read_bytes()
     out = np.empty((B, B, B), np.uint16)
     loader.read_brick_into(0, (1, 1, 1), out)

@@ -100,3 +100,24 @@ def test_window_key_l_shows_the_slice_layout(xdisplay, loader):
         assert not v.slices.active
         _converge(v)
         assert np.abs(v.read_screen().astype(int) - normal).max() <= 3
+
+
+@pytest.mark.parametrize("name", ["ras", "las", "perm"])
+def test_patient_frame_store_gets_the_patients_planes(gl, tmp_path, name):
+    """A NIfTI store's panels are the patient's axial, coronal and sagittal planes, radiological
+    display (the axial's right edge is the patient's left, anterior at the top), any storage order."""
+    pytest.importorskip("nibabel")
+    from world_volumes import write_copy
+
+    from clipvol.bricking.pipeline import brick_volume
+    from clipvol.loaders.zarr_store import ZarrLoader
+    from clipvol.scene.orientation import view_labels
+
+    brick_volume(write_copy(tmp_path, name), tmp_path / "s.zarr", brick=8, progress=False)
+    loader = ZarrLoader(tmp_path / "s.zarr")
+    with RenderSession(loader, gl, memory_budget="16MB", threads=2, texture_budget="16MB") as s:
+        lay = SliceLayout(s)
+        got = {k: view_labels(loader.frame.affine, p.right, p.up) for k, p in lay.planes.items()}
+    assert got["axial"] == {"right": "L", "left": "R", "top": "A", "bottom": "P"}
+    assert got["coronal"] == {"right": "L", "left": "R", "top": "S", "bottom": "I"}
+    assert got["sagittal"] == {"right": "P", "left": "A", "top": "S", "bottom": "I"}

@@ -394,3 +394,23 @@ def test_view_cli_plays_a_t_axis_and_refuses_a_store_without_one(xdisplay, tmp_p
     capsys.readouterr()
     assert main(["view", "procedural:fractal?size=32", "--brick", "16", "--play", "--max-frames", "2"]) == 2
     assert "--play" in capsys.readouterr().err
+
+
+def test_window_on_a_mirrored_nifti_is_the_patient_not_its_mirror(xdisplay, tmp_path):
+    """An LAS NIfTI (array axes a mirror of the patient) opens seen from the front, head up, the
+    patient's left on screen right: the marker at the left-anterior-superior corner sits top right."""
+    pytest.importorskip("nibabel")
+    from world_volumes import write_copy
+
+    from clipvol.bricking.pipeline import brick_volume
+    from clipvol.viewer.window import Viewer
+
+    brick_volume(write_copy(tmp_path, "las"), tmp_path / "las.zarr", brick=8, progress=False)
+    with Viewer(str(tmp_path / "las.zarr"), size=(96, 96), tf="grey") as viewer:
+        viewer.key("H")
+        _converge(viewer)
+        assert viewer._orientation() == {"right": "L", "left": "R", "top": "S", "bottom": "I"}
+        lum = viewer._frame[..., 0].astype(np.float64)
+        rows, cols = np.nonzero(lum > 0.8 * lum.max())
+        h, w = lum.shape
+        assert rows.mean() < h / 2 and cols.mean() > w / 2

@@ -148,32 +148,33 @@ void composite_sample(inout vec4 acc, float texel, float row) {
 // Overlays of co-registered volumes (clipvol/scene/overlay.py): each one whole level in one float32
 // texture with its own transfer-function table (rows per primary level, opacity corrected for the
 // primary's step). At each sample of the primary, every overlay is sampled at the same point (its
-// texture coordinate is affine in the position relative to O: c = p * a + b) and composited under
+// texture coordinate is affine in the position relative to O: c = a * p + b, a 3x3 matrix holding
+// the overlay's inverse affine, so flipped, permuted, rotated or sheared overlays land in place) and composited under
 // the ray before the primary's sample: the overlays' colours over the primary's, the first on top.
 vec3 g_ov_origin;               // the pixel ray's origin relative to O (set by the fragment's main)
 uniform sampler3D u_ov0_tex;
 uniform sampler2D u_ov0_tf;
-uniform vec3 u_ov0_a;           // texture coordinate c = p * a + b (p relative to O)
+uniform mat3 u_ov0_a;           // texture coordinate c = a * p + b (p relative to O): the overlay's inverse affine
 uniform vec3 u_ov0_b;
 uniform vec2 u_ov0_t;           // table coordinate t = value * t.x + t.y
 #if OVERLAY > 1
 uniform sampler3D u_ov1_tex;
 uniform sampler2D u_ov1_tf;
-uniform vec3 u_ov1_a;
+uniform mat3 u_ov1_a;
 uniform vec3 u_ov1_b;
 uniform vec2 u_ov1_t;
 #endif
 #if OVERLAY > 2
 uniform sampler3D u_ov2_tex;
 uniform sampler2D u_ov2_tf;
-uniform vec3 u_ov2_a;
+uniform mat3 u_ov2_a;
 uniform vec3 u_ov2_b;
 uniform vec2 u_ov2_t;
 #endif
 
 // One overlay's sample at p: straight colour and opacity (0 outside its box or where not finite).
-vec4 overlay_one(sampler3D tex, sampler2D tf, vec3 a, vec3 b, vec2 tm, vec3 p, float row) {
-    vec3 c = p * a + b;
+vec4 overlay_one(sampler3D tex, sampler2D tf, mat3 a, vec3 b, vec2 tm, vec3 p, float row) {
+    vec3 c = a * p + b;
     if (any(lessThan(c, vec3(0.0))) || any(greaterThan(c, vec3(1.0)))) return vec4(0.0);   // outside its box
     float v = texture(tex, c).r;
     if (isnan(v) || isinf(v)) return vec4(0.0);
@@ -185,8 +186,8 @@ vec4 overlay_one(sampler3D tex, sampler2D tf, vec3 a, vec3 b, vec2 tm, vec3 p, f
 // primary's level-0 voxel, corrected here for the step delta). Nearest: the voxel whose cell holds p.
 uniform float u_ov_inv_ref;     // 1 / the primary's smallest level-0 voxel size
 
-vec4 overlay_label(sampler3D tex, sampler2D tab, vec3 a, vec3 b, vec3 p, float delta) {
-    vec3 c = p * a + b;
+vec4 overlay_label(sampler3D tex, sampler2D tab, mat3 a, vec3 b, vec3 p, float delta) {
+    vec3 c = a * p + b;
     if (any(lessThan(c, vec3(0.0))) || any(greaterThan(c, vec3(1.0)))) return vec4(0.0);
     ivec3 size = textureSize(tex, 0);
     ivec3 q = min(ivec3(c * vec3(size)), size - 1);

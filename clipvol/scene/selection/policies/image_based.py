@@ -19,8 +19,8 @@ weighted by ``p**6`` (:data:`VOXEL_WEIGHT`), ``p`` the pixels one of the brick's
 (as the projected-size policy measures it): without it a brick whose voxels are already below a
 pixel keeps being refined while a neighbour still shows four-pixel voxels - on the benchmark head
 the paper's formula needs about 1.3x (face view) and 2.7x (side view) the bricks for 5 % of
-pixels with Delta E >= 6. The exponent was 3 until the visibility estimate got finer depth layers;
-with them, 6 needs about 0.85x (face) and 0.96x (side) the bricks of 3 (weights 2 to 20 measured: 2 needs
+pixels with Delta E >= 6. With the visibility estimate's depth layers, an exponent of 6 needs
+about 0.85x (face) and 0.96x (side) the bricks of 3 (weights 2 to 20 measured: 2 needs
 more, 6 to 20 about the same). A priority queue refines the most important nodes until the cut
 holds ``block_budget`` nodes (or the texel budget's worth of bricks), in batches while much of
 the budget is left (:meth:`ImageBased._greedy`); the cut stays a valid octree cut, so

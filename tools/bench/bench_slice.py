@@ -3,7 +3,8 @@
 Every figure is a ratio measured in one run on this machine (Mesa llvmpipe, no GPU):
 
 * **bytes for a slice** - the distinct bricks a multiresolution slice with a point of interest
-  reads (its tiles and the parents its blending samples: ``SliceStats.bytes_needed``) against the
+  needs (its tiles and the parents its blending samples: ``SliceStats.bytes_needed``, computed as
+  bricks x brick size, not bytes read: the clip-texture loads whole windows) against the
   same slice at full resolution (``--level 0``: every level-0 brick the plane crosses). Target
   >= 8x fewer (LaMar, Hamann & Joy's Table 1: 56 MB -> 7 MB), at <= 1 % of pixels with CIELUV
   Delta E >= 6 against the full-resolution slice and 0 % inside the focus radius (the disc around
@@ -16,9 +17,9 @@ Every figure is a ratio measured in one run on this machine (Mesa llvmpipe, no G
   interest and the clip-texture's centre follow it), each slice converged (``wait=True``), with
   the texture budget held (the largest texture footprint is reported against the budget).
 
-Run ``python -m clipvol.tools.bench_slice`` (uses ``bench-data/fractal-640-b64.zarr``, 640^3
+Run ``python tools/bench/bench_slice.py`` (uses ``bench-data/fractal-640-b64.zarr``, 640^3
 float32 = 1.05 GB, bricking it with ``clipvol brick`` first if missing) or ``--quick`` for a small
-smoke run. Writes ``docs/bench_slice.csv``, ``docs/bench_slice.png`` and the compared slices
+smoke run. Writes ``tools/bench/results/bench_slice.csv``, ``tools/bench/results/bench_slice.png`` and the compared slices
 ``docs/images/slice_full.png`` / ``docs/images/slice_multires.png``.
 
 References
@@ -37,9 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-STORE = "fractal-640-b64.zarr"
-STORE_SOURCE = "procedural:fractal?size=640"
+from common import RESULTS, STORE, big_fractal_store  # noqa: E402  (tools/bench/common.py)
 
 _QUAD_VS = """#version 330
 in vec2 in_pos;
@@ -101,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--steps", type=int, default=24, help="slices of the stepping test")
     ap.add_argument("--texture-budget", default="1100MB", help="GPU cache budget (its cubic windows must hold a full-resolution plane: 10^3 level-0 bricks here)")
     ap.add_argument("--memory-budget", default="1200MB", help="clip-texture budget (likewise)")
-    ap.add_argument("--out-dir", type=Path, default=REPO / "docs")
+    ap.add_argument("--out-dir", type=Path, default=RESULTS)
     args = ap.parse_args(argv)
 
     from PIL import Image
@@ -120,13 +119,9 @@ def main(argv: list[str] | None = None) -> int:
     elif args.source:
         source, kw = args.source, {}
     else:
-        store = REPO / "bench-data" / STORE
-        if not (store / "zarr.json").exists():
-            from clipvol.tools.cli import main as cli
-
-            print(f"bricking {STORE_SOURCE} into {store} (once)", file=sys.stderr)
-            if cli(["brick", STORE_SOURCE, str(store), "--quiet"]) != 0:
-                return 2
+        store = big_fractal_store()
+        if store is None:
+            return 2
         source, kw = str(store), {}
     log = lambda *a: print(*a, file=sys.stderr, flush=True)  # noqa: E731
     loader = open_store(source, **kw)

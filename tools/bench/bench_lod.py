@@ -20,11 +20,11 @@ measured in one run on this machine (Mesa llvmpipe, no GPU):
   pyramid, and on a 1024^3 (1 GiB of uint8) pyramid of 32^3 bricks whose tables are drawn from
   the head's (the error's cost depends only on the tables' sizes). Target < 0.5 s for 10^4 bricks.
 * Wang, Garcia & Shen's Fig. 6: % pixels against bricks drawn for projected size, distance and image-based
-  with and without visibility (``docs/bench_lod.png``).
+  with and without visibility (``tools/bench/results/bench_lod.png``).
 
-Run ``python -m clipvol.tools.bench_lod`` (256^3 head, 16^3 bricks, 256^2 images) or ``--quick``.
-Writes ``docs/bench_lod.csv``, ``docs/bench_lod.png`` and ``docs/bench_lod.md`` (``--path single-pass``:
-``docs/bench_lod_single_pass.*``).
+Run ``python tools/bench/bench_lod.py`` (256^3 head, 16^3 bricks, 256^2 images) or ``--quick``.
+Writes ``tools/bench/results/bench_lod.csv``, ``tools/bench/results/bench_lod.png`` and ``tools/bench/results/bench_lod.md`` (``--path single-pass``:
+``tools/bench/results/bench_lod_single_pass.*``).
 
 References
 ----------
@@ -43,9 +43,9 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+from common import RESULTS  # noqa: E402  (tools/bench/common.py)
 #: view direction and eye distance in volume diagonals (None: ``--distance``); the face and side views
-#: fill the image (the last round's views), the overview shows the whole head from further away
+#: fill the image, the overview shows the whole head from further away
 VIEWS = {"face": ((0.3, 0.2, 1.0), None), "side": ((1.0, 0.25, 0.35), None), "overview": ((-0.5, 0.35, 1.0), 1.5)}
 THRESHOLDS = (16, 12, 10, 9, 8, 7.5, 7, 6.5, 6, 5.5, 5, 4.5, 4, 3.5, 3, 2.5, 2, 1.5, 1)
 BUDGETS = (16, 24, 32, 40, 48, 56, 64, 72, 80, 96, 112, 128, 144, 160, 192, 256, 384, 512)
@@ -114,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="small smoke run (128^3, 128^2 images)")
     ap.add_argument("--path", choices=("bricks", "single-pass"), default="bricks",
                     help="how the volume action draws every frame of the run (RenderParams.path)")
-    ap.add_argument("--out-dir", type=Path, default=REPO / "docs")
+    ap.add_argument("--out-dir", type=Path, default=RESULTS)
     args = ap.parse_args(argv)
     if args.quick:
         args.size, args.image = 128, 128

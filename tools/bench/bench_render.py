@@ -21,8 +21,8 @@ noise of a shared machine cancels as far as it can:
   step. Target <= 1.5x the time.
 * **against a raw caster** - the full-resolution frame and clipvol's own one-texture frame, each
   divided by :class:`RawCaster`'s time (a plain one-texture caster outside clipvol's render path,
-  same volume, view, step and table), timed in every round at two stops: 0.9995, the fixture's
-  stop since it was written (``*_over_raw``) and clipvol's own ``OPAQUE`` (``*_over_raw_same_stop``:
+  same volume, view, step and table), timed in every round at two stops: 0.9995, the raw
+  caster's own (``*_over_raw``), and clipvol's ``OPAQUE`` (``*_over_raw_same_stop``:
   the same samples as clipvol). Targets <= 1.1x and <= 1.05x. ``--vs-raw 256,512`` runs
   only this comparison on procedural volumes, ``--fly-only N`` only the fly-path frame times,
   ``--vs-raw-large 1024`` a 1024^3 uint8 volume (1 GiB: a float32 one would not fit beside the raw
@@ -30,17 +30,17 @@ noise of a shared machine cancels as far as it can:
   4096^3 multiresolution frame beside it.
 * **where a ray stops** - ``--vs-stop N``: the full-resolution frame of the fractal and of the
   CT-like head (``N``³) stopping rays at 0.9995 and at clipvol's ``OPAQUE`` (1 - 0.5/255): time
-  ratio and the largest 8-bit difference of the two images (``docs/bench_render_stop.csv``).
+  ratio and the largest 8-bit difference of the two images (``tools/bench/results/bench_render_stop.csv``).
 * **the two draw paths on image-LOD cuts** - ``--vs-lod``: the head, views and cuts of
-  ``tools/bench_lod.py`` (full resolution and the image policy at ``--block-budget`` blocks), drawn
+  ``tools/bench/bench_lod.py`` (full resolution and the image policy at ``--block-budget`` blocks), drawn
   by a per-brick and a single-pass session over the same store, interleaved; every ratio is the
-  single pass's time over the per-brick path's (``docs/bench_render_lod.csv``).
+  single pass's time over the per-brick path's (``tools/bench/results/bench_render_lod.csv``).
 
-Run ``python -m clipvol.tools.bench_render`` (uses ``bench-data/fractal-640-b64.zarr``, 640^3
+Run ``python tools/bench/bench_render.py`` (uses ``bench-data/fractal-640-b64.zarr``, 640^3
 float32 = 1.05 GB, bricking it with ``clipvol brick`` first if it is missing) or ``--quick`` for a
 small smoke run. (Mesa's llvmpipe refuses single 3D textures of about 2 GiB, which bounds the
-one-texture reference caster, hence not the 2 GiB paging store.) Writes ``docs/bench_render.csv``, ``docs/bench_render.png`` and
-the two compared images ``docs/bench_render_full.png`` / ``docs/bench_render_multires.png``.
+one-texture reference caster, hence not the 2 GiB paging store.) Writes ``tools/bench/results/bench_render.csv``, ``tools/bench/results/bench_render.png`` and
+the two compared images ``tools/bench/results/bench_render_full.png`` / ``tools/bench/results/bench_render_multires.png``.
 """
 
 from __future__ import annotations
@@ -54,322 +54,10 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parent.parent
-STORE = "fractal-640-b64.zarr"
-STORE_SOURCE = "procedural:fractal?size=640"  # 640^3 float32: 1.05 GB, built once with `clipvol brick`
-
-
-class _WholeVolume:
-    """A loader that serves level 0 of another loader as one brick (for the one-pass caster)."""
-
-    def __init__(self, loader) -> None:
-        from clipvol.bricking.pyramid import Pyramid
-
-        p = loader.pyramid
-        self._src = loader
-        self._pyr = Pyramid((p.levels[0],), p.shape, p.dtype, p.value_range, p.fill_value, p.filter)
-
-    @property
-    def pyramid(self):
-        return self._pyr
-
-    def read_brick(self, level, index):
-        p = self._src.pyramid
-        out = np.empty(p.shape, dtype=p.dtype)
-        g = p.grid(0)
-        for bz in range(g[0]):
-            for by in range(g[1]):
-                for bx in range(g[2]):
-                    (z0, y0, x0), (z1, y1, x1) = p.brick_voxel_box(0, (bz, by, bx))
-                    brick = self._src.read_brick(0, (bz, by, bx))
-                    out[z0:z1, y0:y1, x0:x1] = brick[: z1 - z0, : y1 - y0, : x1 - x0]
-        return out
-
-
-# -- the honest reference: a minimal raw one-texture ray caster (a fixture, not a product path) ---
-_RAW_VERT = """#version 330
-out vec2 v_ndc;
-void main() {
-    vec2 p = vec2((gl_VertexID << 1) & 2, gl_VertexID & 2) * 2.0 - 1.0;  // one full-screen triangle
-    v_ndc = p;
-    gl_Position = vec4(p, 0.0, 1.0);
-}
-"""
-_RAW_FRAG = """#version 330
-in vec2 v_ndc;
-out vec4 f_color;
-uniform sampler3D u_vol;        // the whole volume, GL_LINEAR, clamp to edge
-uniform sampler2D u_tf;         // the table, opacity corrected for the step on the CPU
-uniform vec3 u_eye, u_right, u_up, u_forward;
-uniform vec2 u_half;
-uniform vec3 u_lo, u_hi;        // the volume box (world)
-uniform float u_delta, u_t_scale, u_t_offset, u_opaque;
-void main() {
-    vec3 dir = normalize(u_forward + v_ndc.x * u_half.x * u_right + v_ndc.y * u_half.y * u_up);
-    vec3 inv = 1.0 / dir;
-    vec3 ta = (u_lo - u_eye) * inv, tb = (u_hi - u_eye) * inv;
-    float t0 = max(max(max(min(ta.x, tb.x), min(ta.y, tb.y)), min(ta.z, tb.z)), 0.0);
-    float t1 = min(min(max(ta.x, tb.x), max(ta.y, tb.y)), max(ta.z, tb.z));
-    if (!(t1 > t0)) discard;
-    vec4 acc = vec4(0.0);
-    vec3 isz = 1.0 / (u_hi - u_lo);
-    for (float t = ceil(t0 / u_delta) * u_delta; t < t1; t += u_delta) {
-        float v = texture(u_vol, (u_eye + t * dir - u_lo) * isz).r;
-        vec4 c = texture(u_tf, vec2(v * u_t_scale + u_t_offset, 0.5));
-        acc += (1.0 - acc.a) * c.a * vec4(c.rgb, 1.0);
-        if (acc.a >= u_opaque) break;
-    }
-    f_color = acc;
-}
-"""
-
-
-#: the raw caster's early ray termination since it was written (the speed issue names no stop; this
-#: was clipvol's own until the sixth session). clipvol stops at
-#: ``clipvol.render.action.OPAQUE`` (1 - 0.5/255, where what is left cannot move an 8-bit pixel by
-#: more than one level); the benchmarks time the raw caster at both, so that each ratio can be read
-#: against the fixture as it has always been and against a caster doing exactly clipvol's work.
-RAW_OPAQUE = 0.9995
-
-
-class RawCaster:
-    """A plain one-texture moderngl ray caster: one 3D texture, one table lookup, front to back.
-
-    The benchmarks' reference *outside* clipvol's render path (the shader above is all there is:
-    no bricks, no page table, no variants, no shape clipping), drawing the same view with the same
-    step, lattice (``t = k * delta`` from the eye) and opacity-corrected table, so clipvol's
-    frame time can be stated as a ratio to what a minimal caster costs on the same GL.
-    It stops a ray at accumulated opacity ``opaque`` (:data:`RAW_OPAQUE` unless given).
-    Perspective cameras only. ``volume``: ``(z, y, x)``, spacing 1; float32, or uint8 / uint16 held
-    as a normalised 8 / 16-bit texture (a 1024^3 volume then fits in memory: 1 or 2 GiB), its
-    texel times 255 / 65535 being the value.
-    """
-
-    def __init__(self, ctx, volume: np.ndarray, value_range) -> None:
-        import moderngl
-
-        self.ctx = ctx
-        gl = {np.dtype(np.uint8): ("f1", 255.0), np.dtype(np.uint16): ("nu2", 65535.0)}.get(np.asarray(volume).dtype)
-        if gl is None:
-            vol = np.ascontiguousarray(volume, dtype=np.float32)
-            gl = ("f4", 1.0)
-        else:
-            vol = np.ascontiguousarray(volume)
-        self.norm = gl[1]  # value = texel * norm
-        self.shape = vol.shape
-        self.tex = ctx.texture3d(vol.shape[::-1], 1, vol, dtype=gl[0], alignment=1)
-        self.tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
-        self.tex.repeat_x = self.tex.repeat_y = self.tex.repeat_z = False
-        self.prog = ctx.program(vertex_shader=_RAW_VERT, fragment_shader=_RAW_FRAG)
-        self.vao = ctx.vertex_array(self.prog, [])
-        self.value_range = tuple(float(v) for v in value_range)
-        self._fbo = None
-        self._tf = None
-
-    def render(self, cam, tf, step: float, opaque: float = RAW_OPAQUE) -> np.ndarray:
-        """Draw ``cam``'s view; returns ``(h, w, 4)`` premultiplied float32 RGBA, row 0 at the top.
-        ``opaque``: the accumulated opacity at which a ray stops."""
-        import moderngl
-
-        from clipvol.scene.transfer import correct_opacity
-
-        ctx = self.ctx
-        w, h = cam.size
-        if self._fbo is None or self._fbo.size != (w, h):
-            self._fbo = ctx.simple_framebuffer((w, h), components=4, dtype="f4")
-        if self._tf is None:
-            table = np.array(tf.table, dtype=np.float64)
-            table[:, 3] = correct_opacity(table[:, 3], step)
-            self._tf = ctx.texture((len(table), 1), 4, table.astype(np.float32).tobytes(), dtype="f4")
-            self._tf.filter = (moderngl.LINEAR, moderngl.LINEAR)
-            self._tf.repeat_x = self._tf.repeat_y = False
-        lo, hi = tf.window(self.value_range)
-        p = self.prog
-        p["u_vol"].value, p["u_tf"].value = 0, 1
-        self.tex.use(0)
-        self._tf.use(1)
-        p["u_eye"].value = tuple(float(v) for v in cam.eye)
-        p["u_right"].value = tuple(float(v) for v in cam.right)
-        p["u_up"].value = tuple(float(v) for v in cam.up)
-        p["u_forward"].value = tuple(float(v) for v in cam.forward)
-        ty = np.tan(np.radians(float(cam.fov_y)) / 2.0)
-        p["u_half"].value = (float(ty * w / h), float(ty))
-        n = np.array(self.shape[::-1], dtype=np.float64)
-        p["u_lo"].value = (-0.5, -0.5, -0.5)
-        p["u_hi"].value = tuple(float(v) for v in n - 0.5)
-        p["u_delta"].value = float(step)
-        p["u_opaque"].value = float(opaque)
-        p["u_t_scale"].value = self.norm / (hi - lo)
-        p["u_t_offset"].value = -lo / (hi - lo)
-        previous = ctx.fbo
-        self._fbo.use()
-        self._fbo.clear(0.0, 0.0, 0.0, 0.0)
-        ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
-        self.vao.render(moderngl.TRIANGLES, vertices=3)
-        ctx.finish()
-        out = np.frombuffer(self._fbo.read(components=4, dtype="f4"), np.float32).reshape(h, w, 4)[::-1]
-        previous.use()  # give the binding back (a released framebuffer left bound breaks later ones)
-        return out
-
-    def release(self) -> None:
-        for o in (self.tex, self.prog, self.vao, self._fbo, self._tf):
-            if o is not None:
-                o.release()
-
-
-def fractal_scene(n: int, image: int, log=None):
-    """The benchmarks' common set-up: ``procedural:fractal?size=n`` in memory (float32), its loader
-    (64³ bricks), a camera that fills an ``image``² view with it (about one pixel per voxel at 512),
-    the ``bone`` table, and a clip-texture whose budget holds every brick. Returns ``(vol, loader,
-    camera, tf, budget, clip)``; the caller closes ``clip``."""
-    from clipvol.loaders.numpy_array import NumpyLoader
-    from clipvol.loaders.procedural import ProceduralLoader
-    from clipvol.paging.cliptexture import ClipTexture
-    from clipvol.scene.camera import Camera
-    from clipvol.scene.transfer import TransferFunction
-
-    t0 = time.perf_counter()
-    vol = ProceduralLoader(f"procedural:fractal?size={n}", brick=64).generator.region(0, (0, 0, 0), (n, n, n))
-    vol = np.ascontiguousarray(vol, dtype=np.float32)
-    if log is not None:
-        log(f"{n}^3: generated in {time.perf_counter() - t0:.1f} s")
-    loader = NumpyLoader(vol, brick=64, value_range=(float(vol.min()), float(vol.max())))
-    pyr = loader.pyramid
-    lo, hi = pyr.volume_box()
-    centre = (lo + hi) / 2.0
-    d = np.array([0.55, 0.45, 0.7])
-    d /= np.linalg.norm(d)
-    cam = Camera.perspective(tuple(centre - d * 1.05 * float(np.linalg.norm(hi - lo))), tuple(centre), up=(0, -1, 0),
-                             fov_y=35, size=(image, image))
-    tf = TransferFunction.preset("bone", value_range=pyr.value_range)
-    budget = int(sum(pyr.num_bricks(L) for L in range(pyr.num_levels)) * pyr.brick_nbytes * 1.2) + (64 << 20)
-    return vol, loader, cam, tf, budget, ClipTexture(loader, budget, threads=2)
-
-
-def raw_stops() -> dict:
-    """The raw caster's two configurations: ``"raw"`` stopping at :data:`RAW_OPAQUE` (the fixture
-    as written) and ``"raw_same_stop"`` stopping where clipvol stops (``OPAQUE``)."""
-    from clipvol.render.action import OPAQUE
-
-    return {"raw": RAW_OPAQUE, "raw_same_stop": OPAQUE}
-
-
-def time_raw(raw, cam, tf, step: float, wall: dict, cpu: dict) -> np.ndarray:
-    """One round of the raw caster at each of :func:`raw_stops` (timed as drawn and read back, like
-    clipvol's frame), appended to ``wall`` / ``cpu`` under the stop's key; returns the image of the
-    fixture as written (``"raw"``)."""
-    out = None
-    for key, stop in raw_stops().items():
-        t, c = time.perf_counter(), time.process_time()
-        img = raw.render(cam, tf, step, stop)
-        wall[key].append(time.perf_counter() - t)
-        cpu[key].append(time.process_time() - c)
-        out = img if key == "raw" else out
-    return out
-
-
-def interleaved_medians(raw, actions: dict, cam, tf, step: float, repeat: int) -> tuple[dict, dict]:
-    """Median wall and process-CPU seconds of the raw caster (``"raw"`` and ``"raw_same_stop"``,
-    :func:`raw_stops`) and each action, measured in ``repeat`` interleaved rounds (the shared
-    machine's load hits every configuration alike), after one converged frame of each."""
-    for a in actions.values():
-        a.render(cam, tf, wait=True, timeout=600)
-    stops = raw_stops()
-    raw.render(cam, tf, step)
-    wall = {k: [] for k in [*stops, *actions]}
-    cpu = {k: [] for k in [*stops, *actions]}
-    for _ in range(repeat):
-        time_raw(raw, cam, tf, step, wall, cpu)
-        for name, a in actions.items():
-            t, c = time.perf_counter(), time.process_time()
-            a.render(cam, tf, wait=False)
-            wall[name].append(time.perf_counter() - t)
-            cpu[name].append(time.process_time() - c)
-    return ({k: statistics.median(v) for k, v in wall.items()}, {k: statistics.median(v) for k, v in cpu.items()})
-
-
-def ratio_columns(mw: dict, mc: dict, names) -> dict:
-    """Per action name: its median seconds, and its wall and CPU time over the raw caster's at each
-    stop (``"raw"``, ``"raw_same_stop"`` in ``mw``/``mc``, from :func:`interleaved_medians`), as CSV
-    columns."""
-    row = {}
-    for k in names:
-        key = k.replace(" ", "_").replace("-", "_")
-        row[f"{key}_s"] = round(mw[k], 4)
-        row.update(stop_ratios(mw, mc, [k], key, digits=3))
-    return row
-
-
-def stop_ratios(mw: dict, mc: dict, names, key=None, digits=None) -> dict:
-    """``{name}_over_{stop}`` and ``{name}_cpu_over_{stop}`` columns: each action's median wall and
-    CPU time over the raw caster's at each of :func:`raw_stops` (``key``: the column name for a
-    single action, default the action's name; ``digits``: rounding)."""
-    out = {}
-    for k in names:
-        col = key or k
-        for r in raw_stops():
-            w, c = mw[k] / mw[r], mc[k] / mc[r]
-            out[f"{col}_over_{r}"] = w if digits is None else round(w, digits)
-            out[f"{col}_cpu_over_{r}"] = c if digits is None else round(c, digits)
-    return out
-
-
-def raw_ratio_line(mw: dict, mc: dict, names) -> str:
-    """One log line: each action's median and its ratios to the raw caster, wall and CPU, at the
-    fixture's stop and at clipvol's."""
-    return f"raw {mw['raw']:.3f} s (same stop {mw['raw_same_stop']:.3f} s); " + "; ".join(
-        f"{k} {mw[k]:.3f} s = {mw[k] / mw['raw']:.2f}x raw (CPU {mc[k] / mc['raw']:.2f}x; same stop "
-        f"{mw[k] / mw['raw_same_stop']:.2f}x, CPU {mc[k] / mc['raw_same_stop']:.2f}x)" for k in names)
-
-
-def raw_runs(sizes, image: int, repeat: int, step: float, make_actions):
-    """Per ``procedural:fractal`` volume of ``sizes`` (:func:`fractal_scene`): the render actions
-    ``make_actions(ctx, n, clip, common)`` makes (``common``: full resolution at ``step`` under the
-    scene's texture budget) timed against a :class:`RawCaster` of the same volume, interleaved,
-    medians of ``repeat`` (:func:`interleaved_medians`). Yields ``(n, actions, wall, cpu)``; what a
-    run made is released before the next."""
-    from clipvol.render import create_context
-
-    ctx = create_context()
-    try:
-        for n in sizes:
-            vol, loader, cam, tf, budget, clip = fractal_scene(n, image)
-            actions = make_actions(ctx, n, clip, dict(policy="fixed", level=0, step=step, texture_budget=budget))
-            raw = RawCaster(ctx, vol, loader.pyramid.value_range)
-            try:
-                mw, mc = interleaved_medians(raw, actions, cam, tf, step, repeat)
-                yield n, actions, mw, mc
-            finally:
-                for a in actions.values():
-                    a.close()
-                raw.release()
-                clip.close()
-    finally:
-        ctx.release()
-
-
-def sizes_main(argv, doc: str, run, default_out: Path, sizes_help: str) -> int:
-    """The command line of a benchmark against the raw caster over fractal volumes of ``--sizes``:
-    ``run(sizes, image, repeat, step)`` gives the CSV rows written to ``--out``."""
-    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
-    ap.add_argument("--sizes", default="128,256", help=sizes_help)
-    ap.add_argument("--image", type=int, default=256, help="image edge in pixels")
-    ap.add_argument("--repeat", type=int, default=5, help="interleaved rounds (medians)")
-    ap.add_argument("--step", type=float, default=0.5)
-    ap.add_argument("--out", default=str(default_out))
-    args = ap.parse_args(argv)
-    rows = run([int(s) for s in args.sizes.split(",")], args.image, args.repeat, args.step)
-    write_rows(args.out, rows)
-    print(f"wrote {args.out}")
-    return 0
-
-
-def write_rows(path, rows: list[dict]) -> None:
-    """``rows`` as a CSV at ``path`` (columns: the first row's keys)."""
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+from common import (  # noqa: E402  (tools/bench/common.py: paths, data sets, the raw caster)
+    DATA, RAW_OPAQUE, RESULTS, RawCaster, WholeVolume, big_fractal_store, fractal_scene, interleaved_medians,
+    ratio_columns, raw_ratio_line, raw_stops, stop_ratios, time_raw, write_rows,
+)
 
 
 def _frames(action, cam, tf, repeat: int) -> tuple[float, float, np.ndarray]:
@@ -574,7 +262,7 @@ def vs_raw(sizes, image: int, repeat: int, step: float, out_dir: Path, fly_frame
 def vs_lod(size: int, brick: int, image: int, repeat: int, out_dir: Path, block_budget: int = 96,
            log=print) -> list[dict]:
     """The two draw paths on the image-LOD benchmark's cuts, in one run: the CT-like head of
-    ``tools/bench_lod.py`` (``size``^3 uint8, ``brick``^3 bricks, summary tables), its face, side and
+    ``tools/bench/bench_lod.py`` (``size``^3 uint8, ``brick``^3 bricks, summary tables), its face, side and
     overview views, each drawn at full resolution (``policy="fixed", level=0``) and with the image
     policy at ``block_budget`` blocks, by a per-brick session and a single-pass session over the same
     store; warm frames, the two paths interleaved, medians of ``repeat`` (wall and process CPU time).
@@ -590,7 +278,7 @@ def vs_lod(size: int, brick: int, image: int, repeat: int, out_dir: Path, block_
     from clipvol.scene.camera import Camera
     from clipvol.scene.params import RenderParams
     from clipvol.scene.transfer import TransferFunction
-    from clipvol.tools.bench_lod import VIEWS
+    from bench_lod import VIEWS
 
     tmp = tempfile.TemporaryDirectory(prefix="clipvol-bench-render-lod-")
     store = Path(tmp.name) / "head.zarr"
@@ -715,7 +403,7 @@ def vs_stop(n: int, image: int, repeat: int, step: float, out_dir: Path, log=pri
     from clipvol.render import create_context
     from clipvol.scene.camera import Camera
     from clipvol.scene.transfer import TransferFunction
-    from clipvol.tools.bench_lod import VIEWS
+    from bench_lod import VIEWS
 
     stops = {"0.9995": RAW_OPAQUE, "1-0.5/255": action_mod.OPAQUE}
     kept = action_mod.OPAQUE
@@ -823,7 +511,7 @@ def vs_raw_large(n: int, dtype: str, image: int, repeat: int, step: float, out_d
         return Camera.perspective(tuple(centre - d * 1.05 * float(np.linalg.norm(hi - lo))), tuple(centre),
                                   up=(0, -1, 0), fov_y=35, size=(image, image))
 
-    vol = quantised_fractal(n, dtype, REPO / "bench-data", log)
+    vol = quantised_fractal(n, dtype, DATA, log)
     vr = finite_range(vol)
     loader = NumpyLoader(vol, brick=64, value_range=vr)
     pyr = loader.pyramid
@@ -910,26 +598,26 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--size", type=int, default=256, help="image edge in pixels (default 256)")
     ap.add_argument("--repeat", type=int, default=3, help="warm frames per configuration and round (median)")
     ap.add_argument("--step", type=float, default=0.5)
-    ap.add_argument("--out-dir", type=Path, default=REPO / "docs")
+    ap.add_argument("--out-dir", type=Path, default=RESULTS)
     ap.add_argument("--vs-raw", default=None, metavar="SIZES",
                     help="only the comparison with the raw one-texture caster, on procedural fractal volumes of "
-                         "these edges (e.g. 256,512); writes docs/bench_render_raw.csv")
+                         "these edges (e.g. 256,512); writes tools/bench/results/bench_render_raw.csv")
     ap.add_argument("--fly-only", type=int, default=None, metavar="N",
                     help="only the fly-path frame times on procedural:fractal?size=N (virtual: bricks generated "
-                         "on demand, e.g. 4096); writes docs/bench_render_fly.csv")
+                         "on demand, e.g. 4096); writes tools/bench/results/bench_render_fly.csv")
     ap.add_argument("--fly-frames", type=int, default=48, help="--vs-raw: frames of the fly path (frame-time stability)")
     ap.add_argument("--vs-raw-large", type=int, default=None, metavar="N",
                     help="only N^3 (e.g. 1024) quantised to --dtype against the raw caster, and a virtual "
-                         "--virtual^3 multiresolution frame beside it; writes docs/bench_render_large.csv")
+                         "--virtual^3 multiresolution frame beside it; writes tools/bench/results/bench_render_large.csv")
     ap.add_argument("--vs-lod", action="store_true",
                     help="only the two draw paths (per brick, single pass) on the image-LOD benchmark's head, views "
-                         "and cuts (full resolution and the image policy), interleaved; writes docs/bench_render_lod.csv")
+                         "and cuts (full resolution and the image policy), interleaved; writes tools/bench/results/bench_render_lod.csv")
     ap.add_argument("--vs-paths", type=int, default=None, metavar="N",
                     help="only the two draw paths on the same cut of procedural:fractal?size=N drawn as 1, 2, 4, 8 "
-                         "and 64 unmerged boxes, against the raw caster; writes docs/bench_render_paths.csv")
+                         "and 64 unmerged boxes, against the raw caster; writes tools/bench/results/bench_render_paths.csv")
     ap.add_argument("--vs-stop", type=int, default=None, metavar="N",
                     help="only the early-termination stop, 0.9995 against 1 - 0.5/255, on the fractal N^3 and the "
-                         "CT-like head N^3; writes docs/bench_render_stop.csv")
+                         "CT-like head N^3; writes tools/bench/results/bench_render_stop.csv")
     ap.add_argument("--lod-size", type=int, default=256, help="--vs-lod: head volume edge (default 256)")
     ap.add_argument("--lod-brick", type=int, default=16, help="--vs-lod: brick edge (default 16, as bench_lod)")
     ap.add_argument("--block-budget", type=int, default=96, help="--vs-lod: the image policy's block budget")
@@ -990,13 +678,9 @@ def main(argv: list[str] | None = None) -> int:
     elif args.source:
         source, kw = args.source, {}
     else:
-        store = REPO / "bench-data" / STORE
-        if not (store / "zarr.json").exists():
-            from clipvol.tools.cli import main as cli
-
-            print(f"bricking {STORE_SOURCE} into {store} (once)", file=sys.stderr)
-            if cli(["brick", STORE_SOURCE, str(store), "--quiet"]) != 0:
-                return 2
+        store = big_fractal_store()
+        if store is None:
+            return 2
         source, kw = str(store), {}
     loader = open_store(source, **kw)
     pyr = loader.pyramid
@@ -1038,7 +722,7 @@ def main(argv: list[str] | None = None) -> int:
     log(f"warm sub-loads through the cache {sub_mbps:.0f} MB/s; raw texture.write of the same bricks "
         f"{raw_mbps:.0f} MB/s; one big texture.write {big_mbps:.0f} MB/s")
 
-    whole = _WholeVolume(loader)
+    whole = WholeVolume(loader)
     vol_bytes = int(np.prod(pyr.shape)) * pyr.dtype.itemsize
     clip1 = stack.enter_context(ClipTexture(whole, vol_bytes + (16 << 20), threads=1))
     one = ClipRenderAction(ctx, clip1, texture_budget=vol_bytes + (16 << 20), selection="fixed", level=0, step=args.step)

@@ -11,22 +11,17 @@ of level 0 drawn), one view that the volume fills, the ``bone`` table, step 0.5:
 
 Rounds are interleaved (the shared machine's load hits every configuration alike); medians of
 wall-clock and of process CPU time (all llvmpipe threads). Printed and written to
-``docs/bench_shading.csv``: every time as a ratio to the raw caster's, and lit / unlit per path.
+``tools/bench/results/bench_shading.csv``: every time as a ratio to the raw caster's, and lit / unlit per path.
 A lit sample reads the data 7 times (the sample and six central-difference neighbours), so the
 ratio lit / unlit is expected to be well above 1 on a CPU rasteriser.
 """
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
 
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 # raw_runs times every configuration against RawCaster, the baseline outside clipvol's render path
-from bench_render import ratio_columns, raw_ratio_line, raw_runs, sizes_main  # noqa: E402
-
-REPO = Path(__file__).resolve().parent.parent
+from common import RESULTS, ratio_columns, raw_ratio_line, raw_runs, sizes_main  # noqa: E402  (tools/bench/common.py)
 
 
 def run(sizes, image: int, repeat: int, step: float, log=print) -> list[dict]:
@@ -53,7 +48,7 @@ def run(sizes, image: int, repeat: int, step: float, log=print) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return sizes_main(argv, __doc__, run, REPO / "docs" / "bench_shading.csv", "volume edge lengths N (comma-separated)")
+    return sizes_main(argv, __doc__, run, RESULTS / "bench_shading.csv", "volume edge lengths N (comma-separated)")
 
 
 if __name__ == "__main__":

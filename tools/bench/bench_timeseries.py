@@ -17,7 +17,7 @@ over: that idle time is what prefetching can use. Back-to-back stepping with no 
 hide loads on a CPU-only machine, where the loader threads and the software rasterizer share the
 same cores; that figure is printed too. The budget holds one step about twice (``--budget``), as
 the target case says. Printed: steps/s of each and the ratios prefetch / cached (target >= 0.9)
-and prefetch / no prefetch. Writes ``docs/bench_timeseries.csv``.
+and prefetch / no prefetch. Writes ``tools/bench/results/bench_timeseries.csv``.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parent.parent
+from common import DATA, RESULTS  # noqa: E402  (tools/bench/common.py)
 
 
 def build_series(path: Path, steps: int, n: int) -> Path:
@@ -102,9 +102,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--period", type=float, default=None, help="seconds a step is shown (default 1.5x cached)")
-    ap.add_argument("--out-dir", type=Path, default=REPO / "docs")
+    ap.add_argument("--out-dir", type=Path, default=RESULTS)
     args = ap.parse_args(argv)
-    path = build_series(REPO / "bench-data" / f"series-T{args.steps}-{args.n}.zarr", args.steps, args.n)
+    path = build_series(DATA / f"series-T{args.steps}-{args.n}.zarr", args.steps, args.n)
     loaders = [ZarrLoader(path, t=k) for k in range(args.steps)]
     step_bytes = sum(loaders[0].pyramid.num_bricks(L) for L in range(loaders[0].pyramid.num_levels)) \
         * loaders[0].pyramid.brick_nbytes

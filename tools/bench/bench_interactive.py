@@ -15,16 +15,16 @@ measured (full quality, converged: every brick it wants loaded and drawn at its 
 
 Ratios, each against a reference measured in the same run:
 
-* drag fps with adaptation against the **same drag at full quality** (the viewer before this
-  change: every frame at 960x640 and the base step);
+* drag fps with adaptation against the **same drag at full quality** (the viewer without
+  adaptive quality: every frame at 960x640 and the base step);
 * the full-quality frame against a **one-texture, one-pass ray caster** of level 0 (the whole
   volume in a single 3D texture, one draw, same view and step: the paging and bricking code out
   of the path), the two measured alternately - so the numbers can be compared with
   ``bench_render``'s.
 
-``python -m clipvol.tools.bench_interactive`` (builds the two stores under ``bench-data/`` if
-missing; ``--quick`` for a small smoke run). Writes ``docs/bench_interactive.csv`` and
-``docs/bench_interactive.png``.
+``python tools/bench/bench_interactive.py`` (builds the two stores under ``bench-data/`` if
+missing; ``--quick`` for a small smoke run). Writes ``tools/bench/results/bench_interactive.csv`` and
+``tools/bench/results/bench_interactive.png``.
 """
 
 from __future__ import annotations
@@ -38,14 +38,14 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parent.parent
+from common import DATA, RESULTS, WholeVolume  # noqa: E402  (tools/bench/common.py)
 SIZE = (960, 640)
 
 
 def _store(name: str, quick: bool) -> Path:
     from clipvol.bricking.pipeline import brick_volume
 
-    data = REPO / "bench-data"
+    data = DATA
     data.mkdir(exist_ok=True)
     if name == "demo":
         n = 64 if quick else 192
@@ -105,9 +105,8 @@ def _alternate(ctx, loader, sess, cam, coi, tf, step: float, repeat: int) -> tup
     from clipvol.paging.cliptexture import ClipTexture
     from clipvol.render.action import ClipRenderAction
     from clipvol.scene.params import RenderParams
-    from clipvol.tools.bench_render import _WholeVolume
 
-    whole = _WholeVolume(loader)
+    whole = WholeVolume(loader)
     nbytes = int(np.prod(whole.pyramid.shape)) * whole.pyramid.dtype.itemsize
     params = RenderParams(policy="fixed", level=0, step=step, texture_budget=nbytes * 2 + (64 << 20))
     ours, one = [], []
@@ -213,7 +212,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quick", action="store_true", help="small stores, few frames (a smoke run)")
     p.add_argument("--frames", type=int, default=None, help="drag frames (default 40; 8 with --quick)")
     p.add_argument("--stores", default="demo,512", help="which stores: demo, 512 (comma-separated)")
-    p.add_argument("--out", default=str(REPO / "docs"), help="folder for the CSV and PNG")
+    p.add_argument("--out", default=str(RESULTS), help="folder for the CSV and PNG")
     args = p.parse_args(argv)
     from clipvol.render import create_context
 

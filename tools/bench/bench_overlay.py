@@ -15,7 +15,7 @@ Frame times of
   the overlay blended additively (``blend="additive"``, as channels are).
 
 Rounds are interleaved (the shared machine's load hits every configuration alike); medians of
-wall-clock and of process CPU time. Printed and written to ``docs/bench_overlay.csv``: every time
+wall-clock and of process CPU time. Printed and written to ``tools/bench/results/bench_overlay.csv``: every time
 as a ratio to the raw caster's, and overlay / single volume.
 """
 
@@ -28,9 +28,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 # raw_runs times every configuration against RawCaster, the baseline outside clipvol's render path
-from bench_render import ratio_columns, raw_ratio_line, raw_runs, sizes_main  # noqa: E402
-
-REPO = Path(__file__).resolve().parent.parent
+from common import RESULTS, ratio_columns, raw_ratio_line, raw_runs, sizes_main  # noqa: E402  (tools/bench/common.py)
 
 
 def _signed_map(n: int, seed: int) -> np.ndarray:
@@ -80,7 +78,7 @@ def run(sizes, image: int, repeat: int, step: float, log=print) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return sizes_main(argv, __doc__, run, REPO / "docs" / "bench_overlay.csv", "primary edge lengths N (comma-separated)")
+    return sizes_main(argv, __doc__, run, RESULTS / "bench_overlay.csv", "primary edge lengths N (comma-separated)")
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m clipvol.tools.bench_brick [--size 1024] [--workers N] [--brick 64] [--codec lz4]
+    python tools/bench/bench_brick.py [--size 1024] [--workers N] [--brick 64] [--codec lz4]
 
 It builds (once, cached under ``bench-data/``) a uint16 ``.npy`` input of ``size``^3 voxels - the
 procedural fractal scaled to the uint16 range, 2 GiB at the default 1024 - then, each in its own
@@ -15,7 +15,7 @@ child process so that peak resident memory is that run's alone (its ``VmHWM``):
 Both read the input from the page cache (it was just written or read). The ratio is
 ``zarr time / brick time`` (bricking throughput relative to zarr's; target >= 0.7) although the
 bricker does more work (every level, 8/7 of the voxels, plus statistics). Results go to
-``docs/bench_brick.csv`` and the bricking section of ``docs/benchmarks.md``.
+``tools/bench/results/bench_brick.csv`` and the bricking section of ``docs/benchmarks.md``.
 """
 
 from __future__ import annotations
@@ -33,7 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+from common import REPO, RESULTS  # noqa: E402  (tools/bench/common.py)
+ROOT = REPO
 #: what is measured (a wrapper that patches something in names it here)
 VARIANT = "as shipped"
 
@@ -121,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--brick", type=int, default=64)
     p.add_argument("--codec", default="lz4")
     p.add_argument("--data-dir", type=Path, default=ROOT / "bench-data")
-    p.add_argument("--docs", type=Path, default=ROOT / "docs")
+    p.add_argument("--docs", type=Path, default=RESULTS)
     p.add_argument("--repeat", type=int, default=1, help="runs of each; the best time is kept")
     args = p.parse_args(argv)
 

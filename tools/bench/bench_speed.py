@@ -1,15 +1,15 @@
-"""The speed issue's "done when", measured in one run: the full-resolution frame against a plain
+"""The frame and loading targets, measured in one run: the full-resolution frame against a plain
 one-texture caster, and the paging path against the decode floor.
 
-Both halves reuse the benchmarks that explain them (``tools/bench_render.py`` for the frame,
-``tools/bench_integrity.py`` for paging); this script only puts them in one process, one after the
+Both halves reuse the benchmarks that explain them (``tools/bench/bench_render.py`` for the frame,
+``tools/bench/bench_integrity.py`` for paging); this script only puts them in one process, one after the
 other, and prints each figure beside its target:
 
 * **frame** - clipvol's full-resolution frame (``policy="fixed", level=0``, the default
   ``path="auto"``: what a user gets) of ``procedural:fractal?size=N`` (float32, 64³ bricks, the
   volume filling a ``--size``² view, step 0.5, ``bone`` table) divided by :class:`RawCaster`'s frame
   of the same volume, view, step and table: interleaved rounds, medians, wall and process CPU. The
-  raw caster is timed at two stops: its own since it was written (``RAW_OPAQUE`` 0.9995) and where
+  raw caster is timed at two stops: its own (``RAW_OPAQUE`` 0.9995) and where
   clipvol stops (``OPAQUE``, 1 - 0.5/255), so the second ratio shows what the shader and the frame
   around it cost when both do exactly the same samples. Target: <= 1 against the first.
 * **paging** - ``ZarrLoader.read_brick_into`` with its checksum and statistics checks (the default)
@@ -18,8 +18,8 @@ other, and prints each figure beside its target:
   ``ClipTexture`` filled by its own loader threads against the same floor. Throughput ratios (> 1:
   faster than the floor); targets >= 0.85 (loader) and >= 0.8 (fill).
 
-Run ``python -m clipvol.tools.bench_speed`` (about 3 minutes on 2 cores; ``--quick``: 128³ frame
-and a 128³ store, seconds). Writes ``docs/bench_speed.csv`` (``--out``).
+Run ``python tools/bench/bench_speed.py`` (about 3 minutes on 2 cores; ``--quick``: 128³ frame
+and a 128³ store, seconds). Writes ``tools/bench/results/bench_speed.csv`` (``--out``).
 """
 
 from __future__ import annotations
@@ -32,8 +32,8 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from .bench_integrity import FULL, QUICK, _chunk_path, build_store, chunk_keys, cliptexture_fill, interleaved_loads
-from .bench_render import REPO, raw_runs
+from bench_integrity import FULL, QUICK, _chunk_path, chunk_keys, cliptexture_fill, interleaved_loads  # noqa: E402
+from common import DATA, RESULTS, fractal_store, raw_runs  # noqa: E402  (tools/bench/common.py)
 
 FRAME_TARGET = 1.0
 LOADER_TARGET = 0.85
@@ -55,7 +55,7 @@ def frame_rows(sizes, image: int, repeat: int, step: float, log=print) -> list[t
             f"at clipvol's stop {mw['raw_same_stop']:.3f} s")
         rows += [
             (f"frame {n}^3 / raw caster, wall", round(mw[k] / mw["raw"], 3), f"<= {FRAME_TARGET}",
-             f"full-resolution frame ({drawn} path) / RawCaster stopping at 0.9995 (the fixture as written)"),
+             f"full-resolution frame ({drawn} path) / RawCaster stopping at 0.9995 (its own stop)"),
             (f"frame {n}^3 / raw caster, CPU", round(mc[k] / mc["raw"], 3), f"<= {FRAME_TARGET}", "process CPU time"),
             (f"frame {n}^3 / raw caster at clipvol's stop, wall", round(mw[k] / mw["raw_same_stop"], 3), "-",
              "the same caster stopping where clipvol stops: the shader and the frame around it"),
@@ -68,7 +68,7 @@ def paging_rows(cfg: dict, rounds: int, threads: int, data_dir: Path, log=print)
     """The default loader and a clip-texture fill against the decode floor, on the same bricks."""
     from clipvol.loaders.zarr_store import ZarrLoader
 
-    store = build_store(cfg["size"], int(cfg["brick"]), data_dir)
+    store = fractal_store(cfg["size"], int(cfg["brick"]), data_dir)
     loader = ZarrLoader(store)  # the defaults: checksum and statistics checks on
     keys = chunk_keys(store, loader.pyramid.num_levels)
     for k in keys:  # the page cache warm: every path reads from memory
@@ -111,12 +111,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rounds", type=int, default=15, help="interleaved paging rounds")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--quick", action="store_true", help="a 128^3 frame at 256^2 and a 128^3 store: a smoke run")
-    ap.add_argument("--data-dir", type=Path, default=REPO / "bench-data")
-    ap.add_argument("--out", type=Path, default=None, help="CSV (default docs/bench_speed.csv; --quick: bench-data/)")
+    ap.add_argument("--data-dir", type=Path, default=DATA)
+    ap.add_argument("--out", type=Path, default=None, help="CSV (default tools/bench/results/bench_speed.csv; --quick: bench-data/)")
     args = ap.parse_args(argv)
     if args.quick:
         args.sizes, args.size, args.repeat, args.rounds = "128", 256, 3, 3
-    out = args.out or (args.data_dir / "bench_speed_quick.csv" if args.quick else REPO / "docs" / "bench_speed.csv")
+    out = args.out or (args.data_dir / "bench_speed_quick.csv" if args.quick else RESULTS / "bench_speed.csv")
     sizes = [int(s) for s in args.sizes.split(",")]
     load = os.getloadavg()[0]
     t0 = time.perf_counter()

@@ -2,10 +2,10 @@
 
 Usage::
 
-    python -m clipvol.tools.bench_scale [--size 256] [--quick]
+    python tools/bench/bench_scale.py [--size 256] [--quick]
 
-Three parts, each a ratio measured in this run (results in ``docs/bench_scale.csv``, a plot in
-``docs/bench_scale.png``, and the tables of ``docs/scale.md``):
+Three parts, each a ratio measured in this run (results in ``tools/bench/results/bench_scale.csv``, a plot in
+``tools/bench/results/bench_scale.png``, and the tables of ``docs/scale.md``):
 
 1. **Bricking on Dask** - :func:`~clipvol.bricking.dask_build.brick_volume_dask` with a local
    cluster of 1 and 2 worker processes (and the in-process ``threads`` scheduler) against the local
@@ -43,7 +43,8 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+from common import REPO, RESULTS  # noqa: E402  (tools/bench/common.py)
+ROOT = REPO
 
 
 def _hwm_mb() -> float:
@@ -285,7 +286,7 @@ def _plot(rows: list, path: Path) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=256, help="edge of the bricking/remote volume (uint16)")
-    ap.add_argument("--out", default=str(ROOT / "docs"), help="directory for bench_scale.csv/.png")
+    ap.add_argument("--out", default=str(RESULTS), help="directory for bench_scale.csv/.png")
     ap.add_argument("--parts", default="brick,remote,sortlast")
     args = ap.parse_args(argv)
     rows: list = []

@@ -2,8 +2,8 @@
 
 Usage::
 
-    python -m clipvol.tools.bench_splat [--build-sizes 1e6,4e6,16e6] [--render-points 4e6] [--size 256]
-    python -m clipvol.tools.bench_splat --build-only --build-sizes 4e6,16e6,50e6 --out docs/bench_splat_build.csv
+    python tools/bench/bench_splat.py [--build-sizes 1e6,4e6,16e6] [--render-points 4e6] [--size 256]
+    python tools/bench/bench_splat.py --build-only --build-sizes 4e6,16e6,50e6 --out tools/bench/results/bench_splat_build.csv
 
 Data: :class:`clipvol.bricking.point_sources.ClusteredPointSource` (64 Gaussian clusters of varied
 width plus 20 % uniform background, like the particles of a simulation), generated chunk by chunk,
@@ -23,10 +23,10 @@ so no input file is needed and the build streams it like a file larger than memo
    time. Image error: % of pixels with Delta E >= 6 against the every-point frame (each point drawn
 with its leaf's splat size: the full-detail picture), beside the yardstick ``blur_pct_de6``: the error of
 the every-point frame blurred by one tolerance-sized splat's Gaussian footprint (sigma = tolerance / 2),
-detail no picture of splats that large can hold. ``docs/bench_splat_frames.png``: the
+detail no picture of splats that large can hold. ``tools/bench/results/bench_splat_frames.png``: the
 every-point frame, then ours at the finest, a middle and the coarsest tolerance.
 
-Results: ``docs/bench_splat.csv`` (+ ``.png``) and the point section of ``docs/benchmarks.md``.
+Results: ``tools/bench/results/bench_splat.csv`` (+ ``.png``) and the point section of ``docs/benchmarks.md``.
 """
 
 from __future__ import annotations
@@ -42,7 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+from common import REPO, RESULTS  # noqa: E402  (tools/bench/common.py)
+ROOT = REPO
 
 _HWM = r"""
 def _hwm_mb():
@@ -235,10 +236,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--size", type=int, default=256, help="image edge in pixels")
     p.add_argument("--tolerances", default="1px,2px,4px,0.02,0.05,0.1,0.2")
     p.add_argument("--representative", choices=("nearest", "mean"), default="nearest", help="inner nodes' values")
-    p.add_argument("--frames-png", default=str(ROOT / "docs" / "bench_splat_frames.png"))
-    p.add_argument("--out", default=str(ROOT / "docs" / "bench_splat.csv"))
+    p.add_argument("--frames-png", default=str(RESULTS / "bench_splat_frames.png"))
+    p.add_argument("--out", default=str(RESULTS / "bench_splat.csv"))
     p.add_argument("--build-only", action="store_true",
-                   help="time the builds only (no frames); rows go to --out (e.g. docs/bench_splat_build.csv)")
+                   help="time the builds only (no frames); rows go to --out (e.g. tools/bench/results/bench_splat_build.csv)")
     a = p.parse_args(argv)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -13,8 +13,8 @@ from ``/proc/self/status``) belongs to one task:
 2. **Bricking a .nii.gz**: peak RSS of ``clipvol brick`` against nibabel loading the same file
    whole (``np.asarray(img.dataobj)``, the baseline outside our code path), for growing sizes.
 
-Results: ``docs/bench_napari.csv``, ``docs/bench_napari.png``; summary in ``docs/benchmarks.md``.
-Run: ``python -m clipvol.tools.bench_napari --napari-python /path/to/napari/venv/bin/python``.
+Results: ``tools/bench/results/bench_napari.csv``, ``tools/bench/results/bench_napari.png``; summary in ``docs/benchmarks.md``.
+Run: ``python tools/bench/bench_napari.py --napari-python /path/to/napari/venv/bin/python``.
 """
 
 from __future__ import annotations
@@ -28,6 +28,8 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+from common import REPO, RESULTS  # noqa: E402  (tools/bench/common.py)
 
 _CLIPVOL_CHILD = r"""
 def _hwm():
@@ -127,13 +129,13 @@ def main(argv=None) -> int:
     ap.add_argument("--nifti-sizes", default="128,256,384", help=".nii.gz edge lengths (int16)")
     ap.add_argument("--napari-python", default=None, help="python of an environment with napari[pyqt5] (skip napari if absent)")
     ap.add_argument("--budget", default="64MB", help="clipvol memory and texture budgets")
-    ap.add_argument("--out", default="docs", help="where the CSV and PNG go")
+    ap.add_argument("--out", default=str(RESULTS), help="where the CSV and PNG go")
     ap.add_argument("--work", default=None, help="scratch directory (default: a temporary one)")
     args = ap.parse_args(argv)
 
     from clipvol.bricking.pipeline import brick_volume
 
-    root = Path(__file__).resolve().parents[1]
+    root = REPO
     work = Path(args.work or tempfile.mkdtemp(prefix="clipvol-bench-napari-"))
     work.mkdir(parents=True, exist_ok=True)
     rows = []

@@ -1,13 +1,13 @@
 """The guide's before/after figure: three differently distributed volumes, first render, no flags.
 
-Top row: the transfer function clipvol used before (viridis with opacity rising linearly over the
-whole value range). Bottom row: what ``clipvol render`` does now with no flags (the automatic
+Top row: a plain default transfer function (viridis with opacity rising linearly over the whole
+value range). Bottom row: what ``clipvol render`` does with no flags (the automatic
 transfer function, :mod:`clipvol.scene.auto_tf`). Volumes (96^3, made here): a CT-like head (air
 -1000 HU around soft tissue, a skull shell), a fluorescence stack (bright cells on a dark, noisy
 background) and a signed statistical map (a positive and a negative blob on 0, NaN outside a
 sphere). Writes ``docs/images/first_look.png``.
 
-``python -m clipvol.tools.figure_first_look``
+``python tools/bench/figure_first_look.py``
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parent.parent
+from common import REPO  # noqa: E402  (tools/bench/common.py)
 
 
 def volumes(n: int = 96, seed: int = 0) -> dict[str, np.ndarray]:

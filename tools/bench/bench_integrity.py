@@ -3,7 +3,7 @@ the zarr loader's time goes against the decode floor.
 
 Why these references: a brick of a clipvol store is one zarr chunk, so the fastest anything can
 load it is "read the chunk file, decode it with numcodecs" (the *floor*, outside our code path:
-``open().read()`` then ``numcodecs.Blosc().decode``, as ``tools/bench_paging.py`` defines it).
+``open().read()`` then ``numcodecs.Blosc().decode``, as ``tools/bench/bench_paging.py`` defines it).
 The loader is measured on the same bricks, on the same number of threads, in one run, page cache
 warm, rounds interleaved, median of rounds:
 
@@ -26,10 +26,10 @@ with the *decoded* ones. ``--data fractal`` (the default): the procedural fracta
 :func:`clipvol.bricking.generators.ct_head` (air, skin, bone, brain) at 512^3 as 12-bit values in
 uint16 words (256 MiB), which compresses like real CT (mostly air and smooth tissue).
 
-Run ``python -m clipvol.tools.bench_integrity [--data ct | --dtype uint16]`` (stores cached under
-``bench-data/``) or ``--quick``. Results: ``docs/bench_integrity.csv`` (``_uint16``, ``_ct``) and
+Run ``python tools/bench/bench_integrity.py [--data ct | --dtype uint16]`` (stores cached under
+``bench-data/``) or ``--quick``. Results: ``tools/bench/results/bench_integrity.csv`` (``_uint16``, ``_ct``) and
 a summary on stdout; ``--summarize CSV...`` writes the median and range of several runs
-(``docs/bench_integrity_runs.csv``); ``docs/benchmarks.md`` discusses them.
+(``tools/bench/results/bench_integrity_runs.csv``); ``docs/benchmarks.md`` discusses them.
 """
 
 from __future__ import annotations
@@ -44,69 +44,10 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from .bench_paging import store_is_built
-
-REPO = Path(__file__).resolve().parent.parent
+from common import DATA, RESULTS, ct_store, fractal_store  # noqa: E402  (tools/bench/common.py)
 FULL = {"size": "256x512x512", "brick": 64}  # 256 MiB of float32
 QUICK = {"size": "128x128x128", "brick": 32}
 CT_FULL = {"size": "512x512x512", "brick": 64}  # 256 MiB of uint16
-
-
-def build_store(size: str, brick: int, data_dir: Path, dtype: str = "float32") -> Path:
-    """The procedural fractal bricked (cached). ``uint16``: the same field quantised to 12 bits, like
-    CT data (it compresses about twice as well as the float32 field, so the checksum covers fewer bytes)."""
-    import numpy as np
-
-    from clipvol.bricking.generators import parse_procedural
-    from clipvol.bricking.pipeline import brick_volume
-
-    path = data_dir / f"fractal-{size}-b{brick}-{dtype}-crc.zarr"
-    if store_is_built(path):
-        return path
-    data_dir.mkdir(parents=True, exist_ok=True)
-    url = f"procedural:fractal?size={size}&seed=1"
-    source = url
-    if dtype == "uint16":
-        gen = parse_procedural(url)
-        v = gen.region(0, (0, 0, 0), gen.shape)
-        lo, hi = float(v.min()), float(v.max())
-        source = np.rint((v - lo) / (hi - lo) * 4095).astype(np.uint16)
-    brick_volume(source, path, brick=brick, codec="lz4", progress=True, overwrite=True)
-    return path
-
-
-def ct_volume(shape: tuple[int, int, int], seed: int = 0):
-    """:func:`~clipvol.bricking.generators.ct_head` as 12-bit CT in uint16 words: its 8-bit values
-    times 16 (0..4080), plus a uniform dither of the 4 low bits inside the head (the generator's
-    noise, sigma 2 of 255, is 32 of 4095 here: the low bits of a real scan are noise, not zeros).
-    The air outside stays exactly 0, as the generator makes it (a scanner's padding outside its
-    field of view is constant too)."""
-    import numpy as np
-
-    from clipvol.bricking.generators import ct_head
-
-    head = ct_head(shape, seed=seed)
-    rng = np.random.default_rng(seed + 1)
-    out = np.empty(head.shape, dtype=np.uint16)
-    for z in range(0, head.shape[0], 32):  # slab by slab: no 8-byte temporaries of the whole volume
-        h = head[z:z + 32]
-        v = h.astype(np.uint16) << 4
-        v += (rng.integers(0, 16, size=h.shape, dtype=np.uint16) * (h > 0)).astype(np.uint16)
-        out[z:z + 32] = v
-    return out
-
-
-def build_ct_store(size: str, brick: int, data_dir: Path) -> Path:
-    """The CT-like head (:func:`ct_volume`) bricked with blosc lz4 + crc32c like the fractal stores (cached)."""
-    from clipvol.bricking.pipeline import brick_volume
-
-    path = data_dir / f"ct-{size}-b{brick}-uint16-crc.zarr"
-    if store_is_built(path):
-        return path
-    data_dir.mkdir(parents=True, exist_ok=True)
-    shape = tuple(int(v) for v in size.split("x"))
-    brick_volume(ct_volume(shape), path, brick=brick, codec="lz4", progress=True, overwrite=True)
-    return path
 
 
 def chunk_keys(store: Path, levels: int) -> list[tuple[int, tuple[int, int, int]]]:
@@ -346,13 +287,13 @@ def main(argv: list[str] | None = None) -> int:
                     help="fractal (compresses 1.3-1.5x) or the CT-like head as 12-bit uint16 (compresses like CT)")
     ap.add_argument("--dtype", choices=("float32", "uint16"), default="float32", help="of the fractal")
     ap.add_argument("--rounds", type=int, default=15)
-    ap.add_argument("--data-dir", type=Path, default=REPO / "bench-data")
-    ap.add_argument("--csv", type=Path, help="output (default docs/bench_integrity.csv; --quick: bench-data/...)")
+    ap.add_argument("--data-dir", type=Path, default=DATA)
+    ap.add_argument("--csv", type=Path, help="output (default tools/bench/results/bench_integrity.csv; --quick: bench-data/...)")
     ap.add_argument("--summarize", nargs="+", type=Path, metavar="CSV",
-                    help="no run: median and range over these runs' CSVs, into --csv (default docs/bench_integrity_runs.csv)")
+                    help="no run: median and range over these runs' CSVs, into --csv (default tools/bench/results/bench_integrity_runs.csv)")
     args = ap.parse_args(argv)
     if args.summarize:
-        rows = summarize(args.summarize, args.csv or REPO / "docs" / "bench_integrity_runs.csv")
+        rows = summarize(args.summarize, args.csv or RESULTS / "bench_integrity_runs.csv")
         for row in rows:
             print(*row, sep=", ")
         return 0
@@ -360,7 +301,7 @@ def main(argv: list[str] | None = None) -> int:
     suffix = "_ct" if args.data == "ct" else "_uint16" if args.dtype == "uint16" else ""
     if args.csv is None:
         args.csv = args.data_dir / f"bench_integrity{suffix}_quick.csv" if args.quick \
-            else REPO / "docs" / f"bench_integrity{suffix}.csv"
+            else RESULTS / f"bench_integrity{suffix}.csv"
     cfg = dict(QUICK if args.quick else CT_FULL if args.data == "ct" else FULL)
     for k in ("size", "brick"):
         if getattr(args, k) is not None:
@@ -368,10 +309,10 @@ def main(argv: list[str] | None = None) -> int:
     from clipvol.loaders.zarr_store import CRC32C_PACKAGES, ZarrLoader, crc32c_implementation
 
     if args.data == "ct":
-        store = build_ct_store(cfg["size"], int(cfg["brick"]), args.data_dir)
+        store = ct_store(cfg["size"], int(cfg["brick"]), args.data_dir)
         what = f"ct_head as 12-bit uint16 size={cfg['size']}"
     else:
-        store = build_store(cfg["size"], int(cfg["brick"]), args.data_dir, args.dtype)
+        store = fractal_store(cfg["size"], int(cfg["brick"]), args.data_dir, args.dtype)
         what = f"procedural:fractal size={cfg['size']} {args.dtype}"
     probe = ZarrLoader(store)
     keys = chunk_keys(store, probe.pyramid.num_levels)

@@ -14,8 +14,8 @@ Measured, in a child process so its peak resident memory is the clip-texture's o
 * time to converge (every brick of every window resident) after a jump across the volume;
 * peak RSS against the budget (target: at most budget + 200 MB).
 
-Run ``python -m clipvol.tools.bench_paging`` (a >= 2 GiB procedural fractal store, cached under
-``bench-data/``) or ``--quick`` for a small run. Results go to ``docs/bench_paging.csv`` and a
+Run ``python tools/bench/bench_paging.py`` (a >= 2 GiB procedural fractal store, cached under
+``bench-data/``) or ``--quick`` for a small run. Results go to ``tools/bench/results/bench_paging.csv`` and a
 summary is printed; ``docs/benchmarks.md`` discusses them.
 """
 
@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import multiprocessing as mp
 import os
 import sys
@@ -32,30 +31,10 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parent.parent
+from common import DATA, RESULTS, fractal_store  # noqa: E402  (tools/bench/common.py)
 FULL = {"size": "512x1024x1024", "brick": 64, "budget": "256MB"}  # 2 GiB of float32
 PASSES = 10
 QUICK = {"size": "96x192x192", "brick": 32, "budget": "12MB"}
-
-
-def store_is_built(path: Path) -> bool:
-    """A benchmark store cached under ``bench-data/`` is used again only if its build completed."""
-    attrs = path / "zarr.json"
-    return attrs.is_file() and bool(json.loads(attrs.read_text())["attributes"]["clipvol"].get("complete"))
-
-
-def build_store(size: str, brick: int, data_dir: Path) -> Path:
-    """The procedural fractal bricked with ``clipvol.bricking.pipeline.brick_volume`` (cached by size and brick)."""
-    from clipvol.bricking.pipeline import brick_volume
-
-    path = data_dir / f"fractal-{size}-b{brick}.zarr"
-    if store_is_built(path):
-        return path
-    data_dir.mkdir(parents=True, exist_ok=True)
-    t = time.perf_counter()
-    brick_volume(f"procedural:fractal?size={size}&seed=1", path, brick=brick, codec="lz4", progress=True)
-    print(f"built {path} in {time.perf_counter() - t:.1f} s", file=sys.stderr)
-    return path
 
 
 def _chunk_path(store: Path, level: int, idx) -> Path:
@@ -332,18 +311,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--brick", type=int)
     ap.add_argument("--budget")
     ap.add_argument("--threads", type=int, default=os.cpu_count() or 1)
-    ap.add_argument("--data-dir", type=Path, default=REPO / "bench-data")
-    ap.add_argument("--csv", type=Path, help="output (default docs/bench_paging.csv; --quick: bench-data/bench_paging_quick.csv)")
+    ap.add_argument("--data-dir", type=Path, default=DATA)
+    ap.add_argument("--csv", type=Path, help="output (default tools/bench/results/bench_paging.csv; --quick: bench-data/bench_paging_quick.csv)")
     args = ap.parse_args(argv)
     if args.csv is None:
-        args.csv = args.data_dir / "bench_paging_quick.csv" if args.quick else REPO / "docs" / "bench_paging.csv"
+        args.csv = args.data_dir / "bench_paging_quick.csv" if args.quick else RESULTS / "bench_paging.csv"
     cfg = dict(QUICK if args.quick else FULL)
     for k in ("size", "brick", "budget"):
         if getattr(args, k) is not None:
             cfg[k] = getattr(args, k)
     from clipvol.units import parse_bytes
 
-    store = build_store(cfg["size"], int(cfg["brick"]), args.data_dir)
+    store = fractal_store(cfg["size"], int(cfg["brick"]), args.data_dir)
     store_bytes = sum(p.stat().st_size for p in store.rglob("*") if p.is_file())
     # warm the page cache over the whole store so all paths read from memory
     warm_cache(store, [(int(p.parts[-5]), tuple(int(v) for v in p.parts[-3:])) for p in store.glob("[0-9]*/c/*/*/*")])

@@ -1,0 +1,226 @@
+"""Named views in the user's frame: where the eye sits and which way is up, for every entry point.
+
+A clinician asks for the view *from the front of the patient, head up*; a microscopist for the
+view *down the stack*. clipvol draws in the array's own axes (scaled to world units, see
+:mod:`clipvol.bricking.worldframe`), so a view name must be turned into array-axis directions
+through the store's voxel-to-world affine. This module is the one place that does it:
+``clipvol render``, ``clipvol view`` (window and offscreen), the turntable, ``clipvol.show()`` and
+the tests all call :func:`view_directions` / :func:`preset_camera`, so a view name means the same
+direction everywhere.
+
+Conventions:
+
+* **Anatomical stores** (a NIfTI, DICOM or other input with a patient frame, RAS+ in the store):
+  a view is named for the side of the patient the eye is on — ``anterior`` looks at the face,
+  ``left`` at the patient's left side — with the head up (superior towards the image top);
+  ``superior`` and ``inferior`` have anterior up. ``iso`` looks from anterior-right-superior
+  (eye direction ``(1, 1, 1)`` in RAS). The old names are aliases of the same anatomical
+  directions: ``front`` = ``anterior``, ``back`` = ``posterior``, ``side`` = ``left``,
+  ``top`` = ``superior``.
+* **Other stores** (no patient frame): ``front`` looks along ``+z`` (down the stack, rows follow
+  ``+y`` as numpy prints ``vol[k]``), ``back`` along ``-z``, ``side`` along ``+x``, ``top`` along
+  ``+y``, ``iso`` along ``(0.55, 0.45, 0.7)``; the anatomical names are refused (the store does
+  not say where anterior is).
+* **Slices** of a patient-frame store are cut in the patient's planes and shown in the
+  **radiological** convention (the default of 3D Slicer's slice views and of most PACS): axial
+  with anterior up and the patient's right on the image's left, coronal with superior up and the
+  patient's right on the left, sagittal with superior up and anterior on the left.
+  ``convention="neurological"`` puts the patient's right on the right of axial and coronal
+  slices (FSLeyes' default); sagittal slices are the same in both. Two co-registered stores give
+  the same slice image whatever their storage order (:func:`anatomical_plane`).
+* **Mirrored storage**: a patient frame whose affine has a negative determinant (LAS, the usual
+  FSL storage, or any odd number of flips) is a mirror image of the patient in array axes. A
+  right-handed camera in array axes then sees the patient mirrored, so :func:`mirrored` is True
+  and every entry point flips its image left-right (exact: the frustum is symmetric) and labels
+  it with the flipped screen axes (:func:`screen_axes`). Two stores of the same anatomy in any
+  storage order then give the same image.
+
+Pure numpy, no GL.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import ParameterError
+
+__all__ = [
+    "ANATOMICAL_VIEWS", "ALIASES", "VIEW_CHOICES", "is_anatomical", "mirrored", "world_to_array_directions",
+    "view_directions", "preset_camera", "screen_axes", "edge_labels", "SLICES", "CONVENTIONS", "slice_axes",
+    "anatomical_plane",
+]
+
+#: anatomical view -> (RAS direction from the target to the eye, RAS up)
+ANATOMICAL_VIEWS = {
+    "anterior": ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
+    "posterior": ((0.0, -1.0, 0.0), (0.0, 0.0, 1.0)),
+    "left": ((-1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+    "right": ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+    "superior": ((0.0, 0.0, 1.0), (0.0, 1.0, 0.0)),
+    "inferior": ((0.0, 0.0, -1.0), (0.0, 1.0, 0.0)),
+    "iso": ((1.0, 1.0, 1.0), (0.0, 0.0, 1.0)),
+}
+#: the array-frame names and the anatomical view each means for a patient-frame store
+ALIASES = {"front": "anterior", "back": "posterior", "side": "left", "top": "superior"}
+#: array-frame view -> (array-axis view direction ``forward`` (x, y, z), up)
+ARRAY_VIEWS = {
+    "front": ((0.0, 0.0, 1.0), (0.0, -1.0, 0.0)),
+    "back": ((0.0, 0.0, -1.0), (0.0, -1.0, 0.0)),
+    "side": ((1.0, 0.0, 0.0), (0.0, -1.0, 0.0)),
+    "top": ((0.0, 1.0, 0.0), (0.0, 0.0, -1.0)),
+    "iso": ((0.55, 0.45, 0.7), (0.0, -1.0, 0.0)),
+}
+#: every name ``--view`` accepts
+VIEW_CHOICES = tuple(ANATOMICAL_VIEWS) + tuple(ALIASES)
+
+
+def is_anatomical(frame) -> bool:
+    """True for a :class:`~clipvol.bricking.worldframe.WorldFrame` in the patient's RAS+ frame."""
+    return frame is not None and getattr(frame, "frame", "") == "RAS"
+
+
+def _rotation(frame) -> np.ndarray:
+    m = np.asarray(frame.affine, dtype=np.float64)[:3, :3]
+    return m / np.linalg.norm(m, axis=0)
+
+
+def mirrored(frame) -> bool:
+    """True when the array axes are a mirror image of the patient frame (negative determinant)."""
+    return is_anatomical(frame) and float(np.linalg.det(_rotation(frame))) < 0.0
+
+
+def world_to_array_directions(frame, world_dirs) -> np.ndarray:
+    """Unit array-axis ``(x, y, z)`` directions of world (RAS) directions ``(..., 3)``."""
+    d = np.asarray(world_dirs, dtype=np.float64) @ np.linalg.inv(_rotation(frame)).T
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def view_directions(view: str, frame=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(forward, up)``: the array-axis view direction and screen up of a named view.
+
+    ``frame`` is the store's :class:`~clipvol.bricking.worldframe.WorldFrame` (or None). Anatomical
+    names need a patient frame; the array names mean the anatomical direction of :data:`ALIASES`
+    when there is one, the array's otherwise.
+    """
+    name = str(view).lower()
+    if name not in ANATOMICAL_VIEWS and name not in ALIASES:
+        raise ParameterError(f"--view: expected one of {', '.join(VIEW_CHOICES)}, got {view!r}")
+    if is_anatomical(frame):
+        eye_dir, up = ANATOMICAL_VIEWS[ALIASES.get(name, name)]
+        d = world_to_array_directions(frame, np.array([eye_dir, up], dtype=np.float64))
+        return -d[0], d[1]
+    if name not in ARRAY_VIEWS:
+        raise ParameterError(f"--view {name}: expected a store with a patient frame (RAS/LPS, from NIfTI or DICOM); "
+                             f"this one has none, so use one of {', '.join(ARRAY_VIEWS)} or --eye")
+    fwd, up = (np.asarray(v, dtype=np.float64) for v in ARRAY_VIEWS[name])
+    return fwd / np.linalg.norm(fwd), up
+
+
+def preset_camera(box_lo, box_hi, view: str, size, *, frame=None, eye=None, target=None, up=None, fov: float = 35.0,
+                  distance: float | None = None, ortho: bool = False):
+    """The :class:`~clipvol.scene.camera.Camera` of a named ``view`` (or an explicit ``eye``) looking at ``target``.
+
+    ``target`` defaults to the box centre, ``distance`` (in box diagonals, default 1.6) places the
+    eye, ``up`` overrides the view's up. ``--eye``/``--target``/``--up`` are array-axis world
+    positions, as the camera files of the viewer are.
+    """
+    from .camera import Camera
+
+    lo = np.asarray(box_lo, dtype=np.float64)
+    hi = np.asarray(box_hi, dtype=np.float64)
+    centre = (lo + hi) / 2.0
+    diag = float(np.linalg.norm(hi - lo))
+    tgt = centre if target is None else np.asarray(target, dtype=np.float64)
+    fwd, view_up = view_directions(view, frame)
+    if eye is not None:
+        e = np.asarray(eye, dtype=np.float64)
+        if np.allclose(e, tgt):
+            raise ParameterError(f"--eye: expected a point other than the target {tuple(tgt)}, got {tuple(e)}")
+        fwd = (tgt - e) / np.linalg.norm(tgt - e)
+        if abs(float(fwd @ view_up)) > 0.9:  # looking along the view's up: anterior (or -z) is up instead
+            view_up = (world_to_array_directions(frame, (0.0, 1.0, 0.0)) if is_anatomical(frame)
+                       else np.array([0.0, 0.0, -1.0]))
+    else:
+        dist = (1.6 if distance is None else float(distance)) * diag
+        if not (dist > 0 and math.isfinite(dist)):
+            raise ParameterError(f"--distance: expected a number > 0, got {distance}")
+        e = tgt - fwd * dist
+    u = view_up if up is None else np.asarray(up, dtype=np.float64)
+    if ortho:
+        w, h = size
+        ext = diag * 1.05
+        width, height = (ext, ext * h / w) if w >= h else (ext * w / h, ext)
+        return Camera.orthographic(tuple(tgt), tuple(fwd), tuple(u), width, height, size=size)
+    return Camera.perspective(tuple(e), tuple(tgt), up=tuple(u), fov_y=fov, size=size)
+
+
+def screen_axes(cam, frame=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(right, up)``: the array-axis directions of the image's right and top once :func:`clipvol.app.annotate.present`
+    has flipped a mirrored store's image."""
+    right = np.asarray(cam.right, dtype=np.float64)
+    return (-right if mirrored(frame) else right), np.asarray(cam.up, dtype=np.float64)
+
+
+def edge_labels(cam, frame) -> dict[str, str]:
+    """R/L, A/P, S/I letters of the four edges of a presented image (``{}`` without a patient frame)."""
+    if not is_anatomical(frame):
+        return {}
+    from .orientation import view_labels
+
+    right, up = screen_axes(cam, frame)
+    return view_labels(frame.affine, right, up, frame.frame)
+
+
+
+#: slice name -> (RAS image up, RAS image right in the radiological convention)
+SLICES = {
+    "axial": ((0.0, 1.0, 0.0), (-1.0, 0.0, 0.0)),
+    "coronal": ((0.0, 0.0, 1.0), (-1.0, 0.0, 0.0)),
+    "sagittal": ((0.0, 0.0, 1.0), (0.0, -1.0, 0.0)),
+}
+#: slice display conventions: radiological (patient's right on the image left) or neurological
+CONVENTIONS = ("radiological", "neurological")
+
+
+def slice_axes(name: str, frame, convention: str = "radiological") -> tuple[np.ndarray, np.ndarray]:
+    """``(normal, up)``: array-axis directions of a patient-frame slice, for
+    :class:`~clipvol.scene.plane.Plane` (whose ``right = normal x up``)."""
+    if name not in SLICES:
+        raise ParameterError(f"--axis: expected one of {', '.join(SLICES)}, got {name!r}")
+    if convention not in CONVENTIONS:
+        raise ParameterError(f"convention: expected one of {', '.join(CONVENTIONS)}, got {convention!r}")
+    up_w, right_w = (np.asarray(v, dtype=np.float64) for v in SLICES[name])
+    if convention == "neurological" and name != "sagittal":
+        right_w = -right_w
+    up, right = world_to_array_directions(frame, np.array([up_w, right_w]))
+    normal = np.cross(up, right)  # so that Plane's normal x up is the wanted right
+    return normal / np.linalg.norm(normal), up
+
+
+def anatomical_plane(pyramid, frame, name: str, index: float | None = None, convention: str = "radiological"):
+    """The ``axial`` / ``coronal`` / ``sagittal`` :class:`~clipvol.scene.plane.Plane` of a patient-frame store.
+
+    The plane is the patient's (for an oblique acquisition it is resampled, as Slicer's slice
+    views are), through the volume centre, or through level-0 voxel ``index`` of the array axis
+    most nearly along its normal (``index`` in ``[0, n - 1]`` of that axis).
+    """
+    import math
+
+    from .plane import Plane
+
+    normal, up = slice_axes(name, frame, convention)
+    lo, hi = pyramid.volume_box()
+    origin = (lo + hi) / 2.0
+    if index is not None:
+        c = int(np.argmax(np.abs(normal)))  # array axis x, y or z
+        n = pyramid.shape[2 - c]
+        try:
+            i = float(index)
+        except (TypeError, ValueError):
+            i = math.nan
+        if not (0.0 <= i <= n - 1):
+            raise ParameterError(f"index: expected 0..{n - 1} for the {name} plane (array axis {'xyz'[c]}), got {index!r}")
+        origin[c] = i * pyramid.spacing[2 - c]
+    return Plane(tuple(origin), tuple(normal), tuple(up))
