@@ -132,3 +132,37 @@ def test_region_window_fits_the_slots_and_holds_what_it_can(grid, cube, lo, ext,
     else:
         # else the window holds the centre's brick and reaches no further than the region where it is short
         assert all(a <= v < b for a, b, v in zip(start, stop, center))
+
+
+def test_random_regions_keep_every_resident_brick_exact_and_the_pool_in_budget():
+    ld = Recording((48, 64, 80), 8)
+    pyr = ld.pyramid
+    rng = np.random.default_rng(5)
+    # 400 kB: 195 slots; level 0 windowed in 64 slots (a cube of 4), the region boxes up to 5 a side
+    with ClipTexture(ld, 400_000, 2) as ct:
+        assert ct.whole_levels == (4, 3, 2, 1)
+        for step in range(25):
+            if step % 6 == 5:
+                region = None
+            else:
+                per = {}
+                for L in range(pyr.num_levels):
+                    g = np.array(pyr.grid(L))
+                    lo = rng.integers(0, g)
+                    hi = np.minimum(lo + rng.integers(1, 6, 3), g)
+                    box = np.stack(np.meshgrid(*[np.arange(a, b) for a, b in zip(lo, hi)], indexing="ij"), -1)
+                    per[L] = box.reshape(-1, 3)
+                c = rng.uniform(0, 1, 3) * (np.array(pyr.shape[::-1]) - 1)
+                region = _region(pyr, per, tuple(c))
+            ct.set_region(region)
+            assert ct.wait_until_idle(30)
+            assert ct.stats.pool_bytes <= ct.memory_budget
+            for L, idx in ct.resident_bricks():
+                got = ct.get_brick(L, idx)
+                assert got is not None
+                np.testing.assert_array_equal(got, ld.base.read_brick(L, idx), err_msg=f"step {step} {L} {idx}")
+            if region is not None:
+                for L, b in enumerate(region.bricks):
+                    # every region brick its window holds was read
+                    held = b[ct.in_window_mask(L, b)]
+                    assert ct.resident_mask(L, held).all()
