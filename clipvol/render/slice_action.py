@@ -268,6 +268,10 @@ class SliceAction:
             t0 = time.perf_counter()
             self.clip_texture.wait_for(waitable, timeout=left)
             times["wait"] += time.perf_counter() - t0
+        if self.follow_plane and not converged:
+            # what this slice still wants comes first, and what balancing wants beyond the region is read
+            # now: a viewer that never waits still converges over the next frames
+            self.clip_texture.prioritize(sel.missing_wanted() + list(missing_low))
         values, levels, ratios, draw_t, read_t = self._draw(plane, size, px, sel, low)
         times["draw"], times["readback"] = draw_t, read_t
         if window is not None:

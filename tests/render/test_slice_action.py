@@ -288,3 +288,21 @@ def test_scrolling_prefetches_the_next_slab(gl, wave_store):
         before = ld.read_counter.bytes
         sa.render(Plane.axis(pyr, "axial", 16), wait=True, timeout=60)
         assert sa.last_stats.converged and sa.last_stats.bytes_read == ld.read_counter.bytes - before
+
+
+def test_a_viewer_that_never_waits_converges_on_bricks_beyond_the_region(gl):
+    # y = 64 with the point of interest there: balancing wants a few coarse bricks the region rule
+    # leaves out (tests/scene/test_slice_region.py); the slice asks for them itself
+    from clipvol.paging.region import Region
+
+    vol = _smooth((96, 128, 160))
+    ld = NumpyLoader(vol, brick=8)
+    pl = Plane.through((30.0, 64.0, 20.0), (0, 1, 0))
+    with ClipTexture(ld, "64MB", 2, region=Region.empty(ld.pyramid.num_levels)) as ct, \
+            SliceAction(gl, ct, focus=(30.0, 64.0, 20.0), distance_factor=0.5) as sa:
+        done = []
+        for _ in range(4):
+            sa.render(pl, (128, 96), 1.0, wait=False)
+            done.append(sa.last_stats.converged)
+            assert ct.wait_until_idle(30)
+        assert not done[0] and done[-1]
