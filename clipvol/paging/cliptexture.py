@@ -496,9 +496,11 @@ class ClipTexture:
 
     def _check_region(self, region) -> None:
         if not isinstance(region, Region):
-            raise ParameterError(f"region: expected a clipvol.paging.region.Region or None, got {type(region).__name__}")
+            raise ParameterError(f"region: expected a clipvol.paging.region.Region or None, "
+                                 f"got {type(region).__name__}")
         if len(region.bricks) != self.pyramid.num_levels:
-            raise ParameterError(f"region: expected bricks for {self.pyramid.num_levels} levels, got {len(region.bricks)}")
+            raise ParameterError(f"region: expected bricks for {self.pyramid.num_levels} levels, "
+                                 f"got {len(region.bricks)}")
         for L, b in enumerate(region.bricks):
             if b is not None and len(b) and np.any(b.max(axis=0) >= np.asarray(self.pyramid.grid(L))):
                 raise ParameterError(f"region: brick indices of level {L} beyond its grid {self.pyramid.grid(L)}")

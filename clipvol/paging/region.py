@@ -90,7 +90,8 @@ class Region:
     def empty(cls, num_levels: int, center=(0.0, 0.0, 0.0)) -> "Region":
         """A region that queues nothing: a clip-texture made with it reads no brick until a render
         action hands it its own region (or :meth:`ClipTexture.set_region` ``(None)`` restores cubes)."""
-        return cls(tuple(float(v) for v in center), tuple(np.zeros((0, 3), dtype=np.int64) for _ in range(int(num_levels))))
+        none = tuple(np.zeros((0, 3), dtype=np.int64) for _ in range(int(num_levels)))
+        return cls(tuple(float(v) for v in center), none)
 
     @property
     def nbricks(self) -> int:

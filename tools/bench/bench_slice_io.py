@@ -6,12 +6,14 @@ What it measures (one run, one process, ratios only):
 * **a slice through the centre of a 1024^3 store** - the bytes the loader reads from storage
   (counted where they are read, :mod:`clipvol.paging.readcount`) until the clip-texture is idle,
   for (a) the multiresolution slice with a point of interest at the centre (LaMar, Hamann & Joy,
-  *Multiresolution cutting planes*) paging its slab region, (b) the same plane at full resolution
-  (``level=0``) paging its slab, (c) the multiresolution slice drawn from cube windows
-  (``SliceAction.follow_plane = False``: the clip-texture fills its windows around the centre,
-  as it does for a volume view) at ``--budget`` of memory. Quality: percent of pixels with CIELUV
+  *Multiresolution cutting planes*) paging its slab region at ``--budget`` of memory, (b) the
+  same plane at full resolution (``level=0``) paging its slab at ``--full-budget``, (c) the
+  multiresolution slice drawn from cube windows (``SliceAction.follow_plane = False``: the
+  clip-texture fills its windows around the centre, as it does for a volume view) at each of
+  ``--cube-budgets``. Quality: percent of pixels with CIELUV
   Delta E >= 6 between (a) and the exact slice computed from the generator (outside our code
-  path; :func:`clipvol.scene.metrics.percent_delta_e`), grey window over the value range. Targets: (b)/(a) >= 8, (c)/(a) >= 50, Delta E >= 6 on <= 1 %.
+  path; :func:`clipvol.scene.metrics.percent_delta_e`), grey window over the value range.
+  Targets: (b)/(a) >= 8, (c)/(a) >= 50, Delta E >= 6 on <= 1 %.
 * **scrolling** - bytes read per slice while scrolling ``--steps`` axial slices (``--stride``
   voxels apart) through the centre of a 4096^3 store, ``--scroll-pixels`` pixels a side, the
   point of interest on the plane's centre: the whole slice in view (8 voxels a pixel), and zoomed
@@ -185,7 +187,8 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--size", type=int, default=1024)
     p.add_argument("--bricks", nargs="+", type=int, default=[64, 32])
-    p.add_argument("--budget", default="256MB", help="memory budget of the multiresolution slab runs")
+    p.add_argument("--budget", default="1GB",
+                   help="memory budget of the multiresolution slab runs (their windows must hold the region)")
     p.add_argument("--full-budget", default="2GB", help="memory budget of the full-resolution slab (must hold it)")
     p.add_argument("--cube-budgets", nargs="+", default=["256MB", "1GB"])
     p.add_argument("--distance-factors", nargs="+", type=float, default=[1.0, 0.5])
