@@ -16,8 +16,8 @@ What it measures (one run, one process, ratios only):
   Targets: (b)/(a) >= 8, (c)/(a) >= 50, Delta E >= 6 on <= 1 %.
 * **scrolling** - bytes read per slice while scrolling ``--steps`` axial slices (``--stride``
   voxels apart) through the centre of a 4096^3 store, ``--scroll-pixels`` pixels a side, the
-  point of interest on the plane's centre: the whole slice in view (8 voxels a pixel), and zoomed
-  to full resolution around the point of interest (1 voxel a pixel).
+  point of interest on the plane's centre (``--scroll-distance-factor``): the whole slice in view
+  (8 voxels a pixel), and zoomed to full resolution around the point of interest (1 voxel a pixel).
 
 The stores are *virtual*: a procedural fractal (:mod:`clipvol.bricking.generators`) evaluated
 per brick, and each brick read is encoded with the chunk codec ``clipvol brick`` writes (blosc
@@ -166,7 +166,8 @@ def scroll(ctx, args, writer, view: str, px: float) -> list:
             SliceAction(ctx, ct, texture_budget=TEXTURE_BUDGET) as sa:
         for i in range(args.steps):
             plane = Plane.axis(pyr, "axial", z0 + i * args.stride)
-            sa.set_params(sa.params.__class__.from_kwargs(sa.params, focus=tuple(plane.origin)))
+            sa.set_params(sa.params.__class__.from_kwargs(sa.params, focus=tuple(plane.origin),
+                                                          distance_factor=args.scroll_distance_factor))
             r0 = ld.read_counter.snapshot()
             sa.render(plane, size, px, wait=True, timeout=600)
             ok = sa.last_stats.converged
@@ -196,6 +197,9 @@ def main(argv=None) -> int:
     p.add_argument("--scroll-size", type=int, default=4096)
     p.add_argument("--scroll-pixels", type=int, default=512)
     p.add_argument("--steps", type=int, default=12)
+    p.add_argument("--scroll-distance-factor", type=float, default=0.5,
+                   help="the scroll's distance factor (1.0 makes the level-0 disc 8 bricks wide at 64^3: more than the "
+                        "GPU cache's cube texture window of 6 a side at a 1 GB texture budget holds)")
     p.add_argument("--stride", type=float, default=16.0)
     p.add_argument("--quick", action="store_true")
     p.add_argument("--out", type=Path, default=HERE / "results")
