@@ -8,6 +8,8 @@ what was found, and name the file, brick or parameter, so a person can act on th
 
 from __future__ import annotations
 
+import errno
+
 __all__ = [
     "ClipvolError",
     "ParameterError",
@@ -22,6 +24,10 @@ __all__ = [
     "BrickIntegrityError",
     "OutputLockedError",
     "SourceChangedError",
+    "OutputWriteError",
+    "FrameIncompleteError",
+    "OPERATIONAL_ERRNOS",
+    "describe_os_error",
     "MissingExtraError",
     "RemoteStoreError",
 ]
@@ -79,7 +85,8 @@ class OutputLockedError(OutputExistsError):
 
 
 class SourceChangedError(OutputExistsError):
-    """A build is resumed against a source that differs from the one it started with (says what changed)."""
+    """A build is resumed against a source that differs from the one it started with, or the source
+    changed while it was being bricked (says what changed; the store is not marked complete)."""
 
 
 class MissingExtraError(ClipvolError, ImportError):
@@ -89,3 +96,31 @@ class MissingExtraError(ClipvolError, ImportError):
 class RemoteStoreError(ClipvolError, OSError):
     """A remote store (S3, HTTP, any fsspec URL) cannot be read: unreachable, no credentials,
     access denied, or retries exhausted (names the URL, never the credentials)."""
+
+
+class FrameIncompleteError(ClipvolError, RuntimeError):
+    """Some bricks of a frame failed and no verified ancestor stands in for them: the image would
+    show a hole as if it were data (names the bricks and their causes). The CLI exits with
+    :attr:`exit_code` 3 and writes nothing unless ``--allow-partial`` is given."""
+
+    exit_code = 3
+
+
+class OutputWriteError(ClipvolError, OSError):
+    """Writing an output failed for a reason of the machine, not of the data: the disk is full,
+    the file system is read-only, permission is denied (names the output and the file)."""
+
+
+#: errno values that are the machine's state, not a bug: reported as one line, never a traceback
+OPERATIONAL_ERRNOS = frozenset(
+    getattr(errno, n) for n in ("ENOSPC", "EDQUOT", "EROFS", "EACCES", "EPERM", "EIO", "EFBIG", "EMFILE", "ENFILE",
+                                "ENAMETOOLONG", "ENOTDIR", "EISDIR", "ELOOP", "EXDEV")
+    if hasattr(errno, n)
+)
+
+
+def describe_os_error(e: OSError) -> str:
+    """``e`` as one phrase: what went wrong and on which file (``No space left on device: o.zarr/0/c/1/2/3``)."""
+    what = e.strerror or type(e).__name__
+    name = e.filename if e.filename is not None else None
+    return f"{what}: {name}" if name is not None else f"{what} ({type(e).__name__})"

@@ -148,3 +148,14 @@ def test_the_benchmarks_stay_out_of_the_package():
            for path, module, is_pkg in ALL for line, target in imports(path, module, is_pkg)
            if target.split(".")[0] in names or target.startswith("clipvol.tools.bench")]
     assert not bad, "installed code importing a benchmark:\n" + "\n".join(bad)
+
+
+def test_every_package_of_the_library_is_installed():
+    """pyproject lists its packages by name: a package folder missing from the list installs
+    from a checkout (``pip install -e``) but not from a wheel, where importing it fails."""
+    import tomllib
+
+    cfg = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    listed = set(cfg["packages"])
+    found = {module for _, module, is_pkg in ALL if is_pkg}
+    assert found - listed == set(), f"package folders pyproject does not install: {sorted(found - listed)}"

@@ -5,8 +5,11 @@ Each sub-command lives in its own module ``clipvol.tools.cmd_<name>`` with two f
 moderngl, glfw) inside ``run`` so that ``clipvol --help`` starts fast.
 
 Errors a user can cause (:class:`clipvol.errors.ClipvolError`) print one line naming the file or
-parameter and exit with status 2, no traceback; Ctrl-C exits with 130 after the command has
-cleaned up (threads joined, partial outputs left resumable, never marked complete).
+parameter and exit with status 2, no traceback; so does an ``OSError`` of the machine's state (disk
+full, read-only file system, permission denied: :data:`clipvol.errors.OPERATIONAL_ERRNOS`) that no
+step reported itself. A frame that could not draw some bricks of the view exits with status 3
+(:data:`EXIT_PARTIAL`; ``--allow-partial`` draws it anyway, marked). Ctrl-C exits with 130 after the
+command has cleaned up (threads joined, partial outputs left resumable, never marked complete).
 """
 
 from __future__ import annotations
@@ -17,7 +20,10 @@ import signal
 import sys
 import threading
 
-from clipvol.errors import ClipvolError
+from clipvol.errors import OPERATIONAL_ERRNOS, ClipvolError, FrameIncompleteError, describe_os_error
+
+#: exit status of a frame some of whose bricks failed and were not replaced (clipvol.tools.partial)
+EXIT_PARTIAL = FrameIncompleteError.exit_code
 
 #: sub-command -> one-line help; the module is clipvol.tools.cmd_<name>
 COMMANDS = {
@@ -29,6 +35,7 @@ COMMANDS = {
     "summarize": "build the summary tables of image-based level of detail for an existing store",
     "render": "render one image of a store or procedural volume",
     "slice": "draw a cutting plane (axial, coronal, sagittal, oblique), fine near a point of interest",
+    "export": "take a region out of a store at one level: .npy, .tif, .nii(.gz) or .zarr, with its geometry",
     "view": "interactive roaming / multiresolution viewer (or --offscreen frames)",
     "report": "image error against run time for a sweep of quality settings",
     "demo": "brick the built-in dataset, fly around it, and write the report",
@@ -107,12 +114,20 @@ def main(argv: list[str] | None = None) -> int:
             print(f"clipvol {args.command}: interrupted", file=sys.stderr)
             return 130
         print(f"clipvol {args.command}: error: {e}", file=sys.stderr)
-        return 2
+        return int(getattr(e, "exit_code", 2))
     except KeyboardInterrupt:
         print(f"clipvol {args.command}: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # `clipvol info | head`
         return 0
+    except OSError as e:
+        if interrupted or _caused_by_interrupt(e):
+            print(f"clipvol {args.command}: interrupted", file=sys.stderr)
+            return 130
+        if e.errno not in OPERATIONAL_ERRNOS:
+            raise
+        print(f"clipvol {args.command}: error: {describe_os_error(e)}", file=sys.stderr)
+        return 2
     except Exception as e:
         if interrupted or _caused_by_interrupt(e):  # Ctrl-C inside a C extension can surface as another error
             print(f"clipvol {args.command}: interrupted", file=sys.stderr)

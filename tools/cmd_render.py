@@ -114,8 +114,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="draw N spatially disjoint brick groups in N worker processes and composite them")
     sl.add_argument("--scheduler", default="processes", metavar="S",
                     help="with --workers: processes (a local cluster, default) or tcp://HOST:PORT of a dask.distributed scheduler")
+    from clipvol.tools.partial import add_partial_argument
     from clipvol.tools.remote_args import add_remote_arguments, add_trust_arguments
 
+    add_partial_argument(r)
     add_remote_arguments(p)
     add_trust_arguments(p)
 
@@ -180,7 +182,9 @@ def run(args) -> int:
     from clipvol.scene.params import RenderParams
     from clipvol.units import format_bytes
 
+    from clipvol.render.failures import hatch_failed
     from clipvol.scene.bookmarks import load_camera
+    from clipvol.tools.partial import settle_failed
     from clipvol.tools.tf_args import transfer_function_from_args
 
     check_output_file(args.out, ".png", "--out")
@@ -237,6 +241,8 @@ def run(args) -> int:
         ctx.release()
     from clipvol.app.annotate import present
 
+    image = settle_failed("render", args.out, st.failed_bricks, image,
+                          lambda im: hatch_failed(im, cam, pyr, st.failed_bricks), args.allow_partial)
     Image.fromarray(present(image, cam, frame, labels=not args.no_labels), "RGBA").save(args.out)
     t = st.times
     levels = ", ".join(f"L{L}: {n}" for L, n in st.bricks_drawn.items()) or "none"
@@ -278,7 +284,11 @@ def _run_sort_last(args, params, cam, tf, kwargs, frame=None) -> int:
         image = dr.render(cam, tf)
         st = dr.last_stats
     from clipvol.app.annotate import present
+    from clipvol.render.failures import hatch_failed
+    from clipvol.tools.partial import settle_failed
 
+    image = settle_failed("render", args.out, st.failed_bricks, image,
+                          lambda im: hatch_failed(im, cam, dr.pyramid, st.failed_bricks), args.allow_partial)
     Image.fromarray(present(image, cam, frame, labels=not args.no_labels), "RGBA").save(args.out)
     print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, {args.mode}, {params.policy}, sort-last over "
           f"{args.workers} workers)", file=sys.stderr)

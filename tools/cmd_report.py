@@ -44,9 +44,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("source", help="a clipvol store / OME-Zarr directory or URL (s3://, https://, ...), procedural:NAME?size=N, "
                                   "a .npy file, or a NIfTI / DICOM folder / FILE.h5:/dataset / MRC input (bricked once into ./NAME.zarr)")
-    from clipvol.tools.remote_args import add_remote_arguments
+    from clipvol.tools.remote_args import add_remote_arguments, add_trust_arguments
 
     add_remote_arguments(p)
+    add_trust_arguments(p)
     p.add_argument("--out", required=True, help="output directory (created)")
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources")
     p.add_argument("--path", choices=("orbit", "fly", "zoom"), default="orbit", help="camera path the views come from")
@@ -64,6 +65,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
     p.add_argument("--threads", type=int, default=None, help="loader threads")
     p.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for a converged frame")
+    from clipvol.tools.partial import add_partial_argument
+
+    add_partial_argument(p)
     p.add_argument("--max-frames", type=int, default=8, help="as-it-comes frames per view at most")
     p.add_argument("--rounds", type=_rounds, default=5,
                    help="warm interleaved rounds per setting and view, each frame paired with a reference frame; "
@@ -113,19 +117,20 @@ def run(args) -> int:
 
     from clipvol.tools.tf_args import transfer_function_from_args
 
-    from clipvol.tools.remote_args import remote_kwargs
+    from clipvol.tools.remote_args import check_trust, remote_kwargs
 
     from clipvol.app.autobrick import bricked_source
 
     args.source = bricked_source(args.source, None)  # a NIfTI / DICOM / HDF5 / MRC input: bricked once into ./NAME.zarr
     loader = open_loader(args.source, **({} if args.brick is None else {"brick": args.brick}), **remote_kwargs(args))
+    check_trust(loader, args, "report")
     tf = transfer_function_from_args(args, loader)
     res = run_report(
         loader, args.out, path=args.path, views=args.views, size=args.size, thresholds=args.thresholds,
         memory_budgets=args.memory_budgets, texture_budgets=args.texture_budgets, tf=tf, mode=args.mode,
         step=args.step, threads=args.threads, timeout=args.timeout, max_frames=args.max_frames,
         reference_cap=args.reference_cap, log=lambda s: print(s, flush=True), plots=not args.no_plots,
-        block_budgets=_budgets(args.block_budgets), rounds=args.rounds,
+        block_budgets=_budgets(args.block_budgets), rounds=args.rounds, allow_partial=args.allow_partial,
     )
     print(f"wrote {res.csv}, {res.timing_csv}, {res.markdown}" + "".join(f", {p}" for p in res.plots))
     print(res.headline[:1].upper() + res.headline[1:] + ".")

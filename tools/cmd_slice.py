@@ -72,6 +72,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
     r.add_argument("--no-wait", action="store_true", help="draw what is resident after one pass (coarser fallback)")
     r.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for the slice's bricks (default 300)")
+    from clipvol.tools.partial import add_partial_argument
+    from clipvol.tools.remote_args import add_remote_arguments, add_trust_arguments
+
+    add_remote_arguments(p)
+    add_trust_arguments(p)
+
+    add_partial_argument(r)
 
 
 def plane_from_args(pyramid, args, frame=None):
@@ -169,7 +176,11 @@ def run(args) -> int:
     from clipvol.app.autobrick import bricked_source
 
     kwargs = {} if args.brick is None else {"brick": args.brick}
-    loader = open_store(bricked_source(args.source, args.store, log=lambda line: print(line, file=sys.stderr)), **kwargs)
+    from clipvol.tools.remote_args import check_trust, remote_kwargs
+
+    loader = open_store(bricked_source(args.source, args.store, log=lambda line: print(line, file=sys.stderr)), **kwargs,
+                        **remote_kwargs(args))
+    check_trust(loader, args, "slice")
     pyr = loader.pyramid
     frame = getattr(loader, "frame", None)  # the source's voxel-to-world affine (NIfTI, DICOM, ...)
     plane = plane_from_args(pyr, args, frame)
@@ -199,6 +210,12 @@ def run(args) -> int:
             st = action.last_stats
     finally:
         ctx.release()
+    from clipvol.render.failures import hatch_failed
+    from clipvol.tools.partial import settle_failed
+
+    cam = action.last_camera
+    rgba = settle_failed("slice", args.out or args.npy or args.stats, st.failed_bricks, rgba,
+                         lambda im: hatch_failed(im, cam, pyr, st.failed_bricks, plane=plane), args.allow_partial)
     h, w = values.shape
     if args.out is not None:
         if edges is not None and frame.frame == "RAS" and not args.no_labels:

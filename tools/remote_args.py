@@ -24,7 +24,7 @@ def add_remote_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_trust_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--unverified``: for the commands that draw a store (``render``)."""
+    """``--unverified``: for the commands that draw a store (``render``, ``slice``, ``view``, ``report``)."""
     parser.add_argument("--unverified", action="store_true",
                         help="draw a clipvol store whose manifest is missing or does not verify (a store written "
                              "before manifests, or damaged); without it such a store is refused")

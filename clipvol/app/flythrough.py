@@ -189,6 +189,7 @@ def render_path(
     path_kwargs: dict | None = None,
     quality: float = 8.0,
     orientation=None,
+    on_failed: Callable | None = None,
 ) -> PathResult:
     """Render ``frames`` views along camera path ``path`` of ``source`` and write them to ``out``.
 
@@ -234,6 +235,10 @@ def render_path(
         Write each frame's edge labels (R/L, A/P, S/I, or +X/-X... for a non-anatomical frame).
         Frames of a store whose array axes mirror the patient are flipped left-right either way
         (:func:`clipvol.app.annotate.present`), so they show the patient as ``clipvol render`` does.
+    on_failed : callable, optional
+        Called as ``on_failed(k, camera, image, failed_bricks)`` for a frame whose wanted bricks
+        include failed ones (:attr:`~clipvol.render.action.FrameStats.failed_bricks`); returns the
+        image to write (e.g. hatched) or raises to stop the path there (the frames before stay).
 
     Returns
     -------
@@ -279,6 +284,9 @@ def render_path(
         before = 0  # bytes_loaded counts what the loader threads read since the previous row
         for k, (cam, coi) in enumerate(cams):
             img, dt = session.timed_render(cam, coi, wait=converged, timeout=timeout if converged else None)
+            st = session.frame_stats
+            if on_failed is not None and st is not None and st.failed_bricks:
+                img = on_failed(k, cam, img, st.failed_bricks)
             if outlines:
                 from .overlay import draw_outlines
 

@@ -41,6 +41,7 @@ multiresolution (as LaMar, Hamann & Joy 1999 tabulate them), and bytes, fixed vs
 from __future__ import annotations
 
 import csv
+import sys
 import time
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -48,7 +49,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..errors import ClipvolError, ParameterError
+from ..errors import ClipvolError, FrameIncompleteError, ParameterError
 from ..paging.toroidal import minimum_budget
 from ..render.context import create_context
 from ..scene.metrics import percent_delta_e, psnr, rmse
@@ -209,6 +210,22 @@ def _settle(sess, cam, coi, timeout: float, max_passes: int = 32) -> int:
     return uploaded
 
 
+def _check_failed(s: _Setting, view: int, fs, allow_partial: bool, log) -> None:
+    """A converged frame with failed bricks that no verified ancestor stands in for measures the
+    error of a hole: refuse (:class:`~clipvol.errors.FrameIncompleteError`), or with
+    ``allow_partial`` say so and go on."""
+    from ..render.failures import describe_failed
+
+    if not fs.unreplaced:
+        return
+    text = (f"{s.label} view {view}: {len(fs.unreplaced)} brick(s) failed and no verified ancestor stands in for them: "
+            f"{describe_failed(fs.unreplaced)}")
+    if not allow_partial:
+        raise FrameIncompleteError(f"{text}; the report would measure a hole as data (allow_partial / --allow-partial "
+                                   "writes it anyway)")
+    print(f"clipvol report: warning: {text}; its numbers include the missing regions", file=sys.stderr)
+
+
 def _apply(sess, base: RenderParams, s: _Setting) -> None:
     """Switch ``sess`` to setting ``s`` (only the fields that differ, so the GPU cache is kept)."""
     target = s.params(base)
@@ -287,7 +304,7 @@ def _timing_values(block: dict, ref_label: str, label: str, view: int) -> dict:
 
 
 def _cold_setting(s: _Setting, loader, ctx, views, refs, *, base: RenderParams, tf, threads, timeout, max_frames,
-                  log, keep_frames: dict | None) -> list[dict]:
+                  log, keep_frames: dict | None, allow_partial: bool = False) -> list[dict]:
     """The cold half of one setting: a new session (empty clip-texture and GPU cache) per setting.
 
     Per view: the frames a user sees as the bricks stream in (``as-it-comes`` rows, until the frame
@@ -327,6 +344,7 @@ def _cold_setting(s: _Setting, loader, ctx, views, refs, *, base: RenderParams, 
             converge_s = time.perf_counter() - t_view
             img = sess.render(cam, coi, wait=False)
             fs = sess.frame_stats
+            _check_failed(s, v, fs, allow_partial, log)
             values = dict(
                 elapsed_s=round(time.perf_counter() - t_view, 6), converge_s=round(converge_s, 6),
                 converged=int(fs.converged), bricks_drawn=fs.bricks_distinct,
@@ -369,6 +387,7 @@ def run_report(
     plots: bool = True,
     block_budgets: Sequence[int] | None = None,
     rounds: int = 5,
+    allow_partial: bool = False,
 ) -> ReportResult:
     """Measure image error against frame time and bytes for a sweep of settings; write the report.
 
@@ -423,6 +442,10 @@ def run_report(
         warm half costs about ``4 * rounds`` frames per setting and view. The reference's session
         stays open while each memory / texture budget setting is timed beside it in a session of
         its own: up to twice the reference's budgets are held then.
+    allow_partial : bool
+        Go on (with a warning on stderr) when a converged frame has failed bricks that no verified
+        ancestor stands in for; without it such a frame raises
+        :class:`~clipvol.errors.FrameIncompleteError`.
 
     Returns
     -------
@@ -454,7 +477,8 @@ def run_report(
     own_ctx = ctx is None
     if own_ctx:
         ctx = create_context()
-    kw = dict(base=base, tf=tf, threads=threads, timeout=timeout, max_frames=int(max_frames), log=log)
+    kw = dict(base=base, tf=tf, threads=threads, timeout=timeout, max_frames=int(max_frames), log=log,
+              allow_partial=bool(allow_partial))
     try:
         # 0. one throwaway frame, so that what the process does once (shader compilation, driver
         #    set-up) is not charged to the first setting's cold time
@@ -497,6 +521,8 @@ def run_report(
                 result.rows.extend(_cold_setting(s, loader, ctx, cams, refs,
                                                  keep_frames=frames if s.sweep == "lod_threshold" else None, **kw))
                 measured.append(s)
+            except FrameIncompleteError:
+                raise
             except ClipvolError as e:  # a budget too small for this pyramid: say so, go on
                 result.skipped.append(f"{s.label}: {e}")
                 if log:

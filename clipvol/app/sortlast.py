@@ -70,8 +70,9 @@ def release_worker_state() -> None:
 
 
 def _render_group(source, source_kwargs, memory_budget, params: RenderParams, camera, tf, box, timeout):
-    """Draw one group: returns ``(raw float32 (h, w, 4), (a, b) of the texture format, seconds,
-    converged)``; a group whose bricks did not all arrive within ``timeout`` says so."""
+    """Draw one group: returns ``(raw float32 (h, w, 4), the TextureFormat, seconds, converged,
+    failed bricks)``; a group whose bricks did not all arrive within ``timeout`` says so, and the
+    failed ones are listed (:mod:`clipvol.render.failures`)."""
     t0 = time.perf_counter()
     _ctx, clip, action = _worker_action(source, source_kwargs, memory_budget, params)
     shape = params.shape
@@ -83,14 +84,15 @@ def _render_group(source, source_kwargs, memory_budget, params: RenderParams, ca
         raw = np.zeros((int(h), int(w), 4), dtype=np.float32)
         if params.mode == "mip":
             raw[..., 0] = -3.0e38
-        return raw, (action.cache.format.a, action.cache.format.b), time.perf_counter() - t0, True
+        return raw, action.cache.format, time.perf_counter() - t0, True, ()
     group_shape = Shape(box=(tuple(lo), tuple(hi)), planes=shape.planes if shape is not None else ())
     action.set_params(replace(params, shape=group_shape, background=(0.0, 0.0, 0.0, 0.0), early_termination=True))
     vlo, vhi = clip.pyramid.volume_box()
     clip.set_center(np.clip((lo + hi) / 2.0, vlo, vhi))
     action.render(camera, tf, wait=True, timeout=timeout)
-    return (np.array(action.last_raw), (action.cache.format.a, action.cache.format.b), time.perf_counter() - t0,
-            bool(action.last_frame_stats.converged))
+    st = action.last_frame_stats
+    return (np.array(action.last_raw), action.cache.format, time.perf_counter() - t0, bool(st.converged),
+            tuple(st.failed_bricks))
 
 
 # -- client side --------------------------------------------------------------------------------
@@ -104,6 +106,13 @@ class SortLastStats:
     order: tuple[int, ...]
     #: every group drew its bricks at their own level (False: some were still loading at the timeout)
     converged: bool = True
+    #: the groups' failed bricks (:class:`~clipvol.render.failures.FailedBrick`), each once
+    failed_bricks: tuple = ()
+
+    @property
+    def unreplaced(self) -> tuple:
+        """The failed bricks no verified ancestor stands in for: regions missing from the image."""
+        return tuple(f for f in self.failed_bricks if not f.replaced)
 
 
 class DistributedRenderer:
@@ -172,6 +181,7 @@ class DistributedRenderer:
     def render(self, camera, tf) -> np.ndarray:
         """One converged frame: ``(h, w, 4)`` straight RGBA uint8, as :meth:`ClipRenderAction.render`."""
         from ..render.action import premultiplied_to_uint8
+        from ..render.gpu_cache import texel_to_raw
 
         t0 = time.perf_counter()
         order = back_to_front(self.tree, camera)
@@ -185,9 +195,9 @@ class DistributedRenderer:
         p = self.params
         if p.mode == "mip":
             m = composite_max([results[g][0][..., 0] for g in order])
-            a_fmt, b_fmt = results[order[0]][1]
+            fmt = results[order[0]][1]
             hit = m > -3.0e38 * 0.5
-            rgba = tf.lookup(np.where(hit, a_fmt * m + b_fmt, b_fmt), self.pyramid.value_range)
+            rgba = tf.lookup(np.where(hit, texel_to_raw(fmt, m), fmt.b), self.pyramid.value_range)
             alpha = np.where(hit, rgba[..., 3], 0.0)
             prem = np.concatenate([rgba[..., :3] * alpha[..., None], alpha[..., None]], axis=-1)
         else:
@@ -197,8 +207,9 @@ class DistributedRenderer:
         prem = prem + (1.0 - alpha[..., None]) * np.array([r * ba, g_ * ba, b * ba, ba])
         image = premultiplied_to_uint8(prem)
         t2 = time.perf_counter()
+        failed = {(f.level, f.index): f for g in sorted(results) for f in results[g][4]}
         self.last_stats = SortLastStats(tuple(results[g][2] for g in sorted(results)), t2 - t0, t2 - t1, tuple(order),
-                                        all(results[g][3] for g in results))
+                                        all(results[g][3] for g in results), tuple(failed.values()))
         return image
 
     def set_params(self, params: RenderParams) -> None:
@@ -224,11 +235,12 @@ class DistributedRenderer:
 def render_path_sort_last(source, out, *, workers: int = 2, scheduler: str = "processes", path: str = "orbit",
                           frames: int = 36, size=(256, 256), params: RenderParams | None = None, tf="viridis",
                           memory_budget="256MB", source_kwargs: dict | None = None, timeout: float = 120.0,
-                          progress=None) -> list[dict]:
+                          progress=None, on_failed=None) -> list[dict]:
     """An offscreen flythrough drawn sort-last: PNG frames ``frame_0000.png``... and ``frames.csv``
     (frame time, each group's time in its worker, compositing time, visibility order) in ``out``.
 
-    Every frame is converged (each worker waits for its group's bricks). Returns the CSV rows.
+    Every frame is converged (each worker waits for its group's bricks). ``on_failed`` is
+    :func:`clipvol.app.flythrough.render_path`'s (a frame with failed bricks). Returns the CSV rows.
     """
     import csv
     from pathlib import Path
@@ -251,8 +263,10 @@ def render_path_sort_last(source, out, *, workers: int = 2, scheduler: str = "pr
         writer.writeheader()
         for k, (cam, _coi) in enumerate(make_path(path, dr.pyramid, frames, size=size)):
             img = dr.render(cam, tfn)
-            save_png(img, out / f"frame_{k:04d}.png")
             st = dr.last_stats
+            if on_failed is not None and st.failed_bricks:
+                img = on_failed(k, cam, img, st.failed_bricks)
+            save_png(img, out / f"frame_{k:04d}.png")
             row = {"frame": k, "frame_s": round(st.frame_seconds, 6), "composite_s": round(st.composite_seconds, 6),
                    "converged": st.converged,
                    "order": " ".join(map(str, st.order)),

@@ -39,11 +39,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import MissingExtraError, ParameterError
-from .pipeline import (_brick_shape, _check_params, _create_store, chunk_encoder, encode_brick, job_spec, mark_complete,
-                       output_lock, prepare_output)
+from ..errors import InputFormatError, MissingExtraError, ParameterError
+from .pipeline import (_brick_shape, _check_params, _create_store, check_overwrite_spares, chunk_encoder, encode_brick,
+                       job_spec, mark_complete, output_lock, prepare_output, write_errors)
 from .pyramid import Pyramid, downsample
-from .sources import open_source
+from .sources import check_source_unchanged, file_inodes, open_source
 from .stats import StatsComputer, finite_range
 from .store import STAT_ARRAYS, STATS_GROUP, StoreMeta, parse_metadata
 
@@ -254,10 +254,15 @@ def brick_volume_dask(
     output = Path(output).absolute()
     src = open_source(source, raw_shape=raw_shape, raw_dtype=raw_dtype, byte_order=byte_order)
     try:
+        if spacing is None and getattr(src, "spacing_required", None):  # the input records no voxel size
+            raise InputFormatError(src.spacing_required)
         sp = tuple(float(v) for v in (spacing or src.spacing or (1.0, 1.0, 1.0)))
         unit = unit or getattr(src, "unit", None) or "micrometer"  # as the local path decides them
         frame = src.frame.with_spacing(sp) if getattr(src, "frame", None) is not None else None
         job = job_spec(src, src.shape, bshape, filter, codec, sp, unit)
+        inodes = file_inodes(src)
+        if overwrite:
+            check_overwrite_spares(output, src.files())
         shape, dtype = src.shape, src.dtype
     finally:
         src.close()
@@ -269,7 +274,7 @@ def brick_volume_dask(
     try:
         if progress and own is not None and own[1] is None:  # an existing cluster: say where to watch it
             print(f"clipvol brick: Dask dashboard {client.dashboard_link}", file=sys.stderr)
-        with output_lock(output):
+        with write_errors(output), output_lock(output):
             attrs = prepare_output(output, job, overwrite)
             if isinstance(source, np.ndarray):
                 spec = (client.scatter(source, broadcast=True), None, None, byte_order)
@@ -283,6 +288,11 @@ def brick_volume_dask(
                 pyramid = parse_metadata(attrs, str(output)).pyramid
                 group = zarr.open_group(str(output), mode="r+")
             _build(client, spec, group, pyramid, output, codec, span, progress)
+            again = open_source(source, raw_shape=raw_shape, raw_dtype=raw_dtype, byte_order=byte_order)
+            try:
+                check_source_unchanged(again, job["source_identity"], inodes, output)
+            finally:
+                again.close()
             mark_complete(group)  # the very last write, by the client
         if summary:  # the same tables as the local path, with their own completion marker
             from .summary import build_summary

@@ -26,10 +26,22 @@ from .pipeline import brick_volume
 from .sources import open_source
 from .store import StoreMeta, parse_metadata
 
-__all__ = ["brick_labels", "label_names", "LABELS_GROUP"]
+__all__ = ["brick_labels", "check_label_name", "label_names", "LABELS_GROUP"]
 
 LABELS_GROUP = "labels"
-_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
+#: one plain path component: starts with a letter, digit or '_' (so never '.', '..' or hidden)
+_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}$")
+
+
+def check_label_name(name) -> str:
+    """``name`` if it is one plain path component usable as ``labels/<name>``, else a
+    :class:`~clipvol.errors.ParameterError`. The name becomes a folder inside the image store, and
+    ``--overwrite`` removes that folder: ``..`` or ``a/b`` would point it at the image itself or
+    outside the store."""
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise ParameterError(f"labels name: expected one plain folder name (letters, digits, '_', '.', '-', "
+                             f"starting with a letter, digit or '_'), got {name!r}")
+    return name
 
 
 def _image_meta(image: Path) -> StoreMeta:
@@ -64,7 +76,7 @@ def brick_labels(image, labels, name: str = "labels", *, codec: str = "lz4", wor
     labels : str, Path, numpy.ndarray or Source
         Integer label ids of the same shape as the image (any input ``clipvol brick`` reads).
     name : str
-        The label image's name (letters, digits, ``_.-``).
+        The label image's name: one plain folder name (letters, digits, ``_.-``, not starting with ``.``).
 
     Returns
     -------
@@ -74,8 +86,7 @@ def brick_labels(image, labels, name: str = "labels", *, codec: str = "lz4", wor
     import zarr
 
     image = Path(image)
-    if not _NAME.match(name):
-        raise ParameterError(f"labels name: expected letters, digits, '_', '.' or '-', got {name!r}")
+    check_label_name(name)
     meta = _image_meta(image)
     pyr = meta.pyramid
     src = open_source(labels)

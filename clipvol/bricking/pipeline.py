@@ -44,10 +44,11 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ..errors import OutputExistsError, OutputLockedError, ParameterError, SourceChangedError
+from ..errors import (OPERATIONAL_ERRNOS, ClipvolError, InputFormatError, OutputExistsError, OutputLockedError,
+                      OutputWriteError, ParameterError, SourceChangedError, describe_os_error)
 from .pyramid import FILTERS, Pyramid, downsample
 from .source_types import Source
-from .sources import identity_changes, open_source, source_identity
+from .sources import check_source_unchanged, file_inodes, identity_changes, open_source, source_identity
 from .stats import StatsComputer, finite_range
 from .worldframe import WorldFrame
 from .store import (
@@ -203,8 +204,26 @@ def _read_attrs(path: Path) -> dict | None:
     return attrs if isinstance(attrs, dict) else None
 
 
+def check_overwrite_spares(output: Path, keep) -> None:
+    """Refuse ``overwrite`` of an ``output`` that holds one of the paths in ``keep`` (the input's
+    files) or the current folder: removing the output would remove what the build reads."""
+    out = Path(output).absolute()
+    if out.is_symlink() or not out.is_dir():
+        return
+    out = out.resolve()
+    for what, p in [*((f"the input {p}", Path(p)) for p in keep), ("the current folder", Path.cwd())]:
+        r = p.absolute().resolve()
+        if r == out or out in r.parents:
+            raise OutputExistsError(f"{output}: --overwrite would remove {what}, which lies inside it; "
+                                    "pick another OUTPUT")
+
+
 def prepare_output(output: Path, job: dict, overwrite: bool) -> dict | None:
-    """Clear or vet an existing output; return its attrs when it is a resumable build of ``job``."""
+    """Clear or vet an existing output; return its attrs when it is a resumable build of ``job``.
+
+    ``overwrite`` removes ``output`` itself (a symlink: the link, not its target) and nothing else,
+    only here, before the first write of the build (:func:`check_overwrite_spares` has refused an
+    output that holds the input)."""
     if not output.exists() and not output.is_symlink():
         return None
     if overwrite:
@@ -569,6 +588,8 @@ def brick_volume(
     output = Path(output)
     src = open_source(source, raw_shape=raw_shape, raw_dtype=raw_dtype, byte_order=byte_order)
     try:
+        if spacing is None and getattr(src, "spacing_required", None):  # the input records no voxel size
+            raise InputFormatError(src.spacing_required)
         sp = spacing or src.spacing or (1.0, 1.0, 1.0)
         sp = tuple(float(v) for v in sp)
         unit = unit or src.unit or "micrometer"
@@ -576,7 +597,10 @@ def brick_volume(
         if origin is not None:
             frame = (frame or WorldFrame.from_spacing(sp)).with_origin(origin)
         job = job_spec(src, src.shape, bshape, filter, codec, sp, unit)
-        with output_lock(output), \
+        inodes = file_inodes(src)
+        if overwrite:
+            check_overwrite_spares(output, src.files())
+        with write_errors(output), output_lock(output), \
                 ThreadPoolExecutor(max_workers=workers, thread_name_prefix="clipvol-brick") as pool:
             attrs = prepare_output(output, job, overwrite)
             if attrs is None:
@@ -589,14 +613,37 @@ def brick_volume(
                 pyramid = parse_metadata(attrs, str(output)).pyramid
                 group = zarr.open_group(str(output), mode="r+")
             _sweep(src, group, pyramid, output, codec, pool, progress)
+            check_source_unchanged(src, job["source_identity"], inodes, output)
             mark_complete(group)  # the very last write
         if summary:  # summary tables (image-based LOD): their own completion marker, resumable
             from .summary import build_summary
 
-            build_summary(output, workers=workers, progress=progress)
+            with write_errors(output, "its summary tables"):
+                build_summary(output, workers=workers, progress=progress)
         return parse_metadata(dict(group.attrs), str(output))
     finally:
         src.close()
+
+
+class write_errors:
+    """Context manager: an :class:`OSError` of the machine's state (disk full, read-only file
+    system, permission denied: :data:`~clipvol.errors.OPERATIONAL_ERRNOS`) raised while writing
+    ``output`` becomes one :class:`~clipvol.errors.OutputWriteError` naming the output and the file.
+    A build stopped this way is never marked complete, so re-running it resumes."""
+
+    def __init__(self, output, what: str = "the store") -> None:
+        self.output, self.what = output, what
+
+    def __enter__(self) -> "write_errors":
+        return self
+
+    def __exit__(self, kind, e, tb) -> bool:
+        if isinstance(e, OSError) and not isinstance(e, ClipvolError) and e.errno in OPERATIONAL_ERRNOS:
+            err = OutputWriteError(f"{self.output}: cannot write {self.what} ({describe_os_error(e)}); "
+                                   "nothing is marked complete: fix this and re-run to resume")
+            err.errno = e.errno
+            raise err from e
+        return False
 
 
 def _sweep(src: Source, group, pyramid: Pyramid, output: Path, codec: str, pool: ThreadPoolExecutor, progress: bool) -> None:

@@ -19,7 +19,8 @@ binary files). Formats:
   tests and benchmarks, generated chunk by chunk from a seed.
 
 Every error a user can cause names the file and what was expected: a missing column (with the
-columns that exist), NaN or infinite coordinates (with the first bad row), an empty input.
+columns that exist), NaN, infinite or absurd (beyond :data:`MAX_COORDINATE`) coordinates (with
+the first bad row), an empty input.
 """
 
 from __future__ import annotations
@@ -28,6 +29,11 @@ from pathlib import Path
 from typing import Iterator, Sequence
 
 import numpy as np
+
+#: largest coordinate magnitude accepted: the store keeps float32 offsets from the cube's origin
+#: (float32 ends at 3.4e38) and the octree squares distances in float64 (which ends at 1.8e308:
+#: 1e300 would square to inf); 1e30 keeps both finite with room for the cube's extent
+MAX_COORDINATE = 1e30
 
 from ..errors import InputFormatError, InputNotFoundError, ParameterError
 from .formats import require
@@ -77,11 +83,13 @@ class PointSource:
         """Validate one chunk: finite coordinates, float types; names the file and the first bad row."""
         xyz = np.ascontiguousarray(xyz, dtype=np.float64).reshape(-1, 3)
         values = np.ascontiguousarray(values, dtype=np.float32).reshape(len(xyz), len(self.value_names))
-        bad = ~np.all(np.isfinite(xyz), axis=1)
+        with np.errstate(invalid="ignore"):
+            bad = ~np.all(np.isfinite(xyz) & (np.abs(xyz) <= MAX_COORDINATE), axis=1)
         if bad.any():
             i = int(np.argmax(bad))
             raise InputFormatError(
-                f"{self.name}: expected finite x, y, z coordinates, got {tuple(xyz[i])} at row {first_row + i}"
+                f"{self.name}: expected finite x, y, z coordinates of magnitude <= {MAX_COORDINATE:g}, "
+                f"got {tuple(float(v) for v in xyz[i])} at row {first_row + i}"
             )
         return xyz, values
 

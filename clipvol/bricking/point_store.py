@@ -564,6 +564,9 @@ def build_point_store(source: PointSource, output, *, max_points: int = 64, over
         if not overwrite and cv.get("job") == job and (out / "_build_tmp" / "plan.json").is_file():
             resume = cv  # an interrupted build of the same job: carried on from its last checkpoint
         else:  # overwrite, or an interrupted build of other input or parameters: rebuilt from the start
+            from .pipeline import check_overwrite_spares
+
+            check_overwrite_spares(out, [p for p in (getattr(source, "path", None),) if p is not None])
             shutil.rmtree(out) if out.is_dir() else out.unlink()
     k = len(source.value_names)
     with tqdm(total=2 * source.count, unit="pt", unit_scale=True, desc="points", file=sys.stderr,

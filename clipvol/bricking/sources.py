@@ -28,7 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..errors import InputFormatError, InputNotFoundError, ParameterError
+from ..errors import InputFormatError, InputNotFoundError, ParameterError, SourceChangedError
 from .formats import open_format  # NIfTI, DICOM, HDF5, MRC, OME-TIFF (each reader imported on use)
 from .pyramid import validate_dtype
 from .source_types import (
@@ -200,6 +200,54 @@ def source_identity(src: Source, samples: int = 9, edge: int = 16) -> dict:
         h.update(np.ascontiguousarray(block).tobytes())
     return {"shape": list(shape), "dtype": src.dtype.name, "size": size, "mtime_ns": mtime,
             "sample_sha256": h.hexdigest()}
+
+
+def file_inodes(src: Source) -> dict[str, tuple[int, int]]:
+    """``{path: (st_dev, st_ino)}`` of ``src``'s files: a file replaced by another one (``mv new
+    old``, an editor's save) has a new inode even when its size, time and sampled blocks match.
+    Kept in memory for one build only (not in the store: inodes do not survive a copy)."""
+    out = {}
+    for f in src.files():
+        try:
+            st = os.stat(f)
+        except OSError:
+            continue
+        out[str(f)] = (int(st.st_dev), int(st.st_ino))
+    return out
+
+
+def check_source_unchanged(src: Source, identity: dict, inodes: dict, output) -> None:
+    """Raise :class:`~clipvol.errors.SourceChangedError` when ``src`` differs from the ``identity``
+    and ``inodes`` recorded when its build started. Called just before a store is marked complete,
+    so a source rewritten during the build (slabs read before and after mixed in one pyramid) never
+    yields a store that claims to be whole."""
+    def changed(changes):
+        return SourceChangedError(f"{output}: the input {src.name} changed while it was being bricked "
+                                  f"({'; '.join(changes)}); the store is left incomplete: re-run with --overwrite "
+                                  "once the input is stable")
+
+    now_inodes = file_inodes(src)
+    moved = sorted(p for p, ino in inodes.items() if now_inodes.get(p) != ino)
+    if moved:
+        more = f" and {len(moved) - 1} more" if len(moved) > 1 else ""
+        raise changed([f"file replaced or removed: {moved[0]}{more}"])
+    files = src.files()
+    if files and isinstance(identity, dict):  # sizes and times first: reading a truncated memory map faults
+        try:
+            st = [os.stat(f) for f in files]
+        except OSError as e:
+            raise changed([f"{type(e).__name__}: {e}"]) from e
+        size, mtime = int(sum(x.st_size for x in st)), int(max(x.st_mtime_ns for x in st))
+        quick = identity_changes(identity, {**identity, "size": size, "mtime_ns": mtime})
+        if quick:
+            raise changed(quick)
+    try:
+        now = source_identity(src)
+    except (OSError, ValueError) as e:  # truncated or removed meanwhile
+        raise changed([f"{type(e).__name__}: {e}"]) from e
+    changes = identity_changes(identity, now)
+    if changes:
+        raise changed(changes)
 
 
 def identity_changes(old: dict | None, new: dict) -> list[str]:

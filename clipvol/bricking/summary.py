@@ -299,8 +299,17 @@ def open_summary(path) -> SummaryTables:
     """Read the summary tables of the store at ``path``.
 
     Raises :class:`SummaryMissingError` (naming ``clipvol summarize``) when the store has none or
-    their build was interrupted.
+    their build was interrupted, :class:`StoreFormatError` naming the part when a level's table is
+    missing from tables marked complete (deleted or damaged since).
     """
+    try:
+        return _read_summary(path)
+    except KeyError as e:
+        raise StoreFormatError(f"{path}/{SUMMARY_GROUP}: the table {e} is missing from summary tables marked "
+                               f"complete; rebuild them with `clipvol summarize --overwrite {path}`") from None
+
+
+def _read_summary(path) -> SummaryTables:
     import json
 
     import zarr

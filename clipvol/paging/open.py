@@ -13,7 +13,7 @@ import re
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from ..errors import InputFormatError, InputNotFoundError
+from ..errors import InputFormatError, InputNotFoundError, ParameterError
 from .bytesource import is_remote_url
 from .loader import Loader
 
@@ -60,12 +60,12 @@ def open_store(path_or_url: str | Path, **kwargs) -> Loader:
         if scheme == "procedural":
             from ..loaders.procedural import ProceduralLoader
 
-            return ProceduralLoader(text, **kwargs)
+            return _construct(ProceduralLoader, text, kwargs)
         plugins = loader_plugins()
         if scheme not in plugins and is_remote_url(text):
             from ..loaders.zarr_remote import RemoteZarrLoader
 
-            return RemoteZarrLoader(text, **kwargs)
+            return _construct(RemoteZarrLoader, text, kwargs)
         if scheme not in plugins:
             raise InputFormatError(
                 f"{text}: no loader for the scheme {scheme!r}; expected a path, 'procedural:...', or one of the "
@@ -88,53 +88,58 @@ def open_store(path_or_url: str | Path, **kwargs) -> Loader:
                 )
             from ..loaders.zarr_store import ZarrLoader
 
-            n = _channel_set(path)
-            if n is not None:  # clipvol brick of a (c, z, y, x) input: one store per channel
-                return _open_channel(path, n, kwargs)
-            return ZarrLoader(path, **kwargs)
+            from ..bricking.channels import image_set
+
+            found = image_set(path)
+            if found is not None:  # clipvol brick of a 4-D input: one store per channel or time step
+                return _open_member(path, *found, kwargs)
+            return _construct(ZarrLoader, path, kwargs)
         raise InputFormatError(f"{path}: expected a zarr store (a directory with zarr.json or .zgroup), found neither")
     if path.suffix.lower() == ".npy":
         from ..loaders.numpy_array import NumpyLoader
 
-        return NumpyLoader(path, **kwargs)
+        return _construct(NumpyLoader, path, kwargs)
     raise InputFormatError(
         f"{path}: unknown format (suffix {path.suffix or 'none'!r}); expected a zarr store directory, a .npy file "
         "or a URL such as 'procedural:fractal?size=256'"
     )
 
 
-def _channel_set(path: Path) -> int | None:
-    """Channels of a channel set (:mod:`clipvol.bricking.channels`), or None for any other group."""
-    import json
+def _construct(loader_class, where, kwargs: dict):
+    """``loader_class(where, **kwargs)``, refusing in one line the keywords it does not take (a
+    command's ``--brick`` for a store whose bricks were fixed when it was built) instead of
+    Python's ``TypeError``."""
+    import inspect
 
-    from ..bricking.store_files import read_file
-
-    try:  # never a FIFO or a device: the loader refuses those with a message
-        attrs = json.loads(read_file(path / "zarr.json", path)).get("attributes", {})
-    except (OSError, ValueError, AttributeError):
-        return None
-    cs = attrs.get("clipvol_channels") if isinstance(attrs, dict) else None
-    if not isinstance(cs, dict):
-        return None
     try:
-        return int(cs["channels"])
-    except (KeyError, TypeError, ValueError):
-        raise InputFormatError(f"{path}: attributes['clipvol_channels'] is malformed: {cs!r}") from None
+        params = inspect.signature(loader_class).parameters
+    except (TypeError, ValueError):
+        return loader_class(where, **kwargs)
+    if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        extra = sorted(k for k in kwargs if k not in params)
+        if extra:
+            k = extra[0]
+            raise ParameterError(f"{where}: {k} (--{k.replace('_', '-')}): not an option of a {loader_class.__name__} "
+                                 f"source, which takes {', '.join(n for n in list(params)[1:]) or 'no options'}; "
+                                 f"drop --{k.replace('_', '-')}")
+    return loader_class(where, **kwargs)
 
 
-def _open_channel(path: Path, n: int, kwargs: dict):
-    """Channel ``c`` (default 0) of a channel set, its loader reporting the ``c`` axis."""
-    from ..errors import ParameterError
+def _open_member(path: Path, axis: str, n: int, kwargs: dict):
+    """Member ``c`` or ``t`` (default 0) of an image set (:mod:`clipvol.bricking.channels`), its
+    loader reporting the set's axis (``axes == ("c",)``, ``lead_shape == (n,)``)."""
     from ..loaders.zarr_store import ZarrLoader
 
     kwargs = dict(kwargs)
-    c, t = kwargs.pop("c", None), kwargs.pop("t", None)
-    if t not in (None, 0):
-        raise ParameterError(f"t: {path} has no 't' axis (a channel set: c, z, y, x), got t={t}")
-    c = 0 if c is None else c
-    if isinstance(c, bool) or int(c) != c or not 0 <= c < n:
-        raise ParameterError(f"c: expected 0..{n - 1} for {path} ({n} channels), got {c!r}")
-    loader = ZarrLoader(path / "c" / str(int(c)), **kwargs)
-    loader.axes, loader.lead_shape = ("c",), (n,)
+    want = {"c": kwargs.pop("c", None), "t": kwargs.pop("t", None)}
+    kind = "a channel set: c, z, y, x" if axis == "c" else "a time series: t, z, y, x"
+    for name, v in want.items():
+        if name != axis and v not in (None, 0):
+            raise ParameterError(f"{name}: {path} has no {name!r} axis ({kind}), got {name}={v}")
+    k = 0 if want[axis] is None else want[axis]
+    if isinstance(k, bool) or int(k) != k or not 0 <= k < n:
+        what = "channels" if axis == "c" else "time steps"
+        raise ParameterError(f"{axis}: expected 0..{n - 1} for {path} ({n} {what}), got {k!r}")
+    loader = _construct(ZarrLoader, path / axis / str(int(k)), kwargs)
+    loader.axes, loader.lead_shape = (axis,), (n,)
     return loader
-

@@ -40,6 +40,11 @@ Per frame (:meth:`ClipRenderAction.render`):
      ``early_termination=False``: *back to front* with ``(ONE, ONE_MINUS_SRC_ALPHA)`` over the
      background, exactly as ``vzClipRenderAction``. MIP uses the ``MAX`` blend equation.
 
+   Both paths leap over empty space below the brick (``EMPTY_SKIP``, composite without overlays,
+   :mod:`clipvol.scene.occupancy`): each brick's cells of 8³ voxels carry their value range
+   (computed by the clip-texture's loader threads), the GPU cache turns them into one flag per cell
+   for the transfer function, and the march jumps over cells whose every sample is transparent.
+
    Both paths share ``shaders/volume_common.glsl``: the fragment shader rebuilds the pixel's ray
    from ``gl_FragCoord`` and the camera basis (per-frame uniforms, so bit-identical for every box
    and both paths), intersects it with the box (and the :class:`~clipvol.scene.geometry.Shape`'s
@@ -99,9 +104,10 @@ from ..scene.transfer import corrected_tables, transparency_filter
 from ..scene.visibility import box_depths, screen_rects
 from ..scene.selection import merge_items
 from ..scene.selection.policies import POLICIES
+from .failures import failed_bricks
 from .frame_loop import FrameLoop
 from .glsl import ProgramCache
-from .gpu_cache import GpuBrickCache
+from .gpu_cache import GpuBrickCache, t_scale_offset, texel_to_raw
 from .image_lod import ImageLod
 from .overlay_binding import OverlayTextures, overlay_defines
 from .resolve import Resolve
@@ -130,6 +136,12 @@ MAX_SINGLE_PASS_LEVELS = 16
 #: segment, so a ray of more samples would be cut short there; such a frame is drawn per brick.
 MAX_SINGLE_PASS_RAY_SAMPLES = 1 << 15
 MAX_PAGE_TABLE_ENTRIES = 1 << 24
+#: texture unit of the empty-space cells (after the single pass's 3 + 16 level textures)
+OCCUPANCY_UNIT = 20
+#: a frame leaps over empty cells only when at least this fraction of the cells holding data is
+#: empty under the transfer function: with none empty, the cell lookups (one per 8 samples) cost
+#: 5-12 % of a frame on llvmpipe (the CT-like head under a table visible everywhere, 128³-256³)
+MIN_EMPTY_FRACTION = 0.1
 #: path="auto": the single pass draws cuts of at least this many (merged) boxes. Measured on Mesa
 #: llvmpipe (docs/benchmarks.md, "Which path draws a frame"), the single pass over the per-brick
 #: path, same cut: 1 box 1.04-1.06x, 2 boxes 1.04x, 4 boxes 0.94-0.97x, 8 boxes 0.90x, 10-18 boxes
@@ -183,6 +195,9 @@ class FrameStats:
         Bytes the loader read from storage during the call (chunk files or network responses,
         the clip-texture's prefetch included; :mod:`clipvol.paging.readcount`), ``None`` for a
         loader that does not count its reads.
+    failed_bricks : tuple of FailedBrick
+        Wanted bricks that failed to load, each with its cause and the ancestor drawn in its place
+        (:mod:`clipvol.render.failures`); :attr:`unreplaced` are those drawn by nothing.
     """
 
     bricks_drawn: dict[int, int]
@@ -198,6 +213,12 @@ class FrameStats:
     items_drawn: int = 0
     counts: dict = field(default_factory=dict)
     bytes_read: int | None = None
+    failed_bricks: tuple = ()
+
+    @property
+    def unreplaced(self) -> tuple:
+        """The failed bricks no verified ancestor stands in for: regions missing from the image."""
+        return tuple(f for f in self.failed_bricks if not f.replaced)
 
 
 def _vec(v) -> tuple[float, float, float]:
@@ -240,6 +261,7 @@ class ClipRenderAction:
         self._tf_key = None
         self._pt_tex = None
         self.path_drawn = None  # "single-pass" or "bricks": what drew the last frame
+        self.skipped_empty = False  # the last frame leapt over empty cells (EMPTY_SKIP, see _skips)
         self.page_table_nodes = 0  # single pass: drawn nodes of the last frame's table, after merge_items
         self._fbo = None
         self._fbo_size = None
@@ -265,7 +287,7 @@ class ClipRenderAction:
         """The ``#define``\\ s of this frame's volume shader variant (see :mod:`clipvol.render.glsl`)."""
         mip = self.params.mode == "mip"
         return {"MODE_MIP": mip, "HAS_NAN": self.nonfinite, "SHADING": self.params.shading and not mip,
-                **overlay_defines(self.params.overlays, self.params.blend)}
+                "EMPTY_SKIP": self.skipped_empty, **overlay_defines(self.params.overlays, self.params.blend)}
 
     def _brick_program(self):
         """The brick shader variant for the current parameters (compiled once per variant)."""
@@ -354,6 +376,37 @@ class ClipRenderAction:
             self._tf_tex, self._tf_key = tex, key
         return self._tf_tex
 
+    def _skips(self, tf) -> bool:
+        """Does this frame leap over empty cells? Composite without overlays (an overlay is sampled
+        wherever the primary is, and in MIP a transparent value can still be the maximum), with
+        ``skip_empty``, cells for this brick shape, a window of non-zero width (a zero-width window
+        is a step whose float32 table coordinate the cells' test cannot bound), and at least
+        :data:`MIN_EMPTY_FRACTION` of the cells holding data empty under ``tf`` (the lookups cost
+        samples where there is little to leap). Derives the cells' flags for ``tf``."""
+        p = self.params
+        if not p.skip_empty or p.mode != "composite" or p.overlays or self.cache.cell_edges is None:
+            return False
+        lo, hi = tf.window(self.pyramid.value_range)
+        if not hi > lo:
+            return False
+        self.cache.occupancy_texture(tf, self.pyramid.value_range)
+        return self.cache.empty_fraction() >= MIN_EMPTY_FRACTION
+
+    def _bind_occupancy(self, prog, tf) -> None:
+        """Bind the cache's cell flags for ``tf`` (:meth:`GpuBrickCache.occupancy_texture`) to
+        :data:`OCCUPANCY_UNIT` (EMPTY_SKIP variants only)."""
+        if self.skipped_empty:
+            self.cache.occupancy_texture(tf, self.pyramid.value_range).use(location=OCCUPANCY_UNIT)
+            _uset(prog, "u_occ", OCCUPANCY_UNIT)
+            _uset(prog, "u_occ_shift", _vec(0.5 / np.asarray(self.cache.cell_edges[::-1], dtype=np.float64)))
+
+    def _occupancy_uniforms(self, level: int) -> tuple[tuple[float, float, float], float]:
+        """Cells per axis ``(x, y, z)`` of ``level`` in the occupancy texture, and its first z there."""
+        lv = self.cache.occupancy_levels[level]
+        if lv is None:
+            return (1.0, 1.0, 1.0), 0.0
+        return _vec(lv[0]), float(lv[1])
+
     def level_ratios(self) -> np.ndarray:
         """Per level, the sample spacing ``step * min(scale)`` over the level-0 voxel size (the
         transfer function's reference length)."""
@@ -427,7 +480,7 @@ class ClipRenderAction:
             texels_drawn=distinct * self.cache.brick_texels, bytes_uploaded=plan.bytes_uploaded,
             bricks_uploaded=plan.bricks_uploaded, texture_bytes=self.cache.texture_bytes,
             texture_budget=self.params.texture_budget, times=times, converged=plan.converged, passes=plan.passes,
-            items_drawn=len(sel.items), counts=dict(sel.counts),
+            items_drawn=len(sel.items), counts=dict(sel.counts), failed_bricks=failed_bricks(sel, self.clip_texture),
             bytes_read=None if read0 is None else bytes_read_of(self.clip_texture.loader) - read0,
         )
         return image
@@ -479,13 +532,7 @@ class ClipRenderAction:
         prog["u_forward"].value = _vec(cam.forward)
         prog["u_center_rel"].value = _vec(np.asarray(cam.center, dtype=np.float64) - origin)
         # t = (raw - lo) / (hi - lo) with raw = a * texel + b, folded in float64
-        fmt = self.cache.format
-        lo, hi = tf.window(self.pyramid.value_range)
-        if hi > lo:
-            scale, offset = fmt.a / (hi - lo), (fmt.b - lo) / (hi - lo)
-        else:  # zero-width window: a step at lo (0 below, 0.5 at, 1 above; clamped in the shader)
-            big = 1e30 / max(abs(fmt.a), 1e-300)
-            scale, offset = fmt.a * big, (fmt.b - lo) * big + 0.5
+        scale, offset = t_scale_offset(self.cache.format, tf.window(self.pyramid.value_range))
         _uset(prog, "u_t_scale", float(np.clip(scale, -3e38, 3e38)))
         _uset(prog, "u_t_offset", float(np.clip(offset, -3e38, 3e38)))
         _uset(prog, "u_jitter", 1.0 if self.params.jitter else 0.0)
@@ -521,6 +568,7 @@ class ClipRenderAction:
             if self._samples_per_box(cam, merged) <= MAX_STEPS_PER_BOX:  # else the rays would be cut
                 items = merged
         items = list(items)
+        self.skipped_empty = self._skips(tf)
         if items and (self.params.path == "single-pass" or (self.params.path == "auto" and not self.params.overlays
                                                             and len(items) >= AUTO_SINGLE_PASS_BOXES)):
             out = self._draw_single_pass(cam, tf, items)
@@ -559,6 +607,7 @@ class ClipRenderAction:
                 ctx.blend_func = mgl.ONE, mgl.ONE_MINUS_SRC_ALPHA
         if composite:
             self._ensure_tf(tf).use(location=1)
+        self._bind_occupancy(self.program, tf)
         if self.params.overlays:  # co-registered volumes sampled at each sample (render/overlay_binding.py)
             self.overlays.bind(self.program, self.params.overlays, origin, self.level_ratios())
         prog = self.program
@@ -593,6 +642,10 @@ class ClipRenderAction:
                 _uset(prog, "u_tf_row", (L + 0.5) / pyr.num_levels)
                 prog["u_inv_scale"].value = _vec(1.0 / scale)
                 _uset(prog, "u_inv_tex_size", _vec(1.0 / (win[::-1] * B[::-1])))
+                if self.skipped_empty:
+                    occ_size, occ_z0 = self._occupancy_uniforms(L)
+                    _uset(prog, "u_occ_size", occ_size)
+                    _uset(prog, "u_occ_z0", occ_z0)
                 bound_level = L
             bidx = np.asarray(it.index, dtype=np.int64)
             first = trans + bidx[::-1] * B[::-1] * scale
@@ -637,7 +690,7 @@ class ClipRenderAction:
             m = self._last_raw[..., 0].astype(np.float64)
             hit = m > _MIP_EMPTY * 0.5
             fmt = self.cache.format
-            rgba = tf.lookup(np.where(hit, fmt.a * m + fmt.b, fmt.b), pyr.value_range)
+            rgba = tf.lookup(np.where(hit, texel_to_raw(fmt, m), fmt.b), pyr.value_range)
             a = np.where(hit, rgba[..., 3], 0.0)
             prem = np.concatenate([rgba[..., :3] * a[..., None], a[..., None]], axis=-1)
             r, g, b, ba = self.params.background
@@ -726,6 +779,10 @@ class ClipRenderAction:
             "u_lv_win": i32(win), "u_lv_inv_tex_size": f32(1.0 / (win * B)),
             "u_lv_delta": f32([self.params.step * float(min(lv.scale)) for lv in pyr.levels]),
         }
+        if self.skipped_empty:
+            occ = [self._occupancy_uniforms(L) for L in range(nlev)]
+            uniforms["u_lv_occ_size"] = f32([o[0] for o in occ])
+            uniforms["u_lv_occ_z0"] = f32([o[1] for o in occ])
         for name, data in uniforms.items():
             u = prog.get(name, None)
             if u is not None:  # a variant may keep only an array's first elements (the levels it draws)
@@ -745,6 +802,7 @@ class ClipRenderAction:
         self._ensure_page_table(table.entries).use(location=2)
         if not mip:
             self._ensure_tf(tf).use(location=1)
+        self._bind_occupancy(prog, tf)
         for L, tex in enumerate(self.cache.textures):
             if tex is not None:
                 _uset(prog, f"u_level{L}", 3 + L)

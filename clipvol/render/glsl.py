@@ -23,7 +23,9 @@ The mechanism (how to add a feature)
 Defines used by the volume shaders today: ``MODE_MIP`` (maximum intensity projection; absent:
 composite), ``HAS_NAN`` (the data may hold NaN/Inf: NaN-aware trilinear filtering over the finite
 neighbours, non-finite samples skipped; absent: one hardware trilinear fetch, no test), ``SHADING``
-(composite only: Blinn-Phong gradient lighting from central differences, ``volume_common.glsl``).
+(composite only: Blinn-Phong gradient lighting from central differences, ``volume_common.glsl``),
+``EMPTY_SKIP`` (composite without overlays: leap over cells the transfer function makes
+transparent, :mod:`clipvol.scene.occupancy`; ``SKIP_BLOCK`` samples per cell lookup, default 8).
 """
 
 from __future__ import annotations

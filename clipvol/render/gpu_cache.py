@@ -26,6 +26,20 @@ drawn and a slot drawn this frame is never overwritten in the same frame. Evicti
 an evicted brick was not drawn this frame, and the window always holds the most recently used
 brick of each slot.
 
+Cells for empty-space skipping
+------------------------------
+Beside each level texture the cache keeps, per cell of ``cell_edges`` voxels of every slot, the
+cell's ``[min, max]`` (:mod:`clipvol.scene.occupancy`), written by :meth:`GpuBrickCache.commit`
+with the brick's texels, so a cell's range always describes what its slot holds. The ranges come
+from the clip-texture, whose loader threads computed them from the decoded brick
+(:meth:`ClipTexture.cell_ranges`), so an upload only copies a few kilobytes more per brick; they
+are computed here only for a residency source that has none.
+:meth:`GpuBrickCache.occupancy_texture` turns them into one byte per cell for a transfer function
+(the ranges widened over the 26 neighbouring cells of the toroidal window, so trilinear filtering
+across a face is covered) - recomputed for every level when the table or its window changes, and
+for the levels that received bricks otherwise - in one small ``r8`` 3D texture, the levels stacked
+along z, each at the same toroidal addressing as its level texture divided by the cell edge.
+
 Texture formats: ``uint8``/``int8`` as normalised ``r8``, ``uint16``/``int16`` as normalised
 ``r16`` (signed types shifted to unsigned), ``float16``/``float32`` as ``r32f`` raw values (NaN and
 Inf kept; the shader treats non-finite samples as transparent), every other type (32/64-bit
@@ -46,9 +60,10 @@ from ..bricking.pyramid import NEIGHBOUR_OFFSETS, Pyramid
 from ..errors import ParameterError
 from ..paging.cliptexture import BrickState
 from ..rows import unique_rows
+from ..scene.occupancy import cell_edges, cell_ranges, occupancy, widen
 from ..scene.selection.cut import DrawItems
 
-__all__ = ["GpuBrickCache", "TextureFormat", "texture_format", "allocate_gpu_windows"]
+__all__ = ["GpuBrickCache", "TextureFormat", "texture_format", "t_scale_offset", "texel_to_raw", "allocate_gpu_windows"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,6 +97,39 @@ def texture_format(dtype, value_range: tuple[float, float]) -> TextureFormat:
     # normalised over the data's range: 64-bit types, and floats whose range float32 arithmetic
     # on the GPU would lose (denormal or zero-width ranges, magnitudes near the float32 limit)
     return TextureFormat("f4", 4, (hi - lo) if hi > lo else 1.0, lo)
+
+
+def t_scale_offset(fmt: TextureFormat, window: tuple[float, float]) -> tuple[float, float]:
+    """``(scale, offset)`` with ``t = texel * scale + offset`` for the transfer function's ``window``.
+
+    Folded in float64 so that ``raw = a * texel + b`` never exists in float32. A zero-width window
+    is a step at ``lo`` (0 below, 0.5 at, 1 above; the shader clamps). For the integer formats
+    (``r8``/``r16``, whose raw values are whole numbers) the step is one unit of ``t`` per raw
+    unit: a texel's float32 rounding error (~1e-7 of its value) then moves ``t`` by far less than a
+    table entry. A steeper step would amplify that rounding error past the table: a constant
+    uint16 volume, whose window is zero wide, would map its one value below the window and draw
+    nothing. Float formats keep a steep step: their raw values can differ by far less than one.
+    """
+    lo, hi = (float(v) for v in window)
+    if hi > lo:
+        scale, offset = fmt.a / (hi - lo), (fmt.b - lo) / (hi - lo)
+    elif fmt.gl_dtype in ("f1", "nu2"):
+        scale, offset = fmt.a, fmt.b - lo + 0.5
+    else:
+        big = 1e30 / max(abs(fmt.a), 1e-300)
+        scale, offset = fmt.a * big, (fmt.b - lo) * big + 0.5
+    return float(np.clip(scale, -3e38, 3e38)), float(np.clip(offset, -3e38, 3e38))
+
+
+def texel_to_raw(fmt: TextureFormat, texel) -> np.ndarray:
+    """float64 data values of texels read back (MIP): ``a * texel + b``, rounded to whole numbers
+    for the integer formats, whose stored values are whole: the float32 texel carries a rounding
+    error that would otherwise put a value just below or above itself (and a zero-width window's
+    step then draws it as nothing, or as the top of the table)."""
+    raw = fmt.a * np.asarray(texel, dtype=np.float64)
+    if fmt.gl_dtype in ("f1", "nu2"):
+        raw = np.rint(raw)
+    return raw + fmt.b
 
 
 def convert_brick(brick: np.ndarray, fmt: TextureFormat) -> np.ndarray:
@@ -218,6 +266,30 @@ class GpuBrickCache:
         self.bricks_uploaded = 0
         self.total_texels_uploaded = 0
         self._nb_cache: tuple | None = None  # (items, neighbours) of the current frame
+        # empty-space skipping below the brick (module docstring, "Cells"): per level the cells'
+        # value ranges (+inf/-inf: nothing known yet), the occupancy texture, what it shows
+        self.cell_edges = cell_edges(B)
+        self._cell_lo: list[np.ndarray | None] = []
+        self._cell_hi: list[np.ndarray | None] = []
+        self.occupancy_levels: list[tuple[tuple[int, int, int], int] | None] = []  # ((cx, cy, cz) cells, z0)
+        z0 = 0
+        for w in self.windows:
+            if w is None or self.cell_edges is None:
+                self._cell_lo.append(None)
+                self._cell_hi.append(None)
+                self.occupancy_levels.append(None)
+                continue
+            cells = tuple(int(wa * b // e) for wa, b, e in zip(w, B, self.cell_edges))  # (z, y, x)
+            self._cell_lo.append(np.full(cells, np.inf, dtype=np.float32))
+            self._cell_hi.append(np.full(cells, -np.inf, dtype=np.float32))
+            self.occupancy_levels.append((cells[::-1], z0))
+            z0 += cells[0]
+        self._occ_tex = None
+        self._occ_key = None
+        self._occ_dirty: dict[int, set] = {}  # level -> slots written since the flags were derived
+        self._occ_flags: list[np.ndarray | None] = [None] * len(self.windows)  # the flags, as uploaded
+        #: per level, (cells holding data, of them empty) under the last transfer function
+        self.occupancy_counts: list[tuple[int, int]] = [(0, 0)] * len(self.windows)
 
     # -- per frame ---------------------------------------------------------------------------------
     def begin_frame(self, clip_texture, texels_per_frame: int | None, allow=None) -> "GpuBrickCache":
@@ -440,6 +512,7 @@ class GpuBrickCache:
             )
             self._slot_key[level][slot] = key
             nbytes += texels.nbytes
+        self._commit_cells()
         n = len(self._pending)
         self._pending = {}
         self.bytes_uploaded = nbytes
@@ -447,6 +520,33 @@ class GpuBrickCache:
         self.texels_uploaded = n * self.brick_texels
         self.total_texels_uploaded += self.texels_uploaded
         return nbytes
+
+    def _commit_cells(self) -> None:
+        """Copy the cells' value ranges of the bricks being uploaded into their slots' cells, per
+        level in one call to the clip-texture (:meth:`ClipTexture.cell_ranges`) and one fancy-indexed
+        write; a brick whose source has none gets them computed here."""
+        by_level: dict[int, list] = {}
+        for (level, key), data in self._pending.items():
+            if self._cell_lo[level] is not None:
+                by_level.setdefault(level, []).append((key, data))
+        for level, entries in by_level.items():
+            keys = np.array([k for k, _ in entries], dtype=np.int64)
+            n = len(keys)
+            K = tuple(b // e for b, e in zip(self.pyramid.brick_shape, self.cell_edges))
+            lo = np.empty((n, *K), dtype=np.float32)
+            hi = np.empty((n, *K), dtype=np.float32)
+            got = self._clip.cell_ranges(level, keys) if hasattr(self._clip, "cell_ranges") else None
+            have = np.zeros(n, dtype=bool) if got is None else got[0]
+            if got is not None:
+                lo[have], hi[have] = got[1], got[2]
+            for i in np.nonzero(~have)[0].tolist():
+                lo[i], hi[i] = cell_ranges(np.asarray(entries[i][1]), self.cell_edges)
+            s = keys % np.asarray(self.windows[level], dtype=np.int64)
+            w = self.windows[level]
+            for arr, v in ((self._cell_lo[level], lo), (self._cell_hi[level], hi)):
+                # (w * K) per axis viewed as (wz, Kz, wy, Ky, wx, Kx): a slot's cells are one block
+                arr.reshape(w[0], K[0], w[1], K[1], w[2], K[2])[s[:, 0], :, s[:, 1], :, s[:, 2], :] = v
+            self._occ_dirty.setdefault(level, set()).update(map(tuple, s.tolist()))
 
     def open_faces(self, level: int, indices) -> np.ndarray:
         """``(n, 3, 2)`` bool ``[axis (z, y, x), side (low, high)]``: may sampling cross that face?
@@ -482,8 +582,72 @@ class GpuBrickCache:
                 out[:, a, side] = face_exists & np.all(ok[:, slab], axis=1) & (w[a] >= 2)
         return out
 
+    def occupancy_texture(self, tf, data_range):
+        """The ``r8`` 3D texture of every level's cell flags for ``tf`` (1: may be visible, 0: every
+        sample assigned to the cell is transparent), levels stacked along z at
+        :attr:`occupancy_levels`; None without cells (an odd brick extent).
+
+        Every level is derived again when the table's opacity or its window changed since the last
+        call; otherwise only the cells that bricks written since then can change - each written
+        slot's cells and the layer before them (:func:`~clipvol.scene.occupancy.widen` looks one
+        cell ahead) - or the whole level when more than an eighth of its slots were written.
+        """
+        if self.cell_edges is None:
+            return None
+        import moderngl
+
+        key = (np.asarray(tf.table)[:, 3].tobytes(), tuple(float(v) for v in tf.window(data_range)))
+        if self._occ_tex is None:
+            used = [lv for lv in self.occupancy_levels if lv is not None]
+            size = (max(c[0] for c, _ in used), max(c[1] for c, _ in used), sum(c[2] for c, _ in used))
+            self._occ_tex = self.ctx.texture3d(size, 1, dtype="f1")
+            self._occ_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        whole = key != self._occ_key
+        todo = range(len(self.windows)) if whole else sorted(self._occ_dirty)
+        for L in todo:
+            lv = self.occupancy_levels[L]
+            if lv is None:
+                continue
+            lo, hi = self._cell_lo[L], self._cell_hi[L]
+            slots = self._occ_dirty.get(L, ())
+            if whole or self._occ_flags[L] is None or len(slots) * 8 > int(np.prod(self.windows[L])):
+                flags = occupancy(*widen(lo, hi), tf, data_range)
+            else:
+                flags = self._occ_flags[L]
+                K = np.asarray(lo.shape) // np.asarray(self.windows[L])  # cells per brick (z, y, x)
+                for slot in slots:
+                    # the slot's cells, the layer before them, and the layer after (read only)
+                    axes = [np.arange(s * k - 1, (s + 1) * k + 1) % n for s, k, n in zip(slot, K, lo.shape)]
+                    box = np.ix_(*axes)
+                    wl, wh = lo[box], hi[box]
+                    for ax in range(3):  # widen() without the wrap, within the box
+                        head = [slice(None)] * 3
+                        head[ax] = slice(0, -1)
+                        tail = [slice(None)] * 3
+                        tail[ax] = slice(1, None)
+                        wl = np.minimum(wl[tuple(head)], wl[tuple(tail)])
+                        wh = np.maximum(wh[tuple(head)], wh[tuple(tail)])
+                    flags[np.ix_(*(x[:-1] for x in axes))] = occupancy(wl, wh, tf, data_range)
+            self._occ_flags[L] = flags
+            has_data = lo <= hi
+            self.occupancy_counts[L] = (int(has_data.sum()), int((has_data & (flags == 0)).sum()))
+            (cx, cy, cz), z0 = lv
+            self._occ_tex.write(np.ascontiguousarray(flags) * np.uint8(255), viewport=(0, 0, z0, cx, cy, cz),
+                                alignment=1)
+        self._occ_key = key
+        self._occ_dirty = {}
+        return self._occ_tex
+
+    def empty_fraction(self) -> float:
+        """Of the cells holding data (every level), the fraction the last derived flags mark empty."""
+        total = sum(c[0] for c in self.occupancy_counts)
+        return sum(c[1] for c in self.occupancy_counts) / total if total else 0.0
+
     def release(self) -> None:
         for t in self.textures:
             if t is not None:
                 t.release()
         self.textures = [None] * len(self.windows)
+        if self._occ_tex is not None:
+            self._occ_tex.release()
+            self._occ_tex = None

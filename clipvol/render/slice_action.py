@@ -45,6 +45,7 @@ from ..scene.plane import Plane, default_pixel_size, default_size
 from ..paging.readcount import bytes_read_of
 from ..scene.selection.policies.plane import PlaneCut
 from ..scene.slice_region import slice_region
+from .failures import failed_bricks
 from .frame_loop import FrameLoop
 from .glsl import load_shader
 from .gpu_cache import GpuBrickCache
@@ -103,6 +104,13 @@ class SliceStats:
     times: dict = field(default_factory=dict)
     bytes_read: int | None = None
     region_bricks: int = 0
+    #: wanted bricks that failed to load, with cause and stand-in (:mod:`clipvol.render.failures`)
+    failed_bricks: tuple = ()
+
+    @property
+    def unreplaced(self) -> tuple:
+        """The failed bricks no verified ancestor stands in for: regions missing from the slice."""
+        return tuple(f for f in self.failed_bricks if not f.replaced)
 
     def as_dict(self) -> dict:
         """JSON-ready dict (``clipvol slice --stats``)."""
@@ -111,7 +119,10 @@ class SliceStats:
                     bytes_loaded=self.bytes_loaded, bytes_uploaded=self.bytes_uploaded,
                     bricks_uploaded=self.bricks_uploaded, converged=self.converged,
                     balance_splits=self.balance_splits, times=dict(self.times), bytes_read=self.bytes_read,
-                    region_bricks=self.region_bricks)
+                    region_bricks=self.region_bricks,
+                    failed_bricks=[dict(level=f.level, index=list(f.index), cause=f.cause,
+                                        stand_in=None if f.stand_in is None else [f.stand_in[0], list(f.stand_in[1])])
+                                   for f in self.failed_bricks])
 
 
 def window_level_grey(values: np.ndarray, center: float, width: float) -> np.ndarray:
@@ -167,6 +178,7 @@ class SliceAction:
         self._target = FloatTarget(ctx)
         self.last_stats: SliceStats | None = None
         self.last_selection = None
+        self.last_camera = None
         self.last_values: np.ndarray | None = None
         self.last_levels: np.ndarray | None = None
         self.last_ratios: np.ndarray | None = None
@@ -289,7 +301,7 @@ class SliceAction:
         for it in sel.items:
             per_level[it.level] = per_level.get(it.level, 0) + 1
         needed = {(it.level, tuple(it.index)) for it in sel.items} | set(low.values())
-        self.last_selection = sel
+        self.last_selection, self.last_camera = sel, cam  # the camera that maps world points to its pixels
         self.last_values, self.last_levels, self.last_ratios = values, levels, ratios
         self.last_stats = SliceStats(
             tiles_per_level=dict(sorted(per_level.items())), tiles=len(sel.items), blended=len(low),
@@ -297,7 +309,7 @@ class SliceAction:
             bytes_loaded=self.clip_texture.stats.bytes_loaded - loaded0, bytes_uploaded=up_bytes,
             bricks_uploaded=up_bricks, converged=converged, balance_splits=int(sel.counts.get("balance_splits", 0)),
             times=times, bytes_read=None if read0 is None else bytes_read_of(self.clip_texture.loader) - read0,
-            region_bricks=region_bricks)
+            region_bricks=region_bricks, failed_bricks=failed_bricks(sel, self.clip_texture))
         return (rgba, values) if return_values else rgba
 
     def _scroll_step(self, plane: Plane) -> float:

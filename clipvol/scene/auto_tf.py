@@ -191,8 +191,12 @@ def auto_transfer_function(loader, preset: str | None = None, opacity: str | Non
     store with a patient frame, ``viridis`` otherwise, ``diverging`` for signed data); ``opacity`` its opacity curve. Its :attr:`~TransferFunction.name` says what was chosen,
     e.g. ``auto: viridis 12.5..230``.
     """
-    hist = value_histogram(loader) if hist is None else hist
-    aw = auto_window(hist, float_data=np.dtype(loader.pyramid.dtype).kind == "f")
+    lo, hi = (float(v) for v in loader.pyramid.value_range)
+    if lo == hi:  # a constant volume: a zero-width window is a step at its value, drawn at mid-table
+        aw = AutoWindow((lo, hi), False, lo)
+    else:
+        hist = value_histogram(loader) if hist is None else hist
+        aw = auto_window(hist, float_data=np.dtype(loader.pyramid.dtype).kind == "f")
     name = preset or ("diverging" if aw.signed else default_preset(loader))
     tf = TransferFunction.preset(name, value_range=aw.window, opacity=None if name == "diverging" else opacity)
     return tf.with_name(f"auto: {tf.name} {aw.window[0]:.4g}..{aw.window[1]:.4g}")

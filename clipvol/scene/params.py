@@ -104,6 +104,10 @@ class RenderParams:
         on Mesa llvmpipe the per-brick path is faster for one or two large boxes (a resident volume
         merges to one), the single pass from four (its per-pixel early termination needs no
         occlusion snapshots, which idle the rasteriser's threads); docs/benchmarks.md.
+    skip_empty : bool
+        Composite without overlays: leap over cells of 8³ voxels that the transfer function makes
+        transparent inside drawn bricks (:mod:`clipvol.scene.occupancy`; the same image). On by
+        default; off draws every sample (a reference, and for timing what skipping saves).
     jitter : bool
         Start each pixel's sample lattice at a stable per-pixel hashed offset (a fraction of the
         step), which turns the wood-grain rings of a constant-distance lattice on opaque surfaces
@@ -158,6 +162,7 @@ class RenderParams:
     early_termination: bool = True
     merge_boxes: bool = True
     jitter: bool = False
+    skip_empty: bool = True
     path: str = "auto"
     background: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
     shape: Shape | None = None
@@ -229,6 +234,7 @@ class RenderParams:
         s(self, "visibility_threshold", vt)
         s(self, "merge_boxes", bool(self.merge_boxes))
         s(self, "jitter", bool(self.jitter))
+        s(self, "skip_empty", bool(self.skip_empty))
         s(self, "shading", bool(self.shading))
         for name in ("ambient", "diffuse", "specular"):
             v = getattr(self, name)

@@ -13,7 +13,36 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-__all__ = ["hud_lines", "point_hud_lines", "render_text", "composite_over", "level_counts", "tf_strip", "stack_images"]
+__all__ = ["hud_lines", "point_hud_lines", "render_text", "composite_over", "level_counts", "tf_strip", "stack_images",
+           "AlertLine", "ALERT_RGBA", "failed_lines"]
+
+#: colour of the lines about failed bricks
+ALERT_RGBA = (255, 70, 70, 255)
+
+
+class AlertLine(str):
+    """A HUD line drawn in :attr:`color` (:data:`ALERT_RGBA`) instead of the HUD's text colour;
+    otherwise a plain ``str``, so callers that join or search lines are unchanged."""
+
+    color = ALERT_RGBA
+
+
+def failed_lines(frame_stats, shown: int = 2) -> list[str]:
+    """Red lines for the frame's failed bricks (:attr:`FrameStats.failed_bricks`): how many, how
+    many nothing stands in for (a hole in the image), and the first ``shown`` with their causes."""
+    failed = list(getattr(frame_stats, "failed_bricks", ()) or ())
+    if not failed:
+        return []
+    holes = sum(1 for f in failed if not f.replaced)
+    what = f"{holes} missing from the image" if holes else "drawn from a coarser level"
+    head = f"FAILED {len(failed)} brick(s): {what}"
+    out = [AlertLine(head)]
+    for f in failed[:shown]:
+        text = str(f)
+        out.append(AlertLine("  " + (text if len(text) <= 100 else text[:97] + "...")))
+    if len(failed) > shown:
+        out.append(AlertLine(f"  and {len(failed) - shown} more"))
+    return out
 
 
 @lru_cache(maxsize=4)
@@ -92,6 +121,7 @@ def hud_lines(
             part.append("converged" if conv else "refining")
         if part:
             lines.append("  ".join(part))
+        lines.extend(failed_lines(frame_stats))
     if texture_stats is not None:
         res = getattr(texture_stats, "resident_bytes_per_level", None)
         if res is None:
@@ -111,7 +141,8 @@ def render_text(lines: Iterable[str], *, font_size: int = 13, padding: int = 6,
                 color=(255, 255, 255, 255), background=(0, 0, 0, 150), width: int | None = None) -> np.ndarray:
     """Rasterise ``lines`` into an ``(h, w, 4)`` uint8 straight-alpha RGBA image, row 0 at top.
 
-    The box is ``width`` wide (or as wide as the longest line) with a translucent background.
+    The box is ``width`` wide (or as wide as the longest line) with a translucent background. A
+    line with a ``color`` attribute (:class:`AlertLine`) is drawn in that colour.
     """
     from PIL import Image, ImageDraw
 
@@ -125,7 +156,7 @@ def render_text(lines: Iterable[str], *, font_size: int = 13, padding: int = 6,
     img = Image.new("RGBA", (max(int(w), 1), int(h)), tuple(background))
     draw = ImageDraw.Draw(img)
     for i, ln in enumerate(lines):
-        draw.text((padding, padding + i * line_h), ln, font=font, fill=tuple(color))
+        draw.text((padding, padding + i * line_h), ln, font=font, fill=tuple(getattr(ln, "color", color)))
     return np.asarray(img, dtype=np.uint8).copy()
 
 

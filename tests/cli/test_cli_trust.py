@@ -156,3 +156,26 @@ def test_a_root_zarr_json_that_is_a_fifo_or_dev_zero_exits_2_without_blocking(tm
             assert not t.is_alive() and res["rc"] == 2, argv
             err = capsys.readouterr().err
             assert err.count("\n") == 1 and str(store) in err and what in err, err
+
+
+@pytest.mark.gl
+def test_slice_view_and_report_refuse_an_unverified_store_without_the_flag(built, tmp_path, capsys):
+    src, out, vol = built
+    _drop_manifest(out)
+    commands = {
+        "slice": ["slice", str(out), "--out", str(tmp_path / "s.png"), "--size", "32x32"],
+        "view": ["view", str(out), "--offscreen", "--frames", "1", "--size", "32x32", "--out", str(tmp_path / "v.gif")],
+        "report": ["report", str(out), "--out", str(tmp_path / "r"), "--views", "1", "--size", "32x32", "--rounds", "1",
+                   "--no-plots"],
+    }
+    for name, argv in commands.items():
+        capsys.readouterr()
+        assert main(argv) == 2, name
+        err = capsys.readouterr().err
+        assert "--unverified" in err and str(out) in err and "Traceback" not in err, (name, err)
+    # with the flag the slice is drawn and equals the one of the verified store (the manifest back)
+    assert main([*commands["slice"], "--unverified"]) == 0
+    unverified = np.asarray(Image.open(tmp_path / "s.png"))
+    assert main(["repair", str(out), "--source", str(src), "--quiet"]) == 0
+    assert main([*commands["slice"][:3], str(tmp_path / "t.png"), *commands["slice"][4:]]) == 0
+    np.testing.assert_array_equal(unverified, np.asarray(Image.open(tmp_path / "t.png")))

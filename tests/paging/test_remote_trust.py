@@ -21,7 +21,10 @@ from clipvol.paging.bytesource import FsspecByteSource
 from clipvol.paging.open import open_store
 from clipvol.tools.cli import main
 
+from optional import REMOTE_HTTP
 from remote_servers import serve_directory
+
+pytestmark = REMOTE_HTTP
 
 B = 16
 

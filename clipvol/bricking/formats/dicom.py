@@ -5,7 +5,9 @@ does what a series reader must (NEMA, *DICOM PS3.3 Information Object Definition
 Plane Module): it reads only the headers first, refuses a folder that mixes series (two
 ``SeriesInstanceUID``), slice sizes or orientations, sorts slices by their position along the
 slice normal (``ImagePositionPatient`` · (row × column direction), never by file name or
-``InstanceNumber``), refuses duplicate positions and uneven gaps, and builds the affine from
+``InstanceNumber``), refuses duplicate positions and uneven gaps (more than :data:`GAP_TOLERANCE`,
+1 %, from the median gap), slices off the stack's axis (shifted sideways, or a gantry-tilted
+stack) and mixed ``PixelSpacing`` (:mod:`clipvol.bricking.formats.geometry`), and builds the affine from
 ``ImageOrientationPatient``, ``PixelSpacing`` and the first and last positions. DICOM's patient
 frame is LPS+; the affine is stored in RAS+ like NIfTI's.
 
@@ -16,6 +18,7 @@ rescales keep an integer type wide enough for every stored value, others give fl
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +27,7 @@ from ...errors import InputFormatError
 from ..source_types import Source
 from ..worldframe import LPS_TO_RAS, WorldFrame
 from . import require
+from .geometry import SIDEWAYS_TOLERANCE, SPACING_TOLERANCE, check_orthogonal_axes
 
 __all__ = ["DicomSeriesSource", "find_dicom_files", "is_dicom_file"]
 
@@ -65,6 +69,37 @@ def _floats(ds, key: str, n: int, where: Path) -> np.ndarray:
     return out
 
 
+def _check_on_axis(positions: np.ndarray, iop: np.ndarray, ps: np.ndarray, files: list, name: str) -> None:
+    """Slices sorted along their normal must lie on one line along it: a position off that line
+    (sideways, in the slice plane) by more than :data:`~.geometry.SIDEWAYS_TOLERANCE` of a pixel
+    is a slice from elsewhere, or - when the offset grows steadily - a tilted (sheared) stack."""
+    if len(positions) < 2:
+        return
+    row_dir, col_dir = iop[:3], iop[3:]
+    rel = positions - positions[0]
+    side = np.c_[rel @ row_dir, rel @ col_dir]  # (n, 2) mm in the slice plane
+    tol = SIDEWAYS_TOLERANCE * float(ps.min())
+    off = np.linalg.norm(side, axis=1)
+    if off.max() <= tol:
+        return
+    k = np.arange(len(side), dtype=np.float64)
+    slope = (side[-1] - side[0]) / k[-1]  # mm sideways per slice, if it is steady
+    steady = np.linalg.norm(side - k[:, None] * slope, axis=1).max() <= tol
+    along = rel @ np.cross(row_dir, col_dir)
+    if steady and len(side) > 2:
+        step = float(np.median(np.diff(along)))
+        tilt = math.degrees(math.atan2(float(np.linalg.norm(slope)), step))
+        raise InputFormatError(
+            f"{name}: the slices advance {float(np.linalg.norm(slope)):.4g} mm sideways per {step:.4g} mm step: a stack "
+            f"tilted by {tilt:.2f}° from the slice normal (gantry tilt), not an orthogonal grid (tolerance "
+            f"{tol:.3g} mm, {SIDEWAYS_TOLERANCE:.0%} of a pixel); resample it onto an orthogonal grid first")
+    i = int(np.argmax(off))
+    raise InputFormatError(
+        f"{name}: slice {files[i].name} lies {off[i]:.4g} mm sideways of the stack's axis through {files[0].name} "
+        f"(row {side[i, 0]:+.4g} mm, column {side[i, 1]:+.4g} mm; tolerance {tol:.3g} mm, {SIDEWAYS_TOLERANCE:.0%} "
+        "of a pixel); a shifted slice or mixed series, not one grid")
+
+
 class DicomSeriesSource(Source):
     """One DICOM series: slices sorted along their normal, read one file per z."""
 
@@ -93,12 +128,21 @@ class DicomSeriesSource(Source):
             raise InputFormatError(f"{f0}: a multi-frame DICOM file among others; brick it alone")
         rows, cols = int(d0.Rows), int(d0.Columns)
         iop = _floats(d0, "ImageOrientationPatient", 6, f0)
+        ps = _floats(d0, "PixelSpacing", 2, f0)  # (between rows, between columns)
+        if not np.all(ps > 0):
+            raise InputFormatError(f"{f0}: DICOM PixelSpacing must be > 0, got {tuple(ps.tolist())}")
+        check_orthogonal_axes(np.c_[iop[:3], iop[3:], np.cross(iop[:3], iop[3:])], str(f0),
+                              "ImageOrientationPatient (row and column directions)")
         positions = []
         for f, ds in heads:
             if (int(ds.Rows), int(ds.Columns)) != (rows, cols):
                 raise InputFormatError(f"{f}: slice of {int(ds.Rows)}x{int(ds.Columns)} pixels in a series of {rows}x{cols} ({f0.name})")
             if not np.allclose(_floats(ds, "ImageOrientationPatient", 6, f), iop, atol=1e-4):
                 raise InputFormatError(f"{f}: ImageOrientationPatient differs from {f0.name}'s; not one volume")
+            psf = _floats(ds, "PixelSpacing", 2, f)
+            if np.any(np.abs(psf - ps) > SPACING_TOLERANCE * ps):
+                raise InputFormatError(f"{f}: PixelSpacing {tuple(psf.tolist())} mm differs from {f0.name}'s "
+                                       f"{tuple(ps.tolist())} (by more than {SPACING_TOLERANCE:.1%}); not one grid")
             if int(getattr(ds, "SamplesPerPixel", 1)) != 1:
                 raise InputFormatError(f"{f}: expected grey slices (SamplesPerPixel 1), got {ds.SamplesPerPixel}")
             positions.append(_floats(ds, "ImagePositionPatient", 3, f))
@@ -108,6 +152,7 @@ class DicomSeriesSource(Source):
         order = np.argsort(along, kind="stable")
         along = along[order]
         self._files = [heads[i][0] for i in order]
+        _check_on_axis(np.array([positions[i] for i in order]), iop, ps, self._files, name)
         if len(along) > 1:
             gaps = np.diff(along)
             k = int(np.argmin(gaps))
@@ -124,7 +169,6 @@ class DicomSeriesSource(Source):
         else:
             thick = float(getattr(d0, "SliceThickness", 1.0) or 1.0)
             z_vec = normal * thick
-        ps = _floats(d0, "PixelSpacing", 2, f0)  # (between rows, between columns)
         lps = np.eye(4)
         lps[:3, 0] = row_dir * ps[1]  # x: along a row (column index)
         lps[:3, 1] = col_dir * ps[0]  # y: down a column (row index)

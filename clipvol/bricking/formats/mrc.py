@@ -7,7 +7,8 @@ the voxels are then read by positional reads of whole z-sections
 (:class:`~clipvol.bricking.sources.FileArraySource`), never through a memory map whose pages would
 count towards the bricker's memory.
 
-Geometry: the voxel size is ``cella / (mx, my, mz)`` in ångström; voxel 0 sits at the header's
+Geometry: the voxel size is ``cella / (mx, my, mz)`` in ångström (a header without one, ``cella``
+all 0, needs ``--spacing``; NaN, negative or partly-zero cell sizes are refused); voxel 0 sits at the header's
 ``origin`` when it is set, else at ``(nxstart, nystart, nzstart)`` voxels (both conventions are
 in use). Only the standard axis order (``mapc, mapr, maps = 1, 2, 3``) is accepted.
 """
@@ -53,13 +54,37 @@ def open_mrc(path: Path) -> FileArraySource:
     if have < need:
         raise InputFormatError(f"{path}: truncated MRC file (expected {need} bytes for {shape} {dtype.name}, got {have})")
     src = FileArraySource(path, shape, dtype, offset, str(path))
-    cella = np.array([float(h.cella.x), float(h.cella.y), float(h.cella.z)])
-    grid = np.array([int(h.mx), int(h.my), int(h.mz)], dtype=np.float64)
-    vox = np.where((grid > 0) & (cella > 0), cella / np.maximum(grid, 1), 1.0)  # x, y, z in Å
+    vox = _voxel_size(path, h)
+    unset = vox is None
+    vox = np.ones(3) if unset else vox
     origin = np.array([float(h.origin.x), float(h.origin.y), float(h.origin.z)])
     if not np.any(origin) or not np.all(np.isfinite(origin)):
         origin = np.array([int(h.nxstart), int(h.nystart), int(h.nzstart)], dtype=np.float64) * vox
     src.frame = WorldFrame.from_spacing(vox[::-1], origin[::-1], frame="")
     src.spacing = src.frame.spacing
     src.unit = "angstrom"
+    if unset:  # brick_volume refuses to guess: --spacing must say it
+        src.spacing_required = (f"{path}: the MRC header records no voxel size (cell size cella = 0, 0, 0 Å); "
+                                "pass --spacing z,y,x in Å")
     return src
+
+
+def _voxel_size(path: Path, h) -> np.ndarray | None:
+    """``(x, y, z)`` voxel size in Å from ``cella / (mx, my, mz)``; None when the header records
+    none (``cella`` all 0, what writers leave by default). A cell size that is NaN, infinite,
+    negative or 0 on some axes only, or a sampling grid ``mx, my, mz`` < 1 with a cell size, is no
+    geometry at all: refused, naming the fields, instead of a silent 1 Å."""
+    cella = np.array([float(h.cella.x), float(h.cella.y), float(h.cella.z)])
+    grid = np.array([int(h.mx), int(h.my), int(h.mz)], dtype=np.float64)
+    if np.all(cella == 0.0):
+        return None
+    if not np.all(np.isfinite(cella)) or np.any(cella <= 0.0):
+        raise InputFormatError(f"{path}: expected an MRC cell size (cella) > 0 Å on every axis, got "
+                               f"{tuple(float(v) for v in cella)}")
+    if np.any(grid < 1):
+        raise InputFormatError(f"{path}: expected an MRC sampling grid (mx, my, mz) >= 1 with cell size "
+                               f"{tuple(float(v) for v in cella)}, got {tuple(int(v) for v in grid)}")
+    vox = cella / grid
+    if not np.all(np.isfinite(vox) & (vox > 0)):
+        raise InputFormatError(f"{path}: MRC voxel size cella / (mx, my, mz) = {tuple(vox)} is not a size")
+    return vox

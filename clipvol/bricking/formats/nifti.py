@@ -7,7 +7,9 @@ bricker asks for z-slabs (``k`` ranges), which are contiguous in the file, so ev
 is decompressed once, front to back (the file handle is kept open between slabs).
 
 nibabel's array order is ``(i, j, k)`` with ``i`` fastest on disk; clipvol's ``(z, y, x)`` is its
-transpose, so the affine maps clipvol's ``(x, y, z)`` index unchanged. A scaled image
+transpose, so the affine maps clipvol's ``(x, y, z)`` index unchanged. An affine whose axes are not
+orthogonal (a sheared ``sform``) is refused (:mod:`clipvol.bricking.formats.geometry`); rotated
+ones are kept as they are. A scaled image
 (``scl_slope``/``scl_inter``) is read as float32 with the scaling applied, as nibabel defines it.
 """
 
@@ -21,8 +23,22 @@ from ...errors import InputFormatError
 from ..source_types import Source
 from ..worldframe import WorldFrame
 from . import require
+from .geometry import check_orthogonal_axes
 
 __all__ = ["NiftiSource"]
+
+
+def _affine_name(img) -> str:
+    """Which of the header's affines nibabel chose (sform over qform), for messages."""
+    hdr = img.header
+    try:
+        if int(hdr["sform_code"]) > 0:
+            return "sform affine"
+        if int(hdr["qform_code"]) > 0:
+            return "qform affine"
+    except (KeyError, TypeError, ValueError):
+        pass
+    return "voxel-to-world affine"
 
 
 class NiftiSource(Source):
@@ -52,7 +68,9 @@ class NiftiSource(Source):
         self._img = img
         self._proxy = proxy
         self._init(shape[::-1], dtype, str(path))
-        self.frame = WorldFrame(tuple(tuple(r) for r in np.asarray(img.affine, dtype=np.float64)), "RAS")
+        affine = np.asarray(img.affine, dtype=np.float64)
+        check_orthogonal_axes(affine, str(path), _affine_name(img))  # a sheared sform is refused
+        self.frame = WorldFrame(tuple(tuple(r) for r in affine), "RAS")
         self.spacing = self.frame.spacing
         units = img.header.get_xyzt_units()[0] if hasattr(img.header, "get_xyzt_units") else None
         self.unit = {"mm": "millimeter", "micron": "micrometer", "meter": "meter"}.get(units or "", "millimeter")

@@ -25,6 +25,10 @@ uniform int u_max_steps;
 uniform sampler3D u_volume;
 uniform sampler2D u_acc;        // composite: copy of the target after the previous batch of boxes
 uniform bool u_use_acc;
+#ifdef EMPTY_SKIP
+uniform vec3 u_occ_size;        // the level's cells per axis (x, y, z) in u_occ, and its first z there
+uniform float u_occ_z0;
+#endif
 
 out vec4 f_color;
 
@@ -43,6 +47,10 @@ void main() {
 
 #ifdef OVERLAY
     g_ov_origin = origin;
+#endif
+#ifdef EMPTY_SKIP
+    g_occ_size = u_occ_size;
+    g_occ_z0 = u_occ_z0;
 #endif
     vec3 base = origin + u_o_minus_b;   // ray origin relative to the brick's first voxel centre
     STATE_INIT

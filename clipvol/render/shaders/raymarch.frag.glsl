@@ -7,7 +7,7 @@
 // ancestor). Within a node's box the samples lie on the constant-distance lattice
 // t = off + k * delta_Ld of the data level, exactly as the per-brick path samples that box, so the
 // two paths draw the same image; the ray stops early per pixel with no framebuffer copies.
-// Variants: MODE_MIP, HAS_NAN, SHADING (volume_common.glsl); NUM_LEVELS: levels of the pyramid (<= 16);
+// Variants: MODE_MIP, HAS_NAN, SHADING, EMPTY_SKIP (volume_common.glsl); NUM_LEVELS: levels of the pyramid (<= 16);
 // LEVEL_LO..LEVEL_HI: the data levels the table draws from. Only those get a march in the level
 // chain below: a SIMD rasteriser (llvmpipe) runs every branch of a per-pixel `if` with its lanes
 // masked, so each level in the chain costs every pixel its set-up and one masked sample per node.
@@ -87,6 +87,10 @@ uniform ivec3 u_lv_win[NUM_LEVELS]; // toroidal window of the level texture, in 
 uniform ivec3 u_lv_grid[NUM_LEVELS]; // the level's grid of bricks (x, y, z)
 uniform vec3 u_lv_inv_tex_size[NUM_LEVELS];
 uniform float u_lv_delta[NUM_LEVELS];
+#ifdef EMPTY_SKIP
+uniform vec3 u_lv_occ_size[NUM_LEVELS]; // the level's cells per axis (x, y, z) in u_occ
+uniform float u_lv_occ_z0[NUM_LEVELS];  // and its first z there
+#endif
 uniform vec3 u_brick;               // brick shape (x, y, z) in voxels
 uniform int u_top;                  // coarsest level
 uniform float u_nudge;              // world length past a node face where the next node is looked up
@@ -162,6 +166,10 @@ bool march(sampler3D tex, int L, vec3 origin, vec3 dir, float ta, float tb, vec3
     vec3 isc = u_lv_inv_scale[L];
     vec3 its = u_lv_inv_tex_size[L];
     float row = (float(L) + 0.5) / float(NUM_LEVELS);
+#ifdef EMPTY_SKIP
+    g_occ_size = u_lv_occ_size[L];
+    g_occ_z0 = u_lv_occ_z0[L];
+#endif
     march_segment(tex, base, dir, off, k.x, n, delta, isc, its, slot, clo, chi, row, STATE_ARGS);
 #ifdef MODE_MIP
     return true;

@@ -4,6 +4,7 @@
 //   HAS_NAN   the data may hold NaN/Inf: trilinear over the finite neighbours only
 //   SHADING   composite only: Blinn-Phong lighting from central-difference gradients, light at the eye
 //   OVERLAY   composite only: the number (1..3) of co-registered overlay volumes sampled at each sample
+//   EMPTY_SKIP composite without overlays: leap over cells the transfer function makes transparent
 uniform vec2 u_viewport;
 uniform bool u_ortho;
 uniform vec3 u_forward;         // camera basis (unit) and half extents of the view
@@ -308,6 +309,47 @@ void composite_lit(inout vec4 acc, float texel, float row, vec3 g, vec3 dir) {
 #define STATE_OUT f_color = acc;
 #endif
 
+#ifdef EMPTY_SKIP
+// Empty-space skipping below the brick (clipvol/scene/occupancy.py, composite without overlays):
+// u_occ holds one flag per cell of every level's toroidal texture (0: every sample assigned to the
+// cell is transparent under the current table), the levels stacked along z. g_occ_size: the marched
+// level's cells per axis, which is also its cells per unit of texture coordinate; g_occ_z0: its
+// first z in u_occ (both set by the caller of march_segment). The march looks the flag up at the
+// sample that enters a cell and, where it is 0, goes on at the first sample past the cell, so an
+// empty cell costs one lookup instead of its samples; the lattice is untouched.
+#ifndef SKIP_BLOCK
+#define SKIP_BLOCK 8
+#endif
+uniform sampler3D u_occ;
+vec3 g_occ_size;
+float g_occ_z0;
+
+// The cell holding sample i (at q0 + i * cs in cell units): the first sample index past it (at
+// least i + 1, at most n) and whether it may be visible. Only samples at least OCC_MARGIN of a
+// cell inside it are leapt (a sample within it of a face is taken), so rounding of positions and of
+// the exit index never leaps a sample that reads a voxel beyond what the cell's flag covers.
+#define OCC_MARGIN 1e-3
+int cell_exit(int i, int n, vec3 q0, vec3 cs, vec3 ics, vec3 side, out bool visible) {
+    vec3 q = q0 + float(i) * cs;
+    vec3 cf = floor(q);
+    vec3 f = q - cf;
+    vec3 ex = (cf + mix(vec3(OCC_MARGIN), vec3(1.0 - OCC_MARGIN), side) - q0) * ics;
+    int e = int(clamp(ceil(min(min(ex.x, ex.y), ex.z)), float(i + 1), float(n)));
+    vec3 w = mod(cf, g_occ_size);     // toroidal, as REPEAT wraps the level texture
+    bool flag = texelFetch(u_occ, ivec3(w) + ivec3(0, 0, int(g_occ_z0)), 0).r > 0.5;
+    bool near = any(greaterThan(abs(f - 0.5), vec3(0.5 - OCC_MARGIN)));
+    visible = flag || near;
+    return (flag || !near) ? e : i + 1;     // a visible cell: its samples are taken without a lookup
+}
+// c0, dc: texture coordinate of sample 0 and its step (cell i of the level holds voxel coordinates
+// [e * i, e * (i + 1)), e the cell edge: q = c * size / e - 0.5 / e = c * g_occ_size - u_occ_shift);
+// then, at the top of the loop over i (SKIP_CHECK, the lit and NaN-aware march), a sample entering
+// an empty cell leaps past it and the run of empty cells after it (break: empty to the end)
+uniform vec3 u_occ_shift;       // 0.5 / cell edge (x, y, z)
+#define SKIP_SETUP(c0, dc) vec3 q0_ = (c0) * g_occ_size - u_occ_shift; vec3 cs_ = (dc) * g_occ_size; vec3 ics_ = safe_inverse(cs_); vec3 side_ = vec3(greaterThanEqual(cs_, vec3(0.0))); int run_ = 0;
+#define SKIP_CHECK(i, n) if ((i) >= run_) { bool vis_; int e_ = cell_exit(i, n, q0_, cs_, ics_, side_, vis_); while (!vis_ && e_ < n) { i = e_; e_ = cell_exit(i, n, q0_, cs_, ics_, side_, vis_); } if (!vis_) break; run_ = e_; }
+#endif
+
 // Samples k0 .. k0 + n - 1 of the lattice t = off + k * delta along base + t * dir (base: the ray
 // origin relative to the centre of the brick's first voxel) in one level's texture: brick-local
 // voxel coordinates u = (base + t * dir) * isc clamped to [clo, chi], texel slot + u, colour table
@@ -322,7 +364,13 @@ void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int 
     gradient_bounds(clo, chi, glo, ghi);
 #endif
 #if defined(HAS_NAN) || defined(SHADING)
+#ifdef EMPTY_SKIP
+    SKIP_SETUP((slot + (base + (off + k0 * delta) * dir) * isc + 0.5) * its, dir * (delta * isc * its))
+#endif
     for (int i = 0; i < n; ++i) {
+#ifdef EMPTY_SKIP
+        SKIP_CHECK(i, n)
+#endif
         float ts = off + (k0 + float(i)) * delta;
         vec3 u = clamp((base + ts * dir) * isc, clo, chi);
         float texel = sample_texels(tex, slot + u, its);
@@ -368,6 +416,45 @@ void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int 
     vec3 dc = dir * (delta * isc * its);
     vec3 clo_t = (slot + clo + 0.5) * its;
     vec3 chi_t = (slot + chi + 0.5) * its;
+#ifdef EMPTY_SKIP
+    // One loop, one cell lookup per SKIP_BLOCK samples: a SIMD rasteriser (llvmpipe) pays for the
+    // lookup on every pass whether a lane needs it or not, so in visible space it is amortised over
+    // a block of samples (taking samples past a visible cell's exit is always right); an empty
+    // cell is leapt from the block's first sample. Whether a sample needs the clamp is not worth
+    // finding once samples are leapt.
+    SKIP_SETUP(c0, dc)
+    for (int i = 0; i < n; i += SKIP_BLOCK) {
+        bool vis_;
+        int e_ = cell_exit(i, n, q0_, cs_, ics_, side_, vis_);
+        while (!vis_ && e_ < n) {   // leap over a run of empty cells with lookups only
+            i = e_;
+            e_ = cell_exit(i, n, q0_, cs_, ics_, side_, vis_);
+        }
+        if (!vis_) break;           // empty to the end of the segment
+        FAST_TAKE(clamp(c0 + float(i) * dc, clo_t, chi_t));
+#if SKIP_BLOCK > 1
+        if (i + 1 < n) FAST_TAKE(clamp(c0 + float(i + 1) * dc, clo_t, chi_t));
+#endif
+#if SKIP_BLOCK > 2
+        if (i + 2 < n) FAST_TAKE(clamp(c0 + float(i + 2) * dc, clo_t, chi_t));
+#endif
+#if SKIP_BLOCK > 3
+        if (i + 3 < n) FAST_TAKE(clamp(c0 + float(i + 3) * dc, clo_t, chi_t));
+#endif
+#if SKIP_BLOCK > 4
+        if (i + 4 < n) FAST_TAKE(clamp(c0 + float(i + 4) * dc, clo_t, chi_t));
+#endif
+#if SKIP_BLOCK > 5
+        if (i + 5 < n) FAST_TAKE(clamp(c0 + float(i + 5) * dc, clo_t, chi_t));
+#endif
+#if SKIP_BLOCK > 6
+        if (i + 6 < n) FAST_TAKE(clamp(c0 + float(i + 6) * dc, clo_t, chi_t));
+#endif
+#if SKIP_BLOCK > 7
+        if (i + 7 < n) FAST_TAKE(clamp(c0 + float(i + 7) * dc, clo_t, chi_t));
+#endif
+    }
+#else
     // [ia, ib): sample indices whose coordinates lie in [clo_t, chi_t] on every axis, with a margin
     // of 1e-3 sample so that rounding never lets an unclamped sample out of the box
     vec3 idc = safe_inverse(dc);
@@ -389,5 +476,6 @@ void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int 
     if (acc.a >= u_opaque) return;
 #endif
     for (; i < n; ++i) FAST_TAKE(clamp(c0 + float(i) * dc, clo_t, chi_t));
+#endif
 }
 #endif
