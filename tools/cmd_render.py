@@ -254,8 +254,9 @@ def run(args) -> int:
           f"{tf.name or 'custom'})", file=sys.stderr)
     print(f"bricks drawn {sum(st.bricks_drawn.values())} ({levels}); texels drawn {st.texels_drawn:,}; "
           f"converged {st.converged} after {st.passes} pass(es)", file=sys.stderr)
+    read = "" if st.bytes_read is None else f"; read {format_bytes(st.bytes_read)} from storage"
     print(f"uploaded {format_bytes(st.bytes_uploaded)} in {st.bricks_uploaded} bricks; textures "
-          f"{format_bytes(st.texture_bytes)} of {format_bytes(st.texture_budget)}", file=sys.stderr)
+          f"{format_bytes(st.texture_bytes)} of {format_bytes(st.texture_budget)}{read}", file=sys.stderr)
     if params.policy == "image":
         est = getattr(action.last_policy, "estimated_error", float("nan"))
         print(f"image policy: block budget {params.block_budget}, {st.bricks_distinct} bricks drawn, "

@@ -154,6 +154,7 @@ def run(args) -> int:
 
     from clipvol.paging.cliptexture import ClipTexture
     from clipvol.paging.open import open_store
+    from clipvol.paging.region import Region
     from clipvol.render import create_context
     from clipvol.render.slice_action import SliceAction
     from clipvol.scene.params import RenderParams
@@ -200,7 +201,9 @@ def run(args) -> int:
     tf = TransferFunction.preset(args.tf) if args.tf is not None else None
     ctx = create_context()
     try:
-        with ClipTexture(loader, args.memory_budget, args.threads, center=centre) as clip, \
+        # Region.empty: nothing is read before the slice hands the clip-texture its slab
+        with ClipTexture(loader, args.memory_budget, args.threads, center=centre,
+                         region=Region.empty(loader.pyramid.num_levels)) as clip, \
                 SliceAction(ctx, clip, params) as action:
             rgba, values = action.render(plane, args.size, args.pixel_size, transfer_function=tf, window=args.window,
                                          wait=not args.no_wait, timeout=args.timeout, return_values=True)
@@ -232,7 +235,8 @@ def run(args) -> int:
         _write_atomic(args.stats, lambda p: open(p, "w").write(json.dumps(doc, indent=1) + "\n"))
     levels = ", ".join(f"L{L}: {n}" for L, n in st.tiles_per_level.items()) or "none"
     print(f"slice {w}x{h}: tiles {st.tiles} ({levels}), {st.blended} blended, converged {st.converged}", file=sys.stderr)
-    print(f"bricks needed {st.bricks_needed} ({format_bytes(st.bytes_needed)}); loaded {format_bytes(st.bytes_loaded)}; "
+    read = "" if st.bytes_read is None else f"; read {format_bytes(st.bytes_read)} from storage"
+    print(f"bricks needed {st.bricks_needed} ({format_bytes(st.bytes_needed)}); loaded {format_bytes(st.bytes_loaded)}{read}; "
           f"uploaded {format_bytes(st.bytes_uploaded)}; total {st.times['total'] * 1000:.1f} ms", file=sys.stderr)
     if edges is not None:
         print("edges: " + ", ".join(f"{k} {v}" for k, v in edges.items()), file=sys.stderr)

@@ -96,6 +96,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..paging.loader import HasBrickRanges
 from ..paging.properties import may_hold_nonfinite
+from ..paging.readcount import bytes_read_of
 from ..rows import unique_rows
 from ..scene.page_table import block_cells, block_open_faces, build_page_table
 from ..scene.params import MODES, RenderParams
@@ -190,6 +191,10 @@ class FrameStats:
         Select/upload passes made (more than one only with ``wait=True``).
     counts : dict
         The selection's counts (culled, refined, fallback).
+    bytes_read : int or None
+        Bytes the loader read from storage during the call (chunk files or network responses,
+        the clip-texture's prefetch included; :mod:`clipvol.paging.readcount`), ``None`` for a
+        loader that does not count its reads.
     failed_bricks : tuple of FailedBrick
         Wanted bricks that failed to load, each with its cause and the ancestor drawn in its place
         (:mod:`clipvol.render.failures`); :attr:`unreplaced` are those drawn by nothing.
@@ -207,6 +212,7 @@ class FrameStats:
     passes: int = 1
     items_drawn: int = 0
     counts: dict = field(default_factory=dict)
+    bytes_read: int | None = None
     failed_bricks: tuple = ()
 
     @property
@@ -450,6 +456,8 @@ class ClipRenderAction:
             A selection policy instance to use instead of the one ``params.policy`` names.
         """
         t_start = time.perf_counter()
+        read0 = bytes_read_of(self.clip_texture.loader)
+        self.clip_texture.set_region(None)  # a volume view pages cube windows around the centre
         cam = self._selection_camera(camera)
         if policy is None and self.params.policy == "image":  # image-based LOD: tables + visibility, kept per action
             if self.image_lod is None:
@@ -473,6 +481,7 @@ class ClipRenderAction:
             bricks_uploaded=plan.bricks_uploaded, texture_bytes=self.cache.texture_bytes,
             texture_budget=self.params.texture_budget, times=times, converged=plan.converged, passes=plan.passes,
             items_drawn=len(sel.items), counts=dict(sel.counts), failed_bricks=failed_bricks(sel, self.clip_texture),
+            bytes_read=None if read0 is None else bytes_read_of(self.clip_texture.loader) - read0,
         )
         return image
 
