@@ -82,6 +82,7 @@ from .gpu_cache import GpuBrickCache
 from .image_lod import ImageLod
 from .overlay_binding import OverlayTextures, overlay_defines
 from .paths import AUTO_SINGLE_PASS_BOXES, DRAW_PATHS, FALLBACK, pick
+# the draw paths' limits, importable from here as well (benchmarks and tests read them)
 from .paths.bricks import OCCLUSION_MIN_BATCH, OCCLUSION_PASSES
 from .paths.setup import (MAX_STEPS_PER_BOX, OCCUPANCY_UNIT, OPAQUE, DrawSetup, premultiplied_to_uint8,
                           samples_per_box, scissor_boxes)
