@@ -44,7 +44,7 @@ from .frame_loop import FrameLoop
 from .glsl import load_shader
 from .gpu_cache import GpuBrickCache
 from .target import FloatTarget
-from .uniforms import vec3
+from .uniforms import vec3 as _vec
 
 __all__ = ["SliceAction", "SliceStats", "window_level_grey"]
 
@@ -374,12 +374,12 @@ class SliceAction:
         win = np.asarray(self.cache.windows[level], dtype=np.int64)
         bidx = np.asarray(index, dtype=np.int64)
         first = trans + bidx[::-1] * B[::-1] * scale
-        prog["u_o_minus_b" + suffix].value = vec3(plane_origin - first)
-        prog["u_inv_scale" + suffix].value = vec3(1.0 / scale)
-        prog["u_slot_origin" + suffix].value = vec3(((bidx % win) * B)[::-1])
-        prog["u_inv_tex_size" + suffix].value = vec3(1.0 / (win[::-1] * B[::-1]))
-        prog["u_clamp_lo" + suffix].value = vec3(clamp[0])
-        prog["u_clamp_hi" + suffix].value = vec3(clamp[1])
+        prog["u_o_minus_b" + suffix].value = _vec(plane_origin - first)
+        prog["u_inv_scale" + suffix].value = _vec(1.0 / scale)
+        prog["u_slot_origin" + suffix].value = _vec(((bidx % win) * B)[::-1])
+        prog["u_inv_tex_size" + suffix].value = _vec(1.0 / (win[::-1] * B[::-1]))
+        prog["u_clamp_lo" + suffix].value = _vec(clamp[0])
+        prog["u_clamp_hi" + suffix].value = _vec(clamp[1])
 
     def _clamps(self, keys) -> dict:
         """Per brick ``(level, index)``: brick-local voxel bounds ``(lo, hi)`` (``(x, y, z)``), half a
@@ -450,19 +450,19 @@ class SliceAction:
             prog["u_in_view"].value = view is not None
             if view is not None:
                 prog["u_ortho"].value = bool(view.orthographic)
-                prog["u_normal"].value = vec3(plane.normal)
-                prog["u_eye_rel"].value = vec3(np.asarray(view.eye, dtype=np.float64) - origin)
-                prog["u_cam_forward"].value = vec3(view.forward)
-                prog["u_cam_right"].value = vec3(view.right)
-                prog["u_cam_up"].value = vec3(view.up)
+                prog["u_normal"].value = _vec(plane.normal)
+                prog["u_eye_rel"].value = _vec(np.asarray(view.eye, dtype=np.float64) - origin)
+                prog["u_cam_forward"].value = _vec(view.forward)
+                prog["u_cam_right"].value = _vec(view.right)
+                prog["u_cam_up"].value = _vec(view.up)
                 if view.orthographic:
                     prog["u_cam_half"].value = (float(view.width) / 2.0, float(view.height) / 2.0)
                 else:
                     ty = math.tan(math.radians(float(view.fov_y)) / 2.0)
                     prog["u_cam_half"].value = (ty * w / h, ty)
             prog["u_pixel"].value = float(px)
-            prog["u_right"].value = vec3(plane.right)
-            prog["u_up"].value = vec3(plane.up)
+            prog["u_right"].value = _vec(plane.right)
+            prog["u_up"].value = _vec(plane.up)
             for i, (it, rg) in enumerate(zip(sel.items, ranges)):
                 if rg is None:
                     continue
@@ -479,8 +479,8 @@ class SliceAction:
                     prog["u_ratio"].write(np.asarray(r, dtype=np.float32).reshape(-1).tobytes())
                     nlo = np.asarray(it.lo, dtype=np.float64)
                     nhi = np.asarray(it.hi, dtype=np.float64)
-                    prog["u_node_lo"].value = vec3(nlo - origin)
-                    prog["u_node_inv_ext"].value = vec3(1.0 / np.maximum(nhi - nlo, 1e-300))
+                    prog["u_node_lo"].value = _vec(nlo - origin)
+                    prog["u_node_inv_ext"].value = _vec(1.0 / np.maximum(nhi - nlo, 1e-300))
                     prog["u_blend"].value = True
                 else:
                     self.cache.textures[L].use(location=1)  # a valid binding; never sampled
