@@ -50,6 +50,7 @@ from .frame_loop import FrameLoop
 from .glsl import load_shader
 from .gpu_cache import GpuBrickCache
 from .target import FloatTarget
+from .uniforms import vec3 as _vec
 
 __all__ = ["SliceAction", "SliceStats", "window_level_grey"]
 
@@ -136,10 +137,6 @@ def window_level_grey(values: np.ndarray, center: float, width: float) -> np.nda
     ok = np.isfinite(v)
     g8 = np.rint(np.where(ok, g, 0.0) * 255.0).astype(np.uint8)
     return np.stack([g8, g8, g8, np.where(ok, 255, 0).astype(np.uint8)], axis=-1)
-
-
-def _vec(v) -> tuple[float, float, float]:
-    return tuple(float(x) for x in v)  # type: ignore[return-value]
 
 
 class SliceAction:

@@ -415,7 +415,7 @@ def _black_wall_before_white():
 def test_early_termination_changes_no_pixel_by_more_than_one_level(scenes, monkeypatch, path):
     """A ray stops at OPAQUE = 1 - 0.5/255: what it leaves out is under half an 8-bit step, so the
     image is within 1 of the reference integrated to the end of every ray (no termination)."""
-    import clipvol.render.action as action_mod
+    import clipvol.render.paths.setup as setup_mod
 
     vol, tf, cam = _black_wall_before_white()
     s = scenes(vol, 16, selection="fixed", level=0, path=path, merge_boxes=False)
@@ -423,7 +423,7 @@ def test_early_termination_changes_no_pixel_by_more_than_one_level(scenes, monke
     assert visible(r) > 0.5
     assert diff(s.render(cam, tf), r).max() <= 1
     # the scene tells thresholds apart: a ray stopping at 0.99 leaves out up to 2.5 levels of the white
-    monkeypatch.setattr(action_mod, "OPAQUE", 0.99)
+    monkeypatch.setattr(setup_mod, "OPAQUE", 0.99)
     loose = scenes(vol, 16, selection="fixed", level=0, path=path, merge_boxes=False).render(cam, tf)
     assert diff(loose, r).max() >= 2
 
