@@ -7,3 +7,7 @@ paths for flythroughs (``paths``) and image metrics (``metrics``). It may import
 bricking (the pyramid, the residency contract), never moderngl or glfw, so every decision a
 renderer makes can be tested and explained without a context.
 """
+
+# Fill the policy registry (clipvol.scene.policy_registry) before anything can build a RenderParams:
+# params is importable only through this package, and validates its policy against the registry.
+from .selection import policies as _policies  # noqa: E402,F401

@@ -19,8 +19,9 @@ from typing import Any
 from ..errors import ParameterError
 from ..units import parse_bytes
 from .geometry import Shape
+from .policy_registry import POLICIES, policy_names
 
-__all__ = ["RenderParams", "MODES", "PATHS", "POLICY_ALIASES", "DEFAULT_BLOCK_BUDGET"]
+__all__ = ["RenderParams", "MODES", "PATHS", "DEFAULT_BLOCK_BUDGET"]
 
 #: compositing modes of the volume action
 MODES = ("composite", "mip")
@@ -30,9 +31,6 @@ BLENDS = ("over", "additive")
 PATHS = ("auto", "bricks", "single-pass")
 #: bricks the "image" policy may draw when no block_budget is given
 DEFAULT_BLOCK_BUDGET = 128
-#: older names of selection policies, still accepted (``selection="multiresolution"``)
-POLICY_ALIASES = {"multiresolution": "projected-size", "projected": "projected-size", "fov": "field-of-view",
-                  "budget": "texel-budget"}
 
 
 def _positive(value: Any, name: str, unit: str) -> float:
@@ -68,7 +66,7 @@ class RenderParams:
         ``"texel-budget"`` (largest projected voxels first until ``max_texels_drawn``),
         ``"distance"`` and ``"field-of-view"`` (the filters of LaMar, Hamann & Joy), ``"image"``
         (image-based importance of Wang, Garcia & Shen under ``block_budget``; needs the store's
-        summary tables). The older names ``"multiresolution"`` (= ``"projected-size"``) are accepted.
+        summary tables). The names are those of :mod:`clipvol.scene.policy_registry`.
     lod_threshold : float
         Pixels a voxel of a drawn level may project to before the brick is refined (> 0).
     level : int, optional
@@ -173,19 +171,14 @@ class RenderParams:
     blend: str = "over"
 
     def __post_init__(self) -> None:
-        from .selection.policies import (
-            POLICIES,  # the registry (a sibling of this module's users)
-        )
-
         s = object.__setattr__
         if self.path not in PATHS:
             raise ParameterError(f"path: expected one of {', '.join(PATHS)}, got {self.path!r}")
         if self.mode not in MODES:
             raise ParameterError(f"mode: expected one of {', '.join(MODES)}, got {self.mode!r}")
-        policy = POLICY_ALIASES.get(self.policy, self.policy)
+        policy = self.policy
         if policy not in POLICIES:
-            raise ParameterError(f"policy: expected one of {', '.join(sorted(POLICIES))}, got {self.policy!r}")
-        s(self, "policy", policy)
+            raise ParameterError(f"policy: expected one of {', '.join(policy_names())}, got {policy!r}")
         s(self, "lod_threshold", _positive(self.lod_threshold, "lod_threshold", "pixels"))
         s(self, "distance_factor", _positive(self.distance_factor, "distance_factor", "node diagonals"))
         s(self, "fov_fraction", _positive(self.fov_fraction, "fov_fraction", "of the field of view"))
@@ -273,12 +266,9 @@ class RenderParams:
         return tuple(f.name for f in fields(cls))
 
     @classmethod
-    def from_kwargs(cls, params: "RenderParams | None" = None, *, selection: str | None = None,
-                    **kwargs) -> "RenderParams":
-        """``params`` (or the defaults) with keyword overrides; ``selection=`` is the older name of
-        ``policy=``. Unknown names are a :class:`ParameterError` naming them."""
-        if selection is not None:
-            kwargs.setdefault("policy", selection)
+    def from_kwargs(cls, params: "RenderParams | None" = None, **kwargs) -> "RenderParams":
+        """``params`` (or the defaults) with keyword overrides. Unknown names are a
+        :class:`ParameterError` naming them."""
         bad = sorted(set(kwargs) - set(cls.names()))
         if bad:
             raise ParameterError(f"unknown render parameter(s) {', '.join(bad)}; expected {', '.join(cls.names())}")
@@ -295,8 +285,3 @@ class RenderParams:
         if self.level is not None and self.level >= pyramid.num_levels:
             raise ParameterError(f"level: expected 0..{pyramid.num_levels - 1} for this store, got {self.level}")
         return self
-
-    @property
-    def selection(self) -> str:
-        """The policy under its older name (``"multiresolution"`` for ``"projected-size"``)."""
-        return "multiresolution" if self.policy == "projected-size" else self.policy

@@ -154,7 +154,7 @@ def test_render_with_failed_and_hung_bricks_is_bounded(ctx):
     loader = FaultyLoader(NumpyLoader(VOL, brick=8), {(0, (1, 1, 1)): "raise", (0, (0, 0, 0)): "hang"}, gate)
     clip = ClipTexture(loader, "16MB", threads=2, retries=0)
     try:
-        action = ClipRenderAction(ctx, clip, selection="fixed", level=0)
+        action = ClipRenderAction(ctx, clip, policy="fixed", level=0)
         cam = Camera.orthographic((7.5, 7.5, 7.5), (0, 0, 1), (0, -1, 0), 16, 16, size=(16, 16))
         t0 = time.monotonic()
         img = action.render(cam, TF, wait=True, timeout=1.0)
