@@ -13,7 +13,7 @@ bypasses all of them.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 from ..errors import ParameterError
@@ -49,6 +49,12 @@ def _count_or_none(value: Any, name: str) -> int | None:
     if isinstance(value, bool) or int(value) != value or value < 1:
         raise ParameterError(f"{name}: expected None or an integer >= 1, got {value!r}")
     return int(value)
+
+
+def _field(default: Any, help: str):
+    """A field with its one-line help, which the command-line flag of the field shows
+    (:mod:`clipvol.tools.render_args`): the help is written once, beside the field."""
+    return field(default=default, metadata={"help": help})
 
 
 @dataclass(frozen=True, slots=True)
@@ -142,27 +148,34 @@ class RenderParams:
         the colours add up, ``sum(a_k * rgb_k)``, opacity ``1 - prod(1 - a_k)``; not with shading).
     """
 
-    mode: str = "composite"
-    policy: str = "projected-size"
-    lod_threshold: float = 1.0
-    level: int | None = None
-    distance_factor: float = 1.0
-    fov_fraction: float = 0.5
+    mode: str = _field("composite", "compositing (emission-absorption) or maximum intensity projection")
+    policy: str = _field("projected-size", "selection policy: which bricks at which level (default projected-size)")
+    lod_threshold: float = _field(1.0, "refine while a voxel projects to more than this many pixels")
+    level: int | None = _field(None, "level for --policy fixed (default 0)")
+    distance_factor: float = _field(
+        1.0, "--policy distance: refine nodes closer to the eye than this many of their diagonals")
+    fov_fraction: float = _field(
+        0.5, "--policy field-of-view: refine nodes subtending more than this fraction of the view")
     focus: tuple[float, float, float] | None = None
-    max_texels_drawn: int | None = None
-    texels_per_frame: int | None = None
-    texture_budget: int = 256 << 20
-    step: float = 0.5
+    max_texels_drawn: int | None = _field(
+        None, "most voxels of drawn bricks: refine the largest projected voxels first until it binds")
+    texels_per_frame: int | None = _field(None, "most texels uploaded per frame (per pass while waiting)")
+    texture_budget: int = _field(256 << 20, "GPU brick cache budget")
+    step: float = _field(0.5, "sample spacing in voxels of the drawn level")
     early_termination: bool = True
     merge_boxes: bool = True
-    jitter: bool = False
-    path: str = "auto"
-    background: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    jitter: bool = _field(
+        False, "start every pixel's ray at a hashed offset (turns lattice rings into fine noise)")
+    path: str = _field("auto", "single-pass: one ray-guided pass through a page table of the cut; bricks: one proxy box "
+                               "per (merged) brick; auto (default): the single pass for cuts of 4 boxes or more")
+    background: tuple[float, float, float, float] = _field(
+        (0.0, 0.0, 0.0, 0.0), "straight RGBA r,g,b,a in [0, 1] behind the volume (default transparent)")
     shape: Shape | None = None
-    block_budget: int | None = None
-    visibility: bool = True
+    block_budget: int | None = _field(
+        None, "--policy image: most bricks drawn, the most important refined first (default 128)")
+    visibility: bool = _field(True, "--policy image: weight each brick's importance by its estimated visibility")
     visibility_threshold: float = 0.01
-    shading: bool = False
+    shading: bool = _field(False, "composite: Blinn-Phong gradient lighting, light at the eye (ignored for mip)")
     ambient: float = 0.3
     diffuse: float = 0.7
     specular: float = 0.3
@@ -260,6 +273,15 @@ class RenderParams:
             raise ParameterError("blend: expected 'over' with shading (additive channels are not lit), got 'additive'")
 
     # -- helpers ---------------------------------------------------------------------------------
+    @classmethod
+    def help(cls, name: str) -> str:
+        """The one-line help of field ``name`` (its ``metadata["help"]``; the command-line flags of
+        :mod:`clipvol.tools.render_args` show it), or "" when it has none."""
+        for f in fields(cls):
+            if f.name == name:
+                return f.metadata.get("help", "")
+        raise ParameterError(f"unknown render parameter {name!r}; expected one of {', '.join(cls.names())}")
+
     @classmethod
     def names(cls) -> tuple[str, ...]:
         """The field names (for ``update(**changes)`` checks and CLI mapping)."""
