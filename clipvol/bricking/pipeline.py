@@ -67,8 +67,15 @@ __all__ = ["brick_volume", "CODECS", "BRICK_RANGE", "store_codecs", "chunk_encod
 CODECS = ("lz4", "zstd", "none")
 BRICK_RANGE = (8, 256)
 
-#: test hook: called as ``_after_brick(level, index)`` in the worker after each brick is written
-_after_brick: Callable[[int, tuple[int, int, int]], None] | None = None
+
+
+def write_chunk(path: Path, data: bytes) -> None:
+    """Write one encoded brick to its chunk file ``path`` (``L/c/k/y/x`` under the store).
+
+    The one place a local build writes a brick, so every brick's write is one call to watch or
+    to fail (tests interrupt a build here, after a given brick, as a crash or a full disk would)."""
+    with open(path, "wb") as f:
+        f.write(data)
 
 
 def _brick_shape(brick) -> tuple[int, int, int]:
@@ -420,13 +427,10 @@ class _Builder:
                     d.mkdir(parents=True, exist_ok=True)
                     with self._dir_lock:
                         self._made_dirs.add(d)
-                with open(d / str(bx), "wb") as f:
-                    f.write(data)
+                write_chunk(d / str(bx), data)
                 with self._bytes_lock:
                     self.bytes_written += len(data)
             st = (st, crc)
-            if _after_brick is not None:
-                _after_brick(L, (k, by, bx))
         if L + 1 < self.nlev:
             child = downsample(block, self.pyr.filter)
             buf = self.buffers[L + 1]

@@ -13,7 +13,6 @@ import zarr
 
 pytest.importorskip("distributed")
 
-import clipvol.bricking.pipeline as brick_mod  # noqa: E402
 from clipvol.bricking.dask_build import brick_volume_dask  # noqa: E402
 from clipvol.bricking.pipeline import brick_volume  # noqa: E402
 from clipvol.bricking.source_types import ArraySource  # noqa: E402
@@ -21,6 +20,7 @@ from clipvol.errors import ParameterError  # noqa: E402
 from clipvol.tools.cli import main  # noqa: E402
 
 from test_pyramid import ref_downsample  # noqa: E402
+from build_hooks import after_each_brick  # noqa: E402
 
 
 def _tree(path: Path) -> dict[str, bytes]:
@@ -115,10 +115,10 @@ def test_local_build_interrupted_resumes_on_dask(tmp_path, monkeypatch):
         if len(seen) >= 40:
             raise RuntimeError("simulated crash")
 
-    monkeypatch.setattr(brick_mod, "_after_brick", crash)
+    after_each_brick(monkeypatch, crash)
     with pytest.raises(RuntimeError):
         brick_volume(tmp_path / "v.npy", out, brick=8, progress=False, workers=1)
-    monkeypatch.setattr(brick_mod, "_after_brick", None)
+    after_each_brick(monkeypatch, None)
     assert main(["brick", str(tmp_path / "v.npy"), str(out), "--brick", "8", "--scheduler", "threads", "--quiet"]) == 0
     assert _tree(out) == _tree(tmp_path / "ref" / "s.zarr")
 

@@ -370,7 +370,8 @@ BRICK_SRC = "procedural:fractal?size=40&seed=3"
 def test_ctrl_c_during_brick_resumes_to_identical_store(tmp_path):
     out = tmp_path / "interrupted.zarr"
     slow = (
-        "import sys, time, clipvol.bricking.pipeline as b; b._after_brick = lambda L, i: time.sleep(0.01); "
+        "import sys, time, clipvol.bricking.pipeline as b; w = b.write_chunk; "
+        "b.write_chunk = lambda path, data: (w(path, data), time.sleep(0.01)); "
         "from clipvol.tools.cli import main; sys.exit(main(sys.argv[1:]))"
     )
     args = ["brick", BRICK_SRC, str(out), "--brick", "8", "--workers", "1", "--quiet"]
