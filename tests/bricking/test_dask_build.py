@@ -64,6 +64,22 @@ def test_float_max_filter_odd_shape(tmp_path):
     assert _tree(tmp_path / "a" / "s.zarr") == _tree(tmp_path / "b" / "s.zarr")
 
 
+def test_one_options_value_builds_the_same_store_both_ways(tmp_path):
+    """One frozen BuildOptions (with an origin) given to the local and the Dask build: the same bytes,
+    and the OME translation is the origin given (read back from zarr.json, not through clipvol)."""
+    from clipvol.bricking.build_options import BuildOptions
+
+    vol = _volume((24, 20, 28), np.uint8, seed=3)
+    opts = BuildOptions(brick=8, codec="zstd", spacing=(2.0, 1.0, 1.0), origin=(-4.0, 2.0, 3.0), workers=2,
+                        progress=False)
+    brick_volume(vol, tmp_path / "a" / "s.zarr", opts)
+    brick_volume_dask(vol, tmp_path / "b" / "s.zarr", opts, span=2)
+    a, b = _tree(tmp_path / "a" / "s.zarr"), _tree(tmp_path / "b" / "s.zarr")
+    assert len(a) > 10 and a == b
+    scales = json.loads(a["zarr.json"])["attributes"]["ome"]["multiscales"][0]["datasets"][0]["coordinateTransformations"]
+    assert [t["translation"] for t in scales if t["type"] == "translation"] == [[-4.0, 2.0, 3.0]]
+
+
 _READS_LEFT = [0]
 
 

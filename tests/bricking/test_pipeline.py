@@ -316,3 +316,27 @@ def test_resume_key_is_the_absolute_path(tmp_path, rng, monkeypatch):
     meta = brick_volume(str(tmp_path / "v.npy"), tmp_path / "s.zarr", brick=8, progress=False)  # same file, other spelling
     assert meta.complete
     np.testing.assert_array_equal(_levels(tmp_path / "s.zarr")[0], vol)
+
+
+def test_build_options_are_one_frozen_value(tmp_path, rng):
+    """Keywords and a BuildOptions value build the same store; the options are checked once, with
+    one-line errors naming the option, before any output exists."""
+    import dataclasses
+
+    from clipvol.bricking.build_options import BuildOptions
+    from clipvol.errors import ParameterError
+
+    vol = rng.integers(0, 200, size=(16, 16, 24)).astype(np.uint8)
+    brick_volume(vol, tmp_path / "kw" / "s.zarr", brick=8, codec="none", progress=False, workers=1)
+    opts = BuildOptions(brick=8, codec="none", progress=False, workers=1)
+    brick_volume(vol, tmp_path / "opt" / "s.zarr", opts)
+    tree = lambda p: {f.relative_to(p).as_posix(): f.read_bytes() for f in sorted(p.rglob("*")) if f.is_file()}
+    assert tree(tmp_path / "kw" / "s.zarr") == tree(tmp_path / "opt" / "s.zarr")
+    assert opts.brick == (8, 8, 8) and opts.workers == 1
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        opts.brick = 16
+    for bad, name in ((dict(brick=7), "brick"), (dict(codec="gzip"), "codec"), (dict(filter="median"), "filter"),
+                      (dict(spacing=(1, 0, 1)), "spacing"), (dict(workers=0), "workers"), (dict(bricks=8), "bricks")):
+        with pytest.raises(ParameterError, match=name):
+            brick_volume(vol, tmp_path / "bad" / "s.zarr", **bad)
+    assert not (tmp_path / "bad").exists()
