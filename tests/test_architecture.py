@@ -141,6 +141,16 @@ def test_imports_point_down(path, module, is_pkg):
     assert not bad, "imports against the stage rule of docs/architecture.md:\n" + "\n".join(bad)
 
 
+def test_scene_reads_no_bricks():
+    """The scene stage decides on the pyramid alone (it defines the residency contract it needs):
+    it imports nothing of paging or the loaders, though their rank is below it."""
+    bad = [f"{path.relative_to(ROOT)}:{line} imports {target}"
+           for path, module, is_pkg in ALL if stage_package(module) == "clipvol.scene"
+           for line, target in imports(path, module, is_pkg)
+           if stage_package(target) in ("clipvol.paging", "clipvol.loaders")]
+    assert not bad, "scene importing paging:\n" + "\n".join(bad)
+
+
 def test_the_rule_would_catch_a_violation(tmp_path):
     """The checker itself: an upward and a GL import in a core module are both reported."""
     f = tmp_path / "bad.py"
