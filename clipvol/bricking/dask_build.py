@@ -35,7 +35,7 @@ from __future__ import annotations
 import sys
 from itertools import product
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
