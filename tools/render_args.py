@@ -20,7 +20,7 @@ from typing import Any, Callable, Iterable
 
 from clipvol.errors import ParameterError
 
-__all__ = ["Flag", "FLAGS", "add_render_arguments", "render_params_from_args", "flag_defaults"]
+__all__ = ["Flag", "FLAGS", "add_render_arguments", "render_params_from_args", "flag_values"]
 
 
 def _floats(text: str) -> tuple[float, ...]:
@@ -85,8 +85,9 @@ def _policies() -> tuple:
     return policy_names()
 
 
-#: one line per flag; the key is the flag's handle in add_render_arguments (its first field)
-FLAGS: dict[str, Flag] = {f.fields[0]: f for f in (
+#: one line per flag; the key, a command's handle for it in add_render_arguments, is the field's name
+#: (the flag's own name, ``light``, for a flag of several fields)
+FLAGS: dict[str, Flag] = {(f.fields[0] if len(f.fields) == 1 else f.dest): f for f in (
     Flag(("mode",), "--mode", choices=_modes),
     Flag(("policy",), "--policy", choices=_policies),
     Flag(("level",), "--level", type=int),
@@ -175,13 +176,6 @@ def flag_values(args) -> dict:
         else:
             out[f.fields[0]] = value
     return out
-
-
-def flag_defaults(names: Iterable[str]) -> dict:
-    """The field values a command's flags ``names`` give when none is typed (for docs and tests)."""
-    p = argparse.ArgumentParser()
-    add_render_arguments(p, names)
-    return flag_values(p.parse_args([]))
 
 
 def render_params_from_args(args, **fixed):

@@ -76,7 +76,8 @@ def test_slice_keeps_its_plane_policy():
 def test_every_flag_names_real_fields_with_help():
     names = set(RenderParams.names())
     for handle, flag in FLAGS.items():
-        assert handle == flag.fields[0] and set(flag.fields) <= names, handle
+        assert handle == (flag.fields[0] if len(flag.fields) == 1 else flag.dest), handle
+        assert set(flag.fields) <= names, handle
         assert flag.flag.startswith("--")
         assert flag.help or RenderParams.help(flag.fields[0]), handle
 
