@@ -42,21 +42,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_trust_arguments(p)
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default: the loader's, 64)")
     g = p.add_argument_group("rendering")
-    g.add_argument("--mode", choices=("composite", "mip"), default="composite", help="compositing or maximum intensity projection")
-    g.add_argument("--selection", "--policy", dest="selection", choices=("multiresolution", "roaming", "fixed"),
-                   default="multiresolution", help="selection policy the viewer starts with (M cycles them)")
-    g.add_argument("--level", type=int, default=None, help="level drawn with --selection fixed (default 0)")
-    g.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel projects to more than this many pixels")
-    g.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
+    from clipvol.tools.render_args import add_render_arguments
+    from clipvol.viewer.controls import MODES
+
+    add_render_arguments(g, ("mode", "policy", "level", "lod_threshold", "step"), choices={"policy": MODES},
+                         help={"policy": "selection policy the viewer starts with (M cycles them)"})
     g.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
-    g.add_argument("--texture-budget", default="256MB", help="GPU brick cache budget")
-    g.add_argument("--texels-per-frame", type=int, default=None, help="most texels uploaded per frame")
+    add_render_arguments(g, ("texture_budget", "texels_per_frame"))
     g.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
-    g.add_argument("--no-jitter", action="store_true", help="sample every pixel's ray from t = 0 (shows lattice rings; for comparisons)")
-    g.add_argument("--render-path", choices=("auto", "bricks", "single-pass"), default="auto",
-                   help="single-pass: one ray-guided pass through a page table of the cut; bricks: one proxy box per "
-                        "(merged) brick; auto (default): the single pass for cuts of 4 boxes or more")
-    g.add_argument("--shading", action="store_true", help="start with gradient lighting on (key L)")
+    add_render_arguments(g, ("jitter", "path", "shading"), help={"shading": "start with gradient lighting on (key L)"})
     g.add_argument("--play", action="store_true",
                    help="an OME-Zarr image with a t axis: play its time steps (Space play/pause, J/K step, { } rate; "
                         "the next step prefetched under the same memory budget)")
@@ -118,7 +112,7 @@ def _bricked(args) -> str:
 def run(args) -> int:
     from clipvol.app.session import open_loader
     from clipvol.errors import ParameterError
-    from clipvol.scene.params import RenderParams
+    from clipvol.tools.render_args import render_params_from_args
 
     from clipvol.bricking.point_store import is_point_store
 
@@ -131,11 +125,7 @@ def run(args) -> int:
         raise ParameterError(f"--frame-time: expected milliseconds >= 0, got {args.frame_time}")
     from clipvol.tools.tf_args import transfer_function_from_args
 
-    params = RenderParams(
-        lod_threshold=args.lod_threshold, policy=args.selection, level=args.level, mode=args.mode,
-        step=args.step, texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget,
-        jitter=not args.no_jitter, path=args.render_path, shading=args.shading,
-    )
+    params = render_params_from_args(args)
     from clipvol.tools.remote_args import check_trust, remote_kwargs
 
     kwargs = {} if args.brick is None else {"brick": args.brick}

@@ -135,7 +135,7 @@ class _Setting:
     lod_threshold: float
     memory_budget: int
     texture_budget: int
-    selection: str = "multiresolution"
+    selection: str = "projected-size"
     level: int | None = None
     #: further RenderParams changes, as ``(name, value)`` pairs (the block-budget policies)
     changes: tuple = ()

@@ -117,8 +117,7 @@ class ClipRenderAction:
         (:class:`clipvol.scene.params.RenderParams`); change them later with :meth:`set_params`.
     **kwargs
         Any :class:`~clipvol.scene.params.RenderParams` field as a keyword, applied over ``params``
-        (``texture_budget="512MB", lod_threshold=2``); ``selection=`` is the older name of
-        ``policy=``.
+        (``texture_budget="512MB", lod_threshold=2``).
     """
 
     def __init__(self, ctx, clip_texture, params: RenderParams | None = None, **kwargs) -> None:

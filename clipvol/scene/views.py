@@ -52,8 +52,8 @@ from ..errors import ParameterError
 
 __all__ = [
     "ANATOMICAL_VIEWS", "ALIASES", "VIEW_CHOICES", "is_anatomical", "mirrored", "world_to_array_directions",
-    "view_directions", "world_to_drawing", "preset_camera", "screen_axes", "edge_labels", "SLICES", "CONVENTIONS",
-    "slice_axes", "anatomical_plane",
+    "view_directions", "world_to_drawing", "preset_camera", "view_camera", "screen_axes", "edge_labels", "SLICES",
+    "CONVENTIONS", "slice_axes", "anatomical_plane", "patient_path",
 ]
 
 #: anatomical view -> (RAS direction from the target to the eye, RAS up)
@@ -207,6 +207,18 @@ def preset_camera(box_lo, box_hi, view: str, size, *, frame=None, eye=None, targ
         width, height = (ext, ext * h / w) if w >= h else (ext * w / h, ext)
         return Camera.orthographic(tuple(tgt), tuple(fwd), tuple(u), width, height, size=size)
     return Camera.perspective(tuple(e), tuple(tgt), up=tuple(u), fov_y=fov, size=size)
+
+
+def view_camera(pyramid, view: str, size, *, eye=None, target=None, up=None, fov: float = 35.0,
+                distance: float | None = None, ortho: bool = False, frame=None):
+    """:func:`preset_camera` around a store's volume box: the camera of ``clipvol render --view``.
+
+    The one call every entry point with a pyramid makes (the CLI, the point renderer, the sort-last
+    tests and benchmarks), so that a view name frames every store the same way; ``frame`` is the
+    store's patient frame, when it has one."""
+    lo, hi = pyramid.volume_box()
+    return preset_camera(lo, hi, view, size, frame=frame, eye=eye, target=target, up=up, fov=fov, distance=distance,
+                         ortho=ortho, spacing=getattr(pyramid, "spacing", None))
 
 
 def screen_axes(cam, frame=None) -> tuple[np.ndarray, np.ndarray]:
