@@ -61,11 +61,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from clipvol.tools.tf_args import add_tf_arguments
 
     add_tf_arguments(p.add_argument_group("transfer function"))
-    from clipvol.scene.params import MODES
+    from clipvol.tools.render_args import add_render_arguments
 
-    p.add_argument("--mode", choices=MODES, default="composite")
-    p.add_argument("--iso-value", type=float, default=None, help="--mode iso: the data value of the surface (the first point along each ray at or above it)")
-    p.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
+    add_render_arguments(p, ("mode", "iso_value", "step"))
     p.add_argument("--threads", type=int, default=None, help="loader threads")
     p.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for a converged frame")
     from clipvol.tools.partial import add_partial_argument
