@@ -73,8 +73,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     v.add_argument("--camera", default=None, metavar="FILE.json",
                    help="a camera saved by the viewer's C key (overrides --view/--eye/--target/--up/--fov/--ortho)")
     r = p.add_argument_group("rendering")
-    add_render_arguments(r, ("mode", "iso_value", "policy", "level", "max_texels_drawn", "distance_factor", "fov_fraction",
-                             "block_budget", "visibility", "lod_threshold"))
+    add_render_arguments(r, ("mode", "iso_value", "policy", "level", "max_texels_drawn", "distance_factor",
+                             "fov_fraction", "block_budget", "visibility", "lod_threshold"))
     from clipvol.tools.overlay_args import add_overlay_arguments
     from clipvol.tools.tf_args import add_tf_arguments
 

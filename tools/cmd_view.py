@@ -45,7 +45,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from clipvol.tools.render_args import add_render_arguments
     from clipvol.viewer.controls import MODES
 
-    add_render_arguments(g, ("mode", "iso_value", "policy", "level", "lod_threshold", "step"), choices={"policy": MODES},
+    add_render_arguments(g, ("mode", "iso_value", "policy", "level", "lod_threshold", "step"),
+                         choices={"policy": MODES},
                          help={"policy": "selection policy the viewer starts with (M cycles them)"})
     g.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
     add_render_arguments(g, ("texture_budget", "texels_per_frame"))

@@ -193,7 +193,8 @@ class RenderParams:
     jitter: bool = _field(
         False, "start every pixel's ray at a hashed offset (turns lattice rings into fine noise)")
     skip_empty: bool = _field(
-        True, "composite: leap over cells of 8^3 voxels the transfer function makes transparent (the same image)")
+        True, "composite: leap over cells of 8^3 voxels the transfer function makes transparent; iso: over cells "
+              "wholly below the iso-value (the same image)")
     path: str = _field("auto", "single-pass: one ray-guided pass through a page table of the cut; bricks: one proxy box "
                                "per (merged) brick; auto (default): the single pass for cuts of 4 boxes or more")
     background: tuple[float, float, float, float] = _field(
