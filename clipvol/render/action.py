@@ -7,7 +7,8 @@ Per frame (:meth:`ClipRenderAction.render`):
    drawable if it is on the GPU, or in the clip-texture's RAM and still inside this frame's
    ``texels_per_frame`` upload budget. Bricks the transfer function makes fully transparent are
    culled from the loader's per-brick value ranges (:class:`clipvol.paging.loader.HasBrickRanges`) without
-   being read (composite mode only: in MIP a transparent value can still be the maximum).
+   being read (composite mode; an iso-surface culls the bricks wholly below its value; in MIP/minIP a
+   transparent value can still be the extreme, and the average counts every sample).
 2. **Upload** - :meth:`GpuBrickCache.commit`, the one place that writes textures: sub-loads of the
    newly selected bricks into their toroidal slots of the per-level 3D textures.
 3. **Draw** - the cut, merged once for every path (:func:`clipvol.scene.selection.merge_items`: a
@@ -157,7 +158,8 @@ class ClipRenderAction:
     # -- helpers -----------------------------------------------------------------------------------
     def _transparent(self, tf):
         """``(level, idx) -> bool mask`` from the loader's brick ranges over each brick's sampling
-        footprint (:func:`clipvol.scene.transfer.transparency_filter`), or None."""
+        footprint (:func:`clipvol.scene.transfer.transparency_filter`), or None: composite under
+        ``tf``, iso under :func:`~clipvol.render.modes.occupancy_tf` (wholly below the value)."""
         loader = self.clip_texture.loader
         tf = occupancy_tf(self.params, tf, self.pyramid.value_range)  # iso: values below the surface's
         if self.params.mode not in ("composite", "iso") or not isinstance(loader, HasBrickRanges):
@@ -167,8 +169,9 @@ class ClipRenderAction:
         return transparency_filter(tf, loader)
 
     def _skips(self, tf) -> bool:
-        """Does this frame leap over empty cells? Composite without overlays (an overlay is sampled
-        wherever the primary is, and in MIP a transparent value can still be the maximum), with
+        """Does this frame leap over empty cells? Composite or iso without overlays (an overlay is
+        sampled wherever the primary is; in MIP/minIP a transparent value can still be the extreme,
+        in the average every sample counts; iso's "empty" is below its value, :func:`occupancy_tf`), with
         ``skip_empty``, cells for this brick shape, a window of non-zero width (a zero-width window
         is a step whose float32 table coordinate the cells' test cannot bound), and at least
         :data:`MIN_EMPTY_FRACTION` of the cells holding data empty under ``tf`` (the lookups cost
