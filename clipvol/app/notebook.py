@@ -46,7 +46,7 @@ function render({ model, el }) {
     const o = document.createElement("option"); o.value = n; o.textContent = n; tfSel.appendChild(o);
   }
   const modeSel = document.createElement("select");
-  for (const n of ["composite", "mip"]) {
+  for (const n of ["composite", "mip", "minip", "average", "iso"]) {
     const o = document.createElement("option"); o.value = n; o.textContent = n; modeSel.appendChild(o);
   }
   const hud = document.createElement("pre");
@@ -134,7 +134,7 @@ class VolumeView:
     def __init__(self, source, *, size=(384, 384), tf: str | None = None, mode: str = "composite",
                  memory_budget="256MB", texture_budget="256MB", threads: int | None = None,
                  lod_threshold: float = 1.0, timeout: float = 30.0, brick: int = 32, labels: bool = True,
-                 store=None) -> None:
+                 store=None, iso_value: float | None = None) -> None:
         from ..render.context import create_context
         from ..scene.transfer import TransferFunction
         from ..scene.params import RenderParams
@@ -155,8 +155,9 @@ class VolumeView:
             tf = "grey" if is_anatomical(getattr(loader, "frame", None)) else "viridis"
         self._ctx = create_context()
         try:
+            params = RenderParams(mode=mode, iso_value=iso_value, lod_threshold=lod_threshold)
             self.session = RenderSession(loader, self._ctx, memory_budget=memory_budget, texture_budget=texture_budget,
-                                         threads=threads, params=RenderParams(mode=mode, lod_threshold=lod_threshold), tf=tf)
+                                         threads=threads, params=params, tf=tf)
         except BaseException:
             self._ctx.release()
             raise
@@ -309,7 +310,8 @@ def show(source, **kwargs) -> VolumeView:
     source
         What to show; a numpy array is viewed in place (bricked in memory, ``brick`` voxels).
     **kwargs
-        ``size=(w, h)``, ``tf``, ``mode`` (``'composite'`` or ``'mip'``), ``memory_budget``,
+        ``size=(w, h)``, ``tf``, ``mode`` (``'composite'``, ``'mip'``, ``'minip'``, ``'average'`` or
+        ``'iso'`` with ``iso_value``: the menu offers them all, iso once a value is set), ``memory_budget``,
         ``texture_budget``, ``threads``, ``lod_threshold``, ``timeout`` (seconds per frame),
         ``brick``, ``labels`` (R/L, A/P, S/I letters on a patient-frame store's images, default
         True), ``store`` (where a NIfTI / DICOM / HDF5 / MRC input is bricked, default
