@@ -75,7 +75,6 @@ from ..paging.properties import may_hold_nonfinite
 from ..paging.readcount import bytes_read_of
 from ..scene.page_table import block_cells
 from ..scene.params import MODES, RenderParams
-from .modes import mode_defines, occupancy_tf
 from ..scene.selection import merge_items
 from ..scene.selection.policies import POLICIES
 from ..scene.transfer import transparency_filter
@@ -83,6 +82,7 @@ from .frame_loop import FrameLoop
 from .frame_stats import FrameStats, frame_stats
 from .gpu_cache import GpuBrickCache
 from .image_lod import ImageLod
+from .modes import mode_defines, occupancy_tf
 from .overlay_binding import OverlayTextures, overlay_defines
 from .paths import AUTO_SINGLE_PASS_BOXES, DRAW_PATHS, FALLBACK, pick
 # the draw paths' limits, importable from here as well (benchmarks and tests read them)
@@ -152,7 +152,8 @@ class ClipRenderAction:
     def defines(self) -> dict:
         """The ``#define``\\ s of this frame's volume shader variant (see :mod:`clipvol.render.glsl`)."""
         mode = self.params.mode
-        return {**mode_defines(mode), "HAS_NAN": self.nonfinite, "SHADING": self.params.shading and mode == "composite",
+        return {**mode_defines(mode), "HAS_NAN": self.nonfinite,
+                "SHADING": self.params.shading and mode == "composite",
                 "EMPTY_SKIP": self.skipped_empty, **overlay_defines(self.params.overlays, self.params.blend)}
 
     # -- helpers -----------------------------------------------------------------------------------
