@@ -118,6 +118,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from clipvol.tools.remote_args import add_remote_arguments, add_trust_arguments
 
     add_partial_argument(r)
+    from clipvol.tools.cut_args import add_cut_arguments
+
+    add_cut_arguments(p)
     add_remote_arguments(p)
     add_trust_arguments(p)
 
@@ -185,6 +188,7 @@ def run(args) -> int:
     from clipvol.render.failures import hatch_failed
     from clipvol.scene.bookmarks import load_camera
     from clipvol.tools.partial import settle_failed
+    from clipvol.tools.cut_args import shape_from_args
     from clipvol.tools.tf_args import transfer_function_from_args
 
     check_output_file(args.out, ".png", "--out")
@@ -225,7 +229,7 @@ def run(args) -> int:
         texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget, step=args.step,
         background=args.background, block_budget=args.block_budget, visibility=not args.no_visibility,
         shading=args.shading, **_light(args.light), overlays=channel_overlays + _overlays(args, loader),
-        blend=args.blend or ("additive" if args.channels else "over"),
+        blend=args.blend or ("additive" if args.channels else "over"), shape=shape_from_args(args, loader),
     ).check_for(pyr)
     tf = channel_tf or transfer_function_from_args(args, loader)
     if args.workers is not None:  # sort-last on Dask: groups of bricks in worker processes
@@ -250,6 +254,9 @@ def run(args) -> int:
           f"{tf.name or 'custom'})", file=sys.stderr)
     print(f"bricks drawn {sum(st.bricks_drawn.values())} ({levels}); texels drawn {st.texels_drawn:,}; "
           f"converged {st.converged} after {st.passes} pass(es)", file=sys.stderr)
+    if params.shape is not None:
+        print(f"cut: {st.counts.get('culled_shape', 0)} bricks outside the crop box / clip planes, neither loaded "
+              f"nor drawn", file=sys.stderr)
     print(f"uploaded {format_bytes(st.bytes_uploaded)} in {st.bricks_uploaded} bricks; textures "
           f"{format_bytes(st.texture_bytes)} of {format_bytes(st.texture_budget)}", file=sys.stderr)
     if params.policy == "image":
