@@ -236,7 +236,10 @@ def run(args) -> int:
         return _run_sort_last(args, params, cam, tf, kwargs, frame)
     ctx = create_context()
     try:
-        with ClipTexture(loader, args.memory_budget, args.threads, center=centre) as clip, \
+        from clipvol.scene.cut import outside_bricks
+
+        with ClipTexture(loader, args.memory_budget, args.threads, center=centre,
+                         outside=outside_bricks(pyr, params.shape)) as clip, \
                 ClipRenderAction(ctx, clip, params) as action:
             image = action.render(cam, tf, wait=not args.no_wait, timeout=args.timeout)
             st = action.last_frame_stats

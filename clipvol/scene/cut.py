@@ -31,7 +31,7 @@ from ..errors import ParameterError
 from .geometry import MAX_PLANES, Shape
 
 __all__ = ["render_to_world", "world_to_render", "plane_to_render", "voxel_box_to_render", "world_box_to_render",
-           "cut_shape", "CutEditor", "FACES"]
+           "cut_shape", "outside_bricks", "CutEditor", "FACES"]
 
 #: the crop box's faces in the order the viewer's key cycles them (render-frame axis, 0 = low side)
 FACES = (("x", 0), ("x", 1), ("y", 0), ("y", 1), ("z", 0), ("z", 1))
@@ -269,3 +269,22 @@ class CutEditor:
         u = f" {unit}" if unit else ""
         box = ",".join(f"{a:.4g}:{b:.4g}" for a, b in zip(lo, hi))
         return f"cut: box {box}{u}, {len(self.planes)} plane(s); selected {self.selected_name()}"
+
+
+def outside_bricks(pyramid, shape: Shape | None):
+    """The clip-texture's ``outside`` test for ``shape`` (see ``ClipTexture.set_outside``): bricks
+    never read because no sample inside the cut can use one of their voxels; None for no cut.
+
+    A sample inside the cut interpolates voxels up to one voxel away, and a drawn brick's
+    neighbours are sampled across its faces, so a brick counts as outside only when its octree
+    node grown by one voxel of its level on every side lies wholly outside the cut.
+    """
+    if shape is None or shape.is_everything:
+        return None
+    scales = [np.array(lv.scale[::-1], dtype=np.float64) for lv in pyramid.levels]
+
+    def outside(level: int, keys: np.ndarray) -> np.ndarray:
+        lo, hi = pyramid.node_box(level, np.asarray(keys).reshape(-1, 3))
+        return shape.boxes_outside(lo - scales[level], hi + scales[level])
+
+    return outside
