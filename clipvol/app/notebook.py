@@ -7,10 +7,14 @@ pure-Python widget layer on ipywidgets, chosen over jupyter_rfb because it needs
 front-end extension. It is an optional extra: ``pip install 'clipvol[notebook]'``.
 
 In the view: drag to orbit, wheel to zoom, menus for the transfer-function preset and
-composite / MIP; the HUD line under the image gives the frame time, bricks drawn per level, the
+composite / MIP, click to probe the first visible sample under the cursor (its value, level and
+world position, :mod:`clipvol.scene.probe`), Shift+click to put a ruler end there; the HUD line under the image gives the frame time, bricks drawn per level, the
 resident memory and, for a patient-frame store (NIfTI, DICOM), the anatomical label of each
 image edge. The same view is scriptable: ``v.set_view(azimuth=90)``, ``v.tf = "magma"``,
-``v.snapshot()`` returns the last frame as an RGBA array.
+``v.snapshot()`` returns the last frame as an RGBA array, ``v.probe(x, y)`` picks at a pixel,
+``v.measure((x0, y0), (x1, y1))`` gives the distance of two picks in the store's unit, and
+``clipvol.show(..., crop=..., crop_voxels=..., clip_planes=[...])`` or ``v.set_cut(...)`` cuts the
+volume open (:mod:`clipvol.scene.cut`: world units of the store, or level-0 voxels).
 
 Each frame waits for its bricks (``wait=True``, bounded by ``timeout``), so what is shown is
 drawn at the levels the LOD selection wants; a very large store stays interactive because only
@@ -69,7 +73,9 @@ function render({ model, el }) {
   modeSel.onchange = () => { model.set("mode", modeSel.value); model.save_changes(); };
   let drag = null;
   img.addEventListener("pointerdown", (e) => {
-    drag = { x: e.clientX, y: e.clientY, az: model.get("azimuth"), el: model.get("elevation") };
+    drag = { x: e.clientX, y: e.clientY, az: model.get("azimuth"), el: model.get("elevation"),
+             px: e.offsetX * img.naturalWidth / Math.max(1, img.clientWidth),
+             py: e.offsetY * img.naturalHeight / Math.max(1, img.clientHeight), shift: e.shiftKey };
     img.setPointerCapture(e.pointerId); img.style.cursor = "grabbing";
   });
   img.addEventListener("pointermove", (e) => {
@@ -79,7 +85,13 @@ function render({ model, el }) {
     model.save_changes();
   });
   const end = () => { drag = null; img.style.cursor = "grab"; };
-  img.addEventListener("pointerup", end);
+  img.addEventListener("pointerup", (e) => {
+    if (drag && Math.abs(e.clientX - drag.x) + Math.abs(e.clientY - drag.y) < 3) {  // a click: probe there
+      model.set("pick", [drag.px, drag.py, drag.shift ? 1 : 0, (model.get("pick")[3] || 0) + 1]);
+      model.save_changes();
+    }
+    end();
+  });
   img.addEventListener("pointercancel", end);
   img.addEventListener("wheel", (e) => {
     e.preventDefault();
@@ -111,6 +123,8 @@ def _widget_class():
         tf = traitlets.Unicode("viridis").tag(sync=True)
         mode = traitlets.Unicode("composite").tag(sync=True)
         tf_names = traitlets.List(traitlets.Unicode()).tag(sync=True)
+        #: a click in the image: [x, y, shift (a ruler end), counter] in image pixels
+        pick = traitlets.List(traitlets.Float(), default_value=[0.0, 0.0, 0.0, 0.0]).tag(sync=True)
 
     return VolumeWidget
 
@@ -134,7 +148,7 @@ class VolumeView:
     def __init__(self, source, *, size=(384, 384), tf: str | None = None, mode: str = "composite",
                  memory_budget="256MB", texture_budget="256MB", threads: int | None = None,
                  lod_threshold: float = 1.0, timeout: float = 30.0, brick: int = 32, labels: bool = True,
-                 store=None) -> None:
+                 store=None, crop=None, crop_voxels=None, clip_planes=()) -> None:
         from ..render.context import create_context
         from ..scene.transfer import TransferFunction
         from ..scene.params import RenderParams
@@ -153,19 +167,30 @@ class VolumeView:
             from ..scene.views import is_anatomical
 
             tf = "grey" if is_anatomical(getattr(loader, "frame", None)) else "viridis"
+        from ..scene.cut import cut_shape
+        from ..scene.probe import Prober, Ruler
+
+        shape = cut_shape(loader.pyramid, getattr(loader, "frame", None), crop=crop, crop_voxels=crop_voxels,
+                          clip_planes=clip_planes)
         self._ctx = create_context()
         try:
             self.session = RenderSession(loader, self._ctx, memory_budget=memory_budget, texture_budget=texture_budget,
-                                         threads=threads, params=RenderParams(mode=mode, lod_threshold=lod_threshold), tf=tf)
+                                         threads=threads, params=RenderParams(mode=mode, lod_threshold=lod_threshold,
+                                                                               shape=shape), tf=tf)
         except BaseException:
             self._ctx.release()
             raise
         self.frame = getattr(self.session.loader, "frame", None)
+        self.unit = getattr(self.session.loader, "unit", None) or ""
+        self.prober = Prober(self.session.loader)
+        self.ruler = Ruler()
+        self.last_probe = None
         self.last_image: np.ndarray | None = None
         self.last_frame_s = 0.0
         cls = _widget_class()
         self.widget = cls(tf_names=list(TransferFunction.names()), tf=tf, mode=mode)
         self.widget.observe(self._changed, names=["azimuth", "elevation", "zoom", "tf", "mode"])
+        self.widget.observe(self._picked, names=["pick"])
         self.render()
 
     # -- camera --------------------------------------------------------------------------------
@@ -211,6 +236,60 @@ class VolumeView:
     @mode.setter
     def mode(self, name: str) -> None:
         self.widget.mode = name
+
+    # -- cut, probe and measure -------------------------------------------------------------------
+    def set_cut(self, *, crop=None, crop_voxels=None, clip_planes=()) -> np.ndarray:
+        """Cut the volume open (a crop box in world units or level-0 voxels, up to six clip planes
+        ``(x, y, z, nx, ny, nz)`` keeping the side the normal points to; nothing: the whole volume)
+        and return the new frame. See :func:`clipvol.scene.cut.cut_shape`."""
+        from ..scene.cut import cut_shape
+
+        shape = cut_shape(self.session.pyramid, self.frame, crop=crop, crop_voxels=crop_voxels,
+                          clip_planes=clip_planes)
+        self.session.update(shape=shape)
+        return self.render()
+
+    def probe(self, x: float, y: float, *, threshold: float | None = None, level: int = 0):
+        """The first visible sample under pixel ``(x, y)`` of the image shown (column, row from the
+        top-left), or None where the ray sees nothing: a :class:`clipvol.scene.probe.Probe` with the
+        value, level, voxel and world position. Also shown on the HUD line."""
+        from ..scene.probe import THRESHOLD
+        from ..scene.views import mirrored
+
+        cam, _ = self.camera()
+        w, _ = self.size
+        if mirrored(self.frame):  # the image shown is flipped left-right (clipvol.app.annotate.present)
+            x = w - float(x)
+        p = self.prober.pick_pixel(cam, float(x), float(y), self.session.transfer_function, level=level,
+                                   threshold=THRESHOLD if threshold is None else threshold,
+                                   step=self.session.params.step, shape=self.session.params.shape)
+        self.last_probe = p
+        self.widget.hud = self.hud_text(cam)
+        return p
+
+    def measure(self, a, b, **kwargs) -> float | None:
+        """Distance in the store's world unit between the first visible samples under pixels ``a``
+        and ``b`` (each ``(x, y)``), or None when either sees nothing; kept as :attr:`ruler`."""
+        pa = self.probe(*a, **kwargs)
+        pb = self.probe(*b, **kwargs)
+        if pa is None or pb is None:
+            return None
+        self.ruler.clear()
+        self.ruler.add(pa.world)
+        self.ruler.add(pb.world)
+        self.widget.hud = self.hud_text(self.camera()[0])
+        return self.ruler.length
+
+    def _picked(self, change) -> None:
+        x, y, shift, _ = (list(change["new"]) + [0.0] * 4)[:4]
+        try:
+            p = self.probe(x, y)
+        except ParameterError as e:
+            self.widget.hud = f"error: {e}"
+            return
+        if shift and p is not None:
+            self.ruler.add(p.world)
+            self.widget.hud = self.hud_text(self.camera()[0])
 
     # -- frames --------------------------------------------------------------------------------
     def _changed(self, change) -> None:
@@ -258,7 +337,12 @@ class VolumeView:
 
             lab = view_labels(self.frame.affine, *screen_axes(cam, self.frame), self.frame.frame)
             parts.append(f"left {lab['left']} right {lab['right']} top {lab['top']}")
-        return "  ".join(parts)
+        lines = ["  ".join(parts)]
+        if self.last_probe is not None:
+            lines.append(self.last_probe.describe(self.unit))
+        if self.ruler.ends:
+            lines.append(self.ruler.describe(self.unit))
+        return "\n".join(lines)
 
     def snapshot(self) -> np.ndarray:
         """The last frame, ``(h, w, 4)`` uint8 RGBA."""
@@ -310,7 +394,9 @@ def show(source, **kwargs) -> VolumeView:
         ``texture_budget``, ``threads``, ``lod_threshold``, ``timeout`` (seconds per frame),
         ``brick``, ``labels`` (R/L, A/P, S/I letters on a patient-frame store's images, default
         True), ``store`` (where a NIfTI / DICOM / HDF5 / MRC input is bricked, default
-        ``./NAME.zarr``); see :class:`VolumeView`. ``tf`` defaults to ``grey`` for a store with a
+        ``./NAME.zarr``), ``crop`` (two world corners ``(x, y, z)``), ``crop_voxels`` (level-0
+        ``(start, stop)`` ``(z, y, x)``), ``clip_planes`` (up to six ``(x, y, z, nx, ny, nz)`` in
+        world units, the side the normal points to kept); see :class:`VolumeView`. ``tf`` defaults to ``grey`` for a store with a
         patient frame and ``viridis`` otherwise.
 
     Returns
