@@ -122,7 +122,7 @@ class RenderSession:
             if new.shape != self.params.shape:
                 from ..scene.cut import outside_bricks
 
-                if self.clip_texture.set_outside(outside_bricks(self.pyramid, new.shape)):
+                if self._set_outside(outside_bricks(self.pyramid, new.shape)):
                     self.action.use_clip_texture(self.clip_texture)  # the GPU may hold their fill: empty it
             self.params = new
             self.action.set_params(new)
@@ -153,6 +153,10 @@ class RenderSession:
         if self._center is None or not np.array_equal(c, self._center):
             self._move_center(c)
             self._center = c
+
+    def _set_outside(self, outside) -> int:
+        """Where a new cut's unread bricks go: the clip-texture (a series: every step it holds)."""
+        return self.clip_texture.set_outside(outside)
 
     def _move_center(self, c: np.ndarray) -> None:
         """Where a new centre of interest goes: the clip-texture (a series: every step it holds)."""

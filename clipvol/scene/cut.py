@@ -260,14 +260,19 @@ class CutEditor:
             self.box_lo, self.box_hi = self.volume_lo.copy(), self.volume_hi.copy()
 
     def describe(self, to_world: np.ndarray | None = None, unit: str = "") -> str:
-        """One HUD line: the box in world units (its corners through ``to_world``) and the planes."""
+        """One HUD line: the box in world units (through ``to_world``, the render-to-world matrix)
+        and the planes. A box along the array's axes of a store oblique to its world frame is given
+        by its two corners instead of per-axis ranges."""
         if self.shape() is None:
             return "cut: none (F selects a box face, V adds a plane)"
         m = np.eye(4) if to_world is None else to_world
         corners = _points(m, np.stack([self.box_lo, self.box_hi]))
-        lo, hi = corners.min(axis=0), corners.max(axis=0)
         u = f" {unit}" if unit else ""
-        box = ",".join(f"{a:.4g}:{b:.4g}" for a, b in zip(lo, hi))
+        if _aligned(m[:3, :3]):
+            lo, hi = corners.min(axis=0), corners.max(axis=0)
+            box = "x,y,z " + ",".join(f"{a:.4g}:{b:.4g}" for a, b in zip(lo, hi))
+        else:
+            box = " to ".join("(" + ", ".join(f"{v:.4g}" for v in c) + ")" for c in corners)
         return f"cut: box {box}{u}, {len(self.planes)} plane(s); selected {self.selected_name()}"
 
 

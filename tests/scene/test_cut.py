@@ -134,3 +134,19 @@ def test_editor_moves_faces_within_the_volume_and_planes_along_their_normal():
         assert ed.add_plane(centre, (1.0, 0.0, 0.0))
     assert not ed.add_plane(centre, (1.0, 0.0, 0.0))  # six at most
     assert "6 plane(s)" in ed.describe()
+
+
+def test_editor_describes_the_box_in_world_units():
+    pyr = pyramid()
+    frame = frames()[1]  # x flipped, y and z swapped
+    ed = CutEditor.for_pyramid(pyr, steps=10)
+    ed.select()
+    ed.move(-1)  # x- face in by one step
+    m = render_to_world(pyr, frame)
+    a = np.array(frame.affine)
+    corners = (np.stack([ed.box_lo, ed.box_hi]) / np.array(SPACING[::-1])) @ a[:3, :3].T + a[:3, 3]  # index -> world
+    lo, hi = corners.min(axis=0), corners.max(axis=0)
+    line = ed.describe(m, "mm")
+    assert line.startswith("cut: box x,y,z ") and "mm" in line and "box x-" in line
+    assert ",".join(f"{a:.4g}:{b:.4g}" for a, b in zip(lo, hi)) in line
+    assert "(" in CutEditor.describe(ed, render_to_world(pyr, frames()[2]))  # oblique: corners
