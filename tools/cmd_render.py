@@ -244,6 +244,7 @@ def run(args) -> int:
             image = action.render(cam, tf, wait=not args.no_wait, timeout=args.timeout)
             st = action.last_frame_stats
             overlay_levels = action.overlays.levels()
+            unread = clip.stats.empty_skipped
     finally:
         ctx.release()
     from clipvol.app.annotate import present
@@ -258,8 +259,8 @@ def run(args) -> int:
     print(f"bricks drawn {sum(st.bricks_drawn.values())} ({levels}); texels drawn {st.texels_drawn:,}; "
           f"converged {st.converged} after {st.passes} pass(es)", file=sys.stderr)
     if params.shape is not None:
-        print(f"cut: {st.counts.get('culled_shape', 0)} bricks outside the crop box / clip planes, neither loaded "
-              f"nor drawn", file=sys.stderr)
+        print(f"cut: {st.counts.get('culled_shape', 0)} bricks outside the crop box / clip planes not drawn; "
+              f"{unread} bricks filled without reading (outside the cut, or empty)", file=sys.stderr)
     print(f"uploaded {format_bytes(st.bytes_uploaded)} in {st.bricks_uploaded} bricks; textures "
           f"{format_bytes(st.texture_bytes)} of {format_bytes(st.texture_budget)}", file=sys.stderr)
     if params.policy == "image":
