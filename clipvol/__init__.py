@@ -44,6 +44,7 @@ _LAZY = {
     "ClipRenderAction": "clipvol.render.action",
     # preprocessing
     "brick_volume": "clipvol.bricking.pipeline",
+    "BuildOptions": "clipvol.bricking.build_options",
     # notebooks (anywidget, an optional extra)
     "show": "clipvol.app.notebook",
 }

@@ -55,12 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"clipvol {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name, help_text in COMMANDS.items():
-        try:
-            mod = importlib.import_module(f"clipvol.tools.cmd_{name.replace('-', '_')}")
-        except ModuleNotFoundError as e:
-            if e.name != f"clipvol.tools.cmd_{name.replace('-', '_')}":
-                raise
-            continue  # a sub-command not built yet
+        mod = importlib.import_module(f"clipvol.tools.cmd_{name.replace('-', '_')}")
         p = sub.add_parser(name, help=help_text, description=(mod.__doc__ or help_text).strip().splitlines()[0])
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)

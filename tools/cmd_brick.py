@@ -84,8 +84,6 @@ def run(args: argparse.Namespace) -> int:
     if args.scheduler:
         from clipvol.bricking.dask_build import brick_volume_dask
 
-        if extra:
-            raise ParameterError("--origin: not available with --scheduler yet; brick with local threads")
         build = partial(brick_volume_dask, scheduler=args.scheduler)
     meta = build(
         args.input, args.output, brick=args.brick, filter=args.filter, codec=args.codec, spacing=spacing,

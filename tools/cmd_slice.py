@@ -22,6 +22,7 @@ import sys
 from clipvol.errors import ParameterError
 
 from .cmd_render import _size, _triple
+from .render_args import add_render_arguments, render_params_from_args
 
 
 def _window(text: str) -> tuple[float, float]:
@@ -62,13 +63,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     s.add_argument("--stats", default=None, help="write statistics as JSON (bytes_loaded, tiles per level, time)")
     r = p.add_argument_group("resolution")
     r.add_argument("--poi", type=_triple, default=None, help="point of interest x,y,z: full resolution near it")
-    r.add_argument("--level", type=int, default=None, help="one level everywhere (0 = full resolution)")
-    r.add_argument("--distance-factor", type=float, default=1.0,
-                   help="--poi: refine nodes closer to it than this many of their diagonals (default 1)")
-    r.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel covers more pixels than this")
+    add_render_arguments(r, ("level", "distance_factor", "lod_threshold"), help={
+        "level": "one level everywhere (0 = full resolution)",
+        "distance_factor": "--poi: refine nodes closer to it than this many of their diagonals (default 1)"})
     r.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default 64)")
     r.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
-    r.add_argument("--texture-budget", default="256MB", help="GPU brick cache budget")
+    add_render_arguments(r, ("texture_budget",))
     r.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
     r.add_argument("--no-wait", action="store_true", help="draw what is resident after one pass (coarser fallback)")
     r.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for the slice's bricks (default 300)")
@@ -157,9 +157,9 @@ def run(args) -> int:
 
     from clipvol.paging.cliptexture import ClipTexture
     from clipvol.paging.open import open_store
+    from clipvol.paging.region import Region
     from clipvol.render import create_context
     from clipvol.render.slice_action import SliceAction
-    from clipvol.scene.params import RenderParams
     from clipvol.scene.transfer import TransferFunction
     from clipvol.units import format_bytes
 
@@ -200,16 +200,16 @@ def run(args) -> int:
     from clipvol.tools.cut_args import shape_from_args
 
     cut = shape_from_args(args, loader)  # --crop / --crop-voxels / --clip-plane: pixels outside are left out
-    params = RenderParams(policy="plane", focus=args.poi, level=args.level, distance_factor=args.distance_factor,
-                          lod_threshold=args.lod_threshold, texture_budget=args.texture_budget, shape=cut)
+    params = render_params_from_args(args, policy="plane", focus=args.poi, shape=cut)
     centre = np.clip(np.asarray(args.poi if args.poi is not None else plane.origin, dtype=np.float64), lo, hi)
     tf = TransferFunction.preset(args.tf) if args.tf is not None else None
     ctx = create_context()
     try:
         from clipvol.scene.cut import outside_bricks
 
+        # Region.empty: nothing is read before the slice hands the clip-texture its slab
         with ClipTexture(loader, args.memory_budget, args.threads, center=centre,
-                         outside=outside_bricks(pyr, cut)) as clip, \
+                         region=Region.empty(loader.pyramid.num_levels), outside=outside_bricks(pyr, cut)) as clip, \
                 SliceAction(ctx, clip, params) as action:
             rgba, values = action.render(plane, args.size, args.pixel_size, transfer_function=tf, window=args.window,
                                          wait=not args.no_wait, timeout=args.timeout, return_values=True)
@@ -249,7 +249,8 @@ def run(args) -> int:
         _write_atomic(args.stats, lambda p: open(p, "w").write(json.dumps(doc, indent=1) + "\n"))
     levels = ", ".join(f"L{L}: {n}" for L, n in st.tiles_per_level.items()) or "none"
     print(f"slice {w}x{h}: tiles {st.tiles} ({levels}), {st.blended} blended, converged {st.converged}", file=sys.stderr)
-    print(f"bricks needed {st.bricks_needed} ({format_bytes(st.bytes_needed)}); loaded {format_bytes(st.bytes_loaded)}; "
+    read = "" if st.bytes_read is None else f"; read {format_bytes(st.bytes_read)} from storage"
+    print(f"bricks needed {st.bricks_needed} ({format_bytes(st.bytes_needed)}); loaded {format_bytes(st.bytes_loaded)}{read}; "
           f"uploaded {format_bytes(st.bytes_uploaded)}; total {st.times['total'] * 1000:.1f} ms", file=sys.stderr)
     if edges is not None:
         print("edges: " + ", ".join(f"{k} {v}" for k, v in edges.items()), file=sys.stderr)

@@ -11,9 +11,10 @@ the transfer-function window, Shift+S save it, C save the camera, B brick outlin
 
 ``--offscreen --path orbit|turntable|fly|zoom --frames N --out DIR|anim.gif|movie.mp4`` renders a
 camera path without a window (EGL) and writes PNG frames, a GIF or a movie (imageio-ffmpeg; ``--fps``,
-``--quality``) plus a per-frame CSV. For a store built from NIfTI or DICOM the turntable (and the
-orbit, a turntable raised 25 degrees) spins the patient head-up, starting from the front (or the
-side ``--view`` names), and every frame's edges are labelled R/L, A/P, S/I.
+``--quality``) plus a per-frame CSV. For a store built from NIfTI or DICOM every path is head-up:
+the turntable (and the orbit, a turntable raised 25 degrees) spins the patient starting from the
+front (or the side ``--view`` names), the fly loop lies in the patient's axial plane, the zoom
+looks from anterior-left-superior; every frame's edges are labelled R/L, A/P, S/I.
 """
 
 from __future__ import annotations
@@ -41,21 +42,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_trust_arguments(p)
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default: the loader's, 64)")
     g = p.add_argument_group("rendering")
-    g.add_argument("--mode", choices=("composite", "mip"), default="composite", help="compositing or maximum intensity projection")
-    g.add_argument("--selection", "--policy", dest="selection", choices=("multiresolution", "roaming", "fixed"),
-                   default="multiresolution", help="selection policy the viewer starts with (M cycles them)")
-    g.add_argument("--level", type=int, default=None, help="level drawn with --selection fixed (default 0)")
-    g.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel projects to more than this many pixels")
-    g.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
+    from clipvol.tools.render_args import add_render_arguments
+    from clipvol.viewer.controls import MODES
+
+    add_render_arguments(g, ("mode", "policy", "level", "lod_threshold", "step"), choices={"policy": MODES},
+                         help={"policy": "selection policy the viewer starts with (M cycles them)"})
     g.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
-    g.add_argument("--texture-budget", default="256MB", help="GPU brick cache budget")
-    g.add_argument("--texels-per-frame", type=int, default=None, help="most texels uploaded per frame")
+    add_render_arguments(g, ("texture_budget", "texels_per_frame"))
     g.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
-    g.add_argument("--no-jitter", action="store_true", help="sample every pixel's ray from t = 0 (shows lattice rings; for comparisons)")
-    g.add_argument("--render-path", choices=("auto", "bricks", "single-pass"), default="auto",
-                   help="single-pass: one ray-guided pass through a page table of the cut; bricks: one proxy box per "
-                        "(merged) brick; auto (default): the single pass for cuts of 4 boxes or more")
-    g.add_argument("--shading", action="store_true", help="start with gradient lighting on (key L)")
+    add_render_arguments(g, ("jitter", "path", "shading"), help={"shading": "start with gradient lighting on (key L)"})
     g.add_argument("--play", action="store_true",
                    help="an OME-Zarr image with a t axis: play its time steps (Space play/pause, J/K step, { } rate; "
                         "the next step prefetched under the same memory budget)")
@@ -120,7 +115,7 @@ def _bricked(args) -> str:
 def run(args) -> int:
     from clipvol.app.session import open_loader
     from clipvol.errors import ParameterError
-    from clipvol.scene.params import RenderParams
+    from clipvol.tools.render_args import render_params_from_args
 
     from clipvol.bricking.point_store import is_point_store
 
@@ -133,11 +128,7 @@ def run(args) -> int:
         raise ParameterError(f"--frame-time: expected milliseconds >= 0, got {args.frame_time}")
     from clipvol.tools.tf_args import transfer_function_from_args
 
-    params = RenderParams(
-        lod_threshold=args.lod_threshold, policy=args.selection, level=args.level, mode=args.mode,
-        step=args.step, texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget,
-        jitter=not args.no_jitter, path=args.render_path, shading=args.shading,
-    )
+    params = render_params_from_args(args)
     from clipvol.tools.remote_args import check_trust, remote_kwargs
 
     kwargs = {} if args.brick is None else {"brick": args.brick}
@@ -192,15 +183,9 @@ def run(args) -> int:
                   + ("" if row["converged"] else "  (refining)"), flush=True)
 
         frame = getattr(loader, "frame", None)  # the store's voxel-to-world affine, if it records one
-        path_kwargs = {}
-        path = args.path
-        if args.path in ("turntable", "orbit") and frame is not None and frame.frame == "RAS":
-            from clipvol.scene.orientation import anatomical_axes
+        from clipvol.scene.views import patient_path
 
-            up, front = anatomical_axes(frame.affine)
-            path_kwargs = {"up": tuple(up), "front": tuple(front)}
-            if args.path == "orbit":  # head-up for a patient: the orbit is a turntable raised 25 degrees
-                path, path_kwargs["elevation"] = "turntable", 25.0
+        path, path_kwargs = patient_path(args.path, frame)  # every path head-up, from the patient's front
         if args.path == "turntable" and args.view is not None:  # start from the side --view names
             from clipvol.scene.views import view_directions
 

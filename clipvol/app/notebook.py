@@ -199,13 +199,16 @@ class VolumeView:
         from ..scene.orientation import anatomical_axes
         from ..scene.paths import UP, fit_distance, turntable
 
+        from ..scene.views import mirrored
+
         up, front = (UP, (0.0, 0.0, -1.0))
         if self.frame is not None and self.frame.frame == "RAS":
             up, front = anatomical_axes(self.frame.affine)
         wdg = self.widget
         d = fit_distance(self.session.pyramid, 30.0, self.size) / max(float(wdg.zoom), 1e-3)
         cam, coi = next(turntable(self.session.pyramid, 1, size=self.size, up=tuple(up), front=tuple(front),
-                                  elevation=float(np.clip(wdg.elevation, -89, 89)), distance=d, azimuth=float(wdg.azimuth)))
+                                  elevation=float(np.clip(wdg.elevation, -89, 89)), distance=d, azimuth=float(wdg.azimuth),
+                                  mirror=mirrored(self.frame)))
         return cam, coi
 
     def set_view(self, *, azimuth: float | None = None, elevation: float | None = None, zoom: float | None = None) -> np.ndarray:

@@ -127,7 +127,7 @@ class Viewer(GlWindow):
         presets = (first,) + tuple(n for n in presets if n != first)
         self.tf = self._first_tf
         self.state = ViewState(
-            num_levels=pyr.num_levels, tf_presets=presets, mode=s.selection, level=s.level or 0,
+            num_levels=pyr.num_levels, tf_presets=presets, mode=s.policy, level=s.level or 0,
             lod_threshold=s.lod_threshold, render_mode=s.mode, shading=s.shading, tf_index=0,
         )
         self.controls = OrbitControls.for_pyramid(pyr, size=self.framebuffer_size, **_anatomical_rig(self.session.loader))
@@ -430,7 +430,7 @@ class Viewer(GlWindow):
                 except ClipvolError as e:  # e.g. image-based LOD on a store without summary tables
                     if self.state.mode != "image":
                         raise
-                    self.state.mode, self.state.message = "multiresolution", str(e)
+                    self.state.mode, self.state.message = "projected-size", str(e)
                     self._apply_state()
                     img = sess.render(cam, self.controls.center_of_interest, wait=False)
             if self.state.outlines and not (self.slices is not None and self.slices.active):
