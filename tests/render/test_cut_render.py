@@ -144,3 +144,50 @@ def test_cli_refuses_bad_cuts_with_exit_2(tmp_path, capsys):
                         (["--clip-plane", "0,0,0,0,0,0"], "clip-plane"), (["--crop=100,100,100,200,200,200"], "outside")):
         assert main(base + extra) == 2, extra
         assert word in capsys.readouterr().err
+
+
+def test_cli_render_crop_in_patient_millimetres_of_a_mirrored_nifti(tmp_path):
+    """A LAS NIfTI (x flipped, anisotropic voxels, an origin): ``--crop`` in RAS mm draws the box that
+    nibabel's affine maps to voxels, and the PNG (flipped back left-right for the mirrored storage)
+    equals the reference cast with that box."""
+    nib = pytest.importorskip("nibabel")
+    from nibabel.affines import apply_affine
+
+    from clipvol.tools.cli import main
+
+    vol = smooth_volume((24, 28, 32))  # z, y, x as the store keeps it
+    affine = np.array([[-1.5, 0, 0, 40.0], [0, 1.0, 0, -10.0], [0, 0, 2.0, 5.0], [0, 0, 0, 1]])  # LAS
+    nii = tmp_path / "scan.nii.gz"
+    nib.save(nib.Nifti1Image(vol.T.copy(), affine), nii)
+    out = tmp_path / "cut.png"
+    crop = ((10.0, -2.0, 12.0), (34.0, 20.0, 40.0))  # two RAS corners, mm
+    assert main(["render", str(nii), "--store", str(tmp_path / "scan.zarr"), "--out", str(out), "--size", "64x64",
+                 "--policy", "fixed", "--level", "0", "--no-labels", "--eye=-25,-20,-40", "--target", "24,14,24",
+                 "--up", "0,-1,0", "--fov", "45", "--tf", "viridis", "--tf-range", "0.2,1",
+                 "--crop=" + ",".join(map(str, crop[0] + crop[1]))]) == 0
+    img = np.asarray(Image.open(out))
+    import clipvol
+    from clipvol.tools.cmd_render import view_camera
+
+    v = clipvol.open(tmp_path / "scan.zarr")
+    assert np.array_equal(np.asarray(v.level(0)[:, :, :]), vol)  # the array as stored
+    sp = np.array([1.5, 1.0, 2.0])  # voxel size along the array's x, y, z
+    # the box by nibabel: RAS corners -> voxel indices (x, y, z) -> render frame (index * spacing)
+    corners = np.array([[a, b, c] for a in (crop[0][0], crop[1][0]) for b in (crop[0][1], crop[1][1])
+                        for c in (crop[0][2], crop[1][2])])
+    r = apply_affine(np.linalg.inv(affine), corners) * sp
+    box = (tuple(r.min(axis=0)), tuple(r.max(axis=0)))
+    from clipvol.loaders.zarr_store import ZarrLoader
+
+    store = ZarrLoader(tmp_path / "scan.zarr")
+    pyr = store.pyramid
+    cam = view_camera(pyr, "iso", (64, 64), eye=(-25, -20, -40), target=(24, 14, 24), up=(0, -1, 0), fov=45,
+                      frame=store.frame)
+    tf = TransferFunction.preset("viridis", value_range=(0.2, 1.0))
+    fc = cam.fit_depth(*pyr.volume_box())
+    want = ref.to_uint8(ref.raycast(vol, (2.0, 1.0, 1.5), fc, tf.table, (0.2, 1.0), 0.5, shape=(box[0], box[1], ())))
+    full = ref.to_uint8(ref.raycast(vol, (2.0, 1.0, 1.5), fc, tf.table, (0.2, 1.0), 0.5))
+    want, full = want[:, ::-1], full[:, ::-1]  # a mirrored store's image is shown flipped back
+    assert diff(want, full).max() > 50
+    d = diff(img, want)
+    assert d.max() <= 3 and (d > 1).mean() < 0.01, (d.max(), (d > 1).mean())
