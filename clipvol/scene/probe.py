@@ -28,6 +28,8 @@ __all__ = ["Probe", "Prober", "pixel_ray", "pick", "Ruler", "opacity_of"]
 
 #: default opacity (transfer-function alpha) a sample needs to count as visible
 THRESHOLD = 0.05
+#: samples of a ray taken at a time (front to back; the march stops at the first visible one)
+SAMPLES_PER_CHUNK = 4096
 
 
 @dataclass(frozen=True)
@@ -168,34 +170,37 @@ class Prober:
         scale = np.array(info.scale[::-1], dtype=np.float64)  # x, y, z
         trans = np.array(info.translation[::-1], dtype=np.float64)
         dt = step * float(scale.min())
-        ts = t0 + (np.arange(int(np.ceil((t1 - t0) / dt))) + 0.5) * dt
-        pts = o + ts[:, None] * d
-        if shape is not None:
-            keep = shape.contains(pts)
-            ts, pts = ts[keep], pts[keep]
-        if not len(ts):
-            return None
+        n_samples = int(np.ceil((t1 - t0) / dt))
         n = np.array(info.shape[::-1])
-        vox = np.clip(np.floor((pts - trans) / scale + 0.5).astype(np.int64), 0, n - 1)[:, ::-1]  # z, y, x
         bshape = np.array(pyr.brick_shape)
-        bricks = vox // bshape
         if window is None:
             window = tf.window(pyr.value_range)
-        # samples in one brick are consecutive (a ray crosses a box once): read brick by brick, front to back
-        change = np.flatnonzero(np.any(np.diff(bricks, axis=0) != 0, axis=1)) + 1
-        for a, b in zip(np.r_[0, change], np.r_[change, len(ts)]):
-            index = tuple(int(v) for v in bricks[a])
-            data = self._brick(level, index)
-            local = vox[a:b] - bricks[a] * bshape
-            vals = data[local[:, 0], local[:, 1], local[:, 2]].astype(np.float64)
-            alpha = np.where(np.isfinite(vals), opacity_of(tf, np.nan_to_num(vals), window), 0.0)
-            hit = np.flatnonzero(alpha >= threshold) if threshold > 0 else np.flatnonzero(np.isfinite(vals))
-            if len(hit):
-                k = int(hit[0])
-                p = pts[a + k]
-                world = p @ self.to_world[:3, :3].T + self.to_world[:3, 3]
-                return Probe(float(vals[k]), level, tuple(int(v) for v in vox[a + k]), p, world, float(alpha[k]),
-                             float(ts[a + k]))
+        # front to back in chunks (a long ray through a huge level need not be held whole), and
+        # within a chunk brick by brick: a ray crosses a box once, so a brick's samples are consecutive
+        for k0 in range(0, n_samples, SAMPLES_PER_CHUNK):
+            ts = t0 + (np.arange(k0, min(k0 + SAMPLES_PER_CHUNK, n_samples)) + 0.5) * dt
+            pts = o + ts[:, None] * d
+            if shape is not None:
+                keep = shape.contains(pts)
+                ts, pts = ts[keep], pts[keep]
+            if not len(ts):
+                continue
+            vox = np.clip(np.floor((pts - trans) / scale + 0.5).astype(np.int64), 0, n - 1)[:, ::-1]  # z, y, x
+            bricks = vox // bshape
+            change = np.flatnonzero(np.any(np.diff(bricks, axis=0) != 0, axis=1)) + 1
+            for a, b in zip(np.r_[0, change], np.r_[change, len(ts)]):
+                index = tuple(int(v) for v in bricks[a])
+                data = self._brick(level, index)
+                local = vox[a:b] - bricks[a] * bshape
+                vals = data[local[:, 0], local[:, 1], local[:, 2]].astype(np.float64)
+                alpha = np.where(np.isfinite(vals), opacity_of(tf, np.nan_to_num(vals), window), 0.0)
+                hit = np.flatnonzero(alpha >= threshold) if threshold > 0 else np.flatnonzero(np.isfinite(vals))
+                if len(hit):
+                    k = int(hit[0])
+                    p = pts[a + k]
+                    world = p @ self.to_world[:3, :3].T + self.to_world[:3, 3]
+                    return Probe(float(vals[k]), level, tuple(int(v) for v in vox[a + k]), p, world, float(alpha[k]),
+                                 float(ts[a + k]))
         return None
 
     def pick_pixel(self, camera, x: float, y: float, tf, **kwargs) -> Probe | None:

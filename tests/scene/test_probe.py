@@ -124,3 +124,16 @@ def test_ruler_length_is_the_numpy_distance_of_its_ends(rng):
     assert r.length is None
     with pytest.raises(ParameterError, match="ruler"):
         r.add((1.0, np.nan, 0.0))
+
+
+def test_long_rays_are_marched_in_chunks_and_stop_at_the_first_hit(monkeypatch):
+    import clipvol.scene.probe as probe
+
+    vol, loader = ball()
+    monkeypatch.setattr(probe, "SAMPLES_PER_CHUNK", 7)  # many chunks, a brick's samples split between them
+    d = np.array([0.3, 0.5, -0.8])
+    d /= np.linalg.norm(d)
+    hit = Prober(loader).pick(CENTRE - 40.0 * d, d, STEP_TF, step=0.25)
+    monkeypatch.setattr(probe, "SAMPLES_PER_CHUNK", 1 << 20)
+    whole = Prober(loader).pick(CENTRE - 40.0 * d, d, STEP_TF, step=0.25)
+    assert hit.voxel == whole.voxel and hit.distance == whole.distance and hit.value == vol[hit.voxel]
