@@ -141,14 +141,26 @@ def test_imports_point_down(path, module, is_pkg):
     assert not bad, "imports against the stage rule of docs/architecture.md:\n" + "\n".join(bad)
 
 
+#: the paging modules the scene may use: pure-numpy brick geometry (cells of a brick, the bricks a
+#: slab covers, the region handed to the clip-texture), importing nothing of paging that reads
+PAGING_GEOMETRY = {"clipvol.paging.cells", "clipvol.paging.slab", "clipvol.paging.region"}
+
+
 def test_scene_reads_no_bricks():
     """The scene stage decides on the pyramid alone (it defines the residency contract it needs):
-    it imports nothing of paging or the loaders, though their rank is below it."""
+    of paging and the loaders it imports only the pure geometry of ``PAGING_GEOMETRY``, and those
+    import nothing of paging but each other (no loader, no clip-texture, no threads)."""
     bad = [f"{path.relative_to(ROOT)}:{line} imports {target}"
            for path, module, is_pkg in ALL if stage_package(module) == "clipvol.scene"
            for line, target in imports(path, module, is_pkg)
-           if stage_package(target) in ("clipvol.paging", "clipvol.loaders")]
+           if stage_package(target) in ("clipvol.paging", "clipvol.loaders") and target not in PAGING_GEOMETRY]
     assert not bad, "scene importing paging:\n" + "\n".join(bad)
+    leaky = [f"{path.relative_to(ROOT)}:{line} imports {target}"
+             for path, module, is_pkg in ALL if module in PAGING_GEOMETRY
+             for line, target in imports(path, module, is_pkg)
+             if target.startswith("clipvol.") and stage_package(target) in ("clipvol.paging", "clipvol.loaders")
+             and target not in PAGING_GEOMETRY | {"clipvol.paging"}]
+    assert not leaky, "paging geometry importing more of paging:\n" + "\n".join(leaky)
 
 
 def test_the_rule_would_catch_a_violation(tmp_path):

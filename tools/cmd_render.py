@@ -80,7 +80,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     add_tf_arguments(p.add_argument_group("transfer function"))
     add_overlay_arguments(p.add_argument_group("overlays of co-registered volumes"))
-    add_render_arguments(r, ("step", "background", "shading", "light"))
+    add_render_arguments(r, ("step", "background", "shading", "light", "skip_empty"))
     r.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
     add_render_arguments(r, ("texture_budget", "texels_per_frame"))
     r.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")

@@ -50,7 +50,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
     add_render_arguments(g, ("texture_budget", "texels_per_frame"))
     g.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
-    add_render_arguments(g, ("jitter", "path", "shading"), help={"shading": "start with gradient lighting on (key L)"})
+    add_render_arguments(g, ("jitter", "path", "shading", "skip_empty"), help={"shading": "start with gradient lighting on (key L)"})
     g.add_argument("--play", action="store_true",
                    help="an OME-Zarr image with a t axis: play its time steps (Space play/pause, J/K step, { } rate; "
                         "the next step prefetched under the same memory budget)")

@@ -106,6 +106,8 @@ FLAGS: dict[str, Flag] = {(f.fields[0] if len(f.fields) == 1 else f.dest): f for
     Flag(("jitter",), "--no-jitter", switch="off",
          help="sample every pixel's ray from t = 0 (shows lattice rings; for comparisons)"),
     Flag(("path",), "--render-path", choices=_paths),
+    Flag(("skip_empty",), "--no-skip-empty", switch="off",
+         help="sample every cell, also those the transfer function makes transparent (the same image, slower)"),
     Flag(("texture_budget",), "--texture-budget", default="256MB"),  # decimal MB, as the command line always read it
     Flag(("texels_per_frame",), "--texels-per-frame", type=int),
 )}
