@@ -14,7 +14,9 @@ image edge. The same view is scriptable: ``v.set_view(azimuth=90)``, ``v.tf = "m
 
 Each frame waits for its bricks (``wait=True``, bounded by ``timeout``), so what is shown is
 drawn at the levels the LOD selection wants; a very large store stays interactive because only
-the bricks of the view are read (the clip-texture's budget bounds the memory).
+the bricks of the view are read (the clip-texture's budget bounds the memory). An error in the
+kernel (a brick that failed with nothing to stand in for it, a render that raised, a wrong preset
+name) shows as a red line under the image, with the image dimmed, until a frame is drawn whole.
 """
 
 from __future__ import annotations
@@ -51,20 +53,28 @@ function render({ model, el }) {
   }
   const hud = document.createElement("pre");
   hud.style.margin = "2px 0"; hud.style.fontSize = "11px";
+  const err = document.createElement("pre");
+  err.setAttribute("role", "alert");
+  err.style.margin = "2px 0"; err.style.fontSize = "11px"; err.style.color = "#c00";
+  err.style.whiteSpace = "pre-wrap";
   bar.append("tf ", tfSel, " mode ", modeSel);
-  root.append(img, bar, hud);
+  root.append(img, bar, hud, err);
   el.appendChild(root);
+  let decodeError = "";
   const sync = () => {
-    img.src = model.get("image");
+    const src = model.get("image");
+    if (img.getAttribute("src") !== src) { decodeError = ""; img.src = src; }
     hud.textContent = model.get("hud");
     tfSel.value = model.get("tf");
     modeSel.value = model.get("mode");
+    const text = model.get("error") || decodeError;
+    err.textContent = text ? "error: " + text : "";
+    err.style.display = text ? "block" : "none";
+    img.style.opacity = text ? "0.4" : "1";  // a frame the error concerns is not shown as if right
   };
+  img.onerror = () => { if (img.getAttribute("src")) { decodeError = "the frame sent by the kernel could not be decoded"; sync(); } };
   sync();
-  model.on("change:image", sync);
-  model.on("change:hud", sync);
-  model.on("change:tf", sync);
-  model.on("change:mode", sync);
+  for (const n of ["image", "hud", "tf", "mode", "error"]) model.on("change:" + n, sync);
   tfSel.onchange = () => { model.set("tf", tfSel.value); model.save_changes(); };
   modeSel.onchange = () => { model.set("mode", modeSel.value); model.save_changes(); };
   let drag = null;
@@ -110,6 +120,7 @@ def _widget_class():
         zoom = traitlets.Float(1.0).tag(sync=True)
         tf = traitlets.Unicode("viridis").tag(sync=True)
         mode = traitlets.Unicode("composite").tag(sync=True)
+        error = traitlets.Unicode("").tag(sync=True)
         tf_names = traitlets.List(traitlets.Unicode()).tag(sync=True)
 
     return VolumeWidget
@@ -214,30 +225,48 @@ class VolumeView:
 
     # -- frames --------------------------------------------------------------------------------
     def _changed(self, change) -> None:
-        name = change["name"]
-        if name in ("tf", "mode"):
-            from ..scene.transfer import TransferFunction
+        """Render after a change from the browser or from Python; any error shows in the view.
 
-            try:
+        A change from the browser arrives as a comm message, and an exception the kernel's comm
+        handler catches only reaches the kernel's log: the view would keep its last frame as if
+        the new one were drawn. So the error's line goes to the widget's ``error`` trait (shown
+        in red under the image, the stale frame dimmed) before it is raised on to the caller. A
+        wrong preset or mode name is only shown, not raised, the same from Python as from the
+        browser.
+        """
+        name = change["name"]
+        try:
+            if name in ("tf", "mode"):
+                from ..scene.transfer import TransferFunction
+
                 if name == "tf" and change["new"] not in TransferFunction.names():
                     raise ParameterError(f"tf: expected one of {', '.join(TransferFunction.names())}, got {change['new']!r}")
                 self.session.update(**{name: change["new"]})
-            except ParameterError as e:
-                self.widget.hud = f"error: {e}"
-                return
-        self.render()
+            self.render()
+        except ParameterError as e:
+            self.widget.error = _one_line(e)
+        except Exception as e:
+            self.widget.error = _one_line(e)
+            raise
 
     def render(self) -> np.ndarray:
         """Render the current view (waiting for its bricks up to ``timeout``) and send it to the browser."""
         cam, coi = self.camera()
         img, dt = self.session.timed_render(cam, coi, wait=True, timeout=self.timeout)
+        from ..render.failures import describe_failed, hatch_failed
         from .annotate import present
 
+        holes = tuple(getattr(self.session.frame_stats, "unreplaced", ()))
+        if holes:  # regions drawn by nothing: striped red, named in the error line
+            img = hatch_failed(img, cam, self.session.pyramid, holes)
         img = present(img, cam, self.frame, labels=self.labels)  # head-up, un-mirrored, R/L A/P S/I letters
         self.last_image = img
         self.last_frame_s = dt
-        self.widget.image = _png_data_url(img)
-        self.widget.hud = self.hud_text(cam)
+        with self.widget.hold_sync():  # one message: the frame, its HUD and its error arrive together
+            self.widget.image = _png_data_url(img)
+            self.widget.hud = self.hud_text(cam)
+            self.widget.error = (f"{len(holes)} brick(s) failed and nothing stands in for them (striped red): "
+                                 f"{describe_failed(holes)}") if holes else ""
         return img
 
     def hud_text(self, cam=None) -> str:
@@ -280,6 +309,17 @@ class VolumeView:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _one_line(err: BaseException) -> str:
+    """The first line of ``err``, with its type's name unless it is one of clipvol's own errors."""
+    from ..errors import ClipvolError
+
+    text = str(err).strip()
+    line = text.splitlines()[0] if text else ""
+    if not isinstance(err, ClipvolError):
+        line = f"{type(err).__name__}: {line}" if line else type(err).__name__
+    return line
 
 
 def _as_loader(source, brick: int, store=None):

@@ -64,7 +64,9 @@ def test_tf_and_mode_from_the_widget(view):
     view.widget.mode = "composite"
     assert view.session.params.mode == "composite"
     view.widget.tf = "no-such-preset"
-    assert view.widget.hud.startswith("error: tf")
+    assert view.widget.error.startswith("tf: expected one of")  # shown in the view, not raised
+    view.widget.tf = "grey"
+    assert view.widget.error == ""  # a whole frame clears it
 
 
 def test_missing_anywidget_names_the_extra(monkeypatch):
