@@ -63,8 +63,15 @@ def shown(browser):
         yield v, page
         assert browser.page_errors() == []  # no uncaught exception in the widget's JavaScript
     finally:
+        _leave(browser)
         page.close()
         v.close()
+
+
+def _leave(browser) -> None:
+    """Unload the page before its server stops (its polls would fail as page errors of the next test)."""
+    browser.page("Page.navigate", url="about:blank")
+    browser.events.clear()
 
 
 def _decode(url: str) -> np.ndarray:
@@ -231,5 +238,6 @@ def test_failed_bricks_with_nothing_in_their_place_are_named_in_the_view(browser
         assert float(browser.eval(f"getComputedStyle({IMG}).opacity")) < 1
         assert browser.page_errors() == []
     finally:
+        _leave(browser)
         page.close()
         v.close()
