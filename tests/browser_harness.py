@@ -98,9 +98,10 @@ class Chromium:
                 self.call(f"{domain}.enable", session=self.session)
             self.call("Emulation.setDeviceMetricsOverride", session=self.session, width=size[0], height=size[1],
                       deviceScaleFactor=1, mobile=False)
-        except BaseException:
+        except Exception as e:
             self.close()
-            raise
+            tail = self.stderr_path.read_text(errors="replace")[-2000:]
+            raise RuntimeError(f"{binary} did not start a DevTools session: {e}; its log ends:\n{tail}") from e
 
     # -- the protocol ---------------------------------------------------------------------------
     def _read(self) -> None:
@@ -209,7 +210,7 @@ class Chromium:
                 pass
         self._log.close()
 
-    def __enter__(self) -> "Chromium":
+    def __enter__(self) -> Chromium:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -51,8 +51,9 @@ def _volume():
 @pytest.fixture
 def shown(browser):
     """A view of a small volume, its page open in the browser with the first frame shown."""
-    import clipvol
     from browser_harness import WidgetPage
+
+    import clipvol
 
     v = clipvol.show(_volume(), size=SIZE, mode="mip", tf="grey", brick=16, threads=2)
     page = WidgetPage(v.widget)
@@ -213,11 +214,24 @@ def test_a_kernel_error_shows_in_the_view_until_a_frame_is_whole(browser, shown,
     assert float(browser.eval(f"getComputedStyle({IMG}).opacity")) == 1
 
 
+def test_a_frame_the_page_cannot_decode_is_not_shown_as_if_right(browser, shown):
+    v, page = shown
+    v.widget.image = "data:image/png;base64,AAAA"  # not a PNG
+    page.wait(browser, lambda: browser.eval(f"{ALERT}.textContent") != "", "the decode error line")
+    assert "could not be decoded" in browser.eval(f"{ALERT}.textContent")
+    assert float(browser.eval(f"getComputedStyle({IMG}).opacity")) < 1
+    v.render()
+    page.wait(browser, lambda: browser.eval(f"getComputedStyle({ALERT}).display") == "none" and _shows(browser, v),
+              "the next frame")
+    assert float(browser.eval(f"getComputedStyle({IMG}).opacity")) == 1
+
+
 def test_failed_bricks_with_nothing_in_their_place_are_named_in_the_view(browser, tmp_path):
-    import clipvol
     from browser_harness import WidgetPage
-    from clipvol.bricking.pipeline import brick_volume
     from clipvol.loaders.zarr_store import ZarrLoader
+
+    import clipvol
+    from clipvol.bricking.pipeline import brick_volume
 
     root = tmp_path / "v.zarr"
     brick_volume(_volume(), root, brick=16, progress=False, workers=1, summary=False)
