@@ -77,24 +77,39 @@ function render({ model, el }) {
   for (const n of ["image", "hud", "tf", "mode", "error"]) model.on("change:" + n, sync);
   tfSel.onchange = () => { model.set("tf", tfSel.value); model.save_changes(); };
   modeSel.onchange = () => { model.set("mode", modeSel.value); model.save_changes(); };
+  // One camera change in flight: the kernel draws every change it gets, and a drag makes far more
+  // pointer moves than it can draw; the moves made meanwhile wait, and only the newest is sent
+  // once the kernel has handled the last (its `handled` count changes). A kernel that never
+  // answers holds the camera back for at most 10 s.
+  let want = null, inflight = false, sentAt = 0;
+  const cur = (k) => (want && k in want ? want[k] : model.get(k));
+  const sendCamera = () => {
+    if (!want || (inflight && performance.now() - sentAt < 10000)) return;
+    const changed = Object.keys(want).filter((k) => model.get(k) !== want[k]);
+    for (const k of changed) model.set(k, want[k]);
+    want = null;
+    if (!changed.length) return;
+    inflight = true; sentAt = performance.now();
+    model.save_changes();
+  };
+  const setCamera = (values) => { want = Object.assign(want || {}, values); sendCamera(); };
+  model.on("change:handled", () => { inflight = false; sendCamera(); });
   let drag = null;
   img.addEventListener("pointerdown", (e) => {
-    drag = { x: e.clientX, y: e.clientY, az: model.get("azimuth"), el: model.get("elevation") };
+    drag = { x: e.clientX, y: e.clientY, az: cur("azimuth"), el: cur("elevation") };
     img.setPointerCapture(e.pointerId); img.style.cursor = "grabbing";
   });
   img.addEventListener("pointermove", (e) => {
     if (!drag) return;
-    model.set("azimuth", drag.az - (e.clientX - drag.x) * 0.5);
-    model.set("elevation", Math.max(-89, Math.min(89, drag.el + (e.clientY - drag.y) * 0.5)));
-    model.save_changes();
+    setCamera({ azimuth: drag.az - (e.clientX - drag.x) * 0.5,
+                elevation: Math.max(-89, Math.min(89, drag.el + (e.clientY - drag.y) * 0.5)) });
   });
   const end = () => { drag = null; img.style.cursor = "grab"; };
   img.addEventListener("pointerup", end);
   img.addEventListener("pointercancel", end);
   img.addEventListener("wheel", (e) => {
     e.preventDefault();
-    model.set("zoom", Math.max(0.2, Math.min(20, model.get("zoom") * Math.exp(-e.deltaY * 0.001))));
-    model.save_changes();
+    setCamera({ zoom: Math.max(0.2, Math.min(20, cur("zoom") * Math.exp(-e.deltaY * 0.001))) });
   }, { passive: false });
 }
 export default { render };
@@ -121,6 +136,7 @@ def _widget_class():
         tf = traitlets.Unicode("viridis").tag(sync=True)
         mode = traitlets.Unicode("composite").tag(sync=True)
         error = traitlets.Unicode("").tag(sync=True)
+        handled = traitlets.Int(0).tag(sync=True)  # changes the kernel is done with: the browser's ack
         tf_names = traitlets.List(traitlets.Unicode()).tag(sync=True)
 
     return VolumeWidget
@@ -248,6 +264,8 @@ class VolumeView:
         except Exception as e:
             self.widget.error = _one_line(e)
             raise
+        finally:
+            self.widget.handled += 1  # after the frame or the error: the browser may send its next change
 
     def render(self) -> np.ndarray:
         """Render the current view (waiting for its bricks up to ``timeout``) and send it to the browser."""

@@ -150,6 +150,19 @@ def test_a_drag_turns_the_camera_and_brings_its_frame(browser, shown):
     assert not np.array_equal(v.snapshot(), img1)
 
 
+def test_a_long_drag_sends_what_the_kernel_can_draw_and_ends_where_the_pointer_did(browser, shown):
+    v, page = shown
+    az0, before = v.widget.azimuth, page.handled
+    x, y = _centre(browser)
+    browser.drag((x, y), (x + 40, y), steps=20)  # 20 moves while the kernel handles nothing
+    page.wait(browser, lambda: v.widget.azimuth != az0 and _shows(browser, v), "a frame after the drag")
+    assert page.handled - before < 5  # not one frame per pointer move: the backlog a drag would queue
+    short = v.widget.azimuth
+    browser.drag((x, y), (x - 40, y), steps=1)  # the same distance back in one move
+    page.wait(browser, lambda: v.widget.azimuth != short and _shows(browser, v), "a frame after the drag back")
+    assert v.widget.azimuth == pytest.approx(az0)  # the long drag's last move was not lost
+
+
 def test_the_wheel_zooms(browser, shown):
     v, page = shown
     _, dist0 = _orbit(v)
