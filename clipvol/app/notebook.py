@@ -17,6 +17,8 @@ drawn at the levels the LOD selection wants; a very large store stays interactiv
 the bricks of the view are read (the clip-texture's budget bounds the memory). An error in the
 kernel (a brick that failed with nothing to stand in for it, a render that raised, a wrong preset
 name) shows as a red line under the image, with the image dimmed, until a frame is drawn whole.
+The browser sends one camera change at a time (the kernel's ``handled`` count is its answer), so
+pointer moves made during a slow frame merge into one instead of queueing a frame each.
 """
 
 from __future__ import annotations
