@@ -224,6 +224,7 @@ _PAGE = """<!doctype html>
 <script type="module">
 import widget from "/widget.js";
 const state = await (await fetch("/state")).json();
+window.widgetState = state;  // what the page holds, compared with the kernel's by WidgetPage.wait
 const handlers = {};
 let dirty = {};
 let chain = Promise.resolve();
@@ -371,13 +372,21 @@ class WidgetPage:
             n += 1
             self.handled += 1
 
+    def settled(self, browser: Chromium) -> bool:
+        """Nothing in flight: every message the page posted is handled, and the page holds the
+        kernel's state (so it has seen every answer, and whatever it held back for one is sent)."""
+        pending, held = browser.eval("[window.pending, JSON.stringify(window.widgetState || null)]")
+        # posted messages are in the inbox once the page's count drops, so that is read first
+        if pending != 0 or not self.inbox.empty():
+            return False
+        return json.loads(held) == json.loads(json.dumps(self.widget.get_state()))
+
     def wait(self, browser: Chromium, predicate, what: str, timeout: float = 30.0) -> None:
-        """Pump messages until ``predicate()`` holds and the page has nothing more to send."""
+        """Pump messages until the page and the kernel are :meth:`settled` and ``predicate()`` holds."""
         deadline = time.monotonic() + timeout
         while True:
             self.pump()
-            # posted messages are in the inbox once the page's count drops, so read that first
-            if browser.eval("window.pending") == 0 and self.inbox.empty() and predicate():
+            if self.settled(browser) and predicate():
                 return
             if time.monotonic() > deadline:
                 raise TimeoutError(f"waited {timeout:.0f} s for {what}; page errors: {browser.page_errors()}")
