@@ -81,8 +81,8 @@ function render({ model, el }) {
   modeSel.onchange = () => { model.set("mode", modeSel.value); model.save_changes(); };
   // One camera change in flight: the kernel draws every change it gets, and a drag makes far more
   // pointer moves than it can draw; the moves made meanwhile wait, and only the newest is sent
-  // once the kernel has handled the last (its `handled` count changes). A kernel that never
-  // answers holds the camera back for at most 10 s.
+  // once the kernel has handled the last (its `handled` count changes). From a kernel that does
+  // not answer within 10 s, the next move is sent anyway.
   let want = null, inflight = false, sentAt = 0;
   const cur = (k) => (want && k in want ? want[k] : model.get(k));
   const sendCamera = () => {
@@ -252,6 +252,8 @@ class VolumeView:
         wrong preset or mode name is only shown, not raised, the same from Python as from the
         browser.
         """
+        from ..render.failures import _cause as one_line  # first line; a foreign error keeps its type's name
+
         name = change["name"]
         try:
             if name in ("tf", "mode"):
@@ -262,9 +264,9 @@ class VolumeView:
                 self.session.update(**{name: change["new"]})
             self.render()
         except ParameterError as e:
-            self.widget.error = _one_line(e)
+            self.widget.error = one_line(e)
         except Exception as e:
-            self.widget.error = _one_line(e)
+            self.widget.error = one_line(e)
             raise
         finally:
             self.widget.handled += 1  # after the frame or the error: the browser may send its next change
@@ -329,17 +331,6 @@ class VolumeView:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-def _one_line(err: BaseException) -> str:
-    """The first line of ``err``, with its type's name unless it is one of clipvol's own errors."""
-    from ..errors import ClipvolError
-
-    text = str(err).strip()
-    line = text.splitlines()[0] if text else ""
-    if not isinstance(err, ClipvolError):
-        line = f"{type(err).__name__}: {line}" if line else type(err).__name__
-    return line
 
 
 def _as_loader(source, brick: int, store=None):
