@@ -40,7 +40,7 @@ def test_iso_without_a_value_shows_the_error_in_the_widget():
     v = clipvol.show(_sphere(), size=(32, 32), mode="mip", tf="grey", brick=16, threads=2)
     try:
         v.widget.mode = "iso"
-        assert v.widget.hud.startswith("error: iso_value")
+        assert "iso_value" in v.widget.error
         assert v.session.params.mode == "mip"
     finally:
         v.close()
