@@ -310,3 +310,40 @@ def test_average_over_a_cut_of_two_levels_weights_samples_by_their_length(ctx):
     lo, hi = value_range
     assert diff(img, expected(weighted, lo, hi)).max() <= 1
     assert diff(img, expected(plain, lo, hi)).max() > 10
+
+
+@pytest.mark.parametrize("path", PATHS)
+def test_iso_surface_cut_by_a_clip_plane_shows_the_cut_face(ctx, path):
+    """A solid ball cut by the plane z = c + 3 (the near part removed): rays that meet the plane
+    inside the ball start inside the surface and hit at the plane itself (the cut face is drawn,
+    flat), the others hit the sphere beyond it - both against the analytic geometry."""
+    from clipvol.scene.geometry import Shape
+
+    n, R = 40, 12.0
+    z, y, x = np.mgrid[0:n, 0:n, 0:n].astype(np.float64)
+    c = (n - 1) / 2.0
+    vol = (30.0 - np.sqrt((x - c) ** 2 + (y - c) ** 2 + (z - c) ** 2)).astype(np.float32)
+    zc = c + 3.0
+    cam = Camera.perspective((c + 6.0, c - 4.0, c - 60.0), (c, c, c), size=(40, 40), fov_y=30)
+    shape = Shape(planes=((0.0, 0.0, 1.0, -zc),))  # keep z >= zc
+    _, raw, _ = render(ctx, vol, cam, brick=16, mode="iso", iso_value=30.0 - R, path=path, shape=shape)
+    o, d = (a.reshape(-1, 3) for a in cam.rays())
+    t_plane = (zc - o[:, 2]) / d[:, 2]
+    p = o + t_plane[:, None] * d
+    r_at_plane = np.sqrt(((p - c) ** 2).sum(1))
+    oc = o - c
+    b = (oc * d).sum(1)
+    disc = b * b - ((oc * oc).sum(1) - R * R)
+    t_far = -b + np.sqrt(np.maximum(disc, 0.0))
+    got = raw[..., 3].reshape(-1) > 0.5
+    t_gl = raw[..., 0].reshape(-1)
+    cap = r_at_plane < R - 1.0  # the plane cuts the ball here: the hit is on the plane
+    assert cap.sum() > 100 and got[cap].all()
+    assert np.abs(t_gl[cap] - t_plane[cap]).max() < 0.5
+    ring = (r_at_plane > R + 1.0) & (disc > 4.0 * R) & (t_far > t_plane + 1.0)  # the sphere beyond the plane
+    if ring.any():
+        assert got[ring].all()
+        t_near = -b - np.sqrt(np.maximum(disc, 0.0))
+        assert np.abs(t_gl[ring] - np.maximum(t_near[ring], t_plane[ring])).max() < 0.5
+    miss = disc < -4.0 * R
+    assert miss.sum() > 20 and not got[miss].any()
