@@ -86,6 +86,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="--policy field-of-view: refine nodes subtending more than this fraction of the view")
     r.add_argument("--block-budget", type=int, default=None,
                    help="--policy image: most bricks drawn, the most important refined first (default 128)")
+    r.add_argument("--max-error", default=None, metavar="FRACTION",
+                   help="visible-error budget: refine until the predicted share of pixels with CIELUV dE >= 6 "
+                        "against full resolution is at most this ('5%%' or 0.05); selects --policy image "
+                        "when --policy is left at its default")
     r.add_argument("--no-visibility", action="store_true",
                    help="--policy image: no visibility estimate (every brick counts as fully visible)")
     r.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel projects to more than this many pixels")
@@ -220,7 +224,8 @@ def run(args) -> int:
     lo, hi = pyr.volume_box()
     centre = np.clip(np.asarray(cam.center, dtype=np.float64), lo, hi)
     params = RenderParams(
-        mode=args.mode, policy=args.policy, level=args.level, lod_threshold=args.lod_threshold,
+        mode=args.mode, policy="image" if args.max_error is not None and args.policy == "projected-size" else args.policy,
+        max_error=args.max_error, level=args.level, lod_threshold=args.lod_threshold,
         max_texels_drawn=args.max_texels_drawn, distance_factor=args.distance_factor, fov_fraction=args.fov_fraction,
         texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget, step=args.step,
         background=args.background, block_budget=args.block_budget, visibility=not args.no_visibility,
@@ -254,8 +259,9 @@ def run(args) -> int:
           f"{format_bytes(st.texture_bytes)} of {format_bytes(st.texture_budget)}", file=sys.stderr)
     if params.policy == "image":
         est = getattr(action.last_policy, "estimated_error", float("nan"))
-        print(f"image policy: block budget {params.block_budget}, {st.bricks_distinct} bricks drawn, "
-              f"estimated error {est:.3f}", file=sys.stderr)
+        budget = "" if params.max_error is None else f", error budget {100 * params.max_error:g} %"
+        print(f"image policy: block budget {params.block_budget or 'none'}{budget}, {st.bricks_distinct} bricks drawn, "
+              f"estimated {100 * est:.1f} % of pixels dE>=6 against full resolution", file=sys.stderr)
     if overlay_levels:
         print("overlays: " + "; ".join(f"{name} (level {L})" for name, L in overlay_levels.items()), file=sys.stderr)
     print("time: " + ", ".join(f"{k} {v * 1000:.1f} ms" for k, v in t.items()), file=sys.stderr)

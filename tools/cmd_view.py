@@ -42,6 +42,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default: the loader's, 64)")
     g = p.add_argument_group("rendering")
     g.add_argument("--mode", choices=("composite", "mip"), default="composite", help="compositing or maximum intensity projection")
+    g.add_argument("--max-error", default=None, metavar="FRACTION",
+                   help="start with the image policy under this visible-error budget: the predicted share of "
+                        "pixels with CIELUV dE >= 6 against full resolution ('5%%' or 0.05)")
     g.add_argument("--selection", "--policy", dest="selection", choices=("multiresolution", "roaming", "fixed"),
                    default="multiresolution", help="selection policy the viewer starts with (M cycles them)")
     g.add_argument("--level", type=int, default=None, help="level drawn with --selection fixed (default 0)")
@@ -131,7 +134,8 @@ def run(args) -> int:
     from clipvol.tools.tf_args import transfer_function_from_args
 
     params = RenderParams(
-        lod_threshold=args.lod_threshold, policy=args.selection, level=args.level, mode=args.mode,
+        lod_threshold=args.lod_threshold, policy="image" if args.max_error is not None else args.selection,
+        max_error=args.max_error, level=args.level, mode=args.mode,
         step=args.step, texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget,
         jitter=not args.no_jitter, path=args.render_path, shading=args.shading,
     )
