@@ -19,10 +19,13 @@ from clipvol.scene.params import RenderParams
 from clipvol.scene.transfer import TransferFunction
 from render_helpers import render_converged
 
-#: how far the estimate may be from the measured fraction: where the measured one is <= 5 % (the range
-#: an error budget decides in) and where it is <= 15 % (the policy's docstring states both)
-TOLERANCE = 0.02
-TOLERANCE_15 = 0.06
+#: how far the estimate may be from the measured fraction where the measured one is <= 5 % (the range
+#: an error budget decides in): at most this far below it (a budget then holds within this) ...
+BELOW = 0.015
+#: ... and at most this far above it (the policy's docstring: it errs high, toward more detail)
+ABOVE = 0.065
+#: where the measured fraction is <= 15 %: at most this far either way
+TOLERANCE_15 = 0.08
 
 
 def _measured(img, ref) -> float:
@@ -80,7 +83,7 @@ def test_estimate_tracks_the_measured_error(gl, head):
                 pairs.append((b, act.last_policy.estimated_error, _measured(img, ref)))
     close = [(b, e, m) for b, e, m in pairs if m <= 0.05]
     assert len(close) >= 4, pairs
-    assert all(abs(e - m) <= TOLERANCE for _, e, m in close), pairs
+    assert all(-BELOW <= e - m <= ABOVE for _, e, m in close), pairs
     assert all(abs(e - m) <= TOLERANCE_15 for _, e, m in pairs if m <= 0.15), pairs
     # and it orders the settings as the measurement does: coarse cuts above, fine cuts below
     est, meas = np.array([e for _, e, _ in pairs]), np.array([m for _, _, m in pairs])
@@ -96,12 +99,13 @@ def test_max_error_holds_the_measured_error_near_the_budget(gl, head):
             act.set_params(RenderParams(policy="fixed", level=0))
             ref = render_converged(act, cam, tf)
             full = act.last_frame_stats.bricks_distinct
-            bricks = []
-            for budget in (0.10, 0.05, 0.02):
+            bricks, measured = [], []
+            for budget in (0.05, 0.03, 0.01):  # the range the estimate is held to (measured <= 5 %)
                 act.set_params(RenderParams(policy="image", max_error=budget))
                 img = render_converged(act, cam, tf)
                 assert act.last_policy.estimated_error <= budget
-                assert _measured(img, ref) <= budget + TOLERANCE
+                measured.append(_measured(img, ref))
+                assert measured[-1] <= budget + BELOW, (budget, measured)
                 bricks.append(act.last_frame_stats.bricks_distinct)
             assert bricks[0] <= bricks[1] <= bricks[2], bricks  # a tighter budget draws more detail
             assert bricks[0] < full, (bricks, full)
