@@ -231,3 +231,14 @@ def test_report_rejects_a_bad_error_budget(tmp_path):
 
     with pytest.raises(ParameterError, match="max_error"):
         run_report("procedural:fractal?size=16", tmp_path, max_errors=("5",))
+
+
+def test_cli_max_error_is_checked_before_anything_is_drawn(tmp_path, capsys):
+    from clipvol.tools.cli import main
+
+    rc = main(["report", "procedural:fractal?size=16", "--brick", "8", "--out", str(tmp_path / "rep"),
+               "--max-error", "5%,150%"])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "max_error" in err and "'150%'" in err
+    assert not (tmp_path / "rep" / "report.csv").exists()
