@@ -31,6 +31,9 @@ _LAZY = {
     "ClipTexture": "clipvol.paging.cliptexture",
     "BrickState": "clipvol.paging.cliptexture",
     "open_store": "clipvol.paging.open",
+    # data access (numpy / dask, through the verified loader)
+    "open": "clipvol.app.volume_access",
+    "Volume": "clipvol.app.volume_access",
     # rendering (pure numpy parts)
     "Camera": "clipvol.scene.camera",
     "TransferFunction": "clipvol.scene.transfer",
@@ -41,6 +44,7 @@ _LAZY = {
     "ClipRenderAction": "clipvol.render.action",
     # preprocessing
     "brick_volume": "clipvol.bricking.pipeline",
+    "BuildOptions": "clipvol.bricking.build_options",
     # notebooks (anywidget, an optional extra)
     "show": "clipvol.app.notebook",
 }
@@ -66,6 +70,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from .bricking.pyramid import LevelInfo, Pyramid
     from .paging.cliptexture import BrickState, ClipTexture
     from .paging.loader import BrickKey, HasBrickRanges, Loader
+    from .app.volume_access import Volume, open
     from .paging.open import open_store
     from .render.action import ClipRenderAction
     from .render.context import create_context

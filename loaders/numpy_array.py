@@ -31,6 +31,7 @@ from clipvol.bricking.pyramid import (
     validate_dtype,
 )
 from clipvol.errors import InputFormatError, InputNotFoundError, ParameterError
+from clipvol.paging.readcount import ReadCounter
 
 __all__ = ["NumpyLoader", "finite_range"]
 
@@ -118,6 +119,8 @@ class NumpyLoader:
         self._levels: dict[int, np.ndarray] = {}
         self._lock = threading.RLock()
         self._nonfinite: bool | None = None
+        #: bytes of the source array read to make bricks (counted where the source is sliced)
+        self.read_counter = ReadCounter()
 
     @property
     def pyramid(self) -> Pyramid:
@@ -152,6 +155,7 @@ class NumpyLoader:
             f = 1 << level
             sl = tuple(slice(a * f, min(b * f, n)) for a, b, n in zip(start, stop, pyr.shape))
             block = np.asarray(self.array[sl])
+            self.read_counter.add(block.nbytes)
             for _ in range(level):
                 block = downsample(block, pyr.filter)
         block = np.array(block, dtype=pyr.dtype, copy=True)  # never hand out a view of our data
@@ -178,6 +182,7 @@ class NumpyLoader:
         parts = []
         for z in range(0, self.array.shape[0], step):
             block = np.asarray(self.array[z:z + step])
+            self.read_counter.add(block.nbytes)
             for _ in range(level):
                 block = downsample(block, self._pyramid.filter)
             parts.append(block)

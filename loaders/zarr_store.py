@@ -100,6 +100,7 @@ from clipvol.errors import (
     StoreIncompleteError,
 )
 from clipvol.paging.loader import BrickKey
+from clipvol.paging.readcount import ReadCounter
 
 __all__ = ["ZarrLoader", "UnverifiedStoreWarning", "crc32c_implementation"]
 
@@ -416,6 +417,8 @@ class ZarrLoader:
         else:
             raise InputFormatError(f"{self._where}: expected a zarr group (zarr.json or .zgroup), found neither")
         self._lock = threading.Lock()
+        #: bytes of chunk files read (counted in ``_load_chunk``, where they are read)
+        self.read_counter = ReadCounter()
         self._zarr_arrays: dict[int, Any] = {}
         self._stats: dict[int, dict[str, np.ndarray] | None] = {}
         self._checks: dict[int, np.ndarray | None] = {}  # per level: (grid..., 5) min, max, nan, inf, crc
@@ -796,6 +799,7 @@ class ZarrLoader:
         data = self._fetch(level, index)
         if data is None:
             return 0
+        self.read_counter.add(len(data))
         nbytes = out.size
         loaded = 1
         try:

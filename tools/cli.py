@@ -35,6 +35,7 @@ COMMANDS = {
     "summarize": "build the summary tables of image-based level of detail for an existing store",
     "render": "render one image of a store or procedural volume",
     "slice": "draw a cutting plane (axial, coronal, sagittal, oblique), fine near a point of interest",
+    "export": "take a region out of a store at one level: .npy, .tif, .nii(.gz) or .zarr, with its geometry",
     "view": "interactive roaming / multiresolution viewer (or --offscreen frames)",
     "report": "image error against run time for a sweep of quality settings",
     "demo": "brick the built-in dataset, fly around it, and write the report",
@@ -54,12 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"clipvol {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name, help_text in COMMANDS.items():
-        try:
-            mod = importlib.import_module(f"clipvol.tools.cmd_{name.replace('-', '_')}")
-        except ModuleNotFoundError as e:
-            if e.name != f"clipvol.tools.cmd_{name.replace('-', '_')}":
-                raise
-            continue  # a sub-command not built yet
+        mod = importlib.import_module(f"clipvol.tools.cmd_{name.replace('-', '_')}")
         p = sub.add_parser(name, help=help_text, description=(mod.__doc__ or help_text).strip().splitlines()[0])
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)

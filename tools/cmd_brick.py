@@ -48,6 +48,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--labels", action="append", default=[], metavar="FILE[:NAME]",
                         help="a label volume (integer ids, the image's shape) to brick into OUTPUT/labels/NAME with "
                              "the mode filter (OME-Zarr labels; NAME defaults to the file's stem); repeatable")
+    parser.add_argument("--axes", default=None, choices=("czyx", "tzyx"),
+                        help="a 4-D input's axes: czyx (channels, the default) writes one store per channel in "
+                             "OUTPUT/c/K, tzyx (time steps, .npy only) one per step in OUTPUT/t/K; the root OUTPUT "
+                             "opens in info, render, view and clipvol.open as one image set")
     parser.add_argument("--no-summary", action="store_true",
                         help="skip the summary tables of image-based level of detail (add them later with `clipvol summarize`)")
 
@@ -63,22 +67,23 @@ def run(args: argparse.Namespace) -> int:
     labels = _label_specs(args.labels, args.output)  # all refused before any work
     t0 = time.perf_counter()
     build = brick_volume
-    from clipvol.bricking.channels import brick_channels, channel_count
+    from functools import partial
 
-    if channel_count(args.input) is not None:  # a (c, z, y, x) input: one store per channel
+    from clipvol.bricking.channels import brick_set, channel_count
+
+    axis = (args.axes or "czyx")[0]
+    if channel_count(args.input) is not None:  # a 4-D input: one store per channel or time step
         if args.scheduler or args.labels:
-            raise ParameterError("INPUT: a 4-D (c, z, y, x) input is bricked with local threads and without --labels")
-        build = brick_channels
+            raise ParameterError(f"INPUT: a 4-D ({axis}, z, y, x) input is bricked with local threads and without --labels")
+        build = partial(brick_set, axis=axis)
+    elif args.axes is not None:
+        raise ParameterError(f"--axes: expected a 4-D input for --axes {args.axes}, got {args.input} (not 4-D)")
     extra = {}
     if args.origin is not None:
         extra["origin"] = _triple(args.origin, "origin")
     if args.scheduler:
-        from functools import partial
-
         from clipvol.bricking.dask_build import brick_volume_dask
 
-        if extra:
-            raise ParameterError("--origin: not available with --scheduler yet; brick with local threads")
         build = partial(brick_volume_dask, scheduler=args.scheduler)
     meta = build(
         args.input, args.output, brick=args.brick, filter=args.filter, codec=args.codec, spacing=spacing,
@@ -101,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
         dt = time.perf_counter() - t0
         nbytes *= max(channels, 1)
         print(f"{args.output}: {pyr.num_levels} levels, level 0 {pyr.shape} {pyr.dtype}"
-              + (f" x {channels} channels (one store each in {args.output}/c/)" if channels else "")
+              + (f" x {channels} {'channels' if axis == 'c' else 'time steps'} (one store each in {args.output}/{axis}/)"
+                 if channels else "")
               + f", {format_bytes(nbytes)} in {dt:.1f} s ({format_bytes(nbytes / max(dt, 1e-9))}/s)")
     return 0
 

@@ -201,6 +201,13 @@ def run(args: argparse.Namespace) -> int:
         from clipvol.tools import point_cli
 
         return point_cli.info(path)
+    from clipvol.bricking.channels import image_set
+
+    found = image_set(path)
+    if found is not None:  # the root of a 4-D brick: one store per channel or time step
+        from clipvol.tools.set_info import run_set_info
+
+        return run_set_info(args, path, *found)
     import warnings
 
     from clipvol.loaders.zarr_store import UnverifiedStoreWarning

@@ -13,14 +13,10 @@ import math
 import sys
 
 from clipvol.errors import ParameterError
-from clipvol.scene.params import POLICY_ALIASES
-from clipvol.scene.selection.policies import POLICIES
-from clipvol.tools.overlay_args import add_channel_arguments, channels_from_args
-
-#: what --policy accepts: the registry's names and their older aliases
-POLICY_CHOICES = sorted(POLICIES) + sorted(POLICY_ALIASES)
-
 from clipvol.scene.views import VIEW_CHOICES as VIEWS
+from clipvol.scene.views import view_camera
+from clipvol.tools.overlay_args import add_channel_arguments, channels_from_args
+from clipvol.tools.render_args import add_render_arguments, render_params_from_args
 
 
 def _triple(text: str) -> tuple[float, float, float]:
@@ -61,10 +57,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "patient frame (head up; front/back/side/top mean anterior/posterior/left/superior there), "
                         "front/back/side/top along the array's z/-z/x/y otherwise; iso from anterior-right-superior "
                         "(default iso)")
-    v.add_argument("--eye", type=_triple, default=None, help="eye position x,y,z (world units; overrides --view)")
-    v.add_argument("--target", type=_triple, default=None, help="point looked at x,y,z (default: the volume centre)")
-    v.add_argument("--up", type=_triple, default=None, help="up vector x,y,z (default: superior for a patient frame, "
-                                                           "-y otherwise: image rows follow +y)")
+    v.add_argument("--eye", type=_triple, default=None,
+                   help="eye position x,y,z (overrides --view): RAS millimetres in the patient's world for a store "
+                        "with a patient frame (what the affine gives), the array's axes scaled by the spacing otherwise")
+    v.add_argument("--target", type=_triple, default=None,
+                   help="point looked at x,y,z, in the same coordinates as --eye (default: the volume centre)")
+    v.add_argument("--up", type=_triple, default=None,
+                   help="up direction x,y,z, in the same frame as --eye (default: superior for a patient frame, "
+                        "-y otherwise: image rows follow +y)")
     v.add_argument("--no-labels", action="store_true", help="do not write the R/L, A/P, S/I letters at the image edges")
     v.add_argument("--fov", type=float, default=35.0, help="vertical field of view in degrees (perspective)")
     v.add_argument("--distance", type=float, default=None, help="eye distance from the target, in volume diagonals (default 1.6)")
@@ -73,42 +73,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     v.add_argument("--camera", default=None, metavar="FILE.json",
                    help="a camera saved by the viewer's C key (overrides --view/--eye/--target/--up/--fov/--ortho)")
     r = p.add_argument_group("rendering")
-    r.add_argument("--mode", choices=("composite", "mip"), default="composite")
-    r.add_argument("--policy", "--selection", dest="policy", choices=POLICY_CHOICES, default="projected-size",
-                   help="selection policy: which bricks at which level (default projected-size; "
-                        "--selection multiresolution is the same)")
-    r.add_argument("--level", type=int, default=None, help="level for --policy fixed (default 0)")
-    r.add_argument("--max-texels-drawn", type=int, default=None,
-                   help="most voxels of drawn bricks: refine the largest projected voxels first until it binds")
-    r.add_argument("--distance-factor", type=float, default=1.0,
-                   help="--policy distance: refine nodes closer to the eye than this many of their diagonals")
-    r.add_argument("--fov-fraction", type=float, default=0.5,
-                   help="--policy field-of-view: refine nodes subtending more than this fraction of the view")
-    r.add_argument("--block-budget", type=int, default=None,
-                   help="--policy image: most bricks drawn, the most important refined first (default 128)")
-    r.add_argument("--max-error", default=None, metavar="FRACTION",
-                   help="visible-error budget: refine until the predicted share of pixels with CIELUV dE >= 6 "
-                        "against full resolution is at most this ('5%%' or 0.05); selects --policy image "
-                        "when --policy is left at its default")
-    r.add_argument("--no-visibility", action="store_true",
-                   help="--policy image: no visibility estimate (every brick counts as fully visible)")
-    r.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel projects to more than this many pixels")
+    add_render_arguments(r, ("mode", "policy", "level", "max_texels_drawn", "distance_factor", "fov_fraction",
+                             "block_budget", "max_error", "visibility", "lod_threshold"))
     from clipvol.tools.overlay_args import add_overlay_arguments
     from clipvol.tools.tf_args import add_tf_arguments
 
     add_tf_arguments(p.add_argument_group("transfer function"))
     add_overlay_arguments(p.add_argument_group("overlays of co-registered volumes"))
-    r.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
-    r.add_argument("--background", type=lambda s: tuple(float(t) for t in s.split(",")), default=(0.0, 0.0, 0.0, 0.0),
-                   help="straight RGBA r,g,b,a in [0, 1] behind the volume (default transparent)")
-    r.add_argument("--shading", action="store_true",
-                   help="composite: Blinn-Phong gradient lighting, light at the eye (ignored for mip)")
-    r.add_argument("--light", type=lambda s: tuple(float(t) for t in s.split(",")), default=(0.3, 0.7, 0.3, 20.0),
-                   metavar="KA,KD,KS,N", help="--shading: ambient, diffuse, specular weights and shininess "
-                                              "(default 0.3,0.7,0.3,20)")
+    add_render_arguments(r, ("step", "background", "shading", "light", "skip_empty"))
     r.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
-    r.add_argument("--texture-budget", default="256MB", help="GPU brick cache budget")
-    r.add_argument("--texels-per-frame", type=int, default=None, help="most texels uploaded per pass")
+    add_render_arguments(r, ("texture_budget", "texels_per_frame"))
     r.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
     r.add_argument("--no-wait", action="store_true", help="do not wait for the view's bricks (draw what is resident)")
     r.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for convergence (default 300)")
@@ -122,6 +96,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from clipvol.tools.remote_args import add_remote_arguments, add_trust_arguments
 
     add_partial_argument(r)
+    from clipvol.tools.cut_args import add_cut_arguments
+
+    add_cut_arguments(p)
     add_remote_arguments(p)
     add_trust_arguments(p)
 
@@ -136,13 +113,6 @@ def check_output_file(path, suffix: str, flag: str) -> None:
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.is_dir():
         raise ParameterError(f"{flag}: {str(path)!r}: the folder {str(parent)!r} does not exist")
-
-
-def _light(values) -> dict:
-    """``--light KA,KD,KS,N`` as RenderParams fields."""
-    if len(values) != 4:
-        raise ParameterError(f"--light: expected four numbers ambient,diffuse,specular,shininess, got {values!r}")
-    return dict(zip(("ambient", "diffuse", "specular", "shininess"), values))
 
 
 def hidden_labels(source, loader, spec: str):
@@ -164,17 +134,6 @@ def hidden_labels(source, loader, spec: str):
     return TaggedLoader(loader, open_store(Path(source) / "labels" / name), hidden)
 
 
-def view_camera(pyramid, view: str, size, *, eye=None, target=None, up=None, fov=35.0, distance=None, ortho=False,
-                frame=None):
-    """The camera of a preset ``view`` (or an explicit ``eye``) looking at ``target`` (default: the centre),
-    in the store's patient ``frame`` when it has one (:func:`clipvol.scene.views.preset_camera`)."""
-    from clipvol.scene.views import preset_camera
-
-    lo, hi = pyramid.volume_box()
-    return preset_camera(lo, hi, view, size, frame=frame, eye=eye, target=target, up=up, fov=fov, distance=distance,
-                         ortho=ortho)
-
-
 def run(args) -> int:
     import numpy as np
     from PIL import Image
@@ -183,12 +142,12 @@ def run(args) -> int:
     from clipvol.paging.open import open_store
     from clipvol.render import create_context
     from clipvol.render.action import ClipRenderAction
-    from clipvol.scene.params import RenderParams
     from clipvol.units import format_bytes
 
     from clipvol.render.failures import hatch_failed
     from clipvol.scene.bookmarks import load_camera
     from clipvol.tools.partial import settle_failed
+    from clipvol.tools.cut_args import shape_from_args
     from clipvol.tools.tf_args import transfer_function_from_args
 
     check_output_file(args.out, ".png", "--out")
@@ -223,25 +182,24 @@ def run(args) -> int:
                           distance=args.distance, ortho=args.ortho, frame=frame)
     lo, hi = pyr.volume_box()
     centre = np.clip(np.asarray(cam.center, dtype=np.float64), lo, hi)
-    params = RenderParams(
-        mode=args.mode, policy="image" if args.max_error is not None and args.policy == "projected-size" else args.policy,
-        max_error=args.max_error, level=args.level, lod_threshold=args.lod_threshold,
-        max_texels_drawn=args.max_texels_drawn, distance_factor=args.distance_factor, fov_fraction=args.fov_fraction,
-        texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget, step=args.step,
-        background=args.background, block_budget=args.block_budget, visibility=not args.no_visibility,
-        shading=args.shading, **_light(args.light), overlays=channel_overlays + _overlays(args, loader),
-        blend=args.blend or ("additive" if args.channels else "over"),
+    params = render_params_from_args(
+        args, overlays=channel_overlays + _overlays(args, loader), blend=args.blend or ("additive" if args.channels else "over"),
+        shape=shape_from_args(args, loader),
     ).check_for(pyr)
     tf = channel_tf or transfer_function_from_args(args, loader)
     if args.workers is not None:  # sort-last on Dask: groups of bricks in worker processes
         return _run_sort_last(args, params, cam, tf, kwargs, frame)
     ctx = create_context()
     try:
-        with ClipTexture(loader, args.memory_budget, args.threads, center=centre) as clip, \
+        from clipvol.scene.cut import outside_bricks
+
+        with ClipTexture(loader, args.memory_budget, args.threads, center=centre,
+                         outside=outside_bricks(pyr, params.shape)) as clip, \
                 ClipRenderAction(ctx, clip, params) as action:
             image = action.render(cam, tf, wait=not args.no_wait, timeout=args.timeout)
             st = action.last_frame_stats
             overlay_levels = action.overlays.levels()
+            unread = clip.stats.empty_skipped
     finally:
         ctx.release()
     from clipvol.app.annotate import present
@@ -255,8 +213,12 @@ def run(args) -> int:
           f"{tf.name or 'custom'})", file=sys.stderr)
     print(f"bricks drawn {sum(st.bricks_drawn.values())} ({levels}); texels drawn {st.texels_drawn:,}; "
           f"converged {st.converged} after {st.passes} pass(es)", file=sys.stderr)
+    if params.shape is not None:
+        print(f"cut: {st.counts.get('culled_shape', 0)} bricks outside the crop box / clip planes not drawn; "
+              f"{unread} bricks filled without reading (outside the cut, or empty)", file=sys.stderr)
+    read = "" if st.bytes_read is None else f"; read {format_bytes(st.bytes_read)} from storage"
     print(f"uploaded {format_bytes(st.bytes_uploaded)} in {st.bricks_uploaded} bricks; textures "
-          f"{format_bytes(st.texture_bytes)} of {format_bytes(st.texture_budget)}", file=sys.stderr)
+          f"{format_bytes(st.texture_bytes)} of {format_bytes(st.texture_budget)}{read}", file=sys.stderr)
     if params.policy == "image":
         est = getattr(action.last_policy, "estimated_error", float("nan"))
         budget = "" if params.max_error is None else f", error budget {100 * params.max_error:g} %"

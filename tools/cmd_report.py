@@ -61,8 +61,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from clipvol.tools.tf_args import add_tf_arguments
 
     add_tf_arguments(p.add_argument_group("transfer function"))
-    p.add_argument("--mode", choices=("composite", "mip"), default="composite")
-    p.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
+    from clipvol.tools.render_args import add_render_arguments
+
+    add_render_arguments(p, ("mode", "step"))
     p.add_argument("--threads", type=int, default=None, help="loader threads")
     p.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for a converged frame")
     from clipvol.tools.partial import add_partial_argument

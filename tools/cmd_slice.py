@@ -22,6 +22,7 @@ import sys
 from clipvol.errors import ParameterError
 
 from .cmd_render import _size, _triple
+from .render_args import add_render_arguments, render_params_from_args
 
 
 def _window(text: str) -> tuple[float, float]:
@@ -62,13 +63,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     s.add_argument("--stats", default=None, help="write statistics as JSON (bytes_loaded, tiles per level, time)")
     r = p.add_argument_group("resolution")
     r.add_argument("--poi", type=_triple, default=None, help="point of interest x,y,z: full resolution near it")
-    r.add_argument("--level", type=int, default=None, help="one level everywhere (0 = full resolution)")
-    r.add_argument("--distance-factor", type=float, default=1.0,
-                   help="--poi: refine nodes closer to it than this many of their diagonals (default 1)")
-    r.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel covers more pixels than this")
+    add_render_arguments(r, ("level", "distance_factor", "lod_threshold"), help={
+        "level": "one level everywhere (0 = full resolution)",
+        "distance_factor": "--poi: refine nodes closer to it than this many of their diagonals (default 1)"})
     r.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default 64)")
     r.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
-    r.add_argument("--texture-budget", default="256MB", help="GPU brick cache budget")
+    add_render_arguments(r, ("texture_budget",))
     r.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
     r.add_argument("--no-wait", action="store_true", help="draw what is resident after one pass (coarser fallback)")
     r.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for the slice's bricks (default 300)")
@@ -76,6 +76,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from clipvol.tools.remote_args import add_remote_arguments, add_trust_arguments
 
     add_remote_arguments(p)
+    from clipvol.tools.cut_args import add_cut_arguments
+
+    add_cut_arguments(p)
     add_trust_arguments(p)
 
     add_partial_argument(r)
@@ -154,9 +157,9 @@ def run(args) -> int:
 
     from clipvol.paging.cliptexture import ClipTexture
     from clipvol.paging.open import open_store
+    from clipvol.paging.region import Region
     from clipvol.render import create_context
     from clipvol.render.slice_action import SliceAction
-    from clipvol.scene.params import RenderParams
     from clipvol.scene.transfer import TransferFunction
     from clipvol.units import format_bytes
 
@@ -194,13 +197,19 @@ def run(args) -> int:
         from clipvol.scene.orientation import view_labels
 
         edges = view_labels(frame.affine, plane.right, plane.up, frame.frame)
-    params = RenderParams(policy="plane", focus=args.poi, level=args.level, distance_factor=args.distance_factor,
-                          lod_threshold=args.lod_threshold, texture_budget=args.texture_budget)
+    from clipvol.tools.cut_args import shape_from_args
+
+    cut = shape_from_args(args, loader)  # --crop / --crop-voxels / --clip-plane: pixels outside are left out
+    params = render_params_from_args(args, policy="plane", focus=args.poi, shape=cut)
     centre = np.clip(np.asarray(args.poi if args.poi is not None else plane.origin, dtype=np.float64), lo, hi)
     tf = TransferFunction.preset(args.tf) if args.tf is not None else None
     ctx = create_context()
     try:
-        with ClipTexture(loader, args.memory_budget, args.threads, center=centre) as clip, \
+        from clipvol.scene.cut import outside_bricks
+
+        # Region.empty: nothing is read before the slice hands the clip-texture its slab
+        with ClipTexture(loader, args.memory_budget, args.threads, center=centre,
+                         region=Region.empty(loader.pyramid.num_levels), outside=outside_bricks(pyr, cut)) as clip, \
                 SliceAction(ctx, clip, params) as action:
             rgba, values = action.render(plane, args.size, args.pixel_size, transfer_function=tf, window=args.window,
                                          wait=not args.no_wait, timeout=args.timeout, return_values=True)
@@ -214,6 +223,14 @@ def run(args) -> int:
     rgba = settle_failed("slice", args.out or args.npy or args.stats, st.failed_bricks, rgba,
                          lambda im: hatch_failed(im, cam, pyr, st.failed_bricks, plane=plane), args.allow_partial)
     h, w = values.shape
+    if cut is not None:  # outside the cut: transparent in the PNG, NaN in the values
+        from clipvol.scene.plane import default_pixel_size
+
+        px = default_pixel_size(pyr, plane) if args.pixel_size is None else args.pixel_size
+        outside = ~cut.contains(plane.pixel_points((w, h), px))
+        rgba, values = rgba.copy(), values.copy()
+        rgba[outside] = 0
+        values[outside] = np.nan
     if args.out is not None:
         if edges is not None and frame.frame == "RAS" and not args.no_labels:
             from clipvol.app.annotate import label_edges
@@ -232,7 +249,8 @@ def run(args) -> int:
         _write_atomic(args.stats, lambda p: open(p, "w").write(json.dumps(doc, indent=1) + "\n"))
     levels = ", ".join(f"L{L}: {n}" for L, n in st.tiles_per_level.items()) or "none"
     print(f"slice {w}x{h}: tiles {st.tiles} ({levels}), {st.blended} blended, converged {st.converged}", file=sys.stderr)
-    print(f"bricks needed {st.bricks_needed} ({format_bytes(st.bytes_needed)}); loaded {format_bytes(st.bytes_loaded)}; "
+    read = "" if st.bytes_read is None else f"; read {format_bytes(st.bytes_read)} from storage"
+    print(f"bricks needed {st.bricks_needed} ({format_bytes(st.bytes_needed)}); loaded {format_bytes(st.bytes_loaded)}{read}; "
           f"uploaded {format_bytes(st.bytes_uploaded)}; total {st.times['total'] * 1000:.1f} ms", file=sys.stderr)
     if edges is not None:
         print("edges: " + ", ".join(f"{k} {v}" for k, v in edges.items()), file=sys.stderr)

@@ -11,9 +11,10 @@ the transfer-function window, Shift+S save it, C save the camera, B brick outlin
 
 ``--offscreen --path orbit|turntable|fly|zoom --frames N --out DIR|anim.gif|movie.mp4`` renders a
 camera path without a window (EGL) and writes PNG frames, a GIF or a movie (imageio-ffmpeg; ``--fps``,
-``--quality``) plus a per-frame CSV. For a store built from NIfTI or DICOM the turntable (and the
-orbit, a turntable raised 25 degrees) spins the patient head-up, starting from the front (or the
-side ``--view`` names), and every frame's edges are labelled R/L, A/P, S/I.
+``--quality``) plus a per-frame CSV. For a store built from NIfTI or DICOM every path is head-up:
+the turntable (and the orbit, a turntable raised 25 degrees) spins the patient starting from the
+front (or the side ``--view`` names), the fly loop lies in the patient's axial plane, the zoom
+looks from anterior-left-superior; every frame's edges are labelled R/L, A/P, S/I.
 """
 
 from __future__ import annotations
@@ -41,24 +42,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_trust_arguments(p)
     p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default: the loader's, 64)")
     g = p.add_argument_group("rendering")
-    g.add_argument("--mode", choices=("composite", "mip"), default="composite", help="compositing or maximum intensity projection")
-    g.add_argument("--max-error", default=None, metavar="FRACTION",
-                   help="start with the image policy under this visible-error budget: the predicted share of "
-                        "pixels with CIELUV dE >= 6 against full resolution ('5%%' or 0.05)")
-    g.add_argument("--selection", "--policy", dest="selection", choices=("multiresolution", "roaming", "fixed"),
-                   default="multiresolution", help="selection policy the viewer starts with (M cycles them)")
-    g.add_argument("--level", type=int, default=None, help="level drawn with --selection fixed (default 0)")
-    g.add_argument("--lod-threshold", type=float, default=1.0, help="refine while a voxel projects to more than this many pixels")
-    g.add_argument("--step", type=float, default=0.5, help="sample spacing in voxels of the drawn level")
+    from clipvol.tools.render_args import add_render_arguments
+    from clipvol.viewer.controls import MODES
+
+    add_render_arguments(g, ("mode", "policy", "level", "lod_threshold", "step", "max_error"), choices={"policy": MODES},
+                         help={"policy": "selection policy the viewer starts with (M cycles them)"})
     g.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
-    g.add_argument("--texture-budget", default="256MB", help="GPU brick cache budget")
-    g.add_argument("--texels-per-frame", type=int, default=None, help="most texels uploaded per frame")
+    add_render_arguments(g, ("texture_budget", "texels_per_frame"))
     g.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
-    g.add_argument("--no-jitter", action="store_true", help="sample every pixel's ray from t = 0 (shows lattice rings; for comparisons)")
-    g.add_argument("--render-path", choices=("auto", "bricks", "single-pass"), default="auto",
-                   help="single-pass: one ray-guided pass through a page table of the cut; bricks: one proxy box per "
-                        "(merged) brick; auto (default): the single pass for cuts of 4 boxes or more")
-    g.add_argument("--shading", action="store_true", help="start with gradient lighting on (key L)")
+    add_render_arguments(g, ("jitter", "path", "shading", "skip_empty"), help={"shading": "start with gradient lighting on (key L)"})
     g.add_argument("--play", action="store_true",
                    help="an OME-Zarr image with a t axis: play its time steps (Space play/pause, J/K step, { } rate; "
                         "the next step prefetched under the same memory budget)")
@@ -92,6 +84,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     o.add_argument("--workers", type=int, default=None, metavar="N",
                    help="draw each frame sort-last in N Dask worker processes (PNG frames; needs clipvol[dask])")
     o.add_argument("--scheduler", default="processes", metavar="S", help="with --workers: processes or tcp://HOST:PORT")
+    from clipvol.tools.cut_args import add_cut_arguments
+
+    add_cut_arguments(p)
     w = p.add_argument_group("window")
     w.add_argument("--screenshot-dir", default="clipvol-screenshots",
                    help="folder where P (with the HUD) and Shift+P (without) save screenshots, S the transfer "
@@ -120,7 +115,7 @@ def _bricked(args) -> str:
 def run(args) -> int:
     from clipvol.app.session import open_loader
     from clipvol.errors import ParameterError
-    from clipvol.scene.params import RenderParams
+    from clipvol.tools.render_args import render_params_from_args
 
     from clipvol.bricking.point_store import is_point_store
 
@@ -133,12 +128,7 @@ def run(args) -> int:
         raise ParameterError(f"--frame-time: expected milliseconds >= 0, got {args.frame_time}")
     from clipvol.tools.tf_args import transfer_function_from_args
 
-    params = RenderParams(
-        lod_threshold=args.lod_threshold, policy="image" if args.max_error is not None else args.selection,
-        max_error=args.max_error, level=args.level, mode=args.mode,
-        step=args.step, texels_per_frame=args.texels_per_frame, texture_budget=args.texture_budget,
-        jitter=not args.no_jitter, path=args.render_path, shading=args.shading,
-    )
+    params = render_params_from_args(args)
     from clipvol.tools.remote_args import check_trust, remote_kwargs
 
     kwargs = {} if args.brick is None else {"brick": args.brick}
@@ -156,6 +146,13 @@ def run(args) -> int:
     if params.level is not None and params.level >= loader.pyramid.num_levels:
         raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {params.level}")
     tf = channels[1] if channels is not None else transfer_function_from_args(args, loader)
+    from clipvol.tools.cut_args import shape_from_args
+
+    cut = shape_from_args(args, loader)
+    if cut is not None:
+        from dataclasses import replace
+
+        params = replace(params, shape=cut)
     if args.overlay or args.label_overlay or channels is not None:
         from dataclasses import replace
 
@@ -186,15 +183,9 @@ def run(args) -> int:
                   + ("" if row["converged"] else "  (refining)"), flush=True)
 
         frame = getattr(loader, "frame", None)  # the store's voxel-to-world affine, if it records one
-        path_kwargs = {}
-        path = args.path
-        if args.path in ("turntable", "orbit") and frame is not None and frame.frame == "RAS":
-            from clipvol.scene.orientation import anatomical_axes
+        from clipvol.scene.views import patient_path
 
-            up, front = anatomical_axes(frame.affine)
-            path_kwargs = {"up": tuple(up), "front": tuple(front)}
-            if args.path == "orbit":  # head-up for a patient: the orbit is a turntable raised 25 degrees
-                path, path_kwargs["elevation"] = "turntable", 25.0
+        path, path_kwargs = patient_path(args.path, frame)  # every path head-up, from the patient's front
         if args.path == "turntable" and args.view is not None:  # start from the side --view names
             from clipvol.scene.views import view_directions
 

@@ -58,7 +58,7 @@ def render(args) -> int:
     from clipvol.render import create_context
     from clipvol.render.splat import SplatRenderAction
     from clipvol.scene.transfer import TransferFunction
-    from clipvol.tools.cmd_render import view_camera
+    from clipvol.scene.views import view_camera
 
     loader = PointStoreLoader(args.source)
     lo, hi = loader.world_box()

@@ -237,7 +237,7 @@ def render_path(
         (:func:`clipvol.app.annotate.present`), so they show the patient as ``clipvol render`` does.
     on_failed : callable, optional
         Called as ``on_failed(k, camera, image, failed_bricks)`` for a frame whose wanted bricks
-        include failed ones (:attr:`~clipvol.render.action.FrameStats.failed_bricks`); returns the
+        include failed ones (:attr:`~clipvol.render.frame_stats.FrameStats.failed_bricks`); returns the
         image to write (e.g. hatched) or raises to stop the path there (the frames before stay).
 
     Returns

@@ -137,7 +137,7 @@ class _Setting:
     lod_threshold: float
     memory_budget: int
     texture_budget: int
-    selection: str = "multiresolution"
+    selection: str = "projected-size"
     level: int | None = None
     #: further RenderParams changes, as ``(name, value)`` pairs (the block-budget policies)
     changes: tuple = ()
@@ -481,7 +481,10 @@ def run_report(
     ref_level = _reference_level(pyr, cap)
     full_mem = _holding_budget(pyr, ref_level)
     full_tex = full_mem
-    cams = list(make_path(path, pyr, int(views), size=size))
+    from ..scene.views import patient_path
+
+    path_name, path_kwargs = patient_path(path, getattr(loader, "frame", None))  # head-up for a patient
+    cams = list(make_path(path_name, pyr, int(views), size=size, **path_kwargs))
     result = ReportResult(out_dir=out, csv=out / "report.csv", markdown=out / "report.md", reference_level=ref_level,
                           rounds=rounds)
     base = RenderParams(mode=mode, step=step, texture_budget=full_tex)

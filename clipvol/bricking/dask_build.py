@@ -35,16 +35,18 @@ from __future__ import annotations
 import sys
 from itertools import product
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
 from ..errors import InputFormatError, MissingExtraError, ParameterError
-from .pipeline import (_brick_shape, _check_params, _create_store, check_overwrite_spares, chunk_encoder, encode_brick,
-                       job_spec, mark_complete, output_lock, prepare_output, write_errors)
+from .build_options import BuildOptions
+from .pipeline import (_create_store, check_overwrite_spares, chunk_encoder, encode_brick, job_spec, mark_complete,
+                       output_lock, prepare_output, write_errors)
 from .pyramid import Pyramid, downsample
 from .sources import check_source_unchanged, file_inodes, open_source
 from .stats import StatsComputer, finite_range
+from .worldframe import WorldFrame
 from .store import STAT_ARRAYS, STATS_GROUP, StoreMeta, parse_metadata
 
 __all__ = ["brick_volume_dask", "SCHEDULERS", "DEFAULT_SPAN"]
@@ -209,46 +211,38 @@ class _RowBook:
 def brick_volume_dask(
     source,
     output,
+    options: BuildOptions | None = None,
     *,
     scheduler: str = "threads",
-    brick: int | Sequence[int] = 64,
-    filter: str = "mean",
-    codec: str = "lz4",
-    spacing: Sequence[float] | None = None,
-    unit: str | None = None,
-    workers: int | None = None,
-    overwrite: bool = False,
-    progress: bool = True,
-    raw_shape: Sequence[int] | None = None,
-    raw_dtype=None,
-    byte_order: str = "little",
     span: int = DEFAULT_SPAN,
     client=None,
-    summary: bool = True,
+    **kwargs,
 ) -> StoreMeta:
     """Brick ``source`` into ``output`` on Dask; the store is byte-identical to
-    :func:`clipvol.bricking.pipeline.brick_volume`'s with the same arguments.
+    :func:`clipvol.bricking.pipeline.brick_volume`'s with the same options.
 
     Parameters
     ----------
+    options : BuildOptions, optional
+        How to build the store (:class:`~clipvol.bricking.build_options.BuildOptions`, the same
+        value the local build takes); ``**kwargs`` are any of its options, over ``options``.
+        ``workers`` is the number of threads (``threads``) or processes (``processes``); it is
+        ignored for a cluster address.
     scheduler : str
         ``threads``, ``processes`` or the address of a ``dask.distributed`` scheduler.
-    workers : int, optional
-        Threads (``threads``) or processes (``processes``); default: number of cores. Ignored
-        for a cluster address.
     span : int
         Levels per tier task (>= 1); see the module docstring for the memory it implies.
     client : distributed.Client, optional
         Use this client instead of making one from ``scheduler``.
-    summary : bool
-        Then build the summary tables of image-based level of detail, as the local path does
-        (:func:`clipvol.bricking.summary.build_summary`, on the client, from the finished store).
 
-    The other parameters are :func:`~clipvol.bricking.pipeline.brick_volume`'s.
+    The summary tables of image-based level of detail (``summary``) are built on the client, from
+    the finished store (:func:`clipvol.bricking.summary.build_summary`), as the local path does.
     """
     _need_dask()
-    bshape = _brick_shape(brick)
-    spacing, workers = _check_params(filter, codec, spacing, unit or "micrometer", workers)
+    opts = BuildOptions.from_kwargs(options, **kwargs)
+    spacing, unit, workers, progress, overwrite = opts.spacing, opts.unit, opts.workers, opts.progress, opts.overwrite
+    bshape, filter, codec, origin = opts.brick, opts.filter, opts.codec, opts.origin
+    raw_shape, raw_dtype, byte_order = opts.raw_shape, opts.raw_dtype, opts.byte_order
     if isinstance(span, bool) or not isinstance(span, int) or not 1 <= span <= 6:
         raise ParameterError(f"span: expected an integer in 1..6, got {span!r}")
     output = Path(output).absolute()
@@ -259,6 +253,8 @@ def brick_volume_dask(
         sp = tuple(float(v) for v in (spacing or src.spacing or (1.0, 1.0, 1.0)))
         unit = unit or getattr(src, "unit", None) or "micrometer"  # as the local path decides them
         frame = src.frame.with_spacing(sp) if getattr(src, "frame", None) is not None else None
+        if origin is not None:  # as the local build places voxel 0
+            frame = (frame or WorldFrame.from_spacing(sp)).with_origin(origin)
         job = job_spec(src, src.shape, bshape, filter, codec, sp, unit)
         inodes = file_inodes(src)
         if overwrite:
@@ -294,7 +290,7 @@ def brick_volume_dask(
             finally:
                 again.close()
             mark_complete(group)  # the very last write, by the client
-        if summary:  # the same tables as the local path, with their own completion marker
+        if opts.summary:  # the same tables as the local path, with their own completion marker
             from .summary import build_summary
 
             build_summary(output, workers=workers, progress=progress)

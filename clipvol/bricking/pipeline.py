@@ -40,13 +40,14 @@ import sys
 import threading
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable
 
 import numpy as np
 
 from ..errors import (OPERATIONAL_ERRNOS, ClipvolError, InputFormatError, OutputExistsError, OutputLockedError,
                       OutputWriteError, ParameterError, SourceChangedError, describe_os_error)
-from .pyramid import FILTERS, Pyramid, downsample
+from .build_options import BRICK_RANGE, CODECS, BuildOptions
+from .pyramid import Pyramid, downsample
 from .source_types import Source
 from .sources import check_source_unchanged, file_inodes, identity_changes, open_source, source_identity
 from .stats import StatsComputer, finite_range
@@ -61,30 +62,19 @@ from .store import (
     parse_metadata,
 )
 
-__all__ = ["brick_volume", "CODECS", "BRICK_RANGE", "store_codecs", "chunk_encoder", "output_lock", "job_spec",
+__all__ = ["brick_volume", "BuildOptions", "write_chunk", "CODECS", "BRICK_RANGE", "store_codecs", "chunk_encoder", "output_lock", "job_spec",
            "prepare_output", "mark_complete", "encode_brick"]
 
-CODECS = ("lz4", "zstd", "none")
-BRICK_RANGE = (8, 256)
-
-#: test hook: called as ``_after_brick(level, index)`` in the worker after each brick is written
-_after_brick: Callable[[int, tuple[int, int, int]], None] | None = None
 
 
-def _brick_shape(brick) -> tuple[int, int, int]:
-    if isinstance(brick, (int, np.integer)) and not isinstance(brick, bool):
-        b = (int(brick),) * 3
-    else:
-        try:
-            b = tuple(int(v) for v in brick)
-        except (TypeError, ValueError):
-            raise ParameterError(f"brick: expected an even integer in {BRICK_RANGE[0]}..{BRICK_RANGE[1]}, got {brick!r}") from None
-        if len(b) != 3:
-            raise ParameterError(f"brick: expected one integer or three (z, y, x), got {brick!r}")
-    lo, hi = BRICK_RANGE
-    if any(v < lo or v > hi or v % 2 for v in b):
-        raise ParameterError(f"brick: expected an even integer in {lo}..{hi}, got {brick!r}")
-    return b  # type: ignore[return-value]
+
+def write_chunk(path: Path, data: bytes) -> None:
+    """Write one encoded brick to its chunk file ``path`` (``L/c/k/y/x`` under the store).
+
+    The one place a local build writes a brick, so every brick's write is one call to watch or
+    to fail (tests interrupt a build here, after a given brick, as a crash or a full disk would)."""
+    with open(path, "wb") as f:
+        f.write(data)
 
 
 def store_codecs(codec: str, dtype: np.dtype, checksum: bool = True) -> list:
@@ -138,28 +128,6 @@ def encode_brick(block: np.ndarray, brick_shape, encode: Callable[[np.ndarray], 
         full = np.zeros(brick_shape, dtype=block.dtype)
         full[: block.shape[0], : block.shape[1], : block.shape[2]] = block
     return encode(full)
-
-
-def _check_params(filter: str, codec: str, spacing, unit: str, workers) -> tuple[tuple[float, float, float] | None, int]:
-    if filter not in FILTERS:
-        raise ParameterError(f"filter: expected one of {', '.join(FILTERS)}, got {filter!r}")
-    if codec not in CODECS:
-        raise ParameterError(f"codec: expected one of {', '.join(CODECS)}, got {codec!r}")
-    if spacing is not None:
-        try:
-            sp = tuple(float(v) for v in spacing)
-        except (TypeError, ValueError):
-            raise ParameterError(f"spacing: expected three numbers z,y,x, got {spacing!r}") from None
-        if len(sp) != 3 or not all(np.isfinite(sp)) or any(v <= 0 for v in sp):
-            raise ParameterError(f"spacing: expected three finite numbers > 0 (z, y, x), got {spacing!r}")
-        spacing = sp
-    if not isinstance(unit, str) or not unit.strip():
-        raise ParameterError(f"unit: expected a unit name such as 'micrometer', got {unit!r}")
-    if workers is None:
-        workers = os.cpu_count() or 1
-    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or not (1 <= workers <= 1024):
-        raise ParameterError(f"workers: expected an integer in 1..1024, got {workers!r}")
-    return spacing, int(workers)
 
 
 def job_spec(src: Source, pyr_shape, brick, filter, codec, spacing, unit) -> dict[str, Any]:
@@ -420,13 +388,10 @@ class _Builder:
                     d.mkdir(parents=True, exist_ok=True)
                     with self._dir_lock:
                         self._made_dirs.add(d)
-                with open(d / str(bx), "wb") as f:
-                    f.write(data)
+                write_chunk(d / str(bx), data)
                 with self._bytes_lock:
                     self.bytes_written += len(data)
             st = (st, crc)
-            if _after_brick is not None:
-                _after_brick(L, (k, by, bx))
         if L + 1 < self.nlev:
             child = downsample(block, self.pyr.filter)
             buf = self.buffers[L + 1]
@@ -525,24 +490,7 @@ def create_stats_arrays(group, g: tuple[int, int, int], L: int, names=STAT_ARRAY
                         overwrite=True)
 
 
-def brick_volume(
-    source,
-    output,
-    *,
-    brick: int | Sequence[int] = 64,
-    filter: str = "mean",
-    codec: str = "lz4",
-    spacing: Sequence[float] | None = None,
-    unit: str | None = None,
-    workers: int | None = None,
-    overwrite: bool = False,
-    progress: bool = True,
-    raw_shape: Sequence[int] | None = None,
-    raw_dtype=None,
-    byte_order: str = "little",
-    summary: bool = True,
-    origin: Sequence[float] | None = None,
-) -> StoreMeta:
+def brick_volume(source, output, options: BuildOptions | None = None, **kwargs) -> StoreMeta:
     """Brick ``source`` into a multiresolution clipvol store at ``output`` (a local directory).
 
     Parameters
@@ -551,42 +499,23 @@ def brick_volume(
         Level-0 input; see :func:`clipvol.bricking.sources.open_source` for the formats.
     output : str or Path
         The store directory to create (or resume).
-    brick : int or (int, int, int)
-        Brick edge in voxels, even, 8..256.
-    filter : {'mean', 'subsample', 'max', 'mode'}
-        The 2x2x2 down-sampling filter.
-    codec : {'lz4', 'zstd', 'none'}
-        Blosc lz4 (clevel 5) or zstd (clevel 1) with byte shuffle (bit shuffle for 8-bit data).
-    spacing : (z, y, x) or None
-        Level-0 voxel size; None takes the input's own, else 1.
-    unit : str or None
-        Unit of ``spacing`` in the OME metadata; None takes the input's own (``millimeter`` for
-        NIfTI and DICOM, ``angstrom`` for MRC), else ``micrometer``.
-    workers : int or None
-        Threads for compression and filtering (default: number of cores).
-    overwrite : bool
-        Remove an existing ``output`` first. Without it an existing output is an error, except an
-        interrupted build of the same job, which is resumed.
-    progress : bool
-        Show a tqdm progress bar on stderr.
-    raw_shape, raw_dtype, byte_order
-        Layout of a raw binary input.
-    summary : bool
-        Also build the summary tables of image-based level of detail
-        (:func:`clipvol.bricking.summary.build_summary`) once the pyramid is complete.
-    origin : (z, y, x) or None
-        World position of voxel 0 (OME ``translation``); None takes the input's own (NIfTI, DICOM,
-        MRC), else 0. Co-registered volumes (overlays, :mod:`clipvol.scene.overlay`) are placed by it.
+    options : BuildOptions, optional
+        How to build it (:class:`~clipvol.bricking.build_options.BuildOptions`: brick, filter,
+        codec, spacing, unit, workers, overwrite, progress, raw_shape, raw_dtype, byte_order,
+        summary, origin); :func:`clipvol.bricking.dask_build.brick_volume_dask` takes the same.
+    **kwargs
+        Any of those options as a keyword, over ``options`` (``brick=32, codec="zstd"``).
 
     Returns
     -------
     StoreMeta
         The validated metadata of the finished store.
     """
-    bshape = _brick_shape(brick)
-    spacing, workers = _check_params(filter, codec, spacing, unit or "micrometer", workers)
+    opts = BuildOptions.from_kwargs(options, **kwargs)
+    spacing, unit, workers, progress = opts.spacing, opts.unit, opts.workers, opts.progress
+    bshape, filter, codec, origin, overwrite = opts.brick, opts.filter, opts.codec, opts.origin, opts.overwrite
     output = Path(output)
-    src = open_source(source, raw_shape=raw_shape, raw_dtype=raw_dtype, byte_order=byte_order)
+    src = open_source(source, raw_shape=opts.raw_shape, raw_dtype=opts.raw_dtype, byte_order=opts.byte_order)
     try:
         if spacing is None and getattr(src, "spacing_required", None):  # the input records no voxel size
             raise InputFormatError(src.spacing_required)
@@ -615,7 +544,7 @@ def brick_volume(
             _sweep(src, group, pyramid, output, codec, pool, progress)
             check_source_unchanged(src, job["source_identity"], inodes, output)
             mark_complete(group)  # the very last write
-        if summary:  # summary tables (image-based LOD): their own completion marker, resumable
+        if opts.summary:  # summary tables (image-based LOD): their own completion marker, resumable
             from .summary import build_summary
 
             with write_errors(output, "its summary tables"):

@@ -318,6 +318,7 @@ class FsspecByteSource:
         self.cache: ChunkCache | None = None
         self.requests = 0  # requests sent, retries included
         self.retried = 0
+        self.bytes_fetched = 0  # response bytes over the network (counted where they arrive)
         self._count_lock = threading.Lock()
 
     def enable_cache(self, namespace_seed: bytes) -> None:
@@ -360,7 +361,7 @@ class FsspecByteSource:
                 with self._count_lock:
                     self.requests += 1
                 try:
-                    return bytes(self.fs.cat_file(path))
+                    data = bytes(self.fs.cat_file(path))
                 except Exception as e:  # the storage libraries raise many types: classify them
                     kind = _classify(e)
                     if kind == "absent":
@@ -374,6 +375,10 @@ class FsspecByteSource:
                         if over and attempt < self.retries:
                             tail += f" in {spent:.0f} s (the budget per request is {self.timeout:g} s)"
                         raise RemoteStoreError(f"{self.display_url}: cannot read {key}: {_describe(e)}{tail}") from None
+                else:
+                    with self._count_lock:
+                        self.bytes_fetched += len(data)
+                    return data
             attempt += 1
             with self._count_lock:
                 self.retried += 1

@@ -8,6 +8,10 @@ gives their slots to the bricks that entered, and re-sorts one load queue by dis
 before fine at equal distance, biased towards where the centre is going). Loader threads pop the
 queue front, call the loader, validate, copy into the slot and set its state to ``RESIDENT``.
 
+A render action may narrow what is read with a region of interest (:meth:`ClipTexture.set_region`,
+:mod:`clipvol.paging.region`): per level, the bricks it will draw - a slice's slab - around which
+the windows are fitted inside the same slots and of which alone the bricks are queued.
+
 The paging stage's threads live here (bricking has its own worker pool, and the loader conformance
 suite its own test threads); the load order and retry timing are :mod:`clipvol.paging.queue`. One
 lock guards all bookkeeping; loader calls run
@@ -40,6 +44,8 @@ from ..units import parse_bytes
 from .cells import cell_edges, cell_ranges
 from .loader import BrickKey, HasBrickRanges, Loader, check_brick
 from .queue import LoadQueue
+from .readcount import bytes_read_of
+from .region import Region
 from .toroidal import (
     Allocation,
     allocate,
@@ -47,6 +53,7 @@ from .toroidal import (
     in_box,
     level_window,
     predicted_offset,
+    region_window,
     slot_of,
     window_bricks,
     window_shape,
@@ -72,7 +79,8 @@ _URGENT = 1e18
 class BrickState(IntEnum):
     """Lifecycle of a brick of the clip-texture (see ``docs/cliptexture.md``).
 
-    ``ABSENT`` (outside every window, or not yet placed) -> ``QUEUED`` (in a window, waiting in the
+    ``ABSENT`` (outside every window, not yet placed, or in a window but outside the region of
+    interest of :meth:`ClipTexture.set_region`) -> ``QUEUED`` (in a window, waiting in the
     load queue) -> ``LOADING`` (a loader thread is reading it) -> ``RESIDENT`` (its slot holds the
     loader's data) or, after the retries, ``FAILED``. Leaving the window makes any state ``ABSENT``.
     """
@@ -118,6 +126,8 @@ class ClipTextureStats:
     failures: int
     #: bricks the loader's bounds showed to be empty: filled without a read, not counted as loads
     empty_skipped: int = 0
+    #: bytes the loader has read from storage (its ``read_counter``; None: the loader does not count)
+    bytes_read: int | None = None
 
 
 #: most loader threads: more only add stacks and lock contention (each thread's loads are I/O or a
@@ -220,6 +230,10 @@ class ClipTexture:
         start), so the first fill does not pay a page fault per 4 KiB inside the loader threads.
         ``False`` maps pages only as bricks are written (a budget far above what a session visits
         then costs no memory).
+    region : Region, optional
+        Page only these bricks from the start (:meth:`set_region`); ``Region.empty(levels)`` reads
+        nothing until a render action sets its own region - a slice viewer then never fills cubes
+        it does not draw. Default: cube windows around ``center``.
 
     Notes
     -----
@@ -239,7 +253,9 @@ class ClipTexture:
         on_error: Callable[[BrickKey, BaseException], None] | None = None,
         predictive: bool = True,
         prefault: bool = True,
+        region: Region | None = None,
         cells_on_load: bool = False,
+        outside: Callable[[int, np.ndarray], np.ndarray] | None = None,
     ) -> None:
         self.loader = loader
         self.pyramid = loader.pyramid
@@ -280,6 +296,8 @@ class ClipTexture:
         # empty bricks (bounds [fill, fill], see HasBrickRanges) are filled here, never read
         self._ranges = loader.brick_ranges if isinstance(loader, HasBrickRanges) else None
         self._ranges_failed: set[int] = set()  # levels whose bounds call failed: not asked again
+        # bricks outside the cut (crop box, clip planes: see set_outside) are filled here, never read
+        self._outside = outside
         self._fill_brick = np.full(pyr.brick_shape, pyr.fill_value, dtype=pyr.dtype)
         self._fill_brick.setflags(write=False)
         self._fill_cells = None if cells is None else cell_ranges(self._fill_brick, self.cell_edges)
@@ -297,8 +315,14 @@ class ClipTexture:
         self._latency: deque[float] = deque(maxlen=LATENCY_SAMPLES)
         self._t0 = time.perf_counter()
         lo, hi = pyr.volume_box()
+        if center is None and region is not None:
+            center = region.center
         c = (lo + hi) / 2.0 if center is None else self._check_center(center)
         self._history: deque[np.ndarray] = deque([c], maxlen=HISTORY)
+        self._region: Region | None = None  # None: cube windows, every brick of a window queued
+        if region is not None:
+            self._check_region(region)
+            self._region = region
         with self._cv:
             self._apply(c, self._window)
         # the threads hold only a weak reference between loads, so a clip-texture that is dropped
@@ -353,6 +377,14 @@ class ClipTexture:
         res = np.zeros(len(idx), dtype=bool)
         res[ok] = (lv.state[s] == _RESIDENT) & np.all(lv.key[s] == idx[ok], axis=1)
         return res
+
+    def out_of_reach_mask(self, level: int, indices: np.ndarray) -> np.ndarray:
+        """``(n,)`` bool: bricks of ``level`` that the region (:meth:`set_region`) says no sample reaches
+        (outside a slice's slab). All False with cube windows."""
+        region = self._region
+        if region is None:
+            return np.zeros(len(np.asarray(indices).reshape(-1, 3)), dtype=bool)
+        return region.out_of_reach(self.pyramid, self._lv(level).level, indices)
 
     def state(self, level: int, index) -> BrickState:
         """The :class:`BrickState` of brick ``index`` of ``level``."""
@@ -459,6 +491,7 @@ class ClipTexture:
             dropped=dropped,
             failures=fails,
             empty_skipped=skipped,
+            bytes_read=bytes_read_of(self.loader),
         )
 
     # -- control ---------------------------------------------------------------------------------
@@ -467,12 +500,63 @@ class ClipTexture:
         c = self._check_center(xyz)
         with self._cv:
             self._check_open()
-            prev = self._history[-1]
-            if self._is_teleport(c - prev):
-                self._history.clear()
-            self._history.append(c)
-            self._apply(c, self._window)
+            self._move_to(c)
             self._cv.notify_all()
+
+    @property
+    def region(self) -> Region | None:
+        """The region of interest set by :meth:`set_region` (``None``: cube windows)."""
+        return self._region
+
+    @property
+    def bytes_read(self) -> int | None:
+        """Bytes the loader has read from storage so far (``None`` if it does not count them)."""
+        return bytes_read_of(self.loader)
+
+    def set_region(self, region: Region | None) -> None:
+        """Page the bricks of ``region`` (per level, around its centre) instead of cube windows.
+
+        A render action calls this each frame with what it will draw (a slice: a slab per level,
+        :mod:`clipvol.paging.slab`); ``None`` restores cube windows around the current centre (a
+        volume view). The centre moves to ``region.center`` (motion prediction included); each
+        windowed level's window is fitted around the level's bricks inside its slots
+        (:func:`~clipvol.paging.toroidal.region_window`: the memory budget holds), and only the
+        region's bricks are queued, nearest the centre first. Bricks of a window outside the region
+        are read only when a frame waits for them. Repeating the current region changes nothing.
+        """
+        if region is not None:
+            self._check_region(region)
+        with self._cv:
+            self._check_open()
+            if region is None and self._region is None:
+                return
+            if region is not None and region.same_as(self._region):
+                return
+            self._region = region
+            if region is None:
+                self._apply(self._history[-1], self._window)
+            else:
+                self._move_to(np.asarray(region.center, dtype=np.float64))
+            self._cv.notify_all()
+
+    def _check_region(self, region) -> None:
+        if not isinstance(region, Region):
+            raise ParameterError(f"region: expected a clipvol.paging.region.Region or None, "
+                                 f"got {type(region).__name__}")
+        if len(region.bricks) != self.pyramid.num_levels:
+            raise ParameterError(f"region: expected bricks for {self.pyramid.num_levels} levels, "
+                                 f"got {len(region.bricks)}")
+        for L, b in enumerate(region.bricks):
+            if b is not None and len(b) and np.any(b.max(axis=0) >= np.asarray(self.pyramid.grid(L))):
+                raise ParameterError(f"region: brick indices of level {L} beyond its grid {self.pyramid.grid(L)}")
+
+    def _move_to(self, c: np.ndarray) -> None:
+        """Append ``c`` to the motion history (reset on a teleport) and place the windows; lock held."""
+        prev = self._history[-1]
+        if self._is_teleport(c - prev):
+            self._history.clear()
+        self._history.append(c)
+        self._apply(c, self._window)
 
     def set_roaming_window(self, size: int) -> None:
         """Set ``W``, the bricks per axis of the windowed levels' windows.
@@ -488,6 +572,44 @@ class ClipTexture:
             self._window = w
             self._apply(self._history[-1], w)
             self._cv.notify_all()
+
+    def set_outside(self, outside: Callable[[int, np.ndarray], np.ndarray] | None) -> int:
+        """Bricks never to read: ``outside(level, keys (n, 3))`` -> ``(n,)`` bool, or None for none.
+
+        A renderer that draws only a cut of the volume (a crop box, clip planes: see
+        :class:`clipvol.scene.geometry.Shape`) culls the bricks outside it; this keeps the
+        clip-texture from reading them too. They are filled with the fill value like empty bricks
+        (never drawn: the selection culls them). A new cut re-queues the bricks it brings back in;
+        returns how many (a GPU cache holding their fill must then be emptied).
+        """
+        if outside is not None and not callable(outside):
+            raise ParameterError(f"outside: expected a callable(level, keys) or None, got {outside!r}")
+        with self._cv:
+            self._check_open()
+            self._outside = outside
+            requeued = 0
+            for lv in self._levels:
+                held = np.nonzero(lv.key[:, 0] >= 0)[0]
+                if not len(held):
+                    continue
+                now_empty = self._empty_mask(lv.level, lv.key[held])
+                back = held[lv.empty[held] & ~now_empty]  # filled for the old cut, inside the new one
+                lv.gen[back] += 1  # a late fill for the old cut is dropped
+                lv.attempts[back] = 0
+                lv.not_before[back] = 0.0
+                lv.empty[back] = False
+                # read again; one a region of interest leaves unqueued (ABSENT) stays so, now unfilled
+                lv.state[back[lv.state[back] != _ABSENT]] = _QUEUED
+                requeued += len(back)
+                waiting = held[(lv.state[held] == _QUEUED) & now_empty]  # not read yet, now outside
+                lv.empty[waiting] = True
+            self._pending = sum(
+                int(np.count_nonzero((lv.state >= _QUEUED) & (lv.state <= _LOADING))) for lv in self._levels
+            )
+            self.residency_version += 1
+            self._rebuild_queue()
+            self._cv.notify_all()
+        return requeued
 
     def wait_until_idle(self, timeout: float | None = None) -> bool:
         """Block until no brick is queued or loading; ``False`` if ``timeout`` seconds passed first."""
@@ -538,7 +660,8 @@ class ClipTexture:
         prefetching but makes a frame that needs a few bricks of a large window (a point octree's
         sparse deep levels, a thin cut) wait behind many it does not draw. The moved bricks' old
         entries stay in the queue and are skipped when popped (lazy invalidation); retries keep
-        their back-off.
+        their back-off. A brick of a window that the current region (:meth:`set_region`) left
+        unqueued is queued now: a frame reads what it draws even where the region did not foresee it.
         """
         moved = 0
         with self._cv:
@@ -549,6 +672,11 @@ class ClipTexture:
                     continue
                 lv = self._levels[L]
                 s = self._slot_if_held(lv, idx)
+                if s is not None and lv.state[s] == _ABSENT:  # in the window, outside the region: read on demand
+                    lv.state[s] = _QUEUED
+                    lv.attempts[s] = 0
+                    lv.not_before[s] = 0.0
+                    self._pending += 1
                 if s is not None and lv.state[s] == _QUEUED and lv.not_before[s] <= 0.0:
                     by_level.setdefault(L, []).append((s, idx))
             for L, items in by_level.items():
@@ -654,12 +782,23 @@ class ClipTexture:
     def _apply(self, center: np.ndarray, window: int) -> None:
         """Place every level's window for ``center`` and ``window``; evict, move, queue; re-sort."""
         evicted = 0
+        region = self._region
         for lv in self._levels:
-            shape = lv.grid if lv.whole else window_shape(lv.grid, window)
-            start, stop = level_window(self.pyramid, lv.level, center, shape)
-            if (start, stop, shape) == (lv.start, lv.stop, lv.shape):
-                continue
-            evicted += self._relayout(lv, start, stop, shape)
+            want = None if region is None else region.bricks[lv.level]
+            if lv.whole:
+                shape = lv.grid
+                start, stop = level_window(self.pyramid, lv.level, center, shape)
+            elif want is not None and len(want):
+                start, stop = region_window(
+                    lv.grid, window_shape(lv.grid, window), len(lv.state), tuple(want.min(axis=0)),
+                    tuple(want.max(axis=0) + 1), self.pyramid.world_to_brick(lv.level, center))
+                shape = tuple(b - a for a, b in zip(start, stop))
+            else:
+                shape = window_shape(lv.grid, window)
+                start, stop = level_window(self.pyramid, lv.level, center, shape)
+            if (start, stop, shape) != (lv.start, lv.stop, lv.shape):
+                evicted += self._relayout(lv, start, stop, shape)
+            self._queue_wanted(lv, want)
         if evicted:
             self.residency_version += 1
         self._pending = sum(
@@ -732,6 +871,28 @@ class ClipTexture:
         lv.start, lv.stop, lv.shape = start, stop, shape
         still = int(np.count_nonzero(lv.state == _RESIDENT))
         return was_resident - still
+
+    def _queue_wanted(self, lv: _Level, want: np.ndarray | None) -> None:
+        """Queue the window's bricks that ``want`` lists (``None``: all of them); unqueue the rest.
+
+        A brick of the window outside the region keeps its slot, key and generation with state
+        ``ABSENT`` (never read unless :meth:`prioritize` asks for it); a resident, loading or failed
+        one keeps its state (holding it costs nothing: the slot is allocated either way).
+        """
+        held = lv.key[:, 0] >= 0
+        if want is None:
+            wanted = held
+        else:
+            g = np.asarray(lv.grid, dtype=np.int64)
+            code = (lv.key[:, 0] * g[1] + lv.key[:, 1]) * g[2] + lv.key[:, 2]
+            wcode = (want[:, 0] * g[1] + want[:, 1]) * g[2] + want[:, 2]
+            wanted = held & np.isin(code, wcode)
+        on = wanted & (lv.state == _ABSENT)
+        if on.any():
+            lv.state[on] = _QUEUED
+            lv.attempts[on] = 0
+            lv.not_before[on] = 0.0
+        lv.state[~wanted & (lv.state == _QUEUED)] = _ABSENT
 
     def _rebuild_queue(self) -> None:
         """Rebuild the load queue (sorted by cost, coarse first at ties) and the retry queue."""
@@ -873,7 +1034,8 @@ class ClipTexture:
         return True
 
     def _empty_mask(self, level: int, keys: np.ndarray) -> np.ndarray:
-        """``(n,)`` bool: which bricks ``keys`` the loader's bounds show to hold only the fill value.
+        """``(n,)`` bool: which bricks ``keys`` are filled instead of read: outside the cut
+        (:meth:`set_outside`), or shown by the loader's bounds to hold only the fill value.
 
         One vectorised call when bricks enter a window (not one per load in the loader threads,
         where its small numpy steps held the GIL against the other threads' reads). Bounds that are
@@ -881,6 +1043,13 @@ class ClipTexture:
         real failure. After a failed call the level's bounds are not asked again (this runs under
         the lock, and a remote store's bounds may need the network).
         """
+        n = len(keys)
+        cut = np.zeros(n, dtype=bool)
+        if self._outside is not None and n:
+            cut = np.asarray(self._outside(level, np.asarray(keys, dtype=np.int64).reshape(-1, 3)), dtype=bool)
+        return cut | self._bounds_empty(level, keys)
+
+    def _bounds_empty(self, level: int, keys: np.ndarray) -> np.ndarray:
         n = len(keys)
         if self._ranges is None or n == 0 or level in self._ranges_failed:
             return np.zeros(n, dtype=bool)

@@ -23,6 +23,10 @@ the transfer function makes fully transparent without ever loading them, and the
 never reads an empty brick. A loader may also offer ``read_brick_into(level, index, out)``, which
 writes the brick straight into the clip-texture's slot ``out`` (same contract, no copy).
 
+A loader that reads from storage may also hold a ``read_counter``
+(:class:`clipvol.paging.readcount.ReadCounter`) and count the bytes of every read where it reads
+them; the clip-texture and the render actions then report bytes read per frame and per slice.
+
 ``clipvol.testing.LoaderTests`` is a conformance suite every loader (yours too) can run.
 """
 

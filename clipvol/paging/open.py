@@ -88,9 +88,11 @@ def open_store(path_or_url: str | Path, **kwargs) -> Loader:
                 )
             from ..loaders.zarr_store import ZarrLoader
 
-            n = _channel_set(path)
-            if n is not None:  # clipvol brick of a (c, z, y, x) input: one store per channel
-                return _open_channel(path, n, kwargs)
+            from ..bricking.channels import image_set
+
+            found = image_set(path)
+            if found is not None:  # clipvol brick of a 4-D input: one store per channel or time step
+                return _open_member(path, *found, kwargs)
             return _construct(ZarrLoader, path, kwargs)
         raise InputFormatError(f"{path}: expected a zarr store (a directory with zarr.json or .zgroup), found neither")
     if path.suffix.lower() == ".npy":
@@ -123,38 +125,21 @@ def _construct(loader_class, where, kwargs: dict):
     return loader_class(where, **kwargs)
 
 
-def _channel_set(path: Path) -> int | None:
-    """Channels of a channel set (:mod:`clipvol.bricking.channels`), or None for any other group."""
-    import json
-
-    from ..bricking.store_files import read_file
-
-    try:  # never a FIFO or a device: the loader refuses those with a message
-        attrs = json.loads(read_file(path / "zarr.json", path)).get("attributes", {})
-    except (OSError, ValueError, AttributeError):
-        return None
-    cs = attrs.get("clipvol_channels") if isinstance(attrs, dict) else None
-    if not isinstance(cs, dict):
-        return None
-    try:
-        return int(cs["channels"])
-    except (KeyError, TypeError, ValueError):
-        raise InputFormatError(f"{path}: attributes['clipvol_channels'] is malformed: {cs!r}") from None
-
-
-def _open_channel(path: Path, n: int, kwargs: dict):
-    """Channel ``c`` (default 0) of a channel set, its loader reporting the ``c`` axis."""
-    from ..errors import ParameterError
+def _open_member(path: Path, axis: str, n: int, kwargs: dict):
+    """Member ``c`` or ``t`` (default 0) of an image set (:mod:`clipvol.bricking.channels`), its
+    loader reporting the set's axis (``axes == ("c",)``, ``lead_shape == (n,)``)."""
     from ..loaders.zarr_store import ZarrLoader
 
     kwargs = dict(kwargs)
-    c, t = kwargs.pop("c", None), kwargs.pop("t", None)
-    if t not in (None, 0):
-        raise ParameterError(f"t: {path} has no 't' axis (a channel set: c, z, y, x), got t={t}")
-    c = 0 if c is None else c
-    if isinstance(c, bool) or int(c) != c or not 0 <= c < n:
-        raise ParameterError(f"c: expected 0..{n - 1} for {path} ({n} channels), got {c!r}")
-    loader = ZarrLoader(path / "c" / str(int(c)), **kwargs)
-    loader.axes, loader.lead_shape = ("c",), (n,)
+    want = {"c": kwargs.pop("c", None), "t": kwargs.pop("t", None)}
+    kind = "a channel set: c, z, y, x" if axis == "c" else "a time series: t, z, y, x"
+    for name, v in want.items():
+        if name != axis and v not in (None, 0):
+            raise ParameterError(f"{name}: {path} has no {name!r} axis ({kind}), got {name}={v}")
+    k = 0 if want[axis] is None else want[axis]
+    if isinstance(k, bool) or int(k) != k or not 0 <= k < n:
+        what = "channels" if axis == "c" else "time steps"
+        raise ParameterError(f"{axis}: expected 0..{n - 1} for {path} ({n} {what}), got {k!r}")
+    loader = _construct(ZarrLoader, path / axis / str(int(k)), kwargs)
+    loader.axes, loader.lead_shape = (axis,), (n,)
     return loader
-

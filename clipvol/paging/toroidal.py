@@ -64,6 +64,7 @@ __all__ = [
     "window_diff",
     "brick_costs",
     "predicted_offset",
+    "region_window",
 ]
 
 
@@ -266,3 +267,31 @@ def predicted_offset(history: Sequence[np.ndarray], lookahead: float = 1.0) -> n
     h = np.asarray(history, dtype=np.float64)
     v = (h[-1] - h[0]) / (len(h) - 1)
     return lookahead * v
+
+
+def region_window(grid: Int3, cube: Int3, capacity: int, lo: Int3, hi: Int3, center_brick: Int3) -> tuple[Int3, Int3]:
+    """``(start, stop)`` of a window that holds the region box ``[lo, hi)`` in ``capacity`` slots.
+
+    The window takes the cube's shape where the region fits inside it (a stable shape while the
+    region moves: moves re-use slots instead of re-assigning them) and grows along the axes where the
+    region is longer (a slab: wide in the plane, thin across it), paying for it on the axes where
+    the cube has room to spare, then - if still too large - on the longest axes. A window smaller
+    than the region is centred on ``center_brick`` inside the region; one larger holds it whole.
+    """
+    g = np.asarray(grid, dtype=np.int64)
+    ext = np.maximum(np.asarray(hi, dtype=np.int64) - np.asarray(lo, dtype=np.int64), 1)
+    shape = np.minimum(np.maximum(ext, np.asarray(cube, dtype=np.int64)), g)
+    cap = max(int(capacity), 1)
+    while int(np.prod(shape)) > cap:
+        slack = shape - ext
+        k = int(np.argmax(slack)) if slack.max() > 0 else int(np.argmax(shape))
+        if shape[k] <= 1:
+            break
+        shape[k] -= 1
+    lo_a, hi_a = np.asarray(lo, dtype=np.int64), np.asarray(hi, dtype=np.int64)
+    c = np.asarray(center_brick, dtype=np.int64)
+    start = np.where(shape >= ext,
+                     np.clip(lo_a - (shape - ext) // 2, np.maximum(hi_a - shape, 0), np.minimum(lo_a, g - shape)),
+                     np.clip(c - shape // 2, lo_a, hi_a - shape))
+    start = np.clip(start, 0, g - shape)
+    return tuple(int(v) for v in start), tuple(int(v) for v in start + shape)  # type: ignore[return-value]

@@ -474,7 +474,8 @@ class GpuBrickCache:
     def missing_neighbours(self, items) -> list[tuple[int, tuple[int, int, int]]]:
         """Neighbours of the drawn bricks that the drawn bricks' filtering would use but that are not
         on the GPU: inside the clip-texture's window, not failed, and their slot not held this frame
-        by another brick. A frame is only converged when this is empty (else it changes later)."""
+        by another brick, not left out by the clip-texture's region of interest. A frame is only
+        converged when this is empty (else it changes later)."""
 
         out = []
         for level, nb in self._neighbours(items).items():
@@ -486,7 +487,8 @@ class GpuBrickCache:
             held = self._reserved[level][slots[:, 0], slots[:, 1], slots[:, 2]]
             nb = nb[(held[:, 0] < 0) | np.all(held == nb, axis=1)]  # its slot not held by another brick
             for key in map(tuple, nb.tolist()):
-                if self._clip.state(level, key) == BrickState.FAILED:
+                # failed, or left unread by the clip-texture's region (a slice's slab): never coming
+                if self._clip.state(level, key) in (BrickState.FAILED, BrickState.ABSENT):
                     continue
                 out.append((level, key))
         return out
@@ -550,7 +552,8 @@ class GpuBrickCache:
         """``(n, 3, 2)`` bool ``[axis (z, y, x), side (low, high)]``: may sampling cross that face?
 
         True only if the face neighbour exists and every existing brick of the 3x3 slab behind the
-        face is on the GPU (trilinear filtering near edges and corners reads those texels).
+        face is on the GPU (trilinear filtering near edges and corners reads those texels) or out of
+        every sample's reach (outside the slab of the clip-texture's region of interest).
         """
         idx = np.asarray(indices, dtype=np.int64).reshape(-1, 3)
         n = len(idx)
@@ -565,6 +568,11 @@ class GpuBrickCache:
         exists = np.all((nb >= 0) & (nb < grid), axis=2)
         s = nb % w
         ok = np.all(keys[s[..., 0], s[..., 1], s[..., 2]] == nb, axis=2) | ~exists  # (n, 27)
+        if self._clip is not None and hasattr(self._clip, "out_of_reach_mask"):
+            # a neighbour outside the slab of the clip-texture's region (a slice) is never sampled
+            away = exists & ~ok
+            if away.any():
+                ok[away] = np.asarray(self._clip.out_of_reach_mask(level, nb[away]), dtype=bool)
         for a in range(3):
             for side, d in ((0, -1), (1, 1)):
                 slab = offs[:, a] == d

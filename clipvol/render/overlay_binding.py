@@ -5,7 +5,9 @@ overlay against the primary and reads the chosen level once) and :meth:`OverlayT
 per frame after the frame's uniforms (textures on units ``FIRST_UNIT + 2k`` and ``+ 2k + 1``, the
 affine (a 3x3 matrix and an offset: any voxel-to-world affine of the overlay, flips and permutations
 exactly) from a position relative to the frame origin ``O`` to texture coordinates, the table
-mapping). The shader side is the ``OVERLAY`` variant of ``shaders/volume_common.glsl``.
+mapping, and the overlay's own sample spacing: the step fraction times its smallest voxel edge, from
+which the shader refines the primary's lattice where the primary's drawn level is coarser). The
+shader side is the ``OVERLAY`` variant of ``shaders/volume_common.glsl``.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..scene.transfer import corrected_tables
 from ..scene.overlay import (check_overlay, cull_outside, label_indices, overlay_box, overlay_level,
-                             overlay_texture_transform, read_level)
+                             overlay_texture_transform, overlay_voxel, read_level)
 
 __all__ = ["OverlayTextures", "FIRST_UNIT", "overlay_defines"]
 
@@ -124,8 +126,14 @@ class OverlayTextures:
         return tex
 
     def bind(self, prog, overlays, origin, ratios) -> None:
-        """Bind the overlays' textures and set their uniforms for a frame whose origin is ``origin`` (x, y, z)."""
+        """Bind the overlays' textures and set their uniforms for a frame whose origin is ``origin`` (x, y, z).
+
+        ``ratios``: the primary's per-level step over its level-0 voxel (``RenderAction.level_ratios``);
+        level 0's gives the step fraction, from which each overlay's own step (``u_ovk_step``) follows.
+        """
         O = np.asarray(origin, dtype=np.float64)
+        pyr = self.primary_loader.pyramid
+        step = float(ratios[0]) * float(min(pyr.spacing)) / float(min(pyr.levels[0].scale))  # voxels of a level
         u = prog.get("u_ov_inv_ref", None)
         if u is not None:  # label overlays: opacity per the primary's smallest level-0 voxel
             u.value = 1.0 / float(min(self.primary_loader.pyramid.spacing))
@@ -142,6 +150,7 @@ class OverlayTextures:
             tex.use(location=FIRST_UNIT + 2 * k)
             self._table(ov, ratios).use(location=FIRST_UNIT + 2 * k + 1)
             values = {f"u_ov{k}_tex": FIRST_UNIT + 2 * k, f"u_ov{k}_tf": FIRST_UNIT + 2 * k + 1,
+                      f"u_ov{k}_step": step * overlay_voxel(ov, L, self.primary_loader),
                       f"u_ov{k}_a": tuple(float(v) for v in a.T.reshape(-1)),  # column-major mat3
                       f"u_ov{k}_b": tuple(float(v) for v in b),
                       f"u_ov{k}_t": (float(np.clip(tm[0], -3e38, 3e38)), float(np.clip(tm[1], -3e38, 3e38)))}

@@ -3,7 +3,7 @@
 Why a pass of its own
 ---------------------
 Every composite frame ends the same way: put the background under the premultiplied colour,
-un-premultiply, clamp and round to 8 bits (:func:`clipvol.render.action.premultiplied_to_uint8`
+un-premultiply, clamp and round to 8 bits (:func:`clipvol.render.paths.setup.premultiplied_to_uint8`
 is that arithmetic in numpy). Done in numpy on the read-back float32 target it cost 13-16 ms of a
 512² frame on the development machine (float64 temporaries over a million values), and the
 read-back itself moves 16 bytes a pixel. A full-screen pass into an ``RGBA8UI`` target does the

@@ -4,6 +4,10 @@ After LaMar, Hamann & Joy, *Multiresolution cutting planes*: a plane of any orie
 at full resolution near a point of interest and coarser away from it, from the very bricks, per
 level 3D textures and budgets the volume action uses. Per frame (:meth:`SliceAction.render`):
 
+0. **Page** - the slice's region (:func:`~clipvol.scene.slice_region.slice_region`: per level, the
+   bricks within half a voxel of the plane where the policy refines, widened towards the next
+   slice while the plane scrolls) is handed to the clip-texture, which then reads that slab
+   rather than filling cubes (``follow_plane = False`` keeps the cubes).
 1. **Select** - the frame loop (:class:`~clipvol.render.frame_loop.FrameLoop`) runs the
    ``"plane"`` policy (:class:`~clipvol.scene.selection.policies.plane.PlaneCut`) with an
    orthographic camera that sees exactly the slice's pixels: nodes the plane crosses, refined by
@@ -38,12 +42,15 @@ import numpy as np
 from ..errors import ParameterError
 from ..scene.params import RenderParams
 from ..scene.plane import Plane, default_pixel_size, default_size
+from ..paging.readcount import bytes_read_of
 from ..scene.selection.policies.plane import PlaneCut
+from ..scene.slice_region import slice_region
 from .failures import failed_bricks
 from .frame_loop import FrameLoop
 from .glsl import load_shader
 from .gpu_cache import GpuBrickCache
 from .target import FloatTarget
+from .uniforms import vec3 as _vec
 
 __all__ = ["SliceAction", "SliceStats", "window_level_grey"]
 
@@ -66,7 +73,8 @@ class SliceStats:
         ``bricks_needed`` times the bytes of one brick in memory: what a loader must read for
         this slice (LaMar, Hamann & Joy's "data transferred").
     bytes_loaded : int
-        Bytes the clip-texture's loader threads read during the call (its window prefetch included).
+        Bytes of the bricks the clip-texture's loader threads loaded during the call (in memory,
+        its prefetch included).
     bytes_uploaded, bricks_uploaded : int
         Texture sub-loads of the call.
     converged : bool
@@ -76,6 +84,12 @@ class SliceStats:
     times : dict[str, float]
         Seconds in ``select`` (selection, balancing, ratios), ``upload``, ``wait``, ``draw``,
         ``readback`` and ``total``.
+    bytes_read : int or None
+        Bytes the loader read from storage during the call (chunk files or network responses,
+        counted where they are read: :mod:`clipvol.paging.readcount`); ``None`` for a loader that
+        does not count.
+    region_bricks : int
+        Bricks of the region of interest handed to the clip-texture (0 with cube windows).
     """
 
     tiles_per_level: dict[int, int]
@@ -89,6 +103,8 @@ class SliceStats:
     converged: bool
     balance_splits: int
     times: dict = field(default_factory=dict)
+    bytes_read: int | None = None
+    region_bricks: int = 0
     #: wanted bricks that failed to load, with cause and stand-in (:mod:`clipvol.render.failures`)
     failed_bricks: tuple = ()
 
@@ -103,7 +119,8 @@ class SliceStats:
                     blended=self.blended, bricks_needed=self.bricks_needed, bytes_needed=self.bytes_needed,
                     bytes_loaded=self.bytes_loaded, bytes_uploaded=self.bytes_uploaded,
                     bricks_uploaded=self.bricks_uploaded, converged=self.converged,
-                    balance_splits=self.balance_splits, times=dict(self.times),
+                    balance_splits=self.balance_splits, times=dict(self.times), bytes_read=self.bytes_read,
+                    region_bricks=self.region_bricks,
                     failed_bricks=[dict(level=f.level, index=list(f.index), cause=f.cause,
                                         stand_in=None if f.stand_in is None else [f.stand_in[0], list(f.stand_in[1])])
                                    for f in self.failed_bricks])
@@ -120,10 +137,6 @@ def window_level_grey(values: np.ndarray, center: float, width: float) -> np.nda
     ok = np.isfinite(v)
     g8 = np.rint(np.where(ok, g, 0.0) * 255.0).astype(np.uint8)
     return np.stack([g8, g8, g8, np.where(ok, 255, 0).astype(np.uint8)], axis=-1)
-
-
-def _vec(v) -> tuple[float, float, float]:
-    return tuple(float(x) for x in v)  # type: ignore[return-value]
 
 
 class SliceAction:
@@ -168,6 +181,10 @@ class SliceAction:
         self.last_ratios: np.ndarray | None = None
         #: blend high and low tiles at level changes (False shows the seams: the paper's Fig. 6a)
         self.blend = True
+        #: page the slab the slice crosses (:func:`~clipvol.scene.slice_region.slice_region`); False
+        #: leaves the clip-texture's cube windows (what a volume view pages) in place
+        self.follow_plane = True
+        self._last_plane: Plane | None = None
 
     def set_params(self, params: RenderParams) -> None:
         """Use ``params`` from the next frame on (policy forced to ``"plane"``)."""
@@ -219,6 +236,13 @@ class SliceAction:
             raise ParameterError(f"size: expected (w, h) with 1..16384 pixels per side, got {size!r}")
         t_start = time.perf_counter()
         loaded0 = self.clip_texture.stats.bytes_loaded
+        read0 = bytes_read_of(self.clip_texture.loader)
+        region_bricks = 0
+        if self.follow_plane:
+            region = slice_region(pyr, plane, self.params, px, size=size, ahead=self._scroll_step(plane))
+            self.clip_texture.set_region(region)
+            region_bricks = region.nbricks
+        self._last_plane = plane
         cam = plane.camera(size, px).fit_depth(vlo, vhi)
         deadline = None if timeout is None else t_start + float(timeout)
         policy = PlaneCut(self.params, plane)
@@ -253,6 +277,10 @@ class SliceAction:
             t0 = time.perf_counter()
             self.clip_texture.wait_for(waitable, timeout=left)
             times["wait"] += time.perf_counter() - t0
+        if self.follow_plane and not converged:
+            # what this slice still wants comes first, and what balancing wants beyond the region is read
+            # now: a viewer that never waits still converges over the next frames
+            self.clip_texture.prioritize(sel.missing_wanted() + list(missing_low))
         values, levels, ratios, draw_t, read_t = self._draw(plane, size, px, sel, low)
         times["draw"], times["readback"] = draw_t, read_t
         if window is not None:
@@ -277,8 +305,23 @@ class SliceAction:
             bricks_needed=len(needed), bytes_needed=len(needed) * pyr.brick_nbytes,
             bytes_loaded=self.clip_texture.stats.bytes_loaded - loaded0, bytes_uploaded=up_bytes,
             bricks_uploaded=up_bricks, converged=converged, balance_splits=int(sel.counts.get("balance_splits", 0)),
-            times=times, failed_bricks=failed_bricks(sel, self.clip_texture))
+            times=times, bytes_read=None if read0 is None else bytes_read_of(self.clip_texture.loader) - read0,
+            region_bricks=region_bricks, failed_bricks=failed_bricks(sel, self.clip_texture))
         return (rgba, values) if return_values else rgba
+
+    def _scroll_step(self, plane: Plane) -> float:
+        """How far (world units, signed along the normal) the plane moved since the last slice, when it
+        kept its orientation and moved less than a level-0 brick: a scroll, whose next slab is then
+        prefetched. 0 for the first slice, a turn or a jump."""
+        last = self._last_plane
+        if last is None:
+            return 0.0
+        n = np.asarray(plane.normal, dtype=np.float64)
+        if float(np.asarray(last.normal) @ n) < 1.0 - 1e-9:
+            return 0.0
+        step = float((np.asarray(plane.origin) - np.asarray(last.origin)) @ n)
+        reach = float(np.abs(n) @ (np.asarray(self.pyramid.brick_shape[::-1]) * np.asarray(self.pyramid.spacing[::-1])))
+        return step if abs(step) <= reach else 0.0
 
     def render_in_view(self, volume_action, camera, transfer_function, plane: Plane, *, opacity: float = 1.0,
                        cut: bool = True, wait: bool = False, timeout: float | None = None) -> np.ndarray:

@@ -35,7 +35,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..scene.point_gradient import wls_gradients
 from ..scene.splat_select import SplatSelection, select_splat_nodes
-from .action import premultiplied_to_uint8
+from .paths.setup import premultiplied_to_uint8
 from .glsl import load_shader
 from .target import FloatTarget
 

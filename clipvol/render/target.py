@@ -1,4 +1,4 @@
-"""The float offscreen target the slice and splat actions draw into, and giving the binding back.
+"""The float offscreen target the volume, slice and splat actions draw into, and giving the binding back.
 
 Each action keeps one RGBA float32 framebuffer that follows the requested image size (float, so
 premultiplied colour is not quantised before read-back), and after drawing binds back whatever was
@@ -7,6 +7,8 @@ breaks every later one in the context.
 """
 
 from __future__ import annotations
+
+import numpy as np
 
 __all__ = ["FloatTarget"]
 
@@ -30,6 +32,16 @@ class FloatTarget:
             self.fbo = self.ctx.framebuffer(color_attachments=[self._color])
             self._size = size
         return self.fbo
+
+    @property
+    def color(self):
+        """The colour texture of the framebuffer (a resolve pass samples it), or None before :meth:`ensure`."""
+        return self._color
+
+    def read(self) -> np.ndarray:
+        """The target as ``(h, w, 4)`` float32, rows top first."""
+        w, h = self.fbo.size
+        return np.frombuffer(self.fbo.read(components=4, dtype="f4"), dtype=np.float32).reshape(int(h), int(w), 4)[::-1]
 
     def restore(self, previous) -> None:
         """Bind ``previous`` (``ctx.fbo`` before drawing), or the default framebuffer if it was None."""

@@ -13,7 +13,11 @@ Design (pragmatic, documented in ``docs/rendering.md``)
   texture), read once from its loader into one float32 texture. It is not paged around a centre.
 * The primary's rays carry it: an overlay shows only inside the primary's volume box, on the
   primary's sample lattice (step and per-level opacity correction of the primary; the overlay's
-  table opacity is per the primary's level-0 smallest voxel, like the primary's own).
+  table opacity is per the primary's level-0 smallest voxel, like the primary's own), refined
+  where the primary's step at its drawn level is longer than the overlay's own (the same step
+  fraction of the overlay's smallest voxel): ``n`` sub-samples per primary sample, each with its
+  opacity corrected for ``1/n`` of the step, so a coarse primary level never samples a finer map
+  every few of its voxels (which shows as stair-step rings on a saturated blob).
 * The operator at each sample: the overlays' premultiplied colours *over* the primary's, the first
   overlay on top, then the whole sample composited front to back under what the ray holds.
   Equivalently: for each sample, ``under(acc, overlay_0)``, ``under(acc, overlay_1)``, ...,
@@ -60,6 +64,7 @@ from .label_colors import LabelColors
 from .transfer import TransferFunction
 
 __all__ = ["Overlay", "store_origin", "store_unit", "overlay_level", "voxel_to_world", "overlay_texture_transform",
+           "overlay_voxel",
            "read_level", "label_indices",
            "overlay_box", "cull_outside",
            "check_overlay", "MAX_OVERLAYS", "DEFAULT_OVERLAY_BUDGET"]
@@ -225,6 +230,17 @@ def overlay_texture_transform(overlay: Overlay, level: int, primary_loader) -> n
     grid[:3, 3] = (-off * s0 / sl + 0.5) / shape
     inv_o = np.linalg.inv(voxel_to_world(overlay.loader, overlay.origin, overlay.frame))
     return grid @ inv_o @ _render_to_world(primary_loader)
+
+
+def overlay_voxel(overlay: Overlay, level: int, primary_loader) -> float:
+    """The smallest voxel edge of the overlay's ``level``, in the primary's drawing frame (world
+    units): the columns of the inverse of :func:`overlay_texture_transform`'s 3x3 part, over the
+    level's shape, are its voxel's edges (any affine: a rotated or sheared grid included). Times the
+    step fraction it is the overlay's own sample spacing, which the shader never exceeds."""
+    m = overlay_texture_transform(overlay, level, primary_loader)
+    shape = np.asarray(overlay.loader.pyramid.levels[level].shape, dtype=np.float64)[::-1]
+    edges = np.linalg.inv(m[:3, :3]) / shape
+    return float(np.linalg.norm(edges, axis=0).min())
 
 
 def overlay_box(overlay: Overlay, primary_loader) -> tuple[np.ndarray, np.ndarray]:

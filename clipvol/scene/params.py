@@ -13,14 +13,15 @@ bypasses all of them.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 from ..errors import ParameterError
 from ..units import parse_bytes
 from .geometry import Shape
+from .policy_registry import POLICIES, policy_names
 
-__all__ = ["RenderParams", "MODES", "PATHS", "POLICY_ALIASES", "DEFAULT_BLOCK_BUDGET"]
+__all__ = ["RenderParams", "MODES", "PATHS", "DEFAULT_BLOCK_BUDGET"]
 
 #: compositing modes of the volume action
 MODES = ("composite", "mip")
@@ -30,9 +31,6 @@ BLENDS = ("over", "additive")
 PATHS = ("auto", "bricks", "single-pass")
 #: bricks the "image" policy may draw when no block_budget is given
 DEFAULT_BLOCK_BUDGET = 128
-#: older names of selection policies, still accepted (``selection="multiresolution"``)
-POLICY_ALIASES = {"multiresolution": "projected-size", "projected": "projected-size", "fov": "field-of-view",
-                  "budget": "texel-budget"}
 
 
 def _positive(value: Any, name: str, unit: str) -> float:
@@ -51,6 +49,12 @@ def _count_or_none(value: Any, name: str) -> int | None:
     if isinstance(value, bool) or int(value) != value or value < 1:
         raise ParameterError(f"{name}: expected None or an integer >= 1, got {value!r}")
     return int(value)
+
+
+def _field(default: Any, help: str):
+    """A field with its one-line help, which the command-line flag of the field shows
+    (:mod:`clipvol.tools.render_args`): the help is written once, beside the field."""
+    return field(default=default, metadata={"help": help})
 
 
 def _fraction_or_none(value: Any, name: str) -> float | None:
@@ -84,7 +88,7 @@ class RenderParams:
         ``"texel-budget"`` (largest projected voxels first until ``max_texels_drawn``),
         ``"distance"`` and ``"field-of-view"`` (the filters of LaMar, Hamann & Joy), ``"image"``
         (image-based importance of Wang, Garcia & Shen under ``block_budget``; needs the store's
-        summary tables). The older names ``"multiresolution"`` (= ``"projected-size"``) are accepted.
+        summary tables). The names are those of :mod:`clipvol.scene.policy_registry`.
     lod_threshold : float
         Pixels a voxel of a drawn level may project to before the brick is refined (> 0).
     level : int, optional
@@ -172,29 +176,40 @@ class RenderParams:
         the colours add up, ``sum(a_k * rgb_k)``, opacity ``1 - prod(1 - a_k)``; not with shading).
     """
 
-    mode: str = "composite"
-    policy: str = "projected-size"
-    lod_threshold: float = 1.0
-    level: int | None = None
-    distance_factor: float = 1.0
-    fov_fraction: float = 0.5
+    mode: str = _field("composite", "compositing (emission-absorption) or maximum intensity projection")
+    policy: str = _field("projected-size", "selection policy: which bricks at which level (default projected-size)")
+    lod_threshold: float = _field(1.0, "refine while a voxel projects to more than this many pixels")
+    level: int | None = _field(None, "level for --policy fixed (default 0)")
+    distance_factor: float = _field(
+        1.0, "--policy distance: refine nodes closer to the eye than this many of their diagonals")
+    fov_fraction: float = _field(
+        0.5, "--policy field-of-view: refine nodes subtending more than this fraction of the view")
     focus: tuple[float, float, float] | None = None
-    max_texels_drawn: int | None = None
-    texels_per_frame: int | None = None
-    texture_budget: int = 256 << 20
-    step: float = 0.5
+    max_texels_drawn: int | None = _field(
+        None, "most voxels of drawn bricks: refine the largest projected voxels first until it binds")
+    texels_per_frame: int | None = _field(None, "most texels uploaded per frame (per pass while waiting)")
+    texture_budget: int = _field(256 << 20, "GPU brick cache budget")
+    step: float = _field(0.5, "sample spacing in voxels of the drawn level")
     early_termination: bool = True
     merge_boxes: bool = True
-    jitter: bool = False
-    skip_empty: bool = True
-    path: str = "auto"
-    background: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    jitter: bool = _field(
+        False, "start every pixel's ray at a hashed offset (turns lattice rings into fine noise)")
+    skip_empty: bool = _field(
+        True, "composite: leap over cells of 8^3 voxels the transfer function makes transparent (the same image)")
+    path: str = _field("auto", "single-pass: one ray-guided pass through a page table of the cut; bricks: one proxy box "
+                               "per (merged) brick; auto (default): the single pass for cuts of 4 boxes or more")
+    background: tuple[float, float, float, float] = _field(
+        (0.0, 0.0, 0.0, 0.0), "straight RGBA r,g,b,a in [0, 1] behind the volume (default transparent)")
     shape: Shape | None = None
-    block_budget: int | None = None
-    max_error: float | None = None
-    visibility: bool = True
+    block_budget: int | None = _field(
+        None, "--policy image: most bricks drawn, the most important refined first (default 128; none with --max-error)")
+    max_error: float | None = _field(
+        None, "--policy image (selected by it when --policy is left at its default): visible-error budget, refine "
+              "until the predicted share of pixels with CIELUV dE >= 6 against full resolution is at most this "
+              "('5%%' or 0.05)")
+    visibility: bool = _field(True, "--policy image: weight each brick's importance by its estimated visibility")
     visibility_threshold: float = 0.01
-    shading: bool = False
+    shading: bool = _field(False, "composite: Blinn-Phong gradient lighting, light at the eye (ignored for mip)")
     ambient: float = 0.3
     diffuse: float = 0.7
     specular: float = 0.3
@@ -203,19 +218,14 @@ class RenderParams:
     blend: str = "over"
 
     def __post_init__(self) -> None:
-        from .selection.policies import (
-            POLICIES,  # the registry (a sibling of this module's users)
-        )
-
         s = object.__setattr__
         if self.path not in PATHS:
             raise ParameterError(f"path: expected one of {', '.join(PATHS)}, got {self.path!r}")
         if self.mode not in MODES:
             raise ParameterError(f"mode: expected one of {', '.join(MODES)}, got {self.mode!r}")
-        policy = POLICY_ALIASES.get(self.policy, self.policy)
+        policy = self.policy
         if policy not in POLICIES:
-            raise ParameterError(f"policy: expected one of {', '.join(sorted(POLICIES))}, got {self.policy!r}")
-        s(self, "policy", policy)
+            raise ParameterError(f"policy: expected one of {', '.join(policy_names())}, got {policy!r}")
         s(self, "lod_threshold", _positive(self.lod_threshold, "lod_threshold", "pixels"))
         s(self, "distance_factor", _positive(self.distance_factor, "distance_factor", "node diagonals"))
         s(self, "fov_fraction", _positive(self.fov_fraction, "fov_fraction", "of the field of view"))
@@ -303,17 +313,23 @@ class RenderParams:
 
     # -- helpers ---------------------------------------------------------------------------------
     @classmethod
+    def help(cls, name: str) -> str:
+        """The one-line help of field ``name`` (its ``metadata["help"]``; the command-line flags of
+        :mod:`clipvol.tools.render_args` show it), or "" when it has none."""
+        for f in fields(cls):
+            if f.name == name:
+                return f.metadata.get("help", "")
+        raise ParameterError(f"unknown render parameter {name!r}; expected one of {', '.join(cls.names())}")
+
+    @classmethod
     def names(cls) -> tuple[str, ...]:
         """The field names (for ``update(**changes)`` checks and CLI mapping)."""
         return tuple(f.name for f in fields(cls))
 
     @classmethod
-    def from_kwargs(cls, params: "RenderParams | None" = None, *, selection: str | None = None,
-                    **kwargs) -> "RenderParams":
-        """``params`` (or the defaults) with keyword overrides; ``selection=`` is the older name of
-        ``policy=``. Unknown names are a :class:`ParameterError` naming them."""
-        if selection is not None:
-            kwargs.setdefault("policy", selection)
+    def from_kwargs(cls, params: "RenderParams | None" = None, **kwargs) -> "RenderParams":
+        """``params`` (or the defaults) with keyword overrides. Unknown names are a
+        :class:`ParameterError` naming them."""
         bad = sorted(set(kwargs) - set(cls.names()))
         if bad:
             raise ParameterError(f"unknown render parameter(s) {', '.join(bad)}; expected {', '.join(cls.names())}")
@@ -330,8 +346,3 @@ class RenderParams:
         if self.level is not None and self.level >= pyramid.num_levels:
             raise ParameterError(f"level: expected 0..{pyramid.num_levels - 1} for this store, got {self.level}")
         return self
-
-    @property
-    def selection(self) -> str:
-        """The policy under its older name (``"multiresolution"`` for ``"projected-size"``)."""
-        return "multiresolution" if self.policy == "projected-size" else self.policy

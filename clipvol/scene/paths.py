@@ -10,9 +10,13 @@ point, so ever finer levels are wanted around that point.
 Every path is a generator of ``(camera, center_of_interest)`` pairs, ``center_of_interest`` an
 ``(x, y, z)`` float64 world point inside the volume box (what the application passes to
 ``ClipTexture.set_center``). Cameras are :class:`clipvol.scene.camera.Camera` objects with their depth
-range fitted to the volume box. The "up" of every path is world ``-y`` so that the first orbit
-frame (looking along ``+z``) shows the volume like ``numpy``'s ``vol.max(axis=0)``: ``x`` to the
-right, ``y`` growing down the image.
+range fitted to the volume box. By default the "up" of every path is world ``-y`` so that the first
+orbit frame (looking along ``+z``) shows the volume like ``numpy``'s ``vol.max(axis=0)``: ``x`` to
+the right, ``y`` growing down the image. The turntable, fly and zoom paths take ``up`` and
+``front`` (array-axis directions): for a store in a patient frame the callers pass *superior* and
+*anterior* (:func:`clipvol.scene.orientation.anatomical_axes`), so the camera stays head up, the
+fly loop lies in the patient's axial plane and the zoom looks from anterior-left-superior, the
+same anatomy whatever the storage order.
 """
 
 from __future__ import annotations
@@ -70,19 +74,47 @@ def _check_size(size) -> tuple[int, int]:
     return w, h
 
 
-def _direction(azimuth_deg: float, elevation_deg: float) -> np.ndarray:
-    """Unit vector from the target to the eye: azimuth about world up (-y), elevation towards up.
+def _basis(up, front, mirror: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(u, f, side)``: unit ``up``, the part of ``front`` perpendicular to it, and ``u x f`` (``f``
+    turned +90 degrees about ``u``); the default ``UP`` and ``(0, 0, -1)`` give ``side = +x``.
 
-    Azimuth 0 and elevation 0 put the eye on the ``-z`` side (looking along ``+z``).
+    ``mirror``: the array axes are a mirror image of the world (a patient frame with a negative
+    determinant, :func:`clipvol.scene.views.mirrored`); ``side`` is then ``-(u x f)``, the array
+    direction of the *world's* ``up x front``, so a path turns and flies the same way through the
+    anatomy as in an unmirrored copy (the frames are flipped back when presented)."""
+    u = np.asarray(up, dtype=np.float64)
+    if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0:
+        raise ParameterError(f"up: expected a non-zero (x, y, z) direction, got {up!r}")
+    u = u / np.linalg.norm(u)
+    f = np.asarray(front, dtype=np.float64)
+    f = f - (f @ u) * u if f.shape == (3,) and np.all(np.isfinite(f)) else np.zeros(3)
+    if np.linalg.norm(f) < 1e-9:
+        raise ParameterError(f"front: expected a direction not parallel to up {tuple(u)}, got {front!r}")
+    f = f / np.linalg.norm(f)
+    return u, f, (-1.0 if mirror else 1.0) * np.cross(u, f)
+
+
+def _direction(azimuth_deg: float, elevation_deg: float, up=UP, front=(0.0, 0.0, -1.0)) -> np.ndarray:
+    """Unit vector from the target to the eye: azimuth about ``up`` from ``front`` (right-handed),
+    elevation towards ``up``.
+
+    With the defaults, azimuth 0 and elevation 0 put the eye on the ``-z`` side (looking along ``+z``).
     """
+    u, f, side = _basis(up, front)
     az = np.radians(azimuth_deg)
     el = np.radians(elevation_deg)
-    return np.array([np.cos(el) * np.sin(az), -np.sin(el), -np.cos(el) * np.cos(az)])
+    return np.cos(el) * (np.cos(az) * f + np.sin(az) * side) + np.sin(el) * u
 
 
-def _perspective(eye, target, fov_y: float, size, pyramid: Pyramid):
+def _reach(half: np.ndarray, v: np.ndarray) -> float:
+    """How far from the box centre the box reaches along unit ``v`` (``half`` its half extents)."""
+    a = np.abs(v)
+    return float(np.min(half[a > 1e-12] / a[a > 1e-12]))
 
-    cam = Camera.perspective(tuple(eye), tuple(target), up=UP, fov_y=fov_y, size=size)
+
+def _perspective(eye, target, fov_y: float, size, pyramid: Pyramid, up=UP):
+
+    cam = Camera.perspective(tuple(eye), tuple(target), up=tuple(up), fov_y=fov_y, size=size)
     lo, hi = pyramid.volume_box()
     return cam.fit_depth(lo, hi)
 
@@ -152,6 +184,7 @@ def turntable(
     elevation: float = 0.0,
     distance: float | None = None,
     azimuth: float = 0.0,
+    mirror: bool = False,
 ) -> Iterator[tuple[object, np.ndarray]]:
     """The volume spinning upright once about ``up`` as on a turntable, first seen from ``front``.
 
@@ -179,6 +212,8 @@ def turntable(
         Eye distance from the centre; default: the whole volume fits.
     azimuth : float
         Degrees the first view is turned from ``front`` (right-handed about ``up``).
+    mirror : bool
+        The array axes mirror the world (see ``_basis``): turn right-handed in the world.
 
     Yields
     ------
@@ -188,16 +223,7 @@ def turntable(
     n, size = _check_orbit(frames, size, elevation)
     if not np.isfinite(float(azimuth)):
         raise ParameterError(f"azimuth: expected a finite angle in degrees, got {azimuth!r}")
-    u = np.asarray(up, dtype=np.float64)
-    f = np.asarray(front, dtype=np.float64)
-    if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0:
-        raise ParameterError(f"up: expected a non-zero (x, y, z) direction, got {up!r}")
-    u = u / np.linalg.norm(u)
-    f = f - (f @ u) * u if f.shape == (3,) and np.all(np.isfinite(f)) else np.zeros(3)
-    if np.linalg.norm(f) < 1e-9:
-        raise ParameterError(f"front: expected a direction not parallel to up {tuple(u)}, got {front!r}")
-    f = f / np.linalg.norm(f)
-    side = np.cross(u, f)  # f rotated by +90 degrees about u
+    u, f, side = _basis(up, front, mirror)  # side: f rotated by +90 degrees about u
     c = volume_center(pyramid)
     d = fit_distance(pyramid, fov_y, size) if distance is None else float(distance)
     if not (np.isfinite(d) and d > 0):
@@ -214,16 +240,16 @@ def turntable(
         yield cam.fit_depth(lo, hi), c.copy()
 
 
-def _fly_points(pyramid: Pyramid, t: np.ndarray) -> np.ndarray:
-    """A closed, smooth curve inside the volume box: a tilted ellipse with a vertical wobble."""
+def _fly_points(pyramid: Pyramid, t: np.ndarray, up=UP, front=(0.0, 0.0, -1.0), mirror: bool = False) -> np.ndarray:
+    """A closed, smooth curve inside the volume box: an ellipse in the plane across ``up`` (through
+    ``front`` and ``side``, at 0.6 of the box's reach along each) with a wobble along ``up``."""
     lo, hi = pyramid.volume_box()
     c = (lo + hi) / 2.0
     half = (hi - lo) / 2.0
-    a = 2 * np.pi * t
-    x = c[0] + 0.6 * half[0] * np.sin(a)
-    z = c[2] - 0.6 * half[2] * np.cos(a)
-    y = c[1] + 0.25 * half[1] * np.sin(2 * a)
-    return np.stack([x, y, z], axis=-1)
+    u, f, side = _basis(up, front, mirror)
+    a = 2 * np.pi * np.asarray(t, dtype=np.float64)[..., None]
+    return (c + 0.6 * _reach(half, side) * np.sin(a) * side + 0.6 * _reach(half, f) * np.cos(a) * f
+            - 0.25 * _reach(half, u) * np.sin(2 * a) * u)
 
 
 def fly(
@@ -234,6 +260,9 @@ def fly(
     fov_y: float = 60.0,
     look_ahead: float = 0.08,
     points=None,
+    up=UP,
+    front=(0.0, 0.0, -1.0),
+    mirror: bool = False,
 ) -> Iterator[tuple[object, np.ndarray]]:
     """Fly *through* the volume along a smooth closed curve, looking where the path goes.
 
@@ -256,6 +285,11 @@ def fly(
     points : array_like, optional
         ``(m, 3)`` world ``(x, y, z)`` way-points (``m >= 2``) to fly through instead of the default
         loop; the path is then a Catmull-Rom spline through them and the camera looks along it.
+    up, front : (x, y, z)
+        The camera's up (the loop lies across it) and the side of the centre the loop starts on;
+        for a patient-frame store: superior and anterior (head up, an axial loop).
+    mirror : bool
+        The array axes mirror the world (see ``_basis``): the loop turns the world's way.
 
     Yields
     ------
@@ -267,8 +301,9 @@ def fly(
     if not 0.0 < float(look_ahead) < 0.5:
         raise ParameterError(f"look_ahead: expected a fraction in (0, 0.5), got {look_ahead!r}")
     lo, hi = pyramid.volume_box()
+    u = _basis(up, front)[0]
     if points is None:
-        curve = lambda t: _fly_points(pyramid, np.asarray(t, dtype=np.float64) % 1.0)  # noqa: E731
+        curve = lambda t: _fly_points(pyramid, np.asarray(t, dtype=np.float64) % 1.0, up, front, mirror)  # noqa: E731
     else:
         pts = np.asarray(points, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2 or not np.all(np.isfinite(pts)):
@@ -279,9 +314,11 @@ def fly(
         eye = curve(t)
         ahead = curve(t + look_ahead)
         if np.linalg.norm(ahead - eye) < 1e-9 * max(1.0, volume_radius(pyramid)):
-            ahead = eye + np.array([0.0, 0.0, 1e-3 * volume_radius(pyramid) + 1e-9])
+            ahead = eye + _basis(up, front)[1] * (1e-3 * volume_radius(pyramid) + 1e-9)
         target = np.clip(ahead, lo, hi)
-        yield _perspective(eye, ahead, fov_y, size, pyramid), target
+        fwd = (ahead - eye) / np.linalg.norm(ahead - eye)
+        cam_up = u if abs(float(fwd @ u)) < 0.99 else _basis(up, front)[1]  # straight along up: front is up
+        yield _perspective(eye, ahead, fov_y, size, pyramid, cam_up), target
 
 
 def _catmull_rom(pts: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -305,6 +342,9 @@ def zoom(
     azimuth: float = 30.0,
     elevation: float = 25.0,
     end_distance: float | None = None,
+    up=UP,
+    front=(0.0, 0.0, -1.0),
+    mirror: bool = False,
 ) -> Iterator[tuple[object, np.ndarray]]:
     """Zoom from the whole view to a close-up of ``target`` (geometric steps in distance).
 
@@ -324,9 +364,16 @@ def zoom(
         Vertical field of view in degrees.
     target : array_like, optional
         ``(x, y, z)`` world point to zoom onto; default: a point a third of the way from the
-        centre to the ``(lo.x, lo.y, lo.z)`` corner (off-centre, so the windows must move).
+        centre towards the box's reach along ``-side + front + up`` (off-centre, so the windows must
+        move; with the default ``up`` and ``front`` the ``(lo.x, lo.y, lo.z)`` corner).
     azimuth, elevation : float
-        View direction, degrees (as in :func:`orbit`).
+        View direction, degrees: azimuth about ``up`` from ``front`` (right-handed), elevation
+        towards ``up`` (as in :func:`orbit` with the defaults).
+    up, front : (x, y, z)
+        The camera's up and the side the azimuth counts from; for a patient-frame store superior
+        and anterior (head up, seen from anterior-left-superior).
+    mirror : bool
+        The array axes mirror the world (see ``_basis``): the azimuth turns the world's way.
     end_distance : float, optional
         Final distance from ``target``; default: where a level-0 voxel near ``target`` spans about
         two pixels (so level 0 is wanted there at ``lod_threshold`` 1), but at most a fifth of the
@@ -341,8 +388,10 @@ def zoom(
     size = _check_size(size)
     lo, hi = pyramid.volume_box()
     c = volume_center(pyramid)
+    u, f, side = _basis(up, front, mirror)
     if target is None:
-        p = c + (lo - c) / 3.0
+        half = (hi - lo) / 2.0
+        p = c + (-_reach(half, side) * side + _reach(half, f) * f + _reach(half, u) * u) / 3.0
     else:
         p = np.asarray(target, dtype=np.float64)
         if p.shape != (3,) or not np.all(np.isfinite(p)):
@@ -357,13 +406,14 @@ def zoom(
         d1 = float(end_distance)
         if not (np.isfinite(d1) and 0 < d1):
             raise ParameterError(f"end_distance: expected a finite value > 0, got {end_distance!r}")
-    direction = _direction(azimuth, elevation)
+    direction = np.cos(np.radians(elevation)) * (np.cos(np.radians(azimuth)) * f + np.sin(np.radians(azimuth)) * side) \
+        + np.sin(np.radians(elevation)) * u
     for k in range(n):
         s = k / (n - 1) if n > 1 else 1.0
         d = d0 * (d1 / d0) ** s
         look = c + (p - c) * s
         eye = look + d * direction
-        yield _perspective(eye, look, fov_y, size, pyramid), np.clip(look, lo, hi)
+        yield _perspective(eye, look, fov_y, size, pyramid, u), np.clip(look, lo, hi)
 
 
 PATHS = {"orbit": orbit, "turntable": turntable, "fly": fly, "zoom": zoom}

@@ -17,6 +17,10 @@ Conventions:
   (eye direction ``(1, 1, 1)`` in RAS). The old names are aliases of the same anatomical
   directions: ``front`` = ``anterior``, ``back`` = ``posterior``, ``side`` = ``left``,
   ``top`` = ``superior``.
+* **Explicit cameras**: ``--eye``, ``--target`` and ``--up`` of a patient-frame store are in the
+  patient's world (RAS+ millimetres, what the store's affine gives a voxel) and are carried into
+  the drawing frame by :func:`world_to_drawing`, so one point is the same anatomy in every storage
+  order; for other stores, and in the viewer's camera files, they are array-axis world positions.
 * **Other stores** (no patient frame): ``front`` looks along ``+z`` (down the stack, rows follow
   ``+y`` as numpy prints ``vol[k]``), ``back`` along ``-z``, ``side`` along ``+x``, ``top`` along
   ``+y``, ``iso`` along ``(0.55, 0.45, 0.7)``; the anatomical names are refused (the store does
@@ -48,8 +52,8 @@ from ..errors import ParameterError
 
 __all__ = [
     "ANATOMICAL_VIEWS", "ALIASES", "VIEW_CHOICES", "is_anatomical", "mirrored", "world_to_array_directions",
-    "view_directions", "preset_camera", "screen_axes", "edge_labels", "SLICES", "CONVENTIONS", "slice_axes",
-    "anatomical_plane",
+    "view_directions", "world_to_drawing", "preset_camera", "view_camera", "screen_axes", "edge_labels", "SLICES",
+    "CONVENTIONS", "slice_axes", "anatomical_plane", "patient_path",
 ]
 
 #: anatomical view -> (RAS direction from the target to the eye, RAS up)
@@ -91,6 +95,26 @@ def mirrored(frame) -> bool:
     return is_anatomical(frame) and float(np.linalg.det(_rotation(frame))) < 0.0
 
 
+def patient_path(path: str, frame) -> tuple[str, dict]:
+    """``(path name, keyword arguments)`` of :func:`clipvol.scene.paths.make_path` that keep a camera
+    path head-up and seen the patient's way round for a patient-frame store.
+
+    Every path takes the store's superior as ``up`` and anterior as ``front`` and, for a store whose
+    array is the patient's mirror image, ``mirror`` (so it turns the world's way); the ``orbit``,
+    which has no up of its own, becomes a turntable raised 25 degrees. Other stores keep ``path``
+    and the paths' defaults (the array's frame).
+    """
+    if not is_anatomical(frame):
+        return path, {}
+    from .orientation import anatomical_axes
+
+    up, front = anatomical_axes(frame.affine)
+    kw = {"up": tuple(float(v) for v in up), "front": tuple(float(v) for v in front), "mirror": mirrored(frame)}
+    if path == "orbit":
+        return "turntable", {**kw, "elevation": 25.0}
+    return path, kw
+
+
 def world_to_array_directions(frame, world_dirs) -> np.ndarray:
     """Unit array-axis ``(x, y, z)`` directions of world (RAS) directions ``(..., 3)``."""
     d = np.asarray(world_dirs, dtype=np.float64) @ np.linalg.inv(_rotation(frame)).T
@@ -118,13 +142,24 @@ def view_directions(view: str, frame=None) -> tuple[np.ndarray, np.ndarray]:
     return fwd / np.linalg.norm(fwd), up
 
 
+def world_to_drawing(frame, spacing) -> np.ndarray:
+    """``(4, 4)``: a patient-frame world point ``(X, Y, Z, 1)`` (RAS+ millimetres, what nibabel's
+    ``apply_affine`` gives for a voxel) to the drawing frame, voxel ``i`` at ``i * spacing`` along the
+    array axes ``(x, y, z)`` (``spacing`` is the store's ``(z, y, x)``)."""
+    sp = np.asarray(spacing, dtype=np.float64).reshape(3)[::-1]
+    return np.diag(np.append(sp, 1.0)) @ np.linalg.inv(np.asarray(frame.matrix, dtype=np.float64))
+
+
 def preset_camera(box_lo, box_hi, view: str, size, *, frame=None, eye=None, target=None, up=None, fov: float = 35.0,
-                  distance: float | None = None, ortho: bool = False):
+                  distance: float | None = None, ortho: bool = False, spacing=None):
     """The :class:`~clipvol.scene.camera.Camera` of a named ``view`` (or an explicit ``eye``) looking at ``target``.
 
     ``target`` defaults to the box centre, ``distance`` (in box diagonals, default 1.6) places the
-    eye, ``up`` overrides the view's up. ``--eye``/``--target``/``--up`` are array-axis world
-    positions, as the camera files of the viewer are.
+    eye, ``up`` overrides the view's up. For a patient-frame store ``eye``, ``target`` and ``up``
+    are in the patient's world (RAS+ millimetres, the coordinates the store's affine gives, so a
+    point means the same anatomy whatever the storage order) and ``spacing`` (the store's, z, y, x)
+    is needed to place them; otherwise they are array-axis world positions (voxel ``i`` at
+    ``i * spacing``), as the camera files of the viewer are.
     """
     from .camera import Camera
 
@@ -132,12 +167,22 @@ def preset_camera(box_lo, box_hi, view: str, size, *, frame=None, eye=None, targ
     hi = np.asarray(box_hi, dtype=np.float64)
     centre = (lo + hi) / 2.0
     diag = float(np.linalg.norm(hi - lo))
-    tgt = centre if target is None else np.asarray(target, dtype=np.float64)
+    world = is_anatomical(frame) and any(v is not None for v in (eye, target, up))
+    if world:
+        if spacing is None:
+            raise ParameterError("preset_camera: spacing: expected the store's voxel size (z, y, x) to place "
+                                 "--eye/--target/--up given in the patient's world")
+        to_draw = world_to_drawing(frame, spacing)
+        point = lambda v: to_draw[:3, :3] @ np.asarray(v, dtype=np.float64) + to_draw[:3, 3]  # noqa: E731
+    else:
+        point = lambda v: np.asarray(v, dtype=np.float64)  # noqa: E731
+    tgt = centre if target is None else point(target)
     fwd, view_up = view_directions(view, frame)
     if eye is not None:
-        e = np.asarray(eye, dtype=np.float64)
+        e = point(eye)
         if np.allclose(e, tgt):
-            raise ParameterError(f"--eye: expected a point other than the target {tuple(tgt)}, got {tuple(e)}")
+            shown = tuple(float(v) for v in (target if target is not None else tgt))
+            raise ParameterError(f"--eye: expected a point other than the target {shown}, got {tuple(eye)}")
         fwd = (tgt - e) / np.linalg.norm(tgt - e)
         if abs(float(fwd @ view_up)) > 0.9:  # looking along the view's up: anterior (or -z) is up instead
             view_up = (world_to_array_directions(frame, (0.0, 1.0, 0.0)) if is_anatomical(frame)
@@ -147,13 +192,33 @@ def preset_camera(box_lo, box_hi, view: str, size, *, frame=None, eye=None, targ
         if not (dist > 0 and math.isfinite(dist)):
             raise ParameterError(f"--distance: expected a number > 0, got {distance}")
         e = tgt - fwd * dist
-    u = view_up if up is None else np.asarray(up, dtype=np.float64)
+    if up is None:
+        u = view_up
+    elif world:  # a patient-frame direction: its array-axis direction
+        w = np.asarray(up, dtype=np.float64)
+        if w.shape != (3,) or not np.all(np.isfinite(w)) or np.linalg.norm(w) == 0:
+            raise ParameterError(f"--up: expected a non-zero direction x,y,z, got {up!r}")
+        u = world_to_array_directions(frame, w)
+    else:
+        u = np.asarray(up, dtype=np.float64)
     if ortho:
         w, h = size
         ext = diag * 1.05
         width, height = (ext, ext * h / w) if w >= h else (ext * w / h, ext)
         return Camera.orthographic(tuple(tgt), tuple(fwd), tuple(u), width, height, size=size)
     return Camera.perspective(tuple(e), tuple(tgt), up=tuple(u), fov_y=fov, size=size)
+
+
+def view_camera(pyramid, view: str, size, *, eye=None, target=None, up=None, fov: float = 35.0,
+                distance: float | None = None, ortho: bool = False, frame=None):
+    """:func:`preset_camera` around a store's volume box: the camera of ``clipvol render --view``.
+
+    The one call every entry point with a pyramid makes (the CLI, the point renderer, the sort-last
+    tests and benchmarks), so that a view name frames every store the same way; ``frame`` is the
+    store's patient frame, when it has one."""
+    lo, hi = pyramid.volume_box()
+    return preset_camera(lo, hi, view, size, frame=frame, eye=eye, target=target, up=up, fov=fov, distance=distance,
+                         ortho=ortho, spacing=getattr(pyramid, "spacing", None))
 
 
 def screen_axes(cam, frame=None) -> tuple[np.ndarray, np.ndarray]:

@@ -30,7 +30,7 @@ __all__ = ["OrbitControls", "ViewState", "KeyState", "KEY_HELP", "MODES", "ALL_M
 UP = np.array([0.0, -1.0, 0.0])
 
 #: selection modes cycled by M
-MODES = ("multiresolution", "roaming", "fixed")
+MODES = ("projected-size", "roaming", "fixed")
 #: every mode a ViewState may hold: M's cycle plus the image-based policy (L, and < > for its budget)
 ALL_MODES = MODES + ("image",)
 
@@ -50,7 +50,7 @@ KEY_HELP = (
     ("right / middle drag", "pan"),
     ("wheel", "zoom"),
     ("W A S D / Q E", "fly: move camera and centre of interest (forward/left/back/right, down/up)"),
-    ("M", "selection mode: multiresolution -> roaming -> fixed level"),
+    ("M", "selection mode: projected-size -> roaming -> fixed level"),
     ("[ ]", "fixed level finer / coarser (switches to fixed mode)"),
     ("G", "image-based level of detail on / off (needs the store's summary tables)"),
     ("< >", "block budget of image-based LOD halved / doubled (switches it on)"),
@@ -339,7 +339,7 @@ class ViewState(KeyState):
 
     num_levels: int
     tf_presets: tuple[str, ...] = ("grey", "viridis", "magma", "bone")
-    mode: str = "multiresolution"
+    mode: str = "projected-size"
     level: int = 0
     lod_threshold: float = 1.0
     block_budget: int = 128
@@ -377,7 +377,7 @@ class ViewState(KeyState):
             self.lod_threshold = max(self.lod_threshold / 2.0, 1.0 / 16.0)
             self.message = f"LOD threshold {self.lod_threshold:g} px"
         elif k == "G":
-            self.mode = "multiresolution" if self.mode == "image" else "image"
+            self.mode = "projected-size" if self.mode == "image" else "image"
             self.message = f"mode {self.mode}" + (f" (block budget {self.block_budget})" if self.mode == "image" else "")
         elif k in ("<", ",", ">", "."):
             grow = k in (">", ".")

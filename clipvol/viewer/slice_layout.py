@@ -57,6 +57,9 @@ class SliceLayout:
         self.poi = (lo + hi) / 2.0
         self.action = SliceAction(session.ctx, session.clip_texture, self._params(),
                                   cache=session.action.cache)
+        # three planes and a volume view share one clip-texture each frame: its cube windows around the
+        # point of interest serve them all (one plane's slab region would evict the others' bricks)
+        self.action.follow_plane = False
         self.stats: dict = {}
         self.size = (2, 2)
 

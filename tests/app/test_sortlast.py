@@ -16,7 +16,7 @@ from clipvol.paging.open import open_store
 from clipvol.render.action import ClipRenderAction
 from clipvol.scene.params import RenderParams
 from clipvol.scene.transfer import TransferFunction
-from clipvol.tools.cmd_render import view_camera
+from clipvol.scene.views import view_camera
 
 from optional import DASK
 

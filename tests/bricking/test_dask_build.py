@@ -13,7 +13,6 @@ import zarr
 
 pytest.importorskip("distributed")
 
-import clipvol.bricking.pipeline as brick_mod  # noqa: E402
 from clipvol.bricking.dask_build import brick_volume_dask  # noqa: E402
 from clipvol.bricking.pipeline import brick_volume  # noqa: E402
 from clipvol.bricking.source_types import ArraySource  # noqa: E402
@@ -21,6 +20,7 @@ from clipvol.errors import ParameterError  # noqa: E402
 from clipvol.tools.cli import main  # noqa: E402
 
 from test_pyramid import ref_downsample  # noqa: E402
+from build_hooks import after_each_brick  # noqa: E402
 
 
 def _tree(path: Path) -> dict[str, bytes]:
@@ -62,6 +62,22 @@ def test_float_max_filter_odd_shape(tmp_path):
     brick_volume_dask(tmp_path / "v.npy", tmp_path / "b" / "s.zarr", brick=8, filter="max", progress=False,
                       workers=2, span=2)
     assert _tree(tmp_path / "a" / "s.zarr") == _tree(tmp_path / "b" / "s.zarr")
+
+
+def test_one_options_value_builds_the_same_store_both_ways(tmp_path):
+    """One frozen BuildOptions (with an origin) given to the local and the Dask build: the same bytes,
+    and the OME translation is the origin given (read back from zarr.json, not through clipvol)."""
+    from clipvol.bricking.build_options import BuildOptions
+
+    vol = _volume((24, 20, 28), np.uint8, seed=3)
+    opts = BuildOptions(brick=8, codec="zstd", spacing=(2.0, 1.0, 1.0), origin=(-4.0, 2.0, 3.0), workers=2,
+                        progress=False)
+    brick_volume(vol, tmp_path / "a" / "s.zarr", opts)
+    brick_volume_dask(vol, tmp_path / "b" / "s.zarr", opts, span=2)
+    a, b = _tree(tmp_path / "a" / "s.zarr"), _tree(tmp_path / "b" / "s.zarr")
+    assert len(a) > 10 and a == b
+    scales = json.loads(a["zarr.json"])["attributes"]["ome"]["multiscales"][0]["datasets"][0]["coordinateTransformations"]
+    assert [t["translation"] for t in scales if t["type"] == "translation"] == [[-4.0, 2.0, 3.0]]
 
 
 _READS_LEFT = [0]
@@ -115,10 +131,10 @@ def test_local_build_interrupted_resumes_on_dask(tmp_path, monkeypatch):
         if len(seen) >= 40:
             raise RuntimeError("simulated crash")
 
-    monkeypatch.setattr(brick_mod, "_after_brick", crash)
+    after_each_brick(monkeypatch, crash)
     with pytest.raises(RuntimeError):
         brick_volume(tmp_path / "v.npy", out, brick=8, progress=False, workers=1)
-    monkeypatch.setattr(brick_mod, "_after_brick", None)
+    after_each_brick(monkeypatch, None)
     assert main(["brick", str(tmp_path / "v.npy"), str(out), "--brick", "8", "--scheduler", "threads", "--quiet"]) == 0
     assert _tree(out) == _tree(tmp_path / "ref" / "s.zarr")
 

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 import zarr
 
-import clipvol.bricking.pipeline as brick_mod
 from clipvol.bricking.pipeline import brick_volume
 from clipvol.errors import OutputExistsError
 from clipvol.bricking.store import HIST_BINS, STATS_GROUP, open_store_meta
 
 from test_pyramid import ref_downsample
+from build_hooks import after_each_brick
 
 
 def _levels(path) -> list[np.ndarray]:
@@ -115,7 +115,7 @@ def test_resume_after_crash_is_bytes_identical(tmp_path, rng, monkeypatch, worke
         if len(written) >= crash_after:
             raise RuntimeError("simulated crash")
 
-    monkeypatch.setattr(brick_mod, "_after_brick", crash)
+    after_each_brick(monkeypatch, crash)
     with pytest.raises(RuntimeError, match="simulated crash"):
         brick_volume(vol, out, brick=8, progress=False, workers=workers)
     if crash_after == 26 and workers == 2:
@@ -124,7 +124,7 @@ def test_resume_after_crash_is_bytes_identical(tmp_path, rng, monkeypatch, worke
     assert not open_store_meta(out).complete
 
     resumed = []
-    monkeypatch.setattr(brick_mod, "_after_brick", lambda level, index: resumed.append((level, index)))
+    after_each_brick(monkeypatch, lambda level, index: resumed.append((level, index)))
     meta = brick_volume(vol, out, brick=8, progress=False, workers=workers)
     assert meta.complete
     n_all = sum(meta.pyramid.num_bricks(L) for L in range(meta.pyramid.num_levels))
@@ -147,10 +147,10 @@ def test_resume_with_other_parameters_refused(tmp_path, rng, monkeypatch):
     def crash(level, index):
         raise RuntimeError("boom")
 
-    monkeypatch.setattr(brick_mod, "_after_brick", crash)
+    after_each_brick(monkeypatch, crash)
     with pytest.raises(RuntimeError):
         brick_volume(vol, out, brick=8, progress=False)
-    monkeypatch.setattr(brick_mod, "_after_brick", None)
+    after_each_brick(monkeypatch, None)
     with pytest.raises(OutputExistsError, match="filter.*--overwrite"):
         brick_volume(vol, out, brick=8, filter="max", progress=False)
     meta = brick_volume(vol, out, brick=8, filter="max", progress=False, overwrite=True)
@@ -309,10 +309,34 @@ def test_resume_key_is_the_absolute_path(tmp_path, rng, monkeypatch):
     vol = rng.integers(0, 100, size=(24, 8, 8)).astype(np.uint8)
     np.save(tmp_path / "v.npy", vol)
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(brick_mod, "_after_brick", lambda level, index: (_ for _ in ()).throw(RuntimeError("x")))
+    after_each_brick(monkeypatch, lambda level, index: (_ for _ in ()).throw(RuntimeError("x")))
     with pytest.raises(RuntimeError):
         brick_volume("v.npy", tmp_path / "s.zarr", brick=8, progress=False)
-    monkeypatch.setattr(brick_mod, "_after_brick", None)
+    after_each_brick(monkeypatch, None)
     meta = brick_volume(str(tmp_path / "v.npy"), tmp_path / "s.zarr", brick=8, progress=False)  # same file, other spelling
     assert meta.complete
     np.testing.assert_array_equal(_levels(tmp_path / "s.zarr")[0], vol)
+
+
+def test_build_options_are_one_frozen_value(tmp_path, rng):
+    """Keywords and a BuildOptions value build the same store; the options are checked once, with
+    one-line errors naming the option, before any output exists."""
+    import dataclasses
+
+    from clipvol.bricking.build_options import BuildOptions
+    from clipvol.errors import ParameterError
+
+    vol = rng.integers(0, 200, size=(16, 16, 24)).astype(np.uint8)
+    brick_volume(vol, tmp_path / "kw" / "s.zarr", brick=8, codec="none", progress=False, workers=1)
+    opts = BuildOptions(brick=8, codec="none", progress=False, workers=1)
+    brick_volume(vol, tmp_path / "opt" / "s.zarr", opts)
+    tree = lambda p: {f.relative_to(p).as_posix(): f.read_bytes() for f in sorted(p.rglob("*")) if f.is_file()}
+    assert tree(tmp_path / "kw" / "s.zarr") == tree(tmp_path / "opt" / "s.zarr")
+    assert opts.brick == (8, 8, 8) and opts.workers == 1
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        opts.brick = 16
+    for bad, name in ((dict(brick=7), "brick"), (dict(codec="gzip"), "codec"), (dict(filter="median"), "filter"),
+                      (dict(spacing=(1, 0, 1)), "spacing"), (dict(workers=0), "workers"), (dict(bricks=8), "bricks")):
+        with pytest.raises(ParameterError, match=name):
+            brick_volume(vol, tmp_path / "bad" / "s.zarr", **bad)
+    assert not (tmp_path / "bad").exists()

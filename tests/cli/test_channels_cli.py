@@ -44,7 +44,7 @@ def test_channels_equal_the_reference(image, tmp_path, blend):
     got = np.asarray(Image.open(out)).astype(int)
     from clipvol.app.channels import channel_tf
     from clipvol.loaders.zarr_store import ZarrLoader
-    from clipvol.tools.cmd_render import view_camera
+    from clipvol.scene.views import view_camera
 
     pyr = ZarrLoader(path, c=0).pyramid
     cam = view_camera(pyr, "iso", (60, 56)).fit_depth(*pyr.volume_box())
@@ -115,7 +115,7 @@ def test_view_offscreen_draws_the_channels_like_the_reference(image, tmp_path):
     path, data = image
     out = tmp_path / "frames"
     assert main(["view", str(path), "--offscreen", "--frames", "1", "--size", "60x56", "--out", str(out),
-                 "--converged", "--no-jitter", "--selection", "fixed", "--level", "0",
+                 "--converged", "--no-jitter", "--policy", "fixed", "--level", "0",
                  "--channels", "0:green,1:magenta", "--blend", "additive"]) == 0
     got = np.asarray(Image.open(sorted(out.glob("frame_*.png"))[0]).convert("RGBA")).astype(int)
     from clipvol.app.channels import channel_tf

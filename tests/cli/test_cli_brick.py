@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import zarr
 
-import clipvol.bricking.pipeline as brick_mod
 from clipvol.tools.cli import main
+from build_hooks import after_each_brick
 
 
 def _one_error_line(capsys, *needles):
@@ -121,10 +121,10 @@ def test_resume_with_other_parameters(tmp_path, npy, capsys, monkeypatch):
     def crash(level, index):
         raise RuntimeError("crash")
 
-    monkeypatch.setattr(brick_mod, "_after_brick", crash)
+    after_each_brick(monkeypatch, crash)
     with pytest.raises(RuntimeError):
         main(["brick", str(npy[0]), str(out), "--quiet", "--brick", "8"])
-    monkeypatch.setattr(brick_mod, "_after_brick", None)
+    after_each_brick(monkeypatch, None)
     capsys.readouterr()
     assert main(["brick", str(npy[0]), str(out), "--quiet", "--brick", "16"]) == 2
     _one_error_line(capsys, "brick_shape", "--overwrite")

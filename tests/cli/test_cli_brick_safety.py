@@ -16,6 +16,7 @@ import pytest
 import clipvol.bricking.pipeline as brick_mod
 from clipvol.errors import OutputExistsError, OutputWriteError, ParameterError, SourceChangedError
 from clipvol.tools.cli import main
+from build_hooks import after_each_brick
 
 
 def _one_error_line(capsys, *needles):
@@ -95,7 +96,7 @@ def test_source_overwritten_during_the_build_leaves_the_store_incomplete(vol, ca
                 f.seek(size - 4096)
                 f.write(np.arange(2048, dtype=np.uint16).tobytes())
 
-    monkeypatch.setattr(brick_mod, "_after_brick", rewrite)
+    after_each_brick(monkeypatch, rewrite)
     out = vol / "o.zarr"
     with pytest.raises(SourceChangedError, match="changed while it was being bricked"):
         brick_mod.brick_volume(src, out, brick=8, progress=False, workers=1)
@@ -120,7 +121,7 @@ def test_source_replaced_by_an_identical_copy_is_still_a_change(vol, monkeypatch
             os.utime(copy, ns=(st.st_atime_ns, st.st_mtime_ns))
             os.replace(copy, src)
 
-    monkeypatch.setattr(brick_mod, "_after_brick", swap)
+    after_each_brick(monkeypatch, swap)
     with pytest.raises(SourceChangedError, match="replaced"):
         brick_mod.brick_volume(src, vol / "o.zarr", brick=8, progress=False, workers=1)
     assert not _complete(vol / "o.zarr")
@@ -131,14 +132,14 @@ def test_disk_full_while_bricking_is_one_line_and_resumable(vol, capsys, monkeyp
         if level == 1:
             raise OSError(errno.ENOSPC, "No space left on device", str(vol / "o.zarr" / "1" / "c"))
 
-    monkeypatch.setattr(brick_mod, "_after_brick", full)
+    after_each_brick(monkeypatch, full)
     out = vol / "o.zarr"
     with pytest.raises(OutputWriteError, match="No space left on device"):
         brick_mod.brick_volume(vol / "v.npy", out, brick=8, progress=False, workers=1)
     assert main(["brick", str(vol / "v.npy"), str(out), "--quiet", "--brick", "8", "--workers", "1"]) == 2
     _one_error_line(capsys, "o.zarr", "No space left on device", "re-run")
     assert not _complete(out) and not (vol / "o.zarr.lock").exists()
-    monkeypatch.setattr(brick_mod, "_after_brick", None)  # space freed: the same command resumes
+    after_each_brick(monkeypatch, None)  # space freed: the same command resumes
     assert main(["brick", str(vol / "v.npy"), str(out), "--quiet", "--brick", "8", "--workers", "1"]) == 0
     assert _complete(out)
 

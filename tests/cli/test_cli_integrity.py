@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 import zarr
 
-import clipvol.bricking.pipeline as brick_mod
 from clipvol.bricking.pipeline import brick_volume
 from clipvol.errors import OutputLockedError
 from clipvol.tools.cli import main
+from build_hooks import after_each_brick
 
 
 @pytest.fixture
@@ -92,10 +92,10 @@ def _interrupted(p, out, monkeypatch):
         if index != (0, 0, 0):
             raise RuntimeError("power cut")
 
-    monkeypatch.setattr(brick_mod, "_after_brick", crash)
+    after_each_brick(monkeypatch, crash)
     with pytest.raises(RuntimeError):
         main(["brick", str(p), str(out), "--quiet", "--brick", "16", "--workers", "1"])
-    monkeypatch.setattr(brick_mod, "_after_brick", None)
+    after_each_brick(monkeypatch, None)
 
 
 @pytest.mark.parametrize("keep_mtime", [False, True])
@@ -134,7 +134,7 @@ def test_second_writer_is_refused_while_the_first_builds(tmp_path, npy, monkeypa
         inside.set()
         release.wait(30)
 
-    monkeypatch.setattr(brick_mod, "_after_brick", hold)
+    after_each_brick(monkeypatch, hold)
     first = threading.Thread(target=brick_volume, args=(p, out), kwargs={"brick": 16, "progress": False, "workers": 1})
     first.start()
     try:
@@ -143,7 +143,7 @@ def test_second_writer_is_refused_while_the_first_builds(tmp_path, npy, monkeypa
             brick_volume(p, out, brick=16, progress=False, overwrite=True)
     finally:
         release.set()
-        monkeypatch.setattr(brick_mod, "_after_brick", None)
+        after_each_brick(monkeypatch, None)
         first.join(30)
     assert not first.is_alive()
     np.testing.assert_array_equal(zarr.open_array(str(out / "0"), mode="r")[...], vol)

@@ -59,11 +59,11 @@ def test_render_with_points_window_and_camera_file(tmp_path, capsys):
     a, b = tmp_path / "a.png", tmp_path / "b.png"
     # --tf-points with a first point of alpha 0 at 0.5: every ray whose maximum is <= 0.5 is empty
     assert main(["render", src, "--brick", "16", "-o", str(a), "--camera", str(cam), "--size", "32x32", "--mode", "mip",
-                 "--selection", "fixed", "--tf-points", "0.5:0,0,0,0;1:1,1,1,1"]) == 0
+                 "--policy", "fixed", "--tf-points", "0.5:0,0,0,0;1:1,1,1,1"]) == 0
     assert "transfer function points" in capsys.readouterr().err
     # the same window as --window centre,width with the grey preset and a step opacity at 0.75
     assert main(["render", src, "--brick", "16", "-o", str(b), "--camera", str(cam), "--size", "32x32", "--mode", "mip",
-                 "--selection", "fixed", "--tf", "grey", "--window", "0.75,0.5", "--opacity", "step"]) == 0
+                 "--policy", "fixed", "--tf", "grey", "--window", "0.75,0.5", "--opacity", "step"]) == 0
     from clipvol.bricking.generators import parse_procedural
 
     mip = parse_procedural(src).region(0, (0, 0, 0), (32, 32, 32)).max(axis=0)  # (y, x), camera rows follow +y

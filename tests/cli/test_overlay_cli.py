@@ -53,7 +53,7 @@ def test_render_overlay_equals_the_reference_and_python(stores, tmp_path, ctx):
     img = np.asarray(Image.open(out)).astype(int)
     from clipvol.loaders.zarr_store import ZarrLoader
     from clipvol.scene.transfer import TransferFunction
-    from clipvol.tools.cmd_render import view_camera
+    from clipvol.scene.views import view_camera
 
     pyr = ZarrLoader(d / "t1.zarr").pyramid
     cam = view_camera(pyr, "iso", (64, 56)).fit_depth(*pyr.volume_box())

@@ -14,7 +14,7 @@ pytestmark = pytest.mark.gl
 def test_render_writes_png_matching_the_action(tmp_path, capsys):
     out = tmp_path / "img.png"
     rc = main(["render", "procedural:fractal?size=40", "--brick", "16", "--out", str(out), "--size", "64x48",
-               "--view", "front", "--ortho", "--mode", "mip", "--selection", "fixed", "--tf-points", "0:0,0,0,0;1:1,1,1,1"])
+               "--view", "front", "--ortho", "--mode", "mip", "--policy", "fixed", "--tf-points", "0:0,0,0,0;1:1,1,1,1"])
     assert rc == 0
     img = np.asarray(Image.open(out))
     assert img.shape == (48, 64, 4)
@@ -94,7 +94,7 @@ def test_render_a_time_point_and_hide_labels(tmp_path):
 def test_render_shading_changes_colour_not_opacity(tmp_path, capsys):
     """--shading lights the colours (Blinn-Phong) and leaves every pixel's opacity as it was;
     --light with the wrong count of numbers is refused naming it."""
-    base = ["render", "procedural:fractal?size=32", "--brick", "16", "--size", "48x48", "--selection", "fixed",
+    base = ["render", "procedural:fractal?size=32", "--brick", "16", "--size", "48x48", "--policy", "fixed",
             "--tf", "bone"]
     assert main(base + ["--out", str(tmp_path / "u.png")]) == 0
     assert main(base + ["--out", str(tmp_path / "l.png"), "--shading", "--light", "0.1,0.9,0.5,10"]) == 0

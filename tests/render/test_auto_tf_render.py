@@ -32,7 +32,7 @@ def test_auto_tf_leaves_the_empty_corner_transparent_and_shows_the_structure(gl,
     n = vol.shape[0]
     c = (n - 1) / 2.0
     cam = Camera.orthographic((c, c, c), (0, 0, 1), (0, -1, 0), n, n, size=(n, n))
-    with ClipTexture(loader, "32MB", threads=2) as clip, ClipRenderAction(gl, clip, selection="fixed", level=0) as action:
+    with ClipTexture(loader, "32MB", threads=2) as clip, ClipRenderAction(gl, clip, policy="fixed", level=0) as action:
         img = render_converged(action, cam, tf)
     alpha = img[..., 3].astype(int)
     # pixel (row i, column j) sees voxel column (y = i, x = j) along z; a corner block of 6x6

@@ -56,7 +56,7 @@ def test_coarse_level_matches_numpy_downsample_at_block_centres(gl, head, level)
     cam = Camera.perspective(tuple(c - d * 0.6 * np.linalg.norm(hi - lo)), tuple(c), up=(0, -1, 0), fov_y=40,
                              size=(96, 96))
     clip = ClipTexture(loader, "64MB", threads=2)
-    action = ClipRenderAction(gl, clip, selection="fixed", level=level)
+    action = ClipRenderAction(gl, clip, policy="fixed", level=level)
     try:
         img = action.render(cam, tf, wait=True, timeout=60)
     finally:

@@ -50,7 +50,7 @@ def _render(ctx, root):
     from clipvol.render.action import ClipRenderAction
 
     with ClipTexture(ZarrLoader(root), "32MB", threads=2, retries=0) as clip, \
-            ClipRenderAction(ctx, clip, selection="fixed", level=0) as action:
+            ClipRenderAction(ctx, clip, policy="fixed", level=0) as action:
         img = action.render(CAM, TF, wait=True, timeout=30)
         return img, action.last_frame_stats
 

@@ -59,7 +59,7 @@ def test_label_overlay_from_the_cli_equals_the_reference(store, tmp_path):
     got = np.asarray(Image.open(out)).astype(int)
     from clipvol.loaders.zarr_store import ZarrLoader
     from clipvol.scene.transfer import TransferFunction
-    from clipvol.tools.cmd_render import view_camera
+    from clipvol.scene.views import view_camera
 
     pyr = ZarrLoader(d / "img.zarr").pyramid
     cam = view_camera(pyr, "iso", (64, 60)).fit_depth(*pyr.volume_box())

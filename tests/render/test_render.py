@@ -109,8 +109,8 @@ def visible(img) -> float:
 def test_composite_matches_reference_and_has_no_seams(scenes, view, path):
     vol = smooth_volume()
     cam = CAMERAS[view](centre_of(vol.shape))
-    small = scenes(vol, 16, selection="fixed", level=0, path=path)
-    big = scenes(vol, 128, selection="fixed", level=0, path=path)
+    small = scenes(vol, 16, policy="fixed", level=0, path=path)
+    big = scenes(vol, 128, policy="fixed", level=0, path=path)
     a, b = small.render(cam), big.render(cam)
     assert small.action.last_frame_stats.converged and big.action.last_frame_stats.converged
     assert sum(small.action.last_frame_stats.bricks_drawn.values()) > 8  # really many bricks
@@ -129,7 +129,7 @@ def test_axis_aligned_orthographic_mip_is_numpy_max_projection(scenes, brick):
     vol[5, 7, 9] = 1.5  # a single bright voxel must survive
     nz, ny, nx = vol.shape
     cam = Camera.orthographic(centre_of(vol.shape), (0, 0, 1), (0, -1, 0), nx, ny, size=(nx, ny))
-    s = scenes(vol, brick, selection="fixed", level=0, mode="mip")
+    s = scenes(vol, brick, policy="fixed", level=0, mode="mip")
     img = s.render(cam, TransferFunction.preset("viridis"))
     lo, hi = float(vol.min()), float(vol.max())
     expect = ref.tf_lookup(TransferFunction.preset("viridis").table, (vol.max(axis=0) - lo) / (hi - lo))
@@ -141,7 +141,7 @@ def test_axis_aligned_orthographic_mip_is_numpy_max_projection(scenes, brick):
 def test_integer_and_wide_dtypes_match_reference(scenes, dtype):
     vol = smooth_volume((32, 32, 32), dtype)
     cam = CAMERAS["perspective"](centre_of(vol.shape))
-    s = scenes(vol, 16, selection="fixed", level=0)
+    s = scenes(vol, 16, policy="fixed", level=0)
     img = s.render(cam)
     r = s.reference(cam)
     assert visible(r) > 0.3
@@ -209,7 +209,7 @@ def test_mixed_level_cut_where_centre_sorting_fails(scenes):
 def test_error_falls_as_lod_threshold_falls(scenes):
     vol = smooth_volume((64, 64, 64))
     cam = Camera.perspective((-20.0, -10.0, -30.0), (31.5, 31.5, 31.5), size=(96, 96), fov_y=50)
-    fine = scenes(vol, 8, selection="fixed", level=0).render(cam)
+    fine = scenes(vol, 8, policy="fixed", level=0).render(cam)
     errs, texels = [], []
     for thr in (8.0, 4.0, 2.0, 1.0):
         s = scenes(vol, 8, lod_threshold=thr)
@@ -240,7 +240,7 @@ def test_texture_memory_stays_in_budget(scenes, ctx):
 def test_uploads_per_frame_respect_texels_per_frame(scenes):
     vol = smooth_volume((64, 64, 64))
     per_frame = 3 * 16**3
-    s = scenes(vol, 16, selection="fixed", level=0, texels_per_frame=per_frame)
+    s = scenes(vol, 16, policy="fixed", level=0, texels_per_frame=per_frame)
     s.clip.wait_until_idle(20)
     cam = Camera.perspective((-20.0, -10.0, -30.0), (31.5, 31.5, 31.5), size=(64, 64), fov_y=50)
     frames = 0
@@ -255,7 +255,7 @@ def test_uploads_per_frame_respect_texels_per_frame(scenes):
     assert st.converged and frames > 64 // 3  # it took many frames
     assert diff(img, s.reference(cam)).max() <= 2
     # wait=True does the same in internal passes
-    s2 = scenes(vol, 16, selection="fixed", level=0, texels_per_frame=per_frame)
+    s2 = scenes(vol, 16, policy="fixed", level=0, texels_per_frame=per_frame)
     img2 = s2.render(cam, wait=True)
     assert s2.action.last_frame_stats.converged and s2.action.last_frame_stats.passes > 1
     assert diff(img2, img).max() == 0
@@ -263,7 +263,7 @@ def test_uploads_per_frame_respect_texels_per_frame(scenes):
 
 def test_partially_uploaded_frame_draws_coarser_not_holes(scenes):
     vol = smooth_volume((64, 64, 64))
-    s = scenes(vol, 16, selection="fixed", level=0, texels_per_frame=16**3)
+    s = scenes(vol, 16, policy="fixed", level=0, texels_per_frame=16**3)
     s.clip.wait_until_idle(20)
     cam = Camera.perspective((-20.0, -10.0, -30.0), (31.5, 31.5, 31.5), size=(64, 64), fov_y=50)
     s.render(cam, wait=False)
@@ -282,7 +282,7 @@ def test_nan_and_inf_are_transparent_and_do_not_poison(scenes):
     vol[10:14, 10:20, 5:9] = np.nan
     vol[20, 20, 20] = np.inf
     cam = CAMERAS["perspective"](centre_of(vol.shape))
-    s = scenes(vol, 16, selection="fixed", level=0)
+    s = scenes(vol, 16, policy="fixed", level=0)
     img = s.render(cam)
     r = s.reference(cam)
     assert visible(img) > 0.3
@@ -297,7 +297,7 @@ def test_opacity_extremes_and_step_sizes_are_stable(scenes):
     faint = TransferFunction.from_points([(0, (1, 1, 1, 1e-6)), (1, (1, 1, 1, 1e-6))])
     for tf in (opaque, faint):
         for step in (0.05, 0.5, 7.0):
-            s = scenes(vol, 16, selection="fixed", level=0, step=step)
+            s = scenes(vol, 16, policy="fixed", level=0, step=step)
             img = s.render(cam, tf)
             r = s.reference(cam, tf, step=step)
             assert diff(img, r).max() <= 2, (tf, step)
@@ -307,7 +307,7 @@ def test_thin_prime_and_anisotropic_volumes(scenes):
     for shape in [(1, 17, 23), (13, 7, 29)]:
         vol = smooth_volume(shape)
         cam = Camera.perspective((-15.0, -12.0, -20.0), centre_of(shape), size=(64, 48), fov_y=50)
-        s = scenes(vol, 8, selection="fixed", level=0)
+        s = scenes(vol, 8, policy="fixed", level=0)
         img = s.render(cam)
         r = s.reference(cam)
         assert diff(img, r).max() <= 2, shape
@@ -333,7 +333,7 @@ def test_shape_box_and_planes_clip_the_rays(scenes):
     planes = ((1.0, 1.0, 0.0, -30.0),)  # keep x + y >= 30
     shape = Shape(box=box, planes=planes)
     cam = CAMERAS["perspective"](centre_of(vol.shape))
-    s = scenes(vol, 8, selection="fixed", level=0, shape=shape)
+    s = scenes(vol, 8, policy="fixed", level=0, shape=shape)
     img = s.render(cam)
     assert s.action.last_frame_stats.counts["culled_shape"] > 0
     fc = cam.fit_depth(*s.pyramid.volume_box())
@@ -357,7 +357,7 @@ def test_huge_virtual_volume_keeps_precision_in_brick_local_space(scenes, ctx):
     s0 = n - 48
     box = ((s0 + 4.0,) * 3, (s0 + 36.0,) * 3)
     clip = ClipTexture(loader, "64MB", threads=2, center=(s0 + 20.0,) * 3)
-    action = ClipRenderAction(ctx, clip, selection="fixed", level=0, shape=Shape(box=box))
+    action = ClipRenderAction(ctx, clip, policy="fixed", level=0, shape=Shape(box=box))
     try:
         cam = Camera.perspective((s0 + 20.3, s0 + 20.2, s0 - 30.0), (s0 + 20.0,) * 3, size=(64, 64), fov_y=50)
         tf = TransferFunction.from_points([(0.0, (0, 0, 1, 0.0)), (0.5, (0, 1, 0, 0.1)), (1.0, (1, 0, 0, 0.5))])
@@ -380,12 +380,12 @@ def test_front_to_back_with_early_termination_equals_back_to_front_over(scenes):
     opaque = TransferFunction.from_points([(0.0, (0, 0, 1, 0.1)), (1.0, (1, 0.5, 0, 0.9))])
     cam = Camera.perspective((-30.0, -20.0, -40.0), centre_of(vol.shape), size=(64, 64), fov_y=40)
     bg = (0.2, 0.3, 0.4, 1.0)
-    a = scenes(vol, 8, selection="fixed", level=0, background=bg, merge_boxes=False, path="bricks")
-    b = scenes(vol, 8, selection="fixed", level=0, background=bg, early_termination=False, merge_boxes=False,
+    a = scenes(vol, 8, policy="fixed", level=0, background=bg, merge_boxes=False, path="bricks")
+    b = scenes(vol, 8, policy="fixed", level=0, background=bg, early_termination=False, merge_boxes=False,
                path="bricks")
-    c = scenes(vol, 8, selection="fixed", level=0, background=bg, path="bricks")  # merged boxes, front to back
-    d = scenes(vol, 8, selection="fixed", level=0, background=bg, path="single-pass")  # merged blocks in the table
-    e = scenes(vol, 8, selection="fixed", level=0, background=bg, merge_boxes=False, path="single-pass")
+    c = scenes(vol, 8, policy="fixed", level=0, background=bg, path="bricks")  # merged boxes, front to back
+    d = scenes(vol, 8, policy="fixed", level=0, background=bg, path="single-pass")  # merged blocks in the table
+    e = scenes(vol, 8, policy="fixed", level=0, background=bg, merge_boxes=False, path="single-pass")
     ia, ib, ic, id_ = a.render(cam, opaque), b.render(cam, opaque), c.render(cam, opaque), d.render(cam, opaque)
     ie = e.render(cam, opaque)
     assert a.action.occlusion_passes > 0 and b.action.occlusion_passes == 0
@@ -415,16 +415,16 @@ def _black_wall_before_white():
 def test_early_termination_changes_no_pixel_by_more_than_one_level(scenes, monkeypatch, path):
     """A ray stops at OPAQUE = 1 - 0.5/255: what it leaves out is under half an 8-bit step, so the
     image is within 1 of the reference integrated to the end of every ray (no termination)."""
-    import clipvol.render.action as action_mod
+    import clipvol.render.paths.setup as setup_mod
 
     vol, tf, cam = _black_wall_before_white()
-    s = scenes(vol, 16, selection="fixed", level=0, path=path, merge_boxes=False)
+    s = scenes(vol, 16, policy="fixed", level=0, path=path, merge_boxes=False)
     r = s.reference(cam, tf)
     assert visible(r) > 0.5
     assert diff(s.render(cam, tf), r).max() <= 1
     # the scene tells thresholds apart: a ray stopping at 0.99 leaves out up to 2.5 levels of the white
-    monkeypatch.setattr(action_mod, "OPAQUE", 0.99)
-    loose = scenes(vol, 16, selection="fixed", level=0, path=path, merge_boxes=False).render(cam, tf)
+    monkeypatch.setattr(setup_mod, "OPAQUE", 0.99)
+    loose = scenes(vol, 16, policy="fixed", level=0, path=path, merge_boxes=False).render(cam, tf)
     assert diff(loose, r).max() >= 2
 
 
@@ -435,8 +435,8 @@ def test_auto_path_draws_many_boxes_in_one_pass_and_few_per_brick(scenes):
 
     vol = smooth_volume((48, 48, 48))
     cam = Camera.perspective((-30.0, -20.0, -40.0), centre_of(vol.shape), size=(48, 48), fov_y=40)
-    many = scenes(vol, 8, selection="fixed", level=0, merge_boxes=False)  # 216 boxes
-    few = scenes(vol, 8, selection="fixed", level=0)  # merged into a handful
+    many = scenes(vol, 8, policy="fixed", level=0, merge_boxes=False)  # 216 boxes
+    few = scenes(vol, 8, policy="fixed", level=0)  # merged into a handful
     a, b = many.render(cam), few.render(cam)
     assert many.action.params.path == few.action.params.path == "auto"
     assert many.action.page_table_nodes >= AUTO_SINGLE_PASS_BOXES and many.action.path_drawn == "single-pass"
@@ -455,8 +455,8 @@ def test_merge_covers_bricks_beside_the_view_that_were_never_loaded(scenes):
 
     vol = smooth_volume((48, 48, 48))
     cam = Camera.perspective((-30.0, -20.0, -40.0), centre_of(vol.shape), size=(64, 64), fov_y=10)
-    merged = scenes(vol, 8, selection="fixed", level=0, path="bricks")
-    pieces = scenes(vol, 8, selection="fixed", level=0, path="bricks", merge_boxes=False)
+    merged = scenes(vol, 8, policy="fixed", level=0, path="bricks")
+    pieces = scenes(vol, 8, policy="fixed", level=0, path="bricks", merge_boxes=False)
     a, b = merged.render(cam), pieces.render(cam)
     grid = merged.pyramid.grid(0)
     every = np.array(list(itertools.product(*(range(k) for k in grid))))
@@ -473,13 +473,13 @@ def test_merged_boxes_never_cut_rays_short(scenes):
     vol = (np.random.default_rng(0).random((64, 64, 64)) * 0.2).astype(np.float32)
     tf = TransferFunction.from_points([(0.0, (1, 1, 1, 0.0)), (1.0, (1, 1, 1, 0.02))], value_range=(0, 1))
     cam = Camera.perspective((150.0, 130.0, 170.0), (32.0, 32.0, 32.0), fov_y=30, size=(12, 12))
-    merged = scenes(vol, 8, selection="fixed", level=0, step=0.001, path="bricks")
-    single = scenes(vol, 8, selection="fixed", level=0, step=0.001, merge_boxes=False, path="bricks")
+    merged = scenes(vol, 8, policy="fixed", level=0, step=0.001, path="bricks")
+    single = scenes(vol, 8, policy="fixed", level=0, step=0.001, merge_boxes=False, path="bricks")
     a, b = merged.render(cam, tf), single.render(cam, tf)
     assert merged.action.boxes_drawn == single.action.boxes_drawn == len(single.action.last_selection.items)
     np.testing.assert_array_equal(a, b)
     # the single pass takes no ray of more samples than llvmpipe's loop cap: drawn per brick instead
-    sp = scenes(vol, 8, selection="fixed", level=0, step=0.001, path="single-pass")
+    sp = scenes(vol, 8, policy="fixed", level=0, step=0.001, path="single-pass")
     c = sp.render(cam, tf)
     assert sp.action.path_drawn == "bricks"
     np.testing.assert_array_equal(a, c)
@@ -499,7 +499,7 @@ def test_may_cover_answers_whether_the_node_is_in_texture_memory_or_beside_the_v
     the frame actually put on the GPU and, for the others, against the pixels' rays: a node none of
     whose bricks' data a ray could read (its box grown by one voxel meets no ray) may be covered."""
     vol = smooth_volume((48, 40, 32))
-    s = scenes(vol, 8, selection="fixed", level=0, path="bricks")
+    s = scenes(vol, 8, policy="fixed", level=0, path="bricks")
     # a narrow view: only some level-0 bricks are drawn (and uploaded)
     cam = Camera.perspective((15.0, 20.0, -6.0), (15.0, 20.0, 10.0), size=(32, 32), fov_y=20)
     s.render(cam)

@@ -40,7 +40,7 @@ def _render(ctx, loader):
     from clipvol.render.action import ClipRenderAction
 
     with ClipTexture(loader, "32MB", threads=2, retries=0) as clip:
-        action = ClipRenderAction(ctx, clip, selection="fixed", level=0)
+        action = ClipRenderAction(ctx, clip, policy="fixed", level=0)
         cam = Camera.orthographic((15.5, 15.5, 15.5), (0, 0, 1), (0, -1, 0), 32, 32, size=(32, 32))
         img = action.render(cam, TF, wait=True, timeout=30)
         state = clip.state(0, (1, 1, 1))

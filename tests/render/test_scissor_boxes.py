@@ -1,4 +1,4 @@
-"""The scissor rectangles that restrict each box's one screen triangle (``render.action.scissor_boxes``)
+"""The scissor rectangles that restrict each box's one screen triangle (``render.paths.setup.scissor_boxes``)
 must hold every pixel whose ray meets the box - a pixel left out would silently lose that box's
 samples. Checked against rays built here with plain numpy (not the camera's own ray code) and a
 slab test per pixel centre."""

@@ -138,9 +138,11 @@ def test_a_policy_added_at_run_time_needs_only_the_registry():
         def refine(self, t, level, lo, hi):  # refine only the nodes left of the volume's middle
             return lo[:, 0] < N / 2 - 1
 
+    from clipvol.scene.policy_registry import register
+
     with pytest.raises(ParameterError, match="policy"):
         RenderParams(policy="test-halfway")
-    POLICIES[HalfWay.name] = HalfWay
+    register(HalfWay)  # the plug-in's one line: params (which never imports the policies) accepts it
     try:
         sel = select(PYR, whole_view(EYES[0]), RenderParams(policy="test-halfway"))
         assert set(sel.wanted) == brute_force(lambda level, lo, hi: lo[0] < N / 2 - 1)
@@ -169,3 +171,18 @@ def test_texel_budget_counts_regions_drawn_from_a_parent_outside_the_window():
         exercised += sel.counts["outside_window"] > 0
         assert len(sel.items) <= bricks, (bricks, len(sel.items), sel.counts["outside_window"])
     assert exercised > 5  # the case this test is about did occur
+
+
+def test_params_alone_knows_every_built_in_policy():
+    """A fresh interpreter that imports only ``clipvol.scene.params`` validates every built-in policy
+    name: the registry is full before the first RenderParams, though params never imports them."""
+    import subprocess
+    import sys
+
+    names = ["projected-size", "texel-budget", "fixed", "roaming", "distance", "field-of-view", "image", "plane"]
+    code = ("import sys; from clipvol.scene.params import RenderParams; "
+            "[RenderParams(policy=n, max_texels_drawn=1) for n in sys.argv[1:]]; "
+            "print(sorted(m for m in sys.modules if m.startswith('clipvol.scene.selection.policies.')))")
+    out = subprocess.run([sys.executable, "-c", code, *names], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert "clipvol.scene.selection.policies.distance" in out.stdout

@@ -119,3 +119,26 @@ def test_oblique_acquisition_is_viewed_in_the_patient_frame():
     clip = cam.view_projection() @ np.append(index * sp, 1.0)
     assert clip[0] / clip[3] > 0 and clip[1] / clip[3] > 0  # left-anterior-superior: top right
     assert edge_labels(cam, frame) == {"right": "L", "left": "R", "top": "S", "bottom": "I"}
+
+
+def test_camera_paths_of_a_patient_store_are_head_up_and_turn_the_worlds_way():
+    """patient_path: superior and anterior of the affine (nibabel's axis codes name them) become the
+    path's up and front; an LAS store (a mirror image) turns mirrored; a store without a patient
+    frame keeps the path and its defaults."""
+    import nibabel as nib
+
+    from clipvol.bricking.worldframe import WorldFrame
+    from clipvol.scene.views import patient_path
+
+    assert patient_path("fly", None) == ("fly", {})
+    assert patient_path("orbit", WorldFrame(tuple(map(tuple, np.eye(4))), "")) == ("orbit", {})
+    # array x -> anterior (A), y -> superior (S), z -> patient's left (L): a mirror image of RAS
+    aff = np.array([[0, 0, -2, 0], [3, 0, 0, 0], [0, 1, 0, 0], [0, 0, 0, 1]], dtype=float)
+    assert nib.aff2axcodes(aff) == ("A", "S", "L")
+    name, kw = patient_path("orbit", WorldFrame(tuple(map(tuple, aff)), "RAS"))
+    assert name == "turntable" and kw["elevation"] == 25.0 and kw["mirror"] is True
+    np.testing.assert_allclose(kw["up"], (0, 1, 0), atol=1e-12)     # superior is array y
+    np.testing.assert_allclose(kw["front"], (1, 0, 0), atol=1e-12)  # anterior is array x
+    name, kw = patient_path("zoom", WorldFrame(tuple(map(tuple, np.eye(4))), "RAS"))
+    assert name == "zoom" and kw["mirror"] is False
+    np.testing.assert_allclose(kw["up"], (0, 0, 1), atol=1e-12)

@@ -154,7 +154,7 @@ def test_render_with_failed_and_hung_bricks_is_bounded(ctx):
     loader = FaultyLoader(NumpyLoader(VOL, brick=8), {(0, (1, 1, 1)): "raise", (0, (0, 0, 0)): "hang"}, gate)
     clip = ClipTexture(loader, "16MB", threads=2, retries=0)
     try:
-        action = ClipRenderAction(ctx, clip, selection="fixed", level=0)
+        action = ClipRenderAction(ctx, clip, policy="fixed", level=0)
         cam = Camera.orthographic((7.5, 7.5, 7.5), (0, 0, 1), (0, -1, 0), 16, 16, size=(16, 16))
         t0 = time.monotonic()
         img = action.render(cam, TF, wait=True, timeout=1.0)
@@ -370,7 +370,8 @@ BRICK_SRC = "procedural:fractal?size=40&seed=3"
 def test_ctrl_c_during_brick_resumes_to_identical_store(tmp_path):
     out = tmp_path / "interrupted.zarr"
     slow = (
-        "import sys, time, clipvol.bricking.pipeline as b; b._after_brick = lambda L, i: time.sleep(0.01); "
+        "import sys, time, clipvol.bricking.pipeline as b; w = b.write_chunk; "
+        "b.write_chunk = lambda path, data: (w(path, data), time.sleep(0.01)); "
         "from clipvol.tools.cli import main; sys.exit(main(sys.argv[1:]))"
     )
     args = ["brick", BRICK_SRC, str(out), "--brick", "8", "--workers", "1", "--quiet"]

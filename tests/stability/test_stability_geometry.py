@@ -64,7 +64,7 @@ PYR = NumpyLoader(VOL, brick=8).pyramid  # 24^3 voxels, bricks of 8: 3x3x3 brick
 
 
 
-def render(ctx, cam, vol=VOL, *, brick=8, selection="fixed", level=0, mode="composite", **kw):
+def render(ctx, cam, vol=VOL, *, brick=8, policy="fixed", level=0, mode="composite", **kw):
     """Converged render; returns ``(image, action stats, selection)``."""
     from clipvol.render.action import ClipRenderAction
 
@@ -73,7 +73,7 @@ def render(ctx, cam, vol=VOL, *, brick=8, selection="fixed", level=0, mode="comp
         # every brick in RAM first: which neighbours reach the GPU (open vs clamped faces) must not
         # depend on load timing (see test_stability_geometry::test_converged_render_independent_of_load_timing)
         assert clip.wait_until_idle(timeout=30)
-        action = ClipRenderAction(ctx, clip, selection=selection, level=level if selection == "fixed" else None,
+        action = ClipRenderAction(ctx, clip, policy=policy, level=level if policy == "fixed" else None,
                                   mode=mode, **kw)
         try:
             img = render_converged(action, cam, TF, timeout=20)
@@ -270,7 +270,7 @@ def test_far_camera_draws_coarsest_level_correctly(gl, dist):
     cam = Camera.perspective(eye, target, up=(0, -1, 0), fov_y=fov, size=(16, 16))
     sel = select(PYR, cam, RenderParams(lod_threshold=8.0))
     top = PYR.num_levels - 1
-    img, stats, s2 = render(gl, cam, selection="multiresolution", lod_threshold=8.0)
+    img, stats, s2 = render(gl, cam, policy="projected-size", lod_threshold=8.0)
     if dist > 1e6:  # the whole volume is a fraction of a pixel: only the top level
         assert {it.level for it in sel.items} == {top}
         assert set(stats.bricks_drawn) == {top}
@@ -322,7 +322,7 @@ def test_converged_render_independent_of_load_timing(gl):
     eye = np.array(EYES["on_brick_corner"]) + 1e-4
     cam = Camera.perspective(eye, eye + np.array([0.3, -0.2, 1.0]), up=(0, -1, 0), fov_y=70, size=(48, 48))
     with ClipTexture(LateBehind(NumpyLoader(VOL, brick=8)), "16MB", threads=2) as clip:
-        action = ClipRenderAction(gl, clip, selection="fixed", level=0)
+        action = ClipRenderAction(gl, clip, policy="fixed", level=0)
         try:
             early = action.render(cam, TF, wait=True, timeout=20)
             assert action.last_frame_stats.converged

@@ -69,9 +69,9 @@ def test_huge_volume_far_corner_matches_local_copy(ctx, where):
     # a region of interest one voxel inside the copied block: every trilinear stencil of every
     # sample lies inside the block, whatever the neighbours of the huge volume hold
     box = np.array([0.5, 2 * B - 1.5])
-    img_far, st_far = _render(ctx, loader, cam_far, selection="fixed", level=0, center=off + rel_target,
+    img_far, st_far = _render(ctx, loader, cam_far, policy="fixed", level=0, center=off + rel_target,
                               shape=Shape(box=(off + box[0], off + box[1])))
-    img_near, st_near = _render(ctx, NumpyLoader(local, brick=B), cam_near, selection="fixed", level=0,
+    img_near, st_near = _render(ctx, NumpyLoader(local, brick=B), cam_near, policy="fixed", level=0,
                                 shape=Shape(box=(np.full(3, box[0]), np.full(3, box[1]))))
     assert st_near.bricks_drawn == {0: 8} and st_far.bricks_drawn.get(0, 0) >= 8
     assert (img_near[..., 3] > 0).mean() > 0.3  # the view is not empty

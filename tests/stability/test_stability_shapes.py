@@ -108,7 +108,7 @@ def _render(ctx, loader, cam, mode, step=0.5):
         # every brick in RAM first: which neighbours reach the GPU (open vs clamped faces) must not
         # depend on load timing (see test_stability_geometry::test_converged_render_independent_of_load_timing)
         assert clip.wait_until_idle(timeout=30)
-        action = ClipRenderAction(ctx, clip, mode=mode, selection="fixed", level=0, step=step)
+        action = ClipRenderAction(ctx, clip, mode=mode, policy="fixed", level=0, step=step)
         try:
             img = render_converged(action, cam, TF, timeout=20)
             return img

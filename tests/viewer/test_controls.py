@@ -220,8 +220,10 @@ def test_render_params_validate():
     from clipvol.scene.params import RenderParams
 
     assert RenderParams(policy="fixed").level == 0
-    assert RenderParams(policy="multiresolution").policy == "projected-size"
-    for bad in (dict(lod_threshold=0), dict(policy="best"), dict(mode="x-ray"), dict(step=-1), dict(level=-1),
+    assert RenderParams().policy == "projected-size"
+    with pytest.raises(ParameterError, match="selection"):  # no second name for policy
+        RenderParams.from_kwargs(selection="fixed")
+    for bad in (dict(lod_threshold=0), dict(policy="best"), dict(policy="multiresolution"), dict(mode="x-ray"), dict(step=-1), dict(level=-1),
                 dict(texture_budget="lots"), dict(focus=(1, 2)), dict(background=(0, 0, 0))):
         with pytest.raises(ParameterError):
             RenderParams(**bad)

@@ -15,7 +15,7 @@ def test_keys_switch_policy_and_budget():
     assert st.handle_key(">") and st.block_budget == 256
     assert st.handle_key("<") and st.handle_key("<") and st.block_budget == 64
     assert "64" in st.message
-    assert st.handle_key("G") and st.mode == "multiresolution"
+    assert st.handle_key("G") and st.mode == "projected-size"
     assert st.handle_key(".") and st.mode == "image" and st.block_budget == 128
     assert st.handle_key("M") and st.mode == MODES[0]
     for _ in range(20):

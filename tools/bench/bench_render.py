@@ -4,7 +4,7 @@ Every figure is a ratio measured in one run on this machine (Mesa llvmpipe, no G
 noise of a shared machine cancels as far as it can:
 
 * **multiresolution vs full resolution** - the same view of a >= 1 GiB store rendered with
-  ``selection="multiresolution", lod_threshold=1`` and with ``selection="fixed", level=0``;
+  ``policy="projected-size", lod_threshold=1`` and with ``policy="fixed", level=0``;
   warm frames (every brick already on the GPU), median of ``--repeat``. Target >= 5x faster at
   <= 5 % of pixels with CIELUV Delta E >= 6 (``clipvol.scene.metrics``), PSNR reported too.
 * **bytes loaded for the view** - the bricks the multiresolution view wants (what a cold
@@ -707,7 +707,7 @@ def main(argv: list[str] | None = None) -> int:
     budget = int(all_bytes * 1.1) + (64 << 20)
     t0 = time.perf_counter()
     clip = stack.enter_context(ClipTexture(loader, budget, center=centre))
-    full = ClipRenderAction(ctx, clip, texture_budget=budget, selection="fixed", level=0, step=args.step)
+    full = ClipRenderAction(ctx, clip, texture_budget=budget, policy="fixed", level=0, step=args.step)
     stack.callback(full.close)
     full.render(cam, tf, wait=True, timeout=1800)
     st = full.last_frame_stats
@@ -725,7 +725,7 @@ def main(argv: list[str] | None = None) -> int:
     whole = WholeVolume(loader)
     vol_bytes = int(np.prod(pyr.shape)) * pyr.dtype.itemsize
     clip1 = stack.enter_context(ClipTexture(whole, vol_bytes + (16 << 20), threads=1))
-    one = ClipRenderAction(ctx, clip1, texture_budget=vol_bytes + (16 << 20), selection="fixed", level=0, step=args.step)
+    one = ClipRenderAction(ctx, clip1, texture_budget=vol_bytes + (16 << 20), policy="fixed", level=0, step=args.step)
     stack.callback(one.close)
     one.render(cam, tf, wait=True, timeout=1800)
     raw = RawCaster(ctx, whole.read_brick(0, (0, 0, 0)), pyr.value_range)  # the reference outside clipvol

@@ -224,7 +224,7 @@ def bench_sortlast(work: Path, rows: list, frames: int = 3) -> None:
     from clipvol.render.action import ClipRenderAction
     from clipvol.scene.params import RenderParams
     from clipvol.scene.transfer import TransferFunction
-    from clipvol.tools.cmd_render import view_camera
+    from clipvol.scene.views import view_camera
 
     store = work / "sl.zarr"
     n = 128

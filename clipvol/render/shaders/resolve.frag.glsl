@@ -1,6 +1,6 @@
 #version 330
 // The last pass of a volume frame: the premultiplied float target -> straight 8-bit RGBA, the same
-// arithmetic as clipvol.render.action.premultiplied_to_uint8 (the numpy form, and the tests'
+// arithmetic as clipvol.render.paths.setup.premultiplied_to_uint8 (the numpy form, and the tests'
 // reference): the background goes under (u_bg premultiplied; zero when nothing goes under), colour is
 // un-premultiplied where the 8-bit alpha is not 0 (else black: a reader that ignores alpha sees
 // nothing where nothing is), both clamped to [0, 1] and rounded half to even.

@@ -152,18 +152,27 @@ void composite_sample(inout vec4 acc, float texel, float row) {
 // texture coordinate is affine in the position relative to O: c = a * p + b, a 3x3 matrix holding
 // the overlay's inverse affine, so flipped, permuted, rotated or sheared overlays land in place) and composited under
 // the ray before the primary's sample: the overlays' colours over the primary's, the first on top.
+// An overlay is sampled at least as finely as the primary samples its own voxels: where the primary's
+// step delta (its drawn level's voxel times the step fraction) exceeds the overlay's own step
+// u_ovk_step (the same fraction of the overlay's smallest voxel), the sample at t takes n sub-samples
+// at t + j * delta / n (j = 0 .. n - 1, n = ceil(delta / u_ovk_step), at most OV_MAX_SUB): the primary's
+// constant-distance lattice refined n times, each sub-sample's opacity corrected for delta / n. Without
+// it a primary drawn from a coarse level samples a finer map every few of its voxels, and a saturated
+// blob shows stair-step rings one step apart.
 vec3 g_ov_origin;               // the pixel ray's origin relative to O (set by the fragment's main)
 uniform sampler3D u_ov0_tex;
 uniform sampler2D u_ov0_tf;
 uniform mat3 u_ov0_a;           // texture coordinate c = a * p + b (p relative to O): the overlay's inverse affine
 uniform vec3 u_ov0_b;
 uniform vec2 u_ov0_t;           // table coordinate t = value * t.x + t.y
+uniform float u_ov0_step;       // the overlay's own sample spacing (world units): its smallest voxel times the step
 #if OVERLAY > 1
 uniform sampler3D u_ov1_tex;
 uniform sampler2D u_ov1_tf;
 uniform mat3 u_ov1_a;
 uniform vec3 u_ov1_b;
 uniform vec2 u_ov1_t;
+uniform float u_ov1_step;
 #endif
 #if OVERLAY > 2
 uniform sampler3D u_ov2_tex;
@@ -171,15 +180,26 @@ uniform sampler2D u_ov2_tf;
 uniform mat3 u_ov2_a;
 uniform vec3 u_ov2_b;
 uniform vec2 u_ov2_t;
+uniform float u_ov2_step;
 #endif
 
-// One overlay's sample at p: straight colour and opacity (0 outside its box or where not finite).
-vec4 overlay_one(sampler3D tex, sampler2D tf, mat3 a, vec3 b, vec2 tm, vec3 p, float row) {
+#define OV_MAX_SUB 16
+
+// The number of sub-samples of an overlay whose own step is `own` at a primary sample of step delta.
+int overlay_subs(float delta, float own) {
+    return int(clamp(ceil(delta / max(own, 1e-30) - 1e-3), 1.0, float(OV_MAX_SUB)));
+}
+
+// One overlay's sample at p: straight colour and opacity (0 outside its box or where not finite), the
+// opacity of the table row (corrected for the primary's step) corrected for 1/n of that step.
+vec4 overlay_one(sampler3D tex, sampler2D tf, mat3 a, vec3 b, vec2 tm, vec3 p, float row, float n) {
     vec3 c = a * p + b;
     if (any(lessThan(c, vec3(0.0))) || any(greaterThan(c, vec3(1.0)))) return vec4(0.0);   // outside its box
     float v = texture(tex, c).r;
     if (isnan(v) || isinf(v)) return vec4(0.0);
-    return texture(tf, vec2(v * tm.x + tm.y, row));
+    vec4 s = texture(tf, vec2(v * tm.x + tm.y, row));
+    if (n > 1.0) s.a = 1.0 - pow(1.0 - s.a, 1.0 / n);
+    return s;
 }
 
 // A label overlay (OVERLAYk_LABELS): the texture holds per voxel the index of its id among the
@@ -199,19 +219,19 @@ vec4 overlay_label(sampler3D tex, sampler2D tab, mat3 a, vec3 b, vec3 p, float d
 }
 
 #ifdef OVERLAY0_LABELS
-#define OVERLAY0(p, row, delta) overlay_label(u_ov0_tex, u_ov0_tf, u_ov0_a, u_ov0_b, p, delta)
+#define OVERLAY0(p, row, delta, n) overlay_label(u_ov0_tex, u_ov0_tf, u_ov0_a, u_ov0_b, p, delta / n)
 #else
-#define OVERLAY0(p, row, delta) overlay_one(u_ov0_tex, u_ov0_tf, u_ov0_a, u_ov0_b, u_ov0_t, p, row)
+#define OVERLAY0(p, row, delta, n) overlay_one(u_ov0_tex, u_ov0_tf, u_ov0_a, u_ov0_b, u_ov0_t, p, row, n)
 #endif
 #ifdef OVERLAY1_LABELS
-#define OVERLAY1(p, row, delta) overlay_label(u_ov1_tex, u_ov1_tf, u_ov1_a, u_ov1_b, p, delta)
+#define OVERLAY1(p, row, delta, n) overlay_label(u_ov1_tex, u_ov1_tf, u_ov1_a, u_ov1_b, p, delta / n)
 #else
-#define OVERLAY1(p, row, delta) overlay_one(u_ov1_tex, u_ov1_tf, u_ov1_a, u_ov1_b, u_ov1_t, p, row)
+#define OVERLAY1(p, row, delta, n) overlay_one(u_ov1_tex, u_ov1_tf, u_ov1_a, u_ov1_b, u_ov1_t, p, row, n)
 #endif
 #ifdef OVERLAY2_LABELS
-#define OVERLAY2(p, row, delta) overlay_label(u_ov2_tex, u_ov2_tf, u_ov2_a, u_ov2_b, p, delta)
+#define OVERLAY2(p, row, delta, n) overlay_label(u_ov2_tex, u_ov2_tf, u_ov2_a, u_ov2_b, p, delta / n)
 #else
-#define OVERLAY2(p, row, delta) overlay_one(u_ov2_tex, u_ov2_tf, u_ov2_a, u_ov2_b, u_ov2_t, p, row)
+#define OVERLAY2(p, row, delta, n) overlay_one(u_ov2_tex, u_ov2_tf, u_ov2_a, u_ov2_b, u_ov2_t, p, row, n)
 #endif
 
 // "over" (default): each overlay's sample under the ray, then the primary's (the overlays' colours
@@ -224,18 +244,21 @@ vec4 overlay_label(sampler3D tex, sampler2D tab, mat3 a, vec3 b, vec3 p, float d
 #define OVERLAY_TAKE(s) { vec4 s_ = (s); float w_ = (1.0 - acc.a) * s_.a; acc.rgb += w_ * s_.rgb; acc.a += w_; }
 #endif
 
+// overlay k's n sub-samples of the primary's sample at ts, front to back
+#define OVERLAY_SUBS(OV, STEP) { int n_ = overlay_subs(delta, STEP); float fn_ = float(n_); for (int j_ = 0; j_ < n_; ++j_) OVERLAY_TAKE(OV(p + (float(j_) * delta / fn_) * dir, row, delta, fn_)); }
+
 void overlay_under(inout vec4 acc, float ts, vec3 dir, float row, float delta, float texel) {
     vec3 p = g_ov_origin + ts * dir;
 #ifdef OVERLAY_ADDITIVE
     vec3 sum_c = vec3(0.0);
     float sum_t = 1.0;
 #endif
-    OVERLAY_TAKE(OVERLAY0(p, row, delta));
+    OVERLAY_SUBS(OVERLAY0, u_ov0_step);
 #if OVERLAY > 1
-    OVERLAY_TAKE(OVERLAY1(p, row, delta));
+    OVERLAY_SUBS(OVERLAY1, u_ov1_step);
 #endif
 #if OVERLAY > 2
-    OVERLAY_TAKE(OVERLAY2(p, row, delta));
+    OVERLAY_SUBS(OVERLAY2, u_ov2_step);
 #endif
 #ifdef OVERLAY_ADDITIVE
     if (SAMPLE_OK(texel)) OVERLAY_TAKE(texture(u_tf, vec2(texel * u_t_scale + u_t_offset, row)));

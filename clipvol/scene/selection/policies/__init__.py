@@ -1,13 +1,15 @@
 """Selection policies: interchangeable strategies over the one octree traversal.
 
-The registry maps a name (``RenderParams.policy``) to a policy class; a class is built with the
-frozen :class:`~clipvol.scene.params.RenderParams` and implements
+The registry (:mod:`clipvol.scene.policy_registry`, a leaf that ``RenderParams`` validates
+against) maps a name (``RenderParams.policy``) to a policy class; a class is built with the frozen
+:class:`~clipvol.scene.params.RenderParams` and implements
 :class:`~clipvol.scene.selection.policies.base.SelectionPolicy`. To add a policy, write one module
-in this folder (copy ``distance.py``) and add one line to :data:`POLICIES` below.
+in this folder (copy ``distance.py``) and add its class to :data:`BUILT_IN` below.
 """
 
 from __future__ import annotations
 
+from ...policy_registry import POLICIES, register
 from .base import RefinePolicy, SelectionPolicy
 from .distance import Distance
 from .field_of_view import FieldOfView
@@ -17,19 +19,21 @@ from .plane import PlaneCut
 from .projected_size import ProjectedSize, TexelBudget
 from .roaming import ROAMING_MAX_BRICKS, Roaming
 
-__all__ = ["POLICIES", "policy_for", "SelectionPolicy", "RefinePolicy", "ROAMING_MAX_BRICKS"]
+__all__ = ["POLICIES", "BUILT_IN", "register", "policy_for", "SelectionPolicy", "RefinePolicy", "ROAMING_MAX_BRICKS"]
 
-#: name -> policy class (one line per policy)
-POLICIES: dict[str, type] = {
-    ProjectedSize.name: ProjectedSize,
-    TexelBudget.name: TexelBudget,
-    FixedLevel.name: FixedLevel,
-    Roaming.name: Roaming,
-    Distance.name: Distance,
-    FieldOfView.name: FieldOfView,
-    ImageBased.name: ImageBased,
-    PlaneCut.name: PlaneCut,
-}
+#: the policies shipped with clipvol, registered by name (one line per policy)
+BUILT_IN: tuple[type, ...] = (
+    ProjectedSize,
+    TexelBudget,
+    FixedLevel,
+    Roaming,
+    Distance,
+    FieldOfView,
+    ImageBased,
+    PlaneCut,
+)
+for _cls in BUILT_IN:
+    register(_cls)
 
 
 def policy_for(params) -> SelectionPolicy:

@@ -1,0 +1,89 @@
+"""What one frame of the clip render action did (:class:`FrameStats`), counted from its cut.
+
+Kept apart from the action so that the report, the flythrough, the CLI and the tests read the
+numbers of a frame without the GL side, and so that counting (per level, distinct bricks, failed
+bricks) is written once, whichever draw path drew the frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..rows import unique_rows
+from .failures import failed_bricks
+
+__all__ = ["FrameStats", "frame_stats"]
+
+
+@dataclass(frozen=True, slots=True)
+class FrameStats:
+    """What one :meth:`~clipvol.render.action.ClipRenderAction.render` call did.
+
+    Attributes
+    ----------
+    bricks_drawn : dict[int, int]
+        Draw items per level (an ancestor drawn over several missing children counts once per child).
+    bricks_distinct : int
+        Distinct bricks drawn (each brick once, however many items sample it).
+    texels_drawn : int
+        Voxels of the bricks drawn (a sub-box drawn from an ancestor counts its whole brick once).
+    bytes_uploaded, bricks_uploaded : int
+        Texture sub-loads of this call (all passes).
+    texture_bytes, texture_budget : int
+        Bytes held by the brick textures (always <= the budget) and the budget.
+    times : dict[str, float]
+        Seconds spent in ``select``, ``upload``, ``wait``, ``draw``, ``readback`` and ``total``.
+    converged : bool
+        Every wanted brick was drawn at its own level.
+    passes : int
+        Select/upload passes made (more than one only with ``wait=True``).
+    counts : dict
+        The selection's counts (culled, refined, fallback).
+    bytes_read : int or None
+        Bytes the loader read from storage during the call (chunk files or network responses,
+        the clip-texture's prefetch included; :mod:`clipvol.paging.readcount`), ``None`` for a
+        loader that does not count its reads.
+    failed_bricks : tuple of FailedBrick
+        Wanted bricks that failed to load, each with its cause and the ancestor drawn in its place
+        (:mod:`clipvol.render.failures`); :attr:`unreplaced` are those drawn by nothing.
+    """
+
+    bricks_drawn: dict[int, int]
+    bricks_distinct: int
+    texels_drawn: int
+    bytes_uploaded: int
+    bricks_uploaded: int
+    texture_bytes: int
+    texture_budget: int
+    times: dict[str, float]
+    converged: bool
+    passes: int = 1
+    items_drawn: int = 0
+    counts: dict = field(default_factory=dict)
+    bytes_read: int | None = None
+    failed_bricks: tuple = ()
+
+    @property
+    def unreplaced(self) -> tuple:
+        """The failed bricks no verified ancestor stands in for: regions missing from the image."""
+        return tuple(f for f in self.failed_bricks if not f.replaced)
+
+
+def frame_stats(sel, plan, times: dict, cache, texture_budget: int, clip_texture,
+                bytes_read: int | None = None) -> FrameStats:
+    """The :class:`FrameStats` of a frame that drew selection ``sel`` after the frame loop's ``plan``
+    (:class:`~clipvol.render.frame_loop.FrameLoop`), with GPU cache ``cache``."""
+    keys = sel.item_keys()
+    levels, per = np.unique(keys[:, 0], return_counts=True)
+    per_level = dict(zip(levels.tolist(), per.tolist()))
+    distinct = len(unique_rows(keys)) if len(keys) else 0
+    return FrameStats(
+        bricks_drawn=dict(sorted(per_level.items())), bricks_distinct=distinct,
+        texels_drawn=distinct * cache.brick_texels, bytes_uploaded=plan.bytes_uploaded,
+        bricks_uploaded=plan.bricks_uploaded, texture_bytes=cache.texture_bytes,
+        texture_budget=texture_budget, times=times, converged=plan.converged, passes=plan.passes,
+        items_drawn=len(sel.items), counts=dict(sel.counts), failed_bricks=failed_bricks(sel, clip_texture),
+        bytes_read=bytes_read,
+    )

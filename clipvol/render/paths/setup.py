@@ -1,0 +1,330 @@
+"""What every draw path of the clip render action shares: one target, one colour table, one set-up.
+
+A draw path (:mod:`clipvol.render.paths`) turns the frame's cut - a list of
+:class:`~clipvol.scene.selection.DrawItem` - into an image. Whatever it does in between, every path
+starts and ends the same way, and doing that in one place is what keeps the paths' images
+bit-identical where they should be (the same ray, the same samples, the same rounding):
+
+* **the target** - one RGBA float32 :class:`~clipvol.render.target.FloatTarget` the size of the
+  image (premultiplied colour, not quantised before the end), cleared for the mode;
+* **the per-frame uniforms** (:meth:`DrawSetup.frame_uniforms`) - the camera basis from which each
+  fragment rebuilds its ray, the transfer function's window folded with the texel format, the
+  :class:`~clipvol.scene.geometry.Shape`'s box and planes, all relative to the eye in float64;
+* **the per-level corrected colour table** (:meth:`DrawSetup.tf_texture`) - row ``L`` holds the
+  transfer function with its opacity corrected for level ``L``'s step, ``1 - exp(r * log1p(-a))``
+  in float64 on the CPU, rebuilt only when the table or the step changes (LaMar, Hamann & Joy);
+* **the empty-space cells** (:meth:`DrawSetup.bind_occupancy`) for ``EMPTY_SKIP`` variants;
+* **the read-back** (:meth:`DrawSetup.read_back`) - composite through the GL resolve pass
+  (:class:`~clipvol.render.resolve.Resolve`), MIP by mapping the maximum through the transfer
+  function here - and giving the previous framebuffer binding back.
+
+:class:`DrawPath` is the base a path derives from: it holds the action (its parameters, GPU cache
+and pyramid change with :meth:`~clipvol.render.action.ClipRenderAction.set_params`) and this set-up.
+
+References
+----------
+* E. LaMar, B. Hamann and K. I. Joy, "Multiresolution Techniques for Interactive Texture-Based
+  Volume Visualization", IEEE Visualization 1999 (spherical shells, opacity correction per level).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from ...errors import ParameterError
+from ...scene.transfer import corrected_tables
+from ...scene.visibility import box_depths, screen_rects
+from ..glsl import ProgramCache
+from ..gpu_cache import t_scale_offset, texel_to_raw
+from ..resolve import Resolve
+from ..target import FloatTarget
+from ..uniforms import uset, vec3
+
+__all__ = ["DrawPath", "DrawSetup", "MAX_STEPS_PER_BOX", "OPAQUE", "OCCUPANCY_UNIT", "MIP_EMPTY",
+           "scissor_boxes", "samples_per_box", "check_samples", "premultiplied_to_uint8"]
+
+#: most samples one ray takes inside one box (a smaller step is refused with ParameterError)
+MAX_STEPS_PER_BOX = 1 << 16
+#: the cleared value of a MIP target: below every texel, so "nothing hit" is told apart on read-back
+MIP_EMPTY = -3.0e38
+#: accumulated opacity at which a ray stops early: 1 - 0.5 / 255. What the rest of the ray could
+#: still add to a premultiplied channel is at most its transmittance, under half a step of the
+#: 8-bit image, so the image the caller gets differs from the ray integrated to its end by at most
+#: one level after rounding (tools/bench/bench_render.py measures the samples this saves).
+OPAQUE = 1.0 - 0.5 / 255.0
+#: texture unit of the empty-space cells (after the single pass's 3 + 16 level textures)
+OCCUPANCY_UNIT = 20
+
+
+def scissor_boxes(cam, lo, hi) -> np.ndarray:
+    """GL scissor boxes ``(n, 4)`` int ``x, y, w, h`` (origin bottom left) holding the screen
+    rectangles of boxes ``lo``/``hi`` (world, ``(n, 3)``) with a pixel of margin; a box that reaches
+    the eye plane gets the whole image, one off the image an empty box (``w`` or ``h`` 0)."""
+    w, h = (int(v) for v in cam.size)
+    lo = np.asarray(lo, dtype=np.float64).reshape(-1, 3)
+    hi = np.asarray(hi, dtype=np.float64).reshape(-1, 3)
+    r, _ = screen_rects(cam, lo, hi)
+    x0 = np.clip(np.floor(r[:, 0]) - 1, 0, w)
+    x1 = np.clip(np.ceil(r[:, 2]) + 1, 0, w)
+    y0 = np.clip(h - np.ceil(r[:, 3]) - 1, 0, h)  # rows counted from the bottom
+    y1 = np.clip(h - np.floor(r[:, 1]) + 1, 0, h)
+    if not cam.orthographic:  # wholly behind the eye: no ray of the image meets it
+        x1 = np.where(box_depths(cam, lo, hi)[1] <= 0.0, x0, x1)
+    return np.stack([x0, y0, x1 - x0, y1 - y0], axis=1).astype(np.int64)
+
+
+def samples_per_box(cam, items, pyramid, step: float) -> float:
+    """Upper bound of the samples one ray takes inside one of ``items`` (10 % margin)."""
+    if not items:
+        return 0.0
+    ext = np.array([np.subtract(it.hi, it.lo) for it in items], dtype=np.float64)  # (n, 3)
+    levels = np.array([it.level for it in items])
+    f, u, r = (np.asarray(v, dtype=np.float64) for v in (cam.forward, cam.up, cam.right))
+    if cam.orthographic:
+        dirs = f[None]
+    else:
+        w, h = cam.size
+        ty = math.tan(math.radians(float(cam.fov_y)) / 2.0)
+        g = np.linspace(-1.0, 1.0, 9)
+        gx, gy = np.meshgrid(g * ty * w / h, g * ty)
+        dirs = f + gx.reshape(-1, 1) * r + gy.reshape(-1, 1) * u
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    with np.errstate(divide="ignore"):
+        path = np.min(ext[:, None, :] / np.abs(dirs[None, :, :]), axis=2).max(axis=1)  # (n,)
+    sp_min = float(min(pyramid.spacing))
+    delta = np.array([step * sp_min * 2.0**L for L in levels])
+    return float(np.max(path / delta)) * 1.1
+
+
+def check_samples(cam, items, pyramid, step: float) -> None:
+    """Refuse (ParameterError naming ``step``) a frame whose rays would need more than
+    :data:`MAX_STEPS_PER_BOX` samples inside one box, instead of cutting them short."""
+    worst = samples_per_box(cam, items, pyramid, step)
+    if worst > MAX_STEPS_PER_BOX:
+        raise ParameterError(
+            f"step: expected at most {MAX_STEPS_PER_BOX} samples per ray and brick, got about {worst:.3g} with "
+            f"step {step} of the smallest voxel (spacing {pyramid.spacing}) for this view; use step >= "
+            f"{step * worst / MAX_STEPS_PER_BOX:.3g}"
+        )
+
+
+def premultiplied_to_uint8(prem: np.ndarray) -> np.ndarray:
+    """``(h, w, 4)`` premultiplied float RGBA -> straight RGBA uint8 (colour 0 where the 8-bit alpha is 0,
+    so a reader that ignores alpha sees black, not the transfer function's colour, where nothing is)."""
+    a = np.clip(prem[..., 3], 0.0, 1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rgb = np.where(np.rint(a[..., None] * 255.0) > 0, prem[..., :3] / np.maximum(a[..., None], 1e-300), 0.0)
+    out = np.concatenate([np.clip(rgb, 0.0, 1.0), a[..., None]], axis=-1)
+    return np.rint(out * 255.0).astype(np.uint8)
+
+
+class DrawSetup:
+    """The GL objects and the set-up every draw path of one action shares (see the module docstring).
+
+    ``action`` is read at each call (its ``params``, ``cache`` and ``pyramid`` may be replaced
+    between frames); the set-up holds the target, the colour table, the compiled programs with
+    their (attribute-less) vertex arrays and the resolve pass.
+    """
+
+    def __init__(self, action) -> None:
+        import moderngl
+
+        self.mgl = moderngl
+        self.action = action
+        self.ctx = action.ctx
+        self.programs = ProgramCache(self.ctx)
+        self.target = FloatTarget(self.ctx)
+        self._vaos: dict = {}
+        self._tf_tex = None
+        self._tf_key = None
+        self._resolve = None
+        self.last_raw: np.ndarray | None = None  # MIP: the target read back by the last frame
+
+    def program(self, vertex: str, fragment: str, defines: dict, first_use=None):
+        """The variant ``(program, vertex array)`` (compiled once per variant); ``first_use(prog)``
+        sets its constant uniforms when it is new."""
+        prog = self.programs.get(vertex, fragment, defines)
+        if prog not in self._vaos:
+            self._vaos[prog] = self.ctx.vertex_array(prog, [])
+            if first_use is not None:
+                first_use(prog)
+        return prog, self._vaos[prog]
+
+    @staticmethod
+    def loop_uniforms(prog) -> None:
+        """The ray loop's limits: :data:`MAX_STEPS_PER_BOX` and the opacity :data:`OPAQUE` that ends a ray."""
+        uset(prog, "u_max_steps", MAX_STEPS_PER_BOX)
+        uset(prog, "u_opaque", OPAQUE)
+
+    def begin(self, cam, clear: tuple[float, float, float, float]):
+        """Bind the target at the image's size, cleared to ``clear``; returns ``(fbo, previous, t0)``
+        (``previous``: the binding :meth:`read_back` gives back; ``t0``: when drawing began)."""
+        ctx = self.ctx
+        t0 = time.perf_counter()
+        w, h = cam.size
+        fbo = self.target.ensure((int(w), int(h)))
+        previous = ctx.fbo
+        fbo.use()
+        ctx.viewport = (0, 0, int(w), int(h))
+        fbo.clear(*clear)
+        return fbo, previous, t0
+
+    def frame_uniforms(self, prog, cam, tf) -> np.ndarray:
+        """Set per-frame uniforms; returns the origin ``O`` (float64) the box uniforms are relative to."""
+        a = self.action
+        V = cam.view_matrix()
+        R = V[:3, :3]
+        origin = -R.T @ V[:3, 3]
+        prog["u_right"].value = vec3(cam.right)
+        prog["u_up"].value = vec3(cam.up)
+        w, h = cam.size
+        if cam.orthographic:
+            prog["u_half"].value = (float(cam.width) / 2.0, float(cam.height) / 2.0)
+        else:
+            ty = math.tan(math.radians(float(cam.fov_y)) / 2.0)
+            prog["u_half"].value = (ty * w / h, ty)
+        prog["u_viewport"].value = (float(w), float(h))
+        prog["u_ortho"].value = bool(cam.orthographic)
+        prog["u_forward"].value = vec3(cam.forward)
+        prog["u_center_rel"].value = vec3(np.asarray(cam.center, dtype=np.float64) - origin)
+        # t = (raw - lo) / (hi - lo) with raw = a * texel + b, folded in float64
+        scale, offset = t_scale_offset(a.cache.format, tf.window(a.pyramid.value_range))
+        uset(prog, "u_t_scale", float(np.clip(scale, -3e38, 3e38)))
+        uset(prog, "u_t_offset", float(np.clip(offset, -3e38, 3e38)))
+        p = a.params
+        uset(prog, "u_jitter", 1.0 if p.jitter else 0.0)
+        uset(prog, "u_light", (p.ambient, p.diffuse, p.specular, p.shininess))  # SHADING variant only
+        if p.shape is None:
+            box = np.array([[-1e30] * 3, [1e30] * 3])
+            planes = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (6, 1))
+            n_planes, has_box = 0, False
+        else:
+            box, planes, n_planes = p.shape.box_and_planes_arrays()
+            has_box = p.shape.box is not None
+            box = np.asarray(box, dtype=np.float64)
+            planes = np.array(planes, dtype=np.float64)
+        finite = np.abs(box) < 1e29
+        box = np.where(finite, box - origin, box)
+        planes[:, 3] += planes[:, :3] @ origin  # n.(p' + O) + d = n.p' + (d + n.O)
+        prog["u_shape_lo"].value = vec3(box[0])
+        prog["u_shape_hi"].value = vec3(box[1])
+        prog["u_planes"].write(planes.astype(np.float32).tobytes())
+        prog["u_n_planes"].value = int(n_planes)
+        prog["u_has_box"].value = bool(has_box)
+        return origin
+
+    def tf_texture(self, tf):
+        """The per-level corrected colour table (row ``L``: opacity corrected for level ``L``'s step),
+        rebuilt only when the table or the step changes."""
+        table = np.ascontiguousarray(np.asarray(tf.table, dtype=np.float32))
+        key = (table.shape, table.tobytes(), self.action.params.step)
+        if self._tf_key != key:
+            if self._tf_tex is not None:
+                self._tf_tex.release()
+            rows = corrected_tables(table, self.action.level_ratios())
+            tex = self.ctx.texture((rows.shape[1], len(rows)), 4, rows.astype(np.float32).tobytes(), dtype="f4")
+            tex.filter = (self.mgl.LINEAR, self.mgl.LINEAR)
+            tex.repeat_x = tex.repeat_y = False
+            self._tf_tex, self._tf_key = tex, key
+        return self._tf_tex
+
+    def bind_occupancy(self, prog, tf) -> None:
+        """Bind the cache's cell flags for ``tf`` (:meth:`GpuBrickCache.occupancy_texture`) to
+        :data:`OCCUPANCY_UNIT` (EMPTY_SKIP variants only: when the action's frame leaps)."""
+        a = self.action
+        if a.skipped_empty:
+            a.cache.occupancy_texture(tf, a.pyramid.value_range).use(location=OCCUPANCY_UNIT)
+            uset(prog, "u_occ", OCCUPANCY_UNIT)
+            uset(prog, "u_occ_shift", vec3(0.5 / np.asarray(a.cache.cell_edges[::-1], dtype=np.float64)))
+
+    def occupancy_uniforms(self, level: int) -> tuple[tuple[float, float, float], float]:
+        """Cells per axis ``(x, y, z)`` of ``level`` in the occupancy texture, and its first z there."""
+        lv = self.action.cache.occupancy_levels[level]
+        if lv is None:
+            return (1.0, 1.0, 1.0), 0.0
+        return vec3(lv[0]), float(lv[1])
+
+    def read_back(self, previous, tf, front_to_back: bool, t0: float) -> tuple[np.ndarray, float, float]:
+        """Finish the frame, turn the target into the 8-bit image and give the previous framebuffer
+        back; returns ``(image, draw seconds, read-back seconds)``. Composite: on the GL
+        (:class:`~clipvol.render.resolve.Resolve`: the background under a front-to-back image,
+        un-premultiplied, rounded), reading 4 bytes a pixel; MIP: the maximum read back and mapped
+        through the transfer function here."""
+        ctx, a = self.ctx, self.action
+        params, pyr = a.params, a.pyramid
+        ctx.finish()
+        t1 = time.perf_counter()
+        self.last_raw = None
+        image = None
+        if params.mode != "mip":
+            if self._resolve is None:
+                self._resolve = Resolve(ctx)
+            image = self._resolve(self.target.color, params.background if front_to_back else (0.0, 0.0, 0.0, 0.0))
+        else:
+            self.last_raw = self.target.read()
+        # give the binding back (a released framebuffer left bound breaks later framebuffers)
+        self.target.restore(previous)
+        err = ctx.error
+        if err != "GL_NO_ERROR":
+            raise RuntimeError(f"OpenGL error after drawing the frame: expected GL_NO_ERROR, got {err}")
+        if image is None:  # MIP
+            m = self.last_raw[..., 0].astype(np.float64)
+            hit = m > MIP_EMPTY * 0.5
+            fmt = a.cache.format
+            rgba = tf.lookup(np.where(hit, texel_to_raw(fmt, m), fmt.b), pyr.value_range)
+            alpha = np.where(hit, rgba[..., 3], 0.0)
+            prem = np.concatenate([rgba[..., :3] * alpha[..., None], alpha[..., None]], axis=-1)
+            r, g, b, ba = params.background
+            bgp = np.array([r * ba, g * ba, b * ba, ba])
+            prem = prem + (1.0 - alpha[..., None]) * bgp
+            image = premultiplied_to_uint8(prem)
+        return image, t1 - t0, time.perf_counter() - t1
+
+    def raw(self) -> np.ndarray | None:
+        """The float target of the last frame, rows top first (read now if the frame did not), or None."""
+        if self.last_raw is None and self.target.fbo is not None:
+            self.last_raw = self.target.read()
+        return self.last_raw
+
+    def release(self) -> None:
+        """Release the programs, vertex arrays, target, colour table and resolve pass."""
+        if self._resolve is not None:
+            self._resolve.release()
+            self._resolve = None
+        for obj in (*self._vaos.values(), self._tf_tex):
+            if obj is not None:
+                obj.release()
+        self._vaos = {}
+        self.target.release()
+        self.programs.release()
+        self._tf_tex = self._tf_key = None
+        self.last_raw = None
+
+
+class DrawPath:
+    """Base of a draw path: ``draw(cam, tf, items)`` fills the shared target from the cut and returns
+    :meth:`DrawSetup.read_back`'s ``(image, draw seconds, read-back seconds)``, or None when it cannot
+    draw this cut (the action then draws it with the per-brick path, the reference).
+
+    A path reports what it drew on the action (``boxes_drawn``, ``page_table_nodes``,
+    ``occlusion_passes``, ``program``) and releases the GL objects of its own in :meth:`release`.
+    Register a new one in :mod:`clipvol.render.paths`.
+    """
+
+    #: the name ``RenderParams.path`` gives it
+    name: str = ""
+
+    def __init__(self, action) -> None:
+        self.action = action
+        self.setup: DrawSetup = action.setup
+        self.ctx = action.ctx
+        self.mgl = self.setup.mgl
+
+    def draw(self, cam, tf, items: list) -> tuple[np.ndarray, float, float] | None:
+        raise NotImplementedError
+
+    def release(self) -> None:
+        """Release the path's own GL objects (the shared set-up is the action's)."""

@@ -1,0 +1,156 @@
+"""The single-pass draw path (``RenderParams.path="single-pass"``): one ray per pixel through a page table.
+
+The ray-guided path of BigVolumeViewer and the ray-guided renderers of the large-volume literature
+(``shaders/raymarch.frag.glsl``): the selection's cut, merged like the per-brick path's boxes (a
+complete sibling set is one node whose data is a block of finer bricks), becomes a per-level
+**page table** (:mod:`clipvol.scene.page_table`: per node EMPTY, REFINED or DRAWN-from-level-``Ld``,
+plus the faces filtering may cross), uploaded as one small integer texture. One proxy - the
+volume's box - is drawn; each pixel's ray walks the table from the coarsest level down at its
+current point, samples the node's box from the data level's toroidal texture on that level's
+lattice, skips EMPTY nodes in one step, switches level at node faces and stops when opaque. No
+framebuffer copies, no per-box set-up, no blending (one triangle under the scissor rectangle of the
+volume's box). The shader is compiled per range of data levels the table uses.
+
+A cut the table cannot express (more than :data:`MAX_SINGLE_PASS_LEVELS` levels, more than
+:data:`MAX_PAGE_TABLE_ENTRIES` entries) or rays of more than :data:`MAX_SINGLE_PASS_RAY_SAMPLES`
+samples (llvmpipe's loop cap) is not drawn here: :meth:`SinglePassPath.draw` returns None and the
+action draws the frame per brick. The image equals the per-brick path's within 1 LSB.
+
+References
+----------
+* M. Hadwiger, J. Beyer, W.-K. Jeong and H. Pfister, "Interactive Volume Exploration of Petascale
+  Microscopy Data Streams Using a Visualization-Driven Virtual Memory Approach", IEEE TVCG 2012,
+  and T. Fogal, A. Schiewe and J. Krüger, "An Analysis of Scalable GPU-Based Ray-Guided Volume
+  Rendering", IEEE LDAV 2013 (ray-guided single-pass casting through a page table).
+* T. Pietzsch, BigVolumeViewer (the Fiji / ImgLib2 GPU volume viewer, software, 2019 on):
+  single-pass multiresolution casting through a cache of bricks addressed by a lookup texture.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...scene.page_table import build_page_table
+from ..uniforms import uset, vec3
+from .setup import MIP_EMPTY, DrawPath, check_samples, scissor_boxes
+
+__all__ = ["SinglePassPath", "MAX_SINGLE_PASS_LEVELS", "MAX_SINGLE_PASS_RAY_SAMPLES", "MAX_PAGE_TABLE_ENTRIES",
+           "PAGE_TABLE_WIDTH"]
+
+#: most pyramid levels (one texture unit each) and page-table entries
+MAX_SINGLE_PASS_LEVELS = 16
+#: most samples one ray may need (volume diagonal / finest step drawn). llvmpipe caps the
+#: iterations of an outermost shader loop, nested loops included, at 65535 per SIMD group
+#: (gallivm's loop limiter) and the group's iterations are the sum over nodes of its longest
+#: segment, so a ray of more samples would be cut short there; such a frame is drawn per brick.
+MAX_SINGLE_PASS_RAY_SAMPLES = 1 << 15
+MAX_PAGE_TABLE_ENTRIES = 1 << 24
+PAGE_TABLE_WIDTH = 1024
+
+
+class SinglePassPath(DrawPath):
+    """Draw the cut as one pass over the volume box through its page table."""
+
+    name = "single-pass"
+
+    def __init__(self, action) -> None:
+        super().__init__(action)
+        self._pt_tex = None
+
+    def _page_table_texture(self, entries: np.ndarray):
+        """The page-table texture (R32UI, :data:`PAGE_TABLE_WIDTH` entries per row), rewritten per frame."""
+        rows = max(1, -(-len(entries) // PAGE_TABLE_WIDTH))
+        data = np.zeros(rows * PAGE_TABLE_WIDTH, dtype=np.uint32)
+        data[:len(entries)] = entries
+        if self._pt_tex is None or self._pt_tex.size[1] < rows:
+            if self._pt_tex is not None:
+                self._pt_tex.release()
+            self._pt_tex = self.ctx.texture((PAGE_TABLE_WIDTH, rows), 1, dtype="u4")
+            self._pt_tex.filter = (self.mgl.NEAREST, self.mgl.NEAREST)
+        self._pt_tex.write(data.tobytes(), viewport=(0, 0, PAGE_TABLE_WIDTH, rows))
+        return self._pt_tex
+
+    def draw(self, cam, tf, items: list) -> tuple[np.ndarray, float, float] | None:
+        """One pass over the volume box through the cut's page table; None when this cut or pyramid
+        cannot be drawn that way (the per-brick path then draws it)."""
+        a, mgl, ctx = self.action, self.mgl, self.ctx
+        params, pyr, cache = a.params, a.pyramid, a.cache
+        nlev = pyr.num_levels
+        if nlev > MAX_SINGLE_PASS_LEVELS:
+            return None
+        check_samples(cam, items, pyr, params.step)
+        vlo, vhi = pyr.volume_box()
+        finest = params.step * min(float(min(pyr.levels[it.level].scale)) for it in items)
+        if float(np.linalg.norm(vhi - vlo)) / finest > MAX_SINGLE_PASS_RAY_SAMPLES:
+            return None
+        # items come merged (complete sibling sets are one node of the table, no face inside)
+        table = build_page_table(items, pyr, cache.open_faces)
+        if table is None or len(table.entries) > MAX_PAGE_TABLE_ENTRIES:
+            return None
+        a.page_table_nodes = len(items)
+        a.boxes_drawn = 1
+        mip = params.mode == "mip"
+        fbo, previous, t0 = self.setup.begin(cam, (MIP_EMPTY if mip else 0.0, 0.0, 0.0, 0.0))
+        data_levels = [it.level for it in items]  # only these get a march in the shader's level chain
+        defines = dict(a.defines(), NUM_LEVELS=nlev, LEVEL_LO=min(data_levels), LEVEL_HI=max(data_levels))
+        prog, vao = self.setup.program("screen.vert", "raymarch.frag", defines)
+        a.program = prog
+        origin = self.setup.frame_uniforms(prog, cam, tf)
+        uset(prog, "u_vol_lo", vec3(vlo - origin))
+        uset(prog, "u_vol_hi", vec3(vhi - origin))
+        sp = np.array(pyr.spacing[::-1], dtype=np.float64)
+        B = np.array(pyr.brick_shape[::-1], dtype=np.float64)
+        c0 = table.c0[:, ::-1].astype(np.float64)  # (nlev, 3) x, y, z
+        ext = np.array([B * 2.0**L * sp for L in range(nlev)])
+        scale = np.array([lv.scale[::-1] for lv in pyr.levels], dtype=np.float64)
+        trans = np.array([lv.translation[::-1] for lv in pyr.levels], dtype=np.float64)
+        win = np.array([(wnd[::-1] if wnd is not None else (1, 1, 1)) for wnd in cache.windows], dtype=np.float64)
+        f32 = lambda v: np.ascontiguousarray(v, dtype=np.float32).tobytes()  # noqa: E731
+        i32 = lambda v: np.ascontiguousarray(v, dtype=np.int32).tobytes()  # noqa: E731
+        uniforms = {
+            "u_pt_base": i32(table.base), "u_pt_size": i32(table.size[:, ::-1]), "u_pt_c0": i32(table.c0[:, ::-1]),
+            "u_pt_origin": f32(vlo + c0 * ext - origin), "u_pt_ext": f32(ext),
+            "u_lv_d0": i32(table.d0[:, ::-1]), "u_lv_grid": i32([pyr.grid(L)[::-1] for L in range(nlev)]),
+            "u_lv_vox0": f32(trans + table.d0[:, ::-1] * B * scale - origin), "u_lv_inv_scale": f32(1.0 / scale),
+            "u_lv_win": i32(win), "u_lv_inv_tex_size": f32(1.0 / (win * B)),
+            "u_lv_delta": f32([params.step * float(min(lv.scale)) for lv in pyr.levels]),
+        }
+        if a.skipped_empty:
+            occ = [self.setup.occupancy_uniforms(L) for L in range(nlev)]
+            uniforms["u_lv_occ_size"] = f32([o[0] for o in occ])
+            uniforms["u_lv_occ_z0"] = f32([o[1] for o in occ])
+        for name, data in uniforms.items():
+            u = prog.get(name, None)
+            if u is not None:  # a variant may keep only an array's first elements (the levels it draws)
+                u.write(data[:len(data) // nlev * max(1, u.array_length)])
+        uset(prog, "u_brick", vec3(B))
+        uset(prog, "u_top", nlev - 1)
+        uset(prog, "u_nudge", 1e-3 * float(sp.min()))
+        # one DRAWN node whose box is the volume's (a merged resident cut): every ray is one region
+        one = int(np.sum((table.entries & 3) == 2)) == 1 and len(items) == 1 and np.allclose(items[0].lo, vlo) \
+            and np.allclose(items[0].hi, vhi)
+        uset(prog, "u_max_regions", 1 if one else int(16 + sum(sum(pyr.grid(L)) for L in range(nlev))))
+        self.setup.loop_uniforms(prog)
+        uset(prog, "u_pt_width", PAGE_TABLE_WIDTH)
+        uset(prog, "u_page_table", 2)
+        uset(prog, "u_tf", 1)
+        self._page_table_texture(table.entries).use(location=2)
+        if not mip:
+            self.setup.tf_texture(tf).use(location=1)
+        self.setup.bind_occupancy(prog, tf)
+        for L, tex in enumerate(cache.textures):
+            if tex is not None:
+                uset(prog, f"u_level{L}", 3 + L)
+                tex.use(location=3 + L)
+        ctx.disable(mgl.DEPTH_TEST | mgl.BLEND | mgl.CULL_FACE)
+        rect = scissor_boxes(cam, vlo, vhi)[0]
+        if rect[2] and rect[3]:  # else the volume is off the image: nothing to draw
+            ctx.scissor = tuple(rect)
+            vao.render(mgl.TRIANGLES, vertices=3)
+            ctx.scissor = None
+        return self.setup.read_back(previous, tf, not mip, t0)
+
+    def release(self) -> None:
+        if self._pt_tex is not None:
+            self._pt_tex.release()
+        self._pt_tex = None

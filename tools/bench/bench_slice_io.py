@@ -1,0 +1,232 @@
+"""Slice I/O benchmark: bytes read from storage by a multiresolution slice, against the
+full-resolution slice and against the cube windows a clip-texture fills for a volume view.
+
+What it measures (one run, one process, ratios only):
+
+* **a slice through the centre of a 1024^3 store** - the bytes the loader reads from storage
+  (counted where they are read, :mod:`clipvol.paging.readcount`) until the clip-texture is idle,
+  for (a) the multiresolution slice with a point of interest at the centre (LaMar, Hamann & Joy,
+  *Multiresolution cutting planes*) paging its slab region at ``--budget`` of memory, (b) the
+  same plane at full resolution (``level=0``) paging its slab at ``--full-budget``, (c) the
+  multiresolution slice drawn from cube windows (``SliceAction.follow_plane = False``: the
+  clip-texture fills its windows around the centre, as it does for a volume view) at each of
+  ``--cube-budgets``. Quality: percent of pixels with CIELUV
+  Delta E >= 6 between (a) and the exact slice computed from the generator (outside our code
+  path; :func:`clipvol.scene.metrics.percent_delta_e`), grey window over the value range.
+  Targets: (b)/(a) >= 8, (c)/(a) >= 50, Delta E >= 6 on <= 1 %.
+* **scrolling** - bytes read per slice while scrolling ``--steps`` axial slices (``--stride``
+  voxels apart) through the centre of a 4096^3 store, ``--scroll-pixels`` pixels a side, the
+  point of interest on the plane's centre (``--scroll-distance-factor``): the whole slice in view
+  (8 voxels a pixel), and zoomed to full resolution around the point of interest (1 voxel a pixel).
+
+The stores are *virtual*: a procedural fractal (:mod:`clipvol.bricking.generators`) evaluated
+per brick, and each brick read is encoded with the chunk codec ``clipvol brick`` writes (blosc
+lz4 + shuffle + crc32c, :func:`clipvol.bricking.pipeline.chunk_encoder`); the bytes read are the
+sizes of those encoded chunks - the bytes a store on disk would hand over for the same bricks,
+without writing terabytes. Run from the repository root::
+
+    python tools/bench/bench_slice_io.py            # ~2-4 min on 2 shared cores
+    python tools/bench/bench_slice_io.py --quick    # smoke run (256^3 / 1024^3 stores)
+
+Writes ``tools/bench/results/bench_slice_io.csv`` and ``bench_slice_io_scroll.csv``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+#: GPU texture budget of every slice (the full-resolution slab of a 1024^3 float32 store at 64^3
+#: bricks is 513 MB of textures; llvmpipe keeps them in main memory)
+TEXTURE_BUDGET = "1GB"
+
+
+class EncodedFractal:
+    """A virtual clipvol store: fractal bricks, each read counted as the size of its encoded chunk."""
+
+    def __init__(self, size: int, brick: int) -> None:
+        from clipvol.bricking.pipeline import chunk_encoder
+        from clipvol.loaders.procedural import ProceduralLoader
+        from clipvol.paging.readcount import ReadCounter
+
+        self.base = ProceduralLoader(f"procedural:fractal?size={size}", brick=brick)
+        self.pyramid = self.base.pyramid
+        self._encode = chunk_encoder("lz4", self.pyramid.dtype)
+        self.read_counter = ReadCounter()
+
+    def read_brick(self, level, index):
+        brick = self.base.read_brick(level, index)
+        self.read_counter.add(len(self._encode(brick)))  # the chunk file's bytes
+        return brick
+
+
+def _centre(pyr) -> tuple[float, float, float]:
+    lo, hi = pyr.volume_box()
+    return tuple(((lo + hi) / 2.0).tolist())
+
+
+def _slice(ctx, loader, plane, budget, *, threads, follow, size=None, px=None, timeout=600, **params):
+    """Render one converged slice, then let the clip-texture finish what it queued; returns
+    ``(rgba, bytes read, chunks read, converged)``."""
+    from clipvol.paging.cliptexture import ClipTexture
+    from clipvol.paging.region import Region
+    from clipvol.render.slice_action import SliceAction
+
+    kw = dict(region=Region.empty(loader.pyramid.num_levels)) if follow else {}
+    r0 = loader.read_counter.snapshot()
+    with ClipTexture(loader, budget, threads, prefault=False, **kw) as ct, \
+            SliceAction(ctx, ct, texture_budget=TEXTURE_BUDGET, **params) as sa:
+        sa.follow_plane = follow
+        rgba = sa.render(plane, size, px, wait=True, timeout=timeout)
+        converged = sa.last_stats.converged
+        ct.wait_until_idle(timeout)
+    d = loader.read_counter.snapshot() - r0
+    return rgba, d.bytes, d.reads, converged
+
+
+def exact_axial(loader, plane) -> np.ndarray:
+    """The axial slice at ``plane`` straight from the generator (linear between the two level-0 planes
+    around it), as the grey RGBA the slice action draws by default: the quality reference."""
+    from clipvol.render.slice_action import window_level_grey
+
+    pyr = loader.pyramid
+    z = plane.origin[2] / pyr.spacing[0]
+    z0 = min(int(np.floor(z)), pyr.shape[0] - 2)
+    t = z - z0
+    ny, nx = pyr.shape[1], pyr.shape[2]
+    two = loader.base.generator.region(0, (z0, 0, 0), (z0 + 2, ny, nx)).astype(np.float64)
+    values = (1.0 - t) * two[0] + t * two[1]
+    lo, hi = pyr.value_range
+    return window_level_grey(values, (lo + hi) / 2.0, max(hi - lo, 1e-300))
+
+
+def centre_slice(ctx, args, brick, writer) -> dict:
+    from clipvol.scene.metrics import delta_e_luv, percent_delta_e
+    from clipvol.scene.plane import Plane
+
+    ld = EncodedFractal(args.size, brick)
+    pyr = ld.pyramid
+    plane = Plane.axis(pyr, "axial")
+    focus = _centre(pyr)
+    # the full-resolution slab (2 layers of level 0 at the centre) needs a budget whose slots hold it;
+    # its image may not converge (the GPU cache's cube texture windows cannot hold a 1024^2 slab):
+    # the quality reference is the exact slice from the generator instead
+    full, b_full, n_full, ok_full = _slice(ctx, ld, plane, args.full_budget, threads=args.threads, follow=True,
+                                           level=0)
+    exact = exact_axial(ld, plane)
+    de_full = percent_delta_e(full, exact) if ok_full else float("nan")
+    rows = {}
+    cube: dict = {}
+    for df in args.distance_factors:
+        multi, b_multi, n_multi, ok_multi = _slice(ctx, ld, plane, args.budget, threads=args.threads, follow=True,
+                                                  focus=focus, distance_factor=df)
+        de = percent_delta_e(multi, exact)
+        de_max = float(delta_e_luv(multi, exact).max())
+        # cube windows around the centre fill the same whatever the distance factor: read once per brick size
+        for budget in args.cube_budgets if not cube else ():
+            _, b_cube, n_cube, ok_cube = _slice(ctx, ld, plane, budget, threads=args.threads, follow=False,
+                                               focus=focus, distance_factor=df)
+            cube[budget] = (b_cube, n_cube, ok_cube)
+        rows[df] = (b_multi, n_multi, de, cube)
+        for name, b, n, ok, d in [("multires_slab", b_multi, n_multi, ok_multi, de),
+                                  ("full_resolution_slab", b_full, n_full, ok_full, de_full)] + \
+                [(f"multires_cube_{bud}", b_c, n_c, ok_c, "") for bud, (b_c, n_c, ok_c) in cube.items()]:
+            writer.writerow(dict(store=f"fractal {args.size}^3 float32", brick=brick, distance_factor=df,
+                                 what=name, bytes_read=b, chunks_read=n, converged=ok,
+                                 ratio_to_multires=round(b / max(b_multi, 1), 2),
+                                 pct_de6_vs_exact="" if d == "" or d != d else round(d, 3),
+                                 max_de_vs_exact=round(de_max, 2) if name == "multires_slab" else ""))
+        print(f"{args.size}^3 b{brick} df={df}: multires {b_multi / 1e6:.2f} MB ({n_multi} chunks), "
+              f"full-res {b_full / 1e6:.2f} MB ({n_full}) = {b_full / max(b_multi, 1):.1f}x, "
+              + ", ".join(f"cube@{bud} {b_c / 1e6:.1f} MB ({n_c}) = {b_c / max(b_multi, 1):.1f}x"
+                          for bud, (b_c, n_c, _) in cube.items())
+              + f"; Delta E>=6 against the exact slice on {de:.2f} % of pixels (max {de_max:.1f})"
+              + ("" if ok_multi else " (NOT CONVERGED)"))
+    return rows
+
+
+def scroll(ctx, args, writer, view: str, px: float) -> list:
+    """Scroll ``args.steps`` axial slices through the centre at ``px`` voxels a pixel, ``scroll_pixels``
+    pixels a side around the plane's centre (the point of interest, moving with the plane)."""
+    from clipvol.paging.cliptexture import ClipTexture
+    from clipvol.paging.region import Region
+    from clipvol.render.slice_action import SliceAction
+    from clipvol.scene.plane import Plane
+
+    ld = EncodedFractal(args.scroll_size, args.bricks[0])
+    pyr = ld.pyramid
+    z0 = (pyr.shape[0] - 1) / 2.0
+    size = (args.scroll_pixels, args.scroll_pixels)
+    out = []
+    with ClipTexture(ld, args.budget, args.threads, prefault=False, region=Region.empty(pyr.num_levels)) as ct, \
+            SliceAction(ctx, ct, texture_budget=TEXTURE_BUDGET) as sa:
+        for i in range(args.steps):
+            plane = Plane.axis(pyr, "axial", z0 + i * args.stride)
+            sa.set_params(sa.params.__class__.from_kwargs(sa.params, focus=tuple(plane.origin),
+                                                          distance_factor=args.scroll_distance_factor))
+            r0 = ld.read_counter.snapshot()
+            sa.render(plane, size, px, wait=True, timeout=600)
+            ok = sa.last_stats.converged
+            ct.wait_until_idle(600)  # the prefetch of the next slab is counted with this slice
+            d = ld.read_counter.snapshot() - r0
+            out.append(d.bytes)
+            writer.writerow(dict(store=f"fractal {args.scroll_size}^3 float32", brick=args.bricks[0], view=view,
+                                 voxels_per_pixel=px, slice=i, z=round(plane.origin[2], 2), bytes_read=d.bytes,
+                                 chunks_read=d.reads, converged=ok))
+    later = out[1:] or out
+    print(f"scroll {args.scroll_size}^3 b{args.bricks[0]} {view} ({px:g} voxels/px, {args.scroll_pixels}^2 px), "
+          f"{args.steps} slices {args.stride:g} voxels apart: first slice {out[0] / 1e6:.2f} MB, then mean "
+          f"{np.mean(later) / 1e6:.2f} MB, max {np.max(later) / 1e6:.2f} MB a slice")
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--size", type=int, default=1024)
+    p.add_argument("--bricks", nargs="+", type=int, default=[64, 32])
+    p.add_argument("--budget", default="1GB",
+                   help="memory budget of the multiresolution slab runs (their windows must hold the region)")
+    p.add_argument("--full-budget", default="2GB", help="memory budget of the full-resolution slab (must hold it)")
+    p.add_argument("--cube-budgets", nargs="+", default=["256MB", "1GB"])
+    p.add_argument("--distance-factors", nargs="+", type=float, default=[1.0, 0.5])
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--scroll-size", type=int, default=4096)
+    p.add_argument("--scroll-pixels", type=int, default=512)
+    p.add_argument("--steps", type=int, default=12)
+    p.add_argument("--scroll-distance-factor", type=float, default=0.5,
+                   help="the scroll's distance factor (1.0 makes the level-0 disc 8 bricks wide at 64^3: more than the "
+                        "GPU cache's cube texture window of 6 a side at a 1 GB texture budget holds)")
+    p.add_argument("--stride", type=float, default=16.0)
+    p.add_argument("--quick", action="store_true")
+    p.add_argument("--out", type=Path, default=HERE / "results")
+    args = p.parse_args(argv)
+    if args.quick:
+        args.size, args.scroll_size, args.steps = 256, 1024, 4
+        args.bricks, args.cube_budgets, args.distance_factors = [32], ["64MB"], [0.5]
+
+    from clipvol.render import create_context
+
+    ctx = create_context()
+    args.out.mkdir(parents=True, exist_ok=True)
+    with open(args.out / "bench_slice_io.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, ["store", "brick", "distance_factor", "what", "bytes_read", "chunks_read", "converged",
+                               "ratio_to_multires", "pct_de6_vs_exact",
+                               "max_de_vs_exact"])
+        w.writeheader()
+        for brick in args.bricks:
+            centre_slice(ctx, args, brick, w)
+    with open(args.out / "bench_slice_io_scroll.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, ["store", "brick", "view", "voxels_per_pixel", "slice", "z", "bytes_read", "chunks_read",
+                               "converged"])
+        w.writeheader()
+        scroll(ctx, args, w, "whole slice", args.scroll_size / args.scroll_pixels)
+        scroll(ctx, args, w, "zoomed to full resolution", 1.0)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,121 @@
+"""Take a region out of a store as .npy, .tif, .nii / .nii.gz or .zarr, with its place in the world.
+
+``clipvol export STORE --box z0:z1,y0:y1,x0:x1 --level K --out region.nii.gz`` writes the voxels of
+level ``K`` that overlap the box (given in voxels of level 0, so the same box works at every level);
+``--box-world x0,y0,z0,x1,y1,z1`` gives the box in world units instead (the frame ``clipvol info``
+prints). The region streams brick by brick through the verified loader into a memory-mapped file
+under a temporary name, renamed when complete; see :mod:`clipvol.app.export` for what each format
+keeps of the geometry.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from clipvol.errors import ParameterError
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("store", metavar="STORE",
+                        help="a clipvol store, OME-Zarr image, channel set / time series root, .npy, procedural:... URL, "
+                             "or a NIfTI / DICOM / HDF5 / MRC file (bricked once into ./NAME.zarr, as `view` does)")
+    g = parser.add_mutually_exclusive_group(required=True)
+    g.add_argument("--box", metavar="Z0:Z1,Y0:Y1,X0:X1",
+                   help="the region in voxels of level 0 (stop exclusive; an empty side means the whole axis, e.g. "
+                        "10:50,:,0:128)")
+    g.add_argument("--box-world", metavar="X0,Y0,Z0,X1,Y1,Z1",
+                   help="the region in world units (two opposite corners x,y,z, the store's frame as `clipvol info` "
+                        "prints it); the voxels whose centres lie inside are written. Write --box-world=-5,... when the "
+                        "first value is negative")
+    parser.add_argument("--level", type=int, default=0, help="the level to export (0 = finest, default 0)")
+    parser.add_argument("--out", required=True, metavar="FILE",
+                        help="region.npy (geometry in region.npy.json), region.tif, region.nii, region.nii.gz "
+                             "(NIfTI affine) or region.zarr (a clipvol store, OME scale/translation)")
+    parser.add_argument("--c", type=int, default=None, help="the channel of a channel set or an image with a c axis")
+    parser.add_argument("--t", type=int, default=None, help="the time step of a time series or an image with a t axis")
+    parser.add_argument("--store", dest="brick_store", default=None, metavar="DIR",
+                        help="where a NIfTI / DICOM / HDF5 / MRC input is bricked (default ./NAME.zarr)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing --out (once the new one is complete)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    from clipvol.tools.remote_args import add_remote_arguments, add_trust_arguments
+
+    add_trust_arguments(parser)
+    add_remote_arguments(parser)
+
+
+def parse_box(text: str, shape0) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
+    """``"z0:z1,y0:y1,x0:x1"`` -> ``(start, stop)`` in voxels of level 0 (empty sides: the axis's ends)."""
+    parts = text.split(",")
+    if len(parts) != 3:
+        raise ParameterError(f"--box: expected Z0:Z1,Y0:Y1,X0:X1 (three ranges), got {text!r}")
+    start, stop = [], []
+    for part, n, axis in zip(parts, shape0, "zyx"):
+        a, sep, b = part.partition(":")
+        try:
+            lo = int(a) if a.strip() else 0
+            hi = int(b) if b.strip() else n
+        except ValueError:
+            raise ParameterError(f"--box: expected integer voxel ranges Z0:Z1,Y0:Y1,X0:X1, got {part!r} for {axis}") from None
+        if not sep:
+            raise ParameterError(f"--box: expected START:STOP for {axis}, got {part!r}")
+        if not 0 <= lo < hi <= n:
+            raise ParameterError(f"--box: {axis} range {lo}:{hi}: expected 0 <= start < stop <= {n} (level 0 is "
+                                 f"{shape0[0]}x{shape0[1]}x{shape0[2]}, z, y, x)")
+        start.append(lo)
+        stop.append(hi)
+    return tuple(start), tuple(stop)  # type: ignore[return-value]
+
+
+def parse_world_box(text: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """``"x0,y0,z0,x1,y1,z1"`` -> two world corners."""
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise ParameterError(f"--box-world: expected six numbers X0,Y0,Z0,X1,Y1,Z1, got {text!r}") from None
+    if len(vals) != 6:
+        raise ParameterError(f"--box-world: expected six numbers X0,Y0,Z0,X1,Y1,Z1, got {len(vals)} in {text!r}")
+    return tuple(vals[:3]), tuple(vals[3:])
+
+
+def run(args: argparse.Namespace) -> int:
+    from clipvol.app.export import export_region, output_format, region_from_voxels, region_from_world
+    from clipvol.app.volume_access import open as open_volume
+
+    output_format(args.out)  # a bad name fails before anything is opened or bricked
+    from clipvol.app.autobrick import bricked_source
+
+    from clipvol.tools.remote_args import check_trust, remote_kwargs
+
+    kwargs = remote_kwargs(args)
+    source = bricked_source(args.store, args.brick_store, log=(lambda line: None) if args.quiet else print)
+    vol = open_volume(source, **kwargs)
+    member = []
+    for name in vol.lead_axes:
+        v = getattr(args, name)
+        n = vol.lead_shape[vol.lead_axes.index(name)]
+        if v is None:
+            if n > 1:
+                raise ParameterError(f"--{name}: {args.store} has {n} {'channels' if name == 'c' else 'time steps'}; "
+                                     f"name one with --{name} 0..{n - 1}")
+            v = 0
+        if not 0 <= v < n:
+            raise ParameterError(f"--{name}: expected 0..{n - 1} for {args.store}, got {v}")
+        member.append(v)
+    for name in ("c", "t"):
+        if getattr(args, name) is not None and name not in vol.lead_axes:
+            raise ParameterError(f"--{name}: {args.store} has no {name!r} axis (axes {', '.join(vol.axes)})")
+    check_trust(vol.member(tuple(member)), args, "export")  # an unverified store only with --unverified
+    if args.box is not None:
+        start, stop = parse_box(args.box, vol.levels[0].shape)
+        region = region_from_voxels(vol, start, stop, args.level)
+    else:
+        a, b = parse_world_box(args.box_world)
+        region = region_from_world(vol, a, b, args.level)
+    geom = export_region(vol, region, args.out, member=member, overwrite=args.overwrite, progress=not args.quiet)
+    if not args.quiet:
+        z, y, x = region.shape
+        corner = [round(float(v), 6) for v in (geom["affine"][0][3], geom["affine"][1][3], geom["affine"][2][3])]
+        print(f"wrote {args.out}: level {region.level} voxels {region.start}..{region.stop} (z, y, x), {z}x{y}x{x} "
+              f"{vol.dtype}, voxel size {', '.join(f'{s:g}' for s in geom['spacing_zyx'])} {vol.unit or ''} (z, y, x); "
+              f"voxel 0 at world {corner} (x, y, z)")
+    return 0

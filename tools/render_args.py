@@ -1,0 +1,194 @@
+"""The command-line flags of :class:`~clipvol.scene.params.RenderParams`, declared once for every command.
+
+``clipvol render``, ``view``, ``slice`` and ``report`` draw with the same render parameters. Each
+flag is one line of :data:`FLAGS`: the field (or fields) it sets, its name, and how the text
+becomes a value; its help is the field's own (``RenderParams.help``, written beside the field in
+:mod:`clipvol.scene.params`) and its default the field's default. A command picks the flags it
+offers with :func:`add_render_arguments` and builds its parameters with
+:func:`render_params_from_args`, so a new render parameter is one field in ``RenderParams`` plus at
+most one line here, and no command repeats its name, default or help.
+
+The defaults shown and parsed are RenderParams' own, except where a flag says otherwise in its line
+(``--texture-budget`` keeps its decimal ``"256MB"``; the ``--no-...`` switches turn a field off).
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass, fields
+from typing import Any, Callable, Iterable
+
+from clipvol.errors import ParameterError
+
+__all__ = ["Flag", "FLAGS", "add_render_arguments", "render_params_from_args", "flag_values"]
+
+
+def _floats(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(t) for t in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+
+
+#: a Flag's default when it is the field's own
+FIELD_DEFAULT = object()
+
+
+@dataclass(frozen=True)
+class Flag:
+    """One command-line flag of one or more RenderParams fields.
+
+    ``switch``: ``"on"`` for a flag that sets a bool field True (``--shading``), ``"off"`` for one
+    that sets it False (``--no-visibility``; the command's value without it is then True).
+    ``to_fields``: for a flag of several fields (``--light``), the parsed value -> ``{field: value}``.
+    ``default``: the flag's default when it is not the field's (as the command line writes it).
+    ``help``: the flag's help when it is not the field's (the switches, the grouped flags).
+    """
+
+    fields: tuple[str, ...]
+    flag: str
+    type: Callable[[str], Any] | None = None
+    switch: str | None = None
+    choices: Callable[[], tuple] | None = None
+    metavar: str | None = None
+    default: Any = FIELD_DEFAULT
+    help: str | None = None
+    to_fields: Callable[[Any], dict] | None = None
+
+    @property
+    def dest(self) -> str:
+        return self.flag.lstrip("-").replace("-", "_")
+
+
+def _light(values) -> dict:
+    """``--light KA,KD,KS,N`` as RenderParams fields."""
+    if len(values) != 4:
+        raise ParameterError(f"--light: expected four numbers ambient,diffuse,specular,shininess, got {values!r}")
+    return dict(zip(("ambient", "diffuse", "specular", "shininess"), values))
+
+
+def _modes() -> tuple:
+    from clipvol.scene.params import MODES
+
+    return MODES
+
+
+def _paths() -> tuple:
+    from clipvol.scene.params import PATHS
+
+    return PATHS
+
+
+def _policies() -> tuple:
+    from clipvol.scene.policy_registry import policy_names
+
+    return policy_names()
+
+
+#: one line per flag; the key, a command's handle for it in add_render_arguments, is the field's name
+#: (the flag's own name, ``light``, for a flag of several fields)
+FLAGS: dict[str, Flag] = {(f.fields[0] if len(f.fields) == 1 else f.dest): f for f in (
+    Flag(("mode",), "--mode", choices=_modes),
+    Flag(("policy",), "--policy", choices=_policies),
+    Flag(("level",), "--level", type=int),
+    Flag(("lod_threshold",), "--lod-threshold", type=float),
+    Flag(("distance_factor",), "--distance-factor", type=float),
+    Flag(("fov_fraction",), "--fov-fraction", type=float),
+    Flag(("max_texels_drawn",), "--max-texels-drawn", type=int),
+    Flag(("block_budget",), "--block-budget", type=int),
+    Flag(("max_error",), "--max-error", metavar="FRACTION"),
+    Flag(("visibility",), "--no-visibility", switch="off",
+         help="--policy image: no visibility estimate (every brick counts as fully visible)"),
+    Flag(("step",), "--step", type=float),
+    Flag(("background",), "--background", type=_floats),
+    Flag(("shading",), "--shading", switch="on"),
+    Flag(("ambient", "diffuse", "specular", "shininess"), "--light", type=_floats, metavar="KA,KD,KS,N",
+         to_fields=_light, help="--shading: ambient, diffuse, specular weights and shininess (default %(default)s)"),
+    Flag(("jitter",), "--no-jitter", switch="off",
+         help="sample every pixel's ray from t = 0 (shows lattice rings; for comparisons)"),
+    Flag(("path",), "--render-path", choices=_paths),
+    Flag(("skip_empty",), "--no-skip-empty", switch="off",
+         help="sample every cell, also those the transfer function makes transparent (the same image, slower)"),
+    Flag(("texture_budget",), "--texture-budget", default="256MB"),  # decimal MB, as the command line always read it
+    Flag(("texels_per_frame",), "--texels-per-frame", type=int),
+)}
+
+
+def _field_default(name: str):
+    from clipvol.scene.params import RenderParams
+
+    for f in fields(RenderParams):
+        if f.name == name:
+            return f.default
+    raise KeyError(name)
+
+
+def _default(flag: Flag):
+    if flag.switch is not None:
+        return False
+    if flag.default is not FIELD_DEFAULT:
+        return flag.default
+    if len(flag.fields) > 1:
+        return tuple(_field_default(n) for n in flag.fields)
+    return _field_default(flag.fields[0])
+
+
+def add_render_arguments(group, names: Iterable[str], *, help: dict[str, str] | None = None,
+                         choices: dict[str, tuple] | None = None) -> None:
+    """Add the flags of the RenderParams fields ``names`` (keys of :data:`FLAGS`) to ``group``.
+
+    ``help`` and ``choices`` replace a flag's help or choices for this command only (``clipvol view``
+    starts from three of the policies; ``clipvol slice``'s ``--level`` is one level everywhere)."""
+    from clipvol.scene.params import RenderParams
+
+    help, choices = help or {}, choices or {}
+    for name in names:
+        if name not in FLAGS:
+            raise KeyError(f"render_args: no flag for the render parameter {name!r}; add a line to FLAGS")
+        f = FLAGS[name]
+        text = help.get(name, f.help if f.help is not None else RenderParams.help(f.fields[0]))
+        kw: dict[str, Any] = dict(dest=f.dest, help=text, default=_default(f))
+        if f.switch is not None:
+            kw["action"] = "store_true"
+        else:
+            if f.type is not None:
+                kw["type"] = f.type
+            ch = choices.get(name, f.choices() if f.choices is not None else None)
+            if ch is not None:
+                kw["choices"] = tuple(ch)
+            if f.metavar is not None:
+                kw["metavar"] = f.metavar
+        if len(f.fields) > 1 and "%(default)s" in text:  # a grouped default reads as the user types it
+            kw["help"] = text.replace("%(default)s", ",".join(f"{v:g}" for v in kw["default"]))
+        group.add_argument(f.flag, **kw)
+
+
+def flag_values(args) -> dict:
+    """The RenderParams fields that the flags present in ``args`` set (a parsed namespace)."""
+    out: dict[str, Any] = {}
+    for f in FLAGS.values():
+        if not hasattr(args, f.dest):
+            continue
+        value = getattr(args, f.dest)
+        if f.switch == "on":
+            out[f.fields[0]] = bool(value)
+        elif f.switch == "off":
+            out[f.fields[0]] = not value
+        elif f.to_fields is not None:
+            out.update(f.to_fields(value))
+        else:
+            out[f.fields[0]] = value
+    return out
+
+
+def render_params_from_args(args, **fixed):
+    """The :class:`~clipvol.scene.params.RenderParams` of the render flags in ``args``, with the
+    ``fixed`` fields a command sets itself (``clipvol slice``'s ``policy="plane"``) over them.
+    Validation (and its one-line errors) is RenderParams' own."""
+    from clipvol.scene.params import RenderParams
+
+    values = flag_values(args)
+    # --max-error is the image policy's budget: it selects that policy where --policy is left at its default
+    if values.get("max_error") is not None and values.get("policy") == _field_default("policy"):
+        values["policy"] = "image"
+    return RenderParams(**{**values, **fixed})
