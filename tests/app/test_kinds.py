@@ -76,8 +76,8 @@ def marker_store(tmp_path):
 
 def test_a_new_kind_is_one_registry_line(marker_store, tmp_path, monkeypatch, capsys):
     # without the registry line the folder is nothing clipvol knows: the volume opener says so
-    assert main(["info", str(marker_store)]) != 0
-    capsys.readouterr()
+    assert main(["info", str(marker_store)]) == 2
+    assert "expected a zarr" in capsys.readouterr().err
     kind = MarkerKind()
     monkeypatch.setitem(KINDS, "marker", kind)
     assert kind_of(str(marker_store)) is kind
