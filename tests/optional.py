@@ -9,6 +9,7 @@ it, instead of failing on an import.
 from __future__ import annotations
 
 import importlib.util
+import shutil
 
 import pytest
 
@@ -26,7 +27,15 @@ def needs(*modules: str) -> pytest.MarkDecorator:
     )
 
 
+def needs_program(*names: str, install: str) -> pytest.MarkDecorator:
+    """``skipif`` none of the executables ``names`` is on PATH, with a reason that says how to install one."""
+    found = any(shutil.which(n) for n in names)
+    return pytest.mark.skipif(not found, reason=f"needs {' or '.join(names)} on PATH: {install}")
+
+
 REMOTE_HTTP = needs("fsspec", "aiohttp")
 REMOTE_S3 = needs("fsspec", "aiohttp", "s3fs", "moto", "boto3")
 POINT_READERS = needs("pandas", "pyarrow", "plyfile", "meshio")
 DASK = needs("dask", "distributed")
+# the notebook view's browser half, run in a headless browser (tests/browser_harness.py)
+CHROMIUM = needs_program("chromium", "chromium-browser", "google-chrome", install="apt-get install chromium")

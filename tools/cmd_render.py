@@ -96,6 +96,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from clipvol.tools.remote_args import add_remote_arguments, add_trust_arguments
 
     add_partial_argument(r)
+    from clipvol.tools.cut_args import add_cut_arguments
+
+    add_cut_arguments(p)
     add_remote_arguments(p)
     add_trust_arguments(p)
 
@@ -144,6 +147,7 @@ def run(args) -> int:
     from clipvol.render.failures import hatch_failed
     from clipvol.scene.bookmarks import load_camera
     from clipvol.tools.partial import settle_failed
+    from clipvol.tools.cut_args import shape_from_args
     from clipvol.tools.tf_args import transfer_function_from_args
 
     check_output_file(args.out, ".png", "--out")
@@ -179,17 +183,22 @@ def run(args) -> int:
     centre = np.clip(np.asarray(cam.center, dtype=np.float64), lo, hi)
     params = render_params_from_args(
         args, overlays=channel_overlays + _overlays(args, loader), blend=args.blend or ("additive" if args.channels else "over"),
+        shape=shape_from_args(args, loader),
     ).check_for(pyr)
     tf = channel_tf or transfer_function_from_args(args, loader)
     if args.workers is not None:  # sort-last on Dask: groups of bricks in worker processes
         return _run_sort_last(args, params, cam, tf, kwargs, frame)
     ctx = create_context()
     try:
-        with ClipTexture(loader, args.memory_budget, args.threads, center=centre) as clip, \
+        from clipvol.scene.cut import outside_bricks
+
+        with ClipTexture(loader, args.memory_budget, args.threads, center=centre,
+                         outside=outside_bricks(pyr, params.shape)) as clip, \
                 ClipRenderAction(ctx, clip, params) as action:
             image = action.render(cam, tf, wait=not args.no_wait, timeout=args.timeout)
             st = action.last_frame_stats
             overlay_levels = action.overlays.levels()
+            unread = clip.stats.empty_skipped
     finally:
         ctx.release()
     from clipvol.app.annotate import present
@@ -203,6 +212,9 @@ def run(args) -> int:
           f"{tf.name or 'custom'})", file=sys.stderr)
     print(f"bricks drawn {sum(st.bricks_drawn.values())} ({levels}); texels drawn {st.texels_drawn:,}; "
           f"converged {st.converged} after {st.passes} pass(es)", file=sys.stderr)
+    if params.shape is not None:
+        print(f"cut: {st.counts.get('culled_shape', 0)} bricks outside the crop box / clip planes not drawn; "
+              f"{unread} bricks filled without reading (outside the cut, or empty)", file=sys.stderr)
     read = "" if st.bytes_read is None else f"; read {format_bytes(st.bytes_read)} from storage"
     print(f"uploaded {format_bytes(st.bytes_uploaded)} in {st.bricks_uploaded} bricks; textures "
           f"{format_bytes(st.texture_bytes)} of {format_bytes(st.texture_budget)}{read}", file=sys.stderr)

@@ -76,6 +76,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from clipvol.tools.remote_args import add_remote_arguments, add_trust_arguments
 
     add_remote_arguments(p)
+    from clipvol.tools.cut_args import add_cut_arguments
+
+    add_cut_arguments(p)
     add_trust_arguments(p)
 
     add_partial_argument(r)
@@ -194,14 +197,19 @@ def run(args) -> int:
         from clipvol.scene.orientation import view_labels
 
         edges = view_labels(frame.affine, plane.right, plane.up, frame.frame)
-    params = render_params_from_args(args, policy="plane", focus=args.poi)
+    from clipvol.tools.cut_args import shape_from_args
+
+    cut = shape_from_args(args, loader)  # --crop / --crop-voxels / --clip-plane: pixels outside are left out
+    params = render_params_from_args(args, policy="plane", focus=args.poi, shape=cut)
     centre = np.clip(np.asarray(args.poi if args.poi is not None else plane.origin, dtype=np.float64), lo, hi)
     tf = TransferFunction.preset(args.tf) if args.tf is not None else None
     ctx = create_context()
     try:
+        from clipvol.scene.cut import outside_bricks
+
         # Region.empty: nothing is read before the slice hands the clip-texture its slab
         with ClipTexture(loader, args.memory_budget, args.threads, center=centre,
-                         region=Region.empty(loader.pyramid.num_levels)) as clip, \
+                         region=Region.empty(loader.pyramid.num_levels), outside=outside_bricks(pyr, cut)) as clip, \
                 SliceAction(ctx, clip, params) as action:
             rgba, values = action.render(plane, args.size, args.pixel_size, transfer_function=tf, window=args.window,
                                          wait=not args.no_wait, timeout=args.timeout, return_values=True)
@@ -215,6 +223,14 @@ def run(args) -> int:
     rgba = settle_failed("slice", args.out or args.npy or args.stats, st.failed_bricks, rgba,
                          lambda im: hatch_failed(im, cam, pyr, st.failed_bricks, plane=plane), args.allow_partial)
     h, w = values.shape
+    if cut is not None:  # outside the cut: transparent in the PNG, NaN in the values
+        from clipvol.scene.plane import default_pixel_size
+
+        px = default_pixel_size(pyr, plane) if args.pixel_size is None else args.pixel_size
+        outside = ~cut.contains(plane.pixel_points((w, h), px))
+        rgba, values = rgba.copy(), values.copy()
+        rgba[outside] = 0
+        values[outside] = np.nan
     if args.out is not None:
         if edges is not None and frame.frame == "RAS" and not args.no_labels:
             from clipvol.app.annotate import label_edges

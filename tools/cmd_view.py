@@ -84,6 +84,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     o.add_argument("--workers", type=int, default=None, metavar="N",
                    help="draw each frame sort-last in N Dask worker processes (PNG frames; needs clipvol[dask])")
     o.add_argument("--scheduler", default="processes", metavar="S", help="with --workers: processes or tcp://HOST:PORT")
+    from clipvol.tools.cut_args import add_cut_arguments
+
+    add_cut_arguments(p)
     w = p.add_argument_group("window")
     w.add_argument("--screenshot-dir", default="clipvol-screenshots",
                    help="folder where P (with the HUD) and Shift+P (without) save screenshots, S the transfer "
@@ -142,6 +145,13 @@ def run(args) -> int:
     if params.level is not None and params.level >= loader.pyramid.num_levels:
         raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {params.level}")
     tf = channels[1] if channels is not None else transfer_function_from_args(args, loader)
+    from clipvol.tools.cut_args import shape_from_args
+
+    cut = shape_from_args(args, loader)
+    if cut is not None:
+        from dataclasses import replace
+
+        params = replace(params, shape=cut)
     if args.overlay or args.label_overlay or channels is not None:
         from dataclasses import replace
 

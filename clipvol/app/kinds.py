@@ -131,8 +131,11 @@ def show(source, **kwargs):
         ``texture_budget``, ``threads``, ``lod_threshold``, ``timeout`` (seconds per frame),
         ``brick``, ``labels`` (R/L, A/P, S/I letters on a patient-frame store's images, default
         True), ``store`` (where a NIfTI / DICOM / HDF5 / MRC input is bricked, default
-        ``./NAME.zarr``); see :class:`~clipvol.app.notebook.VolumeView`. ``tf`` defaults to
-        ``grey`` for a store with a patient frame and ``viridis`` otherwise.
+        ``./NAME.zarr``), ``crop`` (two world corners ``(x, y, z)``), ``crop_voxels`` (level-0
+        ``(start, stop)`` ``(z, y, x)``), ``clip_planes`` (up to six ``(x, y, z, nx, ny, nz)`` in
+        world units, the side the normal points to kept); see
+        :class:`~clipvol.app.notebook.VolumeView`. ``tf`` defaults to ``grey`` for a store with a
+        patient frame and ``viridis`` otherwise.
 
     Returns
     -------

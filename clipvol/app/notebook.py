@@ -7,14 +7,22 @@ pure-Python widget layer on ipywidgets, chosen over jupyter_rfb because it needs
 front-end extension. It is an optional extra: ``pip install 'clipvol[notebook]'``.
 
 In the view: drag to orbit, wheel to zoom, menus for the transfer-function preset and
-composite / MIP; the HUD line under the image gives the frame time, bricks drawn per level, the
+composite / MIP, click to probe the first visible sample under the cursor (its value, level and
+world position, :mod:`clipvol.scene.probe`), Shift+click to put a ruler end there; the HUD line under the image gives the frame time, bricks drawn per level, the
 resident memory and, for a patient-frame store (NIfTI, DICOM), the anatomical label of each
 image edge. The same view is scriptable: ``v.set_view(azimuth=90)``, ``v.tf = "magma"``,
-``v.snapshot()`` returns the last frame as an RGBA array.
+``v.snapshot()`` returns the last frame as an RGBA array, ``v.probe(x, y)`` picks at a pixel,
+``v.measure((x0, y0), (x1, y1))`` gives the distance of two picks in the store's unit, and
+``clipvol.show(..., crop=..., crop_voxels=..., clip_planes=[...])`` or ``v.set_cut(...)`` cuts the
+volume open (:mod:`clipvol.scene.cut`: world units of the store, or level-0 voxels).
 
 Each frame waits for its bricks (``wait=True``, bounded by ``timeout``), so what is shown is
 drawn at the levels the LOD selection wants; a very large store stays interactive because only
-the bricks of the view are read (the clip-texture's budget bounds the memory).
+the bricks of the view are read (the clip-texture's budget bounds the memory). An error in the
+kernel (a brick that failed with nothing to stand in for it, a render that raised, a wrong preset
+name) shows as a red line under the image, with the image dimmed, until a frame is drawn whole.
+The browser sends one camera change at a time (the kernel's ``handled`` count is its answer), so
+pointer moves made during a slow frame merge into one instead of queueing a frame each.
 """
 
 from __future__ import annotations
@@ -51,40 +59,71 @@ function render({ model, el }) {
   }
   const hud = document.createElement("pre");
   hud.style.margin = "2px 0"; hud.style.fontSize = "11px";
+  const err = document.createElement("pre");
+  err.setAttribute("role", "alert");
+  err.style.margin = "2px 0"; err.style.fontSize = "11px"; err.style.color = "#c00";
+  err.style.whiteSpace = "pre-wrap";
   bar.append("tf ", tfSel, " mode ", modeSel);
-  root.append(img, bar, hud);
+  root.append(img, bar, hud, err);
   el.appendChild(root);
+  let decodeError = "";
   const sync = () => {
-    img.src = model.get("image");
+    const src = model.get("image");
+    if (img.getAttribute("src") !== src) { decodeError = ""; img.src = src; }
     hud.textContent = model.get("hud");
     tfSel.value = model.get("tf");
     modeSel.value = model.get("mode");
+    const text = model.get("error") || decodeError;
+    err.textContent = text ? "error: " + text : "";
+    err.style.display = text ? "block" : "none";
+    img.style.opacity = text ? "0.4" : "1";  // a frame the error concerns is not shown as if right
   };
+  img.onerror = () => { if (img.getAttribute("src")) { decodeError = "the frame sent by the kernel could not be decoded"; sync(); } };
   sync();
-  model.on("change:image", sync);
-  model.on("change:hud", sync);
-  model.on("change:tf", sync);
-  model.on("change:mode", sync);
+  for (const n of ["image", "hud", "tf", "mode", "error"]) model.on("change:" + n, sync);
   tfSel.onchange = () => { model.set("tf", tfSel.value); model.save_changes(); };
   modeSel.onchange = () => { model.set("mode", modeSel.value); model.save_changes(); };
+  // One camera change in flight: the kernel draws every change it gets, and a drag makes far more
+  // pointer moves than it can draw; the moves made meanwhile wait, and only the newest is sent
+  // once the kernel has handled the last (its `handled` count changes). From a kernel that does
+  // not answer within 10 s, the next move is sent anyway.
+  let want = null, inflight = false, sentAt = 0;
+  const cur = (k) => (want && k in want ? want[k] : model.get(k));
+  const sendCamera = () => {
+    if (!want || (inflight && performance.now() - sentAt < 10000)) return;
+    const changed = Object.keys(want).filter((k) => model.get(k) !== want[k]);
+    for (const k of changed) model.set(k, want[k]);
+    want = null;
+    if (!changed.length) return;
+    inflight = true; sentAt = performance.now();
+    model.save_changes();
+  };
+  const setCamera = (values) => { want = Object.assign(want || {}, values); sendCamera(); };
+  model.on("change:handled", () => { inflight = false; sendCamera(); });
   let drag = null;
   img.addEventListener("pointerdown", (e) => {
-    drag = { x: e.clientX, y: e.clientY, az: model.get("azimuth"), el: model.get("elevation") };
+    drag = { x: e.clientX, y: e.clientY, az: cur("azimuth"), el: cur("elevation"),
+             px: e.offsetX * img.naturalWidth / Math.max(1, img.clientWidth),
+             py: e.offsetY * img.naturalHeight / Math.max(1, img.clientHeight), shift: e.shiftKey };
     img.setPointerCapture(e.pointerId); img.style.cursor = "grabbing";
   });
   img.addEventListener("pointermove", (e) => {
     if (!drag) return;
-    model.set("azimuth", drag.az - (e.clientX - drag.x) * 0.5);
-    model.set("elevation", Math.max(-89, Math.min(89, drag.el + (e.clientY - drag.y) * 0.5)));
-    model.save_changes();
+    setCamera({ azimuth: drag.az - (e.clientX - drag.x) * 0.5,
+                elevation: Math.max(-89, Math.min(89, drag.el + (e.clientY - drag.y) * 0.5)) });
   });
   const end = () => { drag = null; img.style.cursor = "grab"; };
-  img.addEventListener("pointerup", end);
+  img.addEventListener("pointerup", (e) => {
+    if (drag && Math.abs(e.clientX - drag.x) + Math.abs(e.clientY - drag.y) < 3) {  // a click: probe there
+      model.set("pick", [drag.px, drag.py, drag.shift ? 1 : 0, (model.get("pick")[3] || 0) + 1]);
+      model.save_changes();
+    }
+    end();
+  });
   img.addEventListener("pointercancel", end);
   img.addEventListener("wheel", (e) => {
     e.preventDefault();
-    model.set("zoom", Math.max(0.2, Math.min(20, model.get("zoom") * Math.exp(-e.deltaY * 0.001))));
-    model.save_changes();
+    setCamera({ zoom: Math.max(0.2, Math.min(20, cur("zoom") * Math.exp(-e.deltaY * 0.001))) });
   }, { passive: false });
 }
 export default { render };
@@ -110,7 +149,11 @@ def _widget_class():
         zoom = traitlets.Float(1.0).tag(sync=True)
         tf = traitlets.Unicode("viridis").tag(sync=True)
         mode = traitlets.Unicode("composite").tag(sync=True)
+        error = traitlets.Unicode("").tag(sync=True)
+        handled = traitlets.Int(0).tag(sync=True)  # changes the kernel is done with: the browser's ack
         tf_names = traitlets.List(traitlets.Unicode()).tag(sync=True)
+        #: a click in the image: [x, y, shift (a ruler end), counter] in image pixels
+        pick = traitlets.List(traitlets.Float(), default_value=[0.0, 0.0, 0.0, 0.0]).tag(sync=True)
 
     return VolumeWidget
 
@@ -134,7 +177,7 @@ class VolumeView:
     def __init__(self, source, *, size=(384, 384), tf: str | None = None, mode: str = "composite",
                  memory_budget="256MB", texture_budget="256MB", threads: int | None = None,
                  lod_threshold: float = 1.0, timeout: float = 30.0, brick: int = 32, labels: bool = True,
-                 store=None) -> None:
+                 store=None, crop=None, crop_voxels=None, clip_planes=()) -> None:
         from ..render.context import create_context
         from ..scene.transfer import TransferFunction
         from ..scene.params import RenderParams
@@ -153,19 +196,30 @@ class VolumeView:
             from ..scene.views import is_anatomical
 
             tf = "grey" if is_anatomical(getattr(loader, "frame", None)) else "viridis"
+        from ..scene.cut import cut_shape
+        from ..scene.probe import Prober, Ruler
+
+        shape = cut_shape(loader.pyramid, getattr(loader, "frame", None), crop=crop, crop_voxels=crop_voxels,
+                          clip_planes=clip_planes)
         self._ctx = create_context()
         try:
             self.session = RenderSession(loader, self._ctx, memory_budget=memory_budget, texture_budget=texture_budget,
-                                         threads=threads, params=RenderParams(mode=mode, lod_threshold=lod_threshold), tf=tf)
+                                         threads=threads, params=RenderParams(mode=mode, lod_threshold=lod_threshold,
+                                                                               shape=shape), tf=tf)
         except BaseException:
             self._ctx.release()
             raise
         self.frame = getattr(self.session.loader, "frame", None)
+        self.unit = getattr(self.session.loader, "unit", None) or ""
+        self.prober = Prober(self.session.loader)
+        self.ruler = Ruler()
+        self.last_probe = None
         self.last_image: np.ndarray | None = None
         self.last_frame_s = 0.0
         cls = _widget_class()
         self.widget = cls(tf_names=list(TransferFunction.names()), tf=tf, mode=mode)
         self.widget.observe(self._changed, names=["azimuth", "elevation", "zoom", "tf", "mode"])
+        self.widget.observe(self._picked, names=["pick"])
         self.render()
 
     # -- camera --------------------------------------------------------------------------------
@@ -215,32 +269,108 @@ class VolumeView:
     def mode(self, name: str) -> None:
         self.widget.mode = name
 
+    # -- cut, probe and measure -------------------------------------------------------------------
+    def set_cut(self, *, crop=None, crop_voxels=None, clip_planes=()) -> np.ndarray:
+        """Cut the volume open (a crop box in world units or level-0 voxels, up to six clip planes
+        ``(x, y, z, nx, ny, nz)`` keeping the side the normal points to; nothing: the whole volume)
+        and return the new frame. See :func:`clipvol.scene.cut.cut_shape`."""
+        from ..scene.cut import cut_shape
+
+        shape = cut_shape(self.session.pyramid, self.frame, crop=crop, crop_voxels=crop_voxels,
+                          clip_planes=clip_planes)
+        self.session.update(shape=shape)
+        return self.render()
+
+    def probe(self, x: float, y: float, *, threshold: float | None = None, level: int = 0):
+        """The first visible sample under pixel ``(x, y)`` of the image shown (column, row from the
+        top-left), or None where the ray sees nothing: a :class:`clipvol.scene.probe.Probe` with the
+        value, level, voxel and world position. Also shown on the HUD line."""
+        from ..scene.probe import THRESHOLD
+        from ..scene.views import mirrored
+
+        cam, _ = self.camera()
+        w, _ = self.size
+        if mirrored(self.frame):  # the image shown is flipped left-right (clipvol.app.annotate.present)
+            x = w - float(x)
+        p = self.prober.pick_pixel(cam, float(x), float(y), self.session.transfer_function, level=level,
+                                   threshold=THRESHOLD if threshold is None else threshold,
+                                   step=self.session.params.step, shape=self.session.params.shape)
+        self.last_probe = p
+        self.widget.hud = self.hud_text(cam)
+        return p
+
+    def measure(self, a, b, **kwargs) -> float | None:
+        """Distance in the store's world unit between the first visible samples under pixels ``a``
+        and ``b`` (each ``(x, y)``), or None when either sees nothing; kept as :attr:`ruler`."""
+        pa = self.probe(*a, **kwargs)
+        pb = self.probe(*b, **kwargs)
+        if pa is None or pb is None:
+            return None
+        self.ruler.clear()
+        self.ruler.add(pa.world)
+        self.ruler.add(pb.world)
+        self.widget.hud = self.hud_text(self.camera()[0])
+        return self.ruler.length
+
+    def _picked(self, change) -> None:
+        x, y, shift, _ = (list(change["new"]) + [0.0] * 4)[:4]
+        try:
+            p = self.probe(x, y)
+        except ParameterError as e:
+            self.widget.hud = f"error: {e}"
+            return
+        if shift and p is not None:
+            self.ruler.add(p.world)
+            self.widget.hud = self.hud_text(self.camera()[0])
+
     # -- frames --------------------------------------------------------------------------------
     def _changed(self, change) -> None:
-        name = change["name"]
-        if name in ("tf", "mode"):
-            from ..scene.transfer import TransferFunction
+        """Render after a change from the browser or from Python; any error shows in the view.
 
-            try:
+        A change from the browser arrives as a comm message, and an exception the kernel's comm
+        handler catches only reaches the kernel's log: the view would keep its last frame as if
+        the new one were drawn. So the error's line goes to the widget's ``error`` trait (shown
+        in red under the image, the stale frame dimmed) before it is raised on to the caller. A
+        wrong preset or mode name is only shown, not raised, the same from Python as from the
+        browser.
+        """
+        from ..render.failures import _cause as one_line  # first line; a foreign error keeps its type's name
+
+        name = change["name"]
+        try:
+            if name in ("tf", "mode"):
+                from ..scene.transfer import TransferFunction
+
                 if name == "tf" and change["new"] not in TransferFunction.names():
                     raise ParameterError(f"tf: expected one of {', '.join(TransferFunction.names())}, got {change['new']!r}")
                 self.session.update(**{name: change["new"]})
-            except ParameterError as e:
-                self.widget.hud = f"error: {e}"
-                return
-        self.render()
+            self.render()
+        except ParameterError as e:
+            self.widget.error = one_line(e)
+        except Exception as e:
+            self.widget.error = one_line(e)
+            raise
+        finally:
+            self.widget.handled += 1  # after the frame or the error: the browser may send its next change
 
     def render(self) -> np.ndarray:
         """Render the current view (waiting for its bricks up to ``timeout``) and send it to the browser."""
         cam, coi = self.camera()
         img, dt = self.session.timed_render(cam, coi, wait=True, timeout=self.timeout)
+        from ..render.failures import describe_failed, hatch_failed
         from .annotate import present
 
+        holes = tuple(getattr(self.session.frame_stats, "unreplaced", ()))
+        if holes:  # regions drawn by nothing: striped red, named in the error line
+            img = hatch_failed(img, cam, self.session.pyramid, holes)
         img = present(img, cam, self.frame, labels=self.labels)  # head-up, un-mirrored, R/L A/P S/I letters
         self.last_image = img
         self.last_frame_s = dt
-        self.widget.image = _png_data_url(img)
-        self.widget.hud = self.hud_text(cam)
+        with self.widget.hold_sync():  # one message: the frame, its HUD and its error arrive together
+            self.widget.image = _png_data_url(img)
+            self.widget.hud = self.hud_text(cam)
+            self.widget.error = (f"{len(holes)} brick(s) failed and nothing stands in for them (striped red): "
+                                 f"{describe_failed(holes)}") if holes else ""
         return img
 
     def hud_text(self, cam=None) -> str:
@@ -261,7 +391,12 @@ class VolumeView:
 
             lab = view_labels(self.frame.affine, *screen_axes(cam, self.frame), self.frame.frame)
             parts.append(f"left {lab['left']} right {lab['right']} top {lab['top']}")
-        return "  ".join(parts)
+        lines = ["  ".join(parts)]
+        if self.last_probe is not None:
+            lines.append(self.last_probe.describe(self.unit))
+        if self.ruler.ends:
+            lines.append(self.ruler.describe(self.unit))
+        return "\n".join(lines)
 
     def snapshot(self) -> np.ndarray:
         """The last frame, ``(h, w, 4)`` uint8 RGBA."""

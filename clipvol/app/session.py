@@ -89,7 +89,11 @@ class RenderSession:
         self.pyramid = self.loader.pyramid
         self.params.check_for(self.pyramid)
         self.ctx = ctx
-        self.clip_texture = ClipTexture(self.loader, memory_budget, threads)
+        from ..scene.cut import outside_bricks
+
+        # bricks outside a crop box / clip planes are culled by the selection and never read either
+        self.clip_texture = ClipTexture(self.loader, memory_budget, threads,
+                                        outside=outside_bricks(self.pyramid, self.params.shape))
         self._tf = None
         self._tf_name = None
         self._center = None
@@ -115,6 +119,11 @@ class RenderSession:
             self.tf = _check_tf(tf)
             changed = True
         if new != self.params:
+            if new.shape != self.params.shape:
+                from ..scene.cut import outside_bricks
+
+                if self._set_outside(outside_bricks(self.pyramid, new.shape)):
+                    self.action.use_clip_texture(self.clip_texture)  # the GPU may hold their fill: empty it
             self.params = new
             self.action.set_params(new)
             changed = True
@@ -144,6 +153,10 @@ class RenderSession:
         if self._center is None or not np.array_equal(c, self._center):
             self._move_center(c)
             self._center = c
+
+    def _set_outside(self, outside) -> int:
+        """Where a new cut's unread bricks go: the clip-texture (a series: every step it holds)."""
+        return self.clip_texture.set_outside(outside)
 
     def _move_center(self, c: np.ndarray) -> None:
         """Where a new centre of interest goes: the clip-texture (a series: every step it holds)."""

@@ -87,6 +87,10 @@ def _render_group(source, source_kwargs, memory_budget, params: RenderParams, ca
         return raw, action.cache.format, time.perf_counter() - t0, True, ()
     group_shape = Shape(box=(tuple(lo), tuple(hi)), planes=shape.planes if shape is not None else ())
     action.set_params(replace(params, shape=group_shape, background=(0.0, 0.0, 0.0, 0.0), early_termination=True))
+    from ..scene.cut import outside_bricks
+
+    if clip.set_outside(outside_bricks(clip.pyramid, group_shape)):  # only this group's bricks are read
+        action.use_clip_texture(clip)  # bricks filled for another group's cut may be on the GPU: empty it
     vlo, vhi = clip.pyramid.volume_box()
     clip.set_center(np.clip((lo + hi) / 2.0, vlo, vhi))
     action.render(camera, tf, wait=True, timeout=timeout)

@@ -64,7 +64,11 @@ class TimeSeriesPlayer:
         self._threads = threads
         self.step = 0
         self._center = None
-        self.current = ClipTexture(self.loaders[0], self._part, threads)
+        from ..scene.cut import outside_bricks
+
+        #: bricks every step's clip-texture leaves unread (the cut, see ClipTexture.set_outside)
+        self.outside = outside_bricks(first, params.shape if params is not None else None)
+        self.current = ClipTexture(self.loaders[0], self._part, threads, outside=self.outside)
         self.next: ClipTexture | None = None
         try:
             self.action = ClipRenderAction(ctx, self.current, params)
@@ -81,7 +85,7 @@ class TimeSeriesPlayer:
             return
         k = (self.step + 1) % len(self.loaders)
         self.next = ClipTexture(self.loaders[k], self._part, self._threads,
-                                center=self._center if self._center is not None else None)
+                                center=self._center if self._center is not None else None, outside=self.outside)
 
     def set_center(self, xyz) -> None:
         """Move the centre of interest of the current and the prefetched step."""
@@ -102,7 +106,8 @@ class TimeSeriesPlayer:
             if self.next is not None:
                 self.next.close()
                 self.next = None
-            self.current = ClipTexture(self.loaders[step], self._part, self._threads, center=self._center)
+            self.current = ClipTexture(self.loaders[step], self._part, self._threads, center=self._center,
+                                       outside=self.outside)
         self.action.use_clip_texture(self.current)
         old.close()
         self.step = step
@@ -187,6 +192,13 @@ class SeriesSession(RenderSession):
 
     def _move_center(self, c: np.ndarray) -> None:
         self.player.set_center(c)  # the current step's clip-texture and the prefetched one
+
+    def _set_outside(self, outside) -> int:
+        """The cut's unread bricks for every step: the current, the prefetched and those to come."""
+        self.player.outside = outside
+        if self.player.next is not None:
+            self.player.next.set_outside(outside)
+        return self.player.current.set_outside(outside)
 
     def close(self) -> None:
         self.player.close()

@@ -255,6 +255,7 @@ class ClipTexture:
         prefault: bool = True,
         region: Region | None = None,
         cells_on_load: bool = False,
+        outside: Callable[[int, np.ndarray], np.ndarray] | None = None,
     ) -> None:
         self.loader = loader
         self.pyramid = loader.pyramid
@@ -295,6 +296,8 @@ class ClipTexture:
         # empty bricks (bounds [fill, fill], see HasBrickRanges) are filled here, never read
         self._ranges = loader.brick_ranges if isinstance(loader, HasBrickRanges) else None
         self._ranges_failed: set[int] = set()  # levels whose bounds call failed: not asked again
+        # bricks outside the cut (crop box, clip planes: see set_outside) are filled here, never read
+        self._outside = outside
         self._fill_brick = np.full(pyr.brick_shape, pyr.fill_value, dtype=pyr.dtype)
         self._fill_brick.setflags(write=False)
         self._fill_cells = None if cells is None else cell_ranges(self._fill_brick, self.cell_edges)
@@ -569,6 +572,44 @@ class ClipTexture:
             self._window = w
             self._apply(self._history[-1], w)
             self._cv.notify_all()
+
+    def set_outside(self, outside: Callable[[int, np.ndarray], np.ndarray] | None) -> int:
+        """Bricks never to read: ``outside(level, keys (n, 3))`` -> ``(n,)`` bool, or None for none.
+
+        A renderer that draws only a cut of the volume (a crop box, clip planes: see
+        :class:`clipvol.scene.geometry.Shape`) culls the bricks outside it; this keeps the
+        clip-texture from reading them too. They are filled with the fill value like empty bricks
+        (never drawn: the selection culls them). A new cut re-queues the bricks it brings back in;
+        returns how many (a GPU cache holding their fill must then be emptied).
+        """
+        if outside is not None and not callable(outside):
+            raise ParameterError(f"outside: expected a callable(level, keys) or None, got {outside!r}")
+        with self._cv:
+            self._check_open()
+            self._outside = outside
+            requeued = 0
+            for lv in self._levels:
+                held = np.nonzero(lv.key[:, 0] >= 0)[0]
+                if not len(held):
+                    continue
+                now_empty = self._empty_mask(lv.level, lv.key[held])
+                back = held[lv.empty[held] & ~now_empty]  # filled for the old cut, inside the new one
+                lv.gen[back] += 1  # a late fill for the old cut is dropped
+                lv.attempts[back] = 0
+                lv.not_before[back] = 0.0
+                lv.empty[back] = False
+                # read again; one a region of interest leaves unqueued (ABSENT) stays so, now unfilled
+                lv.state[back[lv.state[back] != _ABSENT]] = _QUEUED
+                requeued += len(back)
+                waiting = held[(lv.state[held] == _QUEUED) & now_empty]  # not read yet, now outside
+                lv.empty[waiting] = True
+            self._pending = sum(
+                int(np.count_nonzero((lv.state >= _QUEUED) & (lv.state <= _LOADING))) for lv in self._levels
+            )
+            self.residency_version += 1
+            self._rebuild_queue()
+            self._cv.notify_all()
+        return requeued
 
     def wait_until_idle(self, timeout: float | None = None) -> bool:
         """Block until no brick is queued or loading; ``False`` if ``timeout`` seconds passed first."""
@@ -993,7 +1034,8 @@ class ClipTexture:
         return True
 
     def _empty_mask(self, level: int, keys: np.ndarray) -> np.ndarray:
-        """``(n,)`` bool: which bricks ``keys`` the loader's bounds show to hold only the fill value.
+        """``(n,)`` bool: which bricks ``keys`` are filled instead of read: outside the cut
+        (:meth:`set_outside`), or shown by the loader's bounds to hold only the fill value.
 
         One vectorised call when bricks enter a window (not one per load in the loader threads,
         where its small numpy steps held the GIL against the other threads' reads). Bounds that are
@@ -1001,6 +1043,13 @@ class ClipTexture:
         real failure. After a failed call the level's bounds are not asked again (this runs under
         the lock, and a remote store's bounds may need the network).
         """
+        n = len(keys)
+        cut = np.zeros(n, dtype=bool)
+        if self._outside is not None and n:
+            cut = np.asarray(self._outside(level, np.asarray(keys, dtype=np.int64).reshape(-1, 3)), dtype=bool)
+        return cut | self._bounds_empty(level, keys)
+
+    def _bounds_empty(self, level: int, keys: np.ndarray) -> np.ndarray:
         n = len(keys)
         if self._ranges is None or n == 0 or level in self._ranges_failed:
             return np.zeros(n, dtype=bool)

@@ -146,6 +146,10 @@ class Viewer(GlWindow):
             from .playback import Playback
 
             self.playback = Playback(len(self.session.player), rate=rate)
+        from .cut_keys import CutKeys
+
+        self.cut = CutKeys(self.session)  # crop box / clip planes (F X Z V O), probe under the cursor, ruler (U)
+        self._hover = None  # the cursor (framebuffer pixels) to probe at, once the view is still
         self._install_callbacks()
 
     # -- input --------------------------------------------------------------------------------
@@ -210,6 +214,8 @@ class Viewer(GlWindow):
 
     def _on_cursor(self, win, x, y) -> None:
         if self._drag is None:
+            sx = self.framebuffer_size[0] / max(self._glfw.get_window_size(win)[0], 1)
+            self._hover = (x * sx, y * sx)  # probed in step() when the view is still
             return
         button, x0, y0, moved = self._drag
         self._drag = (button, x, y, moved + abs(x - x0) + abs(y - y0))
@@ -252,11 +258,44 @@ class Viewer(GlWindow):
             self.screenshot(hud=False)
         elif name.upper() == "C" and len(name) == 1:
             self.save_camera()
+        elif len(name) == 1 and name.upper() in self.cut.KEYS and \
+                self.cut.handle_key(name, self.controls.center_of_interest, self.controls.forward):
+            self.apply_cut()
         elif self.playback is not None and self.playback.handle_key(name):
             self.state.message = self.playback.message
             self._show_step(self.playback.step)
         elif self.state.handle_key(name):
             self._apply_state()
+
+    # -- cut, probe -----------------------------------------------------------------------------
+    def apply_cut(self) -> None:
+        """Draw the cut the keys set (:class:`clipvol.viewer.cut_keys.CutKeys`) from the next frame on."""
+        self.state.message = self.cut.message
+        shape = self.cut.shape()
+        if shape != self.session.params.shape:
+            self.session.update(shape=shape)
+        self._hud_text = None
+        self._dirty = True
+
+    def probe_at(self, x: float, y: float):
+        """Probe the first visible sample under framebuffer pixel ``(x, y)`` of the last frame (HUD
+        line); returns the :class:`~clipvol.scene.probe.Probe` or None."""
+        cam = self._frame_camera
+        if cam is None or (self.slices is not None and self.slices.active):
+            return None
+        fw, fh = self.framebuffer_size
+        cx, cy = x * cam.size[0] / fw, y * cam.size[1] / fh
+        from clipvol.scene.views import mirrored
+
+        if mirrored(self._frame_of_store()):  # the frame shown is flipped left-right
+            cx = cam.size[0] - cx
+        if not (0 <= cx <= cam.size[0] and 0 <= cy <= cam.size[1]):
+            return None
+        st = self.state
+        p = self.cut.probe_pixel(cam, cx, cy, self.tf, step=self._base_step,
+                                 max_level=None if st.mode != "fixed" else st.level)
+        self._hud_text = None
+        return p
 
     # -- transfer function, bookmarks ---------------------------------------------------------
     def _set_tf(self, tf, message: str | None = None) -> None:
@@ -411,6 +450,9 @@ class Viewer(GlWindow):
             self._quality = q
             self._frame_done(ft)
             rendered = True
+        if self._hover is not None and not moving and self._drag is None:
+            self.probe_at(*self._hover)
+            self._hover = None
         self._end_step()
         return rendered
 
@@ -462,6 +504,7 @@ class Viewer(GlWindow):
                 lines.insert(2, self.playback.hud_line(self.session.player.prefetch_state))
             if self.slices is not None and self.slices.active:
                 lines = lines + self.slices.hud_lines()
+            lines = lines + self.cut.hud_lines()
             self._hud_text = lines
             self._hud_time = time.perf_counter()
             from .hud import stack_images, tf_strip

@@ -64,7 +64,9 @@ def test_tf_and_mode_from_the_widget(view):
     view.widget.mode = "composite"
     assert view.session.params.mode == "composite"
     view.widget.tf = "no-such-preset"
-    assert view.widget.hud.startswith("error: tf")
+    assert view.widget.error.startswith("tf: expected one of")  # shown in the view, not raised
+    view.widget.tf = "grey"
+    assert view.widget.error == ""  # a whole frame clears it
 
 
 def test_missing_anywidget_names_the_extra(monkeypatch):
@@ -80,3 +82,41 @@ def test_missing_anywidget_names_the_extra(monkeypatch):
             notebook._widget_class()
     finally:
         notebook._widget_class.cache_clear()
+
+
+def test_a_wrong_mode_is_shown_and_a_render_error_raised_and_shown(view, monkeypatch):
+    from clipvol.errors import BrickLoadError
+
+    view.widget.mode = "no-such-mode"
+    assert view.widget.error.startswith("mode") and "no-such-mode" in view.widget.error
+    assert view.session.params.mode == "mip"  # unchanged
+
+    def broken(*args, **kwargs):
+        raise BrickLoadError("brick (level 0, 0, 0, 1) of v.zarr: read failed")
+
+    monkeypatch.setattr(view.session, "timed_render", broken)
+    with pytest.raises(BrickLoadError, match=r"level 0, 0, 0, 1"):
+        view.set_view(azimuth=30.0)  # a Python caller gets the error ...
+    assert view.widget.error == "brick (level 0, 0, 0, 1) of v.zarr: read failed"  # ... and the view shows it
+    monkeypatch.undo()
+    view.set_view(azimuth=0.0)
+    assert view.widget.error == ""
+
+
+def test_failed_bricks_are_striped_and_named(tmp_path):
+    import clipvol
+    from clipvol.bricking.pipeline import brick_volume
+    from clipvol.loaders.zarr_store import ZarrLoader
+
+    vol = np.zeros((32, 32, 32), np.float32)
+    vol[8:24, 8:24, 8:24] = 1.0
+    root = tmp_path / "v.zarr"
+    brick_volume(vol, root, brick=16, progress=False, workers=1, summary=False)
+    for p in root.rglob("*"):
+        if p.is_file() and "c" in p.relative_to(root).parts:  # every chunk of every level
+            p.write_bytes(b"not a chunk")
+    with clipvol.show(ZarrLoader(root), size=(64, 48), mode="mip", tf="grey", threads=2, timeout=20) as v:
+        assert "failed and nothing stands in for them" in v.widget.error and "brick (level " in v.widget.error
+        rgb = v.snapshot()[..., :3].astype(int)
+        red = (rgb[..., 0] == 255) & (rgb[..., 1] == 0) & (rgb[..., 2] == 0)
+        assert red.mean() > 0.05  # the hole is marked (grey preset: no red from the data)
