@@ -10,8 +10,8 @@ import pytest
 from PIL import Image
 
 import clipvol
-from clipvol.app.kinds import KINDS, kind_of, open_data
-from clipvol.errors import InputFormatError
+from clipvol.app.kinds import KINDS, DataKind, kind_of, open_data
+from clipvol.errors import InputFormatError, ParameterError
 from clipvol.tools.cli import main
 
 MARKER = "MARKER.kind"
@@ -111,6 +111,9 @@ def test_point_and_volume_stores_go_to_their_kinds(tmp_path, rng, capsys):
     assert loader.meta.num_points == 500  # the input's row count
     lo, hi = loader.world_box()
     assert np.all(np.asarray(lo) <= pts[:, :3].min(axis=0) + 1e-9) and np.all(np.asarray(hi) >= pts[:, :3].max(axis=0) - 1e-9)
+    with pytest.raises(ParameterError, match="brick"):
+        open_data(str(store), brick=32)  # a point store's nodes were fixed when it was built
+    assert all(isinstance(k, DataKind) for k in KINDS.values())
     # the volume opener refuses another kind's store, naming it, instead of misreading it
     with pytest.raises(InputFormatError, match="points store"):
         clipvol.open_store(store)
