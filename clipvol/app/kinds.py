@@ -64,10 +64,14 @@ class DataKind(Protocol):
     cli : KindCommands, str or None
         The command-line hooks, or the dotted name of the ``clipvol.tools`` module that holds them
         (see the module docstring), or None for the default kind, whose path is the commands' own.
+    show : callable or None
+        ``show(source, **kwargs)``: an interactive notebook view of the source (what
+        :func:`show` returns), or None for a kind without one.
     """
 
     name: str
     cli: Any
+    show: Any
 
     def claims(self, source) -> bool:
         """True if ``source`` (a path, URL, loader or array) is data of this kind. Cheap (reads
@@ -81,10 +85,6 @@ class DataKind(Protocol):
 
     def session(self, source, ctx, **kwargs):
         """Loader, clip-texture and render action as one closable object (a context manager)."""
-        ...
-
-    def show(self, source, **kwargs):
-        """An interactive notebook view of the source."""
         ...
 
 
