@@ -151,12 +151,11 @@ def run(args) -> int:
     from clipvol.tools.tf_args import transfer_function_from_args
 
     check_output_file(args.out, ".png", "--out")
-    from clipvol.bricking.point_store import is_point_store
+    from clipvol.tools.kind_cli import kind_command
 
-    if is_point_store(args.source):  # scattered points: splats (tools/point_cli.py)
-        from clipvol.tools import point_cli
-
-        return point_cli.render(args)
+    hook = kind_command(args.source, "render")  # another data kind than a volume: its own render
+    if hook is not None:
+        return hook(args)
     from clipvol.tools.remote_args import check_trust, remote_kwargs
 
     from clipvol.app.autobrick import bricked_source

@@ -120,12 +120,13 @@ def _max_errors(text):
 def run(args) -> int:
     from clipvol.app.report import run_report
     from clipvol.app.session import open_loader
-    from clipvol.bricking.point_store import is_point_store
-    from clipvol.tools import point_cli
+    from clipvol.app.kinds import KINDS
+    from clipvol.tools.kind_cli import kind_command
 
-    if is_point_store(args.source):  # scattered points: error against tolerance (tools/point_cli.py)
-        return point_cli.report(args, args.source, args.out)
-    if args.points is not None and not is_point_store(args.points):
+    hook = kind_command(args.source, "report")  # another data kind than a volume: its own report
+    if hook is not None:
+        return hook(args, args.source, args.out)
+    if args.points is not None and not KINDS["points"].claims(args.points):
         from clipvol.errors import ParameterError
 
         raise ParameterError(f"--points: expected a point store written by clipvol brick-points, got {args.points!r}")
@@ -153,5 +154,5 @@ def run(args) -> int:
     if args.points is not None:
         from pathlib import Path
 
-        return point_cli.report(args, args.points, Path(args.out) / "points")
+        return kind_command(args.points, "report")(args, args.points, Path(args.out) / "points")
     return 0
