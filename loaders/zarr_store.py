@@ -17,7 +17,7 @@ Why mixins rather than held objects: the jobs share one state (the per-level arr
 the lock) that the hot path (:meth:`ZarrLoader.read_brick_into`) reads on every brick, and
 :class:`~clipvol.loaders.zarr_remote.RemoteZarrLoader` swaps single methods of the read path
 (``_chunk_bytes``, ``_load_chunk``, ``_read_zarr``); each mixin holds methods only, this class holds
-the state and sets it up. The names other modules import from here stay importable here.
+the state and sets it up, and re-exports the names other modules import from here.
 """
 
 from __future__ import annotations
