@@ -39,6 +39,9 @@ class StoreOpening:
     """Opening a clipvol store (:meth:`_open_clipvol`) or a plain OME-Zarr image (:meth:`_open_ome`)."""
 
     def _open_clipvol(self, attrs: dict) -> None:
+        """A clipvol store: its pyramid as ``attrs['clipvol']`` records it, each level's array
+        checked against it (shape, chunks, dtype), then its manifest verified. An interrupted build
+        is refused unless ``allow_incomplete`` (repair and resume open such stores)."""
         meta = parse_metadata(attrs, self._where)
         if not meta.complete and not self._allow_incomplete:
             raise StoreIncompleteError(
@@ -68,6 +71,8 @@ class StoreOpening:
         self._verify_manifest(attrs["clipvol"], warn=meta.complete or not self._allow_incomplete)
 
     def _open_ome(self, attrs: dict) -> None:
+        """A plain OME-Zarr image: the stored levels that conform (see the module's docstring), the
+        rest computed; its value range read or, for floats without ``omero.window``, sampled."""
         ome = attrs.get("ome") if isinstance(attrs.get("ome"), dict) else attrs
         ms_list = ome.get("multiscales")
         if not isinstance(ms_list, list) or not ms_list or not isinstance(ms_list[0], dict):
