@@ -46,7 +46,7 @@ _LAZY = {
     "brick_volume": "clipvol.bricking.pipeline",
     "BuildOptions": "clipvol.bricking.build_options",
     # notebooks (anywidget, an optional extra)
-    "show": "clipvol.app.notebook",
+    "show": "clipvol.app.kinds",  # the notebook view of the source's data kind
 }
 
 __all__ = sorted(_LAZY) + ["__version__"]

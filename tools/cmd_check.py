@@ -175,12 +175,11 @@ def run(args: argparse.Namespace) -> int:
 
     from clipvol.errors import ParameterError
 
-    from clipvol.bricking.point_store import is_point_store
+    from clipvol.tools.kind_cli import kind_command
 
-    if is_point_store(args.store):
-        from clipvol.tools import point_cli
-
-        return point_cli.check(args.store)
+    hook = kind_command(args.store, "check")  # another data kind than a volume: its own invariants
+    if hook is not None:
+        return hook(args)
     if args.samples < 1:
         raise ParameterError(f"--samples: expected an integer >= 1, got {args.samples}")
     from clipvol.paging.bytesource import is_remote_url

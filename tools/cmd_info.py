@@ -195,12 +195,11 @@ def run(args: argparse.Namespace) -> int:
     path = Path(args.store)
     if not path.exists():
         raise InputNotFoundError(f"{path}: no such store")
-    from clipvol.bricking.point_store import is_point_store
+    from clipvol.tools.kind_cli import kind_command
 
-    if is_point_store(path):  # scattered points (tools/point_cli.py)
-        from clipvol.tools import point_cli
-
-        return point_cli.info(path)
+    hook = kind_command(path, "info")  # another data kind than a volume: its own summary
+    if hook is not None:
+        return hook(args)
     from clipvol.bricking.channels import image_set
 
     found = image_set(path)

@@ -74,7 +74,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="a camera saved by the viewer's C key (overrides --view/--eye/--target/--up/--fov/--ortho)")
     r = p.add_argument_group("rendering")
     add_render_arguments(r, ("mode", "iso_value", "policy", "level", "max_texels_drawn", "distance_factor",
-                             "fov_fraction", "block_budget", "visibility", "lod_threshold"))
+                             "fov_fraction", "block_budget", "max_error", "visibility", "lod_threshold"))
     from clipvol.tools.overlay_args import add_overlay_arguments
     from clipvol.tools.tf_args import add_tf_arguments
 
@@ -151,12 +151,11 @@ def run(args) -> int:
     from clipvol.tools.tf_args import transfer_function_from_args
 
     check_output_file(args.out, ".png", "--out")
-    from clipvol.bricking.point_store import is_point_store
+    from clipvol.tools.kind_cli import kind_command
 
-    if is_point_store(args.source):  # scattered points: splats (tools/point_cli.py)
-        from clipvol.tools import point_cli
-
-        return point_cli.render(args)
+    hook = kind_command(args.source, "render")  # another data kind than a volume: its own render
+    if hook is not None:
+        return hook(args)
     from clipvol.tools.remote_args import check_trust, remote_kwargs
 
     from clipvol.app.autobrick import bricked_source
@@ -221,8 +220,9 @@ def run(args) -> int:
           f"{format_bytes(st.texture_bytes)} of {format_bytes(st.texture_budget)}{read}", file=sys.stderr)
     if params.policy == "image":
         est = getattr(action.last_policy, "estimated_error", float("nan"))
-        print(f"image policy: block budget {params.block_budget}, {st.bricks_distinct} bricks drawn, "
-              f"estimated error {est:.3f}", file=sys.stderr)
+        budget = "" if params.max_error is None else f", error budget {100 * params.max_error:g} %"
+        print(f"image policy: block budget {params.block_budget or 'none'}{budget}, {st.bricks_distinct} bricks drawn, "
+              f"estimated {100 * est:.1f} % of pixels dE>=6 against full resolution", file=sys.stderr)
     if overlay_levels:
         print("overlays: " + "; ".join(f"{name} (level {L})" for name, L in overlay_levels.items()), file=sys.stderr)
     print("time: " + ", ".join(f"{k} {v * 1000:.1f} ms" for k, v in t.items()), file=sys.stderr)

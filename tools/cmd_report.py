@@ -82,6 +82,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                           "(default 1px,2px,4px,0.02,0.05,0.1,0.2)")
     pts.add_argument("--points", default=None, metavar="POINTS.zarr",
                      help="also report this point store (into OUT/points) beside the volume store")
+    p.add_argument("--max-error", default=None, metavar="E,E,...",
+                   help="visible-error budgets of the image policy measured as settings, comma-separated "
+                        "fractions or percentages (predicted share of pixels with CIELUV dE >= 6), or 'none' "
+                        "(default 10%%,5%%,2%%; needs the store's summary tables)")
     p.add_argument("--block-budgets", default=None,
                    help="block budgets of the policy comparison (image-based LOD, after Wang, Garcia & Shen 2007, "
                         "Fig. 6), comma-separated, or 'none' (default 8,16,32,64,128,256)")
@@ -103,15 +107,26 @@ def _budgets(text):
     return vals
 
 
+def _max_errors(text):
+    """``--max-error``: None (the report's default budgets), ``()`` for 'none', else the listed values
+    (each validated by RenderParams, which names ``max_error`` when one is wrong)."""
+    if text is None:
+        return None
+    if text.strip().lower() == "none":
+        return ()
+    return [t.strip() for t in text.split(",") if t.strip()]
+
+
 def run(args) -> int:
     from clipvol.app.report import run_report
     from clipvol.app.session import open_loader
-    from clipvol.bricking.point_store import is_point_store
-    from clipvol.tools import point_cli
+    from clipvol.app.kinds import KINDS
+    from clipvol.tools.kind_cli import kind_command
 
-    if is_point_store(args.source):  # scattered points: error against tolerance (tools/point_cli.py)
-        return point_cli.report(args, args.source, args.out)
-    if args.points is not None and not is_point_store(args.points):
+    hook = kind_command(args.source, "report")  # another data kind than a volume: its own report
+    if hook is not None:
+        return hook(args, args.source, args.out)
+    if args.points is not None and not KINDS["points"].claims(args.points):
         from clipvol.errors import ParameterError
 
         raise ParameterError(f"--points: expected a point store written by clipvol brick-points, got {args.points!r}")
@@ -132,11 +147,12 @@ def run(args) -> int:
         step=args.step, threads=args.threads, timeout=args.timeout, max_frames=args.max_frames,
         reference_cap=args.reference_cap, log=lambda s: print(s, flush=True), plots=not args.no_plots,
         block_budgets=_budgets(args.block_budgets), rounds=args.rounds, allow_partial=args.allow_partial,
+        max_errors=_max_errors(args.max_error),
     )
     print(f"wrote {res.csv}, {res.timing_csv}, {res.markdown}" + "".join(f", {p}" for p in res.plots))
     print(res.headline[:1].upper() + res.headline[1:] + ".")
     if args.points is not None:
         from pathlib import Path
 
-        return point_cli.report(args, args.points, Path(args.out) / "points")
+        return kind_command(args.points, "report")(args, args.points, Path(args.out) / "points")
     return 0

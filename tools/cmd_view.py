@@ -45,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from clipvol.tools.render_args import add_render_arguments
     from clipvol.viewer.controls import MODES
 
-    add_render_arguments(g, ("mode", "iso_value", "policy", "level", "lod_threshold", "step"),
+    add_render_arguments(g, ("mode", "iso_value", "policy", "level", "lod_threshold", "step", "max_error"),
                          choices={"policy": MODES},
                          help={"policy": "selection policy the viewer starts with (M cycles them)"})
     g.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
@@ -118,12 +118,11 @@ def run(args) -> int:
     from clipvol.errors import ParameterError
     from clipvol.tools.render_args import render_params_from_args
 
-    from clipvol.bricking.point_store import is_point_store
+    from clipvol.tools.kind_cli import kind_command
 
-    if is_point_store(args.source):  # scattered points: splats (tools/point_cli.py)
-        from clipvol.tools import point_cli
-
-        return point_cli.view(args)
+    hook = kind_command(args.source, "view")  # another data kind than a volume: its own viewer
+    if hook is not None:
+        return hook(args)
     _check_frames(args)
     if args.frame_time < 0:
         raise ParameterError(f"--frame-time: expected milliseconds >= 0, got {args.frame_time}")

@@ -1,11 +1,16 @@
-"""Point-store branches of `clipvol info`, `check` and `render` (kept out of the volume commands)."""
+"""The command-line hooks of the point data kind (:class:`clipvol.app.point_kind.PointKind`):
+`clipvol info`, `check`, `render`, `view` and `report` on a point store.
+
+The commands hand a point store over here through :func:`clipvol.tools.kind_cli.kind_command`;
+the hooks follow :class:`clipvol.app.kinds.KindCommands`.
+"""
 
 from __future__ import annotations
 
 import sys
 
 
-def info(path) -> int:
+def info(args) -> int:
     """Print a point store's summary: points, nodes per depth, bytes on disk, values."""
     import os
 
@@ -14,6 +19,7 @@ def info(path) -> int:
     from clipvol.bricking.point_store import open_point_store, read_node_table
     from clipvol.units import format_bytes
 
+    path = args.store
     meta, g = open_point_store(path, require_complete=False)
     print(f"store      {path}")
     print("kind       points (octree, Meredith & Ma 2001)")
@@ -35,10 +41,11 @@ def info(path) -> int:
     return 0
 
 
-def check(path) -> int:
+def check(args) -> int:
     """Validate a point store's octree invariants; exit 1 naming each problem."""
     from clipvol.bricking.point_store import check_point_store
 
+    path = args.store
     problems = check_point_store(path)
     for p in problems:
         print(f"{path}: {p}", file=sys.stderr)

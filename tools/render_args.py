@@ -97,6 +97,7 @@ FLAGS: dict[str, Flag] = {(f.fields[0] if len(f.fields) == 1 else f.dest): f for
     Flag(("fov_fraction",), "--fov-fraction", type=float),
     Flag(("max_texels_drawn",), "--max-texels-drawn", type=int),
     Flag(("block_budget",), "--block-budget", type=int),
+    Flag(("max_error",), "--max-error", metavar="FRACTION"),
     Flag(("visibility",), "--no-visibility", switch="off",
          help="--policy image: no visibility estimate (every brick counts as fully visible)"),
     Flag(("step",), "--step", type=float),
@@ -187,4 +188,8 @@ def render_params_from_args(args, **fixed):
     Validation (and its one-line errors) is RenderParams' own."""
     from clipvol.scene.params import RenderParams
 
-    return RenderParams(**{**flag_values(args), **fixed})
+    values = flag_values(args)
+    # --max-error is the image policy's budget: it selects that policy where --policy is left at its default
+    if values.get("max_error") is not None and values.get("policy") == _field_default("policy"):
+        values["policy"] = "image"
+    return RenderParams(**{**values, **fixed})

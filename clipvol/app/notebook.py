@@ -37,7 +37,7 @@ import numpy as np
 
 from ..errors import MissingExtraError, ParameterError
 
-__all__ = ["show", "VolumeView"]
+__all__ = ["VolumeView"]
 
 _ESM = r"""
 function render({ model, el }) {
@@ -167,7 +167,7 @@ def _png_data_url(img: np.ndarray) -> str:
 
 
 class VolumeView:
-    """A live view of a store or array in a notebook (returned by :func:`show`).
+    """A live view of a store or array in a notebook (what :func:`clipvol.show` returns for a volume).
 
     The object displays as its widget (``_repr_mimebundle_``); changing :attr:`widget`'s traits
     (from the browser or from Python) renders a new frame. Call :meth:`close` to stop the loader
@@ -434,29 +434,3 @@ def _as_loader(source, brick: int, store=None):
 
         source = bricked_source(str(source), store)
     return open_loader(source)
-
-
-def show(source, **kwargs) -> VolumeView:
-    """Show a store, ``procedural:...`` URL, ``.npy`` path, loader or 3-D numpy array in a notebook.
-
-    Parameters
-    ----------
-    source
-        What to show; a numpy array is viewed in place (bricked in memory, ``brick`` voxels).
-    **kwargs
-        ``size=(w, h)``, ``tf``, ``mode`` (``'composite'``, ``'mip'``, ``'minip'``, ``'average'`` or
-        ``'iso'`` with ``iso_value``: the menu offers them all, iso once a value is set), ``memory_budget``,
-        ``texture_budget``, ``threads``, ``lod_threshold``, ``timeout`` (seconds per frame),
-        ``brick``, ``labels`` (R/L, A/P, S/I letters on a patient-frame store's images, default
-        True), ``store`` (where a NIfTI / DICOM / HDF5 / MRC input is bricked, default
-        ``./NAME.zarr``), ``crop`` (two world corners ``(x, y, z)``), ``crop_voxels`` (level-0
-        ``(start, stop)`` ``(z, y, x)``), ``clip_planes`` (up to six ``(x, y, z, nx, ny, nz)`` in
-        world units, the side the normal points to kept); see :class:`VolumeView`. ``tf`` defaults to ``grey`` for a store with a
-        patient frame and ``viridis`` otherwise.
-
-    Returns
-    -------
-    VolumeView
-        Displays itself as the interactive widget when it is the cell's value.
-    """
-    return VolumeView(source, **kwargs)

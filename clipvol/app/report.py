@@ -76,9 +76,11 @@ REFERENCES = (
 )
 
 __all__ = ["ReportResult", "run_report", "summarise", "headline", "REPORT_COLUMNS", "TIMING_COLUMNS", "DEFAULT_THRESHOLDS",
-           "VISIBLE_TARGET"]
+           "DEFAULT_MAX_ERRORS", "VISIBLE_TARGET"]
 
 DEFAULT_THRESHOLDS = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0)
+#: the image policy's visible-error budgets (RenderParams.max_error) the report sweeps by default
+DEFAULT_MAX_ERRORS = (0.10, 0.05, 0.02)
 
 REPORT_COLUMNS = (
     "sweep", "setting", "lod_threshold", "memory_budget", "texture_budget", "selection", "level",
@@ -144,7 +146,7 @@ class _Setting:
         """``base`` with this setting's selection; every selection field is set, so that switching
         a shared session from one setting to another leaves nothing of the previous one behind."""
         ch = dict(policy=self.selection, level=self.level, lod_threshold=self.lod_threshold, block_budget=None,
-                  max_texels_drawn=None, visibility=True, distance_factor=1.0)
+                  max_error=None, max_texels_drawn=None, visibility=True, distance_factor=1.0)
         ch.update(dict(self.changes))
         return replace(base, **ch)
 
@@ -389,6 +391,7 @@ def run_report(
     block_budgets: Sequence[int] | None = None,
     rounds: int = 5,
     allow_partial: bool = False,
+    max_errors: Sequence | None = None,
 ) -> ReportResult:
     """Measure image error against frame time and bytes for a sweep of settings; write the report.
 
@@ -449,6 +452,11 @@ def run_report(
         Go on (with a warning on stderr) when a converged frame has failed bricks that no verified
         ancestor stands in for; without it such a frame raises
         :class:`~clipvol.errors.FrameIncompleteError`.
+    max_errors : sequence, optional
+        Visible-error budgets of the image policy (``RenderParams.max_error``: fractions or strings
+        like ``"5%"``), each a setting of the sweep ``"max_error"`` measured like the thresholds.
+        Default :data:`DEFAULT_MAX_ERRORS`; ``()`` skips them. They need the store's summary tables
+        (else they are reported as skipped).
 
     Returns
     -------
@@ -467,6 +475,9 @@ def run_report(
     if isinstance(rounds, bool) or int(rounds) != rounds or int(rounds) < 1:
         raise ParameterError(f"rounds: expected an integer >= 1, got {rounds!r}")
     rounds = int(rounds)
+    # validated before anything is drawn: fractions in (0, 1] (RenderParams names max_error when not)
+    max_errors = [RenderParams(policy="image", max_error=e).max_error
+                  for e in (DEFAULT_MAX_ERRORS if max_errors is None else max_errors)]
     loader = open_loader(source)
     pyr = loader.pyramid
     cap = parse_bytes(reference_cap, "reference_cap")
@@ -521,6 +532,9 @@ def run_report(
         for t in texture_budgets:
             t = parse_bytes(t, "texture_budgets")
             settings.append(_Setting("texture_budget", f"tex={format_bytes(t)}", 1.0, full_mem, t))
+        for e in max_errors:
+            settings.append(_Setting("max_error", f"max-error={100 * e:g}%", 1.0, full_mem, full_tex, "image", None,
+                                     (("max_error", e),)))
         measured = [fixed]
         for s in settings:
             try:
@@ -702,7 +716,7 @@ def _plots(rows: list[dict], out: Path) -> list[Path]:
     summ = summarise(rows)
     fixed = [s for s in summ if s["sweep"] == "fixed"]
     sweeps = [("lod_threshold", "LOD threshold sweep", "o-"), ("memory_budget", "memory budget (lod=1)", "s--"),
-              ("texture_budget", "texture budget (lod=1)", "^:")]
+              ("texture_budget", "texture budget (lod=1)", "^:"), ("max_error", "image policy, error budget", "d-.")]
     files = []
     for xkey, aic_key, xlabel, aic_label, name in (
         ("frame_s", "elapsed_s", "converged frame time (s, mean over views)", "time since the view changed (s)", "error_vs_time.png"),

@@ -99,14 +99,9 @@ class PointStoreMeta:
 
 def is_point_store(path) -> bool:
     """True if ``path`` is a zarr group whose clipvol attributes say ``kind: points``."""
-    from .store_files import read_file
+    from .store_kind import store_kind
 
-    p = Path(path) / "zarr.json"
-    try:  # never a FIFO or a device: the store's readers refuse those with a message
-        attrs = json.loads(read_file(p, p.parent)).get("attributes", {})
-    except (OSError, ValueError, AttributeError):
-        return False
-    return isinstance(attrs.get("clipvol"), dict) and attrs["clipvol"].get("kind") == "points"
+    return store_kind(path) == "points"
 
 
 def _meta(attrs: dict, where: str) -> PointStoreMeta:

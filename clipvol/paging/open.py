@@ -79,12 +79,13 @@ def open_store(path_or_url: str | Path, **kwargs) -> Loader:
         path = path.parent
     if path.is_dir():
         if (path / "zarr.json").exists() or (path / ".zgroup").exists():  # what they are: the loader checks
-            from ..bricking.point_store import is_point_store
+            from ..bricking.store_kind import store_kind
 
-            if is_point_store(path):  # not a brick pyramid: PointStoreLoader + SplatRenderAction draw it
+            kind = store_kind(path)
+            if kind not in (None, "volume"):  # another data kind's store: clipvol.app.kinds opens it
                 raise InputFormatError(
-                    f"{path}: a point store (clipvol brick-points), not a volume; draw it with `clipvol render` "
-                    "(splats) or clipvol.loaders.point_store.PointStoreLoader; `view` and `report` do not open point stores yet"
+                    f"{path}: a {kind} store (clipvol.kind = {kind!r}), not a volume; open it with "
+                    "clipvol.app.kinds.open_data or draw it with `clipvol render` / `clipvol view`"
                 )
             from ..loaders.zarr_store import ZarrLoader
 

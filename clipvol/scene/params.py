@@ -60,6 +60,22 @@ def _field(default: Any, help: str):
     return field(default=default, metadata={"help": help})
 
 
+def _fraction_or_none(value: Any, name: str) -> float | None:
+    """``None``, or a fraction in ``(0, 1]`` given as a number or a percentage string (``"5%"``)."""
+    if value is None:
+        return None
+    text = value.strip() if isinstance(value, str) else None
+    try:
+        if isinstance(value, bool):
+            raise ValueError
+        v = float(text[:-1]) / 100.0 if text is not None and text.endswith("%") else float(value)
+    except (TypeError, ValueError):
+        v = float("nan")
+    if not (math.isfinite(v) and 0.0 < v <= 1.0):
+        raise ParameterError(f"{name}: expected a fraction in (0, 1] or a percentage like '5%', got {value!r}")
+    return v
+
+
 @dataclass(frozen=True, slots=True)
 class RenderParams:
     """What a render action is asked to do, apart from the camera and the transfer function.
@@ -143,6 +159,14 @@ class RenderParams:
     visibility : bool
         ``"image"`` policy: estimate each brick's visibility from a low-resolution front-to-back
         pass and weight its importance by it (False: every brick counts as fully visible).
+    max_error : float, optional
+        ``"image"`` policy: the visible-error budget, a fraction in ``(0, 1]`` of the image's pixels
+        predicted to differ visibly (CIELUV Delta E >= 6) from the full-resolution frame; ``"5%"``
+        and ``0.05`` are the same. The policy refines the most important brick first until its
+        estimate (:attr:`ImageBased.estimated_error`,
+        :func:`clipvol.scene.selection.policies.image_based.predicted_visible_error`) falls to
+        this, ``block_budget`` bricks (no limit when unset) or the texel budget, whichever comes
+        first. None (default): the block budget alone decides.
     visibility_threshold : float
         ``"image"`` policy with ``visibility``: bricks less visible than this (in ``[0, 1)``) are
         neither loaded nor drawn, like empty space.
@@ -201,7 +225,11 @@ class RenderParams:
         (0.0, 0.0, 0.0, 0.0), "straight RGBA r,g,b,a in [0, 1] behind the volume (default transparent)")
     shape: Shape | None = None
     block_budget: int | None = _field(
-        None, "--policy image: most bricks drawn, the most important refined first (default 128)")
+        None, "--policy image: most bricks drawn, the most important refined first (default 128; none with --max-error)")
+    max_error: float | None = _field(
+        None, "--policy image (selected by it when --policy is left at its default): visible-error budget, refine "
+              "until the predicted share of pixels with CIELUV dE >= 6 against full resolution is at most this "
+              "('5%%' or 0.05)")
     visibility: bool = _field(True, "--policy image: weight each brick's importance by its estimated visibility")
     visibility_threshold: float = 0.01
     shading: bool = _field(False, "composite: Blinn-Phong gradient lighting, light at the eye (ignored for mip)")
@@ -264,7 +292,11 @@ class RenderParams:
             raise ParameterError(f"shape: expected a clipvol Shape or None, got {type(self.shape).__name__}")
         s(self, "early_termination", bool(self.early_termination))
         s(self, "block_budget", _count_or_none(self.block_budget, "block_budget"))
-        if policy == "image" and self.block_budget is None:
+        s(self, "max_error", _fraction_or_none(self.max_error, "max_error"))
+        if self.max_error is not None and policy != "image":
+            raise ParameterError(f"max_error: expected policy 'image' (the policy that estimates the visible error), "
+                                 f"got policy {policy!r}")
+        if policy == "image" and self.block_budget is None and self.max_error is None:
             s(self, "block_budget", DEFAULT_BLOCK_BUDGET)
         s(self, "visibility", bool(self.visibility))
         try:

@@ -137,6 +137,7 @@ class Viewer(GlWindow):
             self.controls.set_camera(camera)
         self.adaptive = AdaptiveQuality(float(frame_time)) if frame_time else None
         self._base_step = float(s.step)
+        self._max_error = getattr(s, "max_error", None)  # --max-error: the image policy's error budget
         self._quality = FULL
         self._hist = None
         self._strip_rect = None
@@ -387,7 +388,7 @@ class Viewer(GlWindow):
         self.session.update(
             lod_threshold=st.lod_threshold, policy=st.mode, level=st.level if st.mode == "fixed" else None,
             mode=st.render_mode, shading=st.shading, tf=tf,
-            block_budget=st.block_budget,
+            block_budget=st.block_budget, max_error=self._max_error if st.mode == "image" else None,
         )
         if self.adaptive is not None:
             self.adaptive.invalidate()
@@ -464,7 +465,10 @@ class Viewer(GlWindow):
         if self.state.mode != "image":
             return {}
         est = getattr(getattr(self.session.action, "last_policy", None), "estimated_error", float("nan"))
-        return {"budget": f"{self.state.block_budget} blocks", "est.err": f"{est:.3f}"}
+        out = {"budget": f"{self.state.block_budget} blocks", "est.err": f"{100 * est:.1f} % px dE>=6"}
+        if self._max_error is not None:
+            out["max.err"] = f"{100 * self._max_error:g} %"
+        return out
 
     def _frame_of_store(self):
         """The store's :class:`~clipvol.bricking.worldframe.WorldFrame`, or None."""

@@ -202,3 +202,43 @@ def test_run_report_rejects_bad_rounds(tmp_path):
 
     with pytest.raises(ParameterError, match="rounds"):
         run_report("procedural:fractal?size=16", tmp_path, rounds=0)
+
+
+@pytest.mark.slow
+def test_error_budgets_are_settings_of_the_report(tmp_path, ctx):
+    """The image policy's --max-error budgets are measured like every other setting: converged frames
+    compared with the full-resolution reference, warm timed frames, a row in the summary."""
+    from clipvol.app.report import run_report, summarise
+    from clipvol.bricking.generators import ct_head
+    from clipvol.bricking.pipeline import brick_volume
+
+    store = tmp_path / "head.zarr"
+    brick_volume(ct_head((32, 32, 32), seed=1), store, brick=8, progress=False)
+    res = run_report(store, tmp_path / "r", views=1, size=(48, 48), thresholds=(4.0,), memory_budgets=(),
+                     texture_budgets=(), block_budgets=(), max_errors=("20%", 0.02), tf="bone", ctx=ctx,
+                     max_frames=2, rounds=1, plots=False)
+    assert not res.skipped, res.skipped
+    conv = {r["setting"]: r for r in _rows(res.csv) if r["kind"] == "converged"}
+    assert conv["max-error=20%"]["selection"] == "image" and conv["max-error=2%"]["selection"] == "image"
+    assert int(conv["max-error=2%"]["bricks_drawn"]) >= int(conv["max-error=20%"]["bricks_drawn"])
+    s = {x["setting"]: x for x in summarise(res.rows)}
+    assert s["max-error=2%"]["sweep"] == "max_error" and s["max-error=2%"]["speedup"] > 0
+
+
+def test_report_rejects_a_bad_error_budget(tmp_path):
+    from clipvol.app.report import run_report
+    from clipvol.errors import ParameterError
+
+    with pytest.raises(ParameterError, match="max_error"):
+        run_report("procedural:fractal?size=16", tmp_path, max_errors=("5",))
+
+
+def test_cli_max_error_is_checked_before_anything_is_drawn(tmp_path, capsys):
+    from clipvol.tools.cli import main
+
+    rc = main(["report", "procedural:fractal?size=16", "--brick", "8", "--out", str(tmp_path / "rep"),
+               "--max-error", "5%,150%"])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "max_error" in err and "'150%'" in err
+    assert not (tmp_path / "rep" / "report.csv").exists()

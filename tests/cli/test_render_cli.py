@@ -105,3 +105,22 @@ def test_render_shading_changes_colour_not_opacity(tmp_path, capsys):
     capsys.readouterr()
     assert main(base + ["--out", str(tmp_path / "x.png"), "--shading", "--light", "1,2"]) == 2
     assert "--light" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_render_max_error_uses_the_image_policy_and_prints_the_prediction(tmp_path, capsys):
+    from clipvol.bricking.generators import ct_head
+    from clipvol.bricking.pipeline import brick_volume
+
+    store = tmp_path / "head.zarr"
+    brick_volume(ct_head((48, 48, 48), seed=2), store, brick=8, progress=False)
+    base = ["render", str(store), "--size", "64x64", "--tf", "bone", "--out", str(tmp_path / "h.png")]
+    assert main(base + ["--max-error", "5%"]) == 0
+    err = capsys.readouterr().err
+    assert "image policy" in err and "error budget 5 %" in err
+    pct = float(err.split("image policy")[1].split("estimated ")[1].split(" %")[0])
+    assert 0.0 <= pct <= 5.0, err
+    assert main(base + ["--max-error", "five"]) == 2
+    assert "max_error" in capsys.readouterr().err
+    assert main(base + ["--max-error", "5%", "--policy", "distance"]) == 2
+    assert "policy 'image'" in capsys.readouterr().err

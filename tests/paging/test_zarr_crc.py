@@ -18,7 +18,7 @@ import pytest
 import zarr
 
 from clipvol.errors import BrickIntegrityError
-from clipvol.loaders import zarr_store
+from clipvol.loaders import zarr_crc
 from clipvol.loaders.zarr_store import CRC32C_PACKAGES, ZarrLoader, crc32c_implementation
 
 B = 16
@@ -45,29 +45,29 @@ def _interior(path):
 
 @pytest.mark.parametrize("package", CRC32C_PACKAGES)
 def test_each_crc32c_package_agrees_with_google_crc32c_on_chunk_bytes(store, package):
-    fn = zarr_store._crc32c_function(package)
+    fn = zarr_crc._crc32c_function(package)
     if fn is None:
         pytest.skip(f"{package} is not installed")
-    assert zarr_store._computes_crc32c(fn)
+    assert zarr_crc._computes_crc32c(fn)
     for idx in [(0, 0, 0), (1, 1, 1), (2, 2, 2)]:
         data = _chunk(store, 0, idx).read_bytes()
         want = google_crc32c.value(data[:-4])
         assert want == int.from_bytes(data[-4:], "little")  # the codec's trailer, as zarr-python wrote it
         buf = bytearray(data)
         assert fn(data[:-4]) == fn(memoryview(buf)[:-4]) == want
-        assert fn(memoryview(buf)) == zarr_store._CRC32C_RESIDUE
+        assert fn(memoryview(buf)) == zarr_crc._CRC32C_RESIDUE
 
 
 def test_a_function_that_is_not_crc32c_is_never_chosen(monkeypatch):
-    assert not zarr_store._computes_crc32c(zlib.crc32)  # CRC-32 (IEEE): another polynomial
-    assert not zarr_store._computes_crc32c(lambda data: zarr_store._CRC32C_CHECK)  # right answer, wrong function
-    real = zarr_store._crc32c_function
+    assert not zarr_crc._computes_crc32c(zlib.crc32)  # CRC-32 (IEEE): another polynomial
+    assert not zarr_crc._computes_crc32c(lambda data: zarr_crc._CRC32C_CHECK)  # right answer, wrong function
+    real = zarr_crc._crc32c_function
     crc32c_implementation.cache_clear()
     try:
-        monkeypatch.setattr(zarr_store, "_crc32c_function", lambda p: zlib.crc32 if p != "google-crc32c" else real(p))
+        monkeypatch.setattr(zarr_crc, "_crc32c_function", lambda p: zlib.crc32 if p != "google-crc32c" else real(p))
         assert crc32c_implementation()[0] == "google-crc32c"
         crc32c_implementation.cache_clear()
-        monkeypatch.setattr(zarr_store, "_crc32c_function", lambda p: None)
+        monkeypatch.setattr(zarr_crc, "_crc32c_function", lambda p: None)
         with pytest.raises(ImportError, match="no working CRC-32C"):
             crc32c_implementation()
     finally:
@@ -79,7 +79,7 @@ def test_a_flipped_byte_is_refused_after_good_reads_through_the_same_buffer(stor
     """Each brick read once intact (the buffer then holds good bytes of the same length), then one
     byte of one chunk flipped on disk: the next read of that brick fails, naming brick and file;
     nothing is remembered between reads."""
-    fn = zarr_store._crc32c_function(package)
+    fn = zarr_crc._crc32c_function(package)
     if fn is None:
         pytest.skip(f"{package} is not installed")
     loader, keys = _interior(store)

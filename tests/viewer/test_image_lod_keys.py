@@ -47,3 +47,26 @@ def test_window_image_policy_and_hud(xdisplay, tmp_path):
         v.step()  # falls back instead of failing
         assert v.session.params.policy != "image" and "clipvol summarize" in v.state.message
         assert np.asarray(v.read_screen()).size
+
+
+def test_window_keeps_the_error_budget_for_the_image_policy_only(xdisplay, tmp_path):
+    from clipvol.bricking.generators import ct_head
+    from clipvol.bricking.pipeline import brick_volume
+    from clipvol.paging.open import open_store
+    from clipvol.scene.params import RenderParams
+    from clipvol.viewer.window import Viewer
+
+    path = tmp_path / "h.zarr"
+    brick_volume(ct_head((32, 32, 32)), path, brick=8, progress=False)
+    params = RenderParams(policy="image", max_error="5%", jitter=True)
+    with Viewer(open_store(path), size=(64, 64), visible=False, params=params) as v:
+        v.step()
+        assert v.session.params.policy == "image" and v.session.params.max_error == 0.05
+        v._draw_hud(64, 64)
+        assert "max.err" in " ".join(v._hud_text)
+        v.key("G")  # to the projected-size policy: no error budget (it would be refused there)
+        v.step()
+        assert v.session.params.policy != "image" and v.session.params.max_error is None
+        v.key("G")
+        v.step()
+        assert v.session.params.policy == "image" and v.session.params.max_error == 0.05

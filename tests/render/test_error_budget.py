@@ -1,0 +1,121 @@
+"""The image policy's error estimate and the visible-error budget (GL): the estimate (the predicted
+fraction of pixels with CIELUV Delta E >= 6) tracks the fraction measured against the
+full-resolution frame on a head it was not fitted on, and ``max_error`` holds the measured error
+near the budget with fewer bricks than full resolution."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clipvol.bricking.generators import ct_head
+from clipvol.bricking.pipeline import brick_volume
+from clipvol.errors import ParameterError
+from clipvol.paging.cliptexture import ClipTexture
+from clipvol.paging.open import open_store
+from clipvol.render.action import ClipRenderAction
+from clipvol.scene.camera import Camera
+from clipvol.scene.params import RenderParams
+from clipvol.scene.transfer import TransferFunction
+from render_helpers import render_converged
+
+#: how far the estimate may be from the measured fraction where the measured one is <= 5 % (the range
+#: an error budget decides in): at most this far below it (a budget then holds within this) ...
+BELOW = 0.015
+#: ... and at most this far above it (the policy's docstring: it errs high, toward more detail)
+ABOVE = 0.065
+#: where the measured fraction is <= 15 %: at most this far either way
+TOLERANCE_15 = 0.08
+
+
+def _measured(img, ref) -> float:
+    """Fraction of pixels with CIELUV Delta E >= 6, computed here with the CIE formulas (sRGB D65),
+    independently of clipvol.scene.metrics."""
+    def luv(im):
+        a = im[..., 3:4].astype(np.float64) / 255.0
+        c = im[..., :3].astype(np.float64) / 255.0 * a  # straight RGBA over black
+        lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+        m = np.array([[0.4124564, 0.3575761, 0.1804375], [0.2126729, 0.7151522, 0.0721750],
+                      [0.0193339, 0.1191920, 0.9503041]])
+        xyz = lin @ m.T
+        x, y, z = xyz[..., 0], xyz[..., 1], xyz[..., 2]
+        d = x + 15 * y + 3 * z
+        up = np.where(d > 0, 4 * x / np.where(d > 0, d, 1), 0.0)
+        vp = np.where(d > 0, 9 * y / np.where(d > 0, d, 1), 0.0)
+        un, vn = 4 * 0.95047 / (0.95047 + 15 + 3 * 1.08883), 9 / (0.95047 + 15 + 3 * 1.08883)
+        L = np.where(y > (6 / 29) ** 3, 116 * np.cbrt(y) - 16, (29 / 3) ** 3 * y)
+        return np.stack([L, 13 * L * (up - un), 13 * L * (vp - vn)], axis=-1)
+
+    return float(np.mean(np.linalg.norm(luv(img) - luv(ref), axis=-1) >= 6.0))
+
+
+@pytest.fixture(scope="module")
+def head(tmp_path_factory):
+    """A head of another size, seed and brick size than the one the estimate's constant was fitted on."""
+    path = tmp_path_factory.mktemp("head") / "head.zarr"
+    brick_volume(ct_head((96, 96, 96), seed=3), path, brick=8, progress=False)
+    return path
+
+
+def _views(pyr, size=96):
+    lo, hi = pyr.volume_box()
+    c = (lo + hi) / 2
+    dist = 1.05 * float(np.linalg.norm(hi - lo))
+    out = []
+    for d in (np.array([0.55, 0.45, 0.7]), np.array([0.0, 0.0, 1.0])):
+        d = d / np.linalg.norm(d)
+        out.append(Camera.perspective(tuple(c - d * dist), tuple(c), up=(0, -1, 0), fov_y=35, size=(size, size)))
+    return out
+
+
+@pytest.mark.slow
+def test_estimate_tracks_the_measured_error(gl, head):
+    loader = open_store(head)
+    tf = TransferFunction.preset("bone", value_range=loader.pyramid.value_range)
+    pairs = []
+    with ClipTexture(loader, "256MB") as clip, ClipRenderAction(gl, clip, policy="fixed", level=0) as act:
+        for cam in _views(loader.pyramid):
+            act.set_params(RenderParams(policy="fixed", level=0))
+            ref = render_converged(act, cam, tf)
+            for b in (8, 16, 32, 64, 128, 256):
+                act.set_params(RenderParams(policy="image", block_budget=b))
+                img = render_converged(act, cam, tf)
+                pairs.append((b, act.last_policy.estimated_error, _measured(img, ref)))
+    close = [(b, e, m) for b, e, m in pairs if m <= 0.05]
+    assert len(close) >= 4, pairs
+    assert all(-BELOW <= e - m <= ABOVE for _, e, m in close), pairs
+    assert all(abs(e - m) <= TOLERANCE_15 for _, e, m in pairs if m <= 0.15), pairs
+    # and it orders the settings as the measurement does: coarse cuts above, fine cuts below
+    est, meas = np.array([e for _, e, _ in pairs]), np.array([m for _, _, m in pairs])
+    assert np.corrcoef(est, meas)[0, 1] > 0.9, pairs
+
+
+@pytest.mark.slow
+def test_max_error_holds_the_measured_error_near_the_budget(gl, head):
+    loader = open_store(head)
+    tf = TransferFunction.preset("bone", value_range=loader.pyramid.value_range)
+    with ClipTexture(loader, "256MB") as clip, ClipRenderAction(gl, clip, policy="fixed", level=0) as act:
+        for cam in _views(loader.pyramid):
+            act.set_params(RenderParams(policy="fixed", level=0))
+            ref = render_converged(act, cam, tf)
+            full = act.last_frame_stats.bricks_distinct
+            bricks, measured = [], []
+            for budget in (0.05, 0.03, 0.01):  # the range the estimate is held to (measured <= 5 %)
+                act.set_params(RenderParams(policy="image", max_error=budget))
+                img = render_converged(act, cam, tf)
+                assert act.last_policy.estimated_error <= budget
+                measured.append(_measured(img, ref))
+                assert measured[-1] <= budget + BELOW, (budget, measured)
+                bricks.append(act.last_frame_stats.bricks_distinct)
+            assert bricks[0] <= bricks[1] <= bricks[2], bricks  # a tighter budget draws more detail
+            assert bricks[0] < full, (bricks, full)
+
+
+def test_max_error_is_validated():
+    assert RenderParams(policy="image", max_error="5%").max_error == pytest.approx(0.05)
+    assert RenderParams(policy="image", max_error=0.05).block_budget is None  # the error budget decides
+    for bad in (0, -0.1, 1.5, "five", "150%", float("nan"), True):
+        with pytest.raises(ParameterError, match="max_error"):
+            RenderParams(policy="image", max_error=bad)
+    with pytest.raises(ParameterError, match="max_error: expected policy 'image'"):
+        RenderParams(policy="projected-size", max_error=0.05)
