@@ -38,8 +38,9 @@ def test_reads_under_latency_and_a_bandwidth_cap_are_exact(tmp_path):
         lat, _ = src.link.estimate()
         assert lat >= 0.02
         assert DEFAULT_IN_FLIGHT <= src.max_in_flight <= MAX_IN_FLIGHT
-        # connections were kept alive and reused: far fewer than requests
-        assert src.requests > 200 and srv.connections <= MAX_IN_FLIGHT + 8 < src.requests
+        # connections were kept alive and reused (HTTP/1.0 would open one per request; an error
+        # answer - the metadata probes' 404s - closes its connection)
+        assert src.requests > 200 and 2 * srv.connections < src.requests
         loader.close()
 
 
