@@ -361,6 +361,7 @@ class FsspecByteSource:
         self._gate = _Gate(self.max_in_flight)
         #: latency and bandwidth of the answers so far (each request's send time, last byte, bytes)
         self.link = LinkEstimate()
+        self._resize_lock = threading.Lock()
         self._cache_dir = cache
         self.cache: ChunkCache | None = None
         self.requests = 0  # requests sent, retries included
@@ -438,10 +439,15 @@ class FsspecByteSource:
 
     def _resize(self) -> None:
         """Requests in flight from the link measured so far (``max_in_flight=None``)."""
-        target = self.link.in_flight(lo=DEFAULT_IN_FLIGHT, hi=MAX_IN_FLIGHT, default=DEFAULT_IN_FLIGHT)
-        n = next_in_flight(self.max_in_flight, target)
-        self.max_in_flight = n
-        self._gate.resize(n)
+        if not self._resize_lock.acquire(blocking=False):
+            return  # another thread is re-sizing from the same answers
+        try:
+            target = self.link.in_flight(lo=DEFAULT_IN_FLIGHT, hi=MAX_IN_FLIGHT, default=DEFAULT_IN_FLIGHT)
+            n = next_in_flight(self.max_in_flight, target)
+            self.max_in_flight = n
+            self._gate.resize(n)
+        finally:
+            self._resize_lock.release()
 
     def get_many(self, keys: list[str]) -> dict[str, bytes | None]:
         """Fetch ``keys`` concurrently (up to ``max_in_flight`` at once)."""
