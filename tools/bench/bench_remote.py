@@ -58,9 +58,9 @@ def view_seconds(url: str, budget: str, in_flight: int | None) -> tuple[float, i
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--size", default="256")
+    p.add_argument("--size", default="384")
     p.add_argument("--brick", type=int, default=32)
-    p.add_argument("--budget", default="64MB", help="memory budget of the clip-texture (its windows are the view)")
+    p.add_argument("--budget", default="256MB", help="memory budget of the clip-texture (its windows are the view)")
     p.add_argument("--latencies", nargs="+", type=float, default=[0.0, 0.02, 0.05], help="seconds; the first is the reference")
     p.add_argument("--bandwidth", type=float, default=200e6, help="bytes a second the server sends, all answers together")
     p.add_argument("--in-flight", type=int, default=None, help="max_in_flight (default: sized from the link)")
