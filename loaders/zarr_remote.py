@@ -44,7 +44,6 @@ from clipvol.bricking.store_files import MAX_METADATA_BYTES
 from clipvol.errors import BrickIntegrityError, ClipvolError, InputFormatError, RemoteStoreError
 from clipvol.paging.bytesource import (
     DEFAULT_CONNECT_TIMEOUT,
-    DEFAULT_IN_FLIGHT,
     DEFAULT_READ_TIMEOUT,
     FsspecByteSource,
 )
@@ -101,9 +100,11 @@ class RemoteZarrLoader(ZarrLoader):
     storage_options : dict, optional
         fsspec options, e.g. ``{"anon": True}`` or ``{"endpoint_url": "http://..."}``;
         credentials otherwise come from the environment.
-    max_in_flight : int
-        Requests outstanding at once; also the number of loader threads a clip-texture uses by
-        default (:attr:`preferred_threads`).
+    max_in_flight : int or None
+        Requests outstanding at once; ``None`` (the default): sized from the measured latency and
+        bandwidth (the bandwidth-delay product, :mod:`clipvol.paging.link`), 16 to 64. The most it
+        can be is also the number of loader threads a clip-texture uses by default
+        (:attr:`preferred_threads`).
     retries, timeout, connect_timeout, read_timeout
         See :class:`~clipvol.paging.bytesource.FsspecByteSource` (a stalled server is given up on
         within ``timeout``, default 30 s, per key).
@@ -119,7 +120,7 @@ class RemoteZarrLoader(ZarrLoader):
     """
 
     def __init__(self, url: str, *, cache: str | Path | None = None, storage_options: dict | None = None,
-                 max_in_flight: int = DEFAULT_IN_FLIGHT, retries: int = 5, timeout: float | None = None,
+                 max_in_flight: int | None = None, retries: int = 5, timeout: float | None = None,
                  connect_timeout: float = DEFAULT_CONNECT_TIMEOUT, read_timeout: float = DEFAULT_READ_TIMEOUT,
                  **loader_kwargs) -> None:
         self.source = FsspecByteSource(url, storage_options=storage_options, max_in_flight=max_in_flight,
@@ -144,8 +145,9 @@ class RemoteZarrLoader(ZarrLoader):
 
     @property
     def preferred_threads(self) -> int:
-        """Loader threads that keep ``max_in_flight`` requests busy (more than cores: they wait on I/O)."""
-        return self.source.max_in_flight
+        """Loader threads that keep the most requests in flight busy (more than cores: they wait on
+        I/O; those beyond the link's current size wait for a turn)."""
+        return self.source.max_requests
 
     def _renamed(self, e: ClipvolError) -> ClipvolError:
         """``e`` with the private mirror's path replaced by the URL (messages name what the user gave)."""

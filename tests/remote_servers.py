@@ -1,6 +1,6 @@
 """Real servers on 127.0.0.1 for the remote-store tests: a static HTTP server over a directory
-(optionally slow, failing with 503, refusing with 403, stalling, or answering chosen paths with a
-chosen status and body) and a moto S3 server.
+(optionally slow, behind a bandwidth cap, keeping connections alive, failing with 503, refusing
+with 403, stalling, or answering chosen paths with a chosen status and body) and a moto S3 server.
 
 Shared by the paging, CLI and benchmark code that needs a store behind a network socket.
 """
@@ -51,22 +51,56 @@ class _Handler(http.server.SimpleHTTPRequestHandler):
             return
         super().do_GET()
 
+    def copyfile(self, source, outputfile) -> None:
+        """The file's bytes, paced to the server's ``bandwidth`` (one link shared by every answer)."""
+        srv = self.server
+        if not srv.bandwidth:
+            return super().copyfile(source, outputfile)
+        while True:
+            piece = source.read(64 * 1024)
+            if not piece:
+                return
+            with srv.lock:  # reserve the link for this piece, after every piece reserved before it
+                begin = max(time.monotonic(), srv.link_free)
+                srv.link_free = begin + len(piece) / srv.bandwidth
+                until = srv.link_free
+            time.sleep(max(0.0, until - time.monotonic()))
+            outputfile.write(piece)
+
+
+class _Server(http.server.ThreadingHTTPServer):
+    """A threading server with a backlog for many clients connecting at once (the default of 5
+    drops connections, which then wait a second for the SYN to be sent again), counting connections."""
+
+    request_queue_size = 256
+
+    def process_request(self, request, client_address) -> None:
+        with self.lock:
+            self.connections += 1
+        super().process_request(request, client_address)
+
 
 @contextlib.contextmanager
 def serve_directory(root: str | Path, *, latency: float = 0.0, fail_first: int = 0, forbid: tuple[str, ...] = (),
-                    stall: tuple[str, ...] = (), answers: dict | None = None):
+                    stall: tuple[str, ...] = (), answers: dict | None = None, bandwidth: float | None = None,
+                    keep_alive: bool = False):
     """Serve ``root`` on ``http://127.0.0.1:PORT``; yields ``(base_url, server)``.
 
-    ``latency`` seconds are slept before every answer; the first ``fail_first`` requests of every
+    ``latency`` seconds are slept before every answer; ``bandwidth`` (bytes a second) caps the
+    file bytes of all answers together, as one link would; ``keep_alive`` answers in HTTP/1.1 and
+    keeps connections open for the next request (``server.connections`` counts those accepted);
+    the first ``fail_first`` requests of every
     path get HTTP 503; paths starting with a prefix in ``forbid`` get 403; requests for paths
     starting with a prefix in ``stall`` are accepted and never answered (until shutdown);
     ``answers`` maps a path to ``(status, body bytes)`` sent instead of the file (a 404, an HTML
     error page with 200). ``server.counts`` (per path) and ``server.failures`` say what was asked
     and what was refused; all of these can be changed on ``server`` while it runs.
     """
-    handler = functools.partial(_Handler, directory=str(root))
-    srv = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    cls = type("_KeepAlive", (_Handler,), {"protocol_version": "HTTP/1.1"}) if keep_alive else _Handler
+    handler = functools.partial(cls, directory=str(root))
+    srv = _Server(("127.0.0.1", 0), handler)
     srv.daemon_threads = True
+    srv.bandwidth, srv.link_free, srv.connections = bandwidth, 0.0, 0
     srv.lock = threading.Lock()
     srv.counts = Counter()
     srv.failures = 0
@@ -81,6 +115,32 @@ def serve_directory(root: str | Path, *, latency: float = 0.0, fail_first: int =
         srv.shutdown()
         srv.server_close()
         t.join(5)
+
+
+def _serve_child(root: str, kwargs: dict, q, stop) -> None:
+    with serve_directory(root, **kwargs) as (url, _):
+        q.put(url)
+        stop.wait()
+
+
+@contextlib.contextmanager
+def serve_directory_process(root: str | Path, **kwargs):
+    """:func:`serve_directory` in a process of its own (so the server does not share the client's
+    interpreter lock: what a benchmark measures); yields the base URL."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("fork")
+    q, stop = ctx.Queue(), ctx.Event()
+    proc = ctx.Process(target=_serve_child, args=(str(root), kwargs, q, stop), daemon=True)
+    proc.start()
+    try:
+        yield q.get(timeout=30)
+    finally:
+        stop.set()
+        proc.join(5)
+        if proc.is_alive():
+            proc.terminate()
+            proc.join(5)
 
 
 @contextlib.contextmanager

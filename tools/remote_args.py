@@ -15,7 +15,8 @@ def add_remote_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--cache", metavar="DIR", default=None,
                    help="keep verified chunks of a remote store in DIR (reused by later runs; failures are never kept)")
     g.add_argument("--in-flight", type=int, default=None, metavar="N",
-                   help="requests kept in flight to a remote store (default 16)")
+                   help="requests kept in flight to a remote store (default: sized from the measured "
+                        "latency and bandwidth, 16 to 64)")
     g.add_argument("--connect-timeout", type=float, default=None, metavar="S",
                    help=f"seconds to connect to a remote store (default {DEFAULT_CONNECT_TIMEOUT:g})")
     g.add_argument("--read-timeout", type=float, default=None, metavar="S",

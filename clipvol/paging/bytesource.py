@@ -3,7 +3,9 @@
 Why a layer of its own: a remote store answers in tens of milliseconds per request, so a loader
 that waits for one chunk at a time spends its life waiting. :class:`FsspecByteSource` lets many
 requests be in flight at once (the loader threads call :meth:`~FsspecByteSource.get`
-concurrently; fsspec runs them on its own event loop, bounded by ``max_in_flight``), retries a
+concurrently; fsspec runs them on its own event loop over kept-alive connections, bounded by
+``max_in_flight``, or - with ``max_in_flight=None`` - by the bandwidth-delay product of the link as
+its answers measure it, :mod:`clipvol.paging.link`), retries a
 request that failed for a passing reason (HTTP 5xx / 429, a time-out, a dropped connection) with
 exponential backoff and jitter within a time budget per key (a stalled server is given up on, not
 waited for six times over), and may keep chunks in an on-disk :class:`ChunkCache`, so a second
@@ -36,6 +38,7 @@ from typing import Protocol, runtime_checkable
 from urllib.parse import urlsplit, urlunsplit
 
 from ..errors import InputFormatError, MissingExtraError, ParameterError, RemoteStoreError
+from .link import LinkEstimate, next_in_flight
 
 __all__ = [
     "ByteSource",
@@ -45,6 +48,7 @@ __all__ = [
     "is_remote_url",
     "redact_url",
     "DEFAULT_IN_FLIGHT",
+    "MAX_IN_FLIGHT",
     "DEFAULT_CONNECT_TIMEOUT",
     "DEFAULT_READ_TIMEOUT",
     "check_timeout",
@@ -53,6 +57,11 @@ __all__ = [
 #: requests in flight per remote store by default: enough to hide ~20-50 ms of latency at the
 #: decode speed of two cores, few enough not to look like a flood to a server
 DEFAULT_IN_FLIGHT = 16
+#: the most requests in flight when they are sized from the measured link (``max_in_flight=None``):
+#: also the loader threads a remote store asks for (those beyond the current size wait their turn)
+MAX_IN_FLIGHT = 64
+#: answers between two re-sizings of the requests in flight
+RESIZE_EVERY = 8
 #: seconds to connect, and seconds without a byte before a request is stalled (``--connect-timeout``,
 #: ``--read-timeout``); with the default budget of 30 s per key a stalled server is left within it
 DEFAULT_CONNECT_TIMEOUT = 10.0
@@ -242,6 +251,33 @@ def _describe(e: BaseException) -> str:
     return f"{name}{': ' + text[:160] if text else ''}"
 
 
+class _Gate:
+    """A semaphore whose capacity can change while threads wait on it (the requests in flight)."""
+
+    def __init__(self, capacity: int) -> None:
+        self.capacity = int(capacity)
+        self.busy = 0
+        self._cv = threading.Condition()
+
+    def resize(self, capacity: int) -> None:
+        with self._cv:
+            if capacity != self.capacity:
+                self.capacity = int(capacity)
+                self._cv.notify_all()
+
+    def __enter__(self) -> "_Gate":
+        with self._cv:
+            while self.busy >= self.capacity:
+                self._cv.wait()
+            self.busy += 1
+        return self
+
+    def __exit__(self, *exc) -> None:
+        with self._cv:
+            self.busy -= 1
+            self._cv.notify()
+
+
 class FsspecByteSource:
     """Bytes from any fsspec URL, many requests in flight, retried with backoff, optionally cached.
 
@@ -251,8 +287,12 @@ class FsspecByteSource:
         The store's root, e.g. ``s3://bucket/scan.zarr`` or ``https://host/scan.zarr``.
     storage_options : dict, optional
         Passed to the fsspec file system (e.g. ``{"anon": True}``, ``{"endpoint_url": ...}``).
-    max_in_flight : int
-        Most requests outstanding at once (a semaphore shared by all calling threads).
+    max_in_flight : int or None
+        Most requests outstanding at once (shared by all calling threads). ``None``: sized from the
+        link as measured (:mod:`clipvol.paging.link`): the bandwidth-delay product of the answers so
+        far, between :data:`DEFAULT_IN_FLIGHT` and :data:`MAX_IN_FLIGHT`, so a store 50 ms away
+        keeps enough requests outstanding to hide the round trip, and a slow link is not split into
+        more answers than it carries (they would all arrive late, the nearest bricks with them).
     retries : int
         Extra attempts after a passing failure (5xx, 429, time-out, dropped connection).
     backoff : float
@@ -268,7 +308,7 @@ class FsspecByteSource:
         Directory of an on-disk :class:`ChunkCache`.
     """
 
-    def __init__(self, url: str, *, storage_options: dict | None = None, max_in_flight: int = DEFAULT_IN_FLIGHT,
+    def __init__(self, url: str, *, storage_options: dict | None = None, max_in_flight: int | None = DEFAULT_IN_FLIGHT,
                  retries: int = 5, backoff: float = 0.05, timeout: float | None = None,
                  connect_timeout: float = DEFAULT_CONNECT_TIMEOUT, read_timeout: float = DEFAULT_READ_TIMEOUT,
                  cache: str | Path | None = None) -> None:
@@ -276,8 +316,11 @@ class FsspecByteSource:
             import fsspec
         except ImportError:  # pragma: no cover
             raise MissingExtraError(f"{redact_url(url)}: remote stores need fsspec: pip install 'clipvol[remote]'") from None
+        self.adaptive = max_in_flight is None
+        if self.adaptive:
+            max_in_flight = DEFAULT_IN_FLIGHT
         if max_in_flight < 1:
-            raise ParameterError(f"max_in_flight: expected an integer >= 1, got {max_in_flight}")
+            raise ParameterError(f"max_in_flight: expected an integer >= 1 or None, got {max_in_flight}")
         for name, v in (("connect_timeout", connect_timeout), ("read_timeout", read_timeout)):
             check_timeout(v, name)
         if timeout is None:
@@ -288,6 +331,8 @@ class FsspecByteSource:
         self.url = url.rstrip("/")
         self.display_url = redact_url(self.url)
         self.max_in_flight = int(max_in_flight)
+        #: the most requests this source will ever have outstanding (connections it may keep open)
+        self.max_requests = MAX_IN_FLIGHT if self.adaptive else self.max_in_flight
         self.retries, self.backoff, self.timeout = int(retries), float(backoff), float(timeout)
         self.connect_timeout, self.read_timeout = float(connect_timeout), float(read_timeout)
         opts = dict(storage_options or {})
@@ -301,7 +346,7 @@ class FsspecByteSource:
         if proto == "s3":
             opts.setdefault("config_kwargs", {}).setdefault("connect_timeout", self.connect_timeout)
             opts["config_kwargs"].setdefault("read_timeout", self.read_timeout)
-            opts["config_kwargs"].setdefault("max_pool_connections", max(10, self.max_in_flight))
+            opts["config_kwargs"].setdefault("max_pool_connections", max(10, self.max_requests))
             # one attempt per call: the retries (and their time budget) are this class's, not botocore's on top
             opts["config_kwargs"].setdefault("retries", {"max_attempts": 1, "mode": "standard"})
         try:
@@ -313,7 +358,10 @@ class FsspecByteSource:
                                    f"implementation it needs (s3fs for s3://, gcsfs for gs://)") from None
         except (ValueError, TypeError) as e:
             raise InputFormatError(f"{self.display_url}: not a usable URL ({e})") from None
-        self._sem = threading.BoundedSemaphore(self.max_in_flight)
+        self._gate = _Gate(self.max_in_flight)
+        #: latency and bandwidth of the answers so far (each request's send time, last byte, bytes)
+        self.link = LinkEstimate()
+        self._resize_lock = threading.Lock()
         self._cache_dir = cache
         self.cache: ChunkCache | None = None
         self.requests = 0  # requests sent, retries included
@@ -357,10 +405,11 @@ class FsspecByteSource:
         attempt = 0
         start = time.monotonic()
         while True:
-            with self._sem:
+            with self._gate:
                 with self._count_lock:
                     self.requests += 1
                 try:
+                    sent = time.monotonic()
                     data = bytes(self.fs.cat_file(path))
                 except Exception as e:  # the storage libraries raise many types: classify them
                     kind = _classify(e)
@@ -376,13 +425,29 @@ class FsspecByteSource:
                             tail += f" in {spent:.0f} s (the budget per request is {self.timeout:g} s)"
                         raise RemoteStoreError(f"{self.display_url}: cannot read {key}: {_describe(e)}{tail}") from None
                 else:
+                    self.link.add(sent, time.monotonic(), len(data))
                     with self._count_lock:
                         self.bytes_fetched += len(data)
+                        resize = self.adaptive and self.requests % RESIZE_EVERY == 0
+                    if resize:
+                        self._resize()
                     return data
             attempt += 1
             with self._count_lock:
                 self.retried += 1
             time.sleep(wait)
+
+    def _resize(self) -> None:
+        """Requests in flight from the link measured so far (``max_in_flight=None``)."""
+        if not self._resize_lock.acquire(blocking=False):
+            return  # another thread is re-sizing from the same answers
+        try:
+            target = self.link.in_flight(lo=DEFAULT_IN_FLIGHT, hi=MAX_IN_FLIGHT, default=DEFAULT_IN_FLIGHT)
+            n = next_in_flight(self.max_in_flight, target)
+            self.max_in_flight = n
+            self._gate.resize(n)
+        finally:
+            self._resize_lock.release()
 
     def get_many(self, keys: list[str]) -> dict[str, bytes | None]:
         """Fetch ``keys`` concurrently (up to ``max_in_flight`` at once)."""
@@ -390,8 +455,9 @@ class FsspecByteSource:
 
         if not keys:
             return {}
-        with ThreadPoolExecutor(min(self.max_in_flight, len(keys)), thread_name_prefix="clipvol-fetch") as pool:
+        with ThreadPoolExecutor(min(self.max_requests, len(keys)), thread_name_prefix="clipvol-fetch") as pool:
             return dict(zip(keys, pool.map(self.get, keys)))
 
     def __repr__(self) -> str:
-        return f"FsspecByteSource({self.display_url!r}, max_in_flight={self.max_in_flight}, cache={self._cache_dir!r})"
+        n = "None" if self.adaptive else self.max_in_flight
+        return f"FsspecByteSource({self.display_url!r}, max_in_flight={n}, cache={self._cache_dir!r})"

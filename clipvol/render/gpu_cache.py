@@ -14,6 +14,11 @@ brick-local coordinate to the brick's own voxel centres on that face (``CLAMP_TO
 A face counts as open only if every existing brick of the 3x3 slab behind it is on the GPU, so the
 edge and corner texels that trilinear filtering touches are correct too.
 
+The window shapes follow the render action's region of interest (:meth:`GpuBrickCache.follow_region`,
+:mod:`clipvol.render.region_windows`): with no region every level has its cube; a slice's region -
+a slab, wide in the plane and thin across it - gets textures of its own shape within the same
+budget, so its fine part is on the GPU whole instead of aliasing in a cube.
+
 The one GPU seam (pygfx habit)
 ------------------------------
 Per frame the render action calls :meth:`GpuBrickCache.begin_frame`, hands the cache (a residency
@@ -62,6 +67,7 @@ from ..paging.cliptexture import BrickState
 from ..rows import unique_rows
 from ..scene.occupancy import cell_edges, cell_ranges, occupancy, widen
 from ..scene.selection.cut import DrawItems
+from .region_windows import region_gpu_windows
 
 __all__ = ["GpuBrickCache", "TextureFormat", "texture_format", "t_scale_offset", "texel_to_raw", "allocate_gpu_windows"]
 
@@ -234,6 +240,9 @@ class GpuBrickCache:
         self.format = texture_format(pyramid.dtype, pyramid.value_range)
         max3d = int(ctx.info.get("GL_MAX_3D_TEXTURE_SIZE", 2048))
         self.windows = allocate_gpu_windows(pyramid, self.texture_budget, self.format.itemsize, max3d)
+        #: the cube windows of the budget: what a view without a region of interest gets back
+        self.cube_windows = list(self.windows)
+        self._max3d = max3d
         self.brick_texels = int(np.prod(pyramid.brick_shape))
         self.textures: list = []
         self._slot_key: list[np.ndarray | None] = []  # per level (wz, wy, wx, 3) brick index held, -1 = empty
@@ -300,6 +309,7 @@ class GpuBrickCache:
         """
         self._clip = clip_texture
         self._nb_cache = None
+        self.follow_region(getattr(clip_texture, "region", None))
         for r in self._reserved:
             if r is not None:
                 r.fill(-1)
@@ -307,6 +317,68 @@ class GpuBrickCache:
         self._allow = allow
         self._upload_left = None if texels_per_frame is None else int(texels_per_frame)
         return self
+
+    def follow_region(self, region) -> list[int]:
+        """Fit the level textures to ``region`` (a :class:`~clipvol.paging.region.Region` or ``None``
+        for the cube windows) within :attr:`texture_budget`; returns the levels reshaped.
+
+        Called by :meth:`begin_frame` with the clip-texture's region, so a slice's wide, thin slab
+        fits its textures as it fits the clip-texture's windows (:mod:`clipvol.render.region_windows`).
+        A reshaped level gets a new, empty texture (its bricks are uploaded again); a level whose
+        shape already spans its region is left alone, so scrolling a plane reallocates nothing.
+        """
+        B = self.pyramid.brick_shape
+        brick_bytes = self.brick_texels * self.format.itemsize
+        grids = [self.pyramid.grid(L) for L in range(self.pyramid.num_levels)]
+        shapes = region_gpu_windows(
+            grids, self.cube_windows, None if region is None else region.bricks, self.windows,
+            self.texture_budget // brick_bytes, max_axis=tuple(max(1, self._max3d // b) for b in B),
+            max_bricks=max(1, MAX_TEXTURE_BYTES // brick_bytes))
+        changed = [L for L, (a, b) in enumerate(zip(shapes, self.windows)) if a != b]
+        for L in changed:
+            self._reshape_level(L, shapes[L])
+        if changed:
+            self.texture_bytes = sum(int(np.prod(w)) * brick_bytes for w in self.windows if w is not None)
+            self._restack_cells()
+        return changed
+
+    def _reshape_level(self, level: int, w: tuple[int, int, int]) -> None:
+        """A new, empty texture of ``w`` bricks for ``level`` (its slot keys, reservations and cells too)."""
+        import moderngl
+
+        B = self.pyramid.brick_shape
+        if self.textures[level] is not None:
+            self.textures[level].release()
+        tex = self.ctx.texture3d((w[2] * B[2], w[1] * B[1], w[0] * B[0]), 1, dtype=self.format.gl_dtype)
+        tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        tex.repeat_x = tex.repeat_y = tex.repeat_z = True
+        self.textures[level] = tex
+        self.windows[level] = tuple(int(v) for v in w)
+        self._slot_key[level] = np.full(tuple(w) + (3,), -1, dtype=np.int64)
+        self._reserved[level] = np.full_like(self._slot_key[level], -1)
+        self._pending = {k: v for k, v in self._pending.items() if k[0] != level}
+        if self.cell_edges is not None:
+            cells = tuple(int(wa * b // e) for wa, b, e in zip(w, B, self.cell_edges))
+            self._cell_lo[level] = np.full(cells, np.inf, dtype=np.float32)
+            self._cell_hi[level] = np.full(cells, -np.inf, dtype=np.float32)
+            self._occ_flags[level] = None
+            self._occ_dirty.pop(level, None)
+            self.occupancy_counts[level] = (0, 0)
+
+    def _restack_cells(self) -> None:
+        """Lay the levels' cells out again along z of the occupancy texture (made anew on next use)."""
+        if self.cell_edges is None:
+            return
+        z0 = 0
+        for L, lo in enumerate(self._cell_lo):
+            if lo is None:
+                continue
+            self.occupancy_levels[L] = (lo.shape[::-1], z0)
+            z0 += lo.shape[0]
+        if self._occ_tex is not None:
+            self._occ_tex.release()
+            self._occ_tex = None
+        self._occ_key = None  # every level's flags derived again into the new texture
 
     def plan_uploads(self, texels_per_frame: int, items=()) -> set:
         """After a dry selection with an unlimited budget: the bricks to upload this frame.

@@ -113,8 +113,7 @@ def centre_slice(ctx, args, brick, writer) -> dict:
     plane = Plane.axis(pyr, "axial")
     focus = _centre(pyr)
     # the full-resolution slab (2 layers of level 0 at the centre) needs a budget whose slots hold it;
-    # its image may not converge (the GPU cache's cube texture windows cannot hold a 1024^2 slab):
-    # the quality reference is the exact slice from the generator instead
+    # the quality reference is the exact slice from the generator, outside our code path
     full, b_full, n_full, ok_full = _slice(ctx, ld, plane, args.full_budget, threads=args.threads, follow=True,
                                            level=0)
     exact = exact_axial(ld, plane)
@@ -198,8 +197,7 @@ def main(argv=None) -> int:
     p.add_argument("--scroll-pixels", type=int, default=512)
     p.add_argument("--steps", type=int, default=12)
     p.add_argument("--scroll-distance-factor", type=float, default=0.5,
-                   help="the scroll's distance factor (1.0 makes the level-0 disc 8 bricks wide at 64^3: more than the "
-                        "GPU cache's cube texture window of 6 a side at a 1 GB texture budget holds)")
+                   help="the scroll's distance factor (1.0 makes the level-0 disc 8 bricks wide at 64^3)")
     p.add_argument("--stride", type=float, default=16.0)
     p.add_argument("--quick", action="store_true")
     p.add_argument("--out", type=Path, default=HERE / "results")
