@@ -10,13 +10,14 @@ is 192x192). The groups that already live in their own module (:mod:`clipvol.too
 :mod:`clipvol.tools.partial`, :mod:`clipvol.tools.cut_args`) are added by name through the same call,
 so a command's argument set reads as one list.
 
-Shared values are checked here, once, while the command line is parsed, so every command refuses
-the same bad value with the same one-line error naming the flag and exit status 2 (argparse's
-``clipvol CMD: error: argument --threads: ...``): ``--threads`` an integer in 1..256 (the
+Shared values are checked here, once: :func:`check_common_values`, which ``clipvol``'s ``main``
+calls for every command before it runs, refuses a bad value with the same one-line error naming the
+flag (``clipvol CMD: error: --threads: ...``, exit status 2): ``--threads`` an integer in 1..256 (the
 clip-texture's :data:`~clipvol.paging.cliptexture.MAX_LOADER_THREADS`), ``--timeout`` finite seconds
-in (0, a week], ``--memory-budget`` a size :func:`clipvol.units.parse_bytes` reads, ``--size`` WxH in
-1..16384 pixels a side, ``--brick`` an integer >= 1. The parsed values are what the commands always
-received (``--memory-budget`` stays the text typed; the clip-texture parses it).
+in (0, a week], ``--memory-budget`` a size :func:`clipvol.units.parse_bytes` reads, above zero,
+``--brick`` an integer >= 1; ``--size`` (WxH, 1..16384 pixels a side) is checked by its argparse type.
+The parsed values are what the commands always received (``--memory-budget`` stays the text typed;
+the clip-texture parses it).
 """
 
 from __future__ import annotations
@@ -26,8 +27,9 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable
 
-__all__ = ["Common", "FLAGS", "GROUPS", "add_common_arguments", "parse_threads", "parse_timeout",
-           "parse_memory_budget", "parse_size", "parse_brick"]
+from clipvol.errors import ParameterError
+
+__all__ = ["Common", "FLAGS", "GROUPS", "CHECKS", "add_common_arguments", "check_common_values", "parse_size"]
 
 #: most loader threads a command accepts; the clip-texture's own limit
 #: (clipvol.paging.cliptexture.MAX_LOADER_THREADS, checked equal in tests/cli/test_common_args.py;
@@ -39,41 +41,54 @@ MAX_WAIT = 7 * 86400.0
 MAX_SIDE = 16384
 
 
-def parse_threads(text: str) -> int:
-    """``--threads``: an integer in 1..256 (0 would never load; thousands only add stacks)."""
-    try:
-        n = int(text)
-    except ValueError:
-        n = None
-    if n is None or not 1 <= n <= MAX_THREADS:
-        raise argparse.ArgumentTypeError(f"expected an integer in 1..{MAX_THREADS}, got {text!r}")
-    return n
+def _threads(value) -> None:
+    if not (isinstance(value, int) and 1 <= value <= MAX_THREADS):
+        raise ParameterError(f"--threads: expected an integer in 1..{MAX_THREADS}, got {value!r}")
 
 
-def parse_timeout(text: str) -> float:
-    """``--timeout``: seconds in (0, a week]; ``0``, ``-1``, ``nan`` or ``inf`` would never wait or never end."""
-    try:
-        t = float(text)
-    except ValueError:
-        t = math.nan
-    if not (math.isfinite(t) and 0 < t <= MAX_WAIT):
-        raise argparse.ArgumentTypeError(f"expected seconds in (0, {MAX_WAIT:g}], got {text!r}")
-    return t
+def _timeout(value) -> None:
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and 0 < value <= MAX_WAIT):
+        raise ParameterError(f"--timeout: expected seconds in (0, {MAX_WAIT:g}], got {value!r}")
 
 
-def parse_memory_budget(text: str) -> str:
-    """``--memory-budget``: a size such as ``256MB`` or ``2GiB`` above zero, checked now and kept as
-    typed (the clip-texture parses it again, with the same :func:`clipvol.units.parse_bytes`)."""
-    from clipvol.errors import ParameterError
+def _memory_budget(value) -> None:
     from clipvol.units import parse_bytes
 
     try:
-        n = parse_bytes(text, "--memory-budget")
+        n = parse_bytes(value, "--memory-budget")
     except ParameterError:
         n = 0
     if n <= 0:
-        raise argparse.ArgumentTypeError(f"expected a size above zero like '512MB' or '2GiB', got {text!r}")
-    return text
+        raise ParameterError(f"--memory-budget: expected a size above zero like '512MB' or '2GiB', got {value!r}")
+
+
+def _brick(value) -> None:
+    if not (isinstance(value, int) and value >= 1):
+        raise ParameterError(f"--brick: expected a brick edge >= 1 (voxels), got {value!r}")
+
+
+#: a hidden namespace attribute, per shared flag a command took from FLAGS (e.g. ``_common_threads``)
+_MARK = "_common_"
+
+#: the shared values checked by :func:`check_common_values`: parsed attribute -> check (None: not given)
+CHECKS: dict[str, Callable[[Any], None]] = {
+    "threads": _threads,
+    "timeout": _timeout,
+    "memory_budget": _memory_budget,
+    "brick": _brick,
+}
+
+
+def check_common_values(args) -> None:
+    """Refuse a shared flag's bad value with one line naming the flag (:class:`ParameterError`, exit 2).
+
+    :func:`clipvol.tools.cli.main` calls this for every command before it runs, so ``render``,
+    ``view``, ``slice``, ``report`` and ``export`` refuse the same values with the same words, before
+    any store is opened or any output is touched."""
+    for dest, check in CHECKS.items():
+        value = getattr(args, dest, None)
+        if value is not None and getattr(args, _MARK + dest, False):  # `clipvol brick --brick` is its own
+            check(value)
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -85,17 +100,6 @@ def parse_size(text: str) -> tuple[int, int]:
     if not (1 <= w <= MAX_SIDE and 1 <= h <= MAX_SIDE):
         raise argparse.ArgumentTypeError(f"expected 1..{MAX_SIDE} pixels per side, got {text!r}")
     return w, h
-
-
-def parse_brick(text: str) -> int:
-    """``--brick``: a brick edge in voxels, an integer >= 1."""
-    try:
-        n = int(text)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1 (voxels), got {text!r}")
-    return n
 
 
 @dataclass(frozen=True)
@@ -110,16 +114,16 @@ class Common:
 FLAGS: dict[str, Common] = {
     "store": Common("--store", dict(default=None, help="where a NIfTI/DICOM/HDF5/MRC input is bricked "
                                                         "(default ./NAME.zarr; reused when it exists)")),
-    "brick": Common("--brick", dict(type=parse_brick, default=None,
+    "brick": Common("--brick", dict(type=int, default=None,
                                     help="brick edge for .npy and procedural sources (default 64)")),
     "size": Common("--size", dict(type=parse_size, default=None, help="image size WxH")),
-    "memory_budget": Common("--memory-budget", dict(type=parse_memory_budget, default="256MB",
+    "memory_budget": Common("--memory-budget", dict(default="256MB",
                                                     help="clip-texture (main memory) budget")),
-    "threads": Common("--threads", dict(type=parse_threads, default=None,
+    "threads": Common("--threads", dict(type=int, default=None,
                                         help=f"loader threads, 1..{MAX_THREADS} (default: cores)")),
     "no_wait": Common("--no-wait", dict(action="store_true",
                                         help="do not wait for the view's bricks (draw what is resident)")),
-    "timeout": Common("--timeout", dict(type=parse_timeout, default=300.0,
+    "timeout": Common("--timeout", dict(type=float, default=300.0,
                                         help="seconds to wait for the view's bricks (default %(default)g)")),
 }
 
@@ -175,7 +179,8 @@ def add_common_arguments(group, names: Iterable[str], **overrides: dict[str, Any
         kw = {**f.kw, **overrides.get(name, {})}
         if "type" in overrides.get(name, {}) and overrides[name]["type"] is not f.kw.get("type"):
             raise KeyError(f"common_args: {f.flag} keeps its type (its check is shared)")
-        group.add_argument(f.flag, **kw)
+        action = group.add_argument(f.flag, **kw)
+        group.set_defaults(**{_MARK + action.dest: True})  # check_common_values checks this command's value
     unknown = set(overrides) - set(names)
     if unknown:
         raise KeyError(f"common_args: overrides for flags not added: {sorted(unknown)}")
