@@ -3,7 +3,7 @@ defaults it always had, and refuses the same bad value of a shared flag with the
 naming the flag, exit status 2, before anything is opened or written.
 
 References: a literal table of each command's defaults (as the commands declared them one by one),
-the clip-texture's and the loader wait's own limits, and the files on disk (absent after a refusal).
+the clip-texture's own thread limit, and the files on disk (absent after a refusal).
 """
 
 from __future__ import annotations
@@ -64,12 +64,11 @@ def test_given_values_parse_alike_in_every_command():
         assert args.unverified and args.allow_partial, command
 
 
-def test_limits_are_the_library_limits():
+def test_the_threads_limit_is_the_clip_textures():
     from clipvol.paging.cliptexture import MAX_LOADER_THREADS
-    from clipvol.tools.common_args import MAX_THREADS, MAX_WAIT
-    from clipvol.tools.remote_args import MAX_WAIT as LOADER_WAIT
+    from clipvol.tools.common_args import MAX_THREADS
 
-    assert (MAX_THREADS, MAX_WAIT) == (MAX_LOADER_THREADS, LOADER_WAIT)
+    assert MAX_THREADS == MAX_LOADER_THREADS
 
 
 #: flag -> bad values (each refused by every command that offers the flag)
