@@ -28,7 +28,6 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable
 
 from clipvol.errors import ParameterError
-from clipvol.tools.remote_args import MAX_WAIT  # the longest --timeout: a week; longer is a typo
 
 __all__ = ["Common", "FLAGS", "GROUPS", "CHECKS", "add_common_arguments", "check_common_values", "parse_size"]
 
@@ -36,6 +35,8 @@ __all__ = ["Common", "FLAGS", "GROUPS", "CHECKS", "add_common_arguments", "check
 #: (clipvol.paging.cliptexture.MAX_LOADER_THREADS, checked equal in tests/cli/test_common_args.py;
 #: not imported here so that ``clipvol --help`` does not load numpy)
 MAX_THREADS = 256
+#: the longest ``--timeout`` (seconds to wait for a frame's bricks) accepted: a week; longer is a typo
+MAX_WAIT = 7 * 86400.0
 #: the largest image side ``--size`` accepts
 MAX_SIDE = 16384
 
