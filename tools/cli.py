@@ -103,6 +103,9 @@ def main(argv: list[str] | None = None) -> int:
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGINT, on_sigint)
     try:
+        from clipvol.tools.common_args import check_common_values
+
+        check_common_values(args)  # --threads, --timeout, --memory-budget, --brick: one check, every command
         return int(args._run(args) or 0)
     except ClipvolError as e:
         if interrupted:  # the interrupt stopped a step that then reported its own failure

@@ -33,14 +33,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(NIfTI affine) or region.zarr (a clipvol store, OME scale/translation)")
     parser.add_argument("--c", type=int, default=None, help="the channel of a channel set or an image with a c axis")
     parser.add_argument("--t", type=int, default=None, help="the time step of a time series or an image with a t axis")
-    parser.add_argument("--store", dest="brick_store", default=None, metavar="DIR",
-                        help="where a NIfTI / DICOM / HDF5 / MRC input is bricked (default ./NAME.zarr)")
+    from clipvol.tools.common_args import add_common_arguments
+
+    add_common_arguments(parser, ("store",), store=dict(dest="brick_store", metavar="DIR"))
     parser.add_argument("--overwrite", action="store_true", help="replace an existing --out (once the new one is complete)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
-    from clipvol.tools.remote_args import add_remote_arguments, add_trust_arguments
-
-    add_trust_arguments(parser)
-    add_remote_arguments(parser)
+    add_common_arguments(parser, ("unverified", "remote"))
 
 
 def parse_box(text: str, shape0) -> tuple[tuple[int, int, int], tuple[int, int, int]]:

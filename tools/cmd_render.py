@@ -16,6 +16,7 @@ from clipvol.errors import ParameterError
 from clipvol.scene.views import VIEW_CHOICES as VIEWS
 from clipvol.scene.views import view_camera
 from clipvol.tools.overlay_args import add_channel_arguments, channels_from_args
+from clipvol.tools.common_args import add_common_arguments
 from clipvol.tools.render_args import add_render_arguments, render_params_from_args
 
 
@@ -29,22 +30,12 @@ def _triple(text: str) -> tuple[float, float, float]:
     return v  # type: ignore[return-value]
 
 
-def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(t) for t in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WxH such as 512x384, got {text!r}") from None
-    if not (1 <= w <= 16384 and 1 <= h <= 16384):
-        raise argparse.ArgumentTypeError(f"expected 1..16384 pixels per side, got {text!r}")
-    return w, h
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", help="a clipvol store / OME-Zarr directory or URL (s3://, https://, ...), procedural:NAME?size=N, "
                                   "a .npy file, or a NIfTI / DICOM folder / FILE.h5:/dataset / MRC input (bricked first into --store)")
-    p.add_argument("--store", default=None, help="where a NIfTI/DICOM/HDF5/MRC input is bricked (default ./NAME.zarr; reused when it exists)")
+    add_common_arguments(p, ("store",))
     p.add_argument("--out", "-o", required=True, help="output PNG")
-    p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default 64)")
+    add_common_arguments(p, ("brick",))
     d = p.add_argument_group("data")
     d.add_argument("--t", type=int, default=None, help="time point of an OME-Zarr image with a t axis (default 0)")
     d.add_argument("--c", type=int, default=None, help="channel of an OME-Zarr image with a c axis (default 0)")
@@ -69,7 +60,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     v.add_argument("--fov", type=float, default=35.0, help="vertical field of view in degrees (perspective)")
     v.add_argument("--distance", type=float, default=None, help="eye distance from the target, in volume diagonals (default 1.6)")
     v.add_argument("--ortho", action="store_true", help="orthographic projection framing the volume")
-    v.add_argument("--size", type=_size, default=(512, 512), help="image size WxH (default 512x512)")
+    add_common_arguments(v, ("size",), size=dict(default=(512, 512), help="image size WxH (default 512x512)"))
     v.add_argument("--camera", default=None, metavar="FILE.json",
                    help="a camera saved by the viewer's C key (overrides --view/--eye/--target/--up/--fov/--ortho)")
     r = p.add_argument_group("rendering")
@@ -81,26 +72,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_tf_arguments(p.add_argument_group("transfer function"))
     add_overlay_arguments(p.add_argument_group("overlays of co-registered volumes"))
     add_render_arguments(r, ("step", "background", "shading", "light", "skip_empty"))
-    r.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
+    add_common_arguments(r, ("memory_budget",))
     add_render_arguments(r, ("texture_budget", "texels_per_frame"))
-    r.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
-    r.add_argument("--no-wait", action="store_true", help="do not wait for the view's bricks (draw what is resident)")
-    r.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for convergence (default 300)")
+    add_common_arguments(r, ("threads", "no_wait", "timeout"))
     r.add_argument("--tolerance", default="0.01", help="point stores: largest splat, a fraction of the screen (0.05), '5%%' or '12px' (default 0.01)")
     sl = p.add_argument_group("sort-last rendering on Dask (needs clipvol[dask])")
     sl.add_argument("--workers", type=int, default=None, metavar="N",
                    help="draw N spatially disjoint brick groups in N worker processes and composite them")
     sl.add_argument("--scheduler", default="processes", metavar="S",
                     help="with --workers: processes (a local cluster, default) or tcp://HOST:PORT of a dask.distributed scheduler")
-    from clipvol.tools.partial import add_partial_argument
-    from clipvol.tools.remote_args import add_remote_arguments, add_trust_arguments
-
-    add_partial_argument(r)
-    from clipvol.tools.cut_args import add_cut_arguments
-
-    add_cut_arguments(p)
-    add_remote_arguments(p)
-    add_trust_arguments(p)
+    add_common_arguments(r, ("allow_partial",))
+    add_common_arguments(p, ("cut", "remote", "unverified"))
 
 
 def check_output_file(path, suffix: str, flag: str) -> None:

@@ -40,19 +40,16 @@ def _sizes(text: str) -> list[str]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from clipvol.tools.cmd_view import _size
+    from clipvol.tools.common_args import add_common_arguments
 
     p.add_argument("source", help="a clipvol store / OME-Zarr directory or URL (s3://, https://, ...), procedural:NAME?size=N, "
                                   "a .npy file, or a NIfTI / DICOM folder / FILE.h5:/dataset / MRC input (bricked once into ./NAME.zarr)")
-    from clipvol.tools.remote_args import add_remote_arguments, add_trust_arguments
-
-    add_remote_arguments(p)
-    add_trust_arguments(p)
+    add_common_arguments(p, ("remote", "unverified"))
     p.add_argument("--out", required=True, help="output directory (created)")
-    p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources")
+    add_common_arguments(p, ("brick",))
     p.add_argument("--path", choices=("orbit", "fly", "zoom"), default="orbit", help="camera path the views come from")
     p.add_argument("--views", type=int, default=3, help="views along the path")
-    p.add_argument("--size", type=_size, default=(192, 192), help="image size WxH (also caps the reference's cost)")
+    add_common_arguments(p, ("size",), size=dict(default=(192, 192), help="image size WxH (also caps the reference's cost)"))
     p.add_argument("--thresholds", type=_floats, default=[0.5, 1, 2, 4, 8, 16], help="LOD thresholds (pixels), comma-separated")
     p.add_argument("--memory-budgets", type=_sizes, default=None,
                    help="clip-texture budgets swept at LOD 1, e.g. 64MB,16MB (default: 1/2 and 1/8 of the data; '' to skip)")
@@ -64,11 +61,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from clipvol.tools.render_args import add_render_arguments
 
     add_render_arguments(p, ("mode", "iso_value", "step"))
-    p.add_argument("--threads", type=int, default=None, help="loader threads")
-    p.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for a converged frame")
-    from clipvol.tools.partial import add_partial_argument
-
-    add_partial_argument(p)
+    add_common_arguments(p, ("threads", "timeout", "allow_partial"),
+                         timeout=dict(default=120.0, help="seconds to wait for a converged frame"))
     p.add_argument("--max-frames", type=int, default=8, help="as-it-comes frames per view at most")
     p.add_argument("--rounds", type=_rounds, default=5,
                    help="warm interleaved rounds per setting and view, each frame paired with a reference frame; "

@@ -21,7 +21,8 @@ import sys
 
 from clipvol.errors import ParameterError
 
-from .cmd_render import _size, _triple
+from .cmd_render import _triple
+from .common_args import add_common_arguments
 from .render_args import add_render_arguments, render_params_from_args
 
 
@@ -38,7 +39,7 @@ def _window(text: str) -> tuple[float, float]:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, a .npy file, or a NIfTI / "
                                   "DICOM folder / FILE.h5:/dataset / MRC input (bricked first into --store)")
-    p.add_argument("--store", default=None, help="where a NIfTI/DICOM/HDF5/MRC input is bricked (default ./NAME.zarr; reused when it exists)")
+    add_common_arguments(p, ("store",))
     g = p.add_argument_group("plane (one of)")
     g.add_argument("--plane", default=None, help="AXIS=INDEX with AXIS z (axial), y (coronal) or x (sagittal), e.g. z=94")
     g.add_argument("--axis", choices=("axial", "coronal", "sagittal"), default=None,
@@ -53,7 +54,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--normal", type=_triple, default=None, help="oblique plane: its normal x,y,z (the view direction)")
     g.add_argument("--up", type=_triple, default=None, help="oblique plane: the image's up x,y,z")
     s = p.add_argument_group("image")
-    s.add_argument("--size", type=_size, default=None, help="WxH pixels (default: the plane's cut through the volume)")
+    add_common_arguments(s, ("size",), size=dict(help="WxH pixels (default: the plane's cut through the volume)"))
     s.add_argument("--pixel-size", type=float, default=None, help="world units per pixel (default: the level-0 voxel)")
     s.add_argument("--window", type=_window, default=None, help="grey window/level C,W (default: the value range)")
     s.add_argument("--tf", default=None, help="colour the values with a transfer-function preset instead of grey")
@@ -66,22 +67,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_render_arguments(r, ("level", "distance_factor", "lod_threshold"), help={
         "level": "one level everywhere (0 = full resolution)",
         "distance_factor": "--poi: refine nodes closer to it than this many of their diagonals (default 1)"})
-    r.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default 64)")
-    r.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
+    add_common_arguments(r, ("brick", "memory_budget"))
     add_render_arguments(r, ("texture_budget",))
-    r.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
-    r.add_argument("--no-wait", action="store_true", help="draw what is resident after one pass (coarser fallback)")
-    r.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for the slice's bricks (default 300)")
-    from clipvol.tools.partial import add_partial_argument
-    from clipvol.tools.remote_args import add_remote_arguments, add_trust_arguments
-
-    add_remote_arguments(p)
-    from clipvol.tools.cut_args import add_cut_arguments
-
-    add_cut_arguments(p)
-    add_trust_arguments(p)
-
-    add_partial_argument(r)
+    add_common_arguments(r, ("threads", "no_wait", "timeout"),
+                         no_wait=dict(help="draw what is resident after one pass (coarser fallback)"),
+                         timeout=dict(help="seconds to wait for the slice's bricks (default 300)"))
+    add_common_arguments(p, ("remote", "cut", "unverified"))
+    add_common_arguments(r, ("allow_partial",))
 
 
 def plane_from_args(pyramid, args, frame=None):

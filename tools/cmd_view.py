@@ -22,25 +22,13 @@ from __future__ import annotations
 import argparse
 
 
-def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 640x480, got {text!r}") from None
-    if w < 1 or h < 1 or w > 16384 or h > 16384:
-        raise argparse.ArgumentTypeError(f"expected a size between 1x1 and 16384x16384, got {text!r}")
-    return w, h
-
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", help="a clipvol store / OME-Zarr directory or URL (s3://, https://, ...), procedural:NAME?size=N, "
                    "a .npy file, or a NIfTI / DICOM folder / FILE.h5:/dataset / MRC input (bricked first into --store)")
-    p.add_argument("--store", default=None, help="where a NIfTI/DICOM/HDF5/MRC input is bricked (default ./NAME.zarr; reused when it exists)")
-    from clipvol.tools.remote_args import add_remote_arguments, add_trust_arguments
+    from clipvol.tools.common_args import add_common_arguments
 
-    add_remote_arguments(p)
-    add_trust_arguments(p)
-    p.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources (default: the loader's, 64)")
+    add_common_arguments(p, ("store", "remote", "unverified", "brick"))
     g = p.add_argument_group("rendering")
     from clipvol.tools.render_args import add_render_arguments
     from clipvol.viewer.controls import MODES
@@ -48,9 +36,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_render_arguments(g, ("mode", "iso_value", "policy", "level", "lod_threshold", "step", "max_error"),
                          choices={"policy": MODES},
                          help={"policy": "selection policy the viewer starts with (M cycles them)"})
-    g.add_argument("--memory-budget", default="256MB", help="clip-texture (main memory) budget")
+    add_common_arguments(g, ("memory_budget",))
     add_render_arguments(g, ("texture_budget", "texels_per_frame"))
-    g.add_argument("--threads", type=int, default=None, help="loader threads (default: cores)")
+    add_common_arguments(g, ("threads",))
     add_render_arguments(g, ("jitter", "path", "shading", "skip_empty"), help={"shading": "start with gradient lighting on (key L)"})
     g.add_argument("--play", action="store_true",
                    help="an OME-Zarr image with a t axis: play its time steps (Space play/pause, J/K step, { } rate; "
@@ -61,7 +49,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--tolerance", default="0.05",
                    help="point stores: starting tolerance, the largest splat as a fraction of the window (0.05), "
                         "'5%%' or '12px'; [ and ] change it (default 0.05)")
-    g.add_argument("--size", type=_size, default=None, help="window or image size WxH (default 960x640 window, 256x256 offscreen)")
+    add_common_arguments(g, ("size",), size=dict(help="window or image size WxH (default 960x640 window, 256x256 offscreen)"))
     from clipvol.tools.overlay_args import add_channel_arguments, add_overlay_arguments
     from clipvol.tools.tf_args import add_tf_arguments
 
@@ -73,21 +61,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     o.add_argument("--path", choices=("orbit", "turntable", "fly", "zoom"), default="orbit",
                    help="camera path (turntable: one upright turn, head-up for patient-frame stores)")
     o.add_argument("--frames", type=int, default=36, help="frames along the path")
-    from clipvol.tools.partial import add_partial_argument
-
-    add_partial_argument(o)
+    add_common_arguments(o, ("allow_partial",))
     o.add_argument("--out", default="frames", help="output directory (PNG frames), anim.gif or movie.mp4/.webm/.mkv/.mov")
     o.add_argument("--converged", action="store_true", help="wait each frame until its bricks are drawn at their own level")
-    o.add_argument("--timeout", type=float, default=60.0, help="seconds to wait per frame with --converged")
+    add_common_arguments(o, ("timeout",), timeout=dict(default=60.0, help="seconds to wait per frame with --converged"))
     o.add_argument("--fps", type=float, default=12.0, help="GIF or movie frame rate")
     o.add_argument("--quality", type=float, default=8.0, help="movie quality, 0 (smallest) .. 10 (best), default 8")
     o.add_argument("--no-labels", action="store_true", help="do not write anatomical edge labels on the frames")
     o.add_argument("--workers", type=int, default=None, metavar="N",
                    help="draw each frame sort-last in N Dask worker processes (PNG frames; needs clipvol[dask])")
     o.add_argument("--scheduler", default="processes", metavar="S", help="with --workers: processes or tcp://HOST:PORT")
-    from clipvol.tools.cut_args import add_cut_arguments
-
-    add_cut_arguments(p)
+    add_common_arguments(p, ("cut",))
     w = p.add_argument_group("window")
     w.add_argument("--screenshot-dir", default="clipvol-screenshots",
                    help="folder where P (with the HUD) and Shift+P (without) save screenshots, S the transfer "

@@ -60,19 +60,16 @@ def remote_kwargs(args: argparse.Namespace) -> dict:
     return kw
 
 
-#: the longest ``--timeout`` (seconds to wait for bricks) accepted: a week; longer is a typo
-MAX_WAIT = 7 * 86400.0
-
-
 def check_wait(args: argparse.Namespace) -> None:
-    """Refuse a ``--timeout`` (seconds to wait for a frame's bricks) that is not a number in
-    (0, a week]: ``-1``, ``0``, ``nan`` or ``inf`` would never wait or never end. Every command
-    that reads a store asks :func:`remote_kwargs`, which calls this first."""
-    from clipvol.errors import ParameterError
+    """Refuse a ``--timeout`` (seconds to wait for a frame's bricks) outside (0, a week]: ``-1``,
+    ``0``, ``nan`` or ``inf`` would never wait or never end. ``clipvol``'s ``main`` checks it for
+    every command first (:func:`clipvol.tools.common_args.check_common_values`); a command run
+    another way reaches the same check here, through :func:`remote_kwargs`."""
+    from clipvol.tools.common_args import CHECKS
 
     t = getattr(args, "timeout", None)
-    if t is not None and not (isinstance(t, (int, float)) and 0 < t <= MAX_WAIT):
-        raise ParameterError(f"--timeout: expected seconds in (0, {MAX_WAIT:g}], got {t!r}")
+    if t is not None:
+        CHECKS["timeout"](t)
 
 
 def check_trust(loader, args: argparse.Namespace, command: str) -> None:
