@@ -23,60 +23,19 @@ the clip-texture parses it).
 from __future__ import annotations
 
 import argparse
-import math
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable
 
 from clipvol.errors import ParameterError
+from clipvol.tools.value_checks import CHECKS, MAX_THREADS, MAX_WAIT  # noqa: F401  (MAX_WAIT re-exported)
 
 __all__ = ["Common", "FLAGS", "GROUPS", "CHECKS", "add_common_arguments", "check_common_values", "parse_size"]
 
-#: most loader threads a command accepts; the clip-texture's own limit
-#: (clipvol.paging.cliptexture.MAX_LOADER_THREADS, checked equal in tests/cli/test_common_args.py;
-#: not imported here so that ``clipvol --help`` does not load numpy)
-MAX_THREADS = 256
-#: the longest ``--timeout`` (seconds to wait for a frame's bricks) accepted: a week; longer is a typo
-MAX_WAIT = 7 * 86400.0
 #: the largest image side ``--size`` accepts
 MAX_SIDE = 16384
 
-
-def _threads(value) -> None:
-    if not (isinstance(value, int) and 1 <= value <= MAX_THREADS):
-        raise ParameterError(f"--threads: expected an integer in 1..{MAX_THREADS}, got {value!r}")
-
-
-def _timeout(value) -> None:
-    if not (isinstance(value, (int, float)) and math.isfinite(value) and 0 < value <= MAX_WAIT):
-        raise ParameterError(f"--timeout: expected seconds in (0, {MAX_WAIT:g}], got {value!r}")
-
-
-def _memory_budget(value) -> None:
-    from clipvol.units import parse_bytes
-
-    try:
-        n = parse_bytes(value, "--memory-budget")
-    except ParameterError:
-        n = 0
-    if n <= 0:
-        raise ParameterError(f"--memory-budget: expected a size above zero like '512MB' or '2GiB', got {value!r}")
-
-
-def _brick(value) -> None:
-    if not (isinstance(value, int) and value >= 1):
-        raise ParameterError(f"--brick: expected a brick edge >= 1 (voxels), got {value!r}")
-
-
 #: a hidden namespace attribute, per shared flag a command took from FLAGS (e.g. ``_common_threads``)
 _MARK = "_common_"
-
-#: the shared values checked by :func:`check_common_values`: parsed attribute -> check (None: not given)
-CHECKS: dict[str, Callable[[Any], None]] = {
-    "threads": _threads,
-    "timeout": _timeout,
-    "memory_budget": _memory_budget,
-    "brick": _brick,
-}
 
 
 def check_common_values(args) -> None:

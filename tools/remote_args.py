@@ -65,7 +65,7 @@ def check_wait(args: argparse.Namespace) -> None:
     ``0``, ``nan`` or ``inf`` would never wait or never end. ``clipvol``'s ``main`` checks it for
     every command first (:func:`clipvol.tools.common_args.check_common_values`); a command run
     another way reaches the same check here, through :func:`remote_kwargs`."""
-    from clipvol.tools.common_args import CHECKS
+    from clipvol.tools.value_checks import CHECKS
 
     t = getattr(args, "timeout", None)
     if t is not None:
