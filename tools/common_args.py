@@ -26,8 +26,7 @@ import argparse
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable
 
-from clipvol.errors import ParameterError
-from clipvol.tools.value_checks import CHECKS, MAX_THREADS, MAX_WAIT  # noqa: F401  (MAX_WAIT re-exported)
+from clipvol.tools.value_checks import CHECKS, MAX_THREADS
 
 __all__ = ["Common", "FLAGS", "GROUPS", "CHECKS", "add_common_arguments", "check_common_values", "parse_size"]
 
