@@ -36,6 +36,10 @@ setting), ``lod_budget.csv`` / ``.png``, ``reference_view*.png`` and a few examp
 ``report.md`` with the answer, a table per setting, two tables - bricks and time, fixed vs
 multiresolution (as LaMar, Hamann & Joy 1999 tabulate them), and bytes, fixed vs multiresolution
 (as LaMar et al. 2000 do) - and a References section (:data:`REFERENCES`).
+
+Why one module of this size: the cold sweep, the warm paired rounds, the tables and the plots
+read and write the same rows; the policy comparison (:mod:`.lod_sweep`) and the image metrics
+(:mod:`clipvol.scene.metrics`) live apart.
 """
 
 from __future__ import annotations

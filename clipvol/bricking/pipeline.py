@@ -30,6 +30,10 @@ How it works, and why:
   thread. Re-running the same job on an incomplete store recomputes the (cheap, deterministic)
   down-sampling but skips the statistics, compression and writes of bricks already done, giving
   a store identical to an uninterrupted run.
+
+Why one module of this size: the two passes, the resume state, the lock and the write loop share
+one build state and its crash rules; the options are :mod:`.build_options`, the pyramid's
+arithmetic :mod:`.pyramid`, the statistics :mod:`.stats` and the manifest :mod:`.manifest`.
 """
 
 from __future__ import annotations

@@ -34,6 +34,10 @@ again on the same input with the same parameters (``attrs["clipvol"]["job"]``), 
 build truncates the arrays to the state and carries on with the next group, writing what the
 uninterrupted build would have written, byte for byte. An interruption before the plan, a build
 that fits in memory, or a changed input or parameter starts again from the beginning.
+
+Why one module of this size: the out-of-core build, its resume and the checker all follow the
+one layout above, node table and point arrays together; the octree arithmetic lives in
+:mod:`.points` and the readers in :mod:`.point_sources`.
 """
 
 from __future__ import annotations

@@ -21,6 +21,12 @@ A loader that also offers ``read_brick_into(level, index, out)`` is handed the s
 copy); the slot is then marked busy until that write ends, and a brick that takes the slot over
 meanwhile waits for it. See ``docs/cliptexture.md`` for the brick lifecycle and the failure
 semantics.
+
+Why one module of this size: the slot pool, the windows' relayout, the hand-off from the load
+queue, the loader threads, the region and the cut's outside set all work on one slot table under
+one lock, and every rule about who may write a slot when (busy, parked, generation) has to be read
+beside the others. The parts without that state live apart: :mod:`.toroidal`, :mod:`.queue`,
+:mod:`.region`, :mod:`.slab`, :mod:`.cells`.
 """
 
 from __future__ import annotations

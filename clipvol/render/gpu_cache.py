@@ -53,6 +53,10 @@ zero-width ranges, magnitudes beyond 1e30) - as ``r32f`` normalised over the dat
 :class:`TextureFormat` gives ``(a, b)`` with ``raw = a * texel + b``; the shader maps a texel
 straight to the transfer function's coordinate with a scale and offset computed in float64, so
 ``raw`` itself never has to exist in float32.
+
+Why one module of this size: the per-level textures, slot reservations, neighbour clamps, cell
+ranges and region windows share the slot tables every draw path reads each frame; the pure rules
+live apart (:mod:`.region_windows`, :mod:`clipvol.scene.occupancy`, :mod:`clipvol.scene.page_table`).
 """
 
 from __future__ import annotations

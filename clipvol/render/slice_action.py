@@ -29,6 +29,10 @@ References
 ----------
 E. LaMar, B. Hamann, K. I. Joy, "Multiresolution cutting planes" (the copy we work from states no
 year or venue).
+
+Why one module of this size: the plane's cut, its slab region, the draw and the read-back of
+values share one frame's state; the plane geometry is :mod:`clipvol.scene.plane` and the region
+:mod:`clipvol.scene.slice_region`.
 """
 
 from __future__ import annotations

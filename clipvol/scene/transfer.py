@@ -25,6 +25,9 @@ beyond both ends, because strongly negative values are data, not background.
 A transfer function is saved as a small JSON document (:meth:`TransferFunction.to_json`,
 :meth:`TransferFunction.save` / :meth:`TransferFunction.load`; the format is described in
 ``docs/guide.md``) that ``clipvol tf``, the viewer's ``S`` key and the Python API share.
+
+Why one module of this size: presets, windows, JSON files and the opacity correction all make
+the one table the renderer and the references sample, and must agree to the entry.
 """
 
 from __future__ import annotations

@@ -28,6 +28,9 @@ screenshot folder.
 
 The window can be driven programmatically (``Viewer.step()``, ``Viewer.read_screen()``), which
 is how ``tests/test_view_window.py`` checks it under Xvfb.
+
+Why one module of this size: it is the one place GLFW events meet the session; what a key does is
+:mod:`.controls`, the cut keys :mod:`.cut_keys`, the HUD :mod:`.hud`.
 """
 
 from __future__ import annotations
