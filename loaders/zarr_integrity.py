@@ -125,22 +125,52 @@ class IntegrityChecks:
     def _brick_stats(self, level: int, index: Int3) -> tuple[float, float, float, float, float] | None:
         """``(min, max, nan_count, inf_count, chunk_crc32c)`` the store recorded for the brick (NaN
         where not recorded: not compared; crc -1: no chunk written), or None (no statistics). One
-        lookup in a per-level table."""
+        lookup in a per-level table of Python floats (nested lists, not an array: indexing a list
+        costs a fraction of a numpy item lookup and its ``tolist``, on every load, under the GIL)."""
         tbl = self._checks.get(level, _UNREAD)
         if tbl is _UNREAD:
             if self._manifest is not None:  # a verified store: the manifest, never the statistics arrays
-                self._checks[level] = tbl = self._manifest.checks(level)
-                return tuple(tbl[index[0], index[1], index[2]].tolist())
+                self._checks[level] = tbl = self._manifest.checks(level).tolist()
+                return tuple(tbl[index[0]][index[1]][index[2]])
             st = self.brick_statistics(level)
             tbl = None
             if st is not None:
                 missing = np.full(st["min"].shape, np.nan)
                 cols = [st["min"], st["max"]] + [st[n] if n in st else missing for n in ("nan_count", "inf_count", "chunk_crc32c")]
-                tbl = np.stack(cols, axis=-1).astype(np.float64)  # a crc32c (< 2**32) is exact in float64
+                tbl = np.stack(cols, axis=-1).astype(np.float64).tolist()  # a crc32c (< 2**32) is exact in float64
             self._checks[level] = tbl
         if tbl is None:
             return None
-        return tuple(tbl[index[0], index[1], index[2]].tolist())
+        return tuple(tbl[index[0]][index[1]][index[2]])
+
+    def _check_loaded(self, level: int, index: Int3, block: np.ndarray, got: int, st: Any = _UNREAD) -> None:
+        """The decode check of one load (:meth:`_check_plausible`), run once per brick per loader
+        when the bytes are proven against a verified manifest, on every load otherwise.
+
+        Why once is enough there: ``got == 2`` on a verified store means the chunk's crc32c is
+        intact (every stored byte checked on this load) *and* equals the crc32c the manifest -
+        whose digest verified on opening - records for this brick, so the bytes are the ones the
+        build wrote for it. The same bytes through the same decoder give the same voxels, so a
+        sampled decode check that passed on an earlier load of this brick in this process
+        proves this one too. Each fault kind stays caught on every load by a check that does not
+        depend on the skipped one: corrupt or truncated bytes by the crc32c (and the exact chunk
+        size the manifest records, checked before the read), another brick's or another build's
+        intact chunk by the recorded crc32c, a lost chunk by :meth:`_check_absent`, a wrong
+        decoder by the first load's sample (the record names the level's codec chain it was made
+        with, so a level whose decoder is set up anew is sampled anew). An
+        unverified store, a chunk without a recorded crc32c (``got == 1``), or checks switched
+        off and on again (``verify_checksums`` off makes ``got`` 1) are checked on every load.
+        """
+        if got == 2 and self._manifest is not None:
+            key = (level, index[0], index[1], index[2])
+            am = self._arrays[level]  # the level's codec chain: a record holds for the decoder it was made with
+            if self._decode_proven.get(key) is am:
+                return
+            self._check_plausible(level, index, block, True, st)
+            if self.check_plausibility:
+                self._decode_proven[key] = am  # one dict store, atomic under the GIL: loader threads share it
+            return
+        self._check_plausible(level, index, block, got == 2, st)
 
     def _check_absent(self, level: int, index: Int3) -> None:
         """A missing chunk is an empty brick only if the statistics say so (min = max = fill, no NaN/Inf)."""
@@ -256,6 +286,7 @@ class IntegrityChecks:
         with self._lock:
             self._stats.clear()
             self._checks.clear()
+            self._decode_proven.clear()
 
     def brick_ranges(self, level: int, indices: np.ndarray) -> np.ndarray | None:
         """``(n, 2)`` ``[min, max]`` of each brick in ``indices`` (``(n, 3)``) from the store's
