@@ -14,9 +14,14 @@ every read, so they sit together where their reasoning can be read at once.
 - A ``crc32c`` codec is verified over every byte of the chunk before decoding, on every read
   (:meth:`IntegrityChecks._verify_chunk`; the function is :func:`clipvol.loaders.zarr_crc.crc32c_implementation`),
   and an intact chunk must carry the crc32c recorded for its brick (not another brick's).
-- Every load's decoded data is checked against the statistics for that brick
-  (:meth:`IntegrityChecks._check_plausible`), and a missing chunk file is an empty brick only if
-  the statistics say the brick is empty (:meth:`IntegrityChecks._check_absent`).
+- Decoded data is checked against the statistics for that brick
+  (:meth:`IntegrityChecks._check_plausible`): on every load where the bytes are unproven; where the
+  manifest verified and the chunk carries the crc32c it records for the brick, a sample of the
+  decode is checked on the brick's first load in this process only
+  (:meth:`IntegrityChecks._check_loaded` says why the per-load checks still catch every fault
+  kind), which takes numpy's GIL-holding reductions off the per-load path. A missing chunk file
+  is an empty brick only if the statistics say the brick is empty
+  (:meth:`IntegrityChecks._check_absent`), on every load.
 
 A truncated, corrupt, substituted or lost chunk raises :class:`~clipvol.errors.BrickIntegrityError`
 naming the store, brick and chunk file. The per-brick statistics are also the loader's
@@ -73,7 +78,7 @@ SAMPLE_STRIDE = 8
 class IntegrityChecks:
     """The manifest, chunk checksums and statistics checks, and the statistics themselves."""
 
-    #: check every load against the store's statistics (set False only to measure what it costs)
+    #: check loads against the store's statistics (see _check_loaded; set False only to measure what it costs)
     check_plausibility: bool = True
     #: verify each chunk's crc32c (set False only to measure what it costs)
     verify_checksums: bool = True
