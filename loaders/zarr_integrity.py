@@ -167,15 +167,29 @@ class IntegrityChecks:
         off and on again (``verify_checksums`` off makes ``got`` 1) are checked on every load.
         """
         if got == 2 and self._manifest is not None:
-            key = (level, index[0], index[1], index[2])
             am = self._arrays[level]  # the level's codec chain: a record holds for the decoder it was made with
-            if self._decode_proven.get(key) is am:
+            rec = self._decode_proven.get(level)
+            if rec is None or rec[0] is not am:
+                gz, gy, gx = self._grids[level]
+                rec = self._decode_proven[level] = (am, bytearray(gz * gy * gx))  # one byte a brick
+            _, gy, gx = self._grids[level]  # precomputed per level (ChunkReader._prepare_hot_path)
+            i = (index[0] * gy + index[1]) * gx + index[2]
+            if rec[1][i]:
                 return
             self._check_plausible(level, index, block, True, st)
             if self.check_plausibility:
-                self._decode_proven[key] = am  # one dict store, atomic under the GIL: loader threads share it
+                rec[1][i] = 1  # a byte store: loader threads share the record (a lost race only checks again)
             return
         self._check_plausible(level, index, block, got == 2, st)
+
+    def _decode_on_record(self, level: int, index: Int3) -> bool:
+        """True when brick ``index`` of ``level`` has its sampled decode check on record
+        (:meth:`_check_loaded` skips it on later loads)."""
+        rec = self._decode_proven.get(level)
+        if rec is None or rec[0] is not self._arrays[level]:
+            return False
+        _, gy, gx = self._grids[level]
+        return bool(rec[1][(index[0] * gy + index[1]) * gx + index[2]])
 
     def _check_absent(self, level: int, index: Int3) -> None:
         """A missing chunk is an empty brick only if the statistics say so (min = max = fill, no NaN/Inf)."""

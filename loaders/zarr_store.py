@@ -94,9 +94,9 @@ class ZarrLoader(StoreOpening, ChunkReader, IntegrityChecks, ComputedLevels):
         self._zarr_arrays: dict[int, Any] = {}
         self._stats: dict[int, dict[str, np.ndarray] | None] = {}
         self._checks: dict[int, list | None] = {}  # per level: nested lists [bz][by][bx] -> min, max, nan, inf, crc
-        #: (level, bz, by, bx) -> the level's ArrayMeta, for each brick whose sampled decode check passed
-        #: on bytes the verified manifest proves (IntegrityChecks._check_loaded)
-        self._decode_proven: dict[tuple[int, int, int, int], Any] = {}
+        #: per level: (its ArrayMeta, one byte per brick, 1 where the sampled decode check passed on
+        #: bytes the verified manifest proves; IntegrityChecks._check_loaded)
+        self._decode_proven: dict[int, tuple[Any, bytearray]] = {}
         self._derived: OrderedDict[tuple, np.ndarray] = OrderedDict()
         self._derived_bytes = 0
         self._want = {"t": t, "c": c}

@@ -193,7 +193,7 @@ def test_a_brick_whose_decode_is_on_record_is_still_checked_on_every_later_load(
     for _ in range(2):
         loader.read_brick_into(0, (1, 1, 1), slot)
         np.testing.assert_array_equal(slot, vol[16:32, 16:32, 16:32])
-    assert (0, 1, 1, 1) in loader._decode_proven  # the sampled check is skipped from here on
+    assert loader._decode_on_record(0, (1, 1, 1))  # the sampled check is skipped from here on
     chunk = _chunk(store, 0, (1, 1, 1))
     if damage == "another brick's chunk":
         chunk.write_bytes(_chunk(store, 0, (0, 0, 0)).read_bytes())
@@ -223,7 +223,7 @@ def test_an_unverified_store_checks_the_decode_on_every_load(store, vol):
     slot = np.empty((B, B, B), dtype=np.uint16)
     loader.read_brick_into(0, (1, 1, 1), slot)
     np.testing.assert_array_equal(slot, vol[16:32, 16:32, 16:32])
-    assert not loader._decode_proven
+    assert not loader._decode_on_record(0, (1, 1, 1))
     am = loader._arrays[0]
     object.__setattr__(am, "decoder", _SwappingDecoder(am.decoder))  # the same level object, a wrong decode
     with pytest.raises(BrickIntegrityError, match="statistics"):
