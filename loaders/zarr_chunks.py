@@ -105,7 +105,7 @@ class ChunkReader:
             block = block[tuple(slice(0, v) for v in valid)]
         if block.dtype != self._pyramid.dtype:
             block = block.astype(self._pyramid.dtype)
-        self._check_plausible(level, index, block, got == 2)
+        self._check_loaded(level, index, block, got)
         return pad_to_brick(block, self._pyramid.brick_shape)
 
     def read_brick_into(self, level: int, index: Int3, out: np.ndarray) -> None:
@@ -133,7 +133,7 @@ class ChunkReader:
                             self._check_absent(level, index)
                             out.fill(am.fill_value)  # missing chunk the statistics call empty
                             return
-                        self._check_plausible(level, index, out, got == 2, st)
+                        self._check_loaded(level, index, out, got, st)
                         return
         out[...] = self.read_brick(level, index)
 

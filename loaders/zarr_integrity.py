@@ -14,9 +14,14 @@ every read, so they sit together where their reasoning can be read at once.
 - A ``crc32c`` codec is verified over every byte of the chunk before decoding, on every read
   (:meth:`IntegrityChecks._verify_chunk`; the function is :func:`clipvol.loaders.zarr_crc.crc32c_implementation`),
   and an intact chunk must carry the crc32c recorded for its brick (not another brick's).
-- Every load's decoded data is checked against the statistics for that brick
-  (:meth:`IntegrityChecks._check_plausible`), and a missing chunk file is an empty brick only if
-  the statistics say the brick is empty (:meth:`IntegrityChecks._check_absent`).
+- Decoded data is checked against the statistics for that brick
+  (:meth:`IntegrityChecks._check_plausible`): on every load where the bytes are unproven; where the
+  manifest verified and the chunk carries the crc32c it records for the brick, a sample of the
+  decode is checked on the brick's first load in this process only
+  (:meth:`IntegrityChecks._check_loaded` says why the per-load checks still catch every fault
+  kind), which takes numpy's GIL-holding reductions off the per-load path. A missing chunk file
+  is an empty brick only if the statistics say the brick is empty
+  (:meth:`IntegrityChecks._check_absent`), on every load.
 
 A truncated, corrupt, substituted or lost chunk raises :class:`~clipvol.errors.BrickIntegrityError`
 naming the store, brick and chunk file. The per-brick statistics are also the loader's
@@ -73,7 +78,7 @@ SAMPLE_STRIDE = 8
 class IntegrityChecks:
     """The manifest, chunk checksums and statistics checks, and the statistics themselves."""
 
-    #: check every load against the store's statistics (set False only to measure what it costs)
+    #: check loads against the store's statistics (see _check_loaded; set False only to measure what it costs)
     check_plausibility: bool = True
     #: verify each chunk's crc32c (set False only to measure what it costs)
     verify_checksums: bool = True
@@ -125,22 +130,66 @@ class IntegrityChecks:
     def _brick_stats(self, level: int, index: Int3) -> tuple[float, float, float, float, float] | None:
         """``(min, max, nan_count, inf_count, chunk_crc32c)`` the store recorded for the brick (NaN
         where not recorded: not compared; crc -1: no chunk written), or None (no statistics). One
-        lookup in a per-level table."""
+        lookup in a per-level table of Python floats (nested lists, not an array: indexing a list
+        costs a fraction of a numpy item lookup and its ``tolist``, on every load, under the GIL)."""
         tbl = self._checks.get(level, _UNREAD)
         if tbl is _UNREAD:
             if self._manifest is not None:  # a verified store: the manifest, never the statistics arrays
-                self._checks[level] = tbl = self._manifest.checks(level)
-                return tuple(tbl[index[0], index[1], index[2]].tolist())
+                self._checks[level] = tbl = self._manifest.checks(level).tolist()
+                return tuple(tbl[index[0]][index[1]][index[2]])
             st = self.brick_statistics(level)
             tbl = None
             if st is not None:
                 missing = np.full(st["min"].shape, np.nan)
                 cols = [st["min"], st["max"]] + [st[n] if n in st else missing for n in ("nan_count", "inf_count", "chunk_crc32c")]
-                tbl = np.stack(cols, axis=-1).astype(np.float64)  # a crc32c (< 2**32) is exact in float64
+                tbl = np.stack(cols, axis=-1).astype(np.float64).tolist()  # a crc32c (< 2**32) is exact in float64
             self._checks[level] = tbl
         if tbl is None:
             return None
-        return tuple(tbl[index[0], index[1], index[2]].tolist())
+        return tuple(tbl[index[0]][index[1]][index[2]])
+
+    def _check_loaded(self, level: int, index: Int3, block: np.ndarray, got: int, st: Any = _UNREAD) -> None:
+        """The decode check of one load (:meth:`_check_plausible`), run once per brick per loader
+        when the bytes are proven against a verified manifest, on every load otherwise.
+
+        Why once is enough there: ``got == 2`` on a verified store means the chunk's crc32c is
+        intact (every stored byte checked on this load) *and* equals the crc32c the manifest -
+        whose digest verified on opening - records for this brick, so the bytes are the ones the
+        build wrote for it. The same bytes through the same decoder give the same voxels, so a
+        sampled decode check that passed on an earlier load of this brick in this process
+        proves this one too. Each fault kind stays caught on every load by a check that does not
+        depend on the skipped one: corrupt or truncated bytes by the crc32c (and the exact chunk
+        size the manifest records, checked before the read), another brick's or another build's
+        intact chunk by the recorded crc32c, a lost chunk by :meth:`_check_absent`, a wrong
+        decoder by the first load's sample (the record names the level's codec chain it was made
+        with, so a level whose decoder is set up anew is sampled anew). An
+        unverified store, a chunk without a recorded crc32c (``got == 1``), or checks switched
+        off and on again (``verify_checksums`` off makes ``got`` 1) are checked on every load.
+        """
+        if got == 2 and self._manifest is not None:
+            am = self._arrays[level]  # the level's codec chain: a record holds for the decoder it was made with
+            rec = self._decode_proven.get(level)
+            if rec is None or rec[0] is not am:
+                gz, gy, gx = self._grids[level]
+                rec = self._decode_proven[level] = (am, bytearray(gz * gy * gx))  # one byte a brick
+            _, gy, gx = self._grids[level]  # precomputed per level (ChunkReader._prepare_hot_path)
+            i = (index[0] * gy + index[1]) * gx + index[2]
+            if rec[1][i]:
+                return
+            self._check_plausible(level, index, block, True, st)
+            if self.check_plausibility:
+                rec[1][i] = 1  # a byte store: loader threads share the record (a lost race only checks again)
+            return
+        self._check_plausible(level, index, block, got == 2, st)
+
+    def _decode_on_record(self, level: int, index: Int3) -> bool:
+        """True when brick ``index`` of ``level`` has its sampled decode check on record
+        (:meth:`_check_loaded` skips it on later loads)."""
+        rec = self._decode_proven.get(level)
+        if rec is None or rec[0] is not self._arrays[level]:
+            return False
+        _, gy, gx = self._grids[level]
+        return bool(rec[1][(index[0] * gy + index[1]) * gx + index[2]])
 
     def _check_absent(self, level: int, index: Int3) -> None:
         """A missing chunk is an empty brick only if the statistics say so (min = max = fill, no NaN/Inf)."""
@@ -256,6 +305,7 @@ class IntegrityChecks:
         with self._lock:
             self._stats.clear()
             self._checks.clear()
+            self._decode_proven.clear()
 
     def brick_ranges(self, level: int, indices: np.ndarray) -> np.ndarray | None:
         """``(n, 2)`` ``[min, max]`` of each brick in ``indices`` (``(n, 3)``) from the store's

@@ -93,7 +93,10 @@ class ZarrLoader(StoreOpening, ChunkReader, IntegrityChecks, ComputedLevels):
         self.read_counter = ReadCounter()
         self._zarr_arrays: dict[int, Any] = {}
         self._stats: dict[int, dict[str, np.ndarray] | None] = {}
-        self._checks: dict[int, np.ndarray | None] = {}  # per level: (grid..., 5) min, max, nan, inf, crc
+        self._checks: dict[int, list | None] = {}  # per level: nested lists [bz][by][bx] -> min, max, nan, inf, crc
+        #: per level: (its ArrayMeta, one byte per brick, 1 where the sampled decode check passed on
+        #: bytes the verified manifest proves; IntegrityChecks._check_loaded)
+        self._decode_proven: dict[int, tuple[Any, bytearray]] = {}
         self._derived: OrderedDict[tuple, np.ndarray] = OrderedDict()
         self._derived_bytes = 0
         self._want = {"t": t, "c": c}

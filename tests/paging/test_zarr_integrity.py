@@ -182,6 +182,54 @@ def test_a_proven_brick_whose_decode_goes_wrong_is_caught(store, vol, rows):
         loader.read_brick(0, (1, 1, 1))
 
 
+@pytest.mark.parametrize("damage", ["another brick's chunk", "two-bit flip", "deleted"])
+def test_a_brick_whose_decode_is_on_record_is_still_checked_on_every_later_load(store, vol, damage):
+    """On a verified store the sampled decode check runs once per brick (``_check_loaded``); every
+    later load of that brick leans on the per-load checks alone. Each fault they must catch,
+    introduced after the record is made, is refused on the next load by the same loader."""
+    loader = ZarrLoader(store)
+    assert loader.verified
+    slot = np.empty((B, B, B), dtype=np.uint16)
+    for _ in range(2):
+        loader.read_brick_into(0, (1, 1, 1), slot)
+        np.testing.assert_array_equal(slot, vol[16:32, 16:32, 16:32])
+    assert loader._decode_on_record(0, (1, 1, 1))  # the sampled check is skipped from here on
+    chunk = _chunk(store, 0, (1, 1, 1))
+    if damage == "another brick's chunk":
+        chunk.write_bytes(_chunk(store, 0, (0, 0, 0)).read_bytes())
+    elif damage == "two-bit flip":
+        data = bytearray(chunk.read_bytes())
+        data[len(data) // 2] ^= 0x03
+        chunk.write_bytes(bytes(data))
+    else:
+        chunk.unlink()
+    try:  # the independent reader: refuses the chunk, or reads values other than the brick's
+        got = zarr.open_array(str(store / "0"), mode="r")[16:32, 16:32, 16:32]
+    except ValueError:
+        got = None
+    assert got is None or not np.array_equal(got, vol[16:32, 16:32, 16:32])
+    for read in (lambda: loader.read_brick_into(0, (1, 1, 1), slot), lambda: loader.read_brick(0, (1, 1, 1))):
+        with pytest.raises(BrickIntegrityError, match=r"\(level 0, 1, 1, 1\)"):
+            read()
+
+
+def test_an_unverified_store_checks_the_decode_on_every_load(store, vol):
+    """Without a verified manifest nothing pins the bytes between loads, so no decode check is
+    taken as done: a decoder gone wrong after a good load is caught on the next one."""
+    g = zarr.open_group(str(store), mode="r+")
+    g.attrs["clipvol"] = {k: v for k, v in g.attrs["clipvol"].items() if k != "manifest"}
+    with pytest.warns(UnverifiedStoreWarning, match="no manifest"):
+        loader = ZarrLoader(store)
+    slot = np.empty((B, B, B), dtype=np.uint16)
+    loader.read_brick_into(0, (1, 1, 1), slot)
+    np.testing.assert_array_equal(slot, vol[16:32, 16:32, 16:32])
+    assert not loader._decode_on_record(0, (1, 1, 1))
+    am = loader._arrays[0]
+    object.__setattr__(am, "decoder", _SwappingDecoder(am.decoder))  # the same level object, a wrong decode
+    with pytest.raises(BrickIntegrityError, match="statistics"):
+        loader.read_brick_into(0, (1, 1, 1), slot)
+
+
 def test_float_nan_bricks_pass_and_a_lost_nan_is_caught(tmp_path):
     v = np.linspace(0, 1, 32 ** 3, dtype=np.float32).reshape(32, 32, 32)
     v[3, 4, 5] = np.nan

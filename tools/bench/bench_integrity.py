@@ -11,10 +11,12 @@ warm, rounds interleaved, median of rounds:
 * ``loader, no checks``: ``ZarrLoader.read_brick_into`` with ``verify_checksums`` and
   ``check_plausibility`` off (the bare read path);
 * ``loader, checksum``: crc32c verified;
-* ``loader, checksum + statistics``: the default.
+* ``loader, checksum + statistics``: the default. On a verified store the sampled decode check
+  runs on a brick's first load only (``IntegrityChecks._check_loaded``), so the medians of warm
+  rounds leave it out; ``cost checksum + statistics, first round`` is round 1 alone.
 
 Reported: MB/s (decoded bytes) of each, the cost of the checks as a fraction of the bare loader's
-throughput (target <= 5 %), the loader against the floor (target >= 0.85 with 2 threads), and a
+throughput (target <= 5 %), the loader against the floor (target >= 0.9 with 2 threads), and a
 single-thread breakdown in microseconds per brick (file open+read, crc32c, blosc decode into the
 slot, sampled statistics check, the whole call) and a ClipTexture filled by its own loader threads
 against the floor on the same bricks (target >= 0.8).
@@ -247,7 +249,7 @@ def breakdown(keys, loader, reps: int = 5) -> dict[str, float]:
 #: the figures a summary over several runs keeps (median and range of each)
 SUMMARY_METRICS = (
     "compression_ratio", "load_average_1min",
-    "cost checksum", "cost checksum + statistics", "cost checksum, wall", "cost checksum + statistics, wall",
+    "cost checksum", "cost checksum + statistics", "cost checksum + statistics, first round", "cost checksum, wall", "cost checksum + statistics, wall",
     "cost checksum + statistics with google-crc32c", "cost checksum + statistics with google-crc32c, wall",
     "loader (default) / floor, CPU", "loader (default) / floor, wall",
     "loader (no checks) / floor, CPU", "loader (no checks) / floor, wall",
@@ -371,13 +373,15 @@ def main(argv: list[str] | None = None) -> int:
     rows += [
         ("cost checksum", round(100 * cost_crc, 1), "% of throughput", "CPU time vs the loader with no checks"),
         ("cost checksum + statistics", round(100 * cost_all, 1), "% of throughput", "CPU time vs the loader with no checks; target <= 5"),
+        ("cost checksum + statistics, first round", round(100 * (1 - cpus["no checks"][0] / cpus["checksum + statistics"][0]), 1),
+         "% of throughput", "CPU, round 1 alone: each brick's first load, which also runs its sampled decode check"),
         ("cost checksum, wall", round(100 * (1 - r("checksum", "no checks")), 1), "% of throughput",
          f"{args.threads} threads, best rounds, vs the loader with no checks"),
         ("cost checksum + statistics, wall", round(100 * (1 - r("checksum + statistics", "no checks")), 1),
          "% of throughput", f"{args.threads} threads, best rounds, vs the loader with no checks"),
-        ("loader (default) / floor, CPU", round(rc("checksum + statistics", "floor"), 2), "x", "throughput ratio; target >= 0.85"),
+        ("loader (default) / floor, CPU", round(rc("checksum + statistics", "floor"), 2), "x", "throughput ratio; target >= 0.9"),
         ("loader (no checks) / floor, CPU", round(rc("no checks", "floor"), 2), "x", "throughput ratio"),
-        ("loader (default) / floor, wall", round(r("checksum + statistics", "floor"), 2), "x", f"{args.threads} threads, best rounds; target >= 0.85"),
+        ("loader (default) / floor, wall", round(r("checksum + statistics", "floor"), 2), "x", f"{args.threads} threads, best rounds; target >= 0.9"),
         ("loader (no checks) / floor, wall", round(r("no checks", "floor"), 2), "x", f"{args.threads} threads, best rounds"),
         ("cost checksum + statistics with google-crc32c", round(100 * (1 - rc("checksum + statistics, google-crc32c", "no checks")), 1),
          "% of throughput", "CPU; the fallback CRC-32C (holds the GIL), same rounds"),
