@@ -6,16 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from counting_loader import Counting
+
 pytestmark = pytest.mark.gl
-
-
-class Counting:
-    def __init__(self, inner):
-        self.inner, self.pyramid, self.reads = inner, inner.pyramid, []
-
-    def read_brick(self, level, index):
-        self.reads.append((int(level), tuple(int(v) for v in index)))
-        return self.inner.read_brick(level, index)
 
 
 def test_every_step_leaves_the_bricks_outside_the_cut_unread(ctx, rng):

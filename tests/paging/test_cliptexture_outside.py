@@ -8,14 +8,7 @@ import numpy as np
 from clipvol.loaders.numpy_array import NumpyLoader
 from clipvol.paging.cliptexture import BrickState, ClipTexture
 
-
-class Counting:
-    def __init__(self, inner):
-        self.inner, self.pyramid, self.reads = inner, inner.pyramid, []
-
-    def read_brick(self, level, index):
-        self.reads.append((int(level), tuple(int(v) for v in index)))
-        return self.inner.read_brick(level, index)
+from counting_loader import Counting
 
 
 def test_outside_bricks_are_not_read_until_the_cut_lets_them_in(rng):

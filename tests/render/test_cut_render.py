@@ -17,6 +17,8 @@ from clipvol.scene.camera import Camera
 from clipvol.scene.cut import cut_shape
 from clipvol.scene.transfer import TransferFunction
 
+from counting_loader import Counting
+
 pytestmark = pytest.mark.gl
 
 SHAPE = (32, 32, 32)
@@ -33,17 +35,6 @@ def _gl_clean(ctx):
 def smooth_volume(shape=SHAPE) -> np.ndarray:
     z, y, x = np.mgrid[0 : shape[0], 0 : shape[1], 0 : shape[2]].astype(np.float64)
     return ((np.sin(x / 3.0) + np.cos(y / 4.0) + np.sin(z / 2.5) + 3.0) / 6.0).astype(np.float32)
-
-
-class Counting:
-    """A loader wrapper that records every ``read_brick``."""
-
-    def __init__(self, inner):
-        self.inner, self.pyramid, self.reads = inner, inner.pyramid, []
-
-    def read_brick(self, level, index):
-        self.reads.append((int(level), tuple(int(v) for v in index)))
-        return self.inner.read_brick(level, index)
 
 
 def camera():

@@ -7,11 +7,7 @@ box face by the editor's step; the ruler (``U`` twice) measures numpy's distance
 
 from __future__ import annotations
 
-import os
-import shutil
-import subprocess
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,38 +15,9 @@ import pytest
 pytest.importorskip("glfw")
 pytest.importorskip("moderngl")
 
+from test_view_window import xdisplay  # noqa: E402,F401,F811  (the Xvfb fixture, shared)
+
 N, R = 40, 10.0
-
-
-@pytest.fixture(scope="module")
-def xdisplay():
-    if not shutil.which("Xvfb"):
-        pytest.skip("Xvfb not installed: the window test needs a virtual X server (apt install xvfb)")
-    n = next((k for k in range(141, 190) if not Path(f"/tmp/.X{k}-lock").exists()
-              and not Path(f"/tmp/.X11-unix/X{k}").exists()), None)
-    if n is None:
-        pytest.skip("no free X display number in :141..:189")
-    proc = subprocess.Popen(["Xvfb", f":{n}", "-screen", "0", "640x480x24", "-nolisten", "tcp"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    sock = Path(f"/tmp/.X11-unix/X{n}")
-    for _ in range(100):
-        if sock.exists() or proc.poll() is not None:
-            break
-        time.sleep(0.05)
-    if proc.poll() is not None or not sock.exists():
-        proc.kill()
-        pytest.skip(f"Xvfb :{n} did not start")
-    old = os.environ.get("DISPLAY")
-    os.environ["DISPLAY"] = f":{n}"
-    try:
-        yield f":{n}"
-    finally:
-        if old is None:
-            os.environ.pop("DISPLAY", None)
-        else:
-            os.environ["DISPLAY"] = old
-        proc.terminate()
-        proc.wait(timeout=5)
 
 
 def ball():
