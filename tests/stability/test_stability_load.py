@@ -63,6 +63,7 @@ def _roam(clip: ClipTexture, pyr, rng, log: dict) -> None:
     log["final_center"] = c
 
 
+@pytest.mark.slow  # a soak of random roaming (15 s on 2 cores); `pytest -m slow` runs it
 def test_random_roaming_with_teleports(ctx):
     loader = ProceduralLoader(URL, brick=32)
     pyr = loader.pyramid
