@@ -20,6 +20,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 
 from clipvol.scene.camera import Camera
 from clipvol.paging.cliptexture import BrickState, ClipTexture
