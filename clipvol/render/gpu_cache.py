@@ -244,6 +244,8 @@ class GpuBrickCache:
         self.format = texture_format(pyramid.dtype, pyramid.value_range)
         max3d = int(ctx.info.get("GL_MAX_3D_TEXTURE_SIZE", 2048))
         self.windows = allocate_gpu_windows(pyramid, self.texture_budget, self.format.itemsize, max3d)
+        #: the region the windows were last fitted to (a Region is immutable: the same object, the same fit)
+        self._fitted_region: object = None
         #: the cube windows of the budget: what a view without a region of interest gets back
         self.cube_windows = list(self.windows)
         self._max3d = max3d
@@ -331,6 +333,9 @@ class GpuBrickCache:
         A reshaped level gets a new, empty texture (its bricks are uploaded again); a level whose
         shape already spans its region is left alone, so scrolling a plane reallocates nothing.
         """
+        if region is self._fitted_region:  # called every frame: an unchanged region needs no fitting
+            return []
+        self._fitted_region = region
         B = self.pyramid.brick_shape
         brick_bytes = self.brick_texels * self.format.itemsize
         grids = [self.pyramid.grid(L) for L in range(self.pyramid.num_levels)]
