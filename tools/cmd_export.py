@@ -42,26 +42,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def parse_box(text: str, shape0) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
-    """``"z0:z1,y0:y1,x0:x1"`` -> ``(start, stop)`` in voxels of level 0 (empty sides: the axis's ends)."""
-    parts = text.split(",")
-    if len(parts) != 3:
-        raise ParameterError(f"--box: expected Z0:Z1,Y0:Y1,X0:X1 (three ranges), got {text!r}")
-    start, stop = [], []
-    for part, n, axis in zip(parts, shape0, "zyx"):
-        a, sep, b = part.partition(":")
-        try:
-            lo = int(a) if a.strip() else 0
-            hi = int(b) if b.strip() else n
-        except ValueError:
-            raise ParameterError(f"--box: expected integer voxel ranges Z0:Z1,Y0:Y1,X0:X1, got {part!r} for {axis}") from None
-        if not sep:
-            raise ParameterError(f"--box: expected START:STOP for {axis}, got {part!r}")
+    """``--box "z0:z1,y0:y1,x0:x1"`` -> ``(start, stop)`` in voxels of level 0, inside the volume."""
+    from clipvol.tools.cut_args import parse_voxel_ranges
+
+    start, stop = parse_voxel_ranges(text, shape0, "--box")
+    for lo, hi, n, axis in zip(start, stop, shape0, "zyx"):
         if not 0 <= lo < hi <= n:
             raise ParameterError(f"--box: {axis} range {lo}:{hi}: expected 0 <= start < stop <= {n} (level 0 is "
                                  f"{shape0[0]}x{shape0[1]}x{shape0[2]}, z, y, x)")
-        start.append(lo)
-        stop.append(hi)
-    return tuple(start), tuple(stop)  # type: ignore[return-value]
+    return start, stop
 
 
 def parse_world_box(text: str) -> tuple[tuple[float, ...], tuple[float, ...]]:

@@ -12,7 +12,7 @@ import math
 
 from clipvol.errors import ParameterError
 
-__all__ = ["add_cut_arguments", "parse_crop", "parse_crop_voxels", "parse_clip_plane", "shape_from_args"]
+__all__ = ["add_cut_arguments", "parse_crop", "parse_voxel_ranges", "parse_crop_voxels", "parse_clip_plane", "shape_from_args"]
 
 
 def add_cut_arguments(p) -> None:
@@ -44,22 +44,29 @@ def parse_crop(text: str) -> tuple[tuple[float, float, float], tuple[float, floa
     return v[:3], v[3:]  # type: ignore[return-value]
 
 
-def parse_crop_voxels(text: str, shape0) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
-    """``"z0:z1,y0:y1,x0:x1"`` -> ``(start, stop)`` of level 0 (empty sides: the axis's ends)."""
+def parse_voxel_ranges(text: str, shape0, flag: str = "--crop-voxels") -> tuple[tuple[int, int, int], tuple[int, int, int]]:
+    """``"z0:z1,y0:y1,x0:x1"`` -> ``(start, stop)`` in voxels of level 0 (empty sides: the axis's
+    ends); the one parser of ``--crop-voxels`` and ``clipvol export --box`` (``flag`` names it in
+    errors). Bounds are the caller's: a crop may reach past the volume, an export may not."""
     parts = text.split(",")
     if len(parts) != 3:
-        raise ParameterError(f"--crop-voxels: expected Z0:Z1,Y0:Y1,X0:X1 (three ranges), got {text!r}")
+        raise ParameterError(f"{flag}: expected Z0:Z1,Y0:Y1,X0:X1 (three ranges), got {text!r}")
     start, stop = [], []
     for part, n, axis in zip(parts, shape0, "zyx"):
         a, sep, b = part.partition(":")
         if not sep:
-            raise ParameterError(f"--crop-voxels: expected START:STOP for {axis}, got {part!r}")
+            raise ParameterError(f"{flag}: expected START:STOP for {axis}, got {part!r}")
         try:
             start.append(int(a) if a.strip() else 0)
             stop.append(int(b) if b.strip() else int(n))
         except ValueError:
-            raise ParameterError(f"--crop-voxels: expected integer ranges Z0:Z1,Y0:Y1,X0:X1, got {part!r} for {axis}") from None
+            raise ParameterError(f"{flag}: expected integer voxel ranges Z0:Z1,Y0:Y1,X0:X1, got {part!r} for {axis}") from None
     return tuple(start), tuple(stop)  # type: ignore[return-value]
+
+
+def parse_crop_voxels(text: str, shape0) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
+    """``--crop-voxels "z0:z1,y0:y1,x0:x1"`` -> ``(start, stop)`` of level 0 (:func:`parse_voxel_ranges`)."""
+    return parse_voxel_ranges(text, shape0, "--crop-voxels")
 
 
 def parse_clip_plane(text: str) -> tuple[float, ...]:
