@@ -17,16 +17,7 @@ import clipvol.bricking.pipeline as brick_mod
 from clipvol.errors import OutputExistsError, OutputWriteError, ParameterError, SourceChangedError
 from clipvol.tools.cli import main
 from build_hooks import after_each_brick
-
-
-def _one_error_line(capsys, *needles):
-    err = capsys.readouterr().err
-    lines = [ln for ln in err.strip().splitlines() if ln.strip()]
-    assert len(lines) == 1, err
-    assert "Traceback" not in err
-    for n in needles:
-        assert n in lines[0], lines[0]
-    return lines[0]
+from test_cli_brick import _one_error_line  # one line, no traceback, naming what is wrong
 
 
 def _complete(store) -> bool:
