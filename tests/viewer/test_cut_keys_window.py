@@ -7,7 +7,6 @@ box face by the editor's step; the ruler (``U`` twice) measures numpy's distance
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 import pytest
@@ -15,7 +14,7 @@ import pytest
 pytest.importorskip("glfw")
 pytest.importorskip("moderngl")
 
-from test_view_window import xdisplay  # noqa: E402,F401,F811  (the Xvfb fixture, shared)
+from test_view_window import _converge, xdisplay  # noqa: E402,F401,F811  (the Xvfb fixture and the wait, shared)
 
 N, R = 40, 10.0
 
@@ -27,15 +26,6 @@ def ball():
     return np.where(r <= R, 0.6 + 0.3 * x / N, 0.0).astype(np.float32)
 
 
-def _converge(v, limit=300):
-    for _ in range(limit):
-        v.step()
-        fs = v.session.frame_stats
-        if fs is not None and fs.converged and v.session.clip_texture.stats.queued == 0:
-            break
-        time.sleep(0.01)
-    v.step(force=True)
-
 
 def test_probe_cut_and_ruler_keys_in_the_window(xdisplay):
     from clipvol.loaders.numpy_array import NumpyLoader
@@ -46,7 +36,7 @@ def test_probe_cut_and_ruler_keys_in_the_window(xdisplay):
     with Viewer(NumpyLoader(vol, brick=8, value_range=(0.0, 1.0)), size=(96, 72), tf="grey", visible=False,
                 frame_time=0) as v:
         v.key("H")  # HUD off: the screen shows the frame only (its lines are checked from cut.hud_lines)
-        _converge(v)
+        _converge(v, limit=300)
         whole = v.read_screen()
         w, h = v.framebuffer_size
         p = v.probe_at(w / 2, h / 2)
@@ -69,7 +59,7 @@ def test_probe_cut_and_ruler_keys_in_the_window(xdisplay):
         # V: a plane through the centre of interest facing away from the eye cuts the near half away
         v.key("V")
         assert len(v.session.params.shape.planes) == 1
-        _converge(v)
+        _converge(v, limit=300)
         cut = v.read_screen()
         assert np.abs(cut.astype(int) - whole.astype(int)).max() > 20
         f = v.controls.forward
@@ -78,7 +68,7 @@ def test_probe_cut_and_ruler_keys_in_the_window(xdisplay):
         assert p.value == vol[p.voxel]
         v.key("O")  # remove it: the whole ball again
         assert v.session.params.shape is None
-        _converge(v)
+        _converge(v, limit=300)
         assert np.abs(v.read_screen().astype(int) - whole.astype(int)).max() <= 2
         # F selects the box's x- face, X pushes it in by one step
         v.key("F")
