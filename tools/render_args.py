@@ -105,6 +105,7 @@ FLAGS: dict[str, Flag] = {(f.fields[0] if len(f.fields) == 1 else f.dest): f for
     Flag(("shading",), "--shading", switch="on"),
     Flag(("ambient", "diffuse", "specular", "shininess"), "--light", type=_floats, metavar="KA,KD,KS,N",
          to_fields=_light, help="--shading: ambient, diffuse, specular weights and shininess (default %(default)s)"),
+    Flag(("refine_tolerance",), "--refine-tolerance", type=float),
     Flag(("jitter",), "--no-jitter", switch="off",
          help="sample every pixel's ray from t = 0 (shows lattice rings; for comparisons)"),
     Flag(("path",), "--render-path", choices=_paths),

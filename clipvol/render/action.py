@@ -84,6 +84,7 @@ from .gpu_cache import GpuBrickCache
 from .image_lod import ImageLod
 from .modes import mode_defines, occupancy_tf
 from .overlay_binding import OverlayTextures, overlay_defines
+from .refine import Refine, refine_levels, refines
 from .paths import AUTO_SINGLE_PASS_BOXES, DRAW_PATHS, FALLBACK, pick
 # the draw paths' limits, importable from here as well (benchmarks and tests read them)
 from .paths.bricks import OCCLUSION_MIN_BATCH, OCCLUSION_PASSES
@@ -296,12 +297,34 @@ class ClipRenderAction:
         items = list(items)
         self.skipped_empty = self._skips(tf)
         name = pick(self.params, items)
-        out = self._path(name).draw(cam, tf, items)
+        out = self._draw_refined(name, cam, tf, items) if refines(self.params, cam) else \
+            self._path(name).draw(cam, tf, items)
         if out is None:  # the path cannot draw this cut: the reference path does
             name = FALLBACK
             out = self._path(name).draw(cam, tf, items)
         self.path_drawn = name
         return out
+
+    def _draw_refined(self, name: str, cam, tf, items):
+        """Draw the cut with path ``name`` as a refined frame (:mod:`clipvol.render.refine`): the
+        coarse pass, then the fine pass and the fill; None where the path declines the cut."""
+        setup = self.setup
+        if setup.refine is None:
+            setup.refine = Refine(self.ctx)
+        path = self._path(name)
+        setup.refine.levels = refine_levels(cam)
+        setup.refine_camera = cam
+        drawn = 0.0
+        try:
+            for k in range(setup.refine.levels, -1, -1):  # coarsest first; 0: the image
+                setup.refine_level = k
+                out = path.draw(Refine.coarse_camera(cam, k), tf, items)
+                if out is None:
+                    return None
+                drawn += out[1]
+        finally:
+            setup.refine_level = setup.refine_camera = None
+        return out[0], drawn, out[2]
 
     def _path(self, name: str):
         """The draw path registered as ``name``, made for this action on first use."""

@@ -16,8 +16,10 @@ __all__ = ["FloatTarget"]
 class FloatTarget:
     """An RGBA float32 framebuffer of the last size asked for, on ``ctx``."""
 
-    def __init__(self, ctx) -> None:
+    def __init__(self, ctx, depth: bool = False) -> None:
         self.ctx = ctx
+        self.depth = depth  # with a depth buffer (the volume frames' target: the mask of a refined frame)
+        self._depth = None
         self.fbo = None
         self._color = None
         self._size = None
@@ -29,7 +31,8 @@ class FloatTarget:
         if self._size != size:
             self.release()
             self._color = self.ctx.texture(size, 4, dtype="f4")
-            self.fbo = self.ctx.framebuffer(color_attachments=[self._color])
+            self._depth = self.ctx.depth_renderbuffer(size) if self.depth else None
+            self.fbo = self.ctx.framebuffer(color_attachments=[self._color], depth_attachment=self._depth)
             self._size = size
         return self.fbo
 
@@ -52,7 +55,7 @@ class FloatTarget:
         previous.use()
 
     def release(self) -> None:
-        for obj in (self.fbo, self._color):
+        for obj in (self.fbo, self._color, self._depth):
             if obj is not None:
                 obj.release()
-        self.fbo = self._color = self._size = None
+        self.fbo = self._color = self._depth = self._size = None

@@ -45,8 +45,7 @@ class BricksPath(DrawPath):
 
     def __init__(self, action) -> None:
         super().__init__(action)
-        self._copy = None  # the opacity snapshot for early termination across boxes
-        self._copy_size = None
+        self._copies: dict = {}  # the opacity snapshot for early termination across boxes, per image size
 
     def _program(self):
         """The brick shader variant for the current parameters (compiled once per variant)."""
@@ -62,13 +61,19 @@ class BricksPath(DrawPath):
         return prog, vao
 
     def _ensure_copy(self, size: tuple[int, int]):
-        if self._copy_size != size:
-            if self._copy is not None:
-                self._copy.release()
-            self._copy = self.ctx.texture(size, 4, dtype="f4")
-            self._copy.filter = (self.mgl.NEAREST, self.mgl.NEAREST)
-            self._copy_size = size
-        return self._copy
+        """The snapshot texture of ``size`` (kept per size: a refined frame draws two sizes)."""
+        copy = self._copies.get(size)
+        if copy is None:
+            if len(self._copies) >= 2:  # a new image size: the old ones go
+                self._release_copies()
+            copy = self._copies[size] = self.ctx.texture(size, 4, dtype="f4")
+            copy.filter = (self.mgl.NEAREST, self.mgl.NEAREST)
+        return copy
+
+    def _release_copies(self) -> None:
+        for copy in self._copies.values():
+            copy.release()
+        self._copies = {}
 
     def draw(self, cam, tf, items: list) -> tuple[np.ndarray, float, float]:
         a, mgl, ctx = self.action, self.mgl, self.ctx
@@ -87,7 +92,8 @@ class BricksPath(DrawPath):
         prog, vao = self._program()
         origin = self.setup.frame_uniforms(prog, cam, tf)
         ctx.enable(mgl.BLEND)
-        ctx.disable(mgl.DEPTH_TEST | mgl.CULL_FACE)
+        ctx.disable(mgl.CULL_FACE)
+        self.setup.depth_test()  # on only in the fine pass of a refined frame
         uset(prog, "u_use_acc", False)  # no opacity snapshot until the first batch is drawn
         if not set_blend(ctx, mgl, params.mode):  # MIP MAX, minIP MIN, average ONE + ONE
             ctx.blend_equation = mgl.FUNC_ADD
@@ -183,6 +189,4 @@ class BricksPath(DrawPath):
         self.action.occlusion_passes += 1
 
     def release(self) -> None:
-        if self._copy is not None:
-            self._copy.release()
-        self._copy = self._copy_size = None
+        self._release_copies()

@@ -14,6 +14,11 @@ bit-identical where they should be (the same ray, the same samples, the same rou
   transfer function with its opacity corrected for level ``L``'s step, ``1 - exp(r * log1p(-a))``
   in float64 on the CPU, rebuilt only when the table or the step changes (LaMar, Hamann & Joy);
 * **the empty-space cells** (:meth:`DrawSetup.bind_occupancy`) for ``EMPTY_SKIP`` variants;
+* **the passes of a refined frame** (:attr:`DrawSetup.refine_level`, :mod:`clipvol.render.refine`):
+  a coarse pass draws into a target of its own with the image's rays through its pixels; every
+  finer pass begins with the mask from the pass before (smooth pixels blended, their depth set)
+  and draws under the depth test (:meth:`DrawSetup.depth_test`), so the rasteriser never shades
+  the smooth pixels;
 * **the read-back** (:meth:`DrawSetup.read_back`) - composite through the GL resolve pass
   (:class:`~clipvol.render.resolve.Resolve`), MIP by mapping the maximum through the transfer
   function here - and giving the previous framebuffer binding back.
@@ -40,6 +45,7 @@ from ...scene.visibility import box_depths, screen_rects
 from ..glsl import ProgramCache
 from ..gpu_cache import t_scale_offset
 from ..modes import REDUCED_MODES, depth_range, iso_texel, occupancy_tf, reduce_image
+from ..refine import Refine
 from ..resolve import Resolve
 from ..target import FloatTarget
 from ..uniforms import uset, vec3
@@ -137,13 +143,16 @@ class DrawSetup:
         self.action = action
         self.ctx = action.ctx
         self.programs = ProgramCache(self.ctx)
-        self.target = FloatTarget(self.ctx)
+        self.target = FloatTarget(self.ctx, depth=True)  # depth: the mask of a refined frame
         self._vaos: dict = {}
         self._tf_tex = None
         self._tf_key = None
         self._resolve = None
         self.last_raw: np.ndarray | None = None  # MIP, minIP, average, iso: the target read back by the last frame
         self.depth = (0.0, 1.0)  # the volume box's range of ray parameters this frame (iso_color="depth")
+        self.refine: Refine | None = None  # the coarse targets and the mask pass, made by the first refined frame
+        self.refine_level: int | None = None  # while a refined frame draws: 0 the image, k its pass at 1 / 2**k
+        self.refine_camera = None  # the image's camera, while a refined frame draws
 
     def program(self, vertex: str, fragment: str, defines: dict, first_use=None):
         """The variant ``(program, vertex array)`` (compiled once per variant); ``first_use(prog)``
@@ -167,12 +176,26 @@ class DrawSetup:
         ctx = self.ctx
         t0 = time.perf_counter()
         w, h = cam.size
-        fbo = self.target.ensure((int(w), int(h)))
+        k = self.refine_level
+        target = self.refine.target(k) if k else self.target
+        fbo = target.ensure((int(w), int(h)))
         previous = ctx.fbo
         fbo.use()
         ctx.viewport = (0, 0, int(w), int(h))
-        fbo.clear(*clear)
+        fbo.clear(*clear)  # (depth to 1: nothing masked)
+        if k is not None and k < self.refine.levels:  # a finer pass: the smooth pixels come from the coarser one
+            self.refine.mask(fbo, k, self.action.params.refine_tolerance)
         return fbo, previous, t0
+
+    def depth_test(self) -> None:
+        """Set the depth test for a draw path's passes: off, except in a masked pass of a refined
+        frame, where fragments (depth 0.5) pass only where the mask left the depth at 1."""
+        k = self.refine_level
+        if k is not None and k < self.refine.levels:
+            self.ctx.enable(self.mgl.DEPTH_TEST)
+            self.ctx.depth_func = "<="
+        else:
+            self.ctx.disable(self.mgl.DEPTH_TEST)
 
     def frame_uniforms(self, prog, cam, tf) -> np.ndarray:
         """Set per-frame uniforms; returns the origin ``O`` (float64) the box uniforms are relative to."""
@@ -213,6 +236,8 @@ class DrawSetup:
         finite = np.abs(box) < 1e29
         box = np.where(finite, box - origin, box)
         planes[:, 3] += planes[:, :3] @ origin  # n.(p' + O) + d = n.p' + (d + n.O)
+        if self.refine_level:  # a coarse pass: the image's rays through its pixels
+            self.refine.coarse_uniforms(prog, self.refine_camera, self.refine_level)
         prog["u_shape_lo"].value = vec3(box[0])
         prog["u_shape_hi"].value = vec3(box[1])
         prog["u_planes"].write(planes.astype(np.float32).tobytes())
@@ -260,6 +285,9 @@ class DrawSetup:
         target read back and mapped here (:func:`clipvol.render.modes.reduce_image`)."""
         ctx, a = self.ctx, self.action
         params, pyr = a.params, a.pyramid
+        if self.refine_level:  # a coarse image stays on the GL for the next pass's mask
+            self.target.restore(previous)
+            return None, time.perf_counter() - t0, 0.0
         ctx.finish()
         t1 = time.perf_counter()
         self.last_raw = None
@@ -291,6 +319,9 @@ class DrawSetup:
         if self._resolve is not None:
             self._resolve.release()
             self._resolve = None
+        if self.refine is not None:
+            self.refine.release()
+            self.refine = None
         for obj in (*self._vaos.values(), self._tf_tex):
             if obj is not None:
                 obj.release()

@@ -142,7 +142,8 @@ class SinglePassPath(DrawPath):
             if tex is not None:
                 uset(prog, f"u_level{L}", 3 + L)
                 tex.use(location=3 + L)
-        ctx.disable(mgl.DEPTH_TEST | mgl.BLEND | mgl.CULL_FACE)
+        ctx.disable(mgl.BLEND | mgl.CULL_FACE)
+        self.setup.depth_test()  # on only in the fine pass of a refined frame
         rect = scissor_boxes(cam, vlo, vhi)[0]
         if rect[2] and rect[3]:  # else the volume is off the image: nothing to draw
             ctx.scissor = tuple(rect)

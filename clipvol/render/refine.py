@@ -1,0 +1,132 @@
+"""Adaptive image sampling: one ray per 2 x 2 pixels where the image is smooth, one per pixel elsewhere.
+
+Why
+---
+A ray caster's frame costs one ray per pixel, and on a scan most pixels lie where the image
+changes slowly: air around the head, the smooth shading of skin or bone. Levoy cast rays sparsely
+and refined only where neighbouring colours differ ("Volume rendering by adaptive refinement", The
+Visual Computer 6(1), 1990). With ``RenderParams.refine_tolerance`` above 0 the render action
+draws a composite frame in three passes, all through the same draw path and the same selection:
+
+1. **coarse** - the cut drawn at half the image's resolution (``ceil(w / 2) x ceil(h / 2)`` rays,
+   a quarter of them) into a float target of its own; coarse ray ``(i, j)`` is the ray through
+   the corner shared by pixels ``2i, 2i + 1`` and ``2j, 2j + 1`` of the image, so the four coarse
+   rays around any pixel are the corners of a cell it lies in;
+2. **mask** - one full-screen pass (``shaders/refine_fill.frag.glsl``) over the image's target:
+   where those four coarse rays agree to within the tolerance in every premultiplied RGBA channel,
+   the pixel becomes their bilinear blend and its depth 0;
+3. **fine** - the cut drawn at full resolution by the same path under the depth test: the
+   rasteriser rejects the masked pixels before their fragments are shaded (a fragment that
+   returns at once still costs Mesa llvmpipe about a third of a ray), so rays are cast only where
+   the coarse image changes, and the frame ends as any other (resolve, read-back, ``last_raw``).
+
+Edges, silhouettes and fine texture keep their full-resolution rays. What is lost is what no coarse
+ray sees: a feature thinner than two pixels lying between four rays that agree. That error is
+measured (``clipvol report``, ``tools/bench/bench_mission.py``: % of pixels with CIELUV ΔE >= 6
+against the full-resolution frame), not bounded. MIP, minIP, average and iso frames draw every
+pixel (their targets hold values mapped after the pass, not colours a blend can stand for).
+
+References
+----------
+* M. Levoy, "Volume rendering by adaptive refinement", The Visual Computer 6(1), 1990.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import replace
+
+from .glsl import shader_source
+from .target import FloatTarget
+from .uniforms import uset
+
+__all__ = ["Refine", "MIN_REFINE_EDGE", "MAX_REFINE_LEVELS", "refine_levels", "refines"]
+
+#: the coarsest pass of a refined frame has at least this many pixels each way
+MIN_REFINE_EDGE = 8
+#: coarse passes at most (1 / 2 and 1 / 4 of the image's resolution)
+MAX_REFINE_LEVELS = int(os.environ.get("CLIPVOL_REFINE_LEVELS", "2"))
+
+
+def refine_levels(camera) -> int:
+    """The coarse passes of a refined frame for ``camera``: up to :data:`MAX_REFINE_LEVELS`, the
+    coarsest at least :data:`MIN_REFINE_EDGE` pixels each way (0: the image is too small)."""
+    edge = min(int(v) for v in camera.size)
+    k = 0
+    while k < MAX_REFINE_LEVELS and -(-edge // 2 ** (k + 1)) >= MIN_REFINE_EDGE:
+        k += 1
+    return k
+
+
+def refines(params, camera) -> bool:
+    """Does a frame with ``params`` seen by ``camera`` draw refined (composite, a tolerance above 0,
+    an image large enough for a coarse pass, :func:`refine_levels`)?"""
+    return params.refine_tolerance > 0.0 and params.mode == "composite" and refine_levels(camera) > 0
+
+
+class Refine:
+    """The coarse targets and the mask pass of refined frames on one context (made on first use)."""
+
+    def __init__(self, ctx) -> None:
+        self.ctx = ctx
+        self.levels = 1  # coarse passes of the frame being drawn (set by the render action)
+        self._targets: dict[int, FloatTarget] = {}
+        self.prog = ctx.program(vertex_shader=shader_source("screen.vert"),
+                                fragment_shader=shader_source("refine_fill.frag"))
+        self.vao = ctx.vertex_array(self.prog, [])
+
+    def target(self, k: int) -> FloatTarget:
+        """The float target of coarse pass ``k`` (1 / 2**k of the image), with a depth buffer (a
+        coarse pass is masked by the one below it)."""
+        if k not in self._targets:
+            self._targets[k] = FloatTarget(self.ctx, depth=True)
+        return self._targets[k]
+
+    @staticmethod
+    def coarse_camera(camera, k: int):
+        """``camera`` with ``ceil(w / 2**k) x ceil(h / 2**k)`` pixels: the size of pass ``k``'s target
+        (its rays come from the image's camera, :meth:`coarse_uniforms`)."""
+        if k == 0:
+            return camera
+        w, h = (int(v) for v in camera.size)
+        return replace(camera, size=(-(-w // 2**k), -(-h // 2**k)))
+
+    @staticmethod
+    def coarse_uniforms(prog, camera, k: int) -> None:
+        """Make pass ``k``'s fragment ``(i, j)`` cast the image's ray through the image point
+        ``((i + 1/2) * 2**k, (j + 1/2) * 2**k)`` (pixel-corner units): the image camera's half
+        extents over its viewport divided by ``2**k`` (exact for odd sizes too, where the coarse
+        target has a column or row beyond the image). Pass ``k``'s ray ``i`` then lies halfway
+        between pass ``k - 1``'s pixels ``2i`` and ``2i + 1``."""
+        w, h = (int(v) for v in camera.size)
+        f = float(2**k)
+        prog["u_viewport"].value = (w / f, h / f)
+        if not camera.orthographic:
+            ty = math.tan(math.radians(float(camera.fov_y)) / 2.0)
+            prog["u_half"].value = (ty * w / h, ty)
+
+    def mask(self, fbo, k: int, tolerance: float) -> None:
+        """Blend pass ``k + 1``'s image into the smooth pixels of pass ``k``'s ``fbo`` (bound, depth
+        cleared to 1) and set their depth to 0, so that the pass's fragments (depth test ``<=``, at
+        0.5) leave them alone; the caller's draw path then sets its own blending and depth test."""
+        import moderngl
+
+        ctx = self.ctx
+        self.target(k + 1).color.use(location=0)
+        uset(self.prog, "u_coarse", 0)
+        uset(self.prog, "u_refine_tol", float(tolerance))
+        ctx.scissor = None
+        ctx.disable(moderngl.BLEND)
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.depth_func = "1"  # always: the depth test must be on for the depth to be written
+        self.vao.render(moderngl.TRIANGLES, vertices=3)
+
+    def release(self) -> None:
+        for t in self._targets.values():
+            t.release()
+        self._targets = {}
+        for obj in (self.vao, self.prog):
+            if obj is not None:
+                obj.release()
+        self.vao = self.prog = None

@@ -1,0 +1,127 @@
+"""Adaptive image sampling (RenderParams.refine_tolerance, clipvol.render.refine) draws what the
+refinement of the numpy reference caster's own images draws, in both draw paths.
+
+The reference is built here from the independent caster (tests/reference_raycast.py) and the
+algorithm as its docstring states it, in float64 numpy: the image at 1/4, 1/2 and full resolution
+(the rays of a camera of that size are the rays the coarse passes cast when the size divides), then
+from the coarsest up, a pixel whose four surrounding coarser rays agree to within the tolerance in
+every premultiplied channel is their bilinear blend, every other pixel is its own ray."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import reference_raycast as ref
+from clipvol.loaders.numpy_array import NumpyLoader
+from test_empty_skip import SHELL, shell_volume
+
+from clipvol.errors import ParameterError
+from clipvol.paging.cliptexture import ClipTexture
+from clipvol.render.refine import refine_levels
+from clipvol.scene.camera import Camera
+from clipvol.scene.params import RenderParams
+
+pytestmark = pytest.mark.gl
+
+TOL = 0.05
+
+
+@pytest.fixture
+def scene(ctx):
+    vol = shell_volume()
+    loader = NumpyLoader(vol, brick=16, value_range=(0.0, 1.0))
+    clip = ClipTexture(loader, "64MB", threads=2)
+    actions = []
+
+    def action(**kw):
+        from clipvol.render.action import ClipRenderAction
+
+        a = ClipRenderAction(ctx, clip, policy="fixed", level=0, **kw)
+        actions.append(a)
+        return a
+
+    yield vol, loader.pyramid, action
+    for a in actions:
+        a.close()
+    clip.close()
+    assert ctx.error == "GL_NO_ERROR"
+
+
+def camera(size=(96, 80)):
+    return Camera.perspective((95.0, 75.0, -40.0), (31.5, 31.5, 31.5), size=size, fov_y=40)
+
+
+def refined_reference(vol, pyr, cam, tol: float, levels: int) -> tuple[np.ndarray, float]:
+    """The refined image from the reference caster (premultiplied float, rows top first) and the
+    share of its pixels that are blends rather than rays."""
+    fc = cam.fit_depth(*pyr.volume_box())
+    w, h = cam.size
+
+    def cast(k):
+        c = replace(fc, size=(w // 2**k, h // 2**k))
+        return ref.raycast(vol, pyr.spacing, c, SHELL.table, SHELL.window(pyr.value_range), 0.5)[::-1]  # rows up
+
+    img = cast(levels)
+    blended = None
+    for k in range(levels - 1, -1, -1):
+        rays = cast(k)
+        H, W = rays.shape[:2]
+        y, x = np.mgrid[0:H, 0:W]
+        cy, cx = (y + 0.5) / 2 - 0.5, (x + 0.5) / 2 - 0.5
+        y0, x0 = np.floor(cy).astype(int), np.floor(cx).astype(int)
+        fy, fx = (cy - y0)[..., None], (cx - x0)[..., None]
+
+        def tap(dy, dx):
+            return img[np.clip(y0 + dy, 0, img.shape[0] - 1), np.clip(x0 + dx, 0, img.shape[1] - 1)]
+
+        a, b, d, e = tap(0, 0), tap(0, 1), tap(1, 0), tap(1, 1)
+        taps = np.stack([a, b, d, e])
+        smooth = (taps.max(axis=0) - taps.min(axis=0)).max(axis=-1) <= tol
+        blend = (a * (1 - fx) + b * fx) * (1 - fy) + (d * (1 - fx) + e * fx) * fy
+        img = np.where(smooth[..., None], blend, rays)
+        blended = float(smooth.mean())
+    return img[::-1], blended
+
+
+@pytest.mark.parametrize("path", ["bricks", "single-pass"])
+def test_refined_frame_is_the_reference_refinement(scene, path):
+    vol, pyr, action = scene
+    cam = camera()
+    assert refine_levels(cam) == 2  # 96 x 80 -> 48 x 40 -> 24 x 20
+    img = action(path=path, refine_tolerance=TOL, merge_boxes=path == "bricks").render(cam, SHELL, wait=True)
+    want, blended = refined_reference(vol, pyr, cam, TOL, 2)
+    assert blended > 0.5  # most pixels are blends: the test exercises the mask, not only the rays
+    d = np.abs(img.astype(np.int64) - ref.to_uint8(want).astype(np.int64)).max(axis=-1)
+    # a pixel whose spread lies within float32 rounding of the tolerance may go either way
+    assert (d > 2).mean() <= 0.01, f"{(d > 2).sum()} pixels differ by more than 2 levels (max {d.max()})"
+    plain = action(path=path).render(cam, SHELL, wait=True)
+    assert np.abs(plain.astype(np.int64) - img.astype(np.int64)).max() > 0  # refined, not the plain frame
+
+
+def test_odd_sizes_keep_every_pixel_in_place(scene):
+    """An image of odd size: the coarse passes have a column and row beyond it; the refined frame is
+    the plain one wherever the tolerance is tiny (only exactly equal neighbours are blended)."""
+    _, _, action = scene
+    cam = camera((97, 79))
+    plain = action().render(cam, SHELL, wait=True)
+    img = action(refine_tolerance=1e-6).render(cam, SHELL, wait=True)
+    d = np.abs(plain.astype(np.int64) - img.astype(np.int64)).max(axis=-1)
+    assert (d > 1).mean() <= 0.01
+
+
+def test_modes_other_than_composite_and_tiny_images_draw_every_pixel(scene):
+    _, _, action = scene
+    mip = action(mode="mip", refine_tolerance=0.5).render(camera(), SHELL, wait=True)
+    assert np.array_equal(mip, action(mode="mip").render(camera(), SHELL, wait=True))
+    small = camera((12, 12))
+    assert refine_levels(small) == 0
+    assert np.array_equal(action(refine_tolerance=0.5).render(small, SHELL, wait=True),
+                          action().render(small, SHELL, wait=True))
+
+
+@pytest.mark.parametrize("bad", [-0.1, 1.5, float("nan"), "x"])
+def test_refine_tolerance_is_checked(bad):
+    with pytest.raises(ParameterError, match="refine_tolerance"):
+        RenderParams(refine_tolerance=bad)
