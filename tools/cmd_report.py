@@ -80,6 +80,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="visible-error budgets of the image policy measured as settings, comma-separated "
                         "fractions or percentages (predicted share of pixels with CIELUV dE >= 6), or 'none' "
                         "(default 10%%,5%%,2%%; needs the store's summary tables)")
+    p.add_argument("--refine", default=None, metavar="STEP:TOL,...",
+                   help="full resolution sampled at STEP voxels with adaptive image sampling at tolerance TOL "
+                        "(--refine-tolerance of clipvol render) measured as settings, comma-separated, or 'none' "
+                        "(default 2:0.16,2.5:0.3; composite only)")
     p.add_argument("--block-budgets", default=None,
                    help="block budgets of the policy comparison (image-based LOD, after Wang, Garcia & Shen 2007, "
                         "Fig. 6), comma-separated, or 'none' (default 8,16,32,64,128,256)")
@@ -109,6 +113,26 @@ def _max_errors(text):
     if text.strip().lower() == "none":
         return ()
     return [t.strip() for t in text.split(",") if t.strip()]
+
+
+def _refines(text):
+    """``--refine``: None (the report's default settings), ``()`` for 'none', else ``(step, tolerance)``
+    pairs (each validated by RenderParams, which names ``step`` or ``refine_tolerance``)."""
+    from clipvol.errors import ParameterError
+
+    if text is None:
+        return None
+    if text.strip().lower() == "none":
+        return ()
+    out = []
+    for item in (t.strip() for t in text.split(",") if t.strip()):
+        try:
+            st, tol = (float(v) for v in item.split(":"))
+        except ValueError:
+            raise ParameterError(f"--refine: expected STEP:TOLERANCE pairs like 2.5:0.3, comma-separated, or "
+                                 f"'none', got {item!r}") from None
+        out.append((st, tol))
+    return out
 
 
 def run(args) -> int:
@@ -141,7 +165,7 @@ def run(args) -> int:
         step=args.step, threads=args.threads, timeout=args.timeout, max_frames=args.max_frames,
         reference_cap=args.reference_cap, log=lambda s: print(s, flush=True), plots=not args.no_plots,
         block_budgets=_budgets(args.block_budgets), rounds=args.rounds, allow_partial=args.allow_partial,
-        max_errors=_max_errors(args.max_error),
+        max_errors=_max_errors(args.max_error), refines=_refines(args.refine),
     )
     print(f"wrote {res.csv}, {res.timing_csv}, {res.markdown}" + "".join(f", {p}" for p in res.plots))
     print(res.headline[:1].upper() + res.headline[1:] + ".")

@@ -77,14 +77,18 @@ REFERENCES = (
     "13(1), 2007.",
     "J. Meredith and K.-L. Ma. Multiresolution view-dependent splat based volume rendering of large "
     "irregular data. IEEE Symposium on Parallel and Large-Data Visualization and Graphics, 2001.",
+    "M. Levoy. Volume rendering by adaptive refinement. The Visual Computer 6(1), 1990.",
 )
 
 __all__ = ["ReportResult", "run_report", "summarise", "headline", "REPORT_COLUMNS", "TIMING_COLUMNS", "DEFAULT_THRESHOLDS",
-           "DEFAULT_MAX_ERRORS", "VISIBLE_TARGET"]
+           "DEFAULT_MAX_ERRORS", "DEFAULT_REFINES", "VISIBLE_TARGET"]
 
 DEFAULT_THRESHOLDS = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0)
 #: the image policy's visible-error budgets (RenderParams.max_error) the report sweeps by default
 DEFAULT_MAX_ERRORS = (0.10, 0.05, 0.02)
+#: full resolution sampled at ``step`` voxels with adaptive image sampling at ``refine_tolerance``
+#: (:mod:`clipvol.render.refine`), the settings of the sweep "refine" by default
+DEFAULT_REFINES = ((2.0, 0.16), (2.5, 0.3))
 
 REPORT_COLUMNS = (
     "sweep", "setting", "lod_threshold", "memory_budget", "texture_budget", "selection", "level",
@@ -396,6 +400,7 @@ def run_report(
     rounds: int = 5,
     allow_partial: bool = False,
     max_errors: Sequence | None = None,
+    refines: Sequence | None = None,
 ) -> ReportResult:
     """Measure image error against frame time and bytes for a sweep of settings; write the report.
 
@@ -461,6 +466,10 @@ def run_report(
         like ``"5%"``), each a setting of the sweep ``"max_error"`` measured like the thresholds.
         Default :data:`DEFAULT_MAX_ERRORS`; ``()`` skips them. They need the store's summary tables
         (else they are reported as skipped).
+    refines : sequence of (step, tolerance), optional
+        Level 0 sampled at ``step`` voxels with adaptive image sampling at ``tolerance``
+        (``RenderParams.step``, ``refine_tolerance``), each a setting of the sweep ``"refine"``
+        (composite only). Default :data:`DEFAULT_REFINES`; ``()`` skips them.
 
     Returns
     -------
@@ -482,6 +491,8 @@ def run_report(
     # validated before anything is drawn: fractions in (0, 1] (RenderParams names max_error when not)
     max_errors = [RenderParams(policy="image", max_error=e).max_error
                   for e in (DEFAULT_MAX_ERRORS if max_errors is None else max_errors)]
+    refines = [(p.step, p.refine_tolerance) for p in (RenderParams(step=st, refine_tolerance=tol)
+                                                      for st, tol in (DEFAULT_REFINES if refines is None else refines))]
     loader = open_loader(source)
     pyr = loader.pyramid
     cap = parse_bytes(reference_cap, "reference_cap")
@@ -539,6 +550,9 @@ def run_report(
         for e in max_errors:
             settings.append(_Setting("max_error", f"max-error={100 * e:g}%", 1.0, full_mem, full_tex, "image", None,
                                      (("max_error", e),)))
+        for st, tol in refines if mode == "composite" else ():
+            settings.append(_Setting("refine", f"step={st:g} refine={tol:g}", 1.0, full_mem, full_tex, "fixed", 0,
+                                     (("step", st), ("refine_tolerance", tol))))
         measured = [fixed]
         for s in settings:
             try:
@@ -720,7 +734,8 @@ def _plots(rows: list[dict], out: Path) -> list[Path]:
     summ = summarise(rows)
     fixed = [s for s in summ if s["sweep"] == "fixed"]
     sweeps = [("lod_threshold", "LOD threshold sweep", "o-"), ("memory_budget", "memory budget (lod=1)", "s--"),
-              ("texture_budget", "texture budget (lod=1)", "^:"), ("max_error", "image policy, error budget", "d-.")]
+              ("texture_budget", "texture budget (lod=1)", "^:"), ("max_error", "image policy, error budget", "d-."),
+              ("refine", "adaptive image sampling", "v-")]
     files = []
     for xkey, aic_key, xlabel, aic_label, name in (
         ("frame_s", "elapsed_s", "converged frame time (s, mean over views)", "time since the view changed (s)", "error_vs_time.png"),

@@ -138,6 +138,7 @@ class ClipRenderAction:
         self.skipped_empty = False  # the last frame leapt over empty cells (EMPTY_SKIP, see _skips)
         self.page_table_nodes = 0  # single pass: drawn nodes of the last frame's table, after merge_items
         self.last_frame_stats: FrameStats | None = None
+        self._transparent_kept = None  # (key, callback) of _transparent for the last transfer function
         self.occlusion_passes = 0  # bricks path: opacity snapshots taken, all frames
         self.boxes_drawn = 0  # proxy boxes of the last frame, after merge_items
         self.last_selection = None
@@ -166,9 +167,16 @@ class ClipRenderAction:
         tf = occupancy_tf(self.params, tf, self.pyramid.value_range)  # iso: values below the surface's
         if self.params.mode not in ("composite", "iso") or not isinstance(loader, HasBrickRanges):
             return None
+        # kept while the table, its window and the overlays stay (the filter answers whole levels once)
+        key = (loader, np.asarray(tf.table).tobytes(), tf.window(self.pyramid.value_range), self.params.overlays)
+        if self._transparent_kept is not None and self._transparent_kept[0] == key:
+            return self._transparent_kept[1]
         if self.params.overlays:  # a transparent brick still carries the rays through an overlay
-            return self.overlays.cull_outside(transparency_filter(tf, loader), self.params.overlays)
-        return transparency_filter(tf, loader)
+            fn = self.overlays.cull_outside(transparency_filter(tf, loader), self.params.overlays)
+        else:
+            fn = transparency_filter(tf, loader)
+        self._transparent_kept = (key, fn)
+        return fn
 
     def _skips(self, tf) -> bool:
         """Does this frame leap over empty cells? Composite or iso without overlays (an overlay is

@@ -1,4 +1,4 @@
-"""Adaptive image sampling: one ray per 2 x 2 pixels where the image is smooth, one per pixel elsewhere.
+"""Adaptive image sampling: rays at 1/4 and 1/2 resolution where the image is smooth, one per pixel elsewhere.
 
 Why
 ---
@@ -6,22 +6,27 @@ A ray caster's frame costs one ray per pixel, and on a scan most pixels lie wher
 changes slowly: air around the head, the smooth shading of skin or bone. Levoy cast rays sparsely
 and refined only where neighbouring colours differ ("Volume rendering by adaptive refinement", The
 Visual Computer 6(1), 1990). With ``RenderParams.refine_tolerance`` above 0 the render action
-draws a composite frame in three passes, all through the same draw path and the same selection:
+draws a composite frame in passes of rising resolution, all through the same draw path and the
+same selection:
 
-1. **coarse** - the cut drawn at half the image's resolution (``ceil(w / 2) x ceil(h / 2)`` rays,
-   a quarter of them) into a float target of its own; coarse ray ``(i, j)`` is the ray through
-   the corner shared by pixels ``2i, 2i + 1`` and ``2j, 2j + 1`` of the image, so the four coarse
-   rays around any pixel are the corners of a cell it lies in;
-2. **mask** - one full-screen pass (``shaders/refine_fill.frag.glsl``) over the image's target:
-   where those four coarse rays agree to within the tolerance in every premultiplied RGBA channel,
-   the pixel becomes their bilinear blend and its depth 0;
-3. **fine** - the cut drawn at full resolution by the same path under the depth test: the
-   rasteriser rejects the masked pixels before their fragments are shaded (a fragment that
-   returns at once still costs Mesa llvmpipe about a third of a ray), so rays are cast only where
-   the coarse image changes, and the frame ends as any other (resolve, read-back, ``last_raw``).
+1. **coarse** - the cut drawn at 1/4 of the image's resolution (``ceil(w / 4) x ceil(h / 4)``
+   rays; :data:`MAX_REFINE_LEVELS`, fewer for small images, :func:`refine_levels`) into a float
+   target of its own. Pass ``k``'s ray ``(i, j)`` is the image's ray through the point
+   ``((i + 1/2) 2**k, (j + 1/2) 2**k)``, halfway between pixels ``2i`` and ``2i + 1`` of pass
+   ``k - 1``, so the four rays of pass ``k`` around any pixel of pass ``k - 1`` are the corners of
+   a cell it lies in;
+2. **mask** - each finer pass (1/2, then the image) begins with one full-screen pass
+   (``shaders/refine_fill.frag.glsl``): where the four coarser rays around a pixel agree to within
+   the tolerance in every premultiplied RGBA channel, the pixel becomes their bilinear blend and
+   its depth 0;
+3. **rays** - then the cut is drawn at that resolution under the depth test: the rasteriser
+   rejects the masked pixels before their fragments are shaded (a fragment that returns at once
+   still costs Mesa llvmpipe about a third of a ray), so rays are cast only where the coarser
+   image changes. The image's pass ends as any frame (resolve, read-back, ``last_raw``).
 
 Edges, silhouettes and fine texture keep their full-resolution rays. What is lost is what no coarse
-ray sees: a feature thinner than two pixels lying between four rays that agree. That error is
+ray sees: a feature thinner than the coarse rays' spacing (four pixels at the coarsest) lying
+between four rays that agree. That error is
 measured (``clipvol report``, ``tools/bench/bench_mission.py``: % of pixels with CIELUV ΔE >= 6
 against the full-resolution frame), not bounded. MIP, minIP, average and iso frames draw every
 pixel (their targets hold values mapped after the pass, not colours a blend can stand for).
@@ -34,7 +39,6 @@ References
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import replace
 
 from .glsl import shader_source
@@ -46,7 +50,7 @@ __all__ = ["Refine", "MIN_REFINE_EDGE", "MAX_REFINE_LEVELS", "refine_levels", "r
 #: the coarsest pass of a refined frame has at least this many pixels each way
 MIN_REFINE_EDGE = 8
 #: coarse passes at most (1 / 2 and 1 / 4 of the image's resolution)
-MAX_REFINE_LEVELS = int(os.environ.get("CLIPVOL_REFINE_LEVELS", "2"))
+MAX_REFINE_LEVELS = 2
 
 
 def refine_levels(camera) -> int:

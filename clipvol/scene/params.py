@@ -148,12 +148,12 @@ class RenderParams:
         default; off draws every sample (a reference, and for timing what skipping saves).
     refine_tolerance : float
         Composite: adaptive image sampling (:mod:`clipvol.render.refine`, after Levoy's adaptive
-        refinement, 1990). 0 (default): one ray per pixel. Above 0: the frame is drawn first with
-        one ray per 2 x 2 pixels, then one ray per pixel only where the four coarse rays around it
-        differ by more than this in a premultiplied RGBA channel (in ``[0, 1]``); elsewhere the
-        pixel is their bilinear blend. About a quarter of the rays on smooth images; features
-        thinner than two pixels between four agreeing coarse rays are lost (measure the error with
-        ``clipvol report``). Other modes ignore it.
+        refinement, 1990). 0 (default): one ray per pixel. Above 0: the frame is drawn first at
+        1/4 and 1/2 of the image's resolution, and each finer pass casts a pixel's ray only where
+        the four coarser rays around it differ by more than this in a premultiplied RGBA channel
+        (in ``[0, 1]``); elsewhere the pixel is their bilinear blend. Smooth images cost a fraction
+        of the rays; a feature thinner than the coarse spacing between coarse rays that agree is
+        lost (measure the error with ``clipvol report``). Other modes ignore it.
     jitter : bool
         Start each pixel's sample lattice at a stable per-pixel hashed offset (a fraction of the
         step), which turns the wood-grain rings of a constant-distance lattice on opaque surfaces
@@ -223,8 +223,8 @@ class RenderParams:
     early_termination: bool = True
     merge_boxes: bool = True
     refine_tolerance: float = _field(
-        0.0, "composite: one ray per 2x2 pixels, one per pixel only where the four coarse rays differ by more than "
-             "this in a premultiplied channel (0: a ray per pixel; 0.02-0.05 keeps edges)")
+        0.0, "composite: rays at 1/4 and 1/2 of the image's resolution first, then a ray per pixel only where the "
+             "four coarser rays around it differ by more than this in a premultiplied channel (0: a ray per pixel)")
     jitter: bool = _field(
         False, "start every pixel's ray at a hashed offset (turns lattice rings into fine noise)")
     skip_empty: bool = _field(

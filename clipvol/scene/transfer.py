@@ -478,6 +478,10 @@ def footprint_ranges(ranges_fn, grid, level: int, idx) -> np.ndarray | None:
     return np.stack([r[:, :, 0].min(axis=1), r[:, :, 1].max(axis=1)], axis=1)  # NaN propagates
 
 
+#: levels of at most this many bricks are answered whole by :func:`transparency_filter`
+WHOLE_LEVEL_BRICKS = 1 << 18
+
+
 def transparency_filter(tf: TransferFunction, loader):
     """A ``transparent(level, idx) -> (n,) bool`` callback for :func:`clipvol.scene.selection.select`.
 
@@ -486,16 +490,31 @@ def transparency_filter(tf: TransferFunction, loader):
     neighbours) and :meth:`TransferFunction.transparent_mask` over the loader's
     ``pyramid.value_range``. Returns None when the loader has no ``brick_ranges``; where it answers
     None for a level, nothing is reported transparent.
+
+    The answer for a brick depends only on ``tf`` and the store's recorded ranges, never on the
+    view, so a level of at most :data:`WHOLE_LEVEL_BRICKS` bricks is answered for all its bricks at
+    its first question and looked up after that (a caller that keeps the callback for a transfer
+    function, as the render action does, pays it once, not every frame).
     """
     ranges_fn = getattr(loader, "brick_ranges", None)
     if ranges_fn is None:
         return None
     pyr = loader.pyramid
     data_range = pyr.value_range
+    whole: dict[int, np.ndarray] = {}  # level -> transparent mask over its whole grid
 
     def transparent(level: int, idx: np.ndarray) -> np.ndarray:
-        idx = np.asarray(idx).reshape(-1, 3)
-        r = footprint_ranges(ranges_fn, pyr.grid(level), level, idx)
+        idx = np.asarray(idx, dtype=np.int64).reshape(-1, 3)
+        grid = tuple(int(v) for v in pyr.grid(level))
+        mask = whole.get(level)
+        if mask is None and int(np.prod(grid)) <= WHOLE_LEVEL_BRICKS:
+            every = np.indices(grid).reshape(3, -1).T
+            r = footprint_ranges(ranges_fn, grid, level, every)
+            if r is not None:  # (a remote store's statistics may come later: not kept until they do)
+                mask = whole[level] = tf.transparent_mask(r, data_range).reshape(grid)
+        if mask is not None:
+            return mask[idx[:, 0], idx[:, 1], idx[:, 2]]
+        r = footprint_ranges(ranges_fn, grid, level, idx)
         if r is None:
             return np.zeros(len(idx), dtype=bool)
         return tf.transparent_mask(r, data_range)

@@ -40,7 +40,7 @@ def test_files_and_columns(report):
         header = next(csv.reader(fh))
     assert tuple(header) == REPORT_COLUMNS
     rows = _rows(res.csv)
-    assert {r["sweep"] for r in rows} == {"fixed", "lod_threshold", "texture_budget"}
+    assert {r["sweep"] for r in rows} == {"fixed", "lod_threshold", "texture_budget", "refine"}
     assert {r["kind"] for r in rows} == {"converged", "as-it-comes"}
     md = res.markdown.read_text()
     assert "error_vs_time.png" in md
@@ -242,3 +242,27 @@ def test_cli_max_error_is_checked_before_anything_is_drawn(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "max_error" in err and "'150%'" in err
     assert not (tmp_path / "rep" / "report.csv").exists()
+
+
+def test_adaptive_sampling_settings_are_rows_of_the_report(report):
+    """The default sweep "refine": level 0 at a coarser step with adaptive image sampling, measured
+    like every setting (converged frames against the reference, warm timing)."""
+    from clipvol.app.report import DEFAULT_REFINES, summarise
+
+    res, _ = report
+    conv = [r for r in _rows(res.csv) if r["kind"] == "converged" and r["sweep"] == "refine"]
+    assert {r["setting"] for r in conv} == {f"step={st:g} refine={tol:g}" for st, tol in DEFAULT_REFINES}
+    assert all(r["selection"] == "fixed" and r["level"] == "0" for r in conv)
+    s = {x["setting"]: x for x in summarise(res.rows)}
+    assert all(s[r["setting"]]["speedup"] > 0 for r in conv)
+
+
+def test_cli_refine_is_checked_before_anything_is_drawn(tmp_path, capsys):
+    from clipvol.tools.cli import main
+
+    for bad, name in (("2.5", "--refine"), ("2:1.5", "refine_tolerance")):
+        rc = main(["report", "procedural:fractal?size=16", "--brick", "8", "--out", str(tmp_path / "rep"),
+                   "--refine", bad])
+        assert rc == 2
+        assert name in capsys.readouterr().err
+        assert not (tmp_path / "rep" / "report.csv").exists()

@@ -29,6 +29,7 @@ import numpy as np
 from ...scene.page_table import block_open_faces
 from ..uniforms import uset, vec3
 from ..modes import REDUCED_MODES, clear_value, set_blend
+from ..refine import MAX_REFINE_LEVELS
 from .setup import DrawPath, check_samples, scissor_boxes
 
 __all__ = ["BricksPath", "OCCLUSION_PASSES", "OCCLUSION_MIN_BATCH"]
@@ -46,6 +47,7 @@ class BricksPath(DrawPath):
     def __init__(self, action) -> None:
         super().__init__(action)
         self._copies: dict = {}  # the opacity snapshot for early termination across boxes, per image size
+        self._clamps = (None, None)  # (items, their block_clamps) of the pass before, in a refined frame
 
     def _program(self):
         """The brick shader variant for the current parameters (compiled once per variant)."""
@@ -61,10 +63,10 @@ class BricksPath(DrawPath):
         return prog, vao
 
     def _ensure_copy(self, size: tuple[int, int]):
-        """The snapshot texture of ``size`` (kept per size: a refined frame draws two sizes)."""
+        """The snapshot texture of ``size`` (kept per size: a refined frame draws three sizes)."""
         copy = self._copies.get(size)
         if copy is None:
-            if len(self._copies) >= 2:  # a new image size: the old ones go
+            if len(self._copies) > MAX_REFINE_LEVELS:  # a new image size: the old ones go
                 self._release_copies()
             copy = self._copies[size] = self.ctx.texture(size, 4, dtype="f4")
             copy.filter = (self.mgl.NEAREST, self.mgl.NEAREST)
@@ -107,7 +109,7 @@ class BricksPath(DrawPath):
         if params.overlays:  # co-registered volumes sampled at each sample (render/overlay_binding.py)
             a.overlays.bind(prog, params.overlays, origin, a.level_ratios())
         B = np.asarray(pyr.brick_shape, dtype=np.float64)
-        clamps = self.block_clamps(items)
+        clamps = self._frame_clamps(items)
         rects = scissor_boxes(cam, [it.lo for it in items], [it.hi for it in items]) if items else None
         bound_level = None
         n_items = len(items)
@@ -154,6 +156,15 @@ class BricksPath(DrawPath):
         ctx.scissor = None
         return self.setup.read_back(previous, tf, front_to_back, t0)
 
+    def _frame_clamps(self, items) -> list:
+        """:meth:`block_clamps` of ``items``, computed once per frame: the passes of a refined frame
+        draw the same list with the same residency, so the passes after its first reuse them."""
+        setup = self.setup
+        again = setup.refine_level is not None and setup.refine_level < setup.refine.levels
+        if not (again and self._clamps[0] is items):
+            self._clamps = (items, self.block_clamps(items))
+        return self._clamps[1]
+
     def block_clamps(self, items) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per item, the ``(lo, hi)`` clamp of its sampling in item-local voxels (``(x, y, z)``).
 
@@ -190,3 +201,4 @@ class BricksPath(DrawPath):
 
     def release(self) -> None:
         self._release_copies()
+        self._clamps = (None, None)

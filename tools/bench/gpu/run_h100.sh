@@ -21,4 +21,4 @@ mkdir -p "$OUT"
 [ -n "${SKIP_SKIP:-}" ] || timeout 200 python3 tools/bench/bench_skip.py --size 256 --images 256,512 --repeat 7 --out "$OUT/bench_skip_h100_256.csv"
 [ -n "${SKIP_SKIP:-}" ] || timeout 250 python3 tools/bench/bench_skip.py --size 512 --images 512,1024 --repeat 7 --out "$OUT/bench_skip_h100_512.csv"
 # the mission's number (issue: 5x faster than full resolution at <= 5 % of pixels dE>=6)
-timeout 300 python3 tools/bench/bench_mission.py --size 512x512x512 --images 512,1024 --repeat 5 --out "$OUT/bench_mission_h100.csv"
+timeout 420 python3 tools/bench/bench_mission.py --size 512x512x512 --images 512,1024 --repeat 5 --out "$OUT/bench_mission_h100.csv"
