@@ -159,9 +159,7 @@ class BricksPath(DrawPath):
     def _frame_clamps(self, items) -> list:
         """:meth:`block_clamps` of ``items``, computed once per frame: the passes of a refined frame
         draw the same list with the same residency, so the passes after its first reuse them."""
-        setup = self.setup
-        again = setup.refine_level is not None and setup.refine_level < setup.refine.levels
-        if not (again and self._clamps[0] is items):
+        if not (self.setup.repeats_pass() and self._clamps[0] is items):
             self._clamps = (items, self.block_clamps(items))
         return self._clamps[1]
 

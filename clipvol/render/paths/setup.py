@@ -187,11 +187,16 @@ class DrawSetup:
             self.refine.mask(fbo, k, self.action.params.refine_tolerance)
         return fbo, previous, t0
 
+    def repeats_pass(self) -> bool:
+        """Is this a refined frame's pass after its first (the same cut, the same residency: what a
+        path derives from the cut alone may be kept from the pass before)?"""
+        k = self.refine_level
+        return k is not None and k < self.refine.levels
+
     def depth_test(self) -> None:
         """Set the depth test for a draw path's passes: off, except in a masked pass of a refined
         frame, where fragments (depth 0.5) pass only where the mask left the depth at 1."""
-        k = self.refine_level
-        if k is not None and k < self.refine.levels:
+        if self.repeats_pass():
             self.ctx.enable(self.mgl.DEPTH_TEST)
             self.ctx.depth_func = "<="
         else:

@@ -57,6 +57,7 @@ class SinglePassPath(DrawPath):
     def __init__(self, action) -> None:
         super().__init__(action)
         self._pt_tex = None
+        self._table = (None, None)  # (items, their page table) of the pass before, in a refined frame
 
     def _page_table_texture(self, entries: np.ndarray):
         """The page-table texture (R32UI, :data:`PAGE_TABLE_WIDTH` entries per row), rewritten per frame."""
@@ -85,7 +86,9 @@ class SinglePassPath(DrawPath):
         if float(np.linalg.norm(vhi - vlo)) / finest > MAX_SINGLE_PASS_RAY_SAMPLES:
             return None
         # items come merged (complete sibling sets are one node of the table, no face inside)
-        table = build_page_table(items, pyr, cache.open_faces)
+        again = self.setup.repeats_pass() and self._table[0] is items  # a refined frame's later pass
+        table = self._table[1] if again else build_page_table(items, pyr, cache.open_faces)
+        self._table = (items, table)
         if table is None or len(table.entries) > MAX_PAGE_TABLE_ENTRIES:
             return None
         a.page_table_nodes = len(items)
@@ -134,7 +137,7 @@ class SinglePassPath(DrawPath):
         uset(prog, "u_pt_width", PAGE_TABLE_WIDTH)
         uset(prog, "u_page_table", 2)
         uset(prog, "u_tf", 1)
-        self._page_table_texture(table.entries).use(location=2)
+        (self._pt_tex if again else self._page_table_texture(table.entries)).use(location=2)
         if params.mode == "composite":
             self.setup.tf_texture(tf).use(location=1)
         self.setup.bind_occupancy(prog, tf)
@@ -155,3 +158,4 @@ class SinglePassPath(DrawPath):
         if self._pt_tex is not None:
             self._pt_tex.release()
         self._pt_tex = None
+        self._table = (None, None)
