@@ -36,7 +36,20 @@ def _rounds(text: str) -> int:
 
 
 def _sizes(text: str) -> list[str]:
-    return [v.strip() for v in text.split(",") if v.strip()]
+    """``--memory-budgets`` / ``--texture-budgets``: sizes checked while parsing (before anything is
+    drawn); ``''`` or ``none``: no such settings."""
+    from clipvol.errors import ParameterError
+    from clipvol.units import parse_bytes
+
+    if text.strip().lower() == "none":
+        return []
+    out = [v.strip() for v in text.split(",") if v.strip()]
+    for v in out:
+        try:
+            parse_bytes(v, "budget")
+        except (ParameterError, ValueError):
+            raise argparse.ArgumentTypeError(f"expected sizes like 64MB,16MB or 'none', got {v!r}") from None
+    return out
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -52,9 +65,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_common_arguments(p, ("size",), size=dict(default=(192, 192), help="image size WxH (also caps the reference's cost)"))
     p.add_argument("--thresholds", type=_floats, default=[0.5, 1, 2, 4, 8, 16], help="LOD thresholds (pixels), comma-separated")
     p.add_argument("--memory-budgets", type=_sizes, default=None,
-                   help="clip-texture budgets swept at LOD 1, e.g. 64MB,16MB (default: 1/2 and 1/8 of the data; '' to skip)")
+                   help="clip-texture budgets swept at LOD 1, e.g. 64MB,16MB (default: 1/2 and 1/8 of the data; 'none' to skip)")
     p.add_argument("--texture-budgets", type=_sizes, default=None,
-                   help="GPU cache budgets swept at LOD 1 (default: 1/2 and 1/8 of the data; '' to skip)")
+                   help="GPU cache budgets swept at LOD 1 (default: 1/2 and 1/8 of the data; 'none' to skip)")
     from clipvol.tools.tf_args import add_tf_arguments
 
     add_tf_arguments(p.add_argument_group("transfer function"))

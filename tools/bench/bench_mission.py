@@ -20,8 +20,8 @@ reverse on odd), median of ``--repeat`` (>= 5) rounds:
 * each setting: level 0 sampled at ``step`` 1, 2 and 3 voxels (the opacity corrected for the
   step, as always); fixed levels 1 and 2; projected size at ``lod_threshold`` 2, 4, 8; the image policy at block budgets
   32, 64, 128; the image policy under the error budgets ``max_error`` 10 %, 5 %, 2 %; adaptive image
-  sampling (``refine_tolerance``, :mod:`clipvol.render.refine`) with level 0 at steps 2, 2.5 and 3,
-  and with the image policy at 5 %.
+  sampling (``refine_tolerance``, :mod:`clipvol.render.refine`) with level 0 at step 2 (tolerances
+  0.08 and 0.16), 2.5 (0.3) and 3 (0.16), and with the image policy at 5 % (0.16).
 
 Columns: each setting's bricks, % of pixels with CIELUV Delta E >= 6 against ``full``
 (:func:`clipvol.scene.metrics.percent_delta_e`), the image policy's own prediction of that
@@ -64,7 +64,7 @@ def settings() -> dict:
     out.update({f"image b={b}": dict(policy="image", block_budget=b) for b in (32, 64, 128)})
     out.update({f"max-error={e:g}%": dict(policy="image", max_error=e / 100.0) for e in (10, 5, 2)})
     out.update({f"step={st:g} refine={tol:g}": dict(policy="fixed", level=0, step=st, refine_tolerance=tol)
-                for st, tol in ((2.0, 0.16), (2.5, 0.3), (3.0, 0.16))})
+                for st, tol in ((2.0, 0.08), (2.0, 0.16), (2.5, 0.3), (3.0, 0.16))})
     out["max-error=5% refine=0.16"] = dict(policy="image", max_error=0.05, refine_tolerance=0.16)
     return out
 
