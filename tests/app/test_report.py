@@ -271,9 +271,10 @@ def test_cli_refine_is_checked_before_anything_is_drawn(tmp_path, capsys):
 def test_cli_budget_lists_are_checked_while_parsing(tmp_path, capsys):
     from clipvol.tools.cli import main
 
-    rc = main(["report", "procedural:fractal?size=16", "--brick", "8", "--out", str(tmp_path / "rep"),
-               "--memory-budgets", "64MB,12XB"])
-    assert rc == 2
+    with pytest.raises(SystemExit) as e:
+        main(["report", "procedural:fractal?size=16", "--brick", "8", "--out", str(tmp_path / "rep"),
+              "--memory-budgets", "64MB,12XB"])
+    assert e.value.code == 2
     err = capsys.readouterr().err
-    assert "--memory-budgets" in err and "'12XB'" in err
+    assert "--memory-budgets" in err and "'12XB'" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "rep").exists()
