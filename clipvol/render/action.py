@@ -314,8 +314,9 @@ class ClipRenderAction:
         return out
 
     def _draw_refined(self, name: str, cam, tf, items):
-        """Draw the cut with path ``name`` as a refined frame (:mod:`clipvol.render.refine`): the
-        coarse pass, then the fine pass and the fill; None where the path declines the cut."""
+        """Draw the cut with path ``name`` as a refined frame (:mod:`clipvol.render.refine`): its
+        passes from the coarsest to the image, each finer one masked by the one before; None where
+        the path declines the cut (the fallback path then draws every pixel)."""
         setup = self.setup
         if setup.refine is None:
             setup.refine = Refine(self.ctx)

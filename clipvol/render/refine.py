@@ -16,7 +16,7 @@ same selection:
    ``k - 1``, so the four rays of pass ``k`` around any pixel of pass ``k - 1`` are the corners of
    a cell it lies in;
 2. **mask** - each finer pass (1/2, then the image) begins with one full-screen pass
-   (``shaders/refine_fill.frag.glsl``): where the four coarser rays around a pixel agree to within
+   (``shaders/refine_mask.frag.glsl``): where the four coarser rays around a pixel agree to within
    the tolerance in every premultiplied RGBA channel, the pixel becomes their bilinear blend and
    its depth 0;
 3. **rays** - then the cut is drawn at that resolution under the depth test: the rasteriser
@@ -77,7 +77,7 @@ class Refine:
         self.levels = 1  # coarse passes of the frame being drawn (set by the render action)
         self._targets: dict[int, FloatTarget] = {}
         self.prog = ctx.program(vertex_shader=shader_source("screen.vert"),
-                                fragment_shader=shader_source("refine_fill.frag"))
+                                fragment_shader=shader_source("refine_mask.frag"))
         self.vao = ctx.vertex_array(self.prog, [])
 
     def target(self, k: int) -> FloatTarget:
