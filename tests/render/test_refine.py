@@ -14,11 +14,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import reference_raycast as ref
-from clipvol.loaders.numpy_array import NumpyLoader
-from test_empty_skip import SHELL, shell_volume
+from test_empty_skip import SHELL, scene  # noqa: F401  (scene: the shell volume's fixture)
 
 from clipvol.errors import ParameterError
-from clipvol.paging.cliptexture import ClipTexture
 from clipvol.render.refine import refine_levels
 from clipvol.scene.camera import Camera
 from clipvol.scene.params import RenderParams
@@ -26,27 +24,6 @@ from clipvol.scene.params import RenderParams
 pytestmark = pytest.mark.gl
 
 TOL = 0.05
-
-
-@pytest.fixture
-def scene(ctx):
-    vol = shell_volume()
-    loader = NumpyLoader(vol, brick=16, value_range=(0.0, 1.0))
-    clip = ClipTexture(loader, "64MB", threads=2)
-    actions = []
-
-    def action(**kw):
-        from clipvol.render.action import ClipRenderAction
-
-        a = ClipRenderAction(ctx, clip, policy="fixed", level=0, **kw)
-        actions.append(a)
-        return a
-
-    yield vol, loader.pyramid, action
-    for a in actions:
-        a.close()
-    clip.close()
-    assert ctx.error == "GL_NO_ERROR"
 
 
 def camera(size=(96, 80)):
