@@ -18,8 +18,12 @@ verified store whose crc32c is the one its manifest records for the brick (of a 
 one that decoded to the right size and passed its own checksum where it has one). Metadata, absent
 keys, error pages and failures are never cached; cached bytes are verified again on every read,
 and dropped and fetched afresh when they fail.
-Chunks of arrays whose codecs the fast path does not decode (sharding, transposes, ...) are read
-with zarr-python over its own fsspec store: same values, without this loader's retries or cache.
+Sharded arrays whose inner chunk is the brick (:mod:`clipvol.loaders.zarr_shards`) are read with
+ranged requests through the same byte source (its retries, time-outs and counting): a suffix (or
+prefix) range for a shard's index, once per shard, and one range per run of neighbouring inner
+chunks. Their bytes are not put in the on-disk cache. Chunks of arrays whose codecs the fast path
+does not decode (transposes, filters, a compressor over whole shards, ...) are read with
+zarr-python over its own fsspec store: same values, without this loader's retries or cache.
 
 Read-only: nothing is ever written to the remote store.
 """
@@ -49,6 +53,7 @@ from clipvol.paging.bytesource import (
 )
 from clipvol.paging.loader import BrickKey
 
+from .zarr_shard_index import ShardError, ShardLayout
 from .zarr_store import _UNREAD, ZarrLoader
 
 __all__ = ["RemoteZarrLoader"]
@@ -225,6 +230,31 @@ class RemoteZarrLoader(ZarrLoader):
                 else f"{len(data)} bytes, more than the {cap} a chunk may hold"
             raise BrickIntegrityError(f"{self.url}: {BrickKey(level, tuple(index))}: chunk {key}: {what}")
         tls.pending = (key, data)
+        return data
+
+    def _shard_key(self, level: int, sidx: tuple[int, ...]) -> str:
+        am = self._arrays[level]
+        return (am.path / am.shard_key(sidx)).relative_to(self._mirror).as_posix()
+
+    def _shard_index_raw(self, level: int, sidx: tuple[int, ...], lay: ShardLayout):
+        """A shard's encoded index by one ranged request (the last bytes of the object, or its first);
+        None when the shard is absent. Its size is not asked for (a request more): an entry past
+        the object's end is caught when its range reads short (:meth:`_shard_range`)."""
+        key, n = self._shard_key(level, sidx), lay.index_nbytes
+        data = self.source.get_range(key, -n, None) if lay.at_end else self.source.get_range(key, 0, n)
+        if data is None:
+            return None
+        self.read_counter.add(len(data))
+        return data, None
+
+    def _shard_range(self, level: int, sidx: tuple[int, ...], start: int, stop: int) -> bytes:
+        """Bytes ``[start, stop)`` of a shard in one ranged request; fewer is a truncated shard."""
+        data = self.source.get_range(self._shard_key(level, sidx), start, stop)
+        if data is None:
+            raise ShardError("the shard vanished after its index was read")
+        self.read_counter.add(len(data))
+        if len(data) != stop - start:
+            raise ShardError(f"the shard is truncated: bytes {start}-{stop} read {len(data)}")
         return data
 
     def _load_chunk(self, am, level: int, index, out, st=_UNREAD) -> int:
