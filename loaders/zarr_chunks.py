@@ -273,6 +273,10 @@ class ChunkReader:
 
     def _chunk_name(self, level: int, index: Int3) -> str:
         am = self._arrays[level]
+        if am.shard is not None:  # the shard file and where in it
+            sidx, _ = am.shard.locate(self._chunk_lead + tuple(index))
+            inner = tuple(c % p for c, p in zip(self._chunk_lead + tuple(index), am.shard.per))
+            return f"{self._shard_name(level, sidx)} (shard), inner chunk {inner}"
         root = self.path.resolve()
         rel = am.path.relative_to(root) if am.path.is_relative_to(root) else am.path.relative_to(self.path) \
             if am.path.is_relative_to(self.path) else am.path
