@@ -17,6 +17,7 @@ from clipvol.errors import BrickIntegrityError
 from clipvol.loaders.zarr_shard_index import ShardLayout, plan_runs
 from clipvol.loaders.zarr_store import ZarrLoader
 from clipvol.paging.cliptexture import ClipTexture
+from clipvol.testing import LoaderTests
 
 from optional import REMOTE_HTTP
 from remote_servers import serve_directory
@@ -49,7 +50,8 @@ def write_ome(path, vol: np.ndarray, *, index_location: str = "end", levels: int
     g.attrs["ome"] = {"version": "0.5", "multiscales": [{
         "axes": [{"name": n, "type": "space"} for n in "zyx"], "type": "subsample",
         "datasets": [{"path": str(L), "coordinateTransformations": [{"type": "scale", "scale": [2.0**L] * 3}]}
-                     for L in range(levels)]}]}
+                     for L in range(levels)]}],
+        "omero": {"channels": [{"window": {"min": float(vol.min()), "max": float(vol.max())}}]}}
 
 
 @pytest.fixture(scope="module")
@@ -227,3 +229,45 @@ def test_view_over_http_coalesces_neighbours_and_counts_what_the_server_sent(sit
     assert len(data) < inner / 2, (len(data), inner)  # neighbours fetched together
     sent = sum(e[3] for e in log)
     assert loader.read_counter.bytes - bytes0 == sent == loader.source.bytes_fetched - fetched0
+
+
+# -- the loader conformance suite over sharded images ------------------------------------------------
+def _conformance_volume() -> np.ndarray:
+    rng = np.random.default_rng(5)
+    return (rng.random((36, 40, 44)) * 1000).astype(np.float32)
+
+
+class TestShardedOmeZarr(LoaderTests):
+    """The conformance suite over a sharded OME-Zarr image on disk."""
+
+    @pytest.fixture(scope="class")
+    @classmethod
+    def reference(cls):
+        return _conformance_volume()
+
+    @pytest.fixture(scope="class")
+    @classmethod
+    def loader(cls, reference, tmp_path_factory):
+        root = tmp_path_factory.mktemp("conf-shards")
+        write_ome(root / "c.zarr", reference)
+        return ZarrLoader(root / "c.zarr")
+
+
+@REMOTE_HTTP
+class TestShardedOmeZarrOverHttp(LoaderTests):
+    """The conformance suite over the same kind of image behind an HTTP server (ranged reads)."""
+
+    @pytest.fixture(scope="class")
+    @classmethod
+    def reference(cls):
+        return _conformance_volume()
+
+    @pytest.fixture(scope="class")
+    @classmethod
+    def loader(cls, reference, tmp_path_factory):
+        from clipvol.loaders.zarr_remote import RemoteZarrLoader
+
+        root = tmp_path_factory.mktemp("conf-shards-http")
+        write_ome(root / "c.zarr", reference)
+        with serve_directory(root) as (url, _):
+            yield RemoteZarrLoader(f"{url}/c.zarr")
