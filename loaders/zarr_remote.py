@@ -21,7 +21,7 @@ and dropped and fetched afresh when they fail.
 Sharded arrays whose inner chunk is the brick (:mod:`clipvol.loaders.zarr_shards`) are read with
 ranged requests through the same byte source (its retries, time-outs and counting): a suffix (or
 prefix) range for a shard's index, once per shard, and one range per run of neighbouring inner
-chunks. Their bytes are not put in the on-disk cache. Chunks of arrays whose codecs the fast path
+chunks (a shard small enough to be one run: one request for the whole object). Their bytes are not put in the on-disk cache. Chunks of arrays whose codecs the fast path
 does not decode (transposes, filters, a compressor over whole shards, ...) are read with
 zarr-python over its own fsspec store: same values, without this loader's retries or cache.
 
@@ -246,6 +246,16 @@ class RemoteZarrLoader(ZarrLoader):
             return None
         self.read_counter.add(len(data))
         return data, None
+
+    def _shard_object(self, level: int, sidx: tuple[int, ...], cap: int) -> bytes | None:
+        """A whole shard in one request; more than ``cap`` bytes (what its chunks and index may take) is refused."""
+        data = self.source.get(self._shard_key(level, sidx))
+        if data is None:
+            return None
+        self.read_counter.add(len(data))
+        if len(data) > cap:
+            raise ShardError(f"{len(data)} bytes, more than the {cap} a shard of this shape may hold")
+        return data
 
     def _shard_range(self, level: int, sidx: tuple[int, ...], start: int, stop: int) -> bytes:
         """Bytes ``[start, stop)`` of a shard in one ranged request; fewer is a truncated shard."""

@@ -125,18 +125,31 @@ class ShardWindows:
         try:
             start, data = fetch_run()
             with self._lock:
-                self._windows[key] = [start, data, set(members())]
-                self._held += len(data)
+                self._insert(key, start, data, members())
                 got = self._take(key, pos, off, size)
                 self.served -= got is not None  # read here, with its run: not served from memory
-                while self._held > self.max_bytes and len(self._windows) > 1:
-                    _, (_, old, _) = self._windows.popitem(last=False)
-                    self._held -= len(old)
         finally:
             with self._lock:
                 self._pending.pop(key, None)
             ev.set()
         return got if got is not None else fetch_one()
+
+    def put(self, key: Hashable, start: int, data: Any, members: set) -> None:
+        """Hold ``data`` (bytes from ``start`` of the shard) as the window of run ``key``: a run read
+        with something else (a whole shard read at once), not by :meth:`chunk`."""
+        with self._lock:
+            self._insert(key, start, data, members)
+
+    def _insert(self, key: Hashable, start: int, data: Any, members: set) -> None:
+        """Hold a window, dropping the oldest beyond ``max_bytes`` (never the one just held). Lock held."""
+        old = self._windows.pop(key, None)
+        if old is not None:
+            self._held -= len(old[1])
+        self._windows[key] = [start, data, set(members)]
+        self._held += len(data)
+        while self._held > self.max_bytes and len(self._windows) > 1:
+            _, (_, gone, _) = self._windows.popitem(last=False)
+            self._held -= len(gone)
 
     def clear(self) -> None:
         with self._lock:

@@ -5,8 +5,9 @@ loader's retries, time-outs, byte counting and checks. Here, where a level's inn
 brick (:class:`~clipvol.loaders.zarr_meta.ArrayMeta` ``shard``), a brick's bytes are found in two
 steps:
 
-1. the shard's index, read once per shard (a suffix or prefix range of the shard object),
-   verified (its crc32c, every entry inside the shard: :func:`~clipvol.loaders.zarr_shard_index.parse_index`)
+1. the shard's index, read once per shard (a suffix or prefix range of the shard object; a
+   shard whose decoded bricks fit in one run is read whole instead, index and data in one round
+   trip, as zarr-python reads a shard it needs all of), verified (its crc32c, every entry inside the shard: :func:`~clipvol.loaders.zarr_shard_index.parse_index`)
    and kept in a small bounded cache of indices;
 2. the brick's inner chunk, read as one byte range - together with its neighbours in the shard's
    byte layout: the shard's chunks are cut into runs of at most ``shard_run_bytes``
@@ -22,8 +23,9 @@ decoding, as for an unsharded chunk. Bytes are counted once, where they are read
 reads), never again when a brick is served from a run in memory.
 
 Local shards are opened the safe way of every store file (:mod:`clipvol.bricking.store_files`) and
-read with ``os.pread``; a remote loader overrides :meth:`ShardReader._shard_index_raw` and
-:meth:`ShardReader._shard_range` with ranged requests through its byte source.
+read with ``os.pread``; a remote loader overrides :meth:`ShardReader._shard_index_raw`,
+:meth:`ShardReader._shard_range` and :meth:`ShardReader._shard_object` with (ranged) requests
+through its byte source.
 """
 
 from __future__ import annotations
@@ -106,12 +108,31 @@ class ShardReader:
                                       f"{self._shard_name(level, sidx)}: {e}") from None
 
     def _load_index(self, am: ArrayMeta, level: int, sidx: tuple[int, ...]) -> ShardIndex:
-        got = self._shard_index_raw(level, sidx, am.shard)
-        if got is None:
-            raise _AbsentShard
-        raw, bounds = got
-        offsets, sizes = parse_index(raw, am.shard, self._crc32c, _CRC32C_RESIDUE, chunk_cap(am.nbytes), bounds)
-        return plan_runs(offsets, sizes, self.shard_run_bytes, SHARD_MAX_GAP)
+        """The shard's verified index and runs. A shard whose decoded bricks fit in one run is read
+        whole in one request (index and data in one round trip, not two), its runs held as windows."""
+        lay: ShardLayout = am.shard
+        whole = None
+        if 0 < lay.count * am.nbytes <= self.shard_run_bytes:
+            whole = self._shard_object(level, sidx, chunk_cap(am.nbytes) * lay.count + lay.index_nbytes)
+            if whole is None:
+                raise _AbsentShard
+            n, size = lay.index_nbytes, len(whole)
+            if size < n:
+                raise ShardError(f"the shard is truncated: {size} bytes cannot hold its {n}-byte index")
+            raw, bounds = (whole[size - n:], (0, size - n)) if lay.at_end else (whole[:n], (n, size))
+        else:
+            got = self._shard_index_raw(level, sidx, lay)
+            if got is None:
+                raise _AbsentShard
+            raw, bounds = got
+        offsets, sizes = parse_index(raw, lay, self._crc32c, _CRC32C_RESIDUE, chunk_cap(am.nbytes), bounds)
+        ix = plan_runs(offsets, sizes, self.shard_run_bytes, SHARD_MAX_GAP)
+        if whole is not None:
+            view = memoryview(whole)
+            for r, (start, stop) in enumerate(ix.runs):
+                self._shard_windows.put((level, sidx, r), start, view[start:stop],
+                                        set(np.flatnonzero(ix.run_of == r).tolist()))
+        return ix
 
     def _shard_name(self, level: int, sidx: tuple[int, ...]) -> str:
         am = self._arrays[level]
@@ -159,6 +180,19 @@ class ShardReader:
             os.close(fd)
         self.read_counter.add(len(raw))
         return raw, ((0, size - n) if lay.at_end else (n, size))
+
+    def _shard_object(self, level: int, sidx: tuple[int, ...], cap: int) -> bytes | None:
+        """All bytes of shard ``sidx`` (at most ``cap``), or None when it is absent."""
+        opened = self._open_shard(level, sidx)
+        if opened is None:
+            return None
+        fd, size = opened
+        try:
+            data = os.pread(fd, size, 0)
+        finally:
+            os.close(fd)
+        self.read_counter.add(len(data))
+        return data
 
     def _shard_range(self, level: int, sidx: tuple[int, ...], start: int, stop: int) -> bytes:
         """Bytes ``[start, stop)`` of shard ``sidx``; a shard that ends (or vanished) before ``stop``
