@@ -59,6 +59,18 @@ SHARD_MAX_GAP = 64 * 2**10
 SHARD_INDEXES = 1024
 
 
+def _contiguous(ix: ShardIndex, members: np.ndarray, pos: int) -> np.ndarray:
+    """Of ``members`` (inner chunks of one run), those whose bytes join ``pos``'s without a gap of
+    more than :data:`SHARD_MAX_GAP`: one ranged read that skips the unplanned chunks around them."""
+    order = members[np.argsort(ix.offsets[members], kind="stable")]
+    ends = ix.offsets[order] + ix.sizes[order]
+    cut = np.flatnonzero(ix.offsets[order][1:] - np.maximum.accumulate(ends)[:-1] > SHARD_MAX_GAP) + 1
+    for group in np.split(order, cut):
+        if pos in group:
+            return group
+    return np.array([pos])
+
+
 class _AbsentShard(Exception):
     """The shard object does not exist (every brick in it is the fill value); never cached."""
 
@@ -73,6 +85,36 @@ class ShardReader:
         """Per loader: the index cache and the run windows (bounded; shared by the loader threads)."""
         self._shard_indices = SingleFlight(SHARD_INDEXES)
         self._shard_windows = ShardWindows(max(SHARD_WINDOW_BYTES, 2 * self.shard_run_bytes))
+        self._plans: dict[int, np.ndarray | None] = {}  # per level: sorted codes of the planned bricks
+
+    def plan_reads(self, level: int, indices: np.ndarray | None) -> None:
+        """The bricks of ``level`` about to be read (:class:`~clipvol.paging.loader.HasReadPlan`;
+        ``None``: no plan). Where a plan is given, a read takes from a shard only the planned
+        neighbours of the brick it reads (and reads a shard whole only when all its bricks are
+        planned): a slab or a frustum-clipped window does not pull in the rest of each shard it
+        touches. A no-op for unsharded levels."""
+        if not (0 <= level < len(self._arrays)) or self._arrays[level].shard is None:
+            return
+        if indices is None:
+            self._plans[level] = None
+            return
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1, 3)
+        _, gy, gx = self._grids[level]
+        self._plans[level] = np.unique((idx[:, 0] * gy + idx[:, 1]) * gx + idx[:, 2])
+
+    def _planned(self, level: int, sidx: tuple[int, ...], lay: ShardLayout) -> np.ndarray | None:
+        """Per inner chunk of shard ``sidx`` (index order): whether its brick is planned; None: no plan."""
+        plan = self._plans.get(level)
+        if plan is None:
+            return None
+        cidx = np.stack(np.unravel_index(np.arange(lay.count), lay.per), axis=1) + np.asarray(sidx) * np.asarray(lay.per)
+        lead = len(self._chunk_lead)
+        b = cidx[:, lead:]
+        grid = np.asarray(self._grids[level])
+        ok = np.all(b < grid, axis=1) & np.all(cidx[:, :lead] == np.asarray(self._chunk_lead, dtype=np.int64), axis=1)
+        code = (b[:, 0] * grid[1] + b[:, 1]) * grid[2] + b[:, 2]
+        pos = np.searchsorted(plan, code)
+        return ok & (pos < len(plan)) & (plan[np.minimum(pos, len(plan) - 1)] == code)
 
     def _shard_chunk(self, am: ArrayMeta, level: int, index: Int3) -> Any:
         """The stored bytes of brick ``index``'s inner chunk at ``level`` (a sharded level), or None
@@ -95,12 +137,17 @@ class ShardReader:
                 raise ShardError(f"its index gives {size} bytes for this brick, the store's manifest "
                                  f"{int(sizes[tuple(index)])}")
             run = int(ix.run_of[pos])
-            start, stop = ix.runs[run]
-            if stop - start == size:  # a run of one chunk: nothing to keep
+            members = np.flatnonzero(ix.run_of == run)
+            planned = self._planned(level, sidx, lay)
+            if planned is not None:  # only the planned neighbours, contiguous with this chunk
+                members = _contiguous(ix, members[planned[members] | (members == pos)], pos)
+            start = int(ix.offsets[members].min())
+            stop = int((ix.offsets[members] + ix.sizes[members]).max())
+            if len(members) == 1:  # a run of one chunk: nothing to keep
                 return self._shard_range(level, sidx, off, off + size)
             return self._shard_windows.chunk(
-                (level, sidx, run), pos, off, size,
-                members=lambda: set(np.flatnonzero(ix.run_of == run).tolist()),
+                (level, sidx, run, start, stop), pos, off, size,
+                members=lambda: set(members.tolist()),
                 fetch_run=lambda: (start, self._shard_range(level, sidx, start, stop)),
                 fetch_one=lambda: self._shard_range(level, sidx, off, off + size))
         except ShardError as e:
@@ -112,7 +159,8 @@ class ShardReader:
         whole in one request (index and data in one round trip, not two), its runs held as windows."""
         lay: ShardLayout = am.shard
         whole = None
-        if 0 < lay.count * am.nbytes <= self.shard_run_bytes:
+        planned = self._planned(level, sidx, lay)
+        if 0 < lay.count * am.nbytes <= self.shard_run_bytes and (planned is None or self._all_planned(level, sidx, lay, planned)):
             whole = self._shard_object(level, sidx, chunk_cap(am.nbytes) * lay.count + lay.index_nbytes)
             if whole is None:
                 raise _AbsentShard
@@ -130,9 +178,15 @@ class ShardReader:
         if whole is not None:
             view = memoryview(whole)
             for r, (start, stop) in enumerate(ix.runs):
-                self._shard_windows.put((level, sidx, r), start, view[start:stop],
+                self._shard_windows.put((level, sidx, r, start, stop), start, view[start:stop],
                                         set(np.flatnonzero(ix.run_of == r).tolist()))
         return ix
+
+    def _all_planned(self, level: int, sidx: tuple[int, ...], lay: ShardLayout, planned: np.ndarray) -> bool:
+        """Whether every brick of shard ``sidx`` inside the level's grid is planned."""
+        cidx = np.stack(np.unravel_index(np.arange(lay.count), lay.per), axis=1) + np.asarray(sidx) * np.asarray(lay.per)
+        inside = np.all(cidx[:, len(self._chunk_lead):] < np.asarray(self._grids[level]), axis=1)
+        return bool(np.all(planned[inside]))
 
     def _shard_name(self, level: int, sidx: tuple[int, ...]) -> str:
         am = self._arrays[level]
