@@ -28,6 +28,8 @@ __all__ = ["ShardLayout", "ShardIndex", "ShardError", "sharding_layout", "parse_
 
 #: offset and size of an absent inner chunk in a shard's index
 ABSENT = 2**64 - 1
+#: the most inner chunks per shard the fast path reads (an index of 16 MiB); more go to zarr-python
+MAX_INNER_CHUNKS = 2**20
 
 
 class ShardError(ValueError):
@@ -90,6 +92,8 @@ def sharding_layout(codec: dict, shard_shape: tuple[int, ...], where: str) -> tu
         raise InputFormatError(f"{where}: sharding_indexed: expected a list of inner codecs, got {codecs!r:.80}")
     layout = ShardLayout(tuple(shard_shape), tuple(s // c for s, c in zip(shard_shape, inner)), loc == "end",
                          names[-1] == "crc32c")
+    if layout.count > MAX_INNER_CHUNKS:  # an index of more than 16 MiB: not read here
+        return None
     return layout, tuple(inner), codecs
 
 

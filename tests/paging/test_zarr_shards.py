@@ -356,3 +356,52 @@ def test_a_clip_texture_region_reads_only_its_bricks_of_each_shard(site):
         want += 16 * 8 + 4 + span(index_of(f, 8)[:4])  # the index, then the layer's chunks
     assert sum(e[3] for e in log) == want
     assert all(e[1] is not None for e in log)  # no shard read whole
+
+
+# -- what stays with zarr-python, and metadata refused ------------------------------------------------
+def test_shards_off_the_fast_path_are_read_by_zarr_python(tmp_path, volume):
+    """Inner codecs the fast path does not decode (a transpose) or an index with other codecs: the
+    level is read through zarr-python, with the same values."""
+    from zarr.codecs import TransposeCodec
+
+    for name, codec in (("transpose", ShardingCodec(chunk_shape=(B, B, B), codecs=[TransposeCodec(order=(2, 1, 0)), BytesCodec()])),
+                        ("index", ShardingCodec(chunk_shape=(B, B, B), codecs=[BytesCodec()], index_codecs=[BytesCodec()]))):
+        path = tmp_path / f"{name}.zarr"
+        g = zarr.open_group(str(path), mode="w", zarr_format=3)
+        a = g.create_array("0", shape=volume.shape, dtype=volume.dtype, chunks=(2 * B,) * 3, serializer=codec,
+                           compressors=None, fill_value=FILL)
+        a[...] = volume
+        g.attrs["ome"] = {"version": "0.5", "multiscales": [{"axes": [{"name": n, "type": "space"} for n in "zyx"],
+                                                             "datasets": [{"path": "0"}]}]}
+        loader = ZarrLoader(path)
+        am = loader._arrays[0]
+        if name == "index":  # bytes without crc32c is an index the fast path reads
+            assert am.shard is not None and not am.shard.index_crc
+        else:
+            assert am.shard is None and not am.fast
+        pyr = loader.pyramid
+        for idx in np.ndindex(pyr.grid(0)):
+            start, stop = pyr.brick_voxel_box(0, idx)
+            np.testing.assert_array_equal(valid(pyr, 0, idx, loader.read_brick(0, idx)),
+                                          volume[tuple(slice(a, b) for a, b in zip(start, stop))])
+
+
+@pytest.mark.parametrize("conf, what", [
+    ({"chunk_shape": [5, 16, 16], "codecs": [{"name": "bytes"}]}, "does not divide"),
+    ({"chunk_shape": [16, 16], "codecs": [{"name": "bytes"}]}, "inner chunk_shape"),
+    ({"chunk_shape": [16, 16, 16], "codecs": [{"name": "bytes"}], "index_location": "middle"}, "index_location"),
+])
+def test_malformed_sharding_metadata_is_refused_naming_the_array(tmp_path, volume, conf, what):
+    import json
+
+    from clipvol.errors import InputFormatError
+    from clipvol.loaders.zarr_meta import array_meta
+
+    path = tmp_path / "s.zarr"
+    write_ome(path, volume, levels=1)
+    meta = json.loads((path / "0" / "zarr.json").read_text())
+    meta["codecs"][0]["configuration"] = conf
+    (path / "0" / "zarr.json").write_text(json.dumps(meta))
+    with pytest.raises(InputFormatError, match=what) as e:
+        array_meta(path / "0", "s.zarr level 0", path)
+    assert "s.zarr level 0" in str(e.value) and "\n" not in str(e.value)

@@ -6,14 +6,17 @@ What it measures (one run, ratios only): an OME-Zarr 0.5 image written by zarr-p
 a side, blosc + crc32c inside), served by the static HTTP server of the tests
 (``tests/remote_servers.py``, a process of its own: it does not share this process's interpreter
 lock) that sleeps ``latency`` before every answer, keeps connections alive and caps its bandwidth.
-Every brick of level 0 is read with ``--threads`` threads (one brick a call) by
+Every brick of level 0 (or, ``--view slab``, one layer of bricks through its centre, as a slice
+pages) is read with ``--threads`` threads (one brick a call) by
 
 - ``clipvol``: :class:`~clipvol.loaders.zarr_remote.RemoteZarrLoader` ``read_brick`` (a shard's
-  index once, neighbouring inner chunks in one ranged request: :mod:`clipvol.loaders.zarr_shards`);
+  index once, neighbouring inner chunks in one ranged request: :mod:`clipvol.loaders.zarr_shards`),
+  told the bricks first (``plan_reads``, as a clip-texture tells it its queue);
 - ``clipvol_per_chunk``: the same loader with ``shard_run_bytes=0`` (one request per inner chunk);
 - ``zarr_per_brick`` (**the reference**): zarr-python 3 ``arr[box]`` per brick over its own
   ``FsspecStore`` of the same URL, same threads;
-- ``zarr_whole``: zarr-python reading the whole level in one ``arr[...]`` (its own concurrency).
+- ``zarr_whole``: zarr-python reading the bricks' bounding box in one ``arr[...]`` (its own
+  concurrency; a paging viewer cannot read this way, it asks for bricks).
 
 Configurations are interleaved within each round, each with a fresh loader / array (nothing
 cached; opening - the metadata requests - is not timed), warm (one untimed pass first); medians of
@@ -78,8 +81,16 @@ def sharded_store(size: int, inner: int, per_shard: int, dtype: str, data_dir: P
     return path
 
 
+#: which bricks are read (``--view``): every brick of level 0, or one layer of bricks through its centre
+VIEW = "level"
+
+
 def bricks(shape, inner: int) -> list[tuple[int, int, int]]:
-    return [tuple(int(v) for v in idx) for idx in np.ndindex(*(-(-s // inner) for s in shape))]
+    """The bricks of level 0 (``shape``, ``inner``-voxel bricks) that :data:`VIEW` reads."""
+    grid = [-(-s // inner) for s in shape]
+    if VIEW == "slab":  # one z-layer of bricks through the centre: what a slice through it pages
+        return [(grid[0] // 2, y, x) for y in range(grid[1]) for x in range(grid[2])]
+    return [tuple(int(v) for v in idx) for idx in np.ndindex(*grid)]
 
 
 def opened(mode: str, url: str, threads: int):
@@ -92,6 +103,7 @@ def opened(mode: str, url: str, threads: int):
         kw = {"shard_run_bytes": 0 if mode == "clipvol_per_chunk" else RUN_BYTES}
         ld = RemoteZarrLoader(f"{url}/s.zarr", **kw)
         idx = bricks(ld.pyramid.levels[0].shape, ld.pyramid.brick_shape[0])
+        ld.plan_reads(0, np.array(idx))  # what a clip-texture paging these bricks tells its loader
 
         def read() -> int:
             with ThreadPoolExecutor(threads) as pool:
@@ -108,8 +120,9 @@ def opened(mode: str, url: str, threads: int):
     idx = bricks(arr.shape, c)
 
     def read() -> int:
-        if mode == "zarr_whole":
-            arr[...]
+        if mode == "zarr_whole":  # the bricks' bounding box in one call (the whole level, or the layer)
+            lo, hi = np.min(idx, axis=0), np.max(idx, axis=0) + 1
+            arr[tuple(slice(a * c, b * c) for a, b in zip(lo, hi))]
         else:
             with ThreadPoolExecutor(threads) as pool:
                 list(pool.map(lambda i: arr[tuple(slice(v * c, (v + 1) * c) for v in i)], idx))
@@ -140,7 +153,7 @@ def counted(mode: str, site: Path, threads: int, bandwidth: float) -> tuple[int,
 
 
 def main(argv=None) -> int:
-    global RUN_BYTES
+    global RUN_BYTES, VIEW
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--size", type=int, default=256)
     p.add_argument("--inner", type=int, default=32, help="inner chunk (= brick) edge")
@@ -151,6 +164,8 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=16)
     p.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
     p.add_argument("--run-bytes", type=int, default=RUN_BYTES, help="clipvol's shard_run_bytes (default: its default)")
+    p.add_argument("--view", default="level", choices=["level", "slab"],
+                   help="every brick of level 0, or one z-layer of bricks through its centre")
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--quick", action="store_true")
     p.add_argument("--out", type=Path, default=HERE / "results")
@@ -159,7 +174,7 @@ def main(argv=None) -> int:
     if args.quick:
         args.size, args.rounds, args.latencies = 128, 1, [0.0, 0.02]
 
-    RUN_BYTES = args.run_bytes
+    RUN_BYTES, VIEW = args.run_bytes, args.view
     from common import DATA, write_rows
     from remote_servers import serve_directory_process
 
@@ -187,7 +202,7 @@ def main(argv=None) -> int:
         ref = statistics.median(times[(lat, "zarr_per_brick")]) if "zarr_per_brick" in args.modes else float("nan")
         reqs, nbytes = counts[m]
         rows.append(dict(store=f"fractal {args.size}^3 {args.dtype}, inner {args.inner}^3, {args.per_shard}^3 per shard",
-                         mode=m, run_bytes=args.run_bytes if m == "clipvol" else "", latency_ms=round(lat * 1e3), bricks=nbricks, threads=args.threads,
+                         view=args.view, mode=m, run_bytes=args.run_bytes if m == "clipvol" else "", latency_ms=round(lat * 1e3), bricks=nbricks, threads=args.threads,
                          bandwidth_MB_s=round(args.bandwidth / 1e6, 1), requests=reqs, bytes=nbytes,
                          median_s=round(med, 3), rounds_s=" ".join(f"{v:.3f}" for v in times[(lat, m)]),
                          speed_over_zarr_per_brick=round(ref / med, 2), load=round(load, 1)))
