@@ -6,7 +6,6 @@ shards are refused naming the shard and the brick, never decoded into wrong voxe
 from __future__ import annotations
 
 import shutil
-import struct
 
 import numpy as np
 import pytest
