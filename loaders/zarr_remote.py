@@ -114,7 +114,7 @@ class RemoteZarrLoader(ZarrLoader):
         See :class:`~clipvol.paging.bytesource.FsspecByteSource` (a stalled server is given up on
         within ``timeout``, default 30 s, per key).
     **loader_kwargs
-        Passed to :class:`ZarrLoader` (``t``, ``c``, ``allow_incomplete``).
+        Passed to :class:`ZarrLoader` (``t``, ``c``, ``allow_incomplete``, ``shard_run_bytes``).
 
     Raises
     ------

@@ -57,6 +57,9 @@ SHARD_WINDOW_BYTES = 64 * 2**20
 SHARD_MAX_GAP = 64 * 2**10
 #: shard indices kept (each 16 bytes per inner chunk, plus the runs)
 SHARD_INDEXES = 1024
+#: shards of more inner chunks than this ignore the read plan (matching it would cost more per read
+#: than it saves); their runs are read as planned without it
+MAX_PLANNED_CHUNKS = 4096
 
 
 def _contiguous(ix: ShardIndex, members: np.ndarray, pos: int) -> np.ndarray:
@@ -76,7 +79,7 @@ class _AbsentShard(Exception):
 
 
 class ShardReader:
-    """The sharded read path of the zarr loader: ``_shard_chunk`` and its two raw reads."""
+    """The sharded read path of the zarr loader: ``_shard_chunk``, the read plan, and the raw reads."""
 
     #: see :data:`SHARD_RUN_BYTES` (a loader keyword, ``shard_run_bytes``)
     shard_run_bytes: int = SHARD_RUN_BYTES
@@ -86,6 +89,7 @@ class ShardReader:
         self._shard_indices = SingleFlight(SHARD_INDEXES)
         self._shard_windows = ShardWindows(max(SHARD_WINDOW_BYTES, 2 * self.shard_run_bytes))
         self._plans: dict[int, np.ndarray | None] = {}  # per level: sorted codes of the planned bricks
+        self._inner_grids: dict[ShardLayout, np.ndarray] = {}
 
     def plan_reads(self, level: int, indices: np.ndarray | None) -> None:
         """The bricks of ``level`` about to be read (:class:`~clipvol.paging.loader.HasReadPlan`;
@@ -105,9 +109,9 @@ class ShardReader:
     def _planned(self, level: int, sidx: tuple[int, ...], lay: ShardLayout) -> np.ndarray | None:
         """Per inner chunk of shard ``sidx`` (index order): whether its brick is planned; None: no plan."""
         plan = self._plans.get(level)
-        if plan is None:
+        if plan is None or lay.count > MAX_PLANNED_CHUNKS:
             return None
-        cidx = np.stack(np.unravel_index(np.arange(lay.count), lay.per), axis=1) + np.asarray(sidx) * np.asarray(lay.per)
+        cidx = self._inner_grid(lay) + np.asarray(sidx) * np.asarray(lay.per)
         lead = len(self._chunk_lead)
         b = cidx[:, lead:]
         grid = np.asarray(self._grids[level])
@@ -115,6 +119,13 @@ class ShardReader:
         code = (b[:, 0] * grid[1] + b[:, 1]) * grid[2] + b[:, 2]
         pos = np.searchsorted(plan, code)
         return ok & (pos < len(plan)) & (plan[np.minimum(pos, len(plan) - 1)] == code)
+
+    def _inner_grid(self, lay: ShardLayout) -> np.ndarray:
+        """``(count, ndim)`` positions of a shard's inner chunks in index (C) order, per layout (kept)."""
+        grid = self._inner_grids.get(lay)
+        if grid is None:
+            grid = self._inner_grids[lay] = np.stack(np.unravel_index(np.arange(lay.count), lay.per), axis=1)
+        return grid
 
     def _shard_chunk(self, am: ArrayMeta, level: int, index: Int3) -> Any:
         """The stored bytes of brick ``index``'s inner chunk at ``level`` (a sharded level), or None
@@ -184,7 +195,7 @@ class ShardReader:
 
     def _all_planned(self, level: int, sidx: tuple[int, ...], lay: ShardLayout, planned: np.ndarray) -> bool:
         """Whether every brick of shard ``sidx`` inside the level's grid is planned."""
-        cidx = np.stack(np.unravel_index(np.arange(lay.count), lay.per), axis=1) + np.asarray(sidx) * np.asarray(lay.per)
+        cidx = self._inner_grid(lay) + np.asarray(sidx) * np.asarray(lay.per)
         inside = np.all(cidx[:, len(self._chunk_lead):] < np.asarray(self._grids[level]), axis=1)
         return bool(np.all(planned[inside]))
 
@@ -194,7 +205,7 @@ class ShardReader:
         rel = am.path.relative_to(root) if am.path.is_relative_to(root) else am.path
         return f"{rel.as_posix()}/{am.shard_key(sidx)}"
 
-    # -- the two raw reads (a remote loader overrides both) -------------------------------------------
+    # -- the raw reads (a remote loader overrides them) --------------------------------------------------
     def _open_shard(self, level: int, sidx: tuple[int, ...]) -> tuple[int, int] | None:
         """``(fd, size)`` of shard ``sidx``'s file, opened as what it claims (a regular file inside
         the store, at most the size its shape allows), or None when absent."""
