@@ -404,3 +404,26 @@ def test_malformed_sharding_metadata_is_refused_naming_the_array(tmp_path, volum
     with pytest.raises(InputFormatError, match=what) as e:
         array_meta(path / "0", "s.zarr level 0", path)
     assert "s.zarr level 0" in str(e.value) and "\n" not in str(e.value)
+
+
+@REMOTE_HTTP
+def test_byte_ranges_through_the_byte_source(tmp_path):
+    """``FsspecByteSource.get_range`` against the file's own bytes: a range, a suffix, a range past
+    the end (no bytes: the caller refuses a short read), an absent key; a server that ignores ranges
+    is refused naming the URL."""
+    from clipvol.errors import RemoteStoreError
+    from clipvol.paging.bytesource import FsspecByteSource
+
+    data = np.random.default_rng(0).bytes(5000)
+    (tmp_path / "f").write_bytes(data)
+    with serve_directory(tmp_path, answers={"/whole": (200, data)}) as (url, srv):
+        src = FsspecByteSource(url, retries=0)
+        assert src.get_range("f", 100, 300) == data[100:300]
+        assert src.get_range("f", -132, None) == data[-132:]
+        assert src.get_range("f", -9000, None) == data  # a suffix longer than the object: all of it
+        assert src.get_range("f", 4900, 5100) == data[4900:]  # short: the caller compares lengths
+        assert src.get_range("f", 6000, 6100) == b""  # HTTP 416
+        assert src.get_range("absent", 0, 10) is None
+        assert [e[2] for e in srv.log] == [206, 206, 206, 206, 416, 404]
+        with pytest.raises(RemoteStoreError, match=r"whole: asked for 10 bytes .* ignores byte ranges"):
+            src.get_range("whole", 0, 10)
