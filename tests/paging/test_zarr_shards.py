@@ -18,8 +18,8 @@ from clipvol.loaders.zarr_store import ZarrLoader
 from clipvol.paging.cliptexture import ClipTexture
 from clipvol.testing import LoaderTests
 
-from optional import REMOTE_HTTP
-from remote_servers import serve_directory
+from optional import REMOTE_HTTP, REMOTE_S3
+from remote_servers import moto_s3, serve_directory, upload_directory
 
 SHAPE = (40, 50, 60)
 B = 16  # inner chunk = brick
@@ -427,3 +427,24 @@ def test_byte_ranges_through_the_byte_source(tmp_path):
         assert [e[2] for e in srv.log] == [206, 206, 206, 206, 416, 404]
         with pytest.raises(RemoteStoreError, match=r"whole: asked for 10 bytes .* ignores byte ranges"):
             src.get_range("whole", 0, 10)
+
+
+@pytest.fixture(scope="module")
+def s3_image(site):
+    """The image uploaded to a moto S3 server (one per module); yields its URL."""
+    with moto_s3() as endpoint:
+        upload_directory(endpoint, site / "s.zarr", "shards", "img/s.zarr")
+        yield "s3://shards/img/s.zarr"
+
+
+@REMOTE_S3
+@pytest.mark.parametrize("run_bytes", [8 * 2**20, SMALL_RUN])
+def test_sharded_image_on_s3_reads_what_zarr_reads(site, s3_image, run_bytes):
+    """The same image in a moto S3 bucket: whole shards, or index suffixes and ranged runs, through s3fs."""
+    from clipvol.paging.open import open_store
+
+    loader = open_store(s3_image, shard_run_bytes=run_bytes)
+    assert all(am.shard is not None for am in loader._arrays)
+    assert assert_reads_like_zarr(loader, site / "s.zarr") > 0
+    assert loader._zarr_arrays == {}
+    loader.close()
