@@ -21,9 +21,11 @@ and dropped and fetched afresh when they fail.
 Sharded arrays whose inner chunk is the brick (:mod:`clipvol.loaders.zarr_shards`) are read with
 ranged requests through the same byte source (its retries, time-outs and counting): a suffix (or
 prefix) range for a shard's index, once per shard, and one range per run of neighbouring inner
-chunks (a shard small enough to be one run: one request for the whole object). Their bytes are not put in the on-disk cache. Chunks of arrays whose codecs the fast path
-does not decode (transposes, filters, a compressor over whole shards, ...) are read with
-zarr-python over its own fsspec store: same values, without this loader's retries or cache.
+chunks (a shard small enough to be one run: one request for the whole object). The on-disk
+cache keeps their verified inner chunks one by one, as it keeps unsharded chunks. Chunks of
+arrays whose codecs the fast path does not decode (transposes, filters, a compressor over whole
+shards, ...) are read with zarr-python over its own fsspec store: same values, without this
+loader's retries or cache.
 
 Read-only: nothing is ever written to the remote store.
 """
@@ -44,7 +46,7 @@ import numpy as np
 
 from clipvol.bricking.manifest import MANIFEST_DIR
 from clipvol.bricking.store import STATS_GROUP, STAT_ARRAYS
-from clipvol.bricking.store_files import MAX_METADATA_BYTES
+from clipvol.bricking.store_files import MAX_METADATA_BYTES, chunk_cap
 from clipvol.errors import BrickIntegrityError, ClipvolError, InputFormatError, RemoteStoreError
 from clipvol.paging.bytesource import (
     DEFAULT_CONNECT_TIMEOUT,
@@ -230,6 +232,26 @@ class RemoteZarrLoader(ZarrLoader):
                 else f"{len(data)} bytes, more than the {cap} a chunk may hold"
             raise BrickIntegrityError(f"{self.url}: {BrickKey(level, tuple(index))}: chunk {key}: {what}")
         tls.pending = (key, data)
+        return data
+
+    def _shard_chunk(self, am, level: int, index):
+        """As :meth:`ShardReader._shard_chunk`, through the on-disk cache when there is one: an inner
+        chunk is cached under ``<shard key>.<its position in the shard>`` once verified (as an
+        unsharded chunk is, by :meth:`_load_chunk`), and a cached one needs no request, not even
+        for its shard's index."""
+        if self.source.cache is None:
+            return super()._shard_chunk(am, level, index)
+        sidx, pos = am.shard.locate(self._chunk_lead + tuple(index))
+        key = f"{self._shard_key(level, sidx)}.{pos}"
+        tls = self._tls
+        data = None if getattr(tls, "no_cache", False) else self.source.cached(key, chunk_cap(am.nbytes))
+        if data is not None:
+            tls.cached_key = key
+            self.read_counter.add(len(data))  # read from the cache's disk, as an unsharded cached chunk
+            return data
+        data = super()._shard_chunk(am, level, index)
+        if data is not None:
+            tls.pending = (key, data)
         return data
 
     def _shard_key(self, level: int, sidx: tuple[int, ...]) -> str:

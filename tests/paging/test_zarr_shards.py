@@ -448,3 +448,42 @@ def test_sharded_image_on_s3_reads_what_zarr_reads(site, s3_image, run_bytes):
     assert assert_reads_like_zarr(loader, site / "s.zarr") > 0
     assert loader._zarr_arrays == {}
     loader.close()
+
+
+@REMOTE_HTTP
+def test_disk_cache_keeps_verified_inner_chunks_for_the_next_session(volume, tmp_path):
+    """A second session over the same sharded image reads every brick from the on-disk cache: the
+    server, refusing every shard, is asked for none; a cached inner chunk damaged on disk is dropped
+    and read again from the server."""
+    from clipvol.loaders.zarr_remote import RemoteZarrLoader
+
+    cache = tmp_path / "cache"
+    root = tmp_path / "site"
+    full = volume.copy()
+    full[:16, :16] += 1  # no inner chunk left absent (an absent one is never cached: the index is asked)
+    write_ome(root / "s.zarr", full)
+    store = root / "s.zarr"
+    with serve_directory(root) as (url, srv):
+        first = RemoteZarrLoader(f"{url}/s.zarr", cache=cache)
+        assert_reads_like_zarr(first, store)
+        first.close()
+        srv.forbid = ("/s.zarr/0/c/", "/s.zarr/1/c/")
+        start = len(srv.log)
+        warm = RemoteZarrLoader(f"{url}/s.zarr", cache=cache)
+        assert_reads_like_zarr(warm, store)
+        assert not [e for e in srv.log[start:] if "/c/" in e[0]] and srv.counts and warm.source.cache.hits > 0
+        warm.close()
+        # damage one cached inner chunk: it fails its crc32c, is dropped and read from the server again
+        cached = sorted((p for p in cache.rglob("*") if p.is_file() and p.name.count(".") == 1 and "c" in p.parts),
+                        key=lambda p: p.stat().st_size)[-1]
+        raw = bytearray(cached.read_bytes())
+        raw[len(raw) // 2] ^= 1
+        cached.write_bytes(bytes(raw))
+        srv.forbid = ()
+        start = len(srv.log)
+        again = RemoteZarrLoader(f"{url}/s.zarr", cache=cache)
+        assert_reads_like_zarr(again, store)
+        again.close()
+        shard = cached.relative_to(next(cache.iterdir()) / "data").as_posix().rsplit(".", 1)[0]
+        assert [e[0] for e in srv.log[start:] if "/c/" in e[0]] == [f"/s.zarr/{shard}"]  # only the damaged one's shard
+        assert cached.read_bytes() != bytes(raw)  # kept again, verified
