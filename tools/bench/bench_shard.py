@@ -12,6 +12,9 @@ pages) is read with ``--threads`` threads (one brick a call) by
 - ``clipvol``: :class:`~clipvol.loaders.zarr_remote.RemoteZarrLoader` ``read_brick`` (a shard's
   index once, neighbouring inner chunks in one ranged request: :mod:`clipvol.loaders.zarr_shards`),
   told the bricks first (``plan_reads``, as a clip-texture tells it its queue);
+- ``clipvol_view``: the same loader under a :class:`~clipvol.paging.cliptexture.ClipTexture` of
+  ``--threads`` loader threads whose region is exactly those bricks (nearest the centre first, the
+  plan told by the clip-texture itself; its slot pool is built inside the timing);
 - ``clipvol_per_chunk``: the same loader with ``shard_run_bytes=0`` (one request per inner chunk);
 - ``zarr_per_brick`` (**the reference**): zarr-python 3 ``arr[box]`` per brick over its own
   ``FsspecStore`` of the same URL, same threads;
@@ -49,7 +52,7 @@ sys.path.insert(0, str(HERE.parents[1] / "tests"))  # the test servers
 #: clipvol's ``shard_run_bytes`` (``--run-bytes``)
 RUN_BYTES = 8 * 2**20
 
-MODES = ("clipvol", "clipvol_per_chunk", "zarr_per_brick", "zarr_whole")
+MODES = ("clipvol", "clipvol_view", "clipvol_per_chunk", "zarr_per_brick", "zarr_whole")
 
 
 def sharded_store(size: int, inner: int, per_shard: int, dtype: str, data_dir: Path) -> Path:
@@ -106,6 +109,18 @@ def opened(mode: str, url: str, threads: int):
         ld.plan_reads(0, np.array(idx))  # what a clip-texture paging these bricks tells its loader
 
         def read() -> int:
+            if mode == "clipvol_view":  # a clip-texture paging exactly these bricks, nearest the centre first
+                from clipvol.paging.cliptexture import ClipTexture
+                from clipvol.paging.region import Region
+
+                pyr = ld.pyramid
+                lo, hi = pyr.volume_box()
+                none = np.zeros((0, 3), np.int64)
+                region = Region(tuple(((lo + hi) / 2).tolist()), (np.array(idx),) + (none,) * (pyr.num_levels - 1))
+                with ClipTexture(ld, "1GB", threads=threads, region=region, prefault=False) as ct:
+                    if not ct.wait_until_idle(600) or ct.failures:
+                        raise RuntimeError(f"{url}: the view did not page cleanly: {list(ct.failures.values())[:1]}")
+                return len(idx)
             with ThreadPoolExecutor(threads) as pool:
                 for b in pool.map(lambda i: ld.read_brick(0, i), idx):
                     assert b.shape == ld.pyramid.brick_shape
