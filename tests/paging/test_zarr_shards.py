@@ -487,3 +487,43 @@ def test_disk_cache_keeps_verified_inner_chunks_for_the_next_session(volume, tmp
         shard = cached.relative_to(next(cache.iterdir()) / "data").as_posix().rsplit(".", 1)[0]
         assert [e[0] for e in srv.log[start:] if "/c/" in e[0]] == [f"/s.zarr/{shard}"]  # only the damaged one's shard
         assert cached.read_bytes() != bytes(raw)  # kept again, verified
+
+
+# -- the caches: bounded, and one read per run however many threads ask -----------------------------
+def test_shard_windows_read_a_run_once_for_many_threads_and_stay_bounded():
+    import threading
+
+    from clipvol.loaders.zarr_shard_cache import ShardWindows
+
+    data = bytes(range(256)) * 40  # a run of 10 chunks of 1024 bytes at offset 5000
+    calls = []
+    gate = threading.Event()
+
+    def fetch_run():
+        calls.append(1)
+        gate.wait(10)  # every thread asks while this read is in flight
+        return 5000, data
+
+    win = ShardWindows(max_bytes=3 * len(data))
+    got = {}
+
+    def ask(pos):
+        got[pos] = bytes(win.chunk("run", pos, 5000 + 1024 * pos, 1024, lambda: set(range(10)), fetch_run,
+                                   lambda: b"own read"))
+
+    threads = [threading.Thread(target=ask, args=(p,)) for p in range(10)]
+    for t in threads:
+        t.start()
+    gate.set()
+    for t in threads:
+        t.join(10)
+    assert len(calls) == 1 and all(got[p] == data[1024 * p: 1024 * (p + 1)] for p in range(10))
+    assert win.served == 9 and win._held == 0  # every chunk served once: the window is gone
+    # a chunk served already is read again from storage, never from memory twice
+    win.put("run2", 0, data, {0, 1})
+    assert bytes(win.chunk("run2", 0, 0, 4, set, None, lambda: b"own")) == data[:4]
+    assert win.chunk("run2", 0, 0, 4, set, None, lambda: b"own") == b"own"
+    # bounded: the oldest windows go once more than max_bytes are held
+    for k in range(5):
+        win.put(("w", k), 0, data, {0})
+    assert win._held <= 3 * len(data) and ("w", 4) in win._windows and ("w", 0) not in win._windows
