@@ -8,6 +8,9 @@ it with numcodecs, which releases the GIL, in the calling loader thread. The cod
 ``bytes`` (+ ``blosc`` | ``zstd`` | ``gzip`` | nothing) (+ ``crc32c``) of zarr v3 and the plain
 compressors of zarr v2 take this fast path; anything else (sharding, transpose, filters) falls
 back to zarr indexing (:meth:`ChunkReader._read_zarr`), which gives the same values, only slower.
+A sharded array (``sharding_indexed``) whose inner chunk is the brick and whose inner codecs are
+one of those chains takes the fast path too: its inner chunks are read by byte range, with their
+neighbours, by :mod:`clipvol.loaders.zarr_shards`.
 
 Every raw chunk fetch goes through one method, :meth:`ChunkReader._chunk_bytes`, so a loader for
 remote storage overrides only that (local files take :meth:`ChunkReader._chunk_into_buffer`, the
@@ -75,6 +78,7 @@ class ChunkReader:
         # a subclass that fetches chunks elsewhere (remote stores) overrides _chunk_bytes: use it
         local = type(self)._chunk_bytes is ChunkReader._chunk_bytes and hasattr(os, "readv")
         self._fetch = self._chunk_into_buffer if local else self._chunk_bytes
+        self._prepare_shards()  # sharded levels: ShardReader (zarr_shards)
 
     def read_brick(self, level: int, index: Int3) -> np.ndarray:
         """Brick ``index`` ``(bz, by, bx)`` of ``level``: brick shape, native dtype, edge-replicated.
@@ -227,10 +231,15 @@ class ChunkReader:
         statistics recorded for this brick (the bytes are exactly those written here), else 1
         (:meth:`~clipvol.loaders.zarr_integrity.IntegrityChecks._verify_chunk` decides).
         """
-        data = self._fetch(level, index)
-        if data is None:
-            return 0
-        self.read_counter.add(len(data))
+        if am.shard is None:
+            data = self._fetch(level, index)
+            if data is None:
+                return 0
+            self.read_counter.add(len(data))
+        else:  # an inner chunk of a shard (counted where its index and run were read)
+            data = self._shard_chunk(am, level, index)
+            if data is None:
+                return 0
         nbytes = out.size
         try:
             if am.checksum:
@@ -264,6 +273,10 @@ class ChunkReader:
 
     def _chunk_name(self, level: int, index: Int3) -> str:
         am = self._arrays[level]
+        if am.shard is not None:  # the shard file and where in it
+            sidx, _ = am.shard.locate(self._chunk_lead + tuple(index))
+            inner = tuple(c % p for c, p in zip(self._chunk_lead + tuple(index), am.shard.per))
+            return f"{self._shard_name(level, sidx)} (shard), inner chunk {inner}"
         root = self.path.resolve()
         rel = am.path.relative_to(root) if am.path.is_relative_to(root) else am.path.relative_to(self.path) \
             if am.path.is_relative_to(self.path) else am.path

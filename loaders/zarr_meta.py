@@ -25,6 +25,8 @@ from clipvol.bricking.store import MAX_BRICK_VOXELS, MAX_VOXELS
 from clipvol.bricking.store_files import MAX_METADATA_BYTES, read_file
 from clipvol.errors import InputFormatError
 
+from .zarr_shard_index import ShardLayout, sharding_layout
+
 __all__ = ["ArrayMeta", "array_meta", "group_attributes", "inside", "read_json"]
 
 
@@ -39,6 +41,9 @@ def inside(root: Path, rel: str, where: str) -> Path:
         raise InputFormatError(f"{where}: dataset path {rel!r} resolves to {p}, outside the store {base}")
     return p
 
+
+#: the most voxels one shard of a sharded array may cover (its inner chunks are bounded like bricks)
+MAX_SHARD_VOXELS = 2**36
 
 _V3_NUMERIC = {
     "int8", "int16", "int32", "int64", "uint8", "uint16", "uint32", "uint64", "float16", "float32", "float64",
@@ -82,6 +87,9 @@ class ArrayMeta:
     separator: str
     decoder: Any  # numcodecs codec, None = raw bytes, "fallback" = use zarr indexing
     checksum: bool = False  # a crc32c codec ends the chain: the last 4 bytes are the CRC-32C of the rest
+    #: sharded (zarr v3 ``sharding_indexed`` read by the fast path): ``chunks``, ``decoder`` and
+    #: ``checksum`` are then the inner chunk's, and chunk keys name shards (:meth:`shard_key`)
+    shard: ShardLayout | None = None
 
     @property
     def fast(self) -> bool:
@@ -99,6 +107,10 @@ class ArrayMeta:
         """The chunk key up to the last three indices (``lead``: the chunk index of the leading t/c
         axes), as a string (built once per level: no pathlib on the hot path)."""
         return str(self.path) + "/" + self.key_prefix + "".join(f"{v}{self.separator}" for v in lead)
+
+    def shard_key(self, sidx: tuple[int, ...]) -> str:
+        """The key of shard ``sidx`` relative to the array (``c/0/1/2``)."""
+        return self.key_prefix + self.separator.join(str(i) for i in sidx)
 
     def chunk_path(self, cidx: tuple[int, ...]) -> Path:
         return self.path / (self.key_prefix + self.separator.join(str(i) for i in cidx))
@@ -124,7 +136,7 @@ def _fill(raw, dtype: np.dtype, where: str) -> float:
     return v
 
 
-def _check_sizes(shape, chunks, where: str) -> tuple[tuple[int, ...], tuple[int, ...]]:
+def _check_sizes(shape, chunks, where: str, max_chunk: int = MAX_BRICK_VOXELS) -> tuple[tuple[int, ...], tuple[int, ...]]:
     def ints(v, what):
         if not isinstance(v, list) or not v or not all(isinstance(x, int) and not isinstance(x, bool) for x in v):
             raise InputFormatError(f"{where}: expected {what} as a list of integers, got {v!r:.80}")
@@ -135,9 +147,27 @@ def _check_sizes(shape, chunks, where: str) -> tuple[tuple[int, ...], tuple[int,
         raise InputFormatError(f"{where}: expected a chunk shape of {len(shape)} dimensions, got {list(chunks)}")
     if any(s < 1 or s > 2**40 for s in shape) or math.prod(shape) > MAX_VOXELS:
         raise InputFormatError(f"{where}: expected a shape of at most 2**40 per axis and 2**62 voxels, got {list(shape)}")
-    if any(c < 1 for c in chunks) or math.prod(chunks) > MAX_BRICK_VOXELS:
-        raise InputFormatError(f"{where}: expected a chunk shape of at most {MAX_BRICK_VOXELS} voxels, got {list(chunks)}")
+    if any(c < 1 for c in chunks) or math.prod(chunks) > max_chunk:
+        raise InputFormatError(f"{where}: expected a chunk shape of at most {max_chunk} voxels, got {list(chunks)}")
     return shape, chunks
+
+
+def _v3_chain(codecs: list[dict], m: dict) -> tuple[Any, str, bool]:
+    """``(decoder, endian, checksum)`` of a zarr v3 chunk's codec chain: ``bytes`` (+ ``blosc`` |
+    ``zstd`` | ``gzip``) (+ ``crc32c``) takes the fast path, anything else is ``"fallback"``."""
+    decoder: Any = "fallback"
+    endian = "little"
+    checksum = bool(codecs) and codecs[-1].get("name") == "crc32c"
+    if checksum:
+        codecs = codecs[:-1]
+    if codecs and codecs[0].get("name") == "bytes" and len(codecs) <= 2 and not m.get("storage_transformers"):
+        endian = (codecs[0].get("configuration") or {}).get("endian", "little")
+        rest = [c.get("name") for c in codecs[1:]]
+        if not rest:
+            decoder = None
+        elif rest[0] in ("blosc", "zstd", "gzip"):
+            decoder = _decoder(rest[0])
+    return decoder, endian, checksum
 
 
 def array_meta(path: Path, where: str, root: Path | None = None) -> ArrayMeta:
@@ -154,28 +184,33 @@ def array_meta(path: Path, where: str, root: Path | None = None) -> ArrayMeta:
         grid = m.get("chunk_grid") or {}
         if grid.get("name") != "regular":
             raise InputFormatError(f"{where}: expected a regular chunk grid, got {grid.get('name')!r}")
-        shape, chunks = _check_sizes(m.get("shape"), (grid.get("configuration") or {}).get("chunk_shape"), where)
         codecs = [c if isinstance(c, dict) else {"name": c} for c in m.get("codecs") or []]
-        decoder: Any = "fallback"
-        endian = "little"
-        checksum = bool(codecs) and codecs[-1].get("name") == "crc32c"
-        if checksum:
-            codecs = codecs[:-1]
-        if codecs and codecs[0].get("name") == "bytes" and len(codecs) <= 2 and not m.get("storage_transformers"):
-            endian = (codecs[0].get("configuration") or {}).get("endian", "little")
-            rest = [c.get("name") for c in codecs[1:]]
-            if not rest:
-                decoder = None
-            elif rest[0] in ("blosc", "zstd", "gzip"):
-                decoder = _decoder(rest[0])
+        sharded = bool(codecs) and codecs[0].get("name") == "sharding_indexed"
+        # a shard holds many chunks: its shape is bounded by the shard cap, its inner chunk's by the brick cap
+        shape, chunks = _check_sizes(m.get("shape"), (grid.get("configuration") or {}).get("chunk_shape"), where,
+                                     MAX_SHARD_VOXELS if sharded else MAX_BRICK_VOXELS)
+        shard = None
+        if sharded:
+            found = sharding_layout(codecs[0], chunks, where) if len(codecs) == 1 else None
+            if found is None:  # bytes-to-bytes codecs over whole shards, or an index zarr-python must read
+                decoder, endian, checksum = "fallback", "little", False
+                _check_sizes(list(shape), list(chunks), where)  # read whole by zarr-python: a brick's bound
+            else:
+                shard, chunks, inner = found
+                _check_sizes(list(shape), list(chunks), where)
+                decoder, endian, checksum = _v3_chain(inner, m)
+        else:
+            decoder, endian, checksum = _v3_chain(codecs, m)
         dtype = np.dtype(dt).newbyteorder(">" if endian == "big" else "<")
         cke = m.get("chunk_key_encoding") or {"name": "default"}
         sep = (cke.get("configuration") or {}).get("separator", "/" if cke.get("name") == "default" else ".")
         prefix = "c" + sep if cke.get("name") == "default" else ""
         if cke.get("name") not in ("default", "v2"):
             decoder = "fallback"
+        if decoder == "fallback" and shard is not None:  # zarr-python reads it, a shard per brick as before
+            shard, chunks = None, _check_sizes(m.get("shape"), grid["configuration"]["chunk_shape"], where)[1]
         return ArrayMeta(path, shape, chunks, dtype, _fill(m.get("fill_value"), dtype, where), prefix, sep, decoder,
-                          checksum)
+                         checksum, shard)
     if (path / ".zarray").exists():
         m = read_json(path / ".zarray", where, root)
         raw_dt = m.get("dtype")

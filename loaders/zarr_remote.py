@@ -18,8 +18,14 @@ verified store whose crc32c is the one its manifest records for the brick (of a 
 one that decoded to the right size and passed its own checksum where it has one). Metadata, absent
 keys, error pages and failures are never cached; cached bytes are verified again on every read,
 and dropped and fetched afresh when they fail.
-Chunks of arrays whose codecs the fast path does not decode (sharding, transposes, ...) are read
-with zarr-python over its own fsspec store: same values, without this loader's retries or cache.
+Sharded arrays whose inner chunk is the brick (:mod:`clipvol.loaders.zarr_shards`) are read with
+ranged requests through the same byte source (its retries, time-outs and counting): a suffix (or
+prefix) range for a shard's index, once per shard, and one range per run of neighbouring inner
+chunks (a shard small enough to be one run: one request for the whole object). The on-disk
+cache keeps their verified inner chunks one by one, as it keeps unsharded chunks. Chunks of
+arrays whose codecs the fast path does not decode (transposes, filters, a compressor over whole
+shards, ...) are read with zarr-python over its own fsspec store: same values, without this
+loader's retries or cache.
 
 Read-only: nothing is ever written to the remote store.
 """
@@ -40,7 +46,7 @@ import numpy as np
 
 from clipvol.bricking.manifest import MANIFEST_DIR
 from clipvol.bricking.store import STATS_GROUP, STAT_ARRAYS
-from clipvol.bricking.store_files import MAX_METADATA_BYTES
+from clipvol.bricking.store_files import MAX_METADATA_BYTES, chunk_cap
 from clipvol.errors import BrickIntegrityError, ClipvolError, InputFormatError, RemoteStoreError
 from clipvol.paging.bytesource import (
     DEFAULT_CONNECT_TIMEOUT,
@@ -49,6 +55,7 @@ from clipvol.paging.bytesource import (
 )
 from clipvol.paging.loader import BrickKey
 
+from .zarr_shard_index import ShardError, ShardLayout
 from .zarr_store import _UNREAD, ZarrLoader
 
 __all__ = ["RemoteZarrLoader"]
@@ -109,7 +116,7 @@ class RemoteZarrLoader(ZarrLoader):
         See :class:`~clipvol.paging.bytesource.FsspecByteSource` (a stalled server is given up on
         within ``timeout``, default 30 s, per key).
     **loader_kwargs
-        Passed to :class:`ZarrLoader` (``t``, ``c``, ``allow_incomplete``).
+        Passed to :class:`ZarrLoader` (``t``, ``c``, ``allow_incomplete``, ``shard_run_bytes``).
 
     Raises
     ------
@@ -225,6 +232,61 @@ class RemoteZarrLoader(ZarrLoader):
                 else f"{len(data)} bytes, more than the {cap} a chunk may hold"
             raise BrickIntegrityError(f"{self.url}: {BrickKey(level, tuple(index))}: chunk {key}: {what}")
         tls.pending = (key, data)
+        return data
+
+    def _shard_chunk(self, am, level: int, index):
+        """As :meth:`ShardReader._shard_chunk`, through the on-disk cache when there is one: an inner
+        chunk is cached under ``<shard key>.<its position in the shard>`` once verified (as an
+        unsharded chunk is, by :meth:`_load_chunk`), and a cached one needs no request, not even
+        for its shard's index."""
+        if self.source.cache is None:
+            return super()._shard_chunk(am, level, index)
+        sidx, pos = am.shard.locate(self._chunk_lead + tuple(index))
+        key = f"{self._shard_key(level, sidx)}.{pos}"
+        tls = self._tls
+        data = None if getattr(tls, "no_cache", False) else self.source.cached(key, chunk_cap(am.nbytes))
+        if data is not None:
+            tls.cached_key = key
+            self.read_counter.add(len(data))  # read from the cache's disk, as an unsharded cached chunk
+            return data
+        data = super()._shard_chunk(am, level, index)
+        if data is not None:
+            tls.pending = (key, data)
+        return data
+
+    def _shard_key(self, level: int, sidx: tuple[int, ...]) -> str:
+        am = self._arrays[level]
+        return (am.path / am.shard_key(sidx)).relative_to(self._mirror).as_posix()
+
+    def _shard_index_raw(self, level: int, sidx: tuple[int, ...], lay: ShardLayout):
+        """A shard's encoded index by one ranged request (the last bytes of the object, or its first);
+        None when the shard is absent. Its size is not asked for (a request more): an entry past
+        the object's end is caught when its range reads short (:meth:`_shard_range`)."""
+        key, n = self._shard_key(level, sidx), lay.index_nbytes
+        data = self.source.get_range(key, -n, None) if lay.at_end else self.source.get_range(key, 0, n)
+        if data is None:
+            return None
+        self.read_counter.add(len(data))
+        return data, None
+
+    def _shard_object(self, level: int, sidx: tuple[int, ...], cap: int) -> bytes | None:
+        """A whole shard in one request; more than ``cap`` bytes (what its chunks and index may take) is refused."""
+        data = self.source.get(self._shard_key(level, sidx))
+        if data is None:
+            return None
+        self.read_counter.add(len(data))
+        if len(data) > cap:
+            raise ShardError(f"{len(data)} bytes, more than the {cap} a shard of this shape may hold")
+        return data
+
+    def _shard_range(self, level: int, sidx: tuple[int, ...], start: int, stop: int) -> bytes:
+        """Bytes ``[start, stop)`` of a shard in one ranged request; fewer is a truncated shard."""
+        data = self.source.get_range(self._shard_key(level, sidx), start, stop)
+        if data is None:
+            raise ShardError("the shard vanished after its index was read")
+        self.read_counter.add(len(data))
+        if len(data) != stop - start:
+            raise ShardError(f"the shard is truncated: bytes {start}-{stop} read {len(data)}")
         return data
 
     def _load_chunk(self, am, level: int, index, out, st=_UNREAD) -> int:

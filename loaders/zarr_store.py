@@ -8,6 +8,8 @@ composes the jobs it does, each in a module of its own:
   OME-Zarr 0.4 / 0.5 image's levels, leading (t, c) axes, placement and value range;
 - :mod:`clipvol.loaders.zarr_chunks` - the chunk fast path (file read + numcodecs decode in the
   loader thread) and the zarr-python fallback; the one raw fetch a remote loader overrides;
+- :mod:`clipvol.loaders.zarr_shards` - inner chunks of sharded arrays by byte range, neighbours
+  fetched in one request (:mod:`~clipvol.loaders.zarr_shard_index`, :mod:`~clipvol.loaders.zarr_shard_cache`);
 - :mod:`clipvol.loaders.zarr_integrity` - the manifest, chunk checksums and statistics checks
   (never wrong data as if right), and the per-brick statistics;
 - :mod:`clipvol.loaders.zarr_crc` - which CRC-32C package computes the checksums;
@@ -32,7 +34,7 @@ import numpy as np
 
 from clipvol.bricking.manifest import Manifest
 from clipvol.bricking.pyramid import Pyramid
-from clipvol.errors import InputNotFoundError
+from clipvol.errors import InputNotFoundError, ParameterError
 from clipvol.paging.readcount import ReadCounter
 
 from .zarr_chunks import ChunkReader
@@ -44,11 +46,12 @@ from .zarr_levels import DERIVED_CACHE_BYTES, ComputedLevels  # noqa: F401  re-e
 from .zarr_meta import group_attributes
 from .zarr_meta import inside  # noqa: F401  re-exported
 from .zarr_open import StoreOpening
+from .zarr_shards import SHARD_RUN_BYTES, ShardReader
 
 __all__ = ["ZarrLoader", "UnverifiedStoreWarning", "crc32c_implementation", "CRC32C_PACKAGES"]
 
 
-class ZarrLoader(StoreOpening, ChunkReader, IntegrityChecks, ComputedLevels):
+class ZarrLoader(StoreOpening, ChunkReader, ShardReader, IntegrityChecks, ComputedLevels):
     """Loader for a clipvol store or a plain OME-Zarr image on the local file system.
 
     Parameters
@@ -60,6 +63,10 @@ class ZarrLoader(StoreOpening, ChunkReader, IntegrityChecks, ComputedLevels):
         For an OME-Zarr image with time and/or channel axes (``t, c, z, y, x``, as microscopes
         write them): the time point and channel to read (default 0). The loader is then the 3-D
         volume at that ``(t, c)``; open one loader per time point or channel.
+    shard_run_bytes : int
+        For sharded arrays: the most bytes one read takes from a shard - the brick asked for and
+        its neighbours in the shard, served from memory when the loader threads ask for them
+        (:mod:`clipvol.loaders.zarr_shards`; default 8 MiB). 0 reads one inner chunk per request.
 
     Raises
     ------
@@ -72,8 +79,11 @@ class ZarrLoader(StoreOpening, ChunkReader, IntegrityChecks, ComputedLevels):
     """
 
     def __init__(self, path: str | Path, *, t: int | None = None, c: int | None = None,
-                 allow_incomplete: bool = False) -> None:
+                 allow_incomplete: bool = False, shard_run_bytes: int = SHARD_RUN_BYTES) -> None:
         self._allow_incomplete = bool(allow_incomplete)
+        if isinstance(shard_run_bytes, bool) or not isinstance(shard_run_bytes, int) or shard_run_bytes < 0:
+            raise ParameterError(f"shard_run_bytes: expected an integer >= 0, got {shard_run_bytes!r}")
+        self.shard_run_bytes = shard_run_bytes
         if isinstance(path, str) and path.startswith("zarr:"):
             path = path[len("zarr:"):]
         self.path = Path(path)

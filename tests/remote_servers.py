@@ -10,7 +10,9 @@ from __future__ import annotations
 import contextlib
 import functools
 import http.server
+import io
 import os
+import re
 import threading
 import time
 from collections import Counter
@@ -49,11 +51,60 @@ class _Handler(http.server.SimpleHTTPRequestHandler):
                 srv.failures += 1
             self.send_error(503, "Service Unavailable (injected)")
             return
+        if self.headers.get("Range"):
+            self._send_range(self.headers["Range"])
+            return
         super().do_GET()
 
-    def copyfile(self, source, outputfile) -> None:
-        """The file's bytes, paced to the server's ``bandwidth`` (one link shared by every answer)."""
+    def _log(self, status: int, nbytes: int) -> None:
+        with self.server.lock:
+            self.server.log.append((self.path, self.headers.get("Range"), status, nbytes))
+
+    def _send_range(self, spec: str) -> None:
+        """One byte range of a file (``bytes=a-b``, ``bytes=a-``, ``bytes=-n``): 206 with the bytes,
+        416 when it starts past the end, as an HTTP server or object store answers."""
+        path = self.translate_path(self.path)
+        if not os.path.isfile(path):
+            self._log(404, 0)
+            self.send_error(404, "File not found")
+            return
+        size = os.path.getsize(path)
+        m = re.fullmatch(r"bytes=(\d*)-(\d*)", spec.strip())
+        if not m or not (m[1] or m[2]):
+            self._log(400, 0)
+            self.send_error(400, "Bad range")
+            return
+        if m[1]:
+            start, last = int(m[1]), min(size - 1, int(m[2])) if m[2] else size - 1
+        else:
+            start, last = max(0, size - int(m[2])), size - 1
+        if start >= size or last < start:
+            self._log(416, 0)
+            self.send_response(416)
+            self.send_header("Content-Range", f"bytes */{size}")
+            self.send_header("Content-Length", "0")
+            self.end_headers()
+            return
+        with open(path, "rb") as f:
+            f.seek(start)
+            body = f.read(last - start + 1)
+        self.send_response(206)
+        self.send_header("Content-Type", "application/octet-stream")
+        self.send_header("Content-Range", f"bytes {start}-{last}/{size}")
+        self.send_header("Content-Length", str(len(body)))
+        self.end_headers()
+        self._log(206, len(body))
+        self.copyfile(io.BytesIO(body), self.wfile, logged=True)
+
+    def copyfile(self, source, outputfile, logged: bool = False) -> None:
+        """The file's bytes, paced to the server's ``bandwidth`` (one link shared by every answer);
+        a whole-file answer is logged with its size in ``server.log``."""
         srv = self.server
+        if not logged:
+            try:
+                self._log(200, os.fstat(source.fileno()).st_size)
+            except (AttributeError, OSError, io.UnsupportedOperation):  # a directory listing (BytesIO)
+                self._log(200, len(source.getbuffer()))
         if not srv.bandwidth:
             return super().copyfile(source, outputfile)
         while True:
@@ -93,8 +144,9 @@ def serve_directory(root: str | Path, *, latency: float = 0.0, fail_first: int =
     path get HTTP 503; paths starting with a prefix in ``forbid`` get 403; requests for paths
     starting with a prefix in ``stall`` are accepted and never answered (until shutdown);
     ``answers`` maps a path to ``(status, body bytes)`` sent instead of the file (a 404, an HTML
-    error page with 200). ``server.counts`` (per path) and ``server.failures`` say what was asked
-    and what was refused; all of these can be changed on ``server`` while it runs.
+    error page with 200). ``Range`` requests get 206 with the bytes (416 past the end). ``server.counts``
+    (per path), ``server.log`` (every file answer: path, range, status, bytes) and ``server.failures``
+    say what was asked, what was sent and what was refused; all of these can be changed on ``server`` while it runs.
     """
     cls = type("_KeepAlive", (_Handler,), {"protocol_version": "HTTP/1.1"}) if keep_alive else _Handler
     handler = functools.partial(cls, directory=str(root))
@@ -103,6 +155,7 @@ def serve_directory(root: str | Path, *, latency: float = 0.0, fail_first: int =
     srv.bandwidth, srv.link_free, srv.connections = bandwidth, 0.0, 0
     srv.lock = threading.Lock()
     srv.counts = Counter()
+    srv.log = []  # (path, Range header or None, status, body bytes sent) of every file answer
     srv.failures = 0
     srv.latency, srv.fail_first, srv.forbid = latency, fail_first, forbid
     srv.stall, srv.answers, srv.stopping = stall, dict(answers or {}), threading.Event()

@@ -383,6 +383,22 @@ class FsspecByteSource:
         :class:`RemoteStoreError` otherwise."""
         return self._fetch(_check_key(key))
 
+    def get_range(self, key: str, start: int, end: int | None) -> bytes | None:
+        """Bytes ``[start, end)`` of ``key`` from the server in one ranged request (``start < 0``,
+        ``end`` None: the last ``-start`` bytes), ``None`` when the key is absent. Same retries,
+        time-outs and counting as :meth:`get`. An object that ends before ``end`` answers fewer
+        bytes (or none, HTTP 416): the caller, who knows how many it asked for, decides. A server
+        that ignores the range and sends more is refused."""
+        if isinstance(start, bool) or not isinstance(start, int) or (end is not None and not (isinstance(end, int) and 0 <= start < end)) \
+                or (end is None and start >= 0):
+            raise ParameterError(f"byte range of {key}: expected 0 <= start < end, or start < 0 and no end, got {start}, {end}")
+        data = self._fetch(_check_key(key), (start, end))
+        want = -start if end is None else end - start
+        if data is not None and len(data) > want:
+            raise RemoteStoreError(f"{self.display_url}: {key}: asked for {want} bytes (a byte range), got {len(data)}: "
+                                   "the server ignores byte ranges, which a sharded store needs")
+        return data
+
     def cached(self, key: str, cap: int | None = None) -> bytes | None:
         """``key``'s bytes from the on-disk cache, or None (no cache, or a miss). The caller verifies
         them as it would fresh bytes and calls :meth:`forget` for them when they fail."""
@@ -400,7 +416,7 @@ class FsspecByteSource:
         if self.cache is not None:
             self.cache.drop(_check_key(key))
 
-    def _fetch(self, key: str) -> bytes | None:
+    def _fetch(self, key: str, byte_range: tuple[int, int | None] | None = None) -> bytes | None:
         path = self._full(key)
         attempt = 0
         start = time.monotonic()
@@ -410,11 +426,16 @@ class FsspecByteSource:
                     self.requests += 1
                 try:
                     sent = time.monotonic()
-                    data = bytes(self.fs.cat_file(path))
+                    if byte_range is None:
+                        data = bytes(self.fs.cat_file(path))
+                    else:
+                        data = bytes(self.fs.cat_file(path, start=byte_range[0], end=byte_range[1]))
                 except Exception as e:  # the storage libraries raise many types: classify them
                     kind = _classify(e)
                     if kind == "absent":
                         return None
+                    if byte_range is not None and _status(e) == 416:
+                        return b""  # range not satisfiable: the object ends before it (the caller refuses)
                     wait = min(5.0, self.backoff * 2 ** attempt) * random.uniform(0.5, 1.5)
                     # no retry that could not finish within the budget: a stalled server is given up on
                     spent = time.monotonic() - start

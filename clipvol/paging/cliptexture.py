@@ -48,7 +48,7 @@ from ..bricking.pyramid import Int3
 from ..errors import InputFormatError, LoaderError, ParameterError
 from ..units import parse_bytes
 from .cells import cell_edges, cell_ranges
-from .loader import BrickKey, HasBrickRanges, Loader, check_brick
+from .loader import BrickKey, HasBrickRanges, HasReadPlan, Loader, check_brick
 from .queue import LoadQueue
 from .readcount import bytes_read_of
 from .region import Region
@@ -297,6 +297,8 @@ class ClipTexture:
         self._lock = threading.Lock()
         self._cv = threading.Condition(self._lock)
         self._queue = LoadQueue(backoff)  # heap by cost, delayed retries, parked jobs
+        # the queued bricks per level, told each time the queue is re-sorted (HasReadPlan)
+        self._plan_reads = loader.plan_reads if isinstance(loader, HasReadPlan) else None
         into = getattr(loader, "read_brick_into", None)
         self._read_into: Callable[[int, Int3, np.ndarray], None] | None = into if callable(into) else None
         # empty bricks (bounds [fill, fill], see HasBrickRanges) are filled here, never read
@@ -706,6 +708,8 @@ class ClipTexture:
         with self._cv:
             self._closing = True
             self._queue.clear()
+            for lv in self._levels:  # no plan any more: the loader may serve other readers
+                self._tell_plan(lv.level, None)
             self._cv.notify_all()
         deadline = None if timeout is None else time.monotonic() + timeout
         for t in self._threads:
@@ -900,6 +904,18 @@ class ClipTexture:
             lv.not_before[on] = 0.0
         lv.state[~wanted & (lv.state == _QUEUED)] = _ABSENT
 
+    def _tell_plan(self, level: int, keys: np.ndarray | None) -> None:
+        """Tell a loader that reads several bricks per request (:class:`HasReadPlan`) which bricks
+        of ``level`` are queued, so it fetches those together and not their unqueued neighbours. A
+        loader whose hint fails is not told again (a hint never fails a load)."""
+        plan = self._plan_reads
+        if plan is None:
+            return
+        try:
+            plan(level, keys)
+        except Exception:
+            self._plan_reads = None
+
     def _rebuild_queue(self) -> None:
         """Rebuild the load queue (sorted by cost, coarse first at ties) and the retry queue."""
         now = time.monotonic()
@@ -907,6 +923,7 @@ class ClipTexture:
         delayed: list[tuple] = []
         for lv in self._levels:
             q = np.nonzero(lv.state == _QUEUED)[0]
+            self._tell_plan(lv.level, lv.key[q])
             if not len(q):
                 continue
             due = lv.not_before[q] <= now

@@ -40,7 +40,7 @@ import numpy as np
 from ..bricking.pyramid import Int3, Pyramid
 from ..errors import LoaderError
 
-__all__ = ["Loader", "HasBrickRanges", "BrickKey", "check_brick"]
+__all__ = ["Loader", "HasBrickRanges", "HasReadPlan", "BrickKey", "check_brick"]
 
 
 @dataclass(frozen=True, slots=True, order=True)
@@ -93,6 +93,19 @@ class HasBrickRanges(Protocol):
         brick is *empty*: the clip-texture fills it without calling ``read_brick``, and the
         render action skips it when the transfer function makes that value transparent.
         """
+        ...
+
+
+@runtime_checkable
+class HasReadPlan(Protocol):
+    """Optional: told which bricks are about to be read, so that a loader that can fetch several
+    bricks in one request (neighbouring inner chunks of a zarr shard) fetches those, not others."""
+
+    def plan_reads(self, level: int, indices: np.ndarray | None) -> None:
+        """The bricks ``indices`` (``(n, 3)`` ints, ``(bz, by, bx)``) of ``level`` are queued for
+        reading now (``None``: no plan; any neighbour may be). A hint, replaced by the next call:
+        it must be cheap (the clip-texture calls it under its lock each time it re-sorts its
+        queue) and never changes what ``read_brick`` returns."""
         ...
 
 
