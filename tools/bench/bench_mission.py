@@ -5,9 +5,9 @@ Data: the CT-like head in 12-bit words (:func:`common.ct_volume`, ``N``³ uint16
 around the head, soft tissue, bone; bricked once into ``bench-data/`` with its summary tables,
 :func:`common.ct_store`), the ``bone`` table, an iso view and a face view, 256² and 512² images.
 No real scan ships in a package clipvol depends on (nibabel's and pydicom's test files are a few
-slices or a few voxels across), so none is measured here; ``--store`` takes any clipvol store
-with summary tables (e.g. a T1 MRI bricked with ``clipvol brick``), and then the raw caster is
-given the store's level 0 read whole.
+slices or a few voxels across); ``--store`` takes any clipvol store with summary tables (a T1 MRI
+bricked with ``clipvol brick``; docs/benchmarks.md measures the MNI ICBM152 T1 template from the
+nilearn wheel this way), and then the raw caster is given the store's level 0 read whole.
 
 Per image size and view, in one process, every configuration warm (every brick on the GPU, one
 converged frame of each first) and timed in interleaved rounds (forward order on even rounds,
