@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from clipvol.bricking.pyramid import Int3, pad_to_brick
-from clipvol.bricking.store_files import check_opened, chunk_cap, open_inside, read_capped
+from clipvol.bricking.store_files import chunk_cap, open_checked, read_capped
 from clipvol.errors import BrickIntegrityError, InputFormatError
 from clipvol.paging.loader import BrickKey
 
@@ -156,26 +156,14 @@ class ChunkReader:
         bz, by, bx = index
         sep = self._seps[level]
         path = f"{self._roots[level]}{bz}{sep}{by}{sep}{bx}"
-        folder = path.rpartition("/")[0]
+        sizes = self._sizes[level]
         try:
-            if folder not in self._dirs_ok:
-                real = os.path.realpath(folder)
-                if real != self._root_real and not real.startswith(self._root_real.rstrip(os.sep) + os.sep):
-                    raise InputFormatError(f"{folder}: resolves to {real}, outside the store {self._root_real}")
-                self._dirs_ok.add(folder)
-            fd = open_inside(path, self._root_real)
-            if fd is None:
-                return None
-            try:
-                sizes = self._sizes[level]
-                size = check_opened(fd, path, self._caps[level], None if sizes is None else int(sizes[bz, by, bx]) or None)
-            except BaseException:
-                os.close(fd)
-                raise
+            opened = open_checked(path, self._root_real, self._dirs_ok, self._caps[level],
+                                  None if sizes is None else int(sizes[bz, by, bx]) or None)
         except InputFormatError as e:
             raise BrickIntegrityError(f"{self._where}: {BrickKey(level, index)}: chunk file "
                                       f"{self._chunk_name(level, index)}: {str(e).split(': ', 1)[-1]}") from None
-        return fd, size
+        return opened
 
     def _chunk_bytes(self, level: int, index: Int3) -> bytes | None:
         """The stored bytes of brick ``index``'s chunk at ``level``, or ``None`` when it is absent.

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from clipvol.bricking.pyramid import Int3
-from clipvol.bricking.store_files import check_opened, chunk_cap, open_inside
+from clipvol.bricking.store_files import chunk_cap, open_checked
 from clipvol.errors import BrickIntegrityError, InputFormatError
 from clipvol.paging.loader import BrickKey
 
@@ -211,22 +211,9 @@ class ShardReader:
         the store, at most the size its shape allows), or None when absent."""
         am = self._arrays[level]
         path = str(am.path / am.shard_key(sidx))
-        folder = path.rpartition("/")[0]
         try:
-            if folder not in self._dirs_ok:
-                real = os.path.realpath(folder)
-                if real != self._root_real and not real.startswith(self._root_real.rstrip(os.sep) + os.sep):
-                    raise InputFormatError(f"{folder}: resolves to {real}, outside the store {self._root_real}")
-                self._dirs_ok.add(folder)
-            fd = open_inside(path, self._root_real)
-            if fd is None:
-                return None
-            try:
-                cap = chunk_cap(am.nbytes) * am.shard.count + am.shard.index_nbytes
-                return fd, check_opened(fd, path, cap)
-            except BaseException:
-                os.close(fd)
-                raise
+            return open_checked(path, self._root_real, self._dirs_ok,
+                                chunk_cap(am.nbytes) * am.shard.count + am.shard.index_nbytes)
         except InputFormatError as e:
             raise ShardError(str(e).split(": ", 1)[-1]) from None
 

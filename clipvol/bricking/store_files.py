@@ -33,6 +33,7 @@ __all__ = [
     "O_SAFE",
     "open_inside",
     "check_opened",
+    "open_checked",
     "read_capped",
     "read_file",
     "check_tree",
@@ -91,6 +92,30 @@ def open_inside(path: str, root_real: str) -> int | None:
         return os.open(target, _O_RESOLVED)
     except (FileNotFoundError, NotADirectoryError):
         return None
+
+
+def open_checked(path: str, root_real: str, folders_ok: set, cap: int | None,
+                 exact: int | None = None) -> tuple[int, int] | None:
+    """``(fd, size)`` of the store file ``path`` opened as what it claims, or None when it does not
+    exist: its folder resolved inside ``root_real`` (once per folder: ``folders_ok`` remembers the
+    folders already checked), the file opened by :func:`open_inside` and checked by
+    :func:`check_opened` (the descriptor is closed when that refuses it). An
+    :class:`InputFormatError` names the path otherwise. The one way a loader opens a chunk or a
+    shard file."""
+    folder = path.rpartition("/")[0]
+    if folder not in folders_ok:
+        real = os.path.realpath(folder)
+        if not _inside(root_real, real):
+            raise StoreFileError(f"{folder}: resolves to {real}, outside the store {root_real}")
+        folders_ok.add(folder)
+    fd = open_inside(path, root_real)
+    if fd is None:
+        return None
+    try:
+        return fd, check_opened(fd, path, cap, exact)
+    except BaseException:
+        os.close(fd)
+        raise
 
 
 def check_opened(fd: int, path: str, cap: int | None, exact: int | None = None) -> int:

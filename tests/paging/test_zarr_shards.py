@@ -283,13 +283,8 @@ class TestShardedOmeZarr(LoaderTests):
 
 
 @REMOTE_HTTP
-class TestShardedOmeZarrOverHttp(LoaderTests):
+class TestShardedOmeZarrOverHttp(TestShardedOmeZarr):
     """The conformance suite over the same kind of image behind an HTTP server (ranged reads)."""
-
-    @pytest.fixture(scope="class")
-    @classmethod
-    def reference(cls):
-        return _conformance_volume()
 
     @pytest.fixture(scope="class")
     @classmethod
