@@ -147,11 +147,24 @@ def run(args) -> int:
         raise ParameterError("--workers: sort-last frames are drawn offscreen only; add --offscreen")
     if args.workers is not None and params.overlays:
         raise ParameterError("--overlay: not available with --workers (each worker draws a part of the primary alone)")
+    if args.offscreen:
+        from clipvol.scene.views import patient_path
+
+        frame = getattr(loader, "frame", None)  # the store's voxel-to-world affine, if it records one
+        path, path_kwargs = patient_path(args.path, frame)  # every path head-up, from the patient's front
+        if args.path == "turntable" and args.view is not None:  # start from the side --view names
+            from clipvol.scene.views import view_directions
+
+            path_kwargs["front"] = tuple(-view_directions(args.view, frame)[0])
+        elif args.view is not None:
+            raise ParameterError(f"--view: sets the window's first view or the turntable's first frame; "
+                                 f"expected --path turntable, got --path {args.path}")
     if args.offscreen and args.workers is not None:  # sort-last frames on Dask
         from clipvol.app.sortlast import render_path_sort_last
 
         rows = render_path_sort_last(source, args.out, workers=args.workers, scheduler=args.scheduler,
-                                     path=args.path, frames=args.frames, size=args.size or (256, 256), params=params,
+                                     path=path, path_kwargs=path_kwargs, frame=frame, labels=not args.no_labels,
+                                     frames=args.frames, size=args.size or (256, 256), params=params,
                                      tf=tf, memory_budget=args.memory_budget, source_kwargs={**kwargs, **remote_kwargs(args)},
                                      on_failed=_on_failed(args, loader.pyramid),
                                      progress=lambda r: print(f"frame {r['frame']:4d}  {r['frame_s'] * 1e3:7.1f} ms  "
@@ -166,17 +179,6 @@ def run(args) -> int:
                   f"loaded {row['bytes_loaded'] / 1e6:6.2f} MB  uploaded {row['bytes_uploaded'] / 1e6:6.2f} MB"
                   + ("" if row["converged"] else "  (refining)"), flush=True)
 
-        frame = getattr(loader, "frame", None)  # the store's voxel-to-world affine, if it records one
-        from clipvol.scene.views import patient_path
-
-        path, path_kwargs = patient_path(args.path, frame)  # every path head-up, from the patient's front
-        if args.path == "turntable" and args.view is not None:  # start from the side --view names
-            from clipvol.scene.views import view_directions
-
-            path_kwargs["front"] = tuple(-view_directions(args.view, frame)[0])
-        elif args.view is not None:
-            raise ParameterError(f"--view: sets the window's first view or the turntable's first frame; "
-                                 f"expected --path turntable, got --path {args.path}")
         res = render_path(
             loader, args.out, path=path, frames=args.frames, size=args.size or (256, 256),
             converged=args.converged, timeout=args.timeout, memory_budget=args.memory_budget,

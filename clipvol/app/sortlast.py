@@ -251,18 +251,24 @@ class DistributedRenderer:
 def render_path_sort_last(source, out, *, workers: int = 2, scheduler: str = "processes", path: str = "orbit",
                           frames: int = 36, size=(256, 256), params: RenderParams | None = None, tf="viridis",
                           memory_budget="256MB", source_kwargs: dict | None = None, timeout: float = 120.0,
-                          progress=None, on_failed=None) -> list[dict]:
+                          progress=None, on_failed=None, path_kwargs: dict | None = None, frame=None,
+                          labels: bool = True) -> list[dict]:
     """An offscreen flythrough drawn sort-last: PNG frames ``frame_0000.png``... and ``frames.csv``
     (frame time, each group's time in its worker, compositing time, visibility order) in ``out``.
 
     Every frame is converged (each worker waits for its group's bricks). ``on_failed`` is
-    :func:`clipvol.app.flythrough.render_path`'s (a frame with failed bricks). Returns the CSV rows.
+    :func:`clipvol.app.flythrough.render_path`'s (a frame with failed bricks). ``path_kwargs`` go to
+    :func:`clipvol.scene.paths.make_path` (:func:`clipvol.scene.views.patient_path` gives a
+    patient-frame store's: head up, from the front); ``frame`` is the store's world frame, through
+    which every frame is presented as any offscreen frame is (:func:`clipvol.app.annotate.present`:
+    un-mirrored, and lettered unless ``labels`` is False). Returns the CSV rows.
     """
     import csv
     from pathlib import Path
 
     from ..scene.paths import make_path
     from ..scene.transfer import TransferFunction
+    from .annotate import present
     from .flythrough import save_png
 
     out = Path(out)
@@ -277,12 +283,12 @@ def render_path_sort_last(source, out, *, workers: int = 2, scheduler: str = "pr
         cols = ["frame", "frame_s", "composite_s", "converged", "order"] + [f"group{g}_s" for g in range(workers)]
         writer = csv.DictWriter(fh, fieldnames=cols)
         writer.writeheader()
-        for k, (cam, _coi) in enumerate(make_path(path, dr.pyramid, frames, size=size)):
+        for k, (cam, _coi) in enumerate(make_path(path, dr.pyramid, frames, size=size, **(path_kwargs or {}))):
             img = dr.render(cam, tfn)
             st = dr.last_stats
             if on_failed is not None and st.failed_bricks:
                 img = on_failed(k, cam, img, st.failed_bricks)
-            save_png(img, out / f"frame_{k:04d}.png")
+            save_png(present(img, cam, frame, labels=labels), out / f"frame_{k:04d}.png")
             row = {"frame": k, "frame_s": round(st.frame_seconds, 6), "composite_s": round(st.composite_seconds, 6),
                    "converged": st.converged,
                    "order": " ".join(map(str, st.order)),

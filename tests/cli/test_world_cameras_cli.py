@@ -80,15 +80,19 @@ def test_up_is_a_world_direction(tmp_path):
         assert r < 28 and c < 28, f"{n}: marker at row {r:.1f}, column {c:.1f}, expected top left"
 
 
-def _frames(tmp_path, name: str, path: str, frames: int) -> list[np.ndarray]:
-    src = _write(tmp_path, name)
-    out = tmp_path / f"{name}_{path}"
-    assert main(["view", src, "--store", str(tmp_path / f"{name}.zarr"), "--offscreen", "--converged", "--path", path,
-                 "--frames", str(frames), "--size", "64x64", *MIP, "--out", str(out)]) == 0
+def _frames(tmp_path, name: str, path: str, frames: int, *extra: str) -> list[np.ndarray]:
+    src, store = _write(tmp_path, name), tmp_path / f"{name}.zarr"
+    out = tmp_path / f"{name}_{path}{'_'.join(extra)}"
+    if "--workers" in extra:  # sort-last: bricks of 8 voxels, so that two workers each draw a part
+        assert main(["brick", src, str(store), "--brick", "8", "--quiet"]) == 0
+        src = str(store)
+    assert main(["view", src, "--store", str(store), "--offscreen", "--converged", "--path", path,
+                 "--frames", str(frames), "--size", "64x64", *MIP, "--out", str(out), *extra]) == 0
     return [np.asarray(Image.open(out / f"frame_{k:04d}.png").convert("RGBA"), dtype=np.float64) for k in range(frames)]
 
 
-def test_zoom_path_starts_head_up_from_anterior_left_superior(tmp_path):
+@pytest.mark.parametrize("extra", [(), ("--workers", "2", "--scheduler", "inline")], ids=["one", "sort-last"])
+def test_zoom_path_starts_head_up_from_anterior_left_superior(tmp_path, extra):
     # the whole view of the zoom looks from azimuth 30 degrees (towards the patient's left) and
     # elevation 25 degrees off anterior, superior up. Where the marker lands, from the world alone:
     az, el = np.radians(30.0), np.radians(25.0)
@@ -101,7 +105,7 @@ def test_zoom_path_starts_head_up_from_anterior_left_superior(tmp_path):
     m = MARKER - CENTRE
     assert m @ right > 5.0 and abs(m @ up) < 1.0  # right of the centre, about level with it
     for n in ("ras", "las"):
-        r, c = _marker_centre(_frames(tmp_path, n, "zoom", 2)[0])
+        r, c = _marker_centre(_frames(tmp_path, n, "zoom", 2, *extra)[0])
         assert c > 40 and abs(r - 31.5) < 8, f"{n}: marker at row {r:.1f}, column {c:.1f}, expected right of the centre"
 
 
