@@ -52,16 +52,18 @@ def policy_changes(label: str, budget: int, texels_per_brick: int) -> dict:
 
 def lod_sweep(session, views, refs, budgets: Sequence[int] = DEFAULT_BLOCK_BUDGETS,
               policies: Sequence[str] = tuple(LOD_POLICIES), *, timeout: float = 120.0, repeats: int = 1,
-              log: Callable[[str], None] | None = None) -> list[dict]:
+              log: Callable[[str], None] | None = None, check: Callable | None = None) -> list[dict]:
     """Converged frames of every policy and budget on every view, compared with ``refs``.
 
     ``session`` is a :class:`~clipvol.app.session.RenderSession` whose budgets hold the views;
     ``views`` a list of ``(camera, centre)``; ``refs`` the full-resolution images. Returns rows with
     ``policy``, ``budget``, ``view``, ``blocks`` (distinct bricks drawn), ``pct_de6`` and ``frame_s``
     (the best of ``repeats`` warm frames). A policy the data cannot serve (no summary tables) is
-    reported once through ``log`` and left out.
+    reported once through ``log`` and left out. ``check(label, view, frame_stats)``, optional, sees
+    every converged frame before it is measured (the report refuses one with failed bricks that no
+    ancestor stands in for, :class:`~clipvol.errors.FrameIncompleteError`, which is never skipped).
     """
-    from ..errors import ClipvolError
+    from ..errors import ClipvolError, FrameIncompleteError
 
     texels = int(np.prod(session.pyramid.brick_shape))
     rows: list[dict] = []
@@ -77,12 +79,16 @@ def lod_sweep(session, views, refs, budgets: Sequence[int] = DEFAULT_BLOCK_BUDGE
                         img = session.render(cam, coi, wait=False)
                         best = min(best, time.perf_counter() - t0)
                     fs = session.frame_stats
+                    if check is not None:
+                        check(f"{label} b={b}", v, fs)
                     rows.append(dict(policy=label, budget=int(b), view=v, blocks=int(fs.bricks_distinct),
                                      pct_de6=round(percent_delta_e(img, refs[v]), 4), frame_s=round(best, 6),
                                      converged=int(fs.converged)))
                     if log:
                         log(f"  {label:>22} budget {b:5d} view {v}: {fs.bricks_distinct:5d} bricks, "
                             f"{rows[-1]['pct_de6']:6.2f} % pixels dE>=6, {best * 1e3:7.1f} ms")
+        except FrameIncompleteError:
+            raise
         except ClipvolError as e:
             rows = [r for r in rows if r["policy"] != label]
             if log:

@@ -220,7 +220,7 @@ def _settle(sess, cam, coi, timeout: float, max_passes: int = 32) -> int:
     return uploaded
 
 
-def _check_failed(s: _Setting, view: int, fs, allow_partial: bool, log) -> None:
+def _check_failed(label: str, view: int, fs, allow_partial: bool, log) -> None:
     """A converged frame with failed bricks that no verified ancestor stands in for measures the
     error of a hole: refuse (:class:`~clipvol.errors.FrameIncompleteError`), or with
     ``allow_partial`` say so and go on."""
@@ -228,7 +228,7 @@ def _check_failed(s: _Setting, view: int, fs, allow_partial: bool, log) -> None:
 
     if not fs.unreplaced:
         return
-    text = (f"{s.label} view {view}: {len(fs.unreplaced)} brick(s) failed and no verified ancestor stands in for them: "
+    text = (f"{label} view {view}: {len(fs.unreplaced)} brick(s) failed and no verified ancestor stands in for them: "
             f"{describe_failed(fs.unreplaced)}")
     if not allow_partial:
         raise FrameIncompleteError(f"{text}; the report would measure a hole as data (allow_partial / --allow-partial "
@@ -354,7 +354,7 @@ def _cold_setting(s: _Setting, loader, ctx, views, refs, *, base: RenderParams, 
             converge_s = time.perf_counter() - t_view
             img = sess.render(cam, coi, wait=False)
             fs = sess.frame_stats
-            _check_failed(s, v, fs, allow_partial, log)
+            _check_failed(s.label, v, fs, allow_partial, log)
             values = dict(
                 elapsed_s=round(time.perf_counter() - t_view, 6), converge_s=round(converge_s, 6),
                 converged=int(fs.converged), bricks_drawn=fs.bricks_distinct,
@@ -580,7 +580,8 @@ def run_report(
                     log(f"block budgets {list(budgets)}: projected size, distance, image-based")
                 lsk = []
                 result.lod_rows = lod_sweep(main, cams, refs, budgets, timeout=timeout,
-                                            log=lambda m: (lsk.append(m) if "skipped" in m else None, log and log(m)))
+                                            log=lambda m: (lsk.append(m) if "skipped" in m else None, log and log(m)),
+                                            check=lambda label, v, fs: _check_failed(label, v, fs, allow_partial, log))
                 result.skipped += [m.strip() for m in lsk]
                 texels = int(np.prod(pyr.brick_shape))
                 for pol, b in dict.fromkeys((r["policy"], r["budget"]) for r in result.lod_rows):

@@ -166,3 +166,20 @@ def test_sort_last_render_exits_3_and_allow_partial_hatches(store, tmp_path, cap
     assert main(["render", str(store), "-o", str(out), *FIXED, *sl, "--allow-partial"]) == 0
     assert "hatched" in _err(capsys)
     assert np.all(np.asarray(Image.open(out)) == HATCH_RGBA, axis=-1).any()
+
+
+def test_report_policy_comparison_exits_3_on_coarse_failures(tmp_path, capsys):
+    """Only the coarse levels are damaged: the full-resolution reference and the threshold setting
+    draw level 0, but the policy comparison's 2-brick cuts are drawn from levels 1-2 - a hole measured
+    as data there would make its error figures wrong, so the report stops there too."""
+    store = tmp_path / "s.zarr"
+    vol = np.random.default_rng(5).integers(10, 250, size=(32, 32, 32)).astype(np.uint8)
+    brick_volume(vol, store, brick=8, progress=False, workers=1)  # with the summary tables the policies need
+    for L in (1, 2):
+        _damage_chunks(store, L)
+    args = ["report", str(store), "--out", str(tmp_path / "r"), "--views", "1", "--size", "32x32", "--no-plots",
+            "--tf", "grey", "--thresholds", "0.25", "--memory-budgets", "none", "--texture-budgets", "none", "--max-error", "none",
+            "--refine", "none", "--block-budgets", "2"]
+    assert main(args) == 3
+    err = _err(capsys)
+    assert "b=2 view 0" in err and "no verified ancestor" in err
