@@ -440,6 +440,12 @@ class Viewer(GlWindow):
                     self.state.mode, self.state.message = "projected-size", str(e)
                     self._apply_state()
                     img = sess.render(cam, self.controls.center_of_interest, wait=False)
+            if not (self.slices is not None and self.slices.active):
+                fs = sess.frame_stats  # a hole where bricks failed and nothing stands in: hatched, never blank
+                if fs is not None and fs.unreplaced:
+                    from ..render.failures import hatch_failed
+
+                    img = hatch_failed(img, cam, sess.pyramid, fs.unreplaced)
             if self.state.outlines and not (self.slices is not None and self.slices.active):
                 from ..app.overlay import draw_outlines
 
