@@ -120,6 +120,9 @@ def test_render_max_error_uses_the_image_policy_and_prints_the_prediction(tmp_pa
     assert "image policy" in err and "error budget 5 %" in err
     pct = float(err.split("image policy")[1].split("estimated ")[1].split(" %")[0])
     assert 0.0 <= pct <= 5.0, err
+    assert "not estimated" not in err  # every pixel cast: the estimate is the frame's
+    assert main(base + ["--max-error", "5%", "--refine-tolerance", "0.1"]) == 0
+    assert "adaptive image sampling adds an error of its own, not estimated" in capsys.readouterr().err
     assert main(base + ["--max-error", "five"]) == 2
     assert "max_error" in capsys.readouterr().err
     assert main(base + ["--max-error", "5%", "--policy", "distance"]) == 2
