@@ -35,15 +35,23 @@ def _rounds(text: str) -> int:
     return n
 
 
+def _listed(text: str | None) -> list[str] | None:
+    """A comma-separated list flag of the report: None (not given: the report's defaults), ``[]`` for
+    ``none`` (no such settings), else the stripped items."""
+    if text is None:
+        return None
+    if text.strip().lower() == "none":
+        return []
+    return [t.strip() for t in text.split(",") if t.strip()]
+
+
 def _sizes(text: str) -> list[str]:
     """``--memory-budgets`` / ``--texture-budgets``: sizes checked while parsing (before anything is
     drawn); ``''`` or ``none``: no such settings."""
     from clipvol.errors import ParameterError
     from clipvol.units import parse_bytes
 
-    if text.strip().lower() == "none":
-        return []
-    out = [v.strip() for v in text.split(",") if v.strip()]
+    out = _listed(text)
     for v in out:
         try:
             parse_bytes(v, "budget")
@@ -105,12 +113,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _budgets(text):
     from clipvol.errors import ParameterError
 
-    if text is None:
-        return None
-    if text.strip().lower() == "none":
-        return ()
+    items = _listed(text)
+    if items is None or text.strip().lower() == "none":  # the defaults; no policy comparison
+        return None if items is None else ()
     try:
-        vals = [int(t) for t in text.split(",") if t.strip()]
+        vals = [int(t) for t in items]
     except ValueError:
         vals = []
     if not vals or min(vals) < 1:
@@ -121,11 +128,7 @@ def _budgets(text):
 def _max_errors(text):
     """``--max-error``: None (the report's default budgets), ``()`` for 'none', else the listed values
     (each validated by RenderParams, which names ``max_error`` when one is wrong)."""
-    if text is None:
-        return None
-    if text.strip().lower() == "none":
-        return ()
-    return [t.strip() for t in text.split(",") if t.strip()]
+    return _listed(text)
 
 
 def _refines(text):
@@ -133,12 +136,11 @@ def _refines(text):
     pairs (each validated by RenderParams, which names ``step`` or ``refine_tolerance``)."""
     from clipvol.errors import ParameterError
 
-    if text is None:
+    items = _listed(text)
+    if items is None:
         return None
-    if text.strip().lower() == "none":
-        return ()
     out = []
-    for item in (t.strip() for t in text.split(",") if t.strip()):
+    for item in items:
         try:
             st, tol = (float(v) for v in item.split(":"))
         except ValueError:
