@@ -9,7 +9,6 @@ source array (numpy) and the chunk files on disk.
 
 from __future__ import annotations
 
-import threading
 
 import numpy as np
 import pytest
@@ -21,6 +20,7 @@ from clipvol.paging.bytesource import FsspecByteSource
 from clipvol.paging.open import open_store
 from clipvol.tools.cli import main
 
+from bounded_call import bounded
 from optional import REMOTE_HTTP
 from remote_servers import serve_directory
 
@@ -49,19 +49,7 @@ def _ref(vol, idx):
 
 
 def _bounded(fn, seconds=90):
-    out = {}
-
-    def target():
-        try:
-            out["value"] = fn()
-        except BaseException as e:  # noqa: BLE001 - handed to the test
-            out["e"] = e
-
-    t = threading.Thread(target=target, daemon=True)
-    t.start()
-    t.join(seconds)
-    assert not t.is_alive(), "the call did not give up"
-    return out.get("e"), out.get("value")
+    return bounded(fn, seconds)
 
 
 def test_the_cache_never_keeps_a_404_or_an_html_page(site, vol, tmp_path):

@@ -12,7 +12,6 @@ import hashlib
 import json
 import os
 import shutil
-import threading
 import warnings
 
 import numpy as np
@@ -22,6 +21,8 @@ import zarr
 from clipvol.bricking.manifest import MANIFEST_DIR, TABLE_DTYPE
 from clipvol.errors import BrickIntegrityError, InputFormatError, StoreFormatError
 from clipvol.loaders.zarr_store import UnverifiedStoreWarning, ZarrLoader
+
+from bounded_call import bounded
 
 B = 16
 
@@ -211,21 +212,8 @@ def test_a_level_zarr_json_linked_outside_is_refused(store, tmp_path):
 
 
 def _bounded(fn, seconds=60):
-    """Run ``fn`` in a thread; return what it raised (None if it returned). A hang fails the test
-    instead of blocking the run."""
-    out = {}
-
-    def target():
-        try:
-            fn()
-        except BaseException as e:  # noqa: BLE001 - handed to the test
-            out["e"] = e
-
-    t = threading.Thread(target=target, daemon=True)
-    t.start()
-    t.join(seconds)
-    assert not t.is_alive(), "the read blocked"
-    return out.get("e")
+    """What ``fn`` raised (None if it returned); a hang fails the test instead of blocking the run."""
+    return bounded(fn, seconds, "the read blocked")[0]
 
 
 @pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this platform")
