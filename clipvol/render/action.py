@@ -321,11 +321,10 @@ class ClipRenderAction:
         if setup.refine is None:
             setup.refine = Refine(self.ctx)
         path = self._path(name)
-        setup.refine.levels = refine_levels(cam)
         setup.refine_camera = cam
         drawn = 0.0
         try:
-            for k in range(setup.refine.levels, -1, -1):  # coarsest first; 0: the image
+            for k in range(refine_levels(cam), -1, -1):  # coarsest first; 0: the image
                 setup.refine_level = k
                 out = path.draw(Refine.coarse_camera(cam, k), tf, items)
                 if out is None:

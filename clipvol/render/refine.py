@@ -74,7 +74,6 @@ class Refine:
 
     def __init__(self, ctx) -> None:
         self.ctx = ctx
-        self.levels = 1  # coarse passes of the frame being drawn (set by the render action)
         self._targets: dict[int, FloatTarget] = {}
         self.prog = ctx.program(vertex_shader=shader_source("screen.vert"),
                                 fragment_shader=shader_source("refine_mask.frag"))

@@ -45,7 +45,7 @@ from ...scene.visibility import box_depths, screen_rects
 from ..glsl import ProgramCache
 from ..gpu_cache import t_scale_offset
 from ..modes import REDUCED_MODES, depth_range, iso_texel, occupancy_tf, reduce_image
-from ..refine import Refine
+from ..refine import Refine, refine_levels
 from ..resolve import Resolve
 from ..target import FloatTarget
 from ..uniforms import uset, vec3
@@ -183,7 +183,7 @@ class DrawSetup:
         fbo.use()
         ctx.viewport = (0, 0, int(w), int(h))
         fbo.clear(*clear)  # (depth to 1: nothing masked)
-        if k is not None and k < self.refine.levels:  # a finer pass: the smooth pixels come from the coarser one
+        if self.repeats_pass():  # a finer pass: the smooth pixels come from the coarser one
             self.refine.mask(fbo, k, self.action.params.refine_tolerance)
         return fbo, previous, t0
 
@@ -191,7 +191,7 @@ class DrawSetup:
         """Is this a refined frame's pass after its first (the same cut, the same residency: what a
         path derives from the cut alone may be kept from the pass before)?"""
         k = self.refine_level
-        return k is not None and k < self.refine.levels
+        return k is not None and k < refine_levels(self.refine_camera)
 
     def depth_test(self) -> None:
         """Set the depth test for a draw path's passes: off, except in a masked pass of a refined
