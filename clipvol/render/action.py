@@ -354,7 +354,8 @@ class ClipRenderAction:
         return self.setup.raw()
 
     def _may_cover(self, cam):
-        """``may_cover`` for :func:`merge_items`: may a merged box cover this culled node?
+        """``may_cover`` for :func:`merge_items`: may a merged box cover these culled nodes
+        (``(m, 3)`` of one node level, answered in one go: a full-resolution cut asks thousands)?
 
         Yes where the node's bricks of the drawn level are all in texture memory (the box then
         shows their real data: outside the view, or transparent). Yes also where they are not but
@@ -368,20 +369,23 @@ class ClipRenderAction:
         pyr = self.pyramid
         cache = self.cache
 
-        def beside_view(level: int, node_level: int, node_index) -> bool:
-            lo, hi = pyr.node_box(node_level, node_index)
-            pad = float(max(pyr.levels[level].scale))
-            return bool(cam.boxes_beside_view(np.asarray(lo) - pad, np.asarray(hi) + pad)[0])
-
-        def may_cover(level: int, node_level: int, node_index) -> bool:
-            if node_level == level:  # one brick (most calls: culled siblings of a full-resolution cut)
-                resident = cache.on_gpu(level, node_index)
-            else:
+        def may_cover(level: int, node_level: int, nodes) -> np.ndarray:
+            nodes = np.asarray(nodes, dtype=np.int64).reshape(-1, 3)
+            if node_level == level:  # one brick each (most calls: culled siblings of a full-resolution cut)
+                resident = cache.on_gpu_mask(level, nodes)
+            else:  # a block of bricks each: all of them on the GPU
                 f = 2 ** (node_level - level)
-                first = np.asarray(node_index, dtype=np.int64) * f
+                first = nodes * f
                 count = np.minimum(first + f, np.asarray(pyr.grid(level))) - first
-                resident = bool(np.all(cache.on_gpu_mask(level, first + block_cells(count)[1])))
-            return resident or beside_view(level, node_level, node_index)
+                block, local = block_cells(count)
+                gone = ~cache.on_gpu_mask(level, first[block] + local)
+                resident = np.bincount(block[gone], minlength=len(nodes)) == 0
+            out = resident.copy()
+            if not out.all():  # the others: beside the view, grown by one voxel of the level
+                lo, hi = pyr.node_box(node_level, nodes[~out])
+                pad = float(max(pyr.levels[level].scale))
+                out[~out] = np.asarray(cam.boxes_beside_view(lo - pad, hi + pad), dtype=bool)
+            return out
 
         return may_cover
 

@@ -630,12 +630,17 @@ class GpuBrickCache:
                 arr.reshape(w[0], K[0], w[1], K[1], w[2], K[2])[s[:, 0], :, s[:, 1], :, s[:, 2], :] = v
             self._occ_dirty.setdefault(level, set()).update(map(tuple, s.tolist()))
 
-    def open_faces(self, level: int, indices) -> np.ndarray:
+    def open_faces(self, level: int, indices, dense: bool | None = None) -> np.ndarray:
         """``(n, 3, 2)`` bool ``[axis (z, y, x), side (low, high)]``: may sampling cross that face?
 
         True only if the face neighbour exists and every existing brick of the 3x3 slab behind the
         face is on the GPU (trilinear filtering near edges and corners reads those texels) or out of
         every sample's reach (outside the slab of the clip-texture's region of interest).
+
+        Answered on a grid over the bricks' bounding box (one slot check per cell, the slabs by a
+        separable erosion) when that box is not much larger than the bricks asked (``dense``; a
+        full-resolution cut asks thousands of bricks, and 27 gathered neighbours each cost 11 ms
+        for 3 000), else per brick and neighbour. ``dense`` forces either way (tests).
         """
         idx = np.asarray(indices, dtype=np.int64).reshape(-1, 3)
         n = len(idx)
@@ -644,6 +649,49 @@ class GpuBrickCache:
             return out
         grid = np.asarray(self.pyramid.grid(level), dtype=np.int64)
         w = np.asarray(self.windows[level], dtype=np.int64)
+        lo = idx.min(axis=0) - 1
+        shape = idx.max(axis=0) + 2 - lo  # the bricks and their 26-neighbourhoods
+        if dense is None:
+            dense = float(np.prod(shape.astype(np.float64))) <= 64.0 * n + 4096.0
+        if not dense:
+            return self._open_faces_per_brick(level, idx, grid, w)
+        axes = [np.arange(lo[a], lo[a] + shape[a]) for a in range(3)]
+        inside = [(v >= 0) & (v < grid[a]) for a, v in enumerate(axes)]
+        exists = inside[0][:, None, None] & inside[1][None, :, None] & inside[2][None, None, :]
+        keys = self._slot_key[level]
+        held = keys[np.ix_(*(v % w[a] for a, v in enumerate(axes)))]  # (S, 3): the brick in each cell's slot
+        good = (held[..., 0] == axes[0][:, None, None]) & (held[..., 1] == axes[1][None, :, None]) \
+            & (held[..., 2] == axes[2][None, None, :])
+        good |= ~exists  # a neighbour that does not exist is never read
+        away = ~good
+        if away.any() and self._clip is not None and hasattr(self._clip, "out_of_reach_mask"):
+            # a neighbour outside the slab of the clip-texture's region (a slice) is never sampled
+            cells = np.argwhere(away) + lo
+            good[away] = np.asarray(self._clip.out_of_reach_mask(level, cells), dtype=bool)
+        b = idx - lo
+        for a in range(3):
+            slab = np.pad(good, 1, constant_values=True)  # every cell's 3x3 slab across axis a is good
+            for o in (x for x in range(3) if x != a):
+                lead = [slice(None)] * 3
+                lead[o] = slice(2, None)
+                lag = [slice(None)] * 3
+                lag[o] = slice(None, -2)
+                mid = [slice(None)] * 3
+                mid[o] = slice(1, -1)
+                slab = slab[tuple(lead)] & slab[tuple(mid)] & slab[tuple(lag)]
+                pad = [(0, 0)] * 3
+                pad[o] = (1, 1)
+                slab = np.pad(slab, pad, constant_values=True)
+            slab = slab[1:-1, 1:-1, 1:-1]
+            for side, d in ((0, -1), (1, 1)):
+                f = b.copy()
+                f[:, a] += d
+                out[:, a, side] = exists[f[:, 0], f[:, 1], f[:, 2]] & slab[f[:, 0], f[:, 1], f[:, 2]] & (w[a] >= 2)
+        return out
+
+    def _open_faces_per_brick(self, level: int, idx: np.ndarray, grid: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """:meth:`open_faces` brick by brick, from each brick's 27 neighbours (bricks scattered wide)."""
+        out = np.zeros((len(idx), 3, 2), dtype=bool)
         keys = self._slot_key[level]
         offs = NEIGHBOUR_OFFSETS
         nb = idx[:, None, :] + offs[None]  # (n, 27, 3)
@@ -651,7 +699,6 @@ class GpuBrickCache:
         s = nb % w
         ok = np.all(keys[s[..., 0], s[..., 1], s[..., 2]] == nb, axis=2) | ~exists  # (n, 27)
         if self._clip is not None and hasattr(self._clip, "out_of_reach_mask"):
-            # a neighbour outside the slab of the clip-texture's region (a slice) is never sampled
             away = exists & ~ok
             if away.any():
                 ok[away] = np.asarray(self._clip.out_of_reach_mask(level, nb[away]), dtype=bool)

@@ -90,8 +90,16 @@ def item_nodes(items, pyramid) -> list[tuple[int, tuple[int, int, int]]] | None:
     is not exactly one node's box (a cut this table cannot express). A merged item (``span > 1``,
     :func:`clipvol.scene.selection.merge_items`) covers the node of level ``level + log2(span)``
     over its bricks; any other item a node of its own level or finer (a fallback octant)."""
-    if not items:
-        return []
+    nodes = _node_arrays(items, pyramid)
+    if nodes is None:
+        return None
+    return [(int(L), (int(a), int(b), int(c))) for L, (a, b, c) in zip(*nodes)]
+
+
+def _node_arrays(items, pyramid) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`item_nodes` as arrays: ``(levels (n,), indices (n, 3))``, or None."""
+    if not len(items):
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 3), dtype=np.int64)
     lo = np.array([it.lo for it in items], dtype=np.float64)
     hi = np.array([it.hi for it in items], dtype=np.float64)
     vlo, _ = pyramid.volume_box()
@@ -125,7 +133,7 @@ def item_nodes(items, pyramid) -> list[tuple[int, tuple[int, int, int]]] | None:
         out_idx[w] = idx[ok]
     if np.any(out_level < 0):
         return None
-    return [(int(L), (int(a), int(b), int(c))) for L, (a, b, c) in zip(out_level, out_idx)]
+    return out_level.astype(np.int64), out_idx
 
 
 def block_cells(count) -> tuple[np.ndarray, np.ndarray]:
@@ -177,59 +185,56 @@ def build_page_table(items, pyramid, open_faces=None) -> PageTable | None:
     data bricks filtering may read across (the GPU cache's answer); None: none. A merged
     block's face is open where it is open for every brick on it.
     """
-    nodes = item_nodes(items, pyramid)
+    nodes = _node_arrays(items, pyramid)
     if nodes is None:
         return None
+    node_lv, node_idx = nodes
+    data_lv = np.array([it.level for it in items], dtype=np.int64)
+    data_idx = np.array([it.index for it in items], dtype=np.int64).reshape(-1, 3)
     nlev = pyramid.num_levels
-    per_level_cells: list[list[np.ndarray]] = [[] for _ in range(nlev)]
-    drawn = [(L, np.array(idx, dtype=np.int64), int(it.level), np.array(it.index, dtype=np.int64))
-             for (L, idx), it in zip(nodes, items)]
-    for L, idx, Ld, didx in drawn:
-        for A in range(L, nlev):
-            per_level_cells[A].append(idx >> (A - L))
+    # every node's ancestors, per level: each level's table spans the bounding box of those cells
+    anc = []
     c0 = np.zeros((nlev, 3), dtype=np.int64)
     size = np.zeros((nlev, 3), dtype=np.int64)
     for L in range(nlev):
-        if per_level_cells[L]:
-            cells = np.array(per_level_cells[L])
+        under = node_lv <= L
+        cells = node_idx[under] >> (L - node_lv[under])[:, None]
+        anc.append(cells)
+        if len(cells):
             c0[L] = cells.min(axis=0)
             size[L] = cells.max(axis=0) - c0[L] + 1
     counts = size.prod(axis=1)
     base = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
     entries = np.zeros(int(counts.sum()), dtype=np.uint32)
 
-    def flat(L, cells):
-        c = np.asarray(cells, dtype=np.int64).reshape(-1, 3) - c0[L]
-        s = size[L]
-        return base[L] + (c[:, 0] * s[1] + c[:, 1]) * s[2] + c[:, 2]
+    def flat(levels, cells):
+        c = cells - c0[levels]
+        s = size[levels]
+        return base[levels] + (c[:, 0] * s[:, 1] + c[:, 1]) * s[:, 2] + c[:, 2]
 
     for L in range(nlev):  # refined ancestors first; drawn nodes overwrite nothing of theirs
-        anc = [cells for cells in per_level_cells[L]]
-        if anc:
-            entries[flat(L, np.array(anc))] = REFINED
-    by_data: dict[int, list[int]] = {}
-    for i, (L, idx, Ld, didx) in enumerate(drawn):
-        by_data.setdefault(Ld, []).append(i)
+        if len(anc[L]):
+            entries[flat(np.full(len(anc[L]), L), anc[L])] = REFINED
     d0 = c0.copy()
-    for Ld, rows in by_data.items():
-        didx = np.array([drawn[i][3] for i in rows])
-        d0[Ld] = didx.min(axis=0)
-        merged = np.array([drawn[i][0] > Ld for i in rows])
-        of = np.zeros((len(rows), 3, 2), dtype=bool)  # (n, 3 zyx, 2): faces of each row's brick or block
-        if open_faces is not None:
-            one = ~merged
-            if one.any():
-                of[one] = np.asarray(open_faces(Ld, didx[one]), dtype=bool)
-            if merged.any():  # a block: a face is open where it is for every brick on it
-                grid = np.asarray(pyramid.grid(Ld), dtype=np.int64)
-                span = np.array([1 << (drawn[rows[j]][0] - Ld) for j in np.nonzero(merged)[0]], dtype=np.int64)
-                cnt = np.minimum(didx[merged] + span[:, None], grid) - didx[merged]
-                of[merged] = block_open_faces(open_faces, Ld, didx[merged], cnt)
-        bits = np.zeros(len(rows), dtype=np.uint32)
-        for k, axis in enumerate((2, 1, 0)):  # x, y, z
-            bits |= of[:, axis, 0].astype(np.uint32) << np.uint32(2 * k)
-            bits |= of[:, axis, 1].astype(np.uint32) << np.uint32(2 * k + 1)
-        for j, i in enumerate(rows):
-            L, idx = drawn[i][0], drawn[i][1]
-            entries[flat(L, idx[None])] = np.uint32(DRAWN | (Ld << 2) | (int(bits[j]) << 8))
+    of = np.zeros((len(data_lv), 3, 2), dtype=bool)  # (n, 3 zyx, 2): faces of each item's brick or block
+    for Ld in np.unique(data_lv).tolist():
+        rows = data_lv == Ld
+        d0[Ld] = data_idx[rows].min(axis=0)
+        if open_faces is None:
+            continue
+        one = rows & (node_lv <= Ld)
+        merged = rows & (node_lv > Ld)
+        if one.any():
+            of[one] = np.asarray(open_faces(Ld, data_idx[one]), dtype=bool)
+        if merged.any():  # a block: a face is open where it is for every brick on it
+            grid = np.asarray(pyramid.grid(Ld), dtype=np.int64)
+            span = np.left_shift(1, node_lv[merged] - Ld)
+            cnt = np.minimum(data_idx[merged] + span[:, None], grid) - data_idx[merged]
+            of[merged] = block_open_faces(open_faces, Ld, data_idx[merged], cnt)
+    bits = np.zeros(len(data_lv), dtype=np.uint32)
+    for k, axis in enumerate((2, 1, 0)):  # x, y, z
+        bits |= of[:, axis, 0].astype(np.uint32) << np.uint32(2 * k)
+        bits |= of[:, axis, 1].astype(np.uint32) << np.uint32(2 * k + 1)
+    kind = np.uint32(DRAWN) | (data_lv.astype(np.uint32) << np.uint32(2))
+    entries[flat(node_lv, node_idx)] = kind | (bits << np.uint32(8))
     return PageTable(entries, base, c0, size, d0)

@@ -114,3 +114,74 @@ def test_neighbours_are_the_26_neighbourhood_inside_the_grid(ctx, rng, monkeypat
             assert sorted(want) == [tuple(r) for r in got[L].tolist()]  # the set, in lexicographic order
     finally:
         cache.release()
+
+
+class ReachClip:
+    """A clip-texture stand-in whose region leaves a random fifth of the bricks out of reach."""
+
+    def __init__(self, rng, grid_by_level):
+        self.away = {L: rng.random(g) < 0.2 for L, g in grid_by_level.items()}
+
+    def out_of_reach_mask(self, level, idx):
+        idx = np.asarray(idx)
+        return self.away[level][idx[:, 0], idx[:, 1], idx[:, 2]]
+
+
+def reference_open_faces(cache, clip, level, idx):
+    """The rule brick by brick: the face neighbour exists, and every existing brick of the 3x3 slab
+    behind the face is in its slot on the GPU or out of the region's reach (and the window is at
+    least two bricks wide on that axis)."""
+    grid, w = cache.pyramid.grid(level), cache.windows[level]
+
+    def good(k):
+        if not all(0 <= v < g for v, g in zip(k, grid)):
+            return True
+        slot = tuple(v % s for v, s in zip(k, w))
+        return cache._slot_key[level][slot].tolist() == list(k) or bool(clip.away[level][k])
+
+    out = np.zeros((len(idx), 3, 2), dtype=bool)
+    for i, b in enumerate(map(tuple, idx.tolist())):
+        for a in range(3):
+            for side, d in ((0, -1), (1, 1)):
+                f = list(b)
+                f[a] += d
+                if not 0 <= f[a] < grid[a] or w[a] < 2:
+                    continue
+                others = [o for o in range(3) if o != a]
+                slab = []
+                for u in (-1, 0, 1):
+                    for v in (-1, 0, 1):
+                        k = list(f)
+                        k[others[0]] += u
+                        k[others[1]] += v
+                        slab.append(good(tuple(k)))
+                out[i, a, side] = all(slab)
+    return out
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("dense", [True, False])  # the grid with its erosion, and brick by brick
+def test_open_faces_follow_the_slab_behind_each_face(ctx, seed, dense):
+    rng = np.random.default_rng(seed)
+    pyr = NumpyLoader(np.zeros((96, 80, 64), np.float32), brick=8).pyramid  # grid 12 x 10 x 8 at level 0
+    cache = GpuBrickCache(ctx, pyr, 3000 * pyr.brick_nbytes)
+    try:
+        levels = [L for L, w in enumerate(cache.windows) if w is not None]
+        clip = ReachClip(rng, {L: tuple(pyr.grid(L)) for L in levels})
+        cache.begin_frame(clip, None)
+        answers = []
+        for L in levels:
+            g = np.asarray(pyr.grid(L))
+            every = np.argwhere(np.ones(tuple(g), dtype=bool))
+            for k in every[rng.random(len(every)) < 0.93]:  # most bricks in their slots
+                cache._slot_key[L][tuple(k % np.asarray(cache.windows[L]))] = k
+            idx = rng.integers(0, g, size=(30, 3))
+            idx = np.concatenate([idx, [[0, 0, 0], g - 1]])
+            got = cache.open_faces(L, idx, dense=dense)
+            want = reference_open_faces(cache, clip, L, idx)
+            np.testing.assert_array_equal(got, want)
+            answers.append(want)
+        both = np.concatenate(answers)
+        assert both.any() and not both.all()
+    finally:
+        cache.release()

@@ -519,10 +519,10 @@ def test_may_cover_answers_whether_the_node_is_in_texture_memory_or_beside_the_v
     for idx in every:
         key = tuple(int(v) for v in idx)
         answers.append((key in uploaded, unseen(0, key)))
-        assert may_cover(0, 0, key) == (key in uploaded or answers[-1][1]), idx
+        assert may_cover(0, 0, [key]).tolist() == [key in uploaded or answers[-1][1]], idx
     assert any(not up and un for up, un in answers)  # never-loaded bricks beside the view: the new answer
     # a level-1 node: all eight of its level-0 bricks on the GPU, or the node beside the view
     for node in np.ndindex(*s.pyramid.grid(1)):
         kids = {tuple(2 * n + d for n, d in zip(node, o)) for o in np.ndindex(2, 2, 2)}
         kids = {k for k in kids if all(i < g for i, g in zip(k, grid))}
-        assert may_cover(0, 1, node) == (kids <= uploaded or unseen(1, node)), node
+        assert may_cover(0, 1, [node]).tolist() == [kids <= uploaded or unseen(1, node)], node

@@ -316,8 +316,8 @@ def test_selection_arrays_agree_with_its_items_and_sets(seed):
     # the merge reads the arrays or the list, and returns the same boxes
     wins = [tuple(min(g, 4) for g in PYR.grid(L)) for L in range(PYR.num_levels)]
     full = select(PYR, cam, RenderParams(lod_threshold=2))
-    merged = merge_items(full.items, PYR, wins, lambda *a: True)
-    assert merged == merge_items(list(full.items), PYR, wins, lambda *a: True) and len(merged) < len(full.items)
+    merged = merge_items(full.items, PYR, wins, cover_all)
+    assert merged == merge_items(list(full.items), PYR, wins, cover_all) and len(merged) < len(full.items)
 
 
 def test_nothing_resident_draws_nothing_and_window_limits_refinement():
@@ -460,6 +460,15 @@ def test_with_a_real_clip_texture_items_are_resident_and_wanted_in_window():
         assert order_violations(cam, *boxes(sel.items))[0] == 0
 
 
+def cover_all(level, node_level, nodes):
+    """A ``may_cover`` of merge_items that covers every culled sibling."""
+    return np.ones(len(nodes), dtype=bool)
+
+
+def cover_none(level, node_level, nodes):
+    return np.zeros(len(nodes), dtype=bool)
+
+
 @pytest.mark.parametrize("eye", EYES)
 @pytest.mark.parametrize("threshold", [0.7, 3.0])
 def test_merged_items_keep_order_and_coverage(eye, threshold):
@@ -500,13 +509,13 @@ def test_merge_covers_a_culled_sibling_only_when_allowed_and_never_twice():
     assert len(merge_items(culled, PYR, windows)) > 1
     asked = []
 
-    def yes(level, node_level, node_index):
-        asked.append((level, node_level, tuple(node_index)))
-        return True
+    def yes(level, node_level, nodes):
+        asked.extend((level, node_level, tuple(int(v) for v in k)) for k in nodes)
+        return np.ones(len(nodes), dtype=bool)
 
     merged = merge_items(culled, PYR, windows, yes)
     assert [(it.level, it.span) for it in merged] == [(0, 8)] and asked == [(0, 0, (0, 0, 0))]
-    assert len(merge_items(culled, PYR, windows, lambda *a: False)) > 1
+    assert len(merge_items(culled, PYR, windows, cover_none)) > 1
     # a sibling drawn at a finer level (here: a level-1 brick replaced by its level-0 children)
     # is never covered by a merge of its level-1 siblings, whatever may_cover says
     sel1 = select(PYR, cam, RenderParams(policy="fixed", level=1))
@@ -517,7 +526,7 @@ def test_merge_covers_a_culled_sibling_only_when_allowed_and_never_twice():
                       for c in PYR.children(1, (0, 0, 0))]
         else:
             mixed.append(it)
-    out = merge_items(mixed, PYR, windows, lambda *a: True)
+    out = merge_items(mixed, PYR, windows, cover_all)
     pts = visible_points(cam, PYR)
     np.testing.assert_array_equal(coverage(out, pts), 1)
 
@@ -548,7 +557,7 @@ def test_merge_of_mixed_cuts_keeps_order_coverage_and_levels(seed):
     sel = select(pyr, cam, RenderParams(lod_threshold=float(rng.uniform(0.5, 2.0))), residency=Residency())
     items = [it for it in sel.items if rng.random() > 0.1]  # some culled, as if transparent
     windows = [(2, 3, 4)] + [pyr.grid(L) for L in range(1, pyr.num_levels)]
-    merged = merge_items(items, pyr, windows, lambda *a: bool(rng.random() < 0.5))
+    merged = merge_items(items, pyr, windows, lambda L, n, nodes: rng.random(len(nodes)) < 0.5)
     assert 0 < len(merged) <= len(items)
     assert order_violations(cam, *boxes(merged))[0] == 0
     pts = visible_points(cam, pyr)

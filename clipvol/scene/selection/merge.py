@@ -31,10 +31,12 @@ def merge_items(items: list[DrawItem] | DrawItems, pyramid, windows, may_cover=N
     ``None`` for no merging), so no two bricks of one item share a texture slot. Fallback items
     (an ancestor drawn over part of its box) are never merged.
 
-    ``may_cover(level, node_level, node_index) -> bool``, optional: a sibling that was culled
+    ``may_cover(level, node_level, nodes) -> (m,) bool``, optional: a sibling that was culled
     (frustum, transparency) and so is drawn by no item may still be covered by the merged box when
     this says so - the renderer answers True when the node's bricks of ``level`` are all in texture
     memory: the merged box then shows the real data there (outside the view, or transparent).
+    ``nodes`` is ``(m, 3)`` int64 ``(z, y, x)`` of level ``node_level``: it is asked once per
+    data level and node level for every culled sibling of the frame.
     A sibling that any item overlaps is never covered, so no region is drawn twice.
 
     Works on the items' arrays (:class:`DrawItems`, as :func:`select` gives them; a plain list is
@@ -63,20 +65,27 @@ def merge_items(items: list[DrawItem] | DrawItems, pyramid, windows, may_cover=N
             a = idx >> (n - L)
             g = grids[n]
             parts.setdefault(n, []).append((a[:, 0] * g[1] + a[:, 1]) * g[2] + a[:, 2])
-    touched = {n: set(np.concatenate(v).tolist()) for n, v in parts.items()}
+    touched = {n: np.unique(np.concatenate(v)) for n, v in parts.items()}
     fb_lo, fb_hi = boxes_lo[~full], boxes_hi[~full]
 
-    def undrawn(level: int, node_level: int, node_index) -> bool:
+    def undrawn(level: int, node_level: int, nodes: np.ndarray) -> np.ndarray:
+        """``(m,)`` bool: may each of ``nodes`` (level ``node_level``, no item of which is drawn
+        from ``level``) be covered by a merged box? Not where an item lies in it."""
         g = grids[node_level]
-        z, y, x = (int(v) for v in node_index)
-        if (z * int(g[1]) + y) * int(g[2]) + x in touched.get(node_level, ()):
-            return False
-        if len(fb_lo):
-            lo, hi = pyramid.node_box(node_level, node_index)
-            tol = 1e-9 * max(1.0, float(np.abs(hi - lo).max()))
-            if np.all((fb_lo < hi - tol) & (fb_hi > lo + tol), axis=1).any():
-                return False
-        return bool(may_cover(level, node_level, node_index))
+        flat = (nodes[:, 0] * g[1] + nodes[:, 1]) * g[2] + nodes[:, 2]
+        ok = ~np.isin(flat, touched.get(node_level, np.empty(0, dtype=np.int64)))
+        if len(fb_lo):  # a fallback octant overlapping the node (a loading frame), in chunks of ~4 M tests
+            rows = np.nonzero(ok)[0]
+            chunk = max(1, (1 << 22) // (3 * len(fb_lo)))
+            for c in range(0, len(rows), chunk):
+                r = rows[c:c + chunk]
+                lo, hi = pyramid.node_box(node_level, nodes[r])
+                tol = 1e-9 * np.maximum(1.0, np.abs(hi - lo).max(axis=1))[:, None, None]
+                hit = np.all((fb_lo[None] < hi[:, None] - tol) & (fb_hi[None] > lo[:, None] + tol), axis=2)
+                ok[r[hit.any(axis=1)]] = False
+        if ok.any():
+            ok[ok] = np.asarray(may_cover(level, node_level, nodes[ok]), dtype=bool)
+        return ok
 
     # Level by level, bottom-up: at node level n, a run of consecutive whole items of one data level
     # under one parent is a sibling set (depth-first order keeps siblings consecutive); it merges into
@@ -115,13 +124,11 @@ def merge_items(items: list[DrawItem] | DrawItems, pyramid, windows, may_cover=N
             r = L_run == L
             cnt = np.minimum(first[r] + span[r, None], np.asarray(pyramid.grid(int(L)), dtype=np.int64)) - first[r]
             ok[r] = np.all(cnt <= np.asarray(win, dtype=np.int64), axis=1)
-        for k in np.nonzero(ok & (present < kids))[0]:  # missing siblings: each must be coverable
-            if may_cover is None:
-                ok[k] = False
-                continue
-            members = {tuple(v) for v in node_idx[start[k]:start[k] + present[k]].tolist()}
-            pk = tuple(int(v) for v in p_run[k])
-            ok[k] = all(undrawn(int(L_run[k]), n, m) for m in pyramid.children(n + 1, pk) if m not in members)
+        need = np.nonzero(ok & (present < kids))[0]  # missing siblings: each must be coverable
+        if len(need) and may_cover is None:
+            ok[need] = False
+        elif len(need):
+            ok[need] = _siblings_coverable(need, start, run, cand, node_idx, p_run, L_run, grid_n, n, undrawn)
         if not ok.any():
             n += 1
             continue
@@ -139,3 +146,25 @@ def merge_items(items: list[DrawItem] | DrawItems, pyramid, windows, may_cover=N
         out_lo, out_hi, out_idx, out_span = out_lo[keep], out_hi[keep], out_idx[keep], out_span[keep]
         n += 1
     return list(DrawItems(np.concatenate([data_lv[:, None], out_idx], axis=1), out_lo, out_hi, out_span))
+
+
+#: the eight child octants ``(z, y, x)`` of a node, in the order of their number ``4 z + 2 y + x``
+OCTANTS = np.array([(z, y, x) for z in (0, 1) for y in (0, 1) for x in (0, 1)], dtype=np.int64)
+
+
+def _siblings_coverable(need, start, run, cand, node_idx, p_run, L_run, grid_n, n, undrawn) -> np.ndarray:
+    """For the sibling runs ``need`` at node level ``n``: is every existing child of the run's
+    parent that the run does not hold coverable (``undrawn``)? Asked for all runs at once: one
+    question per culled sibling costs a 4 096-brick cut about 10 ms a frame."""
+    held = np.zeros((len(start), 8), dtype=bool)  # (run, octant): the run holds that child
+    members = np.nonzero(cand)[0]
+    held[run[members], (node_idx[members] & 1) @ np.array([4, 2, 1])] = True
+    kids = 2 * p_run[need][:, None, :] + OCTANTS[None]  # (k, 8, 3)
+    missing = np.all(kids < grid_n, axis=2) & ~held[need]
+    r, o = np.nonzero(missing)
+    good = np.ones(len(need), dtype=bool)
+    for L in np.unique(L_run[need[r]]).tolist():
+        w = L_run[need[r]] == L
+        ans = undrawn(int(L), n, kids[r[w], o[w]])
+        good[np.unique(r[w][~ans])] = False
+    return good
