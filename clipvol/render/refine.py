@@ -11,7 +11,8 @@ same selection:
 
 1. **coarse** - the cut drawn at 1/4 of the image's resolution (``ceil(w / 4) x ceil(h / 4)``
    rays; :data:`MAX_REFINE_LEVELS`, fewer for small images, :func:`refine_levels`) into a float
-   target of its own. Pass ``k``'s ray ``(i, j)`` is the image's ray through the point
+   target of its own (a pass within one rasteriser tile drawn across four, :func:`pass_origin`).
+   Pass ``k``'s ray ``(i, j)`` is the image's ray through the point
    ``((i + 1/2) 2**k, (j + 1/2) 2**k)``, halfway between pixels ``2i`` and ``2i + 1`` of pass
    ``k - 1``, so the four rays of pass ``k`` around any pixel of pass ``k - 1`` are the corners of
    a cell it lies in;
@@ -45,12 +46,15 @@ from .glsl import shader_source
 from .target import FloatTarget
 from .uniforms import uset
 
-__all__ = ["Refine", "MIN_REFINE_EDGE", "MAX_REFINE_LEVELS", "refine_levels", "refines"]
+__all__ = ["Refine", "MIN_REFINE_EDGE", "MAX_REFINE_LEVELS", "TILE", "pass_origin", "refine_levels", "refines"]
 
 #: the coarsest pass of a refined frame has at least this many pixels each way
 MIN_REFINE_EDGE = 8
 #: coarse passes at most (1 / 2 and 1 / 4 of the image's resolution)
 MAX_REFINE_LEVELS = 2
+#: Mesa llvmpipe bins a frame into tiles of this many pixels a side and shades each tile on one
+#: thread: a coarse pass that fits one tile is drawn across four (:func:`pass_origin`)
+TILE = 64
 
 
 def refine_levels(camera) -> int:
@@ -61,6 +65,17 @@ def refine_levels(camera) -> int:
     while k < MAX_REFINE_LEVELS and -(-edge // 2 ** (k + 1)) >= MIN_REFINE_EDGE:
         k += 1
     return k
+
+
+def pass_origin(size) -> tuple[int, int]:
+    """Where in its target a coarse pass of ``size`` (w, h) pixels is drawn: about the corner shared
+    by four :data:`TILE` tiles when it fits in one (so that four of the rasteriser's threads share
+    it: a 64 x 64 pass at the origin took one thread 9-11 ms, as long as the 128 x 128 pass above it),
+    else at the origin."""
+    w, h = (int(v) for v in size)
+    if w > TILE or h > TILE:
+        return 0, 0
+    return TILE - w // 2, TILE - h // 2
 
 
 def refines(params, camera) -> bool:
@@ -109,16 +124,23 @@ class Refine:
             ty = math.tan(math.radians(float(camera.fov_y)) / 2.0)
             prog["u_half"].value = (ty * w / h, ty)
 
-    def mask(self, fbo, k: int, tolerance: float) -> None:
+    def mask(self, fbo, camera, k: int, tolerance: float) -> None:
         """Blend pass ``k + 1``'s image into the smooth pixels of pass ``k``'s ``fbo`` (bound, depth
-        cleared to 1) and set their depth to 0, so that the pass's fragments (depth test ``<=``, at
-        0.5) leave them alone; the caller's draw path then sets its own blending and depth test."""
+        cleared to 1, its viewport set) and set their depth to 0, so that the pass's fragments
+        (depth test ``<=``, at 0.5) leave them alone; the caller's draw path then sets its own
+        blending and depth test. ``camera``: the image's."""
         import moderngl
 
         ctx = self.ctx
         self.target(k + 1).color.use(location=0)
+        size = self.coarse_camera(camera, k).size
+        coarse = self.coarse_camera(camera, k + 1).size
+        lo = pass_origin(coarse)
         uset(self.prog, "u_coarse", 0)
         uset(self.prog, "u_refine_tol", float(tolerance))
+        uset(self.prog, "u_origin", tuple(float(v) for v in (pass_origin(size) if k else (0, 0))))
+        uset(self.prog, "u_coarse_lo", lo)
+        uset(self.prog, "u_coarse_hi", (lo[0] + int(coarse[0]) - 1, lo[1] + int(coarse[1]) - 1))
         ctx.scissor = None
         ctx.disable(moderngl.BLEND)
         ctx.enable(moderngl.DEPTH_TEST)

@@ -30,7 +30,7 @@ from ...scene.page_table import block_open_faces
 from ..uniforms import uset, vec3
 from ..modes import REDUCED_MODES, clear_value, set_blend
 from ..refine import MAX_REFINE_LEVELS
-from .setup import DrawPath, check_samples, scissor_boxes
+from .setup import DrawPath, check_samples
 
 __all__ = ["BricksPath", "OCCLUSION_PASSES", "OCCLUSION_MIN_BATCH"]
 
@@ -90,7 +90,7 @@ class BricksPath(DrawPath):
             r, g, b, al = params.background
             clear = (r * al, g * al, b * al, al)
         fbo, previous, t0 = self.setup.begin(cam, clear)
-        copy = self._ensure_copy(tuple(int(v) for v in cam.size)) if front_to_back else None
+        copy = self._ensure_copy(tuple(int(v) for v in fbo.size)) if front_to_back else None
         prog, vao = self._program()
         origin = self.setup.frame_uniforms(prog, cam, tf)
         ctx.enable(mgl.BLEND)
@@ -110,7 +110,7 @@ class BricksPath(DrawPath):
             a.overlays.bind(prog, params.overlays, origin, a.level_ratios())
         B = np.asarray(pyr.brick_shape, dtype=np.float64)
         clamps = self._frame_clamps(items)
-        rects = scissor_boxes(cam, [it.lo for it in items], [it.hi for it in items]) if items else None
+        rects = self.setup.scissor_rects(cam, [it.lo for it in items], [it.hi for it in items]) if items else None
         bound_level = None
         n_items = len(items)
         order = range(n_items - 1, -1, -1) if front_to_back else range(n_items)

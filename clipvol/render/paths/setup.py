@@ -40,12 +40,13 @@ import time
 import numpy as np
 
 from ...errors import ParameterError
+from ...scene.selection.cut import DrawItems
 from ...scene.transfer import corrected_tables
 from ...scene.visibility import box_depths, screen_rects
 from ..glsl import ProgramCache
 from ..gpu_cache import t_scale_offset
 from ..modes import REDUCED_MODES, depth_range, iso_texel, occupancy_tf, reduce_image
-from ..refine import Refine, refine_levels
+from ..refine import Refine, pass_origin, refine_levels
 from ..resolve import Resolve
 from ..target import FloatTarget
 from ..uniforms import uset, vec3
@@ -85,10 +86,10 @@ def scissor_boxes(cam, lo, hi) -> np.ndarray:
 
 def samples_per_box(cam, items, pyramid, step: float) -> float:
     """Upper bound of the samples one ray takes inside one of ``items`` (10 % margin)."""
-    if not items:
+    if not len(items):
         return 0.0
-    ext = np.array([np.subtract(it.hi, it.lo) for it in items], dtype=np.float64)  # (n, 3)
-    levels = np.array([it.level for it in items])
+    arr = DrawItems.from_items(items)
+    ext = arr.hi - arr.lo  # (n, 3)
     f, u, r = (np.asarray(v, dtype=np.float64) for v in (cam.forward, cam.up, cam.right))
     if cam.orthographic:
         dirs = f[None]
@@ -99,10 +100,13 @@ def samples_per_box(cam, items, pyramid, step: float) -> float:
         gx, gy = np.meshgrid(g * ty * w / h, g * ty)
         dirs = f + gx.reshape(-1, 1) * r + gy.reshape(-1, 1) * u
         dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    # the longest path through a box over the directions: a box's extent over the most a direction
+    # covers per unit of its path along any one axis; the worst direction is the one whose smallest
+    # such ratio is largest, so boxes of one extent share the answer
+    shapes, inv = np.unique(ext, axis=0, return_inverse=True)
     with np.errstate(divide="ignore"):
-        path = np.min(ext[:, None, :] / np.abs(dirs[None, :, :]), axis=2).max(axis=1)  # (n,)
-    sp_min = float(min(pyramid.spacing))
-    delta = np.array([step * sp_min * 2.0**L for L in levels])
+        path = np.min(shapes[:, None, :] / np.abs(dirs[None, :, :]), axis=2).max(axis=1)[inv.reshape(-1)]  # (n,)
+    delta = step * float(min(pyramid.spacing)) * 2.0 ** arr.rows[:, 0].astype(np.float64)
     return float(np.max(path / delta)) * 1.1
 
 
@@ -153,6 +157,7 @@ class DrawSetup:
         self.refine: Refine | None = None  # the coarse targets and the mask pass, made by the first refined frame
         self.refine_level: int | None = None  # while a refined frame draws: 0 the image, k its pass at 1 / 2**k
         self.refine_camera = None  # the image's camera, while a refined frame draws
+        self.origin = (0, 0)  # where this pass's viewport starts in its target (refine.pass_origin)
 
     def program(self, vertex: str, fragment: str, defines: dict, first_use=None):
         """The variant ``(program, vertex array)`` (compiled once per variant); ``first_use(prog)``
@@ -175,16 +180,18 @@ class DrawSetup:
         (``previous``: the binding :meth:`read_back` gives back; ``t0``: when drawing began)."""
         ctx = self.ctx
         t0 = time.perf_counter()
-        w, h = cam.size
+        w, h = (int(v) for v in cam.size)
         k = self.refine_level
         target = self.refine.target(k) if k else self.target
-        fbo = target.ensure((int(w), int(h)))
+        self.origin = pass_origin((w, h)) if k else (0, 0)  # a coarse pass spread over the tiles
+        ox, oy = self.origin
+        fbo = target.ensure((ox + w, oy + h))
         previous = ctx.fbo
         fbo.use()
-        ctx.viewport = (0, 0, int(w), int(h))
+        ctx.viewport = (ox, oy, w, h)
         fbo.clear(*clear)  # (depth to 1: nothing masked)
         if self.repeats_pass():  # a finer pass: the smooth pixels come from the coarser one
-            self.refine.mask(fbo, k, self.action.params.refine_tolerance)
+            self.refine.mask(fbo, self.refine_camera, k, self.action.params.refine_tolerance)
         return fbo, previous, t0
 
     def repeats_pass(self) -> bool:
@@ -192,6 +199,12 @@ class DrawSetup:
         path derives from the cut alone may be kept from the pass before)?"""
         k = self.refine_level
         return k is not None and k < refine_levels(self.refine_camera)
+
+    def scissor_rects(self, cam, lo, hi) -> np.ndarray:
+        """:func:`scissor_boxes` of this pass, placed where its viewport starts in the target."""
+        rects = scissor_boxes(cam, lo, hi)
+        rects[:, :2] += np.asarray(self.origin, dtype=np.int64)
+        return rects
 
     def depth_test(self) -> None:
         """Set the depth test for a draw path's passes: off, except in a masked pass of a refined
@@ -217,6 +230,7 @@ class DrawSetup:
             ty = math.tan(math.radians(float(cam.fov_y)) / 2.0)
             prog["u_half"].value = (ty * w / h, ty)
         prog["u_viewport"].value = (float(w), float(h))
+        uset(prog, "u_frag_origin", tuple(float(v) for v in self.origin))
         prog["u_ortho"].value = bool(cam.orthographic)
         prog["u_forward"].value = vec3(cam.forward)
         prog["u_center_rel"].value = vec3(np.asarray(cam.center, dtype=np.float64) - origin)

@@ -33,7 +33,7 @@ import numpy as np
 from ...scene.page_table import build_page_table
 from ..uniforms import uset, vec3
 from ..modes import clear_value
-from .setup import DrawPath, check_samples, scissor_boxes
+from .setup import DrawPath, check_samples
 
 __all__ = ["SinglePassPath", "MAX_SINGLE_PASS_LEVELS", "MAX_SINGLE_PASS_RAY_SAMPLES", "MAX_PAGE_TABLE_ENTRIES",
            "PAGE_TABLE_WIDTH"]
@@ -147,7 +147,7 @@ class SinglePassPath(DrawPath):
                 tex.use(location=3 + L)
         ctx.disable(mgl.BLEND | mgl.CULL_FACE)
         self.setup.depth_test()  # on only in the fine pass of a refined frame
-        rect = scissor_boxes(cam, vlo, vhi)[0]
+        rect = self.setup.scissor_rects(cam, vlo, vhi)[0]
         if rect[2] and rect[3]:  # else the volume is off the image: nothing to draw
             ctx.scissor = tuple(rect)
             vao.render(mgl.TRIANGLES, vertices=3)

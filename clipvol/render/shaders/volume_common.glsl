@@ -9,6 +9,7 @@
 //   OVERLAY   composite only: the number (1..3) of co-registered overlay volumes sampled at each sample
 //   EMPTY_SKIP composite without overlays: leap over cells the transfer function makes transparent
 uniform vec2 u_viewport;
+uniform vec2 u_frag_origin;     // the pass's viewport origin in its target (a coarse pass spread over tiles)
 uniform bool u_ortho;
 uniform vec3 u_forward;         // camera basis (unit) and half extents of the view
 uniform vec3 u_right;           // (at depth 1 for perspective, world units for orthographic)
@@ -36,7 +37,7 @@ uniform float u_iso;            // the iso-value as a texel (raw = a * texel + b
 
 // The pixel's ray: origin relative to O and unit direction.
 void pixel_ray(out vec3 origin, out vec3 dir) {
-    vec2 ndc = gl_FragCoord.xy / u_viewport * 2.0 - 1.0;
+    vec2 ndc = (gl_FragCoord.xy - u_frag_origin) / u_viewport * 2.0 - 1.0;
     vec3 off = (ndc.x * u_half.x) * u_right + (ndc.y * u_half.y) * u_up;
     if (u_ortho) {              // rays start on the plane through the camera centre
         dir = u_forward;
@@ -92,7 +93,7 @@ bool pixel_ray_in_box(vec3 lo, vec3 hi, out vec3 origin, out vec3 dir, out vec3 
 
 // Stable per-pixel offset in [0, 1) (a 2-D integer hash of the pixel; the same every frame).
 float pixel_hash() {
-    uvec2 p = uvec2(gl_FragCoord.xy);
+    uvec2 p = uvec2(gl_FragCoord.xy - u_frag_origin);
     uint h = p.x * 1597334677u ^ p.y * 3812015801u;
     h = (h ^ (h >> 16)) * 2246822519u;
     h = (h ^ (h >> 13)) * 3266489917u;
