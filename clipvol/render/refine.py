@@ -70,7 +70,7 @@ def refine_levels(camera) -> int:
 def pass_origin(size) -> tuple[int, int]:
     """Where in its target a coarse pass of ``size`` (w, h) pixels is drawn: about the corner shared
     by four :data:`TILE` tiles when it fits in one (so that four of the rasteriser's threads share
-    it: a 64 x 64 pass at the origin took one thread 9-11 ms, as long as the 128 x 128 pass above it),
+    it: at the origin a 64 x 64 pass takes one thread 9-11 ms, as long as the 128 x 128 pass above it),
     else at the origin."""
     w, h = (int(v) for v in size)
     if w > TILE or h > TILE:

@@ -1,0 +1,122 @@
+"""Does drawing a refined frame's coarsest pass across four rasteriser tiles pay?
+
+Mesa llvmpipe bins a frame into 64 x 64 tiles and shades each tile on one thread, so the 64² pass
+of a 256² refined frame (:mod:`clipvol.render.refine`) would run on one thread while the others
+wait. clipvol draws such a pass about the corner of four tiles (:func:`clipvol.render.refine.pass_origin`).
+This script times, in one process and interleaved rounds (order reversed on odd rounds, median of
+``--repeat``), three frames of each view: the full-resolution frame (level 0, step 0.5, the
+reference outside the refinement), the refined frame as clipvol draws it, and the same refined
+frame with every pass at its target's origin (``pass_origin`` replaced for those calls). The two
+refined frames must be the same image (the largest 8-bit difference is printed; the rays do not
+change, only where the pass lies in its target).
+
+Data: the CT-like head 256³ (:func:`common.ct_store`) or ``--store``; ``bone``; the views of
+``bench_mission.py``. Rows: ``tools/bench/results/bench_refine_tiles.csv``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+if str(HERE) not in sys.path:
+    sys.path.insert(0, str(HERE))
+
+import bench_mission  # noqa: E402
+import common  # noqa: E402
+
+
+def run(store: Path, image: int, step: float, tolerance: float, repeat: int, log=print) -> list[dict]:
+    import clipvol.render.paths.setup as setup_module
+    import clipvol.render.refine as refine_module
+    from clipvol.paging.cliptexture import ClipTexture
+    from clipvol.paging.open import open_store
+    from clipvol.render import create_context
+    from clipvol.render.action import ClipRenderAction
+    from clipvol.scene.transfer import TransferFunction
+
+    spread = refine_module.pass_origin
+
+    def at_origin(size):
+        return 0, 0
+
+    def use(fn) -> None:  # the module and the draw set-up that imported it by name
+        refine_module.pass_origin = fn
+        setup_module.pass_origin = fn
+
+    loader = open_store(store)
+    pyr = loader.pyramid
+    ctx = create_context()
+    budget = int(sum(pyr.num_bricks(L) for L in range(pyr.num_levels)) * pyr.brick_nbytes * 1.2) + (64 << 20)
+    clip = ClipTexture(loader, budget, threads=2)
+    tf = TransferFunction.preset("bone", value_range=pyr.value_range)
+    full = ClipRenderAction(ctx, clip, texture_budget=budget, policy="fixed", level=0, step=0.5)
+    refined = ClipRenderAction(ctx, clip, texture_budget=budget, policy="fixed", level=0, step=step,
+                               refine_tolerance=tolerance)
+    rows = []
+    try:
+        for view, cam in bench_mission.views(pyr, image).items():
+            full.render(cam, tf, wait=True, timeout=600)
+            refined.render(cam, tf, wait=True, timeout=600)
+            use(at_origin)
+            one = refined.render(cam, tf)
+            use(spread)
+            four = refined.render(cam, tf)
+            frames = {"full": (full, spread), "four tiles": (refined, spread), "one tile": (refined, at_origin)}
+            times = {k: [] for k in frames}
+            for r in range(repeat):
+                for k in (list(frames) if r % 2 == 0 else list(frames)[::-1]):
+                    action, fn = frames[k]
+                    use(fn)
+                    t = time.perf_counter()
+                    action.render(cam, tf)
+                    times[k].append(time.perf_counter() - t)
+            use(spread)
+            med = {k: statistics.median(v) for k, v in times.items()}
+            row = {"date": time.strftime("%Y-%m-%d"), "store": store.name, "image": image, "view": view,
+                   "step": step, "tolerance": tolerance, "rounds": repeat,
+                   "full_ms": round(1e3 * med["full"], 1), "four_tiles_ms": round(1e3 * med["four tiles"], 1),
+                   "one_tile_ms": round(1e3 * med["one tile"], 1),
+                   "speedup_four_tiles": round(statistics.median(f / s for f, s in zip(times["full"], times["four tiles"])), 3),
+                   "speedup_one_tile": round(statistics.median(f / s for f, s in zip(times["full"], times["one tile"])), 3),
+                   "max_abs_diff": int(np.abs(one.astype(np.int16) - four.astype(np.int16)).max())}
+            rows.append(row)
+            log(f"{image}^2 {view:4}: full {row['full_ms']} ms; refined across four tiles {row['four_tiles_ms']} ms "
+                f"({row['speedup_four_tiles']:.2f}x full), in one tile {row['one_tile_ms']} ms "
+                f"({row['speedup_one_tile']:.2f}x full); images differ by at most {row['max_abs_diff']}")
+    finally:
+        use(spread)
+        full.close()
+        refined.close()
+        clip.close()
+        ctx.release()
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--store", type=Path, default=None, help="a clipvol store (default: the CT-like head 256^3)")
+    ap.add_argument("--image", type=int, default=256, help="image edge (default 256: a 64^2 coarsest pass)")
+    ap.add_argument("--step", type=float, default=2.0)
+    ap.add_argument("--tolerance", type=float, default=0.16)
+    ap.add_argument("--repeat", type=int, default=9, help="interleaved rounds, medians taken (>= 5)")
+    ap.add_argument("--out", type=Path, default=common.RESULTS / "bench_refine_tiles.csv")
+    a = ap.parse_args(argv)
+    if a.repeat < 5:
+        ap.error(f"--repeat: expected at least 5 rounds, got {a.repeat}")
+    store = a.store if a.store is not None else common.ct_store("256x256x256", 32)
+    rows = run(store, a.image, a.step, a.tolerance, a.repeat)
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    common.write_rows(a.out, rows)
+    print(f"wrote {a.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
