@@ -102,13 +102,18 @@ class Refine:
         return self._targets[k]
 
     @staticmethod
+    def coarse_size(camera, k: int) -> tuple[int, int]:
+        """``(ceil(w / 2**k), ceil(h / 2**k))``: the size of pass ``k`` of an image seen by ``camera``."""
+        w, h = (int(v) for v in camera.size)
+        return -(-w // 2**k), -(-h // 2**k)
+
+    @staticmethod
     def coarse_camera(camera, k: int):
-        """``camera`` with ``ceil(w / 2**k) x ceil(h / 2**k)`` pixels: the size of pass ``k``'s target
-        (its rays come from the image's camera, :meth:`coarse_uniforms`)."""
+        """``camera`` with :meth:`coarse_size` pixels: the size of pass ``k``'s target (its rays come
+        from the image's camera, :meth:`coarse_uniforms`)."""
         if k == 0:
             return camera
-        w, h = (int(v) for v in camera.size)
-        return replace(camera, size=(-(-w // 2**k), -(-h // 2**k)))
+        return replace(camera, size=Refine.coarse_size(camera, k))
 
     @staticmethod
     def coarse_uniforms(prog, camera, k: int) -> None:
@@ -133,8 +138,8 @@ class Refine:
 
         ctx = self.ctx
         self.target(k + 1).color.use(location=0)
-        size = self.coarse_camera(camera, k).size
-        coarse = self.coarse_camera(camera, k + 1).size
+        size = self.coarse_size(camera, k)
+        coarse = self.coarse_size(camera, k + 1)
         lo = pass_origin(coarse)
         uset(self.prog, "u_coarse", 0)
         uset(self.prog, "u_refine_tol", float(tolerance))

@@ -80,7 +80,8 @@ class BricksPath(DrawPath):
     def draw(self, cam, tf, items: list) -> tuple[np.ndarray, float, float]:
         a, mgl, ctx = self.action, self.mgl, self.ctx
         params, pyr = a.params, a.pyramid
-        check_samples(cam, items, pyr, params.step)
+        if not self.setup.repeats_pass():  # (a refined frame's later passes: the same cut and rays)
+            check_samples(cam, items, pyr, params.step)
         a.boxes_drawn = len(items)
         composite = params.mode in ("composite", "iso")  # ordered: under / over (iso: opaque hits)
         front_to_back = composite and params.early_termination

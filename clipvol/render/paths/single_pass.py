@@ -80,7 +80,8 @@ class SinglePassPath(DrawPath):
         nlev = pyr.num_levels
         if nlev > MAX_SINGLE_PASS_LEVELS:
             return None
-        check_samples(cam, items, pyr, params.step)
+        if not self.setup.repeats_pass():  # (a refined frame's later passes: the same cut and rays)
+            check_samples(cam, items, pyr, params.step)
         vlo, vhi = pyr.volume_box()
         finest = params.step * min(float(min(pyr.levels[it.level].scale)) for it in items)
         if float(np.linalg.norm(vhi - vlo)) / finest > MAX_SINGLE_PASS_RAY_SAMPLES:
