@@ -100,9 +100,8 @@ def samples_per_box(cam, items, pyramid, step: float) -> float:
         gx, gy = np.meshgrid(g * ty * w / h, g * ty)
         dirs = f + gx.reshape(-1, 1) * r + gy.reshape(-1, 1) * u
         dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    # the longest path through a box over the directions: a box's extent over the most a direction
-    # covers per unit of its path along any one axis; the worst direction is the one whose smallest
-    # such ratio is largest, so boxes of one extent share the answer
+    # each box's longest path over the sampled directions, once per distinct extent (a cut's boxes
+    # share a handful of extents)
     shapes, inv = np.unique(ext, axis=0, return_inverse=True)
     with np.errstate(divide="ignore"):
         path = np.min(shapes[:, None, :] / np.abs(dirs[None, :, :]), axis=2).max(axis=1)[inv.reshape(-1)]  # (n,)
