@@ -117,3 +117,38 @@ def test_culled_empty_space_does_not_forbid_a_replay(cube_store):
     lo, hi = pol._culled
     assert np.any(np.all((lo < 47.5) & (hi > 15.5), axis=1))  # a culled box of the cube is kept
     assert not pol.covers(_cam_at(eye, (20.0, 31.5, 31.5), 20))  # turning towards them: no replay
+
+
+@pytest.mark.parametrize("budget", [0.2, 0.1, 0.05])
+def test_an_error_budget_cut_is_evened_out_where_cheap(store, monkeypatch, budget):
+    """Once ``max_error`` is met, the coarsest nodes of a cut that mixes levels are refined while the
+    cut at most doubles (EVEN_OUT_GROWTH): the cut the greedy queue alone makes (growth 1, nothing
+    evened out) is the reference. The evened cut refines it, has fewer levels, covers the grid once,
+    stays within the bound and predicts no more error."""
+    import clipvol.scene.selection.policies.image_based as image_based
+
+    tabs = open_summary(store)
+    pyr = tabs.pyramid
+    errors = lod_errors(tabs, TF)
+    params = RenderParams(policy="image", max_error=budget, visibility=False)
+
+    def cut(growth):
+        monkeypatch.setattr(image_based, "EVEN_OUT_GROWTH", growth)
+        pol = ImageBased(params, errors=errors)
+        return _leaves(select(pyr, _cam(), params, policy=pol)), pol.estimated_error
+
+    growth = image_based.EVEN_OUT_GROWTH
+    greedy, greedy_est = cut(1.0)
+    even, even_est = cut(growth)
+    assert len({L for L, _ in greedy}) == 3  # this store's greedy cuts mix three levels
+    assert len({L for L, _ in even}) < 3 and len(even) <= 2 * len(greedy)
+    assert max(L for L, _ in even) < max(L for L, _ in greedy)
+    for L, b in even:  # each new leaf lies in a leaf of the greedy cut (a refinement, never coarser)
+        assert any(L <= Lg and np.all(b >> (Lg - L) == bg) for Lg, bg in greedy), (L, b)
+    cover = np.zeros(pyr.grid(0), int)
+    for L, b in even:
+        lo = b * 2**L
+        hi = np.minimum(lo + 2**L, pyr.grid(0))
+        cover[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]] += 1
+    assert cover.min() == 1 and cover.max() == 1
+    assert even_est <= greedy_est <= budget
