@@ -89,22 +89,14 @@ def _timed(fn) -> float:
 
 
 def run(store: Path, volume: np.ndarray, label: str, images, repeat: int, step: float, log=print) -> list[dict]:
-    from clipvol.paging.cliptexture import ClipTexture
-    from clipvol.paging.open import open_store
-    from clipvol.render import create_context
-    from clipvol.render.action import OPAQUE, ClipRenderAction
+    from clipvol.render.action import OPAQUE
     from clipvol.scene.metrics import percent_delta_e
-    from clipvol.scene.transfer import TransferFunction
 
-    loader = open_store(store)
-    pyr = loader.pyramid
-    ctx = create_context()
-    budget = int(sum(pyr.num_bricks(L) for L in range(pyr.num_levels)) * pyr.brick_nbytes * 1.2) + (64 << 20)
-    clip = ClipTexture(loader, budget, threads=2)
-    tf = TransferFunction.preset("bone", value_range=pyr.value_range)
-    raw = common.RawCaster(ctx, volume, pyr.value_range)
+    scene = common.WarmScene(store)
+    pyr, tf = scene.pyramid, scene.tf
+    raw = common.RawCaster(scene.ctx, volume, pyr.value_range)
     conf = {"full": dict(policy="fixed", level=0), **settings()}
-    actions = {k: ClipRenderAction(ctx, clip, texture_budget=budget, **{"step": step, **kw}) for k, kw in conf.items()}
+    actions = {k: scene.action(**{"step": step, **kw}) for k, kw in conf.items()}
     rows = []
     try:
         for image in images:
@@ -157,8 +149,7 @@ def run(store: Path, volume: np.ndarray, label: str, images, repeat: int, step: 
         for a in actions.values():
             a.close()
         raw.release()
-        clip.close()
-        ctx.release()
+        scene.close()
     return rows
 
 

@@ -35,11 +35,6 @@ import common  # noqa: E402
 def run(store: Path, image: int, step: float, tolerance: float, repeat: int, log=print) -> list[dict]:
     import clipvol.render.paths.setup as setup_module
     import clipvol.render.refine as refine_module
-    from clipvol.paging.cliptexture import ClipTexture
-    from clipvol.paging.open import open_store
-    from clipvol.render import create_context
-    from clipvol.render.action import ClipRenderAction
-    from clipvol.scene.transfer import TransferFunction
 
     spread = refine_module.pass_origin
 
@@ -50,18 +45,13 @@ def run(store: Path, image: int, step: float, tolerance: float, repeat: int, log
         refine_module.pass_origin = fn
         setup_module.pass_origin = fn
 
-    loader = open_store(store)
-    pyr = loader.pyramid
-    ctx = create_context()
-    budget = int(sum(pyr.num_bricks(L) for L in range(pyr.num_levels)) * pyr.brick_nbytes * 1.2) + (64 << 20)
-    clip = ClipTexture(loader, budget, threads=2)
-    tf = TransferFunction.preset("bone", value_range=pyr.value_range)
-    full = ClipRenderAction(ctx, clip, texture_budget=budget, policy="fixed", level=0, step=0.5)
-    refined = ClipRenderAction(ctx, clip, texture_budget=budget, policy="fixed", level=0, step=step,
-                               refine_tolerance=tolerance)
+    scene = common.WarmScene(store)
+    tf = scene.tf
+    full = scene.action(policy="fixed", level=0, step=0.5)
+    refined = scene.action(policy="fixed", level=0, step=step, refine_tolerance=tolerance)
     rows = []
     try:
-        for view, cam in bench_mission.views(pyr, image).items():
+        for view, cam in bench_mission.views(scene.pyramid, image).items():
             full.render(cam, tf, wait=True, timeout=600)
             refined.render(cam, tf, wait=True, timeout=600)
             use(at_origin)
@@ -94,8 +84,7 @@ def run(store: Path, image: int, step: float, tolerance: float, repeat: int, log
         use(spread)
         full.close()
         refined.close()
-        clip.close()
-        ctx.release()
+        scene.close()
     return rows
 
 

@@ -119,6 +119,36 @@ def ct_store(size: str, brick: int, data_dir: Path = DATA) -> Path:
     return path
 
 
+class WarmScene:
+    """A store opened for a warm benchmark: its loader and pyramid, a GL context, a clip-texture and a
+    texture budget that hold every brick of every level (so each action's frames converge and stay
+    resident), and the ``bone`` table over the store's value range. ``close()`` releases the
+    clip-texture and the context (the caller closes its actions first)."""
+
+    def __init__(self, store: Path) -> None:
+        from clipvol.paging.cliptexture import ClipTexture
+        from clipvol.paging.open import open_store
+        from clipvol.render import create_context
+        from clipvol.scene.transfer import TransferFunction
+
+        self.loader = open_store(store)
+        pyr = self.pyramid = self.loader.pyramid
+        self.ctx = create_context()
+        self.budget = int(sum(pyr.num_bricks(L) for L in range(pyr.num_levels)) * pyr.brick_nbytes * 1.2) + (64 << 20)
+        self.clip = ClipTexture(self.loader, self.budget, threads=2)
+        self.tf = TransferFunction.preset("bone", value_range=pyr.value_range)
+
+    def action(self, **params):
+        """A ``ClipRenderAction`` on this scene's clip-texture with the whole budget for textures."""
+        from clipvol.render.action import ClipRenderAction
+
+        return ClipRenderAction(self.ctx, self.clip, texture_budget=self.budget, **params)
+
+    def close(self) -> None:
+        self.clip.close()
+        self.ctx.release()
+
+
 # -- the reference outside clipvol's render path -----------------------------------------------------
 class WholeVolume:
     """A loader that serves level 0 of another loader as one brick (for the one-pass caster)."""
