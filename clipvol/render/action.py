@@ -88,8 +88,8 @@ from .refine import Refine, refine_levels, refines
 from .paths import AUTO_SINGLE_PASS_BOXES, DRAW_PATHS, FALLBACK, pick
 # the draw paths' limits, importable from here as well (benchmarks and tests read them)
 from .paths.bricks import OCCLUSION_MIN_BATCH, OCCLUSION_PASSES
-from .paths.setup import (MAX_STEPS_PER_BOX, OCCUPANCY_UNIT, OPAQUE, DrawSetup, premultiplied_to_uint8,
-                          samples_per_box, scissor_boxes)
+from .paths.setup import (MAX_STEPS_PER_BOX, OCCUPANCY_UNIT, OPAQUE, DrawSetup, check_samples,
+                          premultiplied_to_uint8, samples_per_box, scissor_boxes)
 from .paths.single_pass import (MAX_PAGE_TABLE_ENTRIES, MAX_SINGLE_PASS_LEVELS, MAX_SINGLE_PASS_RAY_SAMPLES,
                                 PAGE_TABLE_WIDTH)
 
@@ -293,15 +293,20 @@ class ClipRenderAction:
         return cam
 
     def _draw(self, cam, tf, sel) -> tuple[np.ndarray, float, float]:
-        """Merge the cut once, decide whether the frame leaps over empty cells, and hand the cut to
-        the draw path ``params.path`` picks (:func:`clipvol.render.paths.pick`), or to the fallback
-        path where that one declines it."""
+        """Merge the cut once, check once that no ray needs more samples in a box than the loop
+        takes (:func:`check_samples`; every pass and path of the frame casts the image camera's
+        rays through these boxes), decide whether the frame leaps over empty cells, and hand the
+        cut to the draw path ``params.path`` picks (:func:`clipvol.render.paths.pick`), or to the
+        fallback path where that one declines it."""
         items = sel.items  # a full cut's DrawItems stay arrays: the merge reads those
         self.page_table_nodes = 0
+        checked = False
         if self.params.merge_boxes and len(items):  # once, for either path
             merged = merge_items(items, self.pyramid, self.cache.windows, self._may_cover(cam))
             if samples_per_box(cam, merged, self.pyramid, self.params.step) <= MAX_STEPS_PER_BOX:
-                items = merged  # (else the rays would be cut)
+                items, checked = merged, True  # (else the rays would be cut)
+        if not checked:
+            check_samples(cam, items, self.pyramid, self.params.step)
         items = list(items)
         self.skipped_empty = self._skips(tf)
         name = pick(self.params, items)

@@ -669,8 +669,9 @@ class GpuBrickCache:
             cells = np.argwhere(away) + lo
             good[away] = np.asarray(self._clip.out_of_reach_mask(level, cells), dtype=bool)
         b = idx - lo
+        padded = np.pad(good, 1, constant_values=True)
         for a in range(3):
-            slab = np.pad(good, 1, constant_values=True)  # every cell's 3x3 slab across axis a is good
+            slab = padded  # every cell's 3x3 slab across axis a is good
             for o in (x for x in range(3) if x != a):
                 lead = [slice(None)] * 3
                 lead[o] = slice(2, None)

@@ -129,21 +129,20 @@ class Refine:
             ty = math.tan(math.radians(float(camera.fov_y)) / 2.0)
             prog["u_half"].value = (ty * w / h, ty)
 
-    def mask(self, fbo, camera, k: int, tolerance: float) -> None:
+    def mask(self, fbo, camera, k: int, tolerance: float, origin) -> None:
         """Blend pass ``k + 1``'s image into the smooth pixels of pass ``k``'s ``fbo`` (bound, depth
-        cleared to 1, its viewport set) and set their depth to 0, so that the pass's fragments
-        (depth test ``<=``, at 0.5) leave them alone; the caller's draw path then sets its own
-        blending and depth test. ``camera``: the image's."""
+        cleared to 1, its viewport set at ``origin``) and set their depth to 0, so that the pass's
+        fragments (depth test ``<=``, at 0.5) leave them alone; the caller's draw path then sets its
+        own blending and depth test. ``camera``: the image's."""
         import moderngl
 
         ctx = self.ctx
         self.target(k + 1).color.use(location=0)
-        size = self.coarse_size(camera, k)
         coarse = self.coarse_size(camera, k + 1)
         lo = pass_origin(coarse)
         uset(self.prog, "u_coarse", 0)
         uset(self.prog, "u_refine_tol", float(tolerance))
-        uset(self.prog, "u_origin", tuple(float(v) for v in (pass_origin(size) if k else (0, 0))))
+        uset(self.prog, "u_origin", tuple(float(v) for v in origin))
         uset(self.prog, "u_coarse_lo", lo)
         uset(self.prog, "u_coarse_hi", (lo[0] + int(coarse[0]) - 1, lo[1] + int(coarse[1]) - 1))
         ctx.scissor = None

@@ -128,3 +128,19 @@ def test_unregistered_and_reserved_names_are_refused(registered):
         paths.register(Auto)
     assert paths.DRAW_PATHS["bricks"] is paths.bricks.BricksPath  # the built-ins stay
     assert RenderParams(path="bricks").path == "bricks"
+
+
+@pytest.mark.parametrize("kw", [dict(path="bricks"), dict(path="single-pass"), dict(path="bricks", merge_boxes=False),
+                                dict(path="bricks", refine_tolerance=0.1), dict(path="test-flat")])
+def test_a_step_whose_rays_would_be_cut_short_is_refused_for_every_path(registered, action, kw):
+    """The volume is 16 voxels a side (spacing 1): a ray's path through any box is at least a
+    little and at most 16 * sqrt(3) voxels, so at step 1e-4 some ray needs far more than the
+    loop's 65 536 samples in one box and at step 1e-3 none needs more than about 28 000. The
+    action refuses the first, naming ``step``, whichever path draws (a registered one too) and
+    however the frame is drawn; the second draws."""
+    registered(FlatPath)
+    assert 16 / 1e-4 > 65536 and 16 * np.sqrt(3) / 1e-3 * 1.1 < 65536
+    with pytest.raises(ParameterError, match="step"):
+        action(step=1e-4, **kw).render(camera(), TF, wait=True, timeout=20)
+    img = action(step=1e-3, **kw).render(camera(), TF, wait=True, timeout=20)
+    assert img.shape == (24, 32, 4)

@@ -30,7 +30,7 @@ from ...scene.page_table import block_open_faces
 from ..uniforms import uset, vec3
 from ..modes import REDUCED_MODES, clear_value, set_blend
 from ..refine import MAX_REFINE_LEVELS
-from .setup import DrawPath, check_samples
+from .setup import DrawPath
 
 __all__ = ["BricksPath", "OCCLUSION_PASSES", "OCCLUSION_MIN_BATCH"]
 
@@ -80,8 +80,6 @@ class BricksPath(DrawPath):
     def draw(self, cam, tf, items: list) -> tuple[np.ndarray, float, float]:
         a, mgl, ctx = self.action, self.mgl, self.ctx
         params, pyr = a.params, a.pyramid
-        if not self.setup.repeats_pass():  # (a refined frame's later passes: the same cut and rays)
-            check_samples(cam, items, pyr, params.step)
         a.boxes_drawn = len(items)
         composite = params.mode in ("composite", "iso")  # ordered: under / over (iso: opaque hits)
         front_to_back = composite and params.early_termination

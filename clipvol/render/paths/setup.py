@@ -190,7 +190,7 @@ class DrawSetup:
         ctx.viewport = (ox, oy, w, h)
         fbo.clear(*clear)  # (depth to 1: nothing masked)
         if self.repeats_pass():  # a finer pass: the smooth pixels come from the coarser one
-            self.refine.mask(fbo, self.refine_camera, k, self.action.params.refine_tolerance)
+            self.refine.mask(fbo, self.refine_camera, k, self.action.params.refine_tolerance, self.origin)
         return fbo, previous, t0
 
     def repeats_pass(self) -> bool:

@@ -33,7 +33,7 @@ import numpy as np
 from ...scene.page_table import build_page_table
 from ..uniforms import uset, vec3
 from ..modes import clear_value
-from .setup import DrawPath, check_samples
+from .setup import DrawPath
 
 __all__ = ["SinglePassPath", "MAX_SINGLE_PASS_LEVELS", "MAX_SINGLE_PASS_RAY_SAMPLES", "MAX_PAGE_TABLE_ENTRIES",
            "PAGE_TABLE_WIDTH"]
@@ -80,8 +80,6 @@ class SinglePassPath(DrawPath):
         nlev = pyr.num_levels
         if nlev > MAX_SINGLE_PASS_LEVELS:
             return None
-        if not self.setup.repeats_pass():  # (a refined frame's later passes: the same cut and rays)
-            check_samples(cam, items, pyr, params.step)
         vlo, vhi = pyr.volume_box()
         finest = params.step * min(float(min(pyr.levels[it.level].scale)) for it in items)
         if float(np.linalg.norm(vhi - vlo)) / finest > MAX_SINGLE_PASS_RAY_SAMPLES:

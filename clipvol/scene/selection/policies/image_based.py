@@ -321,9 +321,19 @@ class ImageBased:
                     heapq.heappush(heap, (-min(s, 1e300), counter, key))
                     counter += 1
 
+        from_parent = 0  # records of children outside the window, drawn from their parent
+
+        def refine_nodes(lv, rows):
+            """Replace nodes ``rows`` of level ``lv`` (already dropped) by their culled children."""
+            nonlocal from_parent
+            rec0 = len(t.rec)
+            c = t.expand(lv, np.array(rows, dtype=np.int64))
+            from_parent += sum(len(r[1]) for r in t.rec[rec0:])
+            c, clo, chi = t.cull(lv - 1, c) if len(c) else (c, _EMPTY3, _EMPTY3)
+            push(lv - 1, c, clo, chi)
+
         level, idx, lo, hi = t.root_level()
         push(level, idx, lo, hi)
-        from_parent = 0  # records of children outside the window, drawn from their parent
         while heap:
             room = budget - len(nodes) - from_parent
             if room < 16 or done():
@@ -339,11 +349,7 @@ class ImageBased:
                 drop(key)
             t.counts["refined"] += len(batch)
             for lv in sorted(by_level, reverse=True):
-                rec0 = len(t.rec)
-                c = t.expand(lv, np.array(by_level[lv], dtype=np.int64))
-                from_parent += sum(len(r[1]) for r in t.rec[rec0:])
-                c, clo, chi = t.cull(lv - 1, c) if len(c) else (c, _EMPTY3, _EMPTY3)
-                push(lv - 1, c, clo, chi)
+                refine_nodes(lv, by_level[lv])
         while heap and not done():  # the tail, one node at a time
             _, _, key = heap[0]
             lv, b = key
@@ -368,11 +374,7 @@ class ImageBased:
                     break
                 for key in top:
                     drop(key)
-                rec0 = len(t.rec)
-                c = t.expand(levels[-1], idx)
-                from_parent += sum(len(r[1]) for r in t.rec[rec0:])
-                c, clo, chi = t.cull(levels[-1] - 1, c) if len(c) else (c, _EMPTY3, _EMPTY3)
-                push(levels[-1] - 1, c, clo, chi)
+                refine_nodes(levels[-1], idx)
         t.leaves_of(nodes)
         self.estimated_error = predicted_visible_error([sums[0]], [sums[1] / sums[0] if sums[0] > 0 else 0.0], nonempty)
 
