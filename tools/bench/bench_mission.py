@@ -94,7 +94,7 @@ def run(store: Path, volume: np.ndarray, label: str, images, repeat: int, step: 
 
     scene = common.WarmScene(store)
     pyr, tf = scene.pyramid, scene.tf
-    raw = common.RawCaster(scene.ctx, volume, pyr.value_range)
+    raw = scene.raw_caster(volume)
     conf = {"full": dict(policy="fixed", level=0), **settings()}
     actions = {k: scene.action(**{"step": step, **kw}) for k, kw in conf.items()}
     rows = []
@@ -146,9 +146,6 @@ def run(store: Path, volume: np.ndarray, label: str, images, repeat: int, step: 
                      f"{'reached' if best['speedup'] >= TARGET_SPEEDUP else 'not reached'})"
                      if best else f"no setting at <= {TARGET_PCT:g} %"))
     finally:
-        for a in actions.values():
-            a.close()
-        raw.release()
         scene.close()
     return rows
 
@@ -178,10 +175,7 @@ def main(argv: list[str] | None = None) -> int:
         volume = common.ct_volume(shape)
         label = f"ct_head {a.size} uint16 (12 bit), {a.brick}^3 bricks"
     rows = run(store, volume, label, [int(v) for v in a.images.split(",")], a.repeat, a.step)
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    common.write_rows(a.out, rows)
-    print(f"wrote {a.out}")
-    return 0
+    return common.save_rows(a.out, rows)
 
 
 if __name__ == "__main__":

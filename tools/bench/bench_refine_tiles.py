@@ -52,8 +52,7 @@ def run(store: Path, image: int, step: float, tolerance: float, repeat: int, log
     tf = scene.tf
     full = scene.action(policy="fixed", level=0, step=0.5)
     refined = scene.action(policy="fixed", level=0, step=step, refine_tolerance=tolerance)
-    raw = common.RawCaster(scene.ctx, common.WholeVolume(scene.loader).read_brick(0, (0, 0, 0)),
-                           scene.pyramid.value_range)
+    raw = scene.raw_caster()
     rows = []
     try:
         for view, cam in bench_mission.views(scene.pyramid, image).items():
@@ -101,9 +100,6 @@ def run(store: Path, image: int, step: float, tolerance: float, repeat: int, log
                 f"{row['speedup_one_tile']:.2f}x); images differ by at most {row['max_abs_diff']}")
     finally:
         use(spread)
-        full.close()
-        refined.close()
-        raw.release()
         scene.close()
     return rows
 
@@ -121,10 +117,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--repeat: expected at least 5 rounds, got {a.repeat}")
     store = a.store if a.store is not None else common.ct_store("256x256x256", 32)
     rows = run(store, a.image, a.step, a.tolerance, a.repeat)
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    common.write_rows(a.out, rows)
-    print(f"wrote {a.out}")
-    return 0
+    return common.save_rows(a.out, rows)
 
 
 if __name__ == "__main__":

@@ -122,8 +122,8 @@ def ct_store(size: str, brick: int, data_dir: Path = DATA) -> Path:
 class WarmScene:
     """A store opened for a warm benchmark: its loader and pyramid, a GL context, a clip-texture and a
     texture budget that hold every brick of every level (so each action's frames converge and stay
-    resident), and the ``bone`` table over the store's value range. ``close()`` releases the
-    clip-texture and the context (the caller closes its actions first)."""
+    resident), and the ``bone`` table over the store's value range. ``close()`` releases what it
+    made: the actions and raw casters it handed out, the clip-texture, the context."""
 
     def __init__(self, store: Path) -> None:
         from clipvol.paging.cliptexture import ClipTexture
@@ -137,14 +137,28 @@ class WarmScene:
         self.budget = int(sum(pyr.num_bricks(L) for L in range(pyr.num_levels)) * pyr.brick_nbytes * 1.2) + (64 << 20)
         self.clip = ClipTexture(self.loader, self.budget, threads=2)
         self.tf = TransferFunction.preset("bone", value_range=pyr.value_range)
+        self._made: list = []  # (object, its release method), released by close() in reverse
 
     def action(self, **params):
         """A ``ClipRenderAction`` on this scene's clip-texture with the whole budget for textures."""
         from clipvol.render.action import ClipRenderAction
 
-        return ClipRenderAction(self.ctx, self.clip, texture_budget=self.budget, **params)
+        a = ClipRenderAction(self.ctx, self.clip, texture_budget=self.budget, **params)
+        self._made.append(a.close)
+        return a
+
+    def raw_caster(self, volume=None) -> "RawCaster":
+        """The :class:`RawCaster` of ``volume`` (default: the store's level 0 read whole)."""
+        if volume is None:
+            volume = WholeVolume(self.loader).read_brick(0, (0, 0, 0))
+        raw = RawCaster(self.ctx, volume, self.pyramid.value_range)
+        self._made.append(raw.release)
+        return raw
 
     def close(self) -> None:
+        for release in reversed(self._made):
+            release()
+        self._made = []
         self.clip.close()
         self.ctx.release()
 
@@ -460,5 +474,13 @@ def write_rows(path, rows: list[dict]) -> None:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
+
+
+def save_rows(path: Path, rows: list[dict]) -> int:
+    """:func:`write_rows` into ``path`` (its folder made), say where, and return 0 (a script's exit)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_rows(path, rows)
+    print(f"wrote {path}")
+    return 0
 
 
