@@ -70,6 +70,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_common_arguments(p, ("brick",))
     p.add_argument("--path", choices=("orbit", "fly", "zoom"), default="orbit", help="camera path the views come from")
     p.add_argument("--views", type=int, default=3, help="views along the path")
+    p.add_argument("--frame", choices=("visible", "volume"), default="visible",
+                   help="what the orbit's views frame: the voxels the transfer function makes visible, each view "
+                        "at the distance where they fill it (composite), or the sphere around the whole volume")
     add_common_arguments(p, ("size",), size=dict(default=(192, 192), help="image size WxH (also caps the reference's cost)"))
     p.add_argument("--thresholds", type=_floats, default=[0.5, 1, 2, 4, 8, 16], help="LOD thresholds (pixels), comma-separated")
     p.add_argument("--memory-budgets", type=_sizes, default=None,
@@ -104,7 +107,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--refine", default=None, metavar="STEP:TOL,...",
                    help="full resolution sampled at STEP voxels with adaptive image sampling at tolerance TOL "
                         "(--refine-tolerance of clipvol render) measured as settings, comma-separated, or 'none' "
-                        "(default 2:0.16,2.5:0.3; composite only)")
+                        "(default 2:0.16,2:0.25,2.5:0.2,2.5:0.3; composite only)")
     p.add_argument("--block-budgets", default=None,
                    help="block budgets of the policy comparison (image-based LOD, after Wang, Garcia & Shen 2007, "
                         "Fig. 6), comma-separated, or 'none' (default 8,16,32,64,128,256)")
@@ -180,7 +183,7 @@ def run(args) -> int:
         step=args.step, threads=args.threads, timeout=args.timeout, max_frames=args.max_frames,
         reference_cap=args.reference_cap, log=lambda s: print(s, flush=True), plots=not args.no_plots,
         block_budgets=_budgets(args.block_budgets), rounds=args.rounds, allow_partial=args.allow_partial,
-        max_errors=_max_errors(args.max_error), refines=_refines(args.refine),
+        max_errors=_max_errors(args.max_error), refines=_refines(args.refine), frame=args.frame,
     )
     print(f"wrote {res.csv}, {res.timing_csv}, {res.markdown}" + "".join(f", {p}" for p in res.plots))
     print(res.headline[:1].upper() + res.headline[1:] + ".")

@@ -58,10 +58,11 @@ from ..paging.toroidal import minimum_budget
 from ..render.context import create_context
 from ..scene.metrics import percent_delta_e, psnr, rmse
 from ..scene.params import RenderParams
+from ..scene.framing import visible_points
 from ..scene.paths import make_path
 from ..units import format_bytes, parse_bytes
 from .lod_sweep import DEFAULT_BLOCK_BUDGETS, blocks_to_reach, lod_sweep, plot_lod_sweep, policy_changes
-from .session import RenderSession, open_loader
+from .session import RenderSession, open_loader, resolve_tf
 
 #: the papers the report's measures and tables come from, numbered as the report cites them
 REFERENCES = (
@@ -88,7 +89,9 @@ DEFAULT_THRESHOLDS = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0)
 DEFAULT_MAX_ERRORS = (0.10, 0.05, 0.02)
 #: full resolution sampled at ``step`` voxels with adaptive image sampling at ``refine_tolerance``
 #: (:mod:`clipvol.render.refine`), the settings of the sweep "refine" by default
-DEFAULT_REFINES = ((2.0, 0.16), (2.5, 0.3))
+DEFAULT_REFINES = ((2.0, 0.16), (2.0, 0.25), (2.5, 0.2), (2.5, 0.3))
+#: what the orbit's views frame (run_report's ``frame``)
+FRAMES = ("visible", "volume")
 
 REPORT_COLUMNS = (
     "sweep", "setting", "lod_threshold", "memory_budget", "texture_budget", "selection", "level",
@@ -128,6 +131,8 @@ class ReportResult(ReportFiles):
     lod_rows: list[dict] = field(default_factory=list)
     #: warm interleaved rounds per setting and view
     rounds: int = 5
+    #: the world box ``(lo, hi)`` of the points the views frame (``frame="visible"``), or None: the whole volume
+    framed: tuple | None = None
     #: one row per timed warm frame (:data:`TIMING_COLUMNS`)
     timing_rows: list[dict] = field(default_factory=list)
     #: the one-line answer (:func:`headline`)
@@ -401,6 +406,7 @@ def run_report(
     allow_partial: bool = False,
     max_errors: Sequence | None = None,
     refines: Sequence | None = None,
+    frame: str = "visible",
 ) -> ReportResult:
     """Measure image error against frame time and bytes for a sweep of settings; write the report.
 
@@ -470,6 +476,11 @@ def run_report(
         Level 0 sampled at ``step`` voxels with adaptive image sampling at ``tolerance``
         (``RenderParams.step``, ``refine_tolerance``), each a setting of the sweep ``"refine"``
         (composite only). Default :data:`DEFAULT_REFINES`; ``()`` skips them.
+    frame : {'visible', 'volume'}
+        What the ``orbit`` views frame: ``"visible"`` (composite mode) the voxels the transfer
+        function gives opacity (:func:`clipvol.scene.framing.visible_points`), from the distance where
+        they fill the views; ``"volume"`` the sphere around the whole volume box. Other paths and
+        modes frame the volume.
 
     Returns
     -------
@@ -483,6 +494,8 @@ def run_report(
         raise ParameterError(f"thresholds: expected values > 0 pixels, got {thresholds}")
     if int(views) < 1:
         raise ParameterError(f"views: expected >= 1, got {views!r}")
+    if frame not in FRAMES:
+        raise ParameterError(f"frame: expected one of {', '.join(FRAMES)}, got {frame!r}")
     if int(max_frames) < 1:
         raise ParameterError(f"max_frames: expected >= 1, got {max_frames!r}")
     if isinstance(rounds, bool) or int(rounds) != rounds or int(rounds) < 1:
@@ -502,9 +515,15 @@ def run_report(
     from ..scene.views import patient_path
 
     path_name, path_kwargs = patient_path(path, getattr(loader, "frame", None))  # head-up for a patient
+    framed = None
+    if frame == "visible" and mode == "composite" and path_name in ("orbit", "turntable"):
+        pts = visible_points(loader, resolve_tf(tf, loader))  # None: nothing visible, frame the volume
+        if pts is not None:
+            path_kwargs["fit"] = pts
+            framed = (pts.min(axis=0), pts.max(axis=0))
     cams = list(make_path(path_name, pyr, int(views), size=size, **path_kwargs))
     result = ReportResult(out_dir=out, csv=out / "report.csv", markdown=out / "report.md", reference_level=ref_level,
-                          rounds=rounds)
+                          rounds=rounds, framed=framed)
     base = RenderParams(mode=mode, iso_value=iso_value, step=step, texture_budget=full_tex)
     own_ctx = ctx is None
     if own_ctx:
@@ -519,7 +538,9 @@ def run_report(
             sess.render(*cams[0], wait=True, timeout=timeout)
         # 1. cold: the full-resolution reference of every view, then each setting from a new session
         if log:
-            log(f"reference: fixed level {ref_level}, converged, {len(cams)} views at {size[0]}x{size[1]}")
+            log(f"reference: fixed level {ref_level}, converged, {len(cams)} views at {size[0]}x{size[1]}, framing "
+                + ("the volume" if framed is None else "the visible voxels within " + " x ".join(
+                    f"{a:.4g}..{b:.4g}" for a, b in zip(*framed))))
         fixed = _Setting("fixed", f"fixed L{ref_level}", 1.0, full_mem, full_tex, "fixed", ref_level)
         frames: dict = {}
         rows = _cold_setting(fixed, loader, ctx, cams, None, keep_frames=frames, **kw)
@@ -802,7 +823,10 @@ def _markdown(result: ReportResult, pyr, *, size, path, tf, mode, step, cap) -> 
         "",
         f"Data: {' x '.join(map(str, pyr.shape))} voxels (z, y, x), {pyr.dtype}, brick {pyr.brick_shape[0]}, "
         f"{pyr.num_levels} levels. Views: {len({r['view'] for r in rows})} along the `{path}` path, "
-        f"{size[0]}x{size[1]} pixels, `{mode}`, transfer function `{tf if isinstance(tf, str) else (getattr(tf, 'name', None) or 'custom')}`, step {step}.",
+        f"{size[0]}x{size[1]} pixels, `{mode}`, transfer function `{tf if isinstance(tf, str) else (getattr(tf, 'name', None) or 'custom')}`, step {step}; "
+        + ("framing the whole volume." if result.framed is None else
+           "framing the voxels the transfer function makes visible (within "
+           + " x ".join(f"{a:.4g}..{b:.4g}" for a, b in zip(*result.framed)) + ", x y z), from where they fill the views."),
         "",
         f"Reference: `{ref_label}` (fixed level {result.reference_level}, converged"
         + (", level 0 exceeds the reference cap of " + format_bytes(cap) if result.reference_level else "")

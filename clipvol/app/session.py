@@ -48,6 +48,18 @@ def make_overlays(specs) -> tuple:
     return tuple(out)
 
 
+def resolve_tf(tf, loader):
+    """The :class:`~clipvol.scene.transfer.TransferFunction` of ``tf``: itself, the preset of that
+    name, or for ``"auto"`` a window on ``loader``'s foreground from its histogram."""
+    if not isinstance(tf, str):
+        return tf
+    if tf == "auto":
+        from ..scene.auto_tf import auto_transfer_function
+
+        return auto_transfer_function(loader)
+    return TransferFunction.preset(tf)
+
+
 def _check_tf(tf):
     if not isinstance(tf, str) and not hasattr(tf, "table"):
         raise ParameterError(f"tf: expected a preset name or a TransferFunction, got {tf!r}")
@@ -136,12 +148,7 @@ class RenderSession:
         if not isinstance(tf, str):
             return tf
         if self._tf_name != tf:
-            if tf == "auto":  # a window on the data's foreground, from its histogram
-                from ..scene.auto_tf import auto_transfer_function
-
-                self._tf = auto_transfer_function(self.loader)
-            else:
-                self._tf = TransferFunction.preset(tf)
+            self._tf = resolve_tf(tf, self.loader)
             self._tf_name = tf
         return self._tf
 

@@ -119,6 +119,29 @@ def _perspective(eye, target, fov_y: float, size, pyramid: Pyramid, up=UP):
     return cam.fit_depth(lo, hi)
 
 
+def _centre_distance(pyramid: Pyramid, fit, distance, fov_y: float, size, dirs, up) -> tuple[np.ndarray, float]:
+    """Centre and eye distance of an orbit-like path whose eyes lie along ``dirs`` (unit, from the
+    centre): the volume's centre and the distance that fits its bounding sphere, or with ``fit``
+    (world points ``(n, 3)``, e.g. :func:`clipvol.scene.framing.visible_points`) the middle of their
+    bounding box and the distance at which they fit every view
+    (:func:`~clipvol.scene.framing.fit_points_distance`); ``distance`` (not None) overrides the distance."""
+    if fit is None:
+        c = volume_center(pyramid)
+        d = fit_distance(pyramid, fov_y, size) if distance is None else float(distance)
+    else:
+        from .framing import fit_points_distance
+
+        pts = np.asarray(fit, dtype=np.float64).reshape(-1, 3)
+        if not (len(pts) and np.all(np.isfinite(pts))):
+            raise ParameterError(f"fit: expected finite world points (n, 3), got {len(pts)} points")
+        c = (pts.min(axis=0) + pts.max(axis=0)) / 2.0
+        cams = [Camera.perspective(tuple(c + v), tuple(c), up=tuple(up), fov_y=fov_y, size=size) for v in dirs]
+        d = fit_points_distance(pts, c, cams) if distance is None else float(distance)
+    if not (np.isfinite(d) and d > 0):
+        raise ParameterError(f"distance: expected a finite value > 0, got {distance!r}")
+    return c, d
+
+
 def fit_distance(pyramid: Pyramid, fov_y: float, size=(1, 1), margin: float = 1.05) -> float:
     """Distance from the volume centre at which the whole bounding sphere fits in the view."""
     w, h = _check_size(size)
@@ -135,6 +158,7 @@ def orbit(
     fov_y: float = 35.0,
     elevation: float = 25.0,
     distance: float | None = None,
+    fit=None,
     turns: float = 1.0,
     start_azimuth: float = 0.0,
 ) -> Iterator[tuple[object, np.ndarray]]:
@@ -154,23 +178,23 @@ def orbit(
         Degrees above the horizontal plane (towards world up, ``-y``).
     distance : float, optional
         Eye distance from the centre; default: the whole volume fits (:func:`fit_distance`).
+    fit : array (n, 3), optional
+        Frame these world points (``(x, y, z)``, e.g. :func:`clipvol.scene.framing.visible_points`)
+        instead of the volume: the views look at the middle of their bounding box from the distance
+        at which all of them fit every view.
     turns, start_azimuth : float
         How far the orbit goes, where it starts (degrees).
 
     Yields
     ------
     (Camera, ndarray)
-        The camera and the centre of interest (the volume centre).
+        The camera and the centre of interest (the volume centre, or the middle of ``fit``).
     """
     n, size = _check_orbit(frames, size, elevation)
-    c = volume_center(pyramid)
-    d = fit_distance(pyramid, fov_y, size) if distance is None else float(distance)
-    if not (np.isfinite(d) and d > 0):
-        raise ParameterError(f"distance: expected a finite value > 0, got {distance!r}")
+    dirs = [_direction(start_azimuth + 360.0 * turns * k / n, elevation) for k in range(n)]
+    c, d = _centre_distance(pyramid, fit, distance, fov_y, size, dirs, UP)
     for k in range(n):
-        az = start_azimuth + 360.0 * turns * k / n
-        eye = c + d * _direction(az, elevation)
-        yield _perspective(eye, c, fov_y, size, pyramid), c.copy()
+        yield _perspective(c + d * dirs[k], c, fov_y, size, pyramid), c.copy()
 
 
 def turntable(
@@ -183,6 +207,7 @@ def turntable(
     front=(0.0, 0.0, -1.0),
     elevation: float = 0.0,
     distance: float | None = None,
+    fit=None,
     azimuth: float = 0.0,
     mirror: bool = False,
 ) -> Iterator[tuple[object, np.ndarray]]:
@@ -210,6 +235,8 @@ def turntable(
         Degrees the eye is raised towards ``up`` (-89..89).
     distance : float, optional
         Eye distance from the centre; default: the whole volume fits.
+    fit : array (n, 3), optional
+        Frame these world points instead of the volume, as :func:`orbit` does.
     azimuth : float
         Degrees the first view is turned from ``front`` (right-handed about ``up``).
     mirror : bool
@@ -218,26 +245,21 @@ def turntable(
     Yields
     ------
     (Camera, ndarray)
-        The camera and the centre of interest (the volume centre).
+        The camera and the centre of interest (the volume centre, or the middle of ``fit``).
     """
     n, size = _check_orbit(frames, size, elevation)
     if not np.isfinite(float(azimuth)):
         raise ParameterError(f"azimuth: expected a finite angle in degrees, got {azimuth!r}")
     u, f, side = _basis(up, front, mirror)  # side: f rotated by +90 degrees about u
-    c = volume_center(pyramid)
-    d = fit_distance(pyramid, fov_y, size) if distance is None else float(distance)
-    if not (np.isfinite(d) and d > 0):
-        raise ParameterError(f"distance: expected a finite value > 0, got {distance!r}")
     el = np.radians(float(elevation))
-    lo, hi = pyramid.volume_box()
-    from .camera import Camera
-
+    dirs = []
     for k in range(n):
         a = 2.0 * np.pi * k / n + np.radians(float(azimuth))
         horiz = np.cos(a) * f + np.sin(a) * side
-        eye = c + d * (np.cos(el) * horiz + np.sin(el) * u)
-        cam = Camera.perspective(tuple(eye), tuple(c), up=tuple(u), fov_y=fov_y, size=size)
-        yield cam.fit_depth(lo, hi), c.copy()
+        dirs.append(np.cos(el) * horiz + np.sin(el) * u)
+    c, d = _centre_distance(pyramid, fit, distance, fov_y, size, dirs, u)
+    for k in range(n):
+        yield _perspective(c + d * dirs[k], c, fov_y, size, pyramid, up=u), c.copy()
 
 
 def _fly_points(pyramid: Pyramid, t: np.ndarray, up=UP, front=(0.0, 0.0, -1.0), mirror: bool = False) -> np.ndarray:

@@ -278,3 +278,42 @@ def test_cli_budget_lists_are_checked_while_parsing(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "--memory-budgets" in err and "'12XB'" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "rep").exists()
+
+
+def test_report_frames_what_the_transfer_function_shows(tmp_path, ctx):
+    """``frame="visible"`` (the default): the orbit's views look at the voxels with opacity
+    (:func:`visible_box`, itself tested against the table's lookup) from where they fill them, so the
+    anatomy covers more of each image than with ``frame="volume"``."""
+    from clipvol.app.report import run_report
+    from clipvol.loaders.numpy_array import NumpyLoader
+    from clipvol.scene.framing import visible_box
+    from clipvol.scene.transfer import TransferFunction
+
+    vol = np.zeros((40, 40, 40), dtype=np.uint16)
+    vol[22:34, 6:18, 9:21] = 900  # tissue in one corner of the air
+    kw = dict(views=1, size=(48, 48), thresholds=(4.0,), memory_budgets=(), texture_budgets=(), block_budgets=(),
+              max_errors=(), refines=(), tf=TransferFunction.preset("bone", value_range=(0.0, 1000.0)), ctx=ctx,
+              max_frames=2, rounds=1, plots=False)
+    covered = {}
+    for frame in ("visible", "volume"):
+        loader = NumpyLoader(vol, brick=16)
+        res = run_report(loader, tmp_path / frame, frame=frame, **kw)
+        if frame == "visible":
+            want = visible_box(loader, kw["tf"])
+            np.testing.assert_allclose(res.framed[0], want[0])
+            np.testing.assert_allclose(res.framed[1], want[1])
+            assert "framing the voxels the transfer function makes visible" in res.markdown.read_text()
+        else:
+            assert res.framed is None and "framing the whole volume" in res.markdown.read_text()
+        ref = [p for p in res.images if "fixed" in p.name or "reference" in p.name][0]
+        img = np.asarray(Image.open(ref).convert("RGB")).astype(int)
+        covered[frame] = int((np.abs(img - img[0, 0]).sum(axis=2) > 30).sum())
+    assert covered["visible"] > 2 * covered["volume"] > 0, covered
+
+
+def test_report_rejects_an_unknown_frame(tmp_path):
+    from clipvol.app.report import run_report
+    from clipvol.errors import ParameterError
+
+    with pytest.raises(ParameterError, match="frame"):
+        run_report("procedural:fractal?size=16", tmp_path, frame="brain")
