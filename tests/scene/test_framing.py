@@ -119,3 +119,21 @@ def test_orbit_frames_points_closer_than_the_volume():
         assert max(np.abs(x).max(), np.abs(y).max()) <= 1 / 1.05 + 1e-9
     with pytest.raises(ParameterError, match="fit"):
         list(orbit(pyr, 2, fit=np.full((2, 3), np.nan)))
+
+
+def test_an_unreadable_brick_counts_as_visible():
+    from clipvol.errors import BrickIntegrityError
+
+    vol = _volume()
+
+    class Damaged(NumpyLoader):
+        def read_brick(self, level, index):
+            if level == 0 and tuple(index) == (2, 0, 0):  # voxels z 32..39, y 0..15, x 0..15
+                raise BrickIntegrityError("brick (0, 2, 0, 0): damaged")
+            return super().read_brick(level, index)
+
+    tf = TransferFunction.preset("bone", value_range=(0.0, 1000.0))
+    pts = visible_points(Damaged(vol, brick=16), tf, max_voxels=vol.size)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)  # x y z: the damaged corner is inside the framed box
+    assert lo[0] <= 0.0 and lo[1] <= 0.0 and hi[2] >= 39.0
+    assert np.all(lo <= visible_box(NumpyLoader(vol, brick=16), tf, max_voxels=vol.size)[0])
