@@ -56,9 +56,9 @@ import numpy as np
 from ..errors import ClipvolError, FrameIncompleteError, ParameterError
 from ..paging.toroidal import minimum_budget
 from ..render.context import create_context
+from ..scene.framing import visible_points
 from ..scene.metrics import percent_delta_e, psnr, rmse
 from ..scene.params import RenderParams
-from ..scene.framing import visible_points
 from ..scene.paths import make_path
 from ..units import format_bytes, parse_bytes
 from .lod_sweep import DEFAULT_BLOCK_BUDGETS, blocks_to_reach, lod_sweep, plot_lod_sweep, policy_changes
