@@ -34,9 +34,10 @@ def _volume():
     return vol
 
 
-def test_visible_box_is_the_box_of_the_voxels_with_opacity():
+@pytest.mark.parametrize("spacing", [(1.0, 1.0, 1.0), (2.5, 0.8, 0.6)])
+def test_visible_box_is_the_box_of_the_voxels_with_opacity(spacing):
     vol = _volume()
-    loader = NumpyLoader(vol, brick=16)
+    loader = NumpyLoader(vol, brick=16, spacing=spacing)
     tf = TransferFunction.preset("bone", value_range=(0.0, 1000.0))
     pyr = loader.pyramid
     box = visible_box(loader, tf, max_voxels=vol.size)  # level 0 read whole
