@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ClipvolError, ParameterError
+from ..errors import ParameterError
 
 __all__ = ["MARGIN_VOXELS", "visible_points", "visible_box", "fit_points_distance"]
 
@@ -37,23 +37,19 @@ def visible_points(loader, tf, max_voxels: int = 1 << 18) -> np.ndarray | None:
     alpha is 0 at its value (NaN counts as visible, and so does every voxel of a brick that cannot
     be read: the frames drawn later name it).
     """
+    from .overlay import read_level
+
     pyr = loader.pyramid
     if int(max_voxels) < 1:
         raise ParameterError(f"max_voxels: expected >= 1, got {max_voxels!r}")
     small = [L for L in range(pyr.num_levels) if int(np.prod(pyr.levels[L].shape)) <= int(max_voxels)]
     L = small[0] if small else pyr.num_levels - 1
-    shape = pyr.levels[L].shape
-    seen = np.zeros(shape, dtype=bool)
-    for idx in np.ndindex(*pyr.grid(L)):
-        sl = tuple(slice(i * b, min((i + 1) * b, n)) for i, b, n in zip(idx, pyr.brick_shape, shape))
-        try:
-            brick = np.asarray(loader.read_brick(L, idx))
-        except ClipvolError:  # unreadable (the frames name it): what it holds may be visible
-            seen[sl] = True
-            continue
-        v = np.asarray(brick[tuple(slice(0, s.stop - s.start) for s in sl)], dtype=np.float64)
-        flat = v.reshape(-1)
-        seen[sl] = ~tf.transparent_mask(np.stack([flat, flat], axis=1), pyr.value_range).reshape(v.shape)
+    # an unreadable brick reads as NaN, which counts as visible (the frames drawn later name it)
+    vol = read_level(loader, L, dtype=np.float64, failed=np.nan)
+    seen = np.zeros(vol.shape, dtype=bool)
+    for z in range(vol.shape[0]):  # a slab at a time: the ranges are (value, value) pairs
+        v = vol[z].reshape(-1)
+        seen[z] = ~tf.transparent_mask(np.stack([v, v], axis=1), pyr.value_range).reshape(vol.shape[1:])
     if not seen.any():
         return None
     inner = np.pad(seen, 1)  # a voxel whose six neighbours are all visible is not on the surface

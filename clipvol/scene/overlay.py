@@ -58,7 +58,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ParameterError
+from ..errors import ClipvolError, ParameterError
 from ..units import parse_bytes
 from .label_colors import LabelColors
 from .transfer import TransferFunction
@@ -307,14 +307,23 @@ def _box(lo, hi) -> str:
     return "[" + ", ".join(f"{a:g}..{b:g}" for a, b in zip(lo, hi)) + "]"
 
 
-def read_level(loader, level: int, dtype=np.float32) -> np.ndarray:
-    """The whole ``level`` of ``loader`` as one ``(z, y, x)`` array (``dtype``; None: the data's), brick by brick."""
+def read_level(loader, level: int, dtype=np.float32, failed=None) -> np.ndarray:
+    """The whole ``level`` of ``loader`` as one ``(z, y, x)`` array (``dtype``; None: the data's), brick by brick.
+
+    ``failed`` (not None): a brick whose read raises a :class:`~clipvol.errors.ClipvolError`
+    (damaged, missing, unreachable) is filled with it instead of ending the read."""
     pyr = loader.pyramid
     shape = pyr.levels[level].shape
     B = pyr.brick_shape
     out = np.empty(shape, dtype=dtype or pyr.dtype)
     for idx in np.ndindex(*pyr.grid(level)):
         sl = tuple(slice(i * b, min((i + 1) * b, n)) for i, b, n in zip(idx, B, shape))
-        brick = np.asarray(loader.read_brick(level, idx))
+        try:
+            brick = np.asarray(loader.read_brick(level, idx))
+        except ClipvolError:
+            if failed is None:
+                raise
+            out[sl] = failed
+            continue
         out[sl] = brick[tuple(slice(0, s.stop - s.start) for s in sl)]
     return out
