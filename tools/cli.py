@@ -106,7 +106,11 @@ def main(argv: list[str] | None = None) -> int:
         from clipvol.tools.common_args import check_common_values
 
         check_common_values(args)  # --threads, --timeout, --memory-budget, --brick: one check, every command
-        return int(args._run(args) or 0)
+        rc = int(args._run(args) or 0)
+        if interrupted:  # the interrupt was swallowed on its way (C code, a thread): the work did not finish
+            print(f"clipvol {args.command}: interrupted", file=sys.stderr)
+            return 130
+        return rc
     except ClipvolError as e:
         if interrupted:  # the interrupt stopped a step that then reported its own failure
             print(f"clipvol {args.command}: interrupted", file=sys.stderr)
