@@ -37,6 +37,7 @@ COMMANDS = {
     "slice": "draw a cutting plane (axial, coronal, sagittal, oblique), fine near a point of interest",
     "export": "take a region out of a store at one level: .npy, .tif, .nii(.gz) or .zarr, with its geometry",
     "view": "interactive roaming / multiresolution viewer (or --offscreen frames)",
+    "serve": "serve an interactive view to web browsers (token-protected, 127.0.0.1 by default)",
     "report": "image error against run time for a sweep of quality settings",
     "demo": "brick the built-in dataset, fly around it, and write the report",
     "tf": "save a transfer function to JSON (tf save), or check and describe one (tf load)",

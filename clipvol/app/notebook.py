@@ -39,95 +39,6 @@ from ..errors import MissingExtraError, ParameterError
 
 __all__ = ["VolumeView"]
 
-_ESM = r"""
-function render({ model, el }) {
-  const root = document.createElement("div");
-  root.style.display = "inline-block";
-  const img = document.createElement("img");
-  img.draggable = false;
-  img.style.cursor = "grab";
-  img.style.touchAction = "none";
-  img.style.background = "#000";
-  const bar = document.createElement("div");
-  const tfSel = document.createElement("select");
-  for (const n of model.get("tf_names")) {
-    const o = document.createElement("option"); o.value = n; o.textContent = n; tfSel.appendChild(o);
-  }
-  const modeSel = document.createElement("select");
-  for (const n of ["composite", "mip", "minip", "average", "iso"]) {
-    const o = document.createElement("option"); o.value = n; o.textContent = n; modeSel.appendChild(o);
-  }
-  const hud = document.createElement("pre");
-  hud.style.margin = "2px 0"; hud.style.fontSize = "11px";
-  const err = document.createElement("pre");
-  err.setAttribute("role", "alert");
-  err.style.margin = "2px 0"; err.style.fontSize = "11px"; err.style.color = "#c00";
-  err.style.whiteSpace = "pre-wrap";
-  bar.append("tf ", tfSel, " mode ", modeSel);
-  root.append(img, bar, hud, err);
-  el.appendChild(root);
-  let decodeError = "";
-  const sync = () => {
-    const src = model.get("image");
-    if (img.getAttribute("src") !== src) { decodeError = ""; img.src = src; }
-    hud.textContent = model.get("hud");
-    tfSel.value = model.get("tf");
-    modeSel.value = model.get("mode");
-    const text = model.get("error") || decodeError;
-    err.textContent = text ? "error: " + text : "";
-    err.style.display = text ? "block" : "none";
-    img.style.opacity = text ? "0.4" : "1";  // a frame the error concerns is not shown as if right
-  };
-  img.onerror = () => { if (img.getAttribute("src")) { decodeError = "the frame sent by the kernel could not be decoded"; sync(); } };
-  sync();
-  for (const n of ["image", "hud", "tf", "mode", "error"]) model.on("change:" + n, sync);
-  tfSel.onchange = () => { model.set("tf", tfSel.value); model.save_changes(); };
-  modeSel.onchange = () => { model.set("mode", modeSel.value); model.save_changes(); };
-  // One camera change in flight: the kernel draws every change it gets, and a drag makes far more
-  // pointer moves than it can draw; the moves made meanwhile wait, and only the newest is sent
-  // once the kernel has handled the last (its `handled` count changes). From a kernel that does
-  // not answer within 10 s, the next move is sent anyway.
-  let want = null, inflight = false, sentAt = 0;
-  const cur = (k) => (want && k in want ? want[k] : model.get(k));
-  const sendCamera = () => {
-    if (!want || (inflight && performance.now() - sentAt < 10000)) return;
-    const changed = Object.keys(want).filter((k) => model.get(k) !== want[k]);
-    for (const k of changed) model.set(k, want[k]);
-    want = null;
-    if (!changed.length) return;
-    inflight = true; sentAt = performance.now();
-    model.save_changes();
-  };
-  const setCamera = (values) => { want = Object.assign(want || {}, values); sendCamera(); };
-  model.on("change:handled", () => { inflight = false; sendCamera(); });
-  let drag = null;
-  img.addEventListener("pointerdown", (e) => {
-    drag = { x: e.clientX, y: e.clientY, az: cur("azimuth"), el: cur("elevation"),
-             px: e.offsetX * img.naturalWidth / Math.max(1, img.clientWidth),
-             py: e.offsetY * img.naturalHeight / Math.max(1, img.clientHeight), shift: e.shiftKey };
-    img.setPointerCapture(e.pointerId); img.style.cursor = "grabbing";
-  });
-  img.addEventListener("pointermove", (e) => {
-    if (!drag) return;
-    setCamera({ azimuth: drag.az - (e.clientX - drag.x) * 0.5,
-                elevation: Math.max(-89, Math.min(89, drag.el + (e.clientY - drag.y) * 0.5)) });
-  });
-  const end = () => { drag = null; img.style.cursor = "grab"; };
-  img.addEventListener("pointerup", (e) => {
-    if (drag && Math.abs(e.clientX - drag.x) + Math.abs(e.clientY - drag.y) < 3) {  // a click: probe there
-      model.set("pick", [drag.px, drag.py, drag.shift ? 1 : 0, (model.get("pick")[3] || 0) + 1]);
-      model.save_changes();
-    }
-    end();
-  });
-  img.addEventListener("pointercancel", end);
-  img.addEventListener("wheel", (e) => {
-    e.preventDefault();
-    setCamera({ zoom: Math.max(0.2, Math.min(20, cur("zoom") * Math.exp(-e.deltaY * 0.001))) });
-  }, { passive: false });
-}
-export default { render };
-"""
 
 
 @lru_cache(maxsize=1)
@@ -137,11 +48,12 @@ def _widget_class():
         import traitlets
     except ImportError:
         raise MissingExtraError("clipvol.show needs anywidget (Jupyter widgets): pip install 'clipvol[notebook]'") from None
+    from .live_view import view_esm
 
     class VolumeWidget(anywidget.AnyWidget):
         """The browser half: an image, two menus and a HUD line (state synchronised by traitlets)."""
 
-        _esm = _ESM
+        _esm = view_esm()  # web/view.js, the same module `clipvol serve`'s page runs
         image = traitlets.Unicode("").tag(sync=True)
         hud = traitlets.Unicode("").tag(sync=True)
         azimuth = traitlets.Float(0.0).tag(sync=True)
@@ -285,16 +197,10 @@ class VolumeView:
         """The first visible sample under pixel ``(x, y)`` of the image shown (column, row from the
         top-left), or None where the ray sees nothing: a :class:`clipvol.scene.probe.Probe` with the
         value, level, voxel and world position. Also shown on the HUD line."""
-        from ..scene.probe import THRESHOLD
-        from ..scene.views import mirrored
+        from .live_view import probe_pixel
 
         cam, _ = self.camera()
-        w, _ = self.size
-        if mirrored(self.frame):  # the image shown is flipped left-right (clipvol.app.annotate.present)
-            x = w - float(x)
-        p = self.prober.pick_pixel(cam, float(x), float(y), self.session.transfer_function, level=level,
-                                   threshold=THRESHOLD if threshold is None else threshold,
-                                   step=self.session.params.step, shape=self.session.params.shape)
+        p = probe_pixel(self.session, self.prober, cam, self.frame, x, y, threshold=threshold, level=level)
         self.last_probe = p
         self.widget.hud = self.hud_text(cam)
         return p
@@ -357,46 +263,23 @@ class VolumeView:
         """Render the current view (waiting for its bricks up to ``timeout``) and send it to the browser."""
         cam, coi = self.camera()
         img, dt = self.session.timed_render(cam, coi, wait=True, timeout=self.timeout)
-        from ..render.failures import describe_failed, hatch_failed
-        from .annotate import present
+        from .live_view import finish_frame
 
-        holes = tuple(getattr(self.session.frame_stats, "unreplaced", ()))
-        if holes:  # regions drawn by nothing: striped red, named in the error line
-            img = hatch_failed(img, cam, self.session.pyramid, holes)
-        img = present(img, cam, self.frame, labels=self.labels)  # head-up, un-mirrored, R/L A/P S/I letters
+        img, error = finish_frame(self.session, img, cam, self.frame, labels=self.labels)  # hatched, head-up, lettered
         self.last_image = img
         self.last_frame_s = dt
         with self.widget.hold_sync():  # one message: the frame, its HUD and its error arrive together
             self.widget.image = _png_data_url(img)
             self.widget.hud = self.hud_text(cam)
-            self.widget.error = (f"{len(holes)} brick(s) failed and nothing stands in for them (striped red): "
-                                 f"{describe_failed(holes)}") if holes else ""
+            self.widget.error = error
         return img
 
     def hud_text(self, cam=None) -> str:
-        """The HUD line: frame time, bricks per level, resident memory, edge labels."""
-        fs = self.session.frame_stats
-        ts = self.session.texture_stats
-        parts = [f"{self.last_frame_s * 1e3:.0f} ms"]
-        drawn = getattr(fs, "bricks_drawn", None) or {}
-        items = drawn.items() if isinstance(drawn, dict) else enumerate(drawn)
-        per = " ".join(f"L{k}:{int(v)}" for k, v in items if v)
-        parts.append(f"bricks {per or '-'}")
-        parts.append(f"resident {getattr(ts, 'resident_bytes', 0) / 1e6:.1f} MB")
-        if not getattr(fs, "converged", True):
-            parts.append("refining")
-        if self.frame is not None and cam is not None:
-            from ..scene.orientation import view_labels
-            from ..scene.views import screen_axes
+        """The HUD line: frame time, bricks per level, resident memory, edge labels (:func:`clipvol.app.live_view.hud_text`)."""
+        from .live_view import hud_text
 
-            lab = view_labels(self.frame.affine, *screen_axes(cam, self.frame), self.frame.frame)
-            parts.append(f"left {lab['left']} right {lab['right']} top {lab['top']}")
-        lines = ["  ".join(parts)]
-        if self.last_probe is not None:
-            lines.append(self.last_probe.describe(self.unit))
-        if self.ruler.ends:
-            lines.append(self.ruler.describe(self.unit))
-        return "\n".join(lines)
+        return hud_text(self.session, self.last_frame_s, cam, self.frame, probe=self.last_probe, ruler=self.ruler,
+                        unit=self.unit)
 
     def snapshot(self) -> np.ndarray:
         """The last frame, ``(h, w, 4)`` uint8 RGBA."""
