@@ -27,7 +27,7 @@ const model = {
   send: () => {},
 };
 // what a test (or a curious user) reads: frames shown, the last frame's message, the last full frame
-const info = window.clipvol = { frames: 0, full: 0, last: null, lastFull: null, lastFullMessage: null, closed: null };
+const info = window.clipvol = { frames: 0, full: 0, moving: 0, last: null, lastFull: null, lastFullMessage: null, closed: null };
 const apply = (values) => { for (const [k, v] of Object.entries(values)) { state[k] = v; emit("change:" + k); } };
 
 let meta = null, url = null;
@@ -35,9 +35,10 @@ ws.onmessage = (ev) => {
   if (typeof ev.data !== "string") {  // the image of the frame message before it
     if (!meta) return;
     const old = url;
-    url = URL.createObjectURL(ev.data);
+    const blob = new Blob([ev.data], { type: meta.format });  // typed: image/png, image/jpeg or image/webp
+    url = URL.createObjectURL(blob);
     info.frames++; info.last = meta;
-    if (meta.full) { info.full++; info.lastFull = ev.data; info.lastFullMessage = meta; }
+    if (meta.full) { info.full++; info.lastFull = blob; info.lastFullMessage = meta; } else info.moving++;
     apply({ image: url, hud: meta.hud, error: meta.error });
     apply({ handled: meta.handled });
     if (old) setTimeout(() => URL.revokeObjectURL(old), 1000);
@@ -85,6 +86,7 @@ function start(hello) {
   if (hello.stores.length > 1) {
     const sel = document.createElement("select");
     hello.stores.forEach((name, i) => { const o = new Option(name, String(i)); sel.append(o); });
+    sel.id = "store";
     sel.value = String(hello.store);
     sel.onchange = () => { here.set("store", sel.value); location.search = here.toString(); };
     control(box, "store", sel);
@@ -104,6 +106,7 @@ function start(hello) {
   const [vlo, vhi] = hello.value_range;
   const lo = control(box, "window", document.createElement("input"));
   const hi = document.createElement("input");
+  lo.id = "window-low"; hi.id = "window-high";
   for (const i of [lo, hi]) { i.type = "number"; i.step = "any"; }
   lo.placeholder = String(vlo); hi.placeholder = String(vhi);
   lo.after(" to ", hi);
@@ -113,13 +116,14 @@ function start(hello) {
   };
   lo.onchange = setWindow; hi.onchange = setWindow;
   const iso = control(box, "iso value", document.createElement("input"));
-  iso.type = "number"; iso.step = "any";
+  iso.type = "number"; iso.step = "any"; iso.id = "iso";
   iso.onchange = () => change({ iso_value: iso.value === "" ? null : Number(iso.value) });
 
   const sl = control(box, "slice", document.createElement("select"));
+  sl.id = "slice";
   for (const [v, t] of [["", "none (3D)"], ["axial", "axial"], ["coronal", "coronal"], ["sagittal", "sagittal"]]) sl.append(new Option(t, v));
   const idx = control(box, "at", document.createElement("input"));
-  idx.type = "range"; idx.min = "0"; idx.step = "1";
+  idx.type = "range"; idx.min = "0"; idx.step = "1"; idx.id = "slice-index";
   const axis = { axial: 0, coronal: 1, sagittal: 2 };
   const shape = hello.shape;
   const fit = () => { const n = sl.value ? shape[axis[sl.value]] : 1; idx.max = String(n - 1); idx.value = String(Math.floor((n - 1) / 2)); };
@@ -127,10 +131,10 @@ function start(hello) {
   idx.oninput = () => change({ slice_index: Number(idx.value) });
 
   const crop = control(box, "crop voxels z0,y0,x0,z1,y1,x1", document.createElement("input"));
-  crop.type = "text"; crop.placeholder = "whole volume";
+  crop.type = "text"; crop.placeholder = "whole volume"; crop.id = "crop";
   crop.onchange = () => change({ crop_voxels: numbers(crop.value, 6) });
   const clip = control(box, "clip plane x,y,z,nx,ny,nz", document.createElement("input"));
-  clip.type = "text"; clip.placeholder = "none";
+  clip.type = "text"; clip.placeholder = "none"; clip.id = "clip";
   clip.onchange = () => change({ clip_plane: numbers(clip.value, 6) });
   window.rendered = true;
 }
