@@ -241,7 +241,10 @@ def _take(worker, vid: int, state, raw: str, box: _Outbox) -> None:
     from ...render.failures import _cause as one_line
 
     try:
-        msg = json.loads(raw)
+        try:
+            msg = json.loads(raw)
+        except ValueError:
+            raise ParameterError(f"message: expected JSON, got {raw[:40]!r}") from None
         if not isinstance(msg, dict) or msg.get("method") != "update" or not isinstance(msg.get("state"), dict):
             raise ParameterError("message: expected {\"method\": \"update\", \"state\": {...}}")
         changes = msg["state"]
@@ -252,7 +255,7 @@ def _take(worker, vid: int, state, raw: str, box: _Outbox) -> None:
                 raise ParameterError(f"pick: expected [x, y, shift, counter], got {p!r}")
             pick = (float(p[0]), float(p[1]), bool(p[2]))
         kinds = state.apply(changes)
-    except (ValueError, ParameterError) as e:
+    except ParameterError as e:
         state.handled += 1
         box.offer({"method": "update", "state": {"error": one_line(e), "handled": state.handled}}, None)
         return
