@@ -15,8 +15,6 @@ import asyncio
 import pytest
 from optional import needs
 
-from clipvol.tools.cli import main
-
 pytest.importorskip("moderngl")
 pytestmark = [needs("aiohttp"), pytest.mark.gl]
 
@@ -173,12 +171,3 @@ def test_views_beyond_max_views_are_refused(server):
 
     assert asyncio.run(asyncio.wait_for(main_(), 60)) == 503
 
-
-def test_no_token_off_loopback_is_refused(capsys):
-    assert main(["serve", SOURCE, "--host", "0.0.0.0", "--no-token"]) == 2
-    err = capsys.readouterr().err
-    assert "--no-token: refused with --host 0.0.0.0" in err
-    assert main(["serve", SOURCE, "--token", "short"]) == 2
-    assert "--token: expected at least 8 characters" in capsys.readouterr().err
-    assert main(["serve", SOURCE, "--token", "has spaces in it"]) == 2
-    assert main(["serve", SOURCE, "--token", "abcdefghij", "--no-token"]) == 2
