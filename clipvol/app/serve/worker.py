@@ -13,7 +13,9 @@ time, without waiting for bricks, and sent compactly (JPEG by default); once the
 for ``settle_s`` the full-size frame is drawn waiting for its bricks (bounded by ``timeout``) and
 sent losslessly (PNG) with its camera (:func:`clipvol.scene.bookmarks.camera_to_json`), so the
 page shows exactly what ``clipvol render`` writes for that camera. A change that is not a camera
-move (transfer function, mode, cut, slice) draws the full frame at once.
+move (transfer function, mode, cut, slice) draws the full frame at once. A new view's first
+picture is a small one of the coarse levels (:data:`PREVIEW`, its few bricks waited for), so the
+page shows the data well before the converged frame's bricks are all read.
 
 **Sharing.** All views of one store draw through one :class:`~clipvol.app.session.RenderSession`:
 one clip-texture, one memory budget, one GPU cache. Before each frame the session takes the view's
@@ -34,6 +36,7 @@ from typing import Callable
 import numpy as np
 
 from ...errors import ClipvolError, ParameterError
+from ..adaptive import Quality
 
 __all__ = ["RenderWorker", "encode"]
 
@@ -59,6 +62,10 @@ def encode(img: np.ndarray, fmt: str, quality: int = 80) -> bytes:
     else:
         Image.fromarray(np.ascontiguousarray(img), "RGBA").save(buf, format="PNG", compress_level=1)
     return buf.getvalue()
+
+
+#: the first frame of a new view: a third of each side, twice the step (coarse levels, few bricks)
+PREVIEW = Quality(1.0 / 3.0, 2.0, False)
 
 
 @dataclass
@@ -151,13 +158,14 @@ class RenderWorker:
         The clip-texture's main-memory budget (per store), the GPU budget, the loader threads, and
         how long a converged frame waits for its bricks.
     target_s, settle_s : float
-        The frame time held while a camera moves; how long it rests before the converged frame.
+        The frame time held while a camera moves; how long it rests before the converged frame
+        (longer than the desktop viewer's 0.2 s: a browser's next move comes over the network).
     moving_format : str
         ``jpeg`` (default), ``webp`` or ``png`` for the frames drawn while the camera moves.
     """
 
     def __init__(self, loaders, names, deliver: Callable | None = None, *, memory_budget="512MB", texture_budget="256MB",
-                 threads: int | None = None, timeout: float = 30.0, target_s: float = 0.1, settle_s: float = 0.25,
+                 threads: int | None = None, timeout: float = 30.0, target_s: float = 0.1, settle_s: float = 0.35,
                  moving_format: str = "jpeg") -> None:
         if moving_format not in FORMATS:
             raise ParameterError(f"--format: expected one of {', '.join(FORMATS)}, got {moving_format!r}")
@@ -288,7 +296,13 @@ class RenderWorker:
 
             slot.ruler = Ruler()
         try:
-            if kinds or settled:
+            if slot.frames == 0 and not state.slice and not settled:
+                # the page's first picture: a small frame of the coarse levels, its few bricks waited
+                # for (far fewer than the full frame's), then the converged frame at once
+                self._frame(vid, slot, state, PREVIEW, wait=True)
+                with self._cond:
+                    slot.full_due = time.monotonic()
+            elif kinds or settled:
                 now = time.monotonic()
                 moving = kinds == {"camera"} and slot.frames > 0 and not state.slice
                 if not moving:
@@ -312,8 +326,9 @@ class RenderWorker:
         store.session.update(tf=tf, mode=state.mode, iso_value=iso, shape=state.cut(store.session.pyramid, store.frame),
                              step=store.base_step * step_factor)
 
-    def _frame(self, vid: int, slot: _Slot, state, q) -> None:
-        """Draw one frame of the view (``q``: an interactive quality, None: the converged frame) and deliver it."""
+    def _frame(self, vid: int, slot: _Slot, state, q, *, wait: bool | None = None) -> None:
+        """Draw one frame of the view (``q``: an interactive quality, None: the converged frame) and
+        deliver it; ``wait`` for its bricks (default: for the converged frame only)."""
         from ...scene.bookmarks import camera_to_json
         from ..live_view import finish_frame, hud_text
 
@@ -328,7 +343,8 @@ class RenderWorker:
             size = slot.size if full else q.size(slot.size)
             self._look(store, state, 1.0 if full else q.step_factor)
             cam = state.camera(sess.pyramid, size, store.frame)
-            img = sess.render(cam, cam.center, wait=full, timeout=self.timeout if full else None)
+            wait = full if wait is None else wait
+            img = sess.render(cam, cam.center, wait=wait, timeout=self.timeout if wait else None)
             img, error = finish_frame(sess, img, cam, store.frame, labels=True)
             slot.values = None
             if full:
@@ -336,7 +352,9 @@ class RenderWorker:
             else:
                 extra = (f"moving: {100 * q.scale:.0f} % size, step x{q.step_factor:.1f}",)
         dt = time.perf_counter() - t0
-        if not full:
+        if q is PREVIEW:
+            pass  # its time includes reading bricks: no measure of a moving frame's cost
+        elif not full:
             slot.adaptive.done(q, dt)
         elif q is None:
             from ..adaptive import FULL

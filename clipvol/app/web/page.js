@@ -27,7 +27,7 @@ const model = {
   send: () => {},
 };
 // what a test (or a curious user) reads: frames shown, the last frame's message, the last full frame
-const info = window.clipvol = { frames: 0, full: 0, moving: 0, last: null, lastFull: null, lastFullMessage: null, closed: null };
+const info = window.clipvol = { frames: 0, full: 0, moving: 0, last: null, lastFull: null, lastFullMessage: null, closed: null, firstFrameMs: null };
 const apply = (values) => { for (const [k, v] of Object.entries(values)) { state[k] = v; emit("change:" + k); } };
 
 let meta = null, url = null;
@@ -38,6 +38,7 @@ ws.onmessage = (ev) => {
     const blob = new Blob([ev.data], { type: meta.format });  // typed: image/png, image/jpeg or image/webp
     url = URL.createObjectURL(blob);
     info.frames++; info.last = meta;
+    if (info.frames === 1) info.firstFrameMs = performance.now();  // since the page's navigation began
     if (meta.full) { info.full++; info.lastFull = blob; info.lastFullMessage = meta; } else info.moving++;
     apply({ image: url, hud: meta.hud, error: meta.error });
     apply({ handled: meta.handled });
