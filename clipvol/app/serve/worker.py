@@ -243,6 +243,13 @@ class RenderWorker:
             self._release(ctx)
             self._ready.set()
             return
+        for st in self.stores:  # compile the shaders and ask for the coarse bricks before any page opens
+            try:
+                from .state import orbit_camera
+
+                st.session.render(orbit_camera(st.session.pyramid, "iso", (16, 16)), wait=False)
+            except Exception:  # noqa: BLE001 - a page's own frame reports what is wrong
+                log.debug("warm-up frame of %s failed", st.name, exc_info=True)
         self._ready.set()
         try:
             while True:
