@@ -189,6 +189,24 @@ def test_presets_transfer_function_mode_slice_and_probe(browser, server, stores,
         assert np.array_equal(mip[..., 0], mip[..., 1]) and np.array_equal(mip[..., 1], mip[..., 2])  # grey
         _same(mip, _render(stores / "v.zarr", tmp_path, "--view", "front", "--tf", "grey", "--mode", "mip"))
 
+        def type_in(element: str, text: str) -> None:
+            browser.eval(f"(() => {{ const i = document.getElementById('{element}'); i.value = '{text}'; "
+                         f"i.dispatchEvent(new Event('change')); }})()")
+
+        n = _full(browser)
+        browser.eval("document.getElementById('window-low').value = '0.02'")
+        type_in("window-high", "0.7")  # its change sends both ends
+        windowed, _ = _full_after(browser, n)
+        n = _full(browser)
+        type_in("crop", "0,0,0,48,48,24")  # the half at low x
+        cropped, _ = _full_after(browser, n)
+        assert np.abs(cropped.astype(int) - windowed.astype(int)).max() > 20
+        _same(cropped, _render(stores / "v.zarr", tmp_path, "--view", "front", "--tf", "grey", "--mode", "mip",
+                               "--tf-range", "0.02,0.7", "--crop-voxels", "0:48,0:48,0:24"))
+        n = _full(browser)
+        type_in("crop", "")
+        _full_after(browser, n)
+
         n = _full(browser)
         browser.eval("(() => { const s = document.getElementById('slice'); s.value = 'axial'; "
                      "s.dispatchEvent(new Event('change')); })()")

@@ -10,7 +10,8 @@ turns, oldest request first.
 **Adaptive quality** (as the desktop viewer, :mod:`clipvol.app.adaptive`): while a view's camera
 moves, its frames are drawn smaller and with a longer sample step, chosen to hold the target frame
 time, without waiting for bricks, and sent compactly (JPEG by default); once the camera has rested
-for ``settle_s`` the full-size frame is drawn waiting for its bricks (bounded by ``timeout``) and
+for ``settle_s`` (or twice the time the page takes to answer a frame with its next move, when
+that is longer: a busy or distant browser) the full-size frame is drawn waiting for its bricks (bounded by ``timeout``) and
 sent losslessly (PNG) with its camera (:func:`clipvol.scene.bookmarks.camera_to_json`), so the
 page shows exactly what ``clipvol render`` writes for that camera. A change that is not a camera
 move (transfer function, mode, cut, slice) draws the full frame at once. A new view's first
@@ -87,6 +88,8 @@ class _Slot:
     values: np.ndarray | None = None  # a slice's values (probe without a ray)
     frames: int = 0
     seconds: float = 0.0  # the last frame's time (the HUD of a probe)
+    sent_at: float | None = None  # when the last moving frame was handed over
+    gap: float = 0.0  # how long the page takes to answer a moving frame with its next move (smoothed)
 
 
 class _Store:
@@ -218,6 +221,9 @@ class RenderWorker:
                 return
             if not s.kinds and not s.picks:
                 s.asked = time.monotonic()
+            if "camera" in kinds and s.sent_at is not None:  # the page answers a moving frame with its next move
+                s.gap = 0.7 * s.gap + 0.3 * (time.monotonic() - s.sent_at)
+                s.sent_at = None
             s.state = state
             s.kinds |= set(kinds)
             if pick is not None and len(s.picks) < 4:
@@ -316,8 +322,11 @@ class RenderWorker:
                     slot.adaptive.invalidate()
                 q = slot.adaptive.next(moving, now) if moving else None
                 self._frame(vid, slot, state, q)
-                if moving:
-                    slot.full_due = now + self.settle_s
+                if moving:  # the converged frame once the camera rests: no next move within the settle
+                    # time, or within twice the page's usual answer (a busy browser or a far one)
+                    with self._cond:
+                        slot.sent_at = time.monotonic()
+                        slot.full_due = slot.sent_at + max(self.settle_s, 2.0 * slot.gap)
             for x, y, shift in picks:
                 self._pick(vid, slot, state, x, y, shift)
         except ClipvolError as e:
