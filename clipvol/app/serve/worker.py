@@ -368,16 +368,17 @@ class RenderWorker:
             else:
                 extra = (f"moving: {100 * q.scale:.0f} % size, step x{q.step_factor:.1f}",)
         dt = time.perf_counter() - t0
+        fmt = "png" if full else self.moving_format
+        data = encode(img, fmt)
+        spent = time.perf_counter() - t0  # what the frame costs the page's frame rate: drawn and encoded
         if q is PREVIEW:
             pass  # its time includes reading bricks: no measure of a moving frame's cost
         elif not full:
-            slot.adaptive.done(q, dt)
+            slot.adaptive.done(q, spent)
         elif q is None:
             from ..adaptive import FULL
 
-            slot.adaptive.done(FULL, dt)
-        fmt = "png" if full else self.moving_format
-        data = encode(img, fmt)
+            slot.adaptive.done(FULL, spent)
         fs = sess.frame_stats if not state.slice else None
         failed = len(getattr(fs, "failed_bricks", ()) or ())
         slot.cam = cam if full else state.camera(sess.pyramid, slot.size, store.frame)
