@@ -102,7 +102,9 @@ def _full_after(browser, n: int) -> tuple[np.ndarray, dict]:
     """The next converged frame after the ``n``-th: the PNG bytes the page received, decoded, and its message."""
     from PIL import Image
 
-    _wait(browser, f"window.clipvol.full > {n} && window.clipvol.last.full && {IMG}.complete", "a converged frame")
+    # a converged frame of everything the page has sent (the server's count of messages taken: `handled`)
+    _wait(browser, f"window.clipvol.full > {n} && window.clipvol.last.full && {IMG}.complete && "
+                   "window.clipvol.lastFullMessage.handled === window.clipvol.sent", "a converged frame")
     url = browser.eval("new Promise((ok) => { const r = new FileReader(); r.onload = () => ok(r.result); "
                        "r.readAsDataURL(window.clipvol.lastFull); })")
     head, _, b64 = url.partition(",")

@@ -29,8 +29,9 @@ def _png(data: bytes) -> np.ndarray:
     return np.asarray(Image.open(io.BytesIO(data)).convert("RGBA"))
 
 
-async def _converged(ws) -> tuple[np.ndarray, dict]:
-    """The next converged frame (its JSON message, then its PNG), bounded by the caller's timeout."""
+async def _converged(ws, handled: int = 0) -> tuple[np.ndarray, dict]:
+    """The next converged frame of the view's first ``handled`` messages (its JSON message, then its
+    PNG), bounded by the caller's timeout."""
     import aiohttp
 
     meta = None
@@ -40,7 +41,7 @@ async def _converged(ws) -> tuple[np.ndarray, dict]:
             doc = json.loads(msg.data)
             meta = doc if doc.get("method") == "frame" else meta
         elif msg.type == aiohttp.WSMsgType.BINARY:
-            if meta is not None and meta["full"]:
+            if meta is not None and meta["full"] and meta["handled"] >= handled:
                 return _png(msg.data), meta
         else:
             raise ConnectionError(f"closed: {msg}")
@@ -73,11 +74,11 @@ def test_two_views_keep_their_own_camera_and_settings(tmp_path):
                 await _converged(a)
                 await a.send_json({"method": "update", "state": {"azimuth": 50.0, "zoom": 1.5, "tf": "grey",
                                                                    "mode": "mip"}})
-                a_img, a_meta = await _converged(a)
+                a_img, a_meta = await _converged(a, 1)
                 await b.send_json({"method": "update", "state": {"elevation": 0.0}})  # no change: an answer, no frame
                 ack = await next_json(b, "update")
                 await b.send_json({"method": "update", "state": {"zoom": 1.0001}})
-                b_img, b_meta = await _converged(b)  # drawn after a's grey MIP, through the same session
+                b_img, b_meta = await _converged(b, 2)  # drawn after a's grey MIP, through the same session
                 await a.close()
                 await b.close()
                 return b_first, a_img, a_meta, ack, b_img, b_meta

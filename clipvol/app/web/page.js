@@ -17,7 +17,7 @@ const emit = (name, ...args) => { for (const cb of handlers[name] || []) cb(...a
 const scheme = location.protocol === "https:" ? "wss" : "ws";
 const ws = new WebSocket(`${scheme}://${location.host}/ws` + query({ store: storeIndex }));
 ws.binaryType = "blob";
-const send = (msg) => { if (ws.readyState === WebSocket.OPEN) ws.send(JSON.stringify(msg)); };
+const send = (msg) => { if (ws.readyState === WebSocket.OPEN) { ws.send(JSON.stringify(msg)); info.sent++; } };
 const model = {
   get: (k) => state[k],
   set: (k, v) => { if (state[k] !== v) { state[k] = v; dirty[k] = v; emit("change:" + k); } },
@@ -27,7 +27,7 @@ const model = {
   send: () => {},
 };
 // what a test (or a curious user) reads: frames shown, the last frame's message, the last full frame
-const info = window.clipvol = { frames: 0, full: 0, moving: 0, last: null, lastFull: null, lastFullMessage: null, closed: null, firstFrameMs: null };
+const info = window.clipvol = { sent: 0, frames: 0, full: 0, moving: 0, last: null, lastFull: null, lastFullMessage: null, closed: null, firstFrameMs: null };
 const apply = (values) => { for (const [k, v] of Object.entries(values)) { state[k] = v; emit("change:" + k); } };
 
 let meta = null, url = null;
