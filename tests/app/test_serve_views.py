@@ -96,3 +96,44 @@ def test_two_views_keep_their_own_camera_and_settings(tmp_path):
     b_ref = _render(tmp_path, "b", "--camera", str(cam))  # b keeps its own composite and colour map
     assert int(np.abs(b_img.astype(int) - b_ref.astype(int)).max()) <= 1
     assert not np.array_equal(b_img[..., 0], b_img[..., 2])
+
+
+@needs("nibabel")
+def test_a_nifti_input_is_bricked_and_its_presets_are_the_patients(tmp_path):
+    """A NIfTI input: bricked once (``--store``), its presets the patient's sides, its converged
+    anterior frame ``clipvol render --view anterior``'s (head up, lettered), the HUD naming the edges."""
+    import aiohttp
+    import nibabel as nib
+    from serve_harness import ServeProcess, next_json
+
+    z, y, x = np.mgrid[0:24, 0:28, 0:20].astype(np.float32)
+    head = np.exp(-((x - 12) ** 2 / 40 + (y - 14) ** 2 / 60 + (z - 10) ** 2 / 30)).astype(np.float32)
+    head[2:6, 20:26, 4:8] = 1.0  # one blob off every axis: a flipped image differs
+    nib.save(nib.Nifti1Image(head.T.copy(), np.diag([-1.5, 1.0, 1.2, 1.0])), tmp_path / "head.nii.gz")  # LAS storage
+    store = tmp_path / "head.zarr"
+    with ServeProcess([str(tmp_path / "head.nii.gz"), "--store", str(store),
+                       "--size", f"{SIZE}x{SIZE}", "--threads", "1"]) as s:
+        url = s.base.replace("http", "ws") + f"/ws?token={s.token}"
+
+        async def main_():
+            async with aiohttp.ClientSession() as c:
+                ws = await c.ws_connect(url)
+                hello = await next_json(ws, "hello")
+                await _converged(ws)
+                await ws.send_json({"method": "update", "state": {"view": "anterior"}})
+                img, meta = await _converged(ws, 1)
+                await ws.close()
+                return hello, img, meta
+
+        hello, img, meta = asyncio.run(asyncio.wait_for(main_(), 120))
+    assert hello["anatomical"] is True
+    assert hello["state"]["views"] == ["anterior", "posterior", "left", "right", "superior", "inferior", "iso"]
+    assert "left R right L top S" in meta["hud"]  # facing the patient: their right on the image's left
+    from PIL import Image
+
+    from clipvol.tools.cli import main
+
+    out = tmp_path / "anterior.png"
+    assert main(["render", str(store), "--out", str(out), "--size", f"{SIZE}x{SIZE}", "--view", "anterior"]) == 0
+    ref = np.asarray(Image.open(out).convert("RGBA"))
+    assert int(np.abs(img.astype(int) - ref.astype(int)).max()) <= 1
