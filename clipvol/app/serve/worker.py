@@ -107,6 +107,7 @@ class _Store:
         self.unit = getattr(self.loader, "unit", None) or ""
         self.base_step = self.session.params.step
         self._auto = None
+        self._tfs: dict = {}
         self._slices = None
         from ...scene.probe import Prober
 
@@ -115,6 +116,15 @@ class _Store:
     def transfer_function(self, name: str, window):
         """The view's transfer function: a preset (or ``auto``, from the histogram) over ``window``
         (default: the preset's own, the data's value range)."""
+        key = (name, None if window is None else tuple(float(v) for v in window))
+        tf = self._tfs.get(key)
+        if tf is None:  # one object per setting: the session sees no change while a view's tf stays
+            if len(self._tfs) >= 64:
+                self._tfs.clear()
+            tf = self._tfs[key] = self._make_tf(name, key[1])
+        return tf
+
+    def _make_tf(self, name: str, window):
         from ...scene.transfer import TransferFunction
 
         if name == "auto":
