@@ -220,6 +220,7 @@ def test_presets_transfer_function_mode_slice_and_probe(browser, server, stores,
                      "s.dispatchEvent(new Event('change')); })()")
         _full_after(browser, n)
 
+        browser.eval("document.getElementById('save-camera').click()")  # the camera file download: no page error
         x, y = _centre(browser)  # a click (no drag): the probe's line on the HUD
         browser.mouse("mouseMoved", x, y)
         browser.mouse("mousePressed", x, y, button="left", buttons=1, clickCount=1)

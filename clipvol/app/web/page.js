@@ -137,5 +137,18 @@ function start(hello) {
   const clip = control(box, "clip plane x,y,z,nx,ny,nz", document.createElement("input"));
   clip.type = "text"; clip.placeholder = "none"; clip.id = "clip";
   clip.onchange = () => change({ clip_plane: numbers(clip.value, 6) });
+  const save = document.createElement("button");  // the converged frame's camera, for `clipvol render --camera`
+  save.textContent = "camera file";
+  save.id = "save-camera";
+  save.title = "download the shown view's camera (clipvol render --camera FILE.json draws it again)";
+  save.onclick = () => {
+    if (!info.lastFullMessage || !info.lastFullMessage.camera) return;
+    const a = document.createElement("a");
+    a.href = URL.createObjectURL(new Blob([JSON.stringify(info.lastFullMessage.camera, null, 1)], { type: "application/json" }));
+    a.download = "camera.json";
+    a.click();
+    setTimeout(() => URL.revokeObjectURL(a.href), 1000);
+  };
+  box.append(save);
   window.rendered = true;
 }
