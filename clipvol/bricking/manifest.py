@@ -250,7 +250,9 @@ def metadata_problems(root: str | Path, manifest: "Manifest", attrs: dict) -> li
     """What differs between the metadata ``manifest`` pins and the store at ``root`` (``attrs``:
     its root attributes, already read): one line per field, naming the level or array and the
     field, with both values ("level 1: codecs differ: manifest has [...], zarr.json has [...]").
-    Empty when they agree, or when the manifest pins no metadata (written before metadata pins)."""
+    Empty when they agree, or when the manifest pins no metadata (written before metadata pins).
+    An array whose ``zarr.json`` is absent or unreadable is left to the checks of its data (a
+    deleted statistics array differs from its digest; a level without metadata cannot open)."""
     if not manifest.metadata_pinned:
         return []
     root = Path(root)
@@ -260,11 +262,9 @@ def metadata_problems(root: str | Path, manifest: "Manifest", attrs: dict) -> li
             where = _name(rel)
             try:
                 have = _pinned_fields(_zarr_json(root / rel / "zarr.json", root))
-            except FileNotFoundError:
-                out.append(f"{where}: {rel}/zarr.json is missing")
-                continue
-            except (OSError, ValueError) as e:
-                out.append(f"{where}: {rel}/zarr.json is unreadable ({e})")
+            except (OSError, ValueError):
+                # absent or not a readable file: not a difference of metadata but of data, which the
+                # reader refuses on its own terms (a level's array_meta, a statistics array's digest)
                 continue
             for key in sorted(set(want) | set(have)):
                 if key not in have:
@@ -314,7 +314,8 @@ def _ome_problems(want: dict, have) -> list[str]:
 def restore_metadata(root: str | Path) -> list[str]:
     """Put back the metadata the store's verified manifest pins: each array's ``zarr.json`` fields
     (its ``attributes`` kept) and the root's ``attrs["ome"]``, each file rewritten through a
-    temporary name and an atomic rename. Returns what was restored, one entry per file (empty: nothing
+    temporary name and an atomic rename (an absent one is left to the rebuild of its data). Returns
+    what was restored, one entry per file (empty: nothing
     differed, or the manifest pins no metadata). Raises :class:`ManifestError` when the manifest
     does not verify: then nothing vouches for any metadata and nothing is written."""
     root = Path(root)
@@ -332,7 +333,7 @@ def restore_metadata(root: str | Path) -> list[str]:
             try:
                 old = _zarr_json(p, root)
             except (OSError, ValueError):
-                old = {}
+                continue  # absent or unreadable: rebuilt with its data (statistics), or refused on opening
             if _pinned_fields(old) == want:
                 continue
             new = dict(want)
