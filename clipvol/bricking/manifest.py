@@ -20,8 +20,9 @@ inside the array notices. The manifest makes them answerable to one number in th
   value makes verified bytes decode into wrong voxels, or unwritten bricks read back as something
   else. Arrays are found by walking those folders, so an array added later beside a level's
   statistics is pinned the same way without a change here;
-* the OME-Zarr block of the root attributes (``attrs["ome"]``: the multiscale list, each level's
-  scale and translation), which places every level in the world;
+* the multiscale list of the root attributes (``attrs["ome"]["multiscales"]``: each level's path,
+  scale and translation), which places every level in the world (the rest of ``attrs["ome"]`` is
+  free to change: a label image's ``image-label`` block is written after its build);
 * ``manifest.json`` lists the tables with their SHA-256, and its own SHA-256 and length are
   recorded in the root attributes (``attrs["clipvol"]["manifest"]``).
 
@@ -33,7 +34,7 @@ statistics; :attr:`Manifest.metadata_pinned` is then False and the reader says s
 
 Layout::
 
-    clipvol_manifest/manifest.json   {"format": 1, "ome": {...},
+    clipvol_manifest/manifest.json   {"format": 1, "multiscales": [...],
                                       "levels": [{"grid", "table", "table_sha256", "stats", "arrays"}]}
     clipvol_manifest/<L>.bin         records of TABLE_DTYPE, C order over level L's brick grid
 
@@ -109,8 +110,8 @@ class Manifest:
     #: per level, the pinned metadata of each array by its path in the store (None: a manifest
     #: written before metadata pins)
     arrays: tuple[dict[str, dict], ...] | None = None
-    #: the pinned ``attrs["ome"]`` block (None: not pinned)
-    ome: dict | None = None
+    #: the pinned ``attrs["ome"]["multiscales"]`` list (None: not pinned)
+    multiscales: list | None = None
 
     @property
     def metadata_pinned(self) -> bool:
@@ -224,8 +225,8 @@ def level_array_paths(path: Path, level: int) -> list[str]:
     return out
 
 
-def pinned_metadata(path: str | Path, levels: int) -> tuple[list[dict[str, dict]], dict | None]:
-    """Per level, ``{array path: its pinned zarr.json fields}``, and the root's ``attrs["ome"]``:
+def pinned_metadata(path: str | Path, levels: int) -> tuple[list[dict[str, dict]], list | None]:
+    """Per level, ``{array path: its pinned zarr.json fields}``, and the root's multiscale list:
     what :func:`write_manifest` records so that a reader can hold the store's metadata to it."""
     path = Path(path)
     arrays = []
@@ -233,13 +234,18 @@ def pinned_metadata(path: str | Path, levels: int) -> tuple[list[dict[str, dict]
         arrays.append({rel: _pinned_fields(_zarr_json(path / rel / "zarr.json", path))
                        for rel in level_array_paths(path, L)})
     attrs = _zarr_json(path / "zarr.json", path).get("attributes") or {}
-    ome = attrs.get("ome") if isinstance(attrs, dict) else None
-    return arrays, ome if isinstance(ome, dict) else None
+    ms = _multiscales_of(attrs)
+    return arrays, ms if isinstance(ms, list) else None
 
 
 def _short(v) -> str:
     text = json.dumps(v, sort_keys=True)
     return text if len(text) <= 240 else text[:237] + "..."
+
+
+#: how a message names a zarr.json field (the words the rest of clipvol uses for it)
+FIELD_WORDS = {"data_type": "dtype (data_type)", "chunk_grid": "chunks (chunk_grid)",
+               "chunk_key_encoding": "chunk key encoding (chunk_key_encoding)"}
 
 
 def _name(rel: str) -> str:
@@ -267,30 +273,34 @@ def metadata_problems(root: str | Path, manifest: "Manifest", attrs: dict) -> li
                 # reader refuses on its own terms (a level's array_meta, a statistics array's digest)
                 continue
             for key in sorted(set(want) | set(have)):
+                word = FIELD_WORDS.get(key, key)
                 if key not in have:
-                    out.append(f"{where}: {key} is missing from zarr.json (manifest has {_short(want[key])})")
+                    out.append(f"{where}: {word} is missing from zarr.json (manifest has {_short(want[key])})")
                 elif key not in want:
-                    out.append(f"{where}: {key} is in zarr.json ({_short(have[key])}) but not in the manifest")
+                    out.append(f"{where}: {word} is in zarr.json ({_short(have[key])}) but not in the manifest")
                 elif have[key] != want[key]:
-                    out.append(f"{where}: {key} differ{'s' if not key.endswith('s') else ''}: manifest has "
-                               f"{_short(want[key])}, zarr.json has {_short(have[key])}")
-    want_ome = manifest.ome
-    have_ome = attrs.get("ome") if isinstance(attrs, dict) else None
-    if want_ome is not None and have_ome != want_ome:
-        out.extend(_ome_problems(want_ome, have_ome))
+                    verb = "differ" if key in ("codecs", "chunk_grid") else "differs"
+                    out.append(f"{where}: {word} {verb}: manifest has {_short(want[key])}, zarr.json has "
+                               f"{_short(have[key])}")
+    want = manifest.multiscales
+    have = _multiscales_of(attrs)
+    if want is not None and have != want:
+        out.extend(_multiscale_problems(want, have))
     return out
 
 
-def _ome_problems(want: dict, have) -> list[str]:
-    """The differences of the root's ``attrs["ome"]`` from the pinned one, per level where it can."""
-    if not isinstance(have, dict):
-        return [f"attrs['ome'] (the multiscales) is missing or not an object: manifest has {_short(want)}"]
-    w_ms, h_ms = want.get("multiscales"), have.get("multiscales")
+def _multiscales_of(attrs) -> list | None:
+    ome = attrs.get("ome") if isinstance(attrs, dict) else None
+    return ome.get("multiscales") if isinstance(ome, dict) else None
+
+
+def _multiscale_problems(want: list, have) -> list[str]:
+    """The differences of the root's multiscale list from the pinned one, per level where it can."""
     try:
-        w_ds, h_ds = w_ms[0]["datasets"], h_ms[0]["datasets"]
+        w_ds, h_ds = want[0]["datasets"], have[0]["datasets"]
         assert isinstance(w_ds, list) and isinstance(h_ds, list)
     except (TypeError, KeyError, IndexError, AssertionError):
-        return [f"attrs['ome']['multiscales'] differs: manifest has {_short(w_ms)}, zarr.json has {_short(h_ms)}"]
+        return [f"attrs['ome']['multiscales'] differs: manifest has {_short(want)}, zarr.json has {_short(have)}"]
     out = []
     for L in range(max(len(w_ds), len(h_ds))):
         if L >= len(h_ds):
@@ -301,19 +311,17 @@ def _ome_problems(want: dict, have) -> list[str]:
         elif h_ds[L] != w_ds[L]:
             out.append(f"level {L}: multiscale transform differs: manifest has {_short(w_ds[L])}, "
                        f"zarr.json has {_short(h_ds[L])}")
-    rest_w = {k: v for k, v in want.items() if k != "multiscales"}
-    rest_h = {k: v for k, v in have.items() if k != "multiscales"}
-    w0 = {k: v for k, v in w_ms[0].items() if k != "datasets"}
-    h0 = {k: v for k, v in h_ms[0].items() if k != "datasets"} if isinstance(h_ms[0], dict) else None
-    if len(w_ms) != len(h_ms) or w0 != h0 or rest_w != rest_h:
-        out.append(f"attrs['ome'] differs outside the level transforms: manifest has {_short(want)}, "
-                   f"zarr.json has {_short(have)}")
+    w0 = [{k: v for k, v in m.items() if k != "datasets"} if isinstance(m, dict) else m for m in want]
+    h0 = [{k: v for k, v in m.items() if k != "datasets"} if isinstance(m, dict) else m for m in have]
+    if w0 != h0:
+        out.append(f"attrs['ome']['multiscales'] differs outside the level transforms (axes, name, type): manifest "
+                   f"has {_short(w0)}, zarr.json has {_short(h0)}")
     return out
 
 
 def restore_metadata(root: str | Path) -> list[str]:
     """Put back the metadata the store's verified manifest pins: each array's ``zarr.json`` fields
-    (its ``attributes`` kept) and the root's ``attrs["ome"]``, each file rewritten through a
+    (its ``attributes`` kept) and the root's multiscale list, each file rewritten through a
     temporary name and an atomic rename (an absent one is left to the rebuild of its data). Returns
     what was restored, one entry per file (empty: nothing
     differed, or the manifest pins no metadata). Raises :class:`ManifestError` when the manifest
@@ -341,13 +349,14 @@ def restore_metadata(root: str | Path) -> list[str]:
             p.parent.mkdir(parents=True, exist_ok=True)
             _atomic_write(p, json.dumps(new, indent=2).encode())
             done.append(f"{_name(rel)} ({rel}/zarr.json)")
-    if manifest.ome is not None and attrs.get("ome") != manifest.ome:
+    if manifest.multiscales is not None and _multiscales_of(attrs) != manifest.multiscales:
         attrs = dict(attrs)
-        attrs["ome"] = manifest.ome
+        attrs["ome"] = {**(attrs.get("ome") if isinstance(attrs.get("ome"), dict) else {}),
+                        "multiscales": manifest.multiscales}
         top = dict(top)
         top["attributes"] = attrs
         _atomic_write(root / "zarr.json", json.dumps(top, indent=2).encode())
-        done.append("the multiscale transforms (attrs['ome'] in zarr.json)")
+        done.append("the multiscale transforms (attrs['ome']['multiscales'] in zarr.json)")
     return done
 
 
@@ -360,8 +369,8 @@ def metadata_pins(doc: dict) -> "Manifest":
         if not isinstance(a, dict) or not all(isinstance(v, dict) for v in a.values()):
             return Manifest((), (), "", None, None)
         arrays.append({str(k): v for k, v in a.items()})
-    ome = doc.get("ome")
-    return Manifest((), (), "", tuple(arrays), ome if isinstance(ome, dict) else None)
+    ms = doc.get("multiscales")
+    return Manifest((), (), "", tuple(arrays), ms if isinstance(ms, list) else None)
 
 
 def write_manifest(path: str | Path, grids: list[tuple[int, int, int]]) -> dict:
@@ -373,7 +382,7 @@ def write_manifest(path: str | Path, grids: list[tuple[int, int, int]]) -> dict:
     """
     path = Path(path)
     tables, digests = build_tables(path, grids)
-    arrays, ome = pinned_metadata(path, len(grids))
+    arrays, multiscales = pinned_metadata(path, len(grids))
     out = path / MANIFEST_DIR
     out.mkdir(exist_ok=True)
     levels = []
@@ -383,8 +392,8 @@ def write_manifest(path: str | Path, grids: list[tuple[int, int, int]]) -> dict:
         levels.append({"grid": list(t.shape), "table": f"{L}.bin", "table_sha256": hashlib.sha256(data).hexdigest(),
                        "stats": d, "arrays": arrays[L]})
     top = {"format": MANIFEST_FORMAT, "levels": levels}
-    if ome is not None:
-        top["ome"] = ome
+    if multiscales is not None:
+        top["multiscales"] = multiscales
     doc = json.dumps(top, indent=1, sort_keys=True).encode()
     _atomic_write(out / "manifest.json", doc)
     return {"sha256": hashlib.sha256(doc).hexdigest(), "bytes": len(doc)}
@@ -469,4 +478,4 @@ def load_manifest(root: str | Path, cv: dict, grids: list[tuple[int, int, int]],
         tables.append(t)
         stats.append({str(k): str(v) for k, v in lv["stats"].items()})
     pins = metadata_pins(doc)
-    return Manifest(tuple(tables), tuple(stats), doc["sha256"], pins.arrays, pins.ome)
+    return Manifest(tuple(tables), tuple(stats), doc["sha256"], pins.arrays, pins.multiscales)

@@ -159,7 +159,7 @@ def _unpin(out):
     recorded in the root metadata with its new checksum."""
     mpath = out / "clipvol_manifest" / "manifest.json"
     doc = json.loads(mpath.read_text())
-    doc.pop("ome")
+    doc.pop("multiscales")
     for lv in doc["levels"]:
         lv.pop("arrays")
     data = json.dumps(doc, indent=1, sort_keys=True).encode()
