@@ -75,6 +75,10 @@ RATE_WINDOW_S = 5.0
 LATENCY_SAMPLES = 2048
 #: longest sleep of an idle loader thread before it checks that its clip-texture still exists
 IDLE_POLL_S = 1.0
+#: distinct bricks whose reads are kept apart between two take_reads() calls (a caller that never
+#: takes them - no render action - must not grow the table without bound); reads of further bricks
+#: are summed under the key None, which no frame draws (they count as prefetch)
+MAX_READ_KEYS = 1 << 17
 #: bytes between the writes that pre-fault the slot pool (the smallest page size of the platforms we run on)
 _PAGE = 4096
 
@@ -626,9 +630,10 @@ class ClipTexture:
             self._cv.notify_all()
         return requeued
 
-    def take_reads(self) -> dict[tuple[int, Int3], int] | None:
+    def take_reads(self) -> dict[tuple[int, Int3] | None, int] | None:
         """Bytes read from storage per brick ``(level, index)`` by this clip-texture's loads since the
         previous call (or since it was made), and forget them; None when the loader does not count.
+        Past :data:`MAX_READ_KEYS` distinct bricks, further bricks' reads are summed under ``None``.
 
         Why per brick and taken, not a difference of the loader's total: loader threads keep
         filling the windows around the centre while and after a frame draws, so the bytes read
@@ -1025,7 +1030,9 @@ class ClipTexture:
         nread = counter.thread_bytes() - read0 if counter is not None else 0
         with self._cv:
             if nread:  # charged whatever became of the load: the bytes were read
-                self._reads_by_key[(L, idx)] = self._reads_by_key.get((L, idx), 0) + nread
+                rk = self._reads_by_key
+                key = (L, idx) if len(rk) < MAX_READ_KEYS or (L, idx) in rk else None  # None: "other bricks"
+                rk[key] = rk.get(key, 0) + nread
             if into:
                 self._levels[L].busy[s] = False
                 if self._queue.unpark(L, s):

@@ -85,7 +85,7 @@ def bytes_read_of(loader) -> int | None:
 
 def split_reads(reads: dict | None, keys) -> tuple[int, int] | tuple[None, None]:
     """``(frame, other)``: the bytes of ``reads`` (a clip-texture's :meth:`take_reads`, per brick
-    ``(level, index)``) charged to the bricks ``keys`` (``(n, 4)`` rows ``(level, z, y, x)``, the
+    ``(level, index)``, or None for reads summed past its table's size) charged to the bricks ``keys`` (``(n, 4)`` rows ``(level, z, y, x)``, the
     bricks a frame drew or wanted; repeats counted once) and to all the others (the prefetch);
     ``(None, None)`` when the loader does not count."""
     if reads is None:
