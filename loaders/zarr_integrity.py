@@ -105,8 +105,12 @@ class IntegrityChecks:
         problems = metadata_problems(self.path, metadata_pins(self._manifest_doc), attrs)
         if problems:
             shown = "; ".join(problems[:6]) + (f"; and {len(problems) - 6} more" if len(problems) > 6 else "")
-            raise StoreFormatError(f"{self._where}: metadata differs from the store's manifest: {shown}. "
-                                   f"`clipvol repair {self._where} --source INPUT` restores it from the manifest")
+            from clipvol.paging.bytesource import is_remote_url
+
+            fix = ("`clipvol repair STORE --source INPUT` on the store where it is written restores it from the manifest"
+                   if is_remote_url(self._where) else
+                   f"`clipvol repair {self._where} --source INPUT` restores it from the manifest")
+            raise StoreFormatError(f"{self._where}: metadata differs from the store's manifest: {shown}. {fix}")
 
     def _verify_manifest(self, clipvol_attrs: dict, *, warn: bool) -> None:
         """Set ``verified``, ``trust`` and ``_manifest`` of a clipvol store whose levels are open;

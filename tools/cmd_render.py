@@ -251,7 +251,8 @@ def _run_sort_last(args, params, cam, tf, kwargs, frame=None) -> int:
     from clipvol.tools.partial import settle_failed
 
     image = settle_failed("render", args.out, st.failed_bricks, image,
-                          lambda im: hatch_failed(im, cam, dr.pyramid, st.failed_bricks), args.allow_partial)
+                          lambda im: hatch_failed(im, cam, dr.pyramid, st.failed_bricks), args.allow_partial,
+                          strict=True)
     Image.fromarray(present(image, cam, frame, labels=not args.no_labels), "RGBA").save(args.out)
     print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, {args.mode}, {params.policy}, sort-last over "
           f"{args.workers} workers)", file=sys.stderr)

@@ -185,3 +185,28 @@ def test_a_manifest_written_before_metadata_pins_opens_marked_and_repair_pins(bu
     assert "every level's metadata" in capsys.readouterr().out.splitlines()[0]
     _edit_json(out / "1" / "zarr.json", _fill_500)
     _refused(out, tmp_path, capsys, "level 1: fill_value differs")
+
+
+@pytest.mark.gl
+def test_a_levels_chunks_replaced_by_another_builds_with_the_same_metadata_exit_3_and_repair_rebuilds(
+        built, tmp_path, capsys):
+    """The same metadata, other chunks: nothing differs on opening, so each chunk is caught when it is
+    read (its size or crc32c is not the one the manifest records for the brick) and a one-shot render exits 3
+    instead of drawing level 0 from its ancestors (issue 40, item 3)."""
+    src, out, vol = built
+    other_src = tmp_path / "w.npy"
+    np.save(other_src, (vol[::-1] // 2).copy())
+    other = tmp_path / "w.zarr"
+    assert main(["brick", str(other_src), str(other), "--brick", str(B), "--quiet"]) == 0
+    fixed = [*RENDER, "--policy", "fixed", "--level", "0"]
+    assert main(["render", str(out), "--out", str(tmp_path / "a.png"), *fixed]) == 0
+    shutil.rmtree(out / "0" / "c")
+    shutil.copytree(other / "0" / "c", out / "0" / "c")
+    capsys.readouterr()
+    assert main(["render", str(out), "--out", str(tmp_path / "x.png"), *fixed]) == 3
+    err = capsys.readouterr().err
+    assert "brick(s) of the view failed" in err and "manifest" in err and not (tmp_path / "x.png").exists()
+    assert main(["repair", str(out), "--source", str(src), "--quiet"]) == 0
+    np.testing.assert_array_equal(_levels(out)[0], vol)
+    assert main(["render", str(out), "--out", str(tmp_path / "b.png"), *fixed]) == 0
+    np.testing.assert_array_equal(_image(tmp_path / "b.png"), _image(tmp_path / "a.png"))
