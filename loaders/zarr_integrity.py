@@ -102,7 +102,9 @@ class IntegrityChecks:
             self._manifest_doc = read_manifest_doc(self.path, cv)
         except ManifestError:
             return
-        problems = metadata_problems(self.path, metadata_pins(self._manifest_doc), attrs)
+        # the levels and the multiscale list now; each level's other arrays (its statistics) when
+        # they are first read (brick_statistics): a reader that never reads them pays nothing
+        problems = metadata_problems(self.path, metadata_pins(self._manifest_doc), attrs, levels_only=True)
         if problems:
             shown = "; ".join(problems[:6]) + (f"; and {len(problems) - 6} more" if len(problems) > 6 else "")
             from clipvol.paging.bytesource import is_remote_url
@@ -314,6 +316,12 @@ class IntegrityChecks:
                 check_tree(base, self.path, MAX_STATS_FILE_BYTES)
             except InputFormatError as e:
                 raise StoreFormatError(f"{self._where}: {STATS_GROUP}/{level}: {e}") from None
+            if self._manifest is not None:
+                changed = metadata_problems(self.path, self._manifest, None, level=level)
+                if changed:
+                    raise StoreFormatError(f"{self._where}: metadata differs from the store's manifest: "
+                                           f"{'; '.join(changed[:6])}: the statistics cannot be trusted "
+                                           f"(`clipvol repair {self._where} --source INPUT` restores it)")
             grid = self._pyramid.grid(level)
             for name in STAT_ARRAYS:
                 p = base / name

@@ -26,9 +26,9 @@ inside the array notices. The manifest makes them answerable to one number in th
 * ``manifest.json`` lists the tables with their SHA-256, and its own SHA-256 and length are
   recorded in the root attributes (``attrs["clipvol"]["manifest"]``).
 
-A reader compares the pinned metadata with the store's files on opening
-(:func:`metadata_problems`) and refuses a store whose metadata differs, naming the level and the
-field; ``clipvol repair`` puts the pinned metadata back (:func:`restore_metadata`). A manifest
+A reader compares the pinned metadata with the store's files (:func:`metadata_problems`): the
+levels' arrays and the multiscale list on opening, a level's other arrays when it first reads
+them; it refuses a store whose metadata differs, naming the level (or array) and the field; ``clipvol repair`` puts the pinned metadata back (:func:`restore_metadata`). A manifest
 written before metadata pins (no ``arrays`` in its levels) still verifies its chunks and
 statistics; :attr:`Manifest.metadata_pinned` is then False and the reader says so.
 
@@ -252,40 +252,55 @@ def _name(rel: str) -> str:
     return f"level {rel}" if rel.isdigit() else rel
 
 
-def metadata_problems(root: str | Path, manifest: "Manifest", attrs: dict) -> list[str]:
+def metadata_problems(root: str | Path, manifest: "Manifest", attrs: dict | None, *,
+                      levels_only: bool = False, level: int | None = None) -> list[str]:
     """What differs between the metadata ``manifest`` pins and the store at ``root`` (``attrs``:
-    its root attributes, already read): one line per field, naming the level or array and the
-    field, with both values ("level 1: codecs differ: manifest has [...], zarr.json has [...]").
-    Empty when they agree, or when the manifest pins no metadata (written before metadata pins).
-    An array whose ``zarr.json`` is absent or unreadable is left to the checks of its data (a
-    deleted statistics array differs from its digest; a level without metadata cannot open)."""
+    its root attributes, already read; None: the multiscale list is not compared): one line per
+    field, naming the level or array and the field, with both values ("level 1: codecs differ:
+    manifest has [...], zarr.json has [...]"). Empty when they agree, or when the manifest pins no
+    metadata (written before metadata pins). ``levels_only``: the levels' own arrays only (what a
+    reader needs on opening); ``level``: only that level's other arrays (its statistics, compared
+    when they are first read). An array whose ``zarr.json`` is absent or unreadable is left to the
+    checks of its data (a deleted statistics array differs from its digest; a level without
+    metadata cannot open)."""
     if not manifest.metadata_pinned:
         return []
     root = Path(root)
     out: list[str] = []
-    for per_level in manifest.arrays or ():
+    for L, per_level in enumerate(manifest.arrays or ()):
+        if level is not None and L != level:
+            continue
         for rel, want in per_level.items():
-            where = _name(rel)
-            try:
-                have = _pinned_fields(_zarr_json(root / rel / "zarr.json", root))
-            except (OSError, ValueError):
-                # absent or not a readable file: not a difference of metadata but of data, which the
-                # reader refuses on its own terms (a level's array_meta, a statistics array's digest)
+            if (levels_only and not rel.isdigit()) or (level is not None and rel.isdigit()):
                 continue
-            for key in sorted(set(want) | set(have)):
-                word = FIELD_WORDS.get(key, key)
-                if key not in have:
-                    out.append(f"{where}: {word} is missing from zarr.json (manifest has {_short(want[key])})")
-                elif key not in want:
-                    out.append(f"{where}: {word} is in zarr.json ({_short(have[key])}) but not in the manifest")
-                elif have[key] != want[key]:
-                    verb = "differ" if key in ("codecs", "chunk_grid") else "differs"
-                    out.append(f"{where}: {word} {verb}: manifest has {_short(want[key])}, zarr.json has "
-                               f"{_short(have[key])}")
+            out.extend(_array_problems(root, rel, want))
     want = manifest.multiscales
-    have = _multiscales_of(attrs)
-    if want is not None and have != want:
+    have = _multiscales_of(attrs) if attrs is not None else None
+    if attrs is not None and want is not None and have != want:
         out.extend(_multiscale_problems(want, have))
+    return out
+
+
+def _array_problems(root: Path, rel: str, want: dict) -> list[str]:
+    """The fields of ``rel/zarr.json`` that differ from the pinned ``want``."""
+    where = _name(rel)
+    try:
+        have = _pinned_fields(_zarr_json(root / rel / "zarr.json", root))
+    except (OSError, ValueError):
+        # absent or not a readable file: not a difference of metadata but of data, which the
+        # reader refuses on its own terms (a level's array_meta, a statistics array's digest)
+        return []
+    out = []
+    for key in sorted(set(want) | set(have)):
+        word = FIELD_WORDS.get(key, key)
+        if key not in have:
+            out.append(f"{where}: {word} is missing from zarr.json (manifest has {_short(want[key])})")
+        elif key not in want:
+            out.append(f"{where}: {word} is in zarr.json ({_short(have[key])}) but not in the manifest")
+        elif have[key] != want[key]:
+            verb = "differ" if key in ("codecs", "chunk_grid") else "differs"
+            out.append(f"{where}: {word} {verb}: manifest has {_short(want[key])}, zarr.json has "
+                       f"{_short(have[key])}")
     return out
 
 

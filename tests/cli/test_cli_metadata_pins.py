@@ -210,3 +210,30 @@ def test_a_levels_chunks_replaced_by_another_builds_with_the_same_metadata_exit_
     np.testing.assert_array_equal(_levels(out)[0], vol)
     assert main(["render", str(out), "--out", str(tmp_path / "b.png"), *fixed]) == 0
     np.testing.assert_array_equal(_image(tmp_path / "b.png"), _image(tmp_path / "a.png"))
+
+
+def test_an_array_added_beside_a_levels_statistics_is_pinned_the_same_way(built, tmp_path, capsys):
+    """Arrays are found by walking ``clipvol_stats/<L>/``: one added there (as per-level tables are)
+    is pinned without a change to the manifest code, its metadata checked when the level's
+    statistics are read, and restored by repair."""
+    from clipvol.bricking.manifest import write_manifest
+
+    src, out, vol = built
+    extra = zarr.create_array(str(out / "clipvol_stats" / "1" / "extra"), shape=(3, 3, 3), chunks=(3, 3, 3),
+                              dtype="float32", fill_value=0.0)
+    extra[...] = np.arange(27, dtype=np.float32).reshape(3, 3, 3)
+    g = zarr.open_group(str(out), mode="r+")
+    cv = dict(g.attrs["clipvol"])
+    cv["manifest"] = write_manifest(out, [(3, 3, 3), (2, 2, 2), (1, 1, 1)])
+    g.attrs["clipvol"] = cv
+    doc = json.loads((out / "clipvol_manifest" / "manifest.json").read_text())
+    assert "clipvol_stats/1/extra" in doc["levels"][1]["arrays"]
+    original = json.loads((out / "clipvol_stats" / "1" / "extra" / "zarr.json").read_text())
+    _edit_json(out / "clipvol_stats" / "1" / "extra" / "zarr.json", lambda d: d.update(fill_value=7.0))
+    capsys.readouterr()
+    assert main(["check", str(out), "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert "clipvol_stats/1/extra: fill_value differs: manifest has 0.0, zarr.json has 7.0" in err, err
+    assert main(["repair", str(out), "--source", str(src), "--quiet"]) == 0
+    assert json.loads((out / "clipvol_stats" / "1" / "extra" / "zarr.json").read_text()) == original
+    assert main(["check", str(out), "--all", "--quiet"]) == 0
