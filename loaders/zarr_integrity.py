@@ -45,6 +45,7 @@ from clipvol.bricking.pyramid import Int3
 from clipvol.bricking.store import STAT_ARRAYS, STATS_GROUP
 from clipvol.bricking.store_files import check_tree
 from clipvol.errors import BrickIntegrityError, InputFormatError, ParameterError, StoreFormatError
+from clipvol.paging.bytesource import is_remote_url
 from clipvol.paging.loader import BrickKey
 
 from .zarr_crc import _CRC32C_RESIDUE
@@ -107,8 +108,6 @@ class IntegrityChecks:
         problems = metadata_problems(self.path, metadata_pins(self._manifest_doc), attrs, levels_only=True)
         if problems:
             shown = "; ".join(problems[:6]) + (f"; and {len(problems) - 6} more" if len(problems) > 6 else "")
-            from clipvol.paging.bytesource import is_remote_url
-
             fix = ("`clipvol repair STORE --source INPUT` on the store where it is written restores it from the manifest"
                    if is_remote_url(self._where) else
                    f"`clipvol repair {self._where} --source INPUT` restores it from the manifest")
