@@ -39,11 +39,13 @@ from typing import Any
 
 import numpy as np
 
-from clipvol.bricking.manifest import ManifestError, load_manifest
+from clipvol.bricking.manifest import (ManifestError, load_manifest, metadata_pins, metadata_problems,
+                                      read_manifest_doc)
 from clipvol.bricking.pyramid import Int3
 from clipvol.bricking.store import STAT_ARRAYS, STATS_GROUP
 from clipvol.bricking.store_files import check_tree
 from clipvol.errors import BrickIntegrityError, InputFormatError, ParameterError, StoreFormatError
+from clipvol.paging.bytesource import is_remote_url
 from clipvol.paging.loader import BrickKey
 
 from .zarr_crc import _CRC32C_RESIDUE
@@ -83,6 +85,34 @@ class IntegrityChecks:
     #: verify each chunk's crc32c (set False only to measure what it costs)
     verify_checksums: bool = True
 
+    def _check_pinned_metadata(self, attrs: dict) -> None:
+        """Refuse a store whose metadata differs from what its manifest pins
+        (:func:`clipvol.bricking.manifest.metadata_problems`): a level's ``zarr.json`` with another
+        byte order, codec chain, fill value, shape or chunk grid, or another multiscale list.
+
+        Why on opening, before the levels are parsed: a level's metadata decides how every chunk
+        decodes and where the level lies; a verified chunk decoded with an edited codec chain is
+        wrong voxels, and an edited fill value turns unwritten bricks into other values. A
+        manifest that does not verify leaves this to :meth:`_verify_manifest` (the store opens
+        unverified); one written before metadata pins is marked by ``metadata_pinned``."""
+        self._manifest_doc = None
+        cv = attrs.get("clipvol")
+        if not isinstance(cv, dict):
+            return
+        try:
+            self._manifest_doc = read_manifest_doc(self.path, cv)
+        except ManifestError:
+            return
+        # the levels and the multiscale list now; each level's other arrays (its statistics) when
+        # they are first read (brick_statistics): a reader that never reads them pays nothing
+        problems = metadata_problems(self.path, metadata_pins(self._manifest_doc), attrs, levels_only=True)
+        if problems:
+            shown = "; ".join(problems[:6]) + (f"; and {len(problems) - 6} more" if len(problems) > 6 else "")
+            fix = ("`clipvol repair STORE --source INPUT` on the store where it is written restores it from the manifest"
+                   if is_remote_url(self._where) else
+                   f"`clipvol repair {self._where} --source INPUT` restores it from the manifest")
+            raise StoreFormatError(f"{self._where}: metadata differs from the store's manifest: {shown}. {fix}")
+
     def _verify_manifest(self, clipvol_attrs: dict, *, warn: bool) -> None:
         """Set ``verified``, ``trust`` and ``_manifest`` of a clipvol store whose levels are open;
         warn (:class:`UnverifiedStoreWarning`) when it is unverified and ``warn``."""
@@ -92,9 +122,17 @@ class IntegrityChecks:
         else:
             try:
                 self._manifest = load_manifest(self.path, clipvol_attrs,
-                                               [self._pyramid.grid(L) for L in range(self._pyramid.num_levels)])
+                                               [self._pyramid.grid(L) for L in range(self._pyramid.num_levels)],
+                                               doc=getattr(self, "_manifest_doc", None))
                 self.verified = True
-                self.trust = f"verified: manifest sha256 {self._manifest.sha256[:16]}... pins every brick's chunk and statistics"
+                self.metadata_pinned = self._manifest.metadata_pinned
+                if self.metadata_pinned:
+                    self.trust = (f"verified: manifest sha256 {self._manifest.sha256[:16]}... pins every brick's chunk "
+                                  "and statistics and every level's metadata")
+                else:
+                    self.trust = (f"verified: manifest sha256 {self._manifest.sha256[:16]}... pins every brick's chunk "
+                                  "and statistics, not the arrays' metadata (a manifest written before metadata pins: "
+                                  f"`clipvol repair {self._where} --source INPUT` adds them)")
             except ManifestError as e:
                 self.trust = f"unverified: {e}"
         if not self.verified and warn:
@@ -277,6 +315,12 @@ class IntegrityChecks:
                 check_tree(base, self.path, MAX_STATS_FILE_BYTES)
             except InputFormatError as e:
                 raise StoreFormatError(f"{self._where}: {STATS_GROUP}/{level}: {e}") from None
+            if self._manifest is not None:
+                changed = metadata_problems(self.path, self._manifest, None, level=level)
+                if changed:
+                    raise StoreFormatError(f"{self._where}: metadata differs from the store's manifest: "
+                                           f"{'; '.join(changed[:6])}: the statistics cannot be trusted "
+                                           f"(`clipvol repair {self._where} --source INPUT` restores it)")
             grid = self._pyramid.grid(level)
             for name in STAT_ARRAYS:
                 p = base / name

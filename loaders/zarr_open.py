@@ -41,7 +41,11 @@ class StoreOpening:
     def _open_clipvol(self, attrs: dict) -> None:
         """A clipvol store: its pyramid as ``attrs['clipvol']`` records it, each level's array
         checked against it (shape, chunks, dtype), then its manifest verified. An interrupted build
-        is refused unless ``allow_incomplete`` (repair and resume open such stores)."""
+        is refused unless ``allow_incomplete`` (repair and resume open such stores). Before any of
+        it, the metadata the manifest pins (each level's arrays, the multiscale transforms) is
+        compared with the store's files (:meth:`IntegrityChecks._check_pinned_metadata`): the
+        level descriptions everything after this trusts must be the ones the build wrote."""
+        self._check_pinned_metadata(attrs)
         meta = parse_metadata(attrs, self._where)
         if not meta.complete and not self._allow_incomplete:
             raise StoreIncompleteError(

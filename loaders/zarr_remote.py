@@ -112,9 +112,10 @@ class RemoteZarrLoader(ZarrLoader):
         bandwidth (the bandwidth-delay product, :mod:`clipvol.paging.link`), 16 to 64. The most it
         can be is also the number of loader threads a clip-texture uses by default
         (:attr:`preferred_threads`).
-    retries, timeout, connect_timeout, read_timeout
+    retries, timeout, connect_timeout, read_timeout, deadline
         See :class:`~clipvol.paging.bytesource.FsspecByteSource` (a stalled server is given up on
-        within ``timeout``, default 30 s, per key).
+        within ``timeout``, default 30 s, per key; nothing is read past ``deadline``, a
+        :func:`time.monotonic` instant: a one-shot command's ``--timeout``).
     **loader_kwargs
         Passed to :class:`ZarrLoader` (``t``, ``c``, ``allow_incomplete``, ``shard_run_bytes``).
 
@@ -129,10 +130,10 @@ class RemoteZarrLoader(ZarrLoader):
     def __init__(self, url: str, *, cache: str | Path | None = None, storage_options: dict | None = None,
                  max_in_flight: int | None = None, retries: int = 5, timeout: float | None = None,
                  connect_timeout: float = DEFAULT_CONNECT_TIMEOUT, read_timeout: float = DEFAULT_READ_TIMEOUT,
-                 **loader_kwargs) -> None:
+                 deadline: float | None = None, **loader_kwargs) -> None:
         self.source = FsspecByteSource(url, storage_options=storage_options, max_in_flight=max_in_flight,
                                        retries=retries, timeout=timeout, connect_timeout=connect_timeout,
-                                       read_timeout=read_timeout, cache=cache)
+                                       read_timeout=read_timeout, cache=cache, deadline=deadline)
         self.url = self.source.display_url
         self._storage_options = storage_options
         self._mirror = Path(tempfile.mkdtemp(prefix="clipvol-remote-meta-"))

@@ -95,6 +95,9 @@ class ZarrLoader(StoreOpening, ChunkReader, ShardReader, IntegrityChecks, Comput
         self._manifest: Manifest | None = None
         #: True when the store's manifest verified (every brick's chunk size, crc32c and bounds are pinned)
         self.verified = False
+        #: True when the verified manifest also pins every level's array metadata and the multiscale
+        #: transforms (False: unverified, or a manifest written before metadata pins)
+        self.metadata_pinned = False
         #: one line saying why the store is (un)verified
         self.trust = ""
         attrs = group_attributes(self.path, self._where)

@@ -100,6 +100,16 @@ class _Handler(http.server.SimpleHTTPRequestHandler):
         """The file's bytes, paced to the server's ``bandwidth`` (one link shared by every answer);
         a whole-file answer is logged with its size in ``server.log``."""
         srv = self.server
+        if any(self.path.startswith(p) for p in srv.drip):  # one byte at a time, until shutdown
+            try:
+                for b in iter(lambda: source.read(1), b""):
+                    if srv.stopping.wait(1.0 / srv.drip_rate):
+                        return
+                    outputfile.write(b)
+                    outputfile.flush()
+            except OSError:  # the client gave up (its deadline): what the test wants
+                pass
+            return
         if not logged:
             try:
                 self._log(200, os.fstat(source.fileno()).st_size)
@@ -134,7 +144,7 @@ class _Server(http.server.ThreadingHTTPServer):
 @contextlib.contextmanager
 def serve_directory(root: str | Path, *, latency: float = 0.0, fail_first: int = 0, forbid: tuple[str, ...] = (),
                     stall: tuple[str, ...] = (), answers: dict | None = None, bandwidth: float | None = None,
-                    keep_alive: bool = False):
+                    keep_alive: bool = False, drip: tuple[str, ...] = (), drip_rate: float = 1.0):
     """Serve ``root`` on ``http://127.0.0.1:PORT``; yields ``(base_url, server)``.
 
     ``latency`` seconds are slept before every answer; ``bandwidth`` (bytes a second) caps the
@@ -143,6 +153,8 @@ def serve_directory(root: str | Path, *, latency: float = 0.0, fail_first: int =
     the first ``fail_first`` requests of every
     path get HTTP 503; paths starting with a prefix in ``forbid`` get 403; requests for paths
     starting with a prefix in ``stall`` are accepted and never answered (until shutdown);
+    files of paths starting with a prefix in ``drip`` are sent ``drip_rate`` bytes a second, each
+    byte flushed (a server that answers, but too slowly to ever finish a chunk);
     ``answers`` maps a path to ``(status, body bytes)`` sent instead of the file (a 404, an HTML
     error page with 200). ``Range`` requests get 206 with the bytes (416 past the end). ``server.counts``
     (per path), ``server.log`` (every file answer: path, range, status, bytes) and ``server.failures``
@@ -159,6 +171,7 @@ def serve_directory(root: str | Path, *, latency: float = 0.0, fail_first: int =
     srv.failures = 0
     srv.latency, srv.fail_first, srv.forbid = latency, fail_first, forbid
     srv.stall, srv.answers, srv.stopping = stall, dict(answers or {}), threading.Event()
+    srv.drip, srv.drip_rate = tuple(drip), float(drip_rate)
     t = threading.Thread(target=srv.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
     t.start()
     try:

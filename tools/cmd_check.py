@@ -164,7 +164,8 @@ def open_checked(path, **remote):
             remote.pop("cache", None)
             meta, _ = remote_store_meta(str(path), **remote)
             return meta, RemoteZarrLoader(str(path), allow_incomplete=True, **remote)
-        return open_store_meta(path), ZarrLoader(path, allow_incomplete=True)
+        loader = ZarrLoader(path, allow_incomplete=True)  # first: metadata that differs from the manifest says so
+        return open_store_meta(path), loader
 
 
 def run(args: argparse.Namespace) -> int:

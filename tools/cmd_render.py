@@ -128,11 +128,14 @@ def run(args) -> int:
 
     from clipvol.render.failures import hatch_failed
     from clipvol.scene.bookmarks import load_camera
-    from clipvol.tools.partial import settle_failed
+    from clipvol.tools.partial import settle_failed, settle_unconverged
     from clipvol.tools.cut_args import shape_from_args
     from clipvol.tools.tf_args import transfer_function_from_args
 
     check_output_file(args.out, ".png", "--out")
+    from clipvol.tools.deadline import CommandDeadline
+
+    deadline = CommandDeadline(None if args.no_wait else args.timeout)  # --timeout bounds the whole command
     from clipvol.tools.kind_cli import kind_command
 
     hook = kind_command(args.source, "render")  # another data kind than a volume: its own render
@@ -150,7 +153,7 @@ def run(args) -> int:
     if channels is not None:
         loader, channel_tf, channel_overlays = channels
     else:
-        loader = open_store(args.source, **kwargs, **remote_kwargs(args))
+        loader = open_store(args.source, **kwargs, **deadline.remote_kwargs(args.source, remote_kwargs(args)))
         check_trust(loader, args, "render")
     if args.hide_labels:
         loader = hidden_labels(args.source, loader, args.hide_labels)
@@ -174,19 +177,27 @@ def run(args) -> int:
     try:
         from clipvol.scene.cut import outside_bricks
 
-        with ClipTexture(loader, args.memory_budget, args.threads, center=centre,
-                         outside=outside_bricks(pyr, params.shape)) as clip, \
-                ClipRenderAction(ctx, clip, params) as action:
-            image = action.render(cam, tf, wait=not args.no_wait, timeout=args.timeout)
+        with deadline.closing("render") as register, \
+                ClipTexture(loader, args.memory_budget, args.threads, center=centre,
+                            outside=outside_bricks(pyr, params.shape)) as clip, \
+                ClipRenderAction(ctx, register(clip), params) as action:
+            image = action.render(cam, tf, wait=not args.no_wait,
+                                  timeout=args.timeout if args.no_wait else deadline.left())
             st = action.last_frame_stats
             overlay_levels = action.overlays.levels()
             unread = clip.stats.empty_skipped
+            if not st.failed_bricks:  # failed bricks are settled below, with their causes
+                settle_unconverged("render", args.out, converged=st.converged, waited=not args.no_wait,
+                                   selection=action.last_selection, clip=clip, timeout=args.timeout,
+                                   brick_gpu_bytes=action.cache.brick_texels * action.cache.format.itemsize,
+                                   texture_budget=params.texture_budget, allow=args.allow_partial)
+        late = clip.take_reads()  # what the loader threads read after the frame, until they stopped
     finally:
         ctx.release()
     from clipvol.app.annotate import present
 
     image = settle_failed("render", args.out, st.failed_bricks, image,
-                          lambda im: hatch_failed(im, cam, pyr, st.failed_bricks), args.allow_partial)
+                          lambda im: hatch_failed(im, cam, pyr, st.failed_bricks), args.allow_partial, strict=True)
     Image.fromarray(present(image, cam, frame, labels=not args.no_labels), "RGBA").save(args.out)
     t = st.times
     levels = ", ".join(f"L{L}: {n}" for L, n in st.bricks_drawn.items()) or "none"
@@ -197,7 +208,9 @@ def run(args) -> int:
     if params.shape is not None:
         print(f"cut: {st.counts.get('culled_shape', 0)} bricks outside the crop box / clip planes not drawn; "
               f"{unread} bricks filled without reading (outside the cut, or empty)", file=sys.stderr)
-    read = "" if st.bytes_read is None else f"; read {format_bytes(st.bytes_read)} from storage"
+    read = "" if st.frame_bytes_read is None else (
+        f"; read {format_bytes(st.frame_bytes_read)} from storage for the frame's bricks and "
+        f"{format_bytes(st.prefetch_bytes_read + sum((late or {}).values()))} prefetched around them")
     print(f"uploaded {format_bytes(st.bytes_uploaded)} in {st.bricks_uploaded} bricks; textures "
           f"{format_bytes(st.texture_bytes)} of {format_bytes(st.texture_budget)}{read}", file=sys.stderr)
     if params.policy == "image":
@@ -238,7 +251,8 @@ def _run_sort_last(args, params, cam, tf, kwargs, frame=None) -> int:
     from clipvol.tools.partial import settle_failed
 
     image = settle_failed("render", args.out, st.failed_bricks, image,
-                          lambda im: hatch_failed(im, cam, dr.pyramid, st.failed_bricks), args.allow_partial)
+                          lambda im: hatch_failed(im, cam, dr.pyramid, st.failed_bricks), args.allow_partial,
+                          strict=True)
     Image.fromarray(present(image, cam, frame, labels=not args.no_labels), "RGBA").save(args.out)
     print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, {args.mode}, {params.policy}, sort-last over "
           f"{args.workers} workers)", file=sys.stderr)

@@ -14,6 +14,13 @@ verifies chunk by chunk. After any change the manifest is written again and reco
 metadata. A store without a manifest (written before manifests) gets one once every brick checks
 out against its statistics; one without statistics either cannot be vouched for and is refused
 (rebuild it with ``clipvol brick``).
+
+Metadata first: when the manifest verifies and pins the arrays' metadata and the multiscale
+transforms, every ``zarr.json`` that differs from it (an edited byte order, codec chain, fill value,
+shape, chunk grid, a shortened multiscale list) is put back from the manifest
+(:func:`clipvol.bricking.manifest.restore_metadata`) before anything is opened; chunks that another
+build left there then fail their checks and are rebuilt from ``--source``. A manifest written
+before metadata pins is written again once every brick checks out, pinning the metadata as it is.
 """
 
 from __future__ import annotations
@@ -117,8 +124,16 @@ def run(args: argparse.Namespace) -> int:
     from clipvol.errors import SourceChangedError, StoreIncompleteError
     from clipvol.tools.cmd_check import bad_bricks, open_checked
 
+    from clipvol.bricking.manifest import ManifestError, restore_metadata
+
     path = Path(args.store)
     with output_lock(path):
+        try:
+            put_back = restore_metadata(path)
+        except (ManifestError, OSError, ValueError):
+            put_back = []  # no verified manifest: nothing vouches for any metadata (opening says why)
+        if put_back:
+            print(f"{path}: restored from the manifest: {'; '.join(put_back)}", file=sys.stderr)
         meta, loader = open_checked(path)
         if not meta.complete:
             raise StoreIncompleteError(f"{path}: incomplete store (an interrupted build): re-run the same clipvol brick "
@@ -152,11 +167,11 @@ def run(args: argparse.Namespace) -> int:
             keys = [(L, idx) for L in range(pyr.num_levels) for idx in np.ndindex(*pyr.grid(L))]
             bad, checked, _ = bad_bricks(loader, meta, keys, progress=not args.quiet)
             if not bad:
-                done = []
+                done = [f"restored the metadata of {'; '.join(put_back)} from the manifest"] if put_back else []
                 if restored:
                     done.append(f"recomputed the statistics of level{'s' if len(restored) > 1 else ''} "
                                 f"{', '.join(map(str, restored))} from its verified bricks")
-                if restored or not loader.verified:
+                if restored or not loader.verified or not loader.metadata_pinned:
                     record_manifest(path, group, pyr)
                     done.append("wrote the manifest")
                     meta, loader = open_checked(path)
@@ -212,5 +227,6 @@ def run(args: argparse.Namespace) -> int:
     for (L, idx), problems in sorted(again.items()):
         print(f"clipvol repair: {path}: level {L} brick {idx} still bad: {'; '.join(problems)}", file=sys.stderr)
     names = ", ".join(f"level {L} brick {idx}" for L, idx in sorted(bad))
-    print(f"{path}: rebuilt {n} bricks ({len(bad)} bad: {names}; the rest their ancestors)")
+    put = f"restored the metadata of {'; '.join(put_back)} from the manifest; " if put_back else ""
+    print(f"{path}: {put}rebuilt {n} bricks ({len(bad)} bad: {names}; the rest their ancestors)")
     return 1 if again else 0

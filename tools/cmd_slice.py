@@ -170,10 +170,12 @@ def run(args) -> int:
     from clipvol.app.autobrick import bricked_source
 
     kwargs = {} if args.brick is None else {"brick": args.brick}
+    from clipvol.tools.deadline import CommandDeadline
     from clipvol.tools.remote_args import check_trust, remote_kwargs
 
+    deadline = CommandDeadline(None if args.no_wait else args.timeout)  # --timeout bounds the whole command
     loader = open_store(bricked_source(args.source, args.store, log=lambda line: print(line, file=sys.stderr)), **kwargs,
-                        **remote_kwargs(args))
+                        **deadline.remote_kwargs(args.source, remote_kwargs(args)))
     check_trust(loader, args, "slice")
     pyr = loader.pyramid
     frame = getattr(loader, "frame", None)  # the source's voxel-to-world affine (NIfTI, DICOM, ...)
@@ -200,12 +202,23 @@ def run(args) -> int:
         from clipvol.scene.cut import outside_bricks
 
         # Region.empty: nothing is read before the slice hands the clip-texture its slab
-        with ClipTexture(loader, args.memory_budget, args.threads, center=centre,
-                         region=Region.empty(loader.pyramid.num_levels), outside=outside_bricks(pyr, cut)) as clip, \
-                SliceAction(ctx, clip, params) as action:
+        with deadline.closing("slice") as register, \
+                ClipTexture(loader, args.memory_budget, args.threads, center=centre,
+                            region=Region.empty(loader.pyramid.num_levels), outside=outside_bricks(pyr, cut)) as clip, \
+                SliceAction(ctx, register(clip), params) as action:
             rgba, values = action.render(plane, args.size, args.pixel_size, transfer_function=tf, window=args.window,
-                                         wait=not args.no_wait, timeout=args.timeout, return_values=True)
+                                         wait=not args.no_wait, timeout=args.timeout if args.no_wait else deadline.left(),
+                                         return_values=True)
             st = action.last_stats
+            if not st.failed_bricks:  # failed bricks are settled below, with their causes
+                from clipvol.tools.partial import settle_unconverged
+
+                settle_unconverged("slice", args.out or args.npy or args.stats, converged=st.converged,
+                                   waited=not args.no_wait, selection=action.last_selection, clip=clip,
+                                   brick_gpu_bytes=action.cache.brick_texels * action.cache.format.itemsize,
+                                   texture_budget=params.texture_budget, timeout=args.timeout,
+                                   allow=args.allow_partial, unblended=action.last_missing_low)
+        late = clip.take_reads()  # what the loader threads read after the slice, until they stopped
     finally:
         ctx.release()
     from clipvol.render.failures import hatch_failed
@@ -213,7 +226,8 @@ def run(args) -> int:
 
     cam = action.last_camera
     rgba = settle_failed("slice", args.out or args.npy or args.stats, st.failed_bricks, rgba,
-                         lambda im: hatch_failed(im, cam, pyr, st.failed_bricks, plane=plane), args.allow_partial)
+                         lambda im: hatch_failed(im, cam, pyr, st.failed_bricks, plane=plane), args.allow_partial,
+                         strict=True)
     h, w = values.shape
     if cut is not None:  # outside the cut: transparent in the PNG, NaN in the values
         from clipvol.scene.plane import default_pixel_size
@@ -241,7 +255,9 @@ def run(args) -> int:
         _write_atomic(args.stats, lambda p: open(p, "w").write(json.dumps(doc, indent=1) + "\n"))
     levels = ", ".join(f"L{L}: {n}" for L, n in st.tiles_per_level.items()) or "none"
     print(f"slice {w}x{h}: tiles {st.tiles} ({levels}), {st.blended} blended, converged {st.converged}", file=sys.stderr)
-    read = "" if st.bytes_read is None else f"; read {format_bytes(st.bytes_read)} from storage"
+    read = "" if st.frame_bytes_read is None else (
+        f"; read {format_bytes(st.frame_bytes_read)} from storage for the slice's bricks and "
+        f"{format_bytes(st.prefetch_bytes_read + sum((late or {}).values()))} prefetched around them")
     print(f"bricks needed {st.bricks_needed} ({format_bytes(st.bytes_needed)}); loaded {format_bytes(st.bytes_loaded)}{read}; "
           f"uploaded {format_bytes(st.bytes_uploaded)}; total {st.times['total'] * 1000:.1f} ms", file=sys.stderr)
     if edges is not None:

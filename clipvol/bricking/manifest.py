@@ -12,12 +12,30 @@ inside the array notices. The manifest makes them answerable to one number in th
   without its index field disagreeing with its place, or the table's digest changing;
 * per level, the SHA-256 of every statistics array's values (``clipvol_stats/<L>/<name>``), so a
   statistics chunk swapped for another valid one is caught when the array is read;
+* per level, the metadata of every array the manifest covers - the level's array ``<L>`` and
+  every array under ``clipvol_stats/<L>/`` - as its ``zarr.json`` holds it, less the free-form
+  ``attributes``: data type, byte order and codec chain, fill value, shape, chunk grid and key
+  encoding. A level's ``zarr.json`` is what tells a reader how to decode its chunks; left outside
+  the root of trust, an edited byte order, a codec chain without its compressor or another fill
+  value makes verified bytes decode into wrong voxels, or unwritten bricks read back as something
+  else. Arrays are found by walking those folders, so an array added later beside a level's
+  statistics is pinned the same way without a change here;
+* the multiscale list of the root attributes (``attrs["ome"]["multiscales"]``: each level's path,
+  scale and translation), which places every level in the world (the rest of ``attrs["ome"]`` is
+  free to change: a label image's ``image-label`` block is written after its build);
 * ``manifest.json`` lists the tables with their SHA-256, and its own SHA-256 and length are
   recorded in the root attributes (``attrs["clipvol"]["manifest"]``).
 
+A reader compares the pinned metadata with the store's files (:func:`metadata_problems`): the
+levels' arrays and the multiscale list on opening, a level's other arrays when it first reads
+them; it refuses a store whose metadata differs, naming the level (or array) and the field; ``clipvol repair`` puts the pinned metadata back (:func:`restore_metadata`). A manifest
+written before metadata pins (no ``arrays`` in its levels) still verifies its chunks and
+statistics; :attr:`Manifest.metadata_pinned` is then False and the reader says so.
+
 Layout::
 
-    clipvol_manifest/manifest.json   {"format": 1, "levels": [{"grid", "table", "table_sha256", "stats"}]}
+    clipvol_manifest/manifest.json   {"format": 1, "multiscales": [...],
+                                      "levels": [{"grid", "table", "table_sha256", "stats", "arrays"}]}
     clipvol_manifest/<L>.bin         records of TABLE_DTYPE, C order over level L's brick grid
 
 Loading (:func:`load_manifest`) verifies the whole chain first; any break - no manifest recorded,
@@ -40,6 +58,7 @@ from pathlib import Path
 import numpy as np
 
 from .store import STAT_ARRAYS, STATS_GROUP
+from .store_files import MAX_METADATA_BYTES
 
 __all__ = [
     "MANIFEST_DIR",
@@ -51,6 +70,11 @@ __all__ = [
     "build_tables",
     "write_manifest",
     "load_manifest",
+    "read_manifest_doc",
+    "pinned_metadata",
+    "metadata_problems",
+    "metadata_pins",
+    "restore_metadata",
 ]
 
 MANIFEST_DIR = "clipvol_manifest"
@@ -83,6 +107,16 @@ class Manifest:
     tables: tuple[np.ndarray, ...]
     stats: tuple[dict[str, str], ...]
     sha256: str
+    #: per level, the pinned metadata of each array by its path in the store (None: a manifest
+    #: written before metadata pins)
+    arrays: tuple[dict[str, dict], ...] | None = None
+    #: the pinned ``attrs["ome"]["multiscales"]`` list (None: not pinned)
+    multiscales: list | None = None
+
+    @property
+    def metadata_pinned(self) -> bool:
+        """True when the manifest pins the arrays' metadata and the multiscale transforms."""
+        return self.arrays is not None
 
     def checks(self, level: int) -> np.ndarray:
         """``(gz, gy, gx, 5)`` float64: min, max, nan_count, inf_count, chunk crc32c (``-1``: none)."""
@@ -163,6 +197,197 @@ def _read_stats(path: Path, levels: int) -> list[dict[str, np.ndarray]]:
     return out
 
 
+def _zarr_json(path: Path, root: Path) -> dict:
+    """A ``zarr.json`` as a JSON object (a regular file inside the store, size-capped)."""
+    from .store_files import read_file
+
+    doc = json.loads(read_file(path, root, MAX_METADATA_BYTES))
+    if not isinstance(doc, dict):
+        raise ValueError(f"expected a JSON object, got {type(doc).__name__}")
+    return doc
+
+
+def _pinned_fields(doc: dict) -> dict:
+    """What the manifest pins of an array's ``zarr.json``: everything but its free-form ``attributes``."""
+    return {k: v for k, v in doc.items() if k != "attributes"}
+
+
+def level_array_paths(path: Path, level: int) -> list[str]:
+    """The arrays the manifest covers for ``level``, as paths inside the store: the level's own
+    array, then every array under ``clipvol_stats/<level>/`` (found by walking: an array added
+    there later is covered without a change here), sorted."""
+    out = [str(level)] if (path / str(level) / "zarr.json").is_file() else []
+    base = path / STATS_GROUP / str(level)
+    if base.is_dir():
+        for entry in sorted(os.scandir(base), key=lambda e: e.name):
+            if entry.is_dir(follow_symlinks=False) and os.path.isfile(os.path.join(entry.path, "zarr.json")):
+                out.append(f"{STATS_GROUP}/{level}/{entry.name}")
+    return out
+
+
+def pinned_metadata(path: str | Path, levels: int) -> tuple[list[dict[str, dict]], list | None]:
+    """Per level, ``{array path: its pinned zarr.json fields}``, and the root's multiscale list:
+    what :func:`write_manifest` records so that a reader can hold the store's metadata to it."""
+    path = Path(path)
+    arrays = []
+    for L in range(levels):
+        arrays.append({rel: _pinned_fields(_zarr_json(path / rel / "zarr.json", path))
+                       for rel in level_array_paths(path, L)})
+    attrs = _zarr_json(path / "zarr.json", path).get("attributes") or {}
+    ms = _multiscales_of(attrs)
+    return arrays, ms if isinstance(ms, list) else None
+
+
+def _short(v) -> str:
+    text = json.dumps(v, sort_keys=True)
+    return text if len(text) <= 240 else text[:237] + "..."
+
+
+#: how a message names a zarr.json field (the words the rest of clipvol uses for it)
+FIELD_WORDS = {"data_type": "dtype (data_type)", "chunk_grid": "chunks (chunk_grid)",
+               "chunk_key_encoding": "chunk key encoding (chunk_key_encoding)"}
+
+
+def _name(rel: str) -> str:
+    return f"level {rel}" if rel.isdigit() else rel
+
+
+def metadata_problems(root: str | Path, manifest: "Manifest", attrs: dict | None, *,
+                      levels_only: bool = False, level: int | None = None) -> list[str]:
+    """What differs between the metadata ``manifest`` pins and the store at ``root`` (``attrs``:
+    its root attributes, already read; None: the multiscale list is not compared): one line per
+    field, naming the level or array and the field, with both values ("level 1: codecs differ:
+    manifest has [...], zarr.json has [...]"). Empty when they agree, or when the manifest pins no
+    metadata (written before metadata pins). ``levels_only``: the levels' own arrays only (what a
+    reader needs on opening); ``level``: only that level's other arrays (its statistics, compared
+    when they are first read). An array whose ``zarr.json`` is absent or unreadable is left to the
+    checks of its data (a deleted statistics array differs from its digest; a level without
+    metadata cannot open)."""
+    if not manifest.metadata_pinned:
+        return []
+    root = Path(root)
+    out: list[str] = []
+    for L, per_level in enumerate(manifest.arrays or ()):
+        if level is not None and L != level:
+            continue
+        for rel, want in per_level.items():
+            if (levels_only and not rel.isdigit()) or (level is not None and rel.isdigit()):
+                continue
+            out.extend(_array_problems(root, rel, want))
+    want = manifest.multiscales
+    have = _multiscales_of(attrs) if attrs is not None else None
+    if attrs is not None and want is not None and have != want:
+        out.extend(_multiscale_problems(want, have))
+    return out
+
+
+def _array_problems(root: Path, rel: str, want: dict) -> list[str]:
+    """The fields of ``rel/zarr.json`` that differ from the pinned ``want``."""
+    where = _name(rel)
+    try:
+        have = _pinned_fields(_zarr_json(root / rel / "zarr.json", root))
+    except (OSError, ValueError):
+        # absent or not a readable file: not a difference of metadata but of data, which the
+        # reader refuses on its own terms (a level's array_meta, a statistics array's digest)
+        return []
+    out = []
+    for key in sorted(set(want) | set(have)):
+        word = FIELD_WORDS.get(key, key)
+        if key not in have:
+            out.append(f"{where}: {word} is missing from zarr.json (manifest has {_short(want[key])})")
+        elif key not in want:
+            out.append(f"{where}: {word} is in zarr.json ({_short(have[key])}) but not in the manifest")
+        elif have[key] != want[key]:
+            verb = "differ" if key in ("codecs", "chunk_grid") else "differs"
+            out.append(f"{where}: {word} {verb}: manifest has {_short(want[key])}, zarr.json has "
+                       f"{_short(have[key])}")
+    return out
+
+
+def _multiscales_of(attrs) -> list | None:
+    ome = attrs.get("ome") if isinstance(attrs, dict) else None
+    return ome.get("multiscales") if isinstance(ome, dict) else None
+
+
+def _multiscale_problems(want: list, have) -> list[str]:
+    """The differences of the root's multiscale list from the pinned one, per level where it can."""
+    try:
+        w_ds, h_ds = want[0]["datasets"], have[0]["datasets"]
+        assert isinstance(w_ds, list) and isinstance(h_ds, list)
+    except (TypeError, KeyError, IndexError, AssertionError):
+        return [f"attrs['ome']['multiscales'] differs: manifest has {_short(want)}, zarr.json has {_short(have)}"]
+    out = []
+    for L in range(max(len(w_ds), len(h_ds))):
+        if L >= len(h_ds):
+            out.append(f"level {L}: missing from the multiscales list (attrs['ome']['multiscales'][0]['datasets'] "
+                       f"has {len(h_ds)} entries, the manifest {len(w_ds)}: manifest has {_short(w_ds[L])})")
+        elif L >= len(w_ds):
+            out.append(f"level {L}: an extra multiscales entry {_short(h_ds[L])} (the manifest has {len(w_ds)})")
+        elif h_ds[L] != w_ds[L]:
+            out.append(f"level {L}: multiscale transform differs: manifest has {_short(w_ds[L])}, "
+                       f"zarr.json has {_short(h_ds[L])}")
+    w0 = [{k: v for k, v in m.items() if k != "datasets"} if isinstance(m, dict) else m for m in want]
+    h0 = [{k: v for k, v in m.items() if k != "datasets"} if isinstance(m, dict) else m for m in have]
+    if w0 != h0:
+        out.append(f"attrs['ome']['multiscales'] differs outside the level transforms (axes, name, type): manifest "
+                   f"has {_short(w0)}, zarr.json has {_short(h0)}")
+    return out
+
+
+def restore_metadata(root: str | Path) -> list[str]:
+    """Put back the metadata the store's verified manifest pins: each array's ``zarr.json`` fields
+    (its ``attributes`` kept) and the root's multiscale list, each file rewritten through a
+    temporary name and an atomic rename (an absent one is left to the rebuild of its data). Returns
+    what was restored, one entry per file (empty: nothing
+    differed, or the manifest pins no metadata). Raises :class:`ManifestError` when the manifest
+    does not verify: then nothing vouches for any metadata and nothing is written."""
+    root = Path(root)
+    top = _zarr_json(root / "zarr.json", root)
+    attrs = top.get("attributes") if isinstance(top.get("attributes"), dict) else {}
+    cv = attrs.get("clipvol") if isinstance(attrs.get("clipvol"), dict) else {}
+    doc = read_manifest_doc(root, cv)
+    manifest = metadata_pins(doc)
+    if not manifest.metadata_pinned:
+        return []
+    done = []
+    for per_level in manifest.arrays or ():
+        for rel, want in per_level.items():
+            p = root / rel / "zarr.json"
+            try:
+                old = _zarr_json(p, root)
+            except (OSError, ValueError):
+                continue  # absent or unreadable: rebuilt with its data (statistics), or refused on opening
+            if _pinned_fields(old) == want:
+                continue
+            new = dict(want)
+            new["attributes"] = old.get("attributes", {}) if isinstance(old.get("attributes", {}), dict) else {}
+            p.parent.mkdir(parents=True, exist_ok=True)
+            _atomic_write(p, json.dumps(new, indent=2).encode())
+            done.append(f"{_name(rel)} ({rel}/zarr.json)")
+    if manifest.multiscales is not None and _multiscales_of(attrs) != manifest.multiscales:
+        attrs = dict(attrs)
+        attrs["ome"] = {**(attrs.get("ome") if isinstance(attrs.get("ome"), dict) else {}),
+                        "multiscales": manifest.multiscales}
+        top = dict(top)
+        top["attributes"] = attrs
+        _atomic_write(root / "zarr.json", json.dumps(top, indent=2).encode())
+        done.append("the multiscale transforms (attrs['ome']['multiscales'] in zarr.json)")
+    return done
+
+
+def metadata_pins(doc: dict) -> "Manifest":
+    """A :class:`Manifest` holding only the metadata pins of a verified ``manifest.json`` document."""
+    levels = doc.get("levels") or []
+    arrays = []
+    for lv in levels:
+        a = lv.get("arrays") if isinstance(lv, dict) else None
+        if not isinstance(a, dict) or not all(isinstance(v, dict) for v in a.values()):
+            return Manifest((), (), "", None, None)
+        arrays.append({str(k): v for k, v in a.items()})
+    ms = doc.get("multiscales")
+    return Manifest((), (), "", tuple(arrays), ms if isinstance(ms, list) else None)
+
+
 def write_manifest(path: str | Path, grids: list[tuple[int, int, int]]) -> dict:
     """Write ``clipvol_manifest/`` for the store at ``path`` (level brick grids ``grids``) and return
     the entry for ``attrs["clipvol"]["manifest"]`` (``sha256`` and ``bytes`` of manifest.json).
@@ -172,6 +397,7 @@ def write_manifest(path: str | Path, grids: list[tuple[int, int, int]]) -> dict:
     """
     path = Path(path)
     tables, digests = build_tables(path, grids)
+    arrays, multiscales = pinned_metadata(path, len(grids))
     out = path / MANIFEST_DIR
     out.mkdir(exist_ok=True)
     levels = []
@@ -179,8 +405,11 @@ def write_manifest(path: str | Path, grids: list[tuple[int, int, int]]) -> dict:
         data = t.tobytes()
         _atomic_write(out / f"{L}.bin", data)
         levels.append({"grid": list(t.shape), "table": f"{L}.bin", "table_sha256": hashlib.sha256(data).hexdigest(),
-                       "stats": d})
-    doc = json.dumps({"format": MANIFEST_FORMAT, "levels": levels}, indent=1, sort_keys=True).encode()
+                       "stats": d, "arrays": arrays[L]})
+    top = {"format": MANIFEST_FORMAT, "levels": levels}
+    if multiscales is not None:
+        top["multiscales"] = multiscales
+    doc = json.dumps(top, indent=1, sort_keys=True).encode()
     _atomic_write(out / "manifest.json", doc)
     return {"sha256": hashlib.sha256(doc).hexdigest(), "bytes": len(doc)}
 
@@ -194,13 +423,9 @@ def _atomic_write(p: Path, data: bytes) -> None:
     os.replace(tmp, p)
 
 
-def load_manifest(root: str | Path, cv: dict, grids: list[tuple[int, int, int]]) -> Manifest:
-    """The verified manifest of the store at ``root`` (``cv``: its ``attrs["clipvol"]``).
-
-    Raises :class:`ManifestError` saying why the store is unverified: no manifest recorded (a store
-    written before manifests), a file missing, unreadable or not a regular file inside the store,
-    a SHA-256 that differs, or a table whose records do not match the level's grid or their places.
-    """
+def read_manifest_doc(root: str | Path, cv: dict) -> dict:
+    """The store's ``manifest.json`` as a JSON object, once its SHA-256 and length match the entry
+    recorded in the root attributes (``cv``: ``attrs["clipvol"]``); :class:`ManifestError` says why not."""
     from .store_files import read_file
 
     root = Path(root)
@@ -222,11 +447,29 @@ def load_manifest(root: str | Path, cv: dict, grids: list[tuple[int, int, int]])
         raise ManifestError(f"{where} does not match the checksum recorded in the root metadata")
     try:
         doc = json.loads(doc_bytes)
-        levels = doc["levels"]
-        if doc.get("format") != MANIFEST_FORMAT or not isinstance(levels, list):
+        if not isinstance(doc, dict) or doc.get("format") != MANIFEST_FORMAT or not isinstance(doc["levels"], list):
             raise ValueError("unknown format")
     except (ValueError, KeyError, TypeError) as e:
         raise ManifestError(f"{where} is malformed ({e})") from None
+    doc["sha256"] = entry["sha256"]
+    return doc
+
+
+def load_manifest(root: str | Path, cv: dict, grids: list[tuple[int, int, int]], doc: dict | None = None) -> Manifest:
+    """The verified manifest of the store at ``root`` (``cv``: its ``attrs["clipvol"]``; ``doc``:
+    its :func:`read_manifest_doc` when already read).
+
+    Raises :class:`ManifestError` saying why the store is unverified: no manifest recorded (a store
+    written before manifests), a file missing, unreadable or not a regular file inside the store,
+    a SHA-256 that differs, or a table whose records do not match the level's grid or their places.
+    """
+    from .store_files import read_file
+
+    root = Path(root)
+    if doc is None:
+        doc = read_manifest_doc(root, cv)
+    where = f"{MANIFEST_DIR}/manifest.json"
+    levels = doc["levels"]
     if len(levels) != len(grids):
         raise ManifestError(f"{where} lists {len(levels)} levels, the store has {len(grids)}")
     tables, stats = [], []
@@ -249,4 +492,5 @@ def load_manifest(root: str | Path, cv: dict, grids: list[tuple[int, int, int]])
             raise ManifestError(f"{MANIFEST_DIR}/{L}.bin: a record is not at its brick's place")
         tables.append(t)
         stats.append({str(k): str(v) for k, v in lv["stats"].items()})
-    return Manifest(tuple(tables), tuple(stats), entry["sha256"])
+    pins = metadata_pins(doc)
+    return Manifest(tuple(tables), tuple(stats), doc["sha256"], pins.arrays, pins.multiscales)

@@ -266,11 +266,21 @@ class _Gate:
                 self._cv.notify_all()
 
     def __enter__(self) -> "_Gate":
+        self.acquire(None)
+        return self
+
+    def acquire(self, timeout: float | None) -> bool:
+        """Take a slot, waiting at most ``timeout`` seconds (None: for as long as it takes);
+        False when none came free in time."""
+        end = None if timeout is None else time.monotonic() + timeout
         with self._cv:
             while self.busy >= self.capacity:
-                self._cv.wait()
+                left = None if end is None else end - time.monotonic()
+                if left is not None and left <= 0:
+                    return False
+                self._cv.wait(left)
             self.busy += 1
-        return self
+        return True
 
     def __exit__(self, *exc) -> None:
         with self._cv:
@@ -306,12 +316,18 @@ class FsspecByteSource:
         Seconds without a byte arriving before a request counts as stalled (default 10).
     cache : str or Path, optional
         Directory of an on-disk :class:`ChunkCache`.
+    deadline : float, optional
+        A :func:`time.monotonic` instant after which no request waits, starts or goes on: a
+        one-shot command's ``--timeout`` bounding the whole command. A request in flight is given
+        at most the time left (an HTTP request's whole answer, however slowly it trickles in: a
+        per-read timeout alone lets a server that sends a byte a second hold it for ever), and a
+        key asked for after it fails at once (:class:`RemoteStoreError` naming the time limit).
     """
 
     def __init__(self, url: str, *, storage_options: dict | None = None, max_in_flight: int | None = DEFAULT_IN_FLIGHT,
                  retries: int = 5, backoff: float = 0.05, timeout: float | None = None,
                  connect_timeout: float = DEFAULT_CONNECT_TIMEOUT, read_timeout: float = DEFAULT_READ_TIMEOUT,
-                 cache: str | Path | None = None) -> None:
+                 cache: str | Path | None = None, deadline: float | None = None) -> None:
         try:
             import fsspec
         except ImportError:  # pragma: no cover
@@ -335,8 +351,11 @@ class FsspecByteSource:
         self.max_requests = MAX_IN_FLIGHT if self.adaptive else self.max_in_flight
         self.retries, self.backoff, self.timeout = int(retries), float(backoff), float(timeout)
         self.connect_timeout, self.read_timeout = float(connect_timeout), float(read_timeout)
+        #: time.monotonic() instant past which nothing is read (None: no limit beyond ``timeout`` per key)
+        self.deadline = None if deadline is None else float(deadline)
         opts = dict(storage_options or {})
         proto = urlsplit(self.url).scheme.lower()
+        self._http = proto in ("http", "https") and "client_kwargs" not in opts
         if proto in ("http", "https") and "client_kwargs" not in opts:
             import aiohttp
 
@@ -416,20 +435,56 @@ class FsspecByteSource:
         if self.cache is not None:
             self.cache.drop(_check_key(key))
 
+    def _out_of_time(self, key: str) -> RemoteStoreError:
+        return RemoteStoreError(f"{self.display_url}: cannot read {key}: the time limit ran out (--timeout; "
+                                "a server that answers this slowly cannot be waited for)")
+
+    def _cat(self, path: str, byte_range, start: float) -> bytes:
+        """One request for ``path`` (a byte range or all of it), its whole answer bounded by what is
+        left of the key's budget (``timeout``, counted from ``start``) and of the deadline - not only
+        each socket read, which a server sending a byte a second never trips."""
+        a, b = (None, None) if byte_range is None else byte_range
+        left = None
+        if self._http or self.deadline is not None:
+            left = self.timeout - (time.monotonic() - start)
+            if self.deadline is not None:
+                left = min(left, self.deadline - time.monotonic())
+            left = max(0.05, left)
+        if self._http:
+            import aiohttp
+            from fsspec.asyn import sync
+
+            limit = aiohttp.ClientTimeout(total=left, connect=self.connect_timeout, sock_connect=self.connect_timeout,
+                                          sock_read=self.read_timeout)
+
+            async def one():
+                return await self.fs._cat_file(path, start=a, end=b, timeout=limit)
+
+            return bytes(sync(self.fs.loop, one))
+        if left is not None and getattr(self.fs, "async_impl", False):  # fsspec's own bound of the whole call
+            return bytes(self.fs.cat_file(path, start=a, end=b, timeout=left))
+        if byte_range is None:
+            return bytes(self.fs.cat_file(path))
+        return bytes(self.fs.cat_file(path, start=a, end=b))
+
     def _fetch(self, key: str, byte_range: tuple[int, int | None] | None = None) -> bytes | None:
         path = self._full(key)
         attempt = 0
         start = time.monotonic()
         while True:
-            with self._gate:
+            if self.deadline is not None:  # waiting for a slot counts against the deadline too
+                if not self._gate.acquire(max(0.0, self.deadline - time.monotonic())):
+                    raise self._out_of_time(key)
+            else:
+                self._gate.acquire(None)
+            try:
+                if self.deadline is not None and time.monotonic() >= self.deadline:
+                    raise self._out_of_time(key)
                 with self._count_lock:
                     self.requests += 1
                 try:
                     sent = time.monotonic()
-                    if byte_range is None:
-                        data = bytes(self.fs.cat_file(path))
-                    else:
-                        data = bytes(self.fs.cat_file(path, start=byte_range[0], end=byte_range[1]))
+                    data = self._cat(path, byte_range, start)
                 except Exception as e:  # the storage libraries raise many types: classify them
                     kind = _classify(e)
                     if kind == "absent":
@@ -440,6 +495,8 @@ class FsspecByteSource:
                     # no retry that could not finish within the budget: a stalled server is given up on
                     spent = time.monotonic() - start
                     over = kind == "retry" and spent + wait + self.read_timeout > self.timeout
+                    if kind != "fatal" and self.deadline is not None and time.monotonic() + wait >= self.deadline:
+                        raise self._out_of_time(key) from None
                     if kind == "fatal" or attempt >= self.retries or over:
                         tail = f" after {attempt + 1} attempts" if kind == "retry" else ""
                         if over and attempt < self.retries:
@@ -453,6 +510,8 @@ class FsspecByteSource:
                     if resize:
                         self._resize()
                     return data
+            finally:
+                self._gate.__exit__()
             attempt += 1
             with self._count_lock:
                 self.retried += 1

@@ -50,7 +50,7 @@ from ..units import parse_bytes
 from .cells import cell_edges, cell_ranges
 from .loader import BrickKey, HasBrickRanges, HasReadPlan, Loader, check_brick
 from .queue import LoadQueue
-from .readcount import bytes_read_of
+from .readcount import ReadCounter, bytes_read_of
 from .region import Region
 from .toroidal import (
     Allocation,
@@ -75,6 +75,10 @@ RATE_WINDOW_S = 5.0
 LATENCY_SAMPLES = 2048
 #: longest sleep of an idle loader thread before it checks that its clip-texture still exists
 IDLE_POLL_S = 1.0
+#: distinct bricks whose reads are kept apart between two take_reads() calls (a caller that never
+#: takes them - no render action - must not grow the table without bound); reads of further bricks
+#: are summed under the key None, which no frame draws (they count as prefetch)
+MAX_READ_KEYS = 1 << 17
 #: bytes between the writes that pre-fault the slot pool (the smallest page size of the platforms we run on)
 _PAGE = 4096
 
@@ -311,12 +315,19 @@ class ClipTexture:
         self._fill_cells = None if cells is None else cell_ranges(self._fill_brick, self.cell_edges)
         self._skipped_empty = 0
         self._closing = False
+        #: seconds ``with`` waits for the loader threads on leaving (a command bounded by a
+        #: deadline sets what is left of it: a thread stuck in a read is a daemon and is left behind)
+        self.close_timeout: float | None = 5.0
         self._pending = 0  # bricks QUEUED or LOADING (recounted on every move, decremented per outcome)
         self._watched: dict[tuple[int, Int3], list[_Countdown]] = {}  # brick -> wait_for calls waiting on it
         self.failures: dict[BrickKey, BaseException] = {}
         self.residency_version = 0
         self._loads_total = 0
         self._bytes_total = 0
+        #: bytes read from storage per brick since the last take_reads(), charged by the loader thread
+        #: that read them (the loader's read_counter, per thread); None: the loader does not count
+        self._reads_by_key: dict[tuple[int, Int3], int] | None = (
+            {} if isinstance(getattr(self.loader, "read_counter", None), ReadCounter) else None)
         self._retries = 0
         self._dropped = 0
         self._events: deque[tuple[float, int]] = deque()  # (done time, bytes) in the rate window
@@ -619,6 +630,22 @@ class ClipTexture:
             self._cv.notify_all()
         return requeued
 
+    def take_reads(self) -> dict[tuple[int, Int3] | None, int] | None:
+        """Bytes read from storage per brick ``(level, index)`` by this clip-texture's loads since the
+        previous call (or since it was made), and forget them; None when the loader does not count.
+        Past :data:`MAX_READ_KEYS` distinct bricks, further bricks' reads are summed under ``None``.
+
+        Why per brick and taken, not a difference of the loader's total: loader threads keep
+        filling the windows around the centre while and after a frame draws, so the bytes read
+        between two instants depend on timing. Charged per brick and taken once, every read is
+        counted exactly once: the caller splits them into the bricks its frame drew and the rest
+        (the prefetch), and the same work reports the same bytes."""
+        with self._cv:
+            if self._reads_by_key is None:
+                return None
+            out, self._reads_by_key = self._reads_by_key, {}
+            return out
+
     def wait_until_idle(self, timeout: float | None = None) -> bool:
         """Block until no brick is queued or loading; ``False`` if ``timeout`` seconds passed first."""
         with self._cv:
@@ -731,7 +758,7 @@ class ClipTexture:
         return self
 
     def __exit__(self, *exc) -> None:
-        self.close()
+        self.close(self.close_timeout)
 
     def __repr__(self) -> str:
         return (
@@ -980,6 +1007,8 @@ class ClipTexture:
         """
         L, s, gen, idx, empty = job
         into = self._read_into is not None and not empty
+        counter = self.loader.read_counter if self._reads_by_key is not None else None
+        read0 = counter.thread_bytes() if counter is not None else 0
         t0 = time.perf_counter()
         err: BaseException | None = None
         brick = None
@@ -998,7 +1027,12 @@ class ClipTexture:
             data = self._levels[L].pool[s] if into else brick
             cells = self._fill_cells if empty else cell_ranges(data, self.cell_edges)
         report = None
+        nread = counter.thread_bytes() - read0 if counter is not None else 0
         with self._cv:
+            if nread:  # charged whatever became of the load: the bytes were read
+                rk = self._reads_by_key
+                key = (L, idx) if len(rk) < MAX_READ_KEYS or (L, idx) in rk else None  # None: "other bricks"
+                rk[key] = rk.get(key, 0) + nread
             if into:
                 self._levels[L].busy[s] = False
                 if self._queue.unpark(L, s):

@@ -8,7 +8,10 @@ numpy loader after slicing its (memory-mapped) source, a remote byte source afte
 and the clip-texture, the render actions and the benchmarks report differences of its totals.
 
 The counter is shared by every thread that reads through the loader (one small lock; a chunk read
-is a system call or a network round trip, so the lock is noise beside it).
+is a system call or a network round trip, so the lock is noise beside it). It also keeps a running
+total per thread (:meth:`ReadCounter.thread_bytes`): a loader thread of the clip-texture takes the
+difference around one brick's load, so each read is charged to the brick that caused it - the
+frame's bricks apart from the prefetch's - however many threads read at once.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass
 
-__all__ = ["ReadCounter", "ReadTotals", "bytes_read_of"]
+__all__ = ["ReadCounter", "ReadTotals", "bytes_read_of", "split_reads"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -33,18 +36,26 @@ class ReadTotals:
 class ReadCounter:
     """Thread-safe running totals of bytes read from storage and of read calls."""
 
-    __slots__ = ("_lock", "_bytes", "_reads")
+    __slots__ = ("_lock", "_bytes", "_reads", "_local")
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._bytes = 0
         self._reads = 0
+        self._local = threading.local()
 
     def add(self, nbytes: int) -> None:
-        """Count one read of ``nbytes`` bytes."""
+        """Count one read of ``nbytes`` bytes (in the totals and in the calling thread's own)."""
+        n = int(nbytes)
         with self._lock:
-            self._bytes += int(nbytes)
+            self._bytes += n
             self._reads += 1
+        self._local.bytes = getattr(self._local, "bytes", 0) + n
+
+    def thread_bytes(self) -> int:
+        """Bytes counted so far by reads made in the calling thread (a difference of two calls is
+        what the reads between them cost, whatever other threads read meanwhile)."""
+        return getattr(self._local, "bytes", 0)
 
     @property
     def bytes(self) -> int:
@@ -70,3 +81,21 @@ def bytes_read_of(loader) -> int | None:
     does not count (a custom loader need not: the figures are then absent, never guessed)."""
     counter = getattr(loader, "read_counter", None)
     return counter.bytes if isinstance(counter, ReadCounter) else None
+
+
+def split_reads(reads: dict | None, keys) -> tuple[int, int] | tuple[None, None]:
+    """``(frame, other)``: the bytes of ``reads`` (a clip-texture's :meth:`take_reads`, per brick
+    ``(level, index)``, or None for reads summed past its table's size) charged to the bricks ``keys`` (``(n, 4)`` rows ``(level, z, y, x)``, the
+    bricks a frame drew or wanted; repeats counted once) and to all the others (the prefetch);
+    ``(None, None)`` when the loader does not count."""
+    if reads is None:
+        return None, None
+    total = sum(reads.values())
+    frame = 0
+    seen = set()
+    for row in getattr(keys, "tolist", lambda: keys)():
+        k = (int(row[0]), (int(row[1]), int(row[2]), int(row[3])))
+        if k not in seen:
+            seen.add(k)
+            frame += reads.get(k, 0)
+    return frame, total - frame

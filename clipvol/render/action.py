@@ -262,7 +262,8 @@ class ClipRenderAction:
         self.last_selection = sel
         self.last_frame_stats = frame_stats(
             sel, plan, times, self.cache, self.params.texture_budget, self.clip_texture,
-            bytes_read=None if read0 is None else bytes_read_of(self.clip_texture.loader) - read0)
+            bytes_read=None if read0 is None else bytes_read_of(self.clip_texture.loader) - read0,
+            reads=self.clip_texture.take_reads())
         return image
 
     def render_items(self, camera, transfer_function, items) -> np.ndarray:

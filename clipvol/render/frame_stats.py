@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..paging.readcount import split_reads
 from ..rows import unique_rows
 from .failures import failed_bricks
 
@@ -45,6 +46,13 @@ class FrameStats:
         Bytes the loader read from storage during the call (chunk files or network responses,
         the clip-texture's prefetch included; :mod:`clipvol.paging.readcount`), ``None`` for a
         loader that does not count its reads.
+    frame_bytes_read, prefetch_bytes_read : int or None
+        Bytes read from storage since the previous frame, charged per brick by the loader thread
+        that read them (:meth:`clipvol.paging.cliptexture.ClipTexture.take_reads`): those of the
+        bricks this frame drew or wanted, and those of every other brick (the windows filled around
+        the centre of interest). Each read is counted once, in one frame's figures, so the same
+        work reports the same bytes (``bytes_read``, a difference of the loader's total between two
+        instants, also holds whatever loader threads read meanwhile). ``None``: not counted.
     failed_bricks : tuple of FailedBrick
         Wanted bricks that failed to load, each with its cause and the ancestor drawn in its place
         (:mod:`clipvol.render.failures`); :attr:`unreplaced` are those drawn by nothing.
@@ -64,6 +72,8 @@ class FrameStats:
     counts: dict = field(default_factory=dict)
     bytes_read: int | None = None
     failed_bricks: tuple = ()
+    frame_bytes_read: int | None = None
+    prefetch_bytes_read: int | None = None
 
     @property
     def unreplaced(self) -> tuple:
@@ -72,10 +82,11 @@ class FrameStats:
 
 
 def frame_stats(sel, plan, times: dict, cache, texture_budget: int, clip_texture,
-                bytes_read: int | None = None) -> FrameStats:
+                bytes_read: int | None = None, reads: dict | None = None) -> FrameStats:
     """The :class:`FrameStats` of a frame that drew selection ``sel`` after the frame loop's ``plan``
     (:class:`~clipvol.render.frame_loop.FrameLoop`), with GPU cache ``cache``."""
     keys = sel.item_keys()
+    frame_read, other_read = split_reads(reads, np.concatenate([keys, sel.wanted_keys()]))
     levels, per = np.unique(keys[:, 0], return_counts=True)
     per_level = dict(zip(levels.tolist(), per.tolist()))
     distinct = len(unique_rows(keys)) if len(keys) else 0
@@ -85,5 +96,5 @@ def frame_stats(sel, plan, times: dict, cache, texture_budget: int, clip_texture
         bricks_uploaded=plan.bricks_uploaded, texture_bytes=cache.texture_bytes,
         texture_budget=texture_budget, times=times, converged=plan.converged, passes=plan.passes,
         items_drawn=len(sel.items), counts=dict(sel.counts), failed_bricks=failed_bricks(sel, clip_texture),
-        bytes_read=bytes_read,
+        bytes_read=bytes_read, frame_bytes_read=frame_read, prefetch_bytes_read=other_read,
     )

@@ -46,7 +46,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..scene.params import RenderParams
 from ..scene.plane import Plane, default_pixel_size, default_size
-from ..paging.readcount import bytes_read_of
+from ..paging.readcount import bytes_read_of, split_reads
 from ..scene.selection.policies.plane import PlaneCut
 from ..scene.slice_region import slice_region
 from .failures import failed_bricks
@@ -94,6 +94,10 @@ class SliceStats:
         does not count.
     region_bricks : int
         Bricks of the region of interest handed to the clip-texture (0 with cube windows).
+    frame_bytes_read, prefetch_bytes_read : int or None
+        Bytes read from storage since the previous slice for the bricks this slice drew (tiles and
+        blend parents) or wanted, and for every other brick (the prefetch), each read counted
+        once (see :class:`clipvol.render.frame_stats.FrameStats`); ``None``: not counted.
     """
 
     tiles_per_level: dict[int, int]
@@ -111,6 +115,8 @@ class SliceStats:
     region_bricks: int = 0
     #: wanted bricks that failed to load, with cause and stand-in (:mod:`clipvol.render.failures`)
     failed_bricks: tuple = ()
+    frame_bytes_read: int | None = None
+    prefetch_bytes_read: int | None = None
 
     @property
     def unreplaced(self) -> tuple:
@@ -124,6 +130,7 @@ class SliceStats:
                     bytes_loaded=self.bytes_loaded, bytes_uploaded=self.bytes_uploaded,
                     bricks_uploaded=self.bricks_uploaded, converged=self.converged,
                     balance_splits=self.balance_splits, times=dict(self.times), bytes_read=self.bytes_read,
+                    frame_bytes_read=self.frame_bytes_read, prefetch_bytes_read=self.prefetch_bytes_read,
                     region_bricks=self.region_bricks,
                     failed_bricks=[dict(level=f.level, index=list(f.index), cause=f.cause,
                                         stand_in=None if f.stand_in is None else [f.stand_in[0], list(f.stand_in[1])])
@@ -302,7 +309,11 @@ class SliceAction:
         for it in sel.items:
             per_level[it.level] = per_level.get(it.level, 0) + 1
         needed = {(it.level, tuple(it.index)) for it in sel.items} | set(low.values())
+        keys = [(L, *idx) for L, idx in needed] + sel.wanted_keys().tolist()
+        frame_read, other_read = split_reads(self.clip_texture.take_reads(), keys)
         self.last_selection, self.last_camera = sel, cam  # the camera that maps world points to its pixels
+        #: blend parents that could not be made drawable: their tiles are drawn unblended (not converged)
+        self.last_missing_low = list(missing_low)
         self.last_values, self.last_levels, self.last_ratios = values, levels, ratios
         self.last_stats = SliceStats(
             tiles_per_level=dict(sorted(per_level.items())), tiles=len(sel.items), blended=len(low),
@@ -310,7 +321,8 @@ class SliceAction:
             bytes_loaded=self.clip_texture.stats.bytes_loaded - loaded0, bytes_uploaded=up_bytes,
             bricks_uploaded=up_bricks, converged=converged, balance_splits=int(sel.counts.get("balance_splits", 0)),
             times=times, bytes_read=None if read0 is None else bytes_read_of(self.clip_texture.loader) - read0,
-            region_bricks=region_bricks, failed_bricks=failed_bricks(sel, self.clip_texture))
+            region_bricks=region_bricks, failed_bricks=failed_bricks(sel, self.clip_texture),
+            frame_bytes_read=frame_read, prefetch_bytes_read=other_read)
         return (rgba, values) if return_values else rgba
 
     def _scroll_step(self, plane: Plane) -> float:

@@ -60,12 +60,28 @@ def _err(capsys):
     return err
 
 
-def test_a_level_whose_zarr_json_is_broken_draws_from_the_next_and_says_so(store, tmp_path, capsys):
+def test_a_level_whose_zarr_json_is_edited_is_refused_naming_the_level(store, tmp_path, capsys):
+    """The manifest pins each level's metadata: an edited codec chain is refused on opening (it
+    was once drawn wholly from the next level, exit 0)."""
     _swap_codecs(store, 0)
     out = tmp_path / "a.png"
-    assert main(["render", str(store), "-o", str(out), *FIXED]) == 0
+    assert main(["render", str(store), "-o", str(out), *FIXED]) == 2
     err = _err(capsys)
-    assert "note: 64 failed brick(s) drawn from a coarser verified ancestor" in err and "level 0" in err
+    assert "metadata differs from the store's manifest: level 0: codecs differ" in err
+    assert not out.exists()
+
+
+def test_failed_bricks_drawn_from_ancestors_exit_3_unless_allow_partial(store, tmp_path, capsys):
+    """A one-shot render promises what was asked: level 0. Corrupt level-0 chunks with sound
+    ancestors are refused (exit 3); --allow-partial draws the ancestors and says so."""
+    n = _damage_chunks(store, 0, lambda z, y, x: z == 0)
+    out = tmp_path / "a.png"
+    assert main(["render", str(store), "-o", str(out), *FIXED]) == 3
+    err = _err(capsys)
+    assert f"{n} brick(s) of the view failed ({n} drawn from a coarser verified ancestor, not at the level asked)" in err
+    assert "--allow-partial" in err and not out.exists()
+    assert main(["render", str(store), "-o", str(out), *FIXED, "--allow-partial"]) == 0
+    assert f"note: {n} failed brick(s) drawn from a coarser verified ancestor" in _err(capsys)
     assert out.exists()
 
 
@@ -86,13 +102,13 @@ def test_a_level_zarr_json_with_another_dtype_or_chunk_shape_is_one_line(store, 
 
 def test_every_level_broken_exits_3_naming_bricks_and_writes_nothing(store, tmp_path, capsys):
     for L in range(3):
-        _swap_codecs(store, L)
+        _damage_chunks(store, L)
     out = tmp_path / "a.png"
     assert main(["render", str(store), "-o", str(out), *FIXED]) == 3
     err = _err(capsys)
     line = [ln for ln in err.splitlines() if "error" in ln]
     assert len(line) == 1 and "64 brick(s)" in line[0] and "brick (level 0, " in line[0] and "and 61 more" in line[0]
-    assert "codec" in line[0]  # the cause
+    assert "0/c/" in line[0]  # the cause names the chunk
     assert not out.exists()
 
 
