@@ -91,7 +91,7 @@ class IntegrityChecks:
                           "statistics check; `clipvol check --all` reads every brick)")
         else:
             try:
-                self._manifest = load_manifest(self.path, clipvol_attrs,
+                self._manifest = load_manifest(self.meta_path, clipvol_attrs,
                                                [self._pyramid.grid(L) for L in range(self._pyramid.num_levels)])
                 self.verified = True
                 self.trust = f"verified: manifest sha256 {self._manifest.sha256[:16]}... pins every brick's chunk and statistics"
@@ -269,7 +269,7 @@ class IntegrityChecks:
             if level in self._stats:
                 return self._stats[level]
         stats: dict[str, np.ndarray] | None = {}
-        base = self.path / STATS_GROUP / str(level)
+        base = self.meta_path / STATS_GROUP / str(level)
         if base.is_dir():
             import zarr
 
