@@ -67,6 +67,11 @@ def run_image_info(args: argparse.Namespace, where) -> int:
             print(f"statistics {'do not match the manifest: ' + '; '.join(bad) if bad else 'per brick, matching the manifest'}")
             print(f"value range {pyr.value_range[0]:g} .. {pyr.value_range[1]:g}")
             if not meta.complete or bad or not loader.verified:
+                import sys
+
+                why = ("incomplete (an interrupted build: re-run the same clipvol brick command)" if not meta.complete
+                       else "statistics do not match the manifest" if bad else loader.trust)
+                print(f"clipvol info: {where} ({label}): {why}", file=sys.stderr)
                 rc = 1
         finally:
             close = getattr(loader, "close", None)
