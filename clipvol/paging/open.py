@@ -143,4 +143,5 @@ def _open_member(path: Path, axis: str, n: int, kwargs: dict):
         raise ParameterError(f"{axis}: expected 0..{n - 1} for {path} ({n} {what}), got {k!r}")
     loader = _construct(ZarrLoader, path / axis / str(int(k)), kwargs)
     loader.axes, loader.lead_shape = (axis,), (n,)
+    loader.set_root = path  # where the other members are opened from (clipvol.app.timeseries.series_loaders)
     return loader
