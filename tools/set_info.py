@@ -39,9 +39,11 @@ def run_image_info(args: argparse.Namespace, where) -> int:
     """``clipvol info`` of a version-2 set (one 4-D OME-Zarr image) at a path or URL; None-free:
     returns the exit status (0, or 1 when a member is incomplete, unverified or its statistics
     disagree with its manifest)."""
+    from clipvol.tools import cmd_info
     from clipvol.tools.cmd_check import set_members
-    from clipvol.tools.cmd_info import _stats_problems, trust_line
     from clipvol.tools.remote_args import remote_kwargs
+
+    _stats_problems, trust_line = cmd_info._stats_problems, cmd_info.trust_line
 
     members = set_members(where, **remote_kwargs(args))
     rc = 0
