@@ -72,16 +72,25 @@ class Quantiser:
         lo, hi = (float(v) for v in pyr.value_range)
         return cls("uniform", lo, hi)
 
-    def __call__(self, v: np.ndarray) -> np.ndarray:
-        """``(..)`` int64 level of each value (NaN gives 0: mask NaN apart before use)."""
+    def __call__(self, v: np.ndarray, dtype=np.int64) -> np.ndarray:
+        """``(..)`` level of each value as ``dtype`` (NaN gives 0: mask NaN apart before use).
+
+        The float64 steps run in place on one temporary (the tables quantise every voxel of every
+        level twice: each pass over the data counts)."""
         if self.method == "identity":
-            return v.astype(np.int64)
-        x = np.asarray(v, dtype=np.float64)
+            return v.astype(dtype)
         width = self.hi - self.lo
         with np.errstate(invalid="ignore", over="ignore"):
-            t = (x - self.lo) / width * SUMMARY_BINS if width > 0 else np.where(x > self.lo, SUMMARY_BINS - 1.0, 0.0)
-        t = np.nan_to_num(t, nan=0.0, posinf=SUMMARY_BINS - 1.0, neginf=0.0)
-        return np.clip(np.floor(t), 0, SUMMARY_BINS - 1).astype(np.int64)
+            if width > 0:
+                t = np.subtract(v, self.lo, dtype=np.float64)
+                t /= width
+                t *= SUMMARY_BINS
+            else:
+                t = np.where(np.asarray(v, dtype=np.float64) > self.lo, SUMMARY_BINS - 1.0, 0.0)
+        np.nan_to_num(t, copy=False, nan=0.0, posinf=SUMMARY_BINS - 1.0, neginf=0.0)
+        np.floor(t, out=t)
+        np.clip(t, 0, SUMMARY_BINS - 1, out=t)
+        return t.astype(dtype)
 
     def centres(self) -> np.ndarray:
         """``(256,)`` float64 representative data value of each level (the value at the bin's centre)."""
@@ -199,7 +208,7 @@ class _BrickReader:
 def _quantised(q: Quantiser, v: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
     """``(levels, nan_mask)`` of ``v``: levels as :class:`Quantiser` gives them, as uint8 (all 256
     fit: an eighth of the int64 memory to repeat and combine); mask None when ``v`` cannot hold NaN."""
-    return q(v).astype(np.uint8), (np.isnan(v) if v.dtype.kind == "f" else None)
+    return q(v, np.uint8), (np.isnan(v) if v.dtype.kind == "f" else None)
 
 
 def _up(a: np.ndarray, cut: tuple, shape: tuple) -> np.ndarray:

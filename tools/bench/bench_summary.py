@@ -16,8 +16,9 @@ again after ``clipvol brick`` has written them. For each input, each round times
 The ratio is ``summary time / bricking time`` (the medians over the rounds; target <= 1: the tables
 cost no more than the bricking they follow). Inputs: the MNI ICBM152 2009a T1 template
 (197x233x189 uint8, ``/work/data/mni_t1.nii.gz`` or ``--mni``) with 32^3 and 16^3 bricks (identity
-quantisation), and the procedural fractal, 192^3 float32 with 32^3 bricks (uniform quantisation over
-its value range). ``VARIANT`` names the code measured (a wrapper that patches something in says so).
+quantisation), the procedural fractal, 192^3 float32 with 32^3 bricks, and 256^3 scaled to 12-bit
+uint16 words with 64^3 bricks (uniform quantisation over the value range, as a microscope's or a
+CT's 16-bit data). ``VARIANT`` names the code measured (a wrapper that patches something in says so).
 """
 
 from __future__ import annotations
@@ -43,6 +44,10 @@ def _inputs(mni: Path):
     if mni.is_file():
         out += [("mni_t1 uint8", str(mni), 32), ("mni_t1 uint8", str(mni), 16)]
     out.append(("fractal-192 float32", "procedural:fractal?size=192", 32))
+    from clipvol.bricking.generators import parse_procedural
+
+    frac = parse_procedural("procedural:fractal?size=256").region(0, (0, 0, 0), (256, 256, 256))
+    out.append(("fractal-256 uint16 (12-bit)", (frac * 4095).astype("uint16"), 64))  # microscopy-like words
     return out
 
 
