@@ -44,6 +44,7 @@ import numpy as np
 from ..errors import StoreFormatError
 from .pyramid import Pyramid
 from .store import open_store_meta
+from .store_files import chunk_cap, read_file
 
 __all__ = ["SUMMARY_GROUP", "SUMMARY_BINS", "SummaryMissingError", "Quantiser", "SummaryTables",
            "build_summary", "open_summary", "summary_bytes"]
@@ -143,7 +144,8 @@ def _valid(pyr: Pyramid, level: int, index) -> tuple[slice, ...]:
 
 
 class _BrickReader:
-    """The valid (unpadded) voxels of a brick of the store's levels, for the tables.
+    """The valid (unpadded) voxels of a brick of the store's levels, for the tables (``lead``: the
+    member's index along the leading axis of an image set's 4-D arrays, :mod:`.channels`).
 
     Why not zarr-python: its per-brick read costs about ten times a file read plus one decode, and
     the tables read every brick of every level (most of them twice); that made ``clipvol summarize``
@@ -154,14 +156,14 @@ class _BrickReader:
     other chain is read with zarr-python. (The loaders' reader, with the manifest and statistics
     checks, lies in a higher stage than bricking.)"""
 
-    def __init__(self, path: Path, pyr: Pyramid) -> None:
+    def __init__(self, path: Path, pyr: Pyramid, lead: tuple[int, ...] = ()) -> None:
         import zarr
 
-        self.path, self.pyr = Path(path), pyr
+        self.path, self.pyr, self.lead = Path(path), pyr, tuple(int(k) for k in lead)
         self.root = zarr.open_group(str(path), mode="r")
         self.fast: list = []
         for L in range(pyr.num_levels):
-            meta = json.loads((self.path / str(L) / "zarr.json").read_text())
+            meta = json.loads(read_file(self.path / str(L) / "zarr.json", self.path))
             names = [c.get("name") if isinstance(c, dict) else c for c in meta.get("codecs") or []]
             crc = bool(names) and names[-1] == "crc32c"
             chain = names[:-1] if crc else names
@@ -177,12 +179,11 @@ class _BrickReader:
         valid = tuple(slice(0, b - a) for a, b in zip(s, e))
         how = self.fast[level]
         if how is None:
-            return np.asarray(self.root[str(level)][tuple(slice(a, b) for a, b in zip(s, e))])
+            return np.asarray(self.root[str(level)][self.lead + tuple(slice(a, b) for a, b in zip(s, e))])
         from ..errors import BrickIntegrityError
-        from .store_files import chunk_cap, read_file
 
         B, dtype = self.pyr.brick_shape, self.pyr.dtype
-        name = f"{level}/c/{index[0]}/{index[1]}/{index[2]}"
+        name = f"{level}/c/" + "".join(f"{k}/" for k in self.lead) + f"{index[0]}/{index[1]}/{index[2]}"
         try:
             data = read_file(self.path / name, self.path, chunk_cap(int(np.prod(B)) * dtype.itemsize))
         except FileNotFoundError:
@@ -273,8 +274,12 @@ def _hist_and_pairs(q: Quantiser, child: np.ndarray, qp_up: np.ndarray | None, p
     return hist, nan_count, srt[starts], counts.astype(np.uint32)
 
 
-def build_summary(path, *, workers: int | None = None, progress: bool = True, overwrite: bool = False) -> None:
+def build_summary(path, *, workers: int | None = None, progress: bool = True, overwrite: bool = False,
+                  data: tuple[Path, tuple[int, ...]] | None = None) -> None:
     """Build (or finish) the summary tables of the clipvol store at ``path``.
+
+    ``data``: ``(root, (k,))`` for member ``k`` of an image set (``path`` its member group, its
+    bricks the root's 4-D arrays at ``k``; :mod:`clipvol.bricking.channels`).
 
     Streams the store one parent brick (and its eight children) at a time, on ``workers``
     threads; memory holds one level's tables, never a level's voxels. Levels already finished by
@@ -290,7 +295,7 @@ def build_summary(path, *, workers: int | None = None, progress: bool = True, ov
     pyr = meta.pyramid
     q = Quantiser.for_pyramid(pyr)
     root = zarr.open_group(str(path), mode="r+")
-    loader = _BrickReader(path, pyr)
+    loader = _BrickReader(path, pyr) if data is None else _BrickReader(Path(data[0]), pyr, data[1])
     attrs = None
     if SUMMARY_GROUP in root and not overwrite:
         attrs = dict(root[SUMMARY_GROUP].attrs)

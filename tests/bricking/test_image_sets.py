@@ -242,3 +242,21 @@ def test_an_interrupted_set_build_resumes(tmp_path, monkeypatch):
     channels.brick_set(chans, tmp_path / "r.zarr", brick=8, progress=False)
     assert calls["n"] == 2  # member 0 was not adopted again
     np.testing.assert_array_equal(zarr.open_array(str(tmp_path / "r.zarr" / "0"), mode="r")[...], chans)
+
+
+def test_summarize_of_a_root_builds_every_members_tables(sets, tmp_path):
+    """``clipvol brick --no-summary`` then ``clipvol summarize ROOT``: each member's tables, read
+    from the 4-D arrays, equal those the brick built from the member's own 3-D store."""
+    root, src = sets["c"]
+    np.save(tmp_path / "c.npy", src)
+    late = tmp_path / "late.zarr"
+    assert main(["brick", str(tmp_path / "c.npy"), str(late), "--brick", "8", "--quiet", "--no-summary"]) == 0
+    assert not (late / "clipvol_members" / "c" / "1" / "clipvol_summary").exists()
+    assert main(["summarize", str(late), "--quiet"]) == 0
+    for k in range(2):
+        a = zarr.open_group(str(root / "clipvol_members" / "c" / str(k) / "clipvol_summary"), mode="r")
+        b = zarr.open_group(str(late / "clipvol_members" / "c" / str(k) / "clipvol_summary"), mode="r")
+        assert b.attrs["complete"] and sorted(a.group_keys()) == sorted(b.group_keys())
+        for L in a.group_keys():
+            for name in a[L].array_keys():
+                np.testing.assert_array_equal(a[L][name][...], b[L][name][...], err_msg=f"c={k} {L}/{name}")
