@@ -168,10 +168,7 @@ def open_checked(path, **remote):
 
 
 def run(args: argparse.Namespace) -> int:
-    import sys
     from pathlib import Path
-
-    import numpy as np
 
     from clipvol.errors import ParameterError
 
@@ -183,8 +180,6 @@ def run(args: argparse.Namespace) -> int:
     if args.samples < 1:
         raise ParameterError(f"--samples: expected an integer >= 1, got {args.samples}")
     from clipvol.paging.bytesource import is_remote_url
-
-    from clipvol.errors import StoreFormatError
     from clipvol.tools.remote_args import remote_kwargs
 
     path = args.store if is_remote_url(args.store) else Path(args.store)

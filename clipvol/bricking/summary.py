@@ -137,12 +137,6 @@ class SummaryTables:
 
 
 # -- building ------------------------------------------------------------------------------------
-def _valid(pyr: Pyramid, level: int, index) -> tuple[slice, ...]:
-    B = pyr.brick_shape
-    shape = pyr.levels[level].shape
-    return tuple(slice(i * b, min((i + 1) * b, s)) for i, b, s in zip(index, B, shape))
-
-
 class _BrickReader:
     """The valid (unpadded) voxels of a brick of the store's levels, for the tables (``lead``: the
     member's index along the leading axis of an image set's 4-D arrays, :mod:`.channels`).
