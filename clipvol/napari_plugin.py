@@ -35,7 +35,15 @@ def _is_clipvol_store(path: Path) -> bool:
         attrs = json.loads((path / "zarr.json").read_text()).get("attributes", {})
     except (OSError, ValueError, AttributeError):
         return False
-    return isinstance(attrs, dict) and "clipvol" in attrs
+    if not isinstance(attrs, dict):
+        return False
+    from .bricking.channels import set_attrs
+
+    try:
+        found = set_attrs(attrs, str(path))
+    except Exception:  # malformed set attributes: not ours to open (read_store would say why)
+        return False
+    return "clipvol" in attrs or (found is not None and found[2] >= 2)
 
 
 def napari_get_reader(path) -> Callable[[Any], list[LayerData]] | None:
@@ -62,7 +70,12 @@ def read_store(path) -> list[LayerData]:
     if isinstance(path, (list, tuple)):
         path = path[0]
     p = Path(str(path))
-    meta = open_store_meta(p, require_complete=True)
+    from .bricking.channels import image_set, member_path, series_window
+
+    found = image_set(p)  # the root of a 4-D clipvol brick: one 4-D image, a c or t axis in front
+    metas = [open_store_meta(member_path(p, found[0], k) if found else p, require_complete=True)
+             for k in range(found[1] if found else 1)]
+    meta = metas[0]
     group = zarr.open_group(str(p), mode="r")
     pyr = meta.pyramid
     levels = [da.from_zarr(group[str(L)]) for L in range(pyr.num_levels)]
@@ -79,12 +92,28 @@ def read_store(path) -> list[LayerData]:
         "axis_labels": ("z", "y", "x"),
         "units": (meta.unit,) * 3,
     }
+    if found and found[0] == "c":  # napari splits the channel axis into one layer per channel
+        ranges = [tuple(float(v) for v in m.pyramid.value_range) for m in metas]
+        kwargs.update(channel_axis=0, name=[f"{p.stem} c{k}" for k in range(found[1])],
+                      contrast_limits=[r if r[1] > r[0] else (r[0], r[0] + 1.0) for r in ranges],
+                      colormap=["green", "magenta", "cyan", "yellow", "red", "blue"][: found[1]] if found[1] <= 6 else None,
+                      blending="additive")
+        if kwargs["colormap"] is None:
+            del kwargs["colormap"]
+    elif found:  # a time series: a 4-D image, one contrast window over every step (comparable across t)
+        lo, hi = series_window([m.pyramid.value_range for m in metas])
+        kwargs.update(scale=(1.0,) + kwargs["scale"], translate=(0.0,) + kwargs["translate"],
+                      contrast_limits=(lo, hi) if hi > lo else None, axis_labels=("t", "z", "y", "x"))
+        del kwargs["units"]  # the input records no time unit
     if kwargs["contrast_limits"] is None:
         del kwargs["contrast_limits"]
     if meta.frame is not None:
         rot = meta.frame.directions[::-1, ::-1]  # (x, y, z) -> napari's (z, y, x) order
         aff = np.eye(4)
         aff[:3, :3] = rot
+        if found and found[0] == "t":  # napari's affine covers every axis of the layer: t untouched
+            aff = np.eye(5)
+            aff[1:4, 1:4] = rot
         kwargs["affine"] = aff
         kwargs["metadata"]["world_frame"] = meta.frame.frame or "world"
         kwargs["metadata"]["affine_xyz"] = [list(r) for r in meta.frame.affine]

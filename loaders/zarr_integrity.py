@@ -100,12 +100,12 @@ class IntegrityChecks:
         if not isinstance(cv, dict):
             return
         try:
-            self._manifest_doc = read_manifest_doc(self.path, cv)
+            self._manifest_doc = read_manifest_doc(self.meta_path, cv)
         except ManifestError:
             return
         # the levels and the multiscale list now; each level's other arrays (its statistics) when
         # they are first read (brick_statistics): a reader that never reads them pays nothing
-        problems = metadata_problems(self.path, metadata_pins(self._manifest_doc), attrs, levels_only=True)
+        problems = metadata_problems(self.meta_path, metadata_pins(self._manifest_doc), attrs, levels_only=True)
         if problems:
             shown = "; ".join(problems[:6]) + (f"; and {len(problems) - 6} more" if len(problems) > 6 else "")
             fix = ("`clipvol repair STORE --source INPUT` on the store where it is written restores it from the manifest"
@@ -121,7 +121,7 @@ class IntegrityChecks:
                           "statistics check; `clipvol check --all` reads every brick)")
         else:
             try:
-                self._manifest = load_manifest(self.path, clipvol_attrs,
+                self._manifest = load_manifest(self.meta_path, clipvol_attrs,
                                                [self._pyramid.grid(L) for L in range(self._pyramid.num_levels)],
                                                doc=getattr(self, "_manifest_doc", None))
                 self.verified = True
@@ -307,7 +307,7 @@ class IntegrityChecks:
             if level in self._stats:
                 return self._stats[level]
         stats: dict[str, np.ndarray] | None = {}
-        base = self.path / STATS_GROUP / str(level)
+        base = self.meta_path / STATS_GROUP / str(level)
         if base.is_dir():
             import zarr
 
@@ -316,7 +316,7 @@ class IntegrityChecks:
             except InputFormatError as e:
                 raise StoreFormatError(f"{self._where}: {STATS_GROUP}/{level}: {e}") from None
             if self._manifest is not None:
-                changed = metadata_problems(self.path, self._manifest, None, level=level)
+                changed = metadata_problems(self.meta_path, self._manifest, None, level=level)
                 if changed:
                     raise StoreFormatError(f"{self._where}: metadata differs from the store's manifest: "
                                            f"{'; '.join(changed[:6])}: the statistics cannot be trusted "

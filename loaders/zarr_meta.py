@@ -27,7 +27,7 @@ from clipvol.errors import InputFormatError
 
 from .zarr_shard_index import ShardLayout, sharding_layout
 
-__all__ = ["ArrayMeta", "array_meta", "group_attributes", "inside", "read_json"]
+__all__ = ["ArrayMeta", "array_meta", "group_attributes", "inside", "read_json", "set_of"]
 
 
 def inside(root: Path, rel: str, where: str) -> Path:
@@ -246,3 +246,11 @@ def group_attributes(path: Path, where: str) -> dict[str, Any]:
     if (path / ".zgroup").exists():
         return read_json(path / ".zattrs", where, path) if (path / ".zattrs").exists() else {}
     raise InputFormatError(f"{where}: expected a zarr group (zarr.json or .zgroup), found neither")
+
+
+def set_of(attrs: dict, where: str) -> tuple[str, int, int] | None:
+    """``(axis, count, version)`` of the image set whose root group has ``attrs`` (what ``clipvol
+    brick`` writes for a 4-D input, :mod:`clipvol.bricking.channels`), or None for any other group."""
+    from clipvol.bricking.channels import set_attrs
+
+    return set_attrs(attrs, where)

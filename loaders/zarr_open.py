@@ -30,7 +30,7 @@ from clipvol.bricking.store import parse_metadata
 from clipvol.bricking.store_files import StoreFileError
 from clipvol.errors import InputFormatError, ParameterError, StoreFormatError, StoreIncompleteError
 
-from .zarr_meta import ArrayMeta, array_meta, inside
+from .zarr_meta import ArrayMeta, array_meta, group_attributes, inside
 
 __all__ = ["StoreOpening"]
 
@@ -38,13 +38,55 @@ __all__ = ["StoreOpening"]
 class StoreOpening:
     """Opening a clipvol store (:meth:`_open_clipvol`) or a plain OME-Zarr image (:meth:`_open_ome`)."""
 
-    def _open_clipvol(self, attrs: dict) -> None:
+    def _open_set_member(self, axis: str, n: int) -> None:
+        """Member ``t`` or ``c`` (default 0) of an image set written by ``clipvol brick`` of a 4-D
+        input (:mod:`clipvol.bricking.channels`): its clipvol metadata, statistics and manifest from
+        its member group, its bricks from the root's 4-D arrays at that index (chunks ``(1, b, b, b)``
+        whose bytes are the member's 3-D chunks)."""
+        from clipvol.bricking.channels import MEMBER_ATTR, member_path
+
+        kind = "a channel set: c, z, y, x" if axis == "c" else "a time series: t, z, y, x"
+        for name, v in self._want.items():
+            if name != axis and v not in (None, 0):
+                raise ParameterError(f"{name}: {self._where} has no {name!r} axis ({kind}), got {name}={v}")
+        k = self._want[axis] or 0
+        if isinstance(k, bool) or int(k) != k or not 0 <= k < n:
+            what = "channels" if axis == "c" else "time steps"
+            raise ParameterError(f"{axis}: expected 0..{n - 1} for {self._where} ({n} {what}), got {k!r}")
+        k = int(k)
+        self.meta_path = member_path(self.path, axis, k)
+        where = f"{self._where} ({axis} = {k})"
+        try:
+            attrs = group_attributes(self.meta_path, where)
+        except FileNotFoundError:
+            raise InputFormatError(f"{where}: the member group {self.meta_path} is missing") from None
+        mark = attrs.get(MEMBER_ATTR)
+        if not isinstance(mark, dict) or mark.get("axis") != axis or mark.get("index") != k:
+            raise InputFormatError(f"{where}: {self.meta_path} is not member {k} of the set "
+                                   f"(attributes[{MEMBER_ATTR!r}] = {mark!r})")
+        self._want = {"t": None, "c": None}  # consumed here
+        self._chunk_lead, self._select = (k,), (k,)
+        self._open_clipvol(attrs, lead=n)
+        self.axes, self.lead_shape = (axis,), (n,)
+
+    def _open_clipvol(self, attrs: dict, lead: int | None = None) -> None:
         """A clipvol store: its pyramid as ``attrs['clipvol']`` records it, each level's array
         checked against it (shape, chunks, dtype), then its manifest verified. An interrupted build
-        is refused unless ``allow_incomplete`` (repair and resume open such stores). Before any of
-        it, the metadata the manifest pins (each level's arrays, the multiscale transforms) is
-        compared with the store's files (:meth:`IntegrityChecks._check_pinned_metadata`): the
-        level descriptions everything after this trusts must be the ones the build wrote."""
+        is refused unless ``allow_incomplete`` (repair and resume open such stores). ``lead``: the
+        length of the leading axis of an image set's arrays (``_open_set_member``); each level is then
+        read as the 3-D view at ``_chunk_lead``. Before any of it, the metadata the manifest pins
+        (each level's arrays, the multiscale transforms) is compared with the store's files
+        (:meth:`IntegrityChecks._check_pinned_metadata`): the level descriptions everything after
+        this trusts must be the ones the build wrote. (A set member's manifest pins its statistics'
+        metadata; the set's 4-D level arrays at the root are not pinned by it.)"""
+        from clipvol.bricking.channels import MEMBER_ATTR
+
+        if lead is None and MEMBER_ATTR in attrs:
+            mark = attrs[MEMBER_ATTR] if isinstance(attrs[MEMBER_ATTR], dict) else {}
+            root = self.path.parent.parent.parent
+            raise InputFormatError(f"{self._where}: member {mark.get('index')!r} of the image set {root}, not a store "
+                                   f"by itself (its bricks are the set's); open {root} with "
+                                   f"{mark.get('axis', 'c')}={mark.get('index', 0)!r}")
         self._check_pinned_metadata(attrs)
         meta = parse_metadata(attrs, self._where)
         if not meta.complete and not self._allow_incomplete:
@@ -61,9 +103,16 @@ class StoreOpening:
             if v is not None and v != 0:
                 raise ParameterError(f"{name}: this store has no {name!r} axis (a 3-D clipvol store), got {name}={v}")
         self._arrays: list[ArrayMeta] = []
+        head = () if lead is None else (lead,)
         for L, lv in enumerate(pyr.levels):
             where = f"{self._where} level {L}"
             am = array_meta(self.path / str(L), where, self.path)
+            if am.shape != head + lv.shape or am.chunks != (1,) * len(head) + pyr.brick_shape or am.shard is not None:
+                raise StoreFormatError(f"{where}: expected shape {list(head + lv.shape)} and chunks "
+                                       f"{list((1,) * len(head) + pyr.brick_shape)} (unsharded), got {list(am.shape)} "
+                                       f"and {list(am.chunks)}")
+            if head:  # the member's 3-D view: a (1, b, b, b) chunk holds the bytes of a (b, b, b) one
+                am = replace(am, shape=am.shape[1:], chunks=am.chunks[1:])
             if am.shape != lv.shape or am.chunks != pyr.brick_shape:
                 raise StoreFormatError(f"{where}: expected shape {list(lv.shape)} and chunks {list(pyr.brick_shape)}, "
                                        f"got {list(am.shape)} and {list(am.chunks)}")

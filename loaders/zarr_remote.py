@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from clipvol.bricking.channels import MEMBERS_GROUP, set_attrs
 from clipvol.bricking.manifest import MANIFEST_DIR
 from clipvol.bricking.store import STATS_GROUP, STAT_ARRAYS
 from clipvol.bricking.store_files import MAX_METADATA_BYTES, chunk_cap
@@ -141,7 +142,7 @@ class RemoteZarrLoader(ZarrLoader):
         self._stats_lock = threading.Lock()
         self._stats_mirrored: set[int] = set()
         try:
-            self._mirror_metadata()
+            self._mirror_metadata(loader_kwargs)
             super().__init__(self._mirror, **loader_kwargs)
         except ClipvolError as e:
             self._finalizer()
@@ -172,8 +173,10 @@ class RemoteZarrLoader(ZarrLoader):
         p.parent.mkdir(parents=True, exist_ok=True)
         p.write_bytes(data)
 
-    def _mirror_metadata(self) -> None:
+    def _mirror_metadata(self, loader_kwargs: dict | None = None) -> None:
         src = self.source
+        #: where the clipvol metadata lies under the URL: "" (a store) or an image set's member group
+        self._meta_prefix = ""
         got = src.get_many(["zarr.json", ".zgroup", ".zattrs"])
         root = got["zarr.json"] if got["zarr.json"] is not None else None
         if root is None and got[".zgroup"] is None:
@@ -195,12 +198,22 @@ class RemoteZarrLoader(ZarrLoader):
         if isinstance(ms, list) and ms and isinstance(ms[0], dict) and isinstance(ms[0].get("datasets"), list):
             paths += [d["path"] for d in ms[0]["datasets"] if isinstance(d, dict) and isinstance(d.get("path"), str)]
         cv = attrs.get("clipvol")
+        found = set_attrs(attrs, self.url)
+        if found is not None and found[2] >= 2:  # an image set's root: the chosen member's metadata too
+            axis, n, _ = found
+            k = (loader_kwargs or {}).get(axis) or 0
+            if isinstance(k, int) and not isinstance(k, bool) and 0 <= k < n:  # else ZarrLoader says why
+                self._meta_prefix = f"{MEMBERS_GROUP}/{axis}/{k}/"
+                got = src.get(self._meta_prefix + "zarr.json")
+                if got is not None:
+                    self._put(self._meta_prefix + "zarr.json", got)
+                    cv = ((_json(got, f"{self.url}/{self._meta_prefix}zarr.json") or {}).get("attributes") or {}).get("clipvol")
         manifest: list[str] = []
         if isinstance(cv, dict) and isinstance(cv.get("levels"), list):
             paths += [str(L) for L in range(min(len(cv["levels"]), 64))]
             if "manifest" in cv:  # absent on the server: the loader finds no manifest (unverified)
-                manifest = [f"{MANIFEST_DIR}/manifest.json"] + [f"{MANIFEST_DIR}/{L}.bin"
-                                                                for L in range(min(len(cv["levels"]), 64))]
+                mdir = self._meta_prefix + MANIFEST_DIR
+                manifest = [f"{mdir}/manifest.json"] + [f"{mdir}/{L}.bin" for L in range(min(len(cv["levels"]), 64))]
         paths = list(dict.fromkeys(p.strip("/") for p in paths if re.fullmatch(r"[A-Za-z0-9_.\-/]+", p)))
         keys = [f"{p}/{name}" for p in paths for name in ("zarr.json", ".zarray", ".zattrs")] + manifest
         for k, v in src.get_many(keys).items():
@@ -344,8 +357,8 @@ class RemoteZarrLoader(ZarrLoader):
         return super().brick_statistics(level)
 
     def _mirror_stats(self, level: int) -> None:
-        base = f"{STATS_GROUP}/{level}"
-        metas = self.source.get_many([f"{STATS_GROUP}/zarr.json", f"{base}/zarr.json"]
+        base = f"{self._meta_prefix}{STATS_GROUP}/{level}"
+        metas = self.source.get_many([f"{self._meta_prefix}{STATS_GROUP}/zarr.json", f"{base}/zarr.json"]
                                      + [f"{base}/{n}/zarr.json" for n in STAT_ARRAYS])
         chunk_keys: list[str] = []
         for k, v in metas.items():
@@ -371,6 +384,30 @@ class RemoteZarrLoader(ZarrLoader):
     def __repr__(self) -> str:
         kind = "clipvol store" if self.is_clipvol_store else "OME-Zarr"
         return f"RemoteZarrLoader({self.url!r}, {kind}, {self._pyramid.num_levels} levels, brick {self._pyramid.brick_shape})"
+
+
+def remote_set(url: str, *, storage_options: dict | None = None, **source_kwargs):
+    """``(axis, n, meta_of)`` of the image set whose root is at ``url`` (``meta_of(k)``: member
+    ``k``'s validated clipvol metadata), or None when the URL holds no version-2 set (a store)."""
+    from clipvol.bricking.store import parse_metadata
+
+    src = FsspecByteSource(url, storage_options=storage_options, **source_kwargs)
+    root = src.get("zarr.json")
+    doc = _json(root, f"{src.display_url}/zarr.json") or {} if root is not None else {}
+    found = set_attrs(doc.get("attributes") or {}, src.display_url)
+    if found is None or found[2] < 2:
+        return None
+    axis, n, _ = found
+
+    def meta_of(k: int):
+        key = f"{MEMBERS_GROUP}/{axis}/{k}/zarr.json"
+        got = src.get(key)
+        if got is None:
+            raise InputFormatError(f"{src.display_url}/{key}: missing (member {k} of the set)")
+        return parse_metadata((_json(got, f"{src.display_url}/{key}") or {}).get("attributes") or {},
+                              f"{src.display_url} ({axis} = {k})")
+
+    return axis, n, meta_of
 
 
 def remote_store_meta(url: str, *, storage_options: dict | None = None, **source_kwargs):

@@ -43,7 +43,7 @@ from .zarr_crc import _CRC32C_CHECK, _CRC32C_RESIDUE, _computes_crc32c, _crc32c_
 from .zarr_integrity import IntegrityChecks, UnverifiedStoreWarning
 from .zarr_integrity import _UNREAD, SAMPLE_STRIDE  # noqa: F401  re-exported (zarr_remote, tools)
 from .zarr_levels import DERIVED_CACHE_BYTES, ComputedLevels  # noqa: F401  re-exported
-from .zarr_meta import group_attributes
+from .zarr_meta import group_attributes, set_of
 from .zarr_meta import inside  # noqa: F401  re-exported
 from .zarr_open import StoreOpening
 from .zarr_shards import SHARD_RUN_BYTES, ShardReader
@@ -120,7 +120,13 @@ class ZarrLoader(StoreOpening, ChunkReader, ShardReader, IntegrityChecks, Comput
         self.lead_shape: tuple[int, ...] = ()
         self.origin: tuple[float, float, float] = (0.0, 0.0, 0.0)  # world z, y, x of voxel 0 beyond the translations
         self.unit: str | None = None  # spatial unit, when the store says
-        if "clipvol" in attrs:
+        #: the group holding the clipvol metadata, statistics, manifest and summary tables: the store
+        #: itself, or a member group of an image set (``clipvol_members/c/K``)
+        self.meta_path = self.path
+        found = set_of(attrs, self._where)
+        if found is not None and found[2] >= 2:  # the root of a 4-D clipvol brick: the member's 3-D view
+            self._open_set_member(*found[:2])
+        elif "clipvol" in attrs:
             self._open_clipvol(attrs)
         else:
             self._open_ome(attrs)

@@ -49,9 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a label volume (integer ids, the image's shape) to brick into OUTPUT/labels/NAME with "
                              "the mode filter (OME-Zarr labels; NAME defaults to the file's stem); repeatable")
     parser.add_argument("--axes", default=None, choices=("czyx", "tzyx"),
-                        help="a 4-D input's axes: czyx (channels, the default) writes one store per channel in "
-                             "OUTPUT/c/K, tzyx (time steps, .npy only) one per step in OUTPUT/t/K; the root OUTPUT "
-                             "opens in info, render, view and clipvol.open as one image set")
+                        help="a 4-D input's axes: czyx (channels, the default) or tzyx (time steps, .npy only); "
+                             "OUTPUT is one OME-Zarr 0.5 image with a c or t axis (4-D arrays, chunk 1 along it) that "
+                             "info, check, render --c/--t, view, clipvol.open and other OME-Zarr readers open")
     parser.add_argument("--no-summary", action="store_true",
                         help="skip the summary tables of image-based level of detail (add them later with `clipvol summarize`)")
 
@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     from clipvol.bricking.channels import brick_set, channel_count
 
     axis = (args.axes or "czyx")[0]
-    if channel_count(args.input) is not None:  # a 4-D input: one store per channel or time step
+    if channel_count(args.input) is not None:  # a 4-D input: one image with a c or t axis
         if args.scheduler or args.labels:
             raise ParameterError(f"INPUT: a 4-D ({axis}, z, y, x) input is bricked with local threads and without --labels")
         build = partial(brick_set, axis=axis)
@@ -106,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
         dt = time.perf_counter() - t0
         nbytes *= max(channels, 1)
         print(f"{args.output}: {pyr.num_levels} levels, level 0 {pyr.shape} {pyr.dtype}"
-              + (f" x {channels} {'channels' if axis == 'c' else 'time steps'} (one store each in {args.output}/{axis}/)"
+              + (f" x {channels} {'channels' if axis == 'c' else 'time steps'} (one 4-D image, axes {axis}, z, y, x)"
                  if channels else "")
               + f", {format_bytes(nbytes)} in {dt:.1f} s ({format_bytes(nbytes / max(dt, 1e-9))}/s)")
     return 0

@@ -169,10 +169,7 @@ def open_checked(path, **remote):
 
 
 def run(args: argparse.Namespace) -> int:
-    import sys
     from pathlib import Path
-
-    import numpy as np
 
     from clipvol.errors import ParameterError
 
@@ -184,12 +181,68 @@ def run(args: argparse.Namespace) -> int:
     if args.samples < 1:
         raise ParameterError(f"--samples: expected an integer >= 1, got {args.samples}")
     from clipvol.paging.bytesource import is_remote_url
-
-    from clipvol.errors import StoreFormatError
     from clipvol.tools.remote_args import remote_kwargs
 
     path = args.store if is_remote_url(args.store) else Path(args.store)
-    meta, loader = open_checked(path, **remote_kwargs(args))
+    members = set_members(path, **remote_kwargs(args))
+    if members is not None:  # the root of a 4-D clipvol brick: every (c) or (t) checked, the worst status
+        rc = 0
+        for label, opened in members:
+            rc = max(rc, _check_one(args, f"{path} ({label})", *opened()))
+        return rc
+    return _check_one(args, path, *open_checked(path, **remote_kwargs(args)))
+
+
+def set_members(path, **remote):
+    """``[(label, open), ...]`` for the members of the image set rooted at ``path`` (``open()``
+    gives the member's ``(meta, loader)``, a 3-D view of the set's arrays), or None for a store."""
+    import warnings
+    from pathlib import Path
+
+    from clipvol.bricking.channels import image_set, member_path, set_version
+    from clipvol.bricking.store import open_store_meta
+    from clipvol.loaders.zarr_store import UnverifiedStoreWarning, ZarrLoader
+    from clipvol.paging.bytesource import is_remote_url
+
+    if is_remote_url(str(path)):
+        from clipvol.loaders.zarr_remote import RemoteZarrLoader, remote_set
+
+        found = remote_set(str(path), **{k: v for k, v in remote.items() if k != "cache"})
+        if found is None:
+            return None
+        axis, n, meta_of = found
+
+        def open_remote(k):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UnverifiedStoreWarning)
+                ld = RemoteZarrLoader(str(path), allow_incomplete=True, **{axis: k},
+                                      **{a: v for a, v in remote.items() if a != "cache"})
+            return meta_of(k), ld
+
+        return [(f"{axis} = {k}", lambda k=k: open_remote(k)) for k in range(n)]
+    found = image_set(path) if Path(path).is_dir() else None
+    if found is None:
+        return None
+    axis, n = found
+    if set_version(path) == 1:  # an older set: one store per member
+        return [(f"{axis} = {k}", lambda k=k: open_checked(Path(path) / axis / str(k))) for k in range(n)]
+
+    def open_member(k):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UnverifiedStoreWarning)
+            return open_store_meta(member_path(path, axis, k)), ZarrLoader(path, allow_incomplete=True, **{axis: k})
+
+    return [(f"{axis} = {k}", lambda k=k: open_member(k)) for k in range(n)]
+
+
+def _check_one(args: argparse.Namespace, path, meta, loader) -> int:
+    """``clipvol check`` of one store (or one member of a set): exit status 0 or 1."""
+    import sys
+
+    import numpy as np
+
+    from clipvol.errors import StoreFormatError
+
     pyr = loader.pyramid
     rng = np.random.default_rng(args.seed)
     keys = []

@@ -203,7 +203,7 @@ def run(args: argparse.Namespace) -> int:
     from clipvol.bricking.channels import image_set
 
     found = image_set(path)
-    if found is not None:  # the root of a 4-D brick: one store per channel or time step
+    if found is not None:  # the root of a 4-D brick: one image with a c or t axis (or, before, one store per member)
         from clipvol.tools.set_info import run_set_info
 
         return run_set_info(args, path, *found)

@@ -127,6 +127,13 @@ def run(args: argparse.Namespace) -> int:
     from clipvol.bricking.manifest import ManifestError, restore_metadata
 
     path = Path(args.store)
+    from clipvol.bricking.channels import image_set, set_version
+    from clipvol.errors import ParameterError
+
+    if path.is_dir() and image_set(path) is not None and set_version(path) == 2:
+        raise ParameterError(f"{path}: the root of a 4-D clipvol brick (one image with a {image_set(path)[0]} axis): "
+                             "repair works on a 3-D store; `clipvol check` names the bad member and brick, and "
+                             f"`clipvol brick INPUT {path} --overwrite` rebuilds the image")
     with output_lock(path):
         try:
             put_back = restore_metadata(path)

@@ -29,8 +29,19 @@ def run(args: argparse.Namespace) -> int:
     if args.workers is not None and args.workers < 1:
         raise ParameterError(f"--workers: expected an integer >= 1, got {args.workers}")
     t0 = time.perf_counter()
-    build_summary(args.store, workers=args.workers, progress=not args.quiet, overwrite=args.overwrite)
+    from clipvol.bricking.channels import image_set, member_path, set_version
+
+    found = image_set(args.store)
+    if found is not None and set_version(args.store) == 2:  # a 4-D brick: the tables of every c or t
+        axis, n = found
+        groups = [member_path(args.store, axis, k) for k in range(n)]
+        for k, g in enumerate(groups):
+            build_summary(g, workers=args.workers, progress=not args.quiet, overwrite=args.overwrite,
+                          data=(args.store, (k,)))
+    else:
+        groups = [args.store]
+        build_summary(args.store, workers=args.workers, progress=not args.quiet, overwrite=args.overwrite)
     if not args.quiet:
-        print(f"{args.store}: summary tables {format_bytes(summary_bytes(args.store) or 0)} "
-              f"in {time.perf_counter() - t0:.1f} s")
+        total = sum(summary_bytes(g) or 0 for g in groups)
+        print(f"{args.store}: summary tables {format_bytes(total)} in {time.perf_counter() - t0:.1f} s")
     return 0

@@ -36,8 +36,9 @@ def add_overlay_arguments(g) -> None:
                         "palette at --label-opacity, id 0 transparent")
     g.add_argument("--label-opacity", type=float, default=0.3, metavar="A",
                    help="opacity of label ids without a colour of their own (default 0.3)")
-    g.add_argument("--overlay-budget", default="64MB", metavar="BYTES",
-                   help="texture memory of each overlay: its finest level that fits is drawn (default 64MB)")
+    g.add_argument("--overlay-budget", default=None, metavar="BYTES",
+                   help="texture memory of each overlay: its finest level that fits is drawn (default 64MB; with "
+                        "--channels, each channel gets the --texture-budget the first channel is drawn under)")
 
 
 def add_channel_arguments(g) -> None:
@@ -60,7 +61,8 @@ def channels_from_args(args, source, loader_kwargs: dict):
     if getattr(args, "c", None) is not None:
         raise ParameterError("--c: expected either --c or --channels, got both")
     return open_channels(source, args.channels, windows=getattr(args, "tf_range", None),
-                         overlay_budget=args.overlay_budget, **loader_kwargs)
+                         overlay_budget=args.overlay_budget, texture_budget=getattr(args, "texture_budget", None),
+                         **loader_kwargs)
 
 
 def _is_tf(text: str) -> bool:
@@ -103,6 +105,9 @@ def overlays_from_args(args, source=None, primary=None) -> tuple:
     from clipvol.scene.overlay import Overlay, store_origin
     from clipvol.scene.transfer import TransferFunction
 
+    from clipvol.scene.overlay import DEFAULT_OVERLAY_BUDGET
+
+    budget = args.overlay_budget if getattr(args, "overlay_budget", None) is not None else DEFAULT_OVERLAY_BUDGET
     colors = None
     if getattr(args, "label_colors", None) is not None or getattr(args, "label_overlay", None):
         colors = LabelColors.parse(args.label_colors or "", getattr(args, "label_opacity", 0.3))
@@ -116,7 +121,7 @@ def overlays_from_args(args, source=None, primary=None) -> tuple:
         # a label image of the store shares its frame (OME image-label): placed at the image's origin
         out.append(Overlay(open_store(Path(str(source)) / "labels" / name), colors, name=f"labels/{name}",
                            origin=tuple(store_origin(primary)[:]) if primary is not None else None,
-                           frame=getattr(primary, "frame", None), texture_budget=args.overlay_budget))
+                           frame=getattr(primary, "frame", None), texture_budget=budget))
     for spec in getattr(args, "overlay", None) or []:
         source, name, rng = parse_overlay(spec)
         from clipvol.app.autobrick import bricked_source
@@ -125,7 +130,7 @@ def overlays_from_args(args, source=None, primary=None) -> tuple:
         loader = open_store(source)
         if name == "labels":
             tf = colors or LabelColors(default_opacity=getattr(args, "label_opacity", 0.3))
-            out.append(Overlay(loader, tf, texture_budget=args.overlay_budget, name=source))
+            out.append(Overlay(loader, tf, texture_budget=budget, name=source))
             continue
         if name.lower().endswith(".json"):
             tf = TransferFunction.load(Path(name))
@@ -140,5 +145,5 @@ def overlays_from_args(args, source=None, primary=None) -> tuple:
             tf = TransferFunction.preset(name, value_range=rng)
         if rng is not None and not isinstance(tf, str):
             tf = tf.with_value_range(rng)
-        out.append(Overlay(loader, tf, texture_budget=args.overlay_budget, name=source))
+        out.append(Overlay(loader, tf, texture_budget=budget, name=source))
     return tuple(out)

@@ -25,6 +25,12 @@ def run_remote_info(args: argparse.Namespace) -> int:
     from clipvol.loaders.zarr_store import UnverifiedStoreWarning
     from clipvol.tools.cmd_info import _stats_problems, trust_line
 
+    from clipvol.loaders.zarr_remote import remote_set
+
+    if remote_set(args.store, **kw) is not None:  # the root of a 4-D clipvol brick: every member described
+        from clipvol.tools.set_info import run_image_info
+
+        return run_image_info(args, args.store)
     meta, level_files = remote_store_meta(args.store, **kw)
     pyr = meta.pyramid
     it = pyr.dtype.itemsize

@@ -68,6 +68,16 @@ def transfer_function_from_args(args, loader):
         raise ParameterError(f"--tf-range: expected LO <= HI, got {rng[0]:g},{rng[1]:g}")
     name = args.tf
     opacity = getattr(args, "opacity", None)
+    steps = None
+    if rng is None and not name.lower().endswith(".json"):  # a time series: one window for every step
+        from clipvol.app.timeseries import series_loaders
+
+        steps = series_loaders(loader)
+    if steps is not None and name != "auto":
+        from clipvol.bricking.channels import series_window
+
+        lo, hi = series_window([ld.pyramid.value_range for ld in steps])
+        rng = (lo, hi) if name != "diverging" else (-(max(abs(lo), abs(hi)) or 1.0), max(abs(lo), abs(hi)) or 1.0)
     if name.lower().endswith(".json"):
         tf = TransferFunction.load(Path(name))
         if rng is not None:
@@ -79,7 +89,10 @@ def transfer_function_from_args(args, loader):
 
             return context_transfer_function(loader)  # translucent grey: the overlay inside it shows
         if rng is None:
-            return auto_transfer_function(loader, opacity=opacity)
+            from clipvol.scene.auto_tf import series_histogram
+
+            hist = series_histogram(steps) if steps is not None else None
+            return auto_transfer_function(loader, opacity=opacity, hist=hist)
         from clipvol.scene.auto_tf import default_preset
 
         return TransferFunction.preset(default_preset(loader), value_range=rng, opacity=opacity)

@@ -3,7 +3,10 @@
 A microscopist's three stains are three volumes of one geometry. They are drawn with the overlay
 machinery of :mod:`clipvol.scene.overlay`: the first channel listed is the primary (paged through
 the clip-texture, multiresolution, culled), the others are overlays sampled at the same points
-(each drawn from its finest level that fits the overlay texture budget). Each channel's transfer
+(each drawn from its finest level that fits the overlay texture budget). A channel is not a small
+map beside a large scan: it is as large as the first, so its overlay budget defaults to the texture
+budget the first channel is drawn under (an overlay's own 64 MB default drew a second channel of a
+2 x 384 x 768^2 stack from level 2, 4x coarser than the first). Each channel's transfer
 function is its colour with the ``ramp`` opacity over its window (default: the channel's range,
 OME ``omero.window``). ``RenderParams.blend`` says how they combine at each sample:
 
@@ -19,7 +22,8 @@ transfer function and the overlays of the others.
 from __future__ import annotations
 
 from ..errors import ParameterError
-from ..scene.overlay import DEFAULT_OVERLAY_BUDGET, MAX_OVERLAYS, Overlay, store_origin
+from ..scene.overlay import MAX_OVERLAYS, Overlay, store_origin
+from ..scene.params import RenderParams
 from ..scene.transfer import TransferFunction, opacity_curve
 from .session import open_loader
 
@@ -81,11 +85,13 @@ def parse_channels(spec: str) -> list[tuple[int, str]]:
     return out
 
 
-def open_channels(source, channels, *, windows=None, overlay_budget=DEFAULT_OVERLAY_BUDGET, **kwargs):
+def open_channels(source, channels, *, windows=None, overlay_budget=None, texture_budget=None, **kwargs):
     """``(loader, tf, overlays)`` for ``channels`` (a spec string or ``[(c, colour), ...]``) of ``source``.
 
     ``windows``: optional ``{c: (lo, hi)}``, or one ``(lo, hi)`` for every channel; ``kwargs`` go to
-    the loader (``t=``, ``brick=``).
+    the loader (``t=``, ``brick=``). ``overlay_budget``: texture bytes of each channel after the
+    first (default: ``texture_budget``, the first channel's, itself by default
+    :class:`~clipvol.scene.params.RenderParams`' 256 MB).
     A channel beyond the image's ``c`` axis, or an image without one, is a ParameterError naming both.
     """
     chans = parse_channels(channels) if isinstance(channels, str) else [(int(c), col) for c, col in channels]
@@ -109,6 +115,8 @@ def open_channels(source, channels, *, windows=None, overlay_budget=DEFAULT_OVER
     windows = dict(windows or {})
     tfs = [channel_tf(col, windows.get(c, ld.pyramid.value_range)) for (c, col), ld in zip(chans, loaders)]
     origin = tuple(float(v) for v in store_origin(loaders[0]))  # one image: the channels share its frame
+    if overlay_budget is None:
+        overlay_budget = texture_budget if texture_budget is not None else RenderParams().texture_budget
     overlays = tuple(Overlay(ld, tf, origin=origin, texture_budget=overlay_budget, name=f"{source} channel {c}")
                      for (c, _), ld, tf in zip(chans[1:], loaders[1:], tfs[1:]))
     return loaders[0], tfs[0], overlays

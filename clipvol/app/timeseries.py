@@ -24,7 +24,24 @@ from ..scene.params import RenderParams
 from ..units import parse_bytes
 from .session import RenderSession, _check_tf
 
-__all__ = ["TimeSeriesPlayer", "SeriesSession"]
+__all__ = ["TimeSeriesPlayer", "SeriesSession", "series_loaders"]
+
+
+def series_loaders(loader) -> list | None:
+    """The loaders of every step of the time series ``loader`` reads one step of (a store or URL
+    with a ``t`` axis: ``loader.axes``), or None when it has no ``t`` axis of more than one step.
+    What a whole-series default needs (:func:`clipvol.scene.auto_tf.series_histogram`)."""
+    axes = tuple(getattr(loader, "axes", ()) or ())
+    if "t" not in axes:
+        return None
+    n = int(loader.lead_shape[axes.index("t")])
+    where = getattr(loader, "set_root", None) or getattr(loader, "url", None) or getattr(loader, "path", None)
+    if n < 2 or where is None:
+        return None
+    from ..paging.open import open_store
+
+    others = {a: int(v) for a, v in zip(axes, getattr(loader, "_select", ()) or ()) if a != "t"}
+    return [open_store(str(where), t=k, **others) for k in range(n)]
 
 
 class TimeSeriesPlayer:

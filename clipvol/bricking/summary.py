@@ -33,6 +33,7 @@ levels finished; building is resumable per level and ``complete`` is written las
 
 from __future__ import annotations
 
+import json
 import sys
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -43,6 +44,7 @@ import numpy as np
 from ..errors import StoreFormatError
 from .pyramid import Pyramid
 from .store import open_store_meta
+from .store_files import chunk_cap, read_file
 
 __all__ = ["SUMMARY_GROUP", "SUMMARY_BINS", "SummaryMissingError", "Quantiser", "SummaryTables",
            "build_summary", "open_summary", "summary_bytes"]
@@ -71,16 +73,25 @@ class Quantiser:
         lo, hi = (float(v) for v in pyr.value_range)
         return cls("uniform", lo, hi)
 
-    def __call__(self, v: np.ndarray) -> np.ndarray:
-        """``(..)`` int64 level of each value (NaN gives 0: mask NaN apart before use)."""
+    def __call__(self, v: np.ndarray, dtype=np.int64) -> np.ndarray:
+        """``(..)`` level of each value as ``dtype`` (NaN gives 0: mask NaN apart before use).
+
+        The float64 steps run in place on one temporary (the tables quantise every voxel of every
+        level twice: each pass over the data counts)."""
         if self.method == "identity":
-            return v.astype(np.int64)
-        x = np.asarray(v, dtype=np.float64)
+            return v.astype(dtype)
         width = self.hi - self.lo
         with np.errstate(invalid="ignore", over="ignore"):
-            t = (x - self.lo) / width * SUMMARY_BINS if width > 0 else np.where(x > self.lo, SUMMARY_BINS - 1.0, 0.0)
-        t = np.nan_to_num(t, nan=0.0, posinf=SUMMARY_BINS - 1.0, neginf=0.0)
-        return np.clip(np.floor(t), 0, SUMMARY_BINS - 1).astype(np.int64)
+            if width > 0:
+                t = np.subtract(v, self.lo, dtype=np.float64)
+                t /= width
+                t *= SUMMARY_BINS
+            else:
+                t = np.where(np.asarray(v, dtype=np.float64) > self.lo, SUMMARY_BINS - 1.0, 0.0)
+        np.nan_to_num(t, copy=False, nan=0.0, posinf=SUMMARY_BINS - 1.0, neginf=0.0)
+        np.floor(t, out=t)
+        np.clip(t, 0, SUMMARY_BINS - 1, out=t)
+        return t.astype(dtype)
 
     def centres(self) -> np.ndarray:
         """``(256,)`` float64 representative data value of each level (the value at the bin's centre)."""
@@ -126,16 +137,89 @@ class SummaryTables:
 
 
 # -- building ------------------------------------------------------------------------------------
-def _valid(pyr: Pyramid, level: int, index) -> tuple[slice, ...]:
-    B = pyr.brick_shape
-    shape = pyr.levels[level].shape
-    return tuple(slice(i * b, min((i + 1) * b, s)) for i, b, s in zip(index, B, shape))
+class _BrickReader:
+    """The valid (unpadded) voxels of a brick of the store's levels, for the tables (``lead``: the
+    member's index along the leading axis of an image set's 4-D arrays, :mod:`.channels`).
+
+    Why not zarr-python: its per-brick read costs about ten times a file read plus one decode, and
+    the tables read every brick of every level (most of them twice); that made ``clipvol summarize``
+    slower than the bricking it follows. A level written by ``clipvol brick`` (chain ``bytes`` little
+    endian, optional ``blosc``, ``crc32c``; default chunk keys) is read here as the inverse of
+    :func:`~clipvol.bricking.pipeline.chunk_encoder`: the chunk file (a regular file inside the store,
+    size-capped), its CRC-32C checked, one decode; a missing chunk is an empty brick (fill 0). Any
+    other chain is read with zarr-python. (The loaders' reader, with the manifest and statistics
+    checks, lies in a higher stage than bricking.)"""
+
+    def __init__(self, path: Path, pyr: Pyramid, lead: tuple[int, ...] = ()) -> None:
+        import zarr
+
+        self.path, self.pyr, self.lead = Path(path), pyr, tuple(int(k) for k in lead)
+        self.root = zarr.open_group(str(path), mode="r")
+        self.fast: list = []
+        for L in range(pyr.num_levels):
+            meta = json.loads(read_file(self.path / str(L) / "zarr.json", self.path))
+            names = [c.get("name") if isinstance(c, dict) else c for c in meta.get("codecs") or []]
+            crc = bool(names) and names[-1] == "crc32c"
+            chain = names[:-1] if crc else names
+            endian = ((meta.get("codecs") or [{}])[0].get("configuration") or {}).get("endian", "little")
+            cke = meta.get("chunk_key_encoding") or {}
+            ok = (chain[:1] == ["bytes"] and chain[1:] in ([], ["blosc"]) and endian == "little"
+                  and cke.get("name", "default") == "default"
+                  and (cke.get("configuration") or {}).get("separator", "/") == "/")
+            self.fast.append((crc, chain[1:] == ["blosc"]) if ok else None)
+
+    def __call__(self, level: int, index) -> np.ndarray:
+        s, e = self.pyr.brick_voxel_box(level, index)
+        valid = tuple(slice(0, b - a) for a, b in zip(s, e))
+        how = self.fast[level]
+        if how is None:
+            return np.asarray(self.root[str(level)][self.lead + tuple(slice(a, b) for a, b in zip(s, e))])
+        from ..errors import BrickIntegrityError
+
+        B, dtype = self.pyr.brick_shape, self.pyr.dtype
+        name = f"{level}/c/" + "".join(f"{k}/" for k in self.lead) + f"{index[0]}/{index[1]}/{index[2]}"
+        try:
+            data = read_file(self.path / name, self.path, chunk_cap(int(np.prod(B)) * dtype.itemsize))
+        except FileNotFoundError:
+            return np.zeros(B, dtype)[valid]  # never written: all fill value
+        crc, blosc = how
+        if crc:
+            import google_crc32c
+
+            data, tail = data[:-4], data[-4:]
+            if google_crc32c.value(data) != int.from_bytes(tail, "little"):
+                raise BrickIntegrityError(f"{self.path}: chunk {name} fails its crc32c: the summary tables are "
+                                          "not built from damaged data (`clipvol check` / `clipvol repair`)")
+        if blosc:
+            import numcodecs
+
+            data = numcodecs.Blosc().decode(data)
+        a = np.frombuffer(data, dtype=dtype.newbyteorder("<"))
+        if a.size != int(np.prod(B)):
+            raise BrickIntegrityError(f"{self.path}: chunk {name} decodes to {a.size} values, expected {int(np.prod(B))}")
+        return a.reshape(B).astype(dtype, copy=False)[valid]
 
 
-def _tables_for_parent(arrays, pyr: Pyramid, q: Quantiser, level: int, pidx) -> list:
+def _quantised(q: Quantiser, v: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """``(levels, nan_mask)`` of ``v``: levels as :class:`Quantiser` gives them, as uint8 (all 256
+    fit: an eighth of the int64 memory to repeat and combine); mask None when ``v`` cannot hold NaN."""
+    return q(v, np.uint8), (np.isnan(v) if v.dtype.kind == "f" else None)
+
+
+def _up(a: np.ndarray, cut: tuple, shape: tuple) -> np.ndarray:
+    """``a[cut]`` repeated 2x along each axis (one copy, by broadcasting), cropped to ``shape``."""
+    b = a[cut]
+    n0, n1, n2 = b.shape
+    return np.broadcast_to(b[:, None, :, None, :, None], (n0, 2, n1, 2, n2, 2)).reshape(2 * n0, 2 * n1, 2 * n2)[
+        : shape[0], : shape[1], : shape[2]]
+
+
+def _tables_for_parent(loader: "_BrickReader", pyr: Pyramid, q: Quantiser, level: int, pidx) -> list:
     """Histograms of the children of parent ``(level, pidx)`` (level >= 1) and their correspondence
-    tables; for the top level also the parent's own histogram."""
-    parent = np.asarray(arrays[level][_valid(pyr, level, pidx)])
+    tables. The parent is quantised once, at its own resolution, and its levels repeated 2x per axis
+    under each child (quantising is per voxel, so this equals quantising the repeated values, on an
+    eighth of the voxels)."""
+    qp, pnan = _quantised(q, loader(level, pidx))
     out = []
     grid_c = np.array(pyr.grid(level - 1))
     B = np.array(pyr.brick_shape)
@@ -145,43 +229,51 @@ def _tables_for_parent(arrays, pyr: Pyramid, q: Quantiser, level: int, pidx) -> 
                 c = np.array(pidx) * 2 + (dz, dy, dx)
                 if np.any(c >= grid_c):
                     continue
-                child = np.asarray(arrays[level - 1][_valid(pyr, level - 1, c)])
+                child = loader(level - 1, tuple(int(v) for v in c))
                 off = (np.array((dz, dy, dx)) * B) // 2
                 n = -(-np.array(child.shape) // 2)
-                p = parent[off[0]:off[0] + n[0], off[1]:off[1] + n[1], off[2]:off[2] + n[2]]
-                p = p.repeat(2, 0).repeat(2, 1).repeat(2, 2)[: child.shape[0], : child.shape[1], : child.shape[2]]
-                out.append((tuple(int(v) for v in c),) + _hist_and_pairs(q, child, p))
+                cut = (slice(off[0], off[0] + n[0]), slice(off[1], off[1] + n[1]), slice(off[2], off[2] + n[2]))
+                out.append((tuple(int(v) for v in c),)
+                           + _hist_and_pairs(q, child, _up(qp, cut, child.shape),
+                                             None if pnan is None else _up(pnan, cut, child.shape)))
     return out
 
 
-def _hist_and_pairs(q: Quantiser, child: np.ndarray, parent_up: np.ndarray | None):
-    c = child.reshape(-1)
-    nan = np.isnan(c) if c.dtype.kind == "f" else None
-    qc = q(c)
+def _hist_and_pairs(q: Quantiser, child: np.ndarray, qp_up: np.ndarray | None, pnan_up: np.ndarray | None = None):
+    """Histogram, NaN count and (with the parent's levels ``qp_up`` and NaN mask ``pnan_up`` under
+    each child voxel) the non-zero correspondence pairs of one brick, in ascending code order.
+
+    The pairs are counted by sorting the brick's 16-bit codes (numpy sorts 16-bit integers by radix)
+    and cutting the runs: work in the brick's voxels, where a 65,536-bin count and its scan for
+    non-zeros cost as much again for every brick, however small."""
+    qc, nan = _quantised(q, child.reshape(-1))
     if nan is not None and nan.any():
         hist = np.bincount(qc[~nan], minlength=SUMMARY_BINS)
         nan_count = int(nan.sum())
     else:
-        hist = np.bincount(qc, minlength=SUMMARY_BINS)
-        nan_count = 0
-    if parent_up is None:
+        nan, hist, nan_count = None, np.bincount(qc, minlength=SUMMARY_BINS), 0
+    if qp_up is None:
         return hist, nan_count, None, None
-    p = parent_up.reshape(-1)
-    code = q(p) * SUMMARY_BINS + qc
-    if p.dtype.kind == "f":
-        ok = ~np.isnan(p)
-        if nan is not None:
-            ok &= ~nan
+    code = (qp_up.reshape(-1).astype(np.uint16) << 8) | qc  # parent * 256 + child
+    ok = None if pnan_up is None or not pnan_up.any() else ~pnan_up.reshape(-1)
+    if nan is not None:
+        ok = ~nan if ok is None else ok & ~nan
+    if ok is not None:
         code = code[ok]
-    elif nan is not None:
-        code = code[~nan]
-    counts = np.bincount(code, minlength=SUMMARY_BINS * SUMMARY_BINS)
-    nz = np.flatnonzero(counts)
-    return hist, nan_count, nz.astype(np.uint16), counts[nz].astype(np.uint32)
+    if not code.size:
+        return hist, nan_count, np.zeros(0, np.uint16), np.zeros(0, np.uint32)
+    srt = np.sort(code, kind="stable")
+    starts = np.flatnonzero(np.concatenate(([True], srt[1:] != srt[:-1])))
+    counts = np.diff(np.append(starts, srt.size))
+    return hist, nan_count, srt[starts], counts.astype(np.uint32)
 
 
-def build_summary(path, *, workers: int | None = None, progress: bool = True, overwrite: bool = False) -> None:
+def build_summary(path, *, workers: int | None = None, progress: bool = True, overwrite: bool = False,
+                  data: tuple[Path, tuple[int, ...]] | None = None) -> None:
     """Build (or finish) the summary tables of the clipvol store at ``path``.
+
+    ``data``: ``(root, (k,))`` for member ``k`` of an image set (``path`` its member group, its
+    bricks the root's 4-D arrays at ``k``; :mod:`clipvol.bricking.channels`).
 
     Streams the store one parent brick (and its eight children) at a time, on ``workers``
     threads; memory holds one level's tables, never a level's voxels. Levels already finished by
@@ -197,7 +289,7 @@ def build_summary(path, *, workers: int | None = None, progress: bool = True, ov
     pyr = meta.pyramid
     q = Quantiser.for_pyramid(pyr)
     root = zarr.open_group(str(path), mode="r+")
-    arrays = [root[str(L)] for L in range(pyr.num_levels)]
+    loader = _BrickReader(path, pyr) if data is None else _BrickReader(Path(data[0]), pyr, data[1])
     attrs = None
     if SUMMARY_GROUP in root and not overwrite:
         attrs = dict(root[SUMMARY_GROUP].attrs)
@@ -221,7 +313,7 @@ def build_summary(path, *, workers: int | None = None, progress: bool = True, ov
             for L in range(pyr.num_levels):
                 if L in done:
                     continue
-                _build_level(group, arrays, pyr, q, L, pool, bar)
+                _build_level(group, loader, pyr, q, L, pool, bar)
                 done.add(L)
                 group.attrs.update({"levels_done": sorted(done)})
     finally:
@@ -229,7 +321,7 @@ def build_summary(path, *, workers: int | None = None, progress: bool = True, ov
     group.attrs.update({"complete": True})  # the very last write
 
 
-def _build_level(group, arrays, pyr: Pyramid, q: Quantiser, L: int, pool, bar) -> None:
+def _build_level(group, loader, pyr: Pyramid, q: Quantiser, L: int, pool, bar) -> None:
     """Tables of every brick of level ``L``: histograms, and (below the top) pairs with the parent."""
     grid = pyr.grid(L)
     n = int(np.prod(grid))
@@ -240,12 +332,11 @@ def _build_level(group, arrays, pyr: Pyramid, q: Quantiser, L: int, pool, bar) -
     top = L == pyr.num_levels - 1
     if top:
         def one(idx):
-            blk = np.asarray(arrays[L][_valid(pyr, L, idx)])
-            return [(idx,) + _hist_and_pairs(q, blk, None)]
+            return [(idx,) + _hist_and_pairs(q, loader(L, idx), None)]
         jobs = [tuple(int(v) for v in i) for i in np.ndindex(*grid)]
     else:
         def one(pidx):
-            return _tables_for_parent(arrays, pyr, q, L + 1, pidx)
+            return _tables_for_parent(loader, pyr, q, L + 1, pidx)
         jobs = [tuple(int(v) for v in i) for i in np.ndindex(*pyr.grid(L + 1))]
     for res in pool.map(one, jobs):
         for idx, h, nc, cd, ct in res:

@@ -89,10 +89,10 @@ def open_store(path_or_url: str | Path, **kwargs) -> Loader:
                 )
             from ..loaders.zarr_store import ZarrLoader
 
-            from ..bricking.channels import image_set
+            from ..bricking.channels import image_set, set_version
 
             found = image_set(path)
-            if found is not None:  # clipvol brick of a 4-D input: one store per channel or time step
+            if found is not None and set_version(path) == 1:  # an older 4-D brick: one store per member
                 return _open_member(path, *found, kwargs)
             return _construct(ZarrLoader, path, kwargs)
         raise InputFormatError(f"{path}: expected a zarr store (a directory with zarr.json or .zgroup), found neither")
@@ -143,4 +143,5 @@ def _open_member(path: Path, axis: str, n: int, kwargs: dict):
         raise ParameterError(f"{axis}: expected 0..{n - 1} for {path} ({n} {what}), got {k!r}")
     loader = _construct(ZarrLoader, path / axis / str(int(k)), kwargs)
     loader.axes, loader.lead_shape = (axis,), (n,)
+    loader.set_root = path  # where the other members are opened from (clipvol.app.timeseries.series_loaders)
     return loader

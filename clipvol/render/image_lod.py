@@ -43,7 +43,7 @@ class ImageLod:
             raise SummaryMissingError(f"policy 'image': the loader {type(loader).__name__} has no summary tables; it "
                                       "needs a clipvol store (`clipvol brick` writes them, `clipvol summarize STORE` "
                                       "adds them to an existing store)")
-        self.tables = open_summary(path)
+        self.tables = open_summary(getattr(loader, "meta_path", path))  # a set's member: its own group
         self.make_action, self.clip_texture = make_action, clip_texture
         if estimator not in ("cpu", "gl"):
             raise ParameterError(f"estimator: expected 'cpu' or 'gl', got {estimator!r}")

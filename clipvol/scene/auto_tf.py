@@ -35,8 +35,8 @@ import numpy as np
 from ..bricking.stats import histogram_edges
 from .transfer import TransferFunction
 
-__all__ = ["ValueHistogram", "value_histogram", "auto_window", "auto_transfer_function", "default_preset",
-           "context_transfer_function", "CONTEXT_OPACITY"]
+__all__ = ["ValueHistogram", "value_histogram", "series_histogram", "auto_window", "auto_transfer_function",
+           "default_preset", "context_transfer_function", "CONTEXT_OPACITY"]
 
 #: most bricks summed from the stored statistics (one level); a finer level with more is skipped
 MAX_STAT_BRICKS = 1 << 18
@@ -115,6 +115,23 @@ def value_histogram(loader) -> ValueHistogram:
     :data:`MAX_STAT_BRICKS` bricks, else the bricks of a coarse level read once."""
     h = _stored_histogram(loader)
     return h if h is not None else _read_histogram(loader)
+
+
+def series_histogram(loaders) -> ValueHistogram:
+    """One histogram over every step of a time series (``loaders``: one per step), on 64 bins over
+    the union of the steps' value ranges: the automatic window of a series is then one window for
+    all steps, so a value is as bright at every ``t`` (a per-step window would brighten a dim step
+    until it looks like the bright ones). Each step's bin counts are placed at their bin's centre,
+    so the result is good to a bin width, as a single histogram is."""
+    hs = [value_histogram(ld) for ld in loaders]
+    edges = histogram_edges(min(float(h.edges[0]) for h in hs), max(float(h.edges[-1]) for h in hs), BINS)
+    counts = np.zeros(BINS, dtype=np.int64)
+    for h in hs:
+        e = np.asarray(h.edges, dtype=np.float64)
+        centres = np.clip((e[:-1] + e[1:]) / 2, edges[0], edges[-1])
+        counts += np.histogram(centres, bins=edges, weights=np.asarray(h.counts, dtype=np.float64))[0].round().astype(np.int64)
+    return ValueHistogram(counts, edges, max(h.level for h in hs), all(h.stored for h in hs),
+                          sum(h.nan_count for h in hs), sum(h.inf_count for h in hs))
 
 
 def _percentile(counts: np.ndarray, edges: np.ndarray, q: float) -> float:

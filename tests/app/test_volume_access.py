@@ -176,15 +176,14 @@ def test_a_4d_brick_root_opens_as_one_volume(tmp_path, axes):
     np.testing.assert_array_equal(vol.level(0)[1:, 4], data[1:, 4])
     blocks = data[1].astype(np.int64).reshape(6, 2, 5, 2, 7, 2).sum(axis=(1, 3, 5))
     np.testing.assert_array_equal(vol.level(1)[1], (blocks + 4) // 8)  # integers: floor((sum + 4) / 8)
-    # the root is an OME-Zarr 0.5 collection (bioformats2raw layout) that zarr-python reads
+    # the root is one OME-Zarr 0.5 image with a leading c or t axis that zarr-python reads whole
     g = zarr.open_group(str(root), mode="r")
-    assert g.attrs["ome"]["version"] == "0.5" and g.attrs["ome"]["bioformats2raw.layout"] == 3
-    series = zarr.open_group(str(root / "OME"), mode="r").attrs["ome"]["series"]
-    assert series == [f"{axes[0]}/{k}" for k in range(3)]
-    for k, p in enumerate(series):
-        img = zarr.open_group(str(root / p), mode="r")
-        ms = img.attrs["ome"]["multiscales"][0]
-        np.testing.assert_array_equal(img[ms["datasets"][0]["path"]][...], data[k])
+    ms = g.attrs["ome"]["multiscales"][0]
+    assert [a["name"] for a in ms["axes"]] == [axes[0], "z", "y", "x"]
+    lv0 = g[ms["datasets"][0]["path"]]
+    assert lv0.chunks == (1, 8, 8, 8)
+    np.testing.assert_array_equal(lv0[...], data)
+    np.testing.assert_array_equal(g[ms["datasets"][1]["path"]][1], (blocks + 4) // 8)
 
 
 def test_an_ome_zarr_image_with_t_and_c_axes_opens_whole(tmp_path):

@@ -122,3 +122,21 @@ def test_cli_summarize_and_info(tmp_path, capsys, rng):
     assert main(["info", str(path)]) == 0
     assert "% of the bricks on disk" in capsys.readouterr().out
     assert main(["summarize", str(tmp_path / "missing.zarr"), "--quiet"]) == 2
+
+
+def test_a_damaged_chunk_is_refused_naming_it(tmp_path, rng):
+    """The tables read bricks with their crc32c checked: a flipped byte stops the build, naming the
+    chunk, and no complete tables are left as if built from it."""
+    from clipvol.errors import BrickIntegrityError
+
+    vol = rng.integers(1, 256, size=(16, 16, 16), dtype=np.uint8)
+    path = tmp_path / "bad.zarr"
+    brick_volume(vol, path, brick=8, progress=False, summary=False)
+    chunk = path / "0" / "c" / "1" / "0" / "1"
+    raw = bytearray(chunk.read_bytes())
+    raw[len(raw) // 2] ^= 0x55
+    chunk.write_bytes(bytes(raw))
+    with pytest.raises(BrickIntegrityError, match="0/c/1/0/1"):
+        build_summary(path, progress=False)
+    with pytest.raises(SummaryMissingError):
+        open_summary(path)
