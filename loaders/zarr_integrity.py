@@ -105,7 +105,10 @@ class IntegrityChecks:
             return
         # the levels and the multiscale list now; each level's other arrays (its statistics) when
         # they are first read (brick_statistics): a reader that never reads them pays nothing
-        problems = metadata_problems(self.meta_path, metadata_pins(self._manifest_doc), attrs, levels_only=True)
+        # a set member's group holds no multiscale list of its own (the set's root does, 4-D)
+        member = self.meta_path != self.path
+        problems = metadata_problems(self.meta_path, metadata_pins(self._manifest_doc), None if member else attrs,
+                                     levels_only=True)
         if problems:
             shown = "; ".join(problems[:6]) + (f"; and {len(problems) - 6} more" if len(problems) > 6 else "")
             fix = ("`clipvol repair STORE --source INPUT` on the store where it is written restores it from the manifest"

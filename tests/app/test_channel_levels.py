@@ -32,7 +32,8 @@ def _finest_fitting(root, budget: int) -> int:
 @pytest.mark.parametrize("budget,nbytes", [("2MB", 2_000_000), ("300KB", 300_000)])
 def test_second_channel_follows_the_texture_budget(stack, tmp_path, capsys, budget, nbytes):
     assert main(["render", str(stack), "--channels", "0:green,1:magenta", "--out", str(tmp_path / "c.png"),
-                 "--size", "48x48", "--texture-budget", budget]) == 0
+                 "--size", "48x48", "--texture-budget", budget]
+                + (["--allow-partial"] if budget == "300KB" else [])) == 0  # the first channel cannot be whole in 300 KB
     err = capsys.readouterr().err
     level = int(re.search(r"channel 1 \(level (\d+)\)", err).group(1))
     assert level == _finest_fitting(stack, nbytes)
