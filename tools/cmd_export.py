@@ -25,8 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "10:50,:,0:128)")
     g.add_argument("--box-world", metavar="X0,Y0,Z0,X1,Y1,Z1",
                    help="the region in world units (two opposite corners x,y,z, the store's frame as `clipvol info` "
-                        "prints it); the voxels whose centres lie inside are written. Write --box-world=-5,... when the "
-                        "first value is negative")
+                        "prints it); the voxels whose centres lie inside are written")
     parser.add_argument("--level", type=int, default=0, help="the level to export (0 = finest, default 0)")
     parser.add_argument("--out", required=True, metavar="FILE",
                         help="region.npy (geometry in region.npy.json), region.tif, region.nii, region.nii.gz "

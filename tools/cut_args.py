@@ -20,12 +20,12 @@ def add_cut_arguments(p) -> None:
     g = p.add_argument_group("cut the volume open")
     g.add_argument("--crop", default=None, metavar="X0,Y0,Z0,X1,Y1,Z1",
                    help="draw only the box between two opposite corners in world units (the frame clipvol info "
-                        "prints: patient RAS+ mm for NIfTI/DICOM); write --crop=-60,... when the first is negative")
+                        "prints: patient RAS+ mm for NIfTI/DICOM), x,y,z")
     g.add_argument("--crop-voxels", default=None, metavar="Z0:Z1,Y0:Y1,X0:X1",
                    help="draw only these level-0 voxels (stop exclusive, an empty side: the whole axis)")
     g.add_argument("--clip-plane", action="append", default=[], metavar="X,Y,Z,NX,NY,NZ",
                    help="keep the side of the plane through world point X,Y,Z that the normal NX,NY,NZ points to "
-                        "(repeatable, at most 6; write --clip-plane=-5,... when the first is negative)")
+                        "(repeatable, at most 6)")
 
 
 def _numbers(text: str, n: int, flag: str, form: str) -> tuple[float, ...]:
