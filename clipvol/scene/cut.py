@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import ParameterError
 from .geometry import MAX_PLANES, Shape
 
-__all__ = ["render_to_world", "world_to_render", "plane_to_render", "voxel_box_to_render", "world_box_to_render",
+__all__ = ["render_to_world", "world_to_render", "point_to_render", "direction_to_render", "plane_to_render", "voxel_box_to_render", "world_box_to_render",
            "cut_shape", "outside_bricks", "CutEditor", "FACES"]
 
 #: the crop box's faces in the order the viewer's key cycles them (render-frame axis, 0 = low side)
@@ -59,6 +59,32 @@ def world_to_render(pyramid, frame=None) -> np.ndarray:
 def _points(m: np.ndarray, p) -> np.ndarray:
     p = np.asarray(p, dtype=np.float64)
     return p @ m[:3, :3].T + m[:3, 3]
+
+
+def point_to_render(pyramid, frame, point, what: str = "point") -> np.ndarray:
+    """Render-frame ``(x, y, z)`` of a world point ``(x, y, z)`` (the store's frame, e.g. RAS+ mm).
+
+    The one conversion of every point a user types (``clipvol slice --origin/--poi``, crops,
+    clip planes), so a point means the same place whatever the storage order of the array.
+    """
+    q = np.asarray(point, dtype=np.float64).reshape(-1)
+    if q.shape != (3,) or not np.all(np.isfinite(q)):
+        raise ParameterError(f"{what}: expected a finite point x,y,z, got {tuple(q.tolist())}")
+    return _points(world_to_render(pyramid, frame), q)
+
+
+def direction_to_render(pyramid, frame, direction, what: str = "direction", normal: bool = False) -> np.ndarray:
+    """Unit render-frame direction of a world direction ``(x, y, z)``.
+
+    A plane's ``normal=True`` maps by the inverse transpose (it stays perpendicular to the plane
+    under a shear); an in-plane direction (an image's up) by the linear part itself.
+    """
+    d = np.asarray(direction, dtype=np.float64).reshape(-1)
+    if d.shape != (3,) or not np.all(np.isfinite(d)) or not np.any(d != 0):
+        raise ParameterError(f"{what}: expected a finite, non-zero vector x,y,z, got {tuple(d.tolist())}")
+    m = render_to_world(pyramid, frame)[:3, :3]
+    r = m.T @ d if normal else np.linalg.solve(m, d)
+    return r / np.linalg.norm(r)
 
 
 def plane_to_render(pyramid, frame, point, normal, what: str = "clip plane") -> tuple[float, float, float, float]:
