@@ -74,6 +74,13 @@ def transfer_function_from_args(args, loader):
             tf = tf.with_value_range(rng)
         return tf if opacity is None else tf.with_opacity(opacity)
     if name == "auto":
+        mode = getattr(args, "mode", None)
+        from clipvol.scene.auto_tf import PROJECTIONS
+
+        if rng is None and opacity is None and mode in PROJECTIONS:
+            from clipvol.scene.auto_tf import projection_transfer_function
+
+            return projection_transfer_function(loader, mode)  # the projection's own values, opaque at the top
         if rng is None and opacity is None and getattr(args, "overlay", None):
             from clipvol.scene.auto_tf import context_transfer_function
 
