@@ -148,7 +148,10 @@ class LevelArray:
         steps = tuple(slice(None) for _ in lead) + tuple(slice(None, None, s) for _, _, s in space)
         out = out[steps]
         squeeze = tuple(i for i, d in enumerate(drop) if d)
-        return np.ascontiguousarray(out.reshape([n for i, n in enumerate(out.shape) if i not in squeeze]))
+        out = out.reshape([n for i, n in enumerate(out.shape) if i not in squeeze])
+        if out.ndim == 0:  # integers on every axis: a numpy scalar, as numpy's own a[z, y, x]
+            return out[()]
+        return np.ascontiguousarray(out)
 
     def __array__(self, dtype=None, copy=None) -> np.ndarray:
         a = self[...]

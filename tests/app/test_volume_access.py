@@ -60,6 +60,15 @@ def test_metadata_and_level0_slices_equal_the_source(store):
     np.testing.assert_array_equal(np.asarray(lv), data)
 
 
+def test_integer_indices_give_a_scalar_as_numpy_does(store):
+    path, data = store
+    lv = clipvol.open(path).level(0)
+    for key in [(3, 4, 5), (-1, -1, -1), (np.int64(20), 0, 26)]:
+        got = lv[key]
+        assert np.ndim(got) == 0 and np.ndim(data[key]) == 0, key  # before: a 1-element array
+        assert got == data[key] and type(got) is type(data[key]), key
+
+
 def test_coarse_levels_equal_a_numpy_mean(store):
     path, data = store
     vol = clipvol.open(path)
