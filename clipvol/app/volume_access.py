@@ -20,6 +20,7 @@ includes that level's scale and translation (the position of its voxel centres, 
 
 from __future__ import annotations
 
+import sys
 from itertools import product
 from pathlib import Path
 from typing import Any, Sequence
@@ -295,7 +296,8 @@ def open(source: str | Path, *, store: str | Path | None = None, **kwargs) -> Vo
         NIfTI / DICOM / HDF5 / MRC file (bricked once into ``store``, default ``./NAME.zarr``, and
         reused afterwards, as ``clipvol view`` does).
     store : str or Path, optional
-        Where a file format is bricked (its progress bar shows on stderr while it is).
+        Where a file format is bricked (its progress bar shows on stderr while it is, and one line
+        on stderr says which store is built or reused: ``bricking scan.nii.gz into /data/scan.zarr``).
     **kwargs
         Passed to the loader (``brick=32`` for ``.npy`` and procedural volumes; ``cache=``, ``storage_options=``
         for remote stores).
@@ -312,6 +314,6 @@ def open(source: str | Path, *, store: str | Path | None = None, **kwargs) -> Vo
         if k in kwargs:
             raise ParameterError(f"{k}: clipvol.open returns every channel and time step; index them with "
                                  f"vol.level(L)[k, ...] instead of {k}=")
-    text = bricked_source(str(source), store, log=lambda line: None)
+    text = bricked_source(str(source), store, log=lambda line: print(line, file=sys.stderr))  # where its store is
     loader = open_loader(text, **kwargs)
     return Volume(text, loader, kwargs=kwargs)

@@ -147,12 +147,15 @@ def test_a_nifti_is_bricked_once_and_read_back(nifti):
     np.testing.assert_array_equal(vol.level(0)[...], data)
 
 
-def test_a_nifti_without_a_store_is_bricked_beside_the_working_directory(tmp_path, monkeypatch):
+def test_a_nifti_without_a_store_is_bricked_beside_the_working_directory(tmp_path, monkeypatch, capsys):
     data = np.arange(6 * 5 * 4, dtype=np.float32).reshape(6, 5, 4)
     nib.save(nib.Nifti1Image(data.T.copy(), np.diag([2.0, 3.0, 4.0, 1.0])), tmp_path / "small.nii")
     monkeypatch.chdir(tmp_path)
     vol = clipvol.open(tmp_path / "small.nii")
     assert vol.source == str(tmp_path / "small.zarr") and (tmp_path / "small.zarr" / "zarr.json").is_file()
+    assert str(tmp_path / "small.zarr") in capsys.readouterr().err  # it says where it put the store
+    clipvol.open(tmp_path / "small.nii")
+    assert f"using {tmp_path / 'small.zarr'}" in capsys.readouterr().err  # and which one it reuses
     np.testing.assert_array_equal(vol.level(0)[...], data)
     assert vol.spacing == (4.0, 3.0, 2.0)
 
