@@ -177,6 +177,20 @@ def _print_geometry(meta) -> None:
         print(f"{head} [{'  '.join(f'{v:10.4g}' for v in row)}]")
 
 
+def _labels_line(path) -> str:
+    """``labels     organs, vessels (...)``: the store's OME-Zarr label images (``clipvol brick --labels``),
+    or "" when it has none; a newcomer learns here what ``--label-overlay NAME`` takes."""
+    from clipvol.bricking.labels import label_names
+
+    try:
+        names = label_names(path)
+    except (OSError, ValueError, TypeError):
+        return ""
+    if not names:
+        return ""
+    return f"labels     {', '.join(names)} (draw with render/view --label-overlay NAME; hide ids with --hide-labels)"
+
+
 def run(args: argparse.Namespace) -> int:
     from clipvol.bricking.store import open_store_meta
     from clipvol.errors import InputNotFoundError, StoreIncompleteError
@@ -252,6 +266,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(f"spacing    {', '.join(f'{s:g}' for s in pyr.spacing)} (z, y, x)")
     print(f"value range {pyr.value_range[0]:g} .. {pyr.value_range[1]:g}")
+    labels = _labels_line(path)
+    if labels:
+        print(labels)
     if loader is not None:
         line = _stats_line(loader, pyr)
         if line:
