@@ -81,10 +81,10 @@ def transfer_function_from_args(args, loader):
             from clipvol.scene.auto_tf import projection_transfer_function
 
             return projection_transfer_function(loader, mode)  # the projection's own values, opaque at the top
-        if rng is None and opacity is None and getattr(args, "overlay", None):
+        if rng is None and opacity is None and (getattr(args, "overlay", None) or getattr(args, "label_overlay", None)):
             from clipvol.scene.auto_tf import context_transfer_function
 
-            return context_transfer_function(loader)  # translucent grey: the overlay inside it shows
+            return context_transfer_function(loader)  # translucent grey: the overlay or labels inside it show
         if rng is None:
             return auto_transfer_function(loader, opacity=opacity)
         from clipvol.scene.auto_tf import default_preset
