@@ -87,9 +87,11 @@ def transfer_function_from_args(args, loader):
             return context_transfer_function(loader)  # translucent grey: the overlay or labels inside it show
         if rng is None:
             return auto_transfer_function(loader, opacity=opacity)
-        from clipvol.scene.auto_tf import default_preset
+        from clipvol.scene.auto_tf import auto_preset, default_preset
 
-        return TransferFunction.preset(default_preset(loader), value_range=rng, opacity=opacity)
+        # a z-map keeps its diverging map under a window of its own (an opacity curve: a one-sided map)
+        preset = auto_preset(loader) if opacity is None else default_preset(loader)
+        return TransferFunction.preset(preset, value_range=rng, opacity=opacity)
     if name not in TransferFunction.names():
         raise ParameterError(f"--tf: expected auto, one of {', '.join(TransferFunction.names())} "
                              f"or a .json file, got {name!r}")

@@ -45,7 +45,8 @@ from ..bricking.stats import histogram_edges
 from .transfer import TransferFunction
 
 __all__ = ["ValueHistogram", "value_histogram", "auto_window", "auto_transfer_function", "default_preset",
-           "context_transfer_function", "CONTEXT_OPACITY", "PROJECTIONS", "projection_transfer_function"]
+           "context_transfer_function", "CONTEXT_OPACITY", "PROJECTIONS", "projection_transfer_function",
+           "auto_preset"]
 
 #: most bricks summed from the stored statistics (one level); a finer level with more is skipped
 MAX_STAT_BRICKS = 1 << 18
@@ -192,6 +193,21 @@ def default_preset(loader) -> str:
     return "grey" if frame is not None and getattr(frame, "frame", "") == "RAS" else "viridis"
 
 
+def _auto_window_of(loader, hist: ValueHistogram | None = None) -> AutoWindow:
+    lo, hi = (float(v) for v in loader.pyramid.value_range)
+    if lo == hi:  # a constant volume: a zero-width window is a step at its value, drawn at mid-table
+        return AutoWindow((lo, hi), False, lo)
+    hist = value_histogram(loader) if hist is None else hist
+    return auto_window(hist, float_data=np.dtype(loader.pyramid.dtype).kind == "f")
+
+
+def auto_preset(loader, hist: ValueHistogram | None = None) -> str:
+    """The colour map the automatic transfer function picks: ``diverging`` for signed data (a
+    statistical map), else :func:`default_preset`. A window the user gives (``--tf-range -5,5``)
+    keeps it, so a z-map stays diverging rather than turning into a grey ramp."""
+    return "diverging" if _auto_window_of(loader, hist).signed else default_preset(loader)
+
+
 def auto_transfer_function(loader, preset: str | None = None, opacity: str | None = None,
                            hist: ValueHistogram | None = None) -> TransferFunction:
     """The automatic :class:`~clipvol.scene.transfer.TransferFunction` of ``loader``'s data.
@@ -200,12 +216,7 @@ def auto_transfer_function(loader, preset: str | None = None, opacity: str | Non
     store with a patient frame, ``viridis`` otherwise, ``diverging`` for signed data); ``opacity`` its opacity curve. Its :attr:`~TransferFunction.name` says what was chosen,
     e.g. ``auto: viridis 12.5..230``.
     """
-    lo, hi = (float(v) for v in loader.pyramid.value_range)
-    if lo == hi:  # a constant volume: a zero-width window is a step at its value, drawn at mid-table
-        aw = AutoWindow((lo, hi), False, lo)
-    else:
-        hist = value_histogram(loader) if hist is None else hist
-        aw = auto_window(hist, float_data=np.dtype(loader.pyramid.dtype).kind == "f")
+    aw = _auto_window_of(loader, hist)
     name = preset or ("diverging" if aw.signed else default_preset(loader))
     tf = TransferFunction.preset(name, value_range=aw.window, opacity=None if name == "diverging" else opacity)
     return tf.with_name(f"auto: {tf.name} {aw.window[0]:.4g}..{aw.window[1]:.4g}")
