@@ -111,7 +111,7 @@ def voxel_box_to_render(pyramid, start, stop) -> tuple[tuple[float, ...], tuple[
     for a, b, n, axis in zip(start, stop, shape, "zyx"):
         if not 0 <= a < b <= n:
             raise ParameterError(f"--crop-voxels: {axis} range {a}:{b}: expected 0 <= start < stop <= {n} (level 0 "
-                                 f"is {shape[0]}x{shape[1]}x{shape[2]}, z, y, x)")
+                                 f"is {shape[2]}x{shape[1]}x{shape[0]} voxels, x, y, z)")
     sp = np.array(pyramid.spacing[::-1], dtype=np.float64)
     lo = (np.array(start[::-1], dtype=np.float64) - 0.5) * sp
     hi = (np.array(stop[::-1], dtype=np.float64) - 0.5) * sp
