@@ -91,7 +91,7 @@ def test_offscreen_path_to_png_dir_and_ctrl_c(tmp_path):
                     progress=interrupt)
     with Image.open(gif) as g:
         assert g.n_frames == 2  # the frames rendered before Ctrl-C
-    with open(gif.with_suffix(".csv"), newline="") as fh:
+    with open(gif.with_name(gif.name + ".csv"), newline="") as fh:
         assert len(list(csv.DictReader(fh))) == 2
     leftover = [t for t in threading.enumerate() if t.ident not in before and t.name.startswith("clipvol")]
     assert leftover == []
