@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import signal
 import sys
 import threading
@@ -44,7 +45,19 @@ COMMANDS = {
 }
 
 
+#: a value, not an option: a number or a comma/colon list of numbers that starts with a minus
+#: (``--tf-range -5,5``, ``--origin -2,5,46``, ``--tf-points -200:0,0,0,0;300:1,1,1,1``); argparse alone
+#: takes only a single plain negative number for a value and reads the rest as an unknown option
+NEGATIVE_VALUE = re.compile(r"^-(\d|\.\d)[\d.eE+\-,:;]*$")
+
+
 class _Parser(argparse.ArgumentParser):
+    """The CLI's parser: one-line usage errors, and values that start with a minus taken as values."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = NEGATIVE_VALUE
+
     def error(self, message: str):  # argparse's usage errors: one line, exit 2
         self.exit(2, f"clipvol {self.prog.split()[-1] if ' ' in self.prog else ''}: error: {message}\n".replace("  ", " "))
 

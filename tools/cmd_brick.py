@@ -11,15 +11,20 @@ import argparse
 from clipvol.errors import ParameterError
 
 
-def _triple(text: str, name: str, kind=float) -> tuple:
+def _triple(text: str, name: str, kind=float, order: str = "z,y,x") -> tuple:
     parts = [p for p in text.replace("x", ",").split(",") if p.strip()]
     try:
         vals = tuple(kind(p) for p in parts)
     except ValueError:
-        raise ParameterError(f"--{name}: expected three comma-separated values z,y,x, got {text!r}") from None
+        raise ParameterError(f"--{name}: expected three comma-separated values {order}, got {text!r}") from None
     if len(vals) != 3:
-        raise ParameterError(f"--{name}: expected three comma-separated values z,y,x, got {text!r}")
+        raise ParameterError(f"--{name}: expected three comma-separated values {order}, got {text!r}")
     return vals
+
+
+def _xyz(text: str, name: str) -> tuple:
+    """A per-axis world quantity typed x,y,z (as every coordinate of the CLI), as the store's z,y,x."""
+    return _triple(text, name, order="x,y,z")[::-1]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,11 +35,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--brick", type=int, default=64, help="brick edge in voxels, even, 8..256 (default 64)")
     parser.add_argument("--filter", default="mean", help="down-sampling filter: mean | subsample | max | mode (label volumes) (default mean)")
     parser.add_argument("--codec", default="lz4", help="lz4 | zstd | none (default lz4: blosc lz4 + shuffle)")
-    parser.add_argument("--spacing", help="level-0 voxel size z,y,x (default: the input's, else 1,1,1)")
-    parser.add_argument("--origin", default=None, metavar="Z,Y,X",
-                        help="world position of voxel 0 (OME translation; default: the input's, else 0,0,0): "
-                             "co-registered volumes drawn as overlays (render --overlay) are placed by it; "
-                             "write --origin=-4,2,3 when the first value is negative")
+    parser.add_argument("--spacing", metavar="X,Y,Z",
+                        help="level-0 voxel size x,y,z, as every coordinate of the CLI (default: the input's, else 1,1,1)")
+    parser.add_argument("--origin", default=None, metavar="X,Y,Z",
+                        help="world position x,y,z of voxel 0 (OME translation; default: the input's, else 0,0,0): "
+                             "co-registered volumes drawn as overlays (render --overlay) are placed by it")
     parser.add_argument("--unit", default=None, help="unit of the spacing (default: the input's, e.g. millimeter for NIfTI/DICOM, else micrometer)")
     parser.add_argument("--shape", help="raw input: shape Z,Y,X")
     parser.add_argument("--dtype", help="raw input: numpy dtype, e.g. uint16")
@@ -62,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     from clipvol.bricking.pipeline import brick_volume
     from clipvol.units import format_bytes
 
-    spacing = _triple(args.spacing, "spacing") if args.spacing else None
+    spacing = _xyz(args.spacing, "spacing") if args.spacing else None
     shape = _triple(args.shape, "shape", int) if args.shape else None
     labels = _label_specs(args.labels, args.output)  # all refused before any work
     t0 = time.perf_counter()
@@ -80,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         raise ParameterError(f"--axes: expected a 4-D input for --axes {args.axes}, got {args.input} (not 4-D)")
     extra = {}
     if args.origin is not None:
-        extra["origin"] = _triple(args.origin, "origin")
+        extra["origin"] = _xyz(args.origin, "origin")
     if args.scheduler:
         from clipvol.bricking.dask_build import brick_volume_dask
 

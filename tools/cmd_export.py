@@ -1,6 +1,6 @@
 """Take a region out of a store as .npy, .tif, .nii / .nii.gz or .zarr, with its place in the world.
 
-``clipvol export STORE --box z0:z1,y0:y1,x0:x1 --level K --out region.nii.gz`` writes the voxels of
+``clipvol export STORE --box x0:x1,y0:y1,z0:z1 --level K --out region.nii.gz`` writes the voxels of
 level ``K`` that overlap the box (given in voxels of level 0, so the same box works at every level);
 ``--box-world x0,y0,z0,x1,y1,z1`` gives the box in world units instead (the frame ``clipvol info``
 prints). The region streams brick by brick through the verified loader into a memory-mapped file
@@ -20,13 +20,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a clipvol store, OME-Zarr image, channel set / time series root, .npy, procedural:... URL, "
                              "or a NIfTI / DICOM / HDF5 / MRC file (bricked once into ./NAME.zarr, as `view` does)")
     g = parser.add_mutually_exclusive_group(required=True)
-    g.add_argument("--box", metavar="Z0:Z1,Y0:Y1,X0:X1",
-                   help="the region in voxels of level 0 (stop exclusive; an empty side means the whole axis, e.g. "
-                        "10:50,:,0:128)")
+    g.add_argument("--box", metavar="X0:X1,Y0:Y1,Z0:Z1",
+                   help="the region in voxels of level 0, x,y,z like every coordinate (stop exclusive; an empty side "
+                        "means the whole axis, e.g. 0:128,:,10:50)")
     g.add_argument("--box-world", metavar="X0,Y0,Z0,X1,Y1,Z1",
                    help="the region in world units (two opposite corners x,y,z, the store's frame as `clipvol info` "
-                        "prints it); the voxels whose centres lie inside are written. Write --box-world=-5,... when the "
-                        "first value is negative")
+                        "prints it); the voxels whose centres lie inside are written")
     parser.add_argument("--level", type=int, default=0, help="the level to export (0 = finest, default 0)")
     parser.add_argument("--out", required=True, metavar="FILE",
                         help="region.npy (geometry in region.npy.json), region.tif, region.nii, region.nii.gz "
@@ -42,14 +41,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def parse_box(text: str, shape0) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
-    """``--box "z0:z1,y0:y1,x0:x1"`` -> ``(start, stop)`` in voxels of level 0, inside the volume."""
+    """``--box "x0:x1,y0:y1,z0:z1"`` -> ``(start, stop)`` (z, y, x) in voxels of level 0, inside the volume."""
     from clipvol.tools.cut_args import parse_voxel_ranges
 
     start, stop = parse_voxel_ranges(text, shape0, "--box")
     for lo, hi, n, axis in zip(start, stop, shape0, "zyx"):
         if not 0 <= lo < hi <= n:
             raise ParameterError(f"--box: {axis} range {lo}:{hi}: expected 0 <= start < stop <= {n} (level 0 is "
-                                 f"{shape0[0]}x{shape0[1]}x{shape0[2]}, z, y, x)")
+                                 f"{shape0[2]}x{shape0[1]}x{shape0[0]} voxels, x, y, z)")
     return start, stop
 
 

@@ -159,7 +159,7 @@ def _print_geometry(meta) -> None:
     if meta.frame is None and not any(meta.origin):
         return
     if meta.frame is None:
-        print(f"origin     {', '.join(f'{v:g}' for v in meta.origin)} {meta.unit} (z, y, x; world position of voxel 0)")
+        print(f"origin     {', '.join(f'{v:g}' for v in meta.origin[::-1])} {meta.unit} (x, y, z; world position of voxel 0)")
         return
     # voxel 0 in the world frame the store names (the affine's translation), x, y, z as RAS+ reads them
     x, y, z = (float(v) for v in meta.frame.matrix[:3, 3])
@@ -175,6 +175,20 @@ def _print_geometry(meta) -> None:
     for k, row in enumerate(meta.frame.affine[:3]):
         head = "affine    " if k == 0 else "          "
         print(f"{head} [{'  '.join(f'{v:10.4g}' for v in row)}]")
+
+
+def _labels_line(path) -> str:
+    """``labels     organs, vessels (...)``: the store's OME-Zarr label images (``clipvol brick --labels``),
+    or "" when it has none; a newcomer learns here what ``--label-overlay NAME`` takes."""
+    from clipvol.bricking.labels import label_names
+
+    try:
+        names = label_names(path)
+    except (OSError, ValueError, TypeError):
+        return ""
+    if not names:
+        return ""
+    return f"labels     {', '.join(names)} (draw with render/view --label-overlay NAME; hide ids with --hide-labels)"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -248,10 +262,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"filter     {pyr.filter}")
     if meta is not None:
         print(f"codec      {meta.codec}")
-        print(f"spacing    {', '.join(f'{s:g}' for s in pyr.spacing)} {meta.unit} (z, y, x)")
+        print(f"spacing    {', '.join(f'{s:g}' for s in pyr.spacing[::-1])} {meta.unit} (x, y, z, as brick --spacing takes it)")
     else:
-        print(f"spacing    {', '.join(f'{s:g}' for s in pyr.spacing)} (z, y, x)")
+        print(f"spacing    {', '.join(f'{s:g}' for s in pyr.spacing[::-1])} (x, y, z)")
     print(f"value range {pyr.value_range[0]:g} .. {pyr.value_range[1]:g}")
+    labels = _labels_line(path)
+    if labels:
+        print(labels)
     if loader is not None:
         line = _stats_line(loader, pyr)
         if line:

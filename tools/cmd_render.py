@@ -49,8 +49,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "front/back/side/top along the array's z/-z/x/y otherwise; iso from anterior-right-superior "
                         "(default iso)")
     v.add_argument("--eye", type=_triple, default=None,
-                   help="eye position x,y,z (overrides --view): RAS millimetres in the patient's world for a store "
-                        "with a patient frame (what the affine gives), the array's axes scaled by the spacing otherwise")
+                   help="eye position x,y,z (overrides --view) in the store's world frame (what clipvol info prints): "
+                        "RAS millimetres for a store with a patient frame, the origin plus the array's axes scaled by "
+                        "the spacing otherwise")
     v.add_argument("--target", type=_triple, default=None,
                    help="point looked at x,y,z, in the same coordinates as --eye (default: the volume centre)")
     v.add_argument("--up", type=_triple, default=None,
@@ -116,6 +117,25 @@ def hidden_labels(source, loader, spec: str):
     return TaggedLoader(loader, open_store(Path(source) / "labels" / name), hidden)
 
 
+def _world_camera_points(pyr, frame, eye, target, up):
+    """``--eye``/``--target``/``--up`` as :func:`clipvol.scene.views.view_camera` takes them: a patient
+    frame's points go as typed (it converts them itself); another store's world points (an origin,
+    an affine from MRC or OME-Zarr) are carried into the drawing frame here, as ``--crop`` is, so the
+    numbers ``clipvol info`` prints mean the same place in every flag."""
+    from clipvol.scene.views import is_anatomical
+
+    if frame is None or is_anatomical(frame):
+        return eye, target, up
+    from clipvol.scene.cut import direction_to_render, point_to_render
+
+    def conv(v, f):
+        return None if v is None else tuple(float(c) for c in f(v))
+
+    return (conv(eye, lambda v: point_to_render(pyr, frame, v, "--eye")),
+            conv(target, lambda v: point_to_render(pyr, frame, v, "--target")),
+            conv(up, lambda v: direction_to_render(pyr, frame, v, "--up")))
+
+
 def run(args) -> int:
     import numpy as np
     from PIL import Image
@@ -162,7 +182,8 @@ def run(args) -> int:
     if args.camera is not None:
         cam = load_camera(args.camera, size=args.size)
     else:
-        cam = view_camera(pyr, args.view, args.size, eye=args.eye, target=args.target, up=args.up, fov=args.fov,
+        eye, target, up = _world_camera_points(pyr, frame, args.eye, args.target, args.up)
+        cam = view_camera(pyr, args.view, args.size, eye=eye, target=target, up=up, fov=args.fov,
                           distance=args.distance, ortho=args.ortho, frame=frame)
     lo, hi = pyr.volume_box()
     centre = np.clip(np.asarray(cam.center, dtype=np.float64), lo, hi)

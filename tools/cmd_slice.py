@@ -3,8 +3,11 @@
 The plane is ``--plane z=94`` (an array axis letter and a level-0 voxel index: the array as
 stored), ``--axis coronal --index 120`` (for a store with a patient frame the patient's plane, shown
 the radiological way: anterior or superior up, the patient's right on the image left; ``--neurological``
-puts it on the right), or ``--origin x,y,z --normal x,y,z`` (world units; ``--up`` sets the image's up).
-Without ``--poi`` and ``--level`` the slice is as fine as its pixels need; with ``--poi`` it is full
+puts it on the right), or ``--origin x,y,z --normal x,y,z`` (``--up`` sets the image's up). Points
+and directions are in the store's world frame, x,y,z (``clipvol info``: patient RAS+ mm for NIfTI and
+DICOM), converted by :mod:`clipvol.scene.cut`; only ``--plane`` and ``--index`` are voxel indices.
+Without ``--poi`` and ``--level`` the slice is as fine as its pixels need; with ``--poi`` (a world
+point, which the plane passes through unless ``--plane``/``--index``/``--origin`` place it) it is full
 resolution near that point and coarser away from it, balanced and blended so no seam shows
 (LaMar, Hamann & Joy, "Multiresolution cutting planes"); ``--level 0`` is full resolution
 everywhere. Outputs: a PNG (grey ``--window C,W`` or a ``--tf`` colour map), the float32 values
@@ -47,12 +50,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "axial anterior up, the patient's right on the image left; coronal and sagittal superior up), "
                         "the array's z, y or x plane otherwise")
     g.add_argument("--index", type=float, default=None, help="--axis: level-0 voxel index along the array axis nearest "
-                                                             "the plane's normal (default: the middle)")
+                                                             "the plane's normal (default: the middle, or --poi's)")
     g.add_argument("--neurological", action="store_true",
                    help="--axis of a patient-frame store: the patient's right on the image right (default: radiological)")
-    g.add_argument("--origin", type=_triple, default=None, help="oblique plane: a point x,y,z of it (world units)")
-    g.add_argument("--normal", type=_triple, default=None, help="oblique plane: its normal x,y,z (the view direction)")
-    g.add_argument("--up", type=_triple, default=None, help="oblique plane: the image's up x,y,z")
+    g.add_argument("--origin", type=_triple, default=None,
+                   help="oblique plane: a point x,y,z of it in the store's world frame (what clipvol info prints: "
+                        "patient RAS+ mm for NIfTI/DICOM)")
+    g.add_argument("--normal", type=_triple, default=None, help="oblique plane: its normal x,y,z (world frame)")
+    g.add_argument("--up", type=_triple, default=None,
+                   help="oblique plane: the image's up x,y,z (world frame; default superior, anterior for an "
+                        "axial plane, in a patient frame)")
     s = p.add_argument_group("image")
     add_common_arguments(s, ("size",), size=dict(help="WxH pixels (default: the plane's cut through the volume)"))
     s.add_argument("--pixel-size", type=float, default=None, help="world units per pixel (default: the level-0 voxel)")
@@ -63,7 +70,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     s.add_argument("--npy", default=None, help="write the resampled values (float32, NaN outside the volume)")
     s.add_argument("--stats", default=None, help="write statistics as JSON (bytes_loaded, tiles per level, time)")
     r = p.add_argument_group("resolution")
-    r.add_argument("--poi", type=_triple, default=None, help="point of interest x,y,z: full resolution near it")
+    r.add_argument("--poi", type=_triple, default=None,
+                   help="point of interest x,y,z in the store's world frame: full resolution near it; the plane "
+                        "moves through it unless --plane, --index or --origin place it")
     add_render_arguments(r, ("level", "distance_factor", "lod_threshold"), help={
         "level": "one level everywhere (0 = full resolution)",
         "distance_factor": "--poi: refine nodes closer to it than this many of their diagonals (default 1)"})
@@ -123,10 +132,40 @@ def _plane_from_args(pyramid, args, frame=None):
     if args.origin is not None or args.normal is not None:
         if args.origin is None or args.normal is None:
             raise ParameterError("--origin/--normal: expected both for an oblique plane, got one")
-        return Plane.through(args.origin, args.normal, args.up)
+        return _world_plane(pyramid, frame, args.origin, args.normal, args.up)
     if is_anatomical(frame):
         return anatomical_plane(pyramid, frame, "axial", None, "neurological" if neuro else "radiological")
     return Plane.axis(pyramid, "axial")
+
+
+def _world_plane(pyramid, frame, origin, normal, up):
+    """The render-frame plane of ``--origin``/``--normal``/``--up`` given in the store's world frame.
+
+    The image's right is ``normal x up`` in the world (so a mirrored store, LAS, is not shown
+    mirrored); without ``--up`` a patient-frame store takes superior up (anterior for a plane
+    facing superior), another store the preset up of the array axis nearest the normal.
+    """
+    import numpy as np
+
+    from clipvol.scene.cut import direction_to_render, point_to_render
+    from clipvol.scene.plane import Plane
+    from clipvol.scene.views import is_anatomical
+
+    o = point_to_render(pyramid, frame, origin, "--origin")
+    n_r = direction_to_render(pyramid, frame, normal, "--normal", normal=True)
+    if up is None and not is_anatomical(frame):
+        return Plane.through(o, n_r)
+    n_w = np.asarray(normal, dtype=np.float64)
+    if up is None:
+        up = (0.0, 1.0, 0.0) if int(np.argmax(np.abs(n_w))) == 2 else (0.0, 0.0, 1.0)
+    u_w = np.asarray(up, dtype=np.float64)
+    r_w = np.cross(n_w, u_w)
+    if not np.linalg.norm(r_w) > 1e-9 * np.linalg.norm(n_w) * max(1.0, float(np.linalg.norm(u_w))):
+        raise ParameterError(f"--up: expected a vector not parallel to the normal {tuple(n_w.tolist())}, got {tuple(u_w.tolist())}")
+    u_r = direction_to_render(pyramid, frame, u_w, "--up")
+    r_r = direction_to_render(pyramid, frame, r_w, "--up")
+    n = np.cross(u_r, r_r)  # so that Plane's right = normal x up is the world's right
+    return Plane(tuple(o.tolist()), tuple((n / np.linalg.norm(n)).tolist()), tuple(u_r.tolist()))
 
 
 def _write_atomic(path: str, write) -> None:
@@ -180,6 +219,13 @@ def run(args) -> int:
     pyr = loader.pyramid
     frame = getattr(loader, "frame", None)  # the source's voxel-to-world affine (NIfTI, DICOM, ...)
     plane = plane_from_args(pyr, args, frame)
+    poi = None
+    if args.poi is not None:  # a world point: the plane moves through it unless its place was given
+        from clipvol.scene.cut import point_to_render
+
+        poi = point_to_render(pyr, frame, args.poi, "--poi")
+        if args.plane is None and args.index is None and args.origin is None:
+            plane = plane.moved_through(poi)
     lo, hi = pyr.volume_box()
     if not plane.crosses(lo, hi)[0]:
         raise ParameterError(f"plane: expected a plane that meets the volume {tuple(lo.tolist())}..{tuple(hi.tolist())}, "
@@ -194,8 +240,8 @@ def run(args) -> int:
     from clipvol.tools.cut_args import shape_from_args
 
     cut = shape_from_args(args, loader)  # --crop / --crop-voxels / --clip-plane: pixels outside are left out
-    params = render_params_from_args(args, policy="plane", focus=args.poi, shape=cut)
-    centre = np.clip(np.asarray(args.poi if args.poi is not None else plane.origin, dtype=np.float64), lo, hi)
+    params = render_params_from_args(args, policy="plane", focus=None if poi is None else tuple(map(float, poi)), shape=cut)
+    centre = np.clip(np.asarray(poi if poi is not None else plane.origin, dtype=np.float64), lo, hi)
     tf = TransferFunction.preset(args.tf) if args.tf is not None else None
     ctx = create_context()
     try:

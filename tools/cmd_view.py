@@ -129,6 +129,7 @@ def run(args) -> int:
     series = _series(args, source, loader, {**kwargs, **remote_kwargs(args)}) if args.play else None
     if params.level is not None and params.level >= loader.pyramid.num_levels:
         raise ParameterError(f"--level: expected 0..{loader.pyramid.num_levels - 1}, got {params.level}")
+    params.check_for(loader.pyramid)  # an --iso-value outside the data's range, before any output exists
     tf = channels[1] if channels is not None else transfer_function_from_args(args, loader)
     from clipvol.tools.cut_args import shape_from_args
 

@@ -20,12 +20,12 @@ def add_cut_arguments(p) -> None:
     g = p.add_argument_group("cut the volume open")
     g.add_argument("--crop", default=None, metavar="X0,Y0,Z0,X1,Y1,Z1",
                    help="draw only the box between two opposite corners in world units (the frame clipvol info "
-                        "prints: patient RAS+ mm for NIfTI/DICOM); write --crop=-60,... when the first is negative")
-    g.add_argument("--crop-voxels", default=None, metavar="Z0:Z1,Y0:Y1,X0:X1",
+                        "prints: patient RAS+ mm for NIfTI/DICOM), x,y,z")
+    g.add_argument("--crop-voxels", default=None, metavar="X0:X1,Y0:Y1,Z0:Z1",
                    help="draw only these level-0 voxels (stop exclusive, an empty side: the whole axis)")
     g.add_argument("--clip-plane", action="append", default=[], metavar="X,Y,Z,NX,NY,NZ",
                    help="keep the side of the plane through world point X,Y,Z that the normal NX,NY,NZ points to "
-                        "(repeatable, at most 6; write --clip-plane=-5,... when the first is negative)")
+                        "(repeatable, at most 6)")
 
 
 def _numbers(text: str, n: int, flag: str, form: str) -> tuple[float, ...]:
@@ -45,14 +45,15 @@ def parse_crop(text: str) -> tuple[tuple[float, float, float], tuple[float, floa
 
 
 def parse_voxel_ranges(text: str, shape0, flag: str = "--crop-voxels") -> tuple[tuple[int, int, int], tuple[int, int, int]]:
-    """``"z0:z1,y0:y1,x0:x1"`` -> ``(start, stop)`` in voxels of level 0 (empty sides: the axis's
-    ends); the one parser of ``--crop-voxels`` and ``clipvol export --box`` (``flag`` names it in
-    errors). Bounds are the caller's: a crop may reach past the volume, an export may not."""
+    """``"x0:x1,y0:y1,z0:z1"`` -> ``(start, stop)`` in voxels of level 0, ``(z, y, x)`` like the array
+    (empty sides: the axis's ends); the one parser of ``--crop-voxels`` and ``clipvol export --box``
+    (``flag`` names it in errors). Typed x,y,z as every coordinate of the CLI, world or voxel.
+    Bounds are the caller's: a crop may reach past the volume, an export may not."""
     parts = text.split(",")
     if len(parts) != 3:
-        raise ParameterError(f"{flag}: expected Z0:Z1,Y0:Y1,X0:X1 (three ranges), got {text!r}")
+        raise ParameterError(f"{flag}: expected X0:X1,Y0:Y1,Z0:Z1 (three ranges), got {text!r}")
     start, stop = [], []
-    for part, n, axis in zip(parts, shape0, "zyx"):
+    for part, n, axis in zip(parts[::-1], shape0, "zyx"):  # typed x,y,z like every coordinate; kept z,y,x
         a, sep, b = part.partition(":")
         if not sep:
             raise ParameterError(f"{flag}: expected START:STOP for {axis}, got {part!r}")
@@ -60,12 +61,12 @@ def parse_voxel_ranges(text: str, shape0, flag: str = "--crop-voxels") -> tuple[
             start.append(int(a) if a.strip() else 0)
             stop.append(int(b) if b.strip() else int(n))
         except ValueError:
-            raise ParameterError(f"{flag}: expected integer voxel ranges Z0:Z1,Y0:Y1,X0:X1, got {part!r} for {axis}") from None
+            raise ParameterError(f"{flag}: expected integer voxel ranges X0:X1,Y0:Y1,Z0:Z1, got {part!r} for {axis}") from None
     return tuple(start), tuple(stop)  # type: ignore[return-value]
 
 
 def parse_crop_voxels(text: str, shape0) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
-    """``--crop-voxels "z0:z1,y0:y1,x0:x1"`` -> ``(start, stop)`` of level 0 (:func:`parse_voxel_ranges`)."""
+    """``--crop-voxels "x0:x1,y0:y1,z0:z1"`` -> ``(start, stop)`` of level 0, z,y,x (:func:`parse_voxel_ranges`)."""
     return parse_voxel_ranges(text, shape0, "--crop-voxels")
 
 

@@ -84,18 +84,27 @@ def transfer_function_from_args(args, loader):
             tf = tf.with_value_range(rng)
         return tf if opacity is None else tf.with_opacity(opacity)
     if name == "auto":
-        if rng is None and opacity is None and getattr(args, "overlay", None):
+        mode = getattr(args, "mode", None)
+        from clipvol.scene.auto_tf import PROJECTIONS
+
+        if rng is None and opacity is None and mode in PROJECTIONS:
+            from clipvol.scene.auto_tf import projection_transfer_function
+
+            return projection_transfer_function(loader, mode)  # the projection's own values, opaque at the top
+        if rng is None and opacity is None and (getattr(args, "overlay", None) or getattr(args, "label_overlay", None)):
             from clipvol.scene.auto_tf import context_transfer_function
 
-            return context_transfer_function(loader)  # translucent grey: the overlay inside it shows
+            return context_transfer_function(loader)  # translucent grey: the overlay or labels inside it show
         if rng is None:
             from clipvol.scene.auto_tf import series_histogram
 
             hist = series_histogram(steps) if steps is not None else None
             return auto_transfer_function(loader, opacity=opacity, hist=hist)
-        from clipvol.scene.auto_tf import default_preset
+        from clipvol.scene.auto_tf import auto_preset, default_preset
 
-        return TransferFunction.preset(default_preset(loader), value_range=rng, opacity=opacity)
+        # a z-map keeps its diverging map under a window of its own (an opacity curve: a one-sided map)
+        preset = auto_preset(loader) if opacity is None else default_preset(loader)
+        return TransferFunction.preset(preset, value_range=rng, opacity=opacity)
     if name not in TransferFunction.names():
         raise ParameterError(f"--tf: expected auto, one of {', '.join(TransferFunction.names())} "
                              f"or a .json file, got {name!r}")

@@ -199,7 +199,8 @@ def render_path(
         The data (see :func:`clipvol.paging.open.open_store`).
     out : str or Path
         A directory (PNG frames ``frame_0000.png``... and ``frames.csv``), a ``.gif`` file or a
-        movie (``.mp4``, ``.webm``, ``.mkv``, ``.mov``, ``.avi``), with ``<name>.csv`` beside it.
+        movie (``.mp4``, ``.webm``, ``.mkv``, ``.mov``, ``.avi``), with ``<name>.<suffix>.csv`` beside it
+        (``anim.gif.csv``, ``anim.mp4.csv``: a GIF and a movie of one run do not overwrite each other's).
     path : {'orbit', 'turntable', 'fly', 'zoom'}
         The camera path (:mod:`clipvol.scene.paths`).
     frames : int
@@ -250,7 +251,7 @@ def render_path(
     movie = out.suffix.lower() in MOVIE_SUFFIXES
     if gif or movie:
         out.parent.mkdir(parents=True, exist_ok=True)
-        csv_path = out.with_suffix(".csv")
+        csv_path = out.with_name(out.name + ".csv")  # anim.gif.csv: a GIF and a movie of one name keep their own
     else:
         if out.exists() and not out.is_dir():
             raise ParameterError(f"out: expected a directory or a .gif file, got the existing file {out}")

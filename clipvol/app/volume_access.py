@@ -20,6 +20,7 @@ includes that level's scale and translation (the position of its voxel centres, 
 
 from __future__ import annotations
 
+import sys
 from itertools import product
 from pathlib import Path
 from typing import Any, Sequence
@@ -148,7 +149,10 @@ class LevelArray:
         steps = tuple(slice(None) for _ in lead) + tuple(slice(None, None, s) for _, _, s in space)
         out = out[steps]
         squeeze = tuple(i for i, d in enumerate(drop) if d)
-        return np.ascontiguousarray(out.reshape([n for i, n in enumerate(out.shape) if i not in squeeze]))
+        out = out.reshape([n for i, n in enumerate(out.shape) if i not in squeeze])
+        if out.ndim == 0:  # integers on every axis: a numpy scalar, as numpy's own a[z, y, x]
+            return out[()]
+        return np.ascontiguousarray(out)
 
     def __array__(self, dtype=None, copy=None) -> np.ndarray:
         a = self[...]
@@ -292,7 +296,8 @@ def open(source: str | Path, *, store: str | Path | None = None, **kwargs) -> Vo
         NIfTI / DICOM / HDF5 / MRC file (bricked once into ``store``, default ``./NAME.zarr``, and
         reused afterwards, as ``clipvol view`` does).
     store : str or Path, optional
-        Where a file format is bricked (its progress bar shows on stderr while it is).
+        Where a file format is bricked (its progress bar shows on stderr while it is, and one line
+        on stderr says which store is built or reused: ``bricking scan.nii.gz into /data/scan.zarr``).
     **kwargs
         Passed to the loader (``brick=32`` for ``.npy`` and procedural volumes; ``cache=``, ``storage_options=``
         for remote stores).
@@ -309,6 +314,6 @@ def open(source: str | Path, *, store: str | Path | None = None, **kwargs) -> Vo
         if k in kwargs:
             raise ParameterError(f"{k}: clipvol.open returns every channel and time step; index them with "
                                  f"vol.level(L)[k, ...] instead of {k}=")
-    text = bricked_source(str(source), store, log=lambda line: None)
+    text = bricked_source(str(source), store, log=lambda line: print(line, file=sys.stderr))  # where its store is
     loader = open_loader(text, **kwargs)
     return Volume(text, loader, kwargs=kwargs)

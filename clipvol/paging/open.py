@@ -100,10 +100,9 @@ def open_store(path_or_url: str | Path, **kwargs) -> Loader:
         from ..loaders.numpy_array import NumpyLoader
 
         return _construct(NumpyLoader, path, kwargs)
-    raise InputFormatError(
-        f"{path}: unknown format (suffix {path.suffix or 'none'!r}); expected a zarr store directory, a .npy file "
-        "or a URL such as 'procedural:fractal?size=256'"
-    )
+    from ..bricking.formats import readable_formats
+
+    raise InputFormatError(f"{path}: unknown format (suffix {path.suffix or 'none'!r}); expected {readable_formats()}")
 
 
 def _construct(loader_class, where, kwargs: dict):

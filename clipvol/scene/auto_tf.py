@@ -22,6 +22,15 @@ level read once):
   symmetric about 0 out to the 99.5th percentile of ``|v|``, transparent within 20 % of that
   around 0, as neuroimaging viewers threshold such maps.
 
+**Projections** (MIP, minIP, average) draw one value per ray, and those values are not the
+voxels': a MIP holds the bright end, an average is pulled towards the background by the air each
+ray crosses, a minIP of a scan in air is mostly air. A window on the voxels' foreground with a gentle
+opacity ramp then draws a washed-out MIP (opacity at most ~0.6), an average of median opacity
+~0.04 and an empty minIP. :func:`projection_transfer_function` instead measures the projection's
+own values - the projections of a small level along the three axes - and maps their 1st..99.5th
+percentiles over the whole table, opacity rising linearly from 0 to 1 (for a minIP, whose
+interesting values are the low ones, the table and its opacity run the other way).
+
 Percentiles are interpolated linearly inside a bin, so the window is good to about a bin width
 (1/64 of the value range), which is all a default needs.
 """
@@ -36,7 +45,8 @@ from ..bricking.stats import histogram_edges
 from .transfer import TransferFunction
 
 __all__ = ["ValueHistogram", "value_histogram", "series_histogram", "auto_window", "auto_transfer_function",
-           "default_preset", "context_transfer_function", "CONTEXT_OPACITY"]
+           "default_preset", "context_transfer_function", "CONTEXT_OPACITY", "PROJECTIONS",
+           "projection_transfer_function", "auto_preset"]
 
 #: most bricks summed from the stored statistics (one level); a finer level with more is skipped
 MAX_STAT_BRICKS = 1 << 18
@@ -200,6 +210,21 @@ def default_preset(loader) -> str:
     return "grey" if frame is not None and getattr(frame, "frame", "") == "RAS" else "viridis"
 
 
+def _auto_window_of(loader, hist: ValueHistogram | None = None) -> AutoWindow:
+    lo, hi = (float(v) for v in loader.pyramid.value_range)
+    if lo == hi:  # a constant volume: a zero-width window is a step at its value, drawn at mid-table
+        return AutoWindow((lo, hi), False, lo)
+    hist = value_histogram(loader) if hist is None else hist
+    return auto_window(hist, float_data=np.dtype(loader.pyramid.dtype).kind == "f")
+
+
+def auto_preset(loader, hist: ValueHistogram | None = None) -> str:
+    """The colour map the automatic transfer function picks: ``diverging`` for signed data (a
+    statistical map), else :func:`default_preset`. A window the user gives (``--tf-range -5,5``)
+    keeps it, so a z-map stays diverging rather than turning into a grey ramp."""
+    return "diverging" if _auto_window_of(loader, hist).signed else default_preset(loader)
+
+
 def auto_transfer_function(loader, preset: str | None = None, opacity: str | None = None,
                            hist: ValueHistogram | None = None) -> TransferFunction:
     """The automatic :class:`~clipvol.scene.transfer.TransferFunction` of ``loader``'s data.
@@ -208,12 +233,7 @@ def auto_transfer_function(loader, preset: str | None = None, opacity: str | Non
     store with a patient frame, ``viridis`` otherwise, ``diverging`` for signed data); ``opacity`` its opacity curve. Its :attr:`~TransferFunction.name` says what was chosen,
     e.g. ``auto: viridis 12.5..230``.
     """
-    lo, hi = (float(v) for v in loader.pyramid.value_range)
-    if lo == hi:  # a constant volume: a zero-width window is a step at its value, drawn at mid-table
-        aw = AutoWindow((lo, hi), False, lo)
-    else:
-        hist = value_histogram(loader) if hist is None else hist
-        aw = auto_window(hist, float_data=np.dtype(loader.pyramid.dtype).kind == "f")
+    aw = _auto_window_of(loader, hist)
     name = preset or ("diverging" if aw.signed else default_preset(loader))
     tf = TransferFunction.preset(name, value_range=aw.window, opacity=None if name == "diverging" else opacity)
     return tf.with_name(f"auto: {tf.name} {aw.window[0]:.4g}..{aw.window[1]:.4g}")
@@ -235,3 +255,53 @@ def context_transfer_function(loader, hist: ValueHistogram | None = None) -> Tra
     table = np.array(tf.table, dtype=np.float64)
     table[:, 3] *= CONTEXT_OPACITY
     return TransferFunction(table, tf.value_range, name=f"{tf.name} (context, opacity x{CONTEXT_OPACITY:g})")
+
+
+#: the render modes whose pixel is one value per ray
+PROJECTIONS = ("mip", "minip", "average")
+#: most voxels of the level whose projections measure a projection's window
+PROJECTION_VOXELS = 1 << 21
+
+
+def projection_transfer_function(loader, mode: str, preset: str | None = None) -> TransferFunction:
+    """The automatic transfer function of a projection ``mode`` (``mip``, ``minip`` or ``average``).
+
+    The window is the 1st..99.5th percentile of the finite values of the ``mode`` projections, along
+    z, y and x, of the finest level with at most :data:`PROJECTION_VOXELS` voxels (read once); the
+    table is ``preset`` (default :func:`default_preset`) with opacity rising linearly from 0 at the
+    window's low end to 1 at its high end, both reversed for ``minip``. So the projection's own
+    values fill the table and its opacity: the brightest MIP ray is opaque, the background's
+    transparent.
+    """
+    from ..errors import ParameterError
+    from .overlay import read_level
+
+    reducers = {"mip": np.nanmax, "minip": np.nanmin, "average": np.nanmean}
+    if mode not in reducers:
+        raise ParameterError(f"mode: expected one of {', '.join(PROJECTIONS)}, got {mode!r}")
+    pyr = loader.pyramid
+    level = next((L for L in range(pyr.num_levels) if int(np.prod(pyr.levels[L].shape)) <= PROJECTION_VOXELS),
+                 pyr.num_levels - 1)
+    vol = read_level(loader, level, np.float64, failed=np.nan)
+    vol[~np.isfinite(vol)] = np.nan
+    vals = []
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rays: NaN, left out below
+            for axis in range(3):
+                p = reducers[mode](vol, axis=axis).ravel()
+                vals.append(p[np.isfinite(p)])
+    v = np.concatenate(vals)
+    lo, hi = (float(x) for x in np.percentile(v, [1.0, 99.5])) if v.size else (0.0, 0.0)
+    if not hi > lo:  # a projection of one value: the data's range
+        lo, hi = (float(x) for x in pyr.value_range)
+    name = preset or default_preset(loader)
+    tf = TransferFunction.preset(name, value_range=(lo, hi))
+    table = np.array(tf.table, dtype=np.float64)
+    if mode == "minip":
+        table = table[::-1].copy()
+    ramp = np.linspace(0.0, 1.0, len(table))
+    table[:, 3] = ramp[::-1] if mode == "minip" else ramp
+    return TransferFunction(table, (lo, hi), name=f"auto {mode}: {name} {lo:.4g}..{hi:.4g}")

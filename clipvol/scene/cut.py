@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import ParameterError
 from .geometry import MAX_PLANES, Shape
 
-__all__ = ["render_to_world", "world_to_render", "plane_to_render", "voxel_box_to_render", "world_box_to_render",
+__all__ = ["render_to_world", "world_to_render", "point_to_render", "direction_to_render", "plane_to_render", "voxel_box_to_render", "world_box_to_render",
            "cut_shape", "outside_bricks", "CutEditor", "FACES"]
 
 #: the crop box's faces in the order the viewer's key cycles them (render-frame axis, 0 = low side)
@@ -61,6 +61,32 @@ def _points(m: np.ndarray, p) -> np.ndarray:
     return p @ m[:3, :3].T + m[:3, 3]
 
 
+def point_to_render(pyramid, frame, point, what: str = "point") -> np.ndarray:
+    """Render-frame ``(x, y, z)`` of a world point ``(x, y, z)`` (the store's frame, e.g. RAS+ mm).
+
+    The one conversion of every point a user types (``clipvol slice --origin/--poi``, crops,
+    clip planes), so a point means the same place whatever the storage order of the array.
+    """
+    q = np.asarray(point, dtype=np.float64).reshape(-1)
+    if q.shape != (3,) or not np.all(np.isfinite(q)):
+        raise ParameterError(f"{what}: expected a finite point x,y,z, got {tuple(q.tolist())}")
+    return _points(world_to_render(pyramid, frame), q)
+
+
+def direction_to_render(pyramid, frame, direction, what: str = "direction", normal: bool = False) -> np.ndarray:
+    """Unit render-frame direction of a world direction ``(x, y, z)``.
+
+    A plane's ``normal=True`` maps by the inverse transpose (it stays perpendicular to the plane
+    under a shear); an in-plane direction (an image's up) by the linear part itself.
+    """
+    d = np.asarray(direction, dtype=np.float64).reshape(-1)
+    if d.shape != (3,) or not np.all(np.isfinite(d)) or not np.any(d != 0):
+        raise ParameterError(f"{what}: expected a finite, non-zero vector x,y,z, got {tuple(d.tolist())}")
+    m = render_to_world(pyramid, frame)[:3, :3]
+    r = m.T @ d if normal else np.linalg.solve(m, d)
+    return r / np.linalg.norm(r)
+
+
 def plane_to_render(pyramid, frame, point, normal, what: str = "clip plane") -> tuple[float, float, float, float]:
     """Render-frame ``(a, b, c, d)`` (unit normal) of the world half-space ``normal . (p - point) >= 0``."""
     q = np.asarray(point, dtype=np.float64).reshape(-1)
@@ -85,7 +111,7 @@ def voxel_box_to_render(pyramid, start, stop) -> tuple[tuple[float, ...], tuple[
     for a, b, n, axis in zip(start, stop, shape, "zyx"):
         if not 0 <= a < b <= n:
             raise ParameterError(f"--crop-voxels: {axis} range {a}:{b}: expected 0 <= start < stop <= {n} (level 0 "
-                                 f"is {shape[0]}x{shape[1]}x{shape[2]}, z, y, x)")
+                                 f"is {shape[2]}x{shape[1]}x{shape[0]} voxels, x, y, z)")
     sp = np.array(pyramid.spacing[::-1], dtype=np.float64)
     lo = (np.array(start[::-1], dtype=np.float64) - 0.5) * sp
     hi = (np.array(stop[::-1], dtype=np.float64) - 0.5) * sp

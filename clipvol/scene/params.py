@@ -396,7 +396,19 @@ class RenderParams:
 
     def check_for(self, pyramid) -> "RenderParams":
         """Raise :class:`ParameterError` if the parameters do not fit ``pyramid`` (a fixed level
-        past its top); returns ``self``."""
+        past its top, an iso-value outside the data's range); returns ``self``.
+
+        An iso-value at or below the data's minimum is reached by every ray's first sample (an
+        opaque box), one above its maximum by none (an empty image): both are refused, naming the
+        range, rather than drawn as if they showed a surface."""
         if self.level is not None and self.level >= pyramid.num_levels:
             raise ParameterError(f"level: expected 0..{pyramid.num_levels - 1} for this store, got {self.level}")
+        rng = getattr(pyramid, "value_range", None)
+        if self.iso_value is not None and rng is not None:
+            lo, hi = (float(v) for v in rng)
+            if not (lo < self.iso_value <= hi or lo == hi == self.iso_value):
+                side = "at or below the minimum: every ray hits at once, an opaque box" if self.iso_value <= lo \
+                    else "above the maximum: no surface, an empty image"
+                raise ParameterError(f"iso_value: expected a value above the data's minimum {lo:g} and at most its "
+                                     f"maximum {hi:g}, got {self.iso_value:g} ({side})")
         return self

@@ -119,6 +119,14 @@ class Plane:
         origin[2 - a] = i * pyramid.spacing[a]
         return cls(tuple(origin), normal, up)
 
+    def moved_through(self, point) -> "Plane":
+        """This plane shifted along its normal to pass through ``point`` (same orientation; the image
+        centre is the old one projected onto the new plane), as a point of interest places a slice."""
+        p = _vec3(point, "point")
+        o = np.asarray(self.origin)
+        n = np.asarray(self.normal)
+        return Plane(tuple((o + ((p - o) @ n) * n).tolist()), self.normal, self.up)
+
     # -- frame ----------------------------------------------------------------------------------
     @property
     def right(self) -> np.ndarray:

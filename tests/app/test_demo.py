@@ -27,7 +27,7 @@ def test_demo_quick(tmp_path, capsys):
     assert rc == 0
     text = capsys.readouterr().out
     store = out / "fractal-ball.zarr"
-    for p in (store / "zarr.json", out / "orbit.gif", out / "orbit.csv", out / "zoom.gif", out / "zoom.csv",
+    for p in (store / "zarr.json", out / "orbit.gif", out / "orbit.gif.csv", out / "zoom.gif", out / "zoom.gif.csv",
               out / "report" / "report.md", out / "report" / "report.csv", out / "report" / "error_vs_time.png"):
         assert p.is_file(), p
         assert str(p.parent if p.name == "zarr.json" else p) in text or p.suffix in (".csv", ".png")
@@ -39,7 +39,7 @@ def test_demo_quick(tmp_path, capsys):
         assert gif.n_frames == 4
         first = np.asarray(gif.convert("RGB"))
     assert first.max() > 0
-    with open(out / "orbit.csv", newline="") as fh:
+    with open(out / "orbit.gif.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert [int(r["frame"]) for r in rows] == [0, 1, 2, 3]
     assert all(r["converged"] == "1" for r in rows)
@@ -91,7 +91,7 @@ def test_offscreen_path_to_png_dir_and_ctrl_c(tmp_path):
                     progress=interrupt)
     with Image.open(gif) as g:
         assert g.n_frames == 2  # the frames rendered before Ctrl-C
-    with open(gif.with_suffix(".csv"), newline="") as fh:
+    with open(gif.with_name(gif.name + ".csv"), newline="") as fh:
         assert len(list(csv.DictReader(fh))) == 2
     leftover = [t for t in threading.enumerate() if t.ident not in before and t.name.startswith("clipvol")]
     assert leftover == []

@@ -42,7 +42,7 @@ def test_movie_matches_png_frames(store, tmp_path, ctx):
     kw = dict(path="turntable", frames=5, size=(63, 48), converged=True, ctx=ctx)
     pngs = render_path(store, tmp_path / "png", **kw)
     res = render_path(store, tmp_path / "spin.mp4", fps=10, quality=10, **kw)
-    assert res.movie == tmp_path / "spin.mp4" and (tmp_path / "spin.csv").is_file()
+    assert res.movie == tmp_path / "spin.mp4" and res.csv == tmp_path / "spin.mp4.csv" and res.csv.is_file()
     frames = iio.imread(tmp_path / "spin.mp4")
     assert frames.shape == (5, 48, 64, 3)  # odd width padded to even for H.264
     meta = iio.immeta(tmp_path / "spin.mp4")
@@ -53,6 +53,18 @@ def test_movie_matches_png_frames(store, tmp_path, ctx):
         assert ref.max() > 50  # not blank
         assert np.abs(got - ref).mean() < 4.0, k  # lossy, but the same picture
     assert not list(tmp_path.glob(".*partial*"))
+
+
+def test_a_gif_and_a_movie_of_one_name_keep_their_own_csv(store, tmp_path, ctx):
+    import csv
+
+    from clipvol.app.flythrough import render_path
+
+    gif = render_path(store, tmp_path / "spin.gif", path="turntable", frames=3, size=(32, 32), ctx=ctx)
+    mp4 = render_path(store, tmp_path / "spin.mp4", path="turntable", frames=5, size=(32, 32), ctx=ctx)
+    assert gif.csv != mp4.csv  # before: both spin.csv, the movie's overwrote the GIF's
+    rows = [list(csv.DictReader(open(r.csv))) for r in (gif, mp4)]
+    assert [len(r) for r in rows] == [3, 5]  # each its own run's frames
 
 
 def test_movie_error_leaves_no_file(store, tmp_path, ctx):

@@ -60,6 +60,15 @@ def test_metadata_and_level0_slices_equal_the_source(store):
     np.testing.assert_array_equal(np.asarray(lv), data)
 
 
+def test_integer_indices_give_a_scalar_as_numpy_does(store):
+    path, data = store
+    lv = clipvol.open(path).level(0)
+    for key in [(3, 4, 5), (-1, -1, -1), (np.int64(20), 0, 26)]:
+        got = lv[key]
+        assert np.ndim(got) == 0 and np.ndim(data[key]) == 0, key  # before: a 1-element array
+        assert got == data[key] and type(got) is type(data[key]), key
+
+
 def test_coarse_levels_equal_a_numpy_mean(store):
     path, data = store
     vol = clipvol.open(path)
@@ -138,12 +147,15 @@ def test_a_nifti_is_bricked_once_and_read_back(nifti):
     np.testing.assert_array_equal(vol.level(0)[...], data)
 
 
-def test_a_nifti_without_a_store_is_bricked_beside_the_working_directory(tmp_path, monkeypatch):
+def test_a_nifti_without_a_store_is_bricked_beside_the_working_directory(tmp_path, monkeypatch, capsys):
     data = np.arange(6 * 5 * 4, dtype=np.float32).reshape(6, 5, 4)
     nib.save(nib.Nifti1Image(data.T.copy(), np.diag([2.0, 3.0, 4.0, 1.0])), tmp_path / "small.nii")
     monkeypatch.chdir(tmp_path)
     vol = clipvol.open(tmp_path / "small.nii")
     assert vol.source == str(tmp_path / "small.zarr") and (tmp_path / "small.zarr" / "zarr.json").is_file()
+    assert str(tmp_path / "small.zarr") in capsys.readouterr().err  # it says where it put the store
+    clipvol.open(tmp_path / "small.nii")
+    assert f"using {tmp_path / 'small.zarr'}" in capsys.readouterr().err  # and which one it reuses
     np.testing.assert_array_equal(vol.level(0)[...], data)
     assert vol.spacing == (4.0, 3.0, 2.0)
 

@@ -156,6 +156,6 @@ def test_mrc_without_a_voxel_size_bricks_with_spacing(tmp_path):
     p = tmp_path / "m.mrc"
     with mrcfile.new(p) as m:
         m.set_data(np.ones((4, 4, 4), np.float32))
-    assert main(["brick", str(p), str(tmp_path / "o.zarr"), "--quiet", "--brick", "8", "--spacing", "3,2,1"]) == 0
+    assert main(["brick", str(p), str(tmp_path / "o.zarr"), "--quiet", "--brick", "8", "--spacing", "1,2,3"]) == 0  # x,y,z
     attrs = json.loads((tmp_path / "o.zarr" / "zarr.json").read_text())["attributes"]
     assert attrs["clipvol"]["spacing"] == [3.0, 2.0, 1.0]

@@ -112,3 +112,21 @@ def test_cli_brick_with_labels(image_and_labels):
     rc = main(["brick", str(tmp / "img.npy"), str(tmp / "three.zarr"), "--brick", "8", "--quiet",
                "--labels", str(tmp / "bad.npy")])
     assert rc == 2
+
+
+def test_info_lists_the_label_images(image_and_labels, capsys):
+    # the reference: the names given to `brick --labels` (and none for a store without)
+    from clipvol.tools.cli import main
+
+    tmp, img, lab = image_and_labels
+    np.save(tmp / "vessels.npy", lab)
+    assert main(["brick", str(tmp / "img.npy"), str(tmp / "seg.zarr"), "--brick", "8", "--quiet",
+                 "--labels", f"{tmp / 'seg.npy'}:organs", "--labels", f"{tmp / 'vessels.npy'}"]) == 0
+    capsys.readouterr()
+    assert main(["info", str(tmp / "seg.zarr")]) == 0
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("labels")]
+    assert len(lines) == 1 and "organs, vessels" in lines[0] and "--label-overlay" in lines[0], lines
+    assert main(["brick", str(tmp / "img.npy"), str(tmp / "plain.zarr"), "--brick", "8", "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["info", str(tmp / "plain.zarr")]) == 0
+    assert not [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("labels")]

@@ -77,3 +77,29 @@ def test_points_beyond_float_range_are_refused_not_stored_as_inf(tmp_path, capsy
     assert main(["brick-points", str(tmp_path / "p.npy"), str(tmp_path / "p.zarr"), "--quiet"]) == 2
     _one_error_line(capsys, "p.npy", "row 7", "1e+30")
     assert not (tmp_path / "p.zarr").exists()
+
+
+@pytest.mark.parametrize("argv, dest, want", [
+    (["render", "s.zarr", "--tf-range", "-5,5"], "tf_range", (-5.0, 5.0)),
+    (["render", "s.zarr", "--tf-range", "-1e-3,.5"], "tf_range", (-1e-3, 0.5)),
+    (["render", "s.zarr", "--crop", "-60,-40,-30,60,80,40"], "crop", "-60,-40,-30,60,80,40"),
+    (["render", "s.zarr", "--eye", "-300,0,20"], "eye", (-300.0, 0.0, 20.0)),
+    (["slice", "s.zarr", "--origin", "-2,5,46"], "origin", (-2.0, 5.0, 46.0)),
+    (["slice", "s.zarr", "--poi", "-.5,0,1"], "poi", (-0.5, 0.0, 1.0)),
+    (["render", "s.zarr", "--tf-points", "-200:0,0,0,0;300:1,1,1,1"], "tf_points", "-200:0,0,0,0;300:1,1,1,1"),
+])
+def test_values_starting_with_a_minus_need_no_equals_sign(argv, dest, want):
+    # argparse alone reads "-5,5" as an unknown option: "expected one argument"
+    from clipvol.tools.cli import build_parser
+
+    args = build_parser().parse_args(argv + ["-o", "a.png"])
+    assert getattr(args, dest) == want
+
+
+def test_a_real_short_option_after_a_value_flag_is_still_an_option(capsys):
+    from clipvol.tools.cli import build_parser
+
+    with pytest.raises(SystemExit) as e:
+        build_parser().parse_args(["render", "s.zarr", "--tf-range", "-o", "a.png"])
+    assert e.value.code == 2
+    _one_error_line(capsys, "--tf-range")

@@ -139,7 +139,7 @@ def test_resume_with_other_parameters(tmp_path, npy, capsys, monkeypatch):
 def test_brick_info_check(tmp_path, npy, capsys):
     p, vol = npy
     out = tmp_path / "o.zarr"
-    assert main(["brick", str(p), str(out), "--brick", "8", "--spacing", "2,1,1", "--unit", "nanometer", "--codec", "zstd"]) == 0
+    assert main(["brick", str(p), str(out), "--brick", "8", "--spacing", "1,1,2", "--unit", "nanometer", "--codec", "zstd"]) == 0
     cap = capsys.readouterr()
     assert "bricking" in cap.err  # the progress bar
     np.testing.assert_array_equal(zarr.open_group(str(out), mode="r")["0"][...], vol)
@@ -184,3 +184,19 @@ def test_info_and_check_on_non_store(tmp_path, capsys):
     (tmp_path / "d").mkdir()
     assert main(["check", str(tmp_path / "d")]) == 2
     _one_error_line(capsys, "zarr.json")
+
+
+def test_spacing_and_origin_are_typed_x_y_z_like_every_coordinate(npy, tmp_path, capsys):
+    # reference: the store's own attributes, z, y, x (the array's order), and info printing x, y, z back
+    import json
+
+    p, _ = npy
+    out = tmp_path / "xyz.zarr"
+    assert main(["brick", str(p), str(out), "--brick", "8", "--quiet", "--spacing", "0.5,2,3",
+                 "--origin", "-7,1,40"]) == 0
+    cv = json.loads((out / "zarr.json").read_text())["attributes"]["clipvol"]
+    assert cv["spacing"] == [3.0, 2.0, 0.5] and cv["origin"] == [40.0, 1.0, -7.0]
+    capsys.readouterr()
+    assert main(["info", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "spacing    0.5, 2, 3 " in text and "origin     -7, 1, 40 " in text, text

@@ -59,7 +59,7 @@ def read(path):
 def test_level0_export_is_the_source_box(scan, tmp_path, suffix):
     d, data, _ = scan
     out = tmp_path / f"region{suffix}"
-    assert main(["export", str(d / "scan.zarr"), "--box", "3:15,5:22,0:9", "--out", str(out), "--quiet"]) == 0
+    assert main(["export", str(d / "scan.zarr"), "--box", "0:9,5:22,3:15", "--out", str(out), "--quiet"]) == 0
     np.testing.assert_array_equal(read(out), data[3:15, 5:22, 0:9])
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([out.name] + ([out.name + ".json"] if suffix == ".npy" else []))
 
@@ -69,7 +69,7 @@ def test_coarse_level_export_is_the_numpy_mean(scan, tmp_path, suffix):
     d, data, _ = scan
     out = tmp_path / f"coarse{suffix}"
     # level-0 box z 5:14, y 2:21, x 4:17 -> level-1 voxels z 2:7, y 1:11, x 2:9 (those overlapping it)
-    assert main(["export", str(d / "scan.zarr"), "--box", "5:14,2:21,4:17", "--level", "1", "--out", str(out),
+    assert main(["export", str(d / "scan.zarr"), "--box", "4:17,2:21,5:14", "--level", "1", "--out", str(out),
                  "--quiet"]) == 0
     np.testing.assert_allclose(read(out), mean2(data)[2:7, 1:11, 2:9], rtol=1e-6)
 
@@ -77,7 +77,7 @@ def test_coarse_level_export_is_the_numpy_mean(scan, tmp_path, suffix):
 def test_nifti_affine_puts_voxel_0_at_the_box_corner(scan, tmp_path):
     d, _, src_aff = scan
     out = tmp_path / "r.nii.gz"
-    assert main(["export", str(d / "scan.nii.gz"), "--store", str(d / "scan.zarr"), "--box", "4:10,6:20,2:11",
+    assert main(["export", str(d / "scan.nii.gz"), "--store", str(d / "scan.zarr"), "--box", "2:11,6:20,4:10",
                  "--out", str(out), "--quiet"]) == 0
     img = nib.load(out)
     corner = apply_affine(src_aff, [2, 6, 4])  # nibabel's (i, j, k) = (x, y, z)
@@ -86,7 +86,7 @@ def test_nifti_affine_puts_voxel_0_at_the_box_corner(scan, tmp_path):
     assert img.header["sform_code"] == 1 and img.header.get_xyzt_units()[0] == "mm"
     # level 1: voxel (0, 0, 0) of the export is the centre of the 2x2x2 level-0 block it averages
     out1 = tmp_path / "r1.nii"
-    assert main(["export", str(d / "scan.zarr"), "--box", "4:10,6:20,2:11", "--level", "1", "--out", str(out1),
+    assert main(["export", str(d / "scan.zarr"), "--box", "2:11,6:20,4:10", "--level", "1", "--out", str(out1),
                  "--quiet"]) == 0
     img1 = nib.load(out1)
     np.testing.assert_allclose(apply_affine(img1.affine, [0, 0, 0]), apply_affine(src_aff, [2.5, 6.5, 4.5]), atol=1e-4)
@@ -96,7 +96,7 @@ def test_nifti_affine_puts_voxel_0_at_the_box_corner(scan, tmp_path):
 def test_npy_sidecar_and_zarr_store_keep_the_geometry(scan, tmp_path):
     d, _, src_aff = scan
     for name in ("r.npy", "r.zarr"):
-        assert main(["export", str(d / "scan.zarr"), "--box", "1:9,2:10,3:12", "--out", str(tmp_path / name),
+        assert main(["export", str(d / "scan.zarr"), "--box", "3:12,2:10,1:9", "--out", str(tmp_path / name),
                      "--quiet"]) == 0
     side = json.loads((tmp_path / "r.npy.json").read_text())
     np.testing.assert_allclose(apply_affine(np.array(side["affine"]), [0, 0, 0]), apply_affine(src_aff, [3, 2, 1]), atol=1e-4)
@@ -126,8 +126,8 @@ def test_world_box_selects_the_voxel_centres_inside(scan, tmp_path):
 
 @pytest.mark.parametrize("args, words", [
     (["--box", "3:15,5:22"], ["--box", "three"]),
-    (["--box", "3:15,5:99,0:4"], ["--box", "y", "22"]),
-    (["--box", "3:a,5:9,0:4"], ["--box"]),
+    (["--box", "0:4,5:99,3:15"], ["--box", "y", "22"]),
+    (["--box", "0:4,5:9,3:a"], ["--box"]),
     (["--box", "1:5,1:5,1:5", "--level", "7"], ["--level", "0..2"]),
     (["--box-world", "1,2,3"], ["--box-world", "six"]),
     (["--box-world=-900,-900,-900,-800,-800,-800"], ["--box-world", "no voxel"]),
@@ -168,7 +168,7 @@ def test_an_interrupted_export_leaves_nothing(scan, tmp_path, monkeypatch, suffi
         return real(*a, **k)
 
     monkeypatch.setattr(export, "copy_brick", stop_on_third)
-    rc = main(["export", str(d / "scan.zarr"), "--box", "0:19,0:22,0:17", "--out", str(tmp_path / f"r{suffix}"), "--quiet"])
+    rc = main(["export", str(d / "scan.zarr"), "--box", "0:17,0:22,0:19", "--out", str(tmp_path / f"r{suffix}"), "--quiet"])
     assert rc == 130 and len(calls) == 3
     assert not list(tmp_path.iterdir())
 
@@ -177,7 +177,7 @@ def test_a_channel_set_exports_the_channel_named(tmp_path, capsys):
     data = np.random.default_rng(3).integers(0, 200, (2, 10, 12, 14)).astype(np.uint16)
     np.save(tmp_path / "cells.npy", data)
     assert main(["brick", str(tmp_path / "cells.npy"), str(tmp_path / "cells.zarr"), "--brick", "8", "--quiet"]) == 0
-    base = ["export", str(tmp_path / "cells.zarr"), "--box", "2:9,:,3:11", "--quiet", "--out"]
+    base = ["export", str(tmp_path / "cells.zarr"), "--box", "3:11,:,2:9", "--quiet", "--out"]
     assert main(base + [str(tmp_path / "c.npy")]) == 2 and "--c" in capsys.readouterr().err
     assert main(base + [str(tmp_path / "c.npy"), "--c", "1"]) == 0
     np.testing.assert_array_equal(np.load(tmp_path / "c.npy"), data[1, 2:9, :, 3:11])
@@ -191,7 +191,7 @@ def test_an_unverified_store_is_exported_only_when_asked(scan, tmp_path, capsys)
     copy = tmp_path / "u.zarr"
     shutil.copytree(d / "scan.zarr", copy)
     shutil.rmtree(copy / "clipvol_manifest")  # the root of trust gone: the store no longer verifies
-    args = ["export", str(copy), "--box", "0:5,0:6,0:7", "--out", str(tmp_path / "u.npy"), "--quiet"]
+    args = ["export", str(copy), "--box", "0:7,0:6,0:5", "--out", str(tmp_path / "u.npy"), "--quiet"]
     assert main(args) == 2
     assert "--unverified" in capsys.readouterr().err and not (tmp_path / "u.npy").exists()
     assert main(args + ["--unverified"]) == 0

@@ -23,7 +23,7 @@ def _source():
 def test_slice_keeps_the_cut_and_leaves_the_rest_out(tmp_path, capsys):
     npy, out = tmp_path / "s.npy", tmp_path / "s.png"
     rc = main(["slice", SRC, "--brick", "16", "--plane", "y=20", "--level", "0", "--npy", str(npy), "--out", str(out),
-               "--window", "0.5,1", "--crop-voxels", "10:40,:,5:30", "--clip-plane", "0,0,20,1,0,1"])
+               "--window", "0.5,1", "--crop-voxels", "5:30,:,10:40", "--clip-plane", "0,0,20,1,0,1"])
     assert rc == 0, capsys.readouterr().err
     v = np.load(npy)
     ref = _source()[:, 20, :][::-1]  # coronal: superior (high z) at the top; rows z = 47 - r, columns x
@@ -43,7 +43,7 @@ def test_slice_keeps_the_cut_and_leaves_the_rest_out(tmp_path, capsys):
 def test_view_offscreen_draws_the_cut(tmp_path, capsys):
     base = ["view", SRC, "--brick", "16", "--offscreen", "--frames", "1", "--size", "48x48", "--converged"]
     assert main(base + ["--out", str(tmp_path / "a")]) == 0
-    assert main(base + ["--out", str(tmp_path / "b"), "--crop-voxels", "0:24,:,:"]) == 0
+    assert main(base + ["--out", str(tmp_path / "b"), "--crop-voxels", ":,:,0:24"]) == 0
     a = np.asarray(Image.open(next((tmp_path / "a").glob("*.png")))).astype(int)
     b = np.asarray(Image.open(next((tmp_path / "b").glob("*.png")))).astype(int)
     assert np.abs(a - b).max() > 50

@@ -33,7 +33,7 @@ def stores(tmp_path_factory):
     np.save(d / "zmap.npy", zmap)
     for name, sp, org in (("t1", P_SPACING, P_ORIGIN), ("zmap", Z_SPACING, Z_ORIGIN)):
         assert main(["brick", str(d / f"{name}.npy"), str(d / f"{name}.zarr"), "--brick", "8", "--quiet", "--no-summary",
-                     "--spacing", ",".join(map(str, sp)), "--origin=" + ",".join(map(str, org))]) == 0
+                     "--spacing", ",".join(map(str, sp[::-1])), "--origin=" + ",".join(map(str, org[::-1]))]) == 0  # x,y,z
     return d, t1, zmap
 
 
@@ -84,7 +84,7 @@ def test_render_refuses_bad_overlays(stores, tmp_path, capsys):
     assert "rainbow" in capsys.readouterr().err
     far = tmp_path / "far.zarr"
     assert main(["brick", str(d / "zmap.npy"), str(far), "--brick", "8", "--quiet", "--no-summary",
-                 "--origin", "900,0,0"]) == 0
+                 "--origin", "0,0,900"]) == 0
     assert main(base + ["--overlay", str(far)]) == 2
     err = capsys.readouterr().err
     assert "far.zarr" in err and "overlap" in err

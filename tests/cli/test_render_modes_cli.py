@@ -39,12 +39,20 @@ def test_iso_surface_of_a_sphere_is_an_opaque_disc(tmp_path):
     assert img[cy, cx, :3].astype(int).sum() > img[rows[0], cols[0], :3].astype(int).sum()
 
 
-def test_iso_value_above_the_data_draws_nothing(tmp_path):
+@pytest.mark.parametrize("command", ["render", "view"])
+@pytest.mark.parametrize("where", ["above", "below"])
+def test_iso_value_outside_the_data_is_refused_naming_the_range(tmp_path, capsys, command, where):
+    # above the maximum no ray hits (an empty image), at the minimum every ray hits at once (an
+    # opaque box): exit 0 with such a picture says nothing; the range comes from numpy
     src, vol = _sphere(tmp_path)
-    out = tmp_path / "none.png"
-    assert main(["render", str(src), "--brick", "16", "--out", str(out), "--size", "48x48", "--mode", "iso",
-                 "--iso-value", str(float(vol.max()) + 1.0)]) == 0
-    assert (np.asarray(Image.open(out))[..., 3] == 0).all()
+    iso = float(vol.max()) + 1.0 if where == "above" else float(vol.min())
+    out = tmp_path / ("frames" if command == "view" else "none.png")
+    extra = ["--offscreen", "--frames", "1"] if command == "view" else []
+    assert main([command, str(src), "--brick", "16", "--size", "48x48", "--mode", "iso", "--iso-value", str(iso),
+                 "--out", str(out), *extra]) == 2
+    err = capsys.readouterr().err
+    assert "iso" in err and f"{float(vol.min()):g}" in err and f"{float(vol.max()):g}" in err, err
+    assert not out.exists()
 
 
 def test_iso_without_a_value_is_refused(tmp_path, capsys):

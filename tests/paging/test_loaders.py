@@ -522,8 +522,10 @@ def test_open_store_dispatch(tmp_path):
     with pytest.raises(InputNotFoundError, match="nope"):
         open_store(tmp_path / "nope.zarr")
     (tmp_path / "x.tif").write_bytes(b"II*\x00")
-    with pytest.raises(InputFormatError, match="unknown format"):
+    with pytest.raises(InputFormatError, match="unknown format") as e:
         open_store(tmp_path / "x.tif")
+    for named in ("Zarr", ".npy", "NIfTI", ".nii.gz", "DICOM", "HDF5", "MRC", "OME-TIFF", "clipvol brick"):
+        assert named in str(e.value), named  # what the commands read instead, not only zarr and .npy
     (tmp_path / "empty").mkdir()
     with pytest.raises(InputFormatError, match="zarr"):
         open_store(tmp_path / "empty")

@@ -101,7 +101,7 @@ def test_cli_render_crop_in_world_units_equals_the_reference(tmp_path):
     store = tmp_path / "v.zarr"
     origin = (-4.0, 2.0, 3.0)  # z, y, x: the world position of voxel 0
     assert main(["brick", str(tmp_path / "v.npy"), str(store), "--brick", "8", "--quiet", "--no-summary",
-                 "--origin=" + ",".join(map(str, origin))]) == 0
+                 "--origin=" + ",".join(map(str, origin[::-1]))]) == 0  # typed x,y,z
     out = tmp_path / "cut.png"
     # world box x 8..30, y 4..26, z -2..14 (x, y, z), a plane keeping world x - z >= 10
     assert main(["render", str(store), "--out", str(out), "--size", "64x64", "--policy", "fixed", "--level", "0",
@@ -131,7 +131,7 @@ def test_cli_refuses_bad_cuts_with_exit_2(tmp_path, capsys):
 
     np.save(tmp_path / "v.npy", smooth_volume((8, 8, 8)))
     base = ["render", str(tmp_path / "v.npy"), "--out", str(tmp_path / "o.png"), "--size", "16x16", "--brick", "8"]
-    for extra, word in ((["--crop-voxels", "0:9,:,:"], "--crop-voxels"), (["--crop", "1,2,3"], "--crop"),
+    for extra, word in ((["--crop-voxels", ":,:,0:9"], "--crop-voxels"), (["--crop", "1,2,3"], "--crop"),
                         (["--clip-plane", "0,0,0,0,0,0"], "clip-plane"), (["--crop=100,100,100,200,200,200"], "outside")):
         assert main(base + extra) == 2, extra
         assert word in capsys.readouterr().err

@@ -45,7 +45,7 @@ def store(tmp_path_factory):
     np.save(d / "img.npy", img)
     np.save(d / "seg.npy", _labels(SHAPE))
     assert main(["brick", str(d / "img.npy"), str(d / "img.zarr"), "--brick", "16", "--quiet", "--no-summary",
-                 "--spacing", ",".join(map(str, SPACING)), "--origin", ",".join(map(str, ORIGIN)),
+                 "--spacing", ",".join(map(str, SPACING[::-1])), "--origin", ",".join(map(str, ORIGIN[::-1])),  # x,y,z
                  "--labels", f"{d / 'seg.npy'}:seg"]) == 0
     return d, img
 

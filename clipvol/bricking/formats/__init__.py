@@ -19,7 +19,7 @@ from pathlib import Path
 
 from ...errors import MissingExtraError
 
-__all__ = ["open_format", "require", "NIFTI_SUFFIXES", "HDF5_SUFFIXES", "MRC_SUFFIXES"]
+__all__ = ["open_format", "require", "NIFTI_SUFFIXES", "HDF5_SUFFIXES", "MRC_SUFFIXES", "readable_formats"]
 
 NIFTI_SUFFIXES = (".nii", ".nii.gz", ".hdr", ".img")
 HDF5_SUFFIXES = (".h5", ".hdf5", ".hdf", ".he5", ".nxs")
@@ -50,6 +50,17 @@ def _split_hdf5(text: str) -> tuple[str, str | None] | None:
     if _has_suffix(text, HDF5_SUFFIXES):
         return text, None
     return None
+
+
+def readable_formats() -> str:
+    """The inputs a drawing command (``render``, ``view``, ``slice``, ``export``) opens, for an error
+    that must tell a newcomer what to give instead: stores and the files bricked on first use."""
+    from .ometiff import OME_SUFFIXES
+
+    return ("a clipvol / OME-Zarr store directory, a .npy file, a URL (procedural:fractal?size=256, https://, s3://), "
+            f"or a file bricked on first use: NIfTI ({', '.join(NIFTI_SUFFIXES)}), a DICOM series folder, "
+            f"HDF5 FILE{HDF5_SUFFIXES[0]}:/dataset ({', '.join(HDF5_SUFFIXES)}), MRC ({', '.join(MRC_SUFFIXES)}), "
+            f"OME-TIFF ({', '.join(OME_SUFFIXES)}); other TIFF stacks and raw files: `clipvol brick` first")
 
 
 def open_format(text: str):
