@@ -60,7 +60,10 @@ def channel_count(source) -> int | None:
     p = Path(str(source))
     name = p.name.lower()
     if name.endswith(".npy") and p.is_file():
-        arr = np.load(p, mmap_mode="r")
+        from .npy import npy_header
+
+        shape = npy_header(p)[0]  # a .npy that cannot be read is refused here, naming the file
+        return int(shape[0]) if len(shape) == 4 else None
         return int(arr.shape[0]) if arr.ndim == 4 else None
     if name.endswith((".ome.tif", ".ome.tiff")) and p.is_file():
         axes, shape = _ome_tiff_axes(p)
@@ -76,7 +79,9 @@ def read_channels(source) -> np.ndarray:
     else:
         p = Path(str(source))
         if p.name.lower().endswith(".npy"):
-            arr = np.load(p, mmap_mode="r")
+            from .npy import open_npy
+
+            arr = open_npy(p)
         else:
             import tifffile
 
@@ -101,13 +106,13 @@ def brick_set(source, output, *, axis: str = "c", **kwargs) -> list:
         raise ParameterError(f"--axes: tzyx is read from a 4-D .npy (or an array), got {source}")
     arr = read_channels(source)
     output = Path(output)
-    if kwargs.get("overwrite") and output.exists():
-        import shutil
+    from .output_guard import check_not_input, check_overwrite, remove_output
 
-        from .pipeline import check_overwrite_spares
-
-        check_overwrite_spares(output, [source] if isinstance(source, (str, Path)) else [])
-        shutil.rmtree(output)
+    inputs = [source] if isinstance(source, (str, Path)) else []
+    check_not_input(output, inputs)
+    if kwargs.get("overwrite") and (output.exists() or output.is_symlink()):
+        check_overwrite(output, inputs)
+        remove_output(output)
         kwargs = {**kwargs, "overwrite": False}
     n = int(arr.shape[0])
     metas = [brick_volume(np.asarray(arr[k]), output / axis / str(k), **kwargs) for k in range(n)]

@@ -52,7 +52,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from ..errors import InputFormatError, OutputExistsError, ParameterError, StoreFormatError, StoreIncompleteError
+from ..errors import InputFormatError, ParameterError, StoreFormatError, StoreIncompleteError
 from .point_sources import PointSource
 from .points import (
     DEPTH, DUP_BITS, GEO_BITS, REPRESENTATIVES, build_subtrees, cell_means, choose_representatives, morton_encode, node_box,
@@ -556,17 +556,19 @@ def build_point_store(source: PointSource, output, *, max_points: int = 64, over
     out = Path(output)
     job = _job(source, mp, memory_points, representative, unit, box)
     resume = None
-    if out.exists():
+    from .output_guard import check_not_input, check_overwrite, exists_error, remove_output
+
+    inputs = [p for p in (getattr(source, "path", None),) if p is not None]
+    check_not_input(out, inputs)
+    if out.exists() or out.is_symlink():
         cv = _clipvol_attrs(out) if is_point_store(out) else None
         if not overwrite and (cv is None or cv.get("complete")):
-            raise OutputExistsError(f"{out}: output exists; pass --overwrite to replace it")
+            raise exists_error(out, "store")
         if not overwrite and cv.get("job") == job and (out / "_build_tmp" / "plan.json").is_file():
             resume = cv  # an interrupted build of the same job: carried on from its last checkpoint
         else:  # overwrite, or an interrupted build of other input or parameters: rebuilt from the start
-            from .pipeline import check_overwrite_spares
-
-            check_overwrite_spares(out, [p for p in (getattr(source, "path", None),) if p is not None])
-            shutil.rmtree(out) if out.is_dir() else out.unlink()
+            check_overwrite(out, inputs)
+            remove_output(out)
     k = len(source.value_names)
     with tqdm(total=2 * source.count, unit="pt", unit_scale=True, desc="points", file=sys.stderr,
               disable=not progress, dynamic_ncols=True) as bar:

@@ -147,9 +147,12 @@ def test_bad_output_names_and_existing_outputs(scan, tmp_path, capsys):
     base = ["export", str(d / "scan.zarr"), "--box", "0:4,0:4,0:4", "--quiet", "--out"]
     assert main(base + [str(tmp_path / "x.png")]) == 2 and "--out" in capsys.readouterr().err
     assert main(base + [str(tmp_path / "nowhere" / "x.npy")]) == 2 and "does not exist" in capsys.readouterr().err
-    (tmp_path / "x.npy").write_bytes(b"keep")
-    assert main(base + [str(tmp_path / "x.npy")]) == 2 and "--overwrite" in capsys.readouterr().err
+    (tmp_path / "x.npy").write_bytes(b"keep")  # not a .npy: never replaced, --overwrite not suggested
+    assert main(base + [str(tmp_path / "x.npy")]) == 2 and "--overwrite" not in capsys.readouterr().err
+    assert main(base + [str(tmp_path / "x.npy"), "--overwrite"]) == 2 and "not a .npy" in capsys.readouterr().err
     assert (tmp_path / "x.npy").read_bytes() == b"keep"
+    np.save(tmp_path / "x.npy", np.zeros(3))  # a .npy: replaced with --overwrite
+    assert main(base + [str(tmp_path / "x.npy")]) == 2 and "--overwrite" in capsys.readouterr().err
     assert main(base + [str(tmp_path / "x.npy"), "--overwrite"]) == 0
     np.testing.assert_array_equal(np.load(tmp_path / "x.npy"), data[:4, :4, :4])
 
