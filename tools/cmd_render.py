@@ -133,6 +133,9 @@ def run(args) -> int:
     from clipvol.tools.tf_args import transfer_function_from_args
 
     check_output_file(args.out, ".png", "--out")
+    from clipvol.bricking.output_guard import check_not_input
+
+    check_not_input(args.out, [args.source], "--out")
     from clipvol.tools.kind_cli import kind_command
 
     hook = kind_command(args.source, "render")  # another data kind than a volume: its own render

@@ -148,3 +148,18 @@ def test_a_gzipped_nifti_is_recognised_as_its_kind(work):
     assert replace_refusal(p, "npy") is not None
     (work / "b.nii.gz").write_bytes(gzip.compress(b"plain text, not a header" * 20))
     assert "not a gzipped NIfTI" in replace_refusal(work / "b.nii.gz", "nii.gz")
+
+
+@pytest.mark.parametrize("args", [
+    ["slice", "{npy}", "--npy", "{npy}"],  # wrote the slice over its own input, exit 0
+    ["slice", "{store}", "--out", "{store}/z.png"],
+    ["render", "{store}", "--size", "16x16", "-o", "{store}/a.png"],
+    ["report", "{store}", "--out", "{store}"],
+    ["view", "{store}", "--offscreen", "--frames", "1", "--size", "16x16", "--out", "{store}/frames"],
+], ids=["slice-npy-over-input", "slice-png-in-store", "render-in-store", "report-into-store", "view-into-store"])
+def test_drawing_commands_never_write_into_or_over_their_input(work, capsys, args):
+    before = _snapshot(work)
+    argv = [a.format(npy=work / "u.npy", store=work / "S.zarr") for a in args]
+    assert main(argv) == 2
+    _one_error_line(capsys, "the input")
+    assert _snapshot(work) == before
