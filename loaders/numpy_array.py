@@ -30,7 +30,7 @@ from clipvol.bricking.pyramid import (
     pad_to_brick,
     validate_dtype,
 )
-from clipvol.errors import InputFormatError, InputNotFoundError, ParameterError
+from clipvol.errors import InputNotFoundError, ParameterError
 from clipvol.paging.readcount import ReadCounter
 
 __all__ = ["NumpyLoader", "finite_range"]
@@ -96,10 +96,9 @@ class NumpyLoader:
             path = Path(array)
             if not path.is_file():
                 raise InputNotFoundError(f"{path}: no such .npy file")
-            try:
-                array = np.load(path, mmap_mode="r", allow_pickle=False)
-            except ValueError as e:
-                raise InputFormatError(f"{path}: cannot read as a .npy array ({e})") from None
+            from clipvol.bricking.npy import open_npy
+
+            array = open_npy(path)
             self.source = str(path)
         else:
             self.source = f"<{type(array).__name__} {getattr(array, 'shape', '?')}>"

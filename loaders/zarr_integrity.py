@@ -51,7 +51,26 @@ from clipvol.paging.loader import BrickKey
 from .zarr_crc import _CRC32C_RESIDUE
 from .zarr_meta import array_meta
 
-__all__ = ["IntegrityChecks", "UnverifiedStoreWarning", "SAMPLE_STRIDE"]
+__all__ = ["IntegrityChecks", "UnverifiedStoreWarning", "SAMPLE_STRIDE", "no_checksum_reason"]
+
+
+def no_checksum_reason(checksummed: list[bool], clipvol_attrs: dict) -> str:
+    """Why chunks go unchecked when some level's codec chain does not end with ``crc32c``
+    (``checksummed[L]``), in the store's own terms: a store written before chunk checksums lacks
+    it on every level and has no manifest; a level without it beside levels with it, or in a store
+    with a manifest (a build writes the manifest with its checksummed chunks), is a codec list
+    edited since the build, and saying "written before checksums" would send the user the wrong way."""
+    missing = [L for L, ok in enumerate(checksummed) if not ok]
+    where = (f"level{'s' if len(missing) > 1 else ''} {', '.join(map(str, missing))} "
+             f"({', '.join(f'{L}/zarr.json' for L in missing)})")
+    tail = "(corruption inside a chunk is caught only by the statistics check; `clipvol check --all` reads every brick)"
+    if isinstance(clipvol_attrs.get("manifest"), dict):
+        return (f"the codec list of {where} has no crc32c, but the store has a manifest, which clipvol "
+                f"writes with chunk checksums: the metadata was edited since the build {tail}")
+    if len(missing) < len(checksummed):
+        return (f"the codec list of {where} has no crc32c while the other levels have it: the metadata "
+                f"was edited since the build {tail}")
+    return f"written before chunk checksums (no level's codec list has crc32c) {tail}"
 
 
 class UnverifiedStoreWarning(UserWarning):
@@ -120,8 +139,7 @@ class IntegrityChecks:
         """Set ``verified``, ``trust`` and ``_manifest`` of a clipvol store whose levels are open;
         warn (:class:`UnverifiedStoreWarning`) when it is unverified and ``warn``."""
         if not all(am.checksum for am in self._arrays):
-            self.trust = ("unverified: written before chunk checksums (corruption inside a chunk is caught only by the "
-                          "statistics check; `clipvol check --all` reads every brick)")
+            self.trust = f"unverified: {no_checksum_reason([am.checksum for am in self._arrays], clipvol_attrs)}"
         else:
             try:
                 self._manifest = load_manifest(self.meta_path, clipvol_attrs,

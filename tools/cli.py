@@ -2,7 +2,11 @@
 
 Each sub-command lives in its own module ``clipvol.tools.cmd_<name>`` with two functions,
 ``add_arguments(parser)`` and ``run(args) -> int``. Modules import heavy dependencies (zarr,
-moderngl, glfw) inside ``run`` so that ``clipvol --help`` starts fast.
+moderngl, glfw) inside ``run`` so that ``clipvol --help`` starts fast, and :func:`main` imports only
+the module of the command its arguments name (``clipvol --help`` none: the listing needs only
+:data:`COMMANDS`). The flags of the drawing commands (render, slice, view, report, tf) are built from
+``RenderParams`` and the registries of the scene stage, which import numpy; ``tests/cli/
+test_cli_front_door.py`` checks the rest in a fresh interpreter.
 
 Errors a user can cause (:class:`clipvol.errors.ClipvolError`) print one line naming the file or
 parameter and exit with status 2, no traceback; so does an ``OSError`` of the machine's state (disk
@@ -62,13 +66,22 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"clipvol {self.prog.split()[-1] if ' ' in self.prog else ''}: error: {message}\n".replace("  ", " "))
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The ``clipvol`` parser with every command of :data:`COMMANDS`.
+
+    ``only`` names the one command whose module is imported and whose arguments are added (the
+    others are listed with their one-line help, enough for ``clipvol --help``); ``""`` adds none and
+    None adds all. :func:`main` passes the command its ``argv`` names, so ``clipvol --help`` imports
+    no command module and ``clipvol CMD --help`` only CMD's."""
     parser = _Parser(prog="clipvol", description="Out-of-core multiresolution volume rendering with 3D clip-textures.")
     from clipvol import __version__
 
     parser.add_argument("--version", action="version", version=f"clipvol {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name, help_text in COMMANDS.items():
+        if only is not None and name != only:
+            sub.add_parser(name, help=help_text, description=help_text)
+            continue
         mod = importlib.import_module(f"clipvol.tools.cmd_{name.replace('-', '_')}")
         p = sub.add_parser(name, help=help_text, description=(mod.__doc__ or help_text).strip().splitlines()[0])
         mod.add_arguments(p)
@@ -89,8 +102,16 @@ def _caused_by_interrupt(e: BaseException) -> bool:
     return False
 
 
+def _command_of(argv: list[str]) -> str:
+    """The command ``argv`` names (its first word that is not an option), or ``""``."""
+    for word in argv:
+        if not word.startswith("-"):
+            return word if word in COMMANDS else ""
+    return ""
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    parser = build_parser(_command_of(sys.argv[1:] if argv is None else list(argv)))
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):
         parser.print_help(sys.stderr)

@@ -48,7 +48,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scheduler", default=None, metavar="S",
                         help="build on Dask: threads | processes | tcp://HOST:PORT of a dask.distributed scheduler "
                              "(default: the local thread pool, no Dask needed; needs clipvol[dask])")
-    parser.add_argument("--overwrite", action="store_true", help="remove an existing OUTPUT first")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing OUTPUT when it is a clipvol store or an empty folder (never the "
+                        "input, a folder holding it, or anything else)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     parser.add_argument("--labels", action="append", default=[], metavar="FILE[:NAME]",
                         help="a label volume (integer ids, the image's shape) to brick into OUTPUT/labels/NAME with "

@@ -23,7 +23,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="values of inner nodes' points: the nearest point's (Meredith & Ma) or the cell's mean")
     parser.add_argument("--unit", default="", help="unit of the coordinates (recorded in the store)")
     parser.add_argument("--workers", type=int, default=None, help="accepted for symmetry with `brick`; the build is single-threaded")
-    parser.add_argument("--overwrite", action="store_true", help="remove an existing OUTPUT first")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing OUTPUT when it is a clipvol store or an empty folder (never the "
+                        "input, a folder holding it, or anything else)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
 
 

@@ -15,8 +15,6 @@ import argparse
 import time
 from pathlib import Path
 
-import numpy as np
-
 def demo_transfer_function():
     """The demo's :class:`~clipvol.scene.transfer.TransferFunction` (the ``demo`` preset, over the data's value range)."""
     from clipvol.scene.transfer import TransferFunction
@@ -26,6 +24,8 @@ def demo_transfer_function():
 
 def demo_volume(n: int, seed: int = 3, slab: int = 32) -> np.ndarray:
     """``(n, n, n)`` float32: the procedural fractal times a soft ball envelope (computed in z-slabs)."""
+    import numpy as np
+
     from clipvol.bricking.generators import Fractal
 
     gen = Fractal((n, n, n), seed=seed)

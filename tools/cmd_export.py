@@ -35,7 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from clipvol.tools.common_args import add_common_arguments
 
     add_common_arguments(parser, ("store",), store=dict(dest="brick_store", metavar="DIR"))
-    parser.add_argument("--overwrite", action="store_true", help="replace an existing --out (once the new one is complete)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing --out (once the new one is complete) when it is a file of "
+                             "the same kind, a clipvol store or an empty folder; never the input")
     parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     add_common_arguments(parser, ("unverified", "remote"))
 
@@ -67,7 +68,10 @@ def run(args: argparse.Namespace) -> int:
     from clipvol.app.export import export_region, output_format, region_from_voxels, region_from_world
     from clipvol.app.volume_access import open as open_volume
 
+    from clipvol.bricking.output_guard import check_not_input
+
     output_format(args.out)  # a bad name fails before anything is opened or bricked
+    check_not_input(args.out, [args.store], "--out")  # never the input, a folder holding it, or a path inside it
     from clipvol.app.autobrick import bricked_source
 
     from clipvol.tools.remote_args import check_trust, remote_kwargs
@@ -97,7 +101,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         a, b = parse_world_box(args.box_world)
         region = region_from_world(vol, a, b, args.level)
-    geom = export_region(vol, region, args.out, member=member, overwrite=args.overwrite, progress=not args.quiet)
+    geom = export_region(vol, region, args.out, member=member, overwrite=args.overwrite, progress=not args.quiet,
+                         inputs=[args.store])
     if not args.quiet:
         z, y, x = region.shape
         corner = [round(float(v), 6) for v in (geom["affine"][0][3], geom["affine"][1][3], geom["affine"][2][3])]

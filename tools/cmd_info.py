@@ -103,18 +103,26 @@ def _lost(path: Path, level: int, present: set, manifest=None) -> int:
     return sum(1 for idx in zip(*np.nonzero(holds)) if tuple(int(i) for i in idx) not in present)
 
 
-def _checksummed(path: Path, levels: int) -> bool:
-    """True when every level's codec chain ends with zarr v3's ``crc32c``."""
+def _clipvol_attrs(path: Path) -> dict:
+    """The ``clipvol`` attributes of the store's ``zarr.json`` (empty when unreadable)."""
     import json
 
-    for L in range(levels):
-        try:
-            codecs = json.loads((path / str(L) / "zarr.json").read_text()).get("codecs") or []
-        except (OSError, ValueError):
-            return False
-        if not codecs or (codecs[-1] if isinstance(codecs[-1], str) else codecs[-1].get("name")) != "crc32c":
-            return False
-    return True
+    try:
+        cv = json.loads((path / "zarr.json").read_text()).get("attributes", {}).get("clipvol")
+    except (OSError, ValueError, AttributeError):
+        return {}
+    return cv if isinstance(cv, dict) else {}
+
+
+def _checksummed(path: Path, level: int) -> bool:
+    """True when level ``level``'s codec chain ends with zarr v3's ``crc32c``."""
+    import json
+
+    try:
+        codecs = json.loads((path / str(level) / "zarr.json").read_text()).get("codecs") or []
+    except (OSError, ValueError):
+        return False
+    return bool(codecs) and (codecs[-1] if isinstance(codecs[-1], str) else codecs[-1].get("name")) == "crc32c"
 
 
 def _stats_problems(loader, levels: int) -> list[str]:
@@ -252,8 +260,13 @@ def run(args: argparse.Namespace) -> int:
         else:
             print(f"kind       clipvol store (statistics {'do not match the manifest' if stats_bad else 'missing'})")
         print(f"complete   {'yes' if meta.complete else 'no (interrupted build: re-run the same clipvol brick command)'}")
-        crc = _checksummed(path, pyr.num_levels)
-        print(f"checksum   {'crc32c on every chunk' if crc else 'none (unverified store, written before checksums)'}")
+        crc = [_checksummed(path, L) for L in range(pyr.num_levels)]
+        if all(crc):
+            print("checksum   crc32c on every chunk")
+        else:
+            from clipvol.loaders.zarr_integrity import no_checksum_reason
+
+            print(f"checksum   none: {no_checksum_reason(crc, _clipvol_attrs(path))}")
     else:
         print(f"kind       OME-Zarr image (not written by clipvol brick: no statistics; {stored} of "
               f"{pyr.num_levels} levels stored, the rest derived on the fly)")

@@ -156,6 +156,9 @@ def run(args) -> int:
     from clipvol.tools.deadline import CommandDeadline
 
     deadline = CommandDeadline(None if args.no_wait else args.timeout)  # --timeout bounds the whole command
+    from clipvol.bricking.output_guard import check_not_input
+
+    check_not_input(args.out, [args.source], "--out")
     from clipvol.tools.kind_cli import kind_command
 
     hook = kind_command(args.source, "render")  # another data kind than a volume: its own render

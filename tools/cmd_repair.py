@@ -117,7 +117,8 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
     import zarr
 
-    from clipvol.bricking.pipeline import chunk_encoder, output_lock
+    from clipvol.bricking.build_lock import output_lock
+    from clipvol.bricking.pipeline import chunk_encoder
     from clipvol.bricking.sources import identity_changes, open_source, source_identity
     from clipvol.bricking.stats import StatsComputer
     from clipvol.bricking.store import STATS_GROUP

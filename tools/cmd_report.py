@@ -159,6 +159,9 @@ def run(args) -> int:
     from clipvol.app.kinds import KINDS
     from clipvol.tools.kind_cli import kind_command
 
+    from clipvol.bricking.output_guard import check_not_input
+
+    check_not_input(args.out, [args.source], "--out")  # the report's files never go into or over the input
     hook = kind_command(args.source, "report")  # another data kind than a volume: its own report
     if hook is not None:
         return hook(args, args.source, args.out)

@@ -200,6 +200,11 @@ def run(args) -> int:
         raise ParameterError(f"--out: expected a .png file name, got {args.out!r}")
     if args.npy is not None and not str(args.npy).lower().endswith(".npy"):
         raise ParameterError(f"--npy: expected a .npy file name, got {args.npy!r}")
+    from clipvol.bricking.output_guard import check_not_input
+
+    for flag, out in (("--out", args.out), ("--npy", args.npy), ("--stats", args.stats)):
+        if out is not None:  # `slice u.npy --npy u.npy` wrote the slice over its input
+            check_not_input(out, [args.source], flag)
     if args.tf is not None and args.tf not in TransferFunction.names():
         raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())}, got {args.tf!r}")
     if args.tf is not None and args.window is not None:

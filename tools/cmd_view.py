@@ -104,6 +104,10 @@ def run(args) -> int:
 
     from clipvol.tools.kind_cli import kind_command
 
+    if args.offscreen:  # frames, a GIF or a movie: never written into or over the input
+        from clipvol.bricking.output_guard import check_not_input
+
+        check_not_input(args.out, [args.source], "--out")
     hook = kind_command(args.source, "view")  # another data kind than a volume: its own viewer
     if hook is not None:
         return hook(args)

@@ -23,11 +23,18 @@ Geometry travels with the data, in each format's own terms:
 * ``.npy``: the array, with the same geometry in a ``.npy.json`` sidecar.
 
 Nothing half-written is left as if complete: the output is built under a hidden temporary name
-beside it and renamed at the end; an error or Ctrl-C removes the temporary.
+beside it and renamed at the end; an error or Ctrl-C removes the temporary. A full disk is an error
+before the first voxel, not a crash in the middle: the region's size is checked against the
+folder's free space, and each memory-mapped file's blocks are reserved (``posix_fallocate``) before
+it is written, since a mapped write that the file system cannot back ends the process with SIGBUS
+(no handler runs, the temporary stays). ``--overwrite`` replaces only what
+:mod:`clipvol.bricking.output_guard` allows (a file of the output's kind, a clipvol store, an empty
+folder; never the input).
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import mmap
 import os
@@ -39,7 +46,10 @@ from typing import Sequence
 import numpy as np
 
 from ..bricking.worldframe import WorldFrame
-from ..errors import MissingExtraError, OutputExistsError, ParameterError
+from ..bricking.output_guard import check_not_input, check_overwrite, exists_error, remove_output
+from ..errors import (OPERATIONAL_ERRNOS, ClipvolError, MissingExtraError, OutputWriteError, ParameterError,
+                      describe_os_error)
+from ..units import format_bytes
 from .volume_access import Volume, bricks_of_region, copy_brick
 
 __all__ = ["FORMATS", "Region", "output_format", "region_from_voxels", "region_from_world", "export_region"]
@@ -187,6 +197,39 @@ def _remove(p: Path) -> None:
             pass
 
 
+def _check_free(folder: Path, nbytes: int, out: Path) -> None:
+    """Refuse an export that cannot fit: ``nbytes`` more than the free space of ``folder``
+    (:func:`shutil.disk_usage`), before a byte is written."""
+    try:
+        free = shutil.disk_usage(folder).free
+    except OSError:
+        return  # the size cannot be asked: the reservation of each file still catches a full disk
+    if nbytes > free:
+        err = OutputWriteError(f"--out {out}: the export needs {format_bytes(nbytes)} in {folder}, which has "
+                               f"{format_bytes(free)} free; nothing was written")
+        err.errno = errno.ENOSPC
+        raise err
+
+
+def _reserve(path: Path) -> None:
+    """Allocate the disk blocks of the (sparse) file ``path`` that a memory map will fill
+    (:func:`os.posix_fallocate`), so a full disk is an ``ENOSPC`` here and not a SIGBUS at the
+    first mapped write to a page the file system cannot back. A file system that cannot
+    reserve (``EOPNOTSUPP``, ``EINVAL``) is written as before, after the free-space check."""
+    if not hasattr(os, "posix_fallocate"):
+        return
+    fd = os.open(path, os.O_RDWR)
+    try:
+        size = os.fstat(fd).st_size
+        if size > 0:
+            os.posix_fallocate(fd, 0, size)
+    except OSError as e:
+        if e.errno not in (errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL):
+            raise
+    finally:
+        os.close(fd)
+
+
 def _geometry(volume: Volume, region: Region, affine: np.ndarray) -> dict:
     return {"source": volume.source, "level": region.level, "box_start_zyx": list(region.start),
             "box_stop_zyx": list(region.stop), "spacing_zyx": list(WorldFrame(affine, volume.frame.frame).spacing),
@@ -195,6 +238,7 @@ def _geometry(volume: Volume, region: Region, affine: np.ndarray) -> dict:
 
 def _write_npy(loader, region, tmp: Path, geom: dict, progress: bool, dtype) -> list[Path]:
     mm = np.lib.format.open_memmap(tmp, mode="w+", dtype=dtype, shape=region.shape)
+    _reserve(tmp)
     _stream(loader, region, mm, progress, "export")
     del mm
     side = tmp.with_name(tmp.name + ".json")
@@ -210,6 +254,7 @@ def _write_tif(loader, region, tmp: Path, geom: dict, progress: bool, dtype) -> 
             "world_frame": geom["world_frame"], "level": geom["level"], "box_start_zyx": geom["box_start_zyx"]}
     mm = tifffile.memmap(tmp, shape=region.shape, dtype=dtype, photometric="minisblack", metadata=meta,
                          resolution=(1.0 / sx, 1.0 / sy))
+    _reserve(tmp)
     _stream(loader, region, mm, progress, "export")
     del mm
     return []
@@ -249,6 +294,7 @@ def _write_nii(loader, region, tmp: Path, geom: dict, progress: bool, dtype, out
             raise ParameterError(f"--out {out}: unexpected NIfTI header length {f.tell()}")
         f.truncate(352 + nbytes)
     try:
+        _reserve(raw)
         mm = np.memmap(raw, dtype=disk_dtype, mode="r+", offset=352, shape=region.shape)  # (z, y, x) C = NIfTI's F
         _stream(loader, region, mm, progress, "export")
         del mm
@@ -271,6 +317,7 @@ def _write_zarr(loader, region, tmp: Path, geom: dict, progress: bool, dtype, vo
     scratch = tmp.with_name(tmp.name + ".npy")
     try:
         mm = np.lib.format.open_memmap(scratch, mode="w+", dtype=dtype, shape=region.shape)
+        _reserve(scratch)
         _stream(loader, region, mm, progress, "export")
         mm.flush()
         src = ArraySource(mm, name=f"{volume.source} level {region.level} box {region.start}..{region.stop}")
@@ -288,7 +335,7 @@ def _write_zarr(loader, region, tmp: Path, geom: dict, progress: bool, dtype, vo
 
 
 def export_region(volume: Volume, region: Region, out: str | Path, *, member: Sequence[int] = (),
-                  overwrite: bool = False, progress: bool = False) -> dict:
+                  overwrite: bool = False, progress: bool = False, inputs: Sequence[str | Path] = ()) -> dict:
     """Write ``region`` of ``volume`` (member ``member`` of a channel set or time series) to ``out``.
 
     Parameters
@@ -302,9 +349,15 @@ def export_region(volume: Volume, region: Region, out: str | Path, *, member: Se
     member : sequence of int
         Index along the volume's channel / time axes (``()`` for a 3-D volume).
     overwrite : bool
-        Replace an existing ``out`` (only once the new one is complete).
+        Replace an existing ``out`` (only once the new one is complete), and only when it is one
+        file of the output's kind or, for ``.zarr``, a clipvol store or an empty folder
+        (:func:`clipvol.bricking.output_guard.check_overwrite`); ``out`` is never the volume's
+        source, a folder holding it, or a path inside it.
     progress : bool
         A tqdm progress bar on stderr.
+    inputs : sequence of str or Path
+        Other paths ``out`` must not touch (the file a store was bricked from), besides the
+        volume's source.
 
     Returns
     -------
@@ -314,8 +367,13 @@ def export_region(volume: Volume, region: Region, out: str | Path, *, member: Se
     """
     out = Path(out)
     fmt = output_format(out)
-    if out.exists() and not overwrite:
-        raise OutputExistsError(f"--out {out}: exists; pass --overwrite to replace it")
+    kind = "store" if fmt == "zarr" else fmt
+    inputs = [volume.source, *inputs]
+    check_not_input(out, inputs, "--out")
+    if out.exists() or out.is_symlink():
+        if not overwrite:
+            raise exists_error(out, kind, "--out")
+        check_overwrite(out, inputs, kind, "--out")  # refused before anything is read or written
     if not out.parent.is_dir():
         raise ParameterError(f"--out {out}: the folder {out.parent} does not exist")
     shape = volume.levels[_check_level(volume, region.level)].shape
@@ -328,6 +386,9 @@ def export_region(volume: Volume, region: Region, out: str | Path, *, member: Se
     affine = region_affine(volume, region)
     geom = _geometry(volume, region, affine)
     dtype = volume.dtype
+    nbytes = int(np.prod(region.shape)) * np.dtype(dtype).itemsize
+    # a .nii.gz is written as .nii first, a .zarr is bricked from a scratch .npy: both hold the region twice
+    _check_free(out.parent, nbytes * (2 if fmt in ("nii.gz", "zarr") else 1), out)
     tmp = _temp_name(out)
     _remove(tmp)
     extras: list[Path] = []
@@ -340,15 +401,22 @@ def export_region(volume: Volume, region: Region, out: str | Path, *, member: Se
             extras = _write_nii(loader, region, tmp, geom, progress, dtype, out, fmt == "nii.gz")
         else:
             extras = _write_zarr(loader, region, tmp, geom, progress, dtype, volume)
-        if out.exists():
-            _remove(out)
+        if out.exists() or out.is_symlink():
+            check_overwrite(out, inputs, kind, "--out")  # what is there now, not what was there at the start
+            remove_output(out)
         for e in extras:  # a sidecar first: the data file's name appears last, complete
             os.replace(e, out.with_name(out.name + e.name[len(tmp.name):]))
         os.replace(tmp, out)
-    except BaseException:
+    except BaseException as e:
         _remove(tmp)
-        for e in extras:
-            _remove(e)
+        _remove(tmp.with_name(tmp.name + ".json"))  # a .npy's sidecar, should its own write have failed
+        for x in extras:
+            _remove(x)
+        if isinstance(e, OSError) and not isinstance(e, ClipvolError) and e.errno in OPERATIONAL_ERRNOS:
+            err = OutputWriteError(f"--out {out}: cannot write the export ({describe_os_error(e)}); nothing was "
+                                   "written")
+            err.errno = e.errno
+            raise err from e
         raise
     geom["path"] = str(out)
     return geom

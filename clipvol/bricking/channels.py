@@ -76,7 +76,10 @@ def channel_count(source) -> int | None:
     p = Path(str(source))
     name = p.name.lower()
     if name.endswith(".npy") and p.is_file():
-        arr = np.load(p, mmap_mode="r")
+        from .npy import npy_header
+
+        shape = npy_header(p)[0]  # a .npy that cannot be read is refused here, naming the file
+        return int(shape[0]) if len(shape) == 4 else None
         return int(arr.shape[0]) if arr.ndim == 4 else None
     if name.endswith((".ome.tif", ".ome.tiff")) and p.is_file():
         axes, shape = _ome_tiff_axes(p)
@@ -92,7 +95,9 @@ def read_channels(source) -> np.ndarray:
     else:
         p = Path(str(source))
         if p.name.lower().endswith(".npy"):
-            arr = np.load(p, mmap_mode="r")
+            from .npy import open_npy
+
+            arr = open_npy(p)
         else:
             import tifffile
 
@@ -117,22 +122,18 @@ def brick_set(source, output, *, axis: str = "c", **kwargs) -> list:
         raise ParameterError(f"--axes: tzyx is read from a 4-D .npy (or an array), got {source}")
     arr = read_channels(source)
     output = Path(output)
-    if kwargs.get("overwrite") and output.exists():
-        import shutil
+    from .output_guard import check_not_input, check_overwrite, exists_error, remove_output
 
-        from .pipeline import check_overwrite_spares
-
-        check_overwrite_spares(output, [source] if isinstance(source, (str, Path)) else [])
-        shutil.rmtree(output)
+    inputs = [source] if isinstance(source, (str, Path)) else []
+    check_not_input(output, inputs)
+    if kwargs.get("overwrite") and (output.exists() or output.is_symlink()):
+        check_overwrite(output, inputs)
+        remove_output(output)
     kwargs = {**kwargs, "overwrite": False}
     if image_set(output) is not None:
-        from ..errors import OutputExistsError
-
-        raise OutputExistsError(f"{output}: output exists (a complete image set); pass --overwrite to rebuild it")
+        raise exists_error(output, what="exists (a complete image set)", name="output")
     if output.exists() and (not output.is_dir() or not (output / "zarr.json").exists() and any(output.iterdir())):
-        from ..errors import OutputExistsError
-
-        raise OutputExistsError(f"{output}: output exists and is not a clipvol image set; pass --overwrite to replace it")
+        raise exists_error(output, name="output")
     n = int(arr.shape[0])
     metas = []
     if (output / "zarr.json").exists() and _member_attrs(output):

@@ -41,7 +41,8 @@ import numpy as np
 
 from ..errors import InputFormatError, MissingExtraError, ParameterError
 from .build_options import BuildOptions
-from .pipeline import (_create_store, check_overwrite_spares, chunk_encoder, encode_brick, job_spec, mark_complete,
+from .output_guard import check_not_input, check_overwrite
+from .pipeline import (_create_store, chunk_encoder, encode_brick, job_spec, mark_complete,
                        output_lock, prepare_output, write_errors)
 from .pyramid import Pyramid, downsample
 from .sources import check_source_unchanged, file_inodes, open_source
@@ -257,8 +258,10 @@ def brick_volume_dask(
             frame = (frame or WorldFrame.from_spacing(sp)).with_origin(origin)
         job = job_spec(src, src.shape, bshape, filter, codec, sp, unit)
         inodes = file_inodes(src)
+        inputs = [*src.files(), *([source] if isinstance(source, (str, Path)) else [])]
+        check_not_input(output, inputs)
         if overwrite:
-            check_overwrite_spares(output, src.files())
+            check_overwrite(output, inputs)
         shape, dtype = src.shape, src.dtype
     finally:
         src.close()

@@ -437,6 +437,13 @@ def read_manifest_doc(root: str | Path, cv: dict) -> dict:
             and 0 < entry["bytes"] <= 2**20):
         raise ManifestError(f"attrs['clipvol']['manifest'] is malformed: {entry!r:.120}")
     where = f"{MANIFEST_DIR}/manifest.json"
+    try:  # its length first: a manifest of another length was changed, which a size cap would not say
+        size = (root / MANIFEST_DIR / "manifest.json").stat().st_size
+    except OSError:
+        size = None  # missing or unreadable: said below
+    if size is not None and size != entry["bytes"]:
+        raise ManifestError(f"{where} is {size} bytes, but the root metadata records {entry['bytes']}: the manifest "
+                            "was changed since the build")
     try:
         doc_bytes = read_file(root / MANIFEST_DIR / "manifest.json", root, cap=entry["bytes"])
     except FileNotFoundError:

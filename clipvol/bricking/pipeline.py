@@ -31,15 +31,14 @@ How it works, and why:
   down-sampling but skips the statistics, compression and writes of bricks already done, giving
   a store identical to an uninterrupted run.
 
-Why one module of this size: the two passes, the resume state, the lock and the write loop share
-one build state and its crash rules; the options are :mod:`.build_options`, the pyramid's
+Why one module of this size: the two passes, the resume state and the write loop share one build
+state and its crash rules; the build lock is :mod:`.build_lock`, what ``--overwrite`` may replace
+:mod:`.output_guard`, the options are :mod:`.build_options`, the pyramid's
 arithmetic :mod:`.pyramid`, the statistics :mod:`.stats` and the manifest :mod:`.manifest`.
 """
 
 from __future__ import annotations
 
-import os
-import shutil
 import sys
 import threading
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -48,9 +47,11 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import (OPERATIONAL_ERRNOS, ClipvolError, InputFormatError, OutputExistsError, OutputLockedError,
+from ..errors import (OPERATIONAL_ERRNOS, ClipvolError, InputFormatError, OutputExistsError,
                       OutputWriteError, ParameterError, SourceChangedError, describe_os_error)
+from .build_lock import output_lock
 from .build_options import BRICK_RANGE, CODECS, BuildOptions
+from .output_guard import check_not_input, check_overwrite, exists_error, remove_output
 from .pyramid import Pyramid, downsample
 from .source_types import Source
 from .sources import check_source_unchanged, file_inodes, identity_changes, open_source, source_identity
@@ -176,40 +177,24 @@ def _read_attrs(path: Path) -> dict | None:
     return attrs if isinstance(attrs, dict) else None
 
 
-def check_overwrite_spares(output: Path, keep) -> None:
-    """Refuse ``overwrite`` of an ``output`` that holds one of the paths in ``keep`` (the input's
-    files) or the current folder: removing the output would remove what the build reads."""
-    out = Path(output).absolute()
-    if out.is_symlink() or not out.is_dir():
-        return
-    out = out.resolve()
-    for what, p in [*((f"the input {p}", Path(p)) for p in keep), ("the current folder", Path.cwd())]:
-        r = p.absolute().resolve()
-        if r == out or out in r.parents:
-            raise OutputExistsError(f"{output}: --overwrite would remove {what}, which lies inside it; "
-                                    "pick another OUTPUT")
-
-
 def prepare_output(output: Path, job: dict, overwrite: bool) -> dict | None:
     """Clear or vet an existing output; return its attrs when it is a resumable build of ``job``.
 
     ``overwrite`` removes ``output`` itself (a symlink: the link, not its target) and nothing else,
-    only here, before the first write of the build (:func:`check_overwrite_spares` has refused an
-    output that holds the input)."""
+    only here, before the first write of the build, and only after
+    :func:`~clipvol.bricking.output_guard.check_overwrite` allowed it (a clipvol store or an empty
+    folder that neither is, holds nor lies inside the input)."""
     if not output.exists() and not output.is_symlink():
         return None
     if overwrite:
-        if output.is_dir() and not output.is_symlink():
-            shutil.rmtree(output)
-        else:
-            output.unlink()
+        remove_output(output)
         return None
-    attrs = _read_attrs(output) if output.is_dir() else None
+    attrs = _read_attrs(output) if output.is_dir() and not output.is_symlink() else None
     cv = (attrs or {}).get("clipvol")
     if not isinstance(cv, dict):
-        raise OutputExistsError(f"{output}: output exists and is not a clipvol store; pass --overwrite to replace it")
+        raise exists_error(output, "store")
     if cv.get("complete"):
-        raise OutputExistsError(f"{output}: output exists (a complete clipvol store); pass --overwrite to rebuild it")
+        raise exists_error(output, "store", what="exists (a complete clipvol store)")
     stored = _stored_job(cv)
     diff = [k for k in job if k != "source_identity" and stored.get(k) != job[k]]
     if not diff and stored.get("source_identity") != job["source_identity"]:
@@ -225,86 +210,6 @@ def prepare_output(output: Path, job: dict, overwrite: bool) -> dict | None:
             f"got {stored.get(k)!r}); pass --overwrite to start again"
         )
     return attrs
-
-
-def _lock_path(output: Path) -> Path:
-    return output.with_name(output.name + ".lock")
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True  # exists, owned by someone else
-    return True
-
-
-def _read_lock(lock: Path) -> dict | None:
-    import json
-
-    try:
-        doc = json.loads(lock.read_text())
-    except FileNotFoundError:
-        return None
-    except (OSError, ValueError):
-        return {}  # being written, or garbage: treat as held (never steal what we cannot read)
-    return doc if isinstance(doc, dict) else {}
-
-
-class output_lock:
-    """Context manager: the build lock of ``output``, a file ``<output>.lock`` holding the writer's
-    pid and host, created atomically (``O_EXCL``). A second writer gets :class:`OutputLockedError`
-    naming the holder; a lock left by a dead process on this host is taken over. Any build path
-    (the streaming sweep here, a Dask build) takes it around its writes."""
-
-    def __init__(self, output) -> None:
-        self.path = _lock_path(Path(output))
-
-    def __enter__(self) -> "output_lock":
-        import json
-        import socket
-
-        me = {"pid": os.getpid(), "host": socket.gethostname()}
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        for _ in range(3):
-            try:
-                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-            except FileExistsError:
-                held = _read_lock(self.path)
-                if held is None:
-                    continue  # released meanwhile: try again
-                pid, host = held.get("pid"), held.get("host")
-                if isinstance(pid, int) and host == me["host"] and pid != me["pid"] and not _pid_alive(pid):
-                    self._take_over(held)
-                    continue
-                raise OutputLockedError(
-                    f"{self.path}: another clipvol brick (pid {pid}, host {host}) is writing {self.path.stem}; wait for "
-                    "it to finish, or delete this lock file if that process is gone"
-                ) from None
-            with os.fdopen(fd, "w") as f:
-                f.write(json.dumps(me))
-            return self
-        raise OutputLockedError(f"{self.path}: could not take the build lock (it keeps changing hands)")
-
-    def _take_over(self, stale: dict) -> None:
-        """Remove a dead holder's lock, atomically: rename it aside, and put it back if it was not the
-        one we judged stale (another process took it over first)."""
-        aside = self.path.with_name(f"{self.path.name}.stale-{os.getpid()}")
-        try:
-            os.rename(self.path, aside)
-        except FileNotFoundError:
-            return
-        if _read_lock(aside) != stale:
-            try:
-                os.link(aside, self.path)
-            except FileExistsError:
-                pass
-        aside.unlink(missing_ok=True)
-
-    def __exit__(self, *exc) -> None:
-        self.path.unlink(missing_ok=True)
 
 
 def mark_complete(group) -> None:
@@ -531,8 +436,10 @@ def brick_volume(source, output, options: BuildOptions | None = None, **kwargs) 
             frame = (frame or WorldFrame.from_spacing(sp)).with_origin(origin)
         job = job_spec(src, src.shape, bshape, filter, codec, sp, unit)
         inodes = file_inodes(src)
+        inputs = [*src.files(), *([source] if isinstance(source, (str, Path)) else [])]
+        check_not_input(output, inputs)
         if overwrite:
-            check_overwrite_spares(output, src.files())
+            check_overwrite(output, inputs)
         with write_errors(output), output_lock(output), \
                 ThreadPoolExecutor(max_workers=workers, thread_name_prefix="clipvol-brick") as pool:
             attrs = prepare_output(output, job, overwrite)

@@ -136,14 +136,9 @@ class NpyPointSource(PointSource):
     def __init__(self, path, value_names: Sequence[str] | None = None, xyz_names=("x", "y", "z")) -> None:
         self.path = Path(path)
         self.name = str(path)
-        with open(self.path, "rb") as f:
-            try:
-                version = np.lib.format.read_magic(f)
-                read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-                shape, fortran, dtype = read(f)
-            except ValueError as e:
-                raise InputFormatError(f"{path}: not a .npy file ({e})") from None
-            self._offset = f.tell()
+        from .npy import npy_header
+
+        shape, dtype, fortran, self._offset = npy_header(self.path)  # not a .npy, objects, truncated: one line
         if fortran:
             raise InputFormatError(f"{path}: expected a C-ordered .npy array, got a Fortran-ordered one")
         self._dtype = dtype

@@ -132,10 +132,9 @@ def _open_path_or_url(text: str, raw_shape, raw_dtype, byte_order: str) -> Sourc
 
 
 def _open_npy(path: Path) -> Source:
-    try:
-        mm = np.load(path, mmap_mode="r", allow_pickle=False)
-    except (ValueError, OSError, EOFError) as e:
-        raise InputFormatError(f"{path}: cannot read as .npy ({e})") from None
+    from .npy import open_npy
+
+    mm = open_npy(path)
     if not isinstance(mm, np.memmap):  # pragma: no cover - np.load of a .npy with mmap gives a memmap
         raise InputFormatError(f"{path}: expected an .npy array, got {type(mm).__name__}")
     shape = _squeeze3(mm.shape, str(path))

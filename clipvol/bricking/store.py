@@ -203,6 +203,10 @@ def parse_metadata(attrs: dict[str, Any], where: str) -> StoreMeta:
     if ome is not None:
         try:
             datasets = ome["multiscales"][0]["datasets"]
+            if len(datasets) != len(expect.levels):
+                raise StoreFormatError(f"{where}: attrs['ome']['multiscales'][0]['datasets'] lists {len(datasets)} "
+                                       f"level(s), expected {len(expect.levels)} (one per level of attrs['clipvol']"
+                                       f"['levels'])")
             for L, (ds, lv) in enumerate(zip(datasets, expect.levels, strict=True)):
                 tr = {t["type"]: t for t in ds["coordinateTransformations"]}
                 sc = tuple(float(v) for v in tr["scale"]["scale"])
@@ -224,6 +228,9 @@ def level_info_from_ome(attrs: dict[str, Any], shapes: list[tuple[int, int, int]
     """LevelInfo for each dataset of a plain OME-Zarr image (first multiscale; z, y, x axes last)."""
     try:
         ms = (attrs.get("ome") or attrs)["multiscales"][0]
+        if len(ms["datasets"]) != len(shapes):
+            raise StoreFormatError(f"{where}: OME-Zarr 'multiscales'[0]['datasets'] lists {len(ms['datasets'])} "
+                                   f"level(s), expected {len(shapes)} (one per level array)")
         out = []
         for ds, shape in zip(ms["datasets"], shapes, strict=True):
             tr = {t["type"]: t for t in ds["coordinateTransformations"]}
@@ -231,6 +238,8 @@ def level_info_from_ome(attrs: dict[str, Any], shapes: list[tuple[int, int, int]
             tl = [float(v) for v in tr.get("translation", {"translation": [0.0] * 3})["translation"]][-3:]
             out.append(LevelInfo(shape, tuple(sc), tuple(tl)))
         return out
+    except StoreFormatError:
+        raise
     except (KeyError, IndexError, TypeError, ValueError) as e:
         raise StoreFormatError(f"{where}: OME-Zarr 'multiscales' metadata is malformed ({type(e).__name__}: {e})") from None
 

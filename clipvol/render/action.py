@@ -88,7 +88,7 @@ from .refine import Refine, refine_levels, refines
 from .paths import AUTO_SINGLE_PASS_BOXES, DRAW_PATHS, FALLBACK, pick
 # the draw paths' limits, importable from here as well (benchmarks and tests read them)
 from .paths.bricks import OCCLUSION_MIN_BATCH, OCCLUSION_PASSES
-from .paths.setup import (MAX_STEPS_PER_BOX, OCCUPANCY_UNIT, OPAQUE, DrawSetup, check_samples,
+from .paths.setup import (MAX_STEPS_PER_BOX, OCCUPANCY_UNIT, OPAQUE, DrawSetup, check_samples, check_step,
                           premultiplied_to_uint8, samples_per_box, scissor_boxes)
 from .paths.single_pass import (MAX_PAGE_TABLE_ENTRIES, MAX_SINGLE_PASS_LEVELS, MAX_SINGLE_PASS_RAY_SAMPLES,
                                 PAGE_TABLE_WIDTH)
@@ -299,6 +299,7 @@ class ClipRenderAction:
         rays through these boxes), decide whether the frame leaps over empty cells, and hand the
         cut to the draw path ``params.path`` picks (:func:`clipvol.render.paths.pick`), or to the
         fallback path where that one declines it."""
+        check_step(self.pyramid, self.params.step)  # bricks are never stepped over, whatever the cut
         items = sel.items  # a full cut's DrawItems stay arrays: the merge reads those
         self.page_table_nodes = 0
         checked = False

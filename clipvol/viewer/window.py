@@ -42,6 +42,7 @@ from pathlib import Path
 from ..app.adaptive import FULL, AdaptiveQuality
 from ..app.session import RenderSession
 from ..errors import ClipvolError, ParameterError
+from ..render.paths.setup import max_step
 from ..scene.params import RenderParams
 from .controls import OrbitControls, ViewState
 from .gl_window import GlWindow, WindowError
@@ -425,7 +426,8 @@ class Viewer(GlWindow):
             self._version, self._view = version, view
             self._dirty = False
             cam = self.controls.camera(q.size(self.framebuffer_size))
-            step = self._base_step * q.step_factor
+            # a moving view's coarser step, never past one brick edge (the longest step a frame may use)
+            step = max(self._base_step, min(self._base_step * q.step_factor, max_step(sess.pyramid)))
             if sess.params.step != step:
                 sess.update(step=step)
             t0 = time.perf_counter()

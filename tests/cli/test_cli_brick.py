@@ -106,10 +106,12 @@ def test_output_exists(tmp_path, npy, capsys):
     out.mkdir()
     (out / "keep.txt").write_text("x")
     assert main(["brick", str(npy[0]), str(out), "--quiet"]) == 2
-    _one_error_line(capsys, "o.zarr", "--overwrite")
-    assert (out / "keep.txt").exists()
+    _one_error_line(capsys, "o.zarr", "not a clipvol store", "keep.txt")  # --overwrite is not suggested
+    assert main(["brick", str(npy[0]), str(out), "--quiet", "--brick", "8", "--overwrite"]) == 2
+    _one_error_line(capsys, "refusing to overwrite", "keep.txt")  # not a store: never removed
+    assert (out / "keep.txt").read_text() == "x"
+    (out / "keep.txt").unlink()  # an empty folder is replaced
     assert main(["brick", str(npy[0]), str(out), "--quiet", "--brick", "8", "--overwrite"]) == 0
-    assert not (out / "keep.txt").exists()
     capsys.readouterr()
     assert main(["brick", str(npy[0]), str(out), "--quiet", "--brick", "8"]) == 2
     _one_error_line(capsys, "complete", "--overwrite")

@@ -71,7 +71,7 @@ def test_overwrite_refuses_an_output_that_holds_the_input(vol, capsys):
     inner = out / "v.npy"
     inner.write_bytes((vol / "v.npy").read_bytes())
     assert main(["brick", str(inner), str(out), "--quiet", "--brick", "8", "--overwrite"]) == 2
-    _one_error_line(capsys, "--overwrite", "v.npy")
+    _one_error_line(capsys, "holds the input", "v.npy")
     assert inner.read_bytes() == (vol / "v.npy").read_bytes()
 
 
@@ -179,5 +179,5 @@ def test_brick_points_overwrite_refuses_an_output_that_holds_the_input(tmp_path,
     pts = out / "pts.npy"
     np.save(pts, np.random.default_rng(0).random((100, 4)))
     assert main(["brick-points", str(pts), str(out), "--overwrite", "--quiet"]) == 2
-    _one_error_line(capsys, "--overwrite", "pts.npy")
+    _one_error_line(capsys, "holds the input", "pts.npy")
     assert pts.exists()

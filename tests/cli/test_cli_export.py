@@ -147,9 +147,12 @@ def test_bad_output_names_and_existing_outputs(scan, tmp_path, capsys):
     base = ["export", str(d / "scan.zarr"), "--box", "0:4,0:4,0:4", "--quiet", "--out"]
     assert main(base + [str(tmp_path / "x.png")]) == 2 and "--out" in capsys.readouterr().err
     assert main(base + [str(tmp_path / "nowhere" / "x.npy")]) == 2 and "does not exist" in capsys.readouterr().err
-    (tmp_path / "x.npy").write_bytes(b"keep")
-    assert main(base + [str(tmp_path / "x.npy")]) == 2 and "--overwrite" in capsys.readouterr().err
+    (tmp_path / "x.npy").write_bytes(b"keep")  # not a .npy: never replaced, --overwrite not suggested
+    assert main(base + [str(tmp_path / "x.npy")]) == 2 and "--overwrite" not in capsys.readouterr().err
+    assert main(base + [str(tmp_path / "x.npy"), "--overwrite"]) == 2 and "not a .npy" in capsys.readouterr().err
     assert (tmp_path / "x.npy").read_bytes() == b"keep"
+    np.save(tmp_path / "x.npy", np.zeros(3))  # a .npy: replaced with --overwrite
+    assert main(base + [str(tmp_path / "x.npy")]) == 2 and "--overwrite" in capsys.readouterr().err
     assert main(base + [str(tmp_path / "x.npy"), "--overwrite"]) == 0
     np.testing.assert_array_equal(np.load(tmp_path / "x.npy"), data[:4, :4, :4])
 
@@ -210,3 +213,46 @@ def test_export_region_refuses_a_region_past_the_level(scan, tmp_path):
     with pytest.raises(ParameterError, match="Region"):
         Region(0, (3, 0, 0), (2, 5, 5))
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("suffix", [".npy", ".tif", ".nii", ".nii.gz", ".zarr"])
+def test_a_full_disk_at_the_reservation_is_one_line_and_leaves_nothing(scan, tmp_path, monkeypatch, capsys, suffix):
+    """A memory-mapped write to a page the file system cannot back is a SIGBUS (the process dies, the
+    hidden partial file stays): each mapped file's blocks are reserved first, so a full disk is an
+    ENOSPC there, one line and no leftover. The full disk is simulated at ``posix_fallocate``."""
+    import errno
+    import os
+
+    if not hasattr(os, "posix_fallocate"):
+        pytest.skip("no posix_fallocate on this platform")
+    d, _, _ = scan
+    calls = []
+
+    def full(fd, offset, length):
+        calls.append(length)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "posix_fallocate", full)
+    out = tmp_path / f"r{suffix}"
+    assert main(["export", str(d / "scan.zarr"), "--box", "0:19,0:22,0:17", "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "No space left on device" in err and out.name in err, err
+    assert calls and not list(tmp_path.iterdir())  # no hidden partial file, no sidecar, no lock
+
+
+def test_an_export_larger_than_the_free_space_is_refused_before_writing(scan, tmp_path, monkeypatch, capsys):
+    import shutil
+    from collections import namedtuple
+
+    d, data, _ = scan
+    usage = namedtuple("usage", "total used free")
+    need = data[:10].nbytes
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10 * need, 9 * need, need - 1))
+    out = tmp_path / "r.npy"
+    assert main(["export", str(d / "scan.zarr"), "--box", "0:10,:,:", "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "free" in err and "r.npy" in err, err
+    assert not list(tmp_path.iterdir())
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10 * need, 9 * need, need))  # exactly enough
+    assert main(["export", str(d / "scan.zarr"), "--box", "0:10,:,:", "--out", str(out), "--quiet"]) == 0
+    np.testing.assert_array_equal(np.load(out), data[:10])

@@ -17,7 +17,7 @@ def _main_with(monkeypatch, run):
         return args
 
     monkeypatch.setattr(parser, "parse_args", parse)
-    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    monkeypatch.setattr(cli, "build_parser", lambda only=None: parser)
     return cli.main([])
 
 

@@ -15,6 +15,7 @@ ones are kept as they are. A scaled image
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +42,41 @@ def _affine_name(img) -> str:
     return "voxel-to-world affine"
 
 
+@contextlib.contextmanager
+def _quiet_header_fixes():
+    """nibabel logs the fixes it makes to a header as it loads it ("pixdim[1,2,3] should be non-zero;
+    setting 0 dims to 1") on stderr; the one that matters here is refused by this class in its own
+    words (:func:`_unset_voxel_size`), so the load does not print a second, contradicting line."""
+    import logging
+
+    log = logging.getLogger("nibabel.global")
+    old = log.level
+    log.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        log.setLevel(old)
+
+
+def _unset_voxel_size(img) -> tuple[float, ...] | None:
+    """The header's own ``pixdim[1:4]`` when it records no voxel size (a zero, negative or non-finite
+    entry) and no ``sform``/``qform`` gives one instead; else None. nibabel replaces such a pixdim
+    by 1 when it loads the header, so the header is read again as it is on disk."""
+    hdr = img.header
+    try:
+        if int(hdr["sform_code"]) > 0 or int(hdr["qform_code"]) > 0:
+            return None
+        from nibabel.openers import ImageOpener
+
+        fm = img.file_map
+        with ImageOpener((fm.get("header") or fm["image"]).filename) as f:
+            raw = type(hdr).from_fileobj(f, check=False)
+        zooms = tuple(float(v) for v in raw["pixdim"][1:4])
+    except Exception:  # noqa: BLE001 - a header nibabel has read once: anything odd keeps nibabel's reading
+        return None
+    return zooms if not all(np.isfinite(z) and z > 0 for z in zooms) else None
+
+
 class NiftiSource(Source):
     """A 3-D NIfTI image (a 4-D one with a single volume is accepted)."""
 
@@ -48,7 +84,8 @@ class NiftiSource(Source):
         nib = require("nibabel", "nifti")
         self._path = Path(path)
         try:
-            img = nib.load(str(path), keep_file_open=True)
+            with _quiet_header_fixes():
+                img = nib.load(str(path), keep_file_open=True)
         except Exception as e:  # nibabel raises ImageFileError, HeaderDataError, OSError, EOFError...
             raise InputFormatError(f"{path}: cannot read as NIfTI ({type(e).__name__}: {e})") from None
         shape = tuple(int(s) for s in img.shape)
@@ -73,6 +110,11 @@ class NiftiSource(Source):
         self.frame = WorldFrame(tuple(tuple(r) for r in affine), "RAS")
         self.spacing = self.frame.spacing
         units = img.header.get_xyzt_units()[0] if hasattr(img.header, "get_xyzt_units") else None
+        zooms = _unset_voxel_size(img)
+        if zooms is not None:  # brick_volume refuses to guess: --spacing must say it
+            self.spacing_required = (f"{path}: the NIfTI header records no voxel size (pixdim[1:4] = "
+                                     f"{', '.join(f'{z:g}' for z in zooms)}, and neither an sform nor a qform); "
+                                     "pass --spacing z,y,x")
         self.unit = {"mm": "millimeter", "micron": "micrometer", "meter": "meter"}.get(units or "", "millimeter")
 
     def _check_size(self, img, shape, disk: np.dtype) -> None:

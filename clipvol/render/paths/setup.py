@@ -52,7 +52,7 @@ from ..target import FloatTarget
 from ..uniforms import uset, vec3
 
 __all__ = ["DrawPath", "DrawSetup", "MAX_STEPS_PER_BOX", "OPAQUE", "OCCUPANCY_UNIT", "MIP_EMPTY",
-           "scissor_boxes", "samples_per_box", "check_samples", "premultiplied_to_uint8"]
+           "scissor_boxes", "samples_per_box", "max_step", "check_step", "check_samples", "premultiplied_to_uint8"]
 
 #: most samples one ray takes inside one box (a smaller step is refused with ParameterError)
 MAX_STEPS_PER_BOX = 1 << 16
@@ -109,9 +109,27 @@ def samples_per_box(cam, items, pyramid, step: float) -> float:
     return float(np.max(path / delta)) * 1.1
 
 
+def max_step(pyramid) -> float:
+    """The longest ``step`` (voxels of the drawn level) a frame of ``pyramid`` may use: one brick edge
+    (the shortest axis of its brick shape). A longer step lets a ray cross a brick without one sample,
+    so whole bricks vanish from the image (``--step 1e9`` drew a transparent frame)."""
+    return float(min(pyramid.brick_shape))
+
+
+def check_step(pyramid, step: float) -> None:
+    """Refuse (ParameterError naming ``step`` and its range) a step longer than :func:`max_step`."""
+    top = max_step(pyramid)
+    if step > top:
+        raise ParameterError(f"step: expected a number in (0, {top:g}] voxels of the drawn level (at most one brick "
+                             f"edge: a longer step crosses bricks without a sample and leaves them out of the image), "
+                             f"got {step:g}")
+
+
 def check_samples(cam, items, pyramid, step: float) -> None:
     """Refuse (ParameterError naming ``step``) a frame whose rays would need more than
-    :data:`MAX_STEPS_PER_BOX` samples inside one box, instead of cutting them short."""
+    :data:`MAX_STEPS_PER_BOX` samples inside one box, instead of cutting them short, or whose step
+    is longer than a brick edge (:func:`max_step`), instead of skipping bricks."""
+    check_step(pyramid, step)
     worst = samples_per_box(cam, items, pyramid, step)
     if worst > MAX_STEPS_PER_BOX:
         raise ParameterError(
