@@ -67,9 +67,9 @@ def test_a_nifti_with_no_voxel_size_is_refused_unless_spacing_is_given(tmp_path,
     line = _err_line(capsys)
     assert "flat.nii" in line and "pixdim" in line and "--spacing" in line, line
     assert not (tmp_path / "o.zarr").exists()
-    assert main(["brick", str(p), str(tmp_path / "o.zarr"), "--quiet", "--spacing", "2,1.5,0.5"]) == 0
+    assert main(["brick", str(p), str(tmp_path / "o.zarr"), "--quiet", "--spacing", "0.5,1.5,2"]) == 0  # typed x,y,z
     cv = json.loads((tmp_path / "o.zarr" / "zarr.json").read_text())["attributes"]["clipvol"]
-    assert cv["spacing"] == [2.0, 1.5, 0.5]
+    assert cv["spacing"] == [2.0, 1.5, 0.5]  # stored z,y,x
 
 
 # -- a step that steps over bricks ------------------------------------------------------------------------------
