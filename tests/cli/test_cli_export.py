@@ -234,7 +234,7 @@ def test_a_full_disk_at_the_reservation_is_one_line_and_leaves_nothing(scan, tmp
 
     monkeypatch.setattr(os, "posix_fallocate", full)
     out = tmp_path / f"r{suffix}"
-    assert main(["export", str(d / "scan.zarr"), "--box", "0:19,0:22,0:17", "--out", str(out), "--quiet"]) == 2
+    assert main(["export", str(d / "scan.zarr"), "--box", "0:17,0:22,0:19", "--out", str(out), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "No space left on device" in err and out.name in err, err
     assert calls and not list(tmp_path.iterdir())  # no hidden partial file, no sidecar, no lock
@@ -249,10 +249,10 @@ def test_an_export_larger_than_the_free_space_is_refused_before_writing(scan, tm
     need = data[:10].nbytes
     monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10 * need, 9 * need, need - 1))
     out = tmp_path / "r.npy"
-    assert main(["export", str(d / "scan.zarr"), "--box", "0:10,:,:", "--out", str(out), "--quiet"]) == 2
+    assert main(["export", str(d / "scan.zarr"), "--box", ":,:,0:10", "--out", str(out), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "free" in err and "r.npy" in err, err
     assert not list(tmp_path.iterdir())
     monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10 * need, 9 * need, need))  # exactly enough
-    assert main(["export", str(d / "scan.zarr"), "--box", "0:10,:,:", "--out", str(out), "--quiet"]) == 0
+    assert main(["export", str(d / "scan.zarr"), "--box", ":,:,0:10", "--out", str(out), "--quiet"]) == 0
     np.testing.assert_array_equal(np.load(out), data[:10])
