@@ -116,7 +116,7 @@ def _timed(fn) -> float:
 
 
 def run(store: Path, volume: np.ndarray, label: str, images, repeat: int, step: float, log=print,
-        supersample: int = 2, converged_step: float = 0.25, view_names=None) -> list[dict]:
+        supersample: int = 2, converged_step: float = 0.25, view_names=None, only=None) -> list[dict]:
     from clipvol.app.converged import ConvergedPictures
     from clipvol.render.action import OPAQUE
     from clipvol.scene.metrics import percent_delta_e
@@ -129,7 +129,7 @@ def run(store: Path, volume: np.ndarray, label: str, images, repeat: int, step: 
     for mode in classify_modes():
         extra = {} if mode is None else {"classify": mode}
         tag = "" if mode in (None, "mean") else " dist"
-        conf.update({k + tag: {**kw, **extra} for k, kw in settings().items()})
+        conf.update({k + tag: {**kw, **extra} for k, kw in settings().items() if only is None or k in only})
     actions = {k: scene.action(**{"step": step, **kw}) for k, kw in conf.items()}
     ref_action = scene.action(policy="fixed", level=0)
 
@@ -220,11 +220,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--converged-step", type=float, default=0.25,
                     help="sample spacing of the converged picture in voxels (default 0.25)")
     ap.add_argument("--views", default=None, help="views to measure, comma separated (default iso,face,close)")
+    ap.add_argument("--settings", default=None,
+                    help="settings to time, comma separated names as printed (default: all; on a loaded CPU a few)")
     ap.add_argument("--dev", action="store_true", help="allow fewer than 5 rounds (while developing; not for the docs)")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "bench_mission.csv")
     a = ap.parse_args(argv)
     if a.repeat < 5 and not a.dev:
         ap.error(f"--repeat: expected at least 5 rounds, got {a.repeat}")
+    if a.settings is not None and set(a.settings.split(",")) - set(settings()):
+        ap.error(f"--settings: unknown {sorted(set(a.settings.split(',')) - set(settings()))}; "
+                 f"known: {', '.join(settings())}")
     if a.supersample < 1:
         ap.error(f"--supersample: expected an integer >= 1, got {a.supersample}")
     if a.store is not None:
@@ -240,7 +245,8 @@ def main(argv: list[str] | None = None) -> int:
         label = f"ct_head {a.size} uint16 (12 bit), {a.brick}^3 bricks"
     rows = run(store, volume, label, [int(v) for v in a.images.split(",")], a.repeat, a.step,
                supersample=a.supersample, converged_step=a.converged_step,
-               view_names=None if a.views is None else a.views.split(","))
+               view_names=None if a.views is None else a.views.split(","),
+               only=None if a.settings is None else a.settings.split(","))
     return common.save_rows(a.out, rows)
 
 
