@@ -40,12 +40,12 @@ def plots(rows: list[dict], out: Path) -> list[Path]:
             for s in pts:
                 a1.annotate(s["setting"].split("=")[-1], (s[xkey] * scale, s["pct_de6"]), textcoords="offset points", xytext=(4, 3), fontsize=7)
         for s in fixed:
-            a1.plot([s[xkey] * scale], [s["pct_de6"]], "k*", markersize=10, label=s["setting"] + " (reference)")
+            a1.plot([s[xkey] * scale], [s["pct_de6"]], "k*", markersize=10, label=s["setting"] + " (full resolution)")
         xs = [s[xkey] * scale for s in summ if s[xkey] > 0]
         if xs and max(xs) / min(xs) > 20:
             a1.set_xscale("log")
         a1.set_xlabel(xlabel)
-        a1.set_ylabel("% pixels with ΔE ≥ 6 (CIELUV)")
+        a1.set_ylabel("% pixels with ΔE ≥ 6 (CIELUV)\nagainst the converged picture")
         a1.set_title("converged frames")
         a1.grid(alpha=0.3)
         a1.legend(fontsize=7)
