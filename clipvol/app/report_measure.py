@@ -398,8 +398,9 @@ def measure(
     frame and fills a :class:`ReportResult` (rows, timing rows, block-budget rows, images);
     returns it with the pyramid and the reference cap in bytes, for the summaries and the
     markdown. Nothing but the images is written."""
+    # checked before anything is opened or written
+    conv_desc = ConvergedPictures(None, RenderParams(), supersample=supersample, step=converged_step).describe()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     thresholds = [float(t) for t in thresholds]
     if any(not (np.isfinite(t) and t > 0) for t in thresholds):
         raise ParameterError(f"thresholds: expected values > 0 pixels, got {thresholds}")
@@ -418,6 +419,7 @@ def measure(
     refines = [(p.step, p.refine_tolerance) for p in (RenderParams(step=st, refine_tolerance=tol)
                                                       for st, tol in (DEFAULT_REFINES if refines is None else refines))]
     loader = open_loader(source)
+    out.mkdir(parents=True, exist_ok=True)
     pyr = loader.pyramid
     cap = parse_bytes(reference_cap, "reference_cap")
     ref_level = _reference_level(pyr, cap)
@@ -434,7 +436,7 @@ def measure(
             framed = (pts.min(axis=0), pts.max(axis=0))
     cams = list(make_path(path_name, pyr, int(views), size=size, **path_kwargs))
     conv_desc = ConvergedPictures(None, RenderParams(), supersample=supersample, step=converged_step,
-                                  level=ref_level).describe()  # checks both before anything is drawn
+                                  level=ref_level).describe()
     result = ReportResult(out_dir=out, csv=out / "report.csv", markdown=out / "report.md", reference_level=ref_level,
                           rounds=rounds, framed=framed, converged=conv_desc)
     base = RenderParams(mode=mode, iso_value=iso_value, step=step, texture_budget=full_tex)

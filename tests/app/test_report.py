@@ -338,3 +338,27 @@ def test_report_rejects_an_unknown_frame(tmp_path):
 
     with pytest.raises(ParameterError, match="frame"):
         run_report("procedural:fractal?size=16", tmp_path, frame="brain")
+
+
+@pytest.mark.parametrize("flag,bad", [("--supersample", "0"), ("--supersample", "two"), ("--converged-step", "-1")])
+def test_cli_converged_picture_flags_are_checked(tmp_path, capsys, flag, bad):
+    """``--supersample`` and ``--converged-step`` are checked before any data is opened: one line
+    naming the flag, exit 2, nothing written."""
+    from clipvol.tools.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["report", str(tmp_path / "absent.zarr"), "--out", str(tmp_path / "rep"), flag, bad])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert flag in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "rep").exists()
+
+
+def test_run_report_rejects_a_bad_supersample(tmp_path):
+    from clipvol.app.report import run_report
+    from clipvol.errors import ParameterError
+    from clipvol.loaders.procedural import ProceduralLoader
+
+    with pytest.raises(ParameterError, match="supersample"):
+        run_report(ProceduralLoader("procedural:fractal?size=16&seed=1", brick=8), tmp_path / "rep", supersample=0)
+    assert not (tmp_path / "rep").exists()
