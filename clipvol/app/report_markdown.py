@@ -68,13 +68,13 @@ def write_markdown(result: ReportResult, pyr, *, size, path, tf, mode, step, cap
            if nearer else ""),
         "",
         f"Speed-ups are against the full-resolution frame `{ref_label}`. "
-        f"Timing: every setting and the reference are warmed (their views loaded and drawn once), then "
+        f"Timing: every setting and the full-resolution frame are warmed (their views loaded and drawn once), then "
         f"drawn over {result.rounds} interleaved rounds in this process (settings in forward order on even "
         "rounds, reverse on odd ones; each view drawn twice in a row, the second frame timed, so that what "
         "a change of setting or view costs once is not counted). `frame ms` is the median of the rounds "
         "(mean over views), `spread` "
-        "their minimum and maximum. Each of the setting's frames is paired with a frame of the reference "
-        "drawn right before or after it; `speed-up` is the median over the pairs of the reference's time "
+        "their minimum and maximum. Each of the setting's frames is paired with a full-resolution frame "
+        "drawn right before or after it; `speed-up` is the median over the pairs of the full-resolution frame's time "
         "over the setting's (geometric mean over views). `converge ms` is the time from a new, cold "
         "clip-texture (view 0; later views: from the previous view) until the frame is converged. "
         "Raw timings: `timing.csv`.",
