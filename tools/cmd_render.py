@@ -243,7 +243,7 @@ def run(args) -> int:
         sampled = " (of the cut; adaptive image sampling adds an error of its own, not estimated)" \
             if params.refine_tolerance > 0 and params.mode == "composite" else ""
         print(f"image policy: block budget {params.block_budget or 'none'}{budget}, {st.bricks_distinct} bricks drawn, "
-              f"estimated {100 * est:.1f} % of pixels dE>=6 against full resolution{sampled}", file=sys.stderr)
+              f"estimated {100 * est:.1f} % of pixels dE>=6 against the converged picture{sampled}", file=sys.stderr)
     if overlay_levels:
         print("overlays: " + "; ".join(f"{name} (level {L})" for name, L in overlay_levels.items()), file=sys.stderr)
     print("time: " + ", ".join(f"{k} {v * 1000:.1f} ms" for k, v in t.items()), file=sys.stderr)

@@ -1,7 +1,8 @@
 """Image error against block budget for several selection policies on the same views (seed Fig. 6).
 
 After Wang, Garcia & Shen (2007), Fig. 6: the percentage of pixels with CIELUV Delta E >= 6 against
-the full-resolution image, as a function of the number of bricks drawn. Every policy gets the same
+the converged picture (the report passes its references; :mod:`clipvol.app.converged`), as a
+function of the number of bricks drawn. Every policy gets the same
 budgets: the ``"image"`` policy through ``block_budget``, the others (projected size, distance)
 through their greedy form under ``max_texels_drawn = budget * texels per brick`` - the same
 traversal, refining the node their own rule ranks first. Each point is a converged frame; the
@@ -172,7 +173,7 @@ def plot_lod_sweep(rows: list[dict], path: Path, title: str = "", target: float 
     ax.set_xticks(ticks, [str(b) for b in ticks])
     ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     ax.set_xlabel("bricks drawn (distinct, mean over views)")
-    ax.set_ylabel("% of pixels with CIELUV ΔE ≥ 6\nagainst the full-resolution frame")
+    ax.set_ylabel("% of pixels with CIELUV ΔE ≥ 6\nagainst the converged picture")
     ax.set_title(title or "error against block budget (after Wang, Garcia & Shen 2007, Fig. 6)", fontsize=9)
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)

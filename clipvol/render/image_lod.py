@@ -60,10 +60,13 @@ class ImageLod:
         self._diag = float(np.linalg.norm(hi - lo))
         self._centre = (lo + hi) / 2.0
 
-    def errors_for(self, tf):
-        key = _tf_key(tf)
+    def errors_for(self, tf, classify: str = "mean"):
+        """The per-brick errors under ``tf`` for coarse voxels classified by ``classify`` (the
+        ``RenderParams.classify`` of consistent levels where it exists; see
+        :func:`~clipvol.scene.lod_error.classification_bias`), re-evaluated when either changes."""
+        key = (_tf_key(tf), classify)
         if key != self._errors_key:
-            self.errors = lod_errors(self.tables, tf)
+            self.errors = lod_errors(self.tables, tf, classify)
             self._errors_key = key
         return self.errors
 
@@ -85,7 +88,7 @@ class ImageLod:
         centre at a distance within 2 % (an orbit; :func:`~clipvol.scene.visibility.view_close`) - since
         that cut was made, the errors, the visibility estimate and the parameters are the same
         objects, and no node the frustum culled then is in view now (:meth:`ImageBased.covers`)."""
-        errors = self.errors_for(tf)
+        errors = self.errors_for(tf, getattr(params, "classify", "mean"))
         # MIP has no occlusion: a brick behind another can still hold the maximum
         vis = self.visibility_for(camera, tf, params) if params.visibility and params.mode == "composite" else None
         reuse = None

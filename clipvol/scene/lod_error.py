@@ -42,24 +42,31 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..bricking.summary import SUMMARY_BINS, SummaryTables
+from ..errors import ParameterError
 from .metrics import rgb_to_luv
 
-__all__ = ["LodErrors", "lod_errors", "colour_table", "C1", "C2"]
+__all__ = ["LodErrors", "lod_errors", "colour_table", "classification_bias", "CLASSIFY_MODES", "C1", "C2"]
 
 C1 = 100.0
 C2 = 100.0
+#: how a coarse voxel is classified: the transfer function of the mean of the fine voxels beneath
+#: it ("mean"), or the expected colour of their distribution ("distribution": consistent levels)
+CLASSIFY_MODES = ("mean", "distribution")
 
 
 @dataclass
 class LodErrors:
     """Per level (over the brick grid): normalised error ``eps`` in ``[0, 1]``, ``emission`` (mean
-    ``|Luv|`` of the premultiplied colour), ``raw_eps`` (before normalising) and ``seconds`` taken."""
+    ``|Luv|`` of the premultiplied colour), ``raw_eps`` (before normalising), ``seconds`` taken,
+    ``opacity`` (mean alpha over the histogram) and ``bias`` (:func:`classification_bias`: the
+    Delta E that survives the ray's integration, which the visible-error estimate uses; 0 at level 0)."""
 
     eps: list[np.ndarray]
     raw_eps: list[np.ndarray]
     emission: list[np.ndarray]
     seconds: float
-    opacity: list[np.ndarray] | None = None  # per level: mean alpha over the histogram
+    opacity: list[np.ndarray] | None = None
+    bias: list[np.ndarray] | None = None
 
     def lookup(self, level: int, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(eps, emission, opacity)`` of bricks ``idx`` ``(n, 3)`` of ``level``."""
@@ -78,8 +85,65 @@ def _contrast(a2: np.ndarray, b2: np.ndarray, c: float) -> np.ndarray:
     return (a2 + b2 + c) / (2.0 * np.sqrt(a2 * b2) + c)
 
 
-def lod_errors(tables: SummaryTables, tf) -> LodErrors:
-    """Evaluate ``eps`` and ``emission`` of every brick of ``tables``' pyramid under ``tf``."""
+def classification_bias(tables: SummaryTables, F: np.ndarray, classify: str = "mean") -> list[np.ndarray]:
+    """Per level (flat over the brick grid): the Delta E between a brick and level 0 that a ray's
+    integration does not average away, from the correspondence tables only.
+
+    A coarse voxel stands for the fine voxels beneath it. Where they differ from it by zero-mean
+    noise (a scan's grain), a ray through many voxels averages the difference out: the pair error
+    ``sigma~_ij`` (:func:`lod_errors`) counts it, the image does not show it. What the image keeps
+    is the *bias*: the colour of a coarse value against the mean colour of the fine values it
+    stands for - ``F(mean)`` against ``mean(F)``, large exactly where a sharp transfer function
+    meets an edge or a thin structure (bone beside air: the mean is a value neither has). Per child
+    brick ``j`` with correspondence table ``C_j[k, l]`` (parent code ``k``, child code ``l``):
+    ``b_ij = sqrt(sum_k n_k |F[k] - Fbar_k|^2 / N_j)`` with ``n_k = sum_l C_j[k, l]`` and
+    ``Fbar_k = sum_l C_j[k, l] F[l] / n_k``. A node's bias sums down the pyramid like ``eps``:
+    ``b_i = mean_j b_ij + max_j b_j`` (0 at level 0).
+
+    ``classify`` is the hook for consistent coarse levels (issue 41: the transfer function applied
+    to each coarse voxel's distribution of fine values). With ``"distribution"`` a coarse voxel's
+    colour is already the mean colour of its fine voxels, so this per-code bias is what such a level
+    removes; the blur that remains needs that level's own table (the distribution the store keeps),
+    which this function does not read yet: until it does, ``"distribution"`` returns the ``"mean"``
+    tables, an upper bound (consistent levels only lower the bias), so the estimate errs toward
+    more detail.
+    """
+    if classify not in CLASSIFY_MODES:
+        raise ParameterError(f"classify: expected one of {', '.join(CLASSIFY_MODES)}, got {classify!r}")
+    pyr = tables.pyramid
+    nb = SUMMARY_BINS
+    out = [np.zeros(pyr.num_bricks(L)) for L in range(pyr.num_levels)]
+    for L in range(1, pyr.num_levels):
+        cl = L - 1
+        off = tables.pairs_offsets[cl]
+        n_child = len(off) - 1
+        owner = np.repeat(np.arange(n_child, dtype=np.int64), np.diff(off))
+        code = tables.pairs_code[cl].astype(np.int64)
+        k, l = code // nb, code % nb
+        w = tables.pairs_count[cl].astype(np.float64)
+        grp = owner * nb + k  # (child brick, parent code)
+        ug, inv = np.unique(grp, return_inverse=True)
+        n = np.bincount(inv, weights=w, minlength=len(ug))
+        fbar = np.stack([np.bincount(inv, weights=w * F[l, c], minlength=len(ug)) for c in range(3)], axis=1)
+        fbar /= np.maximum(n, 1e-300)[:, None]
+        d2 = np.sum((F[ug % nb] - fbar) ** 2, axis=1) * n
+        per_child = np.bincount(ug // nb, weights=d2, minlength=n_child)
+        N = np.bincount(owner, weights=w, minlength=n_child)
+        b_ij = np.sqrt(per_child / np.maximum(N, 1.0))
+        gc = np.array(pyr.grid(cl))
+        cidx = np.stack(np.unravel_index(np.arange(n_child), tuple(gc)), axis=1)
+        pflat = np.ravel_multi_index(tuple((cidx // 2).T), pyr.grid(L))
+        kids = np.bincount(pflat, weights=(N > 0).astype(np.float64), minlength=pyr.num_bricks(L))
+        total = np.bincount(pflat, weights=np.where(N > 0, b_ij, 0.0), minlength=pyr.num_bricks(L))
+        worst = np.zeros(pyr.num_bricks(L))
+        np.maximum.at(worst, pflat, out[cl])
+        out[L] = total / np.maximum(kids, 1.0) + worst
+    return out
+
+
+def lod_errors(tables: SummaryTables, tf, classify: str = "mean") -> LodErrors:
+    """Evaluate ``eps``, ``emission`` and ``bias`` of every brick of ``tables``' pyramid under ``tf``
+    (``classify``: how coarse voxels are classified, :func:`classification_bias`)."""
     t0 = time.perf_counter()
     pyr = tables.pyramid
     data_range = pyr.value_range
@@ -130,4 +194,5 @@ def lod_errors(tables: SummaryTables, tf) -> LodErrors:
     eps = [r * scale for r in raw_g]
     em = [e.reshape(g) for e, g in zip(emission, grids)]
     op = [o.reshape(g) for o, g in zip(opacity, grids)]
-    return LodErrors(eps, raw_g, em, time.perf_counter() - t0, op)
+    bias = [b.reshape(g) for b, g in zip(classification_bias(tables, F, classify), grids)]
+    return LodErrors(eps, raw_g, em, time.perf_counter() - t0, op, bias)

@@ -244,7 +244,7 @@ class RenderParams:
         None, "--policy image: most bricks drawn, the most important refined first (default 128; none with --max-error)")
     max_error: float | None = _field(
         None, "--policy image (selected by it when --policy is left at its default): visible-error budget, refine "
-              "until the predicted share of pixels with CIELUV dE >= 6 against full resolution is at most this "
+              "until the predicted share of pixels with CIELUV dE >= 6 against the converged picture is at most this "
               "('5%%' or 0.05)")
     visibility: bool = _field(True, "--policy image: weight each brick's importance by its estimated visibility")
     visibility_threshold: float = 0.01

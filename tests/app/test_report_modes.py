@@ -1,6 +1,6 @@
 """``clipvol report --mode minip|average|iso``: the error of each setting is measured against a
-reference drawn in the same mode (so the full-resolution converged frame has none, and coarser
-settings do), and the reference really is that mode's picture."""
+converged picture drawn in the same mode (so the full-resolution frame is near it, and coarser
+settings are farther), and the pictures really are that mode's."""
 
 from __future__ import annotations
 
@@ -30,14 +30,14 @@ def test_report_measures_each_mode_against_its_own_reference(tmp_path, ctx, mode
                      rounds=1, plots=False, mode=mode, iso_value=10.0)
     with open(res.csv, newline="") as fh:
         rows = list(csv.DictReader(fh))
-    full = [r for r in rows if r["setting"] == "fixed L0" and r["kind"] == "converged"]
-    assert full and all(float(r["rmse"]) == 0.0 for r in full)
+    full = [float(r["rmse"]) for r in rows if r["setting"] == "fixed L0" and r["kind"] == "converged"]
     coarse = [float(r["rmse"]) for r in rows if r["kind"] == "converged" and r["lod_threshold"] == "8.0"]
-    assert coarse and max(coarse) > 0.0  # a coarser cut differs from the full-resolution picture
-    ref = np.asarray(Image.open(tmp_path / "reference_view0.png"))
-    alpha = ref[..., 3]
-    if mode == "iso":  # an opaque disc and nothing else
-        assert ((alpha == 0) | (alpha == 255)).all() and (alpha == 255).sum() > 50
-    else:  # a projection: the whole box's footprint, partly transparent under the grey ramp
-        assert (alpha > 0).sum() > 200 and (alpha < 255).any()
+    assert full and coarse and max(coarse) > max(full)  # a coarser cut is farther from the converged picture
+    for name in ("full_resolution_view0.png", "reference_view0.png"):
+        alpha = np.asarray(Image.open(tmp_path / name))[..., 3]
+        if mode == "iso":  # an opaque disc and nothing else (the converged picture's edge averaged over 2x2 rays)
+            edge = (alpha > 0) & (alpha < 255)
+            assert (alpha == 255).sum() > 50 and (edge.sum() == 0 if name.startswith("full") else edge.sum() < 0.5 * (alpha == 255).sum())
+        else:  # a projection: the whole box's footprint, partly transparent under the grey ramp
+            assert (alpha > 0).sum() > 200 and (alpha < 255).any()
     assert f"`{mode}`" in res.markdown.read_text()

@@ -120,3 +120,60 @@ def test_transfer_function_change_needs_only_the_tables(tmp_path, rng):
     assert any(not np.allclose(x, y) for x, y in zip(a.raw_eps, b.raw_eps))
     for (L, idx), w in want.items():
         assert b.raw_eps[L][idx] == pytest.approx(w, rel=1e-6, abs=1e-6)
+
+
+def _direct_bias(path, tf):
+    """The classification bias voxel by voxel on the store's own levels (read with zarr-python): per
+    child brick, the RMS over its voxels of |colour(parent value) - mean colour of the child voxels
+    under parents of that value|; per node, the mean over its children plus the worst child's own."""
+    g = zarr.open_group(str(path), mode="r")
+    pyr = open_summary(path).pyramid
+    vr = pyr.value_range
+    lv = [np.asarray(g[str(L)][...]).astype(np.float64) for L in range(pyr.num_levels)]
+    B = pyr.brick_shape
+    out = {(0, idx): 0.0 for idx in np.ndindex(*pyr.grid(0))}
+    for L in range(1, pyr.num_levels):
+        for pidx in np.ndindex(*pyr.grid(L)):
+            per_child, worst = [], 0.0
+            for o in np.ndindex(2, 2, 2):
+                c = tuple(2 * p + d for p, d in zip(pidx, o))
+                if any(ci >= gi for ci, gi in zip(c, pyr.grid(L - 1))):
+                    continue
+                gidx = [np.arange(ci * b, min((ci + 1) * b, s)) for ci, b, s in zip(c, B, lv[L - 1].shape)]
+                child = lv[L - 1][np.ix_(*gidx)].reshape(-1)
+                parent = lv[L][np.ix_(*(a // 2 for a in gidx))].reshape(-1)
+                fc = _colour(tf, child, vr)
+                s = 0.0
+                for k in np.unique(parent):
+                    sel = parent == k
+                    s += sel.sum() * float(np.sum((_colour(tf, np.array([k]), vr)[0] - fc[sel].mean(axis=0)) ** 2))
+                per_child.append(np.sqrt(s / len(child)))
+                worst = max(worst, out[L - 1, c])
+            out[L, pidx] = float(np.mean(per_child)) + worst
+    return out
+
+
+@pytest.mark.parametrize("tf", [TF_A, TF_B], ids=["bone", "blue-red"])
+def test_classification_bias_equals_the_voxels(tmp_path, rng, tf):
+    """The bias the visible-error estimate uses (``LodErrors.bias``), from the tables, equals the
+    same quantity computed from the voxels."""
+    path = tmp_path / "h.zarr"
+    brick_volume(_head(rng), path, brick=8, progress=False)
+    got = lod_errors(open_summary(path), tf)
+    ref = _direct_bias(path, tf)
+    for (L, idx), want in ref.items():
+        assert got.bias[L][idx] == pytest.approx(want, rel=1e-6, abs=1e-6), (L, idx)
+    assert max(float(b.max()) for b in got.bias) > 0
+
+
+def test_classify_mode_is_checked(tmp_path, rng):
+    from clipvol.errors import ParameterError
+
+    path = tmp_path / "h.zarr"
+    brick_volume(_head(rng), path, brick=8, progress=False)
+    tabs = open_summary(path)
+    with pytest.raises(ParameterError, match="classify"):
+        lod_errors(tabs, TF_A, classify="median")
+    d = lod_errors(tabs, TF_A, classify="distribution")  # the hook: the mean tables until the store's own
+    m = lod_errors(tabs, TF_A)
+    assert all(np.array_equal(x, y) for x, y in zip(d.bias, m.bias))

@@ -46,25 +46,38 @@ space), and so is a brick with neither emission nor error (it and all its descen
 transparent).
 
 The estimate and the error budget: :attr:`ImageBased.estimated_error` is the predicted fraction
-of the image's pixels with CIELUV Delta E >= 6 against the full-resolution frame
-(:func:`predicted_visible_error`). Each node of the cut covers ``w = a * v`` of the image (its
-projected area times its visibility); a node drawn at level 0 differs nowhere, a coarser one on a
-fraction ``q = 1 - exp(-s / S0)`` of its pixels, where ``s`` is its mean root-mean-square Delta E
-per voxel against its children, summed down the pyramid (the unnormalised ``eps`` over the node's
-children; :mod:`clipvol.scene.lod_error`) and ``S0`` (:data:`ERROR_SCALE`, 80) the one constant
-fitted on the procedural CT head (8-bit 128³ at 16³ bricks with 128² and 256² images, 8-bit 64³
-at 8³ bricks with 96², 12-bit 256³ at 32³ bricks with 256²; ``bone`` table, iso and face views,
-block budgets 1-512). The fraction is ``sum(w q) / sum(w)`` over the cut times the share of the
-image the visibility estimate finds non-empty (total opacity > 0.02; 1 without an estimate). It is
-a model, not a measurement: on those settings, where the measured fraction is at most 5 %, it is
-at most 1.5 points below it and up to 6.5 points above it (mid-size cuts of the 8-bit heads, whose
-level-1 bricks differ on fewer pixels than their pair errors suggest), and at the coarsest cuts
-(20-50 % measured) it is up to 2x low - also for a 5 % budget met by a few coarse bricks (a
-default ``clipvol render`` view of the 12-bit head: 8 level-2 bricks, 4.0 % predicted, 8.5 %
-measured). It guides the cut; it is not a bound. The constant was chosen so that near a budget it errs high,
-toward more detail; a square law (``1 - exp(-(s/S0)**2)``) tracked the 8-bit heads within 3.5
-points but was 3-4x low on the 12-bit one. ``tests/render/test_error_budget.py`` holds it to its
-tolerance on a head it was not fitted on.
+of the image's pixels with CIELUV Delta E >= 6 against the **converged picture** (level 0 at a
+quarter-voxel step, supersampled: :mod:`clipvol.app.converged`; :func:`predicted_visible_error`).
+Each node of the cut covers ``w = a * v`` of the image (its projected area times its visibility);
+a node drawn at level 0 differs nowhere, a coarser one on a fraction ``q = 1 - exp(-b / S0)`` of
+its pixels, where ``b`` is its classification bias (:func:`clipvol.scene.lod_error.classification_bias`:
+per child brick, the root-mean-square Delta E between the colour of each coarse value and the mean
+colour of the fine values it stands for, summed down the pyramid) and ``S0`` (:data:`BIAS_SCALE`,
+10) the one constant, fitted on the procedural CT head (12-bit 256³ at 32³ bricks, ``bone``,
+iso, face and close views at 256², image-policy block budgets 8-96). The fraction is
+``sum(w q) / sum(w)`` over the cut times the share of the image the visibility estimate finds
+non-empty (total opacity > 0.02; 1 without an estimate).
+
+Why the bias and not the pair error: the pair error (the RMS Delta E of every fine voxel against its
+coarse one, :data:`ERROR_SCALE` 80 with it, the estimate before) also counts zero-mean differences
+- a scan's grain, which the coarse level averages away - that a ray through many voxels averages
+away in the image too; the bias is what survives the ray's integration, and it is largest exactly
+where a sharp transfer function meets an edge or a thin structure (the mean of bone and air is a
+value neither has). Against the converged picture, on the head it was fitted on, the bias model is
+within 1.5x of the measurement on 13 of 15 cuts measuring 0.5-20 % (the pair error at 80: 7 of
+15; at its best constant, 60, 12). It is a model, not a measurement, and two things it does not
+see were measured (``docs/benchmarks.md``, "The benchmark that decides"): on the MNI ICBM152 T1
+template it runs 2-3x low on overviews (brain folds under ``bone``: thin structures whose
+differences are edges in the image, many per brick), and on close views of smooth surfaces it
+runs high (a 32³ brick of skin seen from near differs voxel by voxel, not pixel by pixel). Neither
+the full-resolution frame's own error (0-0.9 % of pixels there) nor the non-empty share (within
+0.01 of the converged picture's) nor the image size (256² and 512² measure the same) explains the
+gap. It guides the cut; it is not a bound.
+
+Consistent coarse levels (``RenderParams.classify = "distribution"``, where it exists) change a
+coarse level's error: the image policy asks for the errors of the frame's classify mode
+(:meth:`clipvol.render.image_lod.ImageLod.errors_for`, :func:`~clipvol.scene.lod_error.lod_errors`'s
+``classify``), the hook where that level's own table goes.
 
 With ``max_error`` (RenderParams; ``--max-error 5%``) the greedy refinement stops as soon as the
 estimate is at most that fraction - the error budget chooses the cut's size, not a brick count.
@@ -93,7 +106,7 @@ import numpy as np
 from ....errors import ParameterError
 from ...visibility import box_depths, screen_rects
 
-__all__ = ["ImageBased", "VOXEL_WEIGHT", "SILHOUETTE_WEIGHT", "ERROR_SCALE", "NONEMPTY_ALPHA",
+__all__ = ["ImageBased", "VOXEL_WEIGHT", "SILHOUETTE_WEIGHT", "ERROR_SCALE", "BIAS_SCALE", "NONEMPTY_ALPHA",
            "predicted_visible_error"]
 
 #: exponent of the projected voxel size (pixels per voxel) in the importance (see the module docstring)
@@ -104,6 +117,10 @@ SILHOUETTE_WEIGHT = 10.0
 #: Delta E (RMS per voxel, summed down the pyramid) at which a coarse node is predicted to differ
 #: visibly on ``1 - 1/e`` of its pixels (fitted; see the module docstring)
 ERROR_SCALE = 80.0
+#: Delta E of classification bias (:func:`clipvol.scene.lod_error.classification_bias`) at which a
+#: coarse node is predicted to differ visibly on ``1 - 1/e`` of its pixels (fitted on the procedural
+#: CT head against the converged picture; see the module docstring)
+BIAS_SCALE = 10.0
 #: total opacity of the visibility estimate above which a pixel counts as showing something
 NONEMPTY_ALPHA = 0.02
 #: once ``max_error`` is met, the coarsest nodes of a cut that mixes levels are refined, level by
@@ -112,9 +129,10 @@ EVEN_OUT_GROWTH = 2.0
 _EMPTY3 = np.zeros((0, 3))
 
 
-def visible_difference(rms_delta_e) -> np.ndarray:
-    """``q``: the predicted fraction of a coarse node's pixels with Delta E >= 6, from its RMS Delta E."""
-    return -np.expm1(-np.asarray(rms_delta_e, dtype=np.float64) / ERROR_SCALE)
+def visible_difference(rms_delta_e, scale: float | None = None) -> np.ndarray:
+    """``q``: the predicted fraction of a coarse node's pixels with Delta E >= 6, from its RMS pair
+    Delta E (``scale`` :data:`ERROR_SCALE`) or its classification bias (``scale`` :data:`BIAS_SCALE`)."""
+    return -np.expm1(-np.asarray(rms_delta_e, dtype=np.float64) / (ERROR_SCALE if scale is None else scale))
 
 
 def predicted_visible_error(weight, differ, nonempty: float = 1.0) -> float:
@@ -226,12 +244,22 @@ class ImageBased:
         if level == 0:
             q = np.zeros(len(lo))
         else:
-            raw = self.errors.raw_eps[level][tuple(idx.T)]
-            q = visible_difference(raw / np.maximum(t.tree.n_children(level, idx), 1))
+            q = visible_difference(*self._visible_delta_e(t, level, idx))
         for b, v, wi, qi in zip(map(tuple, idx.tolist()), imp.tolist(), w.tolist(), q.tolist()):
             self._importance[(level, b)] = v
             self._mass[(level, b)] = (wi, wi * qi)
         return imp
+
+    def _visible_delta_e(self, t, level: int, idx: np.ndarray) -> tuple[np.ndarray, float]:
+        """``(Delta E, scale)`` of nodes ``idx`` of ``level`` for :func:`visible_difference`: the
+        classification bias (:func:`clipvol.scene.lod_error.classification_bias`) and
+        :data:`BIAS_SCALE` where the errors carry it, else (errors made without it) the pair error
+        per child and :data:`ERROR_SCALE`."""
+        bias = getattr(self.errors, "bias", None)
+        if bias is not None:
+            return bias[level][tuple(idx.T)], BIAS_SCALE
+        raw = self.errors.raw_eps[level][tuple(idx.T)]
+        return raw / np.maximum(t.tree.n_children(level, idx), 1), ERROR_SCALE
 
     # -- the policy protocol --------------------------------------------------------------------
     def priority(self, t, level, lo, hi):
