@@ -39,9 +39,10 @@ import math
 
 import numpy as np
 
+from ..errors import ParameterError
 from .transfer import correct_opacity, fine_table
 
-__all__ = ["SPREAD_ROWS", "SPREAD_MAX", "KERNEL_SIGMAS", "spread_row_sigmas", "distribution_tables", "DistributionRanges",
+__all__ = ["SPREAD_ROWS", "SPREAD_MAX", "KERNEL_SIGMAS", "spread_row_sigmas", "distribution_tables", "DistributionRanges", "expected_colours",
            "spread_support"]
 
 #: spread rows of the table (per level)
@@ -75,7 +76,30 @@ def _smooth(values: np.ndarray, sigma: float) -> np.ndarray:
     return out[2 * half: 2 * half + n]
 
 
-def distribution_tables(table: np.ndarray, ratios, rows: int = SPREAD_ROWS, oversample: int = 16) -> np.ndarray:
+#: the distributions a (mean, spread) pair stands for: "normal" (N(mean, spread)) or "two-point" (mean -
+#: spread and mean + spread, half each: what a block of two values in equal parts is, exactly)
+MODELS = ("normal", "two-point")
+#: the model the renderer uses (chosen by tools/bench/bench_consistent.py, docs/benchmarks.md)
+MODEL = "normal"
+
+
+def _two_point(values: np.ndarray, shift: float) -> np.ndarray:
+    """``(values(j - shift) + values(j + shift)) / 2`` per column, linear between entries, ends extended."""
+    j = np.arange(len(values), dtype=np.float64)
+    out = np.empty_like(values)
+    for c in range(values.shape[1]):
+        out[:, c] = 0.5 * (np.interp(j - shift, j, values[:, c]) + np.interp(j + shift, j, values[:, c]))
+    return out
+
+
+def _expect(values: np.ndarray, sigma: float, model: str) -> np.ndarray:
+    """The expectation of ``values`` (fine entries, ``(N, c)``) over the model's distribution of spread
+    ``sigma`` entries around each entry."""
+    return _smooth(values, sigma) if model == "normal" else _two_point(values, sigma)
+
+
+def distribution_tables(table: np.ndarray, ratios, rows: int = SPREAD_ROWS, oversample: int = 16,
+                        model: str | None = None) -> np.ndarray:
     """``(len(ratios), rows, n * k, 4)`` float64 straight RGBA: the transfer function ``table``
     (``n`` entries, straight RGBA) pre-integrated over a normal distribution of each spread row
     (:func:`spread_row_sigmas`), resampled ``k`` times finer like
@@ -84,6 +108,9 @@ def distribution_tables(table: np.ndarray, ratios, rows: int = SPREAD_ROWS, over
     Entry ``[L, s, j]``: opacity ``correct_opacity(E[a], ratios[L])``, colour ``E[a c] / E[a]``
     (the plain table's colour where ``E[a] = 0``), the expectations over ``x ~ N(t_j, sigma_s)``
     with ``t_j`` the entry's table coordinate. Row ``s = 0`` equals ``corrected_tables``' row."""
+    model = MODEL if model is None else model
+    if model not in MODELS:
+        raise ParameterError(f"model: expected one of {', '.join(MODELS)}, got {model!r}")
     fine = fine_table(table, oversample)
     N = len(fine)
     a = fine[:, 3:4]
@@ -93,7 +120,7 @@ def distribution_tables(table: np.ndarray, ratios, rows: int = SPREAD_ROWS, over
         if s == 0:
             e = fine
         else:
-            sm = _smooth(prem, sigma * N)  # sigma in window units; N entries span the window
+            sm = _expect(prem, sigma * N, model)  # sigma in window units; N entries span the window
             ea = np.clip(sm[:, 3], 0.0, 1.0)
             with np.errstate(invalid="ignore", divide="ignore"):
                 rgb = np.where(ea[:, None] > 1e-12, sm[:, :3] / np.maximum(ea[:, None], 1e-300), fine[:, :3])
@@ -111,7 +138,8 @@ def spread_support(sigma, rows: int = SPREAD_ROWS, entries: int = 4096) -> np.nd
     sig = np.minimum(np.asarray(sigma, dtype=np.float64), SPREAD_MAX)
     u = np.sqrt(np.maximum(sig, 0.0) / SPREAD_MAX) * (rows - 1)
     up = np.minimum(np.ceil(u), rows - 1) / (rows - 1)
-    return np.where(sig > 0, KERNEL_SIGMAS * SPREAD_MAX * up * up, 0.0) + 2.0 / entries
+    reach = KERNEL_SIGMAS if MODEL == "normal" else 1.0
+    return np.where(sig > 0, reach * SPREAD_MAX * up * up, 0.0) + 2.0 / entries
 
 
 class DistributionRanges:
@@ -161,3 +189,46 @@ class DistributionRanges:
         with np.errstate(invalid="ignore"):
             reach = spread_support(np.maximum(hi - lo, 0.0) / 2.0 / self._width) * self._width
         return np.stack([lo - reach, hi + reach], axis=1)
+
+
+def _colour_rows(table_bytes: bytes, n: int, rows: int) -> np.ndarray:
+    """``(rows, N, 3)``: the fine table's straight colours averaged over ``N(t, sigma_s)`` per spread row."""
+    table = np.frombuffer(table_bytes, dtype=np.float64).reshape(n, 4)
+    fine = fine_table(table)
+    out = np.empty((rows, len(fine), 3), dtype=np.float64)
+    for s, sigma in enumerate(spread_row_sigmas(rows)):
+        out[s] = fine[:, :3] if s == 0 else _expect(fine[:, :3], sigma * len(fine), MODEL)
+    return out
+
+
+_COLOUR_ROWS: dict[bytes, np.ndarray] = {}
+
+
+def expected_colours(tf, values, spreads, data_range=None, rows: int = SPREAD_ROWS) -> np.ndarray:
+    """``(..., 3)`` float64: the transfer function's straight colour averaged over ``N(value, spread)``
+    (raw units) - what an opaque slice through the level-0 voxels beneath a coarse pixel shows on
+    average (opacity plays no part in a slice). Bilinear in the table coordinate and the spread row
+    like the volume paths' lookup; the tables are kept per transfer function (the last four)."""
+    table = np.ascontiguousarray(np.asarray(tf.table, dtype=np.float64))
+    key = table.tobytes() + MODEL.encode()
+    tab = _COLOUR_ROWS.get(key)
+    if tab is None:
+        tab = _colour_rows(table.tobytes(), len(table), rows)
+        while len(_COLOUR_ROWS) >= 4:
+            _COLOUR_ROWS.pop(next(iter(_COLOUR_ROWS)))
+        _COLOUR_ROWS[key] = tab
+    lo, hi = tf.window(data_range)
+    width = max(abs(float(hi) - float(lo)), 1e-300)
+    t = tf.normalise(np.asarray(values, dtype=np.float64), data_range)
+    N = tab.shape[1]
+    x = np.clip(t * N - 0.5, 0.0, N - 1.0)
+    u = np.sqrt(np.clip(np.asarray(spreads, dtype=np.float64) / width / SPREAD_MAX, 0.0, 1.0)) * (rows - 1)
+    x0 = np.floor(x).astype(np.int64)
+    x1 = np.minimum(x0 + 1, N - 1)
+    u0 = np.floor(u).astype(np.int64)
+    u1 = np.minimum(u0 + 1, rows - 1)
+    fx = (x - x0)[..., None]
+    fu = (u - u0)[..., None]
+    a = tab[u0, x0] * (1 - fx) + tab[u0, x1] * fx
+    b = tab[u1, x0] * (1 - fx) + tab[u1, x1] * fx
+    return a * (1 - fu) + b * fu

@@ -41,6 +41,7 @@ import numpy as np
 
 from ...errors import ParameterError
 from ...scene.selection.cut import DrawItems
+from ...scene import consistent
 from ...scene.consistent import SPREAD_MAX, distribution_tables
 from ...scene.transfer import corrected_tables
 from ...scene.visibility import box_depths, screen_rects
@@ -287,7 +288,7 @@ class DrawSetup:
         """The per-level tables pre-integrated over each spread row (:func:`distribution_tables`),
         levels stacked along y, :data:`SPREAD_ROWS` rows each; rebuilt only when the table or the step changes."""
         table = np.ascontiguousarray(np.asarray(tf.table, dtype=np.float32))
-        key = (table.shape, table.tobytes(), self.action.params.step)
+        key = (table.shape, table.tobytes(), self.action.params.step, consistent.MODEL)
         if self._dist_key != key:
             if self._dist_tex is not None:
                 self._dist_tex.release()
