@@ -45,10 +45,11 @@ def spread_dtype(dtype) -> np.dtype:
     return np.dtype(np.float32)
 
 
-def _mean8(a: np.ndarray) -> np.ndarray:
-    """Mean of each 2x2x2 block of ``a`` (float64, even extents), NaN ignored (all NaN: NaN)."""
-    finite = np.isfinite(a)
-    if finite.all():
+def _mean8(a: np.ndarray, finite_data: bool = False) -> np.ndarray:
+    """Mean of each 2x2x2 block of ``a`` (float64, even extents), NaN ignored (all NaN: NaN);
+    ``finite_data``: ``a`` is known to hold no NaN (moments of integer data), nothing to check."""
+    finite = None if finite_data else np.isfinite(a)
+    if finite is None or finite.all():
         s = a[:, :, 0::2] + a[:, :, 1::2]
         s = s[:, 0::2] + s[:, 1::2]
         return (s[0::2] + s[1::2]) / 8.0
@@ -74,11 +75,13 @@ def moments_down(block: np.ndarray, m1: np.ndarray | None = None, m2: np.ndarray
     so a block passed slab by slab gives the moments of the whole level."""
     if block.ndim != 3:
         raise ParameterError(f"moments_down: expected a 3-D block, got shape {block.shape}")
+    ints = block.dtype.kind in "iub"  # no NaN anywhere: the NaN-aware sums are not needed
     if m1 is None:
         x = block.astype(np.float64)
         with np.errstate(over="ignore", invalid="ignore"):
             m1, m2 = x, x * x
-    return _mean8(_pad_even(np.asarray(m1, dtype=np.float64))), _mean8(_pad_even(np.asarray(m2, dtype=np.float64)))
+    return (_mean8(_pad_even(np.asarray(m1, dtype=np.float64)), ints),
+            _mean8(_pad_even(np.asarray(m2, dtype=np.float64)), ints))
 
 
 def spread_of(m1: np.ndarray, m2: np.ndarray, dtype) -> np.ndarray:

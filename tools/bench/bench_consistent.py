@@ -70,6 +70,9 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--views", default=",".join(VIEWS))
     ap.add_argument("--out", default=str(HERE / "results" / "bench_consistent.csv"))
+    ap.add_argument("--build", default=None, metavar="SOURCE",
+                    help="also time clipvol's build of SOURCE with and without the spread (interleaved, 2 rounds each)")
+    ap.add_argument("--no-render", action="store_true", help="storage and build cost only")
     args = ap.parse_args(argv)
     store = Path(args.store)
     load = os.getloadavg()[0]
@@ -104,6 +107,29 @@ def main(argv=None) -> int:
           f"({t_both / t_mean:.2f}x the mean filter alone)")
     rows.append(dict(kind="build", view="", level=-1, setting="spread_over_mean_filter", value=round(t_both / t_mean, 3),
                      other=round(t_mean, 4)))
+
+    if args.build:
+        import tempfile
+
+        from clipvol.bricking import pipeline
+
+        spans: dict[bool, list[float]] = {True: [], False: []}
+        keep = pipeline.with_spread
+        with tempfile.TemporaryDirectory() as tmp:
+            for r in range(2):
+                for on in (True, False):
+                    pipeline.with_spread = keep if on else (lambda pyramid: False)
+                    out = Path(tmp) / f"b{r}{int(on)}.zarr"
+                    t0 = time.perf_counter()
+                    pipeline.brick_volume(args.build, out, brick=pyr.brick_shape[0], progress=False)
+                    spans[on].append(time.perf_counter() - t0)
+            pipeline.with_spread = keep
+        b_on, b_off = statistics.median(spans[True]), statistics.median(spans[False])
+        print(f"build of {args.build}: {b_on:.2f} s with the spread, {b_off:.2f} s without ({b_on / b_off:.2f}x)")
+        rows.append(dict(kind="build", view="", level=-1, setting="brick_with_over_without", value=round(b_on / b_off, 3),
+                         other=round(b_off, 3)))
+    if args.no_render:
+        return _save(rows, load, args.out)
 
     # -- error and frame cost ------------------------------------------------------------------
     ctx = create_context()
@@ -160,9 +186,13 @@ def main(argv=None) -> int:
                 rows.append(dict(kind="error", view=view, level=name, setting=c, value=e,
                                  other=round(med[(name, c)] * 1e3, 2)))
                 rows.append(dict(kind="frame_ratio", view=view, level=name, setting=c, value=round(ratio, 3), other=""))
+    return _save(rows, load, args.out)
+
+
+def _save(rows: list[dict], load: float, path) -> int:
     for r in rows:
         r["load"] = round(load, 2)
-    out = Path(args.out)
+    out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     import csv
 
