@@ -225,3 +225,32 @@ def test_a_store_without_the_spread_renders_as_before(ctx, sheet_store, tmp_path
         today = _render(ctx, bare, level, "mean", path, tf)
         assert np.array_equal(_render(ctx, bare, level, "distribution", path, tf), today)
         assert np.array_equal(_render(ctx, sheet_store, level, "mean", path, tf), today)
+
+
+def test_the_spread_pools_stay_within_the_memory_budget(sheet_store):
+    loader = open_store(sheet_store)
+    assert loader.spread_levels == (1, 2, 3)
+    budget = 200_000  # a few dozen bricks of 8^3: tight enough that the pools are cut to it
+    with ClipTexture(loader, budget, threads=1) as clip:
+        levels = clip._levels
+        held = sum(lv.pool.nbytes + (0 if lv.spread is None else lv.spread.nbytes) for lv in levels)
+        assert held <= budget
+        assert all((levels[L].spread is not None) == (L >= 1) for L in range(len(levels)))
+        clip.wait_until_idle(30)
+        for L in (1, 2):  # a resident brick's spread is the store's
+            got = clip.get_spread(L, (0, 0, 0))
+            if got is not None:
+                np.testing.assert_array_equal(got, loader.read_spread(L, (0, 0, 0)))
+
+
+@pytest.mark.gl
+def test_the_gpu_cache_counts_the_spread_channel(ctx, sheet_store):
+    from clipvol.render.gpu_cache import GpuBrickCache
+
+    pyr = open_store(sheet_store).pyramid
+    cache = GpuBrickCache(ctx, pyr, 40_000, spread_levels=(1, 2, 3))
+    try:
+        assert cache.texture_bytes <= 40_000
+        assert [t.components for t in cache.textures if t is not None][-1] == 2
+    finally:
+        cache.release()
