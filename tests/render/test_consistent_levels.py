@@ -254,3 +254,20 @@ def test_the_gpu_cache_counts_the_spread_channel(ctx, sheet_store):
         assert [t.components for t in cache.textures if t is not None][-1] == 2
     finally:
         cache.release()
+
+
+def test_classify_flag_sets_the_render_parameter():
+    import argparse
+
+    from clipvol.errors import ParameterError
+    from clipvol.scene.params import RenderParams
+    from clipvol.tools.render_args import add_render_arguments, render_params_from_args
+
+    p = argparse.ArgumentParser()
+    add_render_arguments(p, ("classify",))
+    assert render_params_from_args(p.parse_args([])).classify == "distribution"
+    assert render_params_from_args(p.parse_args(["--classify", "mean"])).classify == "mean"
+    with pytest.raises(SystemExit):
+        p.parse_args(["--classify", "median"])
+    with pytest.raises(ParameterError, match="classify"):
+        RenderParams(classify="median")
