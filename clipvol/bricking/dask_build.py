@@ -367,8 +367,8 @@ def _build(client, spec, group, pyr: Pyramid, output: Path, codec: str, span: in
                     for rel in product(*(range(min(f, n - t * f)) for t, n in zip(top, g))):
                         child = tuple(t * f + r for t, r in zip(top, rel))
                         carries.append(client.submit(_carry_of, below[child], pure=False))
-                fut = client.submit(_tier_task, spec, str(output), pyr, codec, checksum, spread, L0, L1, top, masks, *carries,
-                                    pure=False, priority=-L0)
+                fut = client.submit(_tier_task, spec, str(output), pyr, codec, checksum, spread, L0, L1, top, masks,
+                                    *carries, pure=False, priority=-L0)
                 here[top] = fut
                 stat_futs.append(client.submit(_stats_of, fut, pure=False))
             below = here

@@ -289,14 +289,14 @@ class ClipTexture:
         self.spread_levels: tuple[int, ...] = tuple(getattr(loader, "spread_levels", ()) or ())
         self.allocation: Allocation = allocate(self.pyramid, self.memory_budget)
         if self.spread_levels:  # the spread pools share the budget: the bricks' pools give them room
-            per = int(np.prod(self.pyramid.brick_shape)) * spread_dtype(self.pyramid.dtype).itemsize
+            sp = spread_dtype(self.pyramid.dtype).itemsize
+            per = int(np.prod(self.pyramid.brick_shape)) * sp
             extra = sum(self.allocation.capacity[L] for L in self.spread_levels) * per
             try:
                 self.allocation = allocate(self.pyramid, self.memory_budget - extra)
             except ParameterError:  # too tight to take it off: split the budget by bytes per voxel
                 it = self.pyramid.dtype.itemsize
-                self.allocation = allocate(self.pyramid, self.memory_budget * it // (it + per // int(
-                    np.prod(self.pyramid.brick_shape))))
+                self.allocation = allocate(self.pyramid, self.memory_budget * it // (it + sp))
         self.whole_levels: tuple[int, ...] = self.allocation.whole_levels
         pyr = self.pyramid
         #: cells of each brick whose value ranges the loader threads compute (None: an odd brick extent)

@@ -42,8 +42,8 @@ import numpy as np
 from ..errors import ParameterError
 from .transfer import correct_opacity, fine_table
 
-__all__ = ["SPREAD_ROWS", "SPREAD_MAX", "KERNEL_SIGMAS", "spread_row_sigmas", "distribution_tables", "DistributionRanges", "expected_colours",
-           "spread_support"]
+__all__ = ["SPREAD_ROWS", "SPREAD_MAX", "KERNEL_SIGMAS", "MODELS", "MODEL", "spread_row_sigmas", "distribution_tables",
+           "DistributionRanges", "expected_colours", "spread_support"]
 
 #: spread rows of the table (per level)
 SPREAD_ROWS = 32

@@ -43,8 +43,8 @@ from ..bricking.pyramid import NEIGHBOUR_OFFSETS
 from ..errors import ParameterError
 from ..rows import unique_rows
 
-__all__ = ["TransferFunction", "OPACITY_CURVES", "TF_FORMAT", "correct_opacity", "corrected_tables", "fine_table", "footprint_ranges", "opacity_curve",
-           "transparency_filter", "window_range"]
+__all__ = ["TransferFunction", "OPACITY_CURVES", "TF_FORMAT", "correct_opacity", "corrected_tables", "fine_table",
+           "footprint_ranges", "opacity_curve", "transparency_filter", "window_range"]
 
 # 17 samples (t = 0, 1/16, ..., 1) of matplotlib's perceptually uniform colormaps (CC0 data by
 # van der Walt & Smith), tabulated here so that matplotlib is not needed at run time.

@@ -88,8 +88,8 @@ def main(argv=None) -> int:
         rows.append(dict(kind="storage", view="", level=L, setting="bytes", value=_dir_bytes(store / str(L)), other=sp))
     print(f"store {store}: levels {levels} B, spread {spread} B: +{100.0 * spread / max(levels, 1):.1f} % "
           f"(spread levels {loader.spread_levels})")
-    rows.append(dict(kind="storage", view="", level=-1, setting="growth_pct", value=round(100.0 * spread / max(levels, 1), 2),
-                     other=spread))
+    rows.append(dict(kind="storage", view="", level=-1, setting="growth_pct",
+                     value=round(100.0 * spread / max(levels, 1), 2), other=spread))
     vol = np.asarray(__import__("zarr").open_array(str(store / "0"), mode="r")[...])
     t0 = time.perf_counter()
     d = vol
