@@ -271,3 +271,30 @@ def test_classify_flag_sets_the_render_parameter():
         p.parse_args(["--classify", "median"])
     with pytest.raises(ParameterError, match="classify"):
         RenderParams(classify="median")
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("path", ["bricks", "single-pass"])
+def test_empty_space_skipping_keeps_the_spread_of_coarse_cells(ctx, tmp_path, path):
+    """A coarse cell whose means the table makes transparent still draws the bone its spread reaches:
+    leaping over empty cells gives the same image as sampling every cell."""
+    n = 128
+    vol = np.zeros((32, n, n), np.uint8)
+    vol[:, :, 61] = 255  # level 2: a quarter of the voxels of one column of cells
+    vol[:, 83, :] = 255
+    np.save(tmp_path / "v.npy", vol)
+    brick_volume(tmp_path / "v.npy", tmp_path / "v.zarr", brick=16, progress=False)
+    cam = Camera.orthographic(((n - 1) / 2, (n - 1) / 2, -20.0), (0, 0, 1), (0, -1, 0), n, n, size=(n // 4, n // 4))
+    tf = _sharp_tf()
+    with ClipTexture(open_store(tmp_path / "v.zarr"), "64MB", threads=2) as clip:
+        imgs = {}
+        for skip in (True, False):
+            a = ClipRenderAction(ctx, clip, policy="fixed", level=2, path=path, step=0.25, skip_empty=skip)
+            try:
+                a.render(cam, tf, wait=True, timeout=30)  # the cells' ranges arrive with the bricks
+                imgs[skip] = a.render(cam, tf, wait=True, timeout=30)
+                assert a.distribution and a.skipped_empty == skip
+            finally:
+                a.close()
+    assert (imgs[True][..., 3] > 0).sum() >= n // 4  # the sheets are drawn
+    np.testing.assert_array_equal(imgs[True], imgs[False])
