@@ -315,15 +315,15 @@ class GpuBrickCache:
         self._cell_sp: dict[int, np.ndarray | None] = {}
         self.occupancy_levels: list[tuple[tuple[int, int, int], int] | None] = []  # ((cx, cy, cz) cells, z0)
         z0 = 0
-        for w in self.windows:
+        for L, w in enumerate(self.windows):
             if w is None or self.cell_edges is None:
                 self._cell_lo.append(None)
                 self._cell_hi.append(None)
                 self.occupancy_levels.append(None)
                 continue
             cells = tuple(int(wa * b // e) for wa, b, e in zip(w, B, self.cell_edges))  # (z, y, x)
-            self._cell_sp[len(self._cell_lo)] = np.zeros(cells, dtype=np.float32) if self._channels(
-                len(self._cell_lo)) == 2 else None
+            if self._channels(L) == 2:
+                self._cell_sp[L] = np.zeros(cells, dtype=np.float32)
             self._cell_lo.append(np.full(cells, np.inf, dtype=np.float32))
             self._cell_hi.append(np.full(cells, -np.inf, dtype=np.float32))
             self.occupancy_levels.append((cells[::-1], z0))
