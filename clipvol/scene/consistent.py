@@ -59,10 +59,28 @@ def spread_row_sigmas(rows: int = SPREAD_ROWS) -> np.ndarray:
     return SPREAD_MAX * s * s
 
 
+#: a kernel wider than this many entries is applied to the table averaged over blocks of entries
+#: (a power of two in size, at most 1/128 of a standard deviation) and read back linearly: the FFTs
+#: of the wide rows span a few thousand entries instead of tens of thousands (the bone table's 5
+#: levels in half the time) at an error below 1e-3 in opacity and premultiplied colour (a quarter of
+#: an 8-bit step; measured against the full-width convolution)
+SMOOTH_MAX_SIGMA = 256.0
+
+
 def _smooth(values: np.ndarray, sigma: float) -> np.ndarray:
     """``values`` ``(N, c)`` convolved along axis 0 with a normal kernel of ``sigma`` entries,
     truncated at :data:`KERNEL_SIGMAS`, the ends extended (edge values repeated)."""
     n = len(values)
+    q = 1
+    while sigma / (2 * q) >= SMOOTH_MAX_SIGMA and n // (2 * q) >= 64:
+        q *= 2
+    if q > 1:  # block means, smoothed, read back linearly at the entries' centres
+        m = -(-n // q) * q
+        padded = np.concatenate([values, np.repeat(values[-1:], m - n, axis=0)]) if m > n else values
+        coarse = _smooth(padded.reshape(m // q, q, -1).mean(axis=1), sigma / q)
+        x = (np.arange(n) + 0.5) / q - 0.5
+        j = np.arange(m // q, dtype=np.float64)
+        return np.stack([np.interp(x, j, coarse[:, c]) for c in range(values.shape[1])], axis=1)
     half = int(math.ceil(KERNEL_SIGMAS * sigma))
     if half < 1:
         return values.copy()
