@@ -144,6 +144,7 @@ class RemoteZarrLoader(ZarrLoader):
         try:
             self._mirror_metadata(loader_kwargs)
             super().__init__(self._mirror, **loader_kwargs)
+            self.spread_levels = ()  # the spread's chunks are not mirrored: coarse levels classify their mean
         except ClipvolError as e:
             self._finalizer()
             raise self._renamed(e) from None

@@ -47,11 +47,12 @@ from .zarr_meta import group_attributes, set_of
 from .zarr_meta import inside  # noqa: F401  re-exported
 from .zarr_open import StoreOpening
 from .zarr_shards import SHARD_RUN_BYTES, ShardReader
+from .zarr_spread import SpreadReader
 
 __all__ = ["ZarrLoader", "UnverifiedStoreWarning", "crc32c_implementation", "CRC32C_PACKAGES"]
 
 
-class ZarrLoader(StoreOpening, ChunkReader, ShardReader, IntegrityChecks, ComputedLevels):
+class ZarrLoader(StoreOpening, ChunkReader, ShardReader, IntegrityChecks, ComputedLevels, SpreadReader):
     """Loader for a clipvol store or a plain OME-Zarr image on the local file system.
 
     Parameters
@@ -130,6 +131,7 @@ class ZarrLoader(StoreOpening, ChunkReader, ShardReader, IntegrityChecks, Comput
             self._open_clipvol(attrs)
         else:
             self._open_ome(attrs)
+        self._open_spread(attrs)
         self._prepare_hot_path()
 
     @property

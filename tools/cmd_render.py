@@ -72,7 +72,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     add_tf_arguments(p.add_argument_group("transfer function"))
     add_overlay_arguments(p.add_argument_group("overlays of co-registered volumes"))
-    add_render_arguments(r, ("step", "refine_tolerance", "background", "shading", "light", "skip_empty"))
+    add_render_arguments(r, ("step", "refine_tolerance", "background", "shading", "light", "skip_empty", "classify"))
     add_common_arguments(r, ("memory_budget",))
     add_render_arguments(r, ("texture_budget", "texels_per_frame"))
     add_common_arguments(r, ("threads", "no_wait", "timeout"))

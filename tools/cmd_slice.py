@@ -77,7 +77,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "level": "one level everywhere (0 = full resolution)",
         "distance_factor": "--poi: refine nodes closer to it than this many of their diagonals (default 1)"})
     add_common_arguments(r, ("brick", "memory_budget"))
-    add_render_arguments(r, ("texture_budget",))
+    add_render_arguments(r, ("texture_budget", "classify"))
     add_common_arguments(r, ("threads", "no_wait", "timeout"),
                          no_wait=dict(help="draw what is resident after one pass (coarser fallback)"),
                          timeout=dict(help="seconds to wait for the slice's bricks (default 300)"))

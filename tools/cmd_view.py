@@ -39,7 +39,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_common_arguments(g, ("memory_budget",))
     add_render_arguments(g, ("texture_budget", "texels_per_frame"))
     add_common_arguments(g, ("threads",))
-    add_render_arguments(g, ("jitter", "path", "shading", "skip_empty", "refine_tolerance"), help={"shading": "start with gradient lighting on (key L)"})
+    add_render_arguments(g, ("jitter", "path", "shading", "skip_empty", "refine_tolerance", "classify"), help={"shading": "start with gradient lighting on (key L)"})
     g.add_argument("--play", action="store_true",
                    help="an OME-Zarr image with a t axis: play its time steps (Space play/pause, J/K step, { } rate; "
                         "the next step prefetched under the same memory budget)")

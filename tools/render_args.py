@@ -79,6 +79,12 @@ def _paths() -> tuple:
     return PATHS
 
 
+def _classify() -> tuple:
+    from clipvol.scene.params import CLASSIFY
+
+    return CLASSIFY
+
+
 def _policies() -> tuple:
     from clipvol.scene.policy_registry import policy_names
 
@@ -113,6 +119,7 @@ FLAGS: dict[str, Flag] = {(f.fields[0] if len(f.fields) == 1 else f.dest): f for
          help="sample every cell, also those the transfer function makes transparent (the same image, slower)"),
     Flag(("texture_budget",), "--texture-budget", default="256MB"),  # decimal MB, as the command line always read it
     Flag(("texels_per_frame",), "--texels-per-frame", type=int),
+    Flag(("classify",), "--classify", choices=_classify),
 )}
 
 

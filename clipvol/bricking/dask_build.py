@@ -42,9 +42,10 @@ import numpy as np
 from ..errors import InputFormatError, MissingExtraError, ParameterError
 from .build_options import BuildOptions
 from .output_guard import check_not_input, check_overwrite
-from .pipeline import (_create_store, chunk_encoder, encode_brick, job_spec, mark_complete,
+from .pipeline import (_create_store, chunk_encoder, encode_brick, has_spread_arrays, job_spec, mark_complete,
                        output_lock, prepare_output, write_errors)
 from .pyramid import Pyramid, downsample
+from .spread import SPREAD_GROUP, moments_down, spread_dtype, spread_of
 from .sources import check_source_unchanged, file_inodes, open_source
 from .stats import StatsComputer, finite_range
 from .worldframe import WorldFrame
@@ -101,23 +102,33 @@ def _region_box(pyr: Pyramid, L0: int, L1: int, top: tuple[int, int, int]):
     return start, stop
 
 
-def _tier_task(spec, out: str, pyr: Pyramid, codec: str, checksum: bool, L0: int, L1: int, top, done, *carries):
+def _tier_task(spec, out: str, pyr: Pyramid, codec: str, checksum: bool, spread: bool, L0: int, L1: int, top, done,
+               *carries):
     """Build levels ``L0..L1`` under brick ``top`` of level ``L1`` (see the module docstring).
 
     ``done[L - L0]`` is the region's ``done`` mask at level ``L``; ``carries`` (tier > 0) are
-    ``(child_top, block)`` pairs of the tier below. Returns ``(stats, carry)``; ``stats`` holds
+    ``(child_top, block, m1, m2)`` of the tier below (``m1``, ``m2``: the block's level-0 moments
+    when ``spread``, else None; :mod:`clipvol.bricking.spread`). Returns ``(stats, carry)``; ``stats`` holds
     ``(level, index, BrickStats, chunk crc32c or -1)`` per brick written.
     """
     B = pyr.brick_shape
     start, stop = _region_box(pyr, L0, L1, top)
+    m1 = m2 = None
     if L0 == 0:
         data = _worker_source(spec).read(start, stop)
     else:
-        data = np.empty(tuple(b - a for a, b in zip(start, stop)), dtype=pyr.dtype)
-        for child, block in carries:
+        shape = tuple(b - a for a, b in zip(start, stop))
+        data = np.empty(shape, dtype=pyr.dtype)
+        if spread:
+            m1, m2 = np.empty(shape, dtype=np.float64), np.empty(shape, dtype=np.float64)
+        for child, block, c1, c2 in carries:
             o = tuple(c * (b // 2) - s for c, b, s in zip(child, B, start))
-            data[tuple(slice(a, a + n) for a, n in zip(o, block.shape))] = block
+            at = tuple(slice(a, a + n) for a, n in zip(o, block.shape))
+            data[at] = block
+            if spread:
+                m1[at], m2[at] = c1, c2
     encode = chunk_encoder(codec, pyr.dtype, checksum)
+    encode_sp = chunk_encoder(codec, spread_dtype(pyr.dtype), checksum) if spread else None
     stats = StatsComputer(pyr.dtype, pyr.value_range)
     results = []
     for L in range(L0, L1 + 1):
@@ -128,7 +139,8 @@ def _tier_task(spec, out: str, pyr: Pyramid, codec: str, checksum: bool, L0: int
             if done[L - L0][rel]:
                 continue
             idx = tuple(a + r for a, r in zip(first, rel))
-            block = data[tuple(slice(r * b, (r + 1) * b) for r, b in zip(rel, B))]
+            at = tuple(slice(r * b, (r + 1) * b) for r, b in zip(rel, B))
+            block = data[at]
             st = stats.compute(block)
             payload = encode_brick(block, B, encode)
             results.append((L, idx, st, int.from_bytes(payload[-4:], "little") if payload is not None and checksum else -1))
@@ -137,9 +149,18 @@ def _tier_task(spec, out: str, pyr: Pyramid, codec: str, checksum: bool, L0: int
                 d.mkdir(parents=True, exist_ok=True)
                 with open(d / str(idx[2]), "wb") as fh:
                     fh.write(payload)
+            if spread and L >= 1:  # the same bytes as the local build's (pipeline._Builder._brick)
+                sp = encode_brick(spread_of(m1[at], m2[at], pyr.dtype), B, encode_sp)
+                if sp is not None:
+                    d = Path(out) / SPREAD_GROUP / str(L) / "c" / str(idx[0]) / str(idx[1])
+                    d.mkdir(parents=True, exist_ok=True)
+                    with open(d / str(idx[2]), "wb") as fh:
+                        fh.write(sp)
         if L + 1 < pyr.num_levels:
+            if spread:
+                m1, m2 = moments_down(data, m1, m2)
             data = downsample(data, pyr.filter)
-    return results, ((tuple(top), data) if L1 + 1 < pyr.num_levels else None)
+    return results, ((tuple(top), data, m1, m2) if L1 + 1 < pyr.num_levels else None)
 
 
 def _carry_of(result):
@@ -325,6 +346,7 @@ def _build(client, spec, group, pyr: Pyramid, output: Path, codec: str, span: in
     # a resumed build of a store written before checksums keeps that store's codec chain (as the local path)
     checksum = any(type(c).__name__ == "Crc32cCodec" for c in group["0"].metadata.codecs)
     done = [np.asarray(group[f"{STATS_GROUP}/{L}/done"][...], dtype=bool) for L in range(nlev)]
+    spread = has_spread_arrays(group, nlev)  # a resumed build of a store created without them writes none
     book = _RowBook(group, pyr, done)
     total = sum(book.missing.values())
     bar = tqdm(total=total, unit="brick", desc="bricking (dask)", file=sys.stderr, disable=not progress,
@@ -348,8 +370,8 @@ def _build(client, spec, group, pyr: Pyramid, output: Path, codec: str, span: in
                     for rel in product(*(range(min(f, n - t * f)) for t, n in zip(top, g))):
                         child = tuple(t * f + r for t, r in zip(top, rel))
                         carries.append(client.submit(_carry_of, below[child], pure=False))
-                fut = client.submit(_tier_task, spec, str(output), pyr, codec, checksum, L0, L1, top, masks, *carries,
-                                    pure=False, priority=-L0)
+                fut = client.submit(_tier_task, spec, str(output), pyr, codec, checksum, spread, L0, L1, top, masks,
+                                    *carries, pure=False, priority=-L0)
                 here[top] = fut
                 stat_futs.append(client.submit(_stats_of, fut, pure=False))
             below = here

@@ -214,9 +214,14 @@ def _pinned_fields(doc: dict) -> dict:
 
 def level_array_paths(path: Path, level: int) -> list[str]:
     """The arrays the manifest covers for ``level``, as paths inside the store: the level's own
-    array, then every array under ``clipvol_stats/<level>/`` (found by walking: an array added
-    there later is covered without a change here), sorted."""
+    array, its spread array ``clipvol_spread/<level>`` (levels >= 1 of a store built with it,
+    :mod:`clipvol.bricking.spread`), then every array under ``clipvol_stats/<level>/`` (found by
+    walking: an array added there later is covered without a change here), sorted."""
+    from .spread import SPREAD_GROUP
+
     out = [str(level)] if (path / str(level) / "zarr.json").is_file() else []
+    if (path / SPREAD_GROUP / str(level) / "zarr.json").is_file():
+        out.append(f"{SPREAD_GROUP}/{level}")
     base = path / STATS_GROUP / str(level)
     if base.is_dir():
         for entry in sorted(os.scandir(base), key=lambda e: e.name):

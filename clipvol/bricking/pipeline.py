@@ -53,6 +53,7 @@ from .build_lock import output_lock
 from .build_options import BRICK_RANGE, CODECS, BuildOptions
 from .output_guard import check_not_input, check_overwrite, exists_error, remove_output
 from .pyramid import Pyramid, downsample
+from .spread import SPREAD_GROUP, moments_down, spread_dtype, spread_of
 from .source_types import Source
 from .sources import check_source_unchanged, file_inodes, identity_changes, open_source, source_identity
 from .stats import StatsComputer, finite_range
@@ -274,16 +275,37 @@ class _Builder:
         self.crc = [None] * self.nlev  # per level: the chunk crc32c of the bricks of the row being written
         self.done = [np.asarray(self.stat_arrays[L]["done"][...], dtype=bool) for L in range(self.nlev)]
         self.buffers: list[np.ndarray | None] = [None] * self.nlev
+        # the spread beside levels >= 1 (clipvol.bricking.spread), when the store was created with it: the
+        # level-0 moments of each level's slab travel with its values (float64, one pair per level)
+        self.spread = has_spread_arrays(group, self.nlev)
+        self.spread_dtype = spread_dtype(pyramid.dtype)
+        self.encode_spread = chunk_encoder(codec, self.spread_dtype, self.checksum) if self.spread else None
+        self.moments: list[tuple[np.ndarray, np.ndarray] | None] = [None] * self.nlev
         self._made_dirs: set[Path] = set()
         self._dir_lock = threading.Lock()
         self.bytes_written = 0
         self._bytes_lock = threading.Lock()
 
     # -- one brick (worker thread) ----------------------------------------------------------
+    def _write(self, parts: tuple, data: bytes) -> None:
+        """Write one chunk file ``out/<parts...>/<bx>`` (directories made once)."""
+        d = self.out.joinpath(*parts[:-1])
+        if d not in self._made_dirs:
+            d.mkdir(parents=True, exist_ok=True)
+            with self._dir_lock:
+                self._made_dirs.add(d)
+        write_chunk(d / parts[-1], data)
+        with self._bytes_lock:
+            self.bytes_written += len(data)
+
     def _brick(self, L: int, slab: np.ndarray, k: int, by: int, bx: int, write: bool):
         B = self.B
         ys, xs = slice(by * B[1], (by + 1) * B[1]), slice(bx * B[2], (bx + 1) * B[2])
         block = slab[:, ys, xs]
+        mom = self.moments[L]
+        m1 = m2 = None
+        if mom is not None:
+            m1, m2 = mom[0][:, ys, xs], mom[1][:, ys, xs]
         st = None
         if write:
             st = self.stats.compute(block)
@@ -292,21 +314,22 @@ class _Builder:
             if data is not None:
                 if self.checksum:
                     crc = int.from_bytes(data[-4:], "little")
-                d = self.out / str(L) / "c" / str(k) / str(by)
-                if d not in self._made_dirs:
-                    d.mkdir(parents=True, exist_ok=True)
-                    with self._dir_lock:
-                        self._made_dirs.add(d)
-                write_chunk(d / str(bx), data)
-                with self._bytes_lock:
-                    self.bytes_written += len(data)
+                self._write((str(L), "c", str(k), str(by), str(bx)), data)
+            if self.spread and L >= 1:
+                sp = encode_brick(spread_of(m1, m2, self.pyr.dtype), B, self.encode_spread)
+                if sp is not None:
+                    self._write((SPREAD_GROUP, str(L), "c", str(k), str(by), str(bx)), sp)
             st = (st, crc)
         if L + 1 < self.nlev:
             child = downsample(block, self.pyr.filter)
             buf = self.buffers[L + 1]
             z0 = (k % 2) * (B[0] // 2)
             y0, x0 = by * B[1] // 2, bx * B[2] // 2
-            buf[z0 : z0 + child.shape[0], y0 : y0 + child.shape[1], x0 : x0 + child.shape[2]] = child
+            at = (slice(z0, z0 + child.shape[0]), slice(y0, y0 + child.shape[1]), slice(x0, x0 + child.shape[2]))
+            buf[at] = child
+            if self.spread:
+                c1, c2 = moments_down(block, m1, m2)
+                self.moments[L + 1][0][at], self.moments[L + 1][1][at] = c1, c2
         return st
 
     # -- one brick-row of a level (main thread) -----------------------------------------------
@@ -317,6 +340,9 @@ class _Builder:
             Z1, Y1, X1 = pyr.levels[L + 1].shape
             j = k // 2
             self.buffers[L + 1] = np.empty((min(B[0], Z1 - j * B[0]), Y1, X1), dtype=pyr.dtype)
+            if self.spread:
+                shape = self.buffers[L + 1].shape
+                self.moments[L + 1] = (np.empty(shape, dtype=np.float64), np.empty(shape, dtype=np.float64))
         write = not bool(self.done[L][k].all())
         futs = [self.pool.submit(self._brick, L, slab, k, by, bx, write) for by in range(gy) for bx in range(gx)]
         try:
@@ -334,6 +360,7 @@ class _Builder:
         if L + 1 < self.nlev and (k % 2 == 1 or k == gz - 1):
             buf = self.buffers[L + 1]
             self.buffers[L + 1] = None
+            self.moments[L] = None  # this slab's moments are folded into the next level's
             self.process(L + 1, k // 2, buf)
 
     def _write_stats(self, L: int, k: int, results, gy: int, gx: int) -> None:
@@ -375,8 +402,39 @@ def _create_store(output: Path, pyramid: Pyramid, codec: str, unit: str, source_
             config={"write_empty_chunks": False},
         )
         create_stats_arrays(group, pyramid.grid(L), L)
+        if L >= 1 and with_spread(pyramid):
+            create_spread_array(group, pyramid, L, codec)
+    if with_spread(pyramid):
+        cv["spread"] = spread_attrs(pyramid)
     group.attrs.update(attrs)  # written after the arrays: a store is only recognised once whole
     return group
+
+
+def with_spread(pyramid: Pyramid) -> bool:
+    """Does a build of ``pyramid`` write the spread beside its coarse levels? For the mean filter
+    (the other filters' coarse voxels are no mean of a distribution) and more than one level."""
+    return pyramid.filter == "mean" and pyramid.num_levels > 1
+
+
+def spread_attrs(pyramid: Pyramid) -> dict:
+    """The ``attrs["clipvol"]["spread"]`` block: where the spread arrays are and what they hold."""
+    return {"group": SPREAD_GROUP, "levels": list(range(1, pyramid.num_levels)),
+            "dtype": spread_dtype(pyramid.dtype).name, "statistic": "std",
+            "of": "the level-0 voxels beneath each voxel (2**L per axis, edge-replicated like the mean)"}
+
+
+def has_spread_arrays(group, nlev: int) -> bool:
+    """Was the store created with the spread arrays (a resumed build of an older store has none)?"""
+    return nlev > 1 and all(f"{SPREAD_GROUP}/{L}" in group for L in range(1, nlev))
+
+
+def create_spread_array(group, pyramid: Pyramid, L: int, codec: str) -> None:
+    """Create level ``L``'s spread array ``clipvol_spread/L``: the level's shape and chunks, the
+    type of :func:`~clipvol.bricking.spread.spread_dtype`, the levels' codecs (checksummed)."""
+    dt = spread_dtype(pyramid.dtype)
+    group.create_array(f"{SPREAD_GROUP}/{L}", shape=pyramid.levels[L].shape, chunks=pyramid.brick_shape, dtype=dt,
+                       fill_value=0, compressors=store_codecs(codec, dt) or None, dimension_names=["z", "y", "x"],
+                       config={"write_empty_chunks": False})
 
 
 def create_stats_arrays(group, g: tuple[int, int, int], L: int, names=STAT_ARRAYS) -> None:

@@ -45,6 +45,7 @@ from typing import Callable, Iterable
 import numpy as np
 
 from ..bricking.pyramid import Int3
+from ..bricking.spread import spread_dtype
 from ..errors import InputFormatError, LoaderError, ParameterError
 from ..units import parse_bytes
 from .cells import cell_edges, cell_ranges
@@ -172,7 +173,7 @@ class _Level:
     """Slot bookkeeping of one level: its pool and, per slot, brick, state, generation, attempts."""
 
     __slots__ = ("level", "grid", "whole", "shape", "start", "stop", "pool", "key", "state", "gen", "attempts", "not_before",
-                 "busy", "empty", "cell_lo", "cell_hi")
+                 "busy", "empty", "cell_lo", "cell_hi", "spread")
 
     def __init__(self, level: int, grid: Int3, whole: bool, capacity: int, brick_shape: Int3, dtype: np.dtype,
                  prefault: bool = True, cells: Int3 | None = None):
@@ -204,6 +205,8 @@ class _Level:
         shape = (capacity, *cells) if cells is not None else (0,)
         self.cell_lo = np.full(shape, np.inf, dtype=np.float32)
         self.cell_hi = np.full(shape, -np.inf, dtype=np.float32)
+        # per slot, its brick's spread (clipvol.bricking.spread) where the loader has one for the level
+        self.spread: np.ndarray | None = None
 
 
 class ClipTexture:
@@ -286,7 +289,18 @@ class ClipTexture:
         self.retry_backoff = backoff
         self.on_error = on_error
         self.predictive = bool(predictive)
+        #: levels whose bricks carry their spread (the loader's ``spread_levels``; consistent coarse levels)
+        self.spread_levels: tuple[int, ...] = tuple(getattr(loader, "spread_levels", ()) or ())
         self.allocation: Allocation = allocate(self.pyramid, self.memory_budget)
+        if self.spread_levels:  # the spread pools share the budget: the bricks' pools give them room
+            sp = spread_dtype(self.pyramid.dtype).itemsize
+            per = int(np.prod(self.pyramid.brick_shape)) * sp
+            extra = sum(self.allocation.capacity[L] for L in self.spread_levels) * per
+            try:
+                self.allocation = allocate(self.pyramid, self.memory_budget - extra)
+            except ParameterError:  # too tight to take it off: split the budget by bytes per voxel
+                it = self.pyramid.dtype.itemsize
+                self.allocation = allocate(self.pyramid, self.memory_budget * it // (it + sp))
         self.whole_levels: tuple[int, ...] = self.allocation.whole_levels
         pyr = self.pyramid
         #: cells of each brick whose value ranges the loader threads compute (None: an odd brick extent)
@@ -297,6 +311,9 @@ class ClipTexture:
                    bool(prefault), cells)
             for L in range(pyr.num_levels)
         ]
+        for L in self.spread_levels:
+            lv = self._levels[L]
+            lv.spread = np.zeros((len(lv.state), *pyr.brick_shape), dtype=spread_dtype(pyr.dtype))
         self._window = self.allocation.window
         self._lock = threading.Lock()
         self._cv = threading.Condition(self._lock)
@@ -425,6 +442,21 @@ class ClipTexture:
             if s is None or lv.state[s] != _RESIDENT:
                 return None
             view = lv.pool[s].view()
+        view.flags.writeable = False
+        return view
+
+    def get_spread(self, level: int, index) -> np.ndarray | None:
+        """A read-only view of the resident brick's spread (:mod:`clipvol.bricking.spread`), or
+        ``None`` if the brick is not resident or its level carries none; valid as :meth:`get_brick`'s."""
+        idx = self.pyramid.check_key(level, index)
+        lv = self._levels[level]
+        if lv.spread is None:
+            return None
+        with self._lock:
+            s = self._slot_if_held(lv, idx)
+            if s is None or lv.state[s] != _RESIDENT:
+                return None
+            view = lv.spread[s].view()
         view.flags.writeable = False
         return view
 
@@ -1012,6 +1044,7 @@ class ClipTexture:
         t0 = time.perf_counter()
         err: BaseException | None = None
         brick = None
+        spread = None
         try:
             if empty:
                 brick = self._fill_brick  # copied into the slot below; the loader is not called
@@ -1019,6 +1052,8 @@ class ClipTexture:
                 self._read_into(L, idx, self._levels[L].pool[s])  # straight into the slot
             else:
                 brick = check_brick(self.loader, L, idx, self.loader.read_brick(L, idx))
+            if self._levels[L].spread is not None and not empty:
+                spread = self.loader.read_spread(L, idx)
         except Exception as e:  # a loader's failure never kills the thread
             err = e
         latency = time.perf_counter() - t0
@@ -1047,6 +1082,8 @@ class ClipTexture:
             if err is None:
                 if brick is not None:
                     lv.pool[s] = brick  # under the lock, after the generation check
+                if lv.spread is not None:
+                    lv.spread[s] = 0 if spread is None else spread  # an empty brick has no spread
                 if cells is not None:
                     lv.cell_lo[s], lv.cell_hi[s] = cells
                 lv.state[s] = _RESIDENT

@@ -40,7 +40,7 @@ import numpy as np
 from ..bricking.pyramid import Int3, Pyramid
 from ..errors import LoaderError
 
-__all__ = ["Loader", "HasBrickRanges", "HasReadPlan", "BrickKey", "check_brick"]
+__all__ = ["Loader", "HasBrickRanges", "HasReadPlan", "HasSpread", "BrickKey", "check_brick"]
 
 
 @dataclass(frozen=True, slots=True, order=True)
@@ -93,6 +93,19 @@ class HasBrickRanges(Protocol):
         brick is *empty*: the clip-texture fills it without calling ``read_brick``, and the
         render action skips it when the transfer function makes that value transparent.
         """
+        ...
+
+
+@runtime_checkable
+class HasSpread(Protocol):
+    """Optional: the spread beside the coarse levels (:mod:`clipvol.bricking.spread`), read with each
+    brick of those levels by the clip-texture so that the renderer can classify a coarse voxel by the
+    distribution beneath it (:mod:`clipvol.scene.consistent`). A loader without it is drawn by its means."""
+
+    spread_levels: tuple[int, ...]
+
+    def read_spread(self, level: int, index: tuple[int, int, int]) -> np.ndarray | None:
+        """The brick's spread (brick shape, :func:`~clipvol.bricking.spread.spread_dtype`), or None."""
         ...
 
 

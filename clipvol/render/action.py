@@ -73,6 +73,7 @@ from ..errors import ParameterError
 from ..paging.loader import HasBrickRanges
 from ..paging.properties import may_hold_nonfinite
 from ..paging.readcount import bytes_read_of
+from ..scene.consistent import SPREAD_ROWS, DistributionRanges
 from ..scene.page_table import block_cells
 from ..scene.params import MODES, RenderParams
 from ..scene.selection import merge_items
@@ -128,7 +129,7 @@ class ClipRenderAction:
         self.clip_texture = clip_texture
         self.pyramid = clip_texture.pyramid
         self.params = RenderParams.from_kwargs(params, **kwargs).check_for(self.pyramid)
-        self.cache = GpuBrickCache(ctx, self.pyramid, self.params.texture_budget)
+        self.cache = self._new_cache(clip_texture, self.params.texture_budget)
         self.frame_loop = FrameLoop(clip_texture, self.cache)
         self.setup = DrawSetup(self)  # the target, colour table and programs every draw path shares
         self._paths: dict = {}  # draw paths by name, made on first use (clipvol.render.paths)
@@ -150,11 +151,27 @@ class ClipRenderAction:
             self.close()
             raise
 
+    def _new_cache(self, clip_texture, budget: int) -> GpuBrickCache:
+        """The GPU brick cache of ``clip_texture``'s pyramid (two channels where its levels carry a spread)."""
+        return GpuBrickCache(self.ctx, clip_texture.pyramid, budget,
+                             spread_levels=getattr(clip_texture, "spread_levels", ()))
+
+    @property
+    def distribution(self) -> bool:
+        """Are coarse samples classified by their distribution this frame (``classify="distribution"``,
+        a store with the spread, composite, finite data; :mod:`clipvol.scene.consistent`)? MIP, minIP,
+        the average and the iso-surface take the mean: the average of a distribution is its mean, and
+        the extreme or the surface of a distribution is no single voxel's value to classify."""
+        p = self.params
+        return (p.classify == "distribution" and bool(self.cache.spread_levels) and p.mode == "composite"
+                and not self.nonfinite)
+
     # -- shader variants ---------------------------------------------------------------------------
     def defines(self) -> dict:
         """The ``#define``\\ s of this frame's volume shader variant (see :mod:`clipvol.render.glsl`)."""
         mode = self.params.mode
         return {**mode_defines(mode), "HAS_NAN": self.nonfinite,
+                "DISTRIB": SPREAD_ROWS if self.distribution else False,
                 "SHADING": self.params.shading and mode == "composite",
                 "EMPTY_SKIP": self.skipped_empty, **overlay_defines(self.params.overlays, self.params.blend)}
 
@@ -168,9 +185,13 @@ class ClipRenderAction:
         if self.params.mode not in ("composite", "iso") or not isinstance(loader, HasBrickRanges):
             return None
         # kept while the table, its window and the overlays stay (the filter answers whole levels once)
-        key = (loader, np.asarray(tf.table).tobytes(), tf.window(self.pyramid.value_range), self.params.overlays)
+        key = (loader, np.asarray(tf.table).tobytes(), tf.window(self.pyramid.value_range), self.params.overlays,
+               self.distribution)
         if self._transparent_kept is not None and self._transparent_kept[0] == key:
             return self._transparent_kept[1]
+        if self.distribution:  # a coarse brick's spread reaches values its means do not (scene/consistent.py)
+            lo, hi = tf.window(self.pyramid.value_range)
+            loader = DistributionRanges(loader, hi - lo, self.cache.spread_levels)
         if self.params.overlays:  # a transparent brick still carries the rays through an overlay
             fn = self.overlays.cull_outside(transparency_filter(tf, loader), self.params.overlays)
         else:
@@ -193,7 +214,7 @@ class ClipRenderAction:
         lo, hi = tf.window(self.pyramid.value_range)
         if not hi > lo:
             return False
-        self.cache.occupancy_texture(tf, self.pyramid.value_range)
+        self.cache.occupancy_texture(tf, self.pyramid.value_range, self.distribution)
         return self.cache.empty_fraction() >= MIN_EMPTY_FRACTION
 
     def level_ratios(self) -> np.ndarray:
@@ -211,7 +232,7 @@ class ClipRenderAction:
         self.overlays.sync(params.overlays)
         if params.texture_budget != self.params.texture_budget:
             self.cache.release()
-            self.cache = GpuBrickCache(self.ctx, self.pyramid, params.texture_budget)
+            self.cache = self._new_cache(self.clip_texture, params.texture_budget)
             self.frame_loop = FrameLoop(self.clip_texture, self.cache)
         self.params = params
 
@@ -225,7 +246,7 @@ class ClipRenderAction:
                                  f"got levels {[lv.shape for lv in pyr.levels]} brick {pyr.brick_shape} {pyr.dtype}")
         self.cache.release()
         self.clip_texture, self.pyramid = clip_texture, pyr
-        self.cache = GpuBrickCache(self.ctx, pyr, self.params.texture_budget)
+        self.cache = self._new_cache(clip_texture, self.params.texture_budget)
         self.frame_loop = FrameLoop(clip_texture, self.cache)
 
     # -- the frame ---------------------------------------------------------------------------------

@@ -70,6 +70,7 @@ from ..bricking.pyramid import NEIGHBOUR_OFFSETS, Pyramid
 from ..errors import ParameterError
 from ..paging.cliptexture import BrickState
 from ..rows import unique_rows
+from ..scene.consistent import spread_support
 from ..scene.occupancy import cell_edges, cell_ranges, occupancy, widen
 from ..scene.selection.cut import DrawItems
 from .region_windows import region_gpu_windows
@@ -141,6 +142,20 @@ def texel_to_raw(fmt: TextureFormat, texel) -> np.ndarray:
     if fmt.gl_dtype in ("f1", "nu2"):
         raw = np.rint(raw)
     return raw + fmt.b
+
+
+def spread_texels(spread: np.ndarray, fmt: TextureFormat) -> np.ndarray:
+    """A brick's spread (:mod:`clipvol.bricking.spread`, raw units >= 0) in the texel units of
+    ``fmt``: ``raw = a * texel`` (no offset: a spread is a difference of values). The 8- and 16-bit
+    formats store it as it is (its type is the unsigned one of the data's width), float formats
+    as float32 ``spread / a``."""
+    if fmt.gl_dtype == "f1":
+        return np.ascontiguousarray(spread, dtype=np.uint8)
+    if fmt.gl_dtype == "nu2":
+        return np.ascontiguousarray(spread, dtype=np.uint16)
+    if fmt.a == 1.0:
+        return np.ascontiguousarray(spread, dtype=np.float32)
+    return (spread.astype(np.float64) / fmt.a).astype(np.float32)
 
 
 def convert_brick(brick: np.ndarray, fmt: TextureFormat) -> np.ndarray:
@@ -236,15 +251,23 @@ class GpuBrickCache:
     pyramid : Pyramid
     texture_budget : int
         Bytes of texture memory for bricks; :attr:`texture_bytes` never exceeds it.
+    spread_levels : tuple of int
+        Levels whose bricks carry their spread (:attr:`ClipTexture.spread_levels`): their textures
+        hold two channels, mean and spread (``.rg``), in the same texel units; the budget then counts
+        every level at two channels (conservative: level 0 keeps one).
     """
 
-    def __init__(self, ctx, pyramid: Pyramid, texture_budget: int) -> None:
+    def __init__(self, ctx, pyramid: Pyramid, texture_budget: int, spread_levels=()) -> None:
         self.ctx = ctx
         self.pyramid = pyramid
         self.texture_budget = int(texture_budget)
         self.format = texture_format(pyramid.dtype, pyramid.value_range)
+        #: levels whose textures hold (mean, spread) per voxel (consistent coarse levels)
+        self.spread_levels: tuple[int, ...] = tuple(int(L) for L in spread_levels)
+        #: bytes per voxel the budget counts (two channels with a spread)
+        self.texel_bytes = self.format.itemsize * (2 if self.spread_levels else 1)
         max3d = int(ctx.info.get("GL_MAX_3D_TEXTURE_SIZE", 2048))
-        self.windows = allocate_gpu_windows(pyramid, self.texture_budget, self.format.itemsize, max3d)
+        self.windows = allocate_gpu_windows(pyramid, self.texture_budget, self.texel_bytes, max3d)
         #: the region the windows were last fitted to (a Region is immutable: the same object, the same fit)
         self._fitted_region: object = None
         #: the cube windows of the budget: what a view without a region of interest gets back
@@ -256,19 +279,20 @@ class GpuBrickCache:
         import moderngl
 
         B = pyramid.brick_shape
-        for w in self.windows:
+        for L, w in enumerate(self.windows):
             if w is None:
                 self.textures.append(None)
                 self._slot_key.append(None)
                 continue
             size = (w[2] * B[2], w[1] * B[1], w[0] * B[0])  # GL (width, height, depth) = (x, y, z)
-            tex = ctx.texture3d(size, 1, dtype=self.format.gl_dtype)
+            tex = ctx.texture3d(size, self._channels(L), dtype=self.format.gl_dtype)
             tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
             tex.repeat_x = tex.repeat_y = tex.repeat_z = True
             self.textures.append(tex)
             self._slot_key.append(np.full(tuple(w) + (3,), -1, dtype=np.int64))
         self.texture_bytes = sum(
-            int(np.prod(w)) * self.brick_texels * self.format.itemsize for w in self.windows if w is not None
+            int(np.prod(w)) * self.brick_texels * self.format.itemsize * self._channels(L)
+            for L, w in enumerate(self.windows) if w is not None
         )
         self._clip = None
         #: per level, the brick holding each slot this frame ((w..., 3) int64, -1: free): an array, not
@@ -287,15 +311,19 @@ class GpuBrickCache:
         self.cell_edges = cell_edges(B)
         self._cell_lo: list[np.ndarray | None] = []
         self._cell_hi: list[np.ndarray | None] = []
+        #: per spread level, the largest spread of each cell (raw units; widens its range for DISTRIB)
+        self._cell_sp: dict[int, np.ndarray | None] = {}
         self.occupancy_levels: list[tuple[tuple[int, int, int], int] | None] = []  # ((cx, cy, cz) cells, z0)
         z0 = 0
-        for w in self.windows:
+        for L, w in enumerate(self.windows):
             if w is None or self.cell_edges is None:
                 self._cell_lo.append(None)
                 self._cell_hi.append(None)
                 self.occupancy_levels.append(None)
                 continue
             cells = tuple(int(wa * b // e) for wa, b, e in zip(w, B, self.cell_edges))  # (z, y, x)
+            if self._channels(L) == 2:
+                self._cell_sp[L] = np.zeros(cells, dtype=np.float32)
             self._cell_lo.append(np.full(cells, np.inf, dtype=np.float32))
             self._cell_hi.append(np.full(cells, -np.inf, dtype=np.float32))
             self.occupancy_levels.append((cells[::-1], z0))
@@ -306,6 +334,10 @@ class GpuBrickCache:
         self._occ_flags: list[np.ndarray | None] = [None] * len(self.windows)  # the flags, as uploaded
         #: per level, (cells holding data, of them empty) under the last transfer function
         self.occupancy_counts: list[tuple[int, int]] = [(0, 0)] * len(self.windows)
+
+    def _channels(self, level: int) -> int:
+        """Components of ``level``'s texture: 2 (mean, spread) for a spread level, else 1."""
+        return 2 if level in self.spread_levels else 1
 
     # -- per frame ---------------------------------------------------------------------------------
     def begin_frame(self, clip_texture, texels_per_frame: int | None, allow=None) -> "GpuBrickCache":
@@ -338,7 +370,7 @@ class GpuBrickCache:
             return []
         self._fitted_region = region
         B = self.pyramid.brick_shape
-        brick_bytes = self.brick_texels * self.format.itemsize
+        brick_bytes = self.brick_texels * self.texel_bytes
         grids = [self.pyramid.grid(L) for L in range(self.pyramid.num_levels)]
         shapes = region_gpu_windows(
             grids, self.cube_windows, None if region is None else region.bricks, self.windows,
@@ -359,7 +391,8 @@ class GpuBrickCache:
         B = self.pyramid.brick_shape
         if self.textures[level] is not None:
             self.textures[level].release()
-        tex = self.ctx.texture3d((w[2] * B[2], w[1] * B[1], w[0] * B[0]), 1, dtype=self.format.gl_dtype)
+        tex = self.ctx.texture3d((w[2] * B[2], w[1] * B[1], w[0] * B[0]), self._channels(level),
+                                 dtype=self.format.gl_dtype)
         tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
         tex.repeat_x = tex.repeat_y = tex.repeat_z = True
         self.textures[level] = tex
@@ -371,6 +404,8 @@ class GpuBrickCache:
             cells = tuple(int(wa * b // e) for wa, b, e in zip(w, B, self.cell_edges))
             self._cell_lo[level] = np.full(cells, np.inf, dtype=np.float32)
             self._cell_hi[level] = np.full(cells, -np.inf, dtype=np.float32)
+            if self._channels(level) == 2:
+                self._cell_sp[level] = np.zeros(cells, dtype=np.float32)
             self._occ_flags[level] = None
             self._occ_dirty.pop(level, None)
             self.occupancy_counts[level] = (0, 0)
@@ -587,6 +622,8 @@ class GpuBrickCache:
             tex = self.textures[level]
             slot = tuple(int(k) % w for k, w in zip(key, self.windows[level]))
             texels = convert_brick(np.asarray(data), self.format)
+            if self._channels(level) == 2:  # (mean, spread) interleaved, in the same texel units
+                texels = np.stack([texels, self._spread_texels(level, key)], axis=-1)
             tex.write(
                 texels,
                 viewport=(slot[2] * B[2], slot[1] * B[1], slot[0] * B[0], B[2], B[1], B[0]),
@@ -602,6 +639,15 @@ class GpuBrickCache:
         self.texels_uploaded = n * self.brick_texels
         self.total_texels_uploaded += self.texels_uploaded
         return nbytes
+
+    def _spread_texels(self, level: int, key) -> np.ndarray:
+        """The spread of brick ``key`` of ``level`` in the texel units of :attr:`format` (``raw =
+        a * texel``: a spread has no offset); zeros when the clip-texture holds none."""
+        sp = self._clip.get_spread(level, key) if hasattr(self._clip, "get_spread") else None
+        if sp is None:
+            dt = {"f1": np.uint8, "nu2": np.uint16}.get(self.format.gl_dtype, np.float32)
+            return np.zeros(self.pyramid.brick_shape, dtype=dt)
+        return spread_texels(np.asarray(sp), self.format)
 
     def _commit_cells(self) -> None:
         """Copy the cells' value ranges of the bricks being uploaded into their slots' cells, per
@@ -625,6 +671,14 @@ class GpuBrickCache:
                 lo[i], hi[i] = cell_ranges(np.asarray(entries[i][1]), self.cell_edges)
             s = keys % np.asarray(self.windows[level], dtype=np.int64)
             w = self.windows[level]
+            sp_cells = self._cell_sp.get(level)
+            if sp_cells is not None:  # each cell's largest spread (raw units)
+                sp = np.zeros((n, *K), dtype=np.float32)
+                for i, k in enumerate(keys.tolist()):
+                    got_sp = self._clip.get_spread(level, tuple(k)) if hasattr(self._clip, "get_spread") else None
+                    if got_sp is not None:
+                        sp[i] = cell_ranges(np.asarray(got_sp), self.cell_edges)[1]
+                sp_cells.reshape(w[0], K[0], w[1], K[1], w[2], K[2])[s[:, 0], :, s[:, 1], :, s[:, 2], :] = sp
             for arr, v in ((self._cell_lo[level], lo), (self._cell_hi[level], hi)):
                 # (w * K) per axis viewed as (wz, Kz, wy, Ky, wx, Kx): a slot's cells are one block
                 arr.reshape(w[0], K[0], w[1], K[1], w[2], K[2])[s[:, 0], :, s[:, 1], :, s[:, 2], :] = v
@@ -712,7 +766,7 @@ class GpuBrickCache:
                 out[:, a, side] = face_exists & np.all(ok[:, slab], axis=1) & (w[a] >= 2)
         return out
 
-    def occupancy_texture(self, tf, data_range):
+    def occupancy_texture(self, tf, data_range, distribution: bool = False):
         """The ``r8`` 3D texture of every level's cell flags for ``tf`` (1: may be visible, 0: every
         sample assigned to the cell is transparent), levels stacked along z at
         :attr:`occupancy_levels`; None without cells (an odd brick extent).
@@ -726,7 +780,7 @@ class GpuBrickCache:
             return None
         import moderngl
 
-        key = (np.asarray(tf.table)[:, 3].tobytes(), tuple(float(v) for v in tf.window(data_range)))
+        key = (np.asarray(tf.table)[:, 3].tobytes(), tuple(float(v) for v in tf.window(data_range)), bool(distribution))
         if self._occ_tex is None:
             used = [lv for lv in self.occupancy_levels if lv is not None]
             size = (max(c[0] for c, _ in used), max(c[1] for c, _ in used), sum(c[2] for c, _ in used))
@@ -739,6 +793,12 @@ class GpuBrickCache:
             if lv is None:
                 continue
             lo, hi = self._cell_lo[L], self._cell_hi[L]
+            if distribution and self._cell_sp.get(L) is not None:
+                # DISTRIB reads the table up to spread_support(spread) beyond a sample's mean
+                w_lo, w_hi = tf.window(data_range)
+                width = max(abs(float(w_hi) - float(w_lo)), 1e-30)
+                reach = (spread_support(self._cell_sp[L] / width) * width).astype(np.float32)
+                lo, hi = lo - reach, hi + reach
             slots = self._occ_dirty.get(L, ())
             if whole or self._occ_flags[L] is None or len(slots) * 8 > int(np.prod(self.windows[L])):
                 flags = occupancy(*widen(lo, hi), tf, data_range)

@@ -52,6 +52,7 @@ from ..scene.slice_region import slice_region
 from .failures import failed_bricks
 from .frame_loop import FrameLoop
 from .glsl import load_shader
+from ..scene.consistent import expected_colours
 from .gpu_cache import GpuBrickCache
 from .target import FloatTarget
 from .uniforms import vec3 as _vec
@@ -178,7 +179,8 @@ class SliceAction:
         kwargs["policy"] = "plane"
         self.params = RenderParams.from_kwargs(params, **kwargs).check_for(self.pyramid)
         self._own_cache = cache is None
-        self.cache = cache if cache is not None else GpuBrickCache(ctx, self.pyramid, self.params.texture_budget)
+        self.cache = cache if cache is not None else GpuBrickCache(
+            ctx, self.pyramid, self.params.texture_budget, spread_levels=getattr(clip_texture, "spread_levels", ()))
         self.frame_loop = FrameLoop(clip_texture, self.cache)
         self.program = ctx.program(vertex_shader=load_shader("slice.vert"), fragment_shader=load_shader("slice.frag"))
         self.program["u_volume"].value = 0
@@ -190,6 +192,7 @@ class SliceAction:
         self.last_values: np.ndarray | None = None
         self.last_levels: np.ndarray | None = None
         self.last_ratios: np.ndarray | None = None
+        self.last_spreads: np.ndarray | None = None
         #: blend high and low tiles at level changes (False shows the seams: the paper's Fig. 6a)
         self.blend = True
         #: page the slab the slice crosses (:func:`~clipvol.scene.slice_region.slice_region`); False
@@ -206,7 +209,8 @@ class SliceAction:
         params = replace(params, policy="plane").check_for(self.pyramid)
         if params.texture_budget != self.params.texture_budget and self._own_cache:
             self.cache.release()
-            self.cache = GpuBrickCache(self.ctx, self.pyramid, params.texture_budget)
+            self.cache = GpuBrickCache(self.ctx, self.pyramid, params.texture_budget,
+                                       spread_levels=getattr(self.clip_texture, "spread_levels", ()))
             self.frame_loop = FrameLoop(self.clip_texture, self.cache)
         self.params = params
 
@@ -298,6 +302,12 @@ class SliceAction:
             rgba = window_level_grey(values, float(window[0]), float(window[1]))
         elif transfer_function is not None:
             rgb = transfer_function.lookup(values, pyr.value_range)[..., :3]
+            if self.params.classify == "distribution" and self.cache.spread_levels:
+                # a coarse pixel shows the colour the level-0 voxels beneath it show on average
+                spread = self.last_spreads
+                some = np.isfinite(values) & (spread > 0)
+                if some.any():
+                    rgb[some] = expected_colours(transfer_function, values[some], spread[some], pyr.value_range)
             ok = np.isfinite(values)
             rgba = np.concatenate([np.rint(np.clip(rgb, 0, 1) * 255), np.where(ok, 255, 0)[..., None]], axis=-1)
             rgba = np.where(ok[..., None], rgba, 0).astype(np.uint8)
@@ -560,6 +570,8 @@ class SliceAction:
             raise RuntimeError(f"OpenGL error after drawing the slice: expected GL_NO_ERROR, got {err}")
         covered = raw[..., 1] > 0.5
         fmt = self.cache.format
+        #: per pixel the spread of the value (raw units; 0 at level 0 and for stores without one)
+        self.last_spreads = np.where(covered, fmt.a * np.maximum(raw[..., 1].astype(np.float64) - 1.0, 0.0), 0.0)
         with np.errstate(invalid="ignore", over="ignore"):
             v64 = np.where(covered, fmt.a * raw[..., 0].astype(np.float64) + fmt.b, np.nan)
             if self.pyramid.dtype.kind in "iu":

@@ -26,7 +26,7 @@ from .policy_registry import POLICIES, policy_names
 #: refuses a step longer than its own brick edge when drawn (``clipvol.render.paths.setup.check_step``)
 MAX_STEP = float(BRICK_RANGE[1])
 
-__all__ = ["RenderParams", "MODES", "ISO_COLORS", "PATHS", "DEFAULT_BLOCK_BUDGET"]
+__all__ = ["RenderParams", "MODES", "ISO_COLORS", "PATHS", "CLASSIFY", "DEFAULT_BLOCK_BUDGET"]
 
 #: compositing modes of the volume action: emission-absorption, maximum / minimum intensity
 #: projection, the mean along the ray (radiograph-like) and the first hit of an iso-value
@@ -37,6 +37,8 @@ ISO_COLORS = ("tf", "depth")
 BLENDS = ("over", "additive")
 #: how the volume action draws a cut (see RenderParams.path)
 PATHS = ("auto", "bricks", "single-pass")
+#: how a coarse sample is classified (see RenderParams.classify)
+CLASSIFY = ("distribution", "mean")
 #: bricks the "image" policy may draw when no block_budget is given
 DEFAULT_BLOCK_BUDGET = 128
 
@@ -197,6 +199,14 @@ class RenderParams:
         Lighting weights (>= 0).
     shininess : float
         Specular exponent (> 0).
+    classify : {"distribution", "mean"}
+        How a sample of a coarse level (>= 1) meets the transfer function. ``"distribution"``
+        (default): where the store holds each coarse voxel's spread (the standard deviation of the
+        level-0 voxels beneath it, written by ``clipvol brick``), the transfer function is applied to
+        that distribution, so the sample's opacity and premultiplied colour are the expected ones
+        of the fine voxels it stands for (Younesy, Möller & Carr 2006; Sicat, Krüger, Möller &
+        Hadwiger 2014; docs/rendering-math.md). ``"mean"``: the mean is classified, as a store
+        without the spread always is (the same image as before).
     overlays : tuple of Overlay
         Co-registered volumes composited over the primary at each of its samples, in one ray cast
         (:mod:`clipvol.scene.overlay`; at most :data:`~clipvol.scene.overlay.MAX_OVERLAYS`, the first
@@ -253,6 +263,9 @@ class RenderParams:
     diffuse: float = 0.7
     specular: float = 0.3
     shininess: float = 20.0
+    classify: str = _field(
+        "distribution", "coarse levels: apply the transfer function to the distribution of the level-0 voxels "
+                        "beneath each coarse voxel where the store holds it (distribution, default), or to their mean")
     overlays: tuple = ()
     blend: str = "over"
 
@@ -260,6 +273,8 @@ class RenderParams:
         s = object.__setattr__
         if self.path not in PATHS:
             raise ParameterError(f"path: expected one of {', '.join(PATHS)}, got {self.path!r}")
+        if self.classify not in CLASSIFY:
+            raise ParameterError(f"classify: expected one of {', '.join(CLASSIFY)}, got {self.classify!r}")
         if self.mode not in MODES:
             raise ParameterError(f"mode: expected one of {', '.join(MODES)}, got {self.mode!r}")
         if self.iso_value is not None:

@@ -43,8 +43,8 @@ from ..bricking.pyramid import NEIGHBOUR_OFFSETS
 from ..errors import ParameterError
 from ..rows import unique_rows
 
-__all__ = ["TransferFunction", "OPACITY_CURVES", "TF_FORMAT", "correct_opacity", "corrected_tables", "footprint_ranges", "opacity_curve",
-           "transparency_filter", "window_range"]
+__all__ = ["TransferFunction", "OPACITY_CURVES", "TF_FORMAT", "correct_opacity", "corrected_tables", "fine_table",
+           "footprint_ranges", "opacity_curve", "transparency_filter", "window_range"]
 
 # 17 samples (t = 0, 1/16, ..., 1) of matplotlib's perceptually uniform colormaps (CC0 data by
 # van der Walt & Smith), tabulated here so that matplotlib is not needed at run time.
@@ -522,6 +522,19 @@ def transparency_filter(tf: TransferFunction, loader):
     return transparent
 
 
+def fine_table(table: np.ndarray, oversample: int = 16) -> np.ndarray:
+    """``(n * k, 4)`` float64: ``table`` as ``GL_LINEAR`` reads it at the centres of a table ``k``
+    times finer (``k = oversample``, capped so the result stays within 8192 entries); see
+    :func:`corrected_tables`."""
+    tab = np.asarray(table, dtype=np.float64)
+    n = len(tab)
+    k = max(1, min(int(oversample), 8192 // max(n, 1)))
+    x = (np.arange(n * k) + 0.5) / k - 0.5  # fine texel centres in coarse texel units
+    i = np.floor(x)
+    f = (x - i)[:, None]
+    return tab[np.clip(i, 0, n - 1).astype(np.int64)] * (1.0 - f) + tab[np.clip(i + 1, 0, n - 1).astype(np.int64)] * f
+
+
 def corrected_tables(table: np.ndarray, ratios, oversample: int = 16) -> np.ndarray:
     """``(len(ratios), n * k, 4)`` float64: ``table`` (straight RGBA, ``n`` entries) resampled ``k``
     times finer, with its opacity corrected by each ratio (:func:`correct_opacity`:
@@ -535,13 +548,7 @@ def corrected_tables(table: np.ndarray, ratios, oversample: int = 16) -> np.ndar
     the fine texel's centre (the same texture coordinate convention), so the error shrinks with
     ``k**2``; ``k`` is capped so the row stays within 8192 texels.
     """
-    tab = np.asarray(table, dtype=np.float64)
-    n = len(tab)
-    k = max(1, min(int(oversample), 8192 // max(n, 1)))
-    x = (np.arange(n * k) + 0.5) / k - 0.5  # fine texel centres in coarse texel units
-    i = np.floor(x)
-    f = (x - i)[:, None]
-    fine = tab[np.clip(i, 0, n - 1).astype(np.int64)] * (1.0 - f) + tab[np.clip(i + 1, 0, n - 1).astype(np.int64)] * f
+    fine = fine_table(table, oversample)
     rows = np.repeat(fine[None], len(ratios), axis=0)
     for r_i, r in enumerate(ratios):
         rows[r_i, :, 3] = correct_opacity(fine[:, 3], float(r))

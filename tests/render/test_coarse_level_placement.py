@@ -56,7 +56,9 @@ def test_coarse_level_matches_numpy_downsample_at_block_centres(gl, head, level)
     cam = Camera.perspective(tuple(c - d * 0.6 * np.linalg.norm(hi - lo)), tuple(c), up=(0, -1, 0), fov_y=40,
                              size=(96, 96))
     clip = ClipTexture(loader, "64MB", threads=2)
-    action = ClipRenderAction(gl, clip, policy="fixed", level=level)
+    # the reference classifies each coarse voxel's mean: so does classify="mean" (the placement is
+    # what this test checks; tests/render/test_consistent_levels.py checks the distribution)
+    action = ClipRenderAction(gl, clip, policy="fixed", level=level, classify="mean")
     try:
         img = action.render(cam, tf, wait=True, timeout=60)
     finally:

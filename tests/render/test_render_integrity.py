@@ -29,6 +29,10 @@ class FailOne:
     def __init__(self, inner, key):
         self.inner, self.key, self.pyramid = inner, key, inner.pyramid
         self.brick_ranges = inner.brick_ranges
+        # the same data as ``inner``: its statistics (finite data: the same shader variant) and the
+        # spread beside its coarse levels (consistent levels)
+        self.brick_statistics = inner.brick_statistics
+        self.spread_levels, self.read_spread = inner.spread_levels, inner.read_spread
 
     def read_brick(self, level, index):
         if (level, tuple(index)) == self.key:

@@ -104,6 +104,7 @@ class BricksPath(DrawPath):
                 ctx.blend_func = mgl.ONE, mgl.ONE_MINUS_SRC_ALPHA
         if params.mode == "composite":
             self.setup.tf_texture(tf).use(location=1)
+        self.setup.bind_distribution(prog, tf)
         self.setup.bind_occupancy(prog, tf)
         if params.overlays:  # co-registered volumes sampled at each sample (render/overlay_binding.py)
             a.overlays.bind(prog, params.overlays, origin, a.level_ratios())

@@ -41,6 +41,8 @@ import numpy as np
 
 from ...errors import ParameterError
 from ...scene.selection.cut import DrawItems
+from ...scene import consistent
+from ...scene.consistent import SPREAD_MAX, distribution_tables
 from ...scene.transfer import corrected_tables
 from ...scene.visibility import box_depths, screen_rects
 from ..glsl import ProgramCache
@@ -65,6 +67,8 @@ MIP_EMPTY = -3.0e38
 OPAQUE = 1.0 - 0.5 / 255.0
 #: texture unit of the empty-space cells (after the single pass's 3 + 16 level textures)
 OCCUPANCY_UNIT = 20
+#: texture unit of the distribution table (consistent coarse levels, DISTRIB variants)
+DIST_UNIT = 21
 
 
 def scissor_boxes(cam, lo, hi) -> np.ndarray:
@@ -168,6 +172,8 @@ class DrawSetup:
         self._vaos: dict = {}
         self._tf_tex = None
         self._tf_key = None
+        self._dist_tex = None
+        self._dist_key = None
         self._resolve = None
         self.last_raw: np.ndarray | None = None  # MIP, minIP, average, iso: the target read back by the last frame
         self.depth = (0.0, 1.0)  # the volume box's range of ray parameters this frame (iso_color="depth")
@@ -296,13 +302,41 @@ class DrawSetup:
             self._tf_tex, self._tf_key = tex, key
         return self._tf_tex
 
+    def dist_texture(self, tf):
+        """The per-level tables pre-integrated over each spread row (:func:`distribution_tables`),
+        levels stacked along y, :data:`SPREAD_ROWS` rows each; rebuilt only when the table or the step changes."""
+        table = np.ascontiguousarray(np.asarray(tf.table, dtype=np.float32))
+        key = (table.shape, table.tobytes(), self.action.params.step, consistent.MODEL)
+        if self._dist_key != key:
+            if self._dist_tex is not None:
+                self._dist_tex.release()
+            rows = distribution_tables(table, self.action.level_ratios())  # (levels, rows, n, 4)
+            L, R, n, _ = rows.shape
+            tex = self.ctx.texture((n, L * R), 4, rows.reshape(L * R, n, 4).astype(np.float32).tobytes(), dtype="f4")
+            tex.filter = (self.mgl.LINEAR, self.mgl.LINEAR)
+            tex.repeat_x = tex.repeat_y = False
+            self._dist_tex, self._dist_key = tex, key
+        return self._dist_tex
+
+    def bind_distribution(self, prog, tf) -> None:
+        """Bind the distribution table and its uniforms (DISTRIB variants only) to :data:`DIST_UNIT`."""
+        a = self.action
+        if not a.distribution:
+            return
+        tex = self.dist_texture(tf)
+        tex.use(location=DIST_UNIT)
+        uset(prog, "u_dist", DIST_UNIT)
+        uset(prog, "u_dist_inv_h", 1.0 / tex.size[1])
+        scale, _ = t_scale_offset(a.cache.format, tf.window(a.pyramid.value_range))
+        uset(prog, "u_sigma_scale", float(min(abs(scale) / SPREAD_MAX, 3e38)))
+
     def bind_occupancy(self, prog, tf) -> None:
         """Bind the cache's cell flags for ``tf`` (:meth:`GpuBrickCache.occupancy_texture`) to
         :data:`OCCUPANCY_UNIT` (EMPTY_SKIP variants only: when the action's frame leaps)."""
         a = self.action
         if a.skipped_empty:
             tf = occupancy_tf(a.params, tf, a.pyramid.value_range)  # iso: what lies below its value
-            a.cache.occupancy_texture(tf, a.pyramid.value_range).use(location=OCCUPANCY_UNIT)
+            a.cache.occupancy_texture(tf, a.pyramid.value_range, a.distribution).use(location=OCCUPANCY_UNIT)
             uset(prog, "u_occ", OCCUPANCY_UNIT)
             uset(prog, "u_occ_shift", vec3(0.5 / np.asarray(a.cache.cell_edges[::-1], dtype=np.float64)))
 
@@ -358,7 +392,7 @@ class DrawSetup:
         if self.refine is not None:
             self.refine.release()
             self.refine = None
-        for obj in (*self._vaos.values(), self._tf_tex):
+        for obj in (*self._vaos.values(), self._tf_tex, self._dist_tex):
             if obj is not None:
                 obj.release()
         self._vaos = {}

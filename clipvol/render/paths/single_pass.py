@@ -139,6 +139,7 @@ class SinglePassPath(DrawPath):
         (self._pt_tex if again else self._page_table_texture(table.entries)).use(location=2)
         if params.mode == "composite":
             self.setup.tf_texture(tf).use(location=1)
+        self.setup.bind_distribution(prog, tf)
         self.setup.bind_occupancy(prog, tf)
         for L, tex in enumerate(cache.textures):
             if tex is not None:

@@ -4,7 +4,8 @@
 // (float64 on the CPU, so huge volumes stay precise), sampled trilinearly in the node's level
 // ("high tile") and, where the node's blend ratio is > 0, in its parent's level ("low tile"); the
 // ratio is the trilinear interpolation of the node's eight corner ratios (LaMar, Hamann & Joy).
-// Output: r = the blended texel, g = 1 (covered), b = the node's level, a = the ratio.
+// Output: r = the blended texel, g = 1 + the blended spread in texels (covered; a level without a
+// spread reads 0 there: clipvol/bricking/spread.py), b = the node's level, a = the ratio.
 
 uniform vec2 u_viewport;        // (w, h) pixels
 uniform float u_pixel;          // pixel size (world)
@@ -49,14 +50,15 @@ out vec4 f_color;
 // A point within 1e-4 voxel of a voxel centre reads that texel exactly (texelFetch, wrapped
 // toroidally): the normalised coordinate (slot + u + 0.5) / size carries a float32 rounding error
 // of ~1e-6 texel, which filtering would turn into a visible error on 16-bit data.
-float sample_brick(sampler3D tex, vec3 slot, vec3 u, vec3 inv_size) {
+// (.r the value, .g the spread; 0 for a one-channel level)
+vec2 sample_brick(sampler3D tex, vec3 slot, vec3 u, vec3 inv_size) {
     vec3 p = slot + u;
     vec3 c = floor(p + 0.5);
     if (all(lessThan(abs(p - c), vec3(1e-4)))) {
         vec3 size = floor(1.0 / inv_size + 0.5);
-        return texelFetch(tex, ivec3(mod(c, size)), 0).r;
+        return texelFetch(tex, ivec3(mod(c, size)), 0).rg;
     }
-    return texture(tex, (p + 0.5) * inv_size).r;
+    return texture(tex, (p + 0.5) * inv_size).rg;
 }
 
 void main() {
@@ -75,9 +77,11 @@ void main() {
         rel = (col * u_pixel) * u_right + (row * u_pixel) * u_up;
     }
     vec3 u = clamp((rel + u_o_minus_b) * u_inv_scale, u_clamp_lo, u_clamp_hi);
-    float high = sample_brick(u_volume, u_slot_origin, u, u_inv_tex_size);
+    vec2 hs = sample_brick(u_volume, u_slot_origin, u, u_inv_tex_size);
+    float high = hs.x;
     float r = 0.0;
     float value = high;
+    float spread = hs.y;
     if (u_blend) {
         vec3 s = clamp((rel - u_node_lo) * u_node_inv_ext, 0.0, 1.0);
         float c00 = mix(u_ratio[0], u_ratio[1], s.x);
@@ -87,9 +91,11 @@ void main() {
         r = mix(mix(c00, c10, s.y), mix(c01, c11, s.y), s.z);
         if (r > 0.0) {
             vec3 ul = clamp((rel + u_o_minus_b_low) * u_inv_scale_low, u_clamp_lo_low, u_clamp_hi_low);
-            float low = sample_brick(u_volume_low, u_slot_origin_low, ul, u_inv_tex_size_low);
+            vec2 ls = sample_brick(u_volume_low, u_slot_origin_low, ul, u_inv_tex_size_low);
+            float low = ls.x;
             value = r >= 1.0 ? low : mix(high, low, r);
+            spread = r >= 1.0 ? ls.y : mix(hs.y, ls.y, r);   // blended like the value
         }
     }
-    f_color = vec4(value, 1.0, u_level, r);
+    f_color = vec4(value, 1.0 + spread, u_level, r);
 }

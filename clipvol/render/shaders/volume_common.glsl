@@ -8,6 +8,10 @@
 //   SHADING   composite only: Blinn-Phong lighting from central-difference gradients, light at the eye
 //   OVERLAY   composite only: the number (1..3) of co-registered overlay volumes sampled at each sample
 //   EMPTY_SKIP composite without overlays: leap over cells the transfer function makes transparent
+//   DISTRIB   composite, finite data: the level textures hold (mean, spread) per voxel (.rg; a level
+//             without spread reads 0 there) and a sample is classified by the transfer function
+//             pre-integrated over that distribution, u_dist (clipvol/scene/consistent.py); DISTRIB is
+//             the number of spread rows per level
 uniform vec2 u_viewport;
 uniform vec2 u_frag_origin;     // the pass's viewport origin in its target (a coarse pass spread over tiles)
 uniform bool u_ortho;
@@ -147,9 +151,27 @@ float sample_texels(sampler3D tex, vec3 p, vec3 inv_size) {
 #define SAMPLE_OK(v) true
 #endif
 
+#ifdef DISTRIB
+uniform sampler2D u_dist;       // per level DISTRIB rows of spread: the table pre-integrated over N(mean, spread)
+uniform float u_dist_inv_h;     // 1 / the table's height in texels
+uniform float u_sigma_scale;    // spread texel -> spread in table coordinates over SPREAD_MAX
+#endif
+
+// The straight colour and corrected opacity of a sample of mean `texel` and spread `spread` (texels)
+// in the level of table row `row`: the plain table row, or with DISTRIB the table's expectation
+// over the distribution (row coordinate sqrt(spread / SPREAD_MAX) * (DISTRIB - 1), interpolated).
+vec4 classify(float texel, float spread, float row) {
+#ifdef DISTRIB
+    float u = sqrt(clamp(spread * u_sigma_scale, 0.0, 1.0)) * float(DISTRIB - 1);
+    return texture(u_dist, vec2(texel * u_t_scale + u_t_offset, row + (u + 0.5 - 0.5 * float(DISTRIB)) * u_dist_inv_h));
+#else
+    return texture(u_tf, vec2(texel * u_t_scale + u_t_offset, row));
+#endif
+}
+
 // Front-to-back "under" of one sample (colour straight, opacity already corrected in the table row)
-void composite_sample(inout vec4 acc, float texel, float row) {
-    vec4 c = texture(u_tf, vec2(texel * u_t_scale + u_t_offset, row));
+void composite_sample(inout vec4 acc, float texel, float spread, float row) {
+    vec4 c = classify(texel, spread, row);
     float w = (1.0 - acc.a) * c.a;
     acc.rgb += w * c.rgb;
     acc.a += w;
@@ -318,8 +340,8 @@ vec3 gradient_at(sampler3D tex, vec3 slot, vec3 u, vec3 glo, vec3 ghi, vec3 its,
 }
 
 #ifdef SHADING
-void composite_lit(inout vec4 acc, float texel, float row, vec3 g, vec3 dir) {
-    vec4 c = texture(u_tf, vec2(texel * u_t_scale + u_t_offset, row));
+void composite_lit(inout vec4 acc, float texel, float spread, float row, vec3 g, vec3 dir) {
+    vec4 c = classify(texel, spread, row);
     float gl = length(g);
     float d = gl > 0.0 ? abs(dot(g, dir)) / gl : 0.0;
     vec3 rgb = min(c.rgb * (u_light.x + u_light.y * d) + u_light.z * pow(d, u_light.w), vec3(1.0));
@@ -430,13 +452,24 @@ void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int 
         float ts = off + (k0 + float(i)) * delta;
         vec3 u = clamp((base + ts * dir) * isc, clo, chi);
         float texel = sample_texels(tex, slot + u, its);
+#ifdef DISTRIB
+        float spread = texture(tex, (slot + u + 0.5) * its).g;
+#else
+        float spread = 0.0;
+#endif
 #else
     vec3 c0 = (slot + (base + (off + k0 * delta) * dir) * isc + 0.5) * its;
     vec3 dc = dir * (delta * isc * its);
     vec3 clo_t = (slot + clo + 0.5) * its;
     vec3 chi_t = (slot + chi + 0.5) * its;
     for (int i = 0; i < n; ++i) {
-        float texel = texture(tex, clamp(c0 + float(i) * dc, clo_t, chi_t)).r;
+        vec2 tv_ = texture(tex, clamp(c0 + float(i) * dc, clo_t, chi_t)).rg;
+        float texel = tv_.x;
+#ifdef DISTRIB
+        float spread = tv_.y;
+#else
+        float spread = 0.0;
+#endif
 #endif
         OVERLAY_UNDER(acc, off + (k0 + float(i)) * delta, dir, row, delta, texel);   // overlays at this sample
         if (!SAMPLE_OK(texel)) continue;   // non-finite data is transparent
@@ -460,9 +493,9 @@ void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int 
         }
 #else
 #ifdef SHADING
-        composite_lit(acc, texel, row, gradient_at(tex, slot, u, glo, ghi, its, isc, texel), dir);
+        composite_lit(acc, texel, spread, row, gradient_at(tex, slot, u, glo, ghi, its, isc, texel), dir);
 #else
-        composite_sample(acc, texel, row);
+        composite_sample(acc, texel, spread, row);
 #endif
         if (acc.a >= u_opaque) break;
 #endif
@@ -480,8 +513,10 @@ void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int 
 #define FAST_TAKE(c) { TAKE_EXT(texture(tex, c).r); hit = true; }
 #elif defined(MODE_AVERAGE)
 #define FAST_TAKE(c) { sw += vec2(texture(tex, c).r * delta, delta); }
+#elif defined(DISTRIB)
+#define FAST_TAKE(c) { vec2 v_ = texture(tex, c).rg; composite_sample(acc, v_.x, v_.y, row); if (acc.a >= u_opaque) break; }
 #else
-#define FAST_TAKE(c) { composite_sample(acc, texture(tex, c).r, row); if (acc.a >= u_opaque) break; }
+#define FAST_TAKE(c) { composite_sample(acc, texture(tex, c).r, 0.0, row); if (acc.a >= u_opaque) break; }
 #endif
 void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int n, float delta, vec3 isc,
                    vec3 its, vec3 slot, vec3 clo, vec3 chi, float row, STATE) {
