@@ -21,14 +21,15 @@ from clipvol.scene.transfer import TransferFunction
 
 pytestmark = pytest.mark.gl
 
-GATED = (0, (1, 2, 2))  # a level-0 brick inside the blob, held back until the test lets it load
+#: bricks held back until the test lets them load: one of the level-0 cut, one of level 1 (not in it)
+GATED = ((0, (1, 2, 2)), (1, (1, 1, 2)))
 
 
 class GatedLoader:
-    """A store's loader whose brick :data:`GATED` is read only once ``gate`` is set."""
+    """A store's loader whose bricks :data:`GATED` are read only once their ``gates`` are set."""
 
-    def __init__(self, inner, gate: threading.Event) -> None:
-        self._inner, self.gate = inner, gate
+    def __init__(self, inner, gates: dict) -> None:
+        self._inner, self.gates = inner, gates
 
     def __getattr__(self, name):
         if name == "read_brick_into":  # every read goes through read_brick (and its gate)
@@ -40,8 +41,9 @@ class GatedLoader:
         return self._inner.pyramid
 
     def read_brick(self, level, index):
-        if (int(level), tuple(int(v) for v in index)) == GATED:
-            self.gate.wait(30)
+        gate = self.gates.get((int(level), tuple(int(v) for v in index)))
+        if gate is not None:
+            gate.wait(30)
         return self._inner.read_brick(level, index)
 
 
@@ -66,9 +68,9 @@ def orbit(deg: float, pyr, size: int = 48, dist: float = 1.15) -> Camera:
 
 @pytest.mark.parametrize("path", ["single-pass", "bricks"])
 def test_kept_cut_frames_equal_fresh_frames(ctx, path, tmp_path):
-    gate = threading.Event()
+    gates = {k: threading.Event() for k in GATED}
     brick_volume(blob(), tmp_path / "blob.zarr", brick=8, progress=False, workers=1)
-    loader = GatedLoader(open_store(tmp_path / "blob.zarr"), gate)  # with brick ranges: transparency culls
+    loader = GatedLoader(open_store(tmp_path / "blob.zarr"), gates)  # with brick ranges: transparency culls
     clip = ClipTexture(loader, "64MB", threads=2)
     tf1 = TransferFunction.from_points([(0.0, (0, 0, 0, 0.0)), (0.2, (0, 0, 0, 0.0)), (0.6, (1, 0.6, 0.2, 0.3)),
                                         (1.0, (1, 1, 1, 0.8))])
@@ -100,23 +102,28 @@ def test_kept_cut_frames_equal_fresh_frames(ctx, path, tmp_path):
         frame(0, tf1, wait=True, wait_s=1.0)  # the gated brick never comes: a fallback cut, not kept
         assert not a.last_frame_stats.converged
         frame(1, tf1)
-        gate.set()  # the brick arrives mid-sequence
-        assert clip.wait_until_idle(30)
+        gates[GATED[0]].set()  # the cut's brick arrives mid-sequence
+        assert clip.wait_for([GATED[0]], timeout=30)
         frame(2, tf1, wait=True)
         assert a.last_frame_stats.converged
         for deg in (3, 4, 4, 6):  # an orbit, a static camera
             frame(deg, tf1)
-        frame(7, tf2)  # a new table: a new cut (other bricks are transparent)
-        frame(8, tf2)
+        gates[GATED[1]].set()  # a brick arrives while the cut is kept: the next frame selects again
+        assert clip.wait_until_idle(30)
+        frame(7, tf1)
+        frame(8, tf1)
+        frame(9, tf2)  # a new table: a new cut (other bricks are transparent)
+        frame(10, tf2)
         lo, hi = pyr.volume_box()
         crop = Shape(box=(tuple(lo), tuple(lo + (hi - lo) * np.array([0.8, 0.7, 1.0]))))
         a.set_params(dataclasses.replace(a.params, shape=crop))  # a crop box: a new cut
-        frame(9, tf2, wait=True)
-        frame(10, tf2)
+        frame(11, tf2, wait=True)
+        frame(12, tf2)
         # the cut was drawn again exactly where nothing but the camera changed since a converged frame
-        assert replayed == [False, False, False, True, True, True, True, False, True, False, True]
+        assert replayed == [False, False, False, True, True, True, True, False, True, False, True, False, True]
     finally:
         for x in made:
             x.close()
-        gate.set()
+        for g in gates.values():
+            g.set()
         clip.close()
