@@ -65,6 +65,7 @@ References
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -266,10 +267,15 @@ class ClipRenderAction:
         # the host's share: all but the waits on the loader and on the GL (finish and read-back)
         times["gpu"] = self.setup.finish_s + read_t
         times["host"] = max(0.0, times["total"] - times["wait"] - times["gpu"])
+        bytes_read = None if read0 is None else bytes_read_of(self.clip_texture.loader) - read0
+        last = self.last_frame_stats
+        if plan.replayed and self.last_selection is sel and last is not None:  # the same cut: the same counts
+            self.last_frame_stats = dataclasses.replace(last, times=times, bytes_uploaded=0, bricks_uploaded=0,
+                                                        passes=1, converged=True, bytes_read=bytes_read, replayed=True)
+        else:
+            self.last_frame_stats = frame_stats(sel, plan, times, self.cache, self.params.texture_budget,
+                                                self.clip_texture, bytes_read=bytes_read)
         self.last_selection = sel
-        self.last_frame_stats = frame_stats(
-            sel, plan, times, self.cache, self.params.texture_budget, self.clip_texture,
-            bytes_read=None if read0 is None else bytes_read_of(self.clip_texture.loader) - read0)
         return image
 
     def render_items(self, camera, transfer_function, items) -> np.ndarray:

@@ -17,7 +17,7 @@ the transfer function and the policy's ``keep`` do not depend on the camera), a 
 its children's, and :meth:`~clipvol.scene.camera.Camera.boxes_in_frustum` is the traversal's own
 test. So the same nodes are kept and refined when every box the frustum culled stays outside the
 new frustum and every leaf stays inside it. It is answered over flat arrays in two vectorised
-calls, whatever the cut's size.
+calls (one, for the leaves, when their bounding box lies wholly inside the frustum).
 
 Pure numpy.
 """
@@ -53,7 +53,13 @@ def cut_holds(sel: Selection, camera) -> bool:
     if len(lo) and bool(np.any(camera.boxes_in_frustum(lo, hi))):
         return False
     items = sel.items
-    return not len(items) or bool(np.all(camera.boxes_in_frustum(items.lo, items.hi)))
+    if not len(items):
+        return True
+    # the cut's bounding box wholly inside the frustum answers for every leaf (an orbit around a
+    # volume in view: no test per leaf); else the traversal's own test, leaf by leaf
+    if bool(camera.boxes_within_frustum(items.lo.min(axis=0), items.hi.max(axis=0))[0]):
+        return True
+    return bool(np.all(camera.boxes_in_frustum(items.lo, items.hi)))
 
 
 def node_order(items, pyramid, camera) -> np.ndarray:
