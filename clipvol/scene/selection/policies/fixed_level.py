@@ -7,7 +7,12 @@ import numpy as np
 from ...page_table import block_cells
 from .base import RefinePolicy
 
-__all__ = ["FixedLevel"]
+__all__ = ["FixedLevel", "SUBTREE_BRICKS"]
+
+#: most bricks of the fixed level under one node that :meth:`FixedLevel.subtree_empty` looks at (a
+#: culled node of a huge volume's upper levels holds millions: it is taken as not empty), and 16
+#: times that for all nodes of one call
+SUBTREE_BRICKS = 4096
 
 
 class FixedLevel(RefinePolicy):
@@ -39,6 +44,15 @@ class FixedLevel(RefinePolicy):
         idx = np.clip(np.rint((np.asarray(lo) - vlo) / ext).astype(np.int64)[:, ::-1], 0,
                       np.asarray(pyr.grid(level), dtype=np.int64) - 1)
         ok = np.ones(len(lo), dtype=bool)
+        f = 1 << (level - Lf)
+        under = np.prod(np.minimum(idx * f + f, np.asarray(pyr.grid(Lf), dtype=np.int64)) - idx * f, axis=1)
+        # a larger node, or nodes past the budget of one call, are not tested: they stay boxes a
+        # replayed cut must keep out of view (a frame then selects anew when they come into it)
+        ok &= (under <= SUBTREE_BRICKS) & (np.cumsum(np.where(under <= SUBTREE_BRICKS, under, 0)) <= 16 * SUBTREE_BRICKS)
+        idx, lo = idx[ok], lo[ok]
+        if not len(idx):
+            return ok
+        sub = np.ones(len(idx), dtype=bool)
         for m in range(level, Lf - 1, -1):  # the node's bricks at each level down to the fixed one
             f = 1 << (level - m)
             first = idx * f
@@ -48,7 +62,8 @@ class FixedLevel(RefinePolicy):
             bad = ~t.in_window(m, bricks) if m < level else np.zeros(len(bricks), dtype=bool)
             if m == Lf:
                 bad |= ~np.asarray(t.transparent(m, bricks), dtype=bool).reshape(len(bricks))
-            ok &= np.bincount(block[bad], minlength=len(lo)) == 0
+            sub &= np.bincount(block[bad], minlength=len(idx)) == 0
+        ok[ok] = sub
         return ok
 
     def refine(self, t, level, lo, hi):
