@@ -76,7 +76,7 @@ from ..paging.properties import may_hold_nonfinite
 from ..paging.readcount import bytes_read_of
 from ..scene.page_table import block_cells
 from ..scene.params import MODES, RenderParams
-from ..scene.selection import Selection, merge_items
+from ..scene.selection import DrawItems, Selection, merge_items
 from ..scene.selection.coherence import node_order
 from ..scene.selection.policies import POLICIES
 from ..scene.transfer import transparency_filter
@@ -145,6 +145,7 @@ class ClipRenderAction:
         self.boxes_drawn = 0  # proxy boxes of the last frame, after merge_items
         self.last_selection = None
         self._merged_kept = None  # (selection, GPU cache generation, merged items): see _merged
+        self._extents_kept = None  # (merged items, their distinct extents): see _extents
         self._replayed = False  # the frame loop drew the last cut again (its order is the old camera's)
         self.image_lod: ImageLod | None = None  # the image policy's tables and visibility, made on first use
         self.overlays = OverlayTextures(ctx, clip_texture.loader)  # co-registered volumes (scene/overlay.py)
@@ -318,7 +319,7 @@ class ClipRenderAction:
         checked = False
         if self.params.merge_boxes and len(items):  # once, for either path
             merged = self._merged(cam, sel)
-            if samples_per_box(cam, merged, self.pyramid, self.params.step) <= MAX_STEPS_PER_BOX:
+            if samples_per_box(cam, self._extents(merged), self.pyramid, self.params.step) <= MAX_STEPS_PER_BOX:
                 items, checked = merged, True  # (else the rays would be cut)
         if not checked:
             check_samples(cam, items, self.pyramid, self.params.step)
@@ -354,6 +355,19 @@ class ClipRenderAction:
         merged = merge_items(sel.items, self.pyramid, self.cache.windows, self._may_cover(cam, asked))
         self._merged_kept = (sel, self.cache.generation, merged, asked) if isinstance(sel, Selection) else None
         return merged
+
+    def _extents(self, merged: list) -> DrawItems:
+        """One box per distinct (level, extent) of ``merged``: all :func:`samples_per_box` reads of
+        them, kept with the kept merged list (a cut of hundreds of boxes has a handful)."""
+        kept = self._extents_kept
+        if kept is not None and kept[0] is merged:
+            return kept[1]
+        arr = DrawItems.from_items(merged)
+        rows = np.unique(np.concatenate([arr.rows[:, :1].astype(np.float64), arr.hi - arr.lo], axis=1), axis=0)
+        rep = DrawItems(np.concatenate([rows[:, :1].astype(np.int64), np.zeros((len(rows), 3), dtype=np.int64)], axis=1),
+                        np.zeros((len(rows), 3)), rows[:, 1:])
+        self._extents_kept = (merged, rep)
+        return rep
 
     def _draw_refined(self, name: str, cam, tf, items):
         """Draw the cut with path ``name`` as a refined frame (:mod:`clipvol.render.refine`): its

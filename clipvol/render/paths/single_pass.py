@@ -62,6 +62,7 @@ class SinglePassPath(DrawPath):
         self._table = (None, None, None)
         self._pt_data: np.ndarray | None = None  # what the page-table texture holds now
         self.rows_written = 0  # page-table rows the last frame wrote (0: the table was kept)
+        self._levels: tuple = (None, [])  # (items, their sorted data levels)
 
     def _page_table_texture(self, entries: np.ndarray):
         """The page-table texture (R32UI, :data:`PAGE_TABLE_WIDTH` entries per row) holding
@@ -100,7 +101,10 @@ class SinglePassPath(DrawPath):
         if nlev > MAX_SINGLE_PASS_LEVELS:
             return None
         vlo, vhi = pyr.volume_box()
-        finest = params.step * min(float(min(pyr.levels[it.level].scale)) for it in items)
+        if self._levels[0] is not items:  # the data levels of the cut (kept with a kept cut's list)
+            self._levels = (items, sorted({int(it.level) for it in items}))
+        data_levels = self._levels[1]  # only these get a march in the shader's level chain
+        finest = params.step * min(float(min(pyr.levels[L].scale)) for L in data_levels)
         if float(np.linalg.norm(vhi - vlo)) / finest > MAX_SINGLE_PASS_RAY_SAMPLES:
             return None
         # items come merged (complete sibling sets are one node of the table, no face inside)
@@ -115,7 +119,6 @@ class SinglePassPath(DrawPath):
         a.page_table_nodes = len(items)
         a.boxes_drawn = 1
         fbo, previous, t0 = self.setup.begin(cam, clear_value(params.mode))
-        data_levels = [it.level for it in items]  # only these get a march in the shader's level chain
         defines = dict(a.defines(), NUM_LEVELS=nlev, LEVEL_LO=min(data_levels), LEVEL_HI=max(data_levels))
         prog, vao = self.setup.program("screen.vert", "raymarch.frag", defines)
         a.program = prog
