@@ -120,7 +120,10 @@ def test_kept_cut_frames_equal_fresh_frames(ctx, path, tmp_path):
         frame(11, tf2, wait=True)
         frame(12, tf2)
         # the cut was drawn again exactly where nothing but the camera changed since a converged frame
-        assert replayed == [False, False, False, True, True, True, True, False, True, False, True, False, True]
+        # (frame 7, after the level-1 brick arrived, selects again unless the brick was in before the
+        # cut was kept: the loader threads' timing decides, the image is the fresh one's either way)
+        assert replayed[:7] == [False, False, False, True, True, True, True]
+        assert replayed[8:] == [True, False, True, False, True]
     finally:
         for x in made:
             x.close()
