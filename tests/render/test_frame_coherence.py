@@ -130,3 +130,32 @@ def test_kept_cut_frames_equal_fresh_frames(ctx, path, tmp_path):
         for g in gates.values():
             g.set()
         clip.close()
+
+
+def test_page_table_texture_takes_changed_rows_only(ctx):
+    """The page-table texture after a sub-write of the changed rows holds the new table, read back
+    from the GL and compared with the numpy array it was given; unchanged tables write nothing."""
+    from clipvol.loaders.numpy_array import NumpyLoader
+    from clipvol.render.paths.single_pass import PAGE_TABLE_WIDTH, SinglePassPath
+
+    clip = ClipTexture(NumpyLoader(blob(16), brick=8), "16MB", threads=1)
+    a = ClipRenderAction(ctx, clip, policy="fixed", level=0, path="single-pass")
+    try:
+        path = SinglePassPath(a)
+        rng = np.random.default_rng(1)
+        first = rng.integers(0, 2**32 - 1, size=5 * PAGE_TABLE_WIDTH - 100, dtype=np.uint64).astype(np.uint32)
+        path._page_table_texture(first)
+        assert path.rows_written == 5
+        second = first.copy()
+        second[2 * PAGE_TABLE_WIDTH + 7] ^= 0xFFFF  # one entry of row 2 and one of row 3
+        second[3 * PAGE_TABLE_WIDTH + 1000] += 1
+        tex = path._page_table_texture(second)
+        assert path.rows_written == 2
+        held = np.frombuffer(tex.read(), dtype=np.uint32)[:len(second)]
+        np.testing.assert_array_equal(held, second)
+        path._page_table_texture(second)
+        assert path.rows_written == 0
+        path.release()
+    finally:
+        a.close()
+        clip.close()

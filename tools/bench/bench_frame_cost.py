@@ -28,7 +28,9 @@ centre) and **fly** (the eye 1 % of the distance nearer each frame). Each frame 
 interleaved frame by frame (the order alternating), so a drift in the machine's load weighs on all
 three alike. Columns: the medians over the sequence's frames of each one's ms, ``clipvol``'s host
 ms and GL ms (:attr:`FrameStats.host_ms`, :attr:`FrameStats.gpu_ms`), the share of its frames that
-drew the kept cut, and the ratios ``clipvol/raw`` and ``fresh/clipvol`` (medians over frames of the
+drew the kept cut, the CPU time of the rendering thread per frame for ``clipvol`` and ``fresh``
+(``time.thread_time``: the host's own work, which a shared machine's load does not inflate as it
+does wall times), and the ratios ``clipvol/raw`` and ``fresh/clipvol`` (medians over frames of the
 per-frame ratios). Rows go to ``tools/bench/results/bench_frame_cost.csv``.
 
 Runs as is on a machine with a GPU (``python tools/bench/bench_frame_cost.py``): the GL is whatever
@@ -79,6 +81,18 @@ def _timed(fn) -> float:
     return time.perf_counter() - t
 
 
+def _timed_cpu(fn, cpu: list) -> float:
+    """Wall seconds of ``fn``; appends the CPU seconds of this thread during it to ``cpu`` (the
+    host's own work: llvmpipe rasterises on its own threads, and a wait costs this thread nothing,
+    so the figure holds under a shared machine's load where wall times do not)."""
+    c = time.thread_time()
+    t = time.perf_counter()
+    fn()
+    wall = time.perf_counter() - t
+    cpu.append(time.thread_time() - c)
+    return wall
+
+
 def run(store: Path, volume, label: str, images, frames: int, log=print) -> list[dict]:
     from clipvol.render.action import OPAQUE
     from clipvol.scene.selection.policies import policy_for
@@ -100,7 +114,7 @@ def run(store: Path, volume, label: str, images, frames: int, log=print) -> list
                             raise RuntimeError(f"{label}: the frame did not converge in 900 s ({image}^2 {kind})")
                 raw.render(kept._selection_camera(cams[0]), tf, STEP, OPAQUE)
                 t = {"raw": [], "clipvol": [], "fresh": []}
-                host, gpu, replayed = [], [], []
+                host, gpu, replayed, cpu_kept, cpu_fresh = [], [], [], [], []
                 bricks = kept.last_frame_stats.bricks_distinct
                 for k, cam in enumerate(cams):
                     fc = kept._selection_camera(cam)
@@ -109,19 +123,22 @@ def run(store: Path, volume, label: str, images, frames: int, log=print) -> list
                         if name == "raw":
                             t[name].append(_timed(lambda: raw.render(fc, tf, STEP, OPAQUE)))
                         elif name == "clipvol":
-                            t[name].append(_timed(lambda: kept.render(cam, tf)))
+                            t[name].append(_timed_cpu(lambda: kept.render(cam, tf), cpu_kept))
                             st = kept.last_frame_stats
                             host.append(st.host_ms)
                             gpu.append(st.gpu_ms)
                             replayed.append(st.replayed)
                             bricks = max(bricks, st.bricks_distinct)
                         else:  # a policy instance per frame: selected, merged and tabled from nothing
-                            t[name].append(_timed(lambda: fresh.render(cam, tf, policy=policy_for(fresh.params))))
+                            t[name].append(_timed_cpu(lambda: fresh.render(cam, tf, policy=policy_for(fresh.params)),
+                                                      cpu_fresh))
                 med = {k: 1e3 * statistics.median(v) for k, v in t.items()}
                 row = {"date": time.strftime("%Y-%m-%d"), "volume": label, "image": image, "camera": kind,
                        "frames": frames, "bricks": bricks, "raw_ms": round(med["raw"], 2),
                        "clipvol_ms": round(med["clipvol"], 2), "fresh_ms": round(med["fresh"], 2),
                        "host_ms": round(statistics.median(host), 2), "gpu_ms": round(statistics.median(gpu), 2),
+                       "clipvol_cpu_ms": round(1e3 * statistics.median(cpu_kept), 2),
+                       "fresh_cpu_ms": round(1e3 * statistics.median(cpu_fresh), 2),
                        "replayed": round(float(np.mean(replayed)), 2),
                        "clipvol_over_raw": round(statistics.median(c / r for c, r in zip(t["clipvol"], t["raw"])), 2),
                        "fresh_over_clipvol": round(statistics.median(f / c for f, c in zip(t["fresh"], t["clipvol"])), 2),
@@ -130,7 +147,8 @@ def run(store: Path, volume, label: str, images, frames: int, log=print) -> list
                 log(f"{label} {image}^2 {kind:6}: {bricks} bricks, raw {row['raw_ms']} ms, clipvol {row['clipvol_ms']} ms "
                     f"(host {row['host_ms']}, gl {row['gpu_ms']}, {100 * row['replayed']:.0f} % kept cut) = "
                     f"{row['clipvol_over_raw']}x raw; from nothing {row['fresh_ms']} ms = "
-                    f"{row['fresh_over_clipvol']}x clipvol; load {row['load']}")
+                    f"{row['fresh_over_clipvol']}x clipvol; main-thread CPU {row['clipvol_cpu_ms']} ms kept, "
+                    f"{row['fresh_cpu_ms']} ms from nothing; load {row['load']}")
     finally:
         scene.close()
     return rows
