@@ -364,8 +364,8 @@ class ClipRenderAction:
             return kept[1]
         arr = DrawItems.from_items(merged)
         rows = np.unique(np.concatenate([arr.rows[:, :1].astype(np.float64), arr.hi - arr.lo], axis=1), axis=0)
-        rep = DrawItems(np.concatenate([rows[:, :1].astype(np.int64), np.zeros((len(rows), 3), dtype=np.int64)], axis=1),
-                        np.zeros((len(rows), 3)), rows[:, 1:])
+        keys = np.concatenate([rows[:, :1].astype(np.int64), np.zeros((len(rows), 3), dtype=np.int64)], axis=1)
+        rep = DrawItems(keys, np.zeros((len(rows), 3)), rows[:, 1:])
         self._extents_kept = (merged, rep)
         return rep
 

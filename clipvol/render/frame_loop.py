@@ -74,7 +74,8 @@ class FrameLoop:
         window = getattr(ct, "window", None)
         if policy is not None or window is None:
             return None
-        return (params, transparent, cache.generation, ct.residency_version if version is None else version, getattr(ct, "region", None),
+        version = ct.residency_version if version is None else version
+        return (params, transparent, cache.generation, version, getattr(ct, "region", None),
                 tuple(window(L) for L in range(self.pyramid.num_levels)), tuple(cache.windows))
 
     @staticmethod

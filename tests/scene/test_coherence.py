@@ -102,8 +102,8 @@ def test_fixed_level_subtree_empty_is_every_fixed_level_brick_transparent(level)
     f = 2 ** level
     expect = []
     for n in nodes:  # brick by brick
-        under = [(z, y, x) for z in range(n[0] * f, min((n[0] + 1) * f, 8)) for y in range(n[1] * f, min((n[1] + 1) * f, 8))
-                 for x in range(n[2] * f, min((n[2] + 1) * f, 8))]
+        zs, ys, xs = (range(n[a] * f, min((n[a] + 1) * f, 8)) for a in range(3))
+        under = [(z, y, x) for z in zs for y in ys for x in xs]
         expect.append(all(bool(transparent(0, [b])[0]) for b in under))
     np.testing.assert_array_equal(got, expect)
     assert (0 < got.sum() < len(got)) or level >= 2  # (from level 2 up every node holds some of the ball)

@@ -93,6 +93,12 @@ def _timed_cpu(fn, cpu: list) -> float:
     return wall
 
 
+def _load() -> str:
+    """The 1-minute load average where the system tells it (Linux), else empty."""
+    p = Path("/proc/loadavg")
+    return p.read_text().split()[0] if p.exists() else ""
+
+
 def run(store: Path, volume, label: str, images, frames: int, log=print) -> list[dict]:
     from clipvol.render.action import OPAQUE
     from clipvol.scene.selection.policies import policy_for
@@ -142,9 +148,10 @@ def run(store: Path, volume, label: str, images, frames: int, log=print) -> list
                        "replayed": round(float(np.mean(replayed)), 2),
                        "clipvol_over_raw": round(statistics.median(c / r for c, r in zip(t["clipvol"], t["raw"])), 2),
                        "fresh_over_clipvol": round(statistics.median(f / c for f, c in zip(t["fresh"], t["clipvol"])), 2),
-                       "load": open("/proc/loadavg").read().split()[0] if Path("/proc/loadavg").exists() else ""}
+                       "load": _load()}
                 rows.append(row)
-                log(f"{label} {image}^2 {kind:6}: {bricks} bricks, raw {row['raw_ms']} ms, clipvol {row['clipvol_ms']} ms "
+                log(f"{label} {image}^2 {kind:6}: {bricks} bricks, raw {row['raw_ms']} ms, "
+                    f"clipvol {row['clipvol_ms']} ms "
                     f"(host {row['host_ms']}, gl {row['gpu_ms']}, {100 * row['replayed']:.0f} % kept cut) = "
                     f"{row['clipvol_over_raw']}x raw; from nothing {row['fresh_ms']} ms = "
                     f"{row['fresh_over_clipvol']}x clipvol; main-thread CPU {row['clipvol_cpu_ms']} ms kept, "

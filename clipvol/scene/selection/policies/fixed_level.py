@@ -48,7 +48,8 @@ class FixedLevel(RefinePolicy):
         under = np.prod(np.minimum(idx * f + f, np.asarray(pyr.grid(Lf), dtype=np.int64)) - idx * f, axis=1)
         # a larger node, or nodes past the budget of one call, are not tested: they stay boxes a
         # replayed cut must keep out of view (a frame then selects anew when they come into it)
-        ok &= (under <= SUBTREE_BRICKS) & (np.cumsum(np.where(under <= SUBTREE_BRICKS, under, 0)) <= 16 * SUBTREE_BRICKS)
+        small = under <= SUBTREE_BRICKS
+        ok &= small & (np.cumsum(np.where(small, under, 0)) <= 16 * SUBTREE_BRICKS)
         idx, lo = idx[ok], lo[ok]
         if not len(idx):
             return ok
