@@ -59,7 +59,7 @@ REPORT_COLUMNS = (
 #: the raw timings, one row per warm frame (``timing.csv``): block 0 holds every setting drawn by the
 #: session that holds everything, block k > 0 one budget setting beside the reference; the two
 #: frames of a ``pair`` (the reference's and a setting's) were drawn one right after the other
-TIMING_COLUMNS = ("block", "pair", "round", "sweep", "setting", "view", "frame_s")
+TIMING_COLUMNS = ("block", "pair", "round", "sweep", "setting", "view", "frame_s", "host_s")
 
 
 @dataclass
@@ -255,7 +255,8 @@ def _time_block(ref, entries, views, rounds: int, base: RenderParams, timeout: f
                     got[s.label] = dt
                     times.setdefault((s.label, v), []).append(dt)
                     raw.append({"block": block, "pair": pair, "round": r, "sweep": s.sweep, "setting": s.label,
-                                "view": v, "frame_s": round(dt, 6)})
+                                "view": v, "frame_s": round(dt, 6),
+                                "host_s": round(sess.frame_stats.host_ms / 1e3, 6)})  # the host's share (FrameStats)
                 label = entry[1].label
                 ratios.setdefault((label, v), []).append(got[ref[1].label] / max(got[label], 1e-9))
                 pair += 1

@@ -19,6 +19,8 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass
 
+import numpy as np
+
 __all__ = ["ReadCounter", "ReadTotals", "bytes_read_of", "split_reads"]
 
 
@@ -83,6 +85,11 @@ def bytes_read_of(loader) -> int | None:
     return counter.bytes if isinstance(counter, ReadCounter) else None
 
 
+def _row_codes(rows: np.ndarray) -> np.ndarray:
+    """One int64 per ``(level, z, y, x)`` row."""
+    return (rows[:, 0] << 48) | (rows[:, 1] << 32) | (rows[:, 2] << 16) | rows[:, 3]
+
+
 def split_reads(reads: dict | None, keys) -> tuple[int, int] | tuple[None, None]:
     """``(frame, other)``: the bytes of ``reads`` (a clip-texture's :meth:`take_reads`, per brick
     ``(level, index)``, or None for reads summed past its table's size) charged to the bricks ``keys`` (``(n, 4)`` rows ``(level, z, y, x)``, the
@@ -91,11 +98,13 @@ def split_reads(reads: dict | None, keys) -> tuple[int, int] | tuple[None, None]
     if reads is None:
         return None, None
     total = sum(reads.values())
-    frame = 0
-    seen = set()
-    for row in getattr(keys, "tolist", lambda: keys)():
-        k = (int(row[0]), (int(row[1]), int(row[2]), int(row[3])))
-        if k not in seen:
-            seen.add(k)
-            frame += reads.get(k, 0)
+    if not reads:
+        return 0, 0
+    # the few bricks read since the last frame against the cut's (thousands of) rows, in numpy:
+    # one code per row (16 bits a field: levels and brick indices stay far below 2**16)
+    read_keys = list(reads)
+    read_rows = np.array([(L, *idx) for L, idx in read_keys], dtype=np.int64).reshape(-1, 4)
+    rows = np.asarray(keys, dtype=np.int64).reshape(-1, 4)
+    hit = np.isin(_row_codes(read_rows), _row_codes(rows))
+    frame = int(sum(reads[k] for k, h in zip(read_keys, hit.tolist()) if h))
     return frame, total - frame

@@ -65,6 +65,7 @@ References
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -72,11 +73,12 @@ import numpy as np
 from ..errors import ParameterError
 from ..paging.loader import HasBrickRanges
 from ..paging.properties import may_hold_nonfinite
-from ..paging.readcount import bytes_read_of
+from ..paging.readcount import bytes_read_of, split_reads
 from ..scene.consistent import SPREAD_ROWS, DistributionRanges
 from ..scene.page_table import block_cells
 from ..scene.params import MODES, RenderParams
-from ..scene.selection import merge_items
+from ..scene.selection import DrawItems, Selection, merge_items
+from ..scene.selection.coherence import node_order
 from ..scene.selection.policies import POLICIES
 from ..scene.transfer import transparency_filter
 from .frame_loop import FrameLoop
@@ -143,6 +145,9 @@ class ClipRenderAction:
         self.occlusion_passes = 0  # bricks path: opacity snapshots taken, all frames
         self.boxes_drawn = 0  # proxy boxes of the last frame, after merge_items
         self.last_selection = None
+        self._merged_kept = None  # (selection, GPU cache generation, merged items): see _merged
+        self._extents_kept = None  # (merged items, their distinct extents): see _extents
+        self._replayed = False  # the frame loop drew the last cut again (its order is the old camera's)
         self.image_lod: ImageLod | None = None  # the image policy's tables and visibility, made on first use
         self.overlays = OverlayTextures(ctx, clip_texture.loader)  # co-registered volumes (scene/overlay.py)
         try:
@@ -277,14 +282,26 @@ class ClipRenderAction:
         plan = self.frame_loop.run(cam, self.params, transparent=self._transparent(transfer_function),
                                    policy=policy, wait=wait, timeout=timeout)
         sel, times = plan.selection, dict(plan.times)
+        self._replayed = plan.replayed
         image, draw_t, read_t = self._draw(cam, transfer_function, sel)
         times["draw"], times["readback"] = draw_t, read_t
         times["total"] = time.perf_counter() - t_start
+        # the host's share: all but the waits on the loader and on the GL (finish and read-back)
+        times["gpu"] = self.setup.finish_s + read_t
+        times["host"] = max(0.0, times["total"] - times["wait"] - times["gpu"])
+        bytes_read = None if read0 is None else bytes_read_of(self.clip_texture.loader) - read0
+        reads = self.clip_texture.take_reads()
+        last = self.last_frame_stats
+        if plan.replayed and self.last_selection is sel and last is not None:  # the same cut: the same counts
+            frame_read, other_read = split_reads(reads, np.concatenate([sel.item_keys(), sel.wanted_keys()])) \
+                if reads else ((None, None) if reads is None else (0, 0))
+            self.last_frame_stats = dataclasses.replace(
+                last, times=times, bytes_uploaded=0, bricks_uploaded=0, passes=1, converged=True,
+                bytes_read=bytes_read, frame_bytes_read=frame_read, prefetch_bytes_read=other_read, replayed=True)
+        else:
+            self.last_frame_stats = frame_stats(sel, plan, times, self.cache, self.params.texture_budget,
+                                                self.clip_texture, bytes_read=bytes_read, reads=reads)
         self.last_selection = sel
-        self.last_frame_stats = frame_stats(
-            sel, plan, times, self.cache, self.params.texture_budget, self.clip_texture,
-            bytes_read=None if read0 is None else bytes_read_of(self.clip_texture.loader) - read0,
-            reads=self.clip_texture.take_reads())
         return image
 
     def render_items(self, camera, transfer_function, items) -> np.ndarray:
@@ -322,24 +339,61 @@ class ClipRenderAction:
         fallback path where that one declines it."""
         check_step(self.pyramid, self.params.step)  # bricks are never stepped over, whatever the cut
         items = sel.items  # a full cut's DrawItems stay arrays: the merge reads those
+        replayed = getattr(self, "_replayed", False) and isinstance(sel, Selection)
+        self._replayed = False
         self.page_table_nodes = 0
         checked = False
         if self.params.merge_boxes and len(items):  # once, for either path
-            merged = merge_items(items, self.pyramid, self.cache.windows, self._may_cover(cam))
-            if samples_per_box(cam, merged, self.pyramid, self.params.step) <= MAX_STEPS_PER_BOX:
+            merged = self._merged(cam, sel)
+            if samples_per_box(cam, self._extents(merged), self.pyramid, self.params.step) <= MAX_STEPS_PER_BOX:
                 items, checked = merged, True  # (else the rays would be cut)
         if not checked:
             check_samples(cam, items, self.pyramid, self.params.step)
-        items = list(items)
+        if not isinstance(items, list):  # (the kept merged list stays itself: the single pass keys on it)
+            items = list(items)
         self.skipped_empty = self._skips(tf)
         name = pick(self.params, items)
+
+        def ordered(items):  # a cut drawn again is in the order of the camera that made it
+            return [items[i] for i in node_order(items, self.pyramid, cam)] if replayed else items
+
+        if name != "single-pass":  # the single pass walks a page table: it needs no order
+            items = ordered(items)
         out = self._draw_refined(name, cam, tf, items) if refines(self.params, cam) else \
             self._path(name).draw(cam, tf, items)
         if out is None:  # the path cannot draw this cut: the reference path does
             name = FALLBACK
-            out = self._path(name).draw(cam, tf, items)
+            out = self._path(name).draw(cam, tf, ordered(items))
         self.path_drawn = name
         return out
+
+    def _merged(self, cam, sel) -> list:
+        """:func:`merge_items` of ``sel``'s items, kept while ``sel`` is drawn again (the frame loop's
+        replay hands back the same object), the GPU cache's slots are unchanged and the
+        camera answers what the merge asked of it again (a culled sibling not in texture memory is
+        covered only while it lies beside the view: those boxes are asked again, one vectorised
+        call, and the merge is the same while every answer is)."""
+        kept = self._merged_kept
+        if kept is not None and kept[0] is sel and kept[1] == self.cache.generation and all(
+                np.array_equal(np.asarray(cam.boxes_beside_view(lo, hi), dtype=bool), ans) for lo, hi, ans in kept[3]):
+            return kept[2]
+        asked: list = []
+        merged = merge_items(sel.items, self.pyramid, self.cache.windows, self._may_cover(cam, asked))
+        self._merged_kept = (sel, self.cache.generation, merged, asked) if isinstance(sel, Selection) else None
+        return merged
+
+    def _extents(self, merged: list) -> DrawItems:
+        """One box per distinct (level, extent) of ``merged``: all :func:`samples_per_box` reads of
+        them, kept with the kept merged list (a cut of hundreds of boxes has a handful)."""
+        kept = self._extents_kept
+        if kept is not None and kept[0] is merged:
+            return kept[1]
+        arr = DrawItems.from_items(merged)
+        rows = np.unique(np.concatenate([arr.rows[:, :1].astype(np.float64), arr.hi - arr.lo], axis=1), axis=0)
+        keys = np.concatenate([rows[:, :1].astype(np.int64), np.zeros((len(rows), 3), dtype=np.int64)], axis=1)
+        rep = DrawItems(keys, np.zeros((len(rows), 3)), rows[:, 1:])
+        self._extents_kept = (merged, rep)
+        return rep
 
     def _draw_refined(self, name: str, cam, tf, items):
         """Draw the cut with path ``name`` as a refined frame (:mod:`clipvol.render.refine`): its
@@ -381,7 +435,7 @@ class ClipRenderAction:
             return self.setup.last_raw
         return self.setup.raw()
 
-    def _may_cover(self, cam):
+    def _may_cover(self, cam, asked: list | None = None):
         """``may_cover`` for :func:`merge_items`: may a merged box cover these culled nodes
         (``(m, 3)`` of one node level, answered in one go: a full-resolution cut asks thousands)?
 
@@ -412,7 +466,10 @@ class ClipRenderAction:
             if not out.all():  # the others: beside the view, grown by one voxel of the level
                 lo, hi = pyr.node_box(node_level, nodes[~out])
                 pad = float(max(pyr.levels[level].scale))
-                out[~out] = np.asarray(cam.boxes_beside_view(lo - pad, hi + pad), dtype=bool)
+                beside = np.asarray(cam.boxes_beside_view(lo - pad, hi + pad), dtype=bool)
+                out[~out] = beside
+                if asked is not None:  # the answer depends on the camera: kept to be asked again
+                    asked.append((lo - pad, hi + pad, beside))
             return out
 
         return may_cover

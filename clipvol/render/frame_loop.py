@@ -17,6 +17,15 @@ One pass:
    yet drawn, wait on the clip-texture for the ones that can still come and pass again - until the
    selection converges, nothing more can arrive, the texture budget cannot hold the view (a
    brick uploaded twice in one call), or ``timeout`` passes.
+
+**Coherence.** A converged cut is kept with what it was made under (the parameters, the transfer
+function's transparency test, the GPU cache's :attr:`~clipvol.render.gpu_cache.GpuBrickCache.generation`,
+the clip-texture's ``residency_version`` and windows). The next frame draws it again - no
+traversal, no reservations, no uploads - while all of those are unchanged and
+:func:`~clipvol.scene.selection.coherence.cut_holds` says the new camera's traversal would make the
+same cut (a camera-free policy: the fixed level; every culled box still out of view, every leaf in).
+A brick that arrives or leaves, an upload, a new table or new parameters end the replay, and the
+next frame selects from nothing. ``FramePlan.replayed`` says which frames were drawn again.
 """
 
 from __future__ import annotations
@@ -29,6 +38,7 @@ import numpy as np
 from ..paging.cliptexture import BrickState, ClipTexture
 from ..scene.params import RenderParams
 from ..scene.selection import Selection, select
+from ..scene.selection.coherence import cut_holds, replayable
 
 __all__ = ["FrameLoop", "FramePlan"]
 
@@ -43,6 +53,8 @@ class FramePlan:
     bytes_uploaded: int
     bricks_uploaded: int
     times: dict = field(default_factory=dict)
+    #: the last frame's cut drawn again (see the module docstring, "Coherence")
+    replayed: bool = False
 
 
 class FrameLoop:
@@ -52,7 +64,32 @@ class FrameLoop:
         self.clip_texture = clip_texture
         self.cache = cache
         self.pyramid = clip_texture.pyramid
+        #: (state key, selection) of the last converged cut (module docstring, "Coherence")
+        self._kept: tuple | None = None
 
+    def _state(self, params: RenderParams, transparent, policy, version: int | None = None):
+        """What a cut was made under, apart from the camera (None: nothing to replay against);
+        ``version``: the clip-texture's residency version the selection saw (default: now)."""
+        ct, cache = self.clip_texture, self.cache
+        window = getattr(ct, "window", None)
+        if policy is not None or window is None:
+            return None
+        version = ct.residency_version if version is None else version
+        return (params, transparent, cache.generation, version, getattr(ct, "region", None),
+                tuple(window(L) for L in range(self.pyramid.num_levels)), tuple(cache.windows))
+
+    @staticmethod
+    def _same(a, b) -> bool:
+        """Two :meth:`_state` keys alike: the parameters and the transparency test by identity."""
+        return a is not None and b is not None and a[0] is b[0] and a[1] is b[1] and a[4] is b[4] \
+            and a[2:4] == b[2:4] and a[5:] == b[5:]
+
+    def replay(self, camera, params: RenderParams, transparent=None, policy=None) -> Selection | None:
+        """The last converged cut, if it is this frame's cut too (module docstring, "Coherence")."""
+        kept = self._kept
+        if kept is None or not self._same(kept[0], self._state(params, transparent, policy)):
+            return None
+        return kept[1] if cut_holds(kept[1], camera) else None
     def _upload_budget(self, params: RenderParams) -> int | None:
         """``texels_per_frame``, never less than one brick (a frame always makes progress)."""
         if params.texels_per_frame is None:
@@ -110,6 +147,12 @@ class FrameLoop:
             timeout: float | None = None) -> FramePlan:
         """Select and upload (and with ``wait``, repeat) for one frame; see the module docstring."""
         times = dict(select=0.0, upload=0.0, wait=0.0)
+        t0 = time.perf_counter()
+        kept = self.replay(camera, params, transparent, policy)
+        if kept is not None:
+            times["select"] = time.perf_counter() - t0
+            return FramePlan(kept, True, 1, 0, 0, times, replayed=True)
+        self._kept = None
         deadline = None if timeout is None else time.perf_counter() + float(timeout)
         passes = up_bytes = up_bricks = 0
         uploaded_now: set = set()  # bricks uploaded by this call: a second upload means thrashing
@@ -146,4 +189,7 @@ class FrameLoop:
             times["wait"] += time.perf_counter() - t3
             if ct.residency_version == version:
                 break
+        if converged and replayable(sel):  # kept with what it was made under, after its uploads
+            # (the version before its last selection: a brick that arrived since ends the replay)
+            self._kept = (self._state(params, transparent, policy, version), sel)
         return FramePlan(sel, converged, passes, up_bytes, up_bricks, times)

@@ -35,7 +35,9 @@ class FrameStats:
     texture_bytes, texture_budget : int
         Bytes held by the brick textures (always <= the budget) and the budget.
     times : dict[str, float]
-        Seconds spent in ``select``, ``upload``, ``wait``, ``draw``, ``readback`` and ``total``.
+        Seconds spent in ``select``, ``upload``, ``wait``, ``draw``, ``readback`` and ``total``;
+        ``gpu``: waiting on the GL (the frame's finish and read-back), ``host``: the rest of
+        ``total`` but the loader waits - the host's own work (:attr:`host_ms`).
     converged : bool
         Every wanted brick was drawn at its own level.
     passes : int
@@ -56,6 +58,8 @@ class FrameStats:
     failed_bricks : tuple of FailedBrick
         Wanted bricks that failed to load, each with its cause and the ancestor drawn in its place
         (:mod:`clipvol.render.failures`); :attr:`unreplaced` are those drawn by nothing.
+    replayed : bool
+        The frame drew the last frame's cut again (:mod:`clipvol.render.frame_loop`, "Coherence").
     """
 
     bricks_drawn: dict[int, int]
@@ -74,6 +78,18 @@ class FrameStats:
     failed_bricks: tuple = ()
     frame_bytes_read: int | None = None
     prefetch_bytes_read: int | None = None
+    replayed: bool = False
+
+    @property
+    def host_ms(self) -> float:
+        """Milliseconds of the frame's own host work (selection, uploads, tables, GL calls), beside
+        :attr:`gpu_ms`: on a GPU the frame is as fast as the larger of the two."""
+        return 1e3 * float(self.times.get("host", self.times.get("total", 0.0)))
+
+    @property
+    def gpu_ms(self) -> float:
+        """Milliseconds the frame waited on the GL: its draws finishing, and the read-back."""
+        return 1e3 * float(self.times.get("gpu", 0.0))
 
     @property
     def unreplaced(self) -> tuple:
@@ -97,4 +113,5 @@ def frame_stats(sel, plan, times: dict, cache, texture_budget: int, clip_texture
         texture_budget=texture_budget, times=times, converged=plan.converged, passes=plan.passes,
         items_drawn=len(sel.items), counts=dict(sel.counts), failed_bricks=failed_bricks(sel, clip_texture),
         bytes_read=bytes_read, frame_bytes_read=frame_read, prefetch_bytes_read=other_read,
+        replayed=bool(getattr(plan, "replayed", False)),
     )

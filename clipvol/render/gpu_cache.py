@@ -305,6 +305,9 @@ class GpuBrickCache:
         self.texels_uploaded = 0
         self.bricks_uploaded = 0
         self.total_texels_uploaded = 0
+        #: bumped whenever a slot's content changes (an upload, a reshaped level, a release): what the
+        #: frame derived from the slots (merged boxes, page table, open faces) holds while it stays
+        self.generation = 0
         self._nb_cache: tuple | None = None  # (items, neighbours) of the current frame
         # empty-space skipping below the brick (module docstring, "Cells"): per level the cells'
         # value ranges (+inf/-inf: nothing known yet), the occupancy texture, what it shows
@@ -396,6 +399,7 @@ class GpuBrickCache:
         tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
         tex.repeat_x = tex.repeat_y = tex.repeat_z = True
         self.textures[level] = tex
+        self.generation += 1
         self.windows[level] = tuple(int(v) for v in w)
         self._slot_key[level] = np.full(tuple(w) + (3,), -1, dtype=np.int64)
         self._reserved[level] = np.full_like(self._slot_key[level], -1)
@@ -633,6 +637,8 @@ class GpuBrickCache:
             nbytes += texels.nbytes
         self._commit_cells()
         n = len(self._pending)
+        if n:
+            self.generation += 1
         self._pending = {}
         self.bytes_uploaded = nbytes
         self.bricks_uploaded = n
@@ -834,6 +840,7 @@ class GpuBrickCache:
         return sum(c[1] for c in self.occupancy_counts) / total if total else 0.0
 
     def release(self) -> None:
+        self.generation += 1
         for t in self.textures:
             if t is not None:
                 t.release()

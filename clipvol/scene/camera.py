@@ -323,6 +323,15 @@ class Camera:
         """
         return np.all(self._box_reach(lo, hi, 6) >= 0, axis=1)
 
+    def boxes_within_frustum(self, lo, hi) -> np.ndarray:
+        """``(n,)`` bool: True for boxes ``[lo, hi]`` wholly inside every frustum plane (then every
+        box inside them is :meth:`boxes_in_frustum` too: one test answers for a whole cut)."""
+        lo = np.atleast_2d(np.asarray(lo, dtype=np.float64)) - self.eye
+        hi = np.atleast_2d(np.asarray(hi, dtype=np.float64)) - self.eye
+        c, h = (lo + hi) * 0.5, (hi - lo) * 0.5
+        p = self._plane_table()
+        return np.all(c @ p[:, :3].T - h @ np.abs(p[:, :3]).T + p[:, 3] >= 0, axis=1)
+
     def boxes_beside_view(self, lo, hi) -> np.ndarray:
         """``(n,)`` bool: True for boxes wholly outside one of the four side planes of the view.
 

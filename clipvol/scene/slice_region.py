@@ -14,6 +14,10 @@ without a traversal:
 * with ``RenderParams.level`` fixed, that level and the coarsest one;
 * with an image size, only the bricks under the image rectangle (a zoomed view of a large plane
   reads what it shows, as the traversal culls what the view does not);
+* of a level the policy refines, only the bricks a tile blends with: where the brick and its
+  26-neighbours the plane crosses are all refined, finer tiles cover all around it and none
+  blends towards it, so it is left out (a multiresolution slice then never reads more than the
+  full-resolution one);
 * at each level only the bricks whose box meets the slab of half-thickness half a voxel of that
   level along the normal (:mod:`clipvol.paging.slab`): the trilinear footprint of the samples on
   the plane. The blended parents of a level's tiles are bricks of the next level's slab.
@@ -58,6 +62,59 @@ def _in_view(pyramid, level: int, bricks: np.ndarray, plane, size, pixel_size: f
     return ok
 
 
+def _refined(pyramid, level: int, bricks: np.ndarray, params, pixel_size: float, focus) -> np.ndarray:
+    """``(n,)`` bool: does the plane policy refine these nodes of ``level`` (the rule above)?"""
+    if level == 0 or not max(pyramid.levels[level].scale) / float(pixel_size) > params.lod_threshold:
+        return np.zeros(len(bricks), dtype=bool)
+    if focus is None:
+        return np.ones(len(bricks), dtype=bool)
+    lo, hi = pyramid.node_box(level, bricks)
+    near = np.linalg.norm(np.clip(focus, lo, hi) - focus, axis=1)
+    return near < params.distance_factor * np.linalg.norm(hi - lo, axis=1)
+
+
+def _drawn_or_blended(pyramid, level: int, cand: np.ndarray, slab, params, pixel_size: float, focus) -> np.ndarray:
+    """The bricks of ``cand`` (level ``level``'s part of the region) a slice draws or blends with.
+
+    A brick the policy refines is drawn by its children; it is read only as the parent a child
+    tile blends towards, and a tile blends only towards a coarser 26-neighbour. Every neighbour of
+    the children of a brick lies in the brick or its 26 neighbours, so where those neighbours
+    that the plane crosses are all refined too, no child blends and the brick is not read
+    (balancing only refines further). Without this a slice whose finest level covers the whole
+    plane read every coarser slab as well: more than the full-resolution slice
+    (1.73 MB against 1.03 MB on a 378 x 466 x 394 store of 32³ bricks).
+    """
+    if not len(cand):
+        return cand
+    refined = _refined(pyramid, level, cand, params, pixel_size, focus)
+    if not refined.any():
+        return cand
+    if focus is None:
+        around = slab(level)
+    else:  # the candidates' ring: one brick diagonal beyond the farthest candidate from the focus
+        lo, hi = pyramid.node_box(level, cand)
+        reach = float(np.max(np.linalg.norm(np.maximum(np.abs(lo - focus), np.abs(hi - focus)), axis=1)))
+        around = slab(level, focus, reach + float(np.max(np.linalg.norm(hi - lo, axis=1))))
+    # per brick of the slab around: is it a refined candidate (its children are all it gives)?
+    base = np.minimum(around.min(axis=0), cand.min(axis=0)) - 1
+    shape = np.maximum(around.max(axis=0), cand.max(axis=0)) + 2 - base
+    good = np.zeros(tuple(shape), dtype=bool)
+    r = cand[refined] - base
+    good[r[:, 0], r[:, 1], r[:, 2]] = True
+    bad = np.zeros(tuple(shape), dtype=bool)  # a slab brick drawn coarser or at this level
+    a = around - base
+    bad[a[:, 0], a[:, 1], a[:, 2]] = ~good[a[:, 0], a[:, 1], a[:, 2]]
+    for axis in range(3):  # grown by one brick along each axis: any 26-neighbour
+        grown = bad.copy()
+        lead, lag = [slice(None)] * 3, [slice(None)] * 3
+        lead[axis], lag[axis] = slice(1, None), slice(None, -1)
+        grown[tuple(lead)] |= bad[tuple(lag)]
+        grown[tuple(lag)] |= bad[tuple(lead)]
+        bad = grown
+    c = cand - base
+    return cand[~refined | bad[c[:, 0], c[:, 1], c[:, 2]]]
+
+
 def slice_region(pyramid, plane, params, pixel_size: float, *, size=None, ahead: float = 0.0) -> Region:
     """The :class:`~clipvol.paging.region.Region` of ``plane`` drawn with ``params`` at ``pixel_size``;
     with ``size`` (``(w, h)`` pixels), only bricks under the image (a zoomed view of a huge plane)."""
@@ -97,6 +154,9 @@ def slice_region(pyramid, plane, params, pixel_size: float, *, size=None, ahead:
             if not keep.any():
                 break
             bricks[L] = cand[keep]
+    if params.level is None:
+        for L in range(1, top):  # a level under finer tiles everywhere around: nothing of it is drawn
+            bricks[L] = _drawn_or_blended(pyramid, L, bricks[L], slab, params, pixel_size, focus)
     center = focus if focus is not None else np.asarray(plane.origin, dtype=np.float64)
     # the samples lie on this plane: bricks beyond half a voxel of it are never read by them
     halves = tuple(_half_voxel(pyramid, L, n) for L in range(pyramid.num_levels))

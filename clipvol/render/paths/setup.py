@@ -176,6 +176,7 @@ class DrawSetup:
         self._dist_key = None
         self._resolve = None
         self.last_raw: np.ndarray | None = None  # MIP, minIP, average, iso: the target read back by the last frame
+        self.finish_s = 0.0  # seconds the last frame waited for the GL to finish its draws
         self.depth = (0.0, 1.0)  # the volume box's range of ray parameters this frame (iso_color="depth")
         self.refine: Refine | None = None  # the coarse targets and the mask pass, made by the first refined frame
         self.refine_level: int | None = None  # while a refined frame draws: 0 the image, k its pass at 1 / 2**k
@@ -358,8 +359,10 @@ class DrawSetup:
         if self.refine_level:  # a coarse image stays on the GL for the next pass's mask
             self.target.restore(previous)
             return None, time.perf_counter() - t0, 0.0
+        t_finish = time.perf_counter()
         ctx.finish()
         t1 = time.perf_counter()
+        self.finish_s = t1 - t_finish  # the wait on the GL for the frame's draws (FrameStats' gpu time)
         self.last_raw = None
         image = None
         if params.mode not in REDUCED_MODES:

@@ -57,19 +57,39 @@ class SinglePassPath(DrawPath):
     def __init__(self, action) -> None:
         super().__init__(action)
         self._pt_tex = None
-        self._table = (None, None)  # (items, their page table) of the pass before, in a refined frame
+        # (items, GPU state, page table) of the frame before: kept while the frame loop draws the
+        # same cut again (the same merged list) over the same slots, and for a refined frame's passes
+        self._table = (None, None, None)
+        self._pt_data: np.ndarray | None = None  # what the page-table texture holds now
+        self.rows_written = 0  # page-table rows the last frame wrote (0: the table was kept)
+        self._levels: tuple = (None, [])  # (items, their sorted data levels)
 
     def _page_table_texture(self, entries: np.ndarray):
-        """The page-table texture (R32UI, :data:`PAGE_TABLE_WIDTH` entries per row), rewritten per frame."""
+        """The page-table texture (R32UI, :data:`PAGE_TABLE_WIDTH` entries per row) holding
+        ``entries``: only the band of rows that differ from what it holds is written (a sub-write;
+        none when nothing changed), the whole table when it grew or is new."""
         rows = max(1, -(-len(entries) // PAGE_TABLE_WIDTH))
         data = np.zeros(rows * PAGE_TABLE_WIDTH, dtype=np.uint32)
         data[:len(entries)] = entries
+        grid = data.reshape(rows, PAGE_TABLE_WIDTH)
         if self._pt_tex is None or self._pt_tex.size[1] < rows:
             if self._pt_tex is not None:
                 self._pt_tex.release()
             self._pt_tex = self.ctx.texture((PAGE_TABLE_WIDTH, rows), 1, dtype="u4")
             self._pt_tex.filter = (self.mgl.NEAREST, self.mgl.NEAREST)
-        self._pt_tex.write(data.tobytes(), viewport=(0, 0, PAGE_TABLE_WIDTH, rows))
+            self._pt_data = None
+        old = self._pt_data
+        if old is None or len(old) < rows:
+            r0, r1 = 0, rows
+        else:
+            changed = np.nonzero(np.any(old[:rows] != grid, axis=1))[0]
+            r0, r1 = (int(changed[0]), int(changed[-1]) + 1) if len(changed) else (0, 0)
+        if r1 > r0:
+            self._pt_tex.write(np.ascontiguousarray(grid[r0:r1]).tobytes(), viewport=(0, r0, PAGE_TABLE_WIDTH, r1 - r0))
+            if old is None or len(old) < rows:
+                old = self._pt_data = np.zeros((self._pt_tex.size[1], PAGE_TABLE_WIDTH), dtype=np.uint32)
+            old[r0:r1] = grid[r0:r1]
+        self.rows_written = r1 - r0
         return self._pt_tex
 
     def draw(self, cam, tf, items: list) -> tuple[np.ndarray, float, float] | None:
@@ -81,19 +101,24 @@ class SinglePassPath(DrawPath):
         if nlev > MAX_SINGLE_PASS_LEVELS:
             return None
         vlo, vhi = pyr.volume_box()
-        finest = params.step * min(float(min(pyr.levels[it.level].scale)) for it in items)
+        if self._levels[0] is not items:  # the data levels of the cut (kept with a kept cut's list)
+            self._levels = (items, sorted({int(it.level) for it in items}))
+        data_levels = self._levels[1]  # only these get a march in the shader's level chain
+        finest = params.step * min(float(min(pyr.levels[L].scale)) for L in data_levels)
         if float(np.linalg.norm(vhi - vlo)) / finest > MAX_SINGLE_PASS_RAY_SAMPLES:
             return None
         # items come merged (complete sibling sets are one node of the table, no face inside)
-        again = self.setup.repeats_pass() and self._table[0] is items  # a refined frame's later pass
-        table = self._table[1] if again else build_page_table(items, pyr, cache.open_faces)
-        self._table = (items, table)
+        # the table of the frame before, where the cut and the slots are the same: a refined frame's
+        # later pass, or a cut the frame loop drew again (the same merged list object)
+        state = (cache.generation, a.clip_texture.residency_version)
+        again = self._table[0] is items and (self.setup.repeats_pass() or self._table[1] == state)
+        table = self._table[2] if again else build_page_table(items, pyr, cache.open_faces)
+        self._table = (items, state, table)
         if table is None or len(table.entries) > MAX_PAGE_TABLE_ENTRIES:
             return None
         a.page_table_nodes = len(items)
         a.boxes_drawn = 1
         fbo, previous, t0 = self.setup.begin(cam, clear_value(params.mode))
-        data_levels = [it.level for it in items]  # only these get a march in the shader's level chain
         defines = dict(a.defines(), NUM_LEVELS=nlev, LEVEL_LO=min(data_levels), LEVEL_HI=max(data_levels))
         prog, vao = self.setup.program("screen.vert", "raymarch.frag", defines)
         a.program = prog
@@ -136,7 +161,11 @@ class SinglePassPath(DrawPath):
         uset(prog, "u_pt_width", PAGE_TABLE_WIDTH)
         uset(prog, "u_page_table", 2)
         uset(prog, "u_tf", 1)
-        (self._pt_tex if again else self._page_table_texture(table.entries)).use(location=2)
+        if again and self._pt_data is not None:
+            self.rows_written = 0
+        else:
+            self._page_table_texture(table.entries)
+        self._pt_tex.use(location=2)
         if params.mode == "composite":
             self.setup.tf_texture(tf).use(location=1)
         self.setup.bind_distribution(prog, tf)
@@ -158,4 +187,5 @@ class SinglePassPath(DrawPath):
         if self._pt_tex is not None:
             self._pt_tex.release()
         self._pt_tex = None
-        self._table = (None, None)
+        self._pt_data = None
+        self._table = (None, None, None)

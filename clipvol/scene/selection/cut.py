@@ -160,6 +160,12 @@ class Selection:
     node_data : dict
         Per-node data a policy attaches to the cut, keyed by ``(level, index)`` (e.g. importance,
         blend ratios); empty for the built-in volume policies.
+    frustum_culled : tuple of numpy.ndarray or None
+        ``(lo, hi)``, ``(m, 3)`` world boxes the camera's frustum culled while the cut was made,
+        kept where the policy's cut depends on the camera only through the frustum
+        (``policy.camera_free()``); None otherwise. With them,
+        :func:`~clipvol.scene.selection.coherence.cut_holds` tells whether the same cut is the
+        cut of another camera.
     """
 
     items: DrawItems
@@ -167,6 +173,7 @@ class Selection:
     counts: dict = field(default_factory=dict)
     policy: str = ""
     node_data: dict = field(default_factory=dict)
+    frustum_culled: tuple | None = None
 
     def __post_init__(self) -> None:
         # one form whoever builds it: the frame's set tests read the arrays, callers the elements

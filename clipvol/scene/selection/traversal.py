@@ -330,7 +330,15 @@ def select(pyramid, camera: Camera, params: RenderParams | None = None, *, resid
     tree = Octree(pyramid)
     policy = policy if policy is not None else policy_for(params)
     t = Traversal(tree, camera, params, policy, residency, transparent)
+    free = bool(getattr(policy, "camera_free", lambda: False)())
+    if free:  # keep what the frustum culled: the cut may then be drawn again for a turned camera
+        t.frustum_culled = []
     policy.cut(t)
+    culled = None
+    if free:
+        boxes = t.frustum_culled
+        culled = (np.concatenate([b[0] for b in boxes]) if boxes else _EMPTY3,
+                  np.concatenate([b[1] for b in boxes]) if boxes else _EMPTY3)
 
     if t.rec:
         data_lv = np.concatenate([np.full(len(r[1]), r[0], dtype=np.int64) for r in t.rec])
@@ -365,4 +373,4 @@ def select(pyramid, camera: Camera, params: RenderParams | None = None, *, resid
     items = DrawItems(np.concatenate([src_lv[order, None], src_idx[order]], axis=1), box_lo[order], box_hi[order])
     t.counts["texels"] = len(items) * tree.texels
     node_data = getattr(policy, "node_data", None)
-    return Selection(items, wanted, t.counts, params.policy, dict(node_data) if node_data else {})
+    return Selection(items, wanted, t.counts, params.policy, dict(node_data) if node_data else {}, culled)

@@ -44,6 +44,14 @@ class RefinePolicy:
     def __init__(self, params) -> None:
         self.params = params
 
+    def camera_free(self) -> bool:
+        """Does the cut depend on the camera only through the frustum? Then a cut stays the
+        same cut for another camera while no box the frustum culled enters the view and every
+        leaf stays in it (:mod:`clipvol.scene.selection.coherence`), and a frame loop may draw it
+        again instead of walking the octree (a fixed-level cut of thousands of bricks, orbited).
+        False unless a policy says so."""
+        return False
+
     def cut(self, t) -> None:
         if self.params.max_texels_drawn is not None:
             t.greedy(self.params.max_texels_drawn)

@@ -1,0 +1,196 @@
+"""What a frame costs the host when the cut holds thousands of bricks: clipvol's full-resolution frame
+against a plain one-texture caster at the same cameras, static, orbiting and flying.
+
+On a GPU the rays of a small image cost about a millisecond, so the frame is the host's work:
+selecting the cut, merging it, building the page table. A fixed-level cut does not change when the
+camera turns, and clipvol draws it again (:mod:`clipvol.render.frame_loop`, "Coherence"): its merged
+boxes and page table are kept with it, so a turning camera costs a check over flat arrays and a
+redraw. This benchmark measures that, and how it grows with the cut.
+
+Data: any clipvol store (``--store``, repeatable: the MNI ICBM152 T1 template bricked at 16^3 with
+``clipvol brick``), and the CT-like head of :func:`common.ct_volume` at ``--head`` sizes (bricked
+once into ``bench-data/`` at ``--brick``, default 16^3: a 512^3 head is a level-0 cut of thousands
+of bricks). Every brick resident and on the GPU (:class:`common.WarmScene`), the ``bone`` table,
+``policy="fixed", level=0``, step 1 voxel.
+
+Per volume and image size (``--images``, default 32 and 512), three camera sequences of
+``--frames`` frames each: **static** (one camera), **orbit** (1 degree a frame about the volume's
+centre) and **fly** (the eye 1 % of the distance nearer each frame). Each frame is drawn by
+
+* ``raw``: :class:`common.RawCaster` - the whole level 0 in one 3D texture, one pass, no bricks
+  (the reference outside clipvol's render path), stopping where clipvol stops;
+* ``clipvol``: a :class:`~clipvol.render.action.ClipRenderAction` (the default path, ``auto``),
+  keeping its cut between frames;
+* ``fresh``: the same action made to select, merge and build its tables from nothing every frame
+  (a policy instance passed per frame, which the frame loop never replays): what every frame cost
+  before the cut was kept;
+
+interleaved frame by frame (the order alternating), so a drift in the machine's load weighs on all
+three alike. Columns: the medians over the sequence's frames of each one's ms, ``clipvol``'s host
+ms and GL ms (:attr:`FrameStats.host_ms`, :attr:`FrameStats.gpu_ms`), the share of its frames that
+drew the kept cut, the CPU time of the rendering thread per frame for ``clipvol`` and ``fresh``
+(``time.thread_time``: the host's own work, which a shared machine's load does not inflate as it
+does wall times), and the ratios ``clipvol/raw`` and ``fresh/clipvol`` (medians over frames of the
+per-frame ratios). Rows go to ``tools/bench/results/bench_frame_cost.csv``.
+
+Runs as is on a machine with a GPU (``python tools/bench/bench_frame_cost.py``): the GL is whatever
+the context gets.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+if str(HERE) not in sys.path:
+    sys.path.insert(0, str(HERE))
+
+import common  # noqa: E402  (tools/bench/common.py, beside this script)
+
+STEP = 1.0
+
+
+def cameras(pyr, image: int, kind: str, frames: int) -> list:
+    """The ``kind`` sequence (static, orbit, fly) of ``frames`` cameras around ``pyr``'s volume."""
+    from clipvol.scene.camera import Camera
+
+    lo, hi = pyr.volume_box()
+    c = (lo + hi) / 2.0
+    dist = 1.05 * float(np.linalg.norm(hi - lo))
+    out = []
+    for k in range(frames):
+        deg = float(k) if kind == "orbit" else 0.0
+        scale = 0.99 ** k if kind == "fly" else 1.0
+        th = np.radians(30.0 + deg)
+        d = np.array([np.sin(th) * 0.7, 0.45, np.cos(th) * 0.7])
+        d /= np.linalg.norm(d)
+        out.append(Camera.perspective(tuple(c - d * dist * scale), tuple(c), up=(0, -1, 0), fov_y=35,
+                                      size=(image, image)))
+    return out
+
+
+def _timed(fn) -> float:
+    t = time.perf_counter()
+    fn()
+    return time.perf_counter() - t
+
+
+def _timed_cpu(fn, cpu: list) -> float:
+    """Wall seconds of ``fn``; appends the CPU seconds of this thread during it to ``cpu`` (the
+    host's own work: llvmpipe rasterises on its own threads, and a wait costs this thread nothing,
+    so the figure holds under a shared machine's load where wall times do not)."""
+    c = time.thread_time()
+    t = time.perf_counter()
+    fn()
+    wall = time.perf_counter() - t
+    cpu.append(time.thread_time() - c)
+    return wall
+
+
+def _load() -> str:
+    """The 1-minute load average where the system tells it (Linux), else empty."""
+    p = Path("/proc/loadavg")
+    return p.read_text().split()[0] if p.exists() else ""
+
+
+def run(store: Path, volume, label: str, images, frames: int, log=print) -> list[dict]:
+    from clipvol.render.action import OPAQUE
+    from clipvol.scene.selection.policies import policy_for
+
+    scene = common.WarmScene(store)
+    pyr, tf = scene.pyramid, scene.tf
+    raw = scene.raw_caster(volume)
+    kept = scene.action(policy="fixed", level=0, step=STEP)
+    fresh = scene.action(policy="fixed", level=0, step=STEP)
+    rows = []
+    try:
+        for image in images:
+            for kind in ("static", "orbit", "fly"):
+                cams = cameras(pyr, image, kind, frames)
+                for a in (kept, fresh):  # warm: every brick of the sequence on the GPU, programs built
+                    for cam in (cams[0], cams[-1], cams[0]):
+                        a.render(cam, tf, wait=True, timeout=900)
+                        if not a.last_frame_stats.converged:
+                            raise RuntimeError(f"{label}: the frame did not converge in 900 s ({image}^2 {kind})")
+                raw.render(kept._selection_camera(cams[0]), tf, STEP, OPAQUE)
+                t = {"raw": [], "clipvol": [], "fresh": []}
+                host, gpu, replayed, cpu_kept, cpu_fresh = [], [], [], [], []
+                bricks = kept.last_frame_stats.bricks_distinct
+                for k, cam in enumerate(cams):
+                    fc = kept._selection_camera(cam)
+                    order = ["raw", "clipvol", "fresh"] if k % 2 == 0 else ["fresh", "clipvol", "raw"]
+                    for name in order:
+                        if name == "raw":
+                            t[name].append(_timed(lambda: raw.render(fc, tf, STEP, OPAQUE)))
+                        elif name == "clipvol":
+                            t[name].append(_timed_cpu(lambda: kept.render(cam, tf), cpu_kept))
+                            st = kept.last_frame_stats
+                            host.append(st.host_ms)
+                            gpu.append(st.gpu_ms)
+                            replayed.append(st.replayed)
+                            bricks = max(bricks, st.bricks_distinct)
+                        else:  # a policy instance per frame: selected, merged and tabled from nothing
+                            t[name].append(_timed_cpu(lambda: fresh.render(cam, tf, policy=policy_for(fresh.params)),
+                                                      cpu_fresh))
+                med = {k: 1e3 * statistics.median(v) for k, v in t.items()}
+                row = {"date": time.strftime("%Y-%m-%d"), "volume": label, "image": image, "camera": kind,
+                       "frames": frames, "bricks": bricks, "raw_ms": round(med["raw"], 2),
+                       "clipvol_ms": round(med["clipvol"], 2), "fresh_ms": round(med["fresh"], 2),
+                       "host_ms": round(statistics.median(host), 2), "gpu_ms": round(statistics.median(gpu), 2),
+                       "clipvol_cpu_ms": round(1e3 * statistics.median(cpu_kept), 2),
+                       "fresh_cpu_ms": round(1e3 * statistics.median(cpu_fresh), 2),
+                       "replayed": round(float(np.mean(replayed)), 2),
+                       "clipvol_over_raw": round(statistics.median(c / r for c, r in zip(t["clipvol"], t["raw"])), 2),
+                       "fresh_over_clipvol": round(statistics.median(f / c for f, c in zip(t["fresh"], t["clipvol"])), 2),
+                       "load": _load()}
+                rows.append(row)
+                log(f"{label} {image}^2 {kind:6}: {bricks} bricks, raw {row['raw_ms']} ms, "
+                    f"clipvol {row['clipvol_ms']} ms "
+                    f"(host {row['host_ms']}, gl {row['gpu_ms']}, {100 * row['replayed']:.0f} % kept cut) = "
+                    f"{row['clipvol_over_raw']}x raw; from nothing {row['fresh_ms']} ms = "
+                    f"{row['fresh_over_clipvol']}x clipvol; main-thread CPU {row['clipvol_cpu_ms']} ms kept, "
+                    f"{row['fresh_cpu_ms']} ms from nothing; load {row['load']}")
+    finally:
+        scene.close()
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--store", type=Path, action="append", default=[],
+                    help="a clipvol store to measure (repeatable; its level 0 is read whole for the raw caster)")
+    ap.add_argument("--head", default="512",
+                    help="CT-like head edges to measure, comma separated (default 512; empty: none)")
+    ap.add_argument("--brick", type=int, default=16, help="the heads' brick edge (default 16)")
+    ap.add_argument("--data", type=Path, default=common.DATA, help="where the heads' stores are built once")
+    ap.add_argument("--images", default="32,512", help="image edges, comma separated (default 32,512)")
+    ap.add_argument("--frames", type=int, default=10, help="frames per camera sequence (default 10)")
+    ap.add_argument("--out", type=Path, default=common.RESULTS / "bench_frame_cost.csv")
+    a = ap.parse_args(argv)
+    if a.frames < 3:
+        ap.error(f"--frames: expected at least 3, got {a.frames}")
+    images = [int(v) for v in a.images.split(",")]
+    rows = []
+    for store in a.store:
+        from clipvol.paging.open import open_store
+
+        loader = open_store(store)
+        volume = common.WholeVolume(loader).read_brick(0, (0, 0, 0))
+        rows += run(store, volume, f"{store.name}, {loader.pyramid.brick_shape[0]}^3 bricks", images, a.frames)
+    for n in (int(v) for v in a.head.split(",") if v.strip()):
+        size = f"{n}x{n}x{n}"
+        store = common.ct_store(size, a.brick, a.data)
+        rows += run(store, common.ct_volume((n, n, n)), f"ct_head {size} uint16, {a.brick}^3 bricks", images, a.frames)
+    if not rows:
+        ap.error("nothing to measure: give --store or --head")
+    return common.save_rows(a.out, rows)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
