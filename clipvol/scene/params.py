@@ -16,15 +16,10 @@ import math
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from ..bricking.build_options import BRICK_RANGE
 from ..errors import ParameterError
 from ..units import parse_bytes
 from .geometry import Shape
 from .policy_registry import POLICIES, policy_names
-
-#: the longest sample step any frame may use: the largest brick edge a store may have; each store
-#: refuses a step longer than its own brick edge when drawn (``clipvol.render.paths.setup.check_step``)
-MAX_STEP = float(BRICK_RANGE[1])
 
 __all__ = ["RenderParams", "MODES", "ISO_COLORS", "PATHS", "CLASSIFY", "DEFAULT_BLOCK_BUDGET"]
 
@@ -296,9 +291,6 @@ class RenderParams:
         s(self, "distance_factor", _positive(self.distance_factor, "distance_factor", "node diagonals"))
         s(self, "fov_fraction", _positive(self.fov_fraction, "fov_fraction", "of the field of view"))
         s(self, "step", _positive(self.step, "step", "voxels"))
-        if self.step > MAX_STEP:  # past any brick edge: whole bricks would be stepped over (a blank image)
-            raise ParameterError(f"step: expected a number in (0, {MAX_STEP:g}] voxels (at most the largest brick "
-                                 f"edge; a store's own limit is its brick edge), got {self.step:g}")
         if policy == "fixed" and self.level is None:
             s(self, "level", 0)
         if self.level is not None:

@@ -105,7 +105,7 @@ def test_cli_render_crop_in_world_units_equals_the_reference(tmp_path):
     out = tmp_path / "cut.png"
     # world box x 8..30, y 4..26, z -2..14 (x, y, z), a plane keeping world x - z >= 10
     assert main(["render", str(store), "--out", str(out), "--size", "64x64", "--policy", "fixed", "--level", "0",
-                 "--eye=-20,-14,-30", "--target", "15.5,15.5,15.5", "--up", "0,-1,0", "--fov", "45",
+                 "--eye=-17,-12,-34", "--target", "18.5,17.5,11.5", "--up", "0,-1,0", "--fov", "45",  # world = render + origin
                  "--tf", "viridis", "--tf-range", "0.2,1", "--crop=8,4,-2,30,26,14",
                  "--clip-plane", "13,0,3,1,0,-1"]) == 0
     img = np.asarray(Image.open(out))

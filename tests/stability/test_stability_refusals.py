@@ -76,8 +76,8 @@ def test_a_nifti_with_no_voxel_size_is_refused_unless_spacing_is_given(tmp_path,
 def test_a_step_longer_than_a_brick_is_refused_naming_the_range(store, tmp_path, capsys):
     out = tmp_path / "a.png"
     assert main(["render", str(store), "--step", "1e9", "--size", "16x16", "-o", str(out)]) == 2
-    line = _err_line(capsys)  # past any brick edge: refused with the parameters
-    assert "step" in line and "(0, 256]" in line and "1e+09" in line, line
+    line = _err_line(capsys)  # past any brick edge: refused naming this store's range
+    assert "step" in line and "(0, 8]" in line and "1e+09" in line, line
     assert main(["render", str(store), "--step", "9", "--size", "16x16", "-o", str(out)]) == 2
     line = _err_line(capsys)  # past this store's brick edge (8): refused when drawn
     assert "step" in line and "(0, 8]" in line and "got 9" in line, line

@@ -114,19 +114,23 @@ def samples_per_box(cam, items, pyramid, step: float) -> float:
 
 
 def max_step(pyramid) -> float:
-    """The longest ``step`` (voxels of the drawn level) a frame of ``pyramid`` may use: one brick edge
-    (the shortest axis of its brick shape). A longer step lets a ray cross a brick without one sample,
-    so whole bricks vanish from the image (``--step 1e9`` drew a transparent frame)."""
-    return float(min(pyramid.brick_shape))
+    """The longest ``step`` (in units of the smallest voxel, as ``RenderParams.step``) a frame of
+    ``pyramid`` may use: a brick's longest edge in world units. A longer step lets a ray cross a
+    brick without one sample whatever its direction, so whole bricks vanish from the image
+    (``--step 1e9`` drew a transparent frame). Why the longest edge in world units and not a count
+    of voxels: the step is measured in the smallest voxel, and along the coarse axis of an
+    anisotropic volume (spacing 1e3 beside 1e-3) a right step is 1e5 of those."""
+    sp = np.asarray(pyramid.spacing, dtype=np.float64)
+    return float(np.max(np.asarray(pyramid.brick_shape, dtype=np.float64) * sp) / np.min(sp))
 
 
 def check_step(pyramid, step: float) -> None:
     """Refuse (ParameterError naming ``step`` and its range) a step longer than :func:`max_step`."""
     top = max_step(pyramid)
     if step > top:
-        raise ParameterError(f"step: expected a number in (0, {top:g}] voxels of the drawn level (at most one brick "
-                             f"edge: a longer step crosses bricks without a sample and leaves them out of the image), "
-                             f"got {step:g}")
+        raise ParameterError(f"step: expected a number in (0, {top:g}] of the smallest voxel (at most a brick's "
+                             f"longest edge: a longer step crosses bricks without a sample and leaves them out of the "
+                             f"image), got {step:g}")
 
 
 def check_samples(cam, items, pyramid, step: float) -> None:
