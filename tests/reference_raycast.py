@@ -260,6 +260,11 @@ def raycast_overlays(vol, spacing, camera, table, value_range, overlays, step: f
     function from an int array of ids to their straight RGBA ``(n, 4)``: each sample takes the id
     of the voxel whose cell holds the point (``floor(u + 0.5)``, never interpolated).
 
+    A sampled overlay is ``("rgba", fn)``: ``fn(p, ratio)`` gives, at the samples ``p`` ``(n, 3)``
+    (x, y, z in the primary's frame), their straight RGBA ``(n, 4)`` with the opacity already
+    corrected for the step ``ratio``, and a mask of the samples inside it (e.g. a map whose voxels
+    are classified first, then interpolated).
+
     ``blend="additive"`` (channels): a sample's colour is the sum of every layer's premultiplied
     colour (the primary's included), its opacity ``1 - prod(1 - a)``.
     """
@@ -287,7 +292,12 @@ def raycast_overlays(vol, spacing, camera, table, value_range, overlays, step: f
     p = o[pix] + t[:, None] * d[pix]
     # the layers of each sample, top first: the overlays, then the primary
     layers = []  # (straight RGBA per sample, inside its box)
+    corrected = set()  # layers whose opacity their sampler corrected
     for ov in overlays:
+        if isinstance(ov[0], str) and ov[0] == "rgba":
+            corrected.add(len(layers))
+            layers.append(ov[1](p, ratio))
+            continue
         labels = isinstance(ov[0], str) and ov[0] == "labels"
         ovol, osp, oorg = ov[1:4] if labels else ov[:3]
         osp = np.asarray(osp, dtype=np.float64)[::-1]
@@ -309,8 +319,8 @@ def raycast_overlays(vol, spacing, camera, table, value_range, overlays, step: f
     C = np.zeros((len(p), 3))
     A = np.zeros(len(p))
     T = np.ones(len(p))
-    for rgba, inside in layers:  # per sample: "under" each layer, top first (or their sum)
-        a = np.where(inside, correct_opacity(rgba[:, 3], ratio), 0.0)
+    for k, (rgba, inside) in enumerate(layers):  # per sample: "under" each layer, top first (or their sum)
+        a = np.where(inside, rgba[:, 3] if k in corrected else correct_opacity(rgba[:, 3], ratio), 0.0)
         if blend == "additive":
             C += a[:, None] * rgba[:, :3]
             T *= 1.0 - a
