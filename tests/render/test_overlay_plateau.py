@@ -9,7 +9,8 @@ the same lines: that mode is faithful to "interpolate, then classify".
 
 Sampled ``classified`` (the default: the 8 voxels classified, then their premultiplied colours
 interpolated) the blob keeps the plateau's saturation. Reference: the map's voxels classified by the
-table in numpy, each premultiplied RGBA channel interpolated by scipy's ``map_coordinates``.
+table in numpy, each premultiplied RGBA channel interpolated by scipy's ``map_coordinates``
+(``reference_raycast.classified_overlay``).
 """
 
 from __future__ import annotations
@@ -17,7 +18,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import reference_raycast as ref
-from scipy.ndimage import map_coordinates
 
 from clipvol.bricking.pipeline import brick_volume
 from clipvol.loaders.zarr_store import ZarrLoader
@@ -64,26 +64,6 @@ def _cameras():
     return {"straight": Camera.orthographic(tuple(c), (0, 0, -1), (0, 1, 0), ext[0], ext[1], size=(64, 64)),
             "tilted": Camera.perspective(tuple(c + np.array([8.0, 6.0, 110.0])), tuple(c), up=(0, 1, 0), fov_y=30,
                                          size=(64, 64))}
-
-
-def _classified(m, spacing, table, window):
-    """The reference sampler of a map classified first: per voxel its table colour (opacity corrected
-    for the step), premultiplied, each channel interpolated trilinearly at the samples (edge values
-    beyond the outer voxel centres), the straight colour divided back out."""
-    lo, hi = window
-    m = np.asarray(m, dtype=np.float64)
-    osp = np.asarray(spacing, dtype=np.float64)[::-1]
-    n = np.array(m.shape[::-1], dtype=np.float64)
-
-    def fn(p, ratio):
-        rgba = ref.tf_lookup(table, (np.nan_to_num(m) - lo) / (hi - lo))
-        a = np.where(np.isfinite(m), ref.correct_opacity(rgba[..., 3], ratio), 0.0)
-        u = p / osp  # (x, y, z) voxel coordinates
-        pm = [map_coordinates(rgba[..., c] * a, u[:, ::-1].T, order=1, mode="nearest") for c in range(3)]
-        A = map_coordinates(a, u[:, ::-1].T, order=1, mode="nearest")
-        rgb = np.stack(pm, axis=1) / np.maximum(A, 1e-300)[:, None]
-        return np.concatenate([rgb, A[:, None]], axis=1), np.all((u >= -0.5) & (u <= n - 0.5), axis=1)
-    return fn
 
 
 def _saturation(img: np.ndarray) -> np.ndarray:
@@ -136,7 +116,7 @@ def test_classified_overlay_equals_classify_then_interpolate(ctx, stores, view):
     cam = _cameras()[view].fit_depth(*ZarrLoader(d / "p.zarr").pyramid.volume_box())
     img = _render(ctx, d, cam, TF, MTF, "classified")
     r = ref.to_uint8(ref.raycast_overlays(prim, P_SPACING, cam, TF.table, (10.0, 20.0),
-                                          [("rgba", _classified(m, M_SPACING, MTF.table, (-CLIP, CLIP)))]))
+                                          [ref.classified_overlay(m, M_SPACING, (0.0, 0.0, 0.0), MTF.table, (-CLIP, CLIP))]))
     assert (r[..., 3] > 250).sum() > 400
     diff = np.abs(img.astype(int) - r.astype(int))
     assert diff.max() <= 3 and (diff > 1).mean() < 0.01, (diff.max(), (diff > 1).mean())
