@@ -16,7 +16,7 @@ Frame times of
   into plateaus at +-3, zeros elsewhere: uniform neighbourhoods take one lookup) sampled either
   way, with a label overlay instead (the map
   thresholded into 8 ids, nearest ids through a colour table), and with the overlay blended
-  additively (``blend="additive"``, as channels are).
+  additively (``blend="additive"``, sampled ``interpolated``, as channels are).
 
 Rounds are interleaved (the shared machine's load hits every configuration alike); medians of
 wall-clock and of process CPU time. Printed and written to ``tools/bench/results/bench_overlay.csv``: every time
@@ -74,7 +74,7 @@ def run(sizes, image: int, repeat: int, step: float, log=print) -> list[dict]:
                 "1 clipped map interpolated": ClipRenderAction(ctx, clip, overlays=(clipped["interpolated"],), **common),
                 "2 overlays": ClipRenderAction(ctx, clip, overlays=tuple(ovs), **common),
                 "label overlay": ClipRenderAction(ctx, clip, overlays=(lab,), **common),
-                "1 overlay additive": ClipRenderAction(ctx, clip, overlays=tuple(ovs[:1]), blend="additive", **common)}
+                "1 overlay additive": ClipRenderAction(ctx, clip, overlays=(interp,), blend="additive", **common)}
 
     rows = []
     for n, actions, mw, mc in raw_runs(sizes, image, repeat, step, make_actions):
