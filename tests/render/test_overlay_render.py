@@ -132,6 +132,8 @@ def test_bad_overlays_are_refused_naming_them(ctx, stores, tmp_path):
         clip.close()
     with pytest.raises(ParameterError, match="a.zarr.*transfer function.*'nope'"):
         Overlay(ZarrLoader(paths["a"]), "nope")
+    with pytest.raises(ParameterError, match="a.zarr.*sampling.*classified, interpolated.*'cubic'"):
+        Overlay(ZarrLoader(paths["a"]), sampling="cubic")
     ov = Overlay(ZarrLoader(paths["a"]))
     with pytest.raises(ParameterError, match="mode 'composite'"):
         RenderParams(mode="mip", overlays=(ov,))
