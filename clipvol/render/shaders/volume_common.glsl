@@ -242,7 +242,9 @@ vec4 overlay_one(sampler3D tex, sampler2D tf, mat3 a, vec3 b, vec2 tm, vec3 p, f
 // colours blended with the trilinear weights, straight colour back out. Between a saturated voxel and a
 // zero one lies a half-transparent saturated colour, never the pale middle of the table that the
 // interpolated value would pick (the "circuit-board" lines in a clipped, masked statistical map).
-// A non-finite voxel weighs in as transparent. Where the 8 values are equal one lookup serves.
+// A non-finite voxel weighs in as transparent. Each voxel's opacity is corrected for the sub-step
+// (1/n of the table row's step) before the blend, so the colour does not depend on the primary's
+// drawn level. Where the 8 values are equal one lookup serves.
 vec4 overlay_classified(sampler3D tex, sampler2D tf, mat3 a, vec3 b, vec2 tm, vec3 p, float row, float n) {
     vec3 c = a * p + b;
     if (any(lessThan(c, vec3(0.0))) || any(greaterThan(c, vec3(1.0)))) return vec4(0.0);   // outside its box
@@ -271,10 +273,11 @@ vec4 overlay_classified(sampler3D tex, sampler2D tf, mat3 a, vec3 b, vec2 tm, ve
             if (isnan(v[k]) || isinf(v[k])) continue;
             vec3 w3 = mix(1.0 - f, f, vec3(ivec3(k & 1, (k >> 1) & 1, (k >> 2) & 1)));
             vec4 q = texture(tf, vec2(v[k] * tm.x + tm.y, row));
+            if (n > 1.0) q.a = 1.0 - pow(1.0 - q.a, 1.0 / n);   // each voxel's opacity for the sub-step
             acc += (w3.x * w3.y * w3.z * q.a) * vec4(q.rgb, 1.0);
         }
         if (acc.a <= 0.0) return vec4(0.0);
-        s = vec4(acc.rgb / acc.a, acc.a);
+        return vec4(acc.rgb / acc.a, acc.a);
     }
     if (n > 1.0) s.a = 1.0 - pow(1.0 - s.a, 1.0 / n);
     return s;
