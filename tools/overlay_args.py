@@ -1,4 +1,5 @@
-"""``--overlay STORE[:TF[@LO,HI]]`` (repeatable), ``--overlay-sampling``, ``--label-overlay NAME`` and ``--label-colors`` for ``clipvol render`` and ``clipvol view``.
+"""``--overlay STORE[:TF[@LO,HI]]`` (repeatable), ``--overlay-sampling``, ``--label-overlay NAME`` and
+``--label-colors`` for ``clipvol render`` and ``clipvol view``.
 
 ``TF`` is a preset name (default ``diverging``: blue-grey-red, transparent around 0, its window
 symmetric about 0 from the data's range), ``auto`` (a window on the overlay's foreground) or a
@@ -7,7 +8,8 @@ beyond +-1 as colour, a threshold); ``TF`` ``labels`` draws an integer label sto
 per-label colours. ``--label-overlay NAME`` draws the source's own ``labels/NAME`` (from ``clipvol
 brick --labels``) the same way; ``--label-colors`` gives the colours
 (:class:`clipvol.scene.label_colors.LabelColors`). See :mod:`clipvol.scene.overlay` for how
-overlays are drawn.
+overlays are drawn. ``--overlay-sampling`` sets how ``--overlay`` maps are sampled between voxels
+(``classified``, the default, or ``interpolated``: :attr:`clipvol.scene.overlay.Overlay.sampling`).
 """
 
 from __future__ import annotations

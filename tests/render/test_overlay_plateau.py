@@ -116,7 +116,8 @@ def test_classified_overlay_equals_classify_then_interpolate(ctx, stores, view):
     cam = _cameras()[view].fit_depth(*ZarrLoader(d / "p.zarr").pyramid.volume_box())
     img = _render(ctx, d, cam, TF, MTF, "classified")
     r = ref.to_uint8(ref.raycast_overlays(prim, P_SPACING, cam, TF.table, (10.0, 20.0),
-                                          [ref.classified_overlay(m, M_SPACING, (0.0, 0.0, 0.0), MTF.table, (-CLIP, CLIP))]))
+                                          [ref.classified_overlay(m, M_SPACING, (0.0, 0.0, 0.0), MTF.table,
+                                                                  (-CLIP, CLIP))]))
     assert (r[..., 3] > 250).sum() > 400
     diff = np.abs(img.astype(int) - r.astype(int))
     assert diff.max() <= 3 and (diff > 1).mean() < 0.01, (diff.max(), (diff > 1).mean())

@@ -158,7 +158,8 @@ def test_transparent_primary_bricks_carry_the_overlay_and_are_culled_elsewhere(c
     clip = ClipTexture(ZarrLoader(tmp_path / "air.zarr"), "64MB", threads=2)
     try:
         with ClipRenderAction(ctx, clip, policy="fixed", level=0,
-                              overlays=(Overlay(ZarrLoader(tmp_path / "m.zarr"), m_tf, sampling="interpolated"),)) as action:
+                              overlays=(Overlay(ZarrLoader(tmp_path / "m.zarr"), m_tf,
+                                                sampling="interpolated"),)) as action:
             img = action.render(cam, tf, wait=True, timeout=30)
             drawn = {tuple(it.index) for it in action.last_selection.items}
     finally:

@@ -54,7 +54,8 @@ def test_coarse_primary_samples_the_map_at_its_own_step(ctx, stores, sampling):
                              fov_y=30, size=(96, 96))
     clip = ClipTexture(ZarrLoader(ppath), "64MB", threads=2)
     try:
-        with ClipRenderAction(ctx, clip, policy="fixed", level=2, overlays=(Overlay(ZarrLoader(mpath), otf, sampling=sampling),)) as act:
+        ov = Overlay(ZarrLoader(mpath), otf, sampling=sampling)
+        with ClipRenderAction(ctx, clip, policy="fixed", level=2, overlays=(ov,)) as act:
             img = act.render(cam, tf, wait=True, timeout=30)
             assert act.last_frame_stats.converged
             assert act.last_frame_stats.bricks_drawn == {2: 1}  # drawn from 4 mm voxels: a 2 mm step
