@@ -244,6 +244,34 @@ def raycast_levels(levels, regions, camera, table, value_range, step, mode="comp
     return img.reshape(h, w, 4)
 
 
+def classified_overlay(m, spacing, origin, table, value_range):
+    """A map sampled classified first, as a ``("rgba", fn)`` layer of :func:`raycast_overlays`: per
+    voxel its table colour (opacity corrected for the step, non-finite voxels transparent),
+    premultiplied, each channel interpolated by scipy's ``map_coordinates`` (linear, edge values
+    beyond the outer voxel centres) at the samples, the straight colour divided back out;
+    transparent outside the cells ``[-0.5, n - 0.5]``. ``spacing``, ``origin``: (z, y, x), as the
+    overlays of :func:`raycast_overlays`."""
+    from scipy.ndimage import map_coordinates
+
+    lo, hi = value_range
+    m = np.asarray(m, dtype=np.float64)
+    osp = np.asarray(spacing, dtype=np.float64)[::-1]
+    org = np.asarray(origin, dtype=np.float64)[::-1]
+    n = np.array(m.shape[::-1], dtype=np.float64)
+
+    def fn(p, ratio):
+        rgba = tf_lookup(table, (np.nan_to_num(m) - lo) / (hi - lo))
+        a = np.where(np.isfinite(m), correct_opacity(rgba[..., 3], ratio), 0.0)
+        u = (p - org) / osp  # (x, y, z) voxel coordinates
+        at = u[:, ::-1].T
+        pm = [map_coordinates(rgba[..., c] * a, at, order=1, mode="nearest") for c in range(3)]
+        A = map_coordinates(a, at, order=1, mode="nearest")
+        rgb = np.stack(pm, axis=1) / np.maximum(A, 1e-300)[:, None]
+        return np.concatenate([rgb, A[:, None]], axis=1), np.all((u >= -0.5) & (u <= n - 0.5), axis=1)
+
+    return ("rgba", fn)
+
+
 def raycast_overlays(vol, spacing, camera, table, value_range, overlays, step: float = 0.5, blend: str = "over"):
     """Reference render of a level-0 volume with co-registered overlays; premultiplied float RGBA ``(h, w, 4)``.
 
@@ -259,6 +287,11 @@ def raycast_overlays(vol, spacing, camera, table, value_range, overlays, step: f
     A label overlay is ``("labels", array (z, y, x) of ints, spacing, origin, rgba)``, ``rgba`` a
     function from an int array of ids to their straight RGBA ``(n, 4)``: each sample takes the id
     of the voxel whose cell holds the point (``floor(u + 0.5)``, never interpolated).
+
+    A sampled overlay is ``("rgba", fn)``: ``fn(p, ratio)`` gives, at the samples ``p`` ``(n, 3)``
+    (x, y, z in the primary's frame), their straight RGBA ``(n, 4)`` with the opacity already
+    corrected for the step ``ratio``, and a mask of the samples inside it (e.g. a map whose voxels
+    are classified first, then interpolated).
 
     ``blend="additive"`` (channels): a sample's colour is the sum of every layer's premultiplied
     colour (the primary's included), its opacity ``1 - prod(1 - a)``.
@@ -287,7 +320,12 @@ def raycast_overlays(vol, spacing, camera, table, value_range, overlays, step: f
     p = o[pix] + t[:, None] * d[pix]
     # the layers of each sample, top first: the overlays, then the primary
     layers = []  # (straight RGBA per sample, inside its box)
+    corrected = set()  # layers whose opacity their sampler corrected
     for ov in overlays:
+        if isinstance(ov[0], str) and ov[0] == "rgba":
+            corrected.add(len(layers))
+            layers.append(ov[1](p, ratio))
+            continue
         labels = isinstance(ov[0], str) and ov[0] == "labels"
         ovol, osp, oorg = ov[1:4] if labels else ov[:3]
         osp = np.asarray(osp, dtype=np.float64)[::-1]
@@ -309,8 +347,8 @@ def raycast_overlays(vol, spacing, camera, table, value_range, overlays, step: f
     C = np.zeros((len(p), 3))
     A = np.zeros(len(p))
     T = np.ones(len(p))
-    for rgba, inside in layers:  # per sample: "under" each layer, top first (or their sum)
-        a = np.where(inside, correct_opacity(rgba[:, 3], ratio), 0.0)
+    for k, (rgba, inside) in enumerate(layers):  # per sample: "under" each layer, top first (or their sum)
+        a = np.where(inside, rgba[:, 3] if k in corrected else correct_opacity(rgba[:, 3], ratio), 0.0)
         if blend == "additive":
             C += a[:, None] * rgba[:, :3]
             T *= 1.0 - a

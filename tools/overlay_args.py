@@ -1,4 +1,5 @@
-"""``--overlay STORE[:TF[@LO,HI]]`` (repeatable), ``--label-overlay NAME`` and ``--label-colors`` for ``clipvol render`` and ``clipvol view``.
+"""``--overlay STORE[:TF[@LO,HI]]`` (repeatable), ``--overlay-sampling``, ``--label-overlay NAME`` and
+``--label-colors`` for ``clipvol render`` and ``clipvol view``.
 
 ``TF`` is a preset name (default ``diverging``: blue-grey-red, transparent around 0, its window
 symmetric about 0 from the data's range), ``auto`` (a window on the overlay's foreground) or a
@@ -7,7 +8,8 @@ beyond +-1 as colour, a threshold); ``TF`` ``labels`` draws an integer label sto
 per-label colours. ``--label-overlay NAME`` draws the source's own ``labels/NAME`` (from ``clipvol
 brick --labels``) the same way; ``--label-colors`` gives the colours
 (:class:`clipvol.scene.label_colors.LabelColors`). See :mod:`clipvol.scene.overlay` for how
-overlays are drawn.
+overlays are drawn. ``--overlay-sampling`` sets how ``--overlay`` maps are sampled between voxels
+(``classified``, the default, or ``interpolated``: :attr:`clipvol.scene.overlay.Overlay.sampling`).
 """
 
 from __future__ import annotations
@@ -36,6 +38,11 @@ def add_overlay_arguments(g) -> None:
                         "palette at --label-opacity, id 0 transparent")
     g.add_argument("--label-opacity", type=float, default=0.3, metavar="A",
                    help="opacity of label ids without a colour of their own (default 0.3)")
+    g.add_argument("--overlay-sampling", choices=("classified", "interpolated"), default="classified",
+                   help="how --overlay maps are sampled between voxels: classified (default) looks up each of the 8 "
+                        "neighbouring voxels in the table and blends their colours, so a clipped, masked statistical "
+                        "map shows no pale lines where its plateaus step to zero; interpolated blends the values, "
+                        "then looks the result up (as the source is drawn)")
     g.add_argument("--overlay-budget", default=None, metavar="BYTES",
                    help="texture memory of each overlay: its finest level that fits is drawn (default 64MB; with "
                         "--channels, each channel gets the --texture-budget the first channel is drawn under)")
@@ -108,6 +115,7 @@ def overlays_from_args(args, source=None, primary=None) -> tuple:
     from clipvol.scene.overlay import DEFAULT_OVERLAY_BUDGET
 
     budget = args.overlay_budget if getattr(args, "overlay_budget", None) is not None else DEFAULT_OVERLAY_BUDGET
+    sampling = getattr(args, "overlay_sampling", None) or "classified"
     colors = None
     if getattr(args, "label_colors", None) is not None or getattr(args, "label_overlay", None):
         colors = LabelColors.parse(args.label_colors or "", getattr(args, "label_opacity", 0.3))
@@ -145,5 +153,5 @@ def overlays_from_args(args, source=None, primary=None) -> tuple:
             tf = TransferFunction.preset(name, value_range=rng)
         if rng is not None and not isinstance(tf, str):
             tf = tf.with_value_range(rng)
-        out.append(Overlay(loader, tf, texture_budget=budget, name=source))
+        out.append(Overlay(loader, tf, texture_budget=budget, name=source, sampling=sampling))
     return tuple(out)

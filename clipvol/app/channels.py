@@ -117,6 +117,8 @@ def open_channels(source, channels, *, windows=None, overlay_budget=None, textur
     origin = tuple(float(v) for v in store_origin(loaders[0]))  # one image: the channels share its frame
     if overlay_budget is None:
         overlay_budget = texture_budget if texture_budget is not None else RenderParams().texture_budget
-    overlays = tuple(Overlay(ld, tf, origin=origin, texture_budget=overlay_budget, name=f"{source} channel {c}")
+    # a channel is an intensity image like the first (drawn interpolated, then classified), not a thresholded map
+    overlays = tuple(Overlay(ld, tf, origin=origin, texture_budget=overlay_budget, name=f"{source} channel {c}",
+                             sampling="interpolated")
                      for (c, _), ld, tf in zip(chans[1:], loaders[1:], tfs[1:]))
     return loaders[0], tfs[0], overlays

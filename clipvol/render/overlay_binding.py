@@ -26,12 +26,15 @@ LABEL_TABLE_WIDTH = 4096
 
 
 def overlay_defines(overlays, blend: str = "over") -> dict:
-    """The shader ``#define``\\ s of ``overlays``: ``OVERLAY`` (their number) and ``OVERLAYk_LABELS``
-    for each label overlay ``k`` (see ``shaders/volume_common.glsl``)."""
+    """The shader ``#define``\\ s of ``overlays``: ``OVERLAY`` (their number), ``OVERLAYk_LABELS``
+    for each label overlay ``k`` and ``OVERLAYk_CLASSIFIED`` for each other overlay sampled
+    ``"classified"`` (see ``shaders/volume_common.glsl``)."""
     if not overlays:
         return {}
     out: dict = {"OVERLAY": len(overlays), "OVERLAY_ADDITIVE": blend == "additive"}
     out.update({f"OVERLAY{k}_LABELS": True for k, ov in enumerate(overlays) if ov.labels})
+    out.update({f"OVERLAY{k}_CLASSIFIED": True for k, ov in enumerate(overlays)
+                if not ov.labels and ov.sampling == "classified"})
     return out
 
 #: texture unit of the first overlay's volume (0: the primary's level, 1: its table, 2: the occlusion copy)

@@ -71,19 +71,22 @@ def _shift(origin):  # an overlay's origin in the primary's frame
     return tuple(np.subtract(origin, P_ORIGIN))
 
 
-@pytest.mark.parametrize("merge", [True, False], ids=["merged", "bricks"])
-def test_overlay_render_equals_the_numpy_two_volume_reference(ctx, stores, merge):
+@pytest.mark.parametrize("merge, sampling", [(True, "interpolated"), (False, "interpolated"), (True, "classified")],
+                         ids=["merged", "bricks", "classified"])
+def test_overlay_render_equals_the_numpy_two_volume_reference(ctx, stores, merge, sampling):
     vols, paths = stores
     tf = TransferFunction.preset("grey", value_range=(0.3, 1.0))
     a_tf = TransferFunction.preset("diverging", value_range=(-0.6, 0.6))  # thresholded: clear near 0
     cam = _camera()
-    ov = Overlay(ZarrLoader(paths["a"]), a_tf)
+    ov = Overlay(ZarrLoader(paths["a"]), a_tf, sampling=sampling)
     assert ov.origin == A_ORIGIN  # the store's own origin, from brick_volume(origin=)
     img = _render(ctx, paths["p"], cam, tf, [ov], merge_boxes=merge)
     plain = _render(ctx, paths["p"], cam, tf, [])
     fc = cam.fit_depth(*ZarrLoader(paths["p"]).pyramid.volume_box())
-    r = ref.to_uint8(ref.raycast_overlays(vols["p"], P_SPACING, fc, tf.table, (0.3, 1.0),
-                                          [(vols["a"], A_SPACING, _shift(A_ORIGIN), a_tf.table, (-0.6, 0.6))]))
+    layer = (vols["a"], A_SPACING, _shift(A_ORIGIN), a_tf.table, (-0.6, 0.6))
+    if sampling == "classified":  # the map's voxels classified, then interpolated
+        layer = ref.classified_overlay(*layer)
+    r = ref.to_uint8(ref.raycast_overlays(vols["p"], P_SPACING, fc, tf.table, (0.3, 1.0), [layer]))
     r_plain = ref.to_uint8(ref.raycast(vols["p"], P_SPACING, fc, tf.table, (0.3, 1.0), 0.5))
     # the overlay changes the picture much (else the comparison proves nothing), with blue and red
     assert np.abs(r.astype(int) - r_plain.astype(int))[..., :3].max() > 80
@@ -101,7 +104,8 @@ def test_two_overlays_first_on_top(ctx, stores):
     a_tf = TransferFunction.preset("diverging", value_range=(-0.6, 0.6))
     b_tf = TransferFunction.preset("viridis", value_range=(0.4, 0.7), opacity="flat")
     cam = _camera()
-    ovs = [Overlay(ZarrLoader(paths["a"]), a_tf), Overlay(ZarrLoader(paths["b"]), b_tf)]
+    ovs = [Overlay(ZarrLoader(paths["a"]), a_tf, sampling="interpolated"),
+           Overlay(ZarrLoader(paths["b"]), b_tf, sampling="interpolated")]
     img = _render(ctx, paths["p"], cam, tf, ovs)
     fc = cam.fit_depth(*ZarrLoader(paths["p"]).pyramid.volume_box())
     layers = [(vols["a"], A_SPACING, _shift(A_ORIGIN), a_tf.table, (-0.6, 0.6)),
@@ -128,6 +132,8 @@ def test_bad_overlays_are_refused_naming_them(ctx, stores, tmp_path):
         clip.close()
     with pytest.raises(ParameterError, match="a.zarr.*transfer function.*'nope'"):
         Overlay(ZarrLoader(paths["a"]), "nope")
+    with pytest.raises(ParameterError, match="a.zarr.*sampling.*classified, interpolated.*'cubic'"):
+        Overlay(ZarrLoader(paths["a"]), sampling="cubic")
     ov = Overlay(ZarrLoader(paths["a"]))
     with pytest.raises(ParameterError, match="mode 'composite'"):
         RenderParams(mode="mip", overlays=(ov,))
@@ -152,7 +158,8 @@ def test_transparent_primary_bricks_carry_the_overlay_and_are_culled_elsewhere(c
     clip = ClipTexture(ZarrLoader(tmp_path / "air.zarr"), "64MB", threads=2)
     try:
         with ClipRenderAction(ctx, clip, policy="fixed", level=0,
-                              overlays=(Overlay(ZarrLoader(tmp_path / "m.zarr"), m_tf),)) as action:
+                              overlays=(Overlay(ZarrLoader(tmp_path / "m.zarr"), m_tf,
+                                                sampling="interpolated"),)) as action:
             img = action.render(cam, tf, wait=True, timeout=30)
             drawn = {tuple(it.index) for it in action.last_selection.items}
     finally:

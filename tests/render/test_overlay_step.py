@@ -2,6 +2,9 @@
 (4 mm voxels, a 2 mm step) over a 3 mm map of a smooth saturated blob renders like the numpy
 reference sampling the map every 1.5 mm or finer (``reference_raycast.raycast_overlays`` with a 1 mm
 lattice), not like the same reference at the primary's 2 mm step, which shows the stair-step rings.
+Sampled classified, the reference classifies the map's voxels (opacity for the 1 mm step) and
+interpolates their colours (``reference_raycast.classified_overlay``): the shader corrects each
+voxel's opacity for the sub-step before blending them.
 """
 
 from __future__ import annotations
@@ -42,7 +45,8 @@ def stores(tmp_path_factory):
     return p, m, d / "p.zarr", d / "m.zarr"
 
 
-def test_coarse_primary_samples_the_map_at_its_own_step(ctx, stores):
+@pytest.mark.parametrize("sampling", ["interpolated", "classified"])
+def test_coarse_primary_samples_the_map_at_its_own_step(ctx, stores, sampling):
     p, m, ppath, mpath = stores
     tf = TransferFunction.preset("grey", value_range=(0.5, 1.0))
     otf = TransferFunction.preset("inferno", value_range=(0.3, 1.0))
@@ -50,14 +54,16 @@ def test_coarse_primary_samples_the_map_at_its_own_step(ctx, stores):
                              fov_y=30, size=(96, 96))
     clip = ClipTexture(ZarrLoader(ppath), "64MB", threads=2)
     try:
-        with ClipRenderAction(ctx, clip, policy="fixed", level=2, overlays=(Overlay(ZarrLoader(mpath), otf),)) as act:
+        ov = Overlay(ZarrLoader(mpath), otf, sampling=sampling)
+        with ClipRenderAction(ctx, clip, policy="fixed", level=2, overlays=(ov,)) as act:
             img = act.render(cam, tf, wait=True, timeout=30)
             assert act.last_frame_stats.converged
             assert act.last_frame_stats.bricks_drawn == {2: 1}  # drawn from 4 mm voxels: a 2 mm step
     finally:
         clip.close()
     fc = cam.fit_depth(*ZarrLoader(ppath).pyramid.volume_box())
-    layer = [(m, M_SPACING, (0.0, 0.0, 0.0), otf.table, (0.3, 1.0))]
+    layer = (m, M_SPACING, (0.0, 0.0, 0.0), otf.table, (0.3, 1.0))
+    layer = [ref.classified_overlay(*layer) if sampling == "classified" else layer]
     fine = ref.to_uint8(ref.raycast_overlays(p, (1, 1, 1), fc, tf.table, (0.5, 1.0), layer, step=1.0))
     coarse = ref.to_uint8(ref.raycast_overlays(p, (1, 1, 1), fc, tf.table, (0.5, 1.0), layer, step=2.0))
     assert (fine[..., 3] > 200).sum() > 300  # the blob is large and saturated in the picture

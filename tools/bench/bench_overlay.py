@@ -10,9 +10,13 @@ Frame times of
 
 * ``raw``: :class:`bench_render.RawCaster`, the plain one-texture ray caster written for the
   benchmarks outside clipvol's render path - the baseline;
-* clipvol's per-brick path without and with the overlay (one and two overlays), with a label
-  overlay instead (the map thresholded into 8 ids, nearest ids through a colour table), and with
-  the overlay blended additively (``blend="additive"``, as channels are).
+* clipvol's per-brick path without and with the overlay (one and two overlays, sampled
+  ``classified``, the default: 8 voxels looked up in the table a sample), the one overlay sampled
+  ``interpolated`` (one filtered read, one lookup), a map of the clinical kind (the blobs clipped
+  into plateaus at +-3, zeros elsewhere: uniform neighbourhoods take one lookup) sampled either
+  way, with a label overlay instead (the map
+  thresholded into 8 ids, nearest ids through a colour table), and with the overlay blended
+  additively (``blend="additive"``, sampled ``interpolated``, as channels are).
 
 Rounds are interleaved (the shared machine's load hits every configuration alike); medians of
 wall-clock and of process CPU time. Printed and written to ``tools/bench/results/bench_overlay.csv``: every time
@@ -38,6 +42,12 @@ def _signed_map(n: int, seed: int) -> np.ndarray:
     return (6.0 * v / np.abs(v).max()).astype(np.float32)
 
 
+def _clipped_map(n: int, seed: int) -> np.ndarray:
+    """A statistical map of the clinical kind: the smooth map's blobs clipped at +-3 (plateaus), zeros elsewhere."""
+    v = _signed_map(n, seed)
+    return np.where(np.abs(v) > 1.5, np.clip(2.0 * v, -3.0, 3.0), 0.0).astype(np.float32)
+
+
 def run(sizes, image: int, repeat: int, step: float, log=print) -> list[dict]:
     from clipvol.loaders.numpy_array import NumpyLoader
     from clipvol.render.action import ClipRenderAction
@@ -53,18 +63,26 @@ def run(sizes, image: int, repeat: int, step: float, log=print) -> list[dict]:
         ids = np.digitize(_signed_map(m, 1), [-4, -2, -1, 0, 1, 2, 4]).astype(np.uint16)  # 8 labels
         lab = Overlay(NumpyLoader(ids, brick=64, spacing=(2.0, 2.0, 2.0), value_range=(0.0, 7.0)), LabelColors(),
                       origin=(n / 4.0,) * 3, name="labels")
+        interp = Overlay(ovs[0].loader, ovs[0].tf, origin=ovs[0].origin, name="map1", sampling="interpolated")
+        clipped = {smp: Overlay(NumpyLoader(_clipped_map(m, 1), brick=64, spacing=(2.0, 2.0, 2.0)),
+                                TransferFunction.preset("diverging", value_range=(-3.0, 3.0)), origin=(n / 4.0,) * 3,
+                                name=f"clipped {smp}", sampling=smp) for smp in ("classified", "interpolated")}
         return {"single": ClipRenderAction(ctx, clip, **common),
                 "1 overlay": ClipRenderAction(ctx, clip, overlays=tuple(ovs[:1]), **common),
+                "1 overlay interpolated": ClipRenderAction(ctx, clip, overlays=(interp,), **common),
+                "1 clipped map": ClipRenderAction(ctx, clip, overlays=(clipped["classified"],), **common),
+                "1 clipped map interpolated": ClipRenderAction(ctx, clip, overlays=(clipped["interpolated"],), **common),
                 "2 overlays": ClipRenderAction(ctx, clip, overlays=tuple(ovs), **common),
                 "label overlay": ClipRenderAction(ctx, clip, overlays=(lab,), **common),
-                "1 overlay additive": ClipRenderAction(ctx, clip, overlays=tuple(ovs[:1]), blend="additive", **common)}
+                "1 overlay additive": ClipRenderAction(ctx, clip, overlays=(interp,), blend="additive", **common)}
 
     rows = []
     for n, actions, mw, mc in raw_runs(sizes, image, repeat, step, make_actions):
         m = n // 2
         row = dict(size=n, overlay_size=m, image=image, repeat=repeat, raw_s=round(mw["raw"], 4),
                    **ratio_columns(mw, mc, actions))
-        extra = ("1 overlay", "2 overlays", "label overlay", "1 overlay additive")
+        extra = ("1 overlay", "1 overlay interpolated", "1 clipped map", "1 clipped map interpolated", "2 overlays",
+                 "label overlay", "1 overlay additive")
         for k in extra:
             key = k.replace(" ", "_")
             row[f"{key}_over_single"] = round(mw[k] / mw["single"], 3)

@@ -7,6 +7,8 @@
 //   HAS_NAN   the data may hold NaN/Inf: trilinear over the finite neighbours only
 //   SHADING   composite only: Blinn-Phong lighting from central-difference gradients, light at the eye
 //   OVERLAY   composite only: the number (1..3) of co-registered overlay volumes sampled at each sample
+//             (OVERLAYk_LABELS: overlay k nearest through its id table; OVERLAYk_CLASSIFIED: its 8
+//             voxels classified, then interpolated; neither: interpolated, then classified)
 //   EMPTY_SKIP composite without overlays: leap over cells the transfer function makes transparent
 //   DISTRIB   composite, finite data: the level textures hold (mean, spread) per voxel (.rg; a level
 //             without spread reads 0 there) and a sample is classified by the transfer function
@@ -234,6 +236,53 @@ vec4 overlay_one(sampler3D tex, sampler2D tf, mat3 a, vec3 b, vec2 tm, vec3 p, f
     return s;
 }
 
+// One overlay's sample at p, classified before it is interpolated (OVERLAYk_CLASSIFIED, the default
+// for maps): the 8 voxels around c (texelFetch at the clamped integer corners of the trilinear cell,
+// the clamp-to-edge addressing texture() uses) each looked up in the table, their premultiplied
+// colours blended with the trilinear weights, straight colour back out. Between a saturated voxel and a
+// zero one lies a half-transparent saturated colour, never the pale middle of the table that the
+// interpolated value would pick (the "circuit-board" lines in a clipped, masked statistical map).
+// A non-finite voxel weighs in as transparent. Each voxel's opacity is corrected for the sub-step
+// (1/n of the table row's step) before the blend, so the colour does not depend on the primary's
+// drawn level. Where the 8 values are equal one lookup serves.
+vec4 overlay_classified(sampler3D tex, sampler2D tf, mat3 a, vec3 b, vec2 tm, vec3 p, float row, float n) {
+    vec3 c = a * p + b;
+    if (any(lessThan(c, vec3(0.0))) || any(greaterThan(c, vec3(1.0)))) return vec4(0.0);   // outside its box
+    ivec3 size = textureSize(tex, 0);
+    vec3 u = c * vec3(size) - 0.5;
+    vec3 fl = floor(u);
+    vec3 f = u - fl;
+    ivec3 i0 = clamp(ivec3(fl), ivec3(0), size - 1);
+    ivec3 i1 = clamp(ivec3(fl) + 1, ivec3(0), size - 1);
+    float v[8];
+    v[0] = texelFetch(tex, ivec3(i0.x, i0.y, i0.z), 0).r;
+    v[1] = texelFetch(tex, ivec3(i1.x, i0.y, i0.z), 0).r;
+    v[2] = texelFetch(tex, ivec3(i0.x, i1.y, i0.z), 0).r;
+    v[3] = texelFetch(tex, ivec3(i1.x, i1.y, i0.z), 0).r;
+    v[4] = texelFetch(tex, ivec3(i0.x, i0.y, i1.z), 0).r;
+    v[5] = texelFetch(tex, ivec3(i1.x, i0.y, i1.z), 0).r;
+    v[6] = texelFetch(tex, ivec3(i0.x, i1.y, i1.z), 0).r;
+    v[7] = texelFetch(tex, ivec3(i1.x, i1.y, i1.z), 0).r;
+    vec4 s;
+    if (v[0] == v[1] && v[0] == v[2] && v[0] == v[3] && v[0] == v[4] && v[0] == v[5] && v[0] == v[6] && v[0] == v[7]) {
+        if (isnan(v[0]) || isinf(v[0])) return vec4(0.0);
+        s = texture(tf, vec2(v[0] * tm.x + tm.y, row));
+    } else {
+        vec4 acc = vec4(0.0);
+        for (int k = 0; k < 8; ++k) {
+            if (isnan(v[k]) || isinf(v[k])) continue;
+            vec3 w3 = mix(1.0 - f, f, vec3(ivec3(k & 1, (k >> 1) & 1, (k >> 2) & 1)));
+            vec4 q = texture(tf, vec2(v[k] * tm.x + tm.y, row));
+            if (n > 1.0) q.a = 1.0 - pow(1.0 - q.a, 1.0 / n);   // each voxel's opacity for the sub-step
+            acc += (w3.x * w3.y * w3.z * q.a) * vec4(q.rgb, 1.0);
+        }
+        if (acc.a <= 0.0) return vec4(0.0);
+        return vec4(acc.rgb / acc.a, acc.a);
+    }
+    if (n > 1.0) s.a = 1.0 - pow(1.0 - s.a, 1.0 / n);
+    return s;
+}
+
 // A label overlay (OVERLAYk_LABELS): the texture holds per voxel the index of its id among the
 // ids present; the id's colour is texel (k % w, k / w) of the table (straight RGBA, opacity per the
 // primary's level-0 voxel, corrected here for the step delta). Nearest: the voxel whose cell holds p.
@@ -252,16 +301,22 @@ vec4 overlay_label(sampler3D tex, sampler2D tab, mat3 a, vec3 b, vec3 p, float d
 
 #ifdef OVERLAY0_LABELS
 #define OVERLAY0(p, row, delta, n) overlay_label(u_ov0_tex, u_ov0_tf, u_ov0_a, u_ov0_b, p, delta / n)
+#elif defined(OVERLAY0_CLASSIFIED)
+#define OVERLAY0(p, row, delta, n) overlay_classified(u_ov0_tex, u_ov0_tf, u_ov0_a, u_ov0_b, u_ov0_t, p, row, n)
 #else
 #define OVERLAY0(p, row, delta, n) overlay_one(u_ov0_tex, u_ov0_tf, u_ov0_a, u_ov0_b, u_ov0_t, p, row, n)
 #endif
 #ifdef OVERLAY1_LABELS
 #define OVERLAY1(p, row, delta, n) overlay_label(u_ov1_tex, u_ov1_tf, u_ov1_a, u_ov1_b, p, delta / n)
+#elif defined(OVERLAY1_CLASSIFIED)
+#define OVERLAY1(p, row, delta, n) overlay_classified(u_ov1_tex, u_ov1_tf, u_ov1_a, u_ov1_b, u_ov1_t, p, row, n)
 #else
 #define OVERLAY1(p, row, delta, n) overlay_one(u_ov1_tex, u_ov1_tf, u_ov1_a, u_ov1_b, u_ov1_t, p, row, n)
 #endif
 #ifdef OVERLAY2_LABELS
 #define OVERLAY2(p, row, delta, n) overlay_label(u_ov2_tex, u_ov2_tf, u_ov2_a, u_ov2_b, p, delta / n)
+#elif defined(OVERLAY2_CLASSIFIED)
+#define OVERLAY2(p, row, delta, n) overlay_classified(u_ov2_tex, u_ov2_tf, u_ov2_a, u_ov2_b, u_ov2_t, p, row, n)
 #else
 #define OVERLAY2(p, row, delta, n) overlay_one(u_ov2_tex, u_ov2_tf, u_ov2_a, u_ov2_b, u_ov2_t, p, row, n)
 #endif
