@@ -300,7 +300,13 @@ class ClipTexture:
                 self.allocation = allocate(self.pyramid, self.memory_budget - extra)
             except ParameterError:  # too tight to take it off: split the budget by bytes per voxel
                 it = self.pyramid.dtype.itemsize
-                self.allocation = allocate(self.pyramid, self.memory_budget * it // (it + sp))
+                try:
+                    self.allocation = allocate(self.pyramid, self.memory_budget * it // (it + sp))
+                except ParameterError:
+                    # a budget that holds the bricks but not their spread beside them: the coarse levels
+                    # classify their means, as a store without the spread does (a budget that worked
+                    # before the spread existed still works)
+                    self.spread_levels = ()
         self.whole_levels: tuple[int, ...] = self.allocation.whole_levels
         pyr = self.pyramid
         #: cells of each brick whose value ranges the loader threads compute (None: an odd brick extent)
