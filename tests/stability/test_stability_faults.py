@@ -341,6 +341,11 @@ def test_object_and_structured_stores_refused_nothing_unpickled(tmp_path, dtype)
 def test_v3_non_numeric_data_type_refused(store):
     _, out = store
     _edit_json(out / "0" / "zarr.json", lambda d: d.__setitem__("data_type", "string"))
+    with pytest.raises(StoreFormatError, match=r"level 0: dtype \(data_type\) differs"):  # the manifest's pin
+        ZarrLoader(out)
+    cv = json.loads((out / "zarr.json").read_text())
+    cv["attributes"]["clipvol"].pop("manifest")  # nothing pins it: the level's own check names it
+    (out / "zarr.json").write_text(json.dumps(cv))
     with pytest.raises(InputFormatError, match="data_type"):
         ZarrLoader(out)
 
@@ -360,7 +365,17 @@ def _interrupt_when(proc: subprocess.Popen, ready, timeout=60.0) -> None:
 
 
 def _chunks(store: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(store)): p.read_bytes() for p in sorted(store.rglob("*")) if p.is_file()
+    """Every file of ``store`` but its zarr.json metadata; the manifest without the multiscale list's
+    name (the store's own folder name, which it pins with the list)."""
+    def content(p: Path) -> bytes:
+        if p.name != "manifest.json":
+            return p.read_bytes()
+        doc = json.loads(p.read_text())
+        for m in doc.get("multiscales") or ():
+            m.pop("name", None)
+        return json.dumps(doc, sort_keys=True).encode()
+
+    return {str(p.relative_to(store)): content(p) for p in sorted(store.rglob("*")) if p.is_file()
             and p.name != "zarr.json"}
 
 
