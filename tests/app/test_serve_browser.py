@@ -200,11 +200,11 @@ def test_presets_transfer_function_mode_slice_and_probe(browser, server, stores,
         type_in("window-high", "0.7")  # its change sends both ends
         windowed, _ = _full_after(browser, n)
         n = _full(browser)
-        type_in("crop", "0,0,0,48,48,24")  # the half at low x
+        type_in("crop", "0,0,0,24,48,48")  # x, y, z: the half at low x
         cropped, _ = _full_after(browser, n)
         assert np.abs(cropped.astype(int) - windowed.astype(int)).max() > 20
         _same(cropped, _render(stores / "v.zarr", tmp_path, "--view", "front", "--tf", "grey", "--mode", "mip",
-                               "--tf-range", "0.02,0.7", "--crop-voxels", "0:48,0:48,0:24"))
+                               "--tf-range", "0.02,0.7", "--crop-voxels", "0:24,0:48,0:48"))
         n = _full(browser)
         type_in("crop", "")
         _full_after(browser, n)

@@ -56,7 +56,7 @@ def test_apply_checks_every_field_and_applies_all_or_nothing(pyr):
     before = s.public()
     for bad, field in [({"zoom": 2.5, "tf": "nope"}, "tf"), ({"elevation": 120}, "elevation"),
                        ({"zoom": float("nan")}, "zoom"), ({"mode": "x"}, "mode"), ({"view": "anterior"}, "view"),
-                       ({"window": [3, 1]}, "window"), ({"crop_voxels": [0, 0, 0, 41, 8, 8]}, "crop_voxels"),
+                       ({"window": [3, 1]}, "window"), ({"crop_voxels": [0, 0, 0, 8, 8, 41]}, "crop_voxels"),
                        ({"crop_voxels": "0,0"}, "crop_voxels"), ({"clip_plane": [0, 0, 0, 0, 0, 0]}, "clip_plane"),
                        ({"slice": "oblique"}, "slice"), ({"handled": 3}, "handled"), ({"zoom": True}, "zoom")]:
         with pytest.raises(ParameterError, match=field):
@@ -69,7 +69,7 @@ def test_apply_checks_every_field_and_applies_all_or_nothing(pyr):
 def test_the_cut_is_the_crop_box_in_voxels(pyr):
     s = _state(pyr)
     assert s.cut(pyr) is None
-    s.apply({"crop_voxels": [0, 0, 0, 20, 48, 56]})
+    s.apply({"crop_voxels": [0, 0, 0, 56, 48, 20]})  # x, y, z
     shape = s.cut(pyr)
     sp = np.asarray(pyr.spacing, dtype=float)[::-1]
     inside = np.array([[10, 10, 10], [10, 10, 30]], dtype=float) * sp  # (x, y, z) points: z 10 in, z 30 out

@@ -165,10 +165,11 @@ class ViewState:
             elif k == "crop_voxels":
                 c = _numbers(k, v, 6)
                 if c is not None:
-                    lo, hi = np.asarray(c[:3]), np.asarray(c[3:])
-                    if not (np.all(lo >= 0) and np.all(hi <= np.asarray(self.shape)) and np.all(lo < hi)):
-                        raise ParameterError(f"crop_voxels: expected z0,y0,x0,z1,y1,x1 with 0 <= start < stop <= "
-                                             f"{tuple(self.shape)}, got {c}")
+                    lo, hi = np.asarray(c[:3]), np.asarray(c[3:])  # x, y, z: as every coordinate a user types
+                    xyz = np.asarray(self.shape)[::-1]
+                    if not (np.all(lo >= 0) and np.all(hi <= xyz) and np.all(lo < hi)):
+                        raise ParameterError(f"crop_voxels: expected x0,y0,z0,x1,y1,z1 with 0 <= start < stop <= "
+                                             f"{tuple(int(n) for n in xyz)} (x, y, z), got {c}")
                 new[k] = c
             elif k == "clip_plane":
                 c = _numbers(k, v, 6)
@@ -199,6 +200,7 @@ class ViewState:
         """The :class:`~clipvol.scene.cut.Shape` of the crop box and clip plane, or None."""
         from ...scene.cut import cut_shape
 
-        crop = None if self.crop_voxels is None else (self.crop_voxels[:3], self.crop_voxels[3:])
+        # typed x, y, z (as the CLI's --crop-voxels); the library takes numpy's z, y, x
+        crop = None if self.crop_voxels is None else (tuple(self.crop_voxels[:3])[::-1], tuple(self.crop_voxels[3:])[::-1])
         planes = [self.clip_plane] if self.clip_plane is not None else []
         return cut_shape(pyramid, frame, crop_voxels=crop, clip_planes=planes)

@@ -131,7 +131,7 @@ function start(hello) {
   sl.onchange = () => { fit(); change({ slice: sl.value, slice_index: sl.value ? Number(idx.value) : null }); };
   idx.oninput = () => change({ slice_index: Number(idx.value) });
 
-  const crop = control(box, "crop voxels z0,y0,x0,z1,y1,x1", document.createElement("input"));
+  const crop = control(box, "crop voxels x0,y0,z0,x1,y1,z1", document.createElement("input"));
   crop.type = "text"; crop.placeholder = "whole volume"; crop.id = "crop";
   crop.onchange = () => change({ crop_voxels: numbers(crop.value, 6) });
   const clip = control(box, "clip plane x,y,z,nx,ny,nz", document.createElement("input"));
