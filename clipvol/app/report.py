@@ -213,6 +213,6 @@ def run_report(
             p = plot_lod_sweep(result.lod_rows, out / "lod_budget.png")
             if p is not None:
                 result.plots.append(p)
-    write_markdown(result, pyr, size=size, path=path, tf=tf, mode=mode, step=step, cap=cap)
+    write_markdown(result, pyr, size=size, path=path, tf=tf, mode=mode, step=step, cap=cap, classify=classify)
     return result
 

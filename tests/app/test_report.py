@@ -398,6 +398,7 @@ def test_cli_classify_reaches_every_frame(tmp_path, ctx, monkeypatch, flag, want
                "--no-plots", "--tf", "bone", *flag])
     assert rc == 0
     assert len(seen) >= 4 and set(seen) == {want}, seen
+    assert f"(`--classify {want}`)" in (tmp_path / "rep" / "report.md").read_text()  # the report says what it drew
 
 
 def test_cli_rejects_an_unknown_classify(tmp_path, capsys):
