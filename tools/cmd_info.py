@@ -315,6 +315,15 @@ def run(args: argparse.Namespace) -> int:
     else:
         share = f", {100.0 * sb / tot_disk:.1f} % of the bricks on disk" if tot_disk else ""
         print(f"summary    tables {format_bytes(sb)}{share}")
+    from clipvol.bricking.spread import spread_on_disk
+
+    sp = spread_on_disk(path)
+    if sp is not None:
+        share = f", {100.0 * sp[1] / tot_disk:.1f} % of the bricks on disk" if tot_disk else ""
+        print(f"spread     levels {', '.join(map(str, sp[0]))} (the std of the level-0 voxels beneath each coarse "
+              f"voxel: --classify distribution), {format_bytes(sp[1])}{share}")
+    elif meta is not None and pyr.num_levels > 1 and pyr.filter == "mean":
+        print("spread     none (coarse levels are classified by their mean; clipvol brick writes the spread)")
     vox = pyr.shape[0] * pyr.shape[1] * pyr.shape[2] * it
     print(f"total      {format_bytes(tot_disk)} on disk for {format_bytes(vox)} of level 0; "
           f"compression ratio {tot_raw / tot_disk:.2f} (voxels in written chunks, no padding, over their files)"

@@ -95,7 +95,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_tf_arguments(p.add_argument_group("transfer function"))
     from clipvol.tools.render_args import add_render_arguments
 
-    add_render_arguments(p, ("mode", "iso_value", "step"))
+    add_render_arguments(p, ("mode", "iso_value", "step", "classify"))
     add_common_arguments(p, ("threads", "timeout", "allow_partial"),
                          timeout=dict(default=120.0, help="seconds to wait for a converged frame"))
     p.add_argument("--max-frames", type=int, default=8, help="as-it-comes frames per view at most")
@@ -203,7 +203,7 @@ def run(args) -> int:
         reference_cap=args.reference_cap, log=lambda s: print(s, flush=True), plots=not args.no_plots,
         block_budgets=_budgets(args.block_budgets), rounds=args.rounds, allow_partial=args.allow_partial,
         max_errors=_max_errors(args.max_error), refines=_refines(args.refine), frame=args.frame,
-        supersample=args.supersample, converged_step=args.converged_step,
+        supersample=args.supersample, converged_step=args.converged_step, classify=args.classify,
     )
     print(f"wrote {res.csv}, {res.timing_csv}, {res.markdown}" + "".join(f", {p}" for p in res.plots))
     print(res.headline[:1].upper() + res.headline[1:] + ".")

@@ -99,6 +99,7 @@ def run_report(
     frame: str = "visible",
     supersample: int = CONVERGED_SUPERSAMPLE,
     converged_step: float = CONVERGED_STEP,
+    classify: str = "distribution",
 ) -> ReportResult:
     """Measure image error against frame time and bytes for a sweep of settings; write the report.
 
@@ -178,6 +179,11 @@ def run_report(
         (:mod:`clipvol.app.converged`; default 2, 4 where the time is there).
     converged_step : float
         Sample spacing in voxels of the converged picture (default 0.25).
+    classify : {'distribution', 'mean'}
+        How every frame's coarse samples are classified (``RenderParams.classify``): the transfer
+        function applied to the distribution of the level-0 voxels beneath each coarse voxel where
+        the store holds it (consistent coarse levels), or to their mean; a report run once with
+        each compares the two on the same views.
 
     Returns
     -------
@@ -207,6 +213,6 @@ def run_report(
             p = plot_lod_sweep(result.lod_rows, out / "lod_budget.png")
             if p is not None:
                 result.plots.append(p)
-    write_markdown(result, pyr, size=size, path=path, tf=tf, mode=mode, step=step, cap=cap)
+    write_markdown(result, pyr, size=size, path=path, tf=tf, mode=mode, step=step, cap=cap, classify=classify)
     return result
 

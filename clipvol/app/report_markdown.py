@@ -35,7 +35,7 @@ __all__ = ["ReportResult", "run_report", "summarise", "headline", "REPORT_COLUMN
            "DEFAULT_MAX_ERRORS", "DEFAULT_REFINES", "VISIBLE_TARGET"]
 
 
-def write_markdown(result: ReportResult, pyr, *, size, path, tf, mode, step, cap) -> None:
+def write_markdown(result: ReportResult, pyr, *, size, path, tf, mode, step, cap, classify: str = "distribution") -> None:
     rows = result.rows
     summ = summarise(rows, result.lod_rows)
     ref_label = f"fixed L{result.reference_level}"
@@ -49,7 +49,9 @@ def write_markdown(result: ReportResult, pyr, *, size, path, tf, mode, step, cap
         "",
         f"Data: {' x '.join(map(str, pyr.shape))} voxels (z, y, x), {pyr.dtype}, brick {pyr.brick_shape[0]}, "
         f"{pyr.num_levels} levels. Views: {len({r['view'] for r in rows})} along the `{path}` path, "
-        f"{size[0]}x{size[1]} pixels, `{mode}`, transfer function `{tf if isinstance(tf, str) else (getattr(tf, 'name', None) or 'custom')}`, step {step}; "
+        f"{size[0]}x{size[1]} pixels, `{mode}`, transfer function `{tf if isinstance(tf, str) else (getattr(tf, 'name', None) or 'custom')}`, step {step}, "
+        f"coarse levels classified by {'the distribution beneath each voxel' if classify == 'distribution' else 'their mean'} "
+        f"(`--classify {classify}`); "
         + ("framing the whole volume." if result.framed is None else
            "framing the voxels the transfer function makes visible (within "
            + " x ".join(f"{a:.4g}..{b:.4g}" for a, b in zip(*result.framed)) + ", x y z), from where they fill the views."),

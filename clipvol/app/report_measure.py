@@ -394,6 +394,7 @@ def measure(
     frame: str = "visible",
     supersample: int = CONVERGED_SUPERSAMPLE,
     converged_step: float = CONVERGED_STEP,
+    classify: str = "distribution",
 ) -> ReportResult:
     """The measuring half of :func:`clipvol.app.report.run_report` (same parameters): draws every
     frame and fills a :class:`ReportResult` (rows, timing rows, block-budget rows, images);
@@ -401,6 +402,7 @@ def measure(
     markdown. Nothing but the images is written."""
     # checked before anything is opened or written
     conv_desc = ConvergedPictures(None, RenderParams(), supersample=supersample, step=converged_step).describe()
+    RenderParams(classify=classify)  # names classify when it is not one RenderParams knows
     out = Path(out_dir)
     thresholds = [float(t) for t in thresholds]
     if any(not (np.isfinite(t) and t > 0) for t in thresholds):
@@ -440,7 +442,7 @@ def measure(
                                   level=ref_level).describe()
     result = ReportResult(out_dir=out, csv=out / "report.csv", markdown=out / "report.md", reference_level=ref_level,
                           rounds=rounds, framed=framed, converged=conv_desc)
-    base = RenderParams(mode=mode, iso_value=iso_value, step=step, texture_budget=full_tex)
+    base = RenderParams(mode=mode, iso_value=iso_value, step=step, texture_budget=full_tex, classify=classify)
     own_ctx = ctx is None
     if own_ctx:
         ctx = create_context()

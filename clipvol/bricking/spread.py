@@ -26,7 +26,7 @@ import numpy as np
 from ..errors import ParameterError
 from .pyramid import _pad_even
 
-__all__ = ["SPREAD_GROUP", "spread_dtype", "moments_down", "spread_of"]
+__all__ = ["SPREAD_GROUP", "spread_dtype", "moments_down", "spread_of", "spread_on_disk"]
 
 #: the store's group holding the spread arrays, one per level >= 1 (``clipvol_spread/<L>``)
 SPREAD_GROUP = "clipvol_spread"
@@ -97,3 +97,16 @@ def spread_of(m1: np.ndarray, m2: np.ndarray, dtype) -> np.ndarray:
         return np.clip(np.rint(s), 0, np.iinfo(out_t).max).astype(out_t)
     return np.clip(s, 0.0, float(np.finfo(out_t).max)).astype(out_t)
 
+
+def spread_on_disk(path) -> tuple[list[int], int] | None:
+    """The levels whose spread arrays the store at ``path`` holds and their bytes on disk, or None
+    when it holds none (a store built before them, or by another tool: its coarse levels are
+    classified by their mean). Read from the folders, for ``clipvol info``."""
+    from pathlib import Path
+
+    from .summary import tree_bytes
+
+    base = Path(path) / SPREAD_GROUP
+    levels = sorted(int(d.name) for d in base.iterdir() if d.name.isdigit() and (d / "zarr.json").is_file()) \
+        if base.is_dir() else []
+    return (levels, tree_bytes(base)) if levels else None

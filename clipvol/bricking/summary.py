@@ -47,7 +47,7 @@ from .store import open_store_meta
 from .store_files import chunk_cap, read_file
 
 __all__ = ["SUMMARY_GROUP", "SUMMARY_BINS", "SummaryMissingError", "Quantiser", "SummaryTables",
-           "build_summary", "open_summary", "summary_bytes"]
+           "build_summary", "open_summary", "summary_bytes", "tree_bytes"]
 
 SUMMARY_GROUP = "clipvol_summary"
 SUMMARY_BINS = 256
@@ -447,15 +447,20 @@ def _read_summary(path) -> SummaryTables:
     return SummaryTables(pyr, q, hist, nanc, offs, codes, counts)
 
 
-def summary_bytes(path) -> int | None:
-    """Bytes on disk of the store's summary tables, or None when it has none."""
+def tree_bytes(base) -> int:
+    """Bytes on disk of every file under the folder ``base`` (a store's side group)."""
     import os
 
-    base = Path(path) / SUMMARY_GROUP
-    if not base.is_dir():
-        return None
     size = 0
     for r, _d, files in os.walk(base):
         for f in files:
             size += os.path.getsize(os.path.join(r, f))
     return size
+
+
+def summary_bytes(path) -> int | None:
+    """Bytes on disk of the store's summary tables, or None when it has none."""
+    base = Path(path) / SUMMARY_GROUP
+    if not base.is_dir():
+        return None
+    return tree_bytes(base)

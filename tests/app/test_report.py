@@ -367,3 +367,44 @@ def test_run_report_rejects_a_bad_supersample(tmp_path):
     with pytest.raises(ParameterError, match="supersample"):
         run_report(ProceduralLoader("procedural:fractal?size=16&seed=1", brick=8), tmp_path / "rep", supersample=0)
     assert not (tmp_path / "rep").exists()
+
+
+@pytest.mark.parametrize("flag, want", [((), "distribution"), (("--classify", "mean"), "mean")])
+def test_cli_classify_reaches_every_frame(tmp_path, ctx, monkeypatch, flag, want):
+    """``clipvol report --classify mean`` classifies every frame it draws - the converged picture,
+    the reference and each setting - by the mean (the default: by the distribution). Recorded from
+    the render action's own parameters at each draw, not from what the command parsed."""
+    import clipvol.app.report_measure as rm
+    from clipvol.app.session import RenderSession
+    from clipvol.bricking.generators import ct_head
+    from clipvol.bricking.pipeline import brick_volume
+    from clipvol.tools.cli import main
+
+    store = tmp_path / "head.zarr"
+    brick_volume(ct_head((24, 24, 24), seed=1), store, brick=8, progress=False)
+    seen = []
+    real = RenderSession.render
+
+    def render(self, *a, **k):
+        seen.append(self.action.params.classify)
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(RenderSession, "render", render)
+    monkeypatch.setattr(rm, "create_context", lambda: ctx)  # the session's context, kept after the report
+    monkeypatch.setattr(ctx, "release", lambda: None)
+    rc = main(["report", str(store), "--out", str(tmp_path / "rep"), "--views", "1", "--size", "32x32",
+               "--thresholds", "4", "--memory-budgets", "none", "--texture-budgets", "none", "--block-budgets",
+               "none", "--max-error", "none", "--refine", "none", "--rounds", "1", "--max-frames", "2",
+               "--no-plots", "--tf", "bone", *flag])
+    assert rc == 0
+    assert len(seen) >= 4 and set(seen) == {want}, seen
+    assert f"(`--classify {want}`)" in (tmp_path / "rep" / "report.md").read_text()  # the report says what it drew
+
+
+def test_cli_rejects_an_unknown_classify(tmp_path, capsys):
+    from clipvol.tools.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["report", "procedural:fractal?size=16", "--out", str(tmp_path / "rep"), "--classify", "median"])
+    assert e.value.code == 2 and "--classify" in capsys.readouterr().err
+    assert not (tmp_path / "rep").exists()

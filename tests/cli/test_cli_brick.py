@@ -202,3 +202,29 @@ def test_spacing_and_origin_are_typed_x_y_z_like_every_coordinate(npy, tmp_path,
     assert main(["info", str(out)]) == 0
     text = capsys.readouterr().out
     assert "spacing    0.5, 2, 3 " in text and "origin     -7, 1, 40 " in text, text
+
+
+def test_info_shows_the_spread_arrays(npy, tmp_path, capsys):
+    """`clipvol info` names the levels whose spread arrays the store holds (consistent coarse levels)
+    and their bytes; a store without them says its coarse levels are classified by their mean.
+    Reference: the store's own folders, listed and summed here."""
+    import shutil
+
+    from clipvol.units import format_bytes
+
+    p, _ = npy
+    out = tmp_path / "sp.zarr"
+    assert main(["brick", str(p), str(out), "--brick", "8", "--quiet"]) == 0
+    group = out / "clipvol_spread"
+    levels = sorted(int(d.name) for d in group.iterdir() if d.is_dir())
+    nbytes = sum(f.stat().st_size for f in group.rglob("*") if f.is_file())
+    assert levels and levels[0] == 1
+    capsys.readouterr()
+    assert main(["info", str(out)]) == 0
+    line = [s for s in capsys.readouterr().out.splitlines() if s.startswith("spread ")]
+    assert len(line) == 1 and line[0].startswith(f"spread     levels {', '.join(map(str, levels))} ")
+    assert f" {format_bytes(nbytes)}, " in line[0], line[0]
+    shutil.rmtree(group)
+    main(["info", str(out)])  # the manifest now misses the spread: info says so on stderr, the line still prints
+    line = [s for s in capsys.readouterr().out.splitlines() if s.startswith("spread ")]
+    assert line == ["spread     none (coarse levels are classified by their mean; clipvol brick writes the spread)"]
