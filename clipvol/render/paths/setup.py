@@ -58,6 +58,8 @@ __all__ = ["DrawPath", "DrawSetup", "MAX_STEPS_PER_BOX", "OPAQUE", "OCCUPANCY_UN
 
 #: most samples one ray takes inside one box (a smaller step is refused with ParameterError)
 MAX_STEPS_PER_BOX = 1 << 16
+#: distribution tables kept per draw set-up (:meth:`DrawSetup.dist_texture`)
+DIST_TABLES_KEPT = 4
 #: the cleared value of a MIP target: below every texel, so "nothing hit" is told apart on read-back
 MIP_EMPTY = -3.0e38
 #: accumulated opacity at which a ray stops early: 1 - 0.5 / 255. What the rest of the ray could
@@ -176,8 +178,9 @@ class DrawSetup:
         self._vaos: dict = {}
         self._tf_tex = None
         self._tf_key = None
-        self._dist_tex = None
-        self._dist_key = None
+        #: distribution tables by (table, step, model), the few most recent: a refined frame's passes and
+        #: the report's paired frames alternate steps, and each table costs 0.1-0.25 s to build
+        self._dist_texs: dict = {}
         self._resolve = None
         self.last_raw: np.ndarray | None = None  # MIP, minIP, average, iso: the target read back by the last frame
         self.finish_s = 0.0  # seconds the last frame waited for the GL to finish its draws
@@ -312,16 +315,17 @@ class DrawSetup:
         levels stacked along y, :data:`SPREAD_ROWS` rows each; rebuilt only when the table or the step changes."""
         table = np.ascontiguousarray(np.asarray(tf.table, dtype=np.float32))
         key = (table.shape, table.tobytes(), self.action.params.step, consistent.MODEL)
-        if self._dist_key != key:
-            if self._dist_tex is not None:
-                self._dist_tex.release()
+        tex = self._dist_texs.pop(key, None)
+        if tex is None:
             rows = distribution_tables(table, self.action.level_ratios())  # (levels, rows, n, 4)
             L, R, n, _ = rows.shape
             tex = self.ctx.texture((n, L * R), 4, rows.reshape(L * R, n, 4).astype(np.float32).tobytes(), dtype="f4")
             tex.filter = (self.mgl.LINEAR, self.mgl.LINEAR)
             tex.repeat_x = tex.repeat_y = False
-            self._dist_tex, self._dist_key = tex, key
-        return self._dist_tex
+            while len(self._dist_texs) >= DIST_TABLES_KEPT:
+                self._dist_texs.pop(next(iter(self._dist_texs))).release()  # the least recently used
+        self._dist_texs[key] = tex  # most recent last
+        return tex
 
     def bind_distribution(self, prog, tf) -> None:
         """Bind the distribution table and its uniforms (DISTRIB variants only) to :data:`DIST_UNIT`."""
@@ -399,13 +403,14 @@ class DrawSetup:
         if self.refine is not None:
             self.refine.release()
             self.refine = None
-        for obj in (*self._vaos.values(), self._tf_tex, self._dist_tex):
+        for obj in (*self._vaos.values(), self._tf_tex, *self._dist_texs.values()):
             if obj is not None:
                 obj.release()
         self._vaos = {}
         self.target.release()
         self.programs.release()
         self._tf_tex = self._tf_key = None
+        self._dist_texs = {}
         self.last_raw = None
 
 
