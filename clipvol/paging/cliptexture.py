@@ -441,28 +441,26 @@ class ClipTexture:
 
         The view stays valid until the caller's next :meth:`set_center` / :meth:`set_roaming_window`.
         """
-        idx = self.pyramid.check_key(level, index)
-        lv = self._levels[level]
-        with self._lock:
-            s = self._slot_if_held(lv, idx)
-            if s is None or lv.state[s] != _RESIDENT:
-                return None
-            view = lv.pool[s].view()
-        view.flags.writeable = False
-        return view
+        return self._resident_view(level, index, "pool")
 
     def get_spread(self, level: int, index) -> np.ndarray | None:
         """A read-only view of the resident brick's spread (:mod:`clipvol.bricking.spread`), or
         ``None`` if the brick is not resident or its level carries none; valid as :meth:`get_brick`'s."""
+        return self._resident_view(level, index, "spread")
+
+    def _resident_view(self, level: int, index, pool: str) -> np.ndarray | None:
+        """Read-only view of the slot of resident brick ``index`` in the level's array ``pool``
+        (``"pool"``: the voxels, ``"spread"``: their spread), or None."""
         idx = self.pyramid.check_key(level, index)
         lv = self._levels[level]
-        if lv.spread is None:
+        arr = getattr(lv, pool)
+        if arr is None:
             return None
         with self._lock:
             s = self._slot_if_held(lv, idx)
             if s is None or lv.state[s] != _RESIDENT:
                 return None
-            view = lv.spread[s].view()
+            view = arr[s].view()
         view.flags.writeable = False
         return view
 
