@@ -193,7 +193,9 @@ def flag_values(args) -> dict:
 def render_params_from_args(args, **fixed):
     """The :class:`~clipvol.scene.params.RenderParams` of the render flags in ``args``, with the
     ``fixed`` fields a command sets itself (``clipvol slice``'s ``policy="plane"``) over them.
-    Validation (and its one-line errors) is RenderParams' own."""
+    Validation (and its one-line errors) is RenderParams' own, with each mode's checks (registered by
+    :mod:`clipvol.render.modes`: ``--mode iso`` needs ``--iso-value``)."""
+    import clipvol.render.modes  # noqa: F401 - registers the draw modes and their checks
     from clipvol.scene.params import RenderParams
 
     values = flag_values(args)

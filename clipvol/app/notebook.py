@@ -64,6 +64,7 @@ def _widget_class():
         error = traitlets.Unicode("").tag(sync=True)
         handled = traitlets.Int(0).tag(sync=True)  # changes the kernel is done with: the browser's ack
         tf_names = traitlets.List(traitlets.Unicode()).tag(sync=True)
+        mode_names = traitlets.List(traitlets.Unicode()).tag(sync=True)  # the registered modes (render/modes)
         #: a click in the image: [x, y, shift (a ruler end), counter] in image pixels
         pick = traitlets.List(traitlets.Float(), default_value=[0.0, 0.0, 0.0, 0.0]).tag(sync=True)
 
@@ -129,7 +130,9 @@ class VolumeView:
         self.last_image: np.ndarray | None = None
         self.last_frame_s = 0.0
         cls = _widget_class()
-        self.widget = cls(tf_names=list(TransferFunction.names()), tf=tf, mode=mode)
+        from ..render.modes import DRAW_MODES
+
+        self.widget = cls(tf_names=list(TransferFunction.names()), mode_names=list(DRAW_MODES), tf=tf, mode=mode)
         self.widget.observe(self._changed, names=["azimuth", "elevation", "zoom", "tf", "mode"])
         self.widget.observe(self._picked, names=["pick"])
         self.render()

@@ -93,8 +93,10 @@ class PointSession:
             tolerance_pixels(tolerance, (1000, 1000))
             self.action.tolerance = tolerance
         if mode is not None:
-            if mode not in ("composite", "mip"):
-                raise ParameterError(f"mode: expected 'composite' or 'mip', got {mode!r}")
+            from ..render.modes import modes_with
+
+            if mode not in modes_with("splats"):
+                raise ParameterError(f"mode: expected one of {', '.join(modes_with('splats'))}, got {mode!r}")
             self.action.mode = mode
         if shading is not None:
             self.action.shading = bool(shading)

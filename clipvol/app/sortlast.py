@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import MissingExtraError, ParameterError
-from ..scene.decompose import back_to_front, composite_max, composite_over, kd_split
+from ..scene.decompose import back_to_front, kd_split
 from ..scene.geometry import Shape
 from ..scene.params import RenderParams
 
@@ -81,9 +81,10 @@ def _render_group(source, source_kwargs, memory_budget, params: RenderParams, ca
         lo, hi = np.maximum(lo, shape.box[0]), np.minimum(hi, shape.box[1])
     if np.any(hi < lo):  # the region of interest misses this group: nothing to draw
         w, h = camera.size
+        from ..render.modes import mode_of
+
         raw = np.zeros((int(h), int(w), 4), dtype=np.float32)
-        if params.mode == "mip":
-            raw[..., 0] = -3.0e38
+        raw[...] = mode_of(params.mode).clear  # where no ray wrote (MIP: below any texel)
         return raw, action.cache.format, time.perf_counter() - t0, True, ()
     group_shape = Shape(box=(tuple(lo), tuple(hi)), planes=shape.planes if shape is not None else ())
     action.set_params(replace(params, shape=group_shape, background=(0.0, 0.0, 0.0, 0.0), early_termination=True))
@@ -119,15 +120,19 @@ class SortLastStats:
         return tuple(f for f in self.failed_bricks if not f.replaced)
 
 
-#: the modes whose groups' partial images combine here (composite "over", MIP max)
-SORT_LAST_MODES = ("composite", "mip")
+def sort_last_modes() -> tuple[str, ...]:
+    """The modes whose groups' partial images combine here (``DrawMode.sort_last``: composite "over",
+    MIP max; :mod:`clipvol.render.modes`)."""
+    from ..render.modes import modes_with
+
+    return modes_with("sort_last")
 
 
 def _sort_last_mode(params: RenderParams) -> RenderParams:
     """Refuse a mode whose per-group partial images this compositor does not combine."""
-    if params.mode not in SORT_LAST_MODES:
-        raise ParameterError(f"mode: expected one of {', '.join(SORT_LAST_MODES)} for sort-last rendering (--workers), "
-                             f"got {params.mode!r}")
+    if params.mode not in sort_last_modes():
+        raise ParameterError(f"mode: expected one of {', '.join(sort_last_modes())} for sort-last rendering "
+                             f"(--workers), got {params.mode!r}")
     return params
 
 
@@ -197,7 +202,7 @@ class DistributedRenderer:
     def render(self, camera, tf) -> np.ndarray:
         """One converged frame: ``(h, w, 4)`` straight RGBA uint8, as :meth:`ClipRenderAction.render`."""
         from ..render.action import premultiplied_to_uint8
-        from ..render.gpu_cache import texel_to_raw
+        from ..render.modes import mode_of
 
         t0 = time.perf_counter()
         order = back_to_front(self.tree, camera)
@@ -209,16 +214,9 @@ class DistributedRenderer:
             results = dict(zip(futs, self.client.gather(list(futs.values()))))
         t1 = time.perf_counter()
         p = self.params
-        if p.mode == "mip":
-            m = composite_max([results[g][0][..., 0] for g in order])
-            fmt = results[order[0]][1]
-            hit = m > -3.0e38 * 0.5
-            rgba = tf.lookup(np.where(hit, texel_to_raw(fmt, m), fmt.b), self.pyramid.value_range)
-            alpha = np.where(hit, rgba[..., 3], 0.0)
-            prem = np.concatenate([rgba[..., :3] * alpha[..., None], alpha[..., None]], axis=-1)
-        else:
-            prem = composite_over([results[g][0] for g in order])
-            alpha = prem[..., 3]
+        prem = mode_of(p.mode).sort_last_image([results[g][0] for g in order], results[order[0]][1], tf,
+                                               self.pyramid.value_range)
+        alpha = prem[..., 3]
         r, g_, b, ba = p.background
         prem = prem + (1.0 - alpha[..., None]) * np.array([r * ba, g_ * ba, b * ba, ba])
         image = premultiplied_to_uint8(prem)

@@ -85,7 +85,7 @@ from .frame_loop import FrameLoop
 from .frame_stats import FrameStats, frame_stats
 from .gpu_cache import GpuBrickCache
 from .image_lod import ImageLod
-from .modes import mode_defines, occupancy_tf
+from .modes import mode_defines, mode_of
 from .overlay_binding import OverlayTextures, overlay_defines
 from .refine import Refine, refine_levels, refines
 from .paths import AUTO_SINGLE_PASS_BOXES, DRAW_PATHS, FALLBACK, pick
@@ -168,7 +168,7 @@ class ClipRenderAction:
         the average and the iso-surface take the mean: the average of a distribution is its mean, and
         the extreme or the surface of a distribution is no single voxel's value to classify."""
         p = self.params
-        return (p.classify == "distribution" and bool(self.cache.spread_levels) and p.mode == "composite"
+        return (p.classify == "distribution" and bool(self.cache.spread_levels) and mode_of(p.mode).classifies
                 and not self.nonfinite)
 
     # -- shader variants ---------------------------------------------------------------------------
@@ -177,17 +177,18 @@ class ClipRenderAction:
         mode = self.params.mode
         return {**mode_defines(mode), "HAS_NAN": self.nonfinite,
                 "DISTRIB": SPREAD_ROWS if self.distribution else False,
-                "SHADING": self.params.shading and mode == "composite",
+                "SHADING": self.params.shading and mode_of(mode).classifies,
                 "EMPTY_SKIP": self.skipped_empty, **overlay_defines(self.params.overlays, self.params.blend)}
 
     # -- helpers -----------------------------------------------------------------------------------
     def _transparent(self, tf):
         """``(level, idx) -> bool mask`` from the loader's brick ranges over each brick's sampling
         footprint (:func:`clipvol.scene.transfer.transparency_filter`), or None: composite under
-        ``tf``, iso under :func:`~clipvol.render.modes.occupancy_tf` (wholly below the value)."""
+        ``tf``, iso under :meth:`~clipvol.render.modes.base.DrawMode.occupancy_tf` (wholly below the value)."""
         loader = self.clip_texture.loader
-        tf = occupancy_tf(self.params, tf, self.pyramid.value_range)  # iso: values below the surface's
-        if self.params.mode not in ("composite", "iso") or not isinstance(loader, HasBrickRanges):
+        mode = mode_of(self.params.mode)
+        tf = mode.occupancy_tf(self.params, tf, self.pyramid.value_range)  # iso: values below the surface's
+        if not mode.culls or not isinstance(loader, HasBrickRanges):
             return None
         # kept while the table, its window and the overlays stay (the filter answers whole levels once)
         key = (loader, np.asarray(tf.table).tobytes(), tf.window(self.pyramid.value_range), self.params.overlays,
@@ -207,14 +208,15 @@ class ClipRenderAction:
     def _skips(self, tf) -> bool:
         """Does this frame leap over empty cells? Composite or iso without overlays (an overlay is
         sampled wherever the primary is; in MIP/minIP a transparent value can still be the extreme,
-        in the average every sample counts; iso's "empty" is below its value, :func:`occupancy_tf`), with
+        in the average every sample counts; iso's "empty" is below its value: its mode's ``occupancy_tf``), with
         ``skip_empty``, cells for this brick shape, a window of non-zero width (a zero-width window
         is a step whose float32 table coordinate the cells' test cannot bound), and at least
         :data:`MIN_EMPTY_FRACTION` of the cells holding data empty under ``tf`` (the lookups cost
         samples where there is little to leap). Derives the cells' flags for ``tf``."""
         p = self.params
-        tf = occupancy_tf(p, tf, self.pyramid.value_range)  # iso: values below the surface's are "empty"
-        if not p.skip_empty or p.mode not in ("composite", "iso") or p.overlays or self.cache.cell_edges is None:
+        mode = mode_of(p.mode)
+        tf = mode.occupancy_tf(p, tf, self.pyramid.value_range)  # iso: values below the surface's are "empty"
+        if not p.skip_empty or not mode.culls or p.overlays or self.cache.cell_edges is None:
             return False
         lo, hi = tf.window(self.pyramid.value_range)
         if not hi > lo:

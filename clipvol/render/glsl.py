@@ -20,8 +20,10 @@ The mechanism (how to add a feature)
   (mode, data properties, parameters) - see ``ClipRenderAction._defines`` - so a new feature is
   one more entry there and one more ``#ifdef`` block in the shader.
 
-Defines used by the volume shaders today: ``MODE_MIP`` (maximum intensity projection; absent:
-composite), ``HAS_NAN`` (the data may hold NaN/Inf: NaN-aware trilinear filtering over the finite
+Defines used by the volume shaders today: ``MODE_MIP`` (maximum intensity projection; none of
+the ``MODE_*``: composite; ``MODE_MINIP``, ``MODE_AVERAGE``, ``MODE_ISO`` likewise, each the ``define``
+of a mode in :mod:`clipvol.render.modes`; ``MODE_GLSL``: a registered mode's own GLSL, inserted at the
+line ``#include MODE_GLSL``), ``HAS_NAN`` (the data may hold NaN/Inf: NaN-aware trilinear filtering over the finite
 neighbours, non-finite samples skipped; absent: one hardware trilinear fetch, no test), ``SHADING``
 (composite only: Blinn-Phong gradient lighting from central differences, ``volume_common.glsl``),
 ``EMPTY_SKIP`` (composite without overlays: leap over cells the transfer function makes
@@ -35,9 +37,23 @@ from functools import lru_cache
 from importlib import resources
 from typing import Mapping
 
-__all__ = ["load_shader", "shader_source", "ProgramCache"]
+__all__ = ["load_shader", "shader_source", "ProgramCache", "register_source", "unregister_source"]
 
 _INCLUDE = re.compile(r'^\s*#include\s+"([^"]+)"\s*$', re.MULTILINE)
+#: the line a shader puts where a draw mode's own GLSL goes (the source named by the MODE_GLSL define)
+_MODE_INCLUDE = re.compile(r'^\s*#include\s+MODE_GLSL\s*$', re.MULTILINE)
+#: GLSL sources held in memory by name (a registered draw mode's own code, clipvol.render.modes)
+_SOURCES: dict[str, str] = {}
+
+
+def register_source(name: str, text: str) -> None:
+    """Hold ``text`` as the GLSL that ``#include MODE_GLSL`` inserts where ``MODE_GLSL`` is ``name``."""
+    _SOURCES[name] = text
+
+
+def unregister_source(name: str) -> None:
+    """Forget the source ``name`` (:func:`register_source`)."""
+    _SOURCES.pop(name, None)
 
 
 @lru_cache(maxsize=None)
@@ -61,8 +77,14 @@ def load_shader(name: str) -> str:
 
 def shader_source(name: str, defines: Mapping[str, object] | None = None) -> str:
     """:func:`load_shader` with ``#define NAME value`` lines after ``#version`` (``True``: defined as 1;
-    ``False``/``None``: left out)."""
+    ``False``/``None``: left out), and the line ``#include MODE_GLSL`` replaced by the registered
+    source the ``MODE_GLSL`` define names (:func:`register_source`; without it, by nothing)."""
     src = load_shader(name)
+    if _MODE_INCLUDE.search(src):
+        mode = (defines or {}).get("MODE_GLSL")
+        if mode and mode not in _SOURCES:
+            raise KeyError(f"MODE_GLSL: no GLSL source registered as {mode!r}")
+        src = _MODE_INCLUDE.sub(lambda _m: _SOURCES[mode] if mode else "", src)
     lines = [f"#define {k} {1 if v is True else v}" for k, v in sorted((defines or {}).items())
              if v is not None and v is not False]
     if not lines:

@@ -37,6 +37,7 @@ from ..scene.point_gradient import wls_gradients
 from ..scene.splat_select import SplatSelection, select_splat_nodes
 from .paths.setup import premultiplied_to_uint8
 from .glsl import load_shader
+from .modes import modes_with
 from .target import FloatTarget
 
 __all__ = ["SplatRenderAction", "SplatFrameStats"]
@@ -98,8 +99,8 @@ class SplatRenderAction:
         self.loader = clip_texture.loader
         if not hasattr(self.loader, "nodes"):
             raise ParameterError(f"clip_texture: expected one over a point store loader, got {type(self.loader).__name__}")
-        if mode not in ("composite", "mip"):
-            raise ParameterError(f"mode: expected 'composite' or 'mip', got {mode!r}")
+        if mode not in modes_with("splats"):  # the modes whose splat shader is splat.frag.glsl's (render/modes)
+            raise ParameterError(f"mode: expected one of {', '.join(modes_with('splats'))}, got {mode!r}")
         self.mode = mode
         self.tolerance = tolerance
         names = self.loader.meta.value_names

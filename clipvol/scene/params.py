@@ -21,11 +21,15 @@ from ..units import parse_bytes
 from .geometry import Shape
 from .policy_registry import POLICIES, policy_names
 
-__all__ = ["RenderParams", "MODES", "ISO_COLORS", "PATHS", "CLASSIFY", "DEFAULT_BLOCK_BUDGET"]
+__all__ = ["RenderParams", "MODES", "MODE_CHECKS", "ISO_COLORS", "PATHS", "CLASSIFY", "DEFAULT_BLOCK_BUDGET"]
 
 #: compositing modes of the volume action: emission-absorption, maximum / minimum intensity
 #: projection, the mean along the ray (radiograph-like) and the first hit of an iso-value
 MODES = ("composite", "mip", "minip", "average", "iso")
+#: mode -> its checks of the parameters (``check(params)``, raising ParameterError): the modes'
+#: own, filled by clipvol.render.modes.register, which also adds a new mode's name to MODES (the
+#: scene stage imports no render module; a mode's checks run once the renderer is imported)
+MODE_CHECKS: dict = {}
 #: colourings of the iso-surface (see RenderParams.iso_color)
 ISO_COLORS = ("tf", "depth")
 #: how overlays (channels) combine with the primary at each sample (see RenderParams.blend)
@@ -280,8 +284,6 @@ class RenderParams:
             if not math.isfinite(iso):
                 raise ParameterError(f"iso_value: expected a finite data value, got {self.iso_value!r}")
             s(self, "iso_value", iso)
-        if self.mode == "iso" and self.iso_value is None:
-            raise ParameterError("iso_value: expected a data value for mode 'iso' (the surface's value), got None")
         if self.iso_color not in ISO_COLORS:
             raise ParameterError(f"iso_color: expected one of {', '.join(ISO_COLORS)}, got {self.iso_color!r}")
         policy = self.policy
@@ -355,6 +357,9 @@ class RenderParams:
             s(self, name, f)
         s(self, "shininess", _positive(self.shininess, "shininess", "specular exponent"))
         self._check_overlays()
+        check = MODE_CHECKS.get(self.mode)
+        if check is not None:  # the mode's own (clipvol.render.modes): iso needs iso_value, overlays composite
+            check(self)
 
     def _check_overlays(self) -> None:
         from .overlay import MAX_OVERLAYS, Overlay
@@ -368,9 +373,6 @@ class RenderParams:
                 raise ParameterError(f"overlays: expected clipvol.scene.overlay.Overlay objects, got {type(ov).__name__}")
         if len(ovs) > MAX_OVERLAYS:
             raise ParameterError(f"overlays: expected at most {MAX_OVERLAYS}, got {len(ovs)}")
-        if ovs and self.mode != "composite":
-            raise ParameterError(f"overlays: expected mode 'composite' (an overlay is composited over the primary), "
-                                 f"got mode {self.mode!r} with overlay {ovs[0].name}")
         if ovs and self.path == "single-pass":
             raise ParameterError(f"overlays: expected path 'bricks' (the single-pass path draws no overlay), "
                                  f"got path {self.path!r} with overlay {ovs[0].name}")

@@ -56,8 +56,11 @@ class PointViewState(KeyState):
         if not 0.0 < t < 1.0:
             raise ParameterError(f"tolerance: expected a fraction of the screen in (0, 1), got {self.tolerance!r}")
         self.tolerance = t
-        if self.render_mode not in ("composite", "mip"):
-            raise ParameterError(f"render_mode: expected 'composite' or 'mip', got {self.render_mode!r}")
+        from ..render.modes import modes_with
+
+        if self.render_mode not in modes_with("splats"):
+            raise ParameterError(f"render_mode: expected one of {', '.join(modes_with('splats'))}, "
+                                 f"got {self.render_mode!r}")
         if not self.tf_presets:
             raise ParameterError("tf_presets: expected at least one preset name")
 

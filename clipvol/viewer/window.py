@@ -42,6 +42,7 @@ from pathlib import Path
 from ..app.adaptive import FULL, AdaptiveQuality
 from ..app.session import RenderSession
 from ..errors import ClipvolError, ParameterError
+from ..render.modes import DRAW_MODES
 from ..render.paths.setup import max_step
 from ..scene.params import RenderParams
 from .controls import OrbitControls, ViewState
@@ -133,8 +134,8 @@ class Viewer(GlWindow):
         self.state = ViewState(
             num_levels=pyr.num_levels, tf_presets=presets, mode=s.policy, level=s.level or 0,
             lod_threshold=s.lod_threshold, render_mode=s.mode, shading=s.shading, tf_index=0,
-            # I: every volume mode; the iso-surface when it has a value (clipvol view --iso-value)
-            render_modes=("composite", "mip", "minip", "average") + (("iso",) if s.iso_value is not None else ()),
+            # I: every registered mode whose fields are set (the iso-surface when clipvol view --iso-value)
+            render_modes=tuple(name for name, m in DRAW_MODES.items() if all(getattr(s, f) is not None for f in m.requires)),
         )
         self.controls = OrbitControls.for_pyramid(pyr, size=self.framebuffer_size, **_anatomical_rig(self.session.loader))
         if camera is not None:

@@ -27,14 +27,20 @@ import numpy as np
 
 from ...errors import ParameterError
 
-__all__ = ["ViewState", "orbit_camera", "CAMERA_FIELDS", "MODES", "SLICE_NAMES"]
+__all__ = ["ViewState", "orbit_camera", "CAMERA_FIELDS", "mode_names", "SLICE_NAMES"]
 
 #: fields whose change moves the camera (drawn fast while they keep changing)
 CAMERA_FIELDS = frozenset({"azimuth", "elevation", "zoom"})
-#: the render modes the page offers (the widget's menu)
-MODES = ("composite", "mip", "minip", "average", "iso")
 #: slice planes: "" shows the 3D view
 SLICE_NAMES = ("", "axial", "coronal", "sagittal")
+
+
+def mode_names() -> tuple[str, ...]:
+    """The render modes the page offers (its menu): every registered one (:mod:`clipvol.render.modes`
+    adds its modes to ``clipvol.scene.params.MODES``)."""
+    from ...scene import params
+
+    return params.MODES
 
 
 def _rotate(v: np.ndarray, axis: np.ndarray, deg: float) -> np.ndarray:
@@ -116,6 +122,7 @@ class ViewState:
         """The state the page holds (JSON)."""
         return {"view": self.view, "views": list(self.views), "azimuth": self.azimuth, "elevation": self.elevation,
                 "zoom": self.zoom, "tf": self.tf, "tf_names": list(self.tf_names),
+                "mode_names": list(mode_names()),
                 "window": list(self.window) if self.window else None, "mode": self.mode,
                 "iso_value": self.iso_value, "slice": self.slice, "slice_index": self.slice_index,
                 "crop_voxels": list(self.crop_voxels) if self.crop_voxels else None,
@@ -146,8 +153,8 @@ class ViewState:
                     raise ParameterError(f"tf: expected one of {', '.join(self.tf_names)}, got {v!r}")
                 new[k] = v
             elif k == "mode":
-                if v not in MODES:
-                    raise ParameterError(f"mode: expected one of {', '.join(MODES)}, got {v!r}")
+                if v not in mode_names():
+                    raise ParameterError(f"mode: expected one of {', '.join(mode_names())}, got {v!r}")
                 new[k] = v
             elif k == "window":
                 w = _numbers(k, v, 2)

@@ -16,7 +16,7 @@ function render({ model, el }) {
     const o = document.createElement("option"); o.value = n; o.textContent = n; tfSel.appendChild(o);
   }
   const modeSel = document.createElement("select");
-  for (const n of ["composite", "mip", "minip", "average", "iso"]) {
+  for (const n of model.get("mode_names")) {
     const o = document.createElement("option"); o.value = n; o.textContent = n; modeSel.appendChild(o);
   }
   const hud = document.createElement("pre");

@@ -28,7 +28,7 @@ import numpy as np
 
 from ...scene.page_table import block_open_faces
 from ..uniforms import uset, vec3
-from ..modes import REDUCED_MODES, clear_value, set_blend
+from ..modes import mode_of
 from ..refine import MAX_REFINE_LEVELS
 from .setup import DrawPath
 
@@ -81,10 +81,10 @@ class BricksPath(DrawPath):
         a, mgl, ctx = self.action, self.mgl, self.ctx
         params, pyr = a.params, a.pyramid
         a.boxes_drawn = len(items)
-        composite = params.mode in ("composite", "iso")  # ordered: under / over (iso: opaque hits)
-        front_to_back = composite and params.early_termination
-        if front_to_back or params.mode in REDUCED_MODES:  # (render/modes.py)
-            clear = clear_value(params.mode)
+        mode = mode_of(params.mode)
+        front_to_back = mode.ordered and params.early_termination  # under / over (iso: opaque hits)
+        if front_to_back or mode.reduced:  # (render/modes)
+            clear = mode.clear
         else:
             r, g, b, al = params.background
             clear = (r * al, g * al, b * al, al)
@@ -96,13 +96,13 @@ class BricksPath(DrawPath):
         ctx.disable(mgl.CULL_FACE)
         self.setup.depth_test()  # on only in the fine pass of a refined frame
         uset(prog, "u_use_acc", False)  # no opacity snapshot until the first batch is drawn
-        if not set_blend(ctx, mgl, params.mode):  # MIP MAX, minIP MIN, average ONE + ONE
+        if not mode.set_blend(ctx, mgl):  # MIP MAX, minIP MIN, average ONE + ONE
             ctx.blend_equation = mgl.FUNC_ADD
             if front_to_back:  # the "under" operator: dst += (1 - dst.a) * src
                 ctx.blend_func = mgl.ONE_MINUS_DST_ALPHA, mgl.ONE
             else:  # "over": dst = src + (1 - src.a) * dst
                 ctx.blend_func = mgl.ONE, mgl.ONE_MINUS_SRC_ALPHA
-        if params.mode == "composite":
+        if mode.classifies:
             self.setup.tf_texture(tf).use(location=1)
         self.setup.bind_distribution(prog, tf)
         self.setup.bind_occupancy(prog, tf)

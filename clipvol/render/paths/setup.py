@@ -47,7 +47,7 @@ from ...scene.transfer import corrected_tables
 from ...scene.visibility import box_depths, screen_rects
 from ..glsl import ProgramCache
 from ..gpu_cache import t_scale_offset
-from ..modes import REDUCED_MODES, depth_range, iso_texel, occupancy_tf, reduce_image
+from ..modes import depth_range, mode_of
 from ..refine import Refine, pass_origin, refine_levels
 from ..resolve import Resolve
 from ..target import FloatTarget
@@ -272,8 +272,8 @@ class DrawSetup:
         p = a.params
         uset(prog, "u_jitter", 1.0 if p.jitter else 0.0)
         uset(prog, "u_light", (p.ambient, p.diffuse, p.specular, p.shininess))  # SHADING variant only
-        uset(prog, "u_iso", iso_texel(a.cache.format, p.iso_value))  # MODE_ISO only
-        self.depth = depth_range(cam, *a.pyramid.volume_box())  # iso_color="depth" (render/modes.py)
+        mode_of(p.mode).uniforms(prog, a.cache.format, p)  # iso: u_iso
+        self.depth = depth_range(cam, *a.pyramid.volume_box())  # iso_color="depth" (render/modes)
         if p.shape is None:
             box = np.array([[-1e30] * 3, [1e30] * 3])
             planes = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (6, 1))
@@ -344,7 +344,7 @@ class DrawSetup:
         :data:`OCCUPANCY_UNIT` (EMPTY_SKIP variants only: when the action's frame leaps)."""
         a = self.action
         if a.skipped_empty:
-            tf = occupancy_tf(a.params, tf, a.pyramid.value_range)  # iso: what lies below its value
+            tf = mode_of(a.params.mode).occupancy_tf(a.params, tf, a.pyramid.value_range)  # iso: below its value
             a.cache.occupancy_texture(tf, a.pyramid.value_range, a.distribution).use(location=OCCUPANCY_UNIT)
             uset(prog, "u_occ", OCCUPANCY_UNIT)
             uset(prog, "u_occ_shift", vec3(0.5 / np.asarray(a.cache.cell_edges[::-1], dtype=np.float64)))
@@ -361,7 +361,7 @@ class DrawSetup:
         back; returns ``(image, draw seconds, read-back seconds)``. Composite: on the GL
         (:class:`~clipvol.render.resolve.Resolve`: the background under a front-to-back image,
         un-premultiplied, rounded), reading 4 bytes a pixel; MIP, minIP, average, iso: the float
-        target read back and mapped here (:func:`clipvol.render.modes.reduce_image`)."""
+        target read back and mapped here (:meth:`clipvol.render.modes.base.DrawMode.read_back`)."""
         ctx, a = self.ctx, self.action
         params, pyr = a.params, a.pyramid
         if self.refine_level:  # a coarse image stays on the GL for the next pass's mask
@@ -373,7 +373,8 @@ class DrawSetup:
         self.finish_s = t1 - t_finish  # the wait on the GL for the frame's draws (FrameStats' gpu time)
         self.last_raw = None
         image = None
-        if params.mode not in REDUCED_MODES:
+        mode = mode_of(params.mode)
+        if not mode.reduced:
             if self._resolve is None:
                 self._resolve = Resolve(ctx)
             image = self._resolve(self.target.color, params.background if front_to_back else (0.0, 0.0, 0.0, 0.0))
@@ -384,9 +385,9 @@ class DrawSetup:
         err = ctx.error
         if err != "GL_NO_ERROR":
             raise RuntimeError(f"OpenGL error after drawing the frame: expected GL_NO_ERROR, got {err}")
-        if image is None:  # MIP, minIP, average, iso: the per-pixel values mapped here (render/modes.py)
-            image = premultiplied_to_uint8(reduce_image(self.last_raw, params, tf, a.cache.format, pyr.value_range,
-                                                        self.depth))
+        if image is None:  # MIP, minIP, average, iso: the per-pixel values mapped here (render/modes)
+            image = premultiplied_to_uint8(mode.read_back(self.last_raw, params, tf, a.cache.format, pyr.value_range,
+                                                          self.depth))
         return image, t1 - t0, time.perf_counter() - t1
 
     def raw(self) -> np.ndarray | None:

@@ -32,7 +32,7 @@ import numpy as np
 
 from ...scene.page_table import build_page_table
 from ..uniforms import uset, vec3
-from ..modes import clear_value
+from ..modes import mode_of
 from .setup import DrawPath
 
 __all__ = ["SinglePassPath", "MAX_SINGLE_PASS_LEVELS", "MAX_SINGLE_PASS_RAY_SAMPLES", "MAX_PAGE_TABLE_ENTRIES",
@@ -118,7 +118,7 @@ class SinglePassPath(DrawPath):
             return None
         a.page_table_nodes = len(items)
         a.boxes_drawn = 1
-        fbo, previous, t0 = self.setup.begin(cam, clear_value(params.mode))
+        fbo, previous, t0 = self.setup.begin(cam, mode_of(params.mode).clear)
         defines = dict(a.defines(), NUM_LEVELS=nlev, LEVEL_LO=min(data_levels), LEVEL_HI=max(data_levels))
         prog, vao = self.setup.program("screen.vert", "raymarch.frag", defines)
         a.program = prog
@@ -166,7 +166,7 @@ class SinglePassPath(DrawPath):
         else:
             self._page_table_texture(table.entries)
         self._pt_tex.use(location=2)
-        if params.mode == "composite":
+        if mode_of(params.mode).classifies:
             self.setup.tf_texture(tf).use(location=1)
         self.setup.bind_distribution(prog, tf)
         self.setup.bind_occupancy(prog, tf)
@@ -181,7 +181,7 @@ class SinglePassPath(DrawPath):
             ctx.scissor = tuple(rect)
             vao.render(mgl.TRIANGLES, vertices=3)
             ctx.scissor = None
-        return self.setup.read_back(previous, tf, params.mode == "composite", t0)
+        return self.setup.read_back(previous, tf, mode_of(params.mode).classifies, t0)
 
     def release(self) -> None:
         if self._pt_tex is not None:

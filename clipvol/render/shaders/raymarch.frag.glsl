@@ -7,7 +7,7 @@
 // ancestor). Within a node's box the samples lie on the constant-distance lattice
 // t = off + k * delta_Ld of the data level, exactly as the per-brick path samples that box, so the
 // two paths draw the same image; the ray stops early per pixel with no framebuffer copies.
-// Variants: MODE_MIP, MODE_MINIP, MODE_AVERAGE, MODE_ISO, HAS_NAN, SHADING, EMPTY_SKIP (volume_common.glsl); NUM_LEVELS: levels of the pyramid (<= 16);
+// Variants: MODE_MIP, MODE_MINIP, MODE_AVERAGE, MODE_ISO, MODE_GLSL, HAS_NAN, SHADING, EMPTY_SKIP (volume_common.glsl); NUM_LEVELS: levels of the pyramid (<= 16);
 // LEVEL_LO..LEVEL_HI: the data levels the table draws from. Only those get a march in the level
 // chain below: a SIMD rasteriser (llvmpipe) runs every branch of a per-pixel `if` with its lanes
 // masked, so each level in the chain costs every pixel its set-up and one masked sample per node.

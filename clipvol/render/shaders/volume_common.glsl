@@ -4,6 +4,8 @@
 //   MODE_MINIP minimum intensity projection
 //   MODE_AVERAGE the mean along the ray: (sum of sample * step, sum of steps), divided on read-back
 //   MODE_ISO  the first sample >= u_iso, refined between it and the sample before, lit from its gradient
+//   MODE_GLSL a registered mode's own code (clipvol/render/modes), inserted at "#include MODE_GLSL":
+//             it defines STATE, STATE_ARGS, STATE_INIT, STATE_OUT and MODE_TAKE(texel); a reduction
 //   HAS_NAN   the data may hold NaN/Inf: trilinear over the finite neighbours only
 //   SHADING   composite only: Blinn-Phong lighting from central-difference gradients, light at the eye
 //   OVERLAY   composite only: the number (1..3) of co-registered overlay volumes sampled at each sample
@@ -34,7 +36,7 @@ uniform float u_t_offset;       // (raw = a * texel + b folded in, in float64 on
 uniform float u_jitter;         // 1: the lattice starts at a per-pixel offset hash * delta; 0: at 0
 uniform float u_opaque;         // early ray termination
 uniform sampler2D u_tf;         // row L: the table with opacity corrected for level L's step
-#if defined(MODE_MIP) || defined(MODE_MINIP) || defined(MODE_AVERAGE)
+#if defined(MODE_MIP) || defined(MODE_MINIP) || defined(MODE_AVERAGE) || defined(MODE_GLSL)
 #define MODE_REDUCE             // a per-pixel reduction of the samples, mapped on read-back; no early stop
 #endif
 #ifdef MODE_ISO
@@ -435,6 +437,8 @@ void composite_lit(inout vec4 acc, float texel, float spread, float row, vec3 g,
 #define STATE_ARGS acc
 #define STATE_INIT vec4 acc = vec4(0.0);
 #define STATE_OUT { if (acc.a <= 0.0) discard; f_color = acc; }
+#elif defined(MODE_GLSL)
+#include MODE_GLSL
 #else
 #define STATE inout vec4 acc
 #define STATE_ARGS acc
@@ -546,6 +550,8 @@ void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int 
             acc = vec4(th, gl > 0.0 ? abs(dot(g, dir)) / gl : 0.0, texel, 1.0);
             break;
         }
+#elif defined(MODE_GLSL)
+        MODE_TAKE(texel);
 #else
 #ifdef SHADING
         composite_lit(acc, texel, spread, row, gradient_at(tex, slot, u, glo, ghi, its, isc, texel), dir);
@@ -568,6 +574,8 @@ void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int 
 #define FAST_TAKE(c) { TAKE_EXT(texture(tex, c).r); hit = true; }
 #elif defined(MODE_AVERAGE)
 #define FAST_TAKE(c) { sw += vec2(texture(tex, c).r * delta, delta); }
+#elif defined(MODE_GLSL)
+#define FAST_TAKE(c) { MODE_TAKE(texture(tex, c).r); }
 #elif defined(DISTRIB)
 #define FAST_TAKE(c) { vec2 v_ = texture(tex, c).rg; composite_sample(acc, v_.x, v_.y, row); if (acc.a >= u_opaque) break; }
 #else
