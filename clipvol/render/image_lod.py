@@ -21,6 +21,7 @@ from ..errors import ParameterError
 from ..scene.lod_error import lod_errors
 from ..scene.selection.policies.image_based import ImageBased
 from ..scene.visibility import view_close
+from .modes import mode_of
 from .visibility import CpuVisibilityEstimator, VisibilityEstimator
 
 __all__ = ["ImageLod", "REUSE_ANGLE_DEG"]
@@ -90,7 +91,7 @@ class ImageLod:
         objects, and no node the frustum culled then is in view now (:meth:`ImageBased.covers`)."""
         errors = self.errors_for(tf, getattr(params, "classify", "mean"))
         # MIP has no occlusion: a brick behind another can still hold the maximum
-        vis = self.visibility_for(camera, tf, params) if params.visibility and params.mode == "composite" else None
+        vis = self.visibility_for(camera, tf, params) if params.visibility and mode_of(params.mode).classifies else None
         reuse = None
         last = self._last
         if self.reuse_cut and last is not None and last[1] is errors and last[2] is vis and last[3] == params \

@@ -43,6 +43,7 @@ import math
 from dataclasses import replace
 
 from .glsl import shader_source
+from .modes import mode_of
 from .target import FloatTarget
 from .uniforms import uset
 
@@ -81,7 +82,7 @@ def pass_origin(size) -> tuple[int, int]:
 def refines(params, camera) -> bool:
     """Does a frame with ``params`` seen by ``camera`` draw refined (composite, a tolerance above 0,
     an image large enough for a coarse pass, :func:`refine_levels`)?"""
-    return params.refine_tolerance > 0.0 and params.mode == "composite" and refine_levels(camera) > 0
+    return params.refine_tolerance > 0.0 and mode_of(params.mode).classifies and refine_levels(camera) > 0
 
 
 class Refine:

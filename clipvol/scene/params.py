@@ -98,7 +98,8 @@ class RenderParams:
         The projections and the iso-surface map their per-pixel value through the transfer
         function on read-back (:mod:`clipvol.render.modes`). The projections neither cull
         transparent bricks nor leap over empty cells; ``"iso"`` culls and leaps over what lies
-        wholly below ``iso_value``.
+        wholly below ``iso_value``. Each mode is a module of :mod:`clipvol.render.modes`; a mode
+        registered there is accepted here too (and its own checks run).
     iso_value : float, optional
         ``mode="iso"``: the data value of the surface (raw units of the data; required there).
     iso_color : {"tf", "depth"}

@@ -135,7 +135,8 @@ class Viewer(GlWindow):
             num_levels=pyr.num_levels, tf_presets=presets, mode=s.policy, level=s.level or 0,
             lod_threshold=s.lod_threshold, render_mode=s.mode, shading=s.shading, tf_index=0,
             # I: every registered mode whose fields are set (the iso-surface when clipvol view --iso-value)
-            render_modes=tuple(name for name, m in DRAW_MODES.items() if all(getattr(s, f) is not None for f in m.requires)),
+            render_modes=tuple(name for name, m in DRAW_MODES.items()
+                               if all(getattr(s, f) is not None for f in m.requires)),
         )
         self.controls = OrbitControls.for_pyramid(pyr, size=self.framebuffer_size, **_anatomical_rig(self.session.loader))
         if camera is not None:
