@@ -37,6 +37,8 @@ from functools import lru_cache
 from importlib import resources
 from typing import Mapping
 
+from ..errors import ParameterError
+
 __all__ = ["load_shader", "shader_source", "ProgramCache", "register_source", "unregister_source"]
 
 _INCLUDE = re.compile(r'^\s*#include\s+"([^"]+)"\s*$', re.MULTILINE)
@@ -83,7 +85,8 @@ def shader_source(name: str, defines: Mapping[str, object] | None = None) -> str
     if _MODE_INCLUDE.search(src):
         mode = (defines or {}).get("MODE_GLSL")
         if mode and mode not in _SOURCES:
-            raise KeyError(f"MODE_GLSL: no GLSL source registered as {mode!r}")
+            raise ParameterError(f"MODE_GLSL: expected a registered GLSL source, got {mode!r} (a draw mode "
+                                 f"unregistered since?)")
         src = _MODE_INCLUDE.sub(lambda _m: _SOURCES[mode] if mode else "", src)
     lines = [f"#define {k} {1 if v is True else v}" for k, v in sorted((defines or {}).items())
              if v is not None and v is not False]

@@ -179,3 +179,19 @@ def test_a_mode_needs_its_ray_code_once():
         with pytest.raises(ParameterError, match=cls.__name__):
             modes.register(cls)
         assert cls.name not in DRAW_MODES
+
+
+def test_overlays_are_refused_by_modes_that_do_not_classify():
+    """An overlay is composited over the primary's classified samples: a mode that does not
+    classify (the projections, iso) refuses it, naming the overlay; composite takes it."""
+    from clipvol.loaders.numpy_array import NumpyLoader
+    from clipvol.scene.overlay import Overlay
+
+    ov = Overlay(NumpyLoader(np.zeros((8, 8, 8), np.float32), brick=8), TF)
+    for name, mode in DRAW_MODES.items():
+        kw = REFERENCES.get(name, ({}, None))[0]
+        if mode.classifies:
+            assert RenderParams(mode=name, overlays=(ov,), **kw).overlays == (ov,)
+        else:
+            with pytest.raises(ParameterError, match=f"overlays: expected mode 'composite'.*{name}"):
+                RenderParams(mode=name, overlays=(ov,), **kw)
