@@ -5,15 +5,15 @@ A mode is what differs around the ray loop between, say, compositing and a proje
 blending, the read-back, whether bricks may be culled, whether sort-last and the point splats draw
 it. The draw paths, the action, sort-last, the splats, the viewer and the web page read these here.
 
-=============  ================  ===========================================================
-``mode``       module            the pixel
-=============  ================  ===========================================================
+=============  =================  ============================================================
+``mode``       module             the pixel
+=============  =================  ============================================================
 ``composite``  :mod:`.composite`  emission-absorption of the classified samples, front to back
-``mip``        :mod:`.mip`       the largest texel along the ray, mapped on read-back
-``minip``      :mod:`.minip`     the smallest texel along the ray
-``average``    :mod:`.average`   the mean of the samples along the ray
-``iso``        :mod:`.iso`       the first hit of ``iso_value``, lit on read-back
-=============  ================  ===========================================================
+``mip``        :mod:`.mip`        the largest texel along the ray, mapped on read-back
+``minip``      :mod:`.minip`      the smallest texel along the ray
+``average``    :mod:`.average`    the mean of the samples along the ray
+``iso``        :mod:`.iso`        the first hit of ``iso_value``, lit on read-back
+=============  =================  ============================================================
 
 Adding a mode is one module with a :class:`~.base.DrawMode` subclass (its ``name`` is the value of
 ``RenderParams.mode`` that selects it; its ray code either a ``define`` tested in
