@@ -133,7 +133,6 @@ class ClipRenderAction:
         self._paths: dict = {}  # draw paths by name, made on first use (clipvol.render.paths)
         self.program = None  # the variant of the last frame
         self.nonfinite = may_hold_nonfinite(clip_texture.loader)
-        # what the last frame's draw path drew (its DrawStats, folded here and into FrameStats)
         self.path_drawn = None  # the registered name of the path that drew the last frame
         self.skipped_empty = False  # the last frame leapt over empty cells (EMPTY_SKIP, see _skips)
         self.page_table_nodes = 0  # single pass: drawn nodes of the last frame's table, after merge_items
@@ -355,7 +354,7 @@ class ClipRenderAction:
         def ordered(items):  # a cut drawn again is in the order of the camera that made it
             return [items[i] for i in node_order(items, self.pyramid, cam)] if replayed else items
 
-        if name != "single-pass":  # the single pass walks a page table: it needs no order
+        if self._path(name).wants_order:  # (the single pass walks a page table: it needs no order)
             items = ordered(items)
         frame = self._frame_context(cam, tf, items)
         out = self._draw_refined(name, frame) if refines(self.params, cam) else self._path(name).draw(frame)

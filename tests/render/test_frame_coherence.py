@@ -140,7 +140,7 @@ def test_page_table_texture_takes_changed_rows_only(ctx):
     clip = ClipTexture(NumpyLoader(blob(16), brick=8), "16MB", threads=1)
     a = ClipRenderAction(ctx, clip, policy="fixed", level=0, path="single-pass")
     try:
-        path = SinglePassPath(a)
+        path = SinglePassPath(a.setup)  # a path is made with the shared set-up alone
         rng = np.random.default_rng(1)
         first = rng.integers(0, 2**32 - 1, size=5 * PAGE_TABLE_WIDTH - 100, dtype=np.uint64).astype(np.uint32)
         path._page_table_texture(first)

@@ -430,6 +430,9 @@ class DrawPath:
 
     #: the name ``RenderParams.path`` gives it
     name: str = ""
+    #: does the path draw ``frame.items`` in the order given (the selection's visibility order, which
+    #: the action restores for a cut drawn again from another camera)? False: any order will do
+    wants_order: bool = True
 
     def __init__(self, setup: DrawSetup) -> None:
         self.setup = setup

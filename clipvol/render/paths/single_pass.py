@@ -54,6 +54,7 @@ class SinglePassPath(DrawPath):
     """Draw the cut as one pass over the volume box through its page table."""
 
     name = "single-pass"
+    wants_order = False  # the page table holds the cut in no order
 
     def __init__(self, setup: DrawSetup) -> None:
         super().__init__(setup)
