@@ -14,7 +14,7 @@ bit-identical where they should be (the same ray, the same samples, the same rou
   transfer function with its opacity corrected for level ``L``'s step, ``1 - exp(r * log1p(-a))``
   in float64 on the CPU, rebuilt only when the table or the step changes (LaMar, Hamann & Joy);
 * **the empty-space cells** (:meth:`DrawSetup.bind_occupancy`) for ``EMPTY_SKIP`` variants;
-* **the passes of a refined frame** (:attr:`DrawSetup.refine_level`, :mod:`clipvol.render.refine`):
+* **the passes of a refined frame** (``FrameContext.refine_level``, :mod:`clipvol.render.refine`):
   a coarse pass draws into a target of its own with the image's rays through its pixels; every
   finer pass begins with the mask from the pass before (smooth pixels blended, their depth set)
   and draws under the depth test (:meth:`DrawSetup.depth_test`), so the rasteriser never shades
@@ -56,7 +56,7 @@ from ..target import FloatTarget
 from ..uniforms import uset, vec3
 from .frame import DrawStats, FrameContext
 
-__all__ = ["DrawPath", "DrawSetup", "DrawStats", "FrameContext", "MAX_STEPS_PER_BOX", "OPAQUE", "OCCUPANCY_UNIT", "MIP_EMPTY",
+__all__ = ["DrawPath", "DrawSetup", "MAX_STEPS_PER_BOX", "OPAQUE", "OCCUPANCY_UNIT", "MIP_EMPTY",
            "scissor_boxes", "samples_per_box", "max_step", "check_step", "check_samples", "premultiplied_to_uint8"]
 
 #: most samples one ray takes inside one box (a smaller step is refused with ParameterError)
