@@ -4,6 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from render_helpers import every_draw_path
+
+
+def pytest_generate_tests(metafunc):
+    """A test taking a ``draw_path`` argument runs once per registered draw path: what holds for
+    every path is written once and covers a path the moment it is registered."""
+    if "draw_path" in metafunc.fixturenames:
+        metafunc.parametrize("draw_path", every_draw_path())
 
 
 @pytest.fixture

@@ -201,7 +201,7 @@ class DistributedRenderer:
 
     def render(self, camera, tf) -> np.ndarray:
         """One converged frame: ``(h, w, 4)`` straight RGBA uint8, as :meth:`ClipRenderAction.render`."""
-        from ..render.action import premultiplied_to_uint8
+        from ..render.paths.setup import premultiplied_to_uint8
         from ..render.modes import mode_of
 
         t0 = time.perf_counter()

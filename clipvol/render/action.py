@@ -14,8 +14,11 @@ Per frame (:meth:`ClipRenderAction.render`):
 3. **Draw** - the cut, merged once for every path (:func:`clipvol.scene.selection.merge_items`: a
    complete sibling set drawn from one level is one box), goes to the draw path
    ``RenderParams.path`` names (:mod:`clipvol.render.paths`; ``"auto"``, the default, takes the
-   single pass for cuts of at least ``AUTO_SINGLE_PASS_BOXES`` merged boxes). A path that cannot
-   draw a cut hands it to the per-brick path, the reference:
+   single pass for cuts of at least ``AUTO_SINGLE_PASS_BOXES`` merged boxes). The action hands a
+   path the frame as one :class:`~clipvol.render.paths.frame.FrameContext` (the cut, the camera,
+   the parameters, the GPU cache, ...) and folds the :class:`~clipvol.render.paths.frame.DrawStats`
+   it returns (boxes, page-table nodes, occlusion passes) into :class:`FrameStats`; a path never
+   touches the action. A path that cannot draw a cut hands it to the per-brick path, the reference:
 
    * ``"single-pass"`` (:mod:`clipvol.render.paths.single_pass`) - one ray per pixel walks a
      per-level page table of the cut (ray-guided casting);
@@ -88,18 +91,11 @@ from .image_lod import ImageLod
 from .modes import mode_defines, mode_of
 from .overlay_binding import OverlayTextures, overlay_defines
 from .refine import Refine, refine_levels, refines
-from .paths import AUTO_SINGLE_PASS_BOXES, DRAW_PATHS, FALLBACK, pick
-# the draw paths' limits, importable from here as well (benchmarks and tests read them)
-from .paths.bricks import OCCLUSION_MIN_BATCH, OCCLUSION_PASSES
-from .paths.setup import (MAX_STEPS_PER_BOX, OCCUPANCY_UNIT, OPAQUE, DrawSetup, check_samples, check_step,
-                          premultiplied_to_uint8, samples_per_box, scissor_boxes)
-from .paths.single_pass import (MAX_PAGE_TABLE_ENTRIES, MAX_SINGLE_PASS_LEVELS, MAX_SINGLE_PASS_RAY_SAMPLES,
-                                PAGE_TABLE_WIDTH)
+from .paths import DRAW_PATHS, FALLBACK, DrawStats, FrameContext, pick
+from .paths.frame import level_ratios
+from .paths.setup import MAX_STEPS_PER_BOX, DrawSetup, check_samples, check_step, samples_per_box
 
-__all__ = ["ClipRenderAction", "FrameStats", "MODES", "SELECTIONS", "scissor_boxes", "premultiplied_to_uint8",
-           "MAX_STEPS_PER_BOX", "OPAQUE", "OCCUPANCY_UNIT", "OCCLUSION_PASSES", "OCCLUSION_MIN_BATCH",
-           "MAX_SINGLE_PASS_LEVELS", "MAX_SINGLE_PASS_RAY_SAMPLES", "MAX_PAGE_TABLE_ENTRIES", "PAGE_TABLE_WIDTH",
-           "AUTO_SINGLE_PASS_BOXES", "MIN_EMPTY_FRACTION"]
+__all__ = ["ClipRenderAction", "FrameStats", "MODES", "SELECTIONS", "MIN_EMPTY_FRACTION"]
 
 #: selection policy names (clipvol.scene.selection.policies.POLICIES)
 SELECTIONS = tuple(POLICIES)
@@ -133,7 +129,7 @@ class ClipRenderAction:
         self.params = RenderParams.from_kwargs(params, **kwargs).check_for(self.pyramid)
         self.cache = self._new_cache(clip_texture, self.params.texture_budget)
         self.frame_loop = FrameLoop(clip_texture, self.cache)
-        self.setup = DrawSetup(self)  # the target, colour table and programs every draw path shares
+        self.setup = DrawSetup(ctx)  # the target, colour table and programs every draw path shares
         self._paths: dict = {}  # draw paths by name, made on first use (clipvol.render.paths)
         self.program = None  # the variant of the last frame
         self.nonfinite = may_hold_nonfinite(clip_texture.loader)
@@ -226,9 +222,8 @@ class ClipRenderAction:
 
     def level_ratios(self) -> np.ndarray:
         """Per level, the sample spacing ``step * min(scale)`` over the level-0 voxel size (the
-        transfer function's reference length)."""
-        ref = float(min(self.pyramid.spacing))
-        return np.array([self.params.step * float(min(lv.scale)) / ref for lv in self.pyramid.levels])
+        transfer function's reference length; :func:`clipvol.render.paths.frame.level_ratios`)."""
+        return level_ratios(self.pyramid, self.params.step)
 
     def set_params(self, params: RenderParams) -> None:
         """Use ``params`` from the next frame on (the GPU cache is kept unless the texture budget
@@ -285,11 +280,12 @@ class ClipRenderAction:
                                    policy=policy, wait=wait, timeout=timeout)
         sel, times = plan.selection, dict(plan.times)
         self._replayed = plan.replayed
-        image, draw_t, read_t = self._draw(cam, transfer_function, sel)
-        times["draw"], times["readback"] = draw_t, read_t
+        drawn = self._draw(cam, transfer_function, sel)
+        image, read_t = drawn.image, drawn.readback_s
+        times["draw"], times["readback"] = drawn.draw_s, read_t
         times["total"] = time.perf_counter() - t_start
         # the host's share: all but the waits on the loader and on the GL (finish and read-back)
-        times["gpu"] = self.setup.finish_s + read_t
+        times["gpu"] = drawn.finish_s + read_t
         times["host"] = max(0.0, times["total"] - times["wait"] - times["gpu"])
         bytes_read = None if read0 is None else bytes_read_of(self.clip_texture.loader) - read0
         reads = self.clip_texture.take_reads()
@@ -299,10 +295,12 @@ class ClipRenderAction:
                 if reads else ((None, None) if reads is None else (0, 0))
             self.last_frame_stats = dataclasses.replace(
                 last, times=times, bytes_uploaded=0, bricks_uploaded=0, passes=1, converged=True,
-                bytes_read=bytes_read, frame_bytes_read=frame_read, prefetch_bytes_read=other_read, replayed=True)
+                bytes_read=bytes_read, frame_bytes_read=frame_read, prefetch_bytes_read=other_read, replayed=True,
+                **self._drawn_fields(drawn))
         else:
-            self.last_frame_stats = frame_stats(sel, plan, times, self.cache, self.params.texture_budget,
-                                                self.clip_texture, bytes_read=bytes_read, reads=reads)
+            self.last_frame_stats = dataclasses.replace(
+                frame_stats(sel, plan, times, self.cache, self.params.texture_budget, self.clip_texture,
+                            bytes_read=bytes_read, reads=reads), **self._drawn_fields(drawn))
         self.last_selection = sel
         return image
 
@@ -322,8 +320,7 @@ class ClipRenderAction:
                                      "that is neither on the GPU nor in the clip-texture (or shares a slot)")
         cache.reserve_neighbours(items)  # so that filtering across faces is seamless
         cache.commit()
-        image, _, _ = self._draw(cam, transfer_function, SimpleNamespace(items=list(items)))
-        return image
+        return self._draw(cam, transfer_function, SimpleNamespace(items=list(items))).image
 
     def _selection_camera(self, camera):
         """The camera with near/far enclosing the volume, near tiny (the eye may be inside a huge volume)."""
@@ -333,17 +330,17 @@ class ClipRenderAction:
             cam = cam.with_depth_range(min(cam.near, cam.far * 1e-7), cam.far)
         return cam
 
-    def _draw(self, cam, tf, sel) -> tuple[np.ndarray, float, float]:
+    def _draw(self, cam, tf, sel) -> DrawStats:
         """Merge the cut once, check once that no ray needs more samples in a box than the loop
         takes (:func:`check_samples`; every pass and path of the frame casts the image camera's
         rays through these boxes), decide whether the frame leaps over empty cells, and hand the
         cut to the draw path ``params.path`` picks (:func:`clipvol.render.paths.pick`), or to the
-        fallback path where that one declines it."""
+        fallback path where that one declines it, as a :class:`FrameContext`; fold the
+        :class:`DrawStats` it returns into the action's counters."""
         check_step(self.pyramid, self.params.step)  # bricks are never stepped over, whatever the cut
         items = sel.items  # a full cut's DrawItems stay arrays: the merge reads those
         replayed = getattr(self, "_replayed", False) and isinstance(sel, Selection)
         self._replayed = False
-        self.page_table_nodes = 0
         checked = False
         if self.params.merge_boxes and len(items):  # once, for either path
             merged = self._merged(cam, sel)
@@ -359,15 +356,30 @@ class ClipRenderAction:
         def ordered(items):  # a cut drawn again is in the order of the camera that made it
             return [items[i] for i in node_order(items, self.pyramid, cam)] if replayed else items
 
-        if name != "single-pass":  # the single pass walks a page table: it needs no order
+        if self._path(name).wants_order:  # (the single pass walks a page table: it needs no order)
             items = ordered(items)
-        out = self._draw_refined(name, cam, tf, items) if refines(self.params, cam) else \
-            self._path(name).draw(cam, tf, items)
+        frame = self._frame_context(cam, tf, items)
+        out = self._draw_refined(name, frame) if refines(self.params, cam) else self._path(name).draw(frame)
         if out is None:  # the path cannot draw this cut: the reference path does
             name = FALLBACK
-            out = self._path(name).draw(cam, tf, ordered(items))
+            out = self._path(name).draw(dataclasses.replace(frame, items=ordered(items)))
         self.path_drawn = name
+        self.boxes_drawn, self.page_table_nodes = out.boxes_drawn, out.page_table_nodes
+        self.occlusion_passes += out.occlusion_passes
+        self.program = out.program
         return out
+
+    def _frame_context(self, cam, tf, items: list) -> FrameContext:
+        """What a draw path reads of this frame (:class:`~clipvol.render.paths.frame.FrameContext`)."""
+        return FrameContext(camera=cam, tf=tf, items=items, params=self.params, pyramid=self.pyramid,
+                            cache=self.cache, residency_version=self.clip_texture.residency_version,
+                            overlays=self.overlays, defines=self.defines(), skipped_empty=self.skipped_empty,
+                            distribution=self.distribution)
+
+    def _drawn_fields(self, drawn: DrawStats) -> dict:
+        """The :class:`FrameStats` fields of what the draw path drew."""
+        return dict(path=self.path_drawn, boxes_drawn=drawn.boxes_drawn, page_table_nodes=drawn.page_table_nodes,
+                    occlusion_passes=drawn.occlusion_passes)
 
     def _merged(self, cam, sel) -> list:
         """:func:`merge_items` of ``sel``'s items, kept while ``sel`` is drawn again (the frame loop's
@@ -397,26 +409,20 @@ class ClipRenderAction:
         self._extents_kept = (merged, rep)
         return rep
 
-    def _draw_refined(self, name: str, cam, tf, items):
-        """Draw the cut with path ``name`` as a refined frame (:mod:`clipvol.render.refine`): its
+    def _draw_refined(self, name: str, frame: FrameContext) -> DrawStats | None:
+        """Draw ``frame`` with path ``name`` as a refined frame (:mod:`clipvol.render.refine`): its
         passes from the coarsest to the image, each finer one masked by the one before; None where
-        the path declines the cut (the fallback path then draws every pixel)."""
-        setup = self.setup
-        if setup.refine is None:
-            setup.refine = Refine(self.ctx)
-        path = self._path(name)
-        setup.refine_camera = cam
-        drawn = 0.0
-        try:
-            for k in range(refine_levels(cam), -1, -1):  # coarsest first; 0: the image
-                setup.refine_level = k
-                out = path.draw(Refine.coarse_camera(cam, k), tf, items)
-                if out is None:
-                    return None
-                drawn += out[1]
-        finally:
-            setup.refine_level = setup.refine_camera = None
-        return out[0], drawn, out[2]
+        the path declines the cut (the fallback path then draws every pixel). The statistics are
+        the image pass's, with the draw seconds and occlusion passes of all passes."""
+        path, cam = self._path(name), frame.camera
+        drawn, occlusion = 0.0, 0
+        for k in range(refine_levels(cam), -1, -1):  # coarsest first; 0: the image
+            out = path.draw(frame.for_pass(k, Refine.coarse_camera(cam, k)))
+            if out is None:
+                return None
+            drawn += out.draw_s
+            occlusion += out.occlusion_passes
+        return dataclasses.replace(out, draw_s=drawn, occlusion_passes=occlusion)
 
     def _path(self, name: str):
         """The draw path registered as ``name``, made for this action on first use."""
@@ -425,7 +431,7 @@ class ClipRenderAction:
             if name not in DRAW_PATHS:
                 raise ParameterError(f"path: expected one of {', '.join(DRAW_PATHS)} (clipvol.render.paths), "
                                      f"got {name!r}")
-            path = self._paths[name] = DRAW_PATHS[name](self)
+            path = self._paths[name] = DRAW_PATHS[name](self.setup)
         return path
 
     @property

@@ -60,6 +60,12 @@ class FrameStats:
         (:mod:`clipvol.render.failures`); :attr:`unreplaced` are those drawn by nothing.
     replayed : bool
         The frame drew the last frame's cut again (:mod:`clipvol.render.frame_loop`, "Coherence").
+    path : str or None
+        The registered name of the draw path that drew the frame (:mod:`clipvol.render.paths`).
+    boxes_drawn, page_table_nodes, occlusion_passes : int
+        What that path drew (its :class:`~clipvol.render.paths.frame.DrawStats`): proxy boxes, the
+        single pass's page-table nodes, the per-brick path's opacity snapshots (all passes of a
+        refined frame).
     """
 
     bricks_drawn: dict[int, int]
@@ -79,6 +85,10 @@ class FrameStats:
     frame_bytes_read: int | None = None
     prefetch_bytes_read: int | None = None
     replayed: bool = False
+    path: str | None = None
+    boxes_drawn: int = 0
+    page_table_nodes: int = 0
+    occlusion_passes: int = 0
 
     @property
     def host_ms(self) -> float:

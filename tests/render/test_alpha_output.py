@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from clipvol.render.action import premultiplied_to_uint8
+from clipvol.render.paths.setup import premultiplied_to_uint8
 
 
 def test_colour_is_zero_where_alpha_rounds_to_zero():

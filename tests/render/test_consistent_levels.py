@@ -104,19 +104,18 @@ def _render(ctx, store, level, classify, path, tf):
 
 
 @pytest.mark.gl
-@pytest.mark.parametrize("path", ["bricks", "single-pass"])
-def test_coarse_levels_of_thin_sheets_look_like_level0_averaged(ctx, sheet_store, path):
+def test_coarse_levels_of_thin_sheets_look_like_level0_averaged(ctx, sheet_store, draw_path):
     vol, tf = _sheets(), _sharp_tf()
     # level 0 checks the reference itself (camera, pixel mapping, compositing): within rounding
     ref_a, _ = _reference(vol, tf, 0)
-    img = _render(ctx, sheet_store, 0, "distribution", path, tf)
+    img = _render(ctx, sheet_store, 0, "distribution", draw_path, tf)
     assert np.max(np.abs(img[..., 3] / 255.0 - ref_a)) <= 3 / 255
     for level in (1, 2):
         ref_a, ref_rgb = _reference(vol, tf, level)
         structure = ref_a > 0.01
         assert structure.sum() > 0
-        dist = _render(ctx, sheet_store, level, "distribution", path, tf)
-        mean = _render(ctx, sheet_store, level, "mean", path, tf)
+        dist = _render(ctx, sheet_store, level, "distribution", draw_path, tf)
+        mean = _render(ctx, sheet_store, level, "mean", draw_path, tf)
         err_dist = np.abs(dist[..., 3] / 255.0 - ref_a)
         err_mean = np.abs(mean[..., 3] / 255.0 - ref_a)
         # the normal model of a block of two values (air and bone) is the model's worst case: it
@@ -209,8 +208,7 @@ def test_distribution_table_is_the_expectation_over_a_normal(rng):
 
 
 @pytest.mark.gl
-@pytest.mark.parametrize("path", ["bricks", "single-pass"])
-def test_a_store_without_the_spread_renders_as_before(ctx, sheet_store, tmp_path, path):
+def test_a_store_without_the_spread_renders_as_before(ctx, sheet_store, tmp_path, draw_path):
     """Without the arrays both values of classify draw today's image (the mean classified), and so
     does classify="mean" on the store with them."""
     bare = tmp_path / "bare.zarr"
@@ -222,9 +220,9 @@ def test_a_store_without_the_spread_renders_as_before(ctx, sheet_store, tmp_path
     assert open_store(bare).spread_levels == ()
     tf = _sharp_tf()
     for level in (1, 2):
-        today = _render(ctx, bare, level, "mean", path, tf)
-        assert np.array_equal(_render(ctx, bare, level, "distribution", path, tf), today)
-        assert np.array_equal(_render(ctx, sheet_store, level, "mean", path, tf), today)
+        today = _render(ctx, bare, level, "mean", draw_path, tf)
+        assert np.array_equal(_render(ctx, bare, level, "distribution", draw_path, tf), today)
+        assert np.array_equal(_render(ctx, sheet_store, level, "mean", draw_path, tf), today)
 
 
 def test_the_spread_pools_stay_within_the_memory_budget(sheet_store):
@@ -274,8 +272,7 @@ def test_classify_flag_sets_the_render_parameter():
 
 
 @pytest.mark.gl
-@pytest.mark.parametrize("path", ["bricks", "single-pass"])
-def test_empty_space_skipping_keeps_the_spread_of_coarse_cells(ctx, tmp_path, path):
+def test_empty_space_skipping_keeps_the_spread_of_coarse_cells(ctx, tmp_path, draw_path):
     """A coarse cell whose means the table makes transparent still draws the bone its spread reaches:
     leaping over empty cells gives the same image as sampling every cell."""
     n = 128
@@ -289,7 +286,7 @@ def test_empty_space_skipping_keeps_the_spread_of_coarse_cells(ctx, tmp_path, pa
     with ClipTexture(open_store(tmp_path / "v.zarr"), "64MB", threads=2) as clip:
         imgs = {}
         for skip in (True, False):
-            a = ClipRenderAction(ctx, clip, policy="fixed", level=2, path=path, step=0.25, skip_empty=skip)
+            a = ClipRenderAction(ctx, clip, policy="fixed", level=2, path=draw_path, step=0.25, skip_empty=skip)
             try:
                 a.render(cam, tf, wait=True, timeout=30)  # the cells' ranges arrive with the bricks
                 imgs[skip] = a.render(cam, tf, wait=True, timeout=30)

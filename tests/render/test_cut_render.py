@@ -45,8 +45,7 @@ def diff(a, b):
     return np.abs(a.astype(int) - b.astype(int))
 
 
-@pytest.mark.parametrize("path", ["bricks", "single-pass"])
-def test_voxel_crop_and_world_plane_equal_the_reference_on_both_paths(ctx, path):
+def test_voxel_crop_and_world_plane_equal_the_reference_on_both_paths(ctx, draw_path):
     from clipvol.app.session import RenderSession
     from clipvol.scene.params import RenderParams
 
@@ -63,10 +62,10 @@ def test_voxel_crop_and_world_plane_equal_the_reference_on_both_paths(ctx, path)
                                  shape=(box_lo, box_hi, planes)))
     full = ref.to_uint8(ref.raycast(vol, (1, 1, 1), fc, TF.table, TF.window(pyr.value_range), 0.5))
     assert diff(r, full).max() > 50  # the cut matters
-    params = RenderParams(policy="fixed", level=0, shape=shape, path=path)
+    params = RenderParams(policy="fixed", level=0, shape=shape, path=draw_path)
     with RenderSession(loader, ctx, params=params, tf=TF, threads=2, memory_budget="64MB") as s:
         img = s.render(cam, wait=True, timeout=30)
-        assert s.frame_stats.converged and s.action.path_drawn == path
+        assert s.frame_stats.converged and s.action.path_drawn == draw_path
         assert s.frame_stats.counts["culled_shape"] > 0
         assert diff(img, r).max() <= 2
         s.clip_texture.wait_until_idle(30)

@@ -19,8 +19,7 @@ from clipvol.scene.transfer import TransferFunction
 pytestmark = pytest.mark.gl
 
 
-@pytest.mark.parametrize("path", ["single-pass", "bricks"])
-def test_every_level_stays_inside_the_level0_box(ctx, path):
+def test_every_level_stays_inside_the_level0_box(ctx, draw_path):
     shape = (9, 11, 13)  # odd on every axis: levels 9x11x13 -> 5x6x7 -> 3x3x4 -> 2x2x2
     vol = np.ones(shape, np.float32)
     opaque = TransferFunction.from_points([(0.0, (1, 1, 1, 1)), (1.0, (1, 1, 1, 1))])
@@ -38,7 +37,7 @@ def test_every_level_stays_inside_the_level0_box(ctx, path):
     inside = ((ys[:, None] > lo[1]) & (ys[:, None] < hi[1])) & ((xs[None] > lo[0]) & (xs[None] < hi[0]))
     with ClipTexture(loader, "16MB", threads=2) as clip:
         for level in range(pyr.num_levels):
-            action = ClipRenderAction(ctx, clip, policy="fixed", level=level, path=path)
+            action = ClipRenderAction(ctx, clip, policy="fixed", level=level, path=draw_path)
             try:
                 img = action.render(cam, opaque, wait=True, timeout=20)
                 assert action.last_frame_stats.converged

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import reference_raycast as ref
+from render_helpers import every_draw_path
 from clipvol.loaders.numpy_array import NumpyLoader
 
 from clipvol.paging.cliptexture import ClipTexture
@@ -80,14 +81,13 @@ def leapt_cells(action) -> float:
     return float((flags[z0:z0 + cz, :cy, :cx] == 0).mean())
 
 
-@pytest.mark.parametrize("path", ["bricks", "single-pass"])
-def test_skipping_draws_the_reference_image_with_air_and_a_thin_shell(scene, path):
+def test_skipping_draws_the_reference_image_with_air_and_a_thin_shell(scene, draw_path):
     vol, pyr, action = scene
     cam = camera()
-    skip = action(path=path)
-    plain = action(path=path, skip_empty=False)
+    skip = action(path=draw_path)
+    plain = action(path=draw_path, skip_empty=False)
     img = skip.render(cam, SHELL, wait=True, timeout=30)
-    assert skip.path_drawn == path and skip.skipped_empty
+    assert skip.path_drawn == draw_path and skip.skipped_empty
     assert leapt_cells(skip) > 0.2  # the rays do leap
     full = plain.render(cam, SHELL, wait=True, timeout=30)
     assert not plain.skipped_empty
@@ -97,12 +97,11 @@ def test_skipping_draws_the_reference_image_with_air_and_a_thin_shell(scene, pat
     assert diff(img, r) <= 2  # and the independent caster's
 
 
-@pytest.mark.parametrize("path", ["bricks", "single-pass"])
-def test_a_transfer_function_change_rederives_occupancy(scene, path):
+def test_a_transfer_function_change_rederives_occupancy(scene, draw_path):
     """The blob's cells are empty under SHELL; under SHELL_AND_BLOB they must be drawn."""
     vol, pyr, action = scene
     cam = camera()
-    a = action(path=path)
+    a = action(path=draw_path)
     first = a.render(cam, SHELL, wait=True, timeout=30)
     assert diff(first, reference(vol, pyr, cam, SHELL)) <= 2
     img = a.render(cam, SHELL_AND_BLOB, wait=True, timeout=30)
@@ -153,7 +152,7 @@ def test_skipping_in_the_lit_and_nan_aware_variants_changes_no_pixel(ctx, varian
     loader = NumpyLoader(vol, brick=16, value_range=(0.0, 1.0))
     clip = ClipTexture(loader, "64MB", threads=2)
     try:
-        for path in ("bricks", "single-pass"):
+        for path in every_draw_path():
             kw = dict(policy="fixed", level=0, path=path, shading=variant == "shading")
             with ClipRenderAction(ctx, clip, **kw) as a, ClipRenderAction(ctx, clip, skip_empty=False, **kw) as b:
                 img = a.render(camera(), SHELL, wait=True, timeout=30)

@@ -66,8 +66,7 @@ def orbit(deg: float, pyr, size: int = 48, dist: float = 1.15) -> Camera:
                               fov_y=35, size=(size, size))
 
 
-@pytest.mark.parametrize("path", ["single-pass", "bricks"])
-def test_kept_cut_frames_equal_fresh_frames(ctx, path, tmp_path):
+def test_kept_cut_frames_equal_fresh_frames(ctx, draw_path, tmp_path):
     gates = {k: threading.Event() for k in GATED}
     brick_volume(blob(), tmp_path / "blob.zarr", brick=8, progress=False, workers=1)
     loader = GatedLoader(open_store(tmp_path / "blob.zarr"), gates)  # with brick ranges: transparency culls
@@ -76,7 +75,7 @@ def test_kept_cut_frames_equal_fresh_frames(ctx, path, tmp_path):
                                         (1.0, (1, 1, 1, 0.8))])
     tf2 = TransferFunction.from_points([(0.0, (0, 0, 0, 0.0)), (0.45, (0, 0, 0, 0.0)), (0.7, (0.2, 0.5, 1, 0.5)),
                                         (1.0, (1, 1, 1, 1.0))])
-    a = ClipRenderAction(ctx, clip, policy="fixed", level=0, path=path)
+    a = ClipRenderAction(ctx, clip, policy="fixed", level=0, path=draw_path)
     pyr = a.pyramid
     made = [a]
 
@@ -141,7 +140,7 @@ def test_page_table_texture_takes_changed_rows_only(ctx):
     clip = ClipTexture(NumpyLoader(blob(16), brick=8), "16MB", threads=1)
     a = ClipRenderAction(ctx, clip, policy="fixed", level=0, path="single-pass")
     try:
-        path = SinglePassPath(a)
+        path = SinglePassPath(a.setup)  # a path is made with the shared set-up alone
         rng = np.random.default_rng(1)
         first = rng.integers(0, 2**32 - 1, size=5 * PAGE_TABLE_WIDTH - 100, dtype=np.uint64).astype(np.uint32)
         path._page_table_texture(first)

@@ -29,7 +29,6 @@ from clipvol.scene.transfer import TransferFunction
 pytestmark = pytest.mark.gl
 
 TF = TransferFunction.preset("viridis")
-PATHS = ["bricks", "single-pass"]
 
 
 @pytest.fixture(autouse=True)
@@ -82,41 +81,38 @@ def diff(a, b) -> np.ndarray:
 
 
 @pytest.mark.parametrize("dtype", ["float32", "uint8", "uint16", "int16"])
-@pytest.mark.parametrize("path", PATHS)
 @pytest.mark.parametrize("mode,reduce", [("minip", np.min), ("average", np.mean)])
-def test_axis_aligned_projection_is_numpy_min_or_mean(ctx, path, mode, reduce, dtype):
+def test_axis_aligned_projection_is_numpy_min_or_mean(ctx, draw_path, mode, reduce, dtype):
     """Every texture format: normalised r8 / r16 (signed shifted) and raw r32f."""
     vol = columns_volume()
     if dtype != "float32":  # whole numbers over a few dozen values: a mean between them must not round
         vol = (np.rint((vol + 0.2) * 40.0) - (10 if dtype == "int16" else 0)).astype(dtype)
-    img, _, action = render(ctx, vol, z_camera(vol.shape), mode=mode, step=1.0, path=path)
-    assert action.path_drawn == path
-    assert sum(action.last_frame_stats.bricks_drawn.values()) > 1 or path == "single-pass"
+    img, _, action = render(ctx, vol, z_camera(vol.shape), mode=mode, step=1.0, path=draw_path)
+    assert action.path_drawn == draw_path
+    assert sum(action.last_frame_stats.bricks_drawn.values()) > 1
     lo, hi = float(vol.min()), float(vol.max())
     expect = expected(reduce(vol.astype(np.float64), axis=0), lo, hi)
     assert diff(img, expect).max() <= 1
     assert expect[..., 3].mean() > 0.5  # the reference is mostly visible
 
 
-@pytest.mark.parametrize("path", PATHS)
-def test_minip_and_mip_differ_where_a_dark_voxel_is(ctx, path):
+def test_minip_and_mip_differ_where_a_dark_voxel_is(ctx, draw_path):
     """The dark voxel shows in minIP and not in MIP (the modes really differ)."""
     vol = columns_volume()
-    a, _, _ = render(ctx, vol, z_camera(vol.shape), mode="minip", step=1.0, path=path)
-    b, _, _ = render(ctx, vol, z_camera(vol.shape), mode="mip", step=1.0, path=path)
+    a, _, _ = render(ctx, vol, z_camera(vol.shape), mode="minip", step=1.0, path=draw_path)
+    b, _, _ = render(ctx, vol, z_camera(vol.shape), mode="mip", step=1.0, path=draw_path)
     lo, hi = float(vol.min()), float(vol.max())
     dark = expected(np.array([[-0.2]]), lo, hi)[0, 0]
     assert diff(a[5, 7], dark).max() <= 1
     assert diff(b[5, 7], dark).max() > 20
 
 
-@pytest.mark.parametrize("path", PATHS)
 @pytest.mark.parametrize("mode,reduce", [("minip", np.min), ("average", np.mean)])
-def test_coarse_level_frame_is_the_reduction_of_the_block_means(ctx, path, mode, reduce):
+def test_coarse_level_frame_is_the_reduction_of_the_block_means(ctx, draw_path, mode, reduce):
     """A frame drawn from level 1 equals numpy's reduction of the 2x2x2 block means (the pyramid's
     mean filter, computed here) along z."""
     vol = columns_volume((24, 24, 28))
-    img, _, action = render(ctx, vol, z_camera(vol.shape, 2.0), mode=mode, step=1.0, path=path, level=1)
+    img, _, action = render(ctx, vol, z_camera(vol.shape, 2.0), mode=mode, step=1.0, path=draw_path, level=1)
     assert set(action.last_frame_stats.bricks_drawn) == {1}
     v = vol.astype(np.float64)
     coarse = v.reshape(12, 2, 12, 2, 14, 2).mean(axis=(1, 3, 5))
@@ -125,8 +121,7 @@ def test_coarse_level_frame_is_the_reduction_of_the_block_means(ctx, path, mode,
     assert diff(img, expect).max() <= 1
 
 
-@pytest.mark.parametrize("path", PATHS)
-def test_iso_surface_of_a_sphere_is_the_sphere(ctx, path):
+def test_iso_surface_of_a_sphere_is_the_sphere(ctx, draw_path):
     """A distance field's iso-surface at radius R is the sphere of radius R: the first-hit distance
     of every pixel whose ray meets it is the analytic ray-sphere distance within half a voxel, and
     equals a numpy ray march of the same array; rays that miss the sphere draw nothing."""
@@ -138,8 +133,8 @@ def test_iso_surface_of_a_sphere_is_the_sphere(ctx, path):
     iso = 30.0 - R
     eye = np.array([c + 20.0, c - 25.0, c - 60.0])
     cam = Camera.perspective(tuple(eye), (c, c, c), size=(48, 40), fov_y=35)
-    img, raw, action = render(ctx, vol, cam, brick=16, mode="iso", iso_value=iso, path=path)
-    assert action.path_drawn == path
+    img, raw, action = render(ctx, vol, cam, brick=16, mode="iso", iso_value=iso, path=draw_path)
+    assert action.path_drawn == draw_path
     o, d = cam.rays()
     o, d = o.reshape(-1, 3), d.reshape(-1, 3)
     # analytic: |o + t d - centre| = R
@@ -203,8 +198,7 @@ def test_iso_needs_a_finite_value_and_modes_are_checked():
     assert RenderParams(mode="iso", iso_value="2.5").iso_value == 2.5
 
 
-@pytest.mark.parametrize("path", PATHS)
-def test_iso_skips_what_lies_below_its_value_and_draws_the_same(ctx, tmp_path, path):
+def test_iso_skips_what_lies_below_its_value_and_draws_the_same(ctx, tmp_path, draw_path):
     """Bricks (from a store's per-brick value ranges) and cells whose values all lie below the
     iso-value are culled / leapt - none of their samples can be a hit: the hit distances and the
     lighting equal those of a frame over an in-memory array that culls nothing and samples everything."""
@@ -218,19 +212,19 @@ def test_iso_skips_what_lies_below_its_value_and_draws_the_same(ctx, tmp_path, p
     brick_volume(vol, tmp_path / "s.zarr", brick=8, progress=False, workers=1)
     cam = Camera.perspective((c + 15, c - 20, c - 70), (c, c, c), size=(48, 48), fov_y=35)
     clip = ClipTexture(ZarrLoader(tmp_path / "s.zarr"), "64MB", threads=2)
-    a = ClipRenderAction(ctx, clip, policy="fixed", level=0, mode="iso", iso_value=20.0, path=path)
+    a = ClipRenderAction(ctx, clip, policy="fixed", level=0, mode="iso", iso_value=20.0, path=draw_path)
     try:
         a.render(cam, TF, wait=True, timeout=20)
         fast = a.last_raw.copy()
         assert a.skipped_empty and a.last_frame_stats.counts["culled_transparent"] > 0
         # and a composite frame under a table visible everywhere culls nothing: the culling is the iso-value's
-        a.set_params(RenderParams(policy="fixed", level=0, path=path))
+        a.set_params(RenderParams(policy="fixed", level=0, path=draw_path))
         a.render(cam, TransferFunction.from_points([(0, (1, 1, 1, 0.1)), (1, (1, 1, 1, 0.1))]), wait=True, timeout=20)
         assert a.last_frame_stats.counts["culled_transparent"] == 0
     finally:
         a.close()
         clip.close()
-    _, slow, b = render(ctx, vol, cam, brick=8, mode="iso", iso_value=20.0, path=path, skip_empty=False)
+    _, slow, b = render(ctx, vol, cam, brick=8, mode="iso", iso_value=20.0, path=draw_path, skip_empty=False)
     assert not b.skipped_empty
     hit = slow[..., 3] > 0.5
     assert hit.sum() > 100 and np.array_equal(hit, fast[..., 3] > 0.5)
@@ -238,8 +232,7 @@ def test_iso_skips_what_lies_below_its_value_and_draws_the_same(ctx, tmp_path, p
     assert np.abs(fast[..., 1][hit] - slow[..., 1][hit]).max() < 1e-3
 
 
-@pytest.mark.parametrize("path", PATHS)
-def test_iso_surface_drawn_from_a_coarse_level_is_that_level_s_surface(ctx, path):
+def test_iso_surface_drawn_from_a_coarse_level_is_that_level_s_surface(ctx, draw_path):
     """From level 1 (2x2x2 block means, computed here) the hits equal a numpy march of the coarse
     array on level 1's lattice (step 0.5 of its voxel) and lie within half a coarse voxel of the
     analytic sphere."""
@@ -249,7 +242,7 @@ def test_iso_surface_drawn_from_a_coarse_level_is_that_level_s_surface(ctx, path
     vol = (30.0 - np.sqrt((x - c) ** 2 + (y - c) ** 2 + (z - c) ** 2)).astype(np.float32)
     coarse = vol.astype(np.float64).reshape(20, 2, 20, 2, 20, 2).mean(axis=(1, 3, 5))
     cam = Camera.perspective((c + 20.0, c - 25.0, c - 60.0), (c, c, c), size=(40, 40), fov_y=30)
-    _, raw, action = render(ctx, vol, cam, brick=8, mode="iso", iso_value=30.0 - R, path=path, level=1)
+    _, raw, action = render(ctx, vol, cam, brick=8, mode="iso", iso_value=30.0 - R, path=draw_path, level=1)
     assert set(action.last_frame_stats.bricks_drawn) == {1}
     o, d = (a.reshape(-1, 3) for a in cam.rays())
     oc = o - c
@@ -312,8 +305,7 @@ def test_average_over_a_cut_of_two_levels_weights_samples_by_their_length(ctx):
     assert diff(img, expected(plain, lo, hi)).max() > 10
 
 
-@pytest.mark.parametrize("path", PATHS)
-def test_iso_surface_cut_by_a_clip_plane_shows_the_cut_face(ctx, path):
+def test_iso_surface_cut_by_a_clip_plane_shows_the_cut_face(ctx, draw_path):
     """A solid ball cut by the plane z = c + 3 (the near part removed): rays that meet the plane
     inside the ball start inside the surface and hit at the plane itself (the cut face is drawn,
     flat), the others hit the sphere beyond it - both against the analytic geometry."""
@@ -326,7 +318,7 @@ def test_iso_surface_cut_by_a_clip_plane_shows_the_cut_face(ctx, path):
     zc = c + 3.0
     cam = Camera.perspective((c + 6.0, c - 4.0, c - 60.0), (c, c, c), size=(40, 40), fov_y=30)
     shape = Shape(planes=((0.0, 0.0, 1.0, -zc),))  # keep z >= zc
-    _, raw, _ = render(ctx, vol, cam, brick=16, mode="iso", iso_value=30.0 - R, path=path, shape=shape)
+    _, raw, _ = render(ctx, vol, cam, brick=16, mode="iso", iso_value=30.0 - R, path=draw_path, shape=shape)
     o, d = (a.reshape(-1, 3) for a in cam.rays())
     t_plane = (zc - o[:, 2]) / d[:, 2]
     p = o + t_plane[:, None] * d

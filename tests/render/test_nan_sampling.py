@@ -49,14 +49,13 @@ def straight_to_uint8(rgba: np.ndarray) -> np.ndarray:
     return ref.to_uint8(np.concatenate([rgba[..., :3] * rgba[..., 3:], rgba[..., 3:]], axis=-1))
 
 
-@pytest.mark.parametrize("path", ["bricks", "single-pass"])
-def test_mip_of_a_nan_masked_map_is_numpy_nanmax(ctx, path):
+def test_mip_of_a_nan_masked_map_is_numpy_nanmax(ctx, draw_path):
     vol = masked_map()
     nz, ny, nx = vol.shape
     # pixel centres on voxel centres, samples on voxel centres along z (step 1, lattice plane at a centre)
     centre = ((nx - 1) / 2, (ny - 1) / 2, float(nz // 2))
     cam = Camera.orthographic(centre, (0, 0, 1), (0, -1, 0), nx, ny, size=(nx, ny))
-    img, defines = render(ctx, vol, cam, mode="mip", step=1.0, path=path)
+    img, defines = render(ctx, vol, cam, mode="mip", step=1.0, path=draw_path)
     assert defines["HAS_NAN"]
     with np.errstate(invalid="ignore"), pytest.warns(RuntimeWarning):
         m = np.nanmax(vol, axis=0)  # all-NaN columns warn and give NaN: nothing drawn there

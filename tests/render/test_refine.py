@@ -62,18 +62,17 @@ def refined_reference(vol, pyr, cam, tol: float, levels: int) -> tuple[np.ndarra
     return img[::-1], blended
 
 
-@pytest.mark.parametrize("path", ["bricks", "single-pass"])
-def test_refined_frame_is_the_reference_refinement(scene, path):
+def test_refined_frame_is_the_reference_refinement(scene, draw_path):
     vol, pyr, action = scene
     cam = camera()
     assert refine_levels(cam) == 2  # 96 x 80 -> 48 x 40 -> 24 x 20
-    img = action(path=path, refine_tolerance=TOL, merge_boxes=path == "bricks").render(cam, SHELL, wait=True)
+    img = action(path=draw_path, refine_tolerance=TOL, merge_boxes=draw_path == "bricks").render(cam, SHELL, wait=True)
     want, blended = refined_reference(vol, pyr, cam, TOL, 2)
     assert blended > 0.5  # most pixels are blends: the test exercises the mask, not only the rays
     d = np.abs(img.astype(np.int64) - ref.to_uint8(want).astype(np.int64)).max(axis=-1)
     # a pixel whose spread lies within float32 rounding of the tolerance may go either way
     assert (d > 2).mean() <= 0.01, f"{(d > 2).sum()} pixels differ by more than 2 levels (max {d.max()})"
-    plain = action(path=path).render(cam, SHELL, wait=True)
+    plain = action(path=draw_path).render(cam, SHELL, wait=True)
     assert np.abs(plain.astype(np.int64) - img.astype(np.int64)).max() > 0  # refined, not the plain frame
 
 

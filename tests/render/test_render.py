@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import reference_raycast as ref
+from render_helpers import every_draw_path
 from clipvol.loaders.numpy_array import NumpyLoader
 
 from clipvol.bricking.pyramid import downsample
@@ -104,13 +105,12 @@ def visible(img) -> float:
 
 
 # ---------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("path", ["single-pass", "bricks"])
 @pytest.mark.parametrize("view", sorted(CAMERAS))
-def test_composite_matches_reference_and_has_no_seams(scenes, view, path):
+def test_composite_matches_reference_and_has_no_seams(scenes, view, draw_path):
     vol = smooth_volume()
     cam = CAMERAS[view](centre_of(vol.shape))
-    small = scenes(vol, 16, policy="fixed", level=0, path=path)
-    big = scenes(vol, 128, policy="fixed", level=0, path=path)
+    small = scenes(vol, 16, policy="fixed", level=0, path=draw_path)
+    big = scenes(vol, 128, policy="fixed", level=0, path=draw_path)
     a, b = small.render(cam), big.render(cam)
     assert small.action.last_frame_stats.converged and big.action.last_frame_stats.converged
     assert sum(small.action.last_frame_stats.bricks_drawn.values()) > 8  # really many bricks
@@ -120,7 +120,7 @@ def test_composite_matches_reference_and_has_no_seams(scenes, view, path):
     assert diff(a, b).max() <= 2, "seams between bricks"
     assert diff(a, r).max() <= 2
     assert diff(b, r).max() <= 2
-    assert small.action.path_drawn == path
+    assert small.action.path_drawn == draw_path
 
 
 @pytest.mark.parametrize("brick", [16, 64])
@@ -195,7 +195,7 @@ def test_mixed_level_cut_where_centre_sorting_fails(scenes):
     assert diff(bad, expect).max() > 40, "the scene must be one where centre sorting is wrong"
     assert diff(good, expect).max() <= 2
     # and the selection's own order for a similar multiresolution view agrees with the reference
-    for path in ("bricks", "single-pass"):  # both paths, each against the reference of its own cut
+    for path in every_draw_path():  # every path, each against the reference of its own cut
         s2 = scenes(vol, 16, lod_threshold=4.0, path=path)
         img = s2.render(cam, tf)
         sel = s2.action.last_selection
@@ -411,27 +411,26 @@ def _black_wall_before_white():
     return vol, tf, cam
 
 
-@pytest.mark.parametrize("path", ["single-pass", "bricks"])
-def test_early_termination_changes_no_pixel_by_more_than_one_level(scenes, monkeypatch, path):
+def test_early_termination_changes_no_pixel_by_more_than_one_level(scenes, monkeypatch, draw_path):
     """A ray stops at OPAQUE = 1 - 0.5/255: what it leaves out is under half an 8-bit step, so the
     image is within 1 of the reference integrated to the end of every ray (no termination)."""
     import clipvol.render.paths.setup as setup_mod
 
     vol, tf, cam = _black_wall_before_white()
-    s = scenes(vol, 16, policy="fixed", level=0, path=path, merge_boxes=False)
+    s = scenes(vol, 16, policy="fixed", level=0, path=draw_path, merge_boxes=False)
     r = s.reference(cam, tf)
     assert visible(r) > 0.5
     assert diff(s.render(cam, tf), r).max() <= 1
     # the scene tells thresholds apart: a ray stopping at 0.99 leaves out up to 2.5 levels of the white
     monkeypatch.setattr(setup_mod, "OPAQUE", 0.99)
-    loose = scenes(vol, 16, policy="fixed", level=0, path=path, merge_boxes=False).render(cam, tf)
+    loose = scenes(vol, 16, policy="fixed", level=0, path=draw_path, merge_boxes=False).render(cam, tf)
     assert diff(loose, r).max() >= 2
 
 
 def test_auto_path_draws_many_boxes_in_one_pass_and_few_per_brick(scenes):
     """path="auto" (the default): a cut of at least AUTO_SINGLE_PASS_BOXES merged boxes is drawn by
     the single pass, a smaller one per brick; either way the image is the numpy reference's."""
-    from clipvol.render.action import AUTO_SINGLE_PASS_BOXES
+    from clipvol.render.paths import AUTO_SINGLE_PASS_BOXES
 
     vol = smooth_volume((48, 48, 48))
     cam = Camera.perspective((-30.0, -20.0, -40.0), centre_of(vol.shape), size=(48, 48), fov_y=40)

@@ -6,7 +6,7 @@ slab test per pixel centre."""
 import numpy as np
 import pytest
 
-from clipvol.render.action import scissor_boxes
+from clipvol.render.paths.setup import scissor_boxes
 from clipvol.scene.camera import Camera
 
 

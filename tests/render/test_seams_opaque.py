@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import reference_raycast as ref
+from render_helpers import every_draw_path
 from scipy.ndimage import gaussian_filter
 
 from clipvol.bricking.pipeline import brick_volume
@@ -46,8 +47,8 @@ def stores(tmp_path_factory):
     return vol, out
 
 
-@pytest.mark.parametrize("kw", [dict(path="bricks"), dict(path="bricks", merge_boxes=False), dict(path="single-pass")],
-                         ids=["bricks-merged", "bricks", "single-pass"])
+@pytest.mark.parametrize("kw", [*(dict(path=p) for p in every_draw_path()), dict(path="bricks", merge_boxes=False)],
+                         ids=[*every_draw_path(), "bricks-unmerged"])
 def test_opaque_seams_match_one_brick_and_the_reference(ctx, stores, kw):
     vol, paths = stores
     tf = TransferFunction.preset("bone")

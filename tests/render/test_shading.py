@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import reference_raycast as ref
+from render_helpers import every_draw_path
 from scipy.ndimage import gaussian_filter
 
 from clipvol.bricking.pipeline import brick_volume
@@ -69,8 +70,8 @@ def _camera():
     return Camera.perspective((c[0] + 1.2 * n, c[1] + 0.8 * n, c[2] - 1.0 * n), c, size=(80, 80), fov_y=35)
 
 
-@pytest.mark.parametrize("path,merge", [("bricks", True), ("bricks", False), ("single-pass", True)],
-                         ids=["bricks-merged", "bricks", "single-pass"])
+@pytest.mark.parametrize("path,merge", [*((p, True) for p in every_draw_path()), ("bricks", False)],
+                         ids=[*every_draw_path(), "bricks-unmerged"])
 def test_lit_render_equals_the_reference_and_one_brick(ctx, stores, path, merge):
     vol, paths = stores
     tf = TransferFunction.preset("bone")

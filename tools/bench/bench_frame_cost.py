@@ -100,7 +100,7 @@ def _load() -> str:
 
 
 def run(store: Path, volume, label: str, images, frames: int, log=print) -> list[dict]:
-    from clipvol.render.action import OPAQUE
+    from clipvol.render.paths.setup import OPAQUE
     from clipvol.scene.selection.policies import policy_for
 
     scene = common.WarmScene(store)

@@ -16,7 +16,7 @@ interleaved rounds (forward order on even rounds, reverse on odd), median of ``-
 rounds:
 
 * ``raw``  - :class:`common.RawCaster`: one 3D texture, one table lookup per sample, the table
-  corrected for the step, stopping where clipvol stops (``clipvol.render.action.OPAQUE``); the
+  corrected for the step, stopping where clipvol stops (``clipvol.render.paths.setup.OPAQUE``); the
   reference outside clipvol's render path;
 * ``full`` - clipvol's full-resolution frame (``policy="fixed", level=0``, empty-space skipping on);
 * each setting: level 0 sampled at ``step`` 1, 2 and 3 voxels (the opacity corrected for the
@@ -118,7 +118,7 @@ def _timed(fn) -> float:
 def run(store: Path, volume: np.ndarray, label: str, images, repeat: int, step: float, log=print,
         supersample: int = 2, converged_step: float = 0.25, view_names=None, only=None) -> list[dict]:
     from clipvol.app.converged import ConvergedPictures
-    from clipvol.render.action import OPAQUE
+    from clipvol.render.paths.setup import OPAQUE
     from clipvol.scene.metrics import percent_delta_e
     from clipvol.scene.params import RenderParams
 

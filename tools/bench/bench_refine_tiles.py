@@ -37,7 +37,7 @@ import common  # noqa: E402
 def run(store: Path, image: int, step: float, tolerance: float, repeat: int, log=print) -> list[dict]:
     import clipvol.render.paths.setup as setup_module
     import clipvol.render.refine as refine_module
-    from clipvol.render.action import OPAQUE
+    from clipvol.render.paths.setup import OPAQUE
 
     spread = refine_module.pass_origin
 

@@ -192,7 +192,8 @@ def vs_raw(sizes, image: int, repeat: int, step: float, out_dir: Path, fly_frame
     from clipvol.loaders.numpy_array import NumpyLoader
     from clipvol.paging.cliptexture import ClipTexture
     from clipvol.render import create_context
-    from clipvol.render.action import ClipRenderAction, premultiplied_to_uint8
+    from clipvol.render.action import ClipRenderAction
+    from clipvol.render.paths.setup import premultiplied_to_uint8
 
     ctx = create_context()
     rows = []
@@ -397,6 +398,7 @@ def vs_stop(n: int, image: int, repeat: int, step: float, out_dir: Path, log=pri
     the single pass every frame, so it is set here before each action's every frame (its own
     programs, one per action) and restored after; a switch for this benchmark only."""
     import clipvol.render.action as action_mod
+    import clipvol.render.paths.setup as setup_mod  # where the draw paths read OPAQUE
     from clipvol.bricking.generators import ct_head
     from clipvol.loaders.numpy_array import NumpyLoader
     from clipvol.paging.cliptexture import ClipTexture
@@ -405,8 +407,8 @@ def vs_stop(n: int, image: int, repeat: int, step: float, out_dir: Path, log=pri
     from clipvol.scene.transfer import TransferFunction
     from bench_lod import VIEWS
 
-    stops = {"0.9995": RAW_OPAQUE, "1-0.5/255": action_mod.OPAQUE}
-    kept = action_mod.OPAQUE
+    stops = {"0.9995": RAW_OPAQUE, "1-0.5/255": setup_mod.OPAQUE}
+    kept = setup_mod.OPAQUE
     ctx = create_context()
     rows = []
     try:
@@ -427,11 +429,11 @@ def vs_stop(n: int, image: int, repeat: int, step: float, out_dir: Path, log=pri
                     for k in stops}
             imgs, wall = {}, {k: [] for k in stops}
             for k, a in acts.items():
-                action_mod.OPAQUE = stops[k]
+                setup_mod.OPAQUE = stops[k]
                 imgs[k] = a.render(cam, tf, wait=True, timeout=600)
             for _ in range(repeat):
                 for k, a in acts.items():
-                    action_mod.OPAQUE = stops[k]
+                    setup_mod.OPAQUE = stops[k]
                     t = time.perf_counter()
                     imgs[k] = a.render(cam, tf)
                     wall[k].append(time.perf_counter() - t)
@@ -449,7 +451,7 @@ def vs_stop(n: int, image: int, repeat: int, step: float, out_dir: Path, log=pri
         clip.close()
         hclip.close()
     finally:
-        action_mod.OPAQUE = kept
+        setup_mod.OPAQUE = kept
         ctx.release()
     write_rows(out_dir / "bench_render_stop.csv", rows)
     return rows
@@ -499,7 +501,8 @@ def vs_raw_large(n: int, dtype: str, image: int, repeat: int, step: float, out_d
     from clipvol.loaders.procedural import ProceduralLoader
     from clipvol.paging.cliptexture import ClipTexture
     from clipvol.render import create_context
-    from clipvol.render.action import ClipRenderAction, premultiplied_to_uint8
+    from clipvol.render.action import ClipRenderAction
+    from clipvol.render.paths.setup import premultiplied_to_uint8
     from clipvol.scene.camera import Camera
     from clipvol.scene.transfer import TransferFunction
 

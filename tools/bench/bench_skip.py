@@ -8,7 +8,7 @@ each first) and interleaved round by round, median of ``--repeat`` (>= 5) rounds
 
 * ``raw``   - ``RawCaster`` of ``tools/bench/bench_render.py`` (``tools/bench_render.py`` in trees
   where the benchmarks are not moved yet): one 3D texture, one table lookup per sample, the table
-  corrected for the step, stopping where clipvol stops (``clipvol.render.action.OPAQUE``);
+  corrected for the step, stopping where clipvol stops (``clipvol.render.paths.setup.OPAQUE``);
 * ``plain`` - clipvol's full-resolution frame (``policy="fixed", level=0``) with
   ``skip_empty=False``, drawn by the path ``auto`` picks (``path``) and by the single pass;
 * ``skip``  - the same with ``skip_empty=True`` (the default).
@@ -73,7 +73,8 @@ def run(n: int, images, repeat: int, step: float, out: Path, log=print) -> list[
     from clipvol.loaders.numpy_array import NumpyLoader
     from clipvol.paging.cliptexture import ClipTexture
     from clipvol.render import create_context
-    from clipvol.render.action import OPAQUE, ClipRenderAction
+    from clipvol.render.action import ClipRenderAction
+    from clipvol.render.paths.setup import OPAQUE
     from clipvol.scene.transfer import TransferFunction
 
     RawCaster = raw_caster_class()

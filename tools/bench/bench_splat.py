@@ -158,7 +158,7 @@ def _frames(store: Path, size: int, tolerances: list[str], frames_png: Path) -> 
     from clipvol.loaders.point_store import PointStoreLoader
     from clipvol.paging.cliptexture import ClipTexture
     from clipvol.render import create_context
-    from clipvol.render.action import premultiplied_to_uint8
+    from clipvol.render.paths.setup import premultiplied_to_uint8
     from clipvol.render.splat import SplatRenderAction
     from clipvol.scene.camera import Camera
     from clipvol.scene.metrics import percent_delta_e

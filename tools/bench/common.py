@@ -230,7 +230,7 @@ void main() {
 
 
 #: the raw caster's early ray termination: a ray stops at this accumulated opacity. clipvol stops
-#: at ``clipvol.render.action.OPAQUE`` (1 - 0.5/255, where what is left cannot move an 8-bit pixel
+#: at ``clipvol.render.paths.setup.OPAQUE`` (1 - 0.5/255, where what is left cannot move an 8-bit pixel
 #: by more than one level); the benchmarks time the raw caster at both, so that each ratio can be
 #: read against the plain caster and against a caster doing exactly clipvol's work.
 RAW_OPAQUE = 0.9995
@@ -353,7 +353,7 @@ def fractal_scene(n: int, image: int, log=None):
 def raw_stops() -> dict:
     """The raw caster's two configurations: ``"raw"`` stopping at :data:`RAW_OPAQUE` and
     ``"raw_same_stop"`` stopping where clipvol stops (``OPAQUE``)."""
-    from clipvol.render.action import OPAQUE
+    from clipvol.render.paths.setup import OPAQUE
 
     return {"raw": RAW_OPAQUE, "raw_same_stop": OPAQUE}
 

@@ -2,7 +2,10 @@
 
 A draw path turns the frame's cut into an image; every path draws into the one target, with the
 one colour table and the one set-up of :mod:`.setup`, so the action
-(:class:`~clipvol.render.action.ClipRenderAction`) only selects, uploads and hands the cut over.
+(:class:`~clipvol.render.action.ClipRenderAction`) only selects, uploads and hands the cut over. It
+hands it over as a :class:`~.frame.FrameContext` (the cut, the camera, the transfer function, the
+parameters, the pyramid, the GPU cache, ...) and gets a :class:`~.frame.DrawStats` back (the image
+and what was drawn); a path never reads or writes the action.
 
 =================  ===========================  ==================================================
 ``path``           module                       how
@@ -16,7 +19,10 @@ one colour table and the one set-up of :mod:`.setup`, so the action
 =================  ===========================  ==================================================
 
 Adding a draw path is one module with a :class:`~.setup.DrawPath` subclass (its ``name`` is the
-value of ``RenderParams.path`` that selects it) and one :func:`register` line below. Registering a
+value of ``RenderParams.path`` that selects it; its ``draw(frame)`` returns the
+:class:`~.frame.DrawStats` of :meth:`~.setup.DrawSetup.read_back`, or None to decline the cut) and
+one :func:`register` line below. The tests that hold for every path are parametrised over
+:data:`DRAW_PATHS` (``tests/render/conftest.py``), so a registered path is tested by them. Registering a
 name also makes :class:`~clipvol.scene.params.RenderParams` accept it: the scene stage holds the
 built-in names in ``clipvol.scene.params.PATHS`` (it imports no GL module) and :func:`register`
 adds the others there.
@@ -26,11 +32,12 @@ from __future__ import annotations
 
 from ...errors import ParameterError
 from .bricks import BricksPath
+from .frame import DrawStats, FrameContext
 from .setup import DrawPath, DrawSetup
 from .single_pass import SinglePassPath
 
 __all__ = ["DRAW_PATHS", "FALLBACK", "AUTO_SINGLE_PASS_BOXES", "register", "unregister", "pick", "DrawPath",
-           "DrawSetup"]
+           "DrawSetup", "DrawStats", "FrameContext"]
 
 #: registered draw paths by ``RenderParams.path`` name
 DRAW_PATHS: dict[str, type[DrawPath]] = {}

@@ -30,7 +30,8 @@ from ...scene.page_table import block_open_faces
 from ..uniforms import uset, vec3
 from ..modes import mode_of
 from ..refine import MAX_REFINE_LEVELS
-from .setup import DrawPath
+from .frame import DrawStats, FrameContext
+from .setup import DrawPath, DrawSetup
 
 __all__ = ["BricksPath", "OCCLUSION_PASSES", "OCCLUSION_MIN_BATCH"]
 
@@ -44,13 +45,13 @@ class BricksPath(DrawPath):
 
     name = "bricks"
 
-    def __init__(self, action) -> None:
-        super().__init__(action)
+    def __init__(self, setup: DrawSetup) -> None:
+        super().__init__(setup)
         self._copies: dict = {}  # the opacity snapshot for early termination across boxes, per image size
         self._clamps = (None, None)  # (items, their block_clamps) of the pass before, in a refined frame
 
-    def _program(self):
-        """The brick shader variant for the current parameters (compiled once per variant)."""
+    def _program(self, frame: FrameContext):
+        """The brick shader variant of ``frame`` (compiled once per variant)."""
 
         def first_use(prog) -> None:
             uset(prog, "u_volume", 0)
@@ -58,9 +59,7 @@ class BricksPath(DrawPath):
             uset(prog, "u_acc", 2)
             self.setup.loop_uniforms(prog)
 
-        prog, vao = self.setup.program("screen.vert", "brick.frag", self.action.defines(), first_use)
-        self.action.program = prog
-        return prog, vao
+        return self.setup.program("screen.vert", "brick.frag", frame.defines, first_use)
 
     def _ensure_copy(self, size: tuple[int, int]):
         """The snapshot texture of ``size`` (kept per size: a refined frame draws three sizes)."""
@@ -77,10 +76,9 @@ class BricksPath(DrawPath):
             copy.release()
         self._copies = {}
 
-    def draw(self, cam, tf, items: list) -> tuple[np.ndarray, float, float]:
-        a, mgl, ctx = self.action, self.mgl, self.ctx
-        params, pyr = a.params, a.pyramid
-        a.boxes_drawn = len(items)
+    def draw(self, frame: FrameContext) -> DrawStats:
+        mgl, ctx = self.mgl, self.ctx
+        cam, items, params, pyr, cache = frame.camera, frame.items, frame.params, frame.pyramid, frame.cache
         mode = mode_of(params.mode)
         front_to_back = mode.ordered and params.early_termination  # under / over (iso: opaque hits)
         if front_to_back or mode.reduced:  # (render/modes)
@@ -88,13 +86,13 @@ class BricksPath(DrawPath):
         else:
             r, g, b, al = params.background
             clear = (r * al, g * al, b * al, al)
-        fbo, previous, t0 = self.setup.begin(cam, clear)
+        fbo, previous, t0 = self.setup.begin(frame, clear)
         copy = self._ensure_copy(tuple(int(v) for v in fbo.size)) if front_to_back else None
-        prog, vao = self._program()
-        origin = self.setup.frame_uniforms(prog, cam, tf)
+        prog, vao = self._program(frame)
+        origin = self.setup.frame_uniforms(prog, frame)
         ctx.enable(mgl.BLEND)
         ctx.disable(mgl.CULL_FACE)
-        self.setup.depth_test()  # on only in the fine pass of a refined frame
+        self.setup.depth_test(frame)  # on only in the fine pass of a refined frame
         uset(prog, "u_use_acc", False)  # no opacity snapshot until the first batch is drawn
         if not mode.set_blend(ctx, mgl):  # MIP MAX, minIP MIN, average ONE + ONE
             ctx.blend_equation = mgl.FUNC_ADD
@@ -103,24 +101,26 @@ class BricksPath(DrawPath):
             else:  # "over": dst = src + (1 - src.a) * dst
                 ctx.blend_func = mgl.ONE, mgl.ONE_MINUS_SRC_ALPHA
         if mode.classifies:
-            self.setup.tf_texture(tf).use(location=1)
-        self.setup.bind_distribution(prog, tf)
-        self.setup.bind_occupancy(prog, tf)
+            self.setup.tf_texture(frame).use(location=1)
+        self.setup.bind_distribution(prog, frame)
+        self.setup.bind_occupancy(prog, frame)
         if params.overlays:  # co-registered volumes sampled at each sample (render/overlay_binding.py)
-            a.overlays.bind(prog, params.overlays, origin, a.level_ratios())
+            frame.overlays.bind(prog, params.overlays, origin, frame.level_ratios)
         B = np.asarray(pyr.brick_shape, dtype=np.float64)
-        clamps = self._frame_clamps(items)
+        clamps = self._frame_clamps(frame)
         rects = self.setup.scissor_rects(cam, [it.lo for it in items], [it.hi for it in items]) if items else None
         bound_level = None
         n_items = len(items)
         order = range(n_items - 1, -1, -1) if front_to_back else range(n_items)
         batch = max(OCCLUSION_MIN_BATCH, -(-n_items // OCCLUSION_PASSES))
+        occlusion_passes = 0
         for count, i in enumerate(order):
             if front_to_back and count and count % batch == 0:
                 self._occlusion_pass(prog, fbo, copy)
+                occlusion_passes += 1
             it = items[i]
             L = it.level
-            tex = a.cache.textures[L]
+            tex = cache.textures[L]
             if tex is None:
                 continue
             lo = np.asarray(it.lo, dtype=np.float64)
@@ -132,13 +132,13 @@ class BricksPath(DrawPath):
                 lv = pyr.levels[L]
                 scale = np.asarray(lv.scale[::-1], dtype=np.float64)
                 trans = np.asarray(lv.translation[::-1], dtype=np.float64)
-                win = np.asarray(a.cache.windows[L], dtype=np.int64)
+                win = np.asarray(cache.windows[L], dtype=np.int64)
                 prog["u_delta"].value = params.step * float(min(lv.scale))
                 uset(prog, "u_tf_row", (L + 0.5) / pyr.num_levels)
                 prog["u_inv_scale"].value = vec3(1.0 / scale)
                 uset(prog, "u_inv_tex_size", vec3(1.0 / (win[::-1] * B[::-1])))
-                if a.skipped_empty:
-                    occ_size, occ_z0 = self.setup.occupancy_uniforms(L)
+                if frame.skipped_empty:
+                    occ_size, occ_z0 = self.setup.occupancy_uniforms(frame, L)
                     uset(prog, "u_occ_size", occ_size)
                     uset(prog, "u_occ_z0", occ_z0)
                 bound_level = L
@@ -154,24 +154,28 @@ class BricksPath(DrawPath):
             ctx.scissor = tuple(rects[i])
             vao.render(mgl.TRIANGLES, vertices=3)
         ctx.scissor = None
-        return self.setup.read_back(previous, tf, front_to_back, t0)
+        return self.setup.read_back(frame, previous, front_to_back, t0, boxes_drawn=n_items, program=prog,
+                                    occlusion_passes=occlusion_passes)
 
-    def _frame_clamps(self, items) -> list:
-        """:meth:`block_clamps` of ``items``, computed once per frame: the passes of a refined frame
-        draw the same list with the same residency, so the passes after its first reuse them."""
-        if not (self.setup.repeats_pass() and self._clamps[0] is items):
-            self._clamps = (items, self.block_clamps(items))
+    def _frame_clamps(self, frame: FrameContext) -> list:
+        """:meth:`block_clamps` of the frame's items, computed once per frame: the passes of a
+        refined frame draw the same list with the same residency, so the passes after its first
+        reuse them."""
+        items = frame.items
+        if not (frame.repeats_pass and self._clamps[0] is items):
+            self._clamps = (items, self.block_clamps(items, frame.pyramid, frame.cache))
         return self._clamps[1]
 
-    def block_clamps(self, items) -> list[tuple[np.ndarray, np.ndarray]]:
+    @staticmethod
+    def block_clamps(items, pyr, cache) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per item, the ``(lo, hi)`` clamp of its sampling in item-local voxels (``(x, y, z)``).
 
         An item covers ``span`` bricks per axis (clipped to the grid). A face of the item may be
         sampled across (half a voxel beyond its last texels, trilinear filtering reading the
         neighbour) only if that face is open for every brick on it (see
         :meth:`GpuBrickCache.open_faces`); otherwise sampling clamps to the item's own texels.
+        ``pyr``: the pyramid, ``cache``: the GPU brick cache the items are resident in.
         """
-        pyr, cache = self.action.pyramid, self.action.cache
         B = np.asarray(pyr.brick_shape, dtype=np.int64)
         by_level: dict[int, list[int]] = {}
         for i, it in enumerate(items):
@@ -195,7 +199,6 @@ class BricksPath(DrawPath):
         self.ctx.copy_framebuffer(copy, fbo)
         copy.use(location=2)
         uset(prog, "u_use_acc", True)
-        self.action.occlusion_passes += 1
 
     def release(self) -> None:
         self._release_copies()

@@ -14,7 +14,7 @@ bit-identical where they should be (the same ray, the same samples, the same rou
   transfer function with its opacity corrected for level ``L``'s step, ``1 - exp(r * log1p(-a))``
   in float64 on the CPU, rebuilt only when the table or the step changes (LaMar, Hamann & Joy);
 * **the empty-space cells** (:meth:`DrawSetup.bind_occupancy`) for ``EMPTY_SKIP`` variants;
-* **the passes of a refined frame** (:attr:`DrawSetup.refine_level`, :mod:`clipvol.render.refine`):
+* **the passes of a refined frame** (``FrameContext.refine_level``, :mod:`clipvol.render.refine`):
   a coarse pass draws into a target of its own with the image's rays through its pixels; every
   finer pass begins with the mask from the pass before (smooth pixels blended, their depth set)
   and draws under the depth test (:meth:`DrawSetup.depth_test`), so the rasteriser never shades
@@ -23,8 +23,10 @@ bit-identical where they should be (the same ray, the same samples, the same rou
   (:class:`~clipvol.render.resolve.Resolve`), MIP by mapping the maximum through the transfer
   function here - and giving the previous framebuffer binding back.
 
-:class:`DrawPath` is the base a path derives from: it holds the action (its parameters, GPU cache
-and pyramid change with :meth:`~clipvol.render.action.ClipRenderAction.set_params`) and this set-up.
+:class:`DrawPath` is the base a path derives from: it holds this set-up, and each call of its
+:meth:`~DrawPath.draw` is handed the frame's :class:`~clipvol.render.paths.frame.FrameContext`
+(the cut, the parameters, the GPU cache, ...) and returns a
+:class:`~clipvol.render.paths.frame.DrawStats`; the set-up's methods read the same context.
 
 References
 ----------
@@ -48,10 +50,11 @@ from ...scene.visibility import box_depths, screen_rects
 from ..glsl import ProgramCache
 from ..gpu_cache import t_scale_offset
 from ..modes import depth_range, mode_of
-from ..refine import Refine, pass_origin, refine_levels
+from ..refine import Refine, pass_origin
 from ..resolve import Resolve
 from ..target import FloatTarget
 from ..uniforms import uset, vec3
+from .frame import DrawStats, FrameContext
 
 __all__ = ["DrawPath", "DrawSetup", "MAX_STEPS_PER_BOX", "OPAQUE", "OCCUPANCY_UNIT", "MIP_EMPTY",
            "scissor_boxes", "samples_per_box", "max_step", "check_step", "check_samples", "premultiplied_to_uint8"]
@@ -162,17 +165,17 @@ def premultiplied_to_uint8(prem: np.ndarray) -> np.ndarray:
 class DrawSetup:
     """The GL objects and the set-up every draw path of one action shares (see the module docstring).
 
-    ``action`` is read at each call (its ``params``, ``cache`` and ``pyramid`` may be replaced
-    between frames); the set-up holds the target, the colour table, the compiled programs with
-    their (attribute-less) vertex arrays and the resolve pass.
+    The set-up holds what lasts across frames - the target, the colour tables, the compiled
+    programs with their (attribute-less) vertex arrays and the resolve pass - for the GL context
+    ``ctx``; what a frame draws with (parameters, GPU cache, pyramid, the pass of a refined frame)
+    is the :class:`~clipvol.render.paths.frame.FrameContext` each method is given.
     """
 
-    def __init__(self, action) -> None:
+    def __init__(self, ctx) -> None:
         import moderngl
 
         self.mgl = moderngl
-        self.action = action
-        self.ctx = action.ctx
+        self.ctx = ctx
         self.programs = ProgramCache(self.ctx)
         self.target = FloatTarget(self.ctx, depth=True)  # depth: the mask of a refined frame
         self._vaos: dict = {}
@@ -183,11 +186,8 @@ class DrawSetup:
         self._dist_texs: dict = {}
         self._resolve = None
         self.last_raw: np.ndarray | None = None  # MIP, minIP, average, iso: the target read back by the last frame
-        self.finish_s = 0.0  # seconds the last frame waited for the GL to finish its draws
         self.depth = (0.0, 1.0)  # the volume box's range of ray parameters this frame (iso_color="depth")
         self.refine: Refine | None = None  # the coarse targets and the mask pass, made by the first refined frame
-        self.refine_level: int | None = None  # while a refined frame draws: 0 the image, k its pass at 1 / 2**k
-        self.refine_camera = None  # the image's camera, while a refined frame draws
         self.origin = (0, 0)  # where this pass's viewport starts in its target (refine.pass_origin)
 
     def program(self, vertex: str, fragment: str, defines: dict, first_use=None):
@@ -206,13 +206,17 @@ class DrawSetup:
         uset(prog, "u_max_steps", MAX_STEPS_PER_BOX)
         uset(prog, "u_opaque", OPAQUE)
 
-    def begin(self, cam, clear: tuple[float, float, float, float]):
-        """Bind the target at the image's size, cleared to ``clear``; returns ``(fbo, previous, t0)``
-        (``previous``: the binding :meth:`read_back` gives back; ``t0``: when drawing began)."""
+    def begin(self, frame: FrameContext, clear: tuple[float, float, float, float]):
+        """Bind the target at the size of ``frame``'s camera, cleared to ``clear``; returns
+        ``(fbo, previous, t0)`` (``previous``: the binding :meth:`read_back` gives back; ``t0``:
+        when drawing began). In a refined frame's coarse pass the target is the pass's own, and in
+        its later passes the pixels the pass before left smooth are masked."""
         ctx = self.ctx
         t0 = time.perf_counter()
-        w, h = (int(v) for v in cam.size)
-        k = self.refine_level
+        w, h = (int(v) for v in frame.camera.size)
+        k = frame.refine_level
+        if k is not None and self.refine is None:
+            self.refine = Refine(ctx)
         target = self.refine.target(k) if k else self.target
         self.origin = pass_origin((w, h)) if k else (0, 0)  # a coarse pass spread over the tiles
         ox, oy = self.origin
@@ -221,15 +225,9 @@ class DrawSetup:
         fbo.use()
         ctx.viewport = (ox, oy, w, h)
         fbo.clear(*clear)  # (depth to 1: nothing masked)
-        if self.repeats_pass():  # a finer pass: the smooth pixels come from the coarser one
-            self.refine.mask(fbo, self.refine_camera, k, self.action.params.refine_tolerance, self.origin)
+        if frame.repeats_pass:  # a finer pass: the smooth pixels come from the coarser one
+            self.refine.mask(fbo, frame.image_camera, k, frame.params.refine_tolerance, self.origin)
         return fbo, previous, t0
-
-    def repeats_pass(self) -> bool:
-        """Is this a refined frame's pass after its first (the same cut, the same residency: what a
-        path derives from the cut alone may be kept from the pass before)?"""
-        k = self.refine_level
-        return k is not None and k < refine_levels(self.refine_camera)
 
     def scissor_rects(self, cam, lo, hi) -> np.ndarray:
         """:func:`scissor_boxes` of this pass, placed where its viewport starts in the target."""
@@ -237,18 +235,18 @@ class DrawSetup:
         rects[:, :2] += np.asarray(self.origin, dtype=np.int64)
         return rects
 
-    def depth_test(self) -> None:
+    def depth_test(self, frame: FrameContext) -> None:
         """Set the depth test for a draw path's passes: off, except in a masked pass of a refined
         frame, where fragments (depth 0.5) pass only where the mask left the depth at 1."""
-        if self.repeats_pass():
+        if frame.repeats_pass:
             self.ctx.enable(self.mgl.DEPTH_TEST)
             self.ctx.depth_func = "<="
         else:
             self.ctx.disable(self.mgl.DEPTH_TEST)
 
-    def frame_uniforms(self, prog, cam, tf) -> np.ndarray:
+    def frame_uniforms(self, prog, frame: FrameContext) -> np.ndarray:
         """Set per-frame uniforms; returns the origin ``O`` (float64) the box uniforms are relative to."""
-        a = self.action
+        cam, tf, pyr, fmt = frame.camera, frame.tf, frame.pyramid, frame.cache.format
         V = cam.view_matrix()
         R = V[:3, :3]
         origin = -R.T @ V[:3, 3]
@@ -266,14 +264,14 @@ class DrawSetup:
         prog["u_forward"].value = vec3(cam.forward)
         prog["u_center_rel"].value = vec3(np.asarray(cam.center, dtype=np.float64) - origin)
         # t = (raw - lo) / (hi - lo) with raw = a * texel + b, folded in float64
-        scale, offset = t_scale_offset(a.cache.format, tf.window(a.pyramid.value_range))
+        scale, offset = t_scale_offset(fmt, tf.window(pyr.value_range))
         uset(prog, "u_t_scale", float(np.clip(scale, -3e38, 3e38)))
         uset(prog, "u_t_offset", float(np.clip(offset, -3e38, 3e38)))
-        p = a.params
+        p = frame.params
         uset(prog, "u_jitter", 1.0 if p.jitter else 0.0)
         uset(prog, "u_light", (p.ambient, p.diffuse, p.specular, p.shininess))  # SHADING variant only
-        mode_of(p.mode).uniforms(prog, a.cache.format, p)  # iso: u_iso
-        self.depth = depth_range(cam, *a.pyramid.volume_box())  # iso_color="depth" (render/modes)
+        mode_of(p.mode).uniforms(prog, fmt, p)  # iso: u_iso
+        self.depth = depth_range(cam, *pyr.volume_box())  # iso_color="depth" (render/modes)
         if p.shape is None:
             box = np.array([[-1e30] * 3, [1e30] * 3])
             planes = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (6, 1))
@@ -286,8 +284,8 @@ class DrawSetup:
         finite = np.abs(box) < 1e29
         box = np.where(finite, box - origin, box)
         planes[:, 3] += planes[:, :3] @ origin  # n.(p' + O) + d = n.p' + (d + n.O)
-        if self.refine_level:  # a coarse pass: the image's rays through its pixels
-            self.refine.coarse_uniforms(prog, self.refine_camera, self.refine_level)
+        if frame.refine_level:  # a coarse pass: the image's rays through its pixels
+            self.refine.coarse_uniforms(prog, frame.image_camera, frame.refine_level)
         prog["u_shape_lo"].value = vec3(box[0])
         prog["u_shape_hi"].value = vec3(box[1])
         prog["u_planes"].write(planes.astype(np.float32).tobytes())
@@ -295,29 +293,30 @@ class DrawSetup:
         prog["u_has_box"].value = bool(has_box)
         return origin
 
-    def tf_texture(self, tf):
-        """The per-level corrected colour table (row ``L``: opacity corrected for level ``L``'s step),
-        rebuilt only when the table or the step changes."""
-        table = np.ascontiguousarray(np.asarray(tf.table, dtype=np.float32))
-        key = (table.shape, table.tobytes(), self.action.params.step)
+    def tf_texture(self, frame: FrameContext):
+        """The per-level corrected colour table of ``frame``'s transfer function (row ``L``: opacity
+        corrected for level ``L``'s step), rebuilt only when the table or the step changes."""
+        table = np.ascontiguousarray(np.asarray(frame.tf.table, dtype=np.float32))
+        key = (table.shape, table.tobytes(), frame.params.step)
         if self._tf_key != key:
             if self._tf_tex is not None:
                 self._tf_tex.release()
-            rows = corrected_tables(table, self.action.level_ratios())
+            rows = corrected_tables(table, frame.level_ratios)
             tex = self.ctx.texture((rows.shape[1], len(rows)), 4, rows.astype(np.float32).tobytes(), dtype="f4")
             tex.filter = (self.mgl.LINEAR, self.mgl.LINEAR)
             tex.repeat_x = tex.repeat_y = False
             self._tf_tex, self._tf_key = tex, key
         return self._tf_tex
 
-    def dist_texture(self, tf):
-        """The per-level tables pre-integrated over each spread row (:func:`distribution_tables`),
-        levels stacked along y, :data:`SPREAD_ROWS` rows each; rebuilt only when the table or the step changes."""
-        table = np.ascontiguousarray(np.asarray(tf.table, dtype=np.float32))
-        key = (table.shape, table.tobytes(), self.action.params.step, consistent.MODEL)
+    def dist_texture(self, frame: FrameContext):
+        """The per-level tables of ``frame``'s transfer function pre-integrated over each spread row
+        (:func:`distribution_tables`), levels stacked along y, :data:`SPREAD_ROWS` rows each; rebuilt
+        only when the table or the step changes."""
+        table = np.ascontiguousarray(np.asarray(frame.tf.table, dtype=np.float32))
+        key = (table.shape, table.tobytes(), frame.params.step, consistent.MODEL)
         tex = self._dist_texs.pop(key, None)
         if tex is None:
-            rows = distribution_tables(table, self.action.level_ratios())  # (levels, rows, n, 4)
+            rows = distribution_tables(table, frame.level_ratios)  # (levels, rows, n, 4)
             L, R, n, _ = rows.shape
             tex = self.ctx.texture((n, L * R), 4, rows.reshape(L * R, n, 4).astype(np.float32).tobytes(), dtype="f4")
             tex.filter = (self.mgl.LINEAR, self.mgl.LINEAR)
@@ -327,50 +326,53 @@ class DrawSetup:
         self._dist_texs[key] = tex  # most recent last
         return tex
 
-    def bind_distribution(self, prog, tf) -> None:
+    def bind_distribution(self, prog, frame: FrameContext) -> None:
         """Bind the distribution table and its uniforms (DISTRIB variants only) to :data:`DIST_UNIT`."""
-        a = self.action
-        if not a.distribution:
+        if not frame.distribution:
             return
-        tex = self.dist_texture(tf)
+        tex = self.dist_texture(frame)
         tex.use(location=DIST_UNIT)
         uset(prog, "u_dist", DIST_UNIT)
         uset(prog, "u_dist_inv_h", 1.0 / tex.size[1])
-        scale, _ = t_scale_offset(a.cache.format, tf.window(a.pyramid.value_range))
+        scale, _ = t_scale_offset(frame.cache.format, frame.tf.window(frame.pyramid.value_range))
         uset(prog, "u_sigma_scale", float(min(abs(scale) / SPREAD_MAX, 3e38)))
 
-    def bind_occupancy(self, prog, tf) -> None:
-        """Bind the cache's cell flags for ``tf`` (:meth:`GpuBrickCache.occupancy_texture`) to
-        :data:`OCCUPANCY_UNIT` (EMPTY_SKIP variants only: when the action's frame leaps)."""
-        a = self.action
-        if a.skipped_empty:
-            tf = mode_of(a.params.mode).occupancy_tf(a.params, tf, a.pyramid.value_range)  # iso: below its value
-            a.cache.occupancy_texture(tf, a.pyramid.value_range, a.distribution).use(location=OCCUPANCY_UNIT)
+    def bind_occupancy(self, prog, frame: FrameContext) -> None:
+        """Bind the cache's cell flags for the frame's transfer function
+        (:meth:`GpuBrickCache.occupancy_texture`) to :data:`OCCUPANCY_UNIT` (EMPTY_SKIP variants
+        only: when the frame leaps)."""
+        if frame.skipped_empty:
+            vr, cache = frame.pyramid.value_range, frame.cache
+            tf = mode_of(frame.params.mode).occupancy_tf(frame.params, frame.tf, vr)  # iso: what lies below its value
+            cache.occupancy_texture(tf, vr, frame.distribution).use(location=OCCUPANCY_UNIT)
             uset(prog, "u_occ", OCCUPANCY_UNIT)
-            uset(prog, "u_occ_shift", vec3(0.5 / np.asarray(a.cache.cell_edges[::-1], dtype=np.float64)))
+            uset(prog, "u_occ_shift", vec3(0.5 / np.asarray(cache.cell_edges[::-1], dtype=np.float64)))
 
-    def occupancy_uniforms(self, level: int) -> tuple[tuple[float, float, float], float]:
+    @staticmethod
+    def occupancy_uniforms(frame: FrameContext, level: int) -> tuple[tuple[float, float, float], float]:
         """Cells per axis ``(x, y, z)`` of ``level`` in the occupancy texture, and its first z there."""
-        lv = self.action.cache.occupancy_levels[level]
+        lv = frame.cache.occupancy_levels[level]
         if lv is None:
             return (1.0, 1.0, 1.0), 0.0
         return vec3(lv[0]), float(lv[1])
 
-    def read_back(self, previous, tf, front_to_back: bool, t0: float) -> tuple[np.ndarray, float, float]:
+    def read_back(self, frame: FrameContext, previous, front_to_back: bool, t0: float, **drawn) -> DrawStats:
         """Finish the frame, turn the target into the 8-bit image and give the previous framebuffer
-        back; returns ``(image, draw seconds, read-back seconds)``. Composite: on the GL
-        (:class:`~clipvol.render.resolve.Resolve`: the background under a front-to-back image,
-        un-premultiplied, rounded), reading 4 bytes a pixel; MIP, minIP, average, iso: the float
-        target read back and mapped here (:meth:`clipvol.render.modes.base.DrawMode.read_back`)."""
-        ctx, a = self.ctx, self.action
-        params, pyr = a.params, a.pyramid
-        if self.refine_level:  # a coarse image stays on the GL for the next pass's mask
+        back; returns the :class:`~clipvol.render.paths.frame.DrawStats` of the image, its draw and
+        read-back seconds and ``drawn`` (the path's counts: ``boxes_drawn=``, ``program=``, ...).
+        Composite: on the GL (:class:`~clipvol.render.resolve.Resolve`: the background under a
+        front-to-back image, un-premultiplied, rounded), reading 4 bytes a pixel; MIP, minIP,
+        average, iso: the float target read back and mapped here
+        (:meth:`clipvol.render.modes.base.DrawMode.read_back`)."""
+        ctx = self.ctx
+        params, pyr, tf = frame.params, frame.pyramid, frame.tf
+        if frame.refine_level:  # a coarse image stays on the GL for the next pass's mask
             self.target.restore(previous)
-            return None, time.perf_counter() - t0, 0.0
+            return DrawStats(None, time.perf_counter() - t0, 0.0, **drawn)
         t_finish = time.perf_counter()
         ctx.finish()
         t1 = time.perf_counter()
-        self.finish_s = t1 - t_finish  # the wait on the GL for the frame's draws (FrameStats' gpu time)
+        finish_s = t1 - t_finish  # the wait on the GL for the frame's draws (FrameStats' gpu time)
         self.last_raw = None
         image = None
         mode = mode_of(params.mode)
@@ -386,9 +388,9 @@ class DrawSetup:
         if err != "GL_NO_ERROR":
             raise RuntimeError(f"OpenGL error after drawing the frame: expected GL_NO_ERROR, got {err}")
         if image is None:  # MIP, minIP, average, iso: the per-pixel values mapped here (render/modes)
-            image = premultiplied_to_uint8(mode.read_back(self.last_raw, params, tf, a.cache.format, pyr.value_range,
-                                                          self.depth))
-        return image, t1 - t0, time.perf_counter() - t1
+            image = premultiplied_to_uint8(mode.read_back(self.last_raw, params, tf, frame.cache.format,
+                                                          pyr.value_range, self.depth))
+        return DrawStats(image, t1 - t0, time.perf_counter() - t1, finish_s=finish_s, **drawn)
 
     def raw(self) -> np.ndarray | None:
         """The float target of the last frame, rows top first (read now if the frame did not), or None."""
@@ -416,25 +418,32 @@ class DrawSetup:
 
 
 class DrawPath:
-    """Base of a draw path: ``draw(cam, tf, items)`` fills the shared target from the cut and returns
-    :meth:`DrawSetup.read_back`'s ``(image, draw seconds, read-back seconds)``, or None when it cannot
-    draw this cut (the action then draws it with the per-brick path, the reference).
+    """Base of a draw path: :meth:`draw` fills the shared target from a frame's cut.
 
-    A path reports what it drew on the action (``boxes_drawn``, ``page_table_nodes``,
-    ``occlusion_passes``, ``program``) and releases the GL objects of its own in :meth:`release`.
-    Register a new one in :mod:`clipvol.render.paths`.
+    A path is made once per action with the action's :class:`DrawSetup` (the GL objects every
+    path shares) and keeps GL objects of its own between frames, released in :meth:`release`. It
+    never sees the action: a frame's whole input is the
+    :class:`~clipvol.render.paths.frame.FrameContext` handed to :meth:`draw`, and what it drew
+    (boxes, page-table nodes, occlusion passes, the program) is the
+    :class:`~clipvol.render.paths.frame.DrawStats` it returns, which the action folds into the
+    frame's statistics. Register a new one in :mod:`clipvol.render.paths`.
     """
 
     #: the name ``RenderParams.path`` gives it
     name: str = ""
+    #: does the path draw ``frame.items`` in the order given (the selection's visibility order, which
+    #: the action restores for a cut drawn again from another camera)? False: any order will do
+    wants_order: bool = True
 
-    def __init__(self, action) -> None:
-        self.action = action
-        self.setup: DrawSetup = action.setup
-        self.ctx = action.ctx
-        self.mgl = self.setup.mgl
+    def __init__(self, setup: DrawSetup) -> None:
+        self.setup = setup
+        self.ctx = setup.ctx
+        self.mgl = setup.mgl
 
-    def draw(self, cam, tf, items: list) -> tuple[np.ndarray, float, float] | None:
+    def draw(self, frame: FrameContext) -> DrawStats | None:
+        """Draw ``frame``'s cut into the shared target and read it back (:meth:`DrawSetup.read_back`);
+        None when this path cannot draw this cut (the action then draws it with the per-brick path,
+        the reference)."""
         raise NotImplementedError
 
     def release(self) -> None:

@@ -33,7 +33,8 @@ import numpy as np
 from ...scene.page_table import build_page_table
 from ..uniforms import uset, vec3
 from ..modes import mode_of
-from .setup import DrawPath
+from .frame import DrawStats, FrameContext
+from .setup import DrawPath, DrawSetup
 
 __all__ = ["SinglePassPath", "MAX_SINGLE_PASS_LEVELS", "MAX_SINGLE_PASS_RAY_SAMPLES", "MAX_PAGE_TABLE_ENTRIES",
            "PAGE_TABLE_WIDTH"]
@@ -53,9 +54,10 @@ class SinglePassPath(DrawPath):
     """Draw the cut as one pass over the volume box through its page table."""
 
     name = "single-pass"
+    wants_order = False  # the page table holds the cut in no order
 
-    def __init__(self, action) -> None:
-        super().__init__(action)
+    def __init__(self, setup: DrawSetup) -> None:
+        super().__init__(setup)
         self._pt_tex = None
         # (items, GPU state, page table) of the frame before: kept while the frame loop draws the
         # same cut again (the same merged list) over the same slots, and for a refined frame's passes
@@ -92,11 +94,11 @@ class SinglePassPath(DrawPath):
         self.rows_written = r1 - r0
         return self._pt_tex
 
-    def draw(self, cam, tf, items: list) -> tuple[np.ndarray, float, float] | None:
+    def draw(self, frame: FrameContext) -> DrawStats | None:
         """One pass over the volume box through the cut's page table; None when this cut or pyramid
         cannot be drawn that way (the per-brick path then draws it)."""
-        a, mgl, ctx = self.action, self.mgl, self.ctx
-        params, pyr, cache = a.params, a.pyramid, a.cache
+        mgl, ctx = self.mgl, self.ctx
+        cam, items, params, pyr, cache = frame.camera, frame.items, frame.params, frame.pyramid, frame.cache
         nlev = pyr.num_levels
         if nlev > MAX_SINGLE_PASS_LEVELS:
             return None
@@ -110,19 +112,16 @@ class SinglePassPath(DrawPath):
         # items come merged (complete sibling sets are one node of the table, no face inside)
         # the table of the frame before, where the cut and the slots are the same: a refined frame's
         # later pass, or a cut the frame loop drew again (the same merged list object)
-        state = (cache.generation, a.clip_texture.residency_version)
-        again = self._table[0] is items and (self.setup.repeats_pass() or self._table[1] == state)
+        state = (cache.generation, frame.residency_version)
+        again = self._table[0] is items and (frame.repeats_pass or self._table[1] == state)
         table = self._table[2] if again else build_page_table(items, pyr, cache.open_faces)
         self._table = (items, state, table)
         if table is None or len(table.entries) > MAX_PAGE_TABLE_ENTRIES:
             return None
-        a.page_table_nodes = len(items)
-        a.boxes_drawn = 1
-        fbo, previous, t0 = self.setup.begin(cam, mode_of(params.mode).clear)
-        defines = dict(a.defines(), NUM_LEVELS=nlev, LEVEL_LO=min(data_levels), LEVEL_HI=max(data_levels))
+        fbo, previous, t0 = self.setup.begin(frame, mode_of(params.mode).clear)
+        defines = dict(frame.defines, NUM_LEVELS=nlev, LEVEL_LO=min(data_levels), LEVEL_HI=max(data_levels))
         prog, vao = self.setup.program("screen.vert", "raymarch.frag", defines)
-        a.program = prog
-        origin = self.setup.frame_uniforms(prog, cam, tf)
+        origin = self.setup.frame_uniforms(prog, frame)
         uset(prog, "u_vol_lo", vec3(vlo - origin))
         uset(prog, "u_vol_hi", vec3(vhi - origin))
         sp = np.array(pyr.spacing[::-1], dtype=np.float64)
@@ -142,8 +141,8 @@ class SinglePassPath(DrawPath):
             "u_lv_win": i32(win), "u_lv_inv_tex_size": f32(1.0 / (win * B)),
             "u_lv_delta": f32([params.step * float(min(lv.scale)) for lv in pyr.levels]),
         }
-        if a.skipped_empty:
-            occ = [self.setup.occupancy_uniforms(L) for L in range(nlev)]
+        if frame.skipped_empty:
+            occ = [self.setup.occupancy_uniforms(frame, L) for L in range(nlev)]
             uniforms["u_lv_occ_size"] = f32([o[0] for o in occ])
             uniforms["u_lv_occ_z0"] = f32([o[1] for o in occ])
         for name, data in uniforms.items():
@@ -167,21 +166,22 @@ class SinglePassPath(DrawPath):
             self._page_table_texture(table.entries)
         self._pt_tex.use(location=2)
         if mode_of(params.mode).classifies:
-            self.setup.tf_texture(tf).use(location=1)
-        self.setup.bind_distribution(prog, tf)
-        self.setup.bind_occupancy(prog, tf)
+            self.setup.tf_texture(frame).use(location=1)
+        self.setup.bind_distribution(prog, frame)
+        self.setup.bind_occupancy(prog, frame)
         for L, tex in enumerate(cache.textures):
             if tex is not None:
                 uset(prog, f"u_level{L}", 3 + L)
                 tex.use(location=3 + L)
         ctx.disable(mgl.BLEND | mgl.CULL_FACE)
-        self.setup.depth_test()  # on only in the fine pass of a refined frame
+        self.setup.depth_test(frame)  # on only in the fine pass of a refined frame
         rect = self.setup.scissor_rects(cam, vlo, vhi)[0]
         if rect[2] and rect[3]:  # else the volume is off the image: nothing to draw
             ctx.scissor = tuple(rect)
             vao.render(mgl.TRIANGLES, vertices=3)
             ctx.scissor = None
-        return self.setup.read_back(previous, tf, mode_of(params.mode).classifies, t0)
+        return self.setup.read_back(frame, previous, mode_of(params.mode).classifies, t0, boxes_drawn=1,
+                                    page_table_nodes=len(items), program=prog)
 
     def release(self) -> None:
         if self._pt_tex is not None:
