@@ -26,10 +26,31 @@ __all__ = ["RenderParams", "MODES", "MODE_CHECKS", "ISO_COLORS", "PATHS", "CLASS
 #: compositing modes of the volume action: emission-absorption, maximum / minimum intensity
 #: projection, the mean along the ray (radiograph-like) and the first hit of an iso-value
 MODES = ("composite", "mip", "minip", "average", "iso")
-#: mode -> its checks of the parameters (``check(params)``, raising ParameterError): the modes'
-#: own, filled by clipvol.render.modes.register, which also adds a new mode's name to MODES (the
-#: scene stage imports no render module; a mode's checks run once the renderer is imported)
-MODE_CHECKS: dict = {}
+#: mode -> its checks of the parameters (``check(params)``, raising ParameterError).
+#: clipvol.render.modes.register puts each registered mode's own check here (and a new mode's name
+#: in MODES); the scene stage imports no render module, so the built-in modes' needs are also
+#: stated here, for parameters made before the renderer is imported: which fields a mode needs,
+#: and whether it classifies (composites) - overlays are composited, so only such a mode takes them.
+#: ``tests/render/test_mode_registry.py`` checks these against the registered modes.
+BUILT_IN_MODE_NEEDS: dict[str, tuple[tuple[str, ...], bool]] = {
+    "composite": ((), True), "mip": ((), False), "minip": ((), False), "average": ((), False),
+    "iso": (("iso_value",), False),
+}
+
+
+def check_mode_needs(params, mode: str, requires: tuple[str, ...], classifies: bool) -> None:
+    """Refuse ``params`` that ``mode`` cannot draw: a field it ``requires`` left None, or overlays
+    with a mode that does not composite (:class:`~clipvol.errors.ParameterError` naming the field)."""
+    for field in requires:
+        if getattr(params, field) is None:
+            raise ParameterError(f"{field}: expected a value for mode {mode!r}, got None")
+    if params.overlays and not classifies:
+        raise ParameterError(f"overlays: expected mode 'composite' (an overlay is composited over the primary), "
+                             f"got mode {params.mode!r} with overlay {params.overlays[0].name}")
+
+
+MODE_CHECKS: dict = {name: (lambda p, n=name, need=need: check_mode_needs(p, n, *need))
+                     for name, need in BUILT_IN_MODE_NEEDS.items()}
 #: colourings of the iso-surface (see RenderParams.iso_color)
 ISO_COLORS = ("tf", "depth")
 #: how overlays (channels) combine with the primary at each sample (see RenderParams.blend)

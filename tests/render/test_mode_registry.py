@@ -195,3 +195,24 @@ def test_overlays_are_refused_by_modes_that_do_not_classify():
         else:
             with pytest.raises(ParameterError, match=f"overlays: expected mode 'composite'.*{name}"):
                 RenderParams(mode=name, overlays=(ov,), **kw)
+
+
+def test_built_in_modes_are_checked_before_the_renderer_is_imported():
+    """The scene stage states the built-in modes' needs itself (it imports no render module), so
+    ``RenderParams(mode="iso")`` without a value is refused even where nothing has imported
+    ``clipvol.render.modes``: a fresh interpreter shows it, and the statement agrees with the
+    registered modes."""
+    import subprocess
+    import sys
+
+    from clipvol.scene.params import BUILT_IN_MODE_NEEDS
+
+    for name, (requires, classifies) in BUILT_IN_MODE_NEEDS.items():
+        m = DRAW_MODES[name]
+        assert (tuple(m.requires), bool(m.classifies)) == (requires, classifies), name
+    code = ("import sys\nfrom clipvol.scene.params import RenderParams\nfrom clipvol.errors import ParameterError\n"
+            "assert 'clipvol.render.modes' not in sys.modules\n"
+            "try:\n    RenderParams(mode='iso')\nexcept ParameterError as e:\n    print('refused', e)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "refused iso_value" in out.stdout

@@ -14,7 +14,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from ...errors import ParameterError
+from ...scene.params import check_mode_needs
 
 __all__ = ["DrawMode", "EXTREME", "over_background"]
 
@@ -91,12 +91,7 @@ class DrawMode:
     def check(self, params) -> None:
         """Refuse ``params`` this mode cannot draw (:class:`~clipvol.errors.ParameterError` naming
         the field); called by :class:`~clipvol.scene.params.RenderParams` for its mode."""
-        for field in self.requires:
-            if getattr(params, field) is None:
-                raise ParameterError(f"{field}: expected a value for mode {self.name!r}, got None")
-        if params.overlays and not self.classifies:
-            raise ParameterError(f"overlays: expected mode 'composite' (an overlay is composited over the primary), "
-                                 f"got mode {params.mode!r} with overlay {params.overlays[0].name}")
+        check_mode_needs(params, self.name, self.requires, self.classifies)
 
     def set_blend(self, ctx, mgl) -> bool:
         """Set the per-brick path's blending between boxes; False: the mode is :attr:`ordered` and
