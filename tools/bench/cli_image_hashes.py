@@ -6,6 +6,10 @@ Usage::
     python tools/bench/cli_image_hashes.py record HASHES.json   # on the code before the change
     python tools/bench/cli_image_hashes.py check HASHES.json    # on the code after it: exit 1 on a difference
 
+To record on an older commit without switching branches, unpack it (``git archive COMMIT | tar -x
+-C OLD``), link ``OLD/clipvol/tools`` to ``../tools`` and ``OLD/clipvol/loaders`` to ``../loaders``
+(the layout the installed package has), and run the script with ``PYTHONPATH=OLD``.
+
 The stores are built afresh in a temporary folder from seeded numpy data (a NIfTI head with a
 patient frame and a label image, an OME-Zarr image with a channel axis, one with a time axis, a
 co-registered overlay, a point cloud), so the hashes depend on the code only. The command lines
@@ -13,7 +17,8 @@ cover the draw modes (composite, MIP, iso-surface), an overlay, labels shown and
 a channel and a time point, a crop box, a clip plane, the image policy, a frame refused for its
 texture budget (exit 3) and the same frame written with ``--allow-partial``, sort-last on Dask
 workers, a point store, slices in the three planes and an oblique one, a point of interest, the
-float values (``--npy``) and the statistics JSON (``--stats``; its timings left out of the hash),
+float values (``--npy``) and the statistics JSON (``--stats``; its timings and load counters left
+out of the hash, :data:`STATS_KEYS`),
 and a short offscreen path (PNG frames; its per-frame CSV hashed without the time columns). Each
 command line's exit status is recorded beside its hashes.
 """
@@ -146,15 +151,22 @@ def command_lines(s: dict) -> list[tuple[str, list[str], list[str]]]:
     return R + S + V
 
 
+#: the fields of ``slice --stats`` hashed: what the slice drew and where. Left out are the times and
+#: the load and upload counters, which depend on whether a prefetched neighbour's read ended before
+#: the frame's upload (9 or 10 bricks uploaded in repeated runs of the same code).
+STATS_KEYS = ("size", "plane", "poi", "level", "edges", "tiles", "tiles_per_level", "blended", "bricks_needed",
+              "bytes_needed", "converged", "failed_bricks", "balance_splits")
+
+
 def _digest(path: Path) -> str | None:
-    """sha256 of the file (None if absent); timings left out of a stats JSON and a frames CSV."""
+    """sha256 of the file (None if absent); of a stats JSON the fields that do not race the loader
+    threads (:data:`STATS_KEYS`), of a frames CSV the columns that are no timings."""
     if not path.exists():
         return None
     data = path.read_bytes()
     if path.suffix == ".json":
         doc = json.loads(data)
-        doc.pop("times", None)
-        data = json.dumps(doc, sort_keys=True).encode()
+        data = json.dumps({k: doc.get(k) for k in STATS_KEYS}, sort_keys=True).encode()
     elif path.suffix == ".csv":
         lines = data.decode().splitlines()
         head = lines[0].split(",")
