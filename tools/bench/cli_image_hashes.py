@@ -10,6 +10,10 @@ To record on an older commit without switching branches, unpack it (``git archiv
 -C OLD``), link ``OLD/clipvol/tools`` to ``../tools`` and ``OLD/clipvol/loaders`` to ``../loaders``
 (the layout the installed package has), and run the script with ``PYTHONPATH=OLD``.
 
+``tools/bench/results/cli_image_hashes.json`` holds the hashes recorded on 2026-11-29 (Mesa
+llvmpipe, offscreen EGL) on the commit before render and slice went through the sessions; images
+from another GL driver differ, so on another machine record afresh on the older commit.
+
 The stores are built afresh in a temporary folder from seeded numpy data (a NIfTI head with a
 patient frame and a label image, an OME-Zarr image with a channel axis, one with a time axis, a
 co-registered overlay, a point cloud), so the hashes depend on the code only. The command lines
