@@ -13,7 +13,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import reference_raycast as ref
-from PIL import Image
 from reference_splats import splat_every_point
 from scipy.ndimage import gaussian_filter
 
