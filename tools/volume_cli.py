@@ -161,7 +161,7 @@ def slice(args) -> int:  # noqa: A001 - the hook is named for its command
 
     from clipvol.app.autobrick import bricked_source
     from clipvol.app.deadline import CommandDeadline
-    from clipvol.app.outputs import check_outputs
+    from clipvol.app.outputs import check_output_file, check_outputs
     from clipvol.paging.open import open_store
     from clipvol.scene.transfer import TransferFunction
     from clipvol.tools.cut_args import shape_from_args
@@ -171,10 +171,9 @@ def slice(args) -> int:  # noqa: A001 - the hook is named for its command
 
     if args.out is None and args.npy is None and args.stats is None:
         raise ParameterError("--out: expected at least one output (--out PNG, --npy, --stats), got none")
-    if args.out is not None and not str(args.out).lower().endswith(".png"):
-        raise ParameterError(f"--out: expected a .png file name, got {args.out!r}")
-    if args.npy is not None and not str(args.npy).lower().endswith(".npy"):
-        raise ParameterError(f"--npy: expected a .npy file name, got {args.npy!r}")
+    for flag, out, suffix in (("--out", args.out, ".png"), ("--npy", args.npy, ".npy"), ("--stats", args.stats, "")):
+        if out is not None:  # a missing folder is refused before any work, not found when the slice is written
+            check_output_file(out, suffix, flag)
     check_outputs([("--out", args.out), ("--npy", args.npy), ("--stats", args.stats)], [args.source])
     if args.tf is not None and args.tf not in TransferFunction.names():
         raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())}, got {args.tf!r}")
