@@ -27,7 +27,7 @@ import threading
 
 from clipvol.errors import OPERATIONAL_ERRNOS, ClipvolError, FrameIncompleteError, describe_os_error
 
-#: exit status of a frame some of whose bricks failed and were not replaced (clipvol.tools.partial)
+#: exit status of a frame some of whose bricks failed and were not replaced (clipvol.app.partial)
 EXIT_PARTIAL = FrameIncompleteError.exit_code
 
 #: sub-command -> one-line help; the module is clipvol.tools.cmd_<name>

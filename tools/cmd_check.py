@@ -169,15 +169,17 @@ def open_checked(path, **remote):
 
 
 def run(args: argparse.Namespace) -> int:
+    from clipvol.tools.kind_cli import kind_command
+
+    return kind_command(args.store, "check")(args)  # the data kind's invariants (volume_check for a volume)
+
+
+def volume_check(args: argparse.Namespace) -> int:
+    """``clipvol check`` of a volume store or image set (the volume kind's hook, :mod:`clipvol.tools.volume_cli`)."""
     from pathlib import Path
 
     from clipvol.errors import ParameterError
 
-    from clipvol.tools.kind_cli import kind_command
-
-    hook = kind_command(args.store, "check")  # another data kind than a volume: its own invariants
-    if hook is not None:
-        return hook(args)
     if args.samples < 1:
         raise ParameterError(f"--samples: expected an integer >= 1, got {args.samples}")
     from clipvol.paging.bytesource import is_remote_url

@@ -200,11 +200,7 @@ def _labels_line(path) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from clipvol.bricking.store import open_store_meta
-    from clipvol.errors import InputNotFoundError, StoreIncompleteError
-    from clipvol.loaders.zarr_store import ZarrLoader
-    from clipvol.units import format_bytes
-
+    from clipvol.errors import InputNotFoundError
     from clipvol.paging.bytesource import is_remote_url
 
     from clipvol.tools.remote_args import remote_kwargs
@@ -219,9 +215,17 @@ def run(args: argparse.Namespace) -> int:
         raise InputNotFoundError(f"{path}: no such store")
     from clipvol.tools.kind_cli import kind_command
 
-    hook = kind_command(path, "info")  # another data kind than a volume: its own summary
-    if hook is not None:
-        return hook(args)
+    return kind_command(path, "info")(args)  # the data kind's summary (volume_info for a volume)
+
+
+def volume_info(args: argparse.Namespace) -> int:
+    """``clipvol info`` of a local volume store (the volume kind's hook, :mod:`clipvol.tools.volume_cli`)."""
+    from clipvol.bricking.store import open_store_meta
+    from clipvol.errors import StoreIncompleteError
+    from clipvol.loaders.zarr_store import ZarrLoader
+    from clipvol.units import format_bytes
+
+    path = Path(args.store)
     from clipvol.bricking.channels import image_set
 
     found = image_set(path)

@@ -170,17 +170,21 @@ def _refines(text):
 
 
 def run(args) -> int:
-    from clipvol.app.report import run_report
-    from clipvol.app.session import open_loader
-    from clipvol.app.kinds import KINDS
+    from clipvol.bricking.output_guard import check_not_input
     from clipvol.tools.kind_cli import kind_command
 
-    from clipvol.bricking.output_guard import check_not_input
-
     check_not_input(args.out, [args.source], "--out")  # the report's files never go into or over the input
-    hook = kind_command(args.source, "report")  # another data kind than a volume: its own report
-    if hook is not None:
-        return hook(args, args.source, args.out)
+    return kind_command(args.source, "report")(args, args.source, args.out)  # volume_report for a volume
+
+
+def volume_report(args, source, out) -> int:
+    """``clipvol report`` of a volume (the volume kind's hook, :mod:`clipvol.tools.volume_cli`): image
+    error against time into ``out``, and with ``--points`` the point store's report into ``out/points``."""
+    from clipvol.app.kinds import KINDS
+    from clipvol.app.report import run_report
+    from clipvol.app.session import open_loader
+    from clipvol.tools.kind_cli import kind_command
+
     if args.points is not None and not KINDS["points"].claims(args.points):
         from clipvol.errors import ParameterError
 
@@ -192,12 +196,12 @@ def run(args) -> int:
 
     from clipvol.app.autobrick import bricked_source
 
-    args.source = bricked_source(args.source, None)  # a NIfTI / DICOM / HDF5 / MRC input: bricked once into ./NAME.zarr
-    loader = open_loader(args.source, **({} if args.brick is None else {"brick": args.brick}), **remote_kwargs(args))
+    source = bricked_source(source, None)  # a NIfTI / DICOM / HDF5 / MRC input: bricked once into ./NAME.zarr
+    loader = open_loader(source, **({} if args.brick is None else {"brick": args.brick}), **remote_kwargs(args))
     check_trust(loader, args, "report")
     tf = transfer_function_from_args(args, loader)
     res = run_report(
-        loader, args.out, path=args.path, views=args.views, size=args.size, thresholds=args.thresholds,
+        loader, out, path=args.path, views=args.views, size=args.size, thresholds=args.thresholds,
         memory_budgets=args.memory_budgets, texture_budgets=args.texture_budgets, tf=tf, mode=args.mode, iso_value=args.iso_value,
         step=args.step, threads=args.threads, timeout=args.timeout, max_frames=args.max_frames,
         reference_cap=args.reference_cap, log=lambda s: print(s, flush=True), plots=not args.no_plots,
@@ -210,5 +214,5 @@ def run(args) -> int:
     if args.points is not None:
         from pathlib import Path
 
-        return kind_command(args.points, "report")(args, args.points, Path(args.out) / "points")
+        return kind_command(args.points, "report")(args, args.points, Path(out) / "points")
     return 0

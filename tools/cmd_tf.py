@@ -65,7 +65,7 @@ def run(args) -> int:
             print(line)
         return 0
     from clipvol.app.session import open_loader
-    from clipvol.tools.cmd_render import check_output_file
+    from clipvol.app.outputs import check_output_file
     from clipvol.tools.tf_args import transfer_function_from_args
 
     check_output_file(args.file, ".json", "FILE.json")

@@ -98,19 +98,22 @@ def _bricked(args) -> str:
 
 
 def run(args) -> int:
-    from clipvol.app.session import open_loader
-    from clipvol.errors import ParameterError
-    from clipvol.tools.render_args import render_params_from_args
-
     from clipvol.tools.kind_cli import kind_command
 
     if args.offscreen:  # frames, a GIF or a movie: never written into or over the input
         from clipvol.bricking.output_guard import check_not_input
 
         check_not_input(args.out, [args.source], "--out")
-    hook = kind_command(args.source, "view")  # another data kind than a volume: its own viewer
-    if hook is not None:
-        return hook(args)
+    return kind_command(args.source, "view")(args)  # the data kind's viewer (volume_view for a volume)
+
+
+def volume_view(args) -> int:
+    """``clipvol view`` of a volume (the volume kind's hook, :mod:`clipvol.tools.volume_cli`): the
+    window, or with ``--offscreen`` a camera path to frames, a GIF or a movie."""
+    from clipvol.app.session import open_loader
+    from clipvol.errors import ParameterError
+    from clipvol.tools.render_args import render_params_from_args
+
     _check_frames(args)
     if args.frame_time < 0:
         raise ParameterError(f"--frame-time: expected milliseconds >= 0, got {args.frame_time}")
@@ -241,9 +244,9 @@ def _series(args, source, loader, kwargs) -> list:
 
 def _on_failed(args, pyramid):
     """``render_path``'s ``on_failed``: a frame with failed bricks that nothing stands in for stops
-    the path (exit 3), or with ``--allow-partial`` is written hatched (:mod:`clipvol.tools.partial`)."""
+    the path (exit 3), or with ``--allow-partial`` is written hatched (:mod:`clipvol.app.partial`)."""
     from clipvol.render.failures import hatch_failed
-    from clipvol.tools.partial import settle_failed
+    from clipvol.app.partial import settle_failed
 
     noted: set = set()
 

@@ -2,7 +2,9 @@
 `clipvol info`, `check`, `render`, `view` and `report` on a point store.
 
 The commands hand a point store over here through :func:`clipvol.tools.kind_cli.kind_command`;
-the hooks follow :class:`clipvol.app.kinds.KindCommands`.
+the hooks follow :class:`clipvol.app.kinds.KindCommands`, as the volume kind's
+(:mod:`clipvol.tools.volume_cli`) do. There is no ``slice`` hook: ``clipvol slice`` refuses a point
+store in one line.
 """
 
 from __future__ import annotations
@@ -56,17 +58,15 @@ def check(args) -> int:
 
 
 def render(args) -> int:
-    """`clipvol render` on a point store: splats at --tolerance through the clip-texture."""
-    import numpy as np
-    from PIL import Image
-
+    """`clipvol render` on a point store: splats at --tolerance (:func:`clipvol.app.render_png.render_points_to_png`)."""
+    from clipvol.app.outputs import check_output_file, check_outputs
+    from clipvol.app.render_png import render_points_to_png
     from clipvol.loaders.point_store import PointStoreLoader
-    from clipvol.paging.cliptexture import ClipTexture
-    from clipvol.render import create_context
-    from clipvol.render.splat import SplatRenderAction
     from clipvol.scene.transfer import TransferFunction
     from clipvol.scene.views import view_camera
 
+    check_output_file(args.out, ".png", "--out")
+    check_outputs([("--out", args.out)], [args.source])
     loader = PointStoreLoader(args.source)
     lo, hi = loader.world_box()
 
@@ -82,22 +82,11 @@ def render(args) -> int:
         from clipvol.tools.tf_args import transfer_function_from_args
 
         tf = transfer_function_from_args(args, loader)
-    centre = np.clip(np.asarray(cam.center, np.float64), lo, hi)
-    ctx = create_context()
-    try:
-        with ClipTexture(loader, args.memory_budget, args.threads, center=loader.to_paging(centre)) as clip, \
-                SplatRenderAction(ctx, clip, tolerance=args.tolerance, mode=args.mode, background=args.background,
-                                  shading=getattr(args, "shading", False),
-                                  light=getattr(args, "light", (0.3, 0.7, 0.3, 20.0))) as action:
-            image = action.render(cam, tf, wait=not args.no_wait, timeout=args.timeout)
-            st = action.last_frame_stats
-    finally:
-        ctx.release()
-    Image.fromarray(image, "RGBA").save(args.out)
-    print(f"wrote {args.out} ({cam.size[0]}x{cam.size[1]}, splats, {args.mode}, tolerance {st.tolerance_px:.1f} px)", file=sys.stderr)
-    print(f"nodes drawn {st.nodes_drawn} ({', '.join(f'd{d}: {n}' for d, n in st.nodes_per_depth.items())}); "
-          f"points drawn {st.points_drawn:,}; converged {st.converged}", file=sys.stderr)
-    print("time: " + ", ".join(f"{k} {v * 1000:.1f} ms" for k, v in st.times.items()), file=sys.stderr)
+    render_points_to_png(loader, args.out, cam, tf, tolerance=args.tolerance, mode=args.mode,
+                         background=args.background, shading=getattr(args, "shading", False),
+                         light=getattr(args, "light", (0.3, 0.7, 0.3, 20.0)), memory_budget=args.memory_budget,
+                         threads=args.threads, wait=not args.no_wait, timeout=args.timeout,
+                         log=lambda line: print(line, file=sys.stderr))
     return 0
 
 

@@ -17,8 +17,9 @@ helper, or the dotted name of a ``clipvol.tools`` module when they do: only the 
 that name (the entry-point convention), so this stage never imports the CLI.
 
 The volume is the default kind: a source that no other kind claims is a volume (or an error of
-the volume opener, which names what is wrong), and the commands' own code is its command-line
-path, so a volume takes no hook.
+the volume opener, which names what is wrong). Apart from being asked last it is a kind like the
+others, with the same hooks: every command hands every source to its kind's hook
+(``clipvol.tools.volume_cli`` for a volume, ``clipvol.tools.point_cli`` for points).
 """
 
 from __future__ import annotations
@@ -36,10 +37,11 @@ __all__ = ["DataKind", "KindCommands", "KINDS", "DEFAULT_KIND", "kind_of", "open
 class KindCommands(Protocol):
     """The command-line hooks of a data kind: each returns the command's exit status.
 
-    A kind without a hook for a command (no ``report``, say) is refused by that command with a
-    message naming the source and the kind. ``info`` and ``check`` read ``args.store``; ``render``
-    and ``view`` read ``args.source``; ``report`` gets the source and output folder, because
-    ``clipvol report VOLUME --points POINTS`` reports a second store into a sub-folder.
+    A kind without a hook for a command (no ``slice`` for points, say) is refused by that command
+    with a message naming the source and the kind. ``info`` and ``check`` read ``args.store``;
+    ``render``, ``slice`` and ``view`` read ``args.source``; ``report`` gets the source and output
+    folder, because ``clipvol report VOLUME --points POINTS`` reports a second store into a
+    sub-folder.
     """
 
     def info(self, args) -> int: ...
@@ -47,6 +49,8 @@ class KindCommands(Protocol):
     def check(self, args) -> int: ...
 
     def render(self, args) -> int: ...
+
+    def slice(self, args) -> int: ...
 
     def view(self, args) -> int: ...
 
@@ -61,9 +65,9 @@ class DataKind(Protocol):
     ----------
     name : str
         The registry key; error messages say ``a {name} store``.
-    cli : KindCommands, str or None
+    cli : KindCommands or str
         The command-line hooks, or the dotted name of the ``clipvol.tools`` module that holds them
-        (see the module docstring), or None for the default kind, whose path is the commands' own.
+        (see the module docstring).
     show : callable or None
         ``show(source, **kwargs)``: an interactive notebook view of the source (what
         :func:`show` returns), or None for a kind without one.

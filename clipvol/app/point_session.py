@@ -54,17 +54,24 @@ class PointSession:
         Straight RGBA behind the points.
     shading : bool
         Composite: lighting from each point's weighted least-squares gradient.
+    light : 4 floats
+        Ambient, diffuse, specular and shininess of that lighting.
+    center : 3 floats, optional
+        The first centre of interest (world ``(x, y, z)``, clamped into the root cube; default its
+        centre): a one-shot frame gives its camera's target.
     """
 
     def __init__(self, source, ctx, *, memory_budget="256MB", threads=None, tolerance=0.05, mode: str = "composite",
-                 tf=None, value=0, background=(0.0, 0.0, 0.0, 0.0), shading: bool = False) -> None:
+                 tf=None, value=0, background=(0.0, 0.0, 0.0, 0.0), shading: bool = False,
+                 light=(0.3, 0.7, 0.3, 20.0), center=None) -> None:
         self.loader = open_point_loader(source)
         tolerance_pixels(tolerance, (1000, 1000))  # a clear error before any thread starts
         lo, hi = self.loader.world_box()
-        self.clip_texture = ClipTexture(self.loader, memory_budget, threads, center=self.loader.to_paging((lo + hi) / 2.0))
+        c = (lo + hi) / 2.0 if center is None else np.clip(np.asarray(center, np.float64), lo, hi)
+        self.clip_texture = ClipTexture(self.loader, memory_budget, threads, center=self.loader.to_paging(c))
         try:
             self.action = SplatRenderAction(ctx, self.clip_texture, tolerance=tolerance, mode=mode, value=value,
-                                             background=background, shading=shading)
+                                             background=background, shading=shading, light=light)
         except BaseException:
             self.clip_texture.close()
             raise

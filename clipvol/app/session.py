@@ -88,10 +88,14 @@ class RenderSession:
     overlays : sequence, optional
         Co-registered volumes drawn over the source in the same ray cast (see :func:`make_overlays`
         and :mod:`clipvol.scene.overlay`): ``[("zmap.zarr", "diverging")]``.
+    center : 3 floats, optional
+        The clip-texture's first centre of interest (render frame; default the volume's centre). A
+        one-shot frame gives its camera's target, so the loader threads start reading where the
+        frame looks rather than around the middle.
     """
 
     def __init__(self, source, ctx, *, memory_budget="256MB", threads=None, params: RenderParams | None = None,
-                 tf="viridis", texture_budget=None, background=None, overlays=None) -> None:
+                 tf="viridis", texture_budget=None, background=None, overlays=None, center=None) -> None:
         over = {k: v for k, v in (("texture_budget", texture_budget), ("background", background)) if v is not None}
         if overlays is not None:
             over["overlays"] = make_overlays(overlays)
@@ -104,7 +108,7 @@ class RenderSession:
         from ..scene.cut import outside_bricks
 
         # bricks outside a crop box / clip planes are culled by the selection and never read either
-        self.clip_texture = ClipTexture(self.loader, memory_budget, threads,
+        self.clip_texture = ClipTexture(self.loader, memory_budget, threads, center=center,
                                         outside=outside_bricks(self.pyramid, self.params.shape))
         self._tf = None
         self._tf_name = None

@@ -3,7 +3,10 @@ a loader plug-in or a numpy array) drawn by ray casting through the clip-texture
 
 The default kind of :mod:`clipvol.app.kinds`: it takes every source that no other kind claims,
 so a source that is nothing clipvol knows reaches :func:`clipvol.paging.open.open_store`, whose
-errors name what is wrong. Its command-line path is the commands' own code (``cli`` is None).
+errors name what is wrong. Otherwise it is a kind like any other: its command-line hooks are
+``clipvol.tools.volume_cli`` (named here, resolved by the CLI only), which turn the flags into
+objects and call :func:`clipvol.app.render_png.render_to_png` and
+:func:`clipvol.app.slice_files.slice_to_files`, both drawing through the sessions below.
 """
 
 from __future__ import annotations
@@ -13,10 +16,11 @@ __all__ = ["VolumeKind"]
 
 class VolumeKind:
     """Volumes: :func:`~clipvol.app.session.open_loader`, :class:`~clipvol.app.session.RenderSession`,
-    :class:`~clipvol.app.notebook.VolumeView`."""
+    :class:`~clipvol.app.notebook.VolumeView`; cutting planes through
+    :class:`~clipvol.app.slice_session.SliceSession`."""
 
     name = "volume"
-    cli = None
+    cli = "clipvol.tools.volume_cli"
 
     def claims(self, source) -> bool:
         """Everything (the default kind is asked last)."""

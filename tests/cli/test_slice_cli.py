@@ -70,6 +70,19 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(tmp_path, capsys, args,
     assert not out.exists() and not list(tmp_path.iterdir())
 
 
+@pytest.mark.parametrize("flag,name", [("--out", "s.png"), ("--npy", "s.npy"), ("--stats", "s.json")])
+def test_an_output_in_a_missing_folder_is_refused_before_any_output(tmp_path, capsys, flag, name):
+    """Before: the slice was drawn, the outputs before it written, then a traceback (exit 1) at the
+    one whose folder is missing. Now: one line naming the flag and folder, exit 2, nothing written."""
+    outs = {"--out": tmp_path / "s.png", "--npy": tmp_path / "s.npy", "--stats": tmp_path / "s.json"}
+    outs[flag] = tmp_path / "missing" / name
+    argv = ["slice", SRC, "--brick", "16"] + [a for f, p in outs.items() for a in (f, str(p))]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert flag in err and "missing" in err and "does not exist" in err and len(err.splitlines()) == 1
+    assert not list(tmp_path.iterdir())
+
+
 def test_slice_of_a_nifti_store_labels_its_edges_like_nibabel(tmp_path):
     nib = pytest.importorskip("nibabel")
     data = np.arange(21 * 17 * 13, dtype=np.int16).reshape(21, 17, 13)  # nibabel order (i, j, k)

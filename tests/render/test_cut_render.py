@@ -109,7 +109,7 @@ def test_cli_render_crop_in_world_units_equals_the_reference(tmp_path):
                  "--clip-plane", "13,0,3,1,0,-1"]) == 0
     img = np.asarray(Image.open(out))
     from clipvol.loaders.zarr_store import ZarrLoader
-    from clipvol.tools.cmd_render import view_camera
+    from clipvol.scene.views import view_camera
 
     pyr = ZarrLoader(store).pyramid
     cam = view_camera(pyr, "iso", (64, 64), eye=(-20, -14, -30), target=(15.5, 15.5, 15.5), up=(0, -1, 0), fov=45)
@@ -157,7 +157,7 @@ def test_cli_render_crop_in_patient_millimetres_of_a_mirrored_nifti(tmp_path):
                  "--crop=" + ",".join(map(str, crop[0] + crop[1]))]) == 0
     img = np.asarray(Image.open(out))
     import clipvol
-    from clipvol.tools.cmd_render import view_camera
+    from clipvol.scene.views import view_camera
 
     v = clipvol.open(tmp_path / "scan.zarr")
     assert np.array_equal(np.asarray(v.level(0)[:, :, :]), vol)  # the array as stored

@@ -9,7 +9,7 @@ request past it (:class:`clipvol.paging.bytesource.FsspecByteSource`, ``deadline
 waits for what is left of it, and the clip-texture's loader threads are waited for at most the
 rest (a thread still inside a read is a daemon and is left behind, with one line on stderr
 instead of a warning). The frame that did not complete in time is then refused naming
-``--timeout`` (:func:`clipvol.tools.partial.settle_unconverged`, exit 3).
+``--timeout`` (:func:`clipvol.app.partial.settle_unconverged`, exit 3).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ class CommandDeadline:
 
     def remote_kwargs(self, source: str, kwargs: dict) -> dict:
         """``kwargs`` of the loader of ``source`` with the deadline added when it is a remote store."""
-        from clipvol.paging.bytesource import is_remote_url
+        from ..paging.bytesource import is_remote_url
 
         if self.at is None or not is_remote_url(str(source)):
             return kwargs
