@@ -24,6 +24,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from ..bricking.spread import spread_dtype
 from ..errors import ClipvolError, FrameIncompleteError, ParameterError
 from ..paging.toroidal import minimum_budget
 from ..render.context import create_context
@@ -131,10 +132,25 @@ def _reference_level(pyr, cap: int) -> int:
     return pyr.num_levels - 1
 
 
-def _holding_budget(pyr, level: int) -> int:
-    """A budget that holds ``level`` and every coarser level whole, plus 2x2x2 windows below."""
-    whole = sum(_level_bytes(pyr, l) for l in range(level, pyr.num_levels))
-    return int(whole * 1.25) + (8 * level + 8) * pyr.brick_nbytes
+def _holding_budgets(loader, level: int) -> tuple[int, int]:
+    """Memory and texture budgets that hold ``level`` and every coarser level whole, plus 2x2x2
+    windows below.
+
+    A store with consistent coarse levels (:mod:`clipvol.bricking.spread`) holds each coarse
+    brick's spread beside it: the clip-texture keeps the spread in its memory budget, and the GPU
+    cache counts every level at two channels (:class:`~clipvol.render.gpu_cache.GpuBrickCache`).
+    A budget sized for the means alone holds half the pyramid on the GPU, and every change between
+    the reference and a coarse setting evicts and uploads again (what the report used to time).
+    """
+    pyr = loader.pyramid
+    spread = set(getattr(loader, "spread_levels", ()) or ())
+    sp = spread_dtype(pyr.dtype).itemsize * int(np.prod(pyr.brick_shape)) if spread else 0
+    levels = range(level, pyr.num_levels)
+    mem = sum(_level_bytes(pyr, L) + (pyr.num_bricks(L) * sp if L in spread else 0) for L in levels)
+    channels = 2 if spread else 1
+    tex = sum(_level_bytes(pyr, L) for L in levels) * channels
+    windows = (8 * level + 8) * pyr.brick_nbytes
+    return int(mem * 1.25) + windows + (8 * level + 8) * sp, int(tex * 1.25) + windows * channels
 
 
 def _metrics(img: np.ndarray, ref: np.ndarray) -> dict:
@@ -158,26 +174,21 @@ def _row(s: _Setting, view: int, kind: str, frame: int, **values) -> dict:
     return {k: row.get(k, "") for k in REPORT_COLUMNS}
 
 
-def _settle(sess, cam, coi, timeout: float, max_passes: int = 32) -> int:
+def _settle(sess, cam, coi, timeout: float) -> int:
     """Bring the view to its converged state; returns the bytes uploaded meanwhile.
 
-    Waits until the clip-texture is idle (every brick of its windows loaded or failed), then renders
-    without waiting until the frame is converged or a pass uploads nothing more. Bounded by
-    ``timeout`` and ``max_passes``, so a texture budget too small for the wanted bricks (uploads
-    that keep evicting each other) ends the loop instead of spinning.
+    Waits until the clip-texture is idle (every brick of its windows loaded or failed), then draws
+    one frame that waits (:meth:`~clipvol.render.frame_loop.FrameLoop.run` with ``wait=True``: it
+    selects and uploads pass after pass without drawing until the cut is converged, the texture
+    budget cannot hold the view at once, or ``timeout`` runs out). A frame drawn per upload pass
+    instead - as this did before - drew up to 32 frames where one is needed: on a 192^3 store at
+    160^2 that was most of the report's time.
     """
     t_end = time.perf_counter() + float(timeout)
     sess.set_center(coi)
     sess.clip_texture.wait_until_idle(timeout=timeout)
-    uploaded = 0
-    for _ in range(max_passes):
-        sess.render(cam, coi, wait=False)
-        fs = sess.frame_stats
-        up = fs.bytes_uploaded
-        uploaded += up
-        if fs.converged or up == 0 or time.perf_counter() > t_end:
-            break
-    return uploaded
+    sess.render(cam, coi, wait=True, timeout=max(t_end - time.perf_counter(), 0.0))
+    return int(sess.frame_stats.bytes_uploaded)
 
 
 def _check_failed(label: str, view: int, fs, allow_partial: bool, log) -> None:
@@ -426,8 +437,7 @@ def measure(
     pyr = loader.pyramid
     cap = parse_bytes(reference_cap, "reference_cap")
     ref_level = _reference_level(pyr, cap)
-    full_mem = _holding_budget(pyr, ref_level)
-    full_tex = full_mem
+    full_mem, full_tex = _holding_budgets(loader, ref_level)
     from ..scene.views import patient_path
 
     path_name, path_kwargs = patient_path(path, getattr(loader, "frame", None))  # head-up for a patient
@@ -478,15 +488,15 @@ def measure(
                 Image.fromarray(present(img, cams[v][0], frame), "RGBA").save(p)
                 result.images.append(p)
         settings = [_Setting("lod_threshold", f"lod={t:g}", t, full_mem, full_tex) for t in thresholds]
-        total = _holding_budget(pyr, 0)
+        total_mem, total_tex = _holding_budgets(loader, 0)
         if memory_budgets is None:
             mmin = minimum_budget(pyr)
-            memory_budgets = sorted({max(total // 2, mmin), max(total // 8, mmin)}, reverse=True)
+            memory_budgets = sorted({max(total_mem // 2, mmin), max(total_mem // 8, mmin)}, reverse=True)
         for m in memory_budgets:
             m = parse_bytes(m, "memory_budgets")
             settings.append(_Setting("memory_budget", f"mem={format_bytes(m)}", 1.0, m, full_tex))
         if texture_budgets is None:
-            texture_budgets = [total // 2, total // 8]
+            texture_budgets = [total_tex // 2, total_tex // 8]
         for t in texture_budgets:
             t = parse_bytes(t, "texture_budgets")
             settings.append(_Setting("texture_budget", f"tex={format_bytes(t)}", 1.0, full_mem, t))

@@ -408,3 +408,38 @@ def test_cli_rejects_an_unknown_classify(tmp_path, capsys):
         main(["report", "procedural:fractal?size=16", "--out", str(tmp_path / "rep"), "--classify", "median"])
     assert e.value.code == 2 and "--classify" in capsys.readouterr().err
     assert not (tmp_path / "rep").exists()
+
+
+def test_budgets_that_hold_the_pyramid_hold_it_with_its_spread(tmp_path, ctx):
+    """A store with consistent coarse levels keeps each coarse brick's spread beside it, and the GPU
+    cache holds every level at two channels. The report's budgets that "hold everything" must hold
+    that too: drawn from one session, going back and forth between full resolution and a coarse
+    setting (what the report's interleaved timing does) uploads nothing after the first time round.
+    With budgets sized for the means alone, every change evicted and uploaded again."""
+    from clipvol.app.report_measure import _holding_budgets
+    from clipvol.app.session import RenderSession, open_loader
+    from clipvol.bricking.pipeline import brick_volume
+    from clipvol.scene.params import RenderParams
+    from clipvol.scene.paths import make_path
+
+    z, y, x = np.mgrid[:64, :64, :64] / 63.0 - 0.5
+    ball = np.clip(1.0 - np.sqrt(x * x + y * y + z * z) / 0.5, 0.0, 1.0)
+    np.save(tmp_path / "v.npy", (255 * ball * (0.6 + 0.4 * np.sin(40 * x) * np.cos(30 * y))).clip(0, 255).astype(np.uint8))
+    brick_volume(tmp_path / "v.npy", tmp_path / "v.zarr", brick=8, progress=False)
+    loader = open_loader(str(tmp_path / "v.zarr"))
+    assert loader.spread_levels  # the store carries the spread (else this tests nothing)
+    mem, tex = _holding_budgets(loader, 0)
+    cams = list(make_path("orbit", loader.pyramid, 2, size=(64, 64)))
+    fine = RenderParams(policy="fixed", level=0, texture_budget=tex, step=1.0)
+    with RenderSession(loader, ctx, memory_budget=mem, params=fine, tf="grey") as sess:
+        assert sess.clip_texture.spread_levels == loader.spread_levels  # the memory budget kept the spread
+        uploads = []
+        for rnd in range(3):
+            for ch in (dict(policy="fixed", level=0), dict(policy="projected-size", lod_threshold=1.0),
+                       dict(policy="projected-size", lod_threshold=4.0), dict(policy="image", block_budget=64)):
+                sess.update(**ch)
+                for cam, coi in cams:
+                    sess.render(cam, coi, wait=True, timeout=60)
+                    uploads.append((rnd, ch, sess.frame_stats.bytes_uploaded))
+    assert any(up for rnd, _, up in uploads if rnd == 0)
+    assert [u for u in uploads if u[0] > 0 and u[2]] == []
