@@ -4,9 +4,11 @@ Each sub-command lives in its own module ``clipvol.tools.cmd_<name>`` with two f
 ``add_arguments(parser)`` and ``run(args) -> int``. Modules import heavy dependencies (zarr,
 moderngl, glfw) inside ``run`` so that ``clipvol --help`` starts fast, and :func:`main` imports only
 the module of the command its arguments name (``clipvol --help`` none: the listing needs only
-:data:`COMMANDS`). The flags of the drawing commands (render, slice, view, report, tf) are built from
-``RenderParams`` and the registries of the scene stage, which import numpy; ``tests/cli/
-test_cli_front_door.py`` checks the rest in a fresh interpreter.
+:data:`COMMANDS`). No parser imports numpy or zarr: the
+choices and shown defaults of the drawing commands come from :mod:`clipvol.choices`, and a flag
+several commands share is declared once (:mod:`clipvol.tools.common_args`, ``render_args``,
+``tf_args``); ``tests/cli/test_front_door_imports.py`` checks every command's parser in a fresh
+interpreter.
 
 Errors a user can cause (:class:`clipvol.errors.ClipvolError`) print one line naming the file or
 parameter and exit with status 2, no traceback; so does an ``OSError`` of the machine's state (disk
@@ -138,8 +140,9 @@ def main(argv: list[str] | None = None) -> int:
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGINT, on_sigint)
     try:
-        from clipvol.tools.common_args import check_common_values
+        from clipvol.tools.common_args import check_common_values, fill_unset
 
+        fill_unset(args)  # a shared flag left out: this command's value, as its help says
         check_common_values(args)  # --threads, --timeout, --memory-budget, --brick: one check, every command
         rc = int(args._run(args) or 0)
         if interrupted:  # the interrupt was swallowed on its way (C code, a thread): the work did not finish

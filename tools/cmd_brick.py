@@ -32,7 +32,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "multi-page TIFF, zarr array / OME-Zarr image, NIfTI .nii/.nii.gz, DICOM series folder, "
                         "HDF5 FILE.h5:/dataset, MRC .mrc/.map, or procedural:NAME?size=N")
     parser.add_argument("output", metavar="OUTPUT", help="store directory to create (or resume)")
-    parser.add_argument("--brick", type=int, default=64, help="brick edge in voxels, even, 8..256 (default 64)")
+    from clipvol.tools.common_args import add_common_arguments, add_old_spelling
+
+    add_common_arguments(parser, ("brick",))
     parser.add_argument("--filter", default="mean", help="down-sampling filter: mean | subsample | max | mode (label volumes) (default mean)")
     parser.add_argument("--codec", default="lz4", help="lz4 | zstd | none (default lz4: blosc lz4 + shuffle)")
     parser.add_argument("--spacing", metavar="X,Y,Z",
@@ -40,17 +42,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--origin", default=None, metavar="X,Y,Z",
                         help="world position x,y,z of voxel 0 (OME translation; default: the input's, else 0,0,0): "
                              "co-registered volumes drawn as overlays (render --overlay) are placed by it")
-    parser.add_argument("--unit", default=None, help="unit of the spacing (default: the input's, e.g. millimeter for NIfTI/DICOM, else micrometer)")
+    add_common_arguments(parser, ("unit",))
     parser.add_argument("--shape", help="raw input: shape Z,Y,X")
     parser.add_argument("--dtype", help="raw input: numpy dtype, e.g. uint16")
     parser.add_argument("--byte-order", default="little", help="raw input: little | big (default little)")
-    parser.add_argument("--workers", type=int, default=None, help="threads (default: number of cores)")
-    parser.add_argument("--scheduler", default=None, metavar="S",
-                        help="build on Dask: threads | processes | tcp://HOST:PORT of a dask.distributed scheduler "
-                             "(default: the local thread pool, no Dask needed; needs clipvol[dask])")
-    parser.add_argument("--overwrite", action="store_true", help="replace an existing OUTPUT when it is a clipvol store or an empty folder (never the "
-                        "input, a folder holding it, or anything else)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    add_common_arguments(parser, ("threads", "scheduler", "overwrite", "quiet"))
+    add_old_spelling(parser, "--workers", "--threads", " (--workers is worker processes in render and view)", type=int)
     parser.add_argument("--labels", action="append", default=[], metavar="FILE[:NAME]",
                         help="a label volume (integer ids, the image's shape) to brick into OUTPUT/labels/NAME with "
                              "the mode filter (OME-Zarr labels; NAME defaults to the file's stem); repeatable")
@@ -93,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
         build = partial(brick_volume_dask, scheduler=args.scheduler)
     meta = build(
         args.input, args.output, brick=args.brick, filter=args.filter, codec=args.codec, spacing=spacing,
-        unit=args.unit, workers=args.workers, overwrite=args.overwrite, progress=not args.quiet,
+        unit=args.unit, workers=args.threads, overwrite=args.overwrite, progress=not args.quiet,
         raw_shape=shape, raw_dtype=args.dtype, byte_order=args.byte_order, summary=not args.no_summary, **extra,
     )
     channels = len(meta) if isinstance(meta, list) else 0
@@ -102,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
         from clipvol.bricking.labels import brick_labels
 
         # never overwrite here: --overwrite cleared OUTPUT (its labels with it) before the build started
-        brick_labels(args.output, path, name, codec=args.codec, workers=args.workers, overwrite=False,
+        brick_labels(args.output, path, name, codec=args.codec, workers=args.threads, overwrite=False,
                      progress=not args.quiet)
         if not args.quiet:
             print(f"{args.output}: labels {name!r} from {path} in {args.output}/labels/{name}")

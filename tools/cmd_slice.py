@@ -3,11 +3,11 @@
 The plane is ``--plane z=94`` (an array axis letter and a level-0 voxel index: the array as
 stored), ``--axis coronal --index 120`` (for a store with a patient frame the patient's plane, shown
 the radiological way: anterior or superior up, the patient's right on the image left; ``--neurological``
-puts it on the right), or ``--origin x,y,z --normal x,y,z`` (``--up`` sets the image's up). Points
+puts it on the right), or ``--through x,y,z --normal x,y,z`` (``--up`` sets the image's up). Points
 and directions are in the store's world frame, x,y,z (``clipvol info``: patient RAS+ mm for NIfTI and
 DICOM), converted by :mod:`clipvol.scene.cut`; only ``--plane`` and ``--index`` are voxel indices.
 Without ``--poi`` and ``--level`` the slice is as fine as its pixels need; with ``--poi`` (a world
-point, which the plane passes through unless ``--plane``/``--index``/``--origin`` place it) it is full
+point, which the plane passes through unless ``--plane``/``--index``/``--through`` place it) it is full
 resolution near that point and coarser away from it, balanced and blended so no seam shows
 (LaMar, Hamann & Joy, "Multiresolution cutting planes"); ``--level 0`` is full resolution
 everywhere. Outputs: a PNG (grey ``--window C,W`` or a ``--tf`` colour map), the float32 values
@@ -24,19 +24,8 @@ import sys
 
 from clipvol.errors import ParameterError
 
-from .cmd_render import _triple
-from .common_args import add_common_arguments
+from .common_args import add_common_arguments, add_old_spelling, parse_xyz
 from .render_args import add_render_arguments, render_params_from_args
-
-
-def _window(text: str) -> tuple[float, float]:
-    try:
-        c, w = (float(t) for t in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected C,W (window centre and width), got {text!r}") from None
-    if not (math.isfinite(c) and math.isfinite(w) and w > 0):
-        raise argparse.ArgumentTypeError(f"expected a finite centre and a width > 0, got {text!r}")
-    return c, w
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -53,34 +42,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                                              "the plane's normal (default: the middle, or --poi's)")
     g.add_argument("--neurological", action="store_true",
                    help="--axis of a patient-frame store: the patient's right on the image right (default: radiological)")
-    g.add_argument("--origin", type=_triple, default=None,
+    g.add_argument("--through", type=parse_xyz, default=None, metavar="X,Y,Z",
                    help="oblique plane: a point x,y,z of it in the store's world frame (what clipvol info prints: "
                         "patient RAS+ mm for NIfTI/DICOM)")
-    g.add_argument("--normal", type=_triple, default=None, help="oblique plane: its normal x,y,z (world frame)")
-    g.add_argument("--up", type=_triple, default=None,
-                   help="oblique plane: the image's up x,y,z (world frame; default superior, anterior for an "
-                        "axial plane, in a patient frame)")
+    g.add_argument("--normal", type=parse_xyz, default=None, help="oblique plane: its normal x,y,z (world frame)")
+    add_old_spelling(g, "--origin", "--through", " (--origin is where a volume's voxel 0 lies, for brick)", type=parse_xyz)
+    add_common_arguments(g, ("up",))
     s = p.add_argument_group("image")
-    add_common_arguments(s, ("size",), size=dict(help="WxH pixels (default: the plane's cut through the volume)"))
+    add_common_arguments(s, ("size",))
     s.add_argument("--pixel-size", type=float, default=None, help="world units per pixel (default: the level-0 voxel)")
-    s.add_argument("--window", type=_window, default=None, help="grey window/level C,W (default: the value range)")
-    s.add_argument("--tf", default=None, help="colour the values with a transfer-function preset instead of grey")
+    from clipvol.tools.tf_args import add_tf_arguments
+
+    add_tf_arguments(s, ("window", "tf"))
     s.add_argument("--out", "-o", default=None, help="output PNG")
-    s.add_argument("--no-labels", action="store_true", help="do not write R/L, A/P, S/I at the PNG's edges (patient-frame stores)")
+    add_common_arguments(s, ("no_labels",))
     s.add_argument("--npy", default=None, help="write the resampled values (float32, NaN outside the volume)")
     s.add_argument("--stats", default=None, help="write statistics as JSON (bytes_loaded, tiles per level, time)")
     r = p.add_argument_group("resolution")
-    r.add_argument("--poi", type=_triple, default=None,
+    r.add_argument("--poi", type=parse_xyz, default=None,
                    help="point of interest x,y,z in the store's world frame: full resolution near it; the plane "
-                        "moves through it unless --plane, --index or --origin place it")
-    add_render_arguments(r, ("level", "distance_factor", "lod_threshold"), help={
-        "level": "one level everywhere (0 = full resolution)",
-        "distance_factor": "--poi: refine nodes closer to it than this many of their diagonals (default 1)"})
+                        "moves through it unless --plane, --index or --through place it")
+    add_render_arguments(r, ("level", "distance_factor", "lod_threshold"))
     add_common_arguments(r, ("brick", "memory_budget"))
     add_render_arguments(r, ("texture_budget", "classify"))
-    add_common_arguments(r, ("threads", "no_wait", "timeout"),
-                         no_wait=dict(help="draw what is resident after one pass (coarser fallback)"),
-                         timeout=dict(help="seconds to wait for the slice's bricks (default 300)"))
+    add_common_arguments(r, ("threads", "no_wait", "timeout"))
     add_common_arguments(p, ("remote", "cut", "unverified"))
     add_common_arguments(r, ("allow_partial",))
 
@@ -92,7 +77,7 @@ def plane_from_args(pyramid, args, frame=None):
     the radiological display (``--neurological`` for the other), :func:`clipvol.scene.views.anatomical_plane`.
 
     Errors name the command-line option (``--plane: index: expected 0..255 ...``)."""
-    option = "--plane" if args.plane is not None else "--axis/--index" if args.axis is not None else "--origin/--normal/--up"
+    option = "--plane" if args.plane is not None else "--axis/--index" if args.axis is not None else "--through/--normal/--up"
     try:
         return _plane_from_args(pyramid, args, frame)
     except ParameterError as e:
@@ -103,19 +88,19 @@ def plane_from_args(pyramid, args, frame=None):
 def _plane_from_args(pyramid, args, frame=None):
     from clipvol.scene.plane import AXIS_LETTERS, Plane
 
-    given = [name for name, v in (("--plane", args.plane), ("--axis", args.axis), ("--origin/--normal",
-             args.origin if args.origin is not None else args.normal)) if v is not None]
+    given = [name for name, v in (("--plane", args.plane), ("--axis", args.axis), ("--through/--normal",
+             args.through if args.through is not None else args.normal)) if v is not None]
     if len(given) > 1:
-        raise ParameterError(f"plane: expected one of --plane, --axis, --origin/--normal, got {' and '.join(given)}")
+        raise ParameterError(f"plane: expected one of --plane, --axis, --through/--normal, got {' and '.join(given)}")
     if args.index is not None and args.axis is None:
         raise ParameterError("--index: expected together with --axis, got --index alone")
     from clipvol.scene.views import anatomical_plane, is_anatomical
 
     neuro = getattr(args, "neurological", False)
-    if neuro and not (is_anatomical(frame) and args.plane is None and args.origin is None and args.normal is None):
+    if neuro and not (is_anatomical(frame) and args.plane is None and args.through is None and args.normal is None):
         raise ParameterError("--neurological: expected an --axis slice (or the default) of a store with a patient frame "
                              "(from NIfTI or DICOM), got " + ("a store without one" if not is_anatomical(frame)
-                                                               else "--plane or --origin/--normal"))
+                                                               else "--plane or --through/--normal"))
     if args.plane is not None:
         letter, _, index = args.plane.partition("=")
         if letter.strip().lower() not in AXIS_LETTERS or not index:
@@ -129,17 +114,17 @@ def _plane_from_args(pyramid, args, frame=None):
         if is_anatomical(frame):
             return anatomical_plane(pyramid, frame, args.axis, args.index, "neurological" if neuro else "radiological")
         return Plane.axis(pyramid, args.axis, args.index)
-    if args.origin is not None or args.normal is not None:
-        if args.origin is None or args.normal is None:
-            raise ParameterError("--origin/--normal: expected both for an oblique plane, got one")
-        return _world_plane(pyramid, frame, args.origin, args.normal, args.up)
+    if args.through is not None or args.normal is not None:
+        if args.through is None or args.normal is None:
+            raise ParameterError("--through/--normal: expected both for an oblique plane, got one")
+        return _world_plane(pyramid, frame, args.through, args.normal, args.up)
     if is_anatomical(frame):
         return anatomical_plane(pyramid, frame, "axial", None, "neurological" if neuro else "radiological")
     return Plane.axis(pyramid, "axial")
 
 
 def _world_plane(pyramid, frame, origin, normal, up):
-    """The render-frame plane of ``--origin``/``--normal``/``--up`` given in the store's world frame.
+    """The render-frame plane of ``--through``/``--normal``/``--up`` given in the store's world frame.
 
     The image's right is ``normal x up`` in the world (so a mirrored store, LAS, is not shown
     mirrored); without ``--up`` a patient-frame store takes superior up (anterior for a plane
@@ -151,7 +136,7 @@ def _world_plane(pyramid, frame, origin, normal, up):
     from clipvol.scene.plane import Plane
     from clipvol.scene.views import is_anatomical
 
-    o = point_to_render(pyramid, frame, origin, "--origin")
+    o = point_to_render(pyramid, frame, origin, "--through")
     n_r = direction_to_render(pyramid, frame, normal, "--normal", normal=True)
     if up is None and not is_anatomical(frame):
         return Plane.through(o, n_r)
@@ -205,6 +190,8 @@ def run(args) -> int:
     for flag, out in (("--out", args.out), ("--npy", args.npy), ("--stats", args.stats)):
         if out is not None:  # `slice u.npy --npy u.npy` wrote the slice over its input
             check_not_input(out, [args.source], flag)
+    if args.tf == "auto":  # slice's auto: the grey window
+        args.tf = None
     if args.tf is not None and args.tf not in TransferFunction.names():
         raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())}, got {args.tf!r}")
     if args.tf is not None and args.window is not None:
@@ -229,7 +216,7 @@ def run(args) -> int:
         from clipvol.scene.cut import point_to_render
 
         poi = point_to_render(pyr, frame, args.poi, "--poi")
-        if args.plane is None and args.index is None and args.origin is None:
+        if args.plane is None and args.index is None and args.through is None:
             plane = plane.moved_through(poi)
     lo, hi = pyr.volume_box()
     if not plane.crosses(lo, hi)[0]:
