@@ -64,6 +64,16 @@ class _Parser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)
         self._negative_number_matcher = NEGATIVE_VALUE
 
+    def parse_known_args(self, args=None, namespace=None):
+        """argparse's parse, then each shared flag left out takes the command's own value
+        (:func:`clipvol.tools.common_args.fill_unset`; the flag's help names it)."""
+        ns, rest = super().parse_known_args(args, namespace)
+        if getattr(ns, "command", None):  # the top-level parser, once the command's flags are in
+            from clipvol.tools.common_args import fill_unset
+
+            fill_unset(ns)
+        return ns, rest
+
     def error(self, message: str):  # argparse's usage errors: one line, exit 2
         self.exit(2, f"clipvol {self.prog.split()[-1] if ' ' in self.prog else ''}: error: {message}\n".replace("  ", " "))
 
@@ -140,9 +150,8 @@ def main(argv: list[str] | None = None) -> int:
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGINT, on_sigint)
     try:
-        from clipvol.tools.common_args import check_common_values, fill_unset
+        from clipvol.tools.common_args import check_common_values
 
-        fill_unset(args)  # a shared flag left out: this command's value, as its help says
         check_common_values(args)  # --threads, --timeout, --memory-budget, --brick: one check, every command
         rc = int(args._run(args) or 0)
         if interrupted:  # the interrupt was swallowed on its way (C code, a thread): the work did not finish

@@ -35,6 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from clipvol.tools.common_args import add_common_arguments, add_old_spelling
 
     add_common_arguments(parser, ("brick",))
+    parser.set_defaults(_common_brick=False)  # the build checks its own, stricter: even, 8..256
     parser.add_argument("--filter", default="mean", help="down-sampling filter: mean | subsample | max | mode (label volumes) (default mean)")
     parser.add_argument("--codec", default="lz4", help="lz4 | zstd | none (default lz4: blosc lz4 + shuffle)")
     parser.add_argument("--spacing", metavar="X,Y,Z",

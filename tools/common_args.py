@@ -11,8 +11,8 @@ flags it offers with :func:`add_common_arguments` and may change only how a valu
 ``--workers`` is worker processes (sort-last on Dask) and ``--scheduler`` where they run. Where
 commands truly differ in what a flag does when it is not given (``--timeout``: 300 s for a whole
 ``render``, 60 s per ``view --converged`` frame), its default is None, its help says each, and
-:func:`fill_unset` (``clipvol``'s ``main``, before the command runs) puts the command's value in
-place. A renamed flag keeps its old spelling working (:func:`add_old_spelling`: hidden, a note on
+:func:`fill_unset` (called by the ``clipvol`` parser once it has parsed) puts the command's value
+in place. A renamed flag keeps its old spelling working (:func:`add_old_spelling`: hidden, a note on
 stderr). The groups that live in their own module (:mod:`clipvol.tools.remote_args`,
 :mod:`clipvol.tools.partial`, :mod:`clipvol.tools.cut_args`) are added by name through the same
 call, so a command's argument set reads as one list.
@@ -180,12 +180,13 @@ FLAGS: dict[str, Common] = {
 def fill_unset(args) -> None:
     """Put each shared flag's per-command value (:attr:`Common.unset`) in place where it was not given.
 
-    :func:`clipvol.tools.cli.main` calls this for every command before it runs: the flag has one
-    default (None) and one help, which names what each command does without it."""
+    The ``clipvol`` parser calls this once it has parsed a command line (``_Parser.parse_known_args``
+    in :mod:`clipvol.tools.cli`), so every parsed namespace holds the command's value: the flag has
+    one default (None) and one help, which names what each command does without it."""
     command = getattr(args, "command", None)
     for f in FLAGS.values():
         dest = f.kw.get("dest", f.flag.lstrip("-").replace("-", "_"))
-        if command in f.unset and getattr(args, dest, None) is None and getattr(args, _MARK + dest, False):
+        if command in f.unset and hasattr(args, dest) and getattr(args, dest) is None:
             setattr(args, dest, f.unset[command])
 
 
