@@ -7,6 +7,7 @@ the same command on an interrupted build finishes it. See ``docs/format.md`` for
 from __future__ import annotations
 
 import argparse
+import sys
 
 from clipvol.errors import ParameterError
 
@@ -25,6 +26,27 @@ def _triple(text: str, name: str, kind=float, order: str = "z,y,x") -> tuple:
 def _xyz(text: str, name: str) -> tuple:
     """A per-axis world quantity typed x,y,z (as every coordinate of the CLI), as the store's z,y,x."""
     return _triple(text, name, order="x,y,z")[::-1]
+
+
+def _threads(args) -> int | None:
+    """What the build's ``workers`` is: the threads (``--threads``; the local pool, or Dask's
+    ``threads`` scheduler), or with ``--scheduler processes`` the worker processes (``--workers``).
+
+    ``--workers N`` without ``--scheduler processes`` is how threads were asked for before
+    ``--threads``: it still means N threads, with a note naming ``--threads``."""
+    if args.scheduler == "processes":
+        if args.threads is not None:
+            raise ParameterError("--threads: with --scheduler processes each worker process runs one thread; "
+                                 "expected --workers N for the number of processes")
+        return args.workers
+    if args.workers is None:
+        return args.threads
+    if args.threads is not None:
+        raise ParameterError(f"--workers: expected --threads alone (threads) or --workers with --scheduler processes, "
+                             f"got --threads {args.threads} and --workers {args.workers}")
+    print(f"clipvol brick: note: --workers {args.workers} is worker processes with --scheduler processes; "
+          f"without it, it is taken as --threads {args.workers}, as before", file=sys.stderr)
+    return args.workers
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,8 +69,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--shape", help="raw input: shape Z,Y,X")
     parser.add_argument("--dtype", help="raw input: numpy dtype, e.g. uint16")
     parser.add_argument("--byte-order", default="little", help="raw input: little | big (default little)")
-    add_common_arguments(parser, ("threads", "scheduler", "overwrite", "quiet"))
-    add_old_spelling(parser, "--workers", "--threads", " (--workers is worker processes in render and view)", type=int)
+    add_common_arguments(parser, ("threads", "workers", "scheduler", "overwrite", "quiet"))
     parser.add_argument("--labels", action="append", default=[], metavar="FILE[:NAME]",
                         help="a label volume (integer ids, the image's shape) to brick into OUTPUT/labels/NAME with "
                              "the mode filter (OME-Zarr labels; NAME defaults to the file's stem); repeatable")
@@ -85,13 +106,14 @@ def run(args: argparse.Namespace) -> int:
     extra = {}
     if args.origin is not None:
         extra["origin"] = _xyz(args.origin, "origin")
+    threads = _threads(args)
     if args.scheduler:
         from clipvol.bricking.dask_build import brick_volume_dask
 
         build = partial(brick_volume_dask, scheduler=args.scheduler)
     meta = build(
         args.input, args.output, brick=args.brick, filter=args.filter, codec=args.codec, spacing=spacing,
-        unit=args.unit, workers=args.threads, overwrite=args.overwrite, progress=not args.quiet,
+        unit=args.unit, workers=threads, overwrite=args.overwrite, progress=not args.quiet,
         raw_shape=shape, raw_dtype=args.dtype, byte_order=args.byte_order, summary=not args.no_summary, **extra,
     )
     channels = len(meta) if isinstance(meta, list) else 0
@@ -100,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
         from clipvol.bricking.labels import brick_labels
 
         # never overwrite here: --overwrite cleared OUTPUT (its labels with it) before the build started
-        brick_labels(args.output, path, name, codec=args.codec, workers=args.threads, overwrite=False,
+        brick_labels(args.output, path, name, codec=args.codec, workers=threads, overwrite=False,
                      progress=not args.quiet)
         if not args.quiet:
             print(f"{args.output}: labels {name!r} from {path} in {args.output}/labels/{name}")

@@ -114,11 +114,13 @@ FLAGS: dict[str, Common] = {
                                         help=f"threads that load bricks (build them, for brick and summarize), "
                                              f"1..{MAX_THREADS} (default: the number of cores)")),
     "workers": Common("--workers", dict(type=int, default=None, metavar="N",
-                                        help="draw sort-last in N Dask worker processes and composite them (render: "
-                                             "N spatially disjoint brick groups; view: each --offscreen frame, PNG "
-                                             "frames); needs clipvol[dask]")),
+                                        help="N Dask worker processes: render draws N spatially disjoint brick "
+                                             "groups in them and composites them (sort-last), view --offscreen each "
+                                             "frame so (PNG frames); brick --scheduler processes builds in them; "
+                                             "needs clipvol[dask]")),
     "scheduler": Common("--scheduler", dict(default=None, metavar="S",
-                                            help="where the Dask work runs: threads, processes or tcp://HOST:PORT of a "
+                                            help="where the Dask work runs: processes (--workers of them), threads "
+                                                 "(brick: --threads of them in one process) or tcp://HOST:PORT of a "
                                                  "dask.distributed scheduler (render and view with --workers: default "
                                                  "processes; brick: default the local thread pool, no Dask); needs "
                                                  "clipvol[dask]"),

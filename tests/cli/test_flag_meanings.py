@@ -86,11 +86,31 @@ def test_threads_are_threads_and_workers_are_processes():
     assert {"brick", "summarize", "render", "view"} <= set(threads), sorted(threads)
     assert threads and all("thread" in h and "process" not in h for h in threads.values()), threads
     assert workers and all("process" in h and "thread" not in h for h in workers.values()), workers
-    assert {"brick", "summarize", "brick-points"}.isdisjoint(workers), sorted(workers)
+    assert {"summarize", "brick-points"}.isdisjoint(workers), sorted(workers)
+
+
+def test_brick_workers_without_processes_are_threads_as_before(tmp_path, capsys):
+    """``brick --workers N`` asked for threads before ``--threads``; it still builds (with N threads),
+    says so, and the store is the one ``--threads N`` builds (the same bytes of level 0)."""
+    import numpy as np
+    import zarr
+
+    from clipvol.tools.cli import main
+
+    vol = np.arange(24 * 20 * 16, dtype=np.uint16).reshape(24, 20, 16)
+    np.save(tmp_path / "v.npy", vol)
+    assert main(["brick", str(tmp_path / "v.npy"), str(tmp_path / "a.zarr"), "--brick", "8", "--workers", "2",
+                 "--quiet", "--no-summary"]) == 0
+    assert "--workers 2 is worker processes with --scheduler processes" in capsys.readouterr().err
+    assert main(["brick", str(tmp_path / "v.npy"), str(tmp_path / "b.zarr"), "--brick", "8", "--threads", "2",
+                 "--quiet", "--no-summary"]) == 0
+    a, b = (zarr.open_group(str(tmp_path / n), mode="r")["0"][...] for n in ("a.zarr", "b.zarr"))
+    assert np.array_equal(np.asarray(a)[:24, :20, :16], vol) and np.array_equal(np.asarray(a), np.asarray(b))
+    assert main(["brick", str(tmp_path / "v.npy"), str(tmp_path / "c.zarr"), "--threads", "2", "--workers", "2"]) == 2
+    assert "--workers: expected --threads alone" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("argv, dest, want", [
-    (["brick", "in.npy", "out.zarr", "--workers", "3"], "threads", 3),
     (["summarize", "s.zarr", "--workers", "2"], "threads", 2),
     (["slice", "s.zarr", "--origin", "1,2,3"], "through", (1.0, 2.0, 3.0)),
     (["serve", "s.zarr", "--rate", "30"], "message_rate", 30.0),
