@@ -35,8 +35,8 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable
+from types import MappingProxyType
+from typing import Any, Callable, Iterable, Mapping, NamedTuple
 
 from clipvol.choices import CAMERA_PATHS, VIEWS
 from clipvol.tools.value_checks import CHECKS, MAX_THREADS
@@ -85,15 +85,15 @@ def parse_xyz(text: str) -> tuple[float, float, float]:
     return v  # type: ignore[return-value]
 
 
-@dataclass(frozen=True)
-class Common:
+class Common(NamedTuple):
     """One shared flag: its name, the keyword arguments of ``add_argument`` (type, default, help, ...)
     and ``unset``: per command, the value it takes when the flag is not given and its default is
-    None (the help says each; :func:`fill_unset` puts it in place before the command runs)."""
+    None (the help says each; :func:`fill_unset` puts it in place before the command runs).
+    A named tuple, not a dataclass, so that building a parser does not import ``inspect``."""
 
     flag: str
-    kw: dict[str, Any] = field(default_factory=dict)
-    unset: dict[str, Any] = field(default_factory=dict)
+    kw: Mapping[str, Any] = MappingProxyType({})
+    unset: Mapping[str, Any] = MappingProxyType({})
 
 
 #: one line per shared flag; the key is a command's handle for it in add_common_arguments

@@ -15,8 +15,7 @@ The defaults shown and parsed are RenderParams' own, except where a flag says ot
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, NamedTuple
 
 from clipvol.choices import CLASSIFY, MODES, PARAM_FIELDS, PATHS, POLICIES
 from clipvol.errors import ParameterError
@@ -35,9 +34,9 @@ def _floats(text: str) -> tuple[float, ...]:
 FIELD_DEFAULT = object()
 
 
-@dataclass(frozen=True)
-class Flag:
-    """One command-line flag of one or more RenderParams fields.
+class Flag(NamedTuple):
+    """One command-line flag of one or more RenderParams fields (a named tuple, not a dataclass:
+    ``dataclasses`` imports ``inspect``, a third of ``clipvol render --help``'s own start-up).
 
     ``switch``: ``"on"`` for a flag that sets a bool field True (``--shading``), ``"off"`` for one
     that sets it False (``--no-visibility``; the command's value without it is then True).
