@@ -105,8 +105,9 @@ FLAGS: dict[str, Common] = {
                                          "8..256), or the bricks a .npy or procedural source is read in"),
                     unset={"brick": 64}),
     "size": Common("--size", dict(type=parse_size, default=None,
-                                  help="image size WxH (default 512x512; report 192x192; view 960x640 for the window, "
-                                       "256x256 offscreen; slice the plane's cut through the volume)"),
+                                  help="image size WxH (default: 512x512 for render and serve, 192x192 for report, "
+                                       "960x640 for view's window and 256x256 offscreen, the plane's cut through the "
+                                       "volume for slice)"),
                    unset={"render": (512, 512), "serve": (512, 512), "report": (192, 192)}),
     "memory_budget": Common("--memory-budget", dict(default="256MB",
                                                     help="clip-texture (main memory) budget")),
@@ -129,9 +130,9 @@ FLAGS: dict[str, Common] = {
                                         help="do not wait for the view's bricks: draw what is resident (after one "
                                              "pass, coarser where bricks are missing)")),
     "timeout": Common("--timeout", dict(type=float, default=None,
-                                        help="seconds to wait for the bricks (default 300: of the whole command for "
-                                             "render and slice, of each frame for serve; 60 per frame for view "
-                                             "--converged; 120 per converged frame for report)"),
+                                        help="seconds to wait for the bricks (default: 300 for a whole render or "
+                                             "slice and for each frame of serve, 60 for each frame of view "
+                                             "--converged, 120 for each converged frame of report)"),
                       unset={"render": 300.0, "slice": 300.0, "serve": 300.0, "view": 60.0, "report": 120.0}),
     "c": Common("--c", dict(type=int, default=None,
                             help="the channel of a channel set or an image with a c axis (default 0)")),
@@ -156,8 +157,8 @@ FLAGS: dict[str, Common] = {
                                                  "(stores with a patient frame)")),
     "tolerance": Common("--tolerance", dict(default=None,
                                             help="point stores: the largest splat, a fraction of the screen (0.05), "
-                                                 "'5%%' or '12px' (default 0.01 for render; 0.05 for the viewer to "
-                                                 "start with, [ and ] change it)"),
+                                                 "'5%%' or '12px' (default: 0.01 for render, 0.05 for the viewer to "
+                                                 "start with, where [ and ] change it)"),
                         unset={"render": "0.01", "view": "0.05"}),
     "frames": Common("--frames", dict(type=int, default=None,
                                       help="frames along the camera path (default 36; 4 for demo --quick)"),
