@@ -54,7 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "multi-page TIFF, zarr array / OME-Zarr image, NIfTI .nii/.nii.gz, DICOM series folder, "
                         "HDF5 FILE.h5:/dataset, MRC .mrc/.map, or procedural:NAME?size=N")
     parser.add_argument("output", metavar="OUTPUT", help="store directory to create (or resume)")
-    from clipvol.tools.common_args import add_common_arguments, add_old_spelling
+    from clipvol.tools.common_args import add_common_arguments
 
     add_common_arguments(parser, ("brick",))
     parser.set_defaults(_common_brick=False)  # the build checks its own, stricter: even, 8..256

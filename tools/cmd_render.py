@@ -12,7 +12,7 @@ import argparse
 import sys
 
 from clipvol.errors import ParameterError
-from clipvol.tools.common_args import parse_xyz, add_common_arguments
+from clipvol.tools.common_args import add_common_arguments, parse_xyz
 from clipvol.tools.overlay_args import add_channel_arguments, channels_from_args
 from clipvol.tools.render_args import add_render_arguments, render_params_from_args
 

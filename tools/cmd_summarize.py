@@ -24,7 +24,6 @@ def run(args: argparse.Namespace) -> int:
     import time
 
     from clipvol.bricking.summary import build_summary, summary_bytes
-    from clipvol.errors import ParameterError
     from clipvol.units import format_bytes
 
     t0 = time.perf_counter()
