@@ -4,9 +4,11 @@ Each sub-command lives in its own module ``clipvol.tools.cmd_<name>`` with two f
 ``add_arguments(parser)`` and ``run(args) -> int``. Modules import heavy dependencies (zarr,
 moderngl, glfw) inside ``run`` so that ``clipvol --help`` starts fast, and :func:`main` imports only
 the module of the command its arguments name (``clipvol --help`` none: the listing needs only
-:data:`COMMANDS`). The flags of the drawing commands (render, slice, view, report, tf) are built from
-``RenderParams`` and the registries of the scene stage, which import numpy; ``tests/cli/
-test_cli_front_door.py`` checks the rest in a fresh interpreter.
+:data:`COMMANDS`). No parser imports numpy or zarr: the
+choices and shown defaults of the drawing commands come from :mod:`clipvol.choices`, and a flag
+several commands share is declared once (:mod:`clipvol.tools.common_args`, ``render_args``,
+``tf_args``); ``tests/cli/test_front_door_imports.py`` checks every command's parser in a fresh
+interpreter.
 
 Errors a user can cause (:class:`clipvol.errors.ClipvolError`) print one line naming the file or
 parameter and exit with status 2, no traceback; so does an ``OSError`` of the machine's state (disk
@@ -61,6 +63,16 @@ class _Parser(argparse.ArgumentParser):
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self._negative_number_matcher = NEGATIVE_VALUE
+
+    def parse_known_args(self, args=None, namespace=None):
+        """argparse's parse, then each shared flag left out takes the command's own value
+        (:func:`clipvol.tools.common_args.fill_unset`; the flag's help names it)."""
+        ns, rest = super().parse_known_args(args, namespace)
+        if getattr(ns, "command", None):  # the top-level parser, once the command's flags are in
+            from clipvol.tools.common_args import fill_unset
+
+            fill_unset(ns)
+        return ns, rest
 
     def error(self, message: str):  # argparse's usage errors: one line, exit 2
         self.exit(2, f"clipvol {self.prog.split()[-1] if ' ' in self.prog else ''}: error: {message}\n".replace("  ", " "))

@@ -7,6 +7,7 @@ the same command on an interrupted build finishes it. See ``docs/format.md`` for
 from __future__ import annotations
 
 import argparse
+import sys
 
 from clipvol.errors import ParameterError
 
@@ -27,12 +28,36 @@ def _xyz(text: str, name: str) -> tuple:
     return _triple(text, name, order="x,y,z")[::-1]
 
 
+def _threads(args) -> int | None:
+    """What the build's ``workers`` is: the threads (``--threads``; the local pool, or Dask's
+    ``threads`` scheduler), or with ``--scheduler processes`` the worker processes (``--workers``).
+
+    ``--workers N`` without ``--scheduler processes`` is how threads were asked for before
+    ``--threads``: it still means N threads, with a note naming ``--threads``."""
+    if args.scheduler == "processes":
+        if args.threads is not None:
+            raise ParameterError("--threads: with --scheduler processes each worker process runs one thread; "
+                                 "expected --workers N for the number of processes")
+        return args.workers
+    if args.workers is None:
+        return args.threads
+    if args.threads is not None:
+        raise ParameterError(f"--workers: expected --threads alone (threads) or --workers with --scheduler processes, "
+                             f"got --threads {args.threads} and --workers {args.workers}")
+    print(f"clipvol brick: note: --workers {args.workers} is worker processes with --scheduler processes; "
+          f"without it, it is taken as --threads {args.workers}, as before", file=sys.stderr)
+    return args.workers
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", metavar="INPUT", help=".npy, raw file (with --shape/--dtype), TIFF stack directory or glob, "
                         "multi-page TIFF, zarr array / OME-Zarr image, NIfTI .nii/.nii.gz, DICOM series folder, "
                         "HDF5 FILE.h5:/dataset, MRC .mrc/.map, or procedural:NAME?size=N")
     parser.add_argument("output", metavar="OUTPUT", help="store directory to create (or resume)")
-    parser.add_argument("--brick", type=int, default=64, help="brick edge in voxels, even, 8..256 (default 64)")
+    from clipvol.tools.common_args import add_common_arguments
+
+    add_common_arguments(parser, ("brick",))
+    parser.set_defaults(_common_brick=False)  # the build checks its own, stricter: even, 8..256
     parser.add_argument("--filter", default="mean", help="down-sampling filter: mean | subsample | max | mode (label volumes) (default mean)")
     parser.add_argument("--codec", default="lz4", help="lz4 | zstd | none (default lz4: blosc lz4 + shuffle)")
     parser.add_argument("--spacing", metavar="X,Y,Z",
@@ -40,17 +65,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--origin", default=None, metavar="X,Y,Z",
                         help="world position x,y,z of voxel 0 (OME translation; default: the input's, else 0,0,0): "
                              "co-registered volumes drawn as overlays (render --overlay) are placed by it")
-    parser.add_argument("--unit", default=None, help="unit of the spacing (default: the input's, e.g. millimeter for NIfTI/DICOM, else micrometer)")
+    add_common_arguments(parser, ("unit",))
     parser.add_argument("--shape", help="raw input: shape Z,Y,X")
     parser.add_argument("--dtype", help="raw input: numpy dtype, e.g. uint16")
     parser.add_argument("--byte-order", default="little", help="raw input: little | big (default little)")
-    parser.add_argument("--workers", type=int, default=None, help="threads (default: number of cores)")
-    parser.add_argument("--scheduler", default=None, metavar="S",
-                        help="build on Dask: threads | processes | tcp://HOST:PORT of a dask.distributed scheduler "
-                             "(default: the local thread pool, no Dask needed; needs clipvol[dask])")
-    parser.add_argument("--overwrite", action="store_true", help="replace an existing OUTPUT when it is a clipvol store or an empty folder (never the "
-                        "input, a folder holding it, or anything else)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    add_common_arguments(parser, ("threads", "workers", "scheduler", "overwrite", "quiet"))
     parser.add_argument("--labels", action="append", default=[], metavar="FILE[:NAME]",
                         help="a label volume (integer ids, the image's shape) to brick into OUTPUT/labels/NAME with "
                              "the mode filter (OME-Zarr labels; NAME defaults to the file's stem); repeatable")
@@ -87,13 +106,14 @@ def run(args: argparse.Namespace) -> int:
     extra = {}
     if args.origin is not None:
         extra["origin"] = _xyz(args.origin, "origin")
+    threads = _threads(args)
     if args.scheduler:
         from clipvol.bricking.dask_build import brick_volume_dask
 
         build = partial(brick_volume_dask, scheduler=args.scheduler)
     meta = build(
         args.input, args.output, brick=args.brick, filter=args.filter, codec=args.codec, spacing=spacing,
-        unit=args.unit, workers=args.workers, overwrite=args.overwrite, progress=not args.quiet,
+        unit=args.unit, workers=threads, overwrite=args.overwrite, progress=not args.quiet,
         raw_shape=shape, raw_dtype=args.dtype, byte_order=args.byte_order, summary=not args.no_summary, **extra,
     )
     channels = len(meta) if isinstance(meta, list) else 0
@@ -102,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
         from clipvol.bricking.labels import brick_labels
 
         # never overwrite here: --overwrite cleared OUTPUT (its labels with it) before the build started
-        brick_labels(args.output, path, name, codec=args.codec, workers=args.workers, overwrite=False,
+        brick_labels(args.output, path, name, codec=args.codec, workers=threads, overwrite=False,
                      progress=not args.quiet)
         if not args.quiet:
             print(f"{args.output}: labels {name!r} from {path} in {args.output}/labels/{name}")

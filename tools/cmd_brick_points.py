@@ -21,11 +21,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--memory-points", type=int, default=1 << 21, help="most points the build holds in memory (default 2097152)")
     parser.add_argument("--representative", choices=("nearest", "mean"), default="nearest",
                         help="values of inner nodes' points: the nearest point's (Meredith & Ma) or the cell's mean")
-    parser.add_argument("--unit", default="", help="unit of the coordinates (recorded in the store)")
-    parser.add_argument("--workers", type=int, default=None, help="accepted for symmetry with `brick`; the build is single-threaded")
-    parser.add_argument("--overwrite", action="store_true", help="replace an existing OUTPUT when it is a clipvol store or an empty folder (never the "
-                        "input, a folder holding it, or anything else)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    from clipvol.tools.common_args import add_common_arguments, add_ignored
+
+    add_common_arguments(parser, ("unit", "overwrite", "quiet"))
+    add_ignored(parser, "--workers", "the build is single-threaded", type=int)
 
 
 def run(args: argparse.Namespace) -> int:

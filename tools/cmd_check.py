@@ -30,10 +30,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--samples", type=int, default=8, help="bricks checked per level (default 8)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the brick sample (default 0)")
     parser.add_argument("--all", action="store_true", help="check every brick of every level (progress bar on stderr)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    from clipvol.tools.remote_args import add_remote_arguments
+    from clipvol.tools.common_args import add_common_arguments
 
-    add_remote_arguments(parser)
+    add_common_arguments(parser, ("quiet", "remote"))
 
 
 def _close(x: float, y: float) -> bool:

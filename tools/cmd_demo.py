@@ -43,10 +43,14 @@ def demo_volume(n: int, seed: int = 3, slab: int = 32) -> np.ndarray:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="clipvol-demo", help="output directory (default ./clipvol-demo)")
     p.add_argument("--quick", action="store_true", help="a tiny version that runs in seconds")
-    p.add_argument("--size", type=int, default=None, help="volume edge in voxels (default 192; 40 with --quick)")
-    p.add_argument("--frames", type=int, default=None, help="orbit frames (default 36; 4 with --quick)")
+    from clipvol.tools.common_args import add_common_arguments, add_old_spelling
+
+    p.add_argument("--edge", type=int, default=None, metavar="N",
+                   help="volume edge in voxels (default 192; 40 with --quick)")
+    add_old_spelling(p, "--size", "--edge", " (--size is an image's WxH in the drawing commands)", type=int)
+    add_common_arguments(p, ("frames",))
     p.add_argument("--no-report", action="store_true", help="skip the report")
-    p.add_argument("--overwrite", action="store_true", help="rebuild the store even if one of another size is there")
+    add_common_arguments(p, ("overwrite",))
 
 
 def _store_ok(path: Path, n: int) -> bool:
@@ -67,7 +71,7 @@ def run(args) -> int:
     from clipvol.errors import ParameterError
 
     quick = bool(args.quick)
-    n = args.size or (40 if quick else 192)
+    n = args.edge or (40 if quick else 192)
     frames = args.frames or (4 if quick else 36)
     if n < 8 or n > 1024:
         raise ParameterError(f"--size: expected 8..1024 voxels, got {n}")

@@ -26,18 +26,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--box-world", metavar="X0,Y0,Z0,X1,Y1,Z1",
                    help="the region in world units (two opposite corners x,y,z, the store's frame as `clipvol info` "
                         "prints it); the voxels whose centres lie inside are written")
-    parser.add_argument("--level", type=int, default=0, help="the level to export (0 = finest, default 0)")
+    from clipvol.tools.common_args import add_common_arguments
+    from clipvol.tools.render_args import add_render_arguments
+
+    add_render_arguments(parser, ("level",))
     parser.add_argument("--out", required=True, metavar="FILE",
                         help="region.npy (geometry in region.npy.json), region.tif, region.nii, region.nii.gz "
                              "(NIfTI affine) or region.zarr (a clipvol store, OME scale/translation)")
-    parser.add_argument("--c", type=int, default=None, help="the channel of a channel set or an image with a c axis")
-    parser.add_argument("--t", type=int, default=None, help="the time step of a time series or an image with a t axis")
-    from clipvol.tools.common_args import add_common_arguments
-
+    add_common_arguments(parser, ("c", "t"))
     add_common_arguments(parser, ("store",), store=dict(dest="brick_store", metavar="DIR"))
-    parser.add_argument("--overwrite", action="store_true", help="replace an existing --out (once the new one is complete) when it is a file of "
-                             "the same kind, a clipvol store or an empty folder; never the input")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    add_common_arguments(parser, ("overwrite", "quiet"))
     add_common_arguments(parser, ("unverified", "remote"))
 
 
@@ -97,10 +95,10 @@ def run(args: argparse.Namespace) -> int:
     check_trust(vol.member(tuple(member)), args, "export")  # an unverified store only with --unverified
     if args.box is not None:
         start, stop = parse_box(args.box, vol.levels[0].shape)
-        region = region_from_voxels(vol, start, stop, args.level)
+        region = region_from_voxels(vol, start, stop, args.level or 0)
     else:
         a, b = parse_world_box(args.box_world)
-        region = region_from_world(vol, a, b, args.level)
+        region = region_from_world(vol, a, b, args.level or 0)
     geom = export_region(vol, region, args.out, member=member, overwrite=args.overwrite, progress=not args.quiet,
                          inputs=[args.store])
     if not args.quiet:

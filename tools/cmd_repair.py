@@ -31,7 +31,9 @@ import argparse
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("store", metavar="STORE", help="a store written by `clipvol brick`")
     parser.add_argument("--source", required=True, metavar="INPUT", help="the input the store was built from")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    from clipvol.tools.common_args import add_common_arguments
+
+    add_common_arguments(parser, ("quiet",))
 
 
 def _ancestors(bad, num_levels: int) -> dict[int, set]:

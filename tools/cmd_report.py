@@ -72,19 +72,19 @@ def _sizes(text: str) -> list[str]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from clipvol.tools.common_args import add_common_arguments
+    from clipvol.tools.common_args import add_common_arguments, add_old_spelling
 
     p.add_argument("source", help="a clipvol store / OME-Zarr directory or URL (s3://, https://, ...), procedural:NAME?size=N, "
                                   "a .npy file, or a NIfTI / DICOM folder / FILE.h5:/dataset / MRC input (bricked once into ./NAME.zarr)")
     add_common_arguments(p, ("remote", "unverified"))
     p.add_argument("--out", required=True, help="output directory (created)")
     add_common_arguments(p, ("brick",))
-    p.add_argument("--path", choices=("orbit", "fly", "zoom"), default="orbit", help="camera path the views come from")
+    add_common_arguments(p, ("path",))
     p.add_argument("--views", type=int, default=3, help="views along the path")
     p.add_argument("--frame", choices=("visible", "volume"), default="visible",
                    help="what the orbit's views frame: the voxels the transfer function makes visible, each view "
                         "at the distance where they fill it (composite), or the sphere around the whole volume")
-    add_common_arguments(p, ("size",), size=dict(default=(192, 192), help="image size WxH (also caps the reference's cost)"))
+    add_common_arguments(p, ("size",))  # the image size also caps the reference's cost
     p.add_argument("--thresholds", type=_floats, default=[0.5, 1, 2, 4, 8, 16], help="LOD thresholds (pixels), comma-separated")
     p.add_argument("--memory-budgets", type=_sizes, default=None,
                    help="clip-texture budgets swept at LOD 1, e.g. 64MB,16MB (default: 1/2 and 1/8 of the data; 'none' to skip)")
@@ -96,8 +96,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from clipvol.tools.render_args import add_render_arguments
 
     add_render_arguments(p, ("mode", "iso_value", "step", "classify"))
-    add_common_arguments(p, ("threads", "timeout", "allow_partial"),
-                         timeout=dict(default=120.0, help="seconds to wait for a converged frame"))
+    add_common_arguments(p, ("threads", "timeout", "allow_partial"))
     p.add_argument("--max-frames", type=int, default=8, help="as-it-comes frames per view at most")
     p.add_argument("--rounds", type=_rounds, default=5,
                    help="warm interleaved rounds per setting and view, each frame paired with a reference frame; "
@@ -116,10 +115,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                           "(default 1px,2px,4px,0.02,0.05,0.1,0.2)")
     pts.add_argument("--points", default=None, metavar="POINTS.zarr",
                      help="also report this point store (into OUT/points) beside the volume store")
-    p.add_argument("--max-error", default=None, metavar="E,E,...",
+    p.add_argument("--max-errors", default=None, metavar="E,E,...",
                    help="visible-error budgets of the image policy measured as settings, comma-separated "
                         "fractions or percentages (predicted share of pixels with CIELUV dE >= 6), or 'none' "
                         "(default 10%%,5%%,2%%; needs the store's summary tables)")
+    add_old_spelling(p, "--max-error", "--max-errors", " (report measures a list of budgets; --max-error is one "
+                                                       "budget in render and view)")
     p.add_argument("--refine", default=None, metavar="STEP:TOL,...",
                    help="full resolution sampled at STEP voxels with adaptive image sampling at tolerance TOL "
                         "(--refine-tolerance of clipvol render) measured as settings, comma-separated, or 'none' "
@@ -145,7 +146,7 @@ def _budgets(text):
 
 
 def _max_errors(text):
-    """``--max-error``: None (the report's default budgets), ``()`` for 'none', else the listed values
+    """``--max-errors``: None (the report's default budgets), ``()`` for 'none', else the listed values
     (each validated by RenderParams, which names ``max_error`` when one is wrong)."""
     return _listed(text)
 
@@ -206,7 +207,7 @@ def volume_report(args, source, out) -> int:
         step=args.step, threads=args.threads, timeout=args.timeout, max_frames=args.max_frames,
         reference_cap=args.reference_cap, log=lambda s: print(s, flush=True), plots=not args.no_plots,
         block_budgets=_budgets(args.block_budgets), rounds=args.rounds, allow_partial=args.allow_partial,
-        max_errors=_max_errors(args.max_error), refines=_refines(args.refine), frame=args.frame,
+        max_errors=_max_errors(args.max_errors), refines=_refines(args.refine), frame=args.frame,
         supersample=args.supersample, converged_step=args.converged_step, classify=args.classify,
     )
     print(f"wrote {res.csv}, {res.timing_csv}, {res.markdown}" + "".join(f", {p}" for p in res.plots))

@@ -14,7 +14,7 @@ import argparse
 import sys
 
 from clipvol.errors import ParameterError
-from clipvol.tools.common_args import add_common_arguments
+from clipvol.tools.common_args import add_common_arguments, add_old_spelling
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -30,16 +30,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the token every request must carry (default: a random one, printed in the URL)")
     n.add_argument("--no-token", action="store_true", help="no token (only with a loopback --host)")
     n.add_argument("--max-views", type=int, default=8, help="most browser views open at once (default 8)")
-    n.add_argument("--rate", type=float, default=120.0,
+    n.add_argument("--message-rate", type=float, default=120.0, metavar="N",
                    help="most messages a second one view may send before it is disconnected (default 120)")
+    add_old_spelling(n, "--rate", "--message-rate", " (--rate is view --play's time steps per second)", type=float)
     v = p.add_argument_group("frames")
-    add_common_arguments(v, ("size",), size=dict(default=(512, 512), help="image size WxH of each view (default 512x512)"))
+    add_common_arguments(v, ("size",))
     v.add_argument("--format", choices=("jpeg", "webp", "png"), default="jpeg",
                    help="encoding of the frames drawn while the camera moves (default jpeg); the converged frame is PNG")
     v.add_argument("--target-fps", type=float, default=10.0,
                    help="frame rate held while the camera moves, by drawing smaller and coarser (default 10)")
     add_common_arguments(v, ("memory_budget", "threads", "timeout"))
-    v.add_argument("--texture-budget", default="256MB", help="GPU texture budget per store (default 256MB)")
+    from clipvol.tools.render_args import add_render_arguments
+
+    add_render_arguments(v, ("texture_budget",))
     add_common_arguments(p, ("remote", "unverified"))
 
 
@@ -61,8 +64,8 @@ def run(args) -> int:
         raise ParameterError(f"--port: expected 0..65535, got {args.port}")
     if args.max_views < 1:
         raise ParameterError(f"--max-views: expected at least 1, got {args.max_views}")
-    if not args.rate > 0:
-        raise ParameterError(f"--rate: expected a number > 0, got {args.rate}")
+    if not args.message_rate > 0:
+        raise ParameterError(f"--message-rate: expected a number > 0, got {args.message_rate}")
     if not 0.5 <= args.target_fps <= 120:
         raise ParameterError(f"--target-fps: expected 0.5..120, got {args.target_fps}")
     if args.store is not None and len(args.sources) > 1:
@@ -87,5 +90,5 @@ def run(args) -> int:
     run_server(loaders, names, host=args.host, port=args.port, token=token, size=args.size,
                memory_budget=args.memory_budget, texture_budget=args.texture_budget, threads=args.threads,
                timeout=args.timeout, moving_format=args.format, target_s=1.0 / args.target_fps,
-               max_views=args.max_views, rate=args.rate, announce=announce)
+               max_views=args.max_views, rate=args.message_rate, announce=announce)
     return 0

@@ -3,11 +3,11 @@
 The plane is ``--plane z=94`` (an array axis letter and a level-0 voxel index: the array as
 stored), ``--axis coronal --index 120`` (for a store with a patient frame the patient's plane, shown
 the radiological way: anterior or superior up, the patient's right on the image left; ``--neurological``
-puts it on the right), or ``--origin x,y,z --normal x,y,z`` (``--up`` sets the image's up). Points
+puts it on the right), or ``--through x,y,z --normal x,y,z`` (``--up`` sets the image's up). Points
 and directions are in the store's world frame, x,y,z (``clipvol info``: patient RAS+ mm for NIfTI and
 DICOM), converted by :mod:`clipvol.scene.cut`; only ``--plane`` and ``--index`` are voxel indices.
 Without ``--poi`` and ``--level`` the slice is as fine as its pixels need; with ``--poi`` (a world
-point, which the plane passes through unless ``--plane``/``--index``/``--origin`` place it) it is full
+point, which the plane passes through unless ``--plane``/``--index``/``--through`` place it) it is full
 resolution near that point and coarser away from it, balanced and blended so no seam shows
 (LaMar, Hamann & Joy, "Multiresolution cutting planes"); ``--level 0`` is full resolution
 everywhere. Outputs: a PNG (grey ``--window C,W`` or a ``--tf`` colour map), the float32 values
@@ -24,21 +24,9 @@ which calls :func:`clipvol.app.slice_files.slice_to_files`; the flags' plane is
 from __future__ import annotations
 
 import argparse
-import math
 
-from .cmd_render import _triple
-from .common_args import add_common_arguments
+from .common_args import add_common_arguments, add_old_spelling, parse_xyz
 from .render_args import add_render_arguments
-
-
-def _window(text: str) -> tuple[float, float]:
-    try:
-        c, w = (float(t) for t in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected C,W (window centre and width), got {text!r}") from None
-    if not (math.isfinite(c) and math.isfinite(w) and w > 0):
-        raise argparse.ArgumentTypeError(f"expected a finite centre and a width > 0, got {text!r}")
-    return c, w
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -55,34 +43,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                                              "the plane's normal (default: the middle, or --poi's)")
     g.add_argument("--neurological", action="store_true",
                    help="--axis of a patient-frame store: the patient's right on the image right (default: radiological)")
-    g.add_argument("--origin", type=_triple, default=None,
+    g.add_argument("--through", type=parse_xyz, default=None, metavar="X,Y,Z",
                    help="oblique plane: a point x,y,z of it in the store's world frame (what clipvol info prints: "
                         "patient RAS+ mm for NIfTI/DICOM)")
-    g.add_argument("--normal", type=_triple, default=None, help="oblique plane: its normal x,y,z (world frame)")
-    g.add_argument("--up", type=_triple, default=None,
-                   help="oblique plane: the image's up x,y,z (world frame; default superior, anterior for an "
-                        "axial plane, in a patient frame)")
+    g.add_argument("--normal", type=parse_xyz, default=None, help="oblique plane: its normal x,y,z (world frame)")
+    add_old_spelling(g, "--origin", "--through", " (--origin is where a volume's voxel 0 lies, for brick)", type=parse_xyz)
+    add_common_arguments(g, ("up",))
     s = p.add_argument_group("image")
-    add_common_arguments(s, ("size",), size=dict(help="WxH pixels (default: the plane's cut through the volume)"))
+    add_common_arguments(s, ("size",))
     s.add_argument("--pixel-size", type=float, default=None, help="world units per pixel (default: the level-0 voxel)")
-    s.add_argument("--window", type=_window, default=None, help="grey window/level C,W (default: the value range)")
-    s.add_argument("--tf", default=None, help="colour the values with a transfer-function preset instead of grey")
+    from clipvol.tools.tf_args import add_tf_arguments
+
+    add_tf_arguments(s, ("window", "tf"))
     s.add_argument("--out", "-o", default=None, help="output PNG")
-    s.add_argument("--no-labels", action="store_true", help="do not write R/L, A/P, S/I at the PNG's edges (patient-frame stores)")
+    add_common_arguments(s, ("no_labels",))
     s.add_argument("--npy", default=None, help="write the resampled values (float32, NaN outside the volume)")
     s.add_argument("--stats", default=None, help="write statistics as JSON (bytes_loaded, tiles per level, time)")
     r = p.add_argument_group("resolution")
-    r.add_argument("--poi", type=_triple, default=None,
+    r.add_argument("--poi", type=parse_xyz, default=None,
                    help="point of interest x,y,z in the store's world frame: full resolution near it; the plane "
-                        "moves through it unless --plane, --index or --origin place it")
-    add_render_arguments(r, ("level", "distance_factor", "lod_threshold"), help={
-        "level": "one level everywhere (0 = full resolution)",
-        "distance_factor": "--poi: refine nodes closer to it than this many of their diagonals (default 1)"})
+                        "moves through it unless --plane, --index or --through place it")
+    add_render_arguments(r, ("level", "distance_factor", "lod_threshold"))
     add_common_arguments(r, ("brick", "memory_budget"))
     add_render_arguments(r, ("texture_budget", "classify"))
-    add_common_arguments(r, ("threads", "no_wait", "timeout"),
-                         no_wait=dict(help="draw what is resident after one pass (coarser fallback)"),
-                         timeout=dict(help="seconds to wait for the slice's bricks (default 300)"))
+    add_common_arguments(r, ("threads", "no_wait", "timeout"))
     add_common_arguments(p, ("remote", "cut", "unverified"))
     add_common_arguments(r, ("allow_partial",))
 

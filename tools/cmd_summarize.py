@@ -14,20 +14,18 @@ import argparse
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("store", metavar="STORE", help="a complete store written by `clipvol brick`")
-    parser.add_argument("--workers", type=int, default=None, help="threads (default: number of cores)")
-    parser.add_argument("--overwrite", action="store_true", help="rebuild tables that are already there")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar or summary line")
+    from clipvol.tools.common_args import add_common_arguments, add_old_spelling
+
+    add_common_arguments(parser, ("threads", "overwrite", "quiet"))
+    add_old_spelling(parser, "--workers", "--threads", " (--workers is worker processes in render and view)", type=int)
 
 
 def run(args: argparse.Namespace) -> int:
     import time
 
     from clipvol.bricking.summary import build_summary, summary_bytes
-    from clipvol.errors import ParameterError
     from clipvol.units import format_bytes
 
-    if args.workers is not None and args.workers < 1:
-        raise ParameterError(f"--workers: expected an integer >= 1, got {args.workers}")
     t0 = time.perf_counter()
     from clipvol.bricking.channels import image_set, member_path, set_version
 
@@ -36,11 +34,11 @@ def run(args: argparse.Namespace) -> int:
         axis, n = found
         groups = [member_path(args.store, axis, k) for k in range(n)]
         for k, g in enumerate(groups):
-            build_summary(g, workers=args.workers, progress=not args.quiet, overwrite=args.overwrite,
+            build_summary(g, workers=args.threads, progress=not args.quiet, overwrite=args.overwrite,
                           data=(args.store, (k,)))
     else:
         groups = [args.store]
-        build_summary(args.store, workers=args.workers, progress=not args.quiet, overwrite=args.overwrite)
+        build_summary(args.store, workers=args.threads, progress=not args.quiet, overwrite=args.overwrite)
     if not args.quiet:
         total = sum(summary_bytes(g) or 0 for g in groups)
         print(f"{args.store}: summary tables {format_bytes(total)} in {time.perf_counter() - t0:.1f} s")

@@ -21,7 +21,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                        description="Write the transfer function the flags give for SOURCE to FILE.json.")
     s.add_argument("source", help="a clipvol store / OME-Zarr directory, procedural:NAME?size=N, or a .npy file")
     s.add_argument("file", metavar="FILE.json", help="output JSON file")
-    s.add_argument("--brick", type=int, default=None, help="brick edge for .npy and procedural sources")
+    from clipvol.tools.common_args import add_common_arguments
+
+    add_common_arguments(s, ("brick",))
     add_tf_arguments(s.add_argument_group("transfer function"))
     ld = sub.add_parser("load", help="read FILE.json, check it and describe it",
                         description="Read a transfer-function JSON file, check it and describe it.")

@@ -31,25 +31,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_common_arguments(p, ("store", "remote", "unverified", "brick"))
     g = p.add_argument_group("rendering")
     from clipvol.tools.render_args import add_render_arguments
-    from clipvol.viewer.controls import MODES
 
-    add_render_arguments(g, ("mode", "iso_value", "policy", "level", "lod_threshold", "step", "max_error"),
-                         choices={"policy": MODES},
-                         help={"policy": "selection policy the viewer starts with (M cycles them)"})
+    add_render_arguments(g, ("mode", "iso_value", "policy", "level", "lod_threshold", "step", "max_error"))
     add_common_arguments(g, ("memory_budget",))
     add_render_arguments(g, ("texture_budget", "texels_per_frame"))
     add_common_arguments(g, ("threads",))
-    add_render_arguments(g, ("jitter", "path", "shading", "skip_empty", "refine_tolerance", "classify"), help={"shading": "start with gradient lighting on (key L)"})
+    add_render_arguments(g, ("jitter", "path", "shading", "skip_empty", "refine_tolerance", "classify"))
     g.add_argument("--play", action="store_true",
                    help="an OME-Zarr image with a t axis: play its time steps (Space play/pause, J/K step, { } rate; "
                         "the next step prefetched under the same memory budget)")
     g.add_argument("--rate", type=float, default=4.0, help="--play: most time steps per second (default 4)")
-    g.add_argument("--c", type=int, default=None, help="channel of an OME-Zarr image with a c axis (default 0)")
+    add_common_arguments(g, ("c",))
     g.add_argument("--outlines", action="store_true", help="draw brick outlines coloured by level (key B)")
-    g.add_argument("--tolerance", default="0.05",
-                   help="point stores: starting tolerance, the largest splat as a fraction of the window (0.05), "
-                        "'5%%' or '12px'; [ and ] change it (default 0.05)")
-    add_common_arguments(g, ("size",), size=dict(help="window or image size WxH (default 960x640 window, 256x256 offscreen)"))
+    add_common_arguments(g, ("tolerance", "size"))
     from clipvol.tools.overlay_args import add_channel_arguments, add_overlay_arguments
     from clipvol.tools.tf_args import add_tf_arguments
 
@@ -58,31 +52,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_overlay_arguments(p.add_argument_group("overlays of co-registered volumes"))
     o = p.add_argument_group("offscreen")
     o.add_argument("--offscreen", action="store_true", help="render a camera path to files instead of opening a window")
-    o.add_argument("--path", choices=("orbit", "turntable", "fly", "zoom"), default="orbit",
-                   help="camera path (turntable: one upright turn, head-up for patient-frame stores)")
-    o.add_argument("--frames", type=int, default=36, help="frames along the path")
+    add_common_arguments(o, ("path", "frames"))
     add_common_arguments(o, ("allow_partial",))
     o.add_argument("--out", default="frames", help="output directory (PNG frames), anim.gif or movie.mp4/.webm/.mkv/.mov")
     o.add_argument("--converged", action="store_true", help="wait each frame until its bricks are drawn at their own level")
-    add_common_arguments(o, ("timeout",), timeout=dict(default=60.0, help="seconds to wait per frame with --converged"))
+    add_common_arguments(o, ("timeout",))
     o.add_argument("--fps", type=float, default=12.0, help="GIF or movie frame rate")
     o.add_argument("--quality", type=float, default=8.0, help="movie quality, 0 (smallest) .. 10 (best), default 8")
-    o.add_argument("--no-labels", action="store_true", help="do not write anatomical edge labels on the frames")
-    o.add_argument("--workers", type=int, default=None, metavar="N",
-                   help="draw each frame sort-last in N Dask worker processes (PNG frames; needs clipvol[dask])")
-    o.add_argument("--scheduler", default="processes", metavar="S", help="with --workers: processes or tcp://HOST:PORT")
+    add_common_arguments(o, ("no_labels", "workers", "scheduler"))
     add_common_arguments(p, ("cut",))
     w = p.add_argument_group("window")
     w.add_argument("--screenshot-dir", default="clipvol-screenshots",
                    help="folder where P (with the HUD) and Shift+P (without) save screenshots, S the transfer "
                         "function and C the camera (created; default ./clipvol-screenshots)")
-    w.add_argument("--camera", default=None, metavar="FILE.json", help="start from a camera saved with C")
-    from clipvol.scene.views import VIEW_CHOICES
-
-    p.add_argument("--view", choices=VIEW_CHOICES, default=None, type=str.lower,
-                   help="the side the eye starts on, as for clipvol render (window; --path turntable: its first frame): "
-                        "anterior, posterior, left, right, superior, inferior, iso for a patient-frame store, "
-                        "front/back/side/top/iso otherwise")
+    add_common_arguments(w, ("camera",))
+    add_common_arguments(p, ("view",))
     w.add_argument("--frame-time", type=float, default=100.0, metavar="MS",
                    help="target frame time while the camera moves, in ms: the viewer lowers resolution and "
                         "sampling to hold it and refines to full quality when still (default 100; 0 turns it off)")
@@ -197,8 +181,12 @@ def volume_view(args) -> int:
         )
         print(f"wrote {res.frames} frames to {args.out}; per-frame statistics in {res.csv}")
         return 0
+    from clipvol.choices import VIEWER_POLICIES
     from clipvol.viewer.window import Viewer
 
+    if params.policy not in VIEWER_POLICIES:  # --policy offers every policy; the window cycles these
+        raise ParameterError(f"--policy: the window starts with one of {', '.join(VIEWER_POLICIES)}, got "
+                             f"{params.policy!r} (every policy draws with --offscreen)")
     camera = None
     if args.camera is not None:
         from clipvol.scene.bookmarks import load_camera

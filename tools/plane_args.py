@@ -1,5 +1,5 @@
 """The plane of ``clipvol slice``'s flags: ``--plane AXIS=INDEX``, ``--axis NAME [--index I]
-[--neurological]`` or ``--origin X,Y,Z --normal X,Y,Z [--up X,Y,Z]``, as a
+[--neurological]`` or ``--through X,Y,Z --normal X,Y,Z [--up X,Y,Z]``, as a
 :class:`~clipvol.scene.plane.Plane` in the render frame.
 
 Points and directions are in the store's world frame (``clipvol info``: patient RAS+ mm for NIfTI
@@ -21,7 +21,7 @@ def plane_from_args(pyramid, args, frame=None):
     the radiological display (``--neurological`` for the other), :func:`clipvol.scene.views.anatomical_plane`.
 
     Errors name the command-line option (``--plane: index: expected 0..255 ...``)."""
-    option = "--plane" if args.plane is not None else "--axis/--index" if args.axis is not None else "--origin/--normal/--up"
+    option = "--plane" if args.plane is not None else "--axis/--index" if args.axis is not None else "--through/--normal/--up"
     try:
         return _plane_from_args(pyramid, args, frame)
     except ParameterError as e:
@@ -32,19 +32,19 @@ def plane_from_args(pyramid, args, frame=None):
 def _plane_from_args(pyramid, args, frame=None):
     from clipvol.scene.plane import AXIS_LETTERS, Plane
 
-    given = [name for name, v in (("--plane", args.plane), ("--axis", args.axis), ("--origin/--normal",
-             args.origin if args.origin is not None else args.normal)) if v is not None]
+    given = [name for name, v in (("--plane", args.plane), ("--axis", args.axis), ("--through/--normal",
+             args.through if args.through is not None else args.normal)) if v is not None]
     if len(given) > 1:
-        raise ParameterError(f"plane: expected one of --plane, --axis, --origin/--normal, got {' and '.join(given)}")
+        raise ParameterError(f"plane: expected one of --plane, --axis, --through/--normal, got {' and '.join(given)}")
     if args.index is not None and args.axis is None:
         raise ParameterError("--index: expected together with --axis, got --index alone")
     from clipvol.scene.views import anatomical_plane, is_anatomical
 
     neuro = getattr(args, "neurological", False)
-    if neuro and not (is_anatomical(frame) and args.plane is None and args.origin is None and args.normal is None):
+    if neuro and not (is_anatomical(frame) and args.plane is None and args.through is None and args.normal is None):
         raise ParameterError("--neurological: expected an --axis slice (or the default) of a store with a patient frame "
                              "(from NIfTI or DICOM), got " + ("a store without one" if not is_anatomical(frame)
-                                                               else "--plane or --origin/--normal"))
+                                                               else "--plane or --through/--normal"))
     if args.plane is not None:
         letter, _, index = args.plane.partition("=")
         if letter.strip().lower() not in AXIS_LETTERS or not index:
@@ -58,17 +58,17 @@ def _plane_from_args(pyramid, args, frame=None):
         if is_anatomical(frame):
             return anatomical_plane(pyramid, frame, args.axis, args.index, "neurological" if neuro else "radiological")
         return Plane.axis(pyramid, args.axis, args.index)
-    if args.origin is not None or args.normal is not None:
-        if args.origin is None or args.normal is None:
-            raise ParameterError("--origin/--normal: expected both for an oblique plane, got one")
-        return _world_plane(pyramid, frame, args.origin, args.normal, args.up)
+    if args.through is not None or args.normal is not None:
+        if args.through is None or args.normal is None:
+            raise ParameterError("--through/--normal: expected both for an oblique plane, got one")
+        return _world_plane(pyramid, frame, args.through, args.normal, args.up)
     if is_anatomical(frame):
         return anatomical_plane(pyramid, frame, "axial", None, "neurological" if neuro else "radiological")
     return Plane.axis(pyramid, "axial")
 
 
 def _world_plane(pyramid, frame, origin, normal, up):
-    """The render-frame plane of ``--origin``/``--normal``/``--up`` given in the store's world frame.
+    """The render-frame plane of ``--through``/``--normal``/``--up`` given in the store's world frame.
 
     The image's right is ``normal x up`` in the world (so a mirrored store, LAS, is not shown
     mirrored); without ``--up`` a patient-frame store takes superior up (anterior for a plane
@@ -80,7 +80,7 @@ def _world_plane(pyramid, frame, origin, normal, up):
     from clipvol.scene.plane import Plane
     from clipvol.scene.views import is_anatomical
 
-    o = point_to_render(pyramid, frame, origin, "--origin")
+    o = point_to_render(pyramid, frame, origin, "--through")
     n_r = direction_to_render(pyramid, frame, normal, "--normal", normal=True)
     if up is None and not is_anatomical(frame):
         return Plane.through(o, n_r)

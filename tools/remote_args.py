@@ -9,7 +9,7 @@ import sys
 
 
 def add_remote_arguments(parser: argparse.ArgumentParser) -> None:
-    from clipvol.paging.bytesource import DEFAULT_CONNECT_TIMEOUT, DEFAULT_READ_TIMEOUT
+    from clipvol.choices import DEFAULT_CONNECT_TIMEOUT, DEFAULT_READ_TIMEOUT  # no numpy for --help
 
     g = parser.add_argument_group("remote stores (s3://, https://, gs://, any fsspec URL)")
     g.add_argument("--cache", metavar="DIR", default=None,

@@ -2,8 +2,8 @@
 
 ``clipvol render``, ``view``, ``slice`` and ``report`` draw with the same render parameters. Each
 flag is one line of :data:`FLAGS`: the field (or fields) it sets, its name, and how the text
-becomes a value; its help is the field's own (``RenderParams.help``, written beside the field in
-:mod:`clipvol.scene.params`) and its default the field's default. A command picks the flags it
+becomes a value; its help is the field's own (``RenderParams.help``, written once in :data:`clipvol.choices.PARAM_FIELDS`, which
+:mod:`clipvol.scene.params` declares the field from) and its default the field's default. A command picks the flags it
 offers with :func:`add_render_arguments` and builds its parameters with
 :func:`render_params_from_args`, so a new render parameter is one field in ``RenderParams`` plus at
 most one line here, and no command repeats its name, default or help.
@@ -15,9 +15,9 @@ The defaults shown and parsed are RenderParams' own, except where a flag says ot
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass, fields
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, NamedTuple
 
+from clipvol.choices import CLASSIFY, MODES, PARAM_FIELDS, PATHS, POLICIES
 from clipvol.errors import ParameterError
 
 __all__ = ["Flag", "FLAGS", "add_render_arguments", "render_params_from_args", "flag_values"]
@@ -34,9 +34,9 @@ def _floats(text: str) -> tuple[float, ...]:
 FIELD_DEFAULT = object()
 
 
-@dataclass(frozen=True)
-class Flag:
-    """One command-line flag of one or more RenderParams fields.
+class Flag(NamedTuple):
+    """One command-line flag of one or more RenderParams fields (a named tuple, not a dataclass:
+    ``dataclasses`` imports ``inspect``, a third of ``clipvol render --help``'s own start-up).
 
     ``switch``: ``"on"`` for a flag that sets a bool field True (``--shading``), ``"off"`` for one
     that sets it False (``--no-visibility``; the command's value without it is then True).
@@ -49,7 +49,7 @@ class Flag:
     flag: str
     type: Callable[[str], Any] | None = None
     switch: str | None = None
-    choices: Callable[[], tuple] | None = None
+    choices: tuple | None = None
     metavar: str | None = None
     default: Any = FIELD_DEFAULT
     help: str | None = None
@@ -67,36 +67,12 @@ def _light(values) -> dict:
     return dict(zip(("ambient", "diffuse", "specular", "shininess"), values))
 
 
-def _modes() -> tuple:
-    from clipvol.scene.params import MODES
-
-    return MODES
-
-
-def _paths() -> tuple:
-    from clipvol.scene.params import PATHS
-
-    return PATHS
-
-
-def _classify() -> tuple:
-    from clipvol.scene.params import CLASSIFY
-
-    return CLASSIFY
-
-
-def _policies() -> tuple:
-    from clipvol.scene.policy_registry import policy_names
-
-    return policy_names()
-
-
 #: one line per flag; the key, a command's handle for it in add_render_arguments, is the field's name
 #: (the flag's own name, ``light``, for a flag of several fields)
 FLAGS: dict[str, Flag] = {(f.fields[0] if len(f.fields) == 1 else f.dest): f for f in (
-    Flag(("mode",), "--mode", choices=_modes),
+    Flag(("mode",), "--mode", choices=MODES),
     Flag(("iso_value",), "--iso-value", type=float),
-    Flag(("policy",), "--policy", choices=_policies),
+    Flag(("policy",), "--policy", choices=POLICIES),
     Flag(("level",), "--level", type=int),
     Flag(("lod_threshold",), "--lod-threshold", type=float),
     Flag(("distance_factor",), "--distance-factor", type=float),
@@ -114,22 +90,18 @@ FLAGS: dict[str, Flag] = {(f.fields[0] if len(f.fields) == 1 else f.dest): f for
     Flag(("refine_tolerance",), "--refine-tolerance", type=float),
     Flag(("jitter",), "--no-jitter", switch="off",
          help="sample every pixel's ray from t = 0 (shows lattice rings; for comparisons)"),
-    Flag(("path",), "--render-path", choices=_paths),
+    Flag(("path",), "--render-path", choices=PATHS),
     Flag(("skip_empty",), "--no-skip-empty", switch="off",
          help="sample every cell, also those the transfer function makes transparent (the same image, slower)"),
     Flag(("texture_budget",), "--texture-budget", default="256MB"),  # decimal MB, as the command line always read it
     Flag(("texels_per_frame",), "--texels-per-frame", type=int),
-    Flag(("classify",), "--classify", choices=_classify),
+    Flag(("classify",), "--classify", choices=CLASSIFY),
 )}
 
 
 def _field_default(name: str):
-    from clipvol.scene.params import RenderParams
-
-    for f in fields(RenderParams):
-        if f.name == name:
-            return f.default
-    raise KeyError(name)
+    """Field ``name``'s default, as RenderParams declares it (from :data:`clipvol.choices.PARAM_FIELDS`)."""
+    return PARAM_FIELDS[name][0]
 
 
 def _default(flag: Flag):
@@ -142,29 +114,23 @@ def _default(flag: Flag):
     return _field_default(flag.fields[0])
 
 
-def add_render_arguments(group, names: Iterable[str], *, help: dict[str, str] | None = None,
-                         choices: dict[str, tuple] | None = None) -> None:
-    """Add the flags of the RenderParams fields ``names`` (keys of :data:`FLAGS`) to ``group``.
-
-    ``help`` and ``choices`` replace a flag's help or choices for this command only (``clipvol view``
-    starts from three of the policies; ``clipvol slice``'s ``--level`` is one level everywhere)."""
-    from clipvol.scene.params import RenderParams
-
-    help, choices = help or {}, choices or {}
+def add_render_arguments(group, names: Iterable[str]) -> None:
+    """Add the flags of the RenderParams fields ``names`` (keys of :data:`FLAGS`) to ``group``: the
+    same type, default, choices and help in every command (a field's help says where a command
+    uses it its own way, e.g. ``--level`` for ``slice``). Imports no numpy."""
     for name in names:
         if name not in FLAGS:
             raise KeyError(f"render_args: no flag for the render parameter {name!r}; add a line to FLAGS")
         f = FLAGS[name]
-        text = help.get(name, f.help if f.help is not None else RenderParams.help(f.fields[0]))
+        text = f.help if f.help is not None else PARAM_FIELDS[f.fields[0]][1]
         kw: dict[str, Any] = dict(dest=f.dest, help=text, default=_default(f))
         if f.switch is not None:
             kw["action"] = "store_true"
         else:
             if f.type is not None:
                 kw["type"] = f.type
-            ch = choices.get(name, f.choices() if f.choices is not None else None)
-            if ch is not None:
-                kw["choices"] = tuple(ch)
+            if f.choices is not None:
+                kw["choices"] = f.choices
             if f.metavar is not None:
                 kw["metavar"] = f.metavar
         if len(f.fields) > 1 and "%(default)s" in text:  # a grouped default reads as the user types it

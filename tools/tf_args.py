@@ -27,24 +27,47 @@ def _pair(text: str) -> tuple[float, float]:
     return v  # type: ignore[return-value]
 
 
-def add_tf_arguments(g) -> None:
-    """Add ``--tf``, ``--tf-range``, ``--window``, ``--opacity``, ``--tf-points`` to the group ``g``."""
-    from clipvol.scene.transfer import OPACITY_CURVES, TransferFunction
+def _window(text: str) -> tuple[float, float]:
+    """``--window C,W``: a finite centre and a width > 0."""
+    c, w = _pair(text)
+    if not w > 0:
+        raise argparse.ArgumentTypeError(f"expected a finite centre and a width > 0, got {text!r}")
+    return c, w
 
-    g.add_argument("--tf", default="auto",
-                   help="transfer function: auto (default: a window on the data's foreground, from its histogram; "
-                        "a diverging map for signed data), a preset (" + ", ".join(TransferFunction.names())
-                        + "), or a JSON file written by 'clipvol tf save' or the viewer's S key")
-    g.add_argument("--tf-range", type=_pair, default=None, metavar="LO,HI",
-                   help="window of data values the colour map spans; opacity is 0 at and below LO "
-                        "(default: automatic for --tf auto, else the data's value range)")
-    g.add_argument("--window", type=_pair, default=None, metavar="CENTRE,WIDTH",
-                   help="the same window as centre and width (window/level), instead of --tf-range")
-    g.add_argument("--opacity", choices=tuple(OPACITY_CURVES), default=None,
-                   help="opacity over the window: ramp (gentle, default), flat (a threshold) or step (a surface)")
-    g.add_argument("--tf-points", default=None, metavar="'V:R,G,B,A;...'",
-                   help="control points in data values, e.g. '0:0,0,0,0;500:1,0.5,0.3,0.2;1500:1,1,1,1' "
-                        "(colour and opacity in [0, 1]; overrides --tf, --tf-range, --window)")
+
+#: the flags of the transfer-function group, in the order a command's help lists them
+TF_FLAGS = ("tf", "tf_range", "window", "opacity", "tf_points")
+
+
+def add_tf_arguments(g, names=TF_FLAGS) -> None:
+    """Add the transfer-function flags ``names`` (of :data:`TF_FLAGS`: ``--tf``, ``--tf-range``,
+    ``--window``, ``--opacity``, ``--tf-points``) to the group ``g``; ``clipvol slice`` takes
+    ``--tf`` and ``--window`` only. Imports no numpy (the presets' names are :mod:`clipvol.choices`')."""
+    from clipvol.choices import OPACITY_CURVES, TF_PRESETS
+
+    unknown = set(names) - set(TF_FLAGS)
+    if unknown:
+        raise KeyError(f"tf_args: no transfer-function flag {sorted(unknown)}; expected some of {TF_FLAGS}")
+    if "tf" in names:
+        g.add_argument("--tf", default=None,
+                       help="transfer function: auto (default: a window on the data's foreground, from its histogram; "
+                            "a diverging map for signed data; slice: a grey window), a preset (" + ", ".join(TF_PRESETS)
+                            + "), or a JSON file written by 'clipvol tf save' or the viewer's S key (not slice)")
+    if "tf_range" in names:
+        g.add_argument("--tf-range", type=_pair, default=None, metavar="LO,HI",
+                       help="window of data values the colour map spans; opacity is 0 at and below LO "
+                            "(default: automatic for --tf auto, else the data's value range)")
+    if "window" in names:
+        g.add_argument("--window", type=_window, default=None, metavar="CENTRE,WIDTH",
+                       help="the same window as centre and width > 0 (window/level), instead of --tf-range (default: "
+                            "automatic for --tf auto; slice: the data's value range in grey)")
+    if "opacity" in names:
+        g.add_argument("--opacity", choices=OPACITY_CURVES, default=None,
+                       help="opacity over the window: ramp (gentle, default), flat (a threshold) or step (a surface)")
+    if "tf_points" in names:
+        g.add_argument("--tf-points", default=None, metavar="'V:R,G,B,A;...'",
+                       help="control points in data values, e.g. '0:0,0,0,0;500:1,0.5,0.3,0.2;1500:1,1,1,1' "
+                            "(colour and opacity in [0, 1]; overrides --tf, --tf-range, --window)")
 
 
 def transfer_function_from_args(args, loader):
@@ -66,7 +89,7 @@ def transfer_function_from_args(args, loader):
         rng = window_range(*args.window)
     if rng is not None and not rng[0] <= rng[1]:
         raise ParameterError(f"--tf-range: expected LO <= HI, got {rng[0]:g},{rng[1]:g}")
-    name = args.tf
+    name = args.tf or "auto"  # --tf left out: auto
     opacity = getattr(args, "opacity", None)
     steps = None
     if rng is None and not name.lower().endswith(".json"):  # a time series: one window for every step

@@ -175,6 +175,8 @@ def slice(args) -> int:  # noqa: A001 - the hook is named for its command
         if out is not None:  # a missing folder is refused before any work, not found when the slice is written
             check_output_file(out, suffix, flag)
     check_outputs([("--out", args.out), ("--npy", args.npy), ("--stats", args.stats)], [args.source])
+    if args.tf == "auto":  # slice's auto: the grey window
+        args.tf = None
     if args.tf is not None and args.tf not in TransferFunction.names():
         raise ParameterError(f"--tf: expected one of {', '.join(TransferFunction.names())}, got {args.tf!r}")
     if args.tf is not None and args.window is not None:
@@ -194,7 +196,7 @@ def slice(args) -> int:  # noqa: A001 - the hook is named for its command
         from clipvol.scene.cut import point_to_render
 
         poi = point_to_render(pyr, frame, args.poi, "--poi")
-        if args.plane is None and args.index is None and args.origin is None:
+        if args.plane is None and args.index is None and args.through is None:
             plane = plane.moved_through(poi)
     cut = shape_from_args(args, loader)  # --crop / --crop-voxels / --clip-plane: pixels outside are left out
     params = render_params_from_args(args, policy="plane", focus=None if poi is None else tuple(map(float, poi)), shape=cut)

@@ -64,8 +64,8 @@ MAX_IN_FLIGHT = 64
 RESIZE_EVERY = 8
 #: seconds to connect, and seconds without a byte before a request is stalled (``--connect-timeout``,
 #: ``--read-timeout``); with the default budget of 30 s per key a stalled server is left within it
-DEFAULT_CONNECT_TIMEOUT = 10.0
-DEFAULT_READ_TIMEOUT = 10.0
+#: (in :mod:`clipvol.choices`, where ``--help`` reads them without importing this module)
+from ..choices import DEFAULT_CONNECT_TIMEOUT, DEFAULT_READ_TIMEOUT  # noqa: E402
 #: the longest time-out accepted (an hour): anything longer is a typo, not a slow server
 MAX_TIMEOUT = 3600.0
 

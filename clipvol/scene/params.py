@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass, field, fields
 from typing import Any
 
+from ..choices import BLENDS, CLASSIFY, ISO_COLORS, MODES, PARAM_FIELDS, PATHS
 from ..errors import ParameterError
 from ..units import parse_bytes
 from .geometry import Shape
@@ -23,9 +24,6 @@ from .policy_registry import POLICIES, policy_names
 
 __all__ = ["RenderParams", "MODES", "MODE_CHECKS", "ISO_COLORS", "PATHS", "CLASSIFY", "DEFAULT_BLOCK_BUDGET"]
 
-#: compositing modes of the volume action: emission-absorption, maximum / minimum intensity
-#: projection, the mean along the ray (radiograph-like) and the first hit of an iso-value
-MODES = ("composite", "mip", "minip", "average", "iso")
 #: mode -> its checks of the parameters (``check(params)``, raising ParameterError).
 #: clipvol.render.modes.register puts each registered mode's own check here (and a new mode's name
 #: in MODES); the scene stage imports no render module, so the built-in modes' needs are also
@@ -51,14 +49,6 @@ def check_mode_needs(params, mode: str, requires: tuple[str, ...], classifies: b
 
 MODE_CHECKS: dict = {name: (lambda p, n=name, need=need: check_mode_needs(p, n, *need))
                      for name, need in BUILT_IN_MODE_NEEDS.items()}
-#: colourings of the iso-surface (see RenderParams.iso_color)
-ISO_COLORS = ("tf", "depth")
-#: how overlays (channels) combine with the primary at each sample (see RenderParams.blend)
-BLENDS = ("over", "additive")
-#: how the volume action draws a cut (see RenderParams.path)
-PATHS = ("auto", "bricks", "single-pass")
-#: how a coarse sample is classified (see RenderParams.classify)
-CLASSIFY = ("distribution", "mean")
 #: bricks the "image" policy may draw when no block_budget is given
 DEFAULT_BLOCK_BUDGET = 128
 
@@ -81,9 +71,11 @@ def _count_or_none(value: Any, name: str) -> int | None:
     return int(value)
 
 
-def _field(default: Any, help: str):
-    """A field with its one-line help, which the command-line flag of the field shows
-    (:mod:`clipvol.tools.render_args`): the help is written once, beside the field."""
+def _field(name: str):
+    """The field ``name`` with its default and one-line help from :data:`clipvol.choices.PARAM_FIELDS`,
+    which the command-line flag of the field shows (:mod:`clipvol.tools.render_args`): written once,
+    in a module a parser reads without importing numpy."""
+    default, help = PARAM_FIELDS[name]
     return field(default=default, metadata={"help": help})
 
 
@@ -238,55 +230,37 @@ class RenderParams:
         the colours add up, ``sum(a_k * rgb_k)``, opacity ``1 - prod(1 - a_k)``; not with shading).
     """
 
-    mode: str = _field("composite", "composite (emission-absorption), maximum / minimum intensity projection, the mean "
-                                    "along the ray (radiograph-like), or an iso-surface (with --iso-value)")
-    iso_value: float | None = _field(None, "--mode iso: the data value of the surface (the first point along each ray "
-                                           "at or above it, lit from the gradient)")
+    mode: str = _field("mode")
+    iso_value: float | None = _field("iso_value")
     iso_color: str = "tf"
-    policy: str = _field("projected-size", "selection policy: which bricks at which level (default projected-size)")
-    lod_threshold: float = _field(1.0, "refine while a voxel projects to more than this many pixels")
-    level: int | None = _field(None, "level for --policy fixed (default 0)")
-    distance_factor: float = _field(
-        1.0, "--policy distance: refine nodes closer to the eye than this many of their diagonals")
-    fov_fraction: float = _field(
-        0.5, "--policy field-of-view: refine nodes subtending more than this fraction of the view")
+    policy: str = _field("policy")
+    lod_threshold: float = _field("lod_threshold")
+    level: int | None = _field("level")
+    distance_factor: float = _field("distance_factor")
+    fov_fraction: float = _field("fov_fraction")
     focus: tuple[float, float, float] | None = None
-    max_texels_drawn: int | None = _field(
-        None, "most voxels of drawn bricks: refine the largest projected voxels first until it binds")
-    texels_per_frame: int | None = _field(None, "most texels uploaded per frame (per pass while waiting)")
-    texture_budget: int = _field(256 << 20, "GPU brick cache budget")
-    step: float = _field(0.5, "sample spacing in voxels of the drawn level")
+    max_texels_drawn: int | None = _field("max_texels_drawn")
+    texels_per_frame: int | None = _field("texels_per_frame")
+    texture_budget: int = _field("texture_budget")
+    step: float = _field("step")
     early_termination: bool = True
     merge_boxes: bool = True
-    refine_tolerance: float = _field(
-        0.0, "composite: rays at 1/4 and 1/2 of the image's resolution first, then a ray per pixel only where the "
-             "four coarser rays around it differ by more than this in a premultiplied channel (0: a ray per pixel)")
-    jitter: bool = _field(
-        False, "start every pixel's ray at a hashed offset (turns lattice rings into fine noise)")
-    skip_empty: bool = _field(
-        True, "composite: leap over cells of 8^3 voxels the transfer function makes transparent; iso: over cells "
-              "wholly below the iso-value (the same image)")
-    path: str = _field("auto", "single-pass: one ray-guided pass through a page table of the cut; bricks: one proxy box "
-                               "per (merged) brick; auto (default): the single pass for cuts of 4 boxes or more")
-    background: tuple[float, float, float, float] = _field(
-        (0.0, 0.0, 0.0, 0.0), "straight RGBA r,g,b,a in [0, 1] behind the volume (default transparent)")
+    refine_tolerance: float = _field("refine_tolerance")
+    jitter: bool = _field("jitter")
+    skip_empty: bool = _field("skip_empty")
+    path: str = _field("path")
+    background: tuple[float, float, float, float] = _field("background")
     shape: Shape | None = None
-    block_budget: int | None = _field(
-        None, "--policy image: most bricks drawn, the most important refined first (default 128; none with --max-error)")
-    max_error: float | None = _field(
-        None, "--policy image (selected by it when --policy is left at its default): visible-error budget, refine "
-              "until the predicted share of pixels with CIELUV dE >= 6 against the converged picture is at most this "
-              "('5%%' or 0.05)")
-    visibility: bool = _field(True, "--policy image: weight each brick's importance by its estimated visibility")
+    block_budget: int | None = _field("block_budget")
+    max_error: float | None = _field("max_error")
+    visibility: bool = _field("visibility")
     visibility_threshold: float = 0.01
-    shading: bool = _field(False, "composite: Blinn-Phong gradient lighting, light at the eye (ignored for mip)")
-    ambient: float = 0.3
-    diffuse: float = 0.7
-    specular: float = 0.3
-    shininess: float = 20.0
-    classify: str = _field(
-        "distribution", "coarse levels: apply the transfer function to the distribution of the level-0 voxels "
-                        "beneath each coarse voxel where the store holds it (distribution, default), or to their mean")
+    shading: bool = _field("shading")
+    ambient: float = _field("ambient")
+    diffuse: float = _field("diffuse")
+    specular: float = _field("specular")
+    shininess: float = _field("shininess")
+    classify: str = _field("classify")
     overlays: tuple = ()
     blend: str = "over"
 

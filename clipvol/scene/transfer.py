@@ -40,6 +40,7 @@ from typing import Sequence
 import numpy as np
 
 from ..bricking.pyramid import NEIGHBOUR_OFFSETS
+from ..choices import TF_PRESETS
 from ..errors import ParameterError
 from ..rows import unique_rows
 
@@ -94,7 +95,8 @@ OPACITY_CURVES = {
     "step": lambda t: np.where(t >= 0.5, 1.0, 0.0),
 }
 
-_PRESETS = ("grey", "viridis", "magma", "inferno", "plasma", "bone", "demo", "diverging")
+#: the presets' names (:mod:`clipvol.choices`, where the command line reads them without numpy)
+_PRESETS = TF_PRESETS
 
 #: the ``format`` field of a saved transfer function
 TF_FORMAT = "clipvol-transfer-function"

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..choices import VIEWER_POLICIES
 from ..errors import ParameterError
 from ..scene.camera import Camera
 from ..scene.paths import fit_distance, volume_center
@@ -29,10 +30,11 @@ __all__ = ["OrbitControls", "ViewState", "KeyState", "KEY_HELP", "MODES", "ALL_M
 
 UP = np.array([0.0, -1.0, 0.0])
 
+#: every mode a ViewState may hold: M's cycle plus the image-based policy (L, and < > for its budget);
+#: named in :mod:`clipvol.choices` for ``clipvol view --policy``
+ALL_MODES = VIEWER_POLICIES
 #: selection modes cycled by M
-MODES = ("projected-size", "roaming", "fixed")
-#: every mode a ViewState may hold: M's cycle plus the image-based policy (L, and < > for its budget)
-ALL_MODES = MODES + ("image",)
+MODES = ALL_MODES[:3]
 
 #: WASD/QE: (forward, right, up) unit steps in the camera's frame
 MOVE_KEYS = {

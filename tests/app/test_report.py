@@ -263,7 +263,7 @@ def test_cli_max_error_is_checked_before_anything_is_drawn(tmp_path, capsys):
     from clipvol.tools.cli import main
 
     rc = main(["report", "procedural:fractal?size=16", "--brick", "8", "--out", str(tmp_path / "rep"),
-               "--max-error", "5%,150%"])
+               "--max-errors", "5%,150%"])
     assert rc == 2
     err = capsys.readouterr().err
     assert "max_error" in err and "'150%'" in err
@@ -394,7 +394,7 @@ def test_cli_classify_reaches_every_frame(tmp_path, ctx, monkeypatch, flag, want
     monkeypatch.setattr(ctx, "release", lambda: None)
     rc = main(["report", str(store), "--out", str(tmp_path / "rep"), "--views", "1", "--size", "32x32",
                "--thresholds", "4", "--memory-budgets", "none", "--texture-budgets", "none", "--block-budgets",
-               "none", "--max-error", "none", "--refine", "none", "--rounds", "1", "--max-frames", "2",
+               "none", "--max-errors", "none", "--refine", "none", "--rounds", "1", "--max-frames", "2",
                "--no-plots", "--tf", "bone", *flag])
     assert rc == 0
     assert len(seen) >= 4 and set(seen) == {want}, seen

@@ -26,7 +26,7 @@ def server():
     from serve_harness import ServeProcess
 
     s = ServeProcess([SOURCE, "--brick", "16", "--size", "32x32", "--threads", "1", "--max-views", "2",
-                      "--rate", "20"])
+                      "--message-rate", "20"])
     yield s
     assert s.stop() == 130
 

@@ -84,7 +84,7 @@ def test_points_beyond_float_range_are_refused_not_stored_as_inf(tmp_path, capsy
     (["render", "s.zarr", "--tf-range", "-1e-3,.5"], "tf_range", (-1e-3, 0.5)),
     (["render", "s.zarr", "--crop", "-60,-40,-30,60,80,40"], "crop", "-60,-40,-30,60,80,40"),
     (["render", "s.zarr", "--eye", "-300,0,20"], "eye", (-300.0, 0.0, 20.0)),
-    (["slice", "s.zarr", "--origin", "-2,5,46"], "origin", (-2.0, 5.0, 46.0)),
+    (["slice", "s.zarr", "--through", "-2,5,46"], "through", (-2.0, 5.0, 46.0)),
     (["slice", "s.zarr", "--poi", "-.5,0,1"], "poi", (-0.5, 0.0, 1.0)),
     (["render", "s.zarr", "--tf-points", "-200:0,0,0,0;300:1,1,1,1"], "tf_points", "-200:0,0,0,0;300:1,1,1,1"),
 ])

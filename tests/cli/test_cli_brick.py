@@ -38,7 +38,7 @@ def npy(tmp_path, rng):
         (["--codec", "gzip"], ["codec", "gzip"]),
         (["--spacing", "1,2"], ["--spacing", "1,2"]),
         (["--spacing", "1,0,2"], ["spacing"]),
-        (["--workers", "0"], ["workers"]),
+        (["--threads", "0"], ["--threads", "0"]),
         (["--unit", " "], ["unit"]),
     ],
 )

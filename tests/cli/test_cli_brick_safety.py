@@ -93,7 +93,7 @@ def test_source_overwritten_during_the_build_leaves_the_store_incomplete(vol, ca
         brick_mod.brick_volume(src, out, brick=8, progress=False, workers=1)
     assert not _complete(out)
     done.clear()
-    assert main(["brick", str(src), str(vol / "c.zarr"), "--quiet", "--brick", "8", "--workers", "1"]) == 2
+    assert main(["brick", str(src), str(vol / "c.zarr"), "--quiet", "--brick", "8", "--threads", "1"]) == 2
     _one_error_line(capsys, "c.zarr", "changed while it was being bricked")
     assert not _complete(vol / "c.zarr")
 
@@ -127,11 +127,11 @@ def test_disk_full_while_bricking_is_one_line_and_resumable(vol, capsys, monkeyp
     out = vol / "o.zarr"
     with pytest.raises(OutputWriteError, match="No space left on device"):
         brick_mod.brick_volume(vol / "v.npy", out, brick=8, progress=False, workers=1)
-    assert main(["brick", str(vol / "v.npy"), str(out), "--quiet", "--brick", "8", "--workers", "1"]) == 2
+    assert main(["brick", str(vol / "v.npy"), str(out), "--quiet", "--brick", "8", "--threads", "1"]) == 2
     _one_error_line(capsys, "o.zarr", "No space left on device", "re-run")
     assert not _complete(out) and not (vol / "o.zarr.lock").exists()
     after_each_brick(monkeypatch, None)  # space freed: the same command resumes
-    assert main(["brick", str(vol / "v.npy"), str(out), "--quiet", "--brick", "8", "--workers", "1"]) == 0
+    assert main(["brick", str(vol / "v.npy"), str(out), "--quiet", "--brick", "8", "--threads", "1"]) == 0
     assert _complete(out)
 
 

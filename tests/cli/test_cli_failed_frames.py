@@ -194,7 +194,7 @@ def test_report_policy_comparison_exits_3_on_coarse_failures(tmp_path, capsys):
     for L in (1, 2):
         _damage_chunks(store, L)
     args = ["report", str(store), "--out", str(tmp_path / "r"), "--views", "1", "--size", "32x32", "--no-plots",
-            "--tf", "grey", "--thresholds", "0.25", "--memory-budgets", "none", "--texture-budgets", "none", "--max-error", "none",
+            "--tf", "grey", "--thresholds", "0.25", "--memory-budgets", "none", "--texture-budgets", "none", "--max-errors", "none",
             "--refine", "none", "--block-budgets", "2"]
     assert main(args) == 3
     err = _err(capsys)

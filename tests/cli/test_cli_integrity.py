@@ -94,7 +94,7 @@ def _interrupted(p, out, monkeypatch):
 
     after_each_brick(monkeypatch, crash)
     with pytest.raises(RuntimeError):
-        main(["brick", str(p), str(out), "--quiet", "--brick", "16", "--workers", "1"])
+        main(["brick", str(p), str(out), "--quiet", "--brick", "16", "--threads", "1"])
     after_each_brick(monkeypatch, None)
 
 

@@ -86,13 +86,20 @@ def test_every_flag_names_real_fields_with_help():
     ["render", "procedural:fractal", "--selection", "fixed"],  # --policy is the one name
     ["view", "procedural:fractal", "--selection", "fixed"],
     ["render", "procedural:fractal", "--policy", "multiresolution"],  # projected-size is the one name
-    ["view", "procedural:fractal", "--policy", "distance"],  # the viewer's M cycle: three policies
 ])
 def test_old_names_are_refused(argv, capsys):
     with pytest.raises(SystemExit) as e:
         build_parser().parse_args(argv)
     assert e.value.code == 2
     assert "Traceback" not in capsys.readouterr().err
+
+
+def test_the_window_refuses_a_policy_it_cannot_start_with(capsys):
+    """``view --policy`` offers every policy (``--offscreen`` draws each); the window starts with one
+    of the four it can cycle and refuses the others before it opens, naming the flag."""
+    assert main(["view", "procedural:fractal?size=16", "--policy", "distance"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("clipvol view: error: --policy:") and "distance" in err[0], err
 
 
 def test_a_short_light_is_one_error_line(tmp_path, capsys):

@@ -55,9 +55,9 @@ def test_multiresolution_slice_with_poi_needs_fewer_bytes(tmp_path):
 @pytest.mark.parametrize("args,name", [
     (["--plane", "z=48"], "index"),
     (["--plane", "w=3"], "--plane"),
-    (["--origin", "1,1,1", "--normal", "0,0,0"], "normal"),
-    (["--origin", "1,1,500", "--normal", "0,0,1"], "plane"),
-    (["--origin", "1,1,1"], "--normal"),
+    (["--through", "1,1,1", "--normal", "0,0,0"], "normal"),
+    (["--through", "1,1,500", "--normal", "0,0,1"], "plane"),
+    (["--through", "1,1,1"], "--normal"),
     (["--plane", "z=3", "--axis", "axial"], "plane"),
     (["--level", "9"], "--level"),
     (["--pixel-size", "0"], "--pixel-size"),

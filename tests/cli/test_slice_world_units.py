@@ -1,4 +1,4 @@
-"""`clipvol slice --origin/--normal/--up/--poi` take world points (RAS+ mm of a NIfTI), x,y,z.
+"""`clipvol slice --through/--normal/--up/--poi` take world points (RAS+ mm of a NIfTI), x,y,z.
 
 Reference: a NIfTI written here with an oblique, shifted affine (nibabel); each pixel's RAS point
 (from the flags alone) goes through nibabel's inverse affine to a voxel, where scipy's trilinear
@@ -71,14 +71,14 @@ def _close(got, want):
 
 def test_origin_is_a_ras_point_in_mm(scan, tmp_path):
     origin = (-2.0, -19.0, 46.0)  # RAS z = 46 mm, far from array index 46 of any axis
-    got = _slice(scan, tmp_path, "--origin", "-2,-19,46", "--normal", "0,0,1", "--up", "0,1,0")
+    got = _slice(scan, tmp_path, "--through", "-2,-19,46", "--normal", "0,0,1", "--up", "0,1,0")
     _close(got, _reference(origin, right=(-1, 0, 0), up=(0, 1, 0)))  # right = normal x up, in the world
 
 
 def test_oblique_normal_and_up_are_world_directions(scan, tmp_path):
     n = np.array([0.0, -0.3, 1.0]) / np.linalg.norm([0.0, -0.3, 1.0])
     up = np.array([0.0, 1.0, 0.3]) / np.linalg.norm([0.0, 1.0, 0.3])
-    got = _slice(scan, tmp_path, "--origin", "-2,-19,50", "--normal", "0,-0.3,1", "--up", "0,1,0.3")
+    got = _slice(scan, tmp_path, "--through", "-2,-19,50", "--normal", "0,-0.3,1", "--up", "0,1,0.3")
     _close(got, _reference((-2.0, -19.0, 50.0), right=np.cross(n, up), up=up))
 
 

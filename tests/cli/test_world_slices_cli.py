@@ -96,4 +96,4 @@ def test_neurological_needs_a_patient_plane(tmp_path, capsys):
     src = _write(tmp_path, "ras")
     assert main(["slice", src, "--store", str(tmp_path / "ras.zarr"), "--plane", "z=3", "--neurological",
                  "--npy", str(tmp_path / "b.npy")]) == 2
-    assert "got --plane or --origin/--normal" in capsys.readouterr().err
+    assert "got --plane or --through/--normal" in capsys.readouterr().err
