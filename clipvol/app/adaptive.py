@@ -19,6 +19,16 @@ alone exceeds ``T``, the cost settles at ``min_cost``). A full-quality frame see
 same way. The cost maps to an image scale ``s`` and a step factor ``f`` (``c = s**2 / f``): the
 step grows first as ``c ** (-1/3)`` up to ``max_step_factor``, and the scale takes the rest,
 down to ``min_scale``.
+
+**A coarser level of detail while moving.** An interactive frame also multiplies the level-of-detail
+threshold by ``preview_lod`` (:attr:`Quality.lod_factor`): a voxel may cover that many pixels of the
+small image before a finer level is drawn. Why: on llvmpipe a drag frame's time is not only rays x
+samples - fewer, larger bricks mean a smaller cut to select and fewer page-table regions along each
+ray - so at the same frame time the coarser cut leaves room for a larger image. Measured on the
+viewer's stores (``tools/bench/bench_interactive.py``, docs/benchmarks.md): at ``preview_lod`` 2 and a
+15 fps target the drag's image is larger than at 1 and 10 fps, with the preview's error against the
+converged frame (% pixels Delta E >= 6) reported beside it. A full-quality frame always uses the
+threshold the user set, so still images are unchanged.
 """
 
 from __future__ import annotations
@@ -28,17 +38,22 @@ from dataclasses import dataclass
 
 from ..errors import ParameterError
 
-__all__ = ["Quality", "AdaptiveQuality", "FULL"]
+__all__ = ["Quality", "AdaptiveQuality", "FULL", "DRAG_FRAME_S"]
+
+#: the frame time a drag holds by default: 15 frames a second
+DRAG_FRAME_S = 1.0 / 15.0
 
 
 @dataclass(frozen=True, slots=True)
 class Quality:
-    """How to render one frame: the image ``scale`` (fraction of each side) and ``step_factor``
-    (the sample spacing times this); ``full`` marks a full-quality frame."""
+    """How to render one frame: the image ``scale`` (fraction of each side), ``step_factor``
+    (the sample spacing times this) and ``lod_factor`` (the level-of-detail threshold times this);
+    ``full`` marks a full-quality frame."""
 
     scale: float
     step_factor: float
     full: bool
+    lod_factor: float = 1.0
 
     @property
     def cost(self) -> float:
@@ -62,7 +77,7 @@ class AdaptiveQuality:
     Parameters
     ----------
     target_s : float
-        Frame time to hold while the camera moves (seconds, > 0; default 0.1 = 10 fps).
+        Frame time to hold while the camera moves (seconds, > 0; default :data:`DRAG_FRAME_S`, 15 fps).
     settle_s : float
         How long the camera must be still before the full-quality frame is drawn.
     min_scale : float
@@ -74,14 +89,17 @@ class AdaptiveQuality:
     headroom : float
         The controller aims at ``headroom * target_s`` so that frame-to-frame noise (other
         processes, brick uploads) keeps frames under the target rather than around it.
+    preview_lod : float
+        Level-of-detail threshold multiplier of interactive frames (>= 1; 1: the user's threshold).
 
     Use: ``q = aq.next(moving, now)``; when ``q`` is not None render at ``q`` and call
     ``aq.done(q, frame_seconds)``. ``next`` returns None when nothing needs drawing for
     quality's sake (the full frame is already there).
     """
 
-    def __init__(self, target_s: float = 0.1, *, settle_s: float = 0.2, min_scale: float = 0.2,
-                 max_step_factor: float = 3.0, gain: float = 0.7, headroom: float = 0.75) -> None:
+    def __init__(self, target_s: float = DRAG_FRAME_S, *, settle_s: float = 0.2, min_scale: float = 0.2,
+                 max_step_factor: float = 3.0, gain: float = 0.7, headroom: float = 0.75,
+                 preview_lod: float = 2.0) -> None:
         for name, v, lo in (("target_s", target_s, 0.0), ("settle_s", settle_s, -1e-300),
                             ("min_scale", min_scale, 0.0), ("max_step_factor", max_step_factor, 1.0 - 1e-12)):
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > lo):
@@ -92,6 +110,9 @@ class AdaptiveQuality:
             raise ParameterError(f"gain: expected a number in (0, 1], got {gain!r}")
         if not (0.0 < headroom <= 1.0):
             raise ParameterError(f"headroom: expected a number in (0, 1], got {headroom!r}")
+        if not (isinstance(preview_lod, (int, float)) and math.isfinite(preview_lod) and preview_lod >= 1.0):
+            raise ParameterError(f"preview_lod: expected a finite number >= 1, got {preview_lod!r}")
+        self.preview_lod = float(preview_lod)
         self.headroom = float(headroom)
         self.target_s = float(target_s)
         self.settle_s = float(settle_s)
@@ -110,7 +131,7 @@ class AdaptiveQuality:
         c = min(max(float(cost), self.min_cost), 1.0)
         f = min(max(c ** (-1.0 / 3.0), 1.0), self.max_step_factor)
         s = min(max(math.sqrt(c * f), self.min_scale), 1.0)
-        return Quality(s, f, False)
+        return Quality(s, f, False, self.preview_lod)
 
     # -- per frame ------------------------------------------------------------------------------
     @property

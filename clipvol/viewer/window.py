@@ -15,8 +15,9 @@ the image is still refining the loop is paced to ~30 frames per second, so the l
 their share of the interpreter.
 
 **Interactive on a CPU.** While the camera moves (a drag, the wheel, WASD/QE) frames are drawn at
-a reduced image size and a longer sample step chosen by :class:`clipvol.app.adaptive.AdaptiveQuality`
-to hold a target frame time (default 100 ms), and scaled up on screen; once the camera has been
+a reduced image size, a longer sample step and a coarser level of detail chosen by
+:class:`clipvol.app.adaptive.AdaptiveQuality` to hold a target frame time (default 1/15 s), and scaled
+up on screen; once the camera has been
 still for 0.2 s one full-quality frame is drawn and refined as bricks arrive. The HUD says which.
 
 **Transfer function.** The HUD shows the data's histogram with the opacity curve and the window
@@ -39,7 +40,7 @@ import time
 from pathlib import Path
 
 
-from ..app.adaptive import FULL, AdaptiveQuality
+from ..app.adaptive import DRAG_FRAME_S, FULL, AdaptiveQuality
 from ..app.session import RenderSession
 from ..errors import ClipvolError, ParameterError
 from ..render.paths.setup import max_step
@@ -82,7 +83,8 @@ class Viewer(GlWindow):
         Where P writes ``clipvol-NNNN.png`` (Shift+P: ``clipvol-NNNN-nohud.png``), Shift+S
         ``tf-NNNN.json`` and C ``camera-NNNN.json`` (created when first needed).
     frame_time : float
-        Target frame time in seconds while the camera moves (0 or None: always full quality).
+        Target frame time in seconds while the camera moves (default 1/15: 15 fps; 0 or None:
+        always full quality).
     camera : Camera, optional
         The first view (e.g. from :func:`clipvol.scene.bookmarks.load_camera`).
     visible : bool
@@ -101,7 +103,7 @@ class Viewer(GlWindow):
 
     def __init__(self, source, *, size=(960, 640), memory_budget="256MB", texture_budget="256MB", threads=None,
                  params: RenderParams | None = None, tf="viridis", screenshot_dir=".", visible: bool = True,
-                 title: str = "clipvol", background=(0.0, 0.0, 0.0), frame_time: float | None = 0.1,
+                 title: str = "clipvol", background=(0.0, 0.0, 0.0), frame_time: float | None = DRAG_FRAME_S,
                  camera=None, series=None, rate: float = 4.0) -> None:
         params = params if params is not None else RenderParams(jitter=True)
 
@@ -426,10 +428,7 @@ class Viewer(GlWindow):
             self._version, self._view = version, view
             self._dirty = False
             cam = self.controls.camera(q.size(self.framebuffer_size))
-            # a moving view's coarser step, never past one brick edge (the longest step a frame may use)
-            step = max(self._base_step, min(self._base_step * q.step_factor, max_step(sess.pyramid)))
-            if sess.params.step != step:
-                sess.update(step=step)
+            self._apply_quality(q)
             t0 = time.perf_counter()
             if self.slices is not None and self.slices.active:
                 img = self.slices.render(lambda size: self.controls.camera(size), self.framebuffer_size)
@@ -470,6 +469,18 @@ class Viewer(GlWindow):
             self._hover = None
         self._end_step()
         return rendered
+
+    def _apply_quality(self, q) -> None:
+        """Set the session's step and level-of-detail threshold for a frame at quality ``q``: a
+        moving view's coarser step (never past one brick edge, the longest step a frame may use)
+        and coarser cut (:attr:`~clipvol.app.adaptive.Quality.lod_factor`); a full frame's are the
+        user's own, so a still image is what it was without adaptive quality."""
+        sess = self.session
+        step = max(self._base_step, min(self._base_step * q.step_factor, max_step(sess.pyramid)))
+        lod = self.state.lod_threshold * q.lod_factor
+        changes = {k: v for k, v in (("step", step), ("lod_threshold", lod)) if getattr(sess.params, k) != v}
+        if changes:
+            sess.update(**changes)
 
     def _image_lod_settings(self) -> dict:
         """HUD entries of image-based LOD: block budget and its estimated error (else none)."""
@@ -558,8 +569,7 @@ class Viewer(GlWindow):
             Image.fromarray(self.read_screen(), "RGB").save(path)
         else:
             sess = self.session
-            if sess.params.step != self._base_step:
-                sess.update(step=self._base_step)
+            self._apply_quality(FULL)
             cam = self.camera()
             img = sess.render(cam, self.controls.center_of_interest, wait=True, timeout=60.0)
             if self.state.outlines:

@@ -92,12 +92,25 @@ def test_cost_maps_to_scale_and_step_within_bounds():
         assert 0.2 <= q.scale <= 1.0 and 1.0 <= q.step_factor <= 3.0
         assert q.cost == pytest.approx(max(c, aq.min_cost), rel=1e-9)
     assert all(b.cost >= a.cost for a, b in zip(qs, qs[1:]))
-    assert aq.quality_for(1.0) == Quality(1.0, 1.0, False)
+    assert aq.quality_for(1.0) == Quality(1.0, 1.0, False, 2.0)
     assert Quality(0.5, 2.0, False).size((960, 640)) == (480, 320) and FULL.size((960, 640)) == (960, 640)
 
 
+def test_interactive_frames_coarsen_the_level_of_detail_and_full_frames_do_not():
+    """Moving frames multiply the LOD threshold by ``preview_lod`` (default 2); the full frame keeps
+    the user's (factor 1), so a still image is the same as without adaptive quality."""
+    aq = AdaptiveQuality()
+    assert aq.target_s == pytest.approx(1 / 15)
+    q = aq.next(True, 0.0)
+    assert not q.full and q.lod_factor == 2.0
+    assert aq.next(False, 1.0) is FULL and FULL.lod_factor == 1.0
+    assert AdaptiveQuality(preview_lod=1.0).quality_for(0.05).lod_factor == 1.0
+    assert all(aq.quality_for(c).lod_factor == 2.0 for c in (1e-3, 0.05, 1.0))
+
+
 @pytest.mark.parametrize("kw", [{"target_s": 0}, {"target_s": float("nan")}, {"min_scale": 0}, {"min_scale": 2},
-                                {"max_step_factor": 0.5}, {"gain": 0}, {"headroom": 1.5}])
+                                {"max_step_factor": 0.5}, {"gain": 0}, {"headroom": 1.5}, {"preview_lod": 0.5},
+                                {"preview_lod": float("inf")}])
 def test_bad_parameters_raise(kw):
     with pytest.raises(ParameterError):
         AdaptiveQuality(**kw)
