@@ -20,15 +20,18 @@ same way. The cost maps to an image scale ``s`` and a step factor ``f`` (``c = s
 step grows first as ``c ** (-1/3)`` up to ``max_step_factor``, and the scale takes the rest,
 down to ``min_scale``.
 
-**A coarser level of detail while moving.** An interactive frame also multiplies the level-of-detail
-threshold by ``preview_lod`` (:attr:`Quality.lod_factor`): a voxel may cover that many pixels of the
-small image before a finer level is drawn. Why: on llvmpipe a drag frame's time is not only rays x
-samples - fewer, larger bricks mean a smaller cut to select and fewer page-table regions along each
-ray - so at the same frame time the coarser cut leaves room for a larger image. Measured on the
-viewer's stores (``tools/bench/bench_interactive.py``, docs/benchmarks.md): at ``preview_lod`` 2 and a
-15 fps target the drag's image is larger than at 1 and 10 fps, with the preview's error against the
-converged frame (% pixels Delta E >= 6) reported beside it. A full-quality frame always uses the
-threshold the user set, so still images are unchanged.
+**One whole level while moving.** An interactive frame draws one whole level of the pyramid (the
+``"fixed"`` policy): the coarsest level whose voxel covers at most ``preview_lod`` times the user's
+level-of-detail threshold in pixels of the small image, at the volume's nearest point
+(:func:`preview_level`, :func:`frame_params`). Why: on llvmpipe a drag frame's time is not only
+rays x samples. A projected-size cut changes with every camera, so each frame walks the octree,
+merges the cut and builds a page table again (tens of milliseconds of host time on two busy
+cores); a whole level is a camera-free cut, which the frame loop draws again from frame to frame
+while it holds (:mod:`clipvol.render.frame_loop`, "Coherence"), and its bricks merge into few large
+regions for the rays to cross. Measured on the viewer's stores (``tools/bench/bench_interactive.py``,
+docs/benchmarks.md), with the preview's error against the converged frame (% pixels Delta E >= 6)
+beside the frame rate. A full-quality frame always uses the user's policy, level and threshold,
+so still images are unchanged.
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ from dataclasses import dataclass
 
 from ..errors import ParameterError
 
-__all__ = ["Quality", "AdaptiveQuality", "FULL", "DRAG_FRAME_S"]
+__all__ = ["Quality", "AdaptiveQuality", "FULL", "DRAG_FRAME_S", "preview_level", "frame_params"]
 
 #: the frame time a drag holds by default: 15 frames a second
 DRAG_FRAME_S = 1.0 / 15.0
@@ -47,7 +50,8 @@ DRAG_FRAME_S = 1.0 / 15.0
 @dataclass(frozen=True, slots=True)
 class Quality:
     """How to render one frame: the image ``scale`` (fraction of each side), ``step_factor``
-    (the sample spacing times this) and ``lod_factor`` (the level-of-detail threshold times this);
+    (the sample spacing times this) and ``lod_factor`` (an interactive frame draws the whole level
+    whose voxel covers this many times the level-of-detail threshold: :func:`frame_params`);
     ``full`` marks a full-quality frame."""
 
     scale: float
@@ -90,7 +94,8 @@ class AdaptiveQuality:
         The controller aims at ``headroom * target_s`` so that frame-to-frame noise (other
         processes, brick uploads) keeps frames under the target rather than around it.
     preview_lod : float
-        Level-of-detail threshold multiplier of interactive frames (>= 1; 1: the user's threshold).
+        Interactive frames draw the whole level whose voxel covers at most this many times the
+        level-of-detail threshold in pixels (>= 1; see :func:`frame_params`).
 
     Use: ``q = aq.next(moving, now)``; when ``q`` is not None render at ``q`` and call
     ``aq.done(q, frame_seconds)``. ``next`` returns None when nothing needs drawing for
@@ -171,3 +176,37 @@ class AdaptiveQuality:
     def invalidate(self) -> None:
         """Something other than the camera changed (transfer function, mode): draw the full frame again."""
         self._full_drawn = False
+
+
+def preview_level(pyramid, camera, lod_threshold: float) -> int:
+    """The coarsest level of ``pyramid`` whose voxel (its largest edge) covers at most ``lod_threshold``
+    pixels of ``camera``'s image at the volume's nearest point (0 when even level 0's covers more):
+    the finest level a projected-size cut at that threshold would draw anywhere in view."""
+    lo, hi = pyramid.volume_box()
+    best = 0
+    for L in range(pyramid.num_levels):
+        if float(camera.projected_size(lo, hi, max(pyramid.levels[L].scale))[0]) <= lod_threshold:
+            best = L
+    return best
+
+
+def frame_params(q: Quality, pyramid, camera, *, step: float, lod_threshold: float, policy: str,
+                 level: int | None, max_step: float | None = None) -> dict:
+    """The :class:`~clipvol.scene.params.RenderParams` fields of a frame at ``q`` for a user whose
+    own are ``step``, ``lod_threshold``, ``policy`` and ``level``.
+
+    A full frame gets the user's fields unchanged. An interactive frame gets the step times
+    ``q.step_factor`` (at most ``max_step``, never below the user's) and one whole level, the
+    ``"fixed"`` policy at :func:`preview_level` for ``q.lod_factor`` times the threshold (never
+    finer than the user's own fixed level): a camera-free cut the frame loop replays while the
+    view turns (module docstring).
+    """
+    if q.full:
+        return dict(step=step, lod_threshold=lod_threshold, policy=policy, level=level)
+    s = step * q.step_factor
+    if max_step is not None:
+        s = min(s, max_step)
+    L = preview_level(pyramid, camera, lod_threshold * q.lod_factor)
+    if policy == "fixed" and level is not None:
+        L = max(L, int(level))
+    return dict(step=max(step, s), lod_threshold=lod_threshold, policy="fixed", level=L)

@@ -15,9 +15,9 @@ the image is still refining the loop is paced to ~30 frames per second, so the l
 their share of the interpreter.
 
 **Interactive on a CPU.** While the camera moves (a drag, the wheel, WASD/QE) frames are drawn at
-a reduced image size, a longer sample step and a coarser level of detail chosen by
-:class:`clipvol.app.adaptive.AdaptiveQuality` to hold a target frame time (default 1/15 s), and scaled
-up on screen; once the camera has been
+a reduced image size and a longer sample step chosen by :class:`clipvol.app.adaptive.AdaptiveQuality`
+to hold a target frame time (default 1/15 s), from one whole coarse level (a cut the frame loop
+draws again while the view turns), and scaled up on screen; once the camera has been
 still for 0.2 s one full-quality frame is drawn and refined as bricks arrive. The HUD says which.
 
 **Transfer function.** The HUD shows the data's histogram with the opacity curve and the window
@@ -40,7 +40,7 @@ import time
 from pathlib import Path
 
 
-from ..app.adaptive import DRAG_FRAME_S, FULL, AdaptiveQuality
+from ..app.adaptive import DRAG_FRAME_S, FULL, AdaptiveQuality, frame_params
 from ..app.session import RenderSession
 from ..errors import ClipvolError, ParameterError
 from ..render.paths.setup import max_step
@@ -428,7 +428,7 @@ class Viewer(GlWindow):
             self._version, self._view = version, view
             self._dirty = False
             cam = self.controls.camera(q.size(self.framebuffer_size))
-            self._apply_quality(q)
+            self._apply_quality(q, cam)
             t0 = time.perf_counter()
             if self.slices is not None and self.slices.active:
                 img = self.slices.render(lambda size: self.controls.camera(size), self.framebuffer_size)
@@ -470,15 +470,17 @@ class Viewer(GlWindow):
         self._end_step()
         return rendered
 
-    def _apply_quality(self, q) -> None:
-        """Set the session's step and level-of-detail threshold for a frame at quality ``q``: a
-        moving view's coarser step (never past one brick edge, the longest step a frame may use)
-        and coarser cut (:attr:`~clipvol.app.adaptive.Quality.lod_factor`); a full frame's are the
-        user's own, so a still image is what it was without adaptive quality."""
-        sess = self.session
-        step = max(self._base_step, min(self._base_step * q.step_factor, max_step(sess.pyramid)))
-        lod = self.state.lod_threshold * q.lod_factor
-        changes = {k: v for k, v in (("step", step), ("lod_threshold", lod)) if getattr(sess.params, k) != v}
+    def _apply_quality(self, q, cam) -> None:
+        """Set the session's parameters for a frame at quality ``q`` seen by ``cam``
+        (:func:`~clipvol.app.adaptive.frame_params`): a moving view's coarser step (never past one
+        brick edge, the longest step a frame may use) and one whole level; a full frame's are the
+        user's own, so a still image is what it is without adaptive quality."""
+        sess, st = self.session, self.state
+        want = frame_params(q, sess.pyramid, cam, step=self._base_step, lod_threshold=st.lod_threshold,
+                            policy=st.mode, level=st.level if st.mode == "fixed" else None,
+                            max_step=max_step(sess.pyramid))
+        want["max_error"] = self._max_error if want["policy"] == "image" else None
+        changes = {k: v for k, v in want.items() if getattr(sess.params, k) != v}
         if changes:
             sess.update(**changes)
 
@@ -569,8 +571,8 @@ class Viewer(GlWindow):
             Image.fromarray(self.read_screen(), "RGB").save(path)
         else:
             sess = self.session
-            self._apply_quality(FULL)
             cam = self.camera()
+            self._apply_quality(FULL, cam)
             img = sess.render(cam, self.controls.center_of_interest, wait=True, timeout=60.0)
             if self.state.outlines:
                 from ..app.overlay import draw_outlines

@@ -178,11 +178,14 @@ def test_window_adapts_while_moving_and_refines_when_still(xdisplay, loader):
         v.step()
         assert not v._quality.full and v._frame.shape[0] < 96 and v._frame.shape[1] < 128
         assert v.session.params.step > 0.5  # the sample step grows too
-        assert v.session.params.lod_threshold == 2.0 * v.state.lod_threshold  # and the cut is coarser
+        assert v.session.params.policy == "fixed"  # one whole level: a cut drawn again while the view turns
+        v.controls.orbit(2, 0)
+        v.step()
+        assert v.session.frame_stats.replayed and not v._quality.full
         time.sleep(v.adaptive.settle_s + 0.05)
         v.step()
         assert v._quality.full and v._frame.shape[:2] == (96, 128) and v.session.params.step == 0.5
-        assert v.session.params.lod_threshold == v.state.lod_threshold
+        assert v.session.params.policy == v.state.mode and v.session.params.level is None
         assert v.adaptive.state == "refined"
         _converge(v)
         still, cam, coi = v._frame, v._frame_camera, v.controls.center_of_interest

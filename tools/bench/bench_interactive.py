@@ -14,8 +14,9 @@ with the adaptive controller; then the camera **stops** and the time to the **re
 measured (full quality, converged: every brick it wants loaded and drawn at its own level).
 
 The adaptive drag runs twice per setting, alternating ``before`` (the viewer's controller until
-2026-11-29: 100 ms target, the user's level-of-detail threshold while moving) and ``after`` (today's
-defaults: a 1/15 s target and the threshold doubled while moving, ``AdaptiveQuality.preview_lod``);
+2026-11-29: 100 ms target, the user's projected-size cut while moving, only the step longer) and ``after`` (today's
+defaults: a 1/15 s target, and moving frames draw one whole level, a cut replayed from frame to
+frame: :func:`clipvol.app.adaptive.frame_params`);
 each drag's **preview error** is the percent of pixels with CIELUV Delta E >= 6 between its last
 frame, scaled up bilinearly to 960x640 as the viewer's texture does, and the converged full-quality
 frame at the same camera.
@@ -85,15 +86,24 @@ def _converge(sess, cam, coi, timeout=300.0) -> float:
     return time.perf_counter() - t
 
 
-def _apply(sess, q, base_step: float, base_lod: float = 1.0) -> None:
-    """The viewer's step and level-of-detail threshold for a frame at quality ``q``."""
-    changes = {k: v for k, v in (("step", base_step * q.step_factor), ("lod_threshold", base_lod * q.lod_factor))
-               if getattr(sess.params, k) != v}
+def _apply(sess, q, base_step: float, cam=None, whole_level: bool = True) -> None:
+    """The viewer's parameters for a frame at quality ``q`` seen by ``cam``
+    (:func:`clipvol.app.adaptive.frame_params`, the user's own: the default projected-size policy at
+    a threshold of 1 pixel); ``whole_level=False``: the viewer until 2026-11-29, whose moving frames
+    changed only the step."""
+    from clipvol.app.adaptive import FULL, frame_params
+    from clipvol.render.paths.setup import max_step
+
+    user = dict(step=base_step, lod_threshold=1.0, policy="projected-size", level=None)
+    want = frame_params(q if whole_level else FULL, sess.pyramid, cam, max_step=max_step(sess.pyramid), **user)
+    if not whole_level:
+        want["step"] = min(base_step * q.step_factor, max_step(sess.pyramid))
+    changes = {k: v for k, v in want.items() if getattr(sess.params, k) != v}
     if changes:
         sess.update(**changes)
 
 
-def _drag(sess, controls, coi_fn, frames: int, aq, base_step: float) -> list[dict]:
+def _drag(sess, controls, coi_fn, frames: int, aq, base_step: float, whole_level: bool = True) -> list[dict]:
     """Orbit by 6 px per frame; returns one row per frame (the last one holds its image)."""
     from clipvol.app.adaptive import FULL
 
@@ -103,7 +113,7 @@ def _drag(sess, controls, coi_fn, frames: int, aq, base_step: float) -> list[dic
         controls.orbit(6.0, 0.0)
         q = aq.next(True, now) if aq is not None else FULL
         cam = controls.camera(q.size(SIZE))
-        _apply(sess, q, base_step)
+        _apply(sess, q, base_step, cam, whole_level)
         t0 = time.perf_counter()
         img = sess.render(cam, coi_fn(), wait=False)
         ft = time.perf_counter() - t0
@@ -111,7 +121,8 @@ def _drag(sess, controls, coi_fn, frames: int, aq, base_step: float) -> list[dic
             aq.done(q, ft)
         now += ft
         rows.append({"frame": i, "frame_s": ft, "scale": q.scale, "step_factor": q.step_factor,
-                     "lod_factor": q.lod_factor, "pixels": cam.size[0] * cam.size[1]})
+                     "level": sess.params.level, "replayed": bool(sess.frame_stats.replayed),
+                     "pixels": cam.size[0] * cam.size[1]})
     rows[-1]["_image"] = img
     return rows
 
@@ -132,7 +143,8 @@ def _upscale(img: np.ndarray, size) -> np.ndarray:
     return np.rint(top * (1 - fy) + bot * fy).astype(np.uint8)
 
 
-def _adaptive_drag(sess, controls, coi, frames: int, aq, base_step: float, full_frame_s: float) -> dict:
+def _adaptive_drag(sess, controls, coi, frames: int, aq, base_step: float, full_frame_s: float,
+                   whole_level: bool) -> dict:
     """From the converged home view, one drag with controller ``aq``; fps, median quality, and the
     preview error of its last frame against the converged full-quality frame at its camera."""
     from clipvol.app.adaptive import FULL
@@ -142,7 +154,7 @@ def _adaptive_drag(sess, controls, coi, frames: int, aq, base_step: float, full_
     _apply(sess, FULL, base_step)
     _converge(sess, controls.camera(SIZE), coi())
     aq.done(aq.next(False, 0.0), full_frame_s)  # the viewer's first full frame seeds it
-    rows = _drag(sess, controls, coi, frames, aq, base_step)
+    rows = _drag(sess, controls, coi, frames, aq, base_step, whole_level)
     steady = rows[len(rows) // 3:]
     last = rows[-1].pop("_image")
     _apply(sess, FULL, base_step)
@@ -151,7 +163,8 @@ def _adaptive_drag(sess, controls, coi, frames: int, aq, base_step: float, full_
             "frame_ms_median": 1e3 * statistics.median(r["frame_s"] for r in steady),
             "scale_median": statistics.median(r["scale"] for r in steady),
             "step_factor_median": statistics.median(r["step_factor"] for r in steady),
-            "lod_factor": rows[-1]["lod_factor"],
+            "level_median": statistics.median(-1 if r["level"] is None else r["level"] for r in steady),
+            "replayed_share": statistics.mean(r["replayed"] for r in steady),
             "preview_pct_de6": percent_delta_e(_upscale(last, SIZE), ref), "_rows": rows}
 
 
@@ -209,16 +222,19 @@ def bench(name: str, quick: bool, frames: int, ctx, log) -> dict:
         # the controller before (100 ms, the user's LOD threshold while moving) and after, alternately
         full_rows = _drag(sess, controls, coi, max(4, frames // 4), None, base_step)
         full_rows[-1].pop("_image")
-        settings = {"before": lambda: AdaptiveQuality(0.1, preview_lod=1.0), "after": AdaptiveQuality}
+        settings = {"before": (lambda: AdaptiveQuality(0.1), False), "after": (AdaptiveQuality, True)}
         runs: dict = {k: [] for k in settings}
         for _ in range(2):
-            for key, make in settings.items():
-                runs[key].append(_adaptive_drag(sess, controls, coi, frames, make(), base_step, out["full_frame_s"]))
+            for key, (make, whole) in settings.items():
+                runs[key].append(_adaptive_drag(sess, controls, coi, frames, make(), base_step, out["full_frame_s"],
+                                                whole))
         for key, rs in runs.items():
-            for m in ("fps", "frame_ms_median", "scale_median", "step_factor_median", "lod_factor", "preview_pct_de6"):
+            for m in ("fps", "frame_ms_median", "scale_median", "step_factor_median", "level_median",
+                      "replayed_share", "preview_pct_de6"):
                 out[f"{key}_{m}"] = statistics.mean(r[m] for r in rs)
             log(f"{name}: drag {key}: {out[key + '_fps']:.1f} fps (median scale {out[key + '_scale_median']:.2f}, "
-                f"step x{out[key + '_step_factor_median']:.2f}, LOD x{out[key + '_lod_factor']:g}), preview "
+                f"step x{out[key + '_step_factor_median']:.2f}, level {out[key + '_level_median']:g} "
+                f"(-1: projected size), {100 * out[key + '_replayed_share']:.0f} % of frames replayed), preview "
                 f"{out[key + '_preview_pct_de6']:.1f} % pixels dE>=6 against the converged frame")
         rows = runs["after"][-1]["_rows"]
         out["drag_fps"] = out["after_fps"]
@@ -227,8 +243,8 @@ def bench(name: str, quick: bool, frames: int, ctx, log) -> dict:
         log(f"{name}: drag {out['drag_fps']:.1f} fps adaptive vs {out['full_drag_fps']:.2f} fps at full quality")
         # the after drag's preview frame against the one-texture caster at the same size and step
         q = AdaptiveQuality().quality_for(out["after_scale_median"] ** 2 / out["after_step_factor_median"])
-        _apply(sess, q, base_step)
         pcam = controls.camera(q.size(SIZE))
+        _apply(sess, q, base_step, pcam)
         sess.render(pcam, coi(), wait=True, timeout=600)
         ours_p, one_p = _alternate(ctx, loader, sess, pcam, coi(), tf, base_step * q.step_factor, 5)
         out["preview_size"] = "x".join(map(str, q.size(SIZE)))
@@ -264,7 +280,7 @@ def _plot(results, path: Path) -> None:
     fig, axes = plt.subplots(1, len(results), figsize=(5 * len(results), 3.4), squeeze=False)
     for ax, r in zip(axes[0], results):
         ax.plot([x["frame"] for x in r["_rows"]], [1e3 * x["frame_s"] for x in r["_rows"]], "o-", ms=3,
-                label="adaptive (target 1/15 s, LOD x2 while moving)")
+                label="adaptive (target 1/15 s, one whole level while moving)")
         ax.plot([x["frame"] for x in r["_full_rows"]], [1e3 * x["frame_s"] for x in r["_full_rows"]], "s-", ms=3,
                 label="full quality (reference)")
         ax.axhline(1e3 / 15, color="grey", lw=0.8, ls="--")
