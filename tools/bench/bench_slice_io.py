@@ -183,6 +183,48 @@ def scroll(ctx, args, writer, view: str, px: float) -> list:
     return out
 
 
+def geometry(args, writer, samples: int = 200, seed: int = 0) -> None:
+    """Chunks of the slice region (:func:`clipvol.scene.slice_region.slice_region`, computed from the
+    pyramid alone) against the full-resolution slab, for the centre (the benchmark's plane and point
+    of interest: on brick faces at every level, where eight nodes meet) and for ``samples`` axial
+    planes at random depths with a random point of interest on each, at every distance factor."""
+    from clipvol.bricking.pyramid import Pyramid
+    from clipvol.scene.params import RenderParams
+    from clipvol.scene.plane import Plane
+    from clipvol.scene.slice_region import slice_region
+
+    rng = np.random.default_rng(seed)
+    n = args.size
+    for brick in args.bricks:
+        pyr = Pyramid.build((n, n, n), (brick,) * 3, dtype="float32")
+        cases = [("centre", (n - 1) / 2.0, ((n - 1) / 2.0, (n - 1) / 2.0))]
+        cases += [("random", float(rng.uniform(0, n - 1)), tuple(rng.uniform(0, n - 1, 2).tolist()))
+                  for _ in range(samples)]
+        for df in args.distance_factors:
+            ratios = []
+            for kind, z, (x, y) in cases:
+                plane = Plane.axis(pyr, "axial", z)
+                full = slice_region(pyr, plane, RenderParams(policy="plane", level=0), 1.0, size=(n, n))
+                multi = slice_region(pyr, plane, RenderParams(policy="plane", focus=(x, y, z), distance_factor=df),
+                                     1.0, size=(n, n))
+                per_level = [len(b) for b in multi.bricks]
+                nf = sum(len(b) for b in full.bricks)
+                ratio = nf / max(sum(per_level), 1)
+                if kind == "random":
+                    ratios.append(ratio)
+                writer.writerow(dict(store=f"{n}^3", brick=brick, distance_factor=df, case=kind, z=round(z, 2),
+                                     focus_x=round(x, 2), focus_y=round(y, 2), region_chunks=sum(per_level),
+                                     per_level=" ".join(map(str, per_level)), full_resolution_chunks=nf,
+                                     ratio=round(ratio, 3)))
+                if kind == "centre":
+                    print(f"geometry {n}^3 b{brick} df={df} centre: region {sum(per_level)} chunks {per_level}, "
+                          f"full resolution {nf}: {ratio:.2f}x")
+            r = np.array(ratios)
+            print(f"geometry {n}^3 b{brick} df={df}, {len(r)} random planes and points of interest: fewer chunks "
+                  f"min {r.min():.2f}x, median {np.median(r):.2f}x, max {r.max():.2f}x; >= 8x on "
+                  f"{100 * np.mean(r >= 8):.0f} %")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--size", type=int, default=1024)
@@ -200,8 +242,21 @@ def main(argv=None) -> int:
                    help="the scroll's distance factor (1.0 makes the level-0 disc 8 bricks wide at 64^3)")
     p.add_argument("--stride", type=float, default=16.0)
     p.add_argument("--quick", action="store_true")
+    p.add_argument("--geometry", action="store_true",
+                   help="only the region's chunks from the pyramid's geometry (no rendering, seconds): "
+                        "bench_slice_io_geometry.csv")
     p.add_argument("--out", type=Path, default=HERE / "results")
     args = p.parse_args(argv)
+    if args.geometry:
+        args.out.mkdir(parents=True, exist_ok=True)
+        if args.distance_factors == [1.0, 0.5]:
+            args.distance_factors = [1.0, 0.5, 0.25]
+        with open(args.out / "bench_slice_io_geometry.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, ["store", "brick", "distance_factor", "case", "z", "focus_x", "focus_y",
+                                   "region_chunks", "per_level", "full_resolution_chunks", "ratio"])
+            w.writeheader()
+            geometry(args, w)
+        return 0
     if args.quick:
         args.size, args.scroll_size, args.steps = 256, 1024, 4
         args.bricks, args.cube_budgets, args.distance_factors = [32], ["64MB"], [0.5]
