@@ -522,7 +522,8 @@ class Viewer(GlWindow):
             q = self._quality
             fs = self.session.frame_stats
             if not q.full:
-                quality = f"interactive: {100 * q.scale:.0f} % resolution, step x{q.step_factor:.1f}"
+                quality = f"interactive: {100 * q.scale:.0f} % resolution, step x{q.step_factor:.1f}, " \
+                          f"level {self.session.params.level}"
             elif fs is not None and not fs.converged:
                 quality = "full quality, refining as bricks arrive"
             else:
