@@ -48,7 +48,7 @@ from ..scene.params import RenderParams
 from ..scene.plane import Plane, default_pixel_size, default_size
 from ..paging.readcount import bytes_read_of, split_reads
 from ..scene.selection.policies.plane import PlaneCut
-from ..scene.slice_region import slice_region
+from ..scene.slice_region import region_bytes, slice_region, stored_sizes
 from .failures import failed_bricks
 from .frame_loop import FrameLoop
 from .glsl import load_shader
@@ -253,19 +253,29 @@ class SliceAction:
         loaded0 = self.clip_texture.stats.bytes_loaded
         read0 = bytes_read_of(self.clip_texture.loader)
         region_bricks = 0
+        params = self.params
         if self.follow_plane:
-            region = slice_region(pyr, plane, self.params, px, size=size, ahead=self._scroll_step(plane))
+            ahead = self._scroll_step(plane)
+            region = slice_region(pyr, plane, params, px, size=size, ahead=ahead)
+            sizes = stored_sizes(self.clip_texture.loader) if params.level is None else None
+            if sizes is not None:  # the full-resolution slice when it reads no more bytes (slice_region)
+                full_params = self._full_resolution_params()
+                full = slice_region(pyr, plane, full_params, px, size=size, ahead=ahead)
+                if region_bytes(full, sizes) <= region_bytes(region, sizes):
+                    params, region = full_params, full
             self.clip_texture.set_region(region)
             region_bricks = region.nbricks
         self._last_plane = plane
+        #: the parameters this slice was drawn with: ``params`` or, where it reads no more bytes, ``level=0``
+        self.last_params = params
         cam = plane.camera(size, px).fit_depth(vlo, vhi)
         deadline = None if timeout is None else t_start + float(timeout)
-        policy = PlaneCut(self.params, plane)
+        policy = PlaneCut(params, plane)
         up_bytes = up_bricks = 0
         times = dict(select=0.0, upload=0.0, wait=0.0)
         while True:
             left = None if deadline is None else max(0.0, deadline - time.perf_counter())
-            plan = self.frame_loop.run(cam, self.params, policy=policy, wait=wait, timeout=left)
+            plan = self.frame_loop.run(cam, params, policy=policy, wait=wait, timeout=left)
             for k in times:
                 times[k] += plan.times.get(k, 0.0)
             up_bytes += plan.bytes_uploaded
@@ -334,6 +344,15 @@ class SliceAction:
             region_bricks=region_bricks, failed_bricks=failed_bricks(sel, self.clip_texture),
             frame_bytes_read=frame_read, prefetch_bytes_read=other_read)
         return (rgba, values) if return_values else rgba
+
+    def _full_resolution_params(self) -> RenderParams:
+        """``params`` at ``level=0``, the same object while ``params`` is (the frame loop keys its
+        kept cut on the parameters' identity)."""
+        kept = getattr(self, "_full_params", None)
+        if kept is None or kept[0] is not self.params:
+            kept = (self.params, RenderParams.from_kwargs(self.params, level=0).check_for(self.pyramid))
+            self._full_params = kept
+        return kept[1]
 
     def _scroll_step(self, plane: Plane) -> float:
         """How far (world units, signed along the normal) the plane moved since the last slice, when it
