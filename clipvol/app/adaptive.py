@@ -191,7 +191,7 @@ def preview_level(pyramid, camera, lod_threshold: float) -> int:
 
 
 def frame_params(q: Quality, pyramid, camera, *, step: float, lod_threshold: float, policy: str,
-                 level: int | None, max_step: float | None = None) -> dict:
+                 level: int | None, max_step: float | None = None, previous: int | None = None) -> dict:
     """The :class:`~clipvol.scene.params.RenderParams` fields of a frame at ``q`` for a user whose
     own are ``step``, ``lod_threshold``, ``policy`` and ``level``.
 
@@ -199,7 +199,10 @@ def frame_params(q: Quality, pyramid, camera, *, step: float, lod_threshold: flo
     ``q.step_factor`` (at most ``max_step``, never below the user's) and one whole level, the
     ``"fixed"`` policy at :func:`preview_level` for ``q.lod_factor`` times the threshold (never
     finer than the user's own fixed level): a camera-free cut the frame loop replays while the
-    view turns (module docstring).
+    view turns (module docstring). ``previous``, the level of the interactive frame before, is
+    kept while it is that level or one coarser: a level that changes ends the replay (and uploads
+    the new level's bricks), and the image's size changes a little every frame while the
+    controller settles.
     """
     if q.full:
         return dict(step=step, lod_threshold=lod_threshold, policy=policy, level=level)
@@ -207,6 +210,8 @@ def frame_params(q: Quality, pyramid, camera, *, step: float, lod_threshold: flo
     if max_step is not None:
         s = min(s, max_step)
     L = preview_level(pyramid, camera, lod_threshold * q.lod_factor)
+    if previous is not None and L <= int(previous) <= L + 1:
+        L = int(previous)
     if policy == "fixed" and level is not None:
         L = max(L, int(level))
     return dict(step=max(step, s), lod_threshold=lod_threshold, policy="fixed", level=L)

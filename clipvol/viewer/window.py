@@ -476,9 +476,10 @@ class Viewer(GlWindow):
         brick edge, the longest step a frame may use) and one whole level; a full frame's are the
         user's own, so a still image is what it is without adaptive quality."""
         sess, st = self.session, self.state
+        previous = sess.params.level if not self._quality.full else None  # the preview's level so far
         want = frame_params(q, sess.pyramid, cam, step=self._base_step, lod_threshold=st.lod_threshold,
                             policy=st.mode, level=st.level if st.mode == "fixed" else None,
-                            max_step=max_step(sess.pyramid))
+                            max_step=max_step(sess.pyramid), previous=previous)
         want["max_error"] = self._max_error if want["policy"] == "image" else None
         changes = {k: v for k, v in want.items() if getattr(sess.params, k) != v}
         if changes:

@@ -119,6 +119,9 @@ def test_interactive_frames_draw_one_whole_level_and_full_frames_keep_the_users_
     moving = frame_params(Quality(0.5, 3.0, False, 2.0), pyr, cam, max_step=1.0, **user)
     assert moving == dict(step=1.0, lod_threshold=1.0, policy="fixed", level=2)  # step capped at max_step
     assert frame_params(Quality(0.5, 3.0, False, 1.0), pyr, cam, **user)["level"] == 1
+    # the level of the frame before is kept while it is that level or one coarser, not two
+    q1 = Quality(0.5, 3.0, False, 1.0)
+    assert [frame_params(q1, pyr, cam, previous=p, **user)["level"] for p in (0, 1, 2, 3)] == [1, 1, 2, 1]
     # never finer than the user's own fixed level
     fixed3 = dict(user, policy="fixed", level=3)
     assert frame_params(Quality(0.5, 2.0, False, 2.0), pyr, cam, **fixed3)["level"] == 3

@@ -95,7 +95,9 @@ def _apply(sess, q, base_step: float, cam=None, whole_level: bool = True) -> Non
     from clipvol.render.paths.setup import max_step
 
     user = dict(step=base_step, lod_threshold=1.0, policy="projected-size", level=None)
-    want = frame_params(q if whole_level else FULL, sess.pyramid, cam, max_step=max_step(sess.pyramid), **user)
+    previous = sess.params.level if sess.params.policy == "fixed" else None  # the preview's level so far
+    want = frame_params(q if whole_level else FULL, sess.pyramid, cam, max_step=max_step(sess.pyramid),
+                        previous=previous, **user)
     if not whole_level:
         want["step"] = min(base_step * q.step_factor, max_step(sess.pyramid))
     changes = {k: v for k, v in want.items() if getattr(sess.params, k) != v}
