@@ -7,7 +7,10 @@ level 3D textures and budgets the volume action uses. Per frame (:meth:`SliceAct
 0. **Page** - the slice's region (:func:`~clipvol.scene.slice_region.slice_region`: per level, the
    bricks within half a voxel of the plane where the policy refines, widened towards the next
    slice while the plane scrolls) is handed to the clip-texture, which then reads that slab
-   rather than filling cubes (``follow_plane = False`` keeps the cubes).
+   rather than filling cubes (``follow_plane = False`` keeps the cubes). On a store whose manifest
+   records its chunks' sizes, where the full-resolution slab holds no more bytes than this
+   region, the slice is drawn at full resolution (``level=0``, :attr:`SliceAction.last_params`):
+   a better image for no more bytes read.
 1. **Select** - the frame loop (:class:`~clipvol.render.frame_loop.FrameLoop`) runs the
    ``"plane"`` policy (:class:`~clipvol.scene.selection.policies.plane.PlaneCut`) with an
    orthographic camera that sees exactly the slice's pixels: nodes the plane crosses, refined by
@@ -187,6 +190,9 @@ class SliceAction:
         self.program["u_volume_low"].value = 1
         self._target = FloatTarget(ctx)
         self.last_stats: SliceStats | None = None
+        #: the parameters the last slice was drawn with: ``params``, or ``level=0`` where the
+        #: full-resolution slice reads no more bytes from storage (:meth:`render`)
+        self.last_params: RenderParams = self.params
         self.last_selection = None
         self.last_camera = None
         self.last_values: np.ndarray | None = None
@@ -257,7 +263,7 @@ class SliceAction:
         if self.follow_plane:
             ahead = self._scroll_step(plane)
             region = slice_region(pyr, plane, params, px, size=size, ahead=ahead)
-            sizes = stored_sizes(self.clip_texture.loader) if params.level is None else None
+            sizes = self._stored_sizes() if params.level is None else None
             if sizes is not None:  # the full-resolution slice when it reads no more bytes (slice_region)
                 full_params = self._full_resolution_params()
                 full = slice_region(pyr, plane, full_params, px, size=size, ahead=ahead)
@@ -266,7 +272,6 @@ class SliceAction:
             self.clip_texture.set_region(region)
             region_bricks = region.nbricks
         self._last_plane = plane
-        #: the parameters this slice was drawn with: ``params`` or, where it reads no more bytes, ``level=0``
         self.last_params = params
         cam = plane.camera(size, px).fit_depth(vlo, vhi)
         deadline = None if timeout is None else t_start + float(timeout)
@@ -344,6 +349,15 @@ class SliceAction:
             region_bricks=region_bricks, failed_bricks=failed_bricks(sel, self.clip_texture),
             frame_bytes_read=frame_read, prefetch_bytes_read=other_read)
         return (rgba, values) if return_values else rgba
+
+    def _stored_sizes(self):
+        """The clip-texture's loader's chunk sizes (:func:`~clipvol.scene.slice_region.stored_sizes`),
+        read from its manifest once per loader."""
+        loader = self.clip_texture.loader
+        kept = getattr(self, "_sizes", None)
+        if kept is None or kept[0] is not loader:
+            kept = self._sizes = (loader, stored_sizes(loader))
+        return kept[1]
 
     def _full_resolution_params(self) -> RenderParams:
         """``params`` at ``level=0``, the same object while ``params`` is (the frame loop keys its

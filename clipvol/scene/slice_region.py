@@ -32,7 +32,7 @@ price a region in the bytes its chunks hold on disk: a brick that only holds the
 nothing (it is never read), and a coarse brick that holds tissue where the level-0 bricks it
 covers hold background costs more than they do. On the MNI template at 32³ bricks the
 multiresolution slice through the centre read 795 kB (37 chunks) against 727 kB (33) for the
-full-resolution slice, although its region had fewer bricks; the slice action then draws the
+full-resolution slice, although its region had no more bricks; the slice action then draws the
 full-resolution slice, which reads no more and shows every voxel (:class:`~clipvol.render.slice_action.SliceAction`).
 
 ``ahead`` (world units along the normal) widens every slab towards where the plane is scrolling,
