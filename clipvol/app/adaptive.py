@@ -17,8 +17,8 @@ the next cost is ``c * (h T / t) ** gain`` (``h``: a headroom, 0.75), clipped to
 step towards the target ``T`` that needs no model of the fixed per-frame overhead (if the overhead
 alone exceeds ``T``, the cost settles at ``min_cost``). A full-quality frame seeds the estimate the
 same way. The cost maps to an image scale ``s`` and a step factor ``f`` (``c = s**2 / f``): the
-step grows first as ``c ** (-1/3)`` up to ``max_step_factor``, and the scale takes the rest,
-down to ``min_scale``.
+step grows first as ``c ** (-1/3)`` up to ``max_step_factor``, held to a few rungs
+(:data:`STEP_RUNGS`), and the scale takes the rest, down to ``min_scale``.
 
 **One whole level while moving.** An interactive frame draws one whole level of the pyramid (the
 ``"fixed"`` policy): the coarsest level whose voxel covers at most ``preview_lod`` times the user's
@@ -45,6 +45,8 @@ __all__ = ["Quality", "AdaptiveQuality", "FULL", "DRAG_FRAME_S", "preview_level"
 
 #: the frame time a drag holds by default: 15 frames a second
 DRAG_FRAME_S = 1.0 / 15.0
+#: the step factors an interactive frame uses (with ``max_step_factor``): see ``quality_for``
+STEP_RUNGS = (1.0, 1.5, 2.0, 3.0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -125,6 +127,7 @@ class AdaptiveQuality:
         self.max_step_factor = float(max_step_factor)
         self.gain = float(gain)
         self.min_cost = self.min_scale ** 2 / self.max_step_factor
+        self._rungs = sorted({r for r in STEP_RUNGS if r <= self.max_step_factor} | {self.max_step_factor})
         self.cost = 1.0
         self._last_motion = -math.inf
         self._full_drawn = False
@@ -132,9 +135,17 @@ class AdaptiveQuality:
 
     # -- the mapping ----------------------------------------------------------------------------
     def quality_for(self, cost: float) -> Quality:
-        """The interactive :class:`Quality` of a cost (step first, then scale)."""
+        """The interactive :class:`Quality` of a cost (step first, then scale).
+
+        The step factor is one of :data:`STEP_RUNGS` (and ``max_step_factor``), the largest not
+        above ``c ** (-1/3)``; the scale makes up the cost. Why rungs: what a frame derives from its
+        step - the opacity-corrected and pre-integrated transfer-function tables (a few hundred
+        milliseconds for the distribution tables on a busy CPU), the parameters a kept cut is
+        replayed under - is rebuilt whenever the step changes; a step that followed the cost
+        continuously changed nearly every frame of a drag."""
         c = min(max(float(cost), self.min_cost), 1.0)
         f = min(max(c ** (-1.0 / 3.0), 1.0), self.max_step_factor)
+        f = max(r for r in self._rungs if r <= f * (1.0 + 1e-9))
         s = min(max(math.sqrt(c * f), self.min_scale), 1.0)
         return Quality(s, f, False, self.preview_lod)
 
