@@ -98,6 +98,9 @@ class AdaptiveQuality:
     preview_lod : float
         Interactive frames draw the whole level whose voxel covers at most this many times the
         level-of-detail threshold in pixels (>= 1; see :func:`frame_params`).
+    step_rungs : tuple of float or None
+        The step factors interactive frames use (:meth:`quality_for`); None: any, following the
+        cost (the controller before 2026-11-29).
 
     Use: ``q = aq.next(moving, now)``; when ``q`` is not None render at ``q`` and call
     ``aq.done(q, frame_seconds)``. ``next`` returns None when nothing needs drawing for
@@ -106,7 +109,7 @@ class AdaptiveQuality:
 
     def __init__(self, target_s: float = DRAG_FRAME_S, *, settle_s: float = 0.2, min_scale: float = 0.2,
                  max_step_factor: float = 3.0, gain: float = 0.7, headroom: float = 0.75,
-                 preview_lod: float = 2.0) -> None:
+                 preview_lod: float = 2.0, step_rungs: tuple | None = STEP_RUNGS) -> None:
         for name, v, lo in (("target_s", target_s, 0.0), ("settle_s", settle_s, -1e-300),
                             ("min_scale", min_scale, 0.0), ("max_step_factor", max_step_factor, 1.0 - 1e-12)):
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > lo):
@@ -127,7 +130,8 @@ class AdaptiveQuality:
         self.max_step_factor = float(max_step_factor)
         self.gain = float(gain)
         self.min_cost = self.min_scale ** 2 / self.max_step_factor
-        self._rungs = sorted({r for r in STEP_RUNGS if r <= self.max_step_factor} | {self.max_step_factor})
+        self._rungs = None if step_rungs is None else \
+            sorted({float(r) for r in step_rungs if 1.0 <= r <= self.max_step_factor} | {1.0, self.max_step_factor})
         self.cost = 1.0
         self._last_motion = -math.inf
         self._full_drawn = False
@@ -145,7 +149,8 @@ class AdaptiveQuality:
         continuously changed nearly every frame of a drag."""
         c = min(max(float(cost), self.min_cost), 1.0)
         f = min(max(c ** (-1.0 / 3.0), 1.0), self.max_step_factor)
-        f = max(r for r in self._rungs if r <= f * (1.0 + 1e-9))
+        if self._rungs is not None:
+            f = max(r for r in self._rungs if r <= f * (1.0 + 1e-9))
         s = min(max(math.sqrt(c * f), self.min_scale), 1.0)
         return Quality(s, f, False, self.preview_lod)
 

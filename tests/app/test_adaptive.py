@@ -95,6 +95,8 @@ def test_cost_maps_to_scale_and_step_within_bounds():
     # the step takes a few values only (its tables and a kept cut's parameters are then reused)
     assert {q.step_factor for q in qs} <= {1.0, 1.5, 2.0, 3.0}
     assert [aq.quality_for(c).step_factor for c in (1.0, 0.29, 0.12, 0.03)] == [1.0, 1.5, 2.0, 3.0]
+    free = AdaptiveQuality(0.1, min_scale=0.2, max_step_factor=3.0, step_rungs=None)
+    assert free.quality_for(0.12).step_factor == pytest.approx(0.12 ** (-1 / 3))
     assert aq.quality_for(1.0) == Quality(1.0, 1.0, False, 2.0)
     assert Quality(0.5, 2.0, False).size((960, 640)) == (480, 320) and FULL.size((960, 640)) == (960, 640)
 

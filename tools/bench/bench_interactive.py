@@ -14,9 +14,10 @@ with the adaptive controller; then the camera **stops** and the time to the **re
 measured (full quality, converged: every brick it wants loaded and drawn at its own level).
 
 The adaptive drag runs twice per setting, alternating ``before`` (the viewer's controller until
-2026-11-29: 100 ms target, the user's projected-size cut while moving, only the step longer) and ``after`` (today's
-defaults: a 1/15 s target, and moving frames draw one whole level, a cut replayed from frame to
-frame: :func:`clipvol.app.adaptive.frame_params`);
+2026-11-29: 100 ms target, the user's projected-size cut while moving, only the step longer, any
+step factor the cost asks for) and ``after`` (today's
+defaults: a 1/15 s target, the step factor on a few rungs, and moving frames draw one whole
+level, a cut replayed from frame to frame: :func:`clipvol.app.adaptive.frame_params`);
 each drag's **preview error** is the percent of pixels with CIELUV Delta E >= 6 between its last
 frame, scaled up bilinearly to 960x640 as the viewer's texture does, and the converged full-quality
 frame at the same camera.
@@ -224,7 +225,8 @@ def bench(name: str, quick: bool, frames: int, ctx, log) -> dict:
         # the controller before (100 ms, the user's LOD threshold while moving) and after, alternately
         full_rows = _drag(sess, controls, coi, max(4, frames // 4), None, base_step)
         full_rows[-1].pop("_image")
-        settings = {"before": (lambda: AdaptiveQuality(0.1), False), "after": (AdaptiveQuality, True)}
+        settings = {"before": (lambda: AdaptiveQuality(0.1, step_rungs=None), False),
+                    "after": (AdaptiveQuality, True)}
         runs: dict = {k: [] for k in settings}
         for _ in range(2):
             for key, (make, whole) in settings.items():
