@@ -303,7 +303,8 @@ def real_stores(ctx, args, writer, rounds: int = 3) -> None:
                                  bytes_vs_full=round(full_read.bytes / max(nb, 1), 3),
                                  time_vs_zarr=round(t / statistics.median(times["zarr"]), 2),
                                  pct_de6_vs_full=round(de, 3)))
-            print(f"{Path(path).name} {name}: {nb / 1e3:.0f} kB ({nr} chunks), {full_read.bytes / max(nb, 1):.2f}x fewer "
+            print(f"{Path(path).name} {name}: {nb / 1e3:.0f} kB ({nr} chunks), "
+                  f"{full_read.bytes / max(nb, 1):.2f}x fewer "
                   f"than the full-resolution slice, {1e3 * t:.0f} ms = {t / statistics.median(times['zarr']):.1f}x "
                   f"zarr-python's plane; Delta E>=6 against the full-resolution slice on {de:.2f} % of pixels"
                   + ("" if ok else " (NOT CONVERGED)"))
