@@ -2,8 +2,8 @@
 
 ``clipvol view STORE|procedural:...|x.npy`` opens a window (GLFW + moderngl) that renders the data
 with the multiresolution clip renderer, never waiting for I/O: coarse data shows at once and
-refines as bricks arrive; while the camera moves it renders at a lower resolution and sampling to
-hold --frame-time, and at full quality once still. Keys: left drag orbit, right/middle drag pan,
+refines as bricks arrive; while the camera moves it renders one coarse level at a lower resolution
+and sampling to hold --frame-time, and at full quality once still. Keys: left drag orbit, right/middle drag pan,
 wheel zoom, WASD/QE fly (moves the centre of interest), M mode, [ ] fixed level, +/- LOD threshold,
 I MIP/composite, T colour map, Left/Right/Up/Down (or a drag on the HUD's histogram) move/widen
 the transfer-function window, Shift+S save it, C save the camera, B brick outlines, P screenshot
@@ -67,9 +67,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "function and C the camera (created; default ./clipvol-screenshots)")
     add_common_arguments(w, ("camera",))
     add_common_arguments(p, ("view",))
-    w.add_argument("--frame-time", type=float, default=100.0, metavar="MS",
+    w.add_argument("--frame-time", type=float, default=round(1e3 / 15, 1), metavar="MS",
                    help="target frame time while the camera moves, in ms: the viewer lowers resolution and "
-                        "sampling to hold it and refines to full quality when still (default 100; 0 turns it off)")
+                        "sampling and draws one coarse level to hold it, and refines to full quality when still "
+                        "(default 66.7: 15 frames a second; 0 turns it off)")
     w.add_argument("--max-frames", type=int, default=None, help=argparse.SUPPRESS)
 
 

@@ -7,7 +7,10 @@ level 3D textures and budgets the volume action uses. Per frame (:meth:`SliceAct
 0. **Page** - the slice's region (:func:`~clipvol.scene.slice_region.slice_region`: per level, the
    bricks within half a voxel of the plane where the policy refines, widened towards the next
    slice while the plane scrolls) is handed to the clip-texture, which then reads that slab
-   rather than filling cubes (``follow_plane = False`` keeps the cubes).
+   rather than filling cubes (``follow_plane = False`` keeps the cubes). On a store whose manifest
+   records its chunks' sizes, where the full-resolution slab holds no more bytes than this
+   region, the slice is drawn at full resolution (``level=0``, :attr:`SliceAction.last_params`):
+   a better image for no more bytes read.
 1. **Select** - the frame loop (:class:`~clipvol.render.frame_loop.FrameLoop`) runs the
    ``"plane"`` policy (:class:`~clipvol.scene.selection.policies.plane.PlaneCut`) with an
    orthographic camera that sees exactly the slice's pixels: nodes the plane crosses, refined by
@@ -48,7 +51,7 @@ from ..scene.params import RenderParams
 from ..scene.plane import Plane, default_pixel_size, default_size
 from ..paging.readcount import bytes_read_of, split_reads
 from ..scene.selection.policies.plane import PlaneCut
-from ..scene.slice_region import slice_region
+from ..scene.slice_region import region_bytes, slice_region, stored_sizes
 from .failures import failed_bricks
 from .frame_loop import FrameLoop
 from .glsl import load_shader
@@ -187,6 +190,9 @@ class SliceAction:
         self.program["u_volume_low"].value = 1
         self._target = FloatTarget(ctx)
         self.last_stats: SliceStats | None = None
+        #: the parameters the last slice was drawn with: ``params``, or ``level=0`` where the
+        #: full-resolution slice reads no more bytes from storage (:meth:`render`)
+        self.last_params: RenderParams = self.params
         self.last_selection = None
         self.last_camera = None
         self.last_values: np.ndarray | None = None
@@ -253,19 +259,28 @@ class SliceAction:
         loaded0 = self.clip_texture.stats.bytes_loaded
         read0 = bytes_read_of(self.clip_texture.loader)
         region_bricks = 0
+        params = self.params
         if self.follow_plane:
-            region = slice_region(pyr, plane, self.params, px, size=size, ahead=self._scroll_step(plane))
+            ahead = self._scroll_step(plane)
+            region = slice_region(pyr, plane, params, px, size=size, ahead=ahead)
+            sizes = self._stored_sizes() if params.level is None else None
+            if sizes is not None:  # the full-resolution slice when it reads no more bytes (slice_region)
+                full_params = self._full_resolution_params()
+                full = slice_region(pyr, plane, full_params, px, size=size, ahead=ahead)
+                if region_bytes(full, sizes) <= region_bytes(region, sizes):
+                    params, region = full_params, full
             self.clip_texture.set_region(region)
             region_bricks = region.nbricks
         self._last_plane = plane
+        self.last_params = params
         cam = plane.camera(size, px).fit_depth(vlo, vhi)
         deadline = None if timeout is None else t_start + float(timeout)
-        policy = PlaneCut(self.params, plane)
+        policy = PlaneCut(params, plane)
         up_bytes = up_bricks = 0
         times = dict(select=0.0, upload=0.0, wait=0.0)
         while True:
             left = None if deadline is None else max(0.0, deadline - time.perf_counter())
-            plan = self.frame_loop.run(cam, self.params, policy=policy, wait=wait, timeout=left)
+            plan = self.frame_loop.run(cam, params, policy=policy, wait=wait, timeout=left)
             for k in times:
                 times[k] += plan.times.get(k, 0.0)
             up_bytes += plan.bytes_uploaded
@@ -334,6 +349,24 @@ class SliceAction:
             region_bricks=region_bricks, failed_bricks=failed_bricks(sel, self.clip_texture),
             frame_bytes_read=frame_read, prefetch_bytes_read=other_read)
         return (rgba, values) if return_values else rgba
+
+    def _stored_sizes(self):
+        """The clip-texture's loader's chunk sizes (:func:`~clipvol.scene.slice_region.stored_sizes`),
+        read from its manifest once per loader."""
+        loader = self.clip_texture.loader
+        kept = getattr(self, "_sizes", None)
+        if kept is None or kept[0] is not loader:
+            kept = self._sizes = (loader, stored_sizes(loader))
+        return kept[1]
+
+    def _full_resolution_params(self) -> RenderParams:
+        """``params`` at ``level=0``, the same object while ``params`` is (the frame loop keys its
+        kept cut on the parameters' identity)."""
+        kept = getattr(self, "_full_params", None)
+        if kept is None or kept[0] is not self.params:
+            kept = (self.params, RenderParams.from_kwargs(self.params, level=0).check_for(self.pyramid))
+            self._full_params = kept
+        return kept[1]
 
     def _scroll_step(self, plane: Plane) -> float:
         """How far (world units, signed along the normal) the plane moved since the last slice, when it

@@ -16,7 +16,8 @@ their share of the interpreter.
 
 **Interactive on a CPU.** While the camera moves (a drag, the wheel, WASD/QE) frames are drawn at
 a reduced image size and a longer sample step chosen by :class:`clipvol.app.adaptive.AdaptiveQuality`
-to hold a target frame time (default 100 ms), and scaled up on screen; once the camera has been
+to hold a target frame time (default 1/15 s), from one whole coarse level (a cut the frame loop
+draws again while the view turns), and scaled up on screen; once the camera has been
 still for 0.2 s one full-quality frame is drawn and refined as bricks arrive. The HUD says which.
 
 **Transfer function.** The HUD shows the data's histogram with the opacity curve and the window
@@ -39,7 +40,7 @@ import time
 from pathlib import Path
 
 
-from ..app.adaptive import FULL, AdaptiveQuality
+from ..app.adaptive import DRAG_FRAME_S, FULL, AdaptiveQuality, frame_params
 from ..app.session import RenderSession
 from ..errors import ClipvolError, ParameterError
 from ..render.modes import DRAW_MODES
@@ -83,7 +84,8 @@ class Viewer(GlWindow):
         Where P writes ``clipvol-NNNN.png`` (Shift+P: ``clipvol-NNNN-nohud.png``), Shift+S
         ``tf-NNNN.json`` and C ``camera-NNNN.json`` (created when first needed).
     frame_time : float
-        Target frame time in seconds while the camera moves (0 or None: always full quality).
+        Target frame time in seconds while the camera moves (default 1/15: 15 fps; 0 or None:
+        always full quality).
     camera : Camera, optional
         The first view (e.g. from :func:`clipvol.scene.bookmarks.load_camera`).
     visible : bool
@@ -102,7 +104,7 @@ class Viewer(GlWindow):
 
     def __init__(self, source, *, size=(960, 640), memory_budget="256MB", texture_budget="256MB", threads=None,
                  params: RenderParams | None = None, tf="viridis", screenshot_dir=".", visible: bool = True,
-                 title: str = "clipvol", background=(0.0, 0.0, 0.0), frame_time: float | None = 0.1,
+                 title: str = "clipvol", background=(0.0, 0.0, 0.0), frame_time: float | None = DRAG_FRAME_S,
                  camera=None, series=None, rate: float = 4.0) -> None:
         params = params if params is not None else RenderParams(jitter=True)
 
@@ -428,10 +430,7 @@ class Viewer(GlWindow):
             self._version, self._view = version, view
             self._dirty = False
             cam = self.controls.camera(q.size(self.framebuffer_size))
-            # a moving view's coarser step, never past one brick edge (the longest step a frame may use)
-            step = max(self._base_step, min(self._base_step * q.step_factor, max_step(sess.pyramid)))
-            if sess.params.step != step:
-                sess.update(step=step)
+            self._apply_quality(q, cam)
             t0 = time.perf_counter()
             if self.slices is not None and self.slices.active:
                 img = self.slices.render(lambda size: self.controls.camera(size), self.framebuffer_size)
@@ -473,6 +472,21 @@ class Viewer(GlWindow):
         self._end_step()
         return rendered
 
+    def _apply_quality(self, q, cam) -> None:
+        """Set the session's parameters for a frame at quality ``q`` seen by ``cam``
+        (:func:`~clipvol.app.adaptive.frame_params`): a moving view's coarser step (never past one
+        brick edge, the longest step a frame may use) and one whole level; a full frame's are the
+        user's own, so a still image is what it is without adaptive quality."""
+        sess, st = self.session, self.state
+        previous = sess.params.level if not self._quality.full else None  # the preview's level so far
+        want = frame_params(q, sess.pyramid, cam, step=self._base_step, lod_threshold=st.lod_threshold,
+                            policy=st.mode, level=st.level if st.mode == "fixed" else None,
+                            max_step=max_step(sess.pyramid), previous=previous)
+        want["max_error"] = self._max_error if want["policy"] == "image" else None
+        changes = {k: v for k, v in want.items() if getattr(sess.params, k) != v}
+        if changes:
+            sess.update(**changes)
+
     def _image_lod_settings(self) -> dict:
         """HUD entries of image-based LOD: block budget and its estimated error (else none)."""
         if self.state.mode != "image":
@@ -511,7 +525,8 @@ class Viewer(GlWindow):
             q = self._quality
             fs = self.session.frame_stats
             if not q.full:
-                quality = f"interactive: {100 * q.scale:.0f} % resolution, step x{q.step_factor:.1f}"
+                quality = f"interactive: {100 * q.scale:.0f} % resolution, step x{q.step_factor:.1f}, " \
+                          f"level {self.session.params.level}"
             elif fs is not None and not fs.converged:
                 quality = "full quality, refining as bricks arrive"
             else:
@@ -560,9 +575,8 @@ class Viewer(GlWindow):
             Image.fromarray(self.read_screen(), "RGB").save(path)
         else:
             sess = self.session
-            if sess.params.step != self._base_step:
-                sess.update(step=self._base_step)
             cam = self.camera()
+            self._apply_quality(FULL, cam)
             img = sess.render(cam, self.controls.center_of_interest, wait=True, timeout=60.0)
             if self.state.outlines:
                 from ..app.overlay import draw_outlines

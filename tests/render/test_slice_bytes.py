@@ -17,6 +17,7 @@ import pytest
 
 from clipvol.loaders.numpy_array import NumpyLoader
 from clipvol.paging.cliptexture import ClipTexture
+from clipvol.paging.region import Region
 from clipvol.render.slice_action import SliceAction
 from clipvol.scene.plane import Plane
 
@@ -46,3 +47,61 @@ def test_multiresolution_slice_reads_no_more_than_full_resolution(gl, axis):
     multi, ok_multi = _bytes_read(gl, vol, plane, focus=tuple(plane.origin))
     assert ok_full and ok_multi
     assert multi <= full, (multi, full)
+
+
+class _CountingStore(Counting):
+    """The counting wrapper of a store on disk that also shows the store's manifest (what the slice
+    action prices a region by); the bytes the test counts come from the chunk files' sizes."""
+
+    @property
+    def manifest(self):
+        return self.inner.manifest
+
+
+def _head(shape=(189, 233, 197), seed=11) -> np.ndarray:
+    """An MNI-sized 'head': incompressible noise inside an ellipsoid, zero (the fill) around it, so
+    the level-0 bricks at the edges hold background and the coarse bricks over them hold tissue."""
+    z, y, x = np.ogrid[: shape[0], : shape[1], : shape[2]]
+    c = [(n - 1) / 2 for n in shape]
+    inside = ((z - c[0]) / 80.0) ** 2 + ((y - c[1]) / 100.0) ** 2 + ((x - c[2]) / 84.0) ** 2 <= 1.0
+    vol = np.random.default_rng(seed).integers(1, 256, size=shape, dtype=np.uint8)
+    return np.where(inside, vol, 0).astype(np.uint8)
+
+
+def _file_bytes(store, reads) -> int:
+    """Bytes of the chunk files ``reads`` name, from the file system (0: no file, the fill)."""
+    total = 0
+    for L, (bz, by, bx) in reads:
+        f = store / str(L) / "c" / str(bz) / str(by) / str(bx)
+        total += f.stat().st_size if f.is_file() else 0
+    return total
+
+
+@pytest.mark.parametrize("distance_factor", [1.0, 0.5])
+def test_a_slice_of_a_store_reads_no_more_bytes_than_the_full_resolution_slice(gl, tmp_path, distance_factor):
+    """Counted in bytes of the chunk files, not in bricks: a coarse brick over tissue costs more than
+    the background level-0 bricks it replaces. Before the slice priced its region by the manifest,
+    this slice read more bytes than the full-resolution one (at both distance factors); now it reads
+    no more, and where it draws the full-resolution slice its values are numpy's plane exactly."""
+    from clipvol.bricking.pipeline import brick_volume
+    from clipvol.paging.open import open_store
+
+    vol = _head()
+    store = tmp_path / "head.zarr"
+    brick_volume(vol, store, brick=32, progress=False)
+    pyr = open_store(store).pyramid
+    plane = Plane.axis(pyr, "axial")  # z = 94, through the centre
+    got = {}
+    for name, params in [("full", dict(level=0)),
+                         ("multi", dict(focus=tuple(plane.origin), distance_factor=distance_factor))]:
+        ld = _CountingStore(open_store(store))
+        # no cube windows filled before the slice hands its region (what `clipvol slice` does)
+        with ClipTexture(ld, "256MB", 2, region=Region.empty(pyr.num_levels)) as ct, \
+                SliceAction(gl, ct, **params) as sa:
+            _, values = sa.render(plane, wait=True, timeout=120, return_values=True)
+            assert ct.wait_until_idle(120) and sa.last_stats.converged
+            got[name] = (_file_bytes(store, set(ld.reads)), values, sa.last_params.level)
+    assert got["multi"][0] <= got["full"][0], (got["multi"][0], got["full"][0])
+    assert got["full"][2] == 0
+    if got["multi"][2] == 0:  # drawn at full resolution: numpy's plane, exactly
+        np.testing.assert_array_equal(got["multi"][1], vol[94].astype(np.float32))

@@ -178,10 +178,29 @@ def test_window_adapts_while_moving_and_refines_when_still(xdisplay, loader):
         v.step()
         assert not v._quality.full and v._frame.shape[0] < 96 and v._frame.shape[1] < 128
         assert v.session.params.step > 0.5  # the sample step grows too
+        assert v.session.params.policy == "fixed"  # one whole level: a cut drawn again while the view turns
+        v.controls.orbit(2, 0)
+        v.step()
+        assert v.session.frame_stats.replayed and not v._quality.full
         time.sleep(v.adaptive.settle_s + 0.05)
         v.step()
         assert v._quality.full and v._frame.shape[:2] == (96, 128) and v.session.params.step == 0.5
+        assert v.session.params.policy == v.state.mode and v.session.params.level is None
         assert v.adaptive.state == "refined"
+        _converge(v)
+        still, cam, coi = v._frame, v._frame_camera, v.controls.center_of_interest
+    # the still frame after a drag is the frame of a session that never moved (the user's LOD and step)
+    from clipvol.app.session import RenderSession
+    from clipvol.render.context import create_context
+    from clipvol.scene.params import RenderParams
+
+    ctx = create_context()
+    try:
+        with RenderSession(loader, ctx, params=RenderParams(jitter=True)) as s:
+            ref = s.render(cam, coi, wait=True)
+    finally:
+        ctx.release()
+    np.testing.assert_array_equal(still, ref)
 
 
 def test_window_saves_tf_and_camera_and_takes_screenshots_without_hud(xdisplay, loader, tmp_path):

@@ -183,6 +183,133 @@ def scroll(ctx, args, writer, view: str, px: float) -> list:
     return out
 
 
+def geometry(args, writer, samples: int = 200, seed: int = 0) -> None:
+    """Chunks of the slice region (:func:`clipvol.scene.slice_region.slice_region`, computed from the
+    pyramid alone) against the full-resolution slab, for the centre (the benchmark's plane and point
+    of interest: on brick faces at every level, where eight nodes meet) and for ``samples`` axial
+    planes at random depths with a random point of interest on each, at every distance factor."""
+    from clipvol.bricking.pyramid import Pyramid
+    from clipvol.scene.params import RenderParams
+    from clipvol.scene.plane import Plane
+    from clipvol.scene.slice_region import slice_region
+
+    rng = np.random.default_rng(seed)
+    n = args.size
+    for brick in args.bricks:
+        pyr = Pyramid.build((n, n, n), (brick,) * 3, dtype="float32")
+        cases = [("centre", (n - 1) / 2.0, ((n - 1) / 2.0, (n - 1) / 2.0))]
+        cases += [("random", float(rng.uniform(0, n - 1)), tuple(rng.uniform(0, n - 1, 2).tolist()))
+                  for _ in range(samples)]
+        for df in args.distance_factors:
+            ratios = []
+            for kind, z, (x, y) in cases:
+                plane = Plane.axis(pyr, "axial", z)
+                full = slice_region(pyr, plane, RenderParams(policy="plane", level=0), 1.0, size=(n, n))
+                multi = slice_region(pyr, plane, RenderParams(policy="plane", focus=(x, y, z), distance_factor=df),
+                                     1.0, size=(n, n))
+                per_level = [len(b) for b in multi.bricks]
+                nf = sum(len(b) for b in full.bricks)
+                ratio = nf / max(sum(per_level), 1)
+                if kind == "random":
+                    ratios.append(ratio)
+                writer.writerow(dict(store=f"{n}^3", brick=brick, distance_factor=df, case=kind, z=round(z, 2),
+                                     focus_x=round(x, 2), focus_y=round(y, 2), region_chunks=sum(per_level),
+                                     per_level=" ".join(map(str, per_level)), full_resolution_chunks=nf,
+                                     ratio=round(ratio, 3)))
+                if kind == "centre":
+                    print(f"geometry {n}^3 b{brick} df={df} centre: region {sum(per_level)} chunks {per_level}, "
+                          f"full resolution {nf}: {ratio:.2f}x")
+            r = np.array(ratios)
+            print(f"geometry {n}^3 b{brick} df={df}, {len(r)} random planes and points of interest: fewer chunks "
+                  f"min {r.min():.2f}x, median {np.median(r):.2f}x, max {r.max():.2f}x; >= 8x on "
+                  f"{100 * np.mean(r >= 8):.0f} %")
+
+
+def _zarr_plane(path, z: float):
+    """The level-0 voxel planes around ``z`` read with zarr-python alone (outside our code path):
+    ``(seconds, bytes of the chunk files it touched, plane as float64)``, linear between the two."""
+    import time
+
+    import zarr
+
+    t0 = time.perf_counter()
+    arr = zarr.open_array(str(Path(path) / "0"), mode="r")
+    z0 = min(int(np.floor(z)), arr.shape[0] - 2)
+    t = z - z0
+    two = np.asarray(arr[z0:z0 + 2 if t > 0 else z0 + 1]).astype(np.float64)
+    plane = two[0] if t == 0 else (1.0 - t) * two[0] + t * two[1]
+    secs = time.perf_counter() - t0
+    cz = arr.chunks[0]
+    layers = sorted({z0 // cz, (z0 + (1 if t > 0 else 0)) // cz})
+    files = [f for f in (Path(path) / "0").rglob("*") if f.is_file() and f.name != "zarr.json"]
+    # chunk keys c/<z>/<y>/<x>: the files of the layers the read touched
+    nbytes = sum(f.stat().st_size for f in files if f.parent.parent.name.isdigit()
+                 and int(f.parent.parent.name) in layers and f.parent.parent.parent.name == "c")
+    return secs, nbytes, plane
+
+
+def real_stores(ctx, args, writer, rounds: int = 3) -> None:
+    """A multiresolution slice of a real store on disk (axial, through the centre, point of interest
+    there) against its full-resolution slice (``level=0``) and against zarr-python reading the same
+    level-0 plane: bytes read from the chunk files (the loader's own counter, and the files' sizes
+    for zarr-python), wall time from a cold clip-texture to the converged slice with its queue
+    drained, and the slice's error against the full-resolution one (% pixels Delta E >= 6, grey
+    window over the value range). Rounds alternate the three reads (the OS page cache is warm
+    after the first: all three read from memory)."""
+    import statistics
+    import time
+
+    from clipvol.paging.cliptexture import ClipTexture
+    from clipvol.paging.open import open_store
+    from clipvol.paging.region import Region
+    from clipvol.render.slice_action import SliceAction, window_level_grey
+    from clipvol.scene.metrics import percent_delta_e
+    from clipvol.scene.plane import Plane
+
+    for path in args.real:
+        pyr = open_store(path).pyramid
+        plane = Plane.axis(pyr, "axial")
+        lo, hi = pyr.value_range
+        win = ((lo + hi) / 2.0, max(hi - lo, 1e-300))
+        runs = {"full": dict(level=0)}
+        runs.update({f"multires df={df:g}": dict(focus=tuple(plane.origin), distance_factor=df)
+                     for df in args.distance_factors})
+        times: dict = {k: [] for k in list(runs) + ["zarr"]}
+        got: dict = {}
+        for _ in range(rounds):
+            for name, params in runs.items():
+                ld = open_store(path)
+                t0 = time.perf_counter()
+                with ClipTexture(ld, "256MB", args.threads, region=Region.empty(pyr.num_levels)) as ct, \
+                        SliceAction(ctx, ct, **params) as sa:
+                    rgba = sa.render(plane, window=win, wait=True, timeout=600)
+                    ok = sa.last_stats.converged
+                    ct.wait_until_idle(600)
+                times[name].append(time.perf_counter() - t0)
+                got[name] = (rgba, ld.read_counter.snapshot(), ok)
+            secs, nbytes, values = _zarr_plane(path, plane.origin[2] / pyr.spacing[0])
+            times["zarr"].append(secs)
+        full_rgba, full_read, _ = got["full"]
+        zarr_grey = window_level_grey(values, *win)
+        for name in list(runs) + ["zarr"]:
+            if name == "zarr":
+                nb, nr, ok, de = nbytes, "", True, percent_delta_e(zarr_grey, full_rgba)
+            else:
+                rgba, rd, ok = got[name]
+                nb, nr, de = rd.bytes, rd.reads, percent_delta_e(rgba, full_rgba)
+            t = statistics.median(times[name])
+            writer.writerow(dict(store=Path(path).name, brick=pyr.brick_shape[0], what=name, bytes_read=nb,
+                                 chunks_read=nr, converged=ok, median_s=round(t, 4),
+                                 bytes_vs_full=round(full_read.bytes / max(nb, 1), 3),
+                                 time_vs_zarr=round(t / statistics.median(times["zarr"]), 2),
+                                 pct_de6_vs_full=round(de, 3)))
+            print(f"{Path(path).name} {name}: {nb / 1e3:.0f} kB ({nr} chunks), "
+                  f"{full_read.bytes / max(nb, 1):.2f}x fewer "
+                  f"than the full-resolution slice, {1e3 * t:.0f} ms = {t / statistics.median(times['zarr']):.1f}x "
+                  f"zarr-python's plane; Delta E>=6 against the full-resolution slice on {de:.2f} % of pixels"
+                  + ("" if ok else " (NOT CONVERGED)"))
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--size", type=int, default=1024)
@@ -200,8 +327,36 @@ def main(argv=None) -> int:
                    help="the scroll's distance factor (1.0 makes the level-0 disc 8 bricks wide at 64^3)")
     p.add_argument("--stride", type=float, default=16.0)
     p.add_argument("--quick", action="store_true")
+    p.add_argument("--geometry", action="store_true",
+                   help="only the region's chunks from the pyramid's geometry (no rendering, seconds): "
+                        "bench_slice_io_geometry.csv")
+    p.add_argument("--real", nargs="+", default=None, metavar="STORE",
+                   help="only real stores on disk (e.g. the MNI template bricked by clipvol brick): bytes, time "
+                        "and error of the slice against the full-resolution one and a zarr-python read of the "
+                        "plane: bench_slice_io_real.csv")
     p.add_argument("--out", type=Path, default=HERE / "results")
     args = p.parse_args(argv)
+    if args.real:
+        from clipvol.render import create_context
+
+        args.out.mkdir(parents=True, exist_ok=True)
+        ctx = create_context()
+        with open(args.out / "bench_slice_io_real.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, ["store", "brick", "what", "bytes_read", "chunks_read", "converged", "median_s",
+                                   "bytes_vs_full", "time_vs_zarr", "pct_de6_vs_full"])
+            w.writeheader()
+            real_stores(ctx, args, w)
+        return 0
+    if args.geometry:
+        args.out.mkdir(parents=True, exist_ok=True)
+        if args.distance_factors == [1.0, 0.5]:
+            args.distance_factors = [1.0, 0.5, 0.25]
+        with open(args.out / "bench_slice_io_geometry.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, ["store", "brick", "distance_factor", "case", "z", "focus_x", "focus_y",
+                                   "region_chunks", "per_level", "full_resolution_chunks", "ratio"])
+            w.writeheader()
+            geometry(args, w)
+        return 0
     if args.quick:
         args.size, args.scroll_size, args.steps = 256, 1024, 4
         args.bricks, args.cube_budgets, args.distance_factors = [32], ["64MB"], [0.5]
