@@ -24,7 +24,8 @@ rounds:
   32, 64, 128; the image policy under the error budgets ``max_error`` 10 %, 5 %, 2 %; adaptive image
   sampling (``refine_tolerance``, :mod:`clipvol.render.refine`) with level 0 at step 2 (tolerances
   0.08 and 0.16), 2.5 (0.3) and 3 (0.16), with the image policy at 5 % (0.16), and with level 1
-  at step 0.5, 0.75 (0.16), 1 (0.08, 0.16 and 0.3), 1.5 (0.08, 0.16) and 2 (0.12); where
+  at step 0.5, 0.75 (0.16), 1 (0.08, 0.16 and 0.3), 1.5 (0.08, 0.16) and 2 (0.12), and without
+  it at step 1, 1.5 and 2; where
   ``RenderParams`` has ``classify`` (consistent coarse levels), every setting again with
   ``classify="distribution"`` (rows ``... dist``; else the rows say ``classify n/a``).
 
@@ -81,6 +82,7 @@ def settings() -> dict:
     out.update({f"L1 step={st:g} refine={tol:g}": dict(policy="fixed", level=1, step=st, refine_tolerance=tol)
                 for st, tol in ((0.5, 0.16), (0.75, 0.16), (1.0, 0.08), (1.0, 0.16), (1.0, 0.3), (1.5, 0.08),
                                 (1.5, 0.16), (2.0, 0.12))})
+    out.update({f"L1 step={st:g}": dict(policy="fixed", level=1, step=st) for st in (1.0, 1.5, 2.0)})
     return out
 
 

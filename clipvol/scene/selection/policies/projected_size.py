@@ -10,12 +10,12 @@ others, every one of them is refined when that grows the cut by at most :data:`E
 one level merges into one box (:func:`~clipvol.scene.selection.merge_items`), and the renderer's
 rays restart at every box or page-table node they cross, which on a CPU rasteriser costs more than
 the samples coarser bricks save. Measured on the MNI ICBM152 T1 template (32³ bricks, ``bone``,
-256², Mesa llvmpipe; ``docs/benchmarks.md``, "The benchmark that decides"): ``lod_threshold`` 4's
-cut of 44 level-1 bricks and one level-2 brick (8 boxes) drew in 1.7-1.9x the time of the 48
-level-1 bricks in one box, slower than the full-resolution frame; the same 48 level-1 bricks as 48
-page-table nodes took 1.4-1.6x the one box. A finer node only lowers the error, so evening out
-never draws a worse picture. ``max_texels_drawn`` (the greedy form) is not evened out: its budget
-chooses the cut.
+256², Mesa llvmpipe; ``tools/bench/bench_cut_boxes.py``, docs/benchmarks.md, "Multi-level cuts"):
+``lod_threshold`` 4's cut of 36-45 level-1 and level-2 bricks (8 boxes) drew in 1.55-2.37x the time
+of the 48 level-1 bricks in one box, slower than the full-resolution frame; the same 48 level-1
+bricks as 48 page-table nodes took 1.44-1.49x the one box. Evening out only refines (a finer node
+is nearer level 0), and every leaf's voxel still projects to at most ``lod_threshold`` pixels.
+``max_texels_drawn`` (the greedy form) is not evened out: its budget chooses the cut.
 """
 
 from __future__ import annotations
@@ -31,8 +31,8 @@ __all__ = ["ProjectedSize", "TexelBudget", "even_out"]
 def even_out(refine: np.ndarray, growth: float = EVEN_OUT_GROWTH, children: int = 8) -> np.ndarray:
     """``refine`` (one level's nodes) with every node refined when some are and refining all of them
     grows the cut at most ``growth`` times: ``children * n <= growth * ((n - r) + children * r)``
-    for ``r`` of ``n`` nodes refined (``children``: 8, an octree's; edge nodes have fewer, so the
-    growth is over-estimated and the rule errs toward the mixed cut)."""
+    for ``r`` of ``n`` nodes refined (``children``: 8 per node, an octree's inner nodes; a node at
+    the volume's edge has fewer, which the rule does not count)."""
     refine = np.asarray(refine, dtype=bool)
     n, r = len(refine), int(refine.sum())
     if 0 < r < n and children * n <= growth * ((n - r) + children * r):
