@@ -1,5 +1,5 @@
 """The projected-size policy evened out: level by level, where the paper's rule refines some nodes of
-a level and not the others, all of them are refined when that grows the cut at most 2x.
+a sibling group and not the others, all of them are refined when that grows the group at most 2x.
 
 The reference recurses level by level from first principles (node boxes from the brick grid, the
 projected voxel size from the box's nearest corner depth, the growth test written from its
@@ -42,14 +42,22 @@ def px(cam, level, b):
 
 
 def reference(cam, thr, evened=True):
-    """Leaves of the level-by-level cut: the paper's rule, then (``evened``) every node of a level
-    refined where some are and ``8 n <= 2 ((n - r) + 8 r)``."""
+    """Leaves of the level-by-level cut: the paper's rule, then (``evened``) every node of a sibling
+    group refined where ``r`` of its ``n`` are and ``8 n <= 2 ((n - r) + 8 r)``, then the same test
+    over all the level's nodes."""
     leaves, level, nodes = set(), TOP, [(0, 0, 0)]
     while nodes:
-        need = [level > 0 and px(cam, level, b) > thr for b in nodes]
-        n, r = len(nodes), sum(need)
-        if evened and 0 < r < n and 8 * n <= 2 * ((n - r) + 8 * r):
-            need = [True] * n
+        need = {b: level > 0 and px(cam, level, b) > thr for b in nodes}
+        if evened:
+            for p in {tuple(i // 2 for i in b) for b in nodes}:  # per sibling group (one parent's children)
+                group = [b for b in nodes if tuple(i // 2 for i in b) == p]
+                n, r = len(group), sum(need[b] for b in group)
+                if 0 < r < n and 8 * n <= 2 * ((n - r) + 8 * r):
+                    need.update({b: True for b in group})
+            n, r = len(nodes), sum(need.values())  # then the level as a whole
+            if 0 < r < n and 8 * n <= 2 * ((n - r) + 8 * r):
+                need = {b: True for b in nodes}
+        need = [need[b] for b in nodes]
         leaves |= {(level, b) for b, nd in zip(nodes, need) if not nd}
         nodes = [(2 * b[0] + dz, 2 * b[1] + dy, 2 * b[2] + dx) for b, nd in zip(nodes, need) if nd
                  for dz in (0, 1) for dy in (0, 1) for dx in (0, 1)]
@@ -102,6 +110,21 @@ def test_even_out_growth_rule():
     assert even_out(np.array([True] * 3 + [False] * 5)).sum() == 3
     assert even_out(np.array([True] * 4 + [False] * 4)).all()
     assert not even_out(np.zeros(5, dtype=bool)).any()
+    # per group: 7 of 8 in one group (evened), 1 of 8 in the other (kept)
+    need = np.array([True] * 7 + [False] + [True] + [False] * 7)
+    got = even_out(need, np.repeat([5, 9], 8))
+    assert got[:8].all() and got[8:].sum() == 1
+
+
+def test_a_smaller_threshold_is_never_coarser():
+    """Per sibling group, evening keeps the threshold's order: every leaf of the cut at a threshold
+    is covered by leaves as fine or finer at any smaller one."""
+    for eye in EYES:
+        cam = whole_view(eye)
+        cuts = [set(select(PYR, cam, RenderParams(lod_threshold=t)).wanted) for t in sorted(THRESHOLDS)]
+        for finer, coarser in zip(cuts, cuts[1:]):
+            for lv, b in coarser:
+                assert any(l2 <= lv and all((ci >> (lv - l2)) == bi for ci, bi in zip(c, b)) for l2, c in finer)
 
 
 def test_the_greedy_form_is_not_evened():
