@@ -80,7 +80,8 @@ the image policy asks for the errors of the frame's classify mode
 ``classify``). The bias of that mode is the larger of the normal model's residual
 (:func:`~clipvol.scene.lod_error.distribution_residual`: the renderer's pre-integrated colour of each
 coarse code against the mean colour of the fine values beneath it) and
-:data:`~clipvol.scene.lod_error.DISTRIBUTION_FLOOR` (1) times the mean mode's bias: the residual is
+:data:`~clipvol.scene.lod_error.DISTRIBUTION_FLOOR` times the mean mode's bias (at 1, the default, the
+mean mode's bias itself, as measured best): the residual is
 3-6x below the mean's on the MNI template, but it does not see the blur a coarse level keeps, and
 alone it let a 5 % budget choose level 3 on overviews (31 % of pixels measured against an estimate of
 4 %; smaller floors measured in docs/benchmarks.md).
