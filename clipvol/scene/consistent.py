@@ -43,7 +43,7 @@ from ..errors import ParameterError
 from .transfer import correct_opacity, fine_table
 
 __all__ = ["SPREAD_ROWS", "SPREAD_MAX", "KERNEL_SIGMAS", "MODELS", "MODEL", "spread_row_sigmas", "distribution_tables",
-           "DistributionRanges", "expected_colours", "spread_support"]
+           "DistributionRanges", "expected_colours", "expected_premultiplied", "spread_support"]
 
 #: spread rows of the table (per level)
 SPREAD_ROWS = 32
@@ -222,19 +222,9 @@ def _colour_rows(table_bytes: bytes, n: int, rows: int) -> np.ndarray:
 _COLOUR_ROWS: dict[bytes, np.ndarray] = {}
 
 
-def expected_colours(tf, values, spreads, data_range=None, rows: int = SPREAD_ROWS) -> np.ndarray:
-    """``(..., 3)`` float64: the transfer function's straight colour averaged over ``N(value, spread)``
-    (raw units) - what an opaque slice through the level-0 voxels beneath a coarse pixel shows on
-    average (opacity plays no part in a slice). Bilinear in the table coordinate and the spread row
-    like the volume paths' lookup; the tables are kept per transfer function (the last four)."""
-    table = np.ascontiguousarray(np.asarray(tf.table, dtype=np.float64))
-    key = table.tobytes() + MODEL.encode()
-    tab = _COLOUR_ROWS.get(key)
-    if tab is None:
-        tab = _colour_rows(table.tobytes(), len(table), rows)
-        while len(_COLOUR_ROWS) >= 4:
-            _COLOUR_ROWS.pop(next(iter(_COLOUR_ROWS)))
-        _COLOUR_ROWS[key] = tab
+def _bilinear(tab: np.ndarray, tf, values, spreads, data_range, rows: int) -> np.ndarray:
+    """``tab`` ``(rows, N, c)`` (spread row, fine table entry) read at ``values`` and ``spreads`` (raw
+    units): bilinear in the table coordinate and the spread row, like the volume paths' lookup."""
     lo, hi = tf.window(data_range)
     width = max(abs(float(hi) - float(lo)), 1e-300)
     t = tf.normalise(np.asarray(values, dtype=np.float64), data_range)
@@ -250,3 +240,40 @@ def expected_colours(tf, values, spreads, data_range=None, rows: int = SPREAD_RO
     a = tab[u0, x0] * (1 - fx) + tab[u0, x1] * fx
     b = tab[u1, x0] * (1 - fx) + tab[u1, x1] * fx
     return a * (1 - fu) + b * fu
+
+
+def expected_colours(tf, values, spreads, data_range=None, rows: int = SPREAD_ROWS) -> np.ndarray:
+    """``(..., 3)`` float64: the transfer function's straight colour averaged over ``N(value, spread)``
+    (raw units) - what an opaque slice through the level-0 voxels beneath a coarse pixel shows on
+    average (opacity plays no part in a slice). Bilinear in the table coordinate and the spread row
+    like the volume paths' lookup; the tables are kept per transfer function (the last four)."""
+    table = np.ascontiguousarray(np.asarray(tf.table, dtype=np.float64))
+    key = table.tobytes() + MODEL.encode()
+    tab = _COLOUR_ROWS.get(key)
+    if tab is None:
+        tab = _colour_rows(table.tobytes(), len(table), rows)
+        while len(_COLOUR_ROWS) >= 4:
+            _COLOUR_ROWS.pop(next(iter(_COLOUR_ROWS)))
+        _COLOUR_ROWS[key] = tab
+    return _bilinear(tab, tf, values, spreads, data_range, rows)
+
+
+def expected_premultiplied(tf, values, spreads, data_range=None, rows: int = SPREAD_ROWS) -> np.ndarray:
+    """``(..., 3)`` float64: the premultiplied colour ``E[a c]`` over ``N(value, spread)`` (raw units,
+    opacity not corrected for a step) - what a coarse sample of consistent levels adds per unit of
+    opacity, read from the renderer's own tables (:func:`distribution_tables`, bilinear like its
+    lookup). The visible-error estimate (:func:`clipvol.scene.lod_error.classification_bias`)
+    compares it with the mean premultiplied colour of the fine voxels the sample stands for."""
+    table = np.ascontiguousarray(np.asarray(tf.table, dtype=np.float64))
+    key = table.tobytes() + MODEL.encode() + bytes([rows])
+    prem = _PREMULTIPLIED_ROWS.get(key)
+    if prem is None:
+        tab = distribution_tables(table, [1.0], rows)[0]
+        prem = tab[..., :3] * tab[..., 3:4]
+        while len(_PREMULTIPLIED_ROWS) >= 4:
+            _PREMULTIPLIED_ROWS.pop(next(iter(_PREMULTIPLIED_ROWS)))
+        _PREMULTIPLIED_ROWS[key] = prem
+    return _bilinear(prem, tf, values, spreads, data_range, rows)
+
+
+_PREMULTIPLIED_ROWS: dict[bytes, np.ndarray] = {}

@@ -23,7 +23,9 @@ rounds:
   step, as always); fixed levels 1 and 2; projected size at ``lod_threshold`` 2, 4, 8; the image policy at block budgets
   32, 64, 128; the image policy under the error budgets ``max_error`` 10 %, 5 %, 2 %; adaptive image
   sampling (``refine_tolerance``, :mod:`clipvol.render.refine`) with level 0 at step 2 (tolerances
-  0.08 and 0.16), 2.5 (0.3) and 3 (0.16), and with the image policy at 5 % (0.16); where
+  0.08 and 0.16), 2.5 (0.3) and 3 (0.16), with the image policy at 5 % (0.16), and with level 1
+  at step 0.5, 0.75 (0.16), 1 (0.08, 0.16 and 0.3), 1.5 (0.08, 0.16) and 2 (0.12), and without
+  it at step 1, 1.5 and 2; where
   ``RenderParams`` has ``classify`` (consistent coarse levels), every setting again with
   ``classify="distribution"`` (rows ``... dist``; else the rows say ``classify n/a``).
 
@@ -75,6 +77,12 @@ def settings() -> dict:
     out.update({f"step={st:g} refine={tol:g}": dict(policy="fixed", level=0, step=st, refine_tolerance=tol)
                 for st, tol in ((2.0, 0.08), (2.0, 0.16), (2.5, 0.3), (3.0, 0.16))})
     out["max-error=5% refine=0.16"] = dict(policy="image", max_error=0.05, refine_tolerance=0.16)
+    # level 1 (a consistent level with classify="distribution") with adaptive image sampling, at its
+    # own step and at 1.5x / 2x it (the step is in voxels of the level drawn: level 1's 1 is 2 of level 0's)
+    out.update({f"L1 step={st:g} refine={tol:g}": dict(policy="fixed", level=1, step=st, refine_tolerance=tol)
+                for st, tol in ((0.5, 0.16), (0.75, 0.16), (1.0, 0.08), (1.0, 0.16), (1.0, 0.3), (1.5, 0.08),
+                                (1.5, 0.16), (2.0, 0.12))})
+    out.update({f"L1 step={st:g}": dict(policy="fixed", level=1, step=st) for st in (1.0, 1.5, 2.0)})
     return out
 
 

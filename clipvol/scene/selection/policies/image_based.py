@@ -74,10 +74,17 @@ the full-resolution frame's own error (0-0.9 % of pixels there) nor the non-empt
 0.01 of the converged picture's) nor the image size (256² and 512² measure the same) explains the
 gap. It guides the cut; it is not a bound.
 
-Consistent coarse levels (``RenderParams.classify = "distribution"``, where it exists) change a
-coarse level's error: the image policy asks for the errors of the frame's classify mode
+Consistent coarse levels (``RenderParams.classify = "distribution"``) change a coarse level's error:
+the image policy asks for the errors of the frame's classify mode
 (:meth:`clipvol.render.image_lod.ImageLod.errors_for`, :func:`~clipvol.scene.lod_error.lod_errors`'s
-``classify``), the hook where that level's own table goes.
+``classify``). The bias of that mode is the larger of the normal model's residual
+(:func:`~clipvol.scene.lod_error.distribution_residual`: the renderer's pre-integrated colour of each
+coarse code against the mean colour of the fine values beneath it) and
+:data:`~clipvol.scene.lod_error.DISTRIBUTION_FLOOR` times the mean mode's bias (at 1, the default, the
+mean mode's bias itself, as measured best): the residual is
+3-6x below the mean's on the MNI template, but it does not see the blur a coarse level keeps, and
+alone it let a 5 % budget choose level 3 on overviews (31 % of pixels measured against an estimate of
+4 %; smaller floors measured in docs/benchmarks.md).
 
 With ``max_error`` (RenderParams; ``--max-error 5%``) the greedy refinement stops as soon as the
 estimate is at most that fraction - the error budget chooses the cut's size, not a brick count.
