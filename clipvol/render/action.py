@@ -282,7 +282,7 @@ class ClipRenderAction:
         plan = self.frame_loop.run(cam, self.params, transparent=self._transparent(transfer_function),
                                    policy=policy, wait=wait, timeout=timeout)
         sel, times = plan.selection, dict(plan.times)
-        self._replayed = plan.replayed
+        self._replayed = plan.replayed or plan.updated  # items not in this camera's order
         image, draw_t, read_t = self._draw(cam, transfer_function, sel)
         times["draw"], times["readback"] = draw_t, read_t
         times["total"] = time.perf_counter() - t_start

@@ -26,6 +26,15 @@ traversal, no reservations, no uploads - while all of those are unchanged and
 same cut (a camera-free policy: the fixed level; every culled box still out of view, every leaf in).
 A brick that arrives or leaves, an upload, a new table or new parameters end the replay, and the
 next frame selects from nothing. ``FramePlan.replayed`` says which frames were drawn again.
+
+A projected-size cut changes with the camera, but only in a band of nodes near the level
+boundaries and the frustum's sides: after a converged frame the loop keeps it as a
+:class:`~clipvol.scene.selection.kept_cut.KeptCut` (under the same state key) and updates it for
+the next camera, re-testing only that band, while every brick of the updated cut and every
+neighbour its filtering reads is on the GPU already (else the frame selects and uploads from
+nothing). The updated cut is the fresh selection's exactly, its items in depth-first order
+(``Selection.ordered`` False, ``FramePlan.updated``): the render action orders the merged boxes
+where a path needs an order; the single pass needs none.
 """
 
 from __future__ import annotations
@@ -39,6 +48,8 @@ from ..paging.cliptexture import BrickState, ClipTexture
 from ..scene.params import RenderParams
 from ..scene.selection import Selection, select
 from ..scene.selection.coherence import cut_holds, replayable
+from ..scene.selection.kept_cut import KeptCut
+from ..scene.selection.policies import policy_for
 
 __all__ = ["FrameLoop", "FramePlan"]
 
@@ -55,6 +66,8 @@ class FramePlan:
     times: dict = field(default_factory=dict)
     #: the last frame's cut drawn again (see the module docstring, "Coherence")
     replayed: bool = False
+    #: the kept projected-size cut updated for this camera (module docstring): items in depth-first order
+    updated: bool = False
 
 
 class FrameLoop:
@@ -66,6 +79,8 @@ class FrameLoop:
         self.pyramid = clip_texture.pyramid
         #: (state key, selection) of the last converged cut (module docstring, "Coherence")
         self._kept: tuple | None = None
+        #: (state key, KeptCut) of the last converged projected-size cut (module docstring)
+        self._cut: tuple | None = None
 
     def _state(self, params: RenderParams, transparent, policy, version: int | None = None):
         """What a cut was made under, apart from the camera (None: nothing to replay against);
@@ -90,6 +105,25 @@ class FrameLoop:
         if kept is None or not self._same(kept[0], self._state(params, transparent, policy)):
             return None
         return kept[1] if cut_holds(kept[1], camera) else None
+
+    def update(self, camera, params: RenderParams, transparent=None, policy=None) -> Selection | None:
+        """The kept projected-size cut updated for ``camera``, if everything it draws (and every
+        neighbour its filtering reads) is on the GPU already (module docstring); else None."""
+        kept = self._cut
+        if kept is None or not self._same(kept[0], self._state(params, transparent, policy)):
+            return None
+        sel = kept[1].update(camera, ordered=False)
+        if sel is None:
+            return None
+        cache = self.cache.begin_frame(self.clip_texture, 0)  # reserves the slots, uploads nothing
+        keys = sel.item_keys()
+        for L in np.unique(keys[:, 0]).tolist():
+            if not cache.resident_mask(L, keys[keys[:, 0] == L, 1:]).all():
+                return None
+        cache.reserve_neighbours(sel)
+        if cache.pending_keys() or cache.missing_neighbours(sel):
+            return None
+        return sel
     def _upload_budget(self, params: RenderParams) -> int | None:
         """``texels_per_frame``, never less than one brick (a frame always makes progress)."""
         if params.texels_per_frame is None:
@@ -152,7 +186,12 @@ class FrameLoop:
         if kept is not None:
             times["select"] = time.perf_counter() - t0
             return FramePlan(kept, True, 1, 0, 0, times, replayed=True)
-        self._kept = None
+        last = self._cut[1].selection if self._cut is not None else None
+        sel = self.update(camera, params, transparent, policy)
+        if sel is not None:
+            times["select"] = time.perf_counter() - t0
+            return FramePlan(sel, True, 1, 0, 0, times, replayed=sel is last, updated=sel is not last)
+        self._kept = self._cut = None
         deadline = None if timeout is None else time.perf_counter() + float(timeout)
         passes = up_bytes = up_bricks = 0
         uploaded_now: set = set()  # bricks uploaded by this call: a second upload means thrashing
@@ -192,4 +231,9 @@ class FrameLoop:
         if converged and replayable(sel):  # kept with what it was made under, after its uploads
             # (the version before its last selection: a brick that arrived since ends the replay)
             self._kept = (self._state(params, transparent, policy, version), sel)
+        elif converged and policy is None and not (sel.counts.get("fallback") or sel.counts.get("missing")
+                                                   or sel.counts.get("outside_window")):
+            cut = KeptCut(self.pyramid, params, policy_for(params), self.cache, transparent)
+            if cut.supported:  # updated from the next frame on (module docstring)
+                self._cut = (self._state(params, transparent, policy, version), cut)
         return FramePlan(sel, converged, passes, up_bytes, up_bricks, times)

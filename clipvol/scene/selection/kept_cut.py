@@ -9,9 +9,11 @@ arrays (level, index, world box, parent row, the camera-free tests: shape, trans
 new camera:
 
 1. re-tests only the **band**: each node keeps its *slack*, how far (in world units) the camera's
-   frustum planes and the node's nearest depth may move before either test can flip; a camera
-   change is bounded by :func:`camera_change` (the eye's and the view direction's movement times
-   the volume's radius), so a node whose slack exceeds the bound keeps its answers untested;
+   frustum planes and the node's nearest depth may move before either test can flip, and the
+   camera it was last tested at; the change from that camera to this one is bounded by
+   :func:`camera_change` (the planes' and the view direction's turn times the volume's radius,
+   plus their shift at its centre), so a node whose slack exceeds its bound keeps its answers
+   untested;
 2. propagates "reached" from the root through the parents' answers (one gather per level);
 3. grows the tree below nodes that now refine and had no children yet (the traversal's own
    expansion, per level);
@@ -45,9 +47,9 @@ from .traversal import Traversal
 
 __all__ = ["KeptCut", "camera_change", "depth_first"]
 
-#: rebuild the slacks against the current camera when the band holds more than this share of the
-#: nodes (a long path drifted from the camera the slacks were measured at)
-REBASE_SHARE = 0.25
+#: cameras kept to bound each node's change from the one it was last tested at; past this many,
+#: those no node refers to are dropped (and if still more, every node is tested again)
+MAX_CAMERAS = 64
 
 
 def _camera_terms(camera, centre: np.ndarray) -> np.ndarray:
@@ -62,13 +64,13 @@ def _camera_terms(camera, centre: np.ndarray) -> np.ndarray:
 
 
 def camera_change(a: np.ndarray, b: np.ndarray, radius: float) -> np.ndarray:
-    """``(7,)``: the most any frustum plane's value (rows 0-5) and any depth (row 6) of a point
+    """``(..., 7)``: the most any frustum plane's value (rows 0-5) and any depth (row 6) of a point
     within ``radius`` of the centre can change between cameras with terms ``a`` and ``b``
-    (:func:`_camera_terms`): ``|dn| radius + |d(value at centre)|``. A bound, and a metric: the
-    change over a path is at most the sum of its steps', so slacks may be measured against one
-    reference camera."""
-    d = b - a
-    return np.linalg.norm(d[:, :3], axis=1) * radius + np.abs(d[:, 3])
+    (:func:`_camera_terms`; ``a`` may hold many cameras, ``(..., 7, 4)``): ``|dn| radius +
+    |d(value at centre)|``, each point's value being ``n . (x - centre)`` plus the value at the
+    centre."""
+    d = np.asarray(b) - np.asarray(a)
+    return np.linalg.norm(d[..., :3], axis=-1) * radius + np.abs(d[..., 3])
 
 
 def depth_first(levels: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -123,8 +125,8 @@ class KeptCut:
         self.ref = np.zeros(1, dtype=bool)
         self.slack = np.full((1, 2), -np.inf)  # (frustum, depth) slack against the reference camera
         self.reached = np.ones(1, dtype=bool)
-        self._ref_terms = None
-        self._ref_camera = None
+        self.cam_id = np.zeros(1, dtype=np.int64)  # the camera (in _cams) each node was last tested at
+        self._cams: list[np.ndarray] = []
         self.camera = None
         self.retested = 0  # nodes re-tested by the last update (the band), for benchmarks and tests
         self.selection: Selection | None = None
@@ -145,9 +147,9 @@ class KeptCut:
         return out
 
     # -- the camera's tests ----------------------------------------------------------------------
-    def _test(self, rows: np.ndarray, camera, terms) -> None:
-        """The frustum and refine answers of ``rows`` for ``camera``, and their slacks (measured
-        against the reference camera: today's slack less the reference-to-now bound)."""
+    def _test(self, rows: np.ndarray, camera) -> None:
+        """The frustum and refine answers of ``rows`` for ``camera`` (the last of ``_cams``), and
+        their slacks: how much either may change before an answer can flip."""
         if not len(rows):
             return
         t, tree = self._t, self.tree
@@ -167,10 +169,9 @@ class KeptCut:
         # a kept node flips when its smallest reach crosses 0, a culled one when its most negative does
         fslack = np.where(infr, reach.min(axis=1), -np.where(reach < 0, reach, 0).min(axis=1))
         self.infr[rows], self.ref[rows] = infr, ref
-        back = camera_change(self._ref_terms, terms, self.radius) if self._ref_terms is not None else np.zeros(7)
-        slack = np.stack([fslack - back[:6].max(), dslack - back[6]], axis=1)
         # rounding of the tests themselves: a node this close to flipping is always re-tested
-        self.slack[rows] = slack - 1e-9 * max(1.0, self.radius)
+        self.slack[rows] = np.stack([fslack, dslack], axis=1) - 1e-9 * max(1.0, self.radius)
+        self.cam_id[rows] = len(self._cams) - 1
 
     def _depth_slack(self, camera, f, level: int, lo, hi) -> np.ndarray:
         """How far a node's nearest depth may move before the projected-size policy's answer can
@@ -185,7 +186,7 @@ class KeptCut:
         return np.minimum(np.abs(dmin - limit), np.abs(dmax)) - 1e-9 * max(1.0, abs(limit))
 
     # -- the update ------------------------------------------------------------------------------
-    def _grow(self, camera, terms) -> bool:
+    def _grow(self, camera) -> bool:
         """Expand every reached, kept, refined node without children yet, level by level (the
         traversal's own expansion); False where a child lies outside the window."""
         tree = self.tree
@@ -220,8 +221,9 @@ class KeptCut:
             self.infr = np.concatenate([self.infr, np.zeros(len(lv), dtype=bool)])
             self.ref = np.concatenate([self.ref, np.zeros(len(lv), dtype=bool)])
             self.slack = np.concatenate([self.slack, np.zeros((len(lv), 2))])
+            self.cam_id = np.concatenate([self.cam_id, np.zeros(len(lv), dtype=np.int64)])
             self.reached = np.concatenate([self.reached, np.ones(len(lv), dtype=bool)])
-            self._test(np.arange(n0, len(self.lv)), camera, terms)
+            self._test(np.arange(n0, len(self.lv)), camera)
 
     def _propagate(self) -> None:
         """Reached: the root, and every child of a reached, kept, refined node (one gather per level)."""
@@ -245,29 +247,31 @@ class KeptCut:
         if not self.supported:
             return None
         terms = _camera_terms(camera, self.centre)
-        first = self._ref_terms is None
-        ref_cam = self._ref_camera
-        if not first and (ref_cam.orthographic != camera.orthographic
-                          or float(ref_cam.pixels_per_unit(1.0)) != float(camera.pixels_per_unit(1.0))):
+        last = self.camera
+        if last is not None and (last.orthographic != camera.orthographic
+                                 or float(last.pixels_per_unit(1.0)) != float(camera.pixels_per_unit(1.0))):
             self.slack[:] = -np.inf  # another lens or image size: the depth limits moved, test everything
-        if first:
-            self._ref_terms, self._ref_camera = terms, camera
-        bound = camera_change(self._ref_terms, terms, self.radius)
-        band = np.nonzero((self.slack[:, 0] <= bound[:6].max()) | (self.slack[:, 1] <= bound[6]))[0]
-        if not first and len(band) > REBASE_SHARE * len(self.lv):  # drifted far: measure against this camera
-            self._ref_terms, self._ref_camera = terms, camera
-            band = np.arange(len(self.lv))
+        if len(self._cams) > MAX_CAMERAS:  # forget the cameras no node was last tested at
+            used, self.cam_id = np.unique(self.cam_id, return_inverse=True)
+            self._cams = [self._cams[i] for i in used.tolist()]
+            if len(self._cams) > MAX_CAMERAS:
+                self.slack[:] = -np.inf
+        bound = camera_change(np.asarray(self._cams).reshape(-1, 7, 4), terms, self.radius) if self._cams \
+            else np.zeros((1, 7))
+        b = bound[self.cam_id]  # each node's bound from the camera it was last tested at
+        band = np.nonzero((self.slack[:, 0] <= b[:, :6].max(axis=1)) | (self.slack[:, 1] <= b[:, 6]))[0]
+        self._cams.append(terms)
         was = (self.infr[band].copy(), self.ref[band].copy())
-        self._t.camera = camera
-        self._test(band, camera, terms)
+        self._t.camera = self.camera = camera
+        self._test(band, camera)
         self.retested = len(band)
-        self.camera = camera
-        changed = first or not (np.array_equal(was[0], self.infr[band]) and np.array_equal(was[1], self.ref[band]))
-        if not changed and self.selection is not None and (ordered == self.selection.ordered) and not ordered:
+        changed = self.selection is None or not (np.array_equal(was[0], self.infr[band])
+                                                 and np.array_equal(was[1], self.ref[band]))
+        if not changed and not ordered and not self.selection.ordered:
             return self.selection
         if changed:
             self._propagate()
-            if not self._grow(camera, terms):
+            if not self._grow(camera):
                 self.supported = False
                 return None
         self.selection = self._selection(camera, ordered)
