@@ -280,9 +280,9 @@ class ClipRenderAction:
             policy = self.image_lod.policy(cam, transfer_function, self.params)
         self.last_policy = policy
         plan = self.frame_loop.run(cam, self.params, transparent=self._transparent(transfer_function),
-                                   policy=policy, wait=wait, timeout=timeout)
+                                   policy=policy, wait=wait, timeout=timeout, ordered=False)
         sel, times = plan.selection, dict(plan.times)
-        self._replayed = plan.replayed or plan.updated  # items not in this camera's order
+        self._replayed = plan.replayed or not sel.ordered  # items not in this camera's order: _draw orders them
         image, draw_t, read_t = self._draw(cam, transfer_function, sel)
         times["draw"], times["readback"] = draw_t, read_t
         times["total"] = time.perf_counter() - t_start

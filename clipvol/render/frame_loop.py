@@ -130,19 +130,22 @@ class FrameLoop:
             return None
         return max(params.texels_per_frame, self.cache.brick_texels)
 
-    def select(self, camera, params: RenderParams, transparent=None, policy=None) -> Selection:
-        """One selection against the GPU cache, reserving the uploads it implies."""
+    def select(self, camera, params: RenderParams, transparent=None, policy=None, ordered: bool = True) -> Selection:
+        """One selection against the GPU cache, reserving the uploads it implies (``ordered``: as
+        for :func:`~clipvol.scene.selection.select`)."""
         cache, budget = self.cache, self._upload_budget(params)
         allow = None
         if budget is not None:  # dry run to choose the uploads coarse-first
             residency = cache.begin_frame(self.clip_texture, None)
-            dry = select(self.pyramid, camera, params, residency=residency, transparent=transparent, policy=policy)
+            dry = select(self.pyramid, camera, params, residency=residency, transparent=transparent, policy=policy,
+                         ordered=ordered)
             cache.reserve_neighbours(dry)
             if len(cache.pending_keys()) * cache.brick_texels <= budget:
                 return dry  # the budget does not bind (the steady state): the real run would be the same
             allow = cache.plan_uploads(budget, dry)
         residency = cache.begin_frame(self.clip_texture, budget, allow)
-        sel = select(self.pyramid, camera, params, residency=residency, transparent=transparent, policy=policy)
+        sel = select(self.pyramid, camera, params, residency=residency, transparent=transparent, policy=policy,
+                     ordered=ordered)
         cache.reserve_neighbours(sel)
         return sel
 
@@ -178,8 +181,10 @@ class FrameLoop:
         return out
 
     def run(self, camera, params: RenderParams, *, transparent=None, policy=None, wait: bool = False,
-            timeout: float | None = None) -> FramePlan:
-        """Select and upload (and with ``wait``, repeat) for one frame; see the module docstring."""
+            timeout: float | None = None, ordered: bool = True) -> FramePlan:
+        """Select and upload (and with ``wait``, repeat) for one frame; see the module docstring.
+        ``ordered=False``: the caller orders the items itself where it needs an order (a cut of
+        whole nodes then comes in depth-first order, ``Selection.ordered`` False)."""
         times = dict(select=0.0, upload=0.0, wait=0.0)
         t0 = time.perf_counter()
         kept = self.replay(camera, params, transparent, policy)
@@ -187,7 +192,7 @@ class FrameLoop:
             times["select"] = time.perf_counter() - t0
             return FramePlan(kept, True, 1, 0, 0, times, replayed=True)
         last = self._cut[1].selection if self._cut is not None else None
-        sel = self.update(camera, params, transparent, policy)
+        sel = None if ordered else self.update(camera, params, transparent, policy)
         if sel is not None:
             times["select"] = time.perf_counter() - t0
             return FramePlan(sel, True, 1, 0, 0, times, replayed=sel is last, updated=sel is not last)
@@ -199,7 +204,7 @@ class FrameLoop:
         while True:
             t0 = time.perf_counter()
             version = ct.residency_version  # before selecting: any change after counts
-            sel = self.select(camera, params, transparent, policy)
+            sel = self.select(camera, params, transparent, policy, ordered)
             t1 = time.perf_counter()
             pending = set(cache.pending_keys())
             thrashing = bool(pending & uploaded_now)

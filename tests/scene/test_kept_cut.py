@@ -14,7 +14,8 @@ from clipvol.scene.geometry import Shape
 from clipvol.scene.params import RenderParams
 from clipvol.scene.selection import merge_items, select
 from clipvol.scene.selection.coherence import node_order
-from clipvol.scene.selection.kept_cut import KeptCut, depth_first
+from clipvol.scene.selection.kept_cut import KeptCut
+from clipvol.scene.selection.order import depth_first
 from clipvol.scene.selection.policies import policy_for
 
 PYR = Pyramid.build((96, 80, 112), (8, 8, 8))  # grids 12x10x14 .. 1: no virtual level above the top

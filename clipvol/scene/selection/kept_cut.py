@@ -41,11 +41,11 @@ import numpy as np
 from ...rows import unique_rows
 from .cut import BrickKeys, DrawItems, Selection
 from .octree import Octree
-from .order import load_order, order_nodes
+from .order import depth_first, load_order, order_nodes
 from .policies.base import RefinePolicy
 from .traversal import Traversal
 
-__all__ = ["KeptCut", "camera_change", "depth_first"]
+__all__ = ["KeptCut", "camera_change"]
 
 #: cameras kept to bound each node's change from the one it was last tested at; past this many,
 #: those no node refers to are dropped (and if still more, every node is tested again)
@@ -71,19 +71,6 @@ def camera_change(a: np.ndarray, b: np.ndarray, radius: float) -> np.ndarray:
     centre."""
     d = np.asarray(b) - np.asarray(a)
     return np.linalg.norm(d[..., :3], axis=-1) * radius + np.abs(d[..., 3])
-
-
-def depth_first(levels: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """Permutation putting non-nested octree nodes in depth-first order, children by octant number
-    (``4 z + 2 y + x``): the Morton order of each node's first level-0 brick. Siblings come side by
-    side, which is all :func:`~clipvol.scene.selection.merge_items` needs of an order."""
-    first = idx.astype(np.int64) << levels[:, None]
-    key = np.zeros(len(levels), dtype=np.int64)
-    bits = int(first.max()).bit_length() if len(first) else 0
-    for b in range(bits):
-        key |= (((first[:, 0] >> b) & 1) << (3 * b + 2)) | (((first[:, 1] >> b) & 1) << (3 * b + 1)) \
-            | (((first[:, 2] >> b) & 1) << (3 * b))
-    return np.argsort(key, kind="stable")
 
 
 class KeptCut:
