@@ -297,7 +297,8 @@ class ClipRenderAction:
                 if reads else ((None, None) if reads is None else (0, 0))
             self.last_frame_stats = dataclasses.replace(
                 last, times=times, bytes_uploaded=0, bricks_uploaded=0, passes=1, converged=True,
-                bytes_read=bytes_read, frame_bytes_read=frame_read, prefetch_bytes_read=other_read, replayed=True)
+                bytes_read=bytes_read, frame_bytes_read=frame_read, prefetch_bytes_read=other_read, replayed=True,
+                updated=False)
         else:
             self.last_frame_stats = frame_stats(sel, plan, times, self.cache, self.params.texture_budget,
                                                 self.clip_texture, bytes_read=bytes_read, reads=reads)

@@ -60,6 +60,9 @@ class FrameStats:
         (:mod:`clipvol.render.failures`); :attr:`unreplaced` are those drawn by nothing.
     replayed : bool
         The frame drew the last frame's cut again (:mod:`clipvol.render.frame_loop`, "Coherence").
+    updated : bool
+        The frame drew the kept projected-size cut updated for its camera, without a traversal from
+        the root (:class:`~clipvol.scene.selection.kept_cut.KeptCut`).
     """
 
     bricks_drawn: dict[int, int]
@@ -79,6 +82,7 @@ class FrameStats:
     frame_bytes_read: int | None = None
     prefetch_bytes_read: int | None = None
     replayed: bool = False
+    updated: bool = False
 
     @property
     def host_ms(self) -> float:
@@ -113,5 +117,5 @@ def frame_stats(sel, plan, times: dict, cache, texture_budget: int, clip_texture
         texture_budget=texture_budget, times=times, converged=plan.converged, passes=plan.passes,
         items_drawn=len(sel.items), counts=dict(sel.counts), failed_bricks=failed_bricks(sel, clip_texture),
         bytes_read=bytes_read, frame_bytes_read=frame_read, prefetch_bytes_read=other_read,
-        replayed=bool(getattr(plan, "replayed", False)),
+        replayed=bool(getattr(plan, "replayed", False)), updated=bool(getattr(plan, "updated", False)),
     )

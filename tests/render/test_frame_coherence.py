@@ -183,7 +183,7 @@ def test_updated_projected_size_frames_equal_fresh_frames(ctx, path, tmp_path):
             cam = orbit(deg, pyr, dist=dist)
             img = a.render(cam, tf, wait=k == 0, timeout=30)
             sel = a.last_selection
-            updated.append(not sel.ordered)
+            updated.append(a.last_frame_stats.updated or a.last_frame_stats.replayed)
             cuts.append(sorted(map(tuple, sel.item_keys().tolist())))
             b = ClipRenderAction(ctx, clip, a.params)
             made.append(b)
