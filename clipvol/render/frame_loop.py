@@ -81,6 +81,7 @@ class FrameLoop:
         self._kept: tuple | None = None
         #: (state key, KeptCut) of the last converged projected-size cut (module docstring)
         self._cut: tuple | None = None
+        self._verified: Selection | None = None  # the kept cut's last selection found all on the GPU
 
     def _state(self, params: RenderParams, transparent, policy, version: int | None = None):
         """What a cut was made under, apart from the camera (None: nothing to replay against);
@@ -115,6 +116,8 @@ class FrameLoop:
         sel = kept[1].update(camera, ordered=False)
         if sel is None:
             return None
+        if sel is self._verified:  # the cut passed the checks below, and the GPU holds what it did then
+            return sel
         cache = self.cache.begin_frame(self.clip_texture, 0)  # reserves the slots, uploads nothing
         keys = sel.item_keys()
         for L in np.unique(keys[:, 0]).tolist():
@@ -123,6 +126,7 @@ class FrameLoop:
         cache.reserve_neighbours(sel)
         if cache.pending_keys() or cache.missing_neighbours(sel):
             return None
+        self._verified = sel
         return sel
     def _upload_budget(self, params: RenderParams) -> int | None:
         """``texels_per_frame``, never less than one brick (a frame always makes progress)."""
@@ -196,7 +200,7 @@ class FrameLoop:
         if sel is not None:
             times["select"] = time.perf_counter() - t0
             return FramePlan(sel, True, 1, 0, 0, times, replayed=sel is last, updated=sel is not last)
-        self._kept = self._cut = None
+        self._kept = self._cut = self._verified = None
         deadline = None if timeout is None else time.perf_counter() + float(timeout)
         passes = up_bytes = up_bricks = 0
         uploaded_now: set = set()  # bricks uploaded by this call: a second upload means thrashing
