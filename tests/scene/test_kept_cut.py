@@ -76,6 +76,21 @@ def test_the_kept_cut_is_a_fresh_selections_cut_along_random_paths(threshold, sh
     assert partial > 10  # most small moves re-tested only a band of the kept nodes
 
 
+def test_nodes_no_longer_reached_are_dropped_and_grown_again(monkeypatch):
+    from clipvol.scene.selection import kept_cut
+
+    monkeypatch.setattr(kept_cut, "COMPACT_MIN", 0)
+    params = RenderParams(policy="projected-size", lod_threshold=0.1)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    sizes = []
+    for k, dist in enumerate([60, 200, 60, 220, 50, 200, 60]):  # near and far: nodes go and come back
+        cam = camera(20 + k, 15, dist)
+        same(kc.update(cam), select(PYR, cam, params, transparent=transparent))
+        sizes.append(len(kc.lv))
+        assert np.all(kc.parent[1:] < np.arange(1, len(kc.lv))) and kc.parent[0] == -1
+    assert any(b < a for a, b in zip(sizes, sizes[1:]))  # kept nodes were dropped (else they only grow)
+
+
 def test_a_virtual_root_and_every_node_refined_to_level_0():
     params = RenderParams(policy="projected-size", lod_threshold=0.02)
     kc = KeptCut(PYR_V, params, policy_for(params))

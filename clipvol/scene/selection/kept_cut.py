@@ -50,6 +50,9 @@ __all__ = ["KeptCut", "camera_change"]
 #: cameras kept to bound each node's change from the one it was last tested at; past this many,
 #: those no node refers to are dropped (and if still more, every node is tested again)
 MAX_CAMERAS = 64
+#: drop the nodes no longer reached once they outnumber the reached ones and this many (a long
+#: fly-through would otherwise keep every node it ever visited)
+COMPACT_MIN = 4096
 
 
 def _camera_terms(camera, centre: np.ndarray) -> np.ndarray:
@@ -222,6 +225,18 @@ class KeptCut:
             p = self.parent[r]
             self.reached[r] = self.reached[p] & go[p]
 
+    def _compact(self) -> None:
+        """Keep only the reached nodes (a reached node's parent is reached: the tree stays whole); a
+        node whose children go is marked unexpanded, to grow again if it refines again."""
+        keep = self.reached
+        new = np.cumsum(keep) - 1
+        for name in ("lv", "idx", "lo", "hi", "expanded", "inside", "opaque", "infr", "ref", "slack", "cam_id",
+                     "reached"):
+            setattr(self, name, getattr(self, name)[keep])
+        parent = self.parent[keep]
+        self.parent = np.where(parent >= 0, new[np.maximum(parent, 0)], -1)
+        self.expanded &= self.infr & self.inside & self.ref  # (else its children were not reached)
+
     def update(self, camera, ordered: bool = True) -> Selection | None:
         """The cut :func:`~clipvol.scene.selection.select` makes for ``camera`` (residency apart:
         every leaf drawn from its own brick), or None where this cut cannot be kept (module
@@ -258,6 +273,9 @@ class KeptCut:
             return self.selection
         if changed:
             self._propagate()
+            n_out = len(self.lv) - int(self.reached.sum())
+            if n_out > max(COMPACT_MIN, len(self.lv) - n_out):
+                self._compact()
             if not self._grow(camera):
                 self.supported = False
                 return None
