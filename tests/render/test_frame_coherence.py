@@ -190,7 +190,8 @@ def test_updated_projected_size_frames_equal_fresh_frames(ctx, path, tmp_path):
             ref = b.render(cam, tf, wait=True, timeout=30)
             assert np.array_equal(img, ref), f"frame {k} ({deg} deg, {dist}) differs from a fresh action's"
             assert img[..., 3].any()
-            assert sorted(map(tuple, sel.item_keys().tolist())) == sorted(map(tuple, b.last_selection.item_keys().tolist()))
+            fresh_keys = b.last_selection.item_keys().tolist()
+            assert sorted(map(tuple, sel.item_keys().tolist())) == sorted(map(tuple, fresh_keys))
         # the first frame selects from nothing; a frame whose cut needs a brick not yet on the GPU
         # does too (it uploads); the others update the kept cut, and some of those changed it
         assert updated[0] is False and sum(updated) >= 4, updated
