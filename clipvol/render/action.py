@@ -277,9 +277,9 @@ class ClipRenderAction:
             policy = self.image_lod.policy(cam, transfer_function, self.params)
         self.last_policy = policy
         plan = self.frame_loop.run(cam, self.params, transparent=self._transparent(transfer_function),
-                                   policy=policy, wait=wait, timeout=timeout)
+                                   policy=policy, wait=wait, timeout=timeout, ordered=False)
         sel, times = plan.selection, dict(plan.times)
-        self._replayed = plan.replayed
+        self._replayed = plan.replayed or not sel.ordered  # items not in this camera's order: _draw orders them
         drawn = self._draw(cam, transfer_function, sel)
         image, read_t = drawn.image, drawn.readback_s
         times["draw"], times["readback"] = drawn.draw_s, read_t
@@ -296,7 +296,7 @@ class ClipRenderAction:
             self.last_frame_stats = dataclasses.replace(
                 last, times=times, bytes_uploaded=0, bricks_uploaded=0, passes=1, converged=True,
                 bytes_read=bytes_read, frame_bytes_read=frame_read, prefetch_bytes_read=other_read, replayed=True,
-                **self._drawn_fields(drawn))
+                updated=False, **self._drawn_fields(drawn))
         else:
             self.last_frame_stats = dataclasses.replace(
                 frame_stats(sel, plan, times, self.cache, self.params.texture_budget, self.clip_texture,

@@ -26,6 +26,15 @@ traversal, no reservations, no uploads - while all of those are unchanged and
 same cut (a camera-free policy: the fixed level; every culled box still out of view, every leaf in).
 A brick that arrives or leaves, an upload, a new table or new parameters end the replay, and the
 next frame selects from nothing. ``FramePlan.replayed`` says which frames were drawn again.
+
+A projected-size cut changes with the camera, but only in a band of nodes near the level
+boundaries and the frustum's sides: after a converged frame the loop keeps it as a
+:class:`~clipvol.scene.selection.kept_cut.KeptCut` (under the same state key) and updates it for
+the next camera, re-testing only that band, while every brick of the updated cut and every
+neighbour its filtering reads is on the GPU already (else the frame selects and uploads from
+nothing). The updated cut is the fresh selection's exactly, its items in depth-first order
+(``Selection.ordered`` False, ``FramePlan.updated``): the render action orders the merged boxes
+where a path needs an order; the single pass needs none.
 """
 
 from __future__ import annotations
@@ -39,6 +48,8 @@ from ..paging.cliptexture import BrickState, ClipTexture
 from ..scene.params import RenderParams
 from ..scene.selection import Selection, select
 from ..scene.selection.coherence import cut_holds, replayable
+from ..scene.selection.kept_cut import KeptCut
+from ..scene.selection.policies import policy_for
 
 __all__ = ["FrameLoop", "FramePlan"]
 
@@ -55,6 +66,8 @@ class FramePlan:
     times: dict = field(default_factory=dict)
     #: the last frame's cut drawn again (see the module docstring, "Coherence")
     replayed: bool = False
+    #: the kept projected-size cut updated for this camera (module docstring): items in depth-first order
+    updated: bool = False
 
 
 class FrameLoop:
@@ -66,6 +79,9 @@ class FrameLoop:
         self.pyramid = clip_texture.pyramid
         #: (state key, selection) of the last converged cut (module docstring, "Coherence")
         self._kept: tuple | None = None
+        #: (state key, KeptCut) of the last converged projected-size cut (module docstring)
+        self._cut: tuple | None = None
+        self._verified: Selection | None = None  # the kept cut's last selection found all on the GPU
 
     def _state(self, params: RenderParams, transparent, policy, version: int | None = None):
         """What a cut was made under, apart from the camera (None: nothing to replay against);
@@ -90,25 +106,50 @@ class FrameLoop:
         if kept is None or not self._same(kept[0], self._state(params, transparent, policy)):
             return None
         return kept[1] if cut_holds(kept[1], camera) else None
+
+    def update(self, camera, params: RenderParams, transparent=None, policy=None) -> Selection | None:
+        """The kept projected-size cut updated for ``camera``, if everything it draws (and every
+        neighbour its filtering reads) is on the GPU already (module docstring); else None."""
+        kept = self._cut
+        if kept is None or not self._same(kept[0], self._state(params, transparent, policy)):
+            return None
+        sel = kept[1].update(camera, ordered=False)
+        if sel is None:
+            return None
+        if sel is self._verified:  # the cut passed the checks below, and the GPU holds what it did then
+            return sel
+        cache = self.cache.begin_frame(self.clip_texture, 0)  # reserves the slots, uploads nothing
+        keys = sel.item_keys()
+        for L in np.unique(keys[:, 0]).tolist():
+            if not cache.resident_mask(L, keys[keys[:, 0] == L, 1:]).all():
+                return None
+        cache.reserve_neighbours(sel)
+        if cache.pending_keys() or cache.missing_neighbours(sel):
+            return None
+        self._verified = sel
+        return sel
     def _upload_budget(self, params: RenderParams) -> int | None:
         """``texels_per_frame``, never less than one brick (a frame always makes progress)."""
         if params.texels_per_frame is None:
             return None
         return max(params.texels_per_frame, self.cache.brick_texels)
 
-    def select(self, camera, params: RenderParams, transparent=None, policy=None) -> Selection:
-        """One selection against the GPU cache, reserving the uploads it implies."""
+    def select(self, camera, params: RenderParams, transparent=None, policy=None, ordered: bool = True) -> Selection:
+        """One selection against the GPU cache, reserving the uploads it implies (``ordered``: as
+        for :func:`~clipvol.scene.selection.select`)."""
         cache, budget = self.cache, self._upload_budget(params)
         allow = None
         if budget is not None:  # dry run to choose the uploads coarse-first
             residency = cache.begin_frame(self.clip_texture, None)
-            dry = select(self.pyramid, camera, params, residency=residency, transparent=transparent, policy=policy)
+            dry = select(self.pyramid, camera, params, residency=residency, transparent=transparent, policy=policy,
+                         ordered=ordered)
             cache.reserve_neighbours(dry)
             if len(cache.pending_keys()) * cache.brick_texels <= budget:
                 return dry  # the budget does not bind (the steady state): the real run would be the same
             allow = cache.plan_uploads(budget, dry)
         residency = cache.begin_frame(self.clip_texture, budget, allow)
-        sel = select(self.pyramid, camera, params, residency=residency, transparent=transparent, policy=policy)
+        sel = select(self.pyramid, camera, params, residency=residency, transparent=transparent, policy=policy,
+                     ordered=ordered)
         cache.reserve_neighbours(sel)
         return sel
 
@@ -144,15 +185,22 @@ class FrameLoop:
         return out
 
     def run(self, camera, params: RenderParams, *, transparent=None, policy=None, wait: bool = False,
-            timeout: float | None = None) -> FramePlan:
-        """Select and upload (and with ``wait``, repeat) for one frame; see the module docstring."""
+            timeout: float | None = None, ordered: bool = True) -> FramePlan:
+        """Select and upload (and with ``wait``, repeat) for one frame; see the module docstring.
+        ``ordered=False``: the caller orders the items itself where it needs an order (a cut of
+        whole nodes then comes in depth-first order, ``Selection.ordered`` False)."""
         times = dict(select=0.0, upload=0.0, wait=0.0)
         t0 = time.perf_counter()
         kept = self.replay(camera, params, transparent, policy)
         if kept is not None:
             times["select"] = time.perf_counter() - t0
             return FramePlan(kept, True, 1, 0, 0, times, replayed=True)
-        self._kept = None
+        last = self._cut[1].selection if self._cut is not None else None
+        sel = None if ordered else self.update(camera, params, transparent, policy)
+        if sel is not None:
+            times["select"] = time.perf_counter() - t0
+            return FramePlan(sel, True, 1, 0, 0, times, replayed=sel is last, updated=sel is not last)
+        self._kept = self._cut = self._verified = None
         deadline = None if timeout is None else time.perf_counter() + float(timeout)
         passes = up_bytes = up_bricks = 0
         uploaded_now: set = set()  # bricks uploaded by this call: a second upload means thrashing
@@ -160,7 +208,7 @@ class FrameLoop:
         while True:
             t0 = time.perf_counter()
             version = ct.residency_version  # before selecting: any change after counts
-            sel = self.select(camera, params, transparent, policy)
+            sel = self.select(camera, params, transparent, policy, ordered)
             t1 = time.perf_counter()
             pending = set(cache.pending_keys())
             thrashing = bool(pending & uploaded_now)
@@ -192,4 +240,9 @@ class FrameLoop:
         if converged and replayable(sel):  # kept with what it was made under, after its uploads
             # (the version before its last selection: a brick that arrived since ends the replay)
             self._kept = (self._state(params, transparent, policy, version), sel)
+        elif converged and policy is None and not (sel.counts.get("fallback") or sel.counts.get("missing")
+                                                   or sel.counts.get("outside_window")):
+            cut = KeptCut(self.pyramid, params, policy_for(params), self.cache, transparent)
+            if cut.supported:  # updated from the next frame on (module docstring)
+                self._cut = (self._state(params, transparent, policy, version), cut)
         return FramePlan(sel, converged, passes, up_bytes, up_bricks, times)

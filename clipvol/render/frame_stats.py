@@ -66,6 +66,9 @@ class FrameStats:
         What that path drew (its :class:`~clipvol.render.paths.frame.DrawStats`): proxy boxes, the
         single pass's page-table nodes, the per-brick path's opacity snapshots (all passes of a
         refined frame).
+    updated : bool
+        The frame drew the kept projected-size cut updated for its camera, without a traversal from
+        the root (:class:`~clipvol.scene.selection.kept_cut.KeptCut`).
     """
 
     bricks_drawn: dict[int, int]
@@ -89,6 +92,7 @@ class FrameStats:
     boxes_drawn: int = 0
     page_table_nodes: int = 0
     occlusion_passes: int = 0
+    updated: bool = False
 
     @property
     def host_ms(self) -> float:
@@ -123,5 +127,5 @@ def frame_stats(sel, plan, times: dict, cache, texture_budget: int, clip_texture
         texture_budget=texture_budget, times=times, converged=plan.converged, passes=plan.passes,
         items_drawn=len(sel.items), counts=dict(sel.counts), failed_bricks=failed_bricks(sel, clip_texture),
         bytes_read=bytes_read, frame_bytes_read=frame_read, prefetch_bytes_read=other_read,
-        replayed=bool(getattr(plan, "replayed", False)),
+        replayed=bool(getattr(plan, "replayed", False)), updated=bool(getattr(plan, "updated", False)),
     )

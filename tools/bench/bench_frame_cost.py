@@ -1,17 +1,24 @@
-"""What a frame costs the host when the cut holds thousands of bricks: clipvol's full-resolution frame
-against a plain one-texture caster at the same cameras, static, orbiting and flying.
+"""What a frame costs the host when the cut holds thousands of bricks: clipvol's frame against a plain
+one-texture caster at the same cameras, static, orbiting and flying, for a full-resolution
+(fixed-level) cut and a projected-size cut.
 
 On a GPU the rays of a small image cost about a millisecond, so the frame is the host's work:
 selecting the cut, merging it, building the page table. A fixed-level cut does not change when the
 camera turns, and clipvol draws it again (:mod:`clipvol.render.frame_loop`, "Coherence"): its merged
 boxes and page table are kept with it, so a turning camera costs a check over flat arrays and a
-redraw. This benchmark measures that, and how it grows with the cut.
+redraw. A projected-size cut changes with the camera in a band of nodes near its level boundaries;
+clipvol keeps it and re-tests only that band
+(:class:`~clipvol.scene.selection.kept_cut.KeptCut`). This benchmark measures both, and how the
+host's cost grows with the cut (``--head`` sizes and ``--brick`` edges give cuts from about a
+thousand to about ten thousand bricks).
 
 Data: any clipvol store (``--store``, repeatable: the MNI ICBM152 T1 template bricked at 16^3 with
 ``clipvol brick``), and the CT-like head of :func:`common.ct_volume` at ``--head`` sizes (bricked
-once into ``bench-data/`` at ``--brick``, default 16^3: a 512^3 head is a level-0 cut of thousands
-of bricks). Every brick resident and on the GPU (:class:`common.WarmScene`), the ``bone`` table,
-``policy="fixed", level=0``, step 1 voxel.
+once into ``bench-data/`` at each of ``--brick``'s edges, default 16^3: a 512^3 head is a level-0
+cut of thousands of bricks). Every brick resident and on the GPU (:class:`common.WarmScene`), the
+``bone`` table, step 1 voxel; per ``--policies``: ``fixed`` (``level=0``) and ``projected-size``
+(``lod_threshold=--lod``, default 0.1 pixel per voxel: at a 32^2 image a cut of thousands of bricks
+over several levels).
 
 Per volume and image size (``--images``, default 32 and 512), three camera sequences of
 ``--frames`` frames each: **static** (one camera), **orbit** (1 degree a frame about the volume's
@@ -28,7 +35,8 @@ centre) and **fly** (the eye 1 % of the distance nearer each frame). Each frame 
 interleaved frame by frame (the order alternating), so a drift in the machine's load weighs on all
 three alike. Columns: the medians over the sequence's frames of each one's ms, ``clipvol``'s host
 ms and GL ms (:attr:`FrameStats.host_ms`, :attr:`FrameStats.gpu_ms`), the share of its frames that
-drew the kept cut, the CPU time of the rendering thread per frame for ``clipvol`` and ``fresh``
+drew the kept cut again (``replayed``) and that drew the kept projected-size cut updated for the
+camera (``updated``), the CPU time of the rendering thread per frame for ``clipvol`` and ``fresh``
 (``time.thread_time``: the host's own work, which a shared machine's load does not inflate as it
 does wall times), and the ratios ``clipvol/raw`` and ``fresh/clipvol`` (medians over frames of the
 per-frame ratios). Rows go to ``tools/bench/results/bench_frame_cost.csv``.
@@ -99,65 +107,81 @@ def _load() -> str:
     return p.read_text().split()[0] if p.exists() else ""
 
 
-def run(store: Path, volume, label: str, images, frames: int, log=print) -> list[dict]:
+#: the parameters of each ``--policies`` name
+POLICY_PARAMS = {"fixed": lambda lod: dict(policy="fixed", level=0),
+                 "projected-size": lambda lod: dict(policy="projected-size", lod_threshold=lod)}
+
+
+def run(store: Path, volume, label: str, images, frames: int, log=print, policies=("fixed",),
+        lod: float = 0.1) -> list[dict]:
+    scene = common.WarmScene(store)
+    raw = scene.raw_caster(volume)
+    rows = []
+    try:
+        for name in policies:
+            params = POLICY_PARAMS[name](lod)
+            kept = scene.action(**params, step=STEP)
+            fresh = scene.action(**params, step=STEP)
+            rows += _run_policy(scene, raw, kept, fresh, f"{label}, {name}", images, frames, log)
+    finally:
+        scene.close()
+    return rows
+
+
+def _run_policy(scene, raw, kept, fresh, label: str, images, frames: int, log) -> list[dict]:
     from clipvol.render.paths.setup import OPAQUE
     from clipvol.scene.selection.policies import policy_for
 
-    scene = common.WarmScene(store)
     pyr, tf = scene.pyramid, scene.tf
-    raw = scene.raw_caster(volume)
-    kept = scene.action(policy="fixed", level=0, step=STEP)
-    fresh = scene.action(policy="fixed", level=0, step=STEP)
     rows = []
-    try:
-        for image in images:
-            for kind in ("static", "orbit", "fly"):
-                cams = cameras(pyr, image, kind, frames)
-                for a in (kept, fresh):  # warm: every brick of the sequence on the GPU, programs built
-                    for cam in (cams[0], cams[-1], cams[0]):
-                        a.render(cam, tf, wait=True, timeout=900)
-                        if not a.last_frame_stats.converged:
-                            raise RuntimeError(f"{label}: the frame did not converge in 900 s ({image}^2 {kind})")
-                raw.render(kept._selection_camera(cams[0]), tf, STEP, OPAQUE)
-                t = {"raw": [], "clipvol": [], "fresh": []}
-                host, gpu, replayed, cpu_kept, cpu_fresh = [], [], [], [], []
-                bricks = kept.last_frame_stats.bricks_distinct
-                for k, cam in enumerate(cams):
-                    fc = kept._selection_camera(cam)
-                    order = ["raw", "clipvol", "fresh"] if k % 2 == 0 else ["fresh", "clipvol", "raw"]
-                    for name in order:
-                        if name == "raw":
-                            t[name].append(_timed(lambda: raw.render(fc, tf, STEP, OPAQUE)))
-                        elif name == "clipvol":
-                            t[name].append(_timed_cpu(lambda: kept.render(cam, tf), cpu_kept))
-                            st = kept.last_frame_stats
-                            host.append(st.host_ms)
-                            gpu.append(st.gpu_ms)
-                            replayed.append(st.replayed)
-                            bricks = max(bricks, st.bricks_distinct)
-                        else:  # a policy instance per frame: selected, merged and tabled from nothing
-                            t[name].append(_timed_cpu(lambda: fresh.render(cam, tf, policy=policy_for(fresh.params)),
-                                                      cpu_fresh))
-                med = {k: 1e3 * statistics.median(v) for k, v in t.items()}
-                row = {"date": time.strftime("%Y-%m-%d"), "volume": label, "image": image, "camera": kind,
-                       "frames": frames, "bricks": bricks, "raw_ms": round(med["raw"], 2),
-                       "clipvol_ms": round(med["clipvol"], 2), "fresh_ms": round(med["fresh"], 2),
-                       "host_ms": round(statistics.median(host), 2), "gpu_ms": round(statistics.median(gpu), 2),
-                       "clipvol_cpu_ms": round(1e3 * statistics.median(cpu_kept), 2),
-                       "fresh_cpu_ms": round(1e3 * statistics.median(cpu_fresh), 2),
-                       "replayed": round(float(np.mean(replayed)), 2),
-                       "clipvol_over_raw": round(statistics.median(c / r for c, r in zip(t["clipvol"], t["raw"])), 2),
-                       "fresh_over_clipvol": round(statistics.median(f / c for f, c in zip(t["fresh"], t["clipvol"])), 2),
-                       "load": _load()}
-                rows.append(row)
-                log(f"{label} {image}^2 {kind:6}: {bricks} bricks, raw {row['raw_ms']} ms, "
-                    f"clipvol {row['clipvol_ms']} ms "
-                    f"(host {row['host_ms']}, gl {row['gpu_ms']}, {100 * row['replayed']:.0f} % kept cut) = "
-                    f"{row['clipvol_over_raw']}x raw; from nothing {row['fresh_ms']} ms = "
-                    f"{row['fresh_over_clipvol']}x clipvol; main-thread CPU {row['clipvol_cpu_ms']} ms kept, "
-                    f"{row['fresh_cpu_ms']} ms from nothing; load {row['load']}")
-    finally:
-        scene.close()
+    for image in images:
+        for kind in ("static", "orbit", "fly"):
+            cams = cameras(pyr, image, kind, frames)
+            for a in (kept, fresh):  # warm: every brick of the sequence on the GPU, programs built
+                for cam in (*cams, cams[0]):  # (a projected-size cut needs each camera's bricks)
+                    a.render(cam, tf, wait=True, timeout=900)
+                    if not a.last_frame_stats.converged:
+                        raise RuntimeError(f"{label}: the frame did not converge in 900 s ({image}^2 {kind})")
+            raw.render(kept._selection_camera(cams[0]), tf, STEP, OPAQUE)
+            t = {"raw": [], "clipvol": [], "fresh": []}
+            host, gpu, replayed, updated, cpu_kept, cpu_fresh = [], [], [], [], [], []
+            bricks = kept.last_frame_stats.bricks_distinct
+            for k, cam in enumerate(cams):
+                fc = kept._selection_camera(cam)
+                order = ["raw", "clipvol", "fresh"] if k % 2 == 0 else ["fresh", "clipvol", "raw"]
+                for name in order:
+                    if name == "raw":
+                        t[name].append(_timed(lambda: raw.render(fc, tf, STEP, OPAQUE)))
+                    elif name == "clipvol":
+                        t[name].append(_timed_cpu(lambda: kept.render(cam, tf), cpu_kept))
+                        st = kept.last_frame_stats
+                        host.append(st.host_ms)
+                        gpu.append(st.gpu_ms)
+                        replayed.append(st.replayed)
+                        updated.append(st.updated)
+                        bricks = max(bricks, st.bricks_distinct)
+                    else:  # a policy instance per frame: selected, merged and tabled from nothing
+                        t[name].append(_timed_cpu(lambda: fresh.render(cam, tf, policy=policy_for(fresh.params)),
+                                                  cpu_fresh))
+            med = {k: 1e3 * statistics.median(v) for k, v in t.items()}
+            row = {"date": time.strftime("%Y-%m-%d"), "volume": label, "image": image, "camera": kind,
+                   "frames": frames, "bricks": bricks, "raw_ms": round(med["raw"], 2),
+                   "clipvol_ms": round(med["clipvol"], 2), "fresh_ms": round(med["fresh"], 2),
+                   "host_ms": round(statistics.median(host), 2), "gpu_ms": round(statistics.median(gpu), 2),
+                   "clipvol_cpu_ms": round(1e3 * statistics.median(cpu_kept), 2),
+                   "fresh_cpu_ms": round(1e3 * statistics.median(cpu_fresh), 2),
+                   "replayed": round(float(np.mean(replayed)), 2), "updated": round(float(np.mean(updated)), 2),
+                   "clipvol_over_raw": round(statistics.median(c / r for c, r in zip(t["clipvol"], t["raw"])), 2),
+                   "fresh_over_clipvol": round(statistics.median(f / c for f, c in zip(t["fresh"], t["clipvol"])), 2),
+                   "load": _load()}
+            rows.append(row)
+            log(f"{label} {image}^2 {kind:6}: {bricks} bricks, raw {row['raw_ms']} ms, "
+                f"clipvol {row['clipvol_ms']} ms "
+                f"(host {row['host_ms']}, gl {row['gpu_ms']}, {100 * row['replayed']:.0f} % kept cut, "
+                f"{100 * row['updated']:.0f} % updated) = "
+                f"{row['clipvol_over_raw']}x raw; from nothing {row['fresh_ms']} ms = "
+                f"{row['fresh_over_clipvol']}x clipvol; main-thread CPU {row['clipvol_cpu_ms']} ms kept, "
+                f"{row['fresh_cpu_ms']} ms from nothing; load {row['load']}")
     return rows
 
 
@@ -167,7 +191,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="a clipvol store to measure (repeatable; its level 0 is read whole for the raw caster)")
     ap.add_argument("--head", default="512",
                     help="CT-like head edges to measure, comma separated (default 512; empty: none)")
-    ap.add_argument("--brick", type=int, default=16, help="the heads' brick edge (default 16)")
+    ap.add_argument("--brick", default="16", help="the heads' brick edges, comma separated (default 16)")
+    ap.add_argument("--policies", default="fixed,projected-size",
+                    help=f"selection policies, comma separated, of {', '.join(POLICY_PARAMS)} (default both)")
+    ap.add_argument("--lod", type=float, default=0.1, help="projected-size's lod_threshold (default 0.1)")
     ap.add_argument("--data", type=Path, default=common.DATA, help="where the heads' stores are built once")
     ap.add_argument("--images", default="32,512", help="image edges, comma separated (default 32,512)")
     ap.add_argument("--frames", type=int, default=10, help="frames per camera sequence (default 10)")
@@ -176,17 +203,27 @@ def main(argv: list[str] | None = None) -> int:
     if a.frames < 3:
         ap.error(f"--frames: expected at least 3, got {a.frames}")
     images = [int(v) for v in a.images.split(",")]
+    policies = [v.strip() for v in a.policies.split(",") if v.strip()]
+    bad = [p for p in policies if p not in POLICY_PARAMS]
+    if bad or not policies:
+        ap.error(f"--policies: expected names of {', '.join(POLICY_PARAMS)}, got {a.policies!r}")
+    if not a.lod > 0:
+        ap.error(f"--lod: expected a pixel size > 0, got {a.lod}")
     rows = []
     for store in a.store:
         from clipvol.paging.open import open_store
 
         loader = open_store(store)
         volume = common.WholeVolume(loader).read_brick(0, (0, 0, 0))
-        rows += run(store, volume, f"{store.name}, {loader.pyramid.brick_shape[0]}^3 bricks", images, a.frames)
+        rows += run(store, volume, f"{store.name}, {loader.pyramid.brick_shape[0]}^3 bricks", images, a.frames,
+                    policies=policies, lod=a.lod)
     for n in (int(v) for v in a.head.split(",") if v.strip()):
         size = f"{n}x{n}x{n}"
-        store = common.ct_store(size, a.brick, a.data)
-        rows += run(store, common.ct_volume((n, n, n)), f"ct_head {size} uint16, {a.brick}^3 bricks", images, a.frames)
+        volume = common.ct_volume((n, n, n))
+        for brick in (int(v) for v in a.brick.split(",") if v.strip()):
+            store = common.ct_store(size, brick, a.data)
+            rows += run(store, volume, f"ct_head {size} uint16, {brick}^3 bricks", images, a.frames,
+                        policies=policies, lod=a.lod)
     if not rows:
         ap.error("nothing to measure: give --store or --head")
     return common.save_rows(a.out, rows)

@@ -134,7 +134,10 @@ class WarmScene:
         self.loader = open_store(store)
         pyr = self.pyramid = self.loader.pyramid
         self.ctx = create_context()
-        self.budget = int(sum(pyr.num_bricks(L) for L in range(pyr.num_levels)) * pyr.brick_nbytes * 1.2) + (64 << 20)
+        # every brick with room to spare: a texture slot holds a brick and its one-voxel border (18^3
+        # texels for a 16^3 brick, 1.42x), so 1.2x left a 512^3 head's level 0 (32^3 bricks of 16^3)
+        # a 27^3 window: its full-resolution frame never converged
+        self.budget = int(sum(pyr.num_bricks(L) for L in range(pyr.num_levels)) * pyr.brick_nbytes * 2.0) + (64 << 20)
         self.clip = ClipTexture(self.loader, self.budget, threads=2)
         self.tf = TransferFunction.preset("bone", value_range=pyr.value_range)
         self._made: list = []  # (object, its release method), released by close() in reverse

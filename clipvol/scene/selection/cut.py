@@ -166,6 +166,12 @@ class Selection:
         (``policy.camera_free()``); None otherwise. With them,
         :func:`~clipvol.scene.selection.coherence.cut_holds` tells whether the same cut is the
         cut of another camera.
+    ordered : bool
+        True: ``items`` in back-to-front order and ``wanted`` in load order for the camera that
+        made the cut. False (a cut kept by a frame loop and updated,
+        :class:`~clipvol.scene.selection.kept_cut.KeptCut`): both in depth-first order, every
+        item a whole node drawn from its own brick; whoever draws the items one by one orders
+        them (:func:`~clipvol.scene.selection.coherence.node_order`).
     """
 
     items: DrawItems
@@ -174,6 +180,7 @@ class Selection:
     policy: str = ""
     node_data: dict = field(default_factory=dict)
     frustum_culled: tuple | None = None
+    ordered: bool = True
 
     def __post_init__(self) -> None:
         # one form whoever builds it: the frame's set tests read the arrays, callers the elements

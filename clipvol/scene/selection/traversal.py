@@ -35,7 +35,7 @@ from ..camera import Camera
 from ..params import RenderParams
 from .cut import BrickKeys, DrawItems, Residency, Selection
 from .octree import Octree
-from .order import load_order, order_nodes
+from .order import depth_first, load_order, order_nodes
 from .policies import policy_for
 
 __all__ = ["Traversal", "select"]
@@ -296,7 +296,8 @@ def _merge_fallback(tree: Octree, src_lv, src_idx, reg_lv, reg_idx):
 
 
 def select(pyramid, camera: Camera, params: RenderParams | None = None, *, residency: Residency | None = None,
-           transparent: Callable[[int, np.ndarray], np.ndarray] | None = None, policy=None) -> Selection:
+           transparent: Callable[[int, np.ndarray], np.ndarray] | None = None, policy=None,
+           ordered: bool = True) -> Selection:
     """Choose the bricks to draw for ``camera`` and their back-to-front order.
 
     Parameters
@@ -316,6 +317,13 @@ def select(pyramid, camera: Camera, params: RenderParams | None = None, *, resid
     policy : object, optional
         A policy instance to use instead of the one ``params.policy`` names (for policies that
         carry state between frames, such as a visibility estimate).
+    ordered : bool
+        False: where every item is a whole node drawn from its own brick, leave the items in
+        depth-first order (:func:`~clipvol.scene.selection.order.depth_first`) instead of
+        computing the visibility order - a single pass walks a page table and needs none, and a
+        path that draws box by box orders the few merged boxes instead
+        (:func:`~clipvol.scene.selection.coherence.node_order`). The selection's ``ordered``
+        says which order it holds.
 
     Returns
     -------
@@ -364,7 +372,10 @@ def select(pyramid, camera: Camera, params: RenderParams | None = None, *, resid
     t.counts["fallback"] = int(fallback.sum())
     src_lv, src_idx, reg_lv, reg_idx = _merge_fallback(tree, src_lv[drawn], src_idx[drawn], reg_lv[drawn],
                                                        reg_idx[drawn])
-    order = order_nodes(tree, camera, reg_lv, reg_idx)
+    # a cut of whole nodes (no ancestor drawn over part of its box) may skip the visibility order
+    whole = not (t.counts["fallback"] or t.counts["missing"] or t.counts["outside_window"])
+    ordered = ordered or not whole
+    order = order_nodes(tree, camera, reg_lv, reg_idx) if ordered else depth_first(reg_lv, reg_idx)
     box_lo = np.empty((len(reg_lv), 3))
     box_hi = np.empty((len(reg_lv), 3))
     for L in np.unique(reg_lv):  # one vectorised call per level
@@ -373,4 +384,5 @@ def select(pyramid, camera: Camera, params: RenderParams | None = None, *, resid
     items = DrawItems(np.concatenate([src_lv[order, None], src_idx[order]], axis=1), box_lo[order], box_hi[order])
     t.counts["texels"] = len(items) * tree.texels
     node_data = getattr(policy, "node_data", None)
-    return Selection(items, wanted, t.counts, params.policy, dict(node_data) if node_data else {}, culled)
+    return Selection(items, wanted, t.counts, params.policy, dict(node_data) if node_data else {}, culled,
+                     ordered=ordered)

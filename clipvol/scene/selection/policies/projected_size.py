@@ -64,6 +64,12 @@ class ProjectedSize(RefinePolicy):
         # per sibling group, then the level as a whole (one level merges into one box)
         return even_out(even_out(need, parent[:, 0] * (1 << 42) + parent[:, 1] * (1 << 21) + parent[:, 2]))
 
+    def depth_threshold(self, camera, voxel: float) -> float:
+        """The nearest depth below which a node of ``voxel``-sized voxels is refined (perspective):
+        ``refine`` is this limit on the node's nearest depth, which lets a kept cut re-test only the
+        nodes near it when the camera moves (:class:`~clipvol.scene.selection.kept_cut.KeptCut`)."""
+        return float(voxel * camera.pixels_per_unit(1.0) / self.params.lod_threshold)
+
 
 class TexelBudget(ProjectedSize):
     """Projected size, always greedy: the largest projected voxels are refined first until the

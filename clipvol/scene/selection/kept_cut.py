@@ -1,0 +1,308 @@
+"""A projected-size cut kept between frames and updated where the camera changed it (pure numpy).
+
+A projected-size cut (Bhaniramka & Demange 2002) depends on the camera through two tests per node:
+the frustum and the refine decision ("a voxel covers more than ``lod_threshold`` pixels at the
+node's nearest depth"). A camera turning one degree flips them for a thin band of nodes near the
+level boundaries and the frustum's sides; walking the octree from the root again, level by level,
+re-derives everything else. :class:`KeptCut` keeps the nodes the last traversal visited as flat
+arrays (level, index, world box, parent row, the camera-free tests: shape, transparency) and, for a
+new camera:
+
+1. re-tests only the **band**: each node keeps its *slack*, how far (in world units) the camera's
+   frustum planes and the node's nearest depth may move before either test can flip, and the
+   camera it was last tested at; the change from that camera to this one is bounded by
+   :func:`camera_change` (the planes' and the view direction's turn times the volume's radius,
+   plus their shift at its centre), so a node whose slack exceeds its bound keeps its answers
+   untested;
+2. propagates "reached" from the root through the parents' answers (one gather per level);
+3. grows the tree below nodes that now refine and had no children yet (the traversal's own
+   expansion, per level);
+4. reads the leaves off the arrays: reached, kept, not refined, not transparent.
+
+The cut it gives equals :func:`~clipvol.scene.selection.select`'s for the same camera exactly (the
+tests are the traversal's own functions on the same boxes; ``tests/scene/test_kept_cut.py``
+checks it over random camera paths against a fresh selection). With ``ordered=False`` the items
+come in depth-first (Morton) order, not back to front: the merge needs only siblings side by side,
+and the single pass no order at all; the render action orders the merged boxes where a path draws
+them one by one (:func:`~clipvol.scene.selection.coherence.node_order`). Ray-guided renderers
+(Crassin et al., *GigaVoxels*, 2009) avoid the walk altogether; this keeps the host's exact cut
+and only stops re-deriving what cannot have changed.
+
+What it does not handle (:meth:`KeptCut.update` returns None, and the caller selects from nothing):
+a child outside the clip-texture's window (drawn from its parent), a policy with its own ``keep``
+test, a budgeted (greedy) cut. Residency is the caller's: the cut is the ideal cut, every leaf
+drawn from its own brick (the frame loop uses it only while every brick is on the GPU).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...rows import unique_rows
+from .cut import BrickKeys, DrawItems, Selection
+from .octree import Octree
+from .order import depth_first, load_order, order_nodes
+from .policies.base import RefinePolicy
+from .traversal import Traversal
+
+__all__ = ["KeptCut", "camera_change"]
+
+#: cameras kept to bound each node's change from the one it was last tested at; past this many,
+#: those no node refers to are dropped (and if still more, every node is tested again)
+MAX_CAMERAS = 64
+#: drop the nodes no longer reached once they outnumber the reached ones and this many (a long
+#: fly-through would otherwise keep every node it ever visited)
+COMPACT_MIN = 4096
+
+
+def _camera_terms(camera, centre: np.ndarray) -> np.ndarray:
+    """``(7, 4)``: each frustum plane's normal and its value at ``centre``, and the view direction
+    and the depth of ``centre``: every test of a node is a function of these and of the node's box
+    relative to ``centre`` (:func:`camera_change`)."""
+    p = camera._plane_table()  # planes relative to the eye: n . (x - eye) + d
+    off = p[:, :3] @ (centre - camera.eye) + p[:, 3]
+    f = np.asarray(camera.forward, dtype=np.float64)
+    return np.concatenate([np.concatenate([p[:, :3], off[:, None]], axis=1),
+                           [[*f, float(f @ (centre - camera.eye))]]])
+
+
+def camera_change(a: np.ndarray, b: np.ndarray, radius: float) -> np.ndarray:
+    """``(..., 7)``: the most any frustum plane's value (rows 0-5) and any depth (row 6) of a point
+    within ``radius`` of the centre can change between cameras with terms ``a`` and ``b``
+    (:func:`_camera_terms`; ``a`` may hold many cameras, ``(..., 7, 4)``): ``|dn| radius +
+    |d(value at centre)|``, each point's value being ``n . (x - centre)`` plus the value at the
+    centre."""
+    d = np.asarray(b) - np.asarray(a)
+    return np.linalg.norm(d[..., :3], axis=-1) * radius + np.abs(d[..., 3])
+
+
+class KeptCut:
+    """The nodes a projected-size traversal visited, kept as flat arrays, and updated per camera.
+
+    Parameters
+    ----------
+    pyramid, params, policy, residency, transparent
+        As for :func:`~clipvol.scene.selection.select`; ``residency`` is asked only which children
+        lie in the clip-texture's window (``in_window_mask``), never to reserve anything.
+
+    Use :meth:`update` for each camera; :attr:`supported` is False (and every update None) for a
+    cut it cannot keep exactly (module docstring).
+    """
+
+    def __init__(self, pyramid, params, policy, residency=None, transparent=None) -> None:
+        self.tree = tree = Octree(pyramid)
+        self.params, self.policy = params, policy
+        self._t = Traversal(tree, None, params, policy, residency, transparent)
+        self.transparent, self.shape = transparent, params.shape
+        # a policy whose cut is the level-by-level descent and whose refine answer is a nearest-depth
+        # limit per level (it says so with ``depth_threshold``): the projected size
+        self.supported = (getattr(policy, "keep", None) is None and params.max_texels_drawn is None
+                          and getattr(policy, "depth_threshold", None) is not None
+                          and getattr(type(policy), "cut", None) is RefinePolicy.cut)
+        vlo, vhi = pyramid.volume_box()
+        self.centre = (vlo + vhi) / 2.0
+        self.radius = float(np.linalg.norm(vhi - vlo)) / 2.0
+        # the rows: one per visited node (parents before children)
+        self.lv = np.zeros(1, dtype=np.int64)
+        self.lv[0] = tree.root
+        self.idx = np.zeros((1, 3), dtype=np.int64)
+        self.lo, self.hi = tree.boxes(tree.root, self.idx)
+        self.parent = np.full(1, -1, dtype=np.int64)
+        self.expanded = np.zeros(1, dtype=bool)
+        self.inside = self._inside(self.lv, self.lo, self.hi)  # not outside the shape (camera-free)
+        self.opaque = self._opaque(self.lv, self.idx)
+        self.infr = np.zeros(1, dtype=bool)
+        self.ref = np.zeros(1, dtype=bool)
+        self.slack = np.full((1, 2), -np.inf)  # (frustum, depth) slack against the reference camera
+        self.reached = np.ones(1, dtype=bool)
+        self.cam_id = np.zeros(1, dtype=np.int64)  # the camera (in _cams) each node was last tested at
+        self._cams: list[np.ndarray] = []
+        self.camera = None
+        self.retested = 0  # nodes re-tested by the last update (the band), for benchmarks and tests
+        self.selection: Selection | None = None
+
+    # -- the camera-free tests -------------------------------------------------------------------
+    def _inside(self, lv, lo, hi) -> np.ndarray:
+        if self.shape is None or self.shape.is_everything:
+            return np.ones(len(lv), dtype=bool)
+        return ~np.asarray(self.shape.boxes_outside(lo, hi), dtype=bool).reshape(len(lv))
+
+    def _opaque(self, lv, idx) -> np.ndarray:
+        out = np.ones(len(lv), dtype=bool)
+        if self.transparent is None:
+            return out
+        for L in np.unique(lv[lv <= self.tree.top]).tolist():
+            m = lv == L
+            out[m] = ~np.asarray(self.transparent(L, idx[m]), dtype=bool).reshape(int(m.sum()))
+        return out
+
+    # -- the camera's tests ----------------------------------------------------------------------
+    def _test(self, rows: np.ndarray, camera) -> None:
+        """The frustum and refine answers of ``rows`` for ``camera`` (the last of ``_cams``), and
+        their slacks: how much either may change before an answer can flip."""
+        if not len(rows):
+            return
+        t, tree = self._t, self.tree
+        lo, hi, lv = self.lo[rows], self.hi[rows], self.lv[rows]
+        reach = camera._box_reach(lo, hi, 6)  # what boxes_in_frustum tests
+        infr = np.all(reach >= 0, axis=1)
+        ref = np.zeros(len(rows), dtype=bool)
+        dslack = np.full(len(rows), np.inf)
+        f = np.asarray(camera.forward, dtype=np.float64)
+        for L in np.unique(lv).tolist():
+            m = lv == L
+            if L > tree.top:
+                ref[m] = True  # virtual levels are always entered
+            elif L > 0:
+                ref[m] = np.asarray(self.policy.refine(t, L, lo[m], hi[m]), dtype=bool).reshape(int(m.sum()))
+                dslack[m] = self._depth_slack(camera, f, L, lo[m], hi[m])
+        # a kept node flips when its smallest reach crosses 0, a culled one when its most negative does
+        fslack = np.where(infr, reach.min(axis=1), -np.where(reach < 0, reach, 0).min(axis=1))
+        self.infr[rows], self.ref[rows] = infr, ref
+        # rounding of the tests themselves: a node this close to flipping is always re-tested
+        self.slack[rows] = np.stack([fslack, dslack], axis=1) - 1e-9 * max(1.0, self.radius)
+        self.cam_id[rows] = len(self._cams) - 1
+
+    def _depth_slack(self, camera, f, level: int, lo, hi) -> np.ndarray:
+        """How far a node's nearest depth may move before the projected-size policy's answer can
+        flip (infinite where it cannot: level 0; every box of an orthographic camera)."""
+        if camera.orthographic:  # the answer does not depend on depth (the lens is checked in update)
+            return np.full(len(lo), np.inf)
+        c, h = (lo + hi) * 0.5 - camera.eye, (hi - lo) * 0.5
+        dc, dh = c @ f, h @ np.abs(f)
+        dmin, dmax = dc - dh, dc + dh
+        limit = self.policy.depth_threshold(camera, self.tree.voxel(level))
+        # refined while 0 < dmin < limit or dmin <= 0 (the eye plane crosses it); not once dmax <= 0
+        return np.minimum(np.abs(dmin - limit), np.abs(dmax)) - 1e-9 * max(1.0, abs(limit))
+
+    # -- the update ------------------------------------------------------------------------------
+    def _grow(self, camera) -> bool:
+        """Expand every reached, kept, refined node without children yet, level by level (the
+        traversal's own expansion); False where a child lies outside the window."""
+        tree = self.tree
+        while True:
+            go = self.reached & self.infr & self.inside & self.ref & ~self.expanded
+            rows = np.nonzero(go)[0]
+            if not len(rows):
+                return True
+            new_lv, new_idx, new_par = [], [], []
+            for L in np.unique(self.lv[rows]).tolist():
+                r = rows[self.lv[rows] == L]
+                c, p = tree.children(L, self.idx[r])
+                if L <= tree.top and not self._t.in_window(L - 1, c).all():
+                    return False  # a child drawn from its parent: the traversal's records, not kept here
+                new_lv.append(np.full(len(c), L - 1, dtype=np.int64))
+                new_idx.append(c)
+                new_par.append(r[p])
+            self.expanded[rows] = True
+            lv, idx, par = np.concatenate(new_lv), np.concatenate(new_idx), np.concatenate(new_par)
+            lo, hi = np.empty((len(lv), 3)), np.empty((len(lv), 3))
+            for L in np.unique(lv).tolist():
+                m = lv == L
+                lo[m], hi[m] = tree.boxes(L, idx[m])
+            n0 = len(self.lv)
+            self.lv = np.concatenate([self.lv, lv])
+            self.idx = np.concatenate([self.idx, idx])
+            self.lo, self.hi = np.concatenate([self.lo, lo]), np.concatenate([self.hi, hi])
+            self.parent = np.concatenate([self.parent, par])
+            self.expanded = np.concatenate([self.expanded, np.zeros(len(lv), dtype=bool)])
+            self.inside = np.concatenate([self.inside, self._inside(lv, lo, hi)])
+            self.opaque = np.concatenate([self.opaque, self._opaque(lv, idx)])
+            self.infr = np.concatenate([self.infr, np.zeros(len(lv), dtype=bool)])
+            self.ref = np.concatenate([self.ref, np.zeros(len(lv), dtype=bool)])
+            self.slack = np.concatenate([self.slack, np.zeros((len(lv), 2))])
+            self.cam_id = np.concatenate([self.cam_id, np.zeros(len(lv), dtype=np.int64)])
+            self.reached = np.concatenate([self.reached, np.ones(len(lv), dtype=bool)])
+            self._test(np.arange(n0, len(self.lv)), camera)
+
+    def _propagate(self) -> None:
+        """Reached: the root, and every child of a reached, kept, refined node (one gather per level)."""
+        go = self.infr & self.inside & self.ref
+        self.reached[:] = False
+        self.reached[self.parent < 0] = True
+        for L in range(self.tree.root - 1, -1, -1):
+            r = np.nonzero(self.lv == L)[0]
+            p = self.parent[r]
+            self.reached[r] = self.reached[p] & go[p]
+
+    def _compact(self) -> None:
+        """Keep only the reached nodes (a reached node's parent is reached: the tree stays whole); a
+        node whose children go is marked unexpanded, to grow again if it refines again."""
+        keep = self.reached
+        new = np.cumsum(keep) - 1
+        for name in ("lv", "idx", "lo", "hi", "expanded", "inside", "opaque", "infr", "ref", "slack", "cam_id",
+                     "reached"):
+            setattr(self, name, getattr(self, name)[keep])
+        parent = self.parent[keep]
+        self.parent = np.where(parent >= 0, new[np.maximum(parent, 0)], -1)
+        self.expanded &= self.infr & self.inside & self.ref  # (else its children were not reached)
+
+    def update(self, camera, ordered: bool = True) -> Selection | None:
+        """The cut :func:`~clipvol.scene.selection.select` makes for ``camera`` (residency apart:
+        every leaf drawn from its own brick), or None where this cut cannot be kept (module
+        docstring). The same :class:`Selection` object comes back while no node's answer changed.
+
+        ``ordered``: items in back-to-front order and ``wanted`` in load order, as ``select``
+        gives them; False: both in depth-first order (no visibility order, no distances), and the
+        selection's ``ordered`` is False.
+        """
+        if not self.supported:
+            return None
+        terms = _camera_terms(camera, self.centre)
+        last = self.camera
+        if last is not None and (last.orthographic != camera.orthographic
+                                 or float(last.pixels_per_unit(1.0)) != float(camera.pixels_per_unit(1.0))):
+            self.slack[:] = -np.inf  # another lens or image size: the depth limits moved, test everything
+        if len(self._cams) > MAX_CAMERAS:  # forget the cameras no node was last tested at
+            used, self.cam_id = np.unique(self.cam_id, return_inverse=True)
+            self._cams = [self._cams[i] for i in used.tolist()]
+            if len(self._cams) > MAX_CAMERAS:
+                self.slack[:] = -np.inf
+        bound = camera_change(np.asarray(self._cams).reshape(-1, 7, 4), terms, self.radius) if self._cams \
+            else np.zeros((1, 7))
+        b = bound[self.cam_id]  # each node's bound from the camera it was last tested at
+        band = np.nonzero((self.slack[:, 0] <= b[:, :6].max(axis=1)) | (self.slack[:, 1] <= b[:, 6]))[0]
+        self._cams.append(terms)
+        was = (self.infr[band].copy(), self.ref[band].copy())
+        self._t.camera = self.camera = camera
+        self._test(band, camera)
+        self.retested = len(band)
+        changed = self.selection is None or not (np.array_equal(was[0], self.infr[band])
+                                                 and np.array_equal(was[1], self.ref[band]))
+        if not changed and not ordered and not self.selection.ordered:
+            return self.selection
+        if changed:
+            self._propagate()
+            n_out = len(self.lv) - int(self.reached.sum())
+            if n_out > max(COMPACT_MIN, len(self.lv) - n_out):
+                self._compact()
+            if not self._grow(camera):
+                self.supported = False
+                return None
+        self.selection = self._selection(camera, ordered)
+        return self.selection
+
+    def _selection(self, camera, ordered: bool) -> Selection:
+        tree = self.tree
+        kept = self.reached & self.infr & self.inside
+        real = self.lv <= tree.top
+        leaf = kept & ~self.ref
+        draw = np.nonzero(leaf & self.opaque)[0]
+        counts = dict(visited=int(self.reached.sum()), culled_frustum=int((self.reached & ~self.infr).sum()),
+                      culled_shape=int((self.reached & self.infr & ~self.inside).sum()),
+                      culled_transparent=int((leaf & ~self.opaque).sum()), culled_policy=0,
+                      refined=int((kept & self.ref & real & (self.lv > 0)).sum()), outside_window=0,
+                      fallback=0, missing=0, texels=len(draw) * tree.texels, level=-1)
+        lv, idx = self.lv[draw], self.idx[draw]
+        keys = np.concatenate([lv[:, None], idx], axis=1)
+        if ordered:
+            u = unique_rows(keys) if len(keys) else keys
+            wanted = u[load_order(tree, camera, u[:, 0], u[:, 1:])]
+            o = order_nodes(tree, camera, lv, idx)
+        else:
+            o = depth_first(lv, idx)
+            wanted = keys[o]
+        items = DrawItems(keys[o], self.lo[draw][o], self.hi[draw][o])
+        node_data = getattr(self.policy, "node_data", None)
+        return Selection(items, BrickKeys(wanted), counts, self.params.policy, dict(node_data) if node_data else {},
+                         None, ordered=ordered)

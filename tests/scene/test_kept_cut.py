@@ -1,0 +1,144 @@
+"""A projected-size cut kept between frames (clipvol.scene.selection.kept_cut) against what it
+stands for: the cut a fresh ``select`` makes for the same camera, frame by frame along random camera
+paths (small turns, where only a band of nodes is re-tested, and jumps), node for node, in the same
+order, with the same counts and the same ideal cut in the same load order."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clipvol.bricking.pyramid import Pyramid
+from clipvol.scene.camera import Camera
+from clipvol.scene.geometry import Shape
+from clipvol.scene.params import RenderParams
+from clipvol.scene.selection import merge_items, select
+from clipvol.scene.selection.coherence import node_order
+from clipvol.scene.selection.kept_cut import KeptCut
+from clipvol.scene.selection.order import depth_first
+from clipvol.scene.selection.policies import policy_for
+
+PYR = Pyramid.build((96, 80, 112), (8, 8, 8))  # grids 12x10x14 .. 1: no virtual level above the top
+PYR_V = Pyramid.build((64, 64, 64), (16, 16, 16)).with_levels(2)  # top grid 2^3: a virtual root above it
+CENTRE = np.array([55.5, 39.5, 47.5])
+
+
+def transparent(level, idx):
+    """A ball of data in air, in brick units of the level (a numpy statement)."""
+    idx = np.asarray(idx, dtype=np.float64).reshape(-1, 3)
+    c = (idx + 0.5) * 8 * 2 ** level - CENTRE[::-1]
+    return np.linalg.norm(c, axis=1) >= 40 + 4 * 2 ** level
+
+
+def camera(deg, elev, dist, fov=35.0, shift=(0, 0, 0), size=(32, 32), pyr=PYR) -> Camera:
+    lo, hi = pyr.volume_box()
+    c = (lo + hi) / 2
+    th, ph = np.radians(deg), np.radians(elev)
+    d = np.array([np.sin(th) * np.cos(ph), np.sin(ph), np.cos(th) * np.cos(ph)])
+    cam = Camera.perspective(tuple(c + d * dist), tuple(c + np.asarray(shift, dtype=float)), up=(0, 1, 0),
+                             fov_y=fov, size=size)
+    cam = cam.fit_depth(lo, hi)
+    return cam.with_depth_range(min(cam.near, cam.far * 1e-7), cam.far)
+
+
+def same(kept, fresh) -> None:
+    assert kept is not None
+    np.testing.assert_array_equal(kept.items.rows, fresh.items.rows)
+    np.testing.assert_array_equal(kept.items.lo, fresh.items.lo)
+    np.testing.assert_array_equal(kept.items.hi, fresh.items.hi)
+    np.testing.assert_array_equal(kept.wanted.rows, fresh.wanted.rows)
+    assert kept.counts == fresh.counts
+
+
+def path(rng, n: int, step: float):
+    """A random camera path: small turns, zooms and pans of up to ``step`` degrees, and jumps."""
+    deg, elev, dist, shift = rng.uniform(0, 360), rng.uniform(-40, 40), rng.uniform(60, 200), rng.uniform(-10, 10, 3)
+    for _ in range(n):
+        if rng.random() < 0.1:  # anywhere
+            deg, elev, dist = rng.uniform(0, 360), rng.uniform(-40, 40), rng.uniform(40, 220)
+        else:
+            deg += rng.uniform(-step, step)
+            elev = float(np.clip(elev + rng.uniform(-step, step), -60, 60))
+            dist *= 1 + rng.uniform(-step, step) / 100
+            shift = shift + rng.uniform(-step, step, 3) / 4
+        yield camera(deg, elev, dist, shift=shift)
+
+
+CROP = Shape(box=((10, 5, 20), (70, 60, 90)), planes=[(1, 1, 0, -40)])
+
+
+@pytest.mark.parametrize("threshold,shape", [(0.1, None), (0.25, None), (0.1, CROP)])
+def test_the_kept_cut_is_a_fresh_selections_cut_along_random_paths(threshold, shape):
+    params = RenderParams(policy="projected-size", lod_threshold=threshold, shape=shape)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    rng = np.random.default_rng(int(threshold * 100) + (shape is not None))
+    partial = 0
+    for cam in path(rng, 40, 2.0):
+        same(kc.update(cam), select(PYR, cam, params, transparent=transparent))
+        partial += kc.retested < len(kc.lv)
+    assert partial > 10  # most small moves re-tested only a band of the kept nodes
+
+
+def test_nodes_no_longer_reached_are_dropped_and_grown_again(monkeypatch):
+    from clipvol.scene.selection import kept_cut
+
+    monkeypatch.setattr(kept_cut, "COMPACT_MIN", 0)
+    params = RenderParams(policy="projected-size", lod_threshold=0.1)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    sizes = []
+    for k, dist in enumerate([60, 200, 60, 220, 50, 200, 60]):  # near and far: nodes go and come back
+        cam = camera(20 + k, 15, dist)
+        same(kc.update(cam), select(PYR, cam, params, transparent=transparent))
+        sizes.append(len(kc.lv))
+        assert np.all(kc.parent[1:] < np.arange(1, len(kc.lv))) and kc.parent[0] == -1
+    assert any(b < a for a, b in zip(sizes, sizes[1:]))  # kept nodes were dropped (else they only grow)
+
+
+def test_a_virtual_root_and_every_node_refined_to_level_0():
+    params = RenderParams(policy="projected-size", lod_threshold=0.02)
+    kc = KeptCut(PYR_V, params, policy_for(params))
+    rng = np.random.default_rng(5)
+    for k in range(12):
+        cam = camera(30 + k * 3, 10, rng.uniform(50, 150), pyr=PYR_V)
+        same(kc.update(cam), select(PYR_V, cam, params))
+
+
+def test_an_unchanged_cut_comes_back_as_the_same_object_and_depth_first():
+    params = RenderParams(policy="projected-size", lod_threshold=0.1)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    a = kc.update(camera(10, 20, 150), ordered=False)
+    b = kc.update(camera(10.001, 20, 150), ordered=False)
+    assert b is a and not a.ordered and kc.retested < len(kc.lv)
+    fresh = select(PYR, camera(10.001, 20, 150), params, transparent=transparent)
+    # the same nodes; depth-first order merges as the back-to-front order does, and node_order of
+    # the merged boxes is the fresh order's merge
+    assert sorted(map(tuple, a.items.rows.tolist())) == sorted(map(tuple, fresh.items.rows.tolist()))
+    windows = [PYR.grid(L) for L in range(PYR.num_levels)]
+    merged = merge_items(a.items, PYR, windows)
+    want = merge_items(fresh.items, PYR, windows)
+    cam = camera(10.001, 20, 150)
+    assert [merged[i] for i in node_order(merged, PYR, cam)] == want
+
+
+def test_depth_first_is_the_octree_order_with_octants_by_number():
+    rng = np.random.default_rng(0)
+    # a random cut of a 16^3 grid: refine each node with probability 1/2, children in octant order
+    def walk(level, idx, out):
+        if level == 0 or rng.random() < 0.4:
+            out.append((level, *idx))
+            return
+        for o in range(8):
+            walk(level - 1, (2 * idx[0] + (o >> 2), 2 * idx[1] + ((o >> 1) & 1), 2 * idx[2] + (o & 1)), out)
+    nodes: list = []
+    walk(4, (0, 0, 0), nodes)
+    shuffled = rng.permutation(len(nodes))
+    rows = np.array(nodes, dtype=np.int64)[shuffled]
+    o = depth_first(rows[:, 0], rows[:, 1:])
+    assert [tuple(r) for r in rows[o].tolist()] == nodes
+
+
+def test_a_budgeted_or_fixed_cut_is_not_kept():
+    for params in (RenderParams(policy="projected-size", max_texels_drawn=100 * 512),
+                   RenderParams(policy="fixed", level=0)):
+        kc = KeptCut(PYR, params, policy_for(params))
+        assert not kc.supported and kc.update(camera(0, 0, 100)) is None
