@@ -142,3 +142,25 @@ def test_a_budgeted_or_fixed_cut_is_not_kept():
                    RenderParams(policy="fixed", level=0)):
         kc = KeptCut(PYR, params, policy_for(params))
         assert not kc.supported and kc.update(camera(0, 0, 100)) is None
+
+
+@pytest.mark.parametrize("threshold", [1.5, 3.0])
+def test_the_kept_cut_evens_out_as_a_fresh_selection_does(threshold, monkeypatch):
+    """The projected-size rule is evened out level by level (``ProjectedSize.even``): whether a node
+    is refined depends on the others of its level, not only on its own depth. The kept cut tests the
+    rule node by node in the band and evens out each level as it propagates; along random paths it
+    is the fresh cut, on frames where evening out changed the cut too (counted against the rule
+    without it)."""
+    from clipvol.scene.selection.policies.projected_size import ProjectedSize
+
+    params = RenderParams(policy="projected-size", lod_threshold=threshold)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    rng = np.random.default_rng(1)
+    cams = list(path(rng, 30, 2.0))
+    fresh = [select(PYR, cam, params, transparent=transparent) for cam in cams]
+    for cam, f in zip(cams, fresh):
+        same(kc.update(cam), f)
+    monkeypatch.setattr(ProjectedSize, "even", lambda self, t, level, lo, need: need)
+    raw = [select(PYR, cam, params, transparent=transparent) for cam in cams]
+    evened = sum(not np.array_equal(a.items.rows, b.items.rows) for a, b in zip(fresh, raw))
+    assert evened >= 3, evened  # else this tests nothing the other test does not

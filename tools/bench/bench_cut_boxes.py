@@ -51,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
 
     import clipvol.scene.selection.policies.projected_size as ps
-    from clipvol.render.action import OPAQUE
+    from clipvol.render.paths.setup import OPAQUE
 
     scene = common.WarmScene(a.store)
     pyr, tf = scene.pyramid, scene.tf

@@ -98,6 +98,7 @@ class KeptCut:
         # limit per level (it says so with ``depth_threshold``): the projected size
         self.supported = (getattr(policy, "keep", None) is None and params.max_texels_drawn is None
                           and getattr(policy, "depth_threshold", None) is not None
+                          and getattr(policy, "need", None) is not None and getattr(policy, "even", None) is not None
                           and getattr(type(policy), "cut", None) is RefinePolicy.cut)
         vlo, vhi = pyramid.volume_box()
         self.centre = (vlo + vhi) / 2.0
@@ -112,7 +113,8 @@ class KeptCut:
         self.inside = self._inside(self.lv, self.lo, self.hi)  # not outside the shape (camera-free)
         self.opaque = self._opaque(self.lv, self.idx)
         self.infr = np.zeros(1, dtype=bool)
-        self.ref = np.zeros(1, dtype=bool)
+        self.ref = np.zeros(1, dtype=bool)  # the rule node by node (policy.need), tested in the band
+        self.eff = np.zeros(1, dtype=bool)  # refined: ``ref`` evened out over each level (policy.even)
         self.slack = np.full((1, 2), -np.inf)  # (frustum, depth) slack against the reference camera
         self.reached = np.ones(1, dtype=bool)
         self.cam_id = np.zeros(1, dtype=np.int64)  # the camera (in _cams) each node was last tested at
@@ -154,7 +156,7 @@ class KeptCut:
             if L > tree.top:
                 ref[m] = True  # virtual levels are always entered
             elif L > 0:
-                ref[m] = np.asarray(self.policy.refine(t, L, lo[m], hi[m]), dtype=bool).reshape(int(m.sum()))
+                ref[m] = self.policy.need(t, L, lo[m], hi[m])
                 dslack[m] = self._depth_slack(camera, f, L, lo[m], hi[m])
         # a kept node flips when its smallest reach crosses 0, a culled one when its most negative does
         fslack = np.where(infr, reach.min(axis=1), -np.where(reach < 0, reach, 0).min(axis=1))
@@ -178,10 +180,12 @@ class KeptCut:
     # -- the update ------------------------------------------------------------------------------
     def _grow(self, camera) -> bool:
         """Expand every reached, kept, refined node without children yet, level by level (the
-        traversal's own expansion); False where a child lies outside the window."""
+        traversal's own expansion), propagating after each round (the new level's nodes decide,
+        evened out together, what is refined there); False where a child lies outside the window."""
         tree = self.tree
         while True:
-            go = self.reached & self.infr & self.inside & self.ref & ~self.expanded
+            self._propagate()
+            go = self.reached & self.infr & self.inside & self.eff & ~self.expanded
             rows = np.nonzero(go)[0]
             if not len(rows):
                 return True
@@ -210,32 +214,45 @@ class KeptCut:
             self.opaque = np.concatenate([self.opaque, self._opaque(lv, idx)])
             self.infr = np.concatenate([self.infr, np.zeros(len(lv), dtype=bool)])
             self.ref = np.concatenate([self.ref, np.zeros(len(lv), dtype=bool)])
+            self.eff = np.concatenate([self.eff, np.zeros(len(lv), dtype=bool)])
             self.slack = np.concatenate([self.slack, np.zeros((len(lv), 2))])
             self.cam_id = np.concatenate([self.cam_id, np.zeros(len(lv), dtype=np.int64)])
             self.reached = np.concatenate([self.reached, np.ones(len(lv), dtype=bool)])
             self._test(np.arange(n0, len(self.lv)), camera)
 
     def _propagate(self) -> None:
-        """Reached: the root, and every child of a reached, kept, refined node (one gather per level)."""
-        go = self.infr & self.inside & self.ref
+        """Reached: the root, and every child of a reached, kept, refined node; refined (``eff``):
+        the rule's answers of the reached, kept nodes of a level evened out together, as the
+        traversal's ``refine`` does (one gather and one evening per level, top down)."""
+        kept = self.infr & self.inside
         self.reached[:] = False
         self.reached[self.parent < 0] = True
-        for L in range(self.tree.root - 1, -1, -1):
+        self.eff[:] = False
+        t, top = self._t, self.tree.top
+        for L in range(self.tree.root, -1, -1):
             r = np.nonzero(self.lv == L)[0]
+            if not len(r):
+                continue
             p = self.parent[r]
-            self.reached[r] = self.reached[p] & go[p]
+            if L < self.tree.root:
+                self.reached[r] = np.where(p >= 0, self.reached[np.maximum(p, 0)] & self.eff[np.maximum(p, 0)], True)
+            live = r[self.reached[r] & kept[r]]
+            if L > top or L == 0 or not len(live):
+                self.eff[live] = self.ref[live]
+            else:
+                self.eff[live] = self.policy.even(t, L, self.lo[live], self.ref[live])
 
     def _compact(self) -> None:
         """Keep only the reached nodes (a reached node's parent is reached: the tree stays whole); a
         node whose children go is marked unexpanded, to grow again if it refines again."""
         keep = self.reached
         new = np.cumsum(keep) - 1
-        for name in ("lv", "idx", "lo", "hi", "expanded", "inside", "opaque", "infr", "ref", "slack", "cam_id",
-                     "reached"):
+        for name in ("lv", "idx", "lo", "hi", "expanded", "inside", "opaque", "infr", "ref", "eff", "slack",
+                     "cam_id", "reached"):
             setattr(self, name, getattr(self, name)[keep])
         parent = self.parent[keep]
         self.parent = np.where(parent >= 0, new[np.maximum(parent, 0)], -1)
-        self.expanded &= self.infr & self.inside & self.ref  # (else its children were not reached)
+        self.expanded &= self.infr & self.inside & self.eff  # (else its children were not reached)
 
     def update(self, camera, ordered: bool = True) -> Selection | None:
         """The cut :func:`~clipvol.scene.selection.select` makes for ``camera`` (residency apart:
@@ -286,12 +303,12 @@ class KeptCut:
         tree = self.tree
         kept = self.reached & self.infr & self.inside
         real = self.lv <= tree.top
-        leaf = kept & ~self.ref
+        leaf = kept & ~self.eff
         draw = np.nonzero(leaf & self.opaque)[0]
         counts = dict(visited=int(self.reached.sum()), culled_frustum=int((self.reached & ~self.infr).sum()),
                       culled_shape=int((self.reached & self.infr & ~self.inside).sum()),
                       culled_transparent=int((leaf & ~self.opaque).sum()), culled_policy=0,
-                      refined=int((kept & self.ref & real & (self.lv > 0)).sum()), outside_window=0,
+                      refined=int((kept & self.eff & real & (self.lv > 0)).sum()), outside_window=0,
                       fallback=0, missing=0, texels=len(draw) * tree.texels, level=-1)
         lv, idx = self.lv[draw], self.idx[draw]
         keys = np.concatenate([lv[:, None], idx], axis=1)

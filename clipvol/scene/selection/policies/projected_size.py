@@ -55,13 +55,21 @@ class ProjectedSize(RefinePolicy):
     name = "projected-size"
 
     def refine(self, t, level, lo, hi):
-        need = t.projected_voxel(level, lo, hi) > self.params.lod_threshold
+        return self.even(t, level, lo, self.need(t, level, lo, hi))
+
+    def need(self, t, level, lo, hi) -> np.ndarray:
+        """The rule node by node, before evening out: a voxel covers more than ``lod_threshold``
+        pixels at the node's nearest depth (what :meth:`depth_threshold` states as a depth limit)."""
+        return np.asarray(t.projected_voxel(level, lo, hi) > self.params.lod_threshold, dtype=bool).reshape(len(lo))
+
+    def even(self, t, level, lo, need) -> np.ndarray:
+        """``need`` (every node of ``level`` the traversal reached and kept) evened out: per sibling
+        group, then the level as a whole (one level merges into one box); the greedy form as it is."""
         if self.params.max_texels_drawn is not None or len(need) < 2:  # the greedy form: the budget decides
             return need
         tree = t.tree
         idx = np.rint((np.asarray(lo) + 0.5 * tree.sp) / (tree.brick * 2.0**level * tree.sp)).astype(np.int64)
         parent = idx // 2
-        # per sibling group, then the level as a whole (one level merges into one box)
         return even_out(even_out(need, parent[:, 0] * (1 << 42) + parent[:, 1] * (1 << 21) + parent[:, 2]))
 
     def depth_threshold(self, camera, voxel: float) -> float:
