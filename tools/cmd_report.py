@@ -121,10 +121,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(default 10%%,5%%,2%%; needs the store's summary tables)")
     add_old_spelling(p, "--max-error", "--max-errors", " (report measures a list of budgets; --max-error is one "
                                                        "budget in render and view)")
-    p.add_argument("--refine", default=None, metavar="STEP:TOL,...",
-                   help="full resolution sampled at STEP voxels with adaptive image sampling at tolerance TOL "
-                        "(--refine-tolerance of clipvol render) measured as settings, comma-separated, or 'none' "
-                        "(default 2:0.16,2:0.25,2.5:0.2,2.5:0.3; composite only)")
+    p.add_argument("--refine", default=None, metavar="STEP:TOL[:LEVEL],...",
+                   help="one level (default the reference, full resolution) sampled at STEP voxels with adaptive "
+                        "image sampling at tolerance TOL (--refine-tolerance of clipvol render) measured as settings, "
+                        "comma-separated, or 'none' (default 2:0.16,2:0.25,2.5:0.2,2.5:0.3,1:0.16:1,1.5:0.16:1; "
+                        "composite only)")
     p.add_argument("--block-budgets", default=None,
                    help="block budgets of the policy comparison (image-based LOD, after Wang, Garcia & Shen 2007, "
                         "Fig. 6), comma-separated, or 'none' (default 8,16,32,64,128,256)")
@@ -153,7 +154,8 @@ def _max_errors(text):
 
 def _refines(text):
     """``--refine``: None (the report's default settings), ``()`` for 'none', else ``(step, tolerance)``
-    pairs (each validated by RenderParams, which names ``step`` or ``refine_tolerance``)."""
+    pairs or ``(step, tolerance, level)`` triples (each validated by RenderParams, which names ``step``
+    or ``refine_tolerance``, and by the report, which names the level)."""
     from clipvol.errors import ParameterError
 
     items = _listed(text)
@@ -161,12 +163,15 @@ def _refines(text):
         return None
     out = []
     for item in items:
+        parts = item.split(":")
         try:
-            st, tol = (float(v) for v in item.split(":"))
+            if len(parts) not in (2, 3):
+                raise ValueError
+            vals = tuple(float(v) for v in parts[:2]) + tuple(int(v) for v in parts[2:])
         except ValueError:
-            raise ParameterError(f"--refine: expected STEP:TOLERANCE pairs like 2.5:0.3, comma-separated, or "
-                                 f"'none', got {item!r}") from None
-        out.append((st, tol))
+            raise ParameterError(f"--refine: expected STEP:TOLERANCE[:LEVEL] like 2.5:0.3 or 1:0.16:1, comma-separated, "
+                                 f"or 'none', got {item!r}") from None
+        out.append(vals)
     return out
 
 

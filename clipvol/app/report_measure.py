@@ -44,9 +44,14 @@ __all__ = ["ReportFiles", "ReportResult", "measure", "REPORT_COLUMNS", "TIMING_C
 DEFAULT_THRESHOLDS = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0)
 #: the image policy's visible-error budgets (RenderParams.max_error) the report sweeps by default
 DEFAULT_MAX_ERRORS = (0.10, 0.05, 0.02)
-#: full resolution sampled at ``step`` voxels with adaptive image sampling at ``refine_tolerance``
-#: (:mod:`clipvol.render.refine`), the settings of the sweep "refine" by default
-DEFAULT_REFINES = ((2.0, 0.16), (2.0, 0.25), (2.5, 0.2), (2.5, 0.3))
+#: one level sampled at ``step`` voxels with adaptive image sampling at ``refine_tolerance``
+#: (:mod:`clipvol.render.refine`), the settings of the sweep "refine" by default: ``(step,
+#: tolerance)`` at the reference level, ``(step, tolerance, level)`` at a coarser one. Level 1 is in
+#: it for stores with consistent coarse levels (:mod:`clipvol.bricking.spread`): classified as the
+#: distribution of the voxels beneath, level 1 at step 1 with adaptive sampling was the fastest
+#: setting within 5 % on close views of the MNI template (9.3-11.3x the full-resolution frame;
+#: docs/benchmarks.md, "Multi-level cuts, consistent level 1 at speed")
+DEFAULT_REFINES = ((2.0, 0.16), (2.0, 0.25), (2.5, 0.2), (2.5, 0.3), (1.0, 0.16, 1), (1.5, 0.16, 1))
 #: what the orbit's views frame (run_report's ``frame``)
 FRAMES = ("visible", "volume")
 
@@ -118,6 +123,23 @@ class _Setting:
                   max_error=None, max_texels_drawn=None, visibility=True, distance_factor=1.0)
         ch.update(dict(self.changes))
         return replace(base, **ch)
+
+
+def _refine_setting(spec) -> tuple[float, float, int | None]:
+    """``(step, tolerance[, level])`` checked (RenderParams names ``step`` or ``refine_tolerance``;
+    a level must be a whole number >= 0): ``(step, tolerance, level or None)``, None meaning the
+    reference level."""
+    spec = tuple(spec)
+    if len(spec) not in (2, 3):
+        raise ParameterError(f"refines: expected (step, tolerance) or (step, tolerance, level), got {spec!r}")
+    p = RenderParams(step=spec[0], refine_tolerance=spec[1])
+    level = None
+    if len(spec) == 3:
+        lv = spec[2]
+        if isinstance(lv, bool) or int(lv) != lv or int(lv) < 0:
+            raise ParameterError(f"refines: expected a level >= 0 as the third value, got {lv!r}")
+        level = int(lv)
+    return p.step, p.refine_tolerance, level
 
 
 def _level_bytes(pyr, level: int) -> int:
@@ -430,8 +452,7 @@ def measure(
     # validated before anything is drawn: fractions in (0, 1] (RenderParams names max_error when not)
     max_errors = [RenderParams(policy="image", max_error=e).max_error
                   for e in (DEFAULT_MAX_ERRORS if max_errors is None else max_errors)]
-    refines = [(p.step, p.refine_tolerance) for p in (RenderParams(step=st, refine_tolerance=tol)
-                                                      for st, tol in (DEFAULT_REFINES if refines is None else refines))]
+    refines = [_refine_setting(r) for r in (DEFAULT_REFINES if refines is None else refines)]
     loader = open_loader(source)
     out.mkdir(parents=True, exist_ok=True)
     pyr = loader.pyramid
@@ -503,8 +524,14 @@ def measure(
         for e in max_errors:
             settings.append(_Setting("max_error", f"max-error={100 * e:g}%", 1.0, full_mem, full_tex, "image", None,
                                      (("max_error", e),)))
-        for st, tol in refines if mode == "composite" else ():
-            settings.append(_Setting("refine", f"step={st:g} refine={tol:g}", 1.0, full_mem, full_tex, "fixed", 0,
+        for st, tol, lvl in refines if mode == "composite" else ():
+            level = ref_level if lvl is None else lvl
+            if level >= pyr.num_levels or level < ref_level:
+                result.skipped.append(f"step={st:g} refine={tol:g} at level {level}: the store's levels are "
+                                      f"{ref_level}..{pyr.num_levels - 1}")
+                continue
+            label = f"step={st:g} refine={tol:g}" if level == ref_level else f"L{level} step={st:g} refine={tol:g}"
+            settings.append(_Setting("refine", label, 1.0, full_mem, full_tex, "fixed", level,
                                      (("step", st), ("refine_tolerance", tol))))
         measured = [fixed]
         for s in settings:

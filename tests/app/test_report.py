@@ -271,14 +271,21 @@ def test_cli_max_error_is_checked_before_anything_is_drawn(tmp_path, capsys):
 
 
 def test_adaptive_sampling_settings_are_rows_of_the_report(report):
-    """The default sweep "refine": level 0 at a coarser step with adaptive image sampling, measured
-    like every setting (converged frames against the reference, warm timing)."""
+    """The default sweep "refine": level 0 (and level 1, a coarser level classified by its
+    distribution) at a coarser step with adaptive image sampling, measured like every setting
+    (converged frames against the reference, warm timing)."""
     from clipvol.app.report import DEFAULT_REFINES, summarise
 
     res, _ = report
     conv = [r for r in _rows(res.csv) if r["kind"] == "converged" and r["sweep"] == "refine"]
-    assert {r["setting"] for r in conv} == {f"step={st:g} refine={tol:g}" for st, tol in DEFAULT_REFINES}
-    assert all(r["selection"] == "fixed" and r["level"] == "0" for r in conv)
+    want = {(f"step={st:g} refine={tol:g}" if not lv else f"L{lv[0]} step={st:g} refine={tol:g}",
+             str(lv[0] if lv else 0)) for st, tol, *lv in DEFAULT_REFINES}
+    assert any(len(d) == 3 and d[2] == 1 for d in DEFAULT_REFINES)  # a coarse level among them
+    assert {(r["setting"], r["level"]) for r in conv} == want
+    assert all(r["selection"] == "fixed" for r in conv)
+    n_bricks = {(r["setting"], r["view"]): int(r["bricks_drawn"]) for r in conv}
+    assert all(n_bricks[(s, v)] < n_bricks[(next(iter(x for x, lv in want if lv == "0")), v)]
+               for (s, v) in n_bricks if s.startswith("L1 "))  # level 1 draws fewer bricks
     s = {x["setting"]: x for x in summarise(res.rows)}
     assert all(s[r["setting"]]["speedup"] > 0 for r in conv)
 
@@ -286,7 +293,8 @@ def test_adaptive_sampling_settings_are_rows_of_the_report(report):
 def test_cli_refine_is_checked_before_anything_is_drawn(tmp_path, capsys):
     from clipvol.tools.cli import main
 
-    for bad, name in (("2.5", "--refine"), ("2:1.5", "refine_tolerance")):
+    for bad, name in (("2.5", "--refine"), ("2:1.5", "refine_tolerance"), ("1:0.2:x", "--refine"),
+                      ("1:0.2:-1", "level")):
         rc = main(["report", "procedural:fractal?size=16", "--brick", "8", "--out", str(tmp_path / "rep"),
                    "--refine", bad])
         assert rc == 2
