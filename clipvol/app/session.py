@@ -22,7 +22,7 @@ from ..render.action import ClipRenderAction
 from ..scene.params import RenderParams
 from ..scene.transfer import TransferFunction
 
-__all__ = ["RenderSession", "open_loader", "make_overlays"]
+__all__ = ["ActionSession", "RenderSession", "open_loader", "make_overlays"]
 
 
 def open_loader(source, **kwargs):
@@ -66,7 +66,32 @@ def _check_tf(tf):
     return tf
 
 
-class RenderSession:
+class ActionSession:
+    """What every session of one render action over one clip-texture shares: closing both in the
+    right order (the action's GL resources first, then the loader threads), also as a context
+    manager. Subclasses set ``action`` and ``clip_texture``."""
+
+    action = None
+    clip_texture = None
+
+    def close(self) -> None:
+        """Release the action's GL resources, then stop the loader threads."""
+        try:
+            if self.action is not None:
+                self.action.close()
+                self.action = None
+        finally:
+            if self.clip_texture is not None:
+                self.clip_texture.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class RenderSession(ActionSession):
     """A loader + :class:`~clipvol.paging.cliptexture.ClipTexture` + :class:`~clipvol.render.action.ClipRenderAction`.
 
     Parameters
@@ -199,18 +224,3 @@ class RenderSession:
         """The draw items of the last frame (for brick outlines); empty before the first frame."""
         sel = getattr(self.action, "last_selection", None)
         return list(sel.items) if sel is not None else []
-
-    def close(self) -> None:
-        """Release the render action's GL resources, then stop the loader threads."""
-        try:
-            if self.action is not None:
-                self.action.close()
-                self.action = None
-        finally:
-            self.clip_texture.close()
-
-    def __enter__(self) -> "RenderSession":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()

@@ -22,12 +22,12 @@ from ..paging.cliptexture import ClipTexture
 from ..paging.region import Region
 from ..render.slice_action import SliceAction
 from ..scene.params import RenderParams
-from .session import open_loader
+from .session import ActionSession, open_loader
 
 __all__ = ["SliceSession"]
 
 
-class SliceSession:
+class SliceSession(ActionSession):
     """A loader + :class:`~clipvol.paging.cliptexture.ClipTexture` + :class:`~clipvol.render.slice_action.SliceAction`.
 
     Parameters
@@ -76,18 +76,3 @@ class SliceSession:
     def stats(self):
         """The last slice's :class:`~clipvol.render.slice_action.SliceStats`."""
         return self.action.last_stats
-
-    def close(self) -> None:
-        """Release the slice action's GL resources, then stop the loader threads."""
-        try:
-            if self.action is not None:
-                self.action.close()
-                self.action = None
-        finally:
-            self.clip_texture.close()
-
-    def __enter__(self) -> "SliceSession":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()

@@ -147,12 +147,7 @@ def classification_bias(tables: SummaryTables, F: np.ndarray, classify: str = "m
     out = [np.zeros(pyr.num_bricks(L)) for L in range(pyr.num_levels)]
     for L in range(1, pyr.num_levels):
         cl = L - 1
-        off = tables.pairs_offsets[cl]
-        n_child = len(off) - 1
-        owner = np.repeat(np.arange(n_child, dtype=np.int64), np.diff(off))
-        code = tables.pairs_code[cl].astype(np.int64)
-        k, l = code // nb, code % nb
-        w = tables.pairs_count[cl].astype(np.float64)
+        n_child, owner, k, l, w = _pairs(tables, cl)
         grp = owner * nb + k  # (child brick, parent code)
         ug, inv = np.unique(grp, return_inverse=True)
         n = np.bincount(inv, weights=w, minlength=len(ug))
@@ -162,15 +157,23 @@ def classification_bias(tables: SummaryTables, F: np.ndarray, classify: str = "m
         per_child = np.bincount(ug // nb, weights=d2, minlength=n_child)
         N = np.bincount(owner, weights=w, minlength=n_child)
         b_ij = np.sqrt(per_child / np.maximum(N, 1.0))
-        gc = np.array(pyr.grid(cl))
-        cidx = np.stack(np.unravel_index(np.arange(n_child), tuple(gc)), axis=1)
-        pflat = np.ravel_multi_index(tuple((cidx // 2).T), pyr.grid(L))
+        pflat = _child_parent(pyr, cl)
         kids = np.bincount(pflat, weights=(N > 0).astype(np.float64), minlength=pyr.num_bricks(L))
         total = np.bincount(pflat, weights=np.where(N > 0, b_ij, 0.0), minlength=pyr.num_bricks(L))
         worst = np.zeros(pyr.num_bricks(L))
         np.maximum.at(worst, pflat, out[cl])
         out[L] = total / np.maximum(kids, 1.0) + worst
     return out
+
+
+def _pairs(tables: SummaryTables, cl: int):
+    """The summary tables' (child voxel code, parent voxel code) pairs of level ``cl`` and the next:
+    ``(children, owner, parent code, child code, count)``, ``owner`` the child brick of each pair."""
+    off = tables.pairs_offsets[cl]
+    n_child = len(off) - 1
+    owner = np.repeat(np.arange(n_child, dtype=np.int64), np.diff(off))
+    code = tables.pairs_code[cl].astype(np.int64)
+    return n_child, owner, code // SUMMARY_BINS, code % SUMMARY_BINS, tables.pairs_count[cl].astype(np.float64)
 
 
 def _child_parent(pyr, cl: int) -> np.ndarray:
@@ -197,12 +200,7 @@ def distribution_residual(tables: SummaryTables, tf) -> list[np.ndarray]:
     s2_lv = np.zeros(pyr.num_bricks(0))  # per brick of the child level: mean spread^2 of its voxels
     for L in range(1, pyr.num_levels):
         cl = L - 1
-        off = tables.pairs_offsets[cl]
-        n_child = len(off) - 1
-        owner = np.repeat(np.arange(n_child, dtype=np.int64), np.diff(off))
-        code = tables.pairs_code[cl].astype(np.int64)
-        k, l = code // nb, code % nb
-        w = tables.pairs_count[cl].astype(np.float64)
+        n_child, owner, k, l, w = _pairs(tables, cl)
         # the fine side: level 0's colour, or the child level's consistent colour at its brick's spread
         fine = P[l] if cl == 0 else expected_premultiplied(tf, centres[l], np.sqrt(s2_lv[owner]), rng)
         grp = owner * nb + k  # (child brick, parent code)
