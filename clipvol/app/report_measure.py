@@ -51,7 +51,7 @@ DEFAULT_MAX_ERRORS = (0.10, 0.05, 0.02)
 #: distribution of the voxels beneath, level 1 at step 1 with adaptive sampling was the fastest
 #: setting within 5 % on close views of the MNI template (9.3-11.3x the full-resolution frame;
 #: docs/benchmarks.md, "Multi-level cuts, consistent level 1 at speed")
-DEFAULT_REFINES = ((2.0, 0.16), (2.0, 0.25), (2.5, 0.2), (2.5, 0.3), (1.0, 0.16, 1), (1.5, 0.16, 1))
+DEFAULT_REFINES = ((2.0, 0.16), (2.0, 0.25), (2.5, 0.2), (2.5, 0.3), (1.0, 0.08, 1), (1.0, 0.16, 1))
 #: what the orbit's views frame (run_report's ``frame``)
 FRAMES = ("visible", "volume")
 
