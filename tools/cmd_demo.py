@@ -112,13 +112,14 @@ def run(args) -> int:
             t2 = time.perf_counter()
             # a short report (the demo should take about a minute): three projected-size
             # thresholds, the image policy at a 5 % error budget, adaptive image sampling at step
-            # 2.5, 3 rounds over 2 views; `clipvol report` on the store measures the full sweep
+            # 2.5 (level 0) and step 1 (level 1, classified by its distribution), 3 rounds over 2
+            # views; `clipvol report` on the store measures the full sweep
             # (block, memory and texture budgets too)
             report = run_report(
                 loader, out / "report", views=2, size=(48, 48) if quick else (160, 160),
                 thresholds=(1.0, 4.0, 16.0), tf=tf, ctx=ctx, memory_budgets=(), texture_budgets=(),
                 block_budgets=(), max_errors=() if quick else ("5%",),
-                refines=() if quick else ((2.5, 0.3),),
+                refines=() if quick else ((2.5, 0.3), (1.0, 0.08, 1)),
                 max_frames=3 if quick else 8, log=None if quick else (lambda s: print(s, flush=True)),
                 rounds=2 if quick else 3,
             )
