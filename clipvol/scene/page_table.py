@@ -44,6 +44,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .selection.cut import DrawItems
+
 __all__ = ["PageTable", "build_page_table", "block_cells", "block_open_faces", "EMPTY", "REFINED", "DRAWN", "item_nodes"]
 
 EMPTY, REFINED, DRAWN = 0, 1, 2
@@ -100,20 +102,20 @@ def _node_arrays(items, pyramid) -> tuple[np.ndarray, np.ndarray] | None:
     """:func:`item_nodes` as arrays: ``(levels (n,), indices (n, 3))``, or None."""
     if not len(items):
         return np.zeros(0, dtype=np.int64), np.zeros((0, 3), dtype=np.int64)
-    lo = np.array([it.lo for it in items], dtype=np.float64)
-    hi = np.array([it.hi for it in items], dtype=np.float64)
+    arr = DrawItems.from_items(items)  # (merge_items' output is one already: no objects made)
+    lo, hi = arr.lo, arr.hi
     vlo, _ = pyramid.volume_box()
     sp = np.array(pyramid.spacing[::-1], dtype=np.float64)
     B = np.array(pyramid.brick_shape[::-1], dtype=np.float64)
     out_level = np.full(len(items), -1)
     out_idx = np.zeros((len(items), 3), dtype=np.int64)
-    spans = np.array([it.span for it in items], dtype=np.int64)
+    spans = arr.span
     if np.any(spans < 1) or np.any(spans & (spans - 1)):
         return None
     shift = np.round(np.log2(spans)).astype(np.int64)
-    top = np.array([it.level for it in items]) + shift
+    top = arr.rows[:, 0] + shift
     bottom = np.where(spans > 1, top, 0)  # a merged item is its node's box, nothing finer
-    first = np.array([it.index for it in items], dtype=np.int64)
+    first = arr.rows[:, 1:]
     for L in range(pyramid.num_levels - 1, -1, -1):
         cand = (out_level < 0) & (top >= L) & (bottom <= L)
         if not cand.any():
@@ -189,8 +191,8 @@ def build_page_table(items, pyramid, open_faces=None) -> PageTable | None:
     if nodes is None:
         return None
     node_lv, node_idx = nodes
-    data_lv = np.array([it.level for it in items], dtype=np.int64)
-    data_idx = np.array([it.index for it in items], dtype=np.int64).reshape(-1, 3)
+    arr = DrawItems.from_items(items) if len(items) else DrawItems(np.zeros((0, 4), dtype=np.int64), (), ())
+    data_lv, data_idx = arr.rows[:, 0], arr.rows[:, 1:]
     nlev = pyramid.num_levels
     # every node's ancestors, per level: each level's table spans the bounding box of those cells
     anc = []

@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...scene.page_table import build_page_table
+from ...scene.selection import DrawItems
 from ..uniforms import uset, vec3
 from ..modes import mode_of
 from .frame import DrawStats, FrameContext
@@ -103,8 +104,9 @@ class SinglePassPath(DrawPath):
         if nlev > MAX_SINGLE_PASS_LEVELS:
             return None
         vlo, vhi = pyr.volume_box()
+        arr = DrawItems.from_items(items)  # the merged cut's arrays (no DrawItem objects made)
         if self._levels[0] is not items:  # the data levels of the cut (kept with a kept cut's list)
-            self._levels = (items, sorted({int(it.level) for it in items}))
+            self._levels = (items, np.unique(arr.rows[:, 0]).tolist())
         data_levels = self._levels[1]  # only these get a march in the shader's level chain
         finest = params.step * min(float(min(pyr.levels[L].scale)) for L in data_levels)
         if float(np.linalg.norm(vhi - vlo)) / finest > MAX_SINGLE_PASS_RAY_SAMPLES:
@@ -153,8 +155,8 @@ class SinglePassPath(DrawPath):
         uset(prog, "u_top", nlev - 1)
         uset(prog, "u_nudge", 1e-3 * float(sp.min()))
         # one DRAWN node whose box is the volume's (a merged resident cut): every ray is one region
-        one = int(np.sum((table.entries & 3) == 2)) == 1 and len(items) == 1 and np.allclose(items[0].lo, vlo) \
-            and np.allclose(items[0].hi, vhi)
+        one = int(np.sum((table.entries & 3) == 2)) == 1 and len(items) == 1 and np.allclose(arr.lo[0], vlo) \
+            and np.allclose(arr.hi[0], vhi)
         uset(prog, "u_max_regions", 1 if one else int(16 + sum(sum(pyr.grid(L)) for L in range(nlev))))
         self.setup.loop_uniforms(prog)
         uset(prog, "u_pt_width", PAGE_TABLE_WIDTH)
