@@ -360,6 +360,12 @@ class GpuBrickCache:
         self._upload_left = None if texels_per_frame is None else int(texels_per_frame)
         return self
 
+    @property
+    def region(self):
+        """The region of interest of the clip-texture this frame reads (None: none): with the slots
+        (:attr:`generation`), what :meth:`open_faces` answers from."""
+        return getattr(self._clip, "region", None)
+
     def follow_region(self, region) -> list[int]:
         """Fit the level textures to ``region`` (a :class:`~clipvol.paging.region.Region` or ``None``
         for the cube windows) within :attr:`texture_budget`; returns the levels reshaped.

@@ -66,6 +66,9 @@ class SinglePassPath(DrawPath):
         self._pt_data: np.ndarray | None = None  # what the page-table texture holds now
         self.rows_written = 0  # page-table rows the last frame wrote (0: the table was kept)
         self._levels: tuple = (None, [])  # (items, their sorted data levels)
+        # (GPU state, region, PageTable.faces) of the last table built: its items' open faces hold
+        # while the slots are the same (build_page_table's known_faces)
+        self._faces: tuple = (None, None, None)
 
     def _page_table_texture(self, entries: np.ndarray):
         """The page-table texture (R32UI, :data:`PAGE_TABLE_WIDTH` entries per row) holding
@@ -116,7 +119,14 @@ class SinglePassPath(DrawPath):
         # later pass, or a cut the frame loop drew again (the same merged list object)
         state = (cache.generation, frame.residency_version)
         again = self._table[0] is items and (frame.repeats_pass or self._table[1] == state)
-        table = self._table[2] if again else build_page_table(items, pyr, cache.open_faces)
+        if again:
+            table = self._table[2]
+        else:
+            region = getattr(cache, "region", None)  # (open faces read it too)
+            known = self._faces[2] if self._faces[0] == state and self._faces[1] is region else None
+            table = build_page_table(items, pyr, cache.open_faces, known_faces=known)
+            if table is not None:
+                self._faces = (state, region, table.faces)
         self._table = (items, state, table)
         if table is None or len(table.entries) > MAX_PAGE_TABLE_ENTRIES:
             return None
@@ -191,3 +201,4 @@ class SinglePassPath(DrawPath):
         self._pt_tex = None
         self._pt_data = None
         self._table = (None, None, None)
+        self._faces = (None, None, None)
