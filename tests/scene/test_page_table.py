@@ -241,6 +241,8 @@ def test_known_faces_of_an_earlier_table_give_the_table_built_afresh():
     for name in ("base", "c0", "size", "d0"):
         np.testing.assert_array_equal(getattr(again, name), getattr(fresh, name))
     new = [it for it in b if (it.level, tuple(it.index), it.span) not in keys(a)]
-    bricks_new = {(it.level, *(int(v) + d for v, d in zip(it.index, off)))
-                  for it in new for off in np.ndindex(*(min(it.span, g - i) for i, g in zip(it.index, pyr.grid(it.level))))}
+    bricks_new = set()  # every brick of every new item (a block: its bricks inside the grid)
+    for it in new:
+        count = [min(it.span, g - i) for i, g in zip(it.index, pyr.grid(it.level))]
+        bricks_new |= {(it.level, *(int(v) + d for v, d in zip(it.index, off))) for off in np.ndindex(*count)}
     assert asked_again and asked_again <= bricks_new  # only what the earlier cut did not hold
