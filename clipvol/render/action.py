@@ -369,7 +369,7 @@ class ClipRenderAction:
         self.program = out.program
         return out
 
-    def _frame_context(self, cam, tf, items: list) -> FrameContext:
+    def _frame_context(self, cam, tf, items) -> FrameContext:
         """What a draw path reads of this frame (:class:`~clipvol.render.paths.frame.FrameContext`)."""
         return FrameContext(camera=cam, tf=tf, items=items, params=self.params, pyramid=self.pyramid,
                             cache=self.cache, residency_version=self.clip_texture.residency_version,
