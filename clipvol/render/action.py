@@ -348,8 +348,8 @@ class ClipRenderAction:
                 items, checked = merged, True  # (else the rays would be cut)
         if not checked:
             check_samples(cam, items, self.pyramid, self.params.step)
-        if not isinstance(items, list):  # (the kept merged list stays itself: the single pass keys on it)
-            items = list(items)
+        if not checked and not isinstance(items, list):  # (the kept merged DrawItems stay themselves: the
+            items = list(items)  # single pass keys on them and reads their arrays, making no DrawItem objects)
         self.skipped_empty = self._skips(tf)
         name = pick(self.params, items)
 
@@ -369,7 +369,7 @@ class ClipRenderAction:
         self.program = out.program
         return out
 
-    def _frame_context(self, cam, tf, items: list) -> FrameContext:
+    def _frame_context(self, cam, tf, items) -> FrameContext:
         """What a draw path reads of this frame (:class:`~clipvol.render.paths.frame.FrameContext`)."""
         return FrameContext(camera=cam, tf=tf, items=items, params=self.params, pyramid=self.pyramid,
                             cache=self.cache, residency_version=self.clip_texture.residency_version,
@@ -381,7 +381,7 @@ class ClipRenderAction:
         return dict(path=self.path_drawn, boxes_drawn=drawn.boxes_drawn, page_table_nodes=drawn.page_table_nodes,
                     occlusion_passes=drawn.occlusion_passes)
 
-    def _merged(self, cam, sel) -> list:
+    def _merged(self, cam, sel) -> DrawItems:
         """:func:`merge_items` of ``sel``'s items, kept while ``sel`` is drawn again (the frame loop's
         replay hands back the same object), the GPU cache's slots are unchanged and the
         camera answers what the merge asked of it again (a culled sibling not in texture memory is

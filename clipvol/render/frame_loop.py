@@ -121,7 +121,7 @@ class FrameLoop:
         cache = self.cache.begin_frame(self.clip_texture, 0)  # reserves the slots, uploads nothing
         keys = sel.item_keys()
         for L in np.unique(keys[:, 0]).tolist():
-            if not cache.resident_mask(L, keys[keys[:, 0] == L, 1:]).all():
+            if not cache.reserve_on_gpu(L, keys[keys[:, 0] == L, 1:]):  # (resident_mask's answer here)
                 return None
         cache.reserve_neighbours(sel)
         if cache.pending_keys() or cache.missing_neighbours(sel):

@@ -360,6 +360,12 @@ class GpuBrickCache:
         self._upload_left = None if texels_per_frame is None else int(texels_per_frame)
         return self
 
+    @property
+    def region(self):
+        """The region of interest of the clip-texture this frame reads (None: none): with the slots
+        (:attr:`generation`), what :meth:`open_faces` answers from."""
+        return getattr(self._clip, "region", None)
+
     def follow_region(self, region) -> list[int]:
         """Fit the level textures to ``region`` (a :class:`~clipvol.paging.region.Region` or ``None``
         for the cube windows) within :attr:`texture_budget`; returns the levels reshaped.
@@ -540,6 +546,28 @@ class GpuBrickCache:
             reserved[sz, sy, sx] = idx[i]
             out[i] = True
         return out
+
+    def reserve_on_gpu(self, level: int, indices) -> bool:
+        """Are all of ``indices`` (``(n, 3)`` bricks of ``level``) on the GPU? If so, reserve their
+        slots for this frame, as :meth:`resident_mask` would, and return True; else reserve nothing.
+
+        A kept cut's check (:meth:`~clipvol.render.frame_loop.FrameLoop.update`) asks only this:
+        :meth:`resident_mask` answers the same where every brick is on the GPU (distinct bricks on
+        the GPU hold distinct slots), but sorts the slots to find conflicts and asks the
+        clip-texture about RAM - ~12 ms a frame over a 13 742-brick cut.
+        """
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1, 3)
+        if len(idx) == 0:
+            return True
+        if self.windows[level] is None or not self.on_gpu_mask(level, idx).all():
+            return False
+        slots = self._slots(level, idx)
+        reserved = self._reserved[level]
+        holder = reserved[slots[:, 0], slots[:, 1], slots[:, 2]]
+        if not np.all((holder[:, 0] < 0) | np.all(holder == idx, axis=1)):
+            return False  # (never after begin_frame: the slots are all free then)
+        reserved[slots[:, 0], slots[:, 1], slots[:, 2]] = idx
+        return True
 
     def reserve_neighbours(self, items) -> None:
         """After the selection: also upload the same-level neighbours of the drawn bricks that are in RAM.

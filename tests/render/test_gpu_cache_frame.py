@@ -83,6 +83,56 @@ def test_resident_mask_reserves_slots_in_call_order(ctx, seed):
         cache.release()
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_reserve_on_gpu_is_resident_mask_of_a_cut_all_on_the_gpu(ctx, seed):
+    """``reserve_on_gpu`` (a kept cut's check, no uploads) answers the plain rule's "every brick
+    drawable with no upload budget" and reserves the slots the rule would; a set that fails
+    reserves nothing. Checked by the slots later calls of the rule find held."""
+    import copy
+
+    rng = np.random.default_rng(seed)
+    pyr = NumpyLoader(np.zeros((96, 80, 64), np.float32), brick=8).pyramid
+    cache = GpuBrickCache(ctx, pyr, 40 * pyr.brick_nbytes)  # windows smaller than the grid: slots alias
+    try:
+        levels = [L for L, w in enumerate(cache.windows) if w is not None]
+        clip = FakeClip(rng, {L: tuple(pyr.grid(L)) for L in levels})
+        on = {}
+        for L in levels:
+            g = np.asarray(pyr.grid(L))
+            for k in rng.integers(0, g, size=(int(g.prod()) // 3, 3)):
+                cache._slot_key[L][tuple(k % np.asarray(cache.windows[L]))] = k
+            on[L] = np.argwhere(np.ones(tuple(g), bool))
+            on[L] = on[L][cache.on_gpu_mask(L, on[L])]
+        cache.begin_frame(clip, 0)
+        state = {"held": {}, "pending": set(), "left": 0}
+        answers = []
+        held = [L for L in levels if len(on[L])]
+        for _ in range(30):
+            L = int(rng.choice(held))
+            g = np.asarray(pyr.grid(L))
+            n = int(rng.integers(1, 12))
+            idx = on[L][rng.integers(0, len(on[L]), size=n)]  # on the GPU ...
+            if rng.random() < 0.4:  # ... or with a brick that may not be
+                idx[rng.integers(0, n)] = rng.integers(0, g)
+            trial = copy.deepcopy(state)
+            want = bool(reference_resident(cache, trial, L, idx, cache.on_gpu_mask(L, idx), clip).all())
+            if want:
+                state = trial
+            got = cache.reserve_on_gpu(L, idx)
+            assert got == want
+            answers.append(got)
+        assert any(answers) and not all(answers)
+        held = {}  # the slots the cache holds this frame: as the rule's reservations
+        for L in levels:
+            r = cache._reserved[L]
+            for slot in np.argwhere(r[..., 0] >= 0):
+                held[(L, *map(int, slot))] = tuple(int(v) for v in r[tuple(slot)])
+        assert held == state["held"] and held
+        assert not cache.pending_keys()
+    finally:
+        cache.release()
+
+
 @pytest.mark.parametrize("dilate", [True, False])  # the occupancy dilation, and the row-by-row fallback
 def test_neighbours_are_the_26_neighbourhood_inside_the_grid(ctx, rng, monkeypatch, dilate):
     import clipvol.render.gpu_cache as gc_module

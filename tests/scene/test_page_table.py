@@ -197,3 +197,52 @@ def test_block_cells_lists_every_cell_of_every_block_in_c_order(rng):
     np.testing.assert_array_equal(local, np.array(want_local).reshape(-1, 3))
     b0, l0 = block_cells(np.zeros((0, 3), np.int64))
     assert len(b0) == 0 and l0.shape == (0, 3)
+
+
+def test_known_faces_of_an_earlier_table_give_the_table_built_afresh():
+    """A table built with ``known_faces`` of the frame before (a turned camera: most merged items
+    kept) equals the table built asking every face, and asks only about items the earlier cut did
+    not hold (reference: the same build without ``known_faces``, and the earlier items' keys)."""
+    from clipvol.scene.selection import merge_items
+
+    pyr = Pyramid.build((70, 64, 90), (8, 8, 8))
+    windows = [tuple(pyr.grid(L)) for L in range(pyr.num_levels)]
+    params = RenderParams(policy="projected-size", lod_threshold=2.0)
+    rng = np.random.default_rng(5)
+    bits = {L: rng.random(tuple(pyr.grid(L)) + (3, 2)) < 0.7 for L in range(pyr.num_levels)}
+    asked = []
+
+    def open_faces(level, idx):
+        idx = np.asarray(idx, dtype=np.int64).reshape(-1, 3)
+        asked.extend((level, *map(int, b)) for b in idx)
+        return bits[level][idx[:, 0], idx[:, 1], idx[:, 2]]
+
+    def cut(deg):
+        th = np.radians(deg)
+        eye = (45.0 + 80.0 * np.sin(th), 32.0 - 30.0, 35.0 - 80.0 * np.cos(th))
+        cam = Camera.perspective(eye, (45.0, 32.0, 35.0), size=(48, 40), fov_y=50)
+        return merge_items(select(pyr, cam, params, residency=AllResident()).items, pyr, windows)
+
+    a, b = cut(0.0), cut(6.0)
+    # the same cut unmerged: single bricks where the merged one held blocks starting at them
+    plain = [it for it in select(pyr, Camera.perspective((45.0, 2.0, -45.0), (45.0, 32.0, 35.0), size=(48, 40),
+                                                         fov_y=50), params, residency=AllResident()).items]
+    first = build_page_table(a, pyr, open_faces)
+    np.testing.assert_array_equal(build_page_table(plain, pyr, open_faces, known_faces=first.faces).entries,
+                                  build_page_table(plain, pyr, open_faces).entries)
+    keys = lambda items: {(it.level, tuple(it.index), it.span) for it in items}  # noqa: E731
+    assert keys(a) & keys(b) and keys(b) - keys(a) and len({it.level for it in b}) > 1
+    first = build_page_table(a, pyr, open_faces)
+    asked.clear()
+    again = build_page_table(b, pyr, open_faces, known_faces=first.faces)
+    asked_again = set(asked)
+    fresh = build_page_table(b, pyr, open_faces)
+    np.testing.assert_array_equal(again.entries, fresh.entries)
+    for name in ("base", "c0", "size", "d0"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(fresh, name))
+    new = [it for it in b if (it.level, tuple(it.index), it.span) not in keys(a)]
+    bricks_new = set()  # every brick of every new item (a block: its bricks inside the grid)
+    for it in new:
+        count = [min(it.span, g - i) for i, g in zip(it.index, pyr.grid(it.level))]
+        bricks_new |= {(it.level, *(int(v) + d for v, d in zip(it.index, off))) for off in np.ndindex(*count)}
+    assert asked_again and asked_again <= bricks_new  # only what the earlier cut did not hold

@@ -51,9 +51,11 @@ class FrameContext:
         :meth:`~clipvol.render.refine.Refine.coarse_camera`).
     tf : TransferFunction
         The frame's transfer function.
-    items : list of DrawItem
+    items : sequence of DrawItem
         The cut, merged (:func:`~clipvol.scene.selection.merge_items`) and in visibility order
-        (back to front) unless the path is the single pass, which needs no order.
+        (back to front) unless the path is the single pass, which needs no order. A merged cut
+        comes as :class:`~clipvol.scene.selection.DrawItems` (its arrays are there to read; an
+        element asked for is made into a ``DrawItem``), else as a list.
     params : RenderParams
         The frame's parameters.
     pyramid : Pyramid

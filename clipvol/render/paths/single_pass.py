@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...scene.page_table import build_page_table
+from ...scene.selection import DrawItems
 from ..uniforms import uset, vec3
 from ..modes import mode_of
 from .frame import DrawStats, FrameContext
@@ -65,6 +66,9 @@ class SinglePassPath(DrawPath):
         self._pt_data: np.ndarray | None = None  # what the page-table texture holds now
         self.rows_written = 0  # page-table rows the last frame wrote (0: the table was kept)
         self._levels: tuple = (None, [])  # (items, their sorted data levels)
+        # (GPU state, region, PageTable.faces) of the last table built: its items' open faces hold
+        # while the slots are the same (build_page_table's known_faces)
+        self._faces: tuple = (None, None, None)
 
     def _page_table_texture(self, entries: np.ndarray):
         """The page-table texture (R32UI, :data:`PAGE_TABLE_WIDTH` entries per row) holding
@@ -103,8 +107,9 @@ class SinglePassPath(DrawPath):
         if nlev > MAX_SINGLE_PASS_LEVELS:
             return None
         vlo, vhi = pyr.volume_box()
+        arr = DrawItems.from_items(items)  # the merged cut's arrays (no DrawItem objects made)
         if self._levels[0] is not items:  # the data levels of the cut (kept with a kept cut's list)
-            self._levels = (items, sorted({int(it.level) for it in items}))
+            self._levels = (items, np.unique(arr.rows[:, 0]).tolist())
         data_levels = self._levels[1]  # only these get a march in the shader's level chain
         finest = params.step * min(float(min(pyr.levels[L].scale)) for L in data_levels)
         if float(np.linalg.norm(vhi - vlo)) / finest > MAX_SINGLE_PASS_RAY_SAMPLES:
@@ -114,7 +119,14 @@ class SinglePassPath(DrawPath):
         # later pass, or a cut the frame loop drew again (the same merged list object)
         state = (cache.generation, frame.residency_version)
         again = self._table[0] is items and (frame.repeats_pass or self._table[1] == state)
-        table = self._table[2] if again else build_page_table(items, pyr, cache.open_faces)
+        if again:
+            table = self._table[2]
+        else:
+            region = getattr(cache, "region", None)  # (open faces read it too)
+            known = self._faces[2] if self._faces[0] == state and self._faces[1] is region else None
+            table = build_page_table(items, pyr, cache.open_faces, known_faces=known)
+            if table is not None:
+                self._faces = (state, region, table.faces)
         self._table = (items, state, table)
         if table is None or len(table.entries) > MAX_PAGE_TABLE_ENTRIES:
             return None
@@ -153,8 +165,8 @@ class SinglePassPath(DrawPath):
         uset(prog, "u_top", nlev - 1)
         uset(prog, "u_nudge", 1e-3 * float(sp.min()))
         # one DRAWN node whose box is the volume's (a merged resident cut): every ray is one region
-        one = int(np.sum((table.entries & 3) == 2)) == 1 and len(items) == 1 and np.allclose(items[0].lo, vlo) \
-            and np.allclose(items[0].hi, vhi)
+        one = int(np.sum((table.entries & 3) == 2)) == 1 and len(items) == 1 and np.allclose(arr.lo[0], vlo) \
+            and np.allclose(arr.hi[0], vhi)
         uset(prog, "u_max_regions", 1 if one else int(16 + sum(sum(pyr.grid(L)) for L in range(nlev))))
         self.setup.loop_uniforms(prog)
         uset(prog, "u_pt_width", PAGE_TABLE_WIDTH)
@@ -189,3 +201,4 @@ class SinglePassPath(DrawPath):
         self._pt_tex = None
         self._pt_data = None
         self._table = (None, None, None)
+        self._faces = (None, None, None)
