@@ -155,14 +155,7 @@ def classification_bias(tables: SummaryTables, F: np.ndarray, classify: str = "m
         fbar /= np.maximum(n, 1e-300)[:, None]
         d2 = np.sum((F[ug % nb] - fbar) ** 2, axis=1) * n
         per_child = np.bincount(ug // nb, weights=d2, minlength=n_child)
-        N = np.bincount(owner, weights=w, minlength=n_child)
-        b_ij = np.sqrt(per_child / np.maximum(N, 1.0))
-        pflat = _child_parent(pyr, cl)
-        kids = np.bincount(pflat, weights=(N > 0).astype(np.float64), minlength=pyr.num_bricks(L))
-        total = np.bincount(pflat, weights=np.where(N > 0, b_ij, 0.0), minlength=pyr.num_bricks(L))
-        worst = np.zeros(pyr.num_bricks(L))
-        np.maximum.at(worst, pflat, out[cl])
-        out[L] = total / np.maximum(kids, 1.0) + worst
+        out[L], _ = _parent_bias(pyr, cl, owner, w, per_child, out[cl])
     return out
 
 
@@ -174,6 +167,22 @@ def _pairs(tables: SummaryTables, cl: int):
     owner = np.repeat(np.arange(n_child, dtype=np.int64), np.diff(off))
     code = tables.pairs_code[cl].astype(np.int64)
     return n_child, owner, code // SUMMARY_BINS, code % SUMMARY_BINS, tables.pairs_count[cl].astype(np.float64)
+
+
+def _parent_bias(pyr, cl: int, owner, w, per_child, child_bias):
+    """Each brick of level ``cl + 1``'s bias: the RMS Delta E of its children's pairs (``per_child``,
+    the sum of squares per child brick over ``w``-weighted pairs), averaged over the children that
+    hold any, plus the worst child's own bias (errors of levels add up); and the children's parents."""
+    n_child = len(per_child)
+    N = np.bincount(owner, weights=w, minlength=n_child)
+    b_ij = np.sqrt(per_child / np.maximum(N, 1.0))
+    pflat = _child_parent(pyr, cl)
+    nb = pyr.num_bricks(cl + 1)
+    kids = np.bincount(pflat, weights=(N > 0).astype(np.float64), minlength=nb)
+    total = np.bincount(pflat, weights=np.where(N > 0, b_ij, 0.0), minlength=nb)
+    worst = np.zeros(nb)
+    np.maximum.at(worst, pflat, child_bias)
+    return total / np.maximum(kids, 1.0) + worst, pflat
 
 
 def _child_parent(pyr, cl: int) -> np.ndarray:
@@ -216,17 +225,10 @@ def distribution_residual(tables: SummaryTables, tf) -> list[np.ndarray]:
         coarse = expected_premultiplied(tf, centres[ug % nb], np.sqrt(s2), rng)
         d2 = np.sum((rgb_to_luv(coarse) - rgb_to_luv(pbar)) ** 2, axis=1) * n
         per_child = np.bincount(g_owner, weights=d2, minlength=n_child)
-        N = np.bincount(owner, weights=w, minlength=n_child)
-        b_ij = np.sqrt(per_child / np.maximum(N, 1.0))
-        pflat = _child_parent(pyr, cl)
-        kids = np.bincount(pflat, weights=(N > 0).astype(np.float64), minlength=pyr.num_bricks(L))
-        total = np.bincount(pflat, weights=np.where(N > 0, b_ij, 0.0), minlength=pyr.num_bricks(L))
-        worst = np.zeros(pyr.num_bricks(L))
-        np.maximum.at(worst, pflat, out[cl])
-        out[L] = total / np.maximum(kids, 1.0) + worst
+        out[L], pflat = _parent_bias(pyr, cl, owner, w, per_child, out[cl])
         # each parent brick's mean spread^2 over its voxels (the child voxels it pairs, weighted)
         num = np.bincount(pflat[g_owner], weights=n * s2, minlength=pyr.num_bricks(L))
-        den = np.bincount(pflat, weights=N, minlength=pyr.num_bricks(L))
+        den = np.bincount(pflat, weights=np.bincount(owner, weights=w, minlength=n_child), minlength=pyr.num_bricks(L))
         s2_lv = num / np.maximum(den, 1.0)
     return out
 
