@@ -158,6 +158,7 @@ def test_frame_times_and_speedups_come_from_the_paired_rounds(report):
     assert res.headline.startswith("at <= 5 %") and res.headline[1:] in res.markdown.read_text()
 
 
+@pytest.mark.slow  # 21 interleaved rounds (18 s on CI's 2 cores): the timing method, not a feature
 def test_two_settings_drawing_the_same_cut_take_the_same_time(tmp_path, ctx, monkeypatch):
     """Fixed level 0 and a threshold so fine that it picks every level-0 brick draw the same bricks
     the same way: warm, interleaved and paired, the report gives them the same time within noise,
