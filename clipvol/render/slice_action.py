@@ -205,6 +205,9 @@ class SliceAction:
         #: leaves the clip-texture's cube windows (what a volume view pages) in place
         self.follow_plane = True
         self._last_plane: Plane | None = None
+        #: (plane, pixel size, size, scroll-ahead, parameters) -> the parameters and region drawn: a
+        #: slice drawn again (a window redrawing, a viewer waiting for bricks) prices no region twice
+        self._region_memo = None
 
     def set_params(self, params: RenderParams) -> None:
         """Use ``params`` from the next frame on (policy forced to ``"plane"``)."""
@@ -262,13 +265,18 @@ class SliceAction:
         params = self.params
         if self.follow_plane:
             ahead = self._scroll_step(plane)
-            region = slice_region(pyr, plane, params, px, size=size, ahead=ahead)
-            sizes = self._stored_sizes() if params.level is None else None
-            if sizes is not None:  # the full-resolution slice when it reads no more bytes (slice_region)
-                full_params = self._full_resolution_params()
-                full = slice_region(pyr, plane, full_params, px, size=size, ahead=ahead)
-                if region_bytes(full, sizes) <= region_bytes(region, sizes):
-                    params, region = full_params, full
+            key = (plane, float(px), tuple(size), float(ahead), params)
+            if self._region_memo is not None and self._region_memo[0] == key:  # the same slice drawn again
+                params, region = self._region_memo[1:]
+            else:
+                region = slice_region(pyr, plane, params, px, size=size, ahead=ahead)
+                sizes = self._stored_sizes() if params.level is None else None
+                if sizes is not None:  # the full-resolution slice when it reads no more bytes (slice_region)
+                    full_params = self._full_resolution_params()
+                    full = slice_region(pyr, plane, full_params, px, size=size, ahead=ahead)
+                    if region_bytes(full, sizes) <= region_bytes(region, sizes):
+                        params, region = full_params, full
+                self._region_memo = (key, params, region)
             self.clip_texture.set_region(region)
             region_bricks = region.nbricks
         self._last_plane = plane

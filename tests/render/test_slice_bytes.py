@@ -105,3 +105,30 @@ def test_a_slice_of_a_store_reads_no_more_bytes_than_the_full_resolution_slice(g
     assert got["full"][2] == 0
     if got["multi"][2] == 0:  # drawn at full resolution: numpy's plane, exactly
         np.testing.assert_array_equal(got["multi"][1], vol[94].astype(np.float32))
+
+
+def test_a_slice_drawn_again_prices_its_region_once(gl, tmp_path, monkeypatch):
+    """The region of a slice and its full-resolution alternative are priced once per slice: drawing
+    the same plane again (a window redrawing, a viewer waiting for bricks) reuses the choice, and a
+    moved plane prices anew. The values drawn again are the first drawing's."""
+    from clipvol.bricking.pipeline import brick_volume
+    from clipvol.paging.open import open_store
+    from clipvol.render import slice_action
+
+    vol = _head()
+    store = tmp_path / "head.zarr"
+    brick_volume(vol, store, brick=32, progress=False)
+    pyr = open_store(store).pyramid
+    plane = Plane.axis(pyr, "axial")
+    calls = []
+    real = slice_action.slice_region
+    monkeypatch.setattr(slice_action, "slice_region", lambda *a, **k: calls.append(1) or real(*a, **k))
+    with ClipTexture(open_store(store), "256MB", 2, region=Region.empty(pyr.num_levels)) as ct, \
+            SliceAction(gl, ct, focus=tuple(plane.origin), distance_factor=0.5) as sa:
+        _, first = sa.render(plane, wait=True, timeout=120, return_values=True)
+        n_first = len(calls)
+        _, again = sa.render(plane, wait=True, timeout=120, return_values=True)
+        assert len(calls) == n_first == 2  # the slice's region and the full-resolution one, once
+        np.testing.assert_array_equal(again, first)
+        sa.render(Plane.axis(pyr, "axial", 90), wait=True, timeout=120)
+        assert len(calls) == 4  # a moved plane is priced anew
