@@ -32,7 +32,7 @@ PACKAGE_STAGES = {
 #: stage of every module outside those packages, named one by one: a new top-level module (or a
 #: new package) belongs to no stage until it is added here, and test_every_module_is_in_a_stage fails
 MODULE_STAGES = {
-    "clipvol.errors": 0, "clipvol.units": 0, "clipvol.rows": 0, "clipvol.choices": 0,
+    "clipvol.errors": 0, "clipvol.units": 0, "clipvol.rows": 0, "clipvol.choices": 0, "clipvol.interrupts": 0,
     "clipvol.testing": 2,  # the loader conformance suite: loaders and the pyramid
     "clipvol.napari_plugin": 5,  # a front end (napari reader) over bricking, like app/notebook.py
     "clipvol": 7,  # the package root re-exports every stage lazily

@@ -140,10 +140,12 @@ def main(argv: list[str] | None = None) -> int:
             show(message, category, filename, lineno, file, line)
 
     warnings.showwarning = one_line_notes
-    interrupted = []  # set by Ctrl-C: some C code (numpy's structured compare) drops the interrupt it caught
+    from clipvol import interrupts
+
+    interrupts.clear()
 
     def on_sigint(signum, frame):
-        interrupted.append(signum)
+        interrupts.note()  # some C code (numpy's structured compare) drops the interrupt it caught
         raise KeyboardInterrupt
 
     previous = None
@@ -154,12 +156,12 @@ def main(argv: list[str] | None = None) -> int:
 
         check_common_values(args)  # --threads, --timeout, --memory-budget, --brick: one check, every command
         rc = int(args._run(args) or 0)
-        if interrupted:  # the interrupt was swallowed on its way (C code, a thread): the work did not finish
+        if interrupts.pending():  # the interrupt was swallowed on its way (C code, a thread): the work did not finish
             print(f"clipvol {args.command}: interrupted", file=sys.stderr)
             return 130
         return rc
     except ClipvolError as e:
-        if interrupted:  # the interrupt stopped a step that then reported its own failure
+        if interrupts.pending():  # the interrupt stopped a step that then reported its own failure
             print(f"clipvol {args.command}: interrupted", file=sys.stderr)
             return 130
         print(f"clipvol {args.command}: error: {e}", file=sys.stderr)
@@ -170,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # `clipvol info | head`
         return 0
     except OSError as e:
-        if interrupted or _caused_by_interrupt(e):
+        if interrupts.pending() or _caused_by_interrupt(e):
             print(f"clipvol {args.command}: interrupted", file=sys.stderr)
             return 130
         if e.errno not in OPERATIONAL_ERRNOS:
@@ -178,12 +180,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"clipvol {args.command}: error: {describe_os_error(e)}", file=sys.stderr)
         return 2
     except Exception as e:
-        if interrupted or _caused_by_interrupt(e):  # Ctrl-C inside a C extension can surface as another error
+        if interrupts.pending() or _caused_by_interrupt(e):  # Ctrl-C inside a C extension can surface as another error
             print(f"clipvol {args.command}: interrupted", file=sys.stderr)
             return 130
         raise
     finally:
         warnings.showwarning = show
+        interrupts.clear()
         if previous is not None:
             signal.signal(signal.SIGINT, previous)
 

@@ -29,6 +29,7 @@ from typing import Callable
 
 import numpy as np
 
+from .. import interrupts
 from ..errors import ParameterError
 from ..scene.params import RenderParams
 from ..scene.paths import make_path
@@ -284,6 +285,7 @@ def render_path(
         t_start = time.perf_counter()
         before = 0  # bytes_loaded counts what the loader threads read since the previous row
         for k, (cam, coi) in enumerate(cams):
+            interrupts.check()  # a Ctrl-C swallowed inside the previous frame stops the path here
             img, dt = session.timed_render(cam, coi, wait=converged, timeout=timeout if converged else None)
             st = session.frame_stats
             if on_failed is not None and st is not None and st.failed_bricks:

@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import interrupts
 from ..paging.cliptexture import BrickState, ClipTexture
 from ..scene.params import RenderParams
 from ..scene.selection import Selection, select
@@ -189,6 +190,7 @@ class FrameLoop:
         """Select and upload (and with ``wait``, repeat) for one frame; see the module docstring.
         ``ordered=False``: the caller orders the items itself where it needs an order (a cut of
         whole nodes then comes in depth-first order, ``Selection.ordered`` False)."""
+        interrupts.check()  # a Ctrl-C that C code swallowed in the previous frame stops this one
         times = dict(select=0.0, upload=0.0, wait=0.0)
         t0 = time.perf_counter()
         kept = self.replay(camera, params, transparent, policy)
@@ -206,6 +208,7 @@ class FrameLoop:
         uploaded_now: set = set()  # bricks uploaded by this call: a second upload means thrashing
         ct, cache = self.clip_texture, self.cache
         while True:
+            interrupts.check()  # ... and a frame that waits for bricks
             t0 = time.perf_counter()
             version = ct.residency_version  # before selecting: any change after counts
             sel = self.select(camera, params, transparent, policy, ordered)

@@ -46,6 +46,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import interrupts
 from ..errors import ParameterError
 from ..scene.params import RenderParams
 from ..scene.plane import Plane, default_pixel_size, default_size
@@ -245,6 +246,7 @@ class SliceAction:
         return_values : bool
             Also return the resampled values, ``(h, w)`` float32, NaN where no tile covers a pixel.
         """
+        interrupts.check()  # a Ctrl-C swallowed inside the previous slice stops a series of them here
         if not isinstance(plane, Plane):
             raise ParameterError(f"plane: expected a clipvol Plane, got {type(plane).__name__}")
         pyr = self.pyramid

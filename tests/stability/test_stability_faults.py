@@ -438,6 +438,45 @@ def test_ctrl_c_during_offscreen_viewer(tmp_path):
 
 
 @pytest.mark.gl
+def test_a_swallowed_interrupt_stops_the_flythrough_at_the_next_frame(tmp_path):
+    """Ctrl-C that C code caught and dropped (the handler recorded it, nothing raised): the path
+    stops at the next frame instead of running to its end, and what it wrote stays whole."""
+    from clipvol import interrupts
+    from clipvol.app.flythrough import render_path
+
+    def swallowed(row):
+        if row["frame"] == 2:
+            interrupts.note()  # what the command line's SIGINT handler does before its raise is lost
+
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            render_path("procedural:fractal?size=64", tmp_path / "f", frames=50, size=(32, 32), threads=2,
+                        progress=swallowed)
+    finally:
+        interrupts.clear()
+    assert sorted(p.name for p in (tmp_path / "f").glob("frame_*.png")) == [f"frame_{k:04d}.png" for k in range(3)]
+    with open(tmp_path / "f" / "frames.csv", newline="") as f:
+        assert [int(r["frame"]) for r in csv.DictReader(f)] == [0, 1, 2]
+
+
+def test_a_recorded_interrupt_is_raised_only_in_the_main_thread():
+    from clipvol import interrupts
+
+    interrupts.note()
+    try:
+        seen = []
+        t = threading.Thread(target=lambda: seen.append(interrupts.check()))
+        t.start()
+        t.join(10)
+        assert seen == [None]  # a worker thread goes on; its owner stops it
+        with pytest.raises(KeyboardInterrupt):
+            interrupts.check()
+    finally:
+        interrupts.clear()
+    interrupts.check()  # cleared: nothing raised
+
+
+@pytest.mark.gl
 def test_interrupt_in_process_stops_threads_and_closes_files(tmp_path):
     import psutil
 
