@@ -34,7 +34,7 @@ def _volume(shape=(70, 45, 90), dtype=np.uint16, seed=1) -> np.ndarray:
     return vol
 
 
-@pytest.mark.parametrize("span", [1, 2, 3])
+@pytest.mark.parametrize("span", [1, pytest.param(2, marks=pytest.mark.slow), 3])
 def test_threads_build_is_byte_identical_to_local(tmp_path, span):
     vol = _volume()
     np.save(tmp_path / "v.npy", vol)
@@ -206,6 +206,7 @@ def test_a_worker_killed_mid_build_still_gives_the_same_store(tmp_path):
     assert _tree(tmp_path / "a" / "s.zarr") == _tree(tmp_path / "b" / "s.zarr")
 
 
+@pytest.mark.slow
 def test_chunked_hdf5_and_nifti_inputs_give_the_local_store(tmp_path):
     """Inputs the workers open themselves by path: a chunked HDF5 dataset (h5py) and a NIfTI file
     with its own spacing and world frame (nibabel) - same store as the local build."""

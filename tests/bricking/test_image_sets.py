@@ -185,6 +185,7 @@ def test_check_names_the_member_of_a_damaged_chunk(sets, tmp_path, capsys):
     assert "(c = 1)" in captured.err and "(1, 1, 1)" in captured.err
 
 
+@pytest.mark.slow
 @REMOTE_HTTP
 def test_the_root_over_http(sets, capsys):
     from remote_servers import serve_directory
@@ -244,6 +245,7 @@ def test_an_interrupted_set_build_resumes(tmp_path, monkeypatch):
     np.testing.assert_array_equal(zarr.open_array(str(tmp_path / "r.zarr" / "0"), mode="r")[...], chans)
 
 
+@pytest.mark.slow
 def test_summarize_of_a_root_builds_every_members_tables(sets, tmp_path):
     """``clipvol brick --no-summary`` then ``clipvol summarize ROOT``: each member's tables, read
     from the 4-D arrays, equal those the brick built from the member's own 3-D store."""

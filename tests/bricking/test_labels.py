@@ -98,6 +98,7 @@ def test_bad_label_volumes_are_refused_by_name(image_and_labels):
     assert not (tmp / "img.zarr" / "labels" / "x").exists()
 
 
+@pytest.mark.slow
 def test_cli_brick_with_labels(image_and_labels):
     from clipvol.tools.cli import main
 
@@ -114,6 +115,7 @@ def test_cli_brick_with_labels(image_and_labels):
     assert rc == 2
 
 
+@pytest.mark.slow
 def test_info_lists_the_label_images(image_and_labels, capsys):
     # the reference: the names given to `brick --labels` (and none for a store without)
     from clipvol.tools.cli import main

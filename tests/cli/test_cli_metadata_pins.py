@@ -86,7 +86,7 @@ def _refused(out, tmp_path, capsys, *needles):
 
 
 @pytest.mark.gl
-@pytest.mark.parametrize("edit", list(EDITS))
+@pytest.mark.parametrize("edit", ["byte order", *(pytest.param(e, marks=pytest.mark.slow) for e in list(EDITS)[1:])])
 def test_an_edited_level_zarr_json_is_refused_and_repair_restores_it(built, tmp_path, capsys, edit):
     src, out, vol = built
     change, needle = EDITS[edit]
@@ -108,6 +108,7 @@ def test_an_edited_level_zarr_json_is_refused_and_repair_restores_it(built, tmp_
     np.testing.assert_array_equal(_image(tmp_path / "b.png"), _image(tmp_path / "a.png"))
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_a_level_replaced_by_another_builds_is_refused_and_repair_rebuilds_it(built, tmp_path, capsys):
     src, out, vol = built
@@ -187,6 +188,7 @@ def test_a_manifest_written_before_metadata_pins_opens_marked_and_repair_pins(bu
     _refused(out, tmp_path, capsys, "level 1: fill_value differs")
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_a_levels_chunks_replaced_by_another_builds_with_the_same_metadata_exit_3_and_repair_rebuilds(
         built, tmp_path, capsys):

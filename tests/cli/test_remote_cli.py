@@ -30,6 +30,7 @@ def _render(source, out, *extra) -> np.ndarray:
     return np.asarray(Image.open(out))
 
 
+@pytest.mark.slow
 @REMOTE_S3
 @pytest.mark.gl
 def test_render_from_s3_equals_local(site, tmp_path):

@@ -42,7 +42,7 @@ def _index(name: str, axis: str) -> float:
     return float(idx[c])
 
 
-@pytest.mark.parametrize("axis", ["axial", "coronal", "sagittal"])
+@pytest.mark.parametrize("axis", ["axial", *(pytest.param(a, marks=pytest.mark.slow) for a in ("coronal", "sagittal"))])
 def test_patient_planes_in_the_radiological_display(tmp_path, axis):
     for name in ("ras", "las", "perm"):
         src = _write(tmp_path, name)

@@ -250,7 +250,8 @@ class TestBrickWriterStore(LoaderTests):
 
 # -- the zarr loader ----------------------------------------------------------------------------
 
-@pytest.mark.parametrize("codec", ["lz4", "blosc-zstd", "zstd", "gzip", "none", "crc32c"])
+@pytest.mark.parametrize("codec", ["lz4", "blosc-zstd", "zstd", *(pytest.param(c, marks=pytest.mark.slow) for c in ("gzip", "none")),
+                                   "crc32c"])
 @pytest.mark.parametrize("dtype", ["uint8", "float32"])
 def test_fast_path_equals_zarr_indexing(tmp_path, codec, dtype):
     vol = make_volume(dtype, shape=(20, 34, 29))

@@ -433,7 +433,7 @@ def s3_image(site):
 
 
 @REMOTE_S3
-@pytest.mark.parametrize("run_bytes", [8 * 2**20, SMALL_RUN])
+@pytest.mark.parametrize("run_bytes", [pytest.param(8 * 2**20, marks=pytest.mark.slow), SMALL_RUN])
 def test_sharded_image_on_s3_reads_what_zarr_reads(site, s3_image, run_bytes):
     """The same image in a moto S3 bucket: whole shards, or index suffixes and ranged runs, through s3fs."""
     from clipvol.paging.open import open_store

@@ -71,7 +71,8 @@ def _shift(origin):  # an overlay's origin in the primary's frame
     return tuple(np.subtract(origin, P_ORIGIN))
 
 
-@pytest.mark.parametrize("merge, sampling", [(True, "interpolated"), (False, "interpolated"), (True, "classified")],
+@pytest.mark.parametrize("merge, sampling", [(True, "interpolated"), pytest.param(False, "interpolated", marks=pytest.mark.slow),
+                                             (True, "classified")],
                          ids=["merged", "bricks", "classified"])
 def test_overlay_render_equals_the_numpy_two_volume_reference(ctx, stores, merge, sampling):
     vols, paths = stores

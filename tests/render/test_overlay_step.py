@@ -45,7 +45,7 @@ def stores(tmp_path_factory):
     return p, m, d / "p.zarr", d / "m.zarr"
 
 
-@pytest.mark.parametrize("sampling", ["interpolated", "classified"])
+@pytest.mark.parametrize("sampling", ["interpolated", pytest.param("classified", marks=pytest.mark.slow)])
 def test_coarse_primary_samples_the_map_at_its_own_step(ctx, stores, sampling):
     p, m, ppath, mpath = stores
     tf = TransferFunction.preset("grey", value_range=(0.5, 1.0))

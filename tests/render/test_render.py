@@ -290,6 +290,7 @@ def test_nan_and_inf_are_transparent_and_do_not_poison(scenes):
     assert np.mean(d > 2) < 0.01  # only rays grazing a NaN texel's filter footprint may differ
 
 
+@pytest.mark.slow
 def test_opacity_extremes_and_step_sizes_are_stable(scenes):
     vol = smooth_volume((32, 32, 32))
     cam = CAMERAS["orthographic"](centre_of(vol.shape))

@@ -47,7 +47,8 @@ def stores(tmp_path_factory):
     return vol, out
 
 
-@pytest.mark.parametrize("kw", [*(dict(path=p) for p in every_draw_path()), dict(path="bricks", merge_boxes=False)],
+@pytest.mark.parametrize("kw", [*(dict(path=p) for p in every_draw_path()),
+                                pytest.param(dict(path="bricks", merge_boxes=False), marks=pytest.mark.slow)],
                          ids=[*every_draw_path(), "bricks-unmerged"])
 def test_opaque_seams_match_one_brick_and_the_reference(ctx, stores, kw):
     vol, paths = stores

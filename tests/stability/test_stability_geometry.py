@@ -116,7 +116,7 @@ TIES = ("on_brick_corner", "on_volume_face")
 
 @pytest.mark.gl
 @pytest.mark.parametrize("where", list(EYES))
-@pytest.mark.parametrize("look", [(0.3, -0.2, 1.0), (0.0, 0.0, 1.0), (1.0, 1.0, 1.0)])
+@pytest.mark.parametrize("look", [(0.3, -0.2, 1.0), (0.0, 0.0, 1.0), pytest.param((1.0, 1.0, 1.0), marks=pytest.mark.slow)])
 def test_render_eye_inside_and_on_faces(gl, where, look):
     eye = np.array(EYES[where])
     cam = Camera.perspective(eye, eye + np.array(look), up=(0, -1, 0), fov_y=70, size=(48, 48))

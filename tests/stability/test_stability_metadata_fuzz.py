@@ -109,7 +109,7 @@ def _outside(root: Path) -> None:
     g.create_array("0", data=np.full((16, 16, 16), SENTINEL, np.uint16), chunks=(16, 16, 16))
 
 
-@settings(max_examples=150, deadline=2000, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=60, deadline=2000, suppress_health_check=[HealthCheck.too_slow])
 @given(stores())
 def test_metadata_fuzz_opens_or_raises_a_clipvol_error(case):
     attrs, arrays, chunk_bytes = case

@@ -51,7 +51,7 @@ def _render(ctx, loader, cam, **kw):
             action.close()
 
 
-@pytest.mark.parametrize("where", ["far_corner", "middle"])
+@pytest.mark.parametrize("where", ["far_corner", pytest.param("middle", marks=pytest.mark.slow)])
 def test_huge_volume_far_corner_matches_local_copy(ctx, where):
     loader = ProceduralLoader(f"procedural:fractal?size={N}&seed=7", brick=B)
     pyr = loader.pyramid

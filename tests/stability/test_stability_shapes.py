@@ -36,6 +36,9 @@ CASES = {
     "anisotropic_1e-3_1e3": ((6, 10, 12), 8, (1e-3, 1.0, 1e3)),
 }
 
+#: the shapes drawn in the default run (one of each kind: a point, a plane, a line, odd sizes, anisotropy)
+RENDER_DEFAULT = ("1x1x1", "1xNxM", "Nx1x1", "primes", "anisotropic_1e3_1e-3")
+
 
 def mean_reference(a: np.ndarray) -> np.ndarray:
     """2x2x2 mean with edge replication of odd axes, in float64, cast back (written independently)."""
@@ -141,7 +144,7 @@ def _step_for(pyr, cam) -> float:
 
 
 @pytest.mark.gl
-@pytest.mark.parametrize("name", list(CASES))
+@pytest.mark.parametrize("name", [n if n in RENDER_DEFAULT else pytest.param(n, marks=pytest.mark.slow) for n in CASES])
 def test_render_shape_mip_and_composite(gl, tmp_path, name):
     vol, loader = build(tmp_path, name)
     pyr = loader.pyramid

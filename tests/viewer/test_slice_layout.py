@@ -102,7 +102,7 @@ def test_window_key_l_shows_the_slice_layout(xdisplay, loader):
         assert np.abs(v.read_screen().astype(int) - normal).max() <= 3
 
 
-@pytest.mark.parametrize("name", ["ras", "las", "perm"])
+@pytest.mark.parametrize("name", ["las", *(pytest.param(n, marks=pytest.mark.slow) for n in ("ras", "perm"))])
 def test_patient_frame_store_gets_the_patients_planes(gl, tmp_path, name):
     """A NIfTI store's panels are the patient's axial, coronal and sagittal planes, radiological
     display (the axial's right edge is the patient's left, anterior at the top), any storage order."""
