@@ -114,12 +114,10 @@ def slice_to_files(loader, plane, params, *, out=None, npy=None, stats=None, siz
     h, w = values.shape
     if params.shape is not None:  # outside the cut: transparent in the PNG, NaN in the values
         from ..scene.plane import default_pixel_size
+        from .slice_session import leave_out_cut
 
         px = default_pixel_size(pyr, plane) if pixel_size is None else pixel_size
-        outside = ~params.shape.contains(plane.pixel_points((w, h), px))
-        rgba, values = rgba.copy(), values.copy()
-        rgba[outside] = 0
-        values[outside] = np.nan
+        rgba, values = leave_out_cut(rgba, values, params.shape, plane, px)
     _write_outputs(out, npy, stats, rgba, values, st, plane, poi, params.level, edges,
                    labels and edges is not None and frame.frame == "RAS")
     _log_slice(log, st, late, edges, (w, h))

@@ -24,7 +24,26 @@ from ..render.slice_action import SliceAction
 from ..scene.params import RenderParams
 from .session import ActionSession, open_loader
 
-__all__ = ["SliceSession"]
+__all__ = ["SliceSession", "leave_out_cut"]
+
+
+def leave_out_cut(rgba: np.ndarray, values: np.ndarray | None, shape, plane, pixel_size: float):
+    """``rgba`` and ``values`` of a slice with the pixels outside a cut (crop box, clip planes) left
+    out: transparent in the image, NaN in the values. ``shape`` None: returned as they are.
+
+    A slice reads and draws its plane whole; the cut is applied to its pixels afterwards (a plane
+    is cheap to draw, and one rule then serves ``clipvol slice``, the server and the viewer).
+    """
+    if shape is None:
+        return rgba, values
+    h, w = rgba.shape[:2]
+    outside = ~shape.contains(plane.pixel_points((w, h), pixel_size))
+    rgba = rgba.copy()
+    rgba[outside] = 0
+    if values is not None:
+        values = values.copy()
+        values[outside] = np.nan
+    return rgba, values
 
 
 class SliceSession(ActionSession):

@@ -30,6 +30,7 @@ from ..render.frame_loop import FrameLoop
 from ..render.slice_action import SliceAction
 from ..scene.params import RenderParams
 from ..scene.plane import AXES, Plane
+from ..app.slice_session import leave_out_cut
 
 __all__ = ["SliceLayout", "PANELS"]
 
@@ -171,9 +172,10 @@ class SliceLayout:
                 lo, hi = self.pyramid.volume_box()
                 if not pl.crosses(lo, hi)[0]:
                     continue
-                img = self.action.render(pl, (pw, ph), self.pixel_size(name, (pw, ph)),
-                                         window=((lo_v + hi_v) / 2.0, max(hi_v - lo_v, 1e-30)), wait=wait,
-                                         timeout=timeout)
+                px = self.pixel_size(name, (pw, ph))
+                img = self.action.render(pl, (pw, ph), px, window=((lo_v + hi_v) / 2.0, max(hi_v - lo_v, 1e-30)),
+                                         wait=wait, timeout=timeout)
+                img, _ = leave_out_cut(img, None, sess.params.shape, pl, px)  # the volume's crop cuts its planes too
                 self.stats[name] = self.action.last_stats
             a = img[..., 3:4].astype(np.float32) / 255.0
             out[y0:y0 + ph, x0:x0 + pw, :3] = np.rint(img[..., :3] * a).astype(np.uint8)

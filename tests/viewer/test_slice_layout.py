@@ -121,3 +121,25 @@ def test_patient_frame_store_gets_the_patients_planes(gl, tmp_path, name):
     assert got["axial"] == {"right": "L", "left": "R", "top": "A", "bottom": "P"}
     assert got["coronal"] == {"right": "L", "left": "R", "top": "S", "bottom": "I"}
     assert got["sagittal"] == {"right": "P", "left": "A", "top": "S", "bottom": "I"}
+
+
+def test_a_crop_box_cuts_the_slice_panels_as_it_cuts_the_volume(session):
+    """The volume cropped to x < 20 (of 40): the axial panel leaves out every pixel whose point lies
+    beyond the box and draws the rest as the uncropped panel does."""
+    from clipvol.scene.cut import cut_shape
+
+    size = (160, 120)
+    whole = SliceLayout(session)
+    whole.set_poi((20.0, 24.0, 10.0))
+    before = whole.render(_cam, size, wait=True, timeout=60)
+    session.update(shape=cut_shape(session.pyramid, crop_voxels=((0, 0, 0), (32, 48, 20))))  # z, y, x
+    lay = SliceLayout(session)
+    lay.set_poi((20.0, 24.0, 10.0))
+    after = lay.render(_cam, size, wait=True, timeout=60)
+    x0, y0, pw, ph = lay.panel_rect("axial", size)
+    xs = np.array([[lay.point_at("axial", i + 0.5, j + 0.5)[0] for i in range(pw)] for j in range(ph)])
+    panel_before, panel_after = before[y0:y0 + ph, x0:x0 + pw, :3], after[y0:y0 + ph, x0:x0 + pw, :3]
+    cross = (panel_after[..., 0] > 200) & (panel_after[..., 2] < 100)  # the yellow cross at the point of interest
+    beyond, inside = (xs > 20.5) & ~cross, (xs < 19.5) & ~cross
+    assert panel_before[beyond].any() and not panel_after[beyond].any()  # drawn whole before, left out now
+    np.testing.assert_array_equal(panel_after[inside], panel_before[inside])

@@ -410,6 +410,7 @@ class RenderWorker:
         """A slice of the view's plane, fitted into the view (its values kept for a probe)."""
         from ...scene.plane import Plane
         from ...scene.views import anatomical_plane, is_anatomical
+        from ..slice_session import leave_out_cut
 
         pyr = store.session.pyramid
         if is_anatomical(store.frame):
@@ -426,6 +427,8 @@ class RenderWorker:
         tf = store.transfer_function(state.tf, state.window)
         rgba, values = action.render(plane, slot.size, px, transfer_function=tf, wait=wait, timeout=self.timeout,
                                      return_values=True)
+        # the view's crop box and clip plane cut its slices as they cut its volume
+        rgba, values = leave_out_cut(rgba, values, state.cut(pyr, store.frame), plane, px)
         slot.values = values
         error = ""
         holes = tuple(getattr(action.last_stats, "unreplaced", ()))
