@@ -112,6 +112,7 @@ import numpy as np
 
 from ....errors import ParameterError
 from ...visibility import box_depths, screen_rects
+from ...visible_edges import edge_share, edge_weight
 
 __all__ = ["ImageBased", "VOXEL_WEIGHT", "SILHOUETTE_WEIGHT", "ERROR_SCALE", "BIAS_SCALE", "NONEMPTY_ALPHA",
            "predicted_visible_error"]
@@ -200,6 +201,7 @@ class ImageBased:
         self._mass: dict = {}  # (level, brick) -> (w, w * q) of the error estimate
         self._cam = None
         self._last = None
+        self._edge = None  # (visibility estimate, its edge share)
 
     # -- per-node terms ------------------------------------------------------------------------
     @staticmethod
@@ -264,7 +266,10 @@ class ImageBased:
         per child and :data:`ERROR_SCALE`."""
         bias = getattr(self.errors, "bias", None)
         if bias is not None:
-            return bias[level][tuple(idx.T)], BIAS_SCALE
+            b = bias[level][tuple(idx.T)]
+            if self.visibility is not None:  # the view's edges (clipvol.scene.visible_edges)
+                b = b * edge_weight(level, self._edges())
+            return b, BIAS_SCALE
         raw = self.errors.raw_eps[level][tuple(idx.T)]
         return raw / np.maximum(t.tree.n_children(level, idx), 1), ERROR_SCALE
 
@@ -412,6 +417,12 @@ class ImageBased:
                 refine_nodes(levels[-1], idx)
         t.leaves_of(nodes)
         self.estimated_error = predicted_visible_error([sums[0]], [sums[1] / sums[0] if sums[0] > 0 else 0.0], nonempty)
+
+    def _edges(self) -> float:
+        """The visibility estimate's edge share (:func:`~clipvol.scene.visible_edges.edge_share`), once per estimate."""
+        if self._edge is None or self._edge[0] is not self.visibility:
+            self._edge = (self.visibility, edge_share(np.asarray(self.visibility.alpha[-1])))
+        return self._edge[1]
 
     def _nonempty(self) -> float:
         """The share of the image the visibility estimate finds showing something (1 without one)."""
