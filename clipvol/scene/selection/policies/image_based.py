@@ -78,9 +78,9 @@ The view's edges (:mod:`clipvol.scene.visible_edges`): with a visibility estimat
 node's bias is multiplied by :func:`~clipvol.scene.visible_edges.edge_weight` of its level and the
 estimate's edge share (the share of its non-empty pixels where the total opacity steps to a
 neighbour): a coarse level's error sits on the picture's edges, many in an overview of folded
-anatomy, few on a surface seen from near. On the MNI template this brings the ``max_error`` cuts'
-estimates within 1.5x of the measurement on the overviews and the close views alike
-(``docs/benchmarks.md``, "The visible-error estimate tracks the measurement").
+anatomy, few on a surface seen from near. On the MNI template's close views this brings the
+``max_error`` cuts' estimates from 2.6-4.7x the measurement to 0.80-1.50x; its overviews are
+unchanged (``docs/benchmarks.md``, "The visible-error estimate on smooth views").
 
 Consistent coarse levels (``RenderParams.classify = "distribution"``) change a coarse level's error:
 the image policy asks for the errors of the frame's classify mode
