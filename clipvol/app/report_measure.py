@@ -60,6 +60,7 @@ REPORT_COLUMNS = (
     "view", "kind", "frame", "elapsed_s", "frame_s", "converge_s", "converged", "bricks_drawn",
     "texels_drawn", "bytes_needed", "bytes_loaded", "bytes_uploaded", "resident_mb",
     "pct_de6", "rmse", "psnr", "frame_min_s", "frame_max_s", "rounds", "ref_frame_s", "speedup",
+    "predicted_pct_de6",
 )
 
 #: the raw timings, one row per warm frame (``timing.csv``): block 0 holds every setting drawn by the
@@ -184,6 +185,17 @@ def _metrics(img: np.ndarray, ref: np.ndarray) -> dict:
         "rmse": round(float(rmse(img, ref, premultiplied=False)), 4),
         "psnr": round(p, 3) if np.isfinite(p) else p,
     }
+
+
+def _predicted_pct(sess) -> float | None:
+    """The image policy's own estimate of the frame's % of pixels with Delta E >= 6 against the converged
+    picture (:attr:`~clipvol.scene.selection.policies.image_based.ImageBased.estimated_error`), or None
+    for a policy that makes none: the report prints it beside the measurement, so a reader sees how far
+    the budget ``--max-error`` can be trusted on this data."""
+    est = getattr(getattr(sess.action, "last_policy", None), "estimated_error", None)
+    if est is None or not np.isfinite(est):
+        return None
+    return round(100.0 * float(est), 4)
 
 
 def _row(s: _Setting, view: int, kind: str, frame: int, **values) -> dict:
@@ -360,12 +372,16 @@ def _cold_setting(s: _Setting, loader, ctx, views, refs, *, base: RenderParams, 
                 values.update(_metrics(img, ref))
             else:
                 values.update(pct_de6=0.0, rmse=0.0, psnr=float("inf"))
+            predicted = _predicted_pct(sess)
+            if predicted is not None:
+                values["predicted_pct_de6"] = predicted
             rows.append(_row(s, v, "converged", 0, **values))
             if keep_frames is not None:
                 keep_frames[(s.label, v)] = img
             if log:
                 log(f"  {s.label:>14} view {v}: converged in {converge_s * 1e3:7.1f} ms, {values['bricks_drawn']:4d} bricks, "
-                    f"{values['pct_de6']:.2f} % pixels dE>=6")
+                    f"{values['pct_de6']:.2f} % pixels dE>=6"
+                    + ("" if predicted is None else f" (predicted {predicted:.2f} %)"))
     return rows
 
 
