@@ -50,8 +50,11 @@ DEFAULT_MAX_ERRORS = (0.10, 0.05, 0.02)
 #: it for stores with consistent coarse levels (:mod:`clipvol.bricking.spread`): classified as the
 #: distribution of the voxels beneath, level 1 at step 1 with adaptive sampling was the fastest
 #: setting within 5 % on close views of the MNI template (9.3-11.3x the full-resolution frame;
-#: docs/benchmarks.md, "Multi-level cuts, consistent level 1 at speed")
-DEFAULT_REFINES = ((2.0, 0.16), (2.0, 0.25), (2.5, 0.2), (2.5, 0.3), (1.0, 0.08, 1), (1.0, 0.16, 1))
+#: docs/benchmarks.md, "Multi-level cuts, consistent level 1 at speed"). Level 0 at step 2.5 with
+#: tolerance 0.25 is the setting that reaches >= 5x at <= 5 % in the report on the template's
+#: overviews at 512² (6.4x at 4.83 % on the worst of three views, where 0.3 is at 4.99-5.04 % and
+#: 0.2 slower; docs/benchmarks.md, "`clipvol report` on the template: >= 5x at <= 5 %")
+DEFAULT_REFINES = ((2.0, 0.16), (2.0, 0.25), (2.5, 0.2), (2.5, 0.25), (2.5, 0.3), (1.0, 0.08, 1), (1.0, 0.16, 1))
 #: what the orbit's views frame (run_report's ``frame``)
 FRAMES = ("visible", "volume")
 
