@@ -21,6 +21,12 @@ smooth surfaces too; level 1's of two shows mainly at edges); above it, as it is
 are fitted on the template's iso, face and close views at 256² (image-policy cuts at block budgets
 8-32 and error budgets 2-20 %) and checked at 512²; a model, not a bound.
 
+The term applies to consistent coarse levels only (``classify="distribution"``, the default, which
+it was fitted on). With the mean classified, a coarse level loses thin structures outright - on
+smooth views too, where the error is then not at the edges: on the template's close view at 256²
+the term took the mean mode's ``max_error`` cuts from 0.97-1.96x the measurement to 0.22-0.65x,
+so there the bias counts as it is.
+
 Pure numpy; no GL.
 """
 

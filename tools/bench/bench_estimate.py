@@ -2,7 +2,7 @@
 
 For each view of :func:`bench_mission.views` (``iso`` and ``face``: overviews; ``close``: a part of
 the volume filling the image) and image size, the image policy draws its cut at block budgets 8-128
-and at the error budgets ``max_error`` 20, 10, 5 and 2 % (``classify="distribution"``, step 0.5),
+and at the error budgets ``max_error`` 20, 10, 5 and 2 % (``--classify``, default ``distribution``; step 0.5),
 one warm frame each; the row holds the policy's own prediction (:attr:`ImageBased.estimated_error`,
 the predicted % of pixels with CIELUV Delta E >= 6) and the measured % against the **converged
 picture** (:mod:`clipvol.app.converged`: level 0 at step 0.25, 2x2 rays per pixel), their ratio, the
@@ -37,7 +37,7 @@ def settings() -> dict:
     return out
 
 
-def run(store: Path, images, view_names=None, log=print) -> list[dict]:
+def run(store: Path, images, view_names=None, classify: str = "distribution", log=print) -> list[dict]:
     from clipvol.app.converged import ConvergedPictures
     from clipvol.scene.metrics import percent_delta_e
     from clipvol.scene.params import RenderParams
@@ -45,7 +45,7 @@ def run(store: Path, images, view_names=None, log=print) -> list[dict]:
 
     scene = common.WarmScene(store)
     pyr, tf = scene.pyramid, scene.tf
-    actions = {k: scene.action(step=0.5, classify="distribution", **kw) for k, kw in settings().items()}
+    actions = {k: scene.action(step=0.5, classify=classify, **kw) for k, kw in settings().items()}
     ref = scene.action(policy="fixed", level=0)
 
     def draw(c, params):
@@ -69,7 +69,7 @@ def run(store: Path, images, view_names=None, log=print) -> list[dict]:
                     est = 100.0 * pol.estimated_error
                     levels = sorted({lv for lv, _ in pol.node_data})
                     edges = edge_share(np.asarray(pol.visibility.alpha[-1])) if pol.visibility is not None else float("nan")
-                    row = dict(date=time.strftime("%Y-%m-%d"), store=store.name, image=image, view=view, setting=k,
+                    row = dict(date=time.strftime("%Y-%m-%d"), store=store.name, image=image, view=view, setting=k, classify=classify,
                                bricks=len(pol.node_data), levels="/".join(map(str, levels)),
                                edge_share=round(edges, 4), full_pct_de6=round(full, 3),
                                predicted_pct_de6=round(est, 3), pct_de6=round(pct, 3),
@@ -88,9 +88,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--store", type=Path, required=True, help="a clipvol store with summary tables")
     ap.add_argument("--images", default="256", help="image edges, comma separated (default 256)")
     ap.add_argument("--views", default=None, help="views, comma separated (default iso,face,close)")
+    ap.add_argument("--classify", default="distribution", choices=("distribution", "mean"),
+                    help="how coarse voxels are classified (default distribution)")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "bench_estimate.csv")
     a = ap.parse_args(argv)
-    rows = run(a.store, [int(v) for v in a.images.split(",")], None if a.views is None else a.views.split(","))
+    rows = run(a.store, [int(v) for v in a.images.split(",")], None if a.views is None else a.views.split(","), a.classify)
     return common.save_rows(a.out, rows)
 
 

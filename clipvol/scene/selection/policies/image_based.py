@@ -74,8 +74,8 @@ the full-resolution frame's own error (0-0.9 % of pixels there) nor the non-empt
 0.01 of the converged picture's) nor the image size (256² and 512² measure the same) explains the
 gap. It guides the cut; it is not a bound.
 
-The view's edges (:mod:`clipvol.scene.visible_edges`): with a visibility estimate, each coarse
-node's bias is multiplied by :func:`~clipvol.scene.visible_edges.edge_weight` of its level and the
+The view's edges (:mod:`clipvol.scene.visible_edges`): with a visibility estimate and consistent
+coarse levels (errors of ``classify="distribution"``), each coarse node's bias is multiplied by :func:`~clipvol.scene.visible_edges.edge_weight` of its level and the
 estimate's edge share (the share of its non-empty pixels where the total opacity steps to a
 neighbour): a coarse level's error sits on the picture's edges, many in an overview of folded
 anatomy, few on a surface seen from near. On the MNI template's close views this brings the
@@ -275,8 +275,8 @@ class ImageBased:
         bias = getattr(self.errors, "bias", None)
         if bias is not None:
             b = bias[level][tuple(idx.T)]
-            if self.visibility is not None:  # the view's edges (clipvol.scene.visible_edges)
-                b = b * edge_weight(level, self._edges())
+            if self.visibility is not None and getattr(self.errors, "classify", "mean") == "distribution":
+                b = b * edge_weight(level, self._edges())  # the view's edges (clipvol.scene.visible_edges)
             return b, BIAS_SCALE
         raw = self.errors.raw_eps[level][tuple(idx.T)]
         return raw / np.maximum(t.tree.n_children(level, idx), 1), ERROR_SCALE
