@@ -34,6 +34,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import ParameterError
+
 __all__ = ["edge_share", "edge_weight", "EDGE_JUMP", "EDGE_ALPHA", "EDGE_REF", "EDGE_MIN", "EDGE_POWER", "EDGE_CAP"]
 
 #: a pixel of the opacity map counts as showing something above this total opacity (the policy's
@@ -45,7 +47,7 @@ EDGE_JUMP = 0.1
 EDGE_REF = 0.05
 #: edge shares below this count as this (a view with no edge at all still shows a coarse level's blur)
 EDGE_MIN = 0.005
-#: exponent of the share's ratio at level 1 (divided by the level above it)
+#: exponent of the share's ratio to :data:`EDGE_REF` at level 1 (at level ``L``: ``EDGE_POWER / L``)
 EDGE_POWER = 0.5
 #: the factor's upper limit: an edge-rich view keeps the bias as it is. Above 1 (1.5 and 1.25
 #: measured) the template's overviews came nearer (0.74-1.43 instead of 0.57-1.17), but the
@@ -61,7 +63,7 @@ def edge_share(alpha, nonempty: float = EDGE_ALPHA, jump: float = EDGE_JUMP) -> 
     shows nothing)."""
     a = np.asarray(alpha, dtype=np.float64)
     if a.ndim != 2:
-        raise ValueError(f"edge_share: expected a 2-D opacity map, got shape {a.shape}")
+        raise ParameterError(f"edge_share: expected a 2-D opacity map, got shape {a.shape}")
     shown = a > nonempty
     n = int(shown.sum())
     if n == 0:

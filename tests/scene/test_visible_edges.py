@@ -10,6 +10,7 @@ import pytest
 
 from clipvol.bricking.pipeline import brick_volume
 from clipvol.bricking.summary import open_summary
+from clipvol.errors import ParameterError
 from clipvol.scene.camera import Camera
 from clipvol.scene.lod_error import lod_errors
 from clipvol.scene.params import RenderParams
@@ -46,6 +47,8 @@ def test_edge_share_counts_pixels_with_a_step_to_a_neighbour(seed):
     assert edge_share(a) == pytest.approx(_edge_share_by_loop(a), abs=1e-12)
     assert edge_share(np.zeros((8, 8))) == 0.0
     assert edge_share(np.full((8, 8), 0.7)) == 0.0
+    with pytest.raises(ParameterError, match="edge_share: expected a 2-D opacity map"):
+        edge_share(np.zeros((2, 8, 8)))
 
 
 def test_edge_weight_leaves_level_0_and_orders_views():

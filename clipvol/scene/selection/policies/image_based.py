@@ -75,9 +75,10 @@ the full-resolution frame's own error (0-0.9 % of pixels there) nor the non-empt
 gap. It guides the cut; it is not a bound.
 
 The view's edges (:mod:`clipvol.scene.visible_edges`): with a visibility estimate and consistent
-coarse levels (errors of ``classify="distribution"``), each coarse node's bias is multiplied by :func:`~clipvol.scene.visible_edges.edge_weight` of its level and the
-estimate's edge share (the share of its non-empty pixels where the total opacity steps to a
-neighbour): a coarse level's error sits on the picture's edges, many in an overview of folded
+coarse levels (errors of ``classify="distribution"``), each coarse node's bias is multiplied by
+:func:`~clipvol.scene.visible_edges.edge_weight` of its level and the estimate's edge share (the
+share of its non-empty pixels where the total opacity steps to a neighbour): a coarse level's
+error sits on the picture's edges, many in an overview of folded
 anatomy, few on a surface seen from near. On the MNI template's close views this brings the
 ``max_error`` cuts' estimates from 2.6-4.7x the measurement to 0.80-1.50x; its overviews are
 unchanged (``docs/benchmarks.md``, "The visible-error estimate on smooth views").
