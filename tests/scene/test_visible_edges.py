@@ -58,7 +58,8 @@ def test_edge_weight_leaves_level_0_and_orders_views():
     assert np.all(np.diff(smooth) > 0)  # on a smooth view the coarser levels keep more of their bias
 
 
-TF = TransferFunction.from_points([(0.0, (0, 0, 0, 0)), (0.45, (0, 0, 0, 0)), (0.55, (1, 0.9, 0.8, 1)), (1.0, (1, 1, 1, 1))])
+TF = TransferFunction.from_points([(0.0, (0, 0, 0, 0)), (0.45, (0, 0, 0, 0)), (0.55, (1, 0.9, 0.8, 1)),
+                                   (1.0, (1, 1, 1, 1))])
 
 
 @pytest.fixture(scope="module")

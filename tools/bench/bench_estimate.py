@@ -68,8 +68,10 @@ def run(store: Path, images, view_names=None, classify: str = "distribution", lo
                     pct = float(percent_delta_e(img, truth, threshold=6.0, premultiplied=False))
                     est = 100.0 * pol.estimated_error
                     levels = sorted({lv for lv, _ in pol.node_data})
-                    edges = edge_share(np.asarray(pol.visibility.alpha[-1])) if pol.visibility is not None else float("nan")
-                    row = dict(date=time.strftime("%Y-%m-%d"), store=store.name, image=image, view=view, setting=k, classify=classify,
+                    vis = pol.visibility
+                    edges = edge_share(np.asarray(vis.alpha[-1])) if vis is not None else float("nan")
+                    row = dict(date=time.strftime("%Y-%m-%d"), store=store.name, image=image, view=view, setting=k,
+                               classify=classify,
                                bricks=len(pol.node_data), levels="/".join(map(str, levels)),
                                edge_share=round(edges, 4), full_pct_de6=round(full, 3),
                                predicted_pct_de6=round(est, 3), pct_de6=round(pct, 3),
