@@ -124,7 +124,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--refine", default=None, metavar="STEP:TOL[:LEVEL],...",
                    help="one level (default the reference, full resolution) sampled at STEP voxels with adaptive "
                         "image sampling at tolerance TOL (--refine-tolerance of clipvol render) measured as settings, "
-                        "comma-separated, or 'none' (default 2:0.16,2:0.25,2.5:0.2,2.5:0.3,1:0.08:1,1:0.16:1; "
+                        "comma-separated, or 'none' (default 2:0.16,2:0.25,2.5:0.2,2.5:0.25,2.5:0.3,1:0.08:1,1:0.16:1; "
                         "composite only)")
     p.add_argument("--block-budgets", default=None,
                    help="block budgets of the policy comparison (image-based LOD, after Wang, Garcia & Shen 2007, "

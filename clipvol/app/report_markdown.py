@@ -35,6 +35,25 @@ __all__ = ["ReportResult", "run_report", "summarise", "headline", "REPORT_COLUMN
            "DEFAULT_MAX_ERRORS", "DEFAULT_REFINES", "VISIBLE_TARGET"]
 
 
+def _estimate_lines(summ: list[dict]) -> list[str]:
+    """The settings whose policy predicts its own error (the image policy: ``--max-errors``), the
+    prediction beside the measurement per view: how far ``--max-error`` can be trusted on this data
+    and these views (the estimate is a model, ``docs/rendering.md``, "The visible-error budget")."""
+    est = [s for s in summ if np.isfinite(s.get("predicted_pct_de6", float("nan")))]
+    if not est:
+        return []
+    lines = ["", "## The image policy's estimate against the measurement", "",
+             "The image policy predicts the % of pixels with ΔE ≥ 6 against the converged picture from the "
+             "store's summary tables and the view, before it draws; `--max-error` stops refining when the "
+             "prediction is within the budget. Per view: predicted / measured % (predicted ÷ measured).", "",
+             "| setting | predicted % | measured % | per view |", "| --- | ---: | ---: | --- |"]
+    for s in est:
+        per = "; ".join(f"{p:.2f} / {m:.2f}" + (f" ({p / m:.2f})" if m > 0 else "")
+                        for p, m in s["predicted_by_view"] if np.isfinite(p))
+        lines.append(f"| {s['setting']} | {s['predicted_pct_de6']:.2f} | {s['pct_de6']:.2f} | {per} |")
+    return lines
+
+
 def write_markdown(result: ReportResult, pyr, *, size, path, tf, mode, step, cap, classify: str = "distribution") -> None:
     rows = result.rows
     summ = summarise(rows, result.lod_rows)
@@ -96,6 +115,7 @@ def write_markdown(result: ReportResult, pyr, *, size, path, tf, mode, step, cap
             f"{_fmt_bytes(s['bytes_needed'])} | {_fmt_bytes(s['bytes_loaded'])} | {s['pct_de6']:.2f} | "
             f"{s['pct_de6_max']:.2f} | {fp} | {rm} | {ps} |"
         )
+    lines += _estimate_lines(summ)
     fixed = {r["view"]: r for r in _converged(rows, "fixed")}
     lods = sorted({float(r["lod_threshold"]) for r in _converged(rows, "lod_threshold")}, key=lambda t: (abs(np.log(t)), t))
     lod = lods[0] if lods else 1.0  # the threshold nearest 1 pixel

@@ -62,6 +62,8 @@ def summarise(rows: list[dict], lod_rows: Sequence[dict] = ()) -> list[dict]:
             "bytes_needed": mean("bytes_needed"), "bytes_loaded": mean("bytes_loaded"), "pct_de6": mean("pct_de6"),
             "pct_de6_max": max(_nan(r["pct_de6"]) for r in rs),
             "rmse": mean("rmse"), "psnr": float(np.mean([min(_nan(r["psnr"]), 99.0) for r in rs])),
+            "predicted_pct_de6": mean("predicted_pct_de6"),
+            "predicted_by_view": [(_nan(r.get("predicted_pct_de6", "")), _nan(r["pct_de6"])) for r in rs],
         })
     return out
 

@@ -79,6 +79,8 @@ class LodErrors:
     seconds: float
     opacity: list[np.ndarray] | None = None
     bias: list[np.ndarray] | None = None
+    #: how the coarse voxels these errors describe are classified (:data:`CLASSIFY_MODES`)
+    classify: str = "mean"
 
     def lookup(self, level: int, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(eps, emission, opacity)`` of bricks ``idx`` ``(n, 3)`` of ``level``."""
@@ -287,4 +289,4 @@ def lod_errors(tables: SummaryTables, tf, classify: str = "mean") -> LodErrors:
     em = [e.reshape(g) for e, g in zip(emission, grids)]
     op = [o.reshape(g) for o, g in zip(opacity, grids)]
     bias = [b.reshape(g) for b, g in zip(classification_bias(tables, F, classify, tf), grids)]
-    return LodErrors(eps, raw_g, em, time.perf_counter() - t0, op, bias)
+    return LodErrors(eps, raw_g, em, time.perf_counter() - t0, op, bias, classify)

@@ -250,6 +250,16 @@ def test_error_budgets_are_settings_of_the_report(tmp_path, ctx):
     assert int(conv["max-error=2%"]["bricks_drawn"]) >= int(conv["max-error=20%"]["bricks_drawn"])
     s = {x["setting"]: x for x in summarise(res.rows)}
     assert s["max-error=2%"]["sweep"] == "max_error" and s["max-error=2%"]["speedup"] > 0
+    # the policy's own prediction is printed beside the measurement: within the budget it stopped at
+    # (or the finest cut it could reach), none for settings whose policy predicts nothing
+    for name, budget in (("max-error=20%", 20.0), ("max-error=2%", 2.0)):
+        pred = float(conv[name]["predicted_pct_de6"])
+        assert 0.0 <= pred <= budget, (name, pred)
+    assert conv["lod=4"]["predicted_pct_de6"] == "" and conv["fixed L0"]["predicted_pct_de6"] == ""
+    md = res.markdown.read_text()
+    assert "## The image policy's estimate against the measurement" in md
+    row = next(line for line in md.splitlines() if line.startswith("| max-error=20% |"))
+    assert f"{float(conv['max-error=20%']['predicted_pct_de6']):.2f} / {float(conv['max-error=20%']['pct_de6']):.2f}" in row
 
 
 def test_report_rejects_a_bad_error_budget(tmp_path):

@@ -1,0 +1,102 @@
+"""The image policy's visible-error estimate against the measured error, per view and cut.
+
+For each view of :func:`bench_mission.views` (``iso`` and ``face``: overviews; ``close``: a part of
+the volume filling the image) and image size, the image policy draws its cut at block budgets 8-128
+and at the error budgets ``max_error`` 20, 10, 5 and 2 % (``--classify``, default ``distribution``; step 0.5),
+one warm frame each; the row holds the policy's own prediction (:attr:`ImageBased.estimated_error`,
+the predicted % of pixels with CIELUV Delta E >= 6) and the measured % against the **converged
+picture** (:mod:`clipvol.app.converged`: level 0 at step 0.25, 2x2 rays per pixel), their ratio, the
+cut's bricks and levels, and the edge share of the view's visibility estimate
+(:func:`clipvol.scene.visible_edges.edge_share`, the term that scales the estimate per view).
+No timing: every figure is an image's error, so the load does not move it.
+
+``python tools/bench/bench_estimate.py --store mni32.zarr --images 256,512``; rows to
+``tools/bench/results/bench_estimate.csv``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+if str(HERE) not in sys.path:
+    sys.path.insert(0, str(HERE))
+
+import bench_mission  # noqa: E402
+import common  # noqa: E402
+
+
+def settings() -> dict:
+    out = {f"image b={b}": dict(policy="image", block_budget=b) for b in (8, 16, 32, 64, 128)}
+    out.update({f"max-error={e:g}%": dict(policy="image", max_error=e / 100.0) for e in (20, 10, 5, 2)})
+    return out
+
+
+def run(store: Path, images, view_names=None, classify: str = "distribution", log=print) -> list[dict]:
+    from clipvol.app.converged import ConvergedPictures
+    from clipvol.scene.metrics import percent_delta_e
+    from clipvol.scene.params import RenderParams
+    from clipvol.scene.visible_edges import edge_share
+
+    scene = common.WarmScene(store)
+    pyr, tf = scene.pyramid, scene.tf
+    actions = {k: scene.action(step=0.5, classify=classify, **kw) for k, kw in settings().items()}
+    ref = scene.action(policy="fixed", level=0)
+
+    def draw(c, params):
+        ref.set_params(params)
+        return ref.render(c, tf, wait=True, timeout=600)
+
+    conv = ConvergedPictures(draw, RenderParams(step=0.5), supersample=2, step=0.25)
+    rows = []
+    try:
+        for image in images:
+            for view, cam in bench_mission.views(pyr, image).items():
+                if view_names and view not in view_names:
+                    continue
+                truth = conv.get(cam, key=(image, view))
+                full = float(percent_delta_e(draw(cam, RenderParams(step=0.5, policy="fixed", level=0)), truth,
+                                             threshold=6.0, premultiplied=False))
+                for k, a in actions.items():
+                    img = a.render(cam, tf, wait=True, timeout=600)
+                    pol = a.last_policy
+                    pct = float(percent_delta_e(img, truth, threshold=6.0, premultiplied=False))
+                    est = 100.0 * pol.estimated_error
+                    levels = sorted({lv for lv, _ in pol.node_data})
+                    vis = pol.visibility
+                    edges = edge_share(np.asarray(vis.alpha[-1])) if vis is not None else float("nan")
+                    row = dict(date=time.strftime("%Y-%m-%d"), store=store.name, image=image, view=view, setting=k,
+                               classify=classify,
+                               bricks=len(pol.node_data), levels="/".join(map(str, levels)),
+                               edge_share=round(edges, 4), full_pct_de6=round(full, 3),
+                               predicted_pct_de6=round(est, 3), pct_de6=round(pct, 3),
+                               predicted_over_measured=round(est / pct, 3) if pct > 0 else "")
+                    rows.append(row)
+                    log(f"{image}^2 {view:5} {k:14}: {row['bricks']:3d} bricks (levels {row['levels']}), edge share "
+                        f"{edges:.3f}: predicted {est:6.2f} %, measured {pct:6.2f} % "
+                        f"(ratio {row['predicted_over_measured']}); full resolution {full:.2f} %")
+    finally:
+        scene.close()
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--store", type=Path, required=True, help="a clipvol store with summary tables")
+    ap.add_argument("--images", default="256", help="image edges, comma separated (default 256)")
+    ap.add_argument("--views", default=None, help="views, comma separated (default iso,face,close)")
+    ap.add_argument("--classify", default="distribution", choices=("distribution", "mean"),
+                    help="how coarse voxels are classified (default distribution)")
+    ap.add_argument("--out", type=Path, default=common.RESULTS / "bench_estimate.csv")
+    a = ap.parse_args(argv)
+    rows = run(a.store, [int(v) for v in a.images.split(",")], None if a.views is None else a.views.split(","), a.classify)
+    return common.save_rows(a.out, rows)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
