@@ -388,7 +388,7 @@ class ClipRenderAction:
         covered only while it lies beside the view: those boxes are asked again, one vectorised
         call, and the merge is the same while every answer is)."""
         kept = self._merged_kept
-        if kept is not None and kept[0] is sel and kept[1] == self.cache.generation and all(
+        if kept is not None and kept[0].items is getattr(sel, "items", sel) and kept[1] == self.cache.generation and all(
                 np.array_equal(np.asarray(cam.boxes_beside_view(lo, hi), dtype=bool), ans) for lo, hi, ans in kept[3]):
             return kept[2]
         asked: list = []

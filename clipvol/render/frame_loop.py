@@ -117,8 +117,8 @@ class FrameLoop:
         sel = kept[1].update(camera, ordered=False)
         if sel is None:
             return None
-        if sel is self._verified:  # the cut passed the checks below, and the GPU holds what it did then
-            return sel
+        if self._verified is not None and sel.items is self._verified.items:
+            return sel  # the same leaves passed the checks below, and the GPU holds what it did then
         cache = self.cache.begin_frame(self.clip_texture, 0)  # reserves the slots, uploads nothing
         keys = sel.item_keys()
         for L in np.unique(keys[:, 0]).tolist():

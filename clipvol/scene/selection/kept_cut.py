@@ -122,6 +122,11 @@ class KeptCut:
         self.camera = None
         self.retested = 0  # nodes re-tested by the last update (the band), for benchmarks and tests
         self.selection: Selection | None = None
+        #: per row, drawn by :attr:`selection` (None: not known row by row, after a compaction)
+        self.drawn: np.ndarray | None = None
+        #: ``(added, removed)``, ``(n, 4)`` int64 keys: the leaves drawn by the last selection and
+        #: not the one before, and the reverse (None: not known, e.g. the first selection)
+        self.changed_leaves: tuple[np.ndarray, np.ndarray] | None = None
 
     # -- the camera-free tests -------------------------------------------------------------------
     def _inside(self, lv, lo, hi) -> np.ndarray:
@@ -218,6 +223,8 @@ class KeptCut:
             self.slack = np.concatenate([self.slack, np.zeros((len(lv), 2))])
             self.cam_id = np.concatenate([self.cam_id, np.zeros(len(lv), dtype=np.int64)])
             self.reached = np.concatenate([self.reached, np.ones(len(lv), dtype=bool)])
+            if self.drawn is not None:
+                self.drawn = np.concatenate([self.drawn, np.zeros(len(lv), dtype=bool)])
             self._test(np.arange(n0, len(self.lv)), camera)
 
     def _propagate(self) -> None:
@@ -250,6 +257,7 @@ class KeptCut:
         for name in ("lv", "idx", "lo", "hi", "expanded", "inside", "opaque", "infr", "ref", "eff", "slack",
                      "cam_id", "reached"):
             setattr(self, name, getattr(self, name)[keep])
+        self.drawn = None  # (a dropped row may have been drawn: the next selection compares keys anew)
         parent = self.parent[keep]
         self.parent = np.where(parent >= 0, new[np.maximum(parent, 0)], -1)
         self.expanded &= self.infr & self.inside & self.eff  # (else its children were not reached)
@@ -257,7 +265,9 @@ class KeptCut:
     def update(self, camera, ordered: bool = True) -> Selection | None:
         """The cut :func:`~clipvol.scene.selection.select` makes for ``camera`` (residency apart:
         every leaf drawn from its own brick), or None where this cut cannot be kept (module
-        docstring). The same :class:`Selection` object comes back while no node's answer changed.
+        docstring). The same :class:`Selection` object comes back while no node's answer changed;
+        with ``ordered=False``, a new one holding the same ``items`` and ``wanted`` objects while no
+        leaf changed (:attr:`changed_leaves` empty), so what a caller made of the items stays valid.
 
         ``ordered``: items in back-to-front order and ``wanted`` in load order, as ``select``
         gives them; False: both in depth-first order (no visibility order, no distances), and the
@@ -304,12 +314,30 @@ class KeptCut:
         kept = self.reached & self.infr & self.inside
         real = self.lv <= tree.top
         leaf = kept & ~self.eff
-        draw = np.nonzero(leaf & self.opaque)[0]
+        mask = leaf & self.opaque
+        draw = np.nonzero(mask)[0]
         counts = dict(visited=int(self.reached.sum()), culled_frustum=int((self.reached & ~self.infr).sum()),
                       culled_shape=int((self.reached & self.infr & ~self.inside).sum()),
                       culled_transparent=int((leaf & ~self.opaque).sum()), culled_policy=0,
                       refined=int((kept & self.eff & real & (self.lv > 0)).sum()), outside_window=0,
                       fallback=0, missing=0, texels=len(draw) * tree.texels, level=-1)
+        last, was = self.selection, self.drawn
+        self.drawn = mask
+        if last is not None and was is not None:
+            moved = np.nonzero(mask != was)[0]  # (the rows a band flip made or unmade leaves: few)
+            m = mask[moved]
+            keys = np.concatenate([self.lv[moved, None], self.idx[moved]], axis=1)
+            self.changed_leaves = (keys[m], keys[~m])
+        else:
+            self.changed_leaves = None
+        node_data = getattr(self.policy, "node_data", None)
+        node_data = dict(node_data) if node_data else {}
+        if not ordered and last is not None and not last.ordered and self.changed_leaves is not None \
+                and not len(moved):
+            # the band's answers flipped but no leaf did (a node culled or refined on another side):
+            # the same items and wanted keys, kept objects, so that whatever was made of them (the
+            # merge, the page table, the GPU check) is kept with them; only the counts are new
+            return Selection(last.items, last.wanted, counts, self.params.policy, node_data, None, ordered=False)
         lv, idx = self.lv[draw], self.idx[draw]
         keys = np.concatenate([lv[:, None], idx], axis=1)
         if ordered:
@@ -320,6 +348,4 @@ class KeptCut:
             o = depth_first(lv, idx)
             wanted = keys[o]
         items = DrawItems(keys[o], self.lo[draw][o], self.hi[draw][o])
-        node_data = getattr(self.policy, "node_data", None)
-        return Selection(items, BrickKeys(wanted), counts, self.params.policy, dict(node_data) if node_data else {},
-                         None, ordered=ordered)
+        return Selection(items, BrickKeys(wanted), counts, self.params.policy, node_data, None, ordered=ordered)
