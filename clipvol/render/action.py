@@ -82,6 +82,7 @@ from ..scene.page_table import block_cells
 from ..scene.params import MODES, RenderParams
 from ..scene.selection import DrawItems, Selection, merge_items
 from ..scene.selection.coherence import node_order
+from ..scene.selection.merge import KeptMerge
 from ..scene.selection.policies import POLICIES
 from ..scene.transfer import transparency_filter
 from .frame_loop import FrameLoop
@@ -103,6 +104,11 @@ SELECTIONS = tuple(POLICIES)
 #: empty under the transfer function: with none empty, the cell lookups (one per 8 samples) cost
 #: 5-12 % of a frame on llvmpipe (the CT-like head under a table visible everywhere, 128³-256³)
 MIN_EMPTY_FRACTION = 0.1
+
+
+#: most culled boxes a kept merge may have asked the camera about (:meth:`ClipRenderAction._merged`):
+#: past it, the next changed cut is merged from nothing and the questions start afresh
+MAX_ASKED_KEPT = 4096
 
 
 class ClipRenderAction:
@@ -141,7 +147,8 @@ class ClipRenderAction:
         self.occlusion_passes = 0  # bricks path: opacity snapshots taken, all frames
         self.boxes_drawn = 0  # proxy boxes of the last frame, after merge_items
         self.last_selection = None
-        self._merged_kept = None  # (selection, GPU cache generation, merged items): see _merged
+        self._merged_kept = None  # (selection, GPU cache generation, merged items, asked): see _merged
+        self._kept_merge = KeptMerge(self.pyramid)  # a kept cut's merge, by cells (see _merged)
         self._extents_kept = None  # (merged items, their distinct extents): see _extents
         self._replayed = False  # the frame loop drew the last cut again (its order is the old camera's)
         self.image_lod: ImageLod | None = None  # the image policy's tables and visibility, made on first use
@@ -382,17 +389,31 @@ class ClipRenderAction:
                     occlusion_passes=drawn.occlusion_passes)
 
     def _merged(self, cam, sel) -> DrawItems:
-        """:func:`merge_items` of ``sel``'s items, kept while ``sel`` is drawn again (the frame loop's
-        replay hands back the same object), the GPU cache's slots are unchanged and the
-        camera answers what the merge asked of it again (a culled sibling not in texture memory is
-        covered only while it lies beside the view: those boxes are asked again, one vectorised
-        call, and the merge is the same while every answer is)."""
+        """:func:`merge_items` of ``sel``'s items, kept while ``sel``'s items are drawn again (the
+        frame loop's replay, or a kept cut whose leaves did not change, hands back the same object),
+        the GPU cache's slots are unchanged and the camera answers what the merge asked of it again
+        (a culled sibling not in texture memory is covered only while it lies beside the view: those
+        boxes are asked again, one vectorised call, and the merge is the same while every answer is).
+
+        A kept cut updated for the camera (``sel.ordered`` False: depth-first, whole nodes) is
+        merged by :class:`~clipvol.scene.selection.merge.KeptMerge`: while the same holds, only the
+        cells whose leaves changed are merged again (their new questions join the kept ones)."""
         kept = self._merged_kept
-        if kept is not None and kept[0].items is getattr(sel, "items", sel) and kept[1] == self.cache.generation and all(
-                np.array_equal(np.asarray(cam.boxes_beside_view(lo, hi), dtype=bool), ans) for lo, hi, ans in kept[3]):
+        holds = kept is not None and kept[1] == self.cache.generation and sum(len(a[2]) for a in kept[3]) \
+            <= MAX_ASKED_KEPT and all(np.array_equal(np.asarray(cam.boxes_beside_view(lo, hi), dtype=bool), ans)
+                                      for lo, hi, ans in kept[3])
+        if holds and kept[0].items is getattr(sel, "items", sel):
             return kept[2]
         asked: list = []
-        merged = merge_items(sel.items, self.pyramid, self.cache.windows, self._may_cover(cam, asked))
+        if isinstance(sel, Selection) and not sel.ordered:
+            if not (holds and not kept[0].ordered):
+                self._kept_merge.reset()  # (the kept cells' answers may differ now)
+            elif self._kept_merge.holding:
+                asked = list(kept[3])  # the kept cells' questions still stand
+            merged = self._kept_merge.merge(sel.items, self.cache.windows, self._may_cover(cam, asked))
+        else:
+            self._kept_merge.reset()
+            merged = merge_items(sel.items, self.pyramid, self.cache.windows, self._may_cover(cam, asked))
         self._merged_kept = (sel, self.cache.generation, merged, asked) if isinstance(sel, Selection) else None
         return merged
 

@@ -124,9 +124,6 @@ class KeptCut:
         self.selection: Selection | None = None
         #: per row, drawn by :attr:`selection` (None: not known row by row, after a compaction)
         self.drawn: np.ndarray | None = None
-        #: ``(added, removed)``, ``(n, 4)`` int64 keys: the leaves drawn by the last selection and
-        #: not the one before, and the reverse (None: not known, e.g. the first selection)
-        self.changed_leaves: tuple[np.ndarray, np.ndarray] | None = None
 
     # -- the camera-free tests -------------------------------------------------------------------
     def _inside(self, lv, lo, hi) -> np.ndarray:
@@ -267,7 +264,7 @@ class KeptCut:
         every leaf drawn from its own brick), or None where this cut cannot be kept (module
         docstring). The same :class:`Selection` object comes back while no node's answer changed;
         with ``ordered=False``, a new one holding the same ``items`` and ``wanted`` objects while no
-        leaf changed (:attr:`changed_leaves` empty), so what a caller made of the items stays valid.
+        leaf changed, so that what a caller made of the items stays valid.
 
         ``ordered``: items in back-to-front order and ``wanted`` in load order, as ``select``
         gives them; False: both in depth-first order (no visibility order, no distances), and the
@@ -323,17 +320,9 @@ class KeptCut:
                       fallback=0, missing=0, texels=len(draw) * tree.texels, level=-1)
         last, was = self.selection, self.drawn
         self.drawn = mask
-        if last is not None and was is not None:
-            moved = np.nonzero(mask != was)[0]  # (the rows a band flip made or unmade leaves: few)
-            m = mask[moved]
-            keys = np.concatenate([self.lv[moved, None], self.idx[moved]], axis=1)
-            self.changed_leaves = (keys[m], keys[~m])
-        else:
-            self.changed_leaves = None
         node_data = getattr(self.policy, "node_data", None)
         node_data = dict(node_data) if node_data else {}
-        if not ordered and last is not None and not last.ordered and self.changed_leaves is not None \
-                and not len(moved):
+        if not ordered and last is not None and not last.ordered and was is not None and np.array_equal(mask, was):
             # the band's answers flipped but no leaf did (a node culled or refined on another side):
             # the same items and wanted keys, kept objects, so that whatever was made of them (the
             # merge, the page table, the GPU check) is kept with them; only the counts are new
