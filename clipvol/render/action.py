@@ -106,11 +106,6 @@ SELECTIONS = tuple(POLICIES)
 MIN_EMPTY_FRACTION = 0.1
 
 
-#: most culled boxes a kept merge may have asked the camera about (:meth:`ClipRenderAction._merged`):
-#: past it, the next changed cut is merged from nothing and the questions start afresh
-MAX_ASKED_KEPT = 4096
-
-
 class ClipRenderAction:
     """Render a :class:`~clipvol.paging.cliptexture.ClipTexture` with a moderngl context.
 
@@ -396,24 +391,26 @@ class ClipRenderAction:
         boxes are asked again, one vectorised call, and the merge is the same while every answer is).
 
         A kept cut updated for the camera (``sel.ordered`` False: depth-first, whole nodes) is
-        merged by :class:`~clipvol.scene.selection.merge.KeptMerge`: while the same holds, only the
-        cells whose leaves changed are merged again (their new questions join the kept ones)."""
+        merged by :class:`~clipvol.scene.selection.merge.KeptMerge` while the slots are the same:
+        only the cells whose leaves changed, or whose culled nodes ``may_cover`` answers otherwise
+        for this camera, are merged again."""
         kept = self._merged_kept
-        holds = kept is not None and kept[1] == self.cache.generation and sum(len(a[2]) for a in kept[3]) \
-            <= MAX_ASKED_KEPT and all(np.array_equal(np.asarray(cam.boxes_beside_view(lo, hi), dtype=bool), ans)
-                                      for lo, hi, ans in kept[3])
-        if holds and kept[0].items is getattr(sel, "items", sel):
+        same_gpu = kept is not None and kept[1] == self.cache.generation
+        if isinstance(sel, Selection) and not sel.ordered:  # a kept cut, updated: merged by cells
+            km, may_cover = self._kept_merge, self._may_cover(cam)
+            if not (same_gpu and kept[3] is None):
+                km.reset()  # (other slots: the kept cells' answers may differ)
+            elif kept[0].items is sel.items and km.answers_hold(may_cover):
+                return kept[2]
+            merged = km.merge(sel.items, self.cache.windows, may_cover)
+            self._merged_kept = (sel, self.cache.generation, merged, None)  # (None: the questions are km's)
+            return merged
+        if same_gpu and kept[3] is not None and kept[0].items is getattr(sel, "items", sel) and all(
+                np.array_equal(np.asarray(cam.boxes_beside_view(lo, hi), dtype=bool), ans) for lo, hi, ans in kept[3]):
             return kept[2]
         asked: list = []
-        if isinstance(sel, Selection) and not sel.ordered:
-            if not (holds and not kept[0].ordered):
-                self._kept_merge.reset()  # (the kept cells' answers may differ now)
-            elif self._kept_merge.holding:
-                asked = list(kept[3])  # the kept cells' questions still stand
-            merged = self._kept_merge.merge(sel.items, self.cache.windows, self._may_cover(cam, asked))
-        else:
-            self._kept_merge.reset()
-            merged = merge_items(sel.items, self.pyramid, self.cache.windows, self._may_cover(cam, asked))
+        self._kept_merge.reset()
+        merged = merge_items(sel.items, self.pyramid, self.cache.windows, self._may_cover(cam, asked))
         self._merged_kept = (sel, self.cache.generation, merged, asked) if isinstance(sel, Selection) else None
         return merged
 

@@ -266,9 +266,12 @@ class KeptMerge:
 
     The items must be whole nodes in depth-first order (:func:`~clipvol.scene.selection.order.depth_first`,
     what a kept cut gives with ``ordered=False``); fallback items (a loading frame's) make every
-    call a merge from nothing. The caller keeps what ``may_cover`` answers: a kept cell's entries
-    hold only while those answers would be the same, so it calls :meth:`reset` where they change
-    (and for new ``windows``, which the merge reads too).
+    call a merge from nothing. ``may_cover`` may depend on the camera (the render action covers a
+    culled node not in texture memory while it lies beside the view): a kept cell's entries hold
+    only while it answers the cell's questions as before, so each call asks them again (one call
+    per level pair) and merges again the cells where an answer changed. New ``windows`` merge
+    everything again; a caller whose ``may_cover`` changed otherwise (other textures) calls
+    :meth:`reset`.
     """
 
     def __init__(self, pyramid, cell_level: int = CELL_LEVEL) -> None:
@@ -280,6 +283,9 @@ class KeptMerge:
         self._kept: _Merging | None = None  # the lower passes' entries, in depth-first order
         self._kept_cell: np.ndarray | None = None  # each kept entry's cell (flat key; -1: coarser than a cell)
         self._windows = None
+        #: the lower passes' questions to ``may_cover`` of the kept cells, and the upper passes' of
+        #: the last call: ``(level, node_level, nodes, answers, cells)`` (cells None: upper)
+        self._asked: list[tuple] = []
         self.remerged = 0  # items the lower passes ran over in the last call (benchmarks and tests)
 
     @property
@@ -290,6 +296,32 @@ class KeptMerge:
     def reset(self) -> None:
         """Forget the kept cells: the next :meth:`merge` merges from nothing."""
         self._items = self._kept = self._kept_cell = None
+        self._asked = []
+
+    def _recording(self, may_cover, lower: bool):
+        """``may_cover`` whose questions and answers are kept in :attr:`_asked` (with the cell of
+        each node for the lower passes' questions, whose nodes lie below the cells' level)."""
+        if may_cover is None:
+            return None
+        K, g = self.cell_level, self._cell_grid
+
+        def asked(level: int, node_level: int, nodes) -> np.ndarray:
+            nodes = np.asarray(nodes, dtype=np.int64).reshape(-1, 3)
+            ans = np.asarray(may_cover(level, node_level, nodes), dtype=bool).reshape(len(nodes))
+            cells = None
+            if lower:
+                a = nodes >> max(K - node_level, 0)
+                cells = (a[:, 0] * g[1] + a[:, 1]) * g[2] + a[:, 2]
+            self._asked.append((level, node_level, nodes, ans, cells))
+            return ans
+
+        return asked
+
+    def answers_hold(self, may_cover) -> bool:
+        """Would ``may_cover`` answer every question of the last :meth:`merge` as it did (so the
+        same items merge the same)? One call per question group."""
+        return all(np.array_equal(np.asarray(may_cover(L, n, nodes), dtype=bool).reshape(len(nodes)), ans)
+                   for L, n, nodes, ans, _ in self._asked)
 
     def _cells(self, rows: np.ndarray) -> np.ndarray:
         """Flat key of each item's cell (-1 for an item at or above the cells' level)."""
@@ -329,8 +361,20 @@ class KeptMerge:
         if self._kept is None or self._windows != windows:
             redo = np.ones(len(arr), dtype=bool)
             keep = None
+            self._asked = []
         else:
             dirty = self._changed_cells(self._items, arr)
+            lower = [q for q in self._asked if q[4] is not None]
+            for L, n, nodes, ans, where in lower:  # a kept cell whose answers changed: merged again
+                r = ~dirty[where]
+                if r.any() and may_cover is not None:
+                    now = np.asarray(may_cover(L, n, nodes[r]), dtype=bool).reshape(int(r.sum()))
+                    dirty[where[r][now != ans[r]]] = True
+            self._asked = []
+            for L, n, nodes, ans, where in lower:  # the questions of the cells kept
+                k = ~dirty[where]
+                if k.any():
+                    self._asked.append((L, n, nodes[k], ans[k], where[k]))
             redo = (cells < 0) | dirty[np.maximum(cells, 0)]
             keep = (self._kept_cell >= 0) & ~dirty[np.maximum(self._kept_cell, 0)]
         self.remerged = int(redo.sum())
@@ -341,11 +385,12 @@ class KeptMerge:
             self.remerged = len(arr)
             return merge_items(arr, pyr, windows, may_cover)
         none = np.zeros((0, 3))
-        merged = _merge_levels(_Merging.of(part, full), pyr, windows, may_cover, none, none, stop=K)
+        merged = _merge_levels(_Merging.of(part, full), pyr, windows, self._recording(may_cover, True), none, none,
+                               stop=K)
         if keep is not None and keep.any():  # the kept cells' entries and the new ones, in depth-first order
             merged = _Merging.join([self._kept.take(keep), merged])
             merged = merged.take(depth_first(merged.data_lv, merged.idx))
         # each entry's cell: its first brick's (a lower pass never merges beyond a cell)
         merged_cells = self._cells(np.concatenate([merged.data_lv[:, None], merged.idx], axis=1))
         self._items, self._kept, self._kept_cell, self._windows = arr, merged, merged_cells, windows
-        return _merge_levels(merged, pyr, windows, may_cover, none, none, first=K).items()
+        return _merge_levels(merged, pyr, windows, self._recording(may_cover, False), none, none, first=K).items()
