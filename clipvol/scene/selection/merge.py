@@ -390,7 +390,18 @@ class KeptMerge:
         if keep is not None and keep.any():  # the kept cells' entries and the new ones, in depth-first order
             merged = _Merging.join([self._kept.take(keep), merged])
             merged = merged.take(depth_first(merged.data_lv, merged.idx))
+        self._asked = _grouped(self._asked)  # (one call per level pair when asked again)
         # each entry's cell: its first brick's (a lower pass never merges beyond a cell)
         merged_cells = self._cells(np.concatenate([merged.data_lv[:, None], merged.idx], axis=1))
         self._items, self._kept, self._kept_cell, self._windows = arr, merged, merged_cells, windows
         return _merge_levels(merged, pyr, windows, self._recording(may_cover, False), none, none, first=K).items()
+
+
+def _grouped(asked: list) -> list:
+    """:attr:`KeptMerge._asked` with the questions of one ``(level, node_level)`` in one entry."""
+    groups: dict = {}
+    for q in asked:
+        groups.setdefault((q[0], q[1]), []).append(q)
+    return [qs[0] if len(qs) == 1 else (L, n, np.concatenate([q[2] for q in qs]), np.concatenate([q[3] for q in qs]),
+                                        np.concatenate([q[4] for q in qs]))
+            for (L, n), qs in groups.items()]
