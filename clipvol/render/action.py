@@ -473,30 +473,41 @@ class ClipRenderAction:
         over bricks at the edge of the view that were never loaded - a warm 1024^3 frame with a
         few such bricks at its corners, a loading frame - instead of drawing the block in pieces.
         A culled node inside the view (transparent, shape-culled) must be in texture memory.
+
+        The two answers are also attributes of the function, ``may_cover.resident`` (the same for
+        every camera while the slots are the same) and ``may_cover.beside``: a
+        :class:`~clipvol.scene.selection.merge.KeptMerge` asks only the camera's again.
         """
         pyr = self.pyramid
         cache = self.cache
 
-        def may_cover(level: int, node_level: int, nodes) -> np.ndarray:
+        def resident(level: int, node_level: int, nodes) -> np.ndarray:
             nodes = np.asarray(nodes, dtype=np.int64).reshape(-1, 3)
             if node_level == level:  # one brick each (most calls: culled siblings of a full-resolution cut)
-                resident = cache.on_gpu_mask(level, nodes)
-            else:  # a block of bricks each: all of them on the GPU
-                f = 2 ** (node_level - level)
-                first = nodes * f
-                count = np.minimum(first + f, np.asarray(pyr.grid(level))) - first
-                block, local = block_cells(count)
-                gone = ~cache.on_gpu_mask(level, first[block] + local)
-                resident = np.bincount(block[gone], minlength=len(nodes)) == 0
-            out = resident.copy()
-            if not out.all():  # the others: beside the view, grown by one voxel of the level
-                lo, hi = pyr.node_box(node_level, nodes[~out])
-                pad = float(max(pyr.levels[level].scale))
-                beside = np.asarray(cam.boxes_beside_view(lo - pad, hi + pad), dtype=bool)
-                out[~out] = beside
-                if asked is not None:  # the answer depends on the camera: kept to be asked again
-                    asked.append((lo - pad, hi + pad, beside))
+                return cache.on_gpu_mask(level, nodes)
+            f = 2 ** (node_level - level)  # a block of bricks each: all of them on the GPU
+            first = nodes * f
+            count = np.minimum(first + f, np.asarray(pyr.grid(level))) - first
+            block, local = block_cells(count)
+            gone = ~cache.on_gpu_mask(level, first[block] + local)
+            return np.bincount(block[gone], minlength=len(nodes)) == 0
+
+        def beside(level: int, node_level: int, nodes) -> np.ndarray:
+            lo, hi = pyr.node_box(node_level, np.asarray(nodes, dtype=np.int64).reshape(-1, 3))
+            pad = float(max(pyr.levels[level].scale))  # grown by one voxel of the level
+            out = np.asarray(cam.boxes_beside_view(lo - pad, hi + pad), dtype=bool)
+            if asked is not None:  # the answer depends on the camera: kept to be asked again
+                asked.append((lo - pad, hi + pad, out))
             return out
+
+        def may_cover(level: int, node_level: int, nodes) -> np.ndarray:
+            nodes = np.asarray(nodes, dtype=np.int64).reshape(-1, 3)
+            out = resident(level, node_level, nodes)
+            if not out.all():  # the others: beside the view
+                out[~out] = beside(level, node_level, nodes[~out])
+            return out
+
+        may_cover.resident, may_cover.beside = resident, beside
 
         return may_cover
 

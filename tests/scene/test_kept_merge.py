@@ -59,22 +59,43 @@ def cover_moving(frame: int):
     return cover
 
 
+def cover_split(frame: int):
+    """``cover_moving``'s answers in the render action's two parts: ``resident`` (the same every
+    frame) and ``beside`` (the frame's), as attributes of the function (KeptMerge keeps and asks
+    again only the second's questions)."""
+    def resident(level, node_level, nodes):
+        nodes = np.asarray(nodes, dtype=np.int64).reshape(-1, 3)
+        return (nodes @ np.array([7, 3, 1]) + level) % 2 == 0
+
+    def beside(level, node_level, nodes):
+        nodes = np.asarray(nodes, dtype=np.int64).reshape(-1, 3)
+        return (nodes @ np.array([1, 5, 3]) + node_level + frame // 3) % 3 == 0
+
+    def cover(level, node_level, nodes):
+        out = resident(level, node_level, nodes)
+        out[~out] = beside(level, node_level, np.asarray(nodes).reshape(-1, 3)[~out])
+        return out
+
+    cover.resident, cover.beside = resident, beside
+    return cover
+
+
 @pytest.mark.parametrize("windows,cover", [("grid", None), ("grid", cover_some), ("small", cover_some),
-                                           ("grid", cover_moving)])
+                                           ("grid", cover_moving), ("grid", cover_split)])
 def test_the_kept_merge_is_the_merge_from_nothing_along_random_paths(windows, cover):
     params = RenderParams(policy="projected-size", lod_threshold=0.1)
     kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
     win = [PYR.grid(L) for L in range(PYR.num_levels)] if windows == "grid" else \
         [(3, 4, 4)] + [PYR.grid(L) for L in range(1, PYR.num_levels)]
     km = KeptMerge(PYR)
-    rng = np.random.default_rng(3 + (cover is None) + 2 * (windows == "small") + 4 * (cover is cover_moving))
+    rng = np.random.default_rng(3 + (cover is None) + 2 * (windows == "small") + 4 * (cover is cover_moving) + 8 * (cover is cover_split))
     partial = changed = 0
     last = None
     for k, cam in enumerate(path(rng, 40, 2.0)):
         sel = kc.update(cam, ordered=False)
-        ask = cover(k) if cover is cover_moving else cover
+        ask = cover(k) if cover in (cover_moving, cover_split) else cover
         got = km.merge(sel.items, win, ask)
-        want = merge_items(sel.items, PYR, win, ask)
+        want = merge_items(sel.items, PYR, win, (lambda *a: ask(*a)) if ask is not None else None)  # (plain)
         np.testing.assert_array_equal(got.rows, want.rows)
         np.testing.assert_array_equal(got.span, want.span)
         np.testing.assert_array_equal(got.lo, want.lo)

@@ -305,14 +305,23 @@ class KeptMerge:
             return None
         K, g = self.cell_level, self._cell_grid
 
+        resident = getattr(may_cover, "resident", None) if _split(may_cover) else None
+
         def asked(level: int, node_level: int, nodes) -> np.ndarray:
             nodes = np.asarray(nodes, dtype=np.int64).reshape(-1, 3)
-            ans = np.asarray(may_cover(level, node_level, nodes), dtype=bool).reshape(len(nodes))
+            if resident is None:
+                ans = np.asarray(may_cover(level, node_level, nodes), dtype=bool).reshape(len(nodes))
+                ask = np.ones(len(nodes), dtype=bool)
+            else:  # an answer from texture memory holds for every camera: only the others are kept
+                ans = np.asarray(resident(level, node_level, nodes), dtype=bool).reshape(len(nodes))
+                ask = ~ans
+                if ask.any():
+                    ans[ask] = np.asarray(may_cover.beside(level, node_level, nodes[ask]), dtype=bool).reshape(-1)
             cells = None
             if lower:
                 a = nodes >> max(K - node_level, 0)
                 cells = (a[:, 0] * g[1] + a[:, 1]) * g[2] + a[:, 2]
-            self._asked.append((level, node_level, nodes, ans, cells))
+            self._asked.append((level, node_level, nodes[ask], ans[ask], None if cells is None else cells[ask]))
             return ans
 
         return asked
@@ -320,8 +329,9 @@ class KeptMerge:
     def answers_hold(self, may_cover) -> bool:
         """Would ``may_cover`` answer every question of the last :meth:`merge` as it did (so the
         same items merge the same)? One call per question group."""
-        return all(np.array_equal(np.asarray(may_cover(L, n, nodes), dtype=bool).reshape(len(nodes)), ans)
-                   for L, n, nodes, ans, _ in self._asked)
+        ask = _camera_part(may_cover)
+        return all(np.array_equal(np.asarray(ask(L, n, nodes), dtype=bool).reshape(len(nodes)), ans)
+                   for L, n, nodes, ans, _ in self._asked if len(nodes))
 
     def _cells(self, rows: np.ndarray) -> np.ndarray:
         """Flat key of each item's cell (-1 for an item at or above the cells' level)."""
@@ -365,10 +375,11 @@ class KeptMerge:
         else:
             dirty = self._changed_cells(self._items, arr)
             lower = [q for q in self._asked if q[4] is not None]
+            ask = _camera_part(may_cover)
             for L, n, nodes, ans, where in lower:  # a kept cell whose answers changed: merged again
                 r = ~dirty[where]
                 if r.any() and may_cover is not None:
-                    now = np.asarray(may_cover(L, n, nodes[r]), dtype=bool).reshape(int(r.sum()))
+                    now = np.asarray(ask(L, n, nodes[r]), dtype=bool).reshape(int(r.sum()))
                     dirty[where[r][now != ans[r]]] = True
             self._asked = []
             for L, n, nodes, ans, where in lower:  # the questions of the cells kept
@@ -405,3 +416,15 @@ def _grouped(asked: list) -> list:
     return [qs[0] if len(qs) == 1 else (L, n, np.concatenate([q[2] for q in qs]), np.concatenate([q[3] for q in qs]),
                                         np.concatenate([q[4] for q in qs]))
             for (L, n), qs in groups.items()]
+
+
+def _split(may_cover) -> bool:
+    """Does ``may_cover`` tell its two parts apart: ``resident`` (an answer that holds for every
+    camera while the textures are the same) and ``beside`` (the camera's answer for the others)?"""
+    return callable(getattr(may_cover, "resident", None)) and callable(getattr(may_cover, "beside", None))
+
+
+def _camera_part(may_cover):
+    """What to ask again of a kept question: the camera's part where ``may_cover`` is split (only
+    questions its texture memory did not answer were kept), else ``may_cover`` itself."""
+    return may_cover.beside if _split(may_cover) else may_cover
