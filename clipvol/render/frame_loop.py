@@ -34,7 +34,10 @@ the next camera, re-testing only that band, while every brick of the updated cut
 neighbour its filtering reads is on the GPU already (else the frame selects and uploads from
 nothing). The updated cut is the fresh selection's exactly, its items in depth-first order
 (``Selection.ordered`` False, ``FramePlan.updated``): the render action orders the merged boxes
-where a path needs an order; the single pass needs none.
+where a path needs an order; the single pass needs none. The GPU check follows the change too:
+a cut with the same items as the last one checked needs none, and a changed one checks only the
+bricks no earlier frame of the cut found on the GPU with all their neighbours
+(:class:`CheckedBricks`), the whole cut only where one of those is missing.
 """
 
 from __future__ import annotations
