@@ -373,7 +373,9 @@ class KeptMerge:
             keep = None
             self._asked = []
         else:
-            dirty = self._changed_cells(self._items, arr)
+            # (the same items object: no leaf changed, only answers can have)
+            dirty = np.zeros(int(np.prod(self._cell_grid)), dtype=bool) if arr is self._items \
+                else self._changed_cells(self._items, arr)
             lower = [q for q in self._asked if q[4] is not None]
             ask = _camera_part(may_cover)
             for L, n, nodes, ans, where in lower:  # a kept cell whose answers changed: merged again
