@@ -82,6 +82,7 @@ from ..scene.page_table import block_cells
 from ..scene.params import MODES, RenderParams
 from ..scene.selection import DrawItems, Selection, merge_items
 from ..scene.selection.coherence import node_order
+from ..scene.selection.merge import KeptMerge
 from ..scene.selection.policies import POLICIES
 from ..scene.transfer import transparency_filter
 from .frame_loop import FrameLoop
@@ -141,7 +142,8 @@ class ClipRenderAction:
         self.occlusion_passes = 0  # bricks path: opacity snapshots taken, all frames
         self.boxes_drawn = 0  # proxy boxes of the last frame, after merge_items
         self.last_selection = None
-        self._merged_kept = None  # (selection, GPU cache generation, merged items): see _merged
+        self._merged_kept = None  # (selection, GPU cache generation, merged items, asked): see _merged
+        self._kept_merge = KeptMerge(self.pyramid)  # a kept cut's merge, by cells (see _merged)
         self._extents_kept = None  # (merged items, their distinct extents): see _extents
         self._replayed = False  # the frame loop drew the last cut again (its order is the old camera's)
         self.image_lod: ImageLod | None = None  # the image policy's tables and visibility, made on first use
@@ -382,16 +384,32 @@ class ClipRenderAction:
                     occlusion_passes=drawn.occlusion_passes)
 
     def _merged(self, cam, sel) -> DrawItems:
-        """:func:`merge_items` of ``sel``'s items, kept while ``sel`` is drawn again (the frame loop's
-        replay hands back the same object), the GPU cache's slots are unchanged and the
-        camera answers what the merge asked of it again (a culled sibling not in texture memory is
-        covered only while it lies beside the view: those boxes are asked again, one vectorised
-        call, and the merge is the same while every answer is)."""
+        """:func:`merge_items` of ``sel``'s items, kept while ``sel``'s items are drawn again (the
+        frame loop's replay, or a kept cut whose leaves did not change, hands back the same object),
+        the GPU cache's slots are unchanged and the camera answers what the merge asked of it again
+        (a culled sibling not in texture memory is covered only while it lies beside the view: those
+        boxes are asked again, one vectorised call, and the merge is the same while every answer is).
+
+        A kept cut updated for the camera (``sel.ordered`` False: depth-first, whole nodes) is
+        merged by :class:`~clipvol.scene.selection.merge.KeptMerge` while the slots are the same:
+        only the cells whose leaves changed, or whose culled nodes ``may_cover`` answers otherwise
+        for this camera, are merged again."""
         kept = self._merged_kept
-        if kept is not None and kept[0] is sel and kept[1] == self.cache.generation and all(
+        same_gpu = kept is not None and kept[1] == self.cache.generation
+        if isinstance(sel, Selection) and not sel.ordered:  # a kept cut, updated: merged by cells
+            km, may_cover = self._kept_merge, self._may_cover(cam)
+            if not (same_gpu and kept[3] is None):
+                km.reset()  # (other slots: the kept cells' answers may differ)
+            elif kept[0].items is sel.items and km.answers_hold(may_cover):
+                return kept[2]
+            merged = km.merge(sel.items, self.cache.windows, may_cover)
+            self._merged_kept = (sel, self.cache.generation, merged, None)  # (None: the questions are km's)
+            return merged
+        if same_gpu and kept[3] is not None and kept[0].items is getattr(sel, "items", sel) and all(
                 np.array_equal(np.asarray(cam.boxes_beside_view(lo, hi), dtype=bool), ans) for lo, hi, ans in kept[3]):
             return kept[2]
         asked: list = []
+        self._kept_merge.reset()
         merged = merge_items(sel.items, self.pyramid, self.cache.windows, self._may_cover(cam, asked))
         self._merged_kept = (sel, self.cache.generation, merged, asked) if isinstance(sel, Selection) else None
         return merged
@@ -455,30 +473,41 @@ class ClipRenderAction:
         over bricks at the edge of the view that were never loaded - a warm 1024^3 frame with a
         few such bricks at its corners, a loading frame - instead of drawing the block in pieces.
         A culled node inside the view (transparent, shape-culled) must be in texture memory.
+
+        The two answers are also attributes of the function, ``may_cover.resident`` (the same for
+        every camera while the slots are the same) and ``may_cover.beside``: a
+        :class:`~clipvol.scene.selection.merge.KeptMerge` asks only the camera's again.
         """
         pyr = self.pyramid
         cache = self.cache
 
-        def may_cover(level: int, node_level: int, nodes) -> np.ndarray:
+        def resident(level: int, node_level: int, nodes) -> np.ndarray:
             nodes = np.asarray(nodes, dtype=np.int64).reshape(-1, 3)
             if node_level == level:  # one brick each (most calls: culled siblings of a full-resolution cut)
-                resident = cache.on_gpu_mask(level, nodes)
-            else:  # a block of bricks each: all of them on the GPU
-                f = 2 ** (node_level - level)
-                first = nodes * f
-                count = np.minimum(first + f, np.asarray(pyr.grid(level))) - first
-                block, local = block_cells(count)
-                gone = ~cache.on_gpu_mask(level, first[block] + local)
-                resident = np.bincount(block[gone], minlength=len(nodes)) == 0
-            out = resident.copy()
-            if not out.all():  # the others: beside the view, grown by one voxel of the level
-                lo, hi = pyr.node_box(node_level, nodes[~out])
-                pad = float(max(pyr.levels[level].scale))
-                beside = np.asarray(cam.boxes_beside_view(lo - pad, hi + pad), dtype=bool)
-                out[~out] = beside
-                if asked is not None:  # the answer depends on the camera: kept to be asked again
-                    asked.append((lo - pad, hi + pad, beside))
+                return cache.on_gpu_mask(level, nodes)
+            f = 2 ** (node_level - level)  # a block of bricks each: all of them on the GPU
+            first = nodes * f
+            count = np.minimum(first + f, np.asarray(pyr.grid(level))) - first
+            block, local = block_cells(count)
+            gone = ~cache.on_gpu_mask(level, first[block] + local)
+            return np.bincount(block[gone], minlength=len(nodes)) == 0
+
+        def beside(level: int, node_level: int, nodes) -> np.ndarray:
+            lo, hi = pyr.node_box(node_level, np.asarray(nodes, dtype=np.int64).reshape(-1, 3))
+            pad = float(max(pyr.levels[level].scale))  # grown by one voxel of the level
+            out = np.asarray(cam.boxes_beside_view(lo - pad, hi + pad), dtype=bool)
+            if asked is not None:  # the answer depends on the camera: kept to be asked again
+                asked.append((lo - pad, hi + pad, out))
             return out
+
+        def may_cover(level: int, node_level: int, nodes) -> np.ndarray:
+            nodes = np.asarray(nodes, dtype=np.int64).reshape(-1, 3)
+            out = resident(level, node_level, nodes)
+            if not out.all():  # the others: beside the view
+                out[~out] = beside(level, node_level, nodes[~out])
+            return out
+
+        may_cover.resident, may_cover.beside = resident, beside
 
         return may_cover
 

@@ -119,7 +119,8 @@ def frame_stats(sel, plan, times: dict, cache, texture_budget: int, clip_texture
     frame_read, other_read = split_reads(reads, np.concatenate([keys, sel.wanted_keys()]))
     levels, per = np.unique(keys[:, 0], return_counts=True)
     per_level = dict(zip(levels.tolist(), per.tolist()))
-    distinct = len(unique_rows(keys)) if len(keys) else 0
+    # a kept cut updated (not ordered) draws each node once from its own brick: its keys are distinct
+    distinct = len(keys) if not getattr(sel, "ordered", True) else len(unique_rows(keys)) if len(keys) else 0
     return FrameStats(
         bricks_drawn=dict(sorted(per_level.items())), bricks_distinct=distinct,
         texels_drawn=distinct * cache.brick_texels, bytes_uploaded=plan.bytes_uploaded,

@@ -569,6 +569,23 @@ class GpuBrickCache:
         reserved[slots[:, 0], slots[:, 1], slots[:, 2]] = idx
         return True
 
+    def on_gpu_with_neighbours(self, level: int, indices) -> bool:
+        """Are all of ``indices`` (``(n, 3)`` bricks of ``level``) and every existing same-level
+        neighbour of theirs (26-neighbourhood) on the GPU? Asks only the GPU's slots (no RAM, no
+        reservation): a kept cut checks the bricks it newly draws with it, where a whole check
+        (:meth:`reserve_on_gpu`, :meth:`missing_neighbours`) would go over every brick of the cut
+        (a False here sends the caller to that whole check, which knows more: failed bricks, slots
+        held by other bricks)."""
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1, 3)
+        if not len(idx):
+            return True
+        if self.windows[level] is None:
+            return False
+        grid = np.asarray(self.pyramid.grid(level), dtype=np.int64)
+        nb = (idx[:, None, :] + NEIGHBOUR_OFFSETS[None]).reshape(-1, 3)
+        nb = nb[np.all((nb >= 0) & (nb < grid), axis=1)]
+        return bool(self.on_gpu_mask(level, nb).all())
+
     def reserve_neighbours(self, items) -> None:
         """After the selection: also upload the same-level neighbours of the drawn bricks that are in RAM.
 

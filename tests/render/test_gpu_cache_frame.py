@@ -235,3 +235,42 @@ def test_open_faces_follow_the_slab_behind_each_face(ctx, seed, dense):
         assert both.any() and not both.all()
     finally:
         cache.release()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_on_gpu_with_neighbours_is_every_brick_and_neighbour_in_its_slot(ctx, seed):
+    """A kept cut's check of its new bricks against the rule brick by brick: the brick and each
+    brick within one step of it (inside the grid) holds its own slot; and CheckedBricks hands back
+    exactly the keys not marked before (a Python set as the reference)."""
+    from clipvol.render.frame_loop import CheckedBricks
+
+    rng = np.random.default_rng(seed)
+    pyr = NumpyLoader(np.zeros((96, 80, 64), np.float32), brick=8).pyramid
+    cache = GpuBrickCache(ctx, pyr, 400 * pyr.brick_nbytes)
+    try:
+        levels = [L for L, w in enumerate(cache.windows) if w is not None]
+        for L in levels:
+            g = np.asarray(pyr.grid(L))
+            for k in np.argwhere(rng.random(tuple(g)) < 0.9):  # most bricks on the GPU
+                cache._slot_key[L][tuple(k % np.asarray(cache.windows[L]))] = k
+        answers = []
+        checked, marked = CheckedBricks(pyr), set()
+        for _ in range(30):
+            L = int(rng.choice(levels))
+            g = np.asarray(pyr.grid(L))
+            idx = rng.integers(0, g, size=(int(rng.integers(1, 4)), 3))
+            want = all(tuple(cache._slot_key[L][tuple(n % np.asarray(cache.windows[L]))]) == tuple(n)
+                       for b in idx.tolist() for n in (np.array(b) + np.array([dz, dy, dx])
+                                                       for dz in (-1, 0, 1) for dy in (-1, 0, 1) for dx in (-1, 0, 1))
+                       if np.all((n >= 0) & (n < g)))
+            got = cache.on_gpu_with_neighbours(L, idx)
+            assert got == want
+            answers.append(got)
+            keys = np.concatenate([np.full((len(idx), 1), L), idx], axis=1)
+            new = checked.unchecked(keys)
+            assert sorted(map(tuple, new.tolist())) == sorted(k for k in map(tuple, keys.tolist()) if k not in marked)
+            checked.mark(keys)
+            marked |= set(map(tuple, keys.tolist()))
+        assert any(answers) and not all(answers)
+    finally:
+        cache.release()

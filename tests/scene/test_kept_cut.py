@@ -164,3 +164,28 @@ def test_the_kept_cut_evens_out_as_a_fresh_selection_does(threshold, monkeypatch
     raw = [select(PYR, cam, params, transparent=transparent) for cam in cams]
     evened = sum(not np.array_equal(a.items.rows, b.items.rows) for a, b in zip(fresh, raw))
     assert evened >= 3, evened  # else this tests nothing the other test does not
+
+
+def test_the_same_leaves_come_back_as_the_same_items_with_fresh_counts():
+    """A small move that flips band answers but no leaf: a new selection (the counts of the fresh
+    selection) holding the very same items object, so what the renderer made of the items (merge,
+    page table, GPU check) is kept; a move that changes a leaf gives new items."""
+    params = RenderParams(policy="projected-size", lod_threshold=0.1)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    last, kept, new = None, 0, 0
+    for k in range(60):
+        cam = camera(10 + 0.05 * k, 20, 150 - 1.5 * k)
+        sel = kc.update(cam, ordered=False)
+        fresh = select(PYR, cam, params, transparent=transparent)
+        assert sel.counts == fresh.counts
+        leaves = sorted(map(tuple, fresh.items.rows.tolist()))
+        assert sorted(map(tuple, sel.items.rows.tolist())) == leaves
+        if last is not None:
+            if leaves == last[0]:
+                assert sel.items is last[1].items and sel.wanted is last[1].wanted
+                kept += sel is not last[1]  # (a new selection: some answer flipped)
+            else:
+                assert sel.items is not last[1].items
+                new += 1
+        last = (leaves, sel)
+    assert kept > 3 and new > 3, (kept, new)  # (both kinds of move happened)

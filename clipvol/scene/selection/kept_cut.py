@@ -122,6 +122,13 @@ class KeptCut:
         self.camera = None
         self.retested = 0  # nodes re-tested by the last update (the band), for benchmarks and tests
         self.selection: Selection | None = None
+        #: per row, drawn by :attr:`selection` (None: not known row by row, after a compaction)
+        self.drawn: np.ndarray | None = None
+        #: ``(lv, rows of each level)`` for the ``lv`` array it was made from, and per level the
+        #: last evening out ``(live rows, their answers, evened)``: :meth:`_propagate` evens again
+        #: only a level whose reached nodes or answers changed (most of a small move's levels keep both)
+        self._levels: tuple | None = None
+        self._evened: dict = {}
 
     # -- the camera-free tests -------------------------------------------------------------------
     def _inside(self, lv, lo, hi) -> np.ndarray:
@@ -178,13 +185,16 @@ class KeptCut:
         return np.minimum(np.abs(dmin - limit), np.abs(dmax)) - 1e-9 * max(1.0, abs(limit))
 
     # -- the update ------------------------------------------------------------------------------
-    def _grow(self, camera) -> bool:
+    def _grow(self, camera, propagated: bool = False) -> bool:
         """Expand every reached, kept, refined node without children yet, level by level (the
         traversal's own expansion), propagating after each round (the new level's nodes decide,
-        evened out together, what is refined there); False where a child lies outside the window."""
+        evened out together, what is refined there); False where a child lies outside the window.
+        ``propagated``: the answers were propagated since they last changed (no first round)."""
         tree = self.tree
         while True:
-            self._propagate()
+            if not propagated:
+                self._propagate()
+            propagated = False
             go = self.reached & self.infr & self.inside & self.eff & ~self.expanded
             rows = np.nonzero(go)[0]
             if not len(rows):
@@ -218,6 +228,13 @@ class KeptCut:
             self.slack = np.concatenate([self.slack, np.zeros((len(lv), 2))])
             self.cam_id = np.concatenate([self.cam_id, np.zeros(len(lv), dtype=np.int64)])
             self.reached = np.concatenate([self.reached, np.ones(len(lv), dtype=bool)])
+            if self.drawn is not None:
+                self.drawn = np.concatenate([self.drawn, np.zeros(len(lv), dtype=bool)])
+            if self._levels is not None:  # the new rows join their levels' rows (the others keep theirs)
+                rows_of = list(self._levels[1])
+                for L in np.unique(lv).tolist():
+                    rows_of[L] = np.concatenate([rows_of[L], n0 + np.nonzero(lv == L)[0]])
+                self._levels = (self.lv, rows_of)
             self._test(np.arange(n0, len(self.lv)), camera)
 
     def _propagate(self) -> None:
@@ -229,18 +246,30 @@ class KeptCut:
         self.reached[self.parent < 0] = True
         self.eff[:] = False
         t, top = self._t, self.tree.top
+        if self._levels is None or self._levels[0] is not self.lv:  # the rows of each level (kept with them)
+            order = np.argsort(self.lv, kind="stable")
+            ends = np.searchsorted(self.lv[order], np.arange(self.tree.root + 2))
+            self._levels = (self.lv, [order[ends[L]:ends[L + 1]] for L in range(self.tree.root + 1)])
+            self._evened = {}
         for L in range(self.tree.root, -1, -1):
-            r = np.nonzero(self.lv == L)[0]
+            r = self._levels[1][L]
             if not len(r):
                 continue
             p = self.parent[r]
             if L < self.tree.root:
                 self.reached[r] = np.where(p >= 0, self.reached[np.maximum(p, 0)] & self.eff[np.maximum(p, 0)], True)
             live = r[self.reached[r] & kept[r]]
+            ref = self.ref[live]
             if L > top or L == 0 or not len(live):
-                self.eff[live] = self.ref[live]
-            else:
-                self.eff[live] = self.policy.even(t, L, self.lo[live], self.ref[live])
+                self.eff[live] = ref
+                continue
+            last = self._evened.get(L)  # a level whose nodes and answers did not change evens out the same
+            if last is not None and np.array_equal(last[0], live) and np.array_equal(last[1], ref):
+                self.eff[live] = last[2]
+                continue
+            eff = self.policy.even(t, L, self.lo[live], ref)
+            self._evened[L] = (live, ref, eff)
+            self.eff[live] = eff
 
     def _compact(self) -> None:
         """Keep only the reached nodes (a reached node's parent is reached: the tree stays whole); a
@@ -250,6 +279,8 @@ class KeptCut:
         for name in ("lv", "idx", "lo", "hi", "expanded", "inside", "opaque", "infr", "ref", "eff", "slack",
                      "cam_id", "reached"):
             setattr(self, name, getattr(self, name)[keep])
+        self.drawn = None  # (a dropped row may have been drawn: the next selection compares keys anew)
+        self._levels = None  # (rows renumbered)
         parent = self.parent[keep]
         self.parent = np.where(parent >= 0, new[np.maximum(parent, 0)], -1)
         self.expanded &= self.infr & self.inside & self.eff  # (else its children were not reached)
@@ -257,7 +288,9 @@ class KeptCut:
     def update(self, camera, ordered: bool = True) -> Selection | None:
         """The cut :func:`~clipvol.scene.selection.select` makes for ``camera`` (residency apart:
         every leaf drawn from its own brick), or None where this cut cannot be kept (module
-        docstring). The same :class:`Selection` object comes back while no node's answer changed.
+        docstring). The same :class:`Selection` object comes back while no node's answer changed;
+        with ``ordered=False``, a new one holding the same ``items`` and ``wanted`` objects while no
+        leaf changed, so that what a caller made of the items stays valid.
 
         ``ordered``: items in back-to-front order and ``wanted`` in load order, as ``select``
         gives them; False: both in depth-first order (no visibility order, no distances), and the
@@ -277,8 +310,9 @@ class KeptCut:
                 self.slack[:] = -np.inf
         bound = camera_change(np.asarray(self._cams).reshape(-1, 7, 4), terms, self.radius) if self._cams \
             else np.zeros((1, 7))
-        b = bound[self.cam_id]  # each node's bound from the camera it was last tested at
-        band = np.nonzero((self.slack[:, 0] <= b[:, :6].max(axis=1)) | (self.slack[:, 1] <= b[:, 6]))[0]
+        # each node's bound from the camera it was last tested at (per camera first: two 1-D gathers)
+        plane, depth = bound[:, :6].max(axis=1), bound[:, 6]
+        band = np.nonzero((self.slack[:, 0] <= plane[self.cam_id]) | (self.slack[:, 1] <= depth[self.cam_id]))[0]
         self._cams.append(terms)
         was = (self.infr[band].copy(), self.ref[band].copy())
         self._t.camera = self.camera = camera
@@ -293,7 +327,7 @@ class KeptCut:
             n_out = len(self.lv) - int(self.reached.sum())
             if n_out > max(COMPACT_MIN, len(self.lv) - n_out):
                 self._compact()
-            if not self._grow(camera):
+            if not self._grow(camera, propagated=True):
                 self.supported = False
                 return None
         self.selection = self._selection(camera, ordered)
@@ -304,12 +338,22 @@ class KeptCut:
         kept = self.reached & self.infr & self.inside
         real = self.lv <= tree.top
         leaf = kept & ~self.eff
-        draw = np.nonzero(leaf & self.opaque)[0]
+        mask = leaf & self.opaque
+        draw = np.nonzero(mask)[0]
         counts = dict(visited=int(self.reached.sum()), culled_frustum=int((self.reached & ~self.infr).sum()),
                       culled_shape=int((self.reached & self.infr & ~self.inside).sum()),
                       culled_transparent=int((leaf & ~self.opaque).sum()), culled_policy=0,
                       refined=int((kept & self.eff & real & (self.lv > 0)).sum()), outside_window=0,
                       fallback=0, missing=0, texels=len(draw) * tree.texels, level=-1)
+        last, was = self.selection, self.drawn
+        self.drawn = mask
+        node_data = getattr(self.policy, "node_data", None)
+        node_data = dict(node_data) if node_data else {}
+        if not ordered and last is not None and not last.ordered and was is not None and np.array_equal(mask, was):
+            # the band's answers flipped but no leaf did (a node culled or refined on another side):
+            # the same items and wanted keys, kept objects, so that whatever was made of them (the
+            # merge, the page table, the GPU check) is kept with them; only the counts are new
+            return Selection(last.items, last.wanted, counts, self.params.policy, node_data, None, ordered=False)
         lv, idx = self.lv[draw], self.idx[draw]
         keys = np.concatenate([lv[:, None], idx], axis=1)
         if ordered:
@@ -320,6 +364,4 @@ class KeptCut:
             o = depth_first(lv, idx)
             wanted = keys[o]
         items = DrawItems(keys[o], self.lo[draw][o], self.hi[draw][o])
-        node_data = getattr(self.policy, "node_data", None)
-        return Selection(items, BrickKeys(wanted), counts, self.params.policy, dict(node_data) if node_data else {},
-                         None, ordered=ordered)
+        return Selection(items, BrickKeys(wanted), counts, self.params.policy, node_data, None, ordered=ordered)

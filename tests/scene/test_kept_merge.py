@@ -1,0 +1,128 @@
+"""The merge of a kept cut, merged again only in the cells whose leaves changed
+(clipvol.scene.selection.merge.KeptMerge), against the merge from nothing (``merge_items``) of the
+same cut, entry for entry and in the same order, along random camera paths; and, independently of
+the merge's code, a numpy count of level-0 cells: the merged boxes cover every brick of the cut
+from its own level, no cell twice, and nothing else but culled siblings ``may_cover`` allowed."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clipvol.scene.params import RenderParams
+from clipvol.scene.selection import merge_items
+from clipvol.scene.selection.kept_cut import KeptCut
+from clipvol.scene.selection.merge import KeptMerge
+from clipvol.scene.selection.policies import policy_for
+
+from test_kept_cut import PYR, camera, path, transparent
+
+
+def cover_some(level, node_level, nodes):
+    """A camera-free ``may_cover``: about two thirds of the culled nodes may be covered."""
+    nodes = np.asarray(nodes, dtype=np.int64).reshape(-1, 3)
+    return (nodes @ np.array([7, 3, 1]) + level + 2 * node_level) % 3 != 0
+
+
+def level0_cover(rows, span, pyr) -> np.ndarray:
+    """Per level-0 brick of ``pyr``, the data level + 1 of the boxes covering it, summed (0: none),
+    and how many boxes cover it; each box ``(L, first, span)`` covers its bricks clipped to level
+    L's grid, each of those 2^L level-0 bricks per axis clipped to level 0's grid."""
+    g0 = np.asarray(pyr.grid(0))
+    lvl = np.zeros(tuple(g0), dtype=np.int64)
+    cnt = np.zeros(tuple(g0), dtype=np.int64)
+    for (L, z, y, x), s in zip(rows.tolist(), span.tolist()):
+        gL = np.asarray(pyr.grid(L))
+        hi = np.minimum(np.array([z, y, x]) + s, gL) << L
+        lo = np.array([z, y, x]) << L
+        hi = np.minimum(hi, g0)
+        lvl[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]] += L + 1
+        cnt[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]] += 1
+    return lvl, cnt
+
+
+def check_cover(cut, merged, pyr, exact: bool) -> None:
+    lvl_cut, cnt_cut = level0_cover(cut.rows, cut.span, pyr)
+    lvl_m, cnt_m = level0_cover(merged.rows, merged.span, pyr)
+    assert cnt_m.max() <= 1  # no region drawn twice
+    drawn = cnt_cut > 0
+    np.testing.assert_array_equal(lvl_m[drawn], lvl_cut[drawn])  # every brick of the cut, from its own level
+    if exact:
+        np.testing.assert_array_equal(cnt_m > 0, drawn)
+
+
+def cover_moving(frame: int):
+    """A ``may_cover`` whose answers change every third frame (as a camera's "beside the view" does)."""
+    def cover(level, node_level, nodes):
+        nodes = np.asarray(nodes, dtype=np.int64).reshape(-1, 3)
+        return (nodes @ np.array([7, 3, 1]) + level + frame // 3) % 3 != 0
+    return cover
+
+
+def cover_split(frame: int):
+    """``cover_moving``'s answers in the render action's two parts: ``resident`` (the same every
+    frame) and ``beside`` (the frame's), as attributes of the function (KeptMerge keeps and asks
+    again only the second's questions)."""
+    def resident(level, node_level, nodes):
+        nodes = np.asarray(nodes, dtype=np.int64).reshape(-1, 3)
+        return (nodes @ np.array([7, 3, 1]) + level) % 2 == 0
+
+    def beside(level, node_level, nodes):
+        nodes = np.asarray(nodes, dtype=np.int64).reshape(-1, 3)
+        return (nodes @ np.array([1, 5, 3]) + node_level + frame // 3) % 3 == 0
+
+    def cover(level, node_level, nodes):
+        out = resident(level, node_level, nodes)
+        out[~out] = beside(level, node_level, np.asarray(nodes).reshape(-1, 3)[~out])
+        return out
+
+    cover.resident, cover.beside = resident, beside
+    return cover
+
+
+@pytest.mark.parametrize("windows,cover", [("grid", None), ("grid", cover_some), ("small", cover_some),
+                                           ("grid", cover_moving), ("grid", cover_split)])
+def test_the_kept_merge_is_the_merge_from_nothing_along_random_paths(windows, cover):
+    params = RenderParams(policy="projected-size", lod_threshold=0.1)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    win = [PYR.grid(L) for L in range(PYR.num_levels)] if windows == "grid" else \
+        [(3, 4, 4)] + [PYR.grid(L) for L in range(1, PYR.num_levels)]
+    km = KeptMerge(PYR)
+    rng = np.random.default_rng(3 + (cover is None) + 2 * (windows == "small") + 4 * (cover is cover_moving) + 8 * (cover is cover_split))
+    partial = changed = 0
+    last = None
+    for k, cam in enumerate(path(rng, 40, 2.0)):
+        sel = kc.update(cam, ordered=False)
+        ask = cover(k) if cover in (cover_moving, cover_split) else cover
+        got = km.merge(sel.items, win, ask)
+        want = merge_items(sel.items, PYR, win, (lambda *a: ask(*a)) if ask is not None else None)  # (plain)
+        np.testing.assert_array_equal(got.rows, want.rows)
+        np.testing.assert_array_equal(got.span, want.span)
+        np.testing.assert_array_equal(got.lo, want.lo)
+        np.testing.assert_array_equal(got.hi, want.hi)
+        check_cover(sel.items, got, PYR, exact=cover is None)
+        assert km.answers_hold(ask)
+        if last is not None and last is not sel.items:
+            changed += 1
+            partial += km.remerged < len(sel.items)
+        last = sel.items
+    assert changed > 5 and partial > 3  # the cut changed, and changes re-merged only some cells
+
+
+def test_new_windows_and_a_reset_merge_from_nothing():
+    params = RenderParams(policy="projected-size", lod_threshold=0.1)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    km = KeptMerge(PYR)
+    grid = [PYR.grid(L) for L in range(PYR.num_levels)]
+    small = [(2, 2, 2)] + grid[1:]
+    a = kc.update(camera(10, 20, 60), ordered=False)
+    km.merge(a.items, grid)
+    for win in (small, grid):  # the windows changed: every item merged again
+        got = km.merge(a.items, win)
+        assert km.remerged == len(a.items)
+        np.testing.assert_array_equal(got.rows, merge_items(a.items, PYR, win).rows)
+    km.merge(a.items, grid)
+    assert km.remerged < len(a.items)  # the same leaves: only the coarse ones again
+    km.reset()
+    km.merge(a.items, grid)
+    assert km.remerged == len(a.items)
