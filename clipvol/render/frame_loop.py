@@ -186,7 +186,6 @@ class FrameLoop:
                 self._verified = sel
                 return sel
         cache = self.cache.begin_frame(self.clip_texture, 0)  # reserves the slots, uploads nothing
-        keys = sel.item_keys()
         for L in np.unique(keys[:, 0]).tolist():
             if not cache.reserve_on_gpu(L, keys[keys[:, 0] == L, 1:]):  # (resident_mask's answer here)
                 return None
