@@ -286,7 +286,30 @@ def lod_errors(tables: SummaryTables, tf, classify: str = "mean") -> LodErrors:
     grids = [pyr.grid(L) for L in range(nlev)]
     raw_g = [r.reshape(g) for r, g in zip(raw, grids)]
     eps = [r * scale for r in raw_g]
+    emission, opacity = _beneath(pyr, count, emission), _beneath(pyr, count, opacity)
     em = [e.reshape(g) for e, g in zip(emission, grids)]
     op = [o.reshape(g) for o, g in zip(opacity, grids)]
     bias = [b.reshape(g) for b, g in zip(classification_bias(tables, F, classify, tf), grids)]
     return LodErrors(eps, raw_g, em, time.perf_counter() - t0, op, bias, classify)
+
+
+def _beneath(pyr, count: list[np.ndarray], own: list[np.ndarray]) -> list[np.ndarray]:
+    """Per level (flat): the larger of each brick's ``own`` value (emission or opacity of its
+    histogram) and the voxel-weighted mean of its children's, bottom-up from level 1.
+
+    A coarse voxel is the mean of the fine voxels beneath it; under a sharp transfer function that
+    mean can lie where the function shows nothing although the fine voxels show bone (a thin shell
+    or vessel averaged with air). The brick's own histogram then says "nothing here", the image
+    policy gives it no importance and never refines it. What drawing a coarse brick instead of its
+    descendants loses is what they show, so a brick carries at least the mean of its children's
+    values (each already carrying its own descendants'). It is positive exactly when the brick or
+    some descendant at any level shows something, which keeps the policy's cull conservative.
+    """
+    out = [np.asarray(own[0], dtype=np.float64)]
+    for L in range(1, pyr.num_levels):
+        pflat = _child_parent(pyr, L - 1)
+        n = pyr.num_bricks(L)
+        w = count[L - 1]
+        mean = np.bincount(pflat, weights=w * out[L - 1], minlength=n) / np.maximum(np.bincount(pflat, weights=w, minlength=n), 1.0)
+        out.append(np.maximum(own[L], mean))
+    return out
