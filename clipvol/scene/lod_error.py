@@ -26,7 +26,12 @@ and the *distance table* ``D[k, l] = |F[k] - F[l]|`` (Delta E). For a brick ``b`
 The *emission* of a brick is the mean over its histogram of ``|Luv(c(x) alpha(x))|``. The paper
 uses the colour of the mean value, ``|c(mu)| alpha(mu)``, which is zero for a coarse brick whose
 mean falls in a transparent range although it holds bone; the histogram mean keeps such bricks
-visible to the priority queue.
+visible to the priority queue. A coarse level's own voxels are means too: under a sharp transfer
+function a thin shell or vessel averaged with air can leave every voxel of a level-3 brick
+transparent although level 0 beneath it shows bone. So a brick's emission (and its mean opacity)
+is the larger of its own histogram's and the voxel-weighted mean of its children's, bottom-up
+(:func:`_beneath`): what drawing the brick instead of its descendants would lose. It is positive
+exactly where the brick or a descendant at any level shows something.
 
 References
 ----------
@@ -69,8 +74,9 @@ DISTRIBUTION_FLOOR = 1.0
 @dataclass
 class LodErrors:
     """Per level (over the brick grid): normalised error ``eps`` in ``[0, 1]``, ``emission`` (mean
-    ``|Luv|`` of the premultiplied colour), ``raw_eps`` (before normalising), ``seconds`` taken,
-    ``opacity`` (mean alpha over the histogram) and ``bias`` (:func:`classification_bias`: the
+    ``|Luv|`` of the premultiplied colour over the histogram, at least the voxel-weighted mean of the
+    children's), ``raw_eps`` (before normalising), ``seconds`` taken, ``opacity`` (mean alpha over
+    the histogram, at least the children's mean, likewise) and ``bias`` (:func:`classification_bias`: the
     Delta E that survives the ray's integration, which the visible-error estimate uses; 0 at level 0)."""
 
     eps: list[np.ndarray]
