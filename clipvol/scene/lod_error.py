@@ -26,7 +26,12 @@ and the *distance table* ``D[k, l] = |F[k] - F[l]|`` (Delta E). For a brick ``b`
 The *emission* of a brick is the mean over its histogram of ``|Luv(c(x) alpha(x))|``. The paper
 uses the colour of the mean value, ``|c(mu)| alpha(mu)``, which is zero for a coarse brick whose
 mean falls in a transparent range although it holds bone; the histogram mean keeps such bricks
-visible to the priority queue.
+visible to the priority queue. A coarse level's own voxels are means too: under a sharp transfer
+function a thin shell or vessel averaged with air can leave every voxel of a level-3 brick
+transparent although level 0 beneath it shows bone. So a brick's emission (and its mean opacity)
+is the larger of its own histogram's and the voxel-weighted mean of its children's, bottom-up
+(:func:`_beneath`): what drawing the brick instead of its descendants would lose. It is positive
+exactly where the brick or a descendant at any level shows something.
 
 References
 ----------
@@ -69,8 +74,9 @@ DISTRIBUTION_FLOOR = 1.0
 @dataclass
 class LodErrors:
     """Per level (over the brick grid): normalised error ``eps`` in ``[0, 1]``, ``emission`` (mean
-    ``|Luv|`` of the premultiplied colour), ``raw_eps`` (before normalising), ``seconds`` taken,
-    ``opacity`` (mean alpha over the histogram) and ``bias`` (:func:`classification_bias`: the
+    ``|Luv|`` of the premultiplied colour over the histogram, at least the voxel-weighted mean of the
+    children's), ``raw_eps`` (before normalising), ``seconds`` taken, ``opacity`` (mean alpha over
+    the histogram, at least the children's mean, likewise) and ``bias`` (:func:`classification_bias`: the
     Delta E that survives the ray's integration, which the visible-error estimate uses; 0 at level 0)."""
 
     eps: list[np.ndarray]
@@ -286,7 +292,30 @@ def lod_errors(tables: SummaryTables, tf, classify: str = "mean") -> LodErrors:
     grids = [pyr.grid(L) for L in range(nlev)]
     raw_g = [r.reshape(g) for r, g in zip(raw, grids)]
     eps = [r * scale for r in raw_g]
+    emission, opacity = _beneath(pyr, count, emission), _beneath(pyr, count, opacity)
     em = [e.reshape(g) for e, g in zip(emission, grids)]
     op = [o.reshape(g) for o, g in zip(opacity, grids)]
     bias = [b.reshape(g) for b, g in zip(classification_bias(tables, F, classify, tf), grids)]
     return LodErrors(eps, raw_g, em, time.perf_counter() - t0, op, bias, classify)
+
+
+def _beneath(pyr, count: list[np.ndarray], own: list[np.ndarray]) -> list[np.ndarray]:
+    """Per level (flat): the larger of each brick's ``own`` value (emission or opacity of its
+    histogram) and the voxel-weighted mean of its children's, bottom-up from level 1.
+
+    A coarse voxel is the mean of the fine voxels beneath it; under a sharp transfer function that
+    mean can lie where the function shows nothing although the fine voxels show bone (a thin shell
+    or vessel averaged with air). The brick's own histogram then says "nothing here", the image
+    policy gives it no importance and never refines it. What drawing a coarse brick instead of its
+    descendants loses is what they show, so a brick carries at least the mean of its children's
+    values (each already carrying its own descendants'). It is positive exactly when the brick or
+    some descendant at any level shows something, which keeps the policy's cull conservative.
+    """
+    out = [np.asarray(own[0], dtype=np.float64)]
+    for L in range(1, pyr.num_levels):
+        pflat = _child_parent(pyr, L - 1)
+        n = pyr.num_bricks(L)
+        w = count[L - 1]
+        mean = np.bincount(pflat, weights=w * out[L - 1], minlength=n) / np.maximum(np.bincount(pflat, weights=w, minlength=n), 1.0)
+        out.append(np.maximum(own[L], mean))
+    return out

@@ -163,3 +163,43 @@ def test_an_error_budget_cut_is_evened_out_where_cheap(store, monkeypatch, budge
         cover[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]] += 1
     assert cover.min() == 1 and cover.max() == 1
     assert even_est <= greedy_est <= budget
+
+
+def test_an_overview_refines_a_coarse_node_whose_descendants_show_bone(tmp_path):
+    """A thin bright shell (1-2 voxels thick) under ``bone``: the root's own voxels (means of 8^3
+    level-0 voxels) show nothing, its level-0 voxels show the shell. The image policy must refine
+    the root: drawn alone it leaves the whole shell out (measured against the numpy reference ray
+    caster on the store's own levels, read with zarr-python)."""
+    import zarr
+    import reference_raycast as ref
+
+    n = 64
+    z, y, x = np.mgrid[:n, :n, :n] + 0.5
+    r = np.sqrt((x - 32) ** 2 + (y - 32) ** 2 + (z - 32) ** 2)
+    path = tmp_path / "shell.zarr"
+    brick_volume(np.where(np.abs(r - 22) < 0.7, 255, 0).astype(np.uint8), path, brick=8, progress=False)
+    tabs = open_summary(path)
+    pyr = tabs.pyramid
+    tf = TransferFunction.preset("bone")
+    g = zarr.open_group(str(path), mode="r")
+    arrs = [np.asarray(g[str(L)][...]).astype(np.float64) for L in range(pyr.num_levels)]
+    top = pyr.num_levels - 1
+    assert not (tf.lookup(arrs[top], pyr.value_range)[..., 3] > 0).any()  # the root's voxels show nothing
+    cam = Camera.perspective((32.0, 32.0, -90.0), (32.0, 32.0, 32.0), up=(0, -1, 0), fov_y=45, size=(64, 64))
+    params = RenderParams(policy="image", block_budget=600, visibility=False)
+    sel = select(pyr, cam, params, policy=ImageBased(params, errors=lod_errors(tabs, tf)))
+    levels = [(a, np.array(pyr.levels[L].scale[::-1]), np.array(pyr.levels[L].translation[::-1]))
+              for L, a in enumerate(arrs)]
+    fc = cam.fit_depth(*pyr.volume_box())
+
+    def draw(regions):
+        return ref.to_uint8(ref.raycast_levels(levels, regions, fc, tf.table, tf.window(pyr.value_range), 0.5,
+                                               "composite", 1.0)).astype(int)
+
+    full = draw([(0, *pyr.volume_box())])
+    cut = draw([(it.level, it.lo, it.hi) for it in sel.items])
+    shown = (full[..., 3] > 0).mean()
+    wrong = (np.abs(full - cut).max(axis=-1) > 8).mean()
+    assert shown > 0.1  # the shell covers a good part of the image
+    assert top not in {it.level for it in sel.items}  # the root is refined
+    assert wrong < 0.02 * shown, (wrong, shown)  # drawn alone the root leaves out all of it (17 % of pixels)

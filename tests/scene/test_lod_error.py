@@ -259,3 +259,52 @@ def test_distribution_residual_equals_the_voxels(tmp_path, rng, monkeypatch):
         for L in range(tabs.pyramid.num_levels):
             want = mean.bias[L].reshape(-1) if floor >= 1 else np.maximum(got[L], floor * mean.bias[L].reshape(-1))
             assert np.allclose(mode[L], want), (floor, L)
+
+
+def _tubes(shape):
+    """Thin bright tubes (1-2 voxels across) in air: their level-0 voxels show bone, the coarse
+    levels' means do not."""
+    vol = np.zeros(shape, np.uint8)
+    vol[:, 10:12, 13] = 255  # along z
+    vol[30, :, 33:35] = 255  # along y
+    vol[5:7, 40, :] = 230  # along x
+    return vol
+
+
+def test_emission_counts_what_lies_beneath(tmp_path):
+    """A coarse brick's emission and opacity are at least the voxel-weighted mean of its children's
+    (bottom-up from level 0, each the mean over its own voxels of ``|Luv(c a)|`` and ``a``), so
+    they are positive exactly where the brick or a descendant at any level shows something - here
+    on an odd-sized grid where the coarse levels' own voxels show nothing along thin tubes."""
+    path = tmp_path / "tubes.zarr"
+    brick_volume(_tubes((72, 56, 40)), path, brick=8, progress=False)
+    g = zarr.open_group(str(path), mode="r")
+    tabs = open_summary(path)
+    pyr = tabs.pyramid
+    tf = TransferFunction.preset("bone")
+    vr = pyr.value_range
+    lv = [np.asarray(g[str(L)][...]).astype(np.float64) for L in range(pyr.num_levels)]
+    B = np.array(pyr.brick_shape)
+    shows = [tf.lookup(a, vr)[..., 3] > 0 for a in lv]
+    top = pyr.num_levels - 1
+    assert shows[0].any() and not shows[top].any()  # the case: the root's own voxels show nothing
+    err = lod_errors(tabs, tf)
+    want_em, want_op, count = {}, {}, {}
+    for L in range(pyr.num_levels):
+        for idx in np.ndindex(*pyr.grid(L)):
+            v = lv[L][tuple(slice(i * b, (i + 1) * b) for i, b in zip(idx, B))].reshape(-1)
+            em, op = np.linalg.norm(_colour(tf, v, vr), axis=1).mean(), tf.lookup(v, vr)[:, 3].mean()
+            count[L, idx] = len(v)
+            if L:
+                kids = [c for c in (tuple(2 * p + d for p, d in zip(idx, o)) for o in np.ndindex(2, 2, 2))
+                        if all(ci < gi for ci, gi in zip(c, pyr.grid(L - 1)))]
+                n = sum(count[L - 1, c] for c in kids)
+                em = max(em, sum(count[L - 1, c] * want_em[L - 1, c] for c in kids) / n)
+                op = max(op, sum(count[L - 1, c] * want_op[L - 1, c] for c in kids) / n)
+            want_em[L, idx], want_op[L, idx] = em, op
+            assert err.emission[L][idx] == pytest.approx(em, rel=1e-9, abs=1e-9), (L, idx)
+            assert err.opacity[L][idx] == pytest.approx(op, rel=1e-9, abs=1e-12), (L, idx)
+            # conservative: positive exactly where a voxel of this brick's region shows at some level
+            below = any(shows[k][tuple(slice(i * b * 2 ** (L - k), (i + 1) * b * 2 ** (L - k)) for i, b in zip(idx, B))].any()
+                        for k in range(L + 1))
+            assert (err.emission[L][idx] > 0) == below, (L, idx)

@@ -6,7 +6,9 @@ importance
     ``I = E * eps * t * a * v``
 
 with ``E`` the brick's emission (mean ``|L*u*v*|`` of its premultiplied transfer-function colour over
-its histogram), ``eps`` its multiresolution error in ``[0, 1]`` (:mod:`clipvol.scene.lod_error`,
+its histogram, at least the voxel-weighted mean of its children's: a coarse brick whose own mean
+voxels are transparent under a sharp transfer function still counts the bone its descendants show,
+:mod:`clipvol.scene.lod_error`), ``eps`` its multiresolution error in ``[0, 1]`` (:mod:`clipvol.scene.lod_error`,
 from the summary tables only), ``t`` its mean thickness along the view direction (volume over
 projected area), ``a`` its projected area in pixels and ``v`` its estimated visibility
 (:class:`~clipvol.scene.visibility.OcclusionLayers`; 1 without an estimate).
