@@ -283,7 +283,8 @@ ABSURD = {
 }
 
 
-@pytest.mark.parametrize("case", list(ABSURD))
+@pytest.mark.parametrize("case", [c if k % 2 == 0 else pytest.param(c, marks=pytest.mark.slow)  # every other: the rest -m slow
+                                  for k, c in enumerate(ABSURD)])
 def test_absurd_metadata_refused_before_allocation(store, case):
     _, out = store
     rel, fn = ABSURD[case]

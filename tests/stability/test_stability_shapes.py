@@ -36,8 +36,9 @@ CASES = {
     "anisotropic_1e-3_1e3": ((6, 10, 12), 8, (1e-3, 1.0, 1e3)),
 }
 
-#: the shapes drawn in the default run (one of each kind: a point, a plane, a line, odd sizes, anisotropy)
-RENDER_DEFAULT = ("1x1x1", "1xNxM", "Nx1x1", "primes", "anisotropic_1e3_1e-3")
+#: the shapes bricked and drawn in the default run (one of each kind: a point, a plane, a line, odd sizes, one brick
+#: larger than the volume, anisotropy)
+RENDER_DEFAULT = ("1x1x1", "1xNxM", "Nx1x1", "primes", "brick_larger_than_volume", "anisotropic_1e3_1e-3")
 
 
 def mean_reference(a: np.ndarray) -> np.ndarray:
@@ -76,7 +77,7 @@ def read_level(loader, L) -> np.ndarray:
     return full[: shp[0], : shp[1], : shp[2]]
 
 
-@pytest.mark.parametrize("name", list(CASES))
+@pytest.mark.parametrize("name", [n if n in RENDER_DEFAULT else pytest.param(n, marks=pytest.mark.slow) for n in CASES])
 def test_bricked_levels_match_independent_mean(tmp_path, name):
     vol, loader = build(tmp_path, name)
     pyr = loader.pyramid
