@@ -36,6 +36,18 @@ def _colour(tf, v, rng_):
     return _luv(rgba[..., :3] * rgba[..., 3:4])
 
 
+def _child_blocks(pyr, lv, L, pidx):
+    """Each child brick ``c`` of node ``pidx`` at level ``L`` (those inside the grid), with its
+    voxels at level ``L - 1`` and, voxel for voxel, the level-``L`` voxel each one averages into."""
+    B = pyr.brick_shape
+    for o in np.ndindex(2, 2, 2):
+        c = tuple(2 * p + d for p, d in zip(pidx, o))
+        if any(ci >= gi for ci, gi in zip(c, pyr.grid(L - 1))):
+            continue
+        gidx = [np.arange(ci * b, min((ci + 1) * b, s)) for ci, b, s in zip(c, B, lv[L - 1].shape)]
+        yield c, lv[L - 1][np.ix_(*gidx)].reshape(-1), lv[L][np.ix_(*(a // 2 for a in gidx))].reshape(-1)
+
+
 def _direct_eps(path, tf):
     """Eqns. 1 and 6-10 evaluated voxel by voxel on the store's own levels (read with zarr-python)."""
     g = zarr.open_group(str(path), mode="r")
@@ -56,13 +68,7 @@ def _direct_eps(path, tf):
     for L in range(1, pyr.num_levels):
         for pidx in np.ndindex(*pyr.grid(L)):
             total, worst = 0.0, 0.0
-            for o in np.ndindex(2, 2, 2):
-                c = tuple(2 * p + d for p, d in zip(pidx, o))
-                if any(ci >= gi for ci, gi in zip(c, pyr.grid(L - 1))):
-                    continue
-                gidx = [np.arange(ci * b, min((ci + 1) * b, s)) for ci, b, s in zip(c, B, lv[L - 1].shape)]
-                child = lv[L - 1][np.ix_(*gidx)].reshape(-1)
-                parent = lv[L][np.ix_(*(a // 2 for a in gidx))].reshape(-1)
+            for c, child, parent in _child_blocks(pyr, lv, L, pidx):
                 de = np.linalg.norm(_colour(tf, parent, vr) - _colour(tf, child, vr), axis=1)
                 mi, vi, _ = stats[L, pidx]
                 mj, vj, n = stats[L - 1, c]
@@ -130,18 +136,11 @@ def _direct_bias(path, tf):
     pyr = open_summary(path).pyramid
     vr = pyr.value_range
     lv = [np.asarray(g[str(L)][...]).astype(np.float64) for L in range(pyr.num_levels)]
-    B = pyr.brick_shape
     out = {(0, idx): 0.0 for idx in np.ndindex(*pyr.grid(0))}
     for L in range(1, pyr.num_levels):
         for pidx in np.ndindex(*pyr.grid(L)):
             per_child, worst = [], 0.0
-            for o in np.ndindex(2, 2, 2):
-                c = tuple(2 * p + d for p, d in zip(pidx, o))
-                if any(ci >= gi for ci, gi in zip(c, pyr.grid(L - 1))):
-                    continue
-                gidx = [np.arange(ci * b, min((ci + 1) * b, s)) for ci, b, s in zip(c, B, lv[L - 1].shape)]
-                child = lv[L - 1][np.ix_(*gidx)].reshape(-1)
-                parent = lv[L][np.ix_(*(a // 2 for a in gidx))].reshape(-1)
+            for c, child, parent in _child_blocks(pyr, lv, L, pidx):
                 fc = _colour(tf, child, vr)
                 s = 0.0
                 for k in np.unique(parent):
@@ -199,19 +198,12 @@ def _direct_distribution_bias(path, tf):
     pyr = open_summary(path).pyramid
     vr = pyr.value_range
     lv = [np.asarray(g[str(L)][...]).astype(np.float64) for L in range(pyr.num_levels)]
-    B = pyr.brick_shape
     out = {(0, idx): 0.0 for idx in np.ndindex(*pyr.grid(0))}
     s2 = {(0, idx): 0.0 for idx in np.ndindex(*pyr.grid(0))}
     for L in range(1, pyr.num_levels):
         for pidx in np.ndindex(*pyr.grid(L)):
             per_child, worst, num, den = [], 0.0, 0.0, 0.0
-            for o in np.ndindex(2, 2, 2):
-                c = tuple(2 * p + d for p, d in zip(pidx, o))
-                if any(ci >= gi for ci, gi in zip(c, pyr.grid(L - 1))):
-                    continue
-                gidx = [np.arange(ci * b, min((ci + 1) * b, s)) for ci, b, s in zip(c, B, lv[L - 1].shape)]
-                child = lv[L - 1][np.ix_(*gidx)].reshape(-1)
-                parent = lv[L][np.ix_(*(a // 2 for a in gidx))].reshape(-1)
+            for c, child, parent in _child_blocks(pyr, lv, L, pidx):
                 cs = np.sqrt(s2[L - 1, c])
                 vals, back = np.unique(child, return_inverse=True)
                 fine = np.array([_expected_prem(tf, v, cs, vr) for v in vals])[back.reshape(-1)]
