@@ -14,21 +14,12 @@ import math
 import numpy as np
 import pytest
 
-from clipvol.bricking.pyramid import Pyramid
 from clipvol.scene.camera import Camera
 from clipvol.scene.params import RenderParams
 from clipvol.scene.selection import select
 from clipvol.scene.selection.policies.projected_size import even_out
 
-N, B = 64, 8
-PYR = Pyramid.build((N, N, N), (B, B, B))  # grids 8, 4, 2, 1: levels 0..3
-TOP = PYR.num_levels - 1
-
-
-def node_box(level, b):
-    ext = B * 2**level
-    lo = np.array([b[2], b[1], b[0]], float) * ext - 0.5
-    return lo, np.minimum(lo + ext, N - 0.5)
+from test_policies import PYR, TOP, node_box  # the same 64³ pyramid of 8³ bricks and its node boxes
 
 
 def px(cam, level, b):
