@@ -341,7 +341,7 @@ class ClipRenderAction:
         :class:`DrawStats` it returns into the action's counters."""
         check_step(self.pyramid, self.params.step)  # bricks are never stepped over, whatever the cut
         items = sel.items  # a full cut's DrawItems stay arrays: the merge reads those
-        replayed = getattr(self, "_replayed", False) and isinstance(sel, Selection)
+        replayed = self._replayed and isinstance(sel, Selection)
         self._replayed = False
         checked = False
         if self.params.merge_boxes and len(items):  # once, for either path
