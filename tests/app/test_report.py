@@ -12,6 +12,17 @@ from PIL import Image
 pytest.importorskip("moderngl")
 
 
+#: the report's adaptive-sampling sweep here: the first default at level 0 and the first at level 1
+#: (every default setting is timed in interleaved rounds; two of them exercise both kinds of row)
+def _refines():
+    from clipvol.app.report import DEFAULT_REFINES
+
+    return (DEFAULT_REFINES[0], next(r for r in DEFAULT_REFINES if len(r) == 3 and r[2] == 1))
+
+
+REFINES = _refines()
+
+
 @pytest.fixture(scope="module")
 def report(tmp_path_factory, ctx):
     from clipvol.loaders.procedural import ProceduralLoader
@@ -20,7 +31,7 @@ def report(tmp_path_factory, ctx):
     out = tmp_path_factory.mktemp("report")
     loader = ProceduralLoader("procedural:fractal?size=32&seed=1", brick=8)
     res = run_report(loader, out, views=2, size=(48, 48), thresholds=(0.5, 2.0, 8.0), memory_budgets=(),
-                     texture_budgets=("40kB",), tf="grey", ctx=ctx, max_frames=3, rounds=2)
+                     texture_budgets=("40kB",), refines=REFINES, tf="grey", ctx=ctx, max_frames=3, rounds=2)
     return res, loader
 
 
@@ -282,16 +293,17 @@ def test_cli_max_error_is_checked_before_anything_is_drawn(tmp_path, capsys):
 
 
 def test_adaptive_sampling_settings_are_rows_of_the_report(report):
-    """The default sweep "refine": level 0 (and level 1, a coarser level classified by its
-    distribution) at a coarser step with adaptive image sampling, measured like every setting
-    (converged frames against the reference, warm timing)."""
+    """The sweep "refine": level 0 (and level 1, a coarser level classified by its distribution) at
+    a coarser step with adaptive image sampling, measured like every setting (converged frames
+    against the reference, warm timing); the default sweep holds both kinds."""
     from clipvol.app.report import DEFAULT_REFINES, summarise
 
     res, _ = report
     conv = [r for r in _rows(res.csv) if r["kind"] == "converged" and r["sweep"] == "refine"]
     want = {(f"step={st:g} refine={tol:g}" if not lv else f"L{lv[0]} step={st:g} refine={tol:g}",
-             str(lv[0] if lv else 0)) for st, tol, *lv in DEFAULT_REFINES}
+             str(lv[0] if lv else 0)) for st, tol, *lv in REFINES}
     assert any(len(d) == 3 and d[2] == 1 for d in DEFAULT_REFINES)  # a coarse level among them
+    assert any(len(d) == 2 for d in DEFAULT_REFINES)
     assert {(r["setting"], r["level"]) for r in conv} == want
     assert all(r["selection"] == "fixed" for r in conv)
     n_bricks = {(r["setting"], r["view"]): int(r["bricks_drawn"]) for r in conv}
