@@ -51,7 +51,7 @@ from ..errors import ParameterError
 from ..scene.params import RenderParams
 from ..scene.plane import Plane, default_pixel_size, default_size
 from ..paging.readcount import bytes_read_of, split_reads
-from ..scene.selection.policies.plane import PlaneCut
+from ..scene.slice_cover import slice_cut
 from ..scene.slice_region import region_bytes, slice_region, stored_sizes
 from .failures import failed_bricks
 from .frame_loop import FrameLoop
@@ -285,7 +285,7 @@ class SliceAction:
         self.last_params = params
         cam = plane.camera(size, px).fit_depth(vlo, vhi)
         deadline = None if timeout is None else t_start + float(timeout)
-        policy = PlaneCut(params, plane)
+        policy = self._policy(params, plane, px, size)
         up_bytes = up_bricks = 0
         times = dict(select=0.0, upload=0.0, wait=0.0)
         while True:
@@ -359,6 +359,18 @@ class SliceAction:
             region_bricks=region_bricks, failed_bricks=failed_bricks(sel, self.clip_texture),
             frame_bytes_read=frame_read, prefetch_bytes_read=other_read)
         return (rgba, values) if return_values else rgba
+
+    def _policy(self, params: RenderParams, plane: Plane, px: float, size):
+        """The slice's cut (:func:`~clipvol.scene.slice_cover.slice_cut`), its cover computed once
+        per plane, pixel size, image size and parameters."""
+        if params.focus is None or params.level is not None:
+            return slice_cut(self.pyramid, plane, params, px, size)
+        key = (plane, float(px), tuple(size), params)
+        kept = getattr(self, "_cover_memo", None)
+        if kept is None or kept[0] != key:
+            cover = slice_cut(self.pyramid, plane, params, px, size).cover
+            kept = self._cover_memo = (key, cover)
+        return slice_cut(self.pyramid, plane, params, px, size, cover=kept[1])
 
     def _stored_sizes(self):
         """The clip-texture's loader's chunk sizes (:func:`~clipvol.scene.slice_region.stored_sizes`),
@@ -437,7 +449,7 @@ class SliceAction:
         px = max(px, default_pixel_size(pyr, plane))
         size = default_size(pyr, plane, px)
         cam = plane.camera(size, px).fit_depth(vlo, vhi)
-        policy = PlaneCut(self.params, plane)
+        policy = self._policy(self.params, plane, px, size)
         plan = self.frame_loop.run(cam, self.params, policy=policy, wait=wait, timeout=timeout)
         low, _ = self._reserve_low_tiles(plan.selection, policy.node_data if self.blend else {})
         self.cache.commit()
