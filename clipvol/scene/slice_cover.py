@@ -60,9 +60,6 @@ __all__ = ["SliceCover", "slice_cover", "CoverCut", "slice_cut", "in_reach", "fi
 
 #: offsets (z, y, x) of a brick's 8 children
 _CHILD = np.array([(z, y, x) for z in (0, 1) for y in (0, 1) for x in (0, 1)], dtype=np.int64)
-#: the 26 neighbour offsets (z, y, x)
-_NEIGHBOURS = np.array([(z, y, x) for z in (-1, 0, 1) for y in (-1, 0, 1) for x in (-1, 0, 1)
-                        if (z, y, x) != (0, 0, 0)], dtype=np.int64)
 
 
 @dataclass(frozen=True, eq=False, slots=True)
@@ -229,35 +226,45 @@ def slice_cover(pyramid, plane, params, pixel_size: float, *, in_view=None, ahea
     return SliceCover(tuple(records), _blend_ratios(records, top), pyramid.num_levels)
 
 
+def _touching(corners: np.ndarray, level: int, box_level: int, boxes: np.ndarray) -> np.ndarray:
+    """``(m,)`` bool: which corner points (grid coordinates of ``level``, ``(m, 3)``) lie in one of the
+    closed node boxes ``boxes`` of ``box_level``."""
+    if not len(boxes) or not len(corners):
+        return np.zeros(len(corners), dtype=bool)
+    k = box_level - level
+    # the boxes whose closed extent holds a point: the one it starts and, on a face, the one before
+    cand = (corners[:, None, :] << -k if k < 0 else corners[:, None, :]) - _CHILD[None]
+    if k > 0:
+        cand = cand >> k
+    return rows_in(cand.reshape(-1, 3), boxes).reshape(len(corners), 8).any(axis=1)
+
+
 def _blend_ratios(records: list, top: int) -> dict:
-    """Corner ratios of the whole-brick tiles with a coarser 26-neighbour on the plane (module
-    docstring): a position of a tile's level is coarser when a box drawn from coarser data holds it."""
+    """Corner ratios of the whole-brick tiles next to coarser boxes (module docstring).
+
+    A corner is 1 where a box drawn from coarser data touches it and no box that shows this
+    tile's level there does: a finer box (which blends up to this level at its faces) or a
+    box drawn from this level's data over a child box (which does not blend). Where both
+    touch a corner, the corner keeps the tile's own level: the tiles stay continuous with the
+    finer side and the step of one level is left at the coarser face.
+    """
     out: dict = {}
     for L in range(top):
         tiles = [d for dl, d, bl, _ in records if dl == L and bl == L]
         if not tiles:
             continue
         tiles = np.concatenate(tiles)
-        nb = (tiles[:, None, :] + _NEIGHBOURS[None]).reshape(-1, 3)
-        coarse = np.zeros(len(nb), dtype=bool)
+        corners = (tiles[:, None, :] + _CHILD[None]).reshape(-1, 3)  # [cz, cy, cx] order of _CHILD
+        coarse = np.zeros(len(corners), dtype=bool)
+        pinned = np.zeros(len(corners), dtype=bool)
         for dl, _, bl, bidx in records:
-            if dl > L and bl >= L and len(bidx):
-                k = bl - L
-                coarse |= rows_in(nb >> k, bidx)  # neighbours beyond the grid hold no box: never coarser
-        coarse = coarse.reshape(len(tiles), 26)
-        if not coarse.any():
-            continue
-        # corner c (per axis 0 or 1) touches the neighbours whose offset is in (-1, 0) or (0, 1)
-        ratios = np.zeros((len(tiles), 2, 2, 2))
-        for cz in (0, 1):
-            for cy in (0, 1):
-                for cx in (0, 1):
-                    touch = np.ones(26, dtype=bool)
-                    for axis, c in enumerate((cz, cy, cx)):
-                        touch &= (_NEIGHBOURS[:, axis] <= 0) if c == 0 else (_NEIGHBOURS[:, axis] >= 0)
-                    ratios[:, cz, cy, cx] = (coarse & touch[None]).any(axis=1)
-        for i in np.nonzero(coarse.any(axis=1))[0]:
-            out[(L, tuple(int(v) for v in tiles[i]))] = ratios[i]
+            if dl > L:
+                coarse |= _touching(corners, L, bl, bidx)
+            elif dl < L or bl < L:
+                pinned |= _touching(corners, L, bl, bidx)
+        ratio = (coarse & ~pinned).reshape(len(tiles), 2, 2, 2).astype(np.float64)
+        for i in np.nonzero(ratio.reshape(len(tiles), 8).any(axis=1))[0]:
+            out[(L, tuple(int(v) for v in tiles[i]))] = ratio[i]
     return out
 
 
