@@ -5,23 +5,25 @@ at full resolution near a point of interest and coarser away from it, from the v
 level 3D textures and budgets the volume action uses. Per frame (:meth:`SliceAction.render`):
 
 0. **Page** - the slice's region (:func:`~clipvol.scene.slice_region.slice_region`: per level, the
-   bricks within half a voxel of the plane where the policy refines, widened towards the next
-   slice while the plane scrolls) is handed to the clip-texture, which then reads that slab
+   bricks within half a voxel of the plane that the slice's cut draws or blends towards, widened
+   towards the next slice while the plane scrolls) is handed to the clip-texture, which then reads that slab
    rather than filling cubes (``follow_plane = False`` keeps the cubes). On a store whose manifest
    records its chunks' sizes, where the full-resolution slab holds no more bytes than this
    region, the slice is drawn at full resolution (``level=0``, :attr:`SliceAction.last_params`):
    a better image for no more bytes read.
-1. **Select** - the frame loop (:class:`~clipvol.render.frame_loop.FrameLoop`) runs the
-   ``"plane"`` policy (:class:`~clipvol.scene.selection.policies.plane.PlaneCut`) with an
-   orthographic camera that sees exactly the slice's pixels: nodes the plane crosses, refined by
-   projected voxel size and by distance to the point of interest, balanced so 26-neighbours
-   differ by at most one level, with per-corner blend ratios. Bricks still loading are drawn from
-   their nearest resident ancestor (coarser fallback, as the volume does).
-2. **Upload** - the cache's sub-loads, plus the parent bricks ("low tiles") of the nodes that
+1. **Select** - the frame loop (:class:`~clipvol.render.frame_loop.FrameLoop`) runs the slice's
+   cut (:func:`~clipvol.scene.slice_cover.slice_cut`) with an orthographic camera that sees
+   exactly the slice's pixels: with a point of interest, the per-brick cover
+   (:mod:`clipvol.scene.slice_cover`: each part of the plane at the finest level whose brick lies
+   within ``distance_factor`` of its own diagonals of the point, with per-corner blend ratios for
+   the tiles next to coarser boxes); without one, the ``"plane"`` policy's one level
+   (:class:`~clipvol.scene.selection.policies.plane.PlaneCut`). Bricks still loading are drawn
+   from their nearest resident ancestor (coarser fallback, as the volume does).
+2. **Upload** - the cache's sub-loads, plus the parent bricks ("low tiles") of the tiles that
    blend, within the same ``texels_per_frame`` budget.
 3. **Draw** - per tile, the plane's polygon inside the node box (a triangle fan) into a float32
    target. The fragment shader (``shaders/slice.frag.glsl``) samples the node's level texture
-   trilinearly at the pixel's world point and, where the node's trilinearly interpolated corner
+   trilinearly at the pixel's world point and, where the tile's trilinearly interpolated corner
    ratio is above 0, its parent's level too, and mixes them: the paper's high/low tiles with
    per-vertex ratios, done per pixel. Tiles partition the plane, so no blending between draws.
 4. **Read back** - the values (``raw = a * texel + b`` in float64, NaN where no tile covers the
