@@ -211,6 +211,8 @@ class SliceAction:
         #: (plane, pixel size, size, scroll-ahead, parameters) -> the parameters and region drawn: a
         #: slice drawn again (a window redrawing, a viewer waiting for bricks) prices no region twice
         self._region_memo = None
+        #: (plane, pixel size, size, parameters) -> the slice's cover (clipvol.scene.slice_cover)
+        self._cover_memo = None
 
     def set_params(self, params: RenderParams) -> None:
         """Use ``params`` from the next frame on (policy forced to ``"plane"``)."""
@@ -368,11 +370,9 @@ class SliceAction:
         if params.focus is None or params.level is not None:
             return slice_cut(self.pyramid, plane, params, px, size)
         key = (plane, float(px), tuple(size), params)
-        kept = getattr(self, "_cover_memo", None)
-        if kept is None or kept[0] != key:
-            cover = slice_cut(self.pyramid, plane, params, px, size).cover
-            kept = self._cover_memo = (key, cover)
-        return slice_cut(self.pyramid, plane, params, px, size, cover=kept[1])
+        if self._cover_memo is None or self._cover_memo[0] != key:
+            self._cover_memo = (key, slice_cut(self.pyramid, plane, params, px, size).cover)
+        return slice_cut(self.pyramid, plane, params, px, size, cover=self._cover_memo[1])
 
     def _stored_sizes(self):
         """The clip-texture's loader's chunk sizes (:func:`~clipvol.scene.slice_region.stored_sizes`),
