@@ -3,8 +3,9 @@
 At a world point ``q`` and level ``L``, the brick holding ``q`` has the box ``[b e - 0.5, (b + 1) e -
 0.5]`` per axis (``e`` = brick edge times ``2**L`` level-0 voxels of spacing 1, ``b = floor((q +
 0.5) / e)``), clipped to the volume ``[-0.5, n - 0.5]``. It is in reach when its nearest point comes
-closer to the point of interest than ``distance_factor`` times its diagonal; every brick of the
-coarsest level is. The point's level is the finest in reach.
+closer to the point of interest than ``distance_factor`` times the diagonal of the box of level ``L
++ 1`` holding ``q`` (its parent's, clipped the same way); every brick of the coarsest level is. The
+point's level is the finest in reach.
 """
 
 from __future__ import annotations
@@ -25,10 +26,17 @@ def finest_in_reach(q, focus, distance_factor: float, shape_zyx, brick: int, lev
     focus = np.asarray(focus, dtype=np.float64)
     out = np.full(len(q), levels - 1)
     for L in range(levels - 2, -1, -1):
-        lo, hi = brick_box(shape_zyx, brick, L, q)
-        near = np.linalg.norm(np.clip(focus, lo, hi) - focus, axis=1)
-        out = np.where(near < distance_factor * np.linalg.norm(hi - lo, axis=1), L, out)
+        out = np.where(in_reach_at(q, focus, distance_factor, shape_zyx, brick, L), L, out)
     return out
+
+
+def in_reach_at(q, focus, distance_factor: float, shape_zyx, brick: int, level: int) -> np.ndarray:
+    """``(m,)`` bool: is the brick of ``level`` (below the coarsest) holding each point ``q`` in reach."""
+    focus = np.asarray(focus, dtype=np.float64)
+    lo, hi = brick_box(shape_zyx, brick, level, q)
+    plo, phi = brick_box(shape_zyx, brick, level + 1, q)
+    near = np.linalg.norm(np.clip(focus, lo, hi) - focus, axis=1)
+    return near < distance_factor * np.linalg.norm(phi - plo, axis=1)
 
 
 def off_faces(q, brick: int, levels: int, margin: float = 1e-6) -> np.ndarray:

@@ -15,7 +15,7 @@ level 3D textures and budgets the volume action uses. Per frame (:meth:`SliceAct
    cut (:func:`~clipvol.scene.slice_cover.slice_cut`) with an orthographic camera that sees
    exactly the slice's pixels: with a point of interest, the per-brick cover
    (:mod:`clipvol.scene.slice_cover`: each part of the plane at the finest level whose brick lies
-   within ``distance_factor`` of its own diagonals of the point, with per-corner blend ratios for
+   within ``distance_factor`` of its parent's diagonals of the point, with per-corner blend ratios for
    the tiles next to coarser boxes); without one, the ``"plane"`` policy's one level
    (:class:`~clipvol.scene.selection.policies.plane.PlaneCut`). Bricks still loading are drawn
    from their nearest resident ancestor (coarser fallback, as the volume does).

@@ -4,8 +4,8 @@ Why: a cutting plane is a 2D picture, so it needs neither whole-node refinement 
 balance a volume cut keeps (LaMar, Hamann & Joy, *Multiresolution cutting planes*). Refining whole
 octree nodes around the point of interest reads every sibling of a refined brick in the plane's
 slab, and balancing adds rings at every level: on a 1024³ store of 64³ bricks the slice through
-the centre read 249 chunks at ``distance_factor`` 1.0 and 97 at 0.5 against 513 for the
-full-resolution slice (97 and 33 with this cover).
+the centre read 249 chunks at ``distance_factor`` 1.0, 97 at 0.5 and 97 at 0.25 against 513 for
+the full-resolution slice (225, 97 and 33 with this cover).
 Here each brick decides for itself, and each pixel reads the finest level in reach for it. Pure
 numpy, no traversal.
 
@@ -14,12 +14,13 @@ The rule
 With a point of interest ``p`` (``RenderParams.focus``) and no fixed ``level``:
 
 * a brick ``b`` of level ``L`` is **in reach** when its box comes closer to ``p`` than
-  ``distance_factor`` times its own diagonal (the nearest point of the box, so the bricks holding
-  ``p`` are always in reach: the point is at full resolution for any factor), and ``L`` is not
-  finer than the pixels need (the level below the first whose parent level's voxel covers no
-  more than ``lod_threshold`` pixels is never drawn, as for the plane policy); every brick of the
-  coarsest level is in reach. A brick in reach has its parent in reach (the parent's box holds it
-  and its diagonal is twice as long), so the bricks in reach form a tree;
+  ``distance_factor`` times its parent's diagonal (twice its own inside the volume; the nearest
+  point of the box, so the bricks holding ``p`` are always in reach: the point is at full
+  resolution for any factor), and ``L`` is not finer than the pixels need (the level below the
+  first whose parent level's voxel covers no more than ``lod_threshold`` pixels is never drawn, as
+  for the plane policy); every brick of the coarsest level is in reach. A brick in reach has its
+  parent in reach (the parent's box holds it and the grandparent's diagonal is no shorter than the
+  parent's), so the bricks in reach form a tree;
 * only bricks in the plane's **slab** count: at level ``L`` those within half a voxel of ``L``
   of the plane (:mod:`clipvol.paging.slab`), the trilinear footprint of samples on it; with an
   image size, only those under the image rectangle;
@@ -41,10 +42,13 @@ of ``k`` levels shows ``k - 1`` levels' difference), where a child box drawn fro
 meets a coarser box (it does not blend), and near a corner kept at the tile's own level because a
 finer box touches it too. No step is larger than the difference between the levels on its sides.
 
-**The factor.** The reach at a given ``distance_factor`` is half the plane policy's, which
-refines a node - drawing its children - within the factor times the node's diagonal: a brick is
-now measured against its own diagonal, so a slice at factor ``f`` draws about the levels the
-plane policy drew at ``f / 2``, from fewer bricks (no siblings beyond reach, no balancing rings).
+**The factor.** The reach at a given ``distance_factor`` is the plane policy's, which refines a
+node - draws its children - when the node's box comes within the factor times the node's
+diagonal, and the same unit as a volume's point of interest (the distance policy refines a node
+within the factor times the node's diagonal, measured from the node's centre): a user's setting
+keeps its meaning. Measured per brick rather than per node, a brick in reach is a child of a node
+the plane policy refines at the same factor, so the cover is never finer than that cut anywhere
+and reads fewer bricks (no siblings beyond reach, no balancing rings).
 
 :class:`CoverCut` hands the cover to the shared traversal as a cut (so residency, coarser
 fallback while bricks load, windows and merging stay those of every other cut), and
@@ -131,13 +135,24 @@ def in_view_mask(pyramid, level: int, bricks: np.ndarray, plane, size, pixel_siz
 
 def in_reach(pyramid, level: int, bricks: np.ndarray, focus: np.ndarray, distance_factor: float) -> np.ndarray:
     """``(n,)`` bool: bricks of ``level`` whose boxes come closer to ``focus`` than ``distance_factor``
-    times their own diagonals."""
+    times their parents' diagonals (every brick of the coarsest level).
+
+    The parent's diagonal, not the brick's own: the plane policy and the volume's distance policy
+    refine a node - draw its children - within the factor times the node's diagonal, and a user's
+    ``distance_factor`` keeps that reach. A brick in reach has a parent those policies refine at the
+    same factor (its parent's box holds its own, so it is at least as near), so the cover never draws
+    a brick they would not. The parent's box is clipped to the volume like any node box.
+    """
+    bricks = np.asarray(bricks, dtype=np.int64).reshape(-1, 3)
+    if level >= pyramid.num_levels - 1:
+        return np.ones(len(bricks), dtype=bool)
     if not len(bricks):
         return np.zeros(0, dtype=bool)
     lo, hi = pyramid.node_box(level, bricks)
-    lo, hi = np.atleast_2d(lo), np.atleast_2d(hi)
+    plo, phi = pyramid.node_box(level + 1, bricks // 2)
+    lo, hi, plo, phi = (np.atleast_2d(a) for a in (lo, hi, plo, phi))
     near = np.linalg.norm(np.clip(focus, lo, hi) - focus, axis=1)
-    return near < float(distance_factor) * np.linalg.norm(hi - lo, axis=1)
+    return near < float(distance_factor) * np.linalg.norm(phi - plo, axis=1)
 
 
 def finest_level(pyramid, params, pixel_size: float) -> int:
@@ -188,8 +203,8 @@ def slice_cover(pyramid, plane, params, pixel_size: float, *, in_view=None, ahea
     reach: list = [empty] * (top + 1)
     reach[top] = keep_view(top, slab_bricks(pyramid, top, origin, n, half(top)))
     for L in range(finest, top):
-        lo0, hi0 = pyramid.node_box(L, np.zeros((1, 3), dtype=np.int64))
-        radius = df * float(np.linalg.norm(np.atleast_2d(hi0 - lo0), axis=1)[0])  # an interior brick's reach
+        lo0, hi0 = pyramid.node_box(L + 1, np.zeros((1, 3), dtype=np.int64))
+        radius = df * float(np.linalg.norm(np.atleast_2d(hi0 - lo0), axis=1)[0])  # the longest parent diagonal
         cand = slab_bricks(pyramid, L, origin, n, half(L), point=focus, radius=radius)
         reach[L] = keep_view(L, cand[in_reach(pyramid, L, cand, focus, df)])
 

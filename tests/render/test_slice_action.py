@@ -160,7 +160,7 @@ def test_level_changes_blend_and_a_jump_shows_the_levels_it_skips(gl):
     ld = _LevelsDisagree(shape, 8)
     pl = Plane.through((47.5, 47.5, 31.5), (0, 0, 1))
     pts = pl.pixel_points((96, 96), 1.0)
-    focus, df = (20.0, 20.0, 31.5), 0.3
+    focus, df = (20.0, 20.0, 31.5), 0.15
     want = finest_in_reach(pts.reshape(-1, 3), focus, df, shape, 8, ld.pyramid.num_levels).reshape(96, 96)
     with ClipTexture(ld, "64MB", 2) as ct, SliceAction(gl, ct, focus=focus, distance_factor=df) as sa:
         _, v = sa.render(pl, (96, 96), 1.0, wait=True, timeout=60, return_values=True)
