@@ -4,6 +4,8 @@ The reference (tests/slice_reference.py) walks the plane's pixel points: at each
 the brick that holds it (its box from the brick shape and spacing, clipped to the volume), in reach
 when the box comes closer to the point of interest than ``distance_factor`` times its parent's
 diagonal; the point's level is the finest in reach. Nothing of the cover's code (slabs, octree children) is used.
+The plane policy's whole-node cut (``PlaneCut``, its own traversal and balancing) bounds the cover
+from the fine side at the same ``distance_factor``.
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ import pytest
 from clipvol.bricking.pyramid import Pyramid
 from clipvol.scene.params import RenderParams
 from clipvol.scene.plane import Plane, default_size
+from clipvol.scene.selection import select
+from clipvol.scene.selection.policies.plane import PlaneCut
 from clipvol.scene.slice_cover import slice_cover
 from clipvol.scene.slice_region import slice_region
 
@@ -75,6 +79,44 @@ def test_every_point_is_drawn_once_at_the_finest_level_in_reach(origin, normal, 
         if dl == 0:
             centre = (didx[:, ::-1] * BRICK + BRICK / 2.0 - 0.5)
             assert np.all(in_reach_at(centre, focus, df, SHAPE, BRICK, 0))
+
+
+def _level_at(q, boxes):
+    """``(m,)`` the level of the box (``[(level, index (z, y, x))]``, node boxes clipped to SHAPE)
+    holding each point ``q``; -1 where none does."""
+    out = np.full(len(q), -1)
+    for L, idx in boxes:
+        ext = BRICK * 2.0**L
+        b = np.asarray(idx[::-1], dtype=np.float64)
+        lo = np.maximum(b * ext - 0.5, -0.5)
+        hi = np.minimum((b + 1) * ext - 0.5, np.array(SHAPE[::-1]) - 0.5)
+        out[np.all((q > lo) & (q < hi), axis=1)] = L
+    return out
+
+
+@pytest.mark.parametrize("origin,normal,df", [
+    ((40.3, 37.7, 20.2), (0, 0, 1), 1.0),
+    ((60.2, 50.1, 30.3), (0.3, -0.5, 0.8), 0.5),
+    ((15.1, 41.2, 33.3), (0, 1, 0), 2.0),
+])
+def test_the_cover_is_nowhere_finer_than_the_whole_node_cut_at_the_same_factor(origin, normal, df):
+    """``distance_factor`` keeps the reach it has for the plane policy's whole-node cut (which refines
+    a node within the factor times the node's diagonal, then balances): at every point the cover's
+    level is that cut's or coarser (coarser where that cut drew siblings beyond reach or balanced:
+    here the oblique plane)."""
+    pyr = _pyramid()
+    plane = Plane.through(origin, normal)
+    params = RenderParams(policy="plane", focus=origin, distance_factor=df)
+    size = default_size(pyr, plane, 1.0)
+    lo, hi = pyr.volume_box()
+    sel = select(pyr, plane.camera(size, 1.0).fit_depth(lo, hi), params, policy=PlaneCut(params, plane))
+    whole = [(int(it.level), tuple(int(v) for v in it.index)) for it in sel.items]
+    cover = slice_cover(pyr, plane, params, 1.0)
+    drawn = [(bl, tuple(int(v) for v in b)) for _, _, bl, bidx in cover.records for b in bidx]
+    q = _points(plane, pyr)
+    old, new = _level_at(q, whole), _level_at(q, drawn)
+    assert np.all(new >= 0) and np.all(old >= 0)
+    assert np.all(new >= old), int((new < old).sum())
 
 
 def test_blending_reads_the_parents_of_tiles_next_to_coarser_ones_only():
