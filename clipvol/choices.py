@@ -66,8 +66,8 @@ PARAM_FIELDS: dict[str, tuple] = {
               "the one pyramid level (0 = finest, default 0) that --policy fixed draws, that slice draws everywhere "
               "and that export writes"),
     "distance_factor": (1.0,
-                        "--policy distance (slice: --poi): refine nodes closer to the eye (the point of interest) "
-                        "than this many of their diagonals"),
+                        "--policy distance: refine nodes closer to the eye than this many of their diagonals; "
+                        "slice with --poi: draw each brick closer to the point than this many of its parent's diagonals"),
     "fov_fraction": (0.5, "--policy field-of-view: refine nodes subtending more than this fraction of the view"),
     "max_texels_drawn": (None, "most voxels of drawn bricks: refine the largest projected voxels first until it binds"),
     "texels_per_frame": (None, "most texels uploaded per frame (per pass while waiting)"),

@@ -5,23 +5,25 @@ at full resolution near a point of interest and coarser away from it, from the v
 level 3D textures and budgets the volume action uses. Per frame (:meth:`SliceAction.render`):
 
 0. **Page** - the slice's region (:func:`~clipvol.scene.slice_region.slice_region`: per level, the
-   bricks within half a voxel of the plane where the policy refines, widened towards the next
-   slice while the plane scrolls) is handed to the clip-texture, which then reads that slab
+   bricks within half a voxel of the plane that the slice's cut draws or blends towards, widened
+   towards the next slice while the plane scrolls) is handed to the clip-texture, which then reads that slab
    rather than filling cubes (``follow_plane = False`` keeps the cubes). On a store whose manifest
    records its chunks' sizes, where the full-resolution slab holds no more bytes than this
    region, the slice is drawn at full resolution (``level=0``, :attr:`SliceAction.last_params`):
    a better image for no more bytes read.
-1. **Select** - the frame loop (:class:`~clipvol.render.frame_loop.FrameLoop`) runs the
-   ``"plane"`` policy (:class:`~clipvol.scene.selection.policies.plane.PlaneCut`) with an
-   orthographic camera that sees exactly the slice's pixels: nodes the plane crosses, refined by
-   projected voxel size and by distance to the point of interest, balanced so 26-neighbours
-   differ by at most one level, with per-corner blend ratios. Bricks still loading are drawn from
-   their nearest resident ancestor (coarser fallback, as the volume does).
-2. **Upload** - the cache's sub-loads, plus the parent bricks ("low tiles") of the nodes that
+1. **Select** - the frame loop (:class:`~clipvol.render.frame_loop.FrameLoop`) runs the slice's
+   cut (:func:`~clipvol.scene.slice_cover.slice_cut`) with an orthographic camera that sees
+   exactly the slice's pixels: with a point of interest, the per-brick cover
+   (:mod:`clipvol.scene.slice_cover`: each part of the plane at the finest level whose brick lies
+   within ``distance_factor`` of its parent's diagonals of the point, with per-corner blend ratios for
+   the tiles next to coarser boxes); without one, the ``"plane"`` policy's one level
+   (:class:`~clipvol.scene.selection.policies.plane.PlaneCut`). Bricks still loading are drawn
+   from their nearest resident ancestor (coarser fallback, as the volume does).
+2. **Upload** - the cache's sub-loads, plus the parent bricks ("low tiles") of the tiles that
    blend, within the same ``texels_per_frame`` budget.
 3. **Draw** - per tile, the plane's polygon inside the node box (a triangle fan) into a float32
    target. The fragment shader (``shaders/slice.frag.glsl``) samples the node's level texture
-   trilinearly at the pixel's world point and, where the node's trilinearly interpolated corner
+   trilinearly at the pixel's world point and, where the tile's trilinearly interpolated corner
    ratio is above 0, its parent's level too, and mixes them: the paper's high/low tiles with
    per-vertex ratios, done per pixel. Tiles partition the plane, so no blending between draws.
 4. **Read back** - the values (``raw = a * texel + b`` in float64, NaN where no tile covers the
@@ -51,7 +53,7 @@ from ..errors import ParameterError
 from ..scene.params import RenderParams
 from ..scene.plane import Plane, default_pixel_size, default_size
 from ..paging.readcount import bytes_read_of, split_reads
-from ..scene.selection.policies.plane import PlaneCut
+from ..scene.slice_cover import slice_cut
 from ..scene.slice_region import region_bytes, slice_region, stored_sizes
 from .failures import failed_bricks
 from .frame_loop import FrameLoop
@@ -209,6 +211,8 @@ class SliceAction:
         #: (plane, pixel size, size, scroll-ahead, parameters) -> the parameters and region drawn: a
         #: slice drawn again (a window redrawing, a viewer waiting for bricks) prices no region twice
         self._region_memo = None
+        #: (plane, pixel size, size, parameters) -> the slice's cover (clipvol.scene.slice_cover)
+        self._cover_memo = None
 
     def set_params(self, params: RenderParams) -> None:
         """Use ``params`` from the next frame on (policy forced to ``"plane"``)."""
@@ -285,7 +289,7 @@ class SliceAction:
         self.last_params = params
         cam = plane.camera(size, px).fit_depth(vlo, vhi)
         deadline = None if timeout is None else t_start + float(timeout)
-        policy = PlaneCut(params, plane)
+        policy = self._policy(params, plane, px, size)
         up_bytes = up_bricks = 0
         times = dict(select=0.0, upload=0.0, wait=0.0)
         while True:
@@ -359,6 +363,16 @@ class SliceAction:
             region_bricks=region_bricks, failed_bricks=failed_bricks(sel, self.clip_texture),
             frame_bytes_read=frame_read, prefetch_bytes_read=other_read)
         return (rgba, values) if return_values else rgba
+
+    def _policy(self, params: RenderParams, plane: Plane, px: float, size):
+        """The slice's cut (:func:`~clipvol.scene.slice_cover.slice_cut`), its cover computed once
+        per plane, pixel size, image size and parameters."""
+        if params.focus is None or params.level is not None:
+            return slice_cut(self.pyramid, plane, params, px, size)
+        key = (plane, float(px), tuple(size), params)
+        if self._cover_memo is None or self._cover_memo[0] != key:
+            self._cover_memo = (key, slice_cut(self.pyramid, plane, params, px, size).cover)
+        return slice_cut(self.pyramid, plane, params, px, size, cover=self._cover_memo[1])
 
     def _stored_sizes(self):
         """The clip-texture's loader's chunk sizes (:func:`~clipvol.scene.slice_region.stored_sizes`),
@@ -437,7 +451,7 @@ class SliceAction:
         px = max(px, default_pixel_size(pyr, plane))
         size = default_size(pyr, plane, px)
         cam = plane.camera(size, px).fit_depth(vlo, vhi)
-        policy = PlaneCut(self.params, plane)
+        policy = self._policy(self.params, plane, px, size)
         plan = self.frame_loop.run(cam, self.params, policy=policy, wait=wait, timeout=timeout)
         low, _ = self._reserve_low_tiles(plan.selection, policy.node_data if self.blend else {})
         self.cache.commit()

@@ -133,7 +133,9 @@ class RenderParams:
         The level drawn by the ``"fixed"`` policy (default 0 for it).
     distance_factor : float
         ``"distance"`` policy: a node is refined while its centre is closer to the focus than this
-        many times its diagonal.
+        many times its diagonal. A slice with a point of interest draws each brick whose box comes
+        closer to it than this many times its parent's diagonal, the same reach per brick
+        (:mod:`clipvol.scene.slice_cover`).
     fov_fraction : float
         ``"field-of-view"`` policy: a node is refined while it subtends more than this fraction of
         the vertical field of view (0.5 is the paper's "half the field-of-view angle").
