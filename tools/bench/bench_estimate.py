@@ -1,7 +1,9 @@
 """The image policy's visible-error estimate against the measured error, per view and cut.
 
 For each view of :func:`bench_mission.views` (``iso`` and ``face``: overviews; ``close``: a part of
-the volume filling the image) and image size, the image policy draws its cut at block budgets 8-128
+the volume filling the image) and of ``clipvol report``'s own path (``turn0``-``turn2``: the
+report's three default views, :func:`report_views`, framing the voxels the transfer function shows)
+and image size, the image policy draws its cut at block budgets 8-128
 and at the error budgets ``max_error`` 20, 10, 5 and 2 % (``--classify``, default ``distribution``; step 0.5),
 one warm frame each; the row holds the policy's own prediction (:attr:`ImageBased.estimated_error`,
 the predicted % of pixels with CIELUV Delta E >= 6) and the measured % against the **converged
@@ -37,6 +39,21 @@ def settings() -> dict:
     return out
 
 
+def report_views(loader, tf, image: int, n: int = 3) -> dict:
+    """``clipvol report``'s views (``turn0`` ...): its default path (the orbit, a turntable raised
+    25 degrees for a patient-frame store) with ``n`` views framing the voxels ``tf`` shows, as
+    :func:`clipvol.app.report_measure.measure` makes them."""
+    from clipvol.scene.framing import visible_points
+    from clipvol.scene.paths import make_path
+    from clipvol.scene.views import patient_path
+
+    name, kw = patient_path("orbit", getattr(loader, "frame", None))
+    pts = visible_points(loader, tf)
+    if pts is not None:
+        kw["fit"] = pts
+    return {f"turn{i}": cam for i, (cam, _) in enumerate(make_path(name, loader.pyramid, n, size=(image, image), **kw))}
+
+
 def run(store: Path, images, view_names=None, classify: str = "distribution", log=print) -> list[dict]:
     from clipvol.app.converged import ConvergedPictures
     from clipvol.scene.metrics import percent_delta_e
@@ -56,7 +73,8 @@ def run(store: Path, images, view_names=None, classify: str = "distribution", lo
     rows = []
     try:
         for image in images:
-            for view, cam in bench_mission.views(pyr, image).items():
+            cams = {**bench_mission.views(pyr, image), **report_views(scene.loader, tf, image)}
+            for view, cam in cams.items():
                 if view_names and view not in view_names:
                     continue
                 truth = conv.get(cam, key=(image, view))
@@ -89,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--store", type=Path, required=True, help="a clipvol store with summary tables")
     ap.add_argument("--images", default="256", help="image edges, comma separated (default 256)")
-    ap.add_argument("--views", default=None, help="views, comma separated (default iso,face,close)")
+    ap.add_argument("--views", default=None, help="views, comma separated (default iso,face,close,turn0,turn1,turn2)")
     ap.add_argument("--classify", default="distribution", choices=("distribution", "mean"),
                     help="how coarse voxels are classified (default distribution)")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "bench_estimate.csv")
