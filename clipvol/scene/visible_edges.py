@@ -6,9 +6,9 @@ levels, ``tools/bench/bench_estimate.py``; ``docs/benchmarks.md``, "The visible-
 edges in front of each node"), a coarse level's error sits where the picture has edges - where
 rays cross a sharp step of the transfer function at a boundary (a brain's folds, the outline):
 per node of a cut, the share of its pixels that differ follows the share of its screen rectangle
-on an edge of the converged picture (correlation 0.7-0.99 over the 44-45 level-1 nodes of each
-overview), and not its classification bias (:func:`clipvol.scene.lod_error.classification_bias`;
-correlation -0.1 to -0.4). The whole-view edge share of the term before (one factor per view and
+on an edge (of the converged picture: correlation 0.8-0.99 over the 44-45 level-1 nodes of each
+overview; of the opacity map below: 0.69-0.97), and not its classification bias
+(:func:`clipvol.scene.lod_error.classification_bias`; correlation -0.1 to -0.4). The whole-view edge share of the term before (one factor per view and
 level) could not tell the report's turntable views, whose edges crowd into some bricks, from the
 benchmark's overviews: the estimate ran 0.45-0.73x the measurement there.
 
@@ -17,8 +17,9 @@ a 64² map of the total opacity along each ray) shows those edges at no extra co
 marks its non-empty pixels where the opacity steps by :data:`EDGE_JUMP` or more to a 4-neighbour;
 :meth:`OcclusionLayers.edge_shares <clipvol.scene.visibility.OcclusionLayers.edge_shares>` gives
 each node the share of its map rectangle's non-empty pixels on such an edge (two summed-area
-tables), and :func:`edge_difference` turns that share ``e`` into the predicted fraction of the
-node's pixels that differ at level ``L``:
+tables; the policy weights each node by the shown share too: a node a mixed cut leaves coarse on
+the outline shows something on a few % of its rectangle), and :func:`edge_difference` turns that
+share ``e`` into the predicted fraction of the node's pixels that differ at level ``L``:
 
     ``q = 1 - exp(-EDGE_GAIN * EDGE_GROWTH**L * max(e, EDGE_FLOOR))``
 
@@ -31,8 +32,12 @@ node's pixels that differ at level ``L``:
 
 The three constants are fitted on the template's 256² views (the benchmark's iso, face and close
 views and ``clipvol report``'s three turntable views; block-budget, error-budget and fixed-level
-cuts) and checked at 512². :func:`edge_share` (the view's share, which the benchmark prints) is the
-same map's mean. A model, not a bound.
+cuts) and checked at 512²: 90 of 94 cuts within 1.5x of the measurement (0.69-1.63; the term
+before, one factor of the whole view's edge share on each node's bias: 51 of 94, 0.43-1.60).
+:func:`edge_share` (the view's share, which the benchmark prints) is the same map's mean. What it
+does not model: level 0's own error (one ray per pixel at half a voxel's step), and a data set whose
+coarse levels differ on fewer pixels per edge than the template's folds (a smooth CT-like head: the
+estimate is 1.9-2.2x there at block budgets 16-32). A model, not a bound.
 
 The term applies to consistent coarse levels only (``classify="distribution"``, the default, which
 it was fitted on). With the mean classified, a coarse level loses thin structures outright, and the

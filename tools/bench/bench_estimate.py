@@ -10,7 +10,12 @@ the predicted % of pixels with CIELUV Delta E >= 6) and the measured % against t
 picture** (:mod:`clipvol.app.converged`: level 0 at step 0.25, 2x2 rays per pixel), their ratio, the
 cut's bricks and levels, and the edge share of the view's visibility estimate
 (:func:`clipvol.scene.visible_edges.edge_share`, the term that scales the estimate per view).
-No timing: every figure is an image's error, so the load does not move it.
+No timing: every figure is an image's error, so the load does not move it. ``--time-cut N`` adds
+what the estimate costs per frame: for each view, the image policy's cut (the greedy refinement
+with its running estimate, :func:`clipvol.scene.selection.select`, no GL) made ``N`` times from the
+same visibility estimate with the edge term (the ``distribution`` errors) and with the
+classification bias in its place (the ``mean`` errors: the estimate before the edge term), the
+medians in ms and their ratio.
 
 ``python tools/bench/bench_estimate.py --store mni32.zarr --images 256,512``; rows to
 ``tools/bench/results/bench_estimate.csv``.
@@ -103,6 +108,47 @@ def run(store: Path, images, view_names=None, classify: str = "distribution", lo
     return rows
 
 
+def time_cut(store: Path, images, view_names=None, repeat: int = 20, log=print) -> list[dict]:
+    """Median ms of the image policy's cut per view, with the edge term and with the bias in its place
+    (same visibility estimate, ``max_error`` 5 % and block budget 64), interleaved."""
+    from clipvol.scene.lod_error import lod_errors
+    from clipvol.scene.params import RenderParams
+    from clipvol.scene.selection import select
+    from clipvol.scene.selection.policies.image_based import ImageBased
+
+    scene = common.WarmScene(store)
+    pyr, tf = scene.pyramid, scene.tf
+    act = scene.action(step=0.5, policy="image", block_budget=64)
+    rows = []
+    try:
+        for image in images:
+            cams = {**bench_mission.views(pyr, image), **report_views(scene.loader, tf, image)}
+            for view, cam in cams.items():
+                if view_names and view not in view_names:
+                    continue
+                act.render(cam, tf, wait=True, timeout=600)
+                vis, tables = act.last_policy.visibility, act.image_lod.tables
+                errs = {c: lod_errors(tables, tf, c) for c in ("distribution", "mean")}
+                for setting, kw in (("max-error=5%", dict(max_error=0.05)), ("image b=64", dict(block_budget=64))):
+                    times = {c: [] for c in errs}
+                    for _ in range(repeat):
+                        for c, e in errs.items():
+                            params = RenderParams(policy="image", classify=c, **kw)
+                            t0 = time.perf_counter()
+                            select(pyr, cam, params, policy=ImageBased(params, errors=e, visibility=vis))
+                            times[c].append(1000.0 * (time.perf_counter() - t0))
+                    med = {c: float(np.median(v)) for c, v in times.items()}
+                    row = dict(date=time.strftime("%Y-%m-%d"), store=store.name, image=image, view=view, setting=setting,
+                               cut_ms_edges=round(med["distribution"], 2), cut_ms_bias=round(med["mean"], 2),
+                               ratio=round(med["distribution"] / med["mean"], 3), repeat=repeat)
+                    rows.append(row)
+                    log(f"{image}^2 {view:5} {setting:13}: cut {row['cut_ms_edges']:.1f} ms with the edge term, "
+                        f"{row['cut_ms_bias']:.1f} ms with the bias ({row['ratio']:.2f}x)")
+    finally:
+        scene.close()
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--store", type=Path, required=True, help="a clipvol store with summary tables")
@@ -111,7 +157,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--classify", default="distribution", choices=("distribution", "mean"),
                     help="how coarse voxels are classified (default distribution)")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "bench_estimate.csv")
+    ap.add_argument("--time-cut", type=int, default=0, metavar="N",
+                    help="also time the image policy's cut N times per view, with the edge term and with the bias "
+                         "(rows to OUT with _cut before the suffix)")
     a = ap.parse_args(argv)
+    if a.time_cut:
+        rows = time_cut(a.store, [int(v) for v in a.images.split(",")], None if a.views is None else a.views.split(","),
+                        a.time_cut)
+        common.save_rows(a.out.with_name(a.out.stem + "_cut" + a.out.suffix), rows)
     rows = run(a.store, [int(v) for v in a.images.split(",")], None if a.views is None else a.views.split(","), a.classify)
     return common.save_rows(a.out, rows)
 

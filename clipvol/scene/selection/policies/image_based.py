@@ -83,9 +83,11 @@ rectangle that the estimate's opacity map shows on an edge (:meth:`OcclusionLaye
 0 where the bias is 0 (a node that classifies exactly as the fine data beneath it). Measured on the
 MNI ICBM152 T1 template, per node of a cut the differing pixels follow the edges in front of the node
 (many in a brain's folds, few on a surface seen from near) and not the bias; with the edges of the
-whole view as one factor on the bias (the term before) the estimate was 0.45-0.73x the measurement
-on ``clipvol report``'s turntable views and 0.58-1.50x on the benchmark's views; per node, 0.68-1.48x
-on all of them (``docs/benchmarks.md``, "The visible-error estimate: the edges in front of each node").
+whole view as one factor on the bias (the term before) the estimate was 0.43-0.86x the measurement
+on ``clipvol report``'s turntable views and 0.54-1.60x on the benchmark's views; per node, 0.79-1.23x
+and 0.69-1.63x (90 of 94 cuts within 1.5x; ``docs/benchmarks.md``, "The visible-error estimate: the
+edges in front of each node"). Each node's weight ``w`` is then its area times visibility times the
+share of its map rectangle that shows something (:meth:`OcclusionLayers.footprint`).
 
 Consistent coarse levels (``RenderParams.classify = "distribution"``) change a coarse level's error:
 the image policy asks for the errors of the frame's classify mode
