@@ -59,6 +59,22 @@ def report_views(loader, tf, image: int, n: int = 3) -> dict:
     return {f"turn{i}": cam for i, (cam, _) in enumerate(make_path(name, loader.pyramid, n, size=(image, image), **kw))}
 
 
+def far_views(pyr, image: int) -> dict:
+    """Two views from farther away (2.0 and 2.2 volume diagonals, iso and side), where a level-0
+    voxel covers about half a pixel at 256²: outside the views the estimate was fitted on; only run
+    when named (``--views far_iso,far_side``)."""
+    from clipvol.scene.camera import Camera
+
+    lo, hi = pyr.volume_box()
+    c = (lo + hi) / 2.0
+    diag = float(np.linalg.norm(hi - lo))
+    out = {}
+    for name, d, dist in (("far_iso", np.array([0.55, 0.45, 0.7]), 2.0), ("far_side", np.array([1.0, 0.1, 0.2]), 2.2)):
+        d = d / np.linalg.norm(d)
+        out[name] = Camera.perspective(tuple(c - d * dist * diag), tuple(c), up=(0, -1, 0), fov_y=35, size=(image, image))
+    return out
+
+
 def run(store: Path, images, view_names=None, classify: str = "distribution", log=print) -> list[dict]:
     from clipvol.app.converged import ConvergedPictures
     from clipvol.scene.metrics import percent_delta_e
@@ -79,6 +95,8 @@ def run(store: Path, images, view_names=None, classify: str = "distribution", lo
     try:
         for image in images:
             cams = {**bench_mission.views(pyr, image), **report_views(scene.loader, tf, image)}
+            if view_names and any(v.startswith("far") for v in view_names):
+                cams.update(far_views(pyr, image))
             for view, cam in cams.items():
                 if view_names and view not in view_names:
                     continue
@@ -153,7 +171,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--store", type=Path, required=True, help="a clipvol store with summary tables")
     ap.add_argument("--images", default="256", help="image edges, comma separated (default 256)")
-    ap.add_argument("--views", default=None, help="views, comma separated (default iso,face,close,turn0,turn1,turn2)")
+    ap.add_argument("--views", default=None, help="views, comma separated (default iso,face,close,turn0,turn1,turn2; far_iso and far_side "
+                         "when named)")
     ap.add_argument("--classify", default="distribution", choices=("distribution", "mean"),
                     help="how coarse voxels are classified (default distribution)")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "bench_estimate.csv")
