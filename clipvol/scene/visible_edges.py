@@ -94,10 +94,20 @@ def edge_share(alpha, nonempty: float = EDGE_ALPHA, jump: float = EDGE_JUMP) -> 
     return float(edge_map(a, nonempty, jump).sum()) / n if n else 0.0
 
 
-def edge_difference(level, share) -> np.ndarray:
+#: map pixels one level-0 voxel covers where the constants were fitted (the template's views at 256²
+#: and 512²: a level-0 voxel covers 1.2-1.4 pixels of a 256² image, 0.3 pixels of the 64² map)
+EDGE_MAP_VOXEL = 0.32
+#: the largest factor the voxel's size in map pixels puts on the share (near the eye)
+EDGE_MAP_CAP = 1.0
+
+
+def edge_difference(level, share, map_voxel=None) -> np.ndarray:
     """``q``: the predicted fraction of the pixels of nodes of ``level`` (array-like; 0 at level 0)
     that differ visibly, from the share ``share`` (array-like) of their screen rectangles' non-empty
     pixels on an edge of the opacity map (see the module docstring)."""
     lv = np.asarray(level, dtype=np.float64)
-    e = np.maximum(np.asarray(share, dtype=np.float64), EDGE_FLOOR)
+    e = np.asarray(share, dtype=np.float64)
+    if map_voxel is not None:
+        e = e * np.minimum(np.asarray(map_voxel, dtype=np.float64) / EDGE_MAP_VOXEL, EDGE_MAP_CAP)
+    e = np.maximum(e, EDGE_FLOOR)
     return np.where(lv > 0, -np.expm1(-EDGE_GAIN * EDGE_GROWTH ** lv * e), 0.0)

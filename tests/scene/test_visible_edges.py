@@ -19,8 +19,8 @@ from clipvol.scene.selection import select
 from clipvol.scene.selection.policies.image_based import ImageBased
 from clipvol.scene.transfer import TransferFunction
 from clipvol.scene.visibility import OcclusionLayers
-from clipvol.scene.visible_edges import (EDGE_FLOOR, EDGE_GAIN, EDGE_GROWTH, EDGE_JUMP, edge_difference, edge_map,
-                                         edge_share)
+from clipvol.scene.visible_edges import (EDGE_FLOOR, EDGE_GAIN, EDGE_GROWTH, EDGE_JUMP, EDGE_MAP_CAP, EDGE_MAP_VOXEL,
+                                         edge_difference, edge_map, edge_share)
 
 
 def _edges_by_loop(a, nonempty=0.02, jump=EDGE_JUMP):
@@ -94,6 +94,12 @@ def test_edge_difference_grows_with_level_and_edges_from_a_floor():
     assert np.all(q[:, 0] == q[:, 2]) and np.all(q[:, 1] == q[:, 2])  # below the floor: the floor
     # small exponents: q is about EDGE_GAIN * EDGE_GROWTH**L times the share
     assert float(edge_difference(1, 0.06)) == pytest.approx(EDGE_GAIN * EDGE_GROWTH * 0.06, rel=0.05)
+    # a voxel smaller in the map than where it was fitted: each map pixel's edge stands for fewer
+    # differing pixels; larger: more, up to the cap
+    assert float(edge_difference(1, 0.3, EDGE_MAP_VOXEL)) == float(edge_difference(1, 0.3))
+    assert float(edge_difference(1, 0.3, EDGE_MAP_VOXEL / 2)) == float(edge_difference(1, 0.15))
+    assert float(edge_difference(1, 0.3, EDGE_MAP_VOXEL * 100)) == float(edge_difference(1, 0.3 * EDGE_MAP_CAP))
+    assert float(edge_difference(1, 0.01, EDGE_MAP_VOXEL * 2)) == float(edge_difference(1, 0.0))  # the floor
 
 
 def test_footprint_counts_each_box_s_shown_and_edge_pixels():
@@ -163,11 +169,15 @@ def test_the_estimate_follows_the_view_s_edges(shell_store, classify):
 def test_the_estimate_sums_the_edges_in_front_of_each_node(shell_store):
     """Edges on the left half of the map only: the estimate is, over the cut's nodes, the share of the
     image that shows something times the mean of each coarse node's ``q`` (its level, the edge share of
-    its rectangle) weighted by its area times the share of its rectangle that shows something - all
-    recomputed here from the definition (corners projected here, the loop's maps); the same cut with
-    the edges on the right half predicts differently."""
+    its rectangle scaled by a level-0 voxel's size in map pixels at the box's nearest depth) weighted
+    by its area times the share of its rectangle that shows something - all recomputed here from the
+    definition (corners projected here, the loop's maps, the pinhole's pixels per unit); the same cut
+    with the edges on the right half predicts differently."""
     tabs = open_summary(shell_store)
-    cam = Camera.perspective((32.0, 32.0, -90.0), (32.0, 32.0, 32.0), up=(0, -1, 0), fov_y=45, size=(128, 128))
+    eye, target = np.array([32.0, 32.0, -90.0]), np.array([32.0, 32.0, 32.0])
+    cam = Camera.perspective(tuple(eye), tuple(target), up=(0, -1, 0), fov_y=45, size=(128, 128))
+    fwd = (target - eye) / np.linalg.norm(target - eye)
+    px_per_unit = 128 / (2 * np.tan(np.radians(45 / 2)))  # at depth 1; the store's voxels are 1 unit
     errors = lod_errors(tabs, TF, "distribution")
     base = np.full((64, 64), 0.4)
     base[:, :8] = 0.0  # a strip that shows nothing
@@ -186,7 +196,10 @@ def test_the_estimate_sums_the_edges_in_front_of_each_node(shell_store):
             x0, y0, x1, y1, area = _rect_by_corners(cam, lo, hi, 64, 64)
             s, e = shown_map[y0:y1, x0:x1], edge_map_[y0:y1, x0:x1]
             w = area * s.mean()
-            share = max(e.sum() / s.sum() if s.any() else 0.0, EDGE_FLOOR)
+            corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+            map_voxel = px_per_unit / ((corners - eye) @ fwd).min() * 64 / 128
+            share = e.sum() / s.sum() if s.any() else 0.0
+            share = max(share * min(map_voxel / EDGE_MAP_VOXEL, EDGE_MAP_CAP), EDGE_FLOOR)
             q = 0.0 if level == 0 or errors.bias[level][b] <= 0 else 1 - np.exp(-EDGE_GAIN * EDGE_GROWTH ** level * share)
             num, den = num + w * q, den + w
         assert {L for L, _ in pol.node_data} - {0}, "the cut must hold coarse nodes"

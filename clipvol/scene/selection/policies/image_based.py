@@ -258,7 +258,8 @@ class ImageBased:
         # paper's linear term), saturating at the colour's magnitude once opaque
         with np.errstate(divide="ignore", invalid="ignore"):
             slab = np.where(op > 0, em / op * -np.expm1(thick * np.log1p(-np.minimum(op, 1.0 - 1e-12))), em * thick)
-        imp = slab * eps * area * self._vis(t, lo, hi) * t.projected_voxel(level, lo, hi) ** VOXEL_WEIGHT
+        pv = t.projected_voxel(level, lo, hi)
+        imp = slab * eps * area * self._vis(t, lo, hi) * pv ** VOXEL_WEIGHT
         if self.visibility is not None and SILHOUETTE_WEIGHT:
             imp = imp * np.where(self.visibility.silhouette(lo, hi, cam) > 0, 1.0 + SILHOUETTE_WEIGHT, 1.0)
         near, _ = box_depths(cam, lo, hi)
@@ -267,7 +268,9 @@ class ImageBased:
         if self._edge_model():  # the pixels a node shows, and the edges in front of them
             shown, edges = self.visibility.footprint(lo, hi, cam)
             w = w * shown
-            q = np.where(self.errors.bias[level][tuple(idx.T)] > 0, edge_difference(level, edges), 0.0)
+            # a level-0 voxel's size in map pixels: how many voxels' edges one map pixel stands for
+            mv = pv * (t.tree.voxel(0) / t.tree.voxel(level)) * self.visibility.alpha.shape[-1] / cam.size[0]
+            q = np.where(self.errors.bias[level][tuple(idx.T)] > 0, edge_difference(level, edges, mv), 0.0)
         else:
             q = np.zeros(len(lo)) if level == 0 else visible_difference(*self._visible_delta_e(t, level, idx))
         for b, v, wi, qi in zip(map(tuple, idx.tolist()), imp.tolist(), w.tolist(), q.tolist()):
