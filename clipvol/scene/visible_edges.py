@@ -15,13 +15,13 @@ benchmark's overviews: the estimate ran 0.45-0.73x the measurement there.
 The visibility estimate the policy already draws (:class:`~clipvol.scene.visibility.OcclusionLayers`,
 a 64² map of the total opacity along each ray) shows those edges at no extra cost: :func:`edge_map`
 marks its non-empty pixels where the opacity steps by :data:`EDGE_JUMP` or more to a 4-neighbour;
-:meth:`OcclusionLayers.edge_shares <clipvol.scene.visibility.OcclusionLayers.edge_shares>` gives
+:meth:`OcclusionLayers.footprint <clipvol.scene.visibility.OcclusionLayers.footprint>` gives
 each node the share of its map rectangle's non-empty pixels on such an edge (two summed-area
 tables; the policy weights each node by the shown share too: a node a mixed cut leaves coarse on
 the outline shows something on a few % of its rectangle), and :func:`edge_difference` turns that
 share ``e`` into the predicted fraction of the node's pixels that differ at level ``L``:
 
-    ``q = 1 - exp(-EDGE_GAIN * EDGE_GROWTH**L * max(e, EDGE_FLOOR))``
+    ``q = 1 - exp(-EDGE_GAIN * EDGE_GROWTH**L * max(e * min(m / EDGE_MAP_VOXEL, EDGE_MAP_CAP), EDGE_FLOOR))``
 
 - level 1 (a blur of two voxels) differs on about half as many pixels as lie on edges, level 2 on
   about 2.5 times as many (its blur also wipes out folds between the edges the map sees), level 3
@@ -29,8 +29,15 @@ share ``e`` into the predicted fraction of the node's pixels that differ at leve
 - a surface seen from near shows almost no edge in the map (share 0.001), yet a coarse level's blur
   differs there too (level 1 on 3 %, level 2 on 19 % of the pixels of the template's close view):
   :data:`EDGE_FLOOR`, the share below which a node counts as having that much.
+- ``m`` is a level-0 voxel's size in map pixels at the node's nearest depth: one map pixel's edge
+  stands for the edges of the voxels it covers, so from farther away (a voxel of 0.14 map pixels
+  instead of the fitted views' 0.3) the map's edges are denser than the differing pixels in the
+  image - there the estimate was 1.3-3.6x the measurement without the factor. It only lowers the
+  share (:data:`EDGE_MAP_CAP` 1): raised for a larger voxel (the 96² views of the CT-like head of
+  ``tests/render/test_error_budget.py``, 0.58 map pixels) the estimate there went from 1.9-2.2x to
+  2.2-3.2x at block budgets 16-32.
 
-The three constants are fitted on the template's 256² views (the benchmark's iso, face and close
+The constants are fitted on the template's 256² views (the benchmark's iso, face and close
 views and ``clipvol report``'s three turntable views; block-budget, error-budget and fixed-level
 cuts) and checked at 512²: 90 of 94 cuts within 1.5x of the measurement (0.69-1.63; the term
 before, one factor of the whole view's edge share on each node's bias: 51 of 94, 0.43-1.60).
@@ -53,7 +60,7 @@ import numpy as np
 from ..errors import ParameterError
 
 __all__ = ["edge_map", "edge_share", "edge_difference", "EDGE_JUMP", "EDGE_ALPHA", "EDGE_GAIN", "EDGE_GROWTH",
-           "EDGE_FLOOR"]
+           "EDGE_FLOOR", "EDGE_MAP_VOXEL", "EDGE_MAP_CAP"]
 
 #: a pixel of the opacity map counts as showing something above this total opacity (the policy's
 #: ``NONEMPTY_ALPHA``)
@@ -95,16 +102,18 @@ def edge_share(alpha, nonempty: float = EDGE_ALPHA, jump: float = EDGE_JUMP) -> 
 
 
 #: map pixels one level-0 voxel covers where the constants were fitted (the template's views at 256²
-#: and 512²: a level-0 voxel covers 1.2-1.4 pixels of a 256² image, 0.3 pixels of the 64² map)
+#: and 512²: a level-0 voxel covers 1.2-1.4 pixels of a 256² image, about 0.3 pixels of the 64² map)
 EDGE_MAP_VOXEL = 0.32
-#: the largest factor the voxel's size in map pixels puts on the share (near the eye)
+#: the largest factor the voxel's size in map pixels puts on the share: 1, it only lowers it (see the
+#: module docstring; 2 measured: the template's views as well, the CT-like head's further off)
 EDGE_MAP_CAP = 1.0
 
 
 def edge_difference(level, share, map_voxel=None) -> np.ndarray:
     """``q``: the predicted fraction of the pixels of nodes of ``level`` (array-like; 0 at level 0)
     that differ visibly, from the share ``share`` (array-like) of their screen rectangles' non-empty
-    pixels on an edge of the opacity map (see the module docstring)."""
+    pixels on an edge of the opacity map and ``map_voxel`` (array-like, optional), a level-0 voxel's
+    size in map pixels at each node's nearest depth (see the module docstring)."""
     lv = np.asarray(level, dtype=np.float64)
     e = np.asarray(share, dtype=np.float64)
     if map_voxel is not None:

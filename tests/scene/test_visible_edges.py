@@ -166,7 +166,8 @@ def test_the_estimate_follows_the_view_s_edges(shell_store, classify):
         assert est["flat"] == pytest.approx(est["stripes"], rel=1e-12) and est["flat"] > 0
 
 
-def test_the_estimate_sums_the_edges_in_front_of_each_node(shell_store):
+@pytest.mark.parametrize("distance", [90.0, 400.0])  # far: a voxel below EDGE_MAP_VOXEL map pixels
+def test_the_estimate_sums_the_edges_in_front_of_each_node(shell_store, distance):
     """Edges on the left half of the map only: the estimate is, over the cut's nodes, the share of the
     image that shows something times the mean of each coarse node's ``q`` (its level, the edge share of
     its rectangle scaled by a level-0 voxel's size in map pixels at the box's nearest depth) weighted
@@ -174,7 +175,7 @@ def test_the_estimate_sums_the_edges_in_front_of_each_node(shell_store):
     definition (corners projected here, the loop's maps, the pinhole's pixels per unit); the same cut
     with the edges on the right half predicts differently."""
     tabs = open_summary(shell_store)
-    eye, target = np.array([32.0, 32.0, -90.0]), np.array([32.0, 32.0, 32.0])
+    eye, target = np.array([32.0, 32.0, 32.0 - distance]), np.array([32.0, 32.0, 32.0])
     cam = Camera.perspective(tuple(eye), tuple(target), up=(0, -1, 0), fov_y=45, size=(128, 128))
     fwd = (target - eye) / np.linalg.norm(target - eye)
     px_per_unit = 128 / (2 * np.tan(np.radians(45 / 2)))  # at depth 1; the store's voxels are 1 unit
@@ -191,6 +192,7 @@ def test_the_estimate_sums_the_edges_in_front_of_each_node(shell_store):
         select(tabs.pyramid, cam, params, policy=pol)
         shown_map, edge_map_ = _edges_by_loop(total)
         num = den = 0.0
+        scaled = []
         for (level, b) in pol.node_data:
             lo, hi = tabs.pyramid.node_box(level, b)
             x0, y0, x1, y1, area = _rect_by_corners(cam, lo, hi, 64, 64)
@@ -200,9 +202,11 @@ def test_the_estimate_sums_the_edges_in_front_of_each_node(shell_store):
             map_voxel = px_per_unit / ((corners - eye) @ fwd).min() * 64 / 128
             share = e.sum() / s.sum() if s.any() else 0.0
             share = max(share * min(map_voxel / EDGE_MAP_VOXEL, EDGE_MAP_CAP), EDGE_FLOOR)
+            scaled.append(map_voxel < EDGE_MAP_VOXEL)
             q = 0.0 if level == 0 or errors.bias[level][b] <= 0 else 1 - np.exp(-EDGE_GAIN * EDGE_GROWTH ** level * share)
             num, den = num + w * q, den + w
         assert {L for L, _ in pol.node_data} - {0}, "the cut must hold coarse nodes"
         assert pol.estimated_error == pytest.approx(shown_map.mean() * num / den, rel=1e-9)
         est[side] = pol.estimated_error
+        assert any(scaled) == (distance > 200)  # the far view's voxels are smaller than the fitted ones
     assert est["left"] != pytest.approx(est["right"], rel=1e-3)

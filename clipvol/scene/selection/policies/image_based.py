@@ -79,7 +79,7 @@ gap. It guides the cut; it is not a bound.
 The view's edges (:mod:`clipvol.scene.visible_edges`): with a visibility estimate and consistent
 coarse levels (errors of ``classify="distribution"``), a coarse node's ``q`` is not its bias's but
 :func:`~clipvol.scene.visible_edges.edge_difference` of its level and of the share of its screen
-rectangle that the estimate's opacity map shows on an edge (:meth:`OcclusionLayers.edge_shares`),
+rectangle that the estimate's opacity map shows on an edge (:meth:`OcclusionLayers.footprint`),
 0 where the bias is 0 (a node that classifies exactly as the fine data beneath it). Measured on the
 MNI ICBM152 T1 template, per node of a cut the differing pixels follow the edges in front of the node
 (many in a brain's folds, few on a surface seen from near) and not the bias; with the edges of the
