@@ -39,8 +39,9 @@ share ``e`` into the predicted fraction of the node's pixels that differ at leve
 
 The constants are fitted on the template's 256² views (the benchmark's iso, face and close
 views and ``clipvol report``'s three turntable views; block-budget, error-budget and fixed-level
-cuts) and checked at 512²: 90 of 94 cuts within 1.5x of the measurement (0.69-1.63; the term
-before, one factor of the whole view's edge share on each node's bias: 51 of 94, 0.43-1.60).
+cuts) and checked at 512²: 92 of 94 cuts within 1.5x of the measurement (0.69-1.52; the term
+before, one factor of the whole view's edge share on each node's bias: 51 of 94, 0.43-1.60), and
+on two views from farther away 29 of 32 (0.64-1.90).
 :func:`edge_share` (the view's share, which the benchmark prints) is the same map's mean. What it
 does not model: level 0's own error (one ray per pixel at half a voxel's step), and a data set whose
 coarse levels differ on fewer pixels per edge than the template's folds (a smooth CT-like head: the

@@ -84,8 +84,8 @@ rectangle that the estimate's opacity map shows on an edge (:meth:`OcclusionLaye
 MNI ICBM152 T1 template, per node of a cut the differing pixels follow the edges in front of the node
 (many in a brain's folds, few on a surface seen from near) and not the bias; with the edges of the
 whole view as one factor on the bias (the term before) the estimate was 0.43-0.86x the measurement
-on ``clipvol report``'s turntable views and 0.54-1.60x on the benchmark's views; per node, 0.79-1.23x
-and 0.69-1.63x (90 of 94 cuts within 1.5x; ``docs/benchmarks.md``, "The visible-error estimate: the
+on ``clipvol report``'s turntable views and 0.54-1.60x on the benchmark's views; per node, 0.77-1.22x
+and 0.69-1.52x (92 of 94 cuts within 1.5x; ``docs/benchmarks.md``, "The visible-error estimate: the
 edges in front of each node"). Each node's weight ``w`` is then its area times visibility times the
 share of its map rectangle that shows something (:meth:`OcclusionLayers.footprint`).
 
