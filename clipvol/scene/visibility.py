@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .camera import Camera
+from .visible_edges import EDGE_ALPHA, edge_map
 
 __all__ = ["OcclusionLayers", "summed_area_table", "rect_mean", "screen_rects", "box_depths", "march_occlusion", "trilinear",
            "view_close"]
@@ -101,6 +102,7 @@ class OcclusionLayers:
     key: object = None  # what the estimate depends on besides the view (e.g. the transfer function)
     _sat: np.ndarray | None = field(default=None, repr=False)
     _edge_sat: np.ndarray | None = field(default=None, repr=False)
+    _edges_sat: tuple | None = field(default=None, repr=False)
 
     def visibility(self, lo, hi, camera: Camera | None = None) -> np.ndarray:
         """``(n,)`` estimated visibility ``1 - mean alpha in front`` of boxes ``lo``/``hi`` ``(n, 3)``."""
@@ -134,6 +136,21 @@ class OcclusionLayers:
         x0, y0, x1, y1, _ = self._map_rects(cam, lo, hi)
         s = self._edge_sat
         return (s[y1, x1] - s[y0, x1] - s[y1, x0] + s[y0, x0]) / ((x1 - x0) * (y1 - y0))
+
+    def footprint(self, lo, hi, camera: Camera | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(shown, edges)``, each ``(n,)``: the share of each box's map rectangle that shows something
+        (total opacity above :data:`~clipvol.scene.visible_edges.EDGE_ALPHA`), and the share of those
+        pixels on an edge of the total opacity (:func:`clipvol.scene.visible_edges.edge_map`; 0 where
+        nothing is shown) - how much of the image a box's pixels are, and how many edges lie in front
+        of them, where a coarse level's error sits (:func:`~clipvol.scene.visible_edges.edge_difference`)."""
+        cam = camera or self.camera
+        if self._edges_sat is None:
+            a = np.asarray(self.alpha[-1])
+            self._edges_sat = (summed_area_table((a > EDGE_ALPHA).astype(np.float64)),
+                               summed_area_table(edge_map(a).astype(np.float64)))
+        x0, y0, x1, y1, _ = self._map_rects(cam, lo, hi)
+        n, e = ((s[y1, x1] - s[y0, x1] - s[y1, x0] + s[y0, x0]) for s in self._edges_sat)
+        return n / ((x1 - x0) * (y1 - y0)), np.where(n > 0.5, e / np.maximum(n, 1.0), 0.0)
 
     def _map_rects(self, cam: Camera, lo, hi):
         """Boxes' screen rectangles in map pixels ``x0, y0, x1, y1`` (non-empty) and ``behind``."""

@@ -77,13 +77,17 @@ the full-resolution frame's own error (0-0.9 % of pixels there) nor the non-empt
 gap. It guides the cut; it is not a bound.
 
 The view's edges (:mod:`clipvol.scene.visible_edges`): with a visibility estimate and consistent
-coarse levels (errors of ``classify="distribution"``), each coarse node's bias is multiplied by
-:func:`~clipvol.scene.visible_edges.edge_weight` of its level and the estimate's edge share (the
-share of its non-empty pixels where the total opacity steps to a neighbour): a coarse level's
-error sits on the picture's edges, many in an overview of folded
-anatomy, few on a surface seen from near. On the MNI template's close views this brings the
-``max_error`` cuts' estimates from 2.6-4.7x the measurement to 0.80-1.50x; its overviews are
-unchanged (``docs/benchmarks.md``, "The visible-error estimate on smooth views").
+coarse levels (errors of ``classify="distribution"``), a coarse node's ``q`` is not its bias's but
+:func:`~clipvol.scene.visible_edges.edge_difference` of its level and of the share of its screen
+rectangle that the estimate's opacity map shows on an edge (:meth:`OcclusionLayers.footprint`),
+0 where the bias is 0 (a node that classifies exactly as the fine data beneath it). Measured on the
+MNI ICBM152 T1 template, per node of a cut the differing pixels follow the edges in front of the node
+(many in a brain's folds, few on a surface seen from near) and not the bias; with the edges of the
+whole view as one factor on the bias (the term before) the estimate was 0.43-0.86x the measurement
+on ``clipvol report``'s turntable views and 0.54-1.60x on the benchmark's views; per node, 0.77-1.22x
+and 0.69-1.52x (92 of 94 cuts within 1.5x; ``docs/benchmarks.md``, "The visible-error estimate: the
+edges in front of each node"). Each node's weight ``w`` is then its area times visibility times the
+share of its map rectangle that shows something (:meth:`OcclusionLayers.footprint`).
 
 Consistent coarse levels (``RenderParams.classify = "distribution"``) change a coarse level's error:
 the image policy asks for the errors of the frame's classify mode
@@ -123,7 +127,7 @@ import numpy as np
 
 from ....errors import ParameterError
 from ...visibility import box_depths, screen_rects
-from ...visible_edges import edge_share, edge_weight
+from ...visible_edges import edge_difference
 
 __all__ = ["ImageBased", "VOXEL_WEIGHT", "SILHOUETTE_WEIGHT", "ERROR_SCALE", "BIAS_SCALE", "NONEMPTY_ALPHA",
            "predicted_visible_error"]
@@ -212,7 +216,6 @@ class ImageBased:
         self._mass: dict = {}  # (level, brick) -> (w, w * q) of the error estimate
         self._cam = None
         self._last = None
-        self._edge = None  # (visibility estimate, its edge share)
 
     # -- per-node terms ------------------------------------------------------------------------
     @staticmethod
@@ -255,20 +258,33 @@ class ImageBased:
         # paper's linear term), saturating at the colour's magnitude once opaque
         with np.errstate(divide="ignore", invalid="ignore"):
             slab = np.where(op > 0, em / op * -np.expm1(thick * np.log1p(-np.minimum(op, 1.0 - 1e-12))), em * thick)
-        imp = slab * eps * area * self._vis(t, lo, hi) * t.projected_voxel(level, lo, hi) ** VOXEL_WEIGHT
+        pv = t.projected_voxel(level, lo, hi)
+        imp = slab * eps * area * self._vis(t, lo, hi) * pv ** VOXEL_WEIGHT
         if self.visibility is not None and SILHOUETTE_WEIGHT:
             imp = imp * np.where(self.visibility.silhouette(lo, hi, cam) > 0, 1.0 + SILHOUETTE_WEIGHT, 1.0)
         near, _ = box_depths(cam, lo, hi)
         imp = np.where(behind | (near <= 0), np.inf, imp)  # a node around the eye: refine first
         w = area * self._vis(t, lo, hi)
-        if level == 0:
-            q = np.zeros(len(lo))
+        if self._edge_model():  # the pixels a node shows, and the edges in front of them
+            shown, edges = self.visibility.footprint(lo, hi, cam)
+            w = w * shown
+            # a level-0 voxel's size in map pixels: how many voxels' edges one map pixel stands for
+            mv = pv * (t.tree.voxel(0) / t.tree.voxel(level)) * self.visibility.alpha.shape[-1] / cam.size[0]
+            q = np.where(self.errors.bias[level][tuple(idx.T)] > 0, edge_difference(level, edges, mv), 0.0)
         else:
-            q = visible_difference(*self._visible_delta_e(t, level, idx))
+            q = np.zeros(len(lo)) if level == 0 else visible_difference(*self._visible_delta_e(t, level, idx))
         for b, v, wi, qi in zip(map(tuple, idx.tolist()), imp.tolist(), w.tolist(), q.tolist()):
             self._importance[(level, b)] = v
             self._mass[(level, b)] = (wi, wi * qi)
         return imp
+
+    def _edge_model(self) -> bool:
+        """Whether ``q`` comes from the edges in front of each node
+        (:func:`~clipvol.scene.visible_edges.edge_difference`, weighted by the share of its rectangle
+        that shows something): with a visibility estimate and consistent coarse levels; else from the
+        classification bias (:func:`visible_difference` of :meth:`_visible_delta_e`)."""
+        return (self.visibility is not None and getattr(self.errors, "bias", None) is not None
+                and getattr(self.errors, "classify", "mean") == "distribution")
 
     def _visible_delta_e(self, t, level: int, idx: np.ndarray) -> tuple[np.ndarray, float]:
         """``(Delta E, scale)`` of nodes ``idx`` of ``level`` for :func:`visible_difference`: the
@@ -277,10 +293,7 @@ class ImageBased:
         per child and :data:`ERROR_SCALE`."""
         bias = getattr(self.errors, "bias", None)
         if bias is not None:
-            b = bias[level][tuple(idx.T)]
-            if self.visibility is not None and getattr(self.errors, "classify", "mean") == "distribution":
-                b = b * edge_weight(level, self._edges())  # the view's edges (clipvol.scene.visible_edges)
-            return b, BIAS_SCALE
+            return bias[level][tuple(idx.T)], BIAS_SCALE
         raw = self.errors.raw_eps[level][tuple(idx.T)]
         return raw / np.maximum(t.tree.n_children(level, idx), 1), ERROR_SCALE
 
@@ -428,12 +441,6 @@ class ImageBased:
                 refine_nodes(levels[-1], idx)
         t.leaves_of(nodes)
         self.estimated_error = predicted_visible_error([sums[0]], [sums[1] / sums[0] if sums[0] > 0 else 0.0], nonempty)
-
-    def _edges(self) -> float:
-        """The visibility estimate's edge share (:func:`~clipvol.scene.visible_edges.edge_share`), once per estimate."""
-        if self._edge is None or self._edge[0] is not self.visibility:
-            self._edge = (self.visibility, edge_share(np.asarray(self.visibility.alpha[-1])))
-        return self._edge[1]
 
     def _nonempty(self) -> float:
         """The share of the image the visibility estimate finds showing something (1 without one)."""
