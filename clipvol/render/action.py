@@ -91,6 +91,7 @@ from .gpu_cache import GpuBrickCache
 from .image_lod import ImageLod
 from .modes import mode_defines, mode_of
 from .overlay_binding import OverlayTextures, overlay_defines
+from . import refine
 from .refine import Refine, refine_levels, refines
 from .paths import DRAW_PATHS, FALLBACK, DrawStats, FrameContext, pick
 from .paths.frame import level_ratios
@@ -434,8 +435,11 @@ class ClipRenderAction:
         the image pass's, with the draw seconds and occlusion passes of all passes."""
         path, cam = self._path(name), frame.camera
         drawn, occlusion = 0.0, 0
-        for k in range(refine_levels(cam), -1, -1):  # coarsest first; 0: the image
-            out = path.draw(frame.for_pass(k, Refine.coarse_camera(cam, k)))
+        levels = refine_levels(cam)
+        # a masked pass's scattered rays drawn packed (refine.Compaction), where the path draws few boxes
+        compact = refine.COMPACT and (name == "single-pass" or len(frame.items) <= refine.COMPACT_MAX_BOXES)
+        for k in range(levels, -1, -1):  # coarsest first; 0: the image
+            out = path.draw(frame.for_pass(k, Refine.coarse_camera(cam, k), compact=compact and k < levels))
             if out is None:
                 return None
             drawn += out.draw_s
