@@ -3,25 +3,29 @@
 ``python tools/bench/bench_refine_breakdown.py --store mni32.zarr`` (default: the CT-like head of
 ``bench_mission.py``). Per view of ``bench_mission.views`` and image size, the full-resolution frame,
 the raw one-texture caster and the chosen refined settings (``--settings``, names of
-``bench_mission.settings()``), warm, in ``--repeat`` interleaved rounds. Each frame is timed on the
-host (``perf_counter`` around ``render``) and, inside it, with GL time queries (``GL_TIME_ELAPSED``,
-one at a time, never nested) around each pass's three phases:
+``bench_mission.settings()``; level-1 settings with ``classify="distribution"``), warm, in
+``--repeat`` interleaved rounds (forward order on even rounds, reverse on odd). Each setting is
+drawn twice per round:
 
-* ``setup`` - :meth:`DrawSetup.begin`: bind and clear the pass's target and, in a masked pass, the
-  mask (``shaders/refine_mask.frag.glsl``) and, compacted, the list of live pixels;
-* ``rays`` - the draw path's uniforms and proxy boxes: the rays cast;
-* ``read`` - :meth:`DrawSetup.read_back`: a coarse pass's nothing (or the compacted pass's scatter),
-  the image pass's finish, resolve and read-back.
+* **free** - as any frame (``perf_counter`` around ``render``): the frame's time and the speed-up
+  over the full-resolution frame of the same round;
+* **split** - with ``ctx.finish()`` before and after each pass's phases, timed on the host:
 
-``host`` is the frame's time less the sum of the queried phases (selection, merge, uniforms, Python).
-A second, untimed frame per setting counts the rays each pass casts (the pixels its mask leaves, read
-from the depth buffer) and the image's pixels that show something. On Mesa llvmpipe a query measures
-the rasteriser's work between its begin and end (the GL calls in it are executed when the query ends
-at the latest), so the phases add up to the frame's GL time; on a GPU they are GPU times.
+  - ``setup``: :meth:`DrawSetup.begin` - bind and clear the pass's target and, in a masked pass,
+    the mask (``shaders/refine_mask.frag.glsl``) and, compacted, the list of live pixels;
+  - ``rays``: the draw path's uniforms and proxy boxes - the rays cast;
+  - ``read``: :meth:`DrawSetup.read_back` - a coarse pass's nothing (or a compacted pass's
+    scatter), the image pass's resolve and read-back;
 
-Rows go to ``tools/bench/results/bench_refine_breakdown.csv``: per setting, view and round medians
-of each phase in ms, the rays per pass, and the speed-up over the full-resolution frame (median of
-the paired ratios).
+  and ``host``: the split frame's time less its phases (selection, merge, Python). A finish stops
+  Mesa llvmpipe from overlapping one pass's rasterisation with the next pass's set-up, so the split
+  frame is slower than the free one; its phases say which part of a frame is which share.
+
+``--in-place`` adds each refined setting with its masked passes drawn in place
+(``clipvol.render.refine.COMPACT = False``) and ``--floor`` each refined setting at tolerance 1
+(every finer pixel a blend of the coarse pass: what the passes cost without their rays). The rays
+each pass casts (its pixels, or those its mask leaves) are counted on one more, untimed frame.
+Rows go to ``tools/bench/results/bench_refine_breakdown.csv``.
 """
 
 from __future__ import annotations
@@ -45,43 +49,48 @@ DEFAULT_SETTINGS = "step=2 refine=0.16,L1 step=1 refine=0.08"
 
 
 class PhaseClock:
-    """GL time queries around each draw-path pass's set-up, rays and read-back (patched into
-    :class:`~clipvol.render.paths.setup.DrawSetup` while it lives; :meth:`close` restores it)."""
+    """Host time of each draw-path pass's set-up, rays and read-back, the GL finished at each end
+    (patched into :class:`~clipvol.render.paths.setup.DrawSetup` while ``on``; :meth:`close`
+    restores it)."""
 
     def __init__(self, ctx) -> None:
         from clipvol.render.paths.setup import DrawSetup
 
         self.ctx, self.cls = ctx, DrawSetup
         self.orig = (DrawSetup.begin, DrawSetup.read_back)
-        self.records: list = []  # (pass, phase, query)
+        self.on = False
         self.count_rays = False
+        self.records: list = []  # (pass, phase, seconds)
         self.rays: list = []  # (pass, rays) while count_rays
+        self._t = 0.0
         clock = self
         begin, read_back = self.orig
 
-        def timed_begin(setup, frame, clear):
-            k = frame.refine_level
-            q = clock.ctx.query(time=True)
-            with q:
-                out = begin(setup, frame, clear)
-            clock.records.append((k, "setup", q))
+        def split_begin(setup, frame, clear):
+            if clock.on:
+                clock.ctx.finish()
+                t = time.perf_counter()
+            out = begin(setup, frame, clear)
+            if clock.on:
+                clock.ctx.finish()
+                clock._t = time.perf_counter()
+                clock.records.append((frame.refine_level, "setup", clock._t - t))
             if clock.count_rays:
-                clock.rays.append((k, clock._live(setup, frame, out[0])))
-            clock._open = clock.ctx.query(time=True)
-            clock._open.__enter__()
+                clock.rays.append((frame.refine_level, clock._live(setup, frame, out[0])))
             return out
 
-        def timed_read_back(setup, frame, *args, **kw):
-            q = clock._open
-            q.__exit__(None, None, None)
-            clock.records.append((frame.refine_level, "rays", q))
-            q = clock.ctx.query(time=True)
-            with q:
-                out = read_back(setup, frame, *args, **kw)
-            clock.records.append((frame.refine_level, "read", q))
+        def split_read_back(setup, frame, *args, **kw):
+            if clock.on:
+                clock.ctx.finish()
+                t = time.perf_counter()
+                clock.records.append((frame.refine_level, "rays", t - clock._t))
+            out = read_back(setup, frame, *args, **kw)
+            if clock.on:
+                clock.ctx.finish()
+                clock.records.append((frame.refine_level, "read", time.perf_counter() - t))
             return out
 
-        DrawSetup.begin, DrawSetup.read_back = timed_begin, timed_read_back
+        DrawSetup.begin, DrawSetup.read_back = split_begin, split_read_back
 
     @staticmethod
     def _live(setup, frame, fbo) -> int:
@@ -99,9 +108,9 @@ class PhaseClock:
     def take(self) -> dict:
         """``{(pass, phase): ms}`` of the frame drawn since the last call."""
         out: dict = {}
-        for k, phase, q in self.records:
+        for k, phase, sec in self.records:
             key = ("image" if not k else f"1/{2 ** k}", phase)
-            out[key] = out.get(key, 0.0) + q.elapsed / 1e6
+            out[key] = out.get(key, 0.0) + 1e3 * sec
         self.records = []
         return out
 
@@ -109,21 +118,35 @@ class PhaseClock:
         self.cls.begin, self.cls.read_back = self.orig
 
 
-def run(store: Path, volume, label: str, images, repeat: int, names, view_names, log=print) -> list[dict]:
+def run(store: Path, volume, label: str, images, repeat: int, names, view_names, in_place: bool = False,
+        floor: bool = False, log=print) -> list[dict]:
+    from clipvol.render import refine
     from clipvol.render.paths.setup import OPAQUE
 
     scene = common.WarmScene(store)
     pyr, tf = scene.pyramid, scene.tf
     raw = scene.raw_caster(volume)
     known = bench_mission.settings()
-    conf = {"full": dict(policy="fixed", level=0)}
+    conf = {"full": (dict(policy="fixed", level=0), True)}  # name -> (params, compacted)
     for n in names:
         kw = dict(known[n])
         if kw.get("level", 0) >= 1:
             kw["classify"] = "distribution"
-        conf[n] = kw
-    actions = {k: scene.action(**{"step": 0.5, **kw}) for k, kw in conf.items()}
+        conf[n] = (kw, True)
+        if in_place and kw.get("refine_tolerance", 0) > 0:
+            conf[n + " in place"] = (kw, False)
+        if floor and kw.get("refine_tolerance", 0) > 0:
+            conf[n + " floor"] = (dict(kw, refine_tolerance=1.0), True)
+    actions = {k: scene.action(**{"step": 0.5, **kw}) for k, (kw, _) in conf.items()}
     clock = PhaseClock(scene.ctx)
+
+    def draw(k, cam, **kw):
+        refine.COMPACT = conf[k][1]
+        try:
+            return actions[k].render(cam, tf, **kw)
+        finally:
+            refine.COMPACT = True
+
     rows = []
     try:
         for image in images:
@@ -131,52 +154,57 @@ def run(store: Path, volume, label: str, images, repeat: int, names, view_names,
                 if view_names and view not in view_names:
                     continue
                 shows = {}
-                for k, a in actions.items():
-                    a.render(cam, tf, wait=True, timeout=600)
+                for k in actions:
+                    draw(k, cam, wait=True, timeout=600)
                     clock.count_rays, clock.rays = True, []
-                    img = a.render(cam, tf)
+                    img = draw(k, cam)
                     clock.count_rays = False
                     shows[k] = (float(np.mean(img[..., 3] > 0)), dict(clock.rays))
-                    clock.take()
                 fc = actions["full"]._selection_camera(cam)
                 raw.render(fc, tf, 0.5, OPAQUE)
-                names_all = ["raw", *actions]
-                times = {k: [] for k in names_all}
-                phases = {k: [] for k in actions}
+                order = ["raw", *actions]
+                times = {k: [] for k in order}
+                split = {k: [] for k in actions}
                 for r in range(repeat):
-                    for k in (names_all if r % 2 == 0 else names_all[::-1]):
+                    for k in (order if r % 2 == 0 else order[::-1]):
                         t = time.perf_counter()
                         if k == "raw":
                             raw.render(fc, tf, 0.5, OPAQUE)
                             times[k].append(time.perf_counter() - t)
                             continue
-                        actions[k].render(cam, tf)
+                        draw(k, cam)
                         times[k].append(time.perf_counter() - t)
-                        phases[k].append(clock.take())
+                        clock.on = True
+                        t = time.perf_counter()
+                        draw(k, cam)
+                        total = 1e3 * (time.perf_counter() - t)
+                        clock.on = False
+                        ph = clock.take()
+                        ph[("frame", "host")] = max(0.0, total - sum(ph.values()))
+                        ph[("frame", "split")] = total
+                        split[k].append(ph)
                 for k in actions:
-                    ph = {key: statistics.median(p.get(key, 0.0) for p in phases[k]) for key in phases[k][0]}
-                    total = 1e3 * statistics.median(times[k])
-                    gl = statistics.median(sum(p.values()) for p in phases[k])
+                    ph = {key: statistics.median(p.get(key, 0.0) for p in split[k]) for key in split[k][0]}
+                    free = 1e3 * statistics.median(times[k])
                     speed = statistics.median(f / s for f, s in zip(times["full"], times[k]))
                     shown, rays = shows[k]
                     row = {"date": time.strftime("%Y-%m-%d"), "volume": label, "image": image, "view": view,
-                           "setting": k, "rounds": repeat, "ms": round(total, 2),
-                           "host_ms": round(max(0.0, total - gl), 2), "gl_ms": round(gl, 2),
-                           "speedup": round(speed, 3), "over_raw": round(statistics.median(times[k]) /
-                                                                          statistics.median(times["raw"]), 3),
+                           "setting": k, "rounds": repeat, "ms": round(free, 2), "speedup": round(speed, 3),
+                           "over_raw": round(statistics.median(times[k]) / statistics.median(times["raw"]), 3),
                            "raw_ms": round(1e3 * statistics.median(times["raw"]), 2),
                            "pixels_shown": round(shown, 4), "boxes": actions[k].boxes_drawn,
                            "path": actions[k].path_drawn}
-                    for (pas, phase), ms in sorted(ph.items()):
+                    for (pas, phase), ms in ph.items():
                         row[f"{pas} {phase} ms"] = round(ms, 2)
                     for pas, n in sorted(rays.items(), key=lambda kv: -(kv[0] or 0)):
                         row[f"{'image' if not pas else f'1/{2 ** pas}'} rays"] = n
                     rows.append(row)
-                    parts = " | ".join(f"{p} {ph_}: {ms:.1f}" for (p, ph_), ms in sorted(ph.items(), reverse=True))
+                    parts = " | ".join(f"{p} {q}: {ms:.1f}" for (p, q), ms in ph.items() if p != "frame")
                     rs = ", ".join(f"{'image' if not p else f'1/{2 ** p}'} {n}" for p, n in
                                    sorted(rays.items(), key=lambda kv: -(kv[0] or 0)))
-                    log(f"{image}^2 {view:5} {k:>22}: {total:6.1f} ms ({speed:4.2f}x full, {row['over_raw']:.2f}x raw), "
-                        f"host {row['host_ms']:.1f}, GL {gl:.1f} = {parts}; rays {rs}; shown {shown:.2f}")
+                    log(f"{image}^2 {view:5} {k:>32}: {free:6.1f} ms ({speed:4.2f}x full, {row['over_raw']:.2f}x raw); "
+                        f"split {ph[('frame', 'split')]:.1f} = host {ph[('frame', 'host')]:.1f} | {parts}; "
+                        f"rays {rs}; shown {shown:.2f}")
     finally:
         clock.close()
         scene.close()
@@ -192,6 +220,9 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"refined settings of bench_mission.py, comma separated (default {DEFAULT_SETTINGS!r}; "
                          "level-1 settings are drawn with classify='distribution')")
     ap.add_argument("--repeat", type=int, default=5, help="interleaved rounds (default 5)")
+    ap.add_argument("--in-place", action="store_true",
+                    help="each refined setting again with its masked passes drawn in place (not compacted)")
+    ap.add_argument("--floor", action="store_true", help="each refined setting again at tolerance 1 (no rays refined)")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "bench_refine_breakdown.csv")
     a = ap.parse_args(argv)
     names = [s for s in a.settings.split(",") if s]
@@ -207,7 +238,8 @@ def main(argv: list[str] | None = None) -> int:
     else:
         store, volume = common.ct_store("256x256x256", 32), common.ct_volume((256, 256, 256))
         label = "ct_head 256x256x256 uint16 (12 bit), 32^3 bricks"
-    rows = run(store, volume, label, [int(v) for v in a.images.split(",")], a.repeat, names, a.views.split(","))
+    rows = run(store, volume, label, [int(v) for v in a.images.split(",")], a.repeat, names, a.views.split(","),
+               in_place=a.in_place, floor=a.floor)
     keys = list(dict.fromkeys(k for r in rows for k in r))  # a pass's columns only where it drew: blank elsewhere
     return common.save_rows(a.out, [{k: r.get(k, "") for k in keys} for r in rows])
 
