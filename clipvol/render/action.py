@@ -91,8 +91,7 @@ from .gpu_cache import GpuBrickCache
 from .image_lod import ImageLod
 from .modes import mode_defines, mode_of
 from .overlay_binding import OverlayTextures, overlay_defines
-from . import refine
-from .refine import Refine, refine_levels, refines
+from .refine import Refine, compacts, refine_levels, refines
 from .paths import DRAW_PATHS, FALLBACK, DrawStats, FrameContext, pick
 from .paths.frame import level_ratios
 from .paths.setup import MAX_STEPS_PER_BOX, DrawSetup, check_samples, check_step, samples_per_box
@@ -437,7 +436,7 @@ class ClipRenderAction:
         drawn, occlusion = 0.0, 0
         levels = refine_levels(cam)
         # a masked pass's scattered rays drawn packed (refine.Compaction), where the path draws few boxes
-        compact = refine.COMPACT and (name == "single-pass" or len(frame.items) <= refine.COMPACT_MAX_BOXES)
+        compact = compacts(cam, len(frame.items), name == "single-pass")
         for k in range(levels, -1, -1):  # coarsest first; 0: the image
             out = path.draw(frame.for_pass(k, Refine.coarse_camera(cam, k), compact=compact and k < levels))
             if out is None:

@@ -34,8 +34,9 @@ same selection:
    pixel the list holds there (the ``COMPACT`` shader variant reads it from a texture instead
    of ``gl_FragCoord``: the same ray, bit for bit), and scatters the colours back as points.
    Used where the draw path draws at most :data:`COMPACT_MAX_BOXES` boxes (each box of a
-   compacted pass runs over every live pixel: a scissor rectangle has no meaning there) and
-   :data:`COMPACT` is on; the images are those of the masked pass drawn in place.
+   compacted pass runs over every live pixel: a scissor rectangle has no meaning there), the
+   image has at most :data:`COMPACT_MAX_PIXELS` pixels (:func:`compacts`) and :data:`COMPACT` is
+   on; the images are those of the masked passes drawn in place.
 
 Edges, silhouettes and fine texture keep their full-resolution rays. What is lost is what no coarse
 ray sees: a feature thinner than the coarse rays' spacing (four pixels at the coarsest) lying
@@ -62,8 +63,8 @@ from .target import FloatTarget
 from .uniforms import uset
 
 __all__ = ["Refine", "Compaction", "MIN_REFINE_EDGE", "MAX_REFINE_LEVELS", "TILE", "COMPACT", "COMPACT_WIDTH",
-           "COMPACT_MAX_BOXES", "COMPACT_UNIT", "compact_order", "compact_texels", "pass_origin", "refine_levels",
-           "refines"]
+           "COMPACT_MAX_BOXES", "COMPACT_MAX_PIXELS", "COMPACT_UNIT", "compact_order", "compact_texels", "compacts",
+           "pass_origin", "refine_levels", "refines"]
 
 #: the coarsest pass of a refined frame has at least this many pixels each way
 MIN_REFINE_EDGE = 8
@@ -79,6 +80,11 @@ COMPACT = True
 COMPACT_WIDTH = 4 * TILE
 #: a pass is compacted only when its draw path draws at most this many boxes
 COMPACT_MAX_BOXES = 4
+#: ... and its image has at most this many pixels: on the MNI template at 512² the compacted passes
+#: were slower than in place on the close view (the list built on the host from the read-back mask
+#: grows with the image, and the rays along its edges already fill the rasteriser's blocks), at
+#: 256² faster on the overviews (docs/benchmarks.md, "The benchmark that decides")
+COMPACT_MAX_PIXELS = 256 * 256
 #: the texture unit of the compact list's pixel coordinates (after the single pass's 3 + 16 level
 #: textures, the empty-space cells' 20 and the distribution table's 21)
 COMPACT_UNIT = 22
@@ -129,6 +135,13 @@ def compact_texels(n: int, width: int = COMPACT_WIDTH) -> tuple[np.ndarray, np.n
     b, j = np.divmod(i, COMPACT_BLOCK * COMPACT_BLOCK)
     per_row = int(width) // COMPACT_BLOCK
     return (b % per_row) * COMPACT_BLOCK + j % COMPACT_BLOCK, (b // per_row) * COMPACT_BLOCK + j // COMPACT_BLOCK
+
+
+def compacts(camera, boxes: int, single_pass: bool) -> bool:
+    """Are the masked passes of a refined frame seen by ``camera`` drawn compacted, their draw path
+    drawing ``boxes`` boxes (the single pass: one triangle, whatever its page table)?"""
+    w, h = (int(v) for v in camera.size)
+    return COMPACT and w * h <= COMPACT_MAX_PIXELS and (single_pass or boxes <= COMPACT_MAX_BOXES)
 
 
 def refines(params, camera) -> bool:

@@ -172,3 +172,14 @@ def test_a_pass_over_many_boxes_is_drawn_in_place(scene, monkeypatch):
     want, _ = refined_reference(vol, pyr, cam, TOL, 2)
     d = np.abs(img.astype(np.int64) - ref.to_uint8(want).astype(np.int64)).max(axis=-1)
     assert (d > 2).mean() <= 0.01
+
+
+def test_compacts_small_images_with_few_boxes_only(monkeypatch):
+    from clipvol.render import refine
+
+    small, large = camera((256, 256)), camera((257, 256))
+    assert refine.compacts(small, COMPACT_MAX_BOXES, False) and refine.compacts(small, 1000, True)
+    assert not refine.compacts(small, COMPACT_MAX_BOXES + 1, False)
+    assert not refine.compacts(large, 1, False) and not refine.compacts(large, 1, True)
+    monkeypatch.setattr(refine, "COMPACT", False)
+    assert not refine.compacts(small, 1, True)
