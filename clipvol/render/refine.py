@@ -164,19 +164,23 @@ class Compaction:
         self.count = 0  # live pixels of the pass being drawn
         self.rows = 0  # the compact target's rows they take
 
-    def begin(self, fbo, viewport, clear):
-        """List the live pixels of ``fbo`` (the masked pass's target: depth not 0 inside ``viewport``
-        ``(x, y, w, h)``), pack them, bind the compact target cleared to ``clear`` with its viewport
-        over the rows they take; returns the compact framebuffer."""
+    def begin(self, fbo, region, pixels: int, clear):
+        """List the live pixels of ``fbo`` (the masked pass's target: depth not 0 inside ``region``
+        ``(x, y, w, h)``, the volume's rectangle), pack them, bind the compact target (room for the
+        pass's ``pixels``) cleared to ``clear`` with its viewport over the rows they take; returns
+        the compact framebuffer."""
         import moderngl
 
-        x0, y0, w, h = (int(v) for v in viewport)
-        depth = np.frombuffer(fbo.read(viewport=(x0, y0, w, h), components=1, attachment=-1, dtype="f4"),
-                              dtype=np.float32).reshape(h, w)
-        xs, ys = compact_order(depth != 0.0)
+        x0, y0, w, h = (int(v) for v in region)
+        if w > 0 and h > 0:
+            depth = np.frombuffer(fbo.read(viewport=(x0, y0, w, h), components=1, attachment=-1, dtype="f4"),
+                                  dtype=np.float32).reshape(h, w)
+            xs, ys = compact_order(depth != 0.0)
+        else:  # the volume is off the image: nothing to cast
+            xs = ys = np.zeros(0, dtype=np.int64)
         n = self.count = len(xs)
         W = COMPACT_WIDTH
-        cap = max(COMPACT_BLOCK, -(-(w * h) // (W * COMPACT_BLOCK)) * COMPACT_BLOCK)  # rows for every pixel
+        cap = max(COMPACT_BLOCK, -(-int(pixels) // (W * COMPACT_BLOCK)) * COMPACT_BLOCK)  # rows for every pixel
         cfbo = self.target.ensure((W, cap))
         if self._pixels is None or self._pixels.size != (W, cap):
             if self._pixels is not None:
@@ -281,11 +285,14 @@ class Refine:
             ty = math.tan(math.radians(float(camera.fov_y)) / 2.0)
             prog["u_half"].value = (ty * w / h, ty)
 
-    def mask(self, fbo, camera, k: int, tolerance: float, origin) -> None:
+    def mask(self, fbo, camera, k: int, tolerance: float, origin, rect=None) -> None:
         """Blend pass ``k + 1``'s image into the smooth pixels of pass ``k``'s ``fbo`` (bound, depth
         cleared to 1, its viewport set at ``origin``) and set their depth to 0, so that the pass's
         fragments (depth test ``<=``, at 0.5) leave them alone; the caller's draw path then sets its
-        own blending and depth test. ``camera``: the image's."""
+        own blending and depth test. ``camera``: the image's. ``rect``: the scissor box ``(x, y, w,
+        h)`` of the volume in the target, or None (the whole target): outside it the pass draws
+        nothing and every coarser pass drew nothing, so the cleared pixel is what a blend of the
+        coarse pass's cleared pixels would give, and the mask is not drawn there."""
         import moderngl
 
         ctx = self.ctx
@@ -297,7 +304,7 @@ class Refine:
         uset(self.prog, "u_origin", tuple(float(v) for v in origin))
         uset(self.prog, "u_coarse_lo", lo)
         uset(self.prog, "u_coarse_hi", (lo[0] + int(coarse[0]) - 1, lo[1] + int(coarse[1]) - 1))
-        ctx.scissor = None
+        ctx.scissor = None if rect is None else tuple(int(v) for v in rect)
         ctx.disable(moderngl.BLEND)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.depth_func = "1"  # always: the depth test must be on for the depth to be written

@@ -229,10 +229,11 @@ class DrawSetup:
         ctx.viewport = (ox, oy, w, h)
         fbo.clear(*clear)  # (depth to 1: nothing masked)
         self._pass_fbo, self.compacted = fbo, False
-        if frame.repeats_pass:  # a finer pass: the smooth pixels come from the coarser one
-            self.refine.mask(fbo, frame.image_camera, k, frame.params.refine_tolerance, self.origin)
+        if frame.repeats_pass:  # a finer pass: the smooth pixels come from the coarser one (where the volume is)
+            rect = self.scissor_rects(frame.camera, *frame.pyramid.volume_box())[0]
+            self.refine.mask(fbo, frame.image_camera, k, frame.params.refine_tolerance, self.origin, rect)
             if frame.compact:  # its rays cast in a compact target, scattered back by read_back
-                fbo, self.compacted = self.refine.compaction.begin(fbo, (ox, oy, w, h), clear), True
+                fbo, self.compacted = self.refine.compaction.begin(fbo, rect, w * h, clear), True
         return fbo, previous, t0
 
     def scissor_rects(self, cam, lo, hi) -> np.ndarray:
