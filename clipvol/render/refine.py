@@ -33,10 +33,11 @@ same selection:
    a compact target (:func:`compact_texels`) whose fragment ``(i, j)`` casts the ray of the
    pixel the list holds there (the ``COMPACT`` shader variant reads it from a texture instead
    of ``gl_FragCoord``: the same ray, bit for bit), and scatters the colours back as points.
-   Used where the draw path draws at most :data:`COMPACT_MAX_BOXES` boxes (each box of a
-   compacted pass runs over every live pixel: a scissor rectangle has no meaning there), the
-   image has at most :data:`COMPACT_MAX_PIXELS` pixels (:func:`compacts`) and :data:`COMPACT` is
-   on; the images are those of the masked passes drawn in place.
+   Used where :data:`COMPACT` is on (off by default: measured, it lowers the rays' GL time but
+   not the frame's), the draw path draws at most :data:`COMPACT_MAX_BOXES` boxes (each box of a
+   compacted pass runs over every live pixel: a scissor rectangle has no meaning there) and the
+   image has at most :data:`COMPACT_MAX_PIXELS` pixels (:func:`compacts`); the images are those
+   of the masked passes drawn in place.
 
 Edges, silhouettes and fine texture keep their full-resolution rays. What is lost is what no coarse
 ray sees: a feature thinner than the coarse rays' spacing (four pixels at the coarsest) lying
@@ -73,8 +74,13 @@ MAX_REFINE_LEVELS = 2
 #: Mesa llvmpipe bins a frame into tiles of this many pixels a side and shades each tile on one
 #: thread: a coarse pass that fits one tile is drawn across four (:func:`pass_origin`)
 TILE = 64
-#: draw the masked passes of a refined frame compacted (:class:`Compaction`; False: in place)
-COMPACT = True
+#: draw the masked passes of a refined frame compacted (:class:`Compaction`; False, the default: in
+#: place). Off because it did not make frames faster: on Mesa llvmpipe at 256² it cuts the GL time
+#: of the masked passes' rays 1.2-2.9×, but the depth read-back that lists the pixels stops the
+#: pipeline twice a frame, and the frame times compacted and in place were within the pairing
+#: noise (docs/benchmarks.md, "The 256² overviews: where a refined frame's time goes"); on a GPU
+#: the read-back costs more. A list built on the GL (a prefix sum) would remove the read-back.
+COMPACT = False
 #: the compact target's width: four rasteriser tiles, so that a pass of a few thousand rays is
 #: shaded by several threads
 COMPACT_WIDTH = 4 * TILE

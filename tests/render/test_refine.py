@@ -145,6 +145,7 @@ def test_compacted_passes_draw_the_masked_passes_bit_for_bit(scene, draw_path, m
         return out
 
     monkeypatch.setattr(Compaction, "begin", counted)
+    monkeypatch.setattr(refine, "COMPACT", True)  # (off by default)
     kw = dict(path=draw_path, refine_tolerance=TOL, merge_boxes=draw_path == "bricks")
     img = action(**kw).render(cam, SHELL, wait=True)
     assert len(counts) == 2  # the 1/2 pass and the image pass, each compacted
@@ -160,11 +161,13 @@ def test_compacted_passes_draw_the_masked_passes_bit_for_bit(scene, draw_path, m
 def test_a_pass_over_many_boxes_is_drawn_in_place(scene, monkeypatch):
     """Each box of a compacted pass runs over the whole list: a cut of more than COMPACT_MAX_BOXES
     boxes is drawn masked in place, and still refined like the reference."""
+    from clipvol.render import refine
     from clipvol.render.refine import Compaction
 
     vol, pyr, action = scene
     calls = []
     monkeypatch.setattr(Compaction, "begin", lambda *a: calls.append(a))
+    monkeypatch.setattr(refine, "COMPACT", True)
     cam = camera()
     a = action(path="bricks", refine_tolerance=TOL, merge_boxes=False)
     img = a.render(cam, SHELL, wait=True)
@@ -178,6 +181,8 @@ def test_compacts_small_images_with_few_boxes_only(monkeypatch):
     from clipvol.render import refine
 
     small, large = camera((256, 256)), camera((257, 256))
+    assert not refine.COMPACT and not refine.compacts(small, 1, True)  # off by default
+    monkeypatch.setattr(refine, "COMPACT", True)
     assert refine.compacts(small, COMPACT_MAX_BOXES, False) and refine.compacts(small, 1000, True)
     assert not refine.compacts(small, COMPACT_MAX_BOXES + 1, False)
     assert not refine.compacts(large, 1, False) and not refine.compacts(large, 1, True)

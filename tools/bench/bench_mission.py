@@ -125,7 +125,7 @@ def _timed(fn) -> float:
 
 def run(store: Path, volume: np.ndarray, label: str, images, repeat: int, step: float, log=print,
         supersample: int = 2, converged_step: float = 0.25, view_names=None, only=None,
-        in_place: bool = False) -> list[dict]:
+        compact: bool = False) -> list[dict]:
     from clipvol.app.converged import ConvergedPictures
     from clipvol.render import refine
     from clipvol.render.paths.setup import OPAQUE
@@ -140,19 +140,20 @@ def run(store: Path, volume: np.ndarray, label: str, images, repeat: int, step: 
         extra = {} if mode is None else {"classify": mode}
         tag = "" if mode in (None, "mean") else " dist"
         conf.update({k + tag: {**kw, **extra} for k, kw in settings().items() if only is None or k in only})
-    # --in-place: each refined setting's last classification again, its masked passes drawn in place
-    # (refine.COMPACT off) in the same rounds: what compacting them changes
+    # --compact: each refined setting's last classification again, its masked passes drawn compacted
+    # (clipvol.render.refine.COMPACT on) in the same rounds: what compacting them changes
     last = [k for k, kw in conf.items() if kw.get("classify") == classify_modes()[-1]]
-    placed = {k + " in place": conf[k] for k in last if in_place and conf[k].get("refine_tolerance", 0) > 0}
-    conf.update(placed)
+    packed = {k + " compacted": conf[k] for k in last if compact and conf[k].get("refine_tolerance", 0) > 0}
+    conf.update(packed)
     actions = {k: scene.action(**{"step": step, **kw}) for k, kw in conf.items()}
+    compact_default = refine.COMPACT
 
     def render(k, cam, **kw):
-        refine.COMPACT = k not in placed
+        refine.COMPACT = k in packed or compact_default
         try:
             return actions[k].render(cam, tf, **kw)
         finally:
-            refine.COMPACT = True
+            refine.COMPACT = compact_default
     ref_action = scene.action(policy="fixed", level=0)
 
     def draw(c, params):
@@ -244,9 +245,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--views", default=None, help="views to measure, comma separated (default iso,face,close)")
     ap.add_argument("--settings", default=None,
                     help="settings to time, comma separated names as printed (default: all; on a loaded CPU a few)")
-    ap.add_argument("--in-place", action="store_true",
-                    help="each refined setting again with its masked passes drawn in place, not compacted (rows "
-                         "'... in place')")
+    ap.add_argument("--compact", action="store_true",
+                    help="each refined setting again with its masked passes drawn compacted (clipvol.render.refine"
+                         ".COMPACT; rows '... compacted')")
     ap.add_argument("--dev", action="store_true", help="allow fewer than 5 rounds (while developing; not for the docs)")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "bench_mission.csv")
     a = ap.parse_args(argv)
@@ -271,7 +272,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = run(store, volume, label, [int(v) for v in a.images.split(",")], a.repeat, a.step,
                supersample=a.supersample, converged_step=a.converged_step,
                view_names=None if a.views is None else a.views.split(","),
-               only=None if a.settings is None else a.settings.split(","), in_place=a.in_place)
+               only=None if a.settings is None else a.settings.split(","), compact=a.compact)
     return common.save_rows(a.out, rows)
 
 

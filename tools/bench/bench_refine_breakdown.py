@@ -21,8 +21,8 @@ drawn twice per round:
   Mesa llvmpipe from overlapping one pass's rasterisation with the next pass's set-up, so the split
   frame is slower than the free one; its phases say which part of a frame is which share.
 
-``--in-place`` adds each refined setting with its masked passes drawn in place
-(``clipvol.render.refine.COMPACT = False``) and ``--floor`` each refined setting at tolerance 1
+``--compact`` adds each refined setting with its masked passes drawn compacted
+(``clipvol.render.refine.COMPACT = True``) and ``--floor`` each refined setting at tolerance 1
 (every finer pixel a blend of the coarse pass: what the passes cost without their rays). The rays
 each pass casts (its pixels, or those its mask leaves) are counted on one more, untimed frame.
 Rows go to ``tools/bench/results/bench_refine_breakdown.csv``.
@@ -118,7 +118,7 @@ class PhaseClock:
         self.cls.begin, self.cls.read_back = self.orig
 
 
-def run(store: Path, volume, label: str, images, repeat: int, names, view_names, in_place: bool = False,
+def run(store: Path, volume, label: str, images, repeat: int, names, view_names, compact: bool = False,
         floor: bool = False, log=print) -> list[dict]:
     from clipvol.render import refine
     from clipvol.render.paths.setup import OPAQUE
@@ -127,16 +127,17 @@ def run(store: Path, volume, label: str, images, repeat: int, names, view_names,
     pyr, tf = scene.pyramid, scene.tf
     raw = scene.raw_caster(volume)
     known = bench_mission.settings()
-    conf = {"full": (dict(policy="fixed", level=0), True)}  # name -> (params, compacted)
+    default = refine.COMPACT
+    conf = {"full": (dict(policy="fixed", level=0), default)}  # name -> (params, compacted)
     for n in names:
         kw = dict(known[n])
         if kw.get("level", 0) >= 1:
             kw["classify"] = "distribution"
-        conf[n] = (kw, True)
-        if in_place and kw.get("refine_tolerance", 0) > 0:
-            conf[n + " in place"] = (kw, False)
+        conf[n] = (kw, default)
+        if compact and kw.get("refine_tolerance", 0) > 0:
+            conf[n + " compacted"] = (kw, True)
         if floor and kw.get("refine_tolerance", 0) > 0:
-            conf[n + " floor"] = (dict(kw, refine_tolerance=1.0), True)
+            conf[n + " floor"] = (dict(kw, refine_tolerance=1.0), default)
     actions = {k: scene.action(**{"step": 0.5, **kw}) for k, (kw, _) in conf.items()}
     clock = PhaseClock(scene.ctx)
 
@@ -145,7 +146,7 @@ def run(store: Path, volume, label: str, images, repeat: int, names, view_names,
         try:
             return actions[k].render(cam, tf, **kw)
         finally:
-            refine.COMPACT = True
+            refine.COMPACT = default
 
     rows = []
     try:
@@ -220,8 +221,8 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"refined settings of bench_mission.py, comma separated (default {DEFAULT_SETTINGS!r}; "
                          "level-1 settings are drawn with classify='distribution')")
     ap.add_argument("--repeat", type=int, default=5, help="interleaved rounds (default 5)")
-    ap.add_argument("--in-place", action="store_true",
-                    help="each refined setting again with its masked passes drawn in place (not compacted)")
+    ap.add_argument("--compact", action="store_true",
+                    help="each refined setting again with its masked passes drawn compacted")
     ap.add_argument("--floor", action="store_true", help="each refined setting again at tolerance 1 (no rays refined)")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "bench_refine_breakdown.csv")
     a = ap.parse_args(argv)
@@ -239,7 +240,7 @@ def main(argv: list[str] | None = None) -> int:
         store, volume = common.ct_store("256x256x256", 32), common.ct_volume((256, 256, 256))
         label = "ct_head 256x256x256 uint16 (12 bit), 32^3 bricks"
     rows = run(store, volume, label, [int(v) for v in a.images.split(",")], a.repeat, names, a.views.split(","),
-               in_place=a.in_place, floor=a.floor)
+               compact=a.compact, floor=a.floor)
     keys = list(dict.fromkeys(k for r in rows for k in r))  # a pass's columns only where it drew: blank elsewhere
     return common.save_rows(a.out, [{k: r.get(k, "") for k in keys} for r in rows])
 
