@@ -91,7 +91,7 @@ from .gpu_cache import GpuBrickCache
 from .image_lod import ImageLod
 from .modes import mode_defines, mode_of
 from .overlay_binding import OverlayTextures, overlay_defines
-from .refine import Refine, compacts, refine_levels, refines
+from .refine import Refine, refine_levels, refines
 from .paths import DRAW_PATHS, FALLBACK, DrawStats, FrameContext, pick
 from .paths.frame import level_ratios
 from .paths.setup import MAX_STEPS_PER_BOX, DrawSetup, check_samples, check_step, samples_per_box
@@ -434,11 +434,8 @@ class ClipRenderAction:
         the image pass's, with the draw seconds and occlusion passes of all passes."""
         path, cam = self._path(name), frame.camera
         drawn, occlusion = 0.0, 0
-        levels = refine_levels(cam)
-        # a masked pass's scattered rays drawn packed (refine.Compaction), where the path draws few boxes
-        compact = compacts(cam, len(frame.items), name == "single-pass")
-        for k in range(levels, -1, -1):  # coarsest first; 0: the image
-            out = path.draw(frame.for_pass(k, Refine.coarse_camera(cam, k), compact=compact and k < levels))
+        for k in range(refine_levels(cam), -1, -1):  # coarsest first; 0: the image
+            out = path.draw(frame.for_pass(k, Refine.coarse_camera(cam, k)))
             if out is None:
                 return None
             drawn += out.draw_s

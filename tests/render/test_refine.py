@@ -17,7 +17,7 @@ import reference_raycast as ref
 from test_empty_skip import SHELL, scene  # noqa: F401  (scene: the shell volume's fixture)
 
 from clipvol.errors import ParameterError
-from clipvol.render.refine import COMPACT_BLOCK, COMPACT_MAX_BOXES, compact_order, compact_texels, refine_levels
+from clipvol.render.refine import refine_levels
 from clipvol.scene.camera import Camera
 from clipvol.scene.params import RenderParams
 
@@ -101,93 +101,6 @@ def test_modes_other_than_composite_and_tiny_images_draw_every_pixel(scene):
 def test_refine_tolerance_is_checked(bad):
     with pytest.raises(ParameterError, match="refine_tolerance"):
         RenderParams(refine_tolerance=bad)
-
-
-# -- compaction: a masked pass's rays cast packed, scattered back ------------------------------------
-def test_compact_order_lists_the_live_pixels_block_by_block():
-    """Against a brute-force sort: block row, block column, then row and column inside the block."""
-    rng = np.random.default_rng(7)
-    live = rng.random((23, 37)) < 0.2  # sizes that are no multiple of the block
-    xs, ys = compact_order(live)
-    y, x = np.nonzero(live)
-    B = COMPACT_BLOCK
-    want = np.lexsort((x % B, y % B, x // B, y // B))
-    assert np.array_equal(xs, x[want]) and np.array_equal(ys, y[want])
-    assert compact_order(np.zeros((5, 9), dtype=bool))[0].size == 0
-
-
-def test_compact_texels_pack_sixteen_entries_per_block_each_once():
-    width = 16
-    cx, cy = compact_texels(100, width)
-    expect = []
-    for i in range(100):  # entry i: block i // 16 of width / 4 per row, position i % 16 row by row
-        b, j = divmod(i, 16)
-        expect.append(((b % (width // 4)) * 4 + j % 4, (b // (width // 4)) * 4 + j // 4))
-    assert list(zip(cx.tolist(), cy.tolist())) == expect
-    assert len(set(expect)) == 100 and max(x for x, _ in expect) < width
-
-
-def test_compacted_passes_draw_the_masked_passes_bit_for_bit(scene, draw_path, monkeypatch):
-    """The same rays as the masked passes drawn in place (the images equal to the last bit), cast
-    for exactly the pixels the mask leaves: the image pass's list is the reference refinement's
-    pixels that are rays, not blends."""
-    from clipvol.render import refine
-    from clipvol.render.refine import Compaction
-
-    vol, pyr, action = scene
-    cam = camera()
-    counts = []
-    begin = Compaction.begin
-
-    def counted(self, *args):
-        out = begin(self, *args)
-        counts.append(self.count)
-        return out
-
-    monkeypatch.setattr(Compaction, "begin", counted)
-    monkeypatch.setattr(refine, "COMPACT", True)  # (off by default)
-    kw = dict(path=draw_path, refine_tolerance=TOL, merge_boxes=draw_path == "bricks")
-    img = action(**kw).render(cam, SHELL, wait=True)
-    assert len(counts) == 2  # the 1/2 pass and the image pass, each compacted
-    monkeypatch.setattr(refine, "COMPACT", False)
-    in_place = action(**kw).render(cam, SHELL, wait=True)
-    assert len(counts) == 2
-    assert np.array_equal(img, in_place)
-    _, blended = refined_reference(vol, pyr, cam, TOL, 2)
-    rays = (1.0 - blended) * cam.size[0] * cam.size[1]
-    assert abs(counts[1] - rays) <= 0.01 * cam.size[0] * cam.size[1], (counts, rays)
-
-
-def test_a_pass_over_many_boxes_is_drawn_in_place(scene, monkeypatch):
-    """Each box of a compacted pass runs over the whole list: a cut of more than COMPACT_MAX_BOXES
-    boxes is drawn masked in place, and still refined like the reference."""
-    from clipvol.render import refine
-    from clipvol.render.refine import Compaction
-
-    vol, pyr, action = scene
-    calls = []
-    monkeypatch.setattr(Compaction, "begin", lambda *a: calls.append(a))
-    monkeypatch.setattr(refine, "COMPACT", True)
-    cam = camera()
-    a = action(path="bricks", refine_tolerance=TOL, merge_boxes=False)
-    img = a.render(cam, SHELL, wait=True)
-    assert a.boxes_drawn > COMPACT_MAX_BOXES and not calls
-    want, _ = refined_reference(vol, pyr, cam, TOL, 2)
-    d = np.abs(img.astype(np.int64) - ref.to_uint8(want).astype(np.int64)).max(axis=-1)
-    assert (d > 2).mean() <= 0.01
-
-
-def test_compacts_small_images_with_few_boxes_only(monkeypatch):
-    from clipvol.render import refine
-
-    small, large = camera((256, 256)), camera((257, 256))
-    assert not refine.COMPACT and not refine.compacts(small, 1, True)  # off by default
-    monkeypatch.setattr(refine, "COMPACT", True)
-    assert refine.compacts(small, COMPACT_MAX_BOXES, False) and refine.compacts(small, 1000, True)
-    assert not refine.compacts(small, COMPACT_MAX_BOXES + 1, False)
-    assert not refine.compacts(large, 1, False) and not refine.compacts(large, 1, True)
-    monkeypatch.setattr(refine, "COMPACT", False)
-    assert not refine.compacts(small, 1, True)
 
 
 @pytest.mark.parametrize("early_termination", [True, False])

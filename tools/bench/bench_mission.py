@@ -124,10 +124,8 @@ def _timed(fn) -> float:
 
 
 def run(store: Path, volume: np.ndarray, label: str, images, repeat: int, step: float, log=print,
-        supersample: int = 2, converged_step: float = 0.25, view_names=None, only=None,
-        compact: bool = False) -> list[dict]:
+        supersample: int = 2, converged_step: float = 0.25, view_names=None, only=None) -> list[dict]:
     from clipvol.app.converged import ConvergedPictures
-    from clipvol.render import refine
     from clipvol.render.paths.setup import OPAQUE
     from clipvol.scene.metrics import percent_delta_e
     from clipvol.scene.params import RenderParams
@@ -140,20 +138,7 @@ def run(store: Path, volume: np.ndarray, label: str, images, repeat: int, step: 
         extra = {} if mode is None else {"classify": mode}
         tag = "" if mode in (None, "mean") else " dist"
         conf.update({k + tag: {**kw, **extra} for k, kw in settings().items() if only is None or k in only})
-    # --compact: each refined setting's last classification again, its masked passes drawn compacted
-    # (clipvol.render.refine.COMPACT on) in the same rounds: what compacting them changes
-    last = [k for k, kw in conf.items() if kw.get("classify") == classify_modes()[-1]]
-    packed = {k + " compacted": conf[k] for k in last if compact and conf[k].get("refine_tolerance", 0) > 0}
-    conf.update(packed)
     actions = {k: scene.action(**{"step": step, **kw}) for k, kw in conf.items()}
-    compact_default = refine.COMPACT
-
-    def render(k, cam, **kw):
-        refine.COMPACT = k in packed or compact_default
-        try:
-            return actions[k].render(cam, tf, **kw)
-        finally:
-            refine.COMPACT = compact_default
     ref_action = scene.action(policy="fixed", level=0)
 
     def draw(c, params):
@@ -172,7 +157,7 @@ def run(store: Path, volume: np.ndarray, label: str, images, repeat: int, step: 
                 if view_names and view not in view_names:
                     continue
                 truth = conv.get(cam, key=(image, view))
-                imgs = {k: render(k, cam, wait=True, timeout=600) for k in actions}
+                imgs = {k: a.render(cam, tf, wait=True, timeout=600) for k, a in actions.items()}
                 for k, a in actions.items():
                     if not a.last_frame_stats.converged:
                         raise RuntimeError(f"{k}: the frame did not converge in 600 s ({image}^2 {view})")
@@ -185,7 +170,7 @@ def run(store: Path, volume: np.ndarray, label: str, images, repeat: int, step: 
                         if k == "raw":
                             times[k].append(_timed(lambda: raw.render(fc, tf, step, OPAQUE)))
                         else:
-                            times[k].append(_timed(lambda: render(k, cam)))
+                            times[k].append(_timed(lambda: actions[k].render(cam, tf)))
                 med = {k: statistics.median(v) for k, v in times.items()}
 
                 def pct_of(img):
@@ -245,9 +230,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--views", default=None, help="views to measure, comma separated (default iso,face,close)")
     ap.add_argument("--settings", default=None,
                     help="settings to time, comma separated names as printed (default: all; on a loaded CPU a few)")
-    ap.add_argument("--compact", action="store_true",
-                    help="each refined setting again with its masked passes drawn compacted (clipvol.render.refine"
-                         ".COMPACT; rows '... compacted')")
     ap.add_argument("--dev", action="store_true", help="allow fewer than 5 rounds (while developing; not for the docs)")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "bench_mission.csv")
     a = ap.parse_args(argv)
@@ -272,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = run(store, volume, label, [int(v) for v in a.images.split(",")], a.repeat, a.step,
                supersample=a.supersample, converged_step=a.converged_step,
                view_names=None if a.views is None else a.views.split(","),
-               only=None if a.settings is None else a.settings.split(","), compact=a.compact)
+               only=None if a.settings is None else a.settings.split(","))
     return common.save_rows(a.out, rows)
 
 

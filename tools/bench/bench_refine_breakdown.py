@@ -12,19 +12,18 @@ drawn twice per round:
 * **split** - with ``ctx.finish()`` before and after each pass's phases, timed on the host:
 
   - ``setup``: :meth:`DrawSetup.begin` - bind and clear the pass's target and, in a masked pass,
-    the mask (``shaders/refine_mask.frag.glsl``) and, compacted, the list of live pixels;
+    the mask (``shaders/refine_mask.frag.glsl``);
   - ``rays``: the draw path's uniforms and proxy boxes - the rays cast;
-  - ``read``: :meth:`DrawSetup.read_back` - a coarse pass's nothing (or a compacted pass's
-    scatter), the image pass's resolve and read-back;
+  - ``read``: :meth:`DrawSetup.read_back` - a coarse pass's nothing, the image pass's resolve and
+    read-back;
 
   and ``host``: the split frame's time less its phases (selection, merge, Python). A finish stops
   Mesa llvmpipe from overlapping one pass's rasterisation with the next pass's set-up, so the split
   frame is slower than the free one; its phases say which part of a frame is which share.
 
-``--compact`` adds each refined setting with its masked passes drawn compacted
-(``clipvol.render.refine.COMPACT = True``) and ``--floor`` each refined setting at tolerance 1
-(every finer pixel a blend of the coarse pass: what the passes cost without their rays). The rays
-each pass casts (its pixels, or those its mask leaves) are counted on one more, untimed frame.
+``--floor`` adds each refined setting at tolerance 1 (every finer pixel a blend of the coarse pass:
+what the passes cost without their rays). The rays each pass casts (its pixels, or those its mask
+leaves) are counted on one more, untimed frame.
 Rows go to ``tools/bench/results/bench_refine_breakdown.csv``.
 """
 
@@ -94,10 +93,7 @@ class PhaseClock:
 
     @staticmethod
     def _live(setup, frame, fbo) -> int:
-        """Rays the pass casts: its pixels (a coarse pass), the pixels its mask left (depth 1), or
-        the compact list's length."""
-        if getattr(setup, "compacted", False):
-            return int(setup.refine.compaction.count)
+        """Rays the pass casts: its pixels (a coarse pass) or the pixels its mask left (depth 1)."""
         w, h = (int(v) for v in frame.camera.size)
         if not frame.repeats_pass:
             return w * h
@@ -118,35 +114,27 @@ class PhaseClock:
         self.cls.begin, self.cls.read_back = self.orig
 
 
-def run(store: Path, volume, label: str, images, repeat: int, names, view_names, compact: bool = False,
-        floor: bool = False, log=print) -> list[dict]:
-    from clipvol.render import refine
+def run(store: Path, volume, label: str, images, repeat: int, names, view_names, floor: bool = False,
+        log=print) -> list[dict]:
     from clipvol.render.paths.setup import OPAQUE
 
     scene = common.WarmScene(store)
     pyr, tf = scene.pyramid, scene.tf
     raw = scene.raw_caster(volume)
     known = bench_mission.settings()
-    default = refine.COMPACT
-    conf = {"full": (dict(policy="fixed", level=0), default)}  # name -> (params, compacted)
+    conf = {"full": dict(policy="fixed", level=0)}  # name -> params
     for n in names:
         kw = dict(known[n])
         if kw.get("level", 0) >= 1:
             kw["classify"] = "distribution"
-        conf[n] = (kw, default)
-        if compact and kw.get("refine_tolerance", 0) > 0:
-            conf[n + " compacted"] = (kw, True)
+        conf[n] = kw
         if floor and kw.get("refine_tolerance", 0) > 0:
-            conf[n + " floor"] = (dict(kw, refine_tolerance=1.0), default)
-    actions = {k: scene.action(**{"step": 0.5, **kw}) for k, (kw, _) in conf.items()}
+            conf[n + " floor"] = dict(kw, refine_tolerance=1.0)
+    actions = {k: scene.action(**{"step": 0.5, **kw}) for k, kw in conf.items()}
     clock = PhaseClock(scene.ctx)
 
     def draw(k, cam, **kw):
-        refine.COMPACT = conf[k][1]
-        try:
-            return actions[k].render(cam, tf, **kw)
-        finally:
-            refine.COMPACT = default
+        return actions[k].render(cam, tf, **kw)
 
     rows = []
     try:
@@ -221,8 +209,6 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"refined settings of bench_mission.py, comma separated (default {DEFAULT_SETTINGS!r}; "
                          "level-1 settings are drawn with classify='distribution')")
     ap.add_argument("--repeat", type=int, default=5, help="interleaved rounds (default 5)")
-    ap.add_argument("--compact", action="store_true",
-                    help="each refined setting again with its masked passes drawn compacted")
     ap.add_argument("--floor", action="store_true", help="each refined setting again at tolerance 1 (no rays refined)")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "bench_refine_breakdown.csv")
     a = ap.parse_args(argv)
@@ -240,7 +226,7 @@ def main(argv: list[str] | None = None) -> int:
         store, volume = common.ct_store("256x256x256", 32), common.ct_volume((256, 256, 256))
         label = "ct_head 256x256x256 uint16 (12 bit), 32^3 bricks"
     rows = run(store, volume, label, [int(v) for v in a.images.split(",")], a.repeat, names, a.views.split(","),
-               compact=a.compact, floor=a.floor)
+               floor=a.floor)
     keys = list(dict.fromkeys(k for r in rows for k in r))  # a pass's columns only where it drew: blank elsewhere
     return common.save_rows(a.out, [{k: r.get(k, "") for k in keys} for r in rows])
 

@@ -80,9 +80,6 @@ class FrameContext:
         ``1 / 2**k`` of the image, 0 the image; None in a frame drawn in one pass.
     image_camera : Camera or None
         The image's camera, while a refined frame draws (the coarse passes cast its rays).
-    compact : bool
-        A masked pass of a refined frame drawn compacted (:class:`~clipvol.render.refine.Compaction`:
-        ``defines`` hold ``COMPACT``).
     """
 
     camera: object
@@ -98,7 +95,6 @@ class FrameContext:
     distribution: bool = False
     refine_level: int | None = None
     image_camera: object = None
-    compact: bool = False
 
     @property
     def level_ratios(self) -> np.ndarray:
@@ -112,11 +108,9 @@ class FrameContext:
         k = self.refine_level
         return k is not None and k < refine_levels(self.image_camera)
 
-    def for_pass(self, refine_level: int, camera, compact: bool = False) -> "FrameContext":
-        """This frame's context for pass ``refine_level`` of a refined frame, drawn with ``camera``;
-        ``compact``: a masked pass drawn compacted (the ``COMPACT`` variant)."""
-        defines = dict(self.defines, COMPACT=1) if compact else self.defines
-        return dataclasses.replace(self, camera=camera, refine_level=refine_level, compact=compact, defines=defines,
+    def for_pass(self, refine_level: int, camera) -> "FrameContext":
+        """This frame's context for pass ``refine_level`` of a refined frame, drawn with ``camera``."""
+        return dataclasses.replace(self, camera=camera, refine_level=refine_level,
                                    image_camera=self.image_camera if self.image_camera is not None else self.camera)
 
 

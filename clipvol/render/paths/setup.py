@@ -18,8 +18,7 @@ bit-identical where they should be (the same ray, the same samples, the same rou
   a coarse pass draws into a target of its own with the image's rays through its pixels; every
   finer pass begins with the mask from the pass before (smooth pixels blended, their depth set)
   and draws under the depth test (:meth:`DrawSetup.depth_test`), so the rasteriser never shades
-  the smooth pixels - or, compacted (``FrameContext.compact``), casts the rays of the pixels left
-  in a dense target of their own and scatters them back (:class:`~clipvol.render.refine.Compaction`);
+  the smooth pixels;
 * **the read-back** (:meth:`DrawSetup.read_back`) - composite through the GL resolve pass
   (:class:`~clipvol.render.resolve.Resolve`), MIP by mapping the maximum through the transfer
   function here - and giving the previous framebuffer binding back.
@@ -190,8 +189,6 @@ class DrawSetup:
         self.depth = (0.0, 1.0)  # the volume box's range of ray parameters this frame (iso_color="depth")
         self.refine: Refine | None = None  # the coarse targets and the mask pass, made by the first refined frame
         self.origin = (0, 0)  # where this pass's viewport starts in its target (refine.pass_origin)
-        self.compacted = False  # this pass draws into the compact target (refine.Compaction)
-        self._pass_fbo = None  # the pass's own target, where a compacted pass is scattered
 
     def program(self, vertex: str, fragment: str, defines: dict, first_use=None):
         """The variant ``(program, vertex array)`` (compiled once per variant); ``first_use(prog)``
@@ -228,21 +225,15 @@ class DrawSetup:
         fbo.use()
         ctx.viewport = (ox, oy, w, h)
         fbo.clear(*clear)  # (depth to 1: nothing masked)
-        self._pass_fbo, self.compacted = fbo, False
         if frame.repeats_pass:  # a finer pass: the smooth pixels come from the coarser one (where the volume is)
             rect = self.scissor_rects(frame.camera, *frame.pyramid.volume_box())[0]
             self.refine.mask(fbo, frame.image_camera, k, frame.params.refine_tolerance, self.origin, rect)
-            if frame.compact:  # its rays cast in a compact target, scattered back by read_back
-                fbo, self.compacted = self.refine.compaction.begin(fbo, rect, w * h, clear), True
         return fbo, previous, t0
 
     def scissor_rects(self, cam, lo, hi) -> np.ndarray:
         """:func:`scissor_boxes` of this pass, placed where its viewport starts in the target."""
         rects = scissor_boxes(cam, lo, hi)
         rects[:, :2] += np.asarray(self.origin, dtype=np.int64)
-        if self.compacted:  # a box on the image runs over the compact list (its fragments find their interval)
-            on = (rects[:, 2] > 0) & (rects[:, 3] > 0)
-            rects = np.where(on[:, None], np.asarray(self.refine.compaction.rect, dtype=rects.dtype), 0)
         return rects
 
     def depth_test(self, frame: FrameContext) -> None:
@@ -296,8 +287,6 @@ class DrawSetup:
         planes[:, 3] += planes[:, :3] @ origin  # n.(p' + O) + d = n.p' + (d + n.O)
         if frame.refine_level:  # a coarse pass: the image's rays through its pixels
             self.refine.coarse_uniforms(prog, frame.image_camera, frame.refine_level)
-        if self.compacted:  # each fragment's pixel from the compact list
-            self.refine.compaction.bind(prog)
         prog["u_shape_lo"].value = vec3(box[0])
         prog["u_shape_hi"].value = vec3(box[1])
         prog["u_planes"].write(planes.astype(np.float32).tobytes())
@@ -378,9 +367,6 @@ class DrawSetup:
         (:meth:`clipvol.render.modes.base.DrawMode.read_back`)."""
         ctx = self.ctx
         params, pyr, tf = frame.params, frame.pyramid, frame.tf
-        if self.compacted:  # the compact pass's colours into the pass's own target
-            self.refine.compaction.scatter(self._pass_fbo)
-            self.compacted = False
         if frame.refine_level:  # a coarse image stays on the GL for the next pass's mask
             self.target.restore(previous)
             return DrawStats(None, time.perf_counter() - t0, 0.0, **drawn)

@@ -33,9 +33,6 @@ uniform float u_occ_z0;
 out vec4 f_color;
 
 void main() {
-#ifdef COMPACT
-    if (frag_coord().x < 0.0) discard;  // the compact target's last block: no pixel
-#endif
     // early ray termination across boxes (front-to-back order): the pixel is already opaque
     if (u_use_acc && texelFetch(u_acc, ivec2(gl_FragCoord.xy), 0).a >= u_opaque) discard;
     vec3 origin;

@@ -283,9 +283,6 @@ bool region(vec3 origin, vec3 dir, vec3 inv, float tend, inout float ta, STATE) 
 }
 
 void main() {
-#ifdef COMPACT
-    if (frag_coord().x < 0.0) discard;  // the compact target's last block: no pixel
-#endif
     vec3 origin;
     vec3 dir;
     vec3 inv;

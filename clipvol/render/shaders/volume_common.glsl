@@ -16,8 +16,6 @@
 //             without spread reads 0 there) and a sample is classified by the transfer function
 //             pre-integrated over that distribution, u_dist (clipvol/scene/consistent.py); DISTRIB is
 //             the number of spread rows per level
-//   COMPACT   a refined frame's masked pass drawn compacted (clipvol/render/refine.py, Compaction):
-//             fragment (i, j) of the compact target casts the ray of the pixel u_pixels holds there
 uniform vec2 u_viewport;
 uniform vec2 u_frag_origin;     // the pass's viewport origin in its target (a coarse pass spread over tiles)
 uniform bool u_ortho;
@@ -45,17 +43,9 @@ uniform sampler2D u_tf;         // row L: the table with opacity corrected for l
 uniform float u_iso;            // the iso-value as a texel (raw = a * texel + b, a > 0: the same order)
 #endif
 
-#ifdef COMPACT
-uniform sampler2D u_pixels;     // per compact fragment: its pixel's centre in the pass's target (x < 0: none)
-// The centre of the pixel whose ray this fragment casts, in the pass's target (window coordinates).
-vec2 frag_coord() { return texelFetch(u_pixels, ivec2(gl_FragCoord.xy), 0).xy; }
-#else
-vec2 frag_coord() { return gl_FragCoord.xy; }
-#endif
-
 // The pixel's ray: origin relative to O and unit direction.
 void pixel_ray(out vec3 origin, out vec3 dir) {
-    vec2 ndc = (frag_coord() - u_frag_origin) / u_viewport * 2.0 - 1.0;
+    vec2 ndc = (gl_FragCoord.xy - u_frag_origin) / u_viewport * 2.0 - 1.0;
     vec3 off = (ndc.x * u_half.x) * u_right + (ndc.y * u_half.y) * u_up;
     if (u_ortho) {              // rays start on the plane through the camera centre
         dir = u_forward;
@@ -111,7 +101,7 @@ bool pixel_ray_in_box(vec3 lo, vec3 hi, out vec3 origin, out vec3 dir, out vec3 
 
 // Stable per-pixel offset in [0, 1) (a 2-D integer hash of the pixel; the same every frame).
 float pixel_hash() {
-    uvec2 p = uvec2(frag_coord() - u_frag_origin);
+    uvec2 p = uvec2(gl_FragCoord.xy - u_frag_origin);
     uint h = p.x * 1597334677u ^ p.y * 3812015801u;
     h = (h ^ (h >> 16)) * 2246822519u;
     h = (h ^ (h >> 13)) * 3266489917u;
