@@ -133,9 +133,6 @@ def run(store: Path, volume, label: str, images, repeat: int, names, view_names,
     actions = {k: scene.action(**{"step": 0.5, **kw}) for k, kw in conf.items()}
     clock = PhaseClock(scene.ctx)
 
-    def draw(k, cam, **kw):
-        return actions[k].render(cam, tf, **kw)
-
     rows = []
     try:
         for image in images:
@@ -144,9 +141,9 @@ def run(store: Path, volume, label: str, images, repeat: int, names, view_names,
                     continue
                 shows = {}
                 for k in actions:
-                    draw(k, cam, wait=True, timeout=600)
+                    actions[k].render(cam, tf, wait=True, timeout=600)
                     clock.count_rays, clock.rays = True, []
-                    img = draw(k, cam)
+                    img = actions[k].render(cam, tf)
                     clock.count_rays = False
                     shows[k] = (float(np.mean(img[..., 3] > 0)), dict(clock.rays))
                 fc = actions["full"]._selection_camera(cam)
@@ -161,11 +158,11 @@ def run(store: Path, volume, label: str, images, repeat: int, names, view_names,
                             raw.render(fc, tf, 0.5, OPAQUE)
                             times[k].append(time.perf_counter() - t)
                             continue
-                        draw(k, cam)
+                        actions[k].render(cam, tf)
                         times[k].append(time.perf_counter() - t)
                         clock.on = True
                         t = time.perf_counter()
-                        draw(k, cam)
+                        actions[k].render(cam, tf)
                         total = 1e3 * (time.perf_counter() - t)
                         clock.on = False
                         ph = clock.take()
