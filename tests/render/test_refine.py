@@ -101,3 +101,25 @@ def test_modes_other_than_composite_and_tiny_images_draw_every_pixel(scene):
 def test_refine_tolerance_is_checked(bad):
     with pytest.raises(ParameterError, match="refine_tolerance"):
         RenderParams(refine_tolerance=bad)
+
+
+@pytest.mark.parametrize("early_termination", [True, False])
+def test_the_mask_drawn_only_over_the_volume_changes_no_pixel(scene, monkeypatch, early_termination):
+    """The mask of a finer pass is drawn under the volume's scissor box: outside it the cleared pixel
+    is what the blend of the coarse pass's cleared pixels gives (a background too, drawn back to
+    front). Against the mask over the whole target, with the volume small in the image."""
+    from clipvol.render.paths.setup import scissor_boxes
+    from clipvol.render.refine import Refine
+
+    vol, pyr, action = scene
+    far = Camera.perspective((200.0, 150.0, -120.0), (31.5, 31.5, 31.5), size=(96, 80), fov_y=40)
+    rect = scissor_boxes(far, *pyr.volume_box())[0]
+    assert rect[2] * rect[3] < 0.5 * 96 * 80  # the volume covers under half the image
+    kw = dict(refine_tolerance=TOL, early_termination=early_termination, background=(0.2, 0.3, 0.4, 1.0))
+    img = action(**kw).render(far, SHELL, wait=True)
+    mask = Refine.mask
+    monkeypatch.setattr(Refine, "mask", lambda self, fbo, cam, k, tol, origin, rect=None: mask(self, fbo, cam, k, tol,
+                                                                                              origin, None))
+    whole = action(**kw).render(far, SHELL, wait=True)
+    assert np.array_equal(img, whole)
+    assert (img[..., 3] > 0).any() and (img[..., 3] == 255).any()  # the volume is drawn, on a background

@@ -225,8 +225,9 @@ class DrawSetup:
         fbo.use()
         ctx.viewport = (ox, oy, w, h)
         fbo.clear(*clear)  # (depth to 1: nothing masked)
-        if frame.repeats_pass:  # a finer pass: the smooth pixels come from the coarser one
-            self.refine.mask(fbo, frame.image_camera, k, frame.params.refine_tolerance, self.origin)
+        if frame.repeats_pass:  # a finer pass: the smooth pixels come from the coarser one (where the volume is)
+            rect = self.scissor_rects(frame.camera, *frame.pyramid.volume_box())[0]
+            self.refine.mask(fbo, frame.image_camera, k, frame.params.refine_tolerance, self.origin, rect)
         return fbo, previous, t0
 
     def scissor_rects(self, cam, lo, hi) -> np.ndarray:
