@@ -199,3 +199,37 @@ def test_updated_projected_size_frames_equal_fresh_frames(ctx, path, tmp_path):
         for x in made:
             x.close()
         clip.close()
+
+
+def test_a_still_camera_costs_a_redraw(ctx, tmp_path):
+    """A camera equal to the last one (a new object, as a viewer or a script makes one per frame):
+    the frame re-tests no node of the kept cut, asks the merge nothing again and draws the same
+    merged boxes through the same page table - and its image is a fresh action's, bit for bit."""
+    brick_volume(blob(), tmp_path / "blob.zarr", brick=8, progress=False, workers=1)
+    clip = ClipTexture(open_store(tmp_path / "blob.zarr"), "64MB", threads=2)
+    tf = TransferFunction.preset("bone", value_range=(0.0, 1.0))
+    a = ClipRenderAction(ctx, clip, policy="projected-size", lod_threshold=1.5, path="single-pass")
+    made = [a]
+    try:
+        a.render(orbit(0, a.pyramid), tf, wait=True, timeout=30)
+        a.render(orbit(1, a.pyramid), tf)  # an updated frame: the kept cut holds from here on
+        assert a.last_frame_stats.updated or a.last_frame_stats.replayed
+        first = a.render(orbit(2, a.pyramid), tf)
+        cut, merged = a.frame_loop._cut[1], a._merged_kept[2]
+        table = a._path("single-pass")._table[2]
+        asked = []
+        hold = a._kept_merge.answers_hold
+        a._kept_merge.answers_hold = lambda *args: asked.append(args) or hold(*args)  # the merge's questions
+        again = a.render(orbit(2, a.pyramid), tf)
+        assert cut.retested == 0 and not asked
+        assert a._merged_kept[2] is merged and a._path("single-pass")._table[2] is table
+        assert a._path("single-pass").rows_written == 0
+        b = ClipRenderAction(ctx, clip, a.params)
+        made.append(b)
+        ref = b.render(orbit(2, a.pyramid), tf, wait=True, timeout=30)
+        assert np.array_equal(again, first) and np.array_equal(again, ref)
+        assert again[..., 3].any()
+    finally:
+        for x in made:
+            x.close()
+        clip.close()
