@@ -451,7 +451,10 @@ class ClipRenderAction:
         if kept is not None and kept[0] is merged:
             return kept[1]
         arr = DrawItems.from_items(merged)
-        rows = np.unique(np.concatenate([arr.rows[:, :1].astype(np.float64), arr.hi - arr.lo], axis=1), axis=0)
+        both = np.ascontiguousarray(np.concatenate([arr.rows[:, :1].astype(np.float64), arr.hi - arr.lo], axis=1))
+        # distinct rows by their bytes (``np.unique(axis=0)`` cost ~1.5 ms over a 700-box merge; any
+        # order does: samples_per_box takes the largest over them)
+        rows = np.unique(both.view(np.dtype((np.void, both.itemsize * 4)))).view(np.float64).reshape(-1, 4)
         keys = np.concatenate([rows[:, :1].astype(np.int64), np.zeros((len(rows), 3), dtype=np.int64)], axis=1)
         rep = DrawItems(keys, np.zeros((len(rows), 3)), rows[:, 1:])
         self._extents_kept = (merged, rep)
