@@ -10,11 +10,14 @@ new camera:
 
 1. re-tests only the **band**: each node keeps its *slack*, how far (in world units) the camera's
    frustum planes and the node's nearest depth may move before either test can flip, and the
-   camera it was last tested at; the change from that camera to this one is bounded by
-   :func:`camera_change` (the planes' and the view direction's turn times the volume's radius,
-   plus their shift at its centre), so a node whose slack exceeds its bound keeps its answers
-   untested;
-2. propagates "reached" from the root through the parents' answers (one gather per level);
+   camera it was last tested at; the change from that camera to this one is bounded per node by
+   the planes' and the view direction's turn times the node's *reach* (how far its farthest
+   corner lies from the volume's centre), plus their shift at the centre (:func:`_turn_shift`;
+   :func:`camera_change` is the bound for the whole volume), so a node whose slack exceeds its
+   bound keeps its answers untested - and a node near the centre moves less than the corners;
+2. propagates "reached" through the parents' answers (one gather per level) from the coarsest
+   level whose answers flipped down (the levels above keep theirs), and sets level 0 - most of
+   the nodes, never refined - again only under the level-1 nodes whose answer changed;
 3. grows the tree below nodes that now refine and had no children yet (the traversal's own
    expansion, per level);
 4. reads the leaves off the arrays: reached, kept, not refined, not transparent.
@@ -72,8 +75,8 @@ def camera_change(a: np.ndarray, b: np.ndarray, radius: float) -> np.ndarray:
     (:func:`_camera_terms`; ``a`` may hold many cameras, ``(..., 7, 4)``): ``|dn| radius +
     |d(value at centre)|``, each point's value being ``n . (x - centre)`` plus the value at the
     centre."""
-    d = np.asarray(b) - np.asarray(a)
-    return np.linalg.norm(d[..., :3], axis=-1) * radius + np.abs(d[..., 3])
+    turn, shift = _turn_shift(a, b)
+    return turn * radius + shift
 
 
 def _turn_shift(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
