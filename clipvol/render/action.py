@@ -147,7 +147,7 @@ class ClipRenderAction:
         self._extents_kept = None  # (merged items, their distinct extents): see _extents
         self._camera_kept = None  # (the caller's camera, the selection camera made of it): see _selection_camera
         self._answered = None  # the selection camera whose answers held the kept merge last: see _merged
-        self._samples_kept = None  # (selection camera, merged items, step, samples per box): see _draw
+        self._samples_kept = None  # (selection camera or None for any, merged items, step, bound): see _samples
         self._replayed = False  # the frame loop drew the last cut again (its order is the old camera's)
         self.image_lod: ImageLod | None = None  # the image policy's tables and visibility, made on first use
         self.overlays = OverlayTextures(ctx, clip_texture.loader)  # co-registered volumes (scene/overlay.py)
@@ -435,12 +435,21 @@ class ClipRenderAction:
         return merged
 
     def _samples(self, cam, merged) -> float:
-        """:func:`samples_per_box` of ``merged``'s extents for ``cam``, kept while the camera, the
-        merged items and the step are the same objects (a still camera's frame asks it again)."""
+        """An upper bound of the samples one ray of ``cam`` takes in one of ``merged``'s boxes, to
+        compare with :data:`MAX_STEPS_PER_BOX`: the boxes' longest diagonal over the step where
+        that is below it (no ray's path in a box is longer; the same for every camera, kept with
+        the merged items and the step), else :func:`samples_per_box` over the camera's rays (kept
+        while the camera, the merged items and the step are the same objects)."""
         kept, step = self._samples_kept, self.params.step
-        if kept is not None and kept[0] is cam and kept[1] is merged and kept[2] == step:
+        if kept is not None and kept[1] is merged and kept[2] == step and (kept[0] is None or kept[0] is cam):
             return kept[3]
-        n = samples_per_box(cam, self._extents(merged), self.pyramid, step)
+        rep = self._extents(merged)
+        delta = step * float(min(self.pyramid.spacing)) * 2.0 ** rep.rows[:, 0].astype(np.float64)
+        n = float(np.max(np.linalg.norm(rep.hi - rep.lo, axis=1) / delta)) * 1.1 if len(rep) else 0.0
+        if n <= MAX_STEPS_PER_BOX:
+            self._samples_kept = (None, merged, step, n)  # (None: any camera)
+            return n
+        n = samples_per_box(cam, rep, self.pyramid, step)
         self._samples_kept = (cam, merged, step, n)
         return n
 
