@@ -145,6 +145,9 @@ class ClipRenderAction:
         self._merged_kept = None  # (selection, GPU cache generation, merged items, asked): see _merged
         self._kept_merge = KeptMerge(self.pyramid)  # a kept cut's merge, by cells (see _merged)
         self._extents_kept = None  # (merged items, their distinct extents): see _extents
+        self._camera_kept = None  # (the caller's camera, the selection camera made of it): see _selection_camera
+        self._answered = None  # the selection camera whose answers held the kept merge last: see _merged
+        self._samples_kept = None  # (selection camera or None for any, merged items, step, bound): see _samples
         self._replayed = False  # the frame loop drew the last cut again (its order is the old camera's)
         self.image_lod: ImageLod | None = None  # the image policy's tables and visibility, made on first use
         self.overlays = OverlayTextures(ctx, clip_texture.loader)  # co-registered volumes (scene/overlay.py)
@@ -252,6 +255,7 @@ class ClipRenderAction:
         self.clip_texture, self.pyramid = clip_texture, pyr
         self.cache = self._new_cache(clip_texture, self.params.texture_budget)
         self.frame_loop = FrameLoop(clip_texture, self.cache)
+        self._camera_kept = None  # (another pyramid: another volume box to fit)
 
     # -- the frame ---------------------------------------------------------------------------------
     def render(self, camera, transfer_function, wait: bool = False, timeout: float | None = None,
@@ -325,7 +329,20 @@ class ClipRenderAction:
         return self._draw(cam, transfer_function, SimpleNamespace(items=list(items))).image
 
     def _selection_camera(self, camera):
-        """The camera with near/far enclosing the volume, near tiny (the eye may be inside a huge volume)."""
+        """The camera with near/far enclosing the volume, near tiny (the eye may be inside a huge volume).
+
+        A camera equal to the last one (a still view: the same position, aim, lens and image)
+        gives the same object back, so that what a frame made of it - the kept cut's tests, the
+        merge's questions to it, its frustum planes - is known to hold by identity, and a frame
+        that changes nothing costs a redraw."""
+        kept = self._camera_kept
+        if kept is not None and (kept[0] is camera or kept[0] == camera):
+            return kept[1]
+        cam = self._fit_camera(camera)
+        self._camera_kept = (camera, cam)
+        return cam
+
+    def _fit_camera(self, camera):
         vlo, vhi = self.pyramid.volume_box()
         cam = camera.fit_depth(vlo, vhi)
         if not cam.orthographic:
@@ -346,7 +363,7 @@ class ClipRenderAction:
         checked = False
         if self.params.merge_boxes and len(items):  # once, for either path
             merged = self._merged(cam, sel)
-            if samples_per_box(cam, self._extents(merged), self.pyramid, self.params.step) <= MAX_STEPS_PER_BOX:
+            if self._samples(cam, merged) <= MAX_STEPS_PER_BOX:
                 items, checked = merged, True  # (else the rays would be cut)
         if not checked:
             check_samples(cam, items, self.pyramid, self.params.step)
@@ -400,11 +417,14 @@ class ClipRenderAction:
             km, may_cover = self._kept_merge, self._may_cover(cam)
             if not (same_gpu and kept[3] is None):
                 km.reset()  # (other slots: the kept cells' answers may differ)
-            elif kept[0].items is sel.items and km.answers_hold(may_cover):
+            elif kept[0].items is sel.items and (self._answered is cam or km.answers_hold(may_cover)):
+                self._answered = cam  # (the same camera answers the same: not asked again)
                 return kept[2]
             merged = km.merge(sel.items, self.cache.windows, may_cover)
             self._merged_kept = (sel, self.cache.generation, merged, None)  # (None: the questions are km's)
+            self._answered = cam
             return merged
+        self._answered = None
         if same_gpu and kept[3] is not None and kept[0].items is getattr(sel, "items", sel) and all(
                 np.array_equal(np.asarray(cam.boxes_beside_view(lo, hi), dtype=bool), ans) for lo, hi, ans in kept[3]):
             return kept[2]
@@ -414,6 +434,25 @@ class ClipRenderAction:
         self._merged_kept = (sel, self.cache.generation, merged, asked) if isinstance(sel, Selection) else None
         return merged
 
+    def _samples(self, cam, merged) -> float:
+        """An upper bound of the samples one ray of ``cam`` takes in one of ``merged``'s boxes, to
+        compare with :data:`MAX_STEPS_PER_BOX`: the boxes' longest diagonal over the step where
+        that is below it (no ray's path in a box is longer; the same for every camera, kept with
+        the merged items and the step), else :func:`samples_per_box` over the camera's rays (kept
+        while the camera, the merged items and the step are the same objects)."""
+        kept, step = self._samples_kept, self.params.step
+        if kept is not None and kept[1] is merged and kept[2] == step and (kept[0] is None or kept[0] is cam):
+            return kept[3]
+        rep = self._extents(merged)
+        delta = step * float(min(self.pyramid.spacing)) * 2.0 ** rep.rows[:, 0].astype(np.float64)
+        n = float(np.max(np.linalg.norm(rep.hi - rep.lo, axis=1) / delta)) * 1.1 if len(rep) else 0.0
+        if n <= MAX_STEPS_PER_BOX:
+            self._samples_kept = (None, merged, step, n)  # (None: any camera)
+            return n
+        n = samples_per_box(cam, rep, self.pyramid, step)
+        self._samples_kept = (cam, merged, step, n)
+        return n
+
     def _extents(self, merged: list) -> DrawItems:
         """One box per distinct (level, extent) of ``merged``: all :func:`samples_per_box` reads of
         them, kept with the kept merged list (a cut of hundreds of boxes has a handful)."""
@@ -421,7 +460,10 @@ class ClipRenderAction:
         if kept is not None and kept[0] is merged:
             return kept[1]
         arr = DrawItems.from_items(merged)
-        rows = np.unique(np.concatenate([arr.rows[:, :1].astype(np.float64), arr.hi - arr.lo], axis=1), axis=0)
+        both = np.ascontiguousarray(np.concatenate([arr.rows[:, :1].astype(np.float64), arr.hi - arr.lo], axis=1))
+        # distinct rows by their bytes (``np.unique(axis=0)`` cost ~1.5 ms over a 700-box merge; any
+        # order does: samples_per_box takes the largest over them)
+        rows = np.unique(both.view(np.dtype((np.void, both.itemsize * 4)))).view(np.float64).reshape(-1, 4)
         keys = np.concatenate([rows[:, :1].astype(np.int64), np.zeros((len(rows), 3), dtype=np.int64)], axis=1)
         rep = DrawItems(keys, np.zeros((len(rows), 3)), rows[:, 1:])
         self._extents_kept = (merged, rep)

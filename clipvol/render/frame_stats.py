@@ -116,9 +116,11 @@ def frame_stats(sel, plan, times: dict, cache, texture_budget: int, clip_texture
     """The :class:`FrameStats` of a frame that drew selection ``sel`` after the frame loop's ``plan``
     (:class:`~clipvol.render.frame_loop.FrameLoop`), with GPU cache ``cache``."""
     keys = sel.item_keys()
-    frame_read, other_read = split_reads(reads, np.concatenate([keys, sel.wanted_keys()]))
-    levels, per = np.unique(keys[:, 0], return_counts=True)
-    per_level = dict(zip(levels.tolist(), per.tolist()))
+    # (the cut's rows are joined only when some brick was read: a warm frame reads none)
+    frame_read, other_read = split_reads(reads, np.concatenate([keys, sel.wanted_keys()]) if reads else keys[:0])
+    per = np.bincount(keys[:, 0].astype(np.int64))  # bricks per level: a count, no sort of the cut
+    levels = np.nonzero(per)[0]
+    per_level = dict(zip(levels.tolist(), per[levels].tolist()))
     # a kept cut updated (not ordered) draws each node once from its own brick: its keys are distinct
     distinct = len(keys) if not getattr(sel, "ordered", True) else len(unique_rows(keys)) if len(keys) else 0
     return FrameStats(

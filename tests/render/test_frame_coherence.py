@@ -199,3 +199,61 @@ def test_updated_projected_size_frames_equal_fresh_frames(ctx, path, tmp_path):
         for x in made:
             x.close()
         clip.close()
+
+
+def test_a_still_camera_costs_a_redraw(ctx, tmp_path):
+    """A camera equal to the last one (a new object, as a viewer or a script makes one per frame):
+    the frame re-tests no node of the kept cut, asks the merge nothing again and draws the same
+    merged boxes through the same page table - and its image is a fresh action's, bit for bit."""
+    brick_volume(blob(), tmp_path / "blob.zarr", brick=8, progress=False, workers=1)
+    clip = ClipTexture(open_store(tmp_path / "blob.zarr"), "64MB", threads=2)
+    tf = TransferFunction.preset("bone", value_range=(0.0, 1.0))
+    a = ClipRenderAction(ctx, clip, policy="projected-size", lod_threshold=1.5, path="single-pass")
+    made = [a]
+    try:
+        a.render(orbit(0, a.pyramid), tf, wait=True, timeout=30)
+        a.render(orbit(1, a.pyramid), tf)  # an updated frame: the kept cut holds from here on
+        assert a.last_frame_stats.updated or a.last_frame_stats.replayed
+        first = a.render(orbit(2, a.pyramid), tf)
+        cut, merged = a.frame_loop._cut[1], a._merged_kept[2]
+        table = a._path("single-pass")._table[2]
+        asked = []
+        hold = a._kept_merge.answers_hold
+        a._kept_merge.answers_hold = lambda *args: asked.append(args) or hold(*args)  # the merge's questions
+        again = a.render(orbit(2, a.pyramid), tf)
+        assert cut.retested == 0 and not asked
+        assert a._merged_kept[2] is merged and a._path("single-pass")._table[2] is table
+        assert a._path("single-pass").rows_written == 0
+        b = ClipRenderAction(ctx, clip, a.params)
+        made.append(b)
+        ref = b.render(orbit(2, a.pyramid), tf, wait=True, timeout=30)
+        assert np.array_equal(again, first) and np.array_equal(again, ref)
+        assert again[..., 3].any()
+    finally:
+        for x in made:
+            x.close()
+        clip.close()
+
+
+def test_the_camera_free_samples_bound_holds_for_every_camera(ctx, tmp_path):
+    """The action checks a merged cut's rays against ``MAX_STEPS_PER_BOX`` with a bound that does
+    not depend on the camera (a box's diagonal over the step: kept while the boxes are the same):
+    it is never below the camera's own estimate (``samples_per_box`` over its rays), so it decides
+    as that does wherever it passes."""
+    from clipvol.render.paths.setup import samples_per_box
+
+    brick_volume(blob(), tmp_path / "blob.zarr", brick=8, progress=False, workers=1)
+    clip = ClipTexture(open_store(tmp_path / "blob.zarr"), "64MB", threads=2)
+    tf = TransferFunction.preset("bone", value_range=(0.0, 1.0))
+    a = ClipRenderAction(ctx, clip, policy="projected-size", lod_threshold=1.5, step=0.5)
+    try:
+        for deg, dist in ((0, 1.15), (50, 0.6), (170, 0.3), (250, 2.0)):
+            cam = a._selection_camera(orbit(deg, a.pyramid, dist=dist))
+            a.render(orbit(deg, a.pyramid, dist=dist), tf, wait=True, timeout=30)
+            merged = a._merged_kept[2]
+            bound = a._samples(cam, merged)
+            assert bound >= samples_per_box(cam, merged, a.pyramid, a.params.step) > 0
+            assert a._samples(a._selection_camera(orbit(deg + 90, a.pyramid)), merged) == bound  # (any camera)
+    finally:
+        a.close()
+        clip.close()

@@ -189,3 +189,26 @@ def test_the_same_leaves_come_back_as_the_same_items_with_fresh_counts():
                 new += 1
         last = (leaves, sel)
     assert kept > 3 and new > 3, (kept, new)  # (both kinds of move happened)
+
+
+def test_the_propagation_kept_between_frames_is_the_full_propagation_along_random_paths():
+    """``KeptCut._propagate`` sets again only the levels from the coarsest one whose answers flipped
+    down, and level 0 only under the level-1 nodes whose answer changed: along random paths (turns,
+    zooms, jumps, nodes grown and dropped) its ``reached`` and ``eff`` arrays equal a propagation
+    over every level and row from nothing on the same nodes and answers."""
+    params = RenderParams(policy="projected-size", lod_threshold=0.1)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    rng = np.random.default_rng(11)
+    partial = 0
+    for cam in path(rng, 60, 1.0):
+        kc.update(cam, ordered=False)
+        full = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+        for name in ("lv", "idx", "lo", "hi", "parent", "infr", "inside", "ref"):
+            setattr(full, name, getattr(kc, name).copy())
+        full.reached = np.zeros(len(kc.lv), dtype=bool)  # (nothing carried over)
+        full.eff = np.zeros(len(kc.lv), dtype=bool)
+        full._propagate()
+        np.testing.assert_array_equal(kc.reached, full.reached)
+        np.testing.assert_array_equal(kc.eff, full.eff)
+        partial += kc.retested < len(kc.lv)
+    assert partial > 20

@@ -89,7 +89,7 @@ def test_the_kept_merge_is_the_merge_from_nothing_along_random_paths(windows, co
         [(3, 4, 4)] + [PYR.grid(L) for L in range(1, PYR.num_levels)]
     km = KeptMerge(PYR)
     rng = np.random.default_rng(3 + (cover is None) + 2 * (windows == "small") + 4 * (cover is cover_moving) + 8 * (cover is cover_split))
-    partial = changed = 0
+    partial = changed = upper = 0
     last = None
     for k, cam in enumerate(path(rng, 40, 2.0)):
         sel = kc.update(cam, ordered=False)
@@ -102,11 +102,13 @@ def test_the_kept_merge_is_the_merge_from_nothing_along_random_paths(windows, co
         np.testing.assert_array_equal(got.hi, want.hi)
         check_cover(sel.items, got, PYR, exact=cover is None)
         assert km.answers_hold(ask)
+        upper += km.upper_kept
         if last is not None and last is not sel.items:
             changed += 1
             partial += km.remerged < len(sel.items)
         last = sel.items
     assert changed > 5 and partial > 3  # the cut changed, and changes re-merged only some cells
+    assert upper > 3  # the upper passes' result was kept on frames whose cells' entries were the same
 
 
 def test_new_windows_and_a_reset_merge_from_nothing():
@@ -126,3 +128,31 @@ def test_new_windows_and_a_reset_merge_from_nothing():
     km.reset()
     km.merge(a.items, grid)
     assert km.remerged == len(a.items)
+
+
+def test_the_upper_passes_are_merged_again_when_only_their_answers_change():
+    """The same items, the lower cells' answers the same, only the questions of the passes above
+    the cells answered otherwise (a camera whose view moved off a coarse culled node): the upper
+    merge is not kept, and the result is ``merge_items``'s for the new answers."""
+    params = RenderParams(policy="projected-size", lod_threshold=0.1)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    win = [PYR.grid(L) for L in range(PYR.num_levels)]
+    km = KeptMerge(PYR)
+
+    def cover(upper_answer: bool):
+        def ask(level, node_level, nodes):
+            n = len(np.asarray(nodes).reshape(-1, 3))
+            return np.full(n, True if node_level < km.cell_level else upper_answer)
+        return ask
+
+    differ = 0
+    for deg in (10, 70, 130, 200):
+        items = kc.update(camera(deg, 20, 90), ordered=False).items
+        for answer in (True, False, True):
+            got = km.merge(items, win, cover(answer))
+            want = merge_items(items, PYR, win, cover(answer))
+            np.testing.assert_array_equal(got.rows, want.rows)
+            np.testing.assert_array_equal(got.span, want.span)
+        differ += not np.array_equal(merge_items(items, PYR, win, cover(True)).rows,
+                                     merge_items(items, PYR, win, cover(False)).rows)
+    assert differ  # (else the upper questions decide nothing here)

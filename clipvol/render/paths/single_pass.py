@@ -69,6 +69,11 @@ class SinglePassPath(DrawPath):
         # (GPU state, region, PageTable.faces) of the last table built: its items' open faces hold
         # while the slots are the same (build_page_table's known_faces)
         self._faces: tuple = (None, None, None)
+        # what the frame before drew with: its table's and levels' uniform bytes, the scissor
+        # rectangle of its camera, its table's region bound (each kept while what it reads is the same)
+        self._uniforms: tuple | None = None
+        self._rect: tuple | None = None
+        self._regions: tuple = (None, 0)
 
     def _page_table_texture(self, entries: np.ndarray):
         """The page-table texture (R32UI, :data:`PAGE_TABLE_WIDTH` entries per row) holding
@@ -138,25 +143,7 @@ class SinglePassPath(DrawPath):
         uset(prog, "u_vol_hi", vec3(vhi - origin))
         sp = np.array(pyr.spacing[::-1], dtype=np.float64)
         B = np.array(pyr.brick_shape[::-1], dtype=np.float64)
-        c0 = table.c0[:, ::-1].astype(np.float64)  # (nlev, 3) x, y, z
-        ext = np.array([B * 2.0**L * sp for L in range(nlev)])
-        scale = np.array([lv.scale[::-1] for lv in pyr.levels], dtype=np.float64)
-        trans = np.array([lv.translation[::-1] for lv in pyr.levels], dtype=np.float64)
-        win = np.array([(wnd[::-1] if wnd is not None else (1, 1, 1)) for wnd in cache.windows], dtype=np.float64)
-        f32 = lambda v: np.ascontiguousarray(v, dtype=np.float32).tobytes()  # noqa: E731
-        i32 = lambda v: np.ascontiguousarray(v, dtype=np.int32).tobytes()  # noqa: E731
-        uniforms = {
-            "u_pt_base": i32(table.base), "u_pt_size": i32(table.size[:, ::-1]), "u_pt_c0": i32(table.c0[:, ::-1]),
-            "u_pt_origin": f32(vlo + c0 * ext - origin), "u_pt_ext": f32(ext),
-            "u_lv_d0": i32(table.d0[:, ::-1]), "u_lv_grid": i32([pyr.grid(L)[::-1] for L in range(nlev)]),
-            "u_lv_vox0": f32(trans + table.d0[:, ::-1] * B * scale - origin), "u_lv_inv_scale": f32(1.0 / scale),
-            "u_lv_win": i32(win), "u_lv_inv_tex_size": f32(1.0 / (win * B)),
-            "u_lv_delta": f32([params.step * float(min(lv.scale)) for lv in pyr.levels]),
-        }
-        if frame.skipped_empty:
-            occ = [self.setup.occupancy_uniforms(frame, L) for L in range(nlev)]
-            uniforms["u_lv_occ_size"] = f32([o[0] for o in occ])
-            uniforms["u_lv_occ_z0"] = f32([o[1] for o in occ])
+        uniforms = self._table_uniforms(frame, table, origin)
         for name, data in uniforms.items():
             u = prog.get(name, None)
             if u is not None:  # a variant may keep only an array's first elements (the levels it draws)
@@ -164,10 +151,7 @@ class SinglePassPath(DrawPath):
         uset(prog, "u_brick", vec3(B))
         uset(prog, "u_top", nlev - 1)
         uset(prog, "u_nudge", 1e-3 * float(sp.min()))
-        # one DRAWN node whose box is the volume's (a merged resident cut): every ray is one region
-        one = int(np.sum((table.entries & 3) == 2)) == 1 and len(items) == 1 and np.allclose(arr.lo[0], vlo) \
-            and np.allclose(arr.hi[0], vhi)
-        uset(prog, "u_max_regions", 1 if one else int(16 + sum(sum(pyr.grid(L)) for L in range(nlev))))
+        uset(prog, "u_max_regions", self._max_regions(pyr, table, items, arr, vlo, vhi))
         self.setup.loop_uniforms(prog)
         uset(prog, "u_pt_width", PAGE_TABLE_WIDTH)
         uset(prog, "u_page_table", 2)
@@ -187,13 +171,77 @@ class SinglePassPath(DrawPath):
                 tex.use(location=3 + L)
         ctx.disable(mgl.BLEND | mgl.CULL_FACE)
         self.setup.depth_test(frame)  # on only in the fine pass of a refined frame
-        rect = self.setup.scissor_rects(cam, vlo, vhi)[0]
+        rect = self._scissor(cam, vlo, vhi)
         if rect[2] and rect[3]:  # else the volume is off the image: nothing to draw
             ctx.scissor = tuple(rect)
             vao.render(mgl.TRIANGLES, vertices=3)
             ctx.scissor = None
         return self.setup.read_back(frame, previous, mode_of(params.mode).classifies, t0, boxes_drawn=1,
                                     page_table_nodes=len(items), program=prog)
+
+    def _scissor(self, cam, vlo, vhi):
+        """The scissor rectangle of the volume's box, kept while the camera (the same object: a
+        still view) and the pass's origin in the target are the same."""
+        key = (cam, tuple(int(v) for v in self.setup.origin))
+        kept = self._rect
+        if kept is not None and kept[0][0] is cam and kept[0][1] == key[1]:
+            return kept[1]
+        rect = self.setup.scissor_rects(cam, vlo, vhi)[0]
+        self._rect = (key, rect)
+        return rect
+
+    def _max_regions(self, pyr, table, items, arr, vlo, vhi) -> int:
+        """The most regions a ray crosses: 1 where the table holds one DRAWN node whose box is the
+        volume's (a merged resident cut), else a bound from the grids (kept with the table)."""
+        if self._regions[0] is table:
+            return self._regions[1]
+        one = int(np.sum((table.entries & 3) == 2)) == 1 and len(items) == 1 and np.allclose(arr.lo[0], vlo) \
+            and np.allclose(arr.hi[0], vhi)
+        n = 1 if one else int(16 + sum(sum(pyr.grid(L)) for L in range(pyr.num_levels)))
+        self._regions = (table, n)
+        return n
+
+    def _table_uniforms(self, frame: FrameContext, table, origin) -> dict:
+        """The page table's and the levels' uniform bytes, kept while the table, the origin they
+        are relative to, the step and the GPU windows are the same (a still view; a kept cut's
+        table); the empty-space cells' are asked every frame."""
+        key = (origin.tobytes(), frame.params.step, tuple(None if w is None else tuple(w) for w in frame.cache.windows))
+        kept = self._uniforms
+        if kept is not None and kept[0] is table and kept[1] == key and kept[2] is frame.cache \
+                and kept[3] is frame.pyramid:
+            uniforms = kept[4]
+        else:
+            uniforms = self._level_uniforms(frame, table, origin)
+            self._uniforms = (table, key, frame.cache, frame.pyramid, uniforms)
+        if frame.skipped_empty:  # (the empty-space cells' layout: asked every frame)
+            f32 = lambda v: np.ascontiguousarray(v, dtype=np.float32).tobytes()  # noqa: E731
+            occ = [self.setup.occupancy_uniforms(frame, L) for L in range(frame.pyramid.num_levels)]
+            uniforms = dict(uniforms, u_lv_occ_size=f32([o[0] for o in occ]), u_lv_occ_z0=f32([o[1] for o in occ]))
+        return uniforms
+
+    def _level_uniforms(self, frame: FrameContext, table, origin) -> dict:
+        """The page table's and the levels' uniform bytes (:meth:`_table_uniforms`)."""
+        params, pyr, cache = frame.params, frame.pyramid, frame.cache
+        nlev = pyr.num_levels
+        vlo, _ = pyr.volume_box()
+        sp = np.array(pyr.spacing[::-1], dtype=np.float64)
+        B = np.array(pyr.brick_shape[::-1], dtype=np.float64)
+        c0 = table.c0[:, ::-1].astype(np.float64)  # (nlev, 3) x, y, z
+        ext = np.array([B * 2.0**L * sp for L in range(nlev)])
+        scale = np.array([lv.scale[::-1] for lv in pyr.levels], dtype=np.float64)
+        trans = np.array([lv.translation[::-1] for lv in pyr.levels], dtype=np.float64)
+        win = np.array([(wnd[::-1] if wnd is not None else (1, 1, 1)) for wnd in cache.windows], dtype=np.float64)
+        f32 = lambda v: np.ascontiguousarray(v, dtype=np.float32).tobytes()  # noqa: E731
+        i32 = lambda v: np.ascontiguousarray(v, dtype=np.int32).tobytes()  # noqa: E731
+        uniforms = {
+            "u_pt_base": i32(table.base), "u_pt_size": i32(table.size[:, ::-1]), "u_pt_c0": i32(table.c0[:, ::-1]),
+            "u_pt_origin": f32(vlo + c0 * ext - origin), "u_pt_ext": f32(ext),
+            "u_lv_d0": i32(table.d0[:, ::-1]), "u_lv_grid": i32([pyr.grid(L)[::-1] for L in range(nlev)]),
+            "u_lv_vox0": f32(trans + table.d0[:, ::-1] * B * scale - origin), "u_lv_inv_scale": f32(1.0 / scale),
+            "u_lv_win": i32(win), "u_lv_inv_tex_size": f32(1.0 / (win * B)),
+            "u_lv_delta": f32([params.step * float(min(lv.scale)) for lv in pyr.levels]),
+        }
+        return uniforms
 
     def release(self) -> None:
         if self._pt_tex is not None:

@@ -10,11 +10,14 @@ new camera:
 
 1. re-tests only the **band**: each node keeps its *slack*, how far (in world units) the camera's
    frustum planes and the node's nearest depth may move before either test can flip, and the
-   camera it was last tested at; the change from that camera to this one is bounded by
-   :func:`camera_change` (the planes' and the view direction's turn times the volume's radius,
-   plus their shift at its centre), so a node whose slack exceeds its bound keeps its answers
-   untested;
-2. propagates "reached" from the root through the parents' answers (one gather per level);
+   camera it was last tested at; the change from that camera to this one is bounded per node by
+   the planes' and the view direction's turn times the node's *reach* (how far its farthest
+   corner lies from the volume's centre), plus their shift at the centre (:func:`_turn_shift`;
+   :func:`camera_change` is the bound for the whole volume), so a node whose slack exceeds its
+   bound keeps its answers untested - and a node near the centre moves less than the corners;
+2. propagates "reached" through the parents' answers (one gather per level) from the coarsest
+   level whose answers flipped down (the levels above keep theirs), and sets level 0 - most of
+   the nodes, never refined - again only under the level-1 nodes whose answer changed;
 3. grows the tree below nodes that now refine and had no children yet (the traversal's own
    expansion, per level);
 4. reads the leaves off the arrays: reached, kept, not refined, not transparent.
@@ -72,8 +75,17 @@ def camera_change(a: np.ndarray, b: np.ndarray, radius: float) -> np.ndarray:
     (:func:`_camera_terms`; ``a`` may hold many cameras, ``(..., 7, 4)``): ``|dn| radius +
     |d(value at centre)|``, each point's value being ``n . (x - centre)`` plus the value at the
     centre."""
+    turn, shift = _turn_shift(a, b)
+    return turn * radius + shift
+
+
+def _turn_shift(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(..., 7)`` each: the turn ``|dn|`` of each frustum plane's normal and of the view direction
+    between cameras with terms ``a`` and ``b``, and the change of their value at the centre: a point
+    at distance ``r`` from the centre changes by at most ``turn * r + shift``
+    (:func:`camera_change` with ``r`` the volume's radius)."""
     d = np.asarray(b) - np.asarray(a)
-    return np.linalg.norm(d[..., :3], axis=-1) * radius + np.abs(d[..., 3])
+    return np.linalg.norm(d[..., :3], axis=-1), np.abs(d[..., 3])
 
 
 class KeptCut:
@@ -108,6 +120,7 @@ class KeptCut:
         self.lv[0] = tree.root
         self.idx = np.zeros((1, 3), dtype=np.int64)
         self.lo, self.hi = tree.boxes(tree.root, self.idx)
+        self.reach = self._reach(self.lo, self.hi)  # how far each node's corners lie from the centre
         self.parent = np.full(1, -1, dtype=np.int64)
         self.expanded = np.zeros(1, dtype=bool)
         self.inside = self._inside(self.lv, self.lo, self.hi)  # not outside the shape (camera-free)
@@ -129,8 +142,15 @@ class KeptCut:
         #: only a level whose reached nodes or answers changed (most of a small move's levels keep both)
         self._levels: tuple | None = None
         self._evened: dict = {}
+        #: level 0's ``reached`` was set by a full pass over the rows :attr:`_levels` holds (a new row
+        #: or a renumbering sets it again in full)
+        self._level0 = False
 
     # -- the camera-free tests -------------------------------------------------------------------
+    def _reach(self, lo, hi) -> np.ndarray:
+        """``(n,)``: the farthest any corner of each box lies from the centre (an upper bound)."""
+        return np.linalg.norm((lo + hi) * 0.5 - self.centre, axis=1) + np.linalg.norm(hi - lo, axis=1) * 0.5
+
     def _inside(self, lv, lo, hi) -> np.ndarray:
         if self.shape is None or self.shape.is_everything:
             return np.ones(len(lv), dtype=bool)
@@ -158,13 +178,16 @@ class KeptCut:
         ref = np.zeros(len(rows), dtype=bool)
         dslack = np.full(len(rows), np.inf)
         f = np.asarray(camera.forward, dtype=np.float64)
-        for L in np.unique(lv).tolist():
-            m = lv == L
-            if L > tree.top:
-                ref[m] = True  # virtual levels are always entered
-            elif L > 0:
-                ref[m] = self.policy.need(t, L, lo[m], hi[m])
-                dslack[m] = self._depth_slack(camera, f, L, lo[m], hi[m])
+        up = np.nonzero(lv > 0)[0]  # (level 0, most of a band, is never refined: no answer, no depth slack)
+        if len(up):
+            ulv = lv[up]
+            for L in np.unique(ulv).tolist():
+                m = up[ulv == L]
+                if L > tree.top:
+                    ref[m] = True  # virtual levels are always entered
+                else:
+                    ref[m] = self.policy.need(t, L, lo[m], hi[m])
+                    dslack[m] = self._depth_slack(camera, f, L, lo[m], hi[m])
         # a kept node flips when its smallest reach crosses 0, a culled one when its most negative does
         fslack = np.where(infr, reach.min(axis=1), -np.where(reach < 0, reach, 0).min(axis=1))
         self.infr[rows], self.ref[rows] = infr, ref
@@ -191,9 +214,10 @@ class KeptCut:
         evened out together, what is refined there); False where a child lies outside the window.
         ``propagated``: the answers were propagated since they last changed (no first round)."""
         tree = self.tree
+        coarsest = None  # (the first round: any level may have changed)
         while True:
             if not propagated:
-                self._propagate()
+                self._propagate(coarsest)
             propagated = False
             go = self.reached & self.infr & self.inside & self.eff & ~self.expanded
             rows = np.nonzero(go)[0]
@@ -218,6 +242,7 @@ class KeptCut:
             self.lv = np.concatenate([self.lv, lv])
             self.idx = np.concatenate([self.idx, idx])
             self.lo, self.hi = np.concatenate([self.lo, lo]), np.concatenate([self.hi, hi])
+            self.reach = np.concatenate([self.reach, self._reach(lo, hi)])
             self.parent = np.concatenate([self.parent, par])
             self.expanded = np.concatenate([self.expanded, np.zeros(len(lv), dtype=bool)])
             self.inside = np.concatenate([self.inside, self._inside(lv, lo, hi)])
@@ -236,31 +261,46 @@ class KeptCut:
                     rows_of[L] = np.concatenate([rows_of[L], n0 + np.nonzero(lv == L)[0]])
                 self._levels = (self.lv, rows_of)
             self._test(np.arange(n0, len(self.lv)), camera)
+            # the next round propagates from the new rows' level down: the levels above keep their
+            # answers, and a new child of level 0 is reached (its parent is reached and refined)
+            coarsest = int(lv.max())
 
-    def _propagate(self) -> None:
+    def _propagate(self, coarsest: int | None = None) -> None:
         """Reached: the root, and every child of a reached, kept, refined node; refined (``eff``):
         the rule's answers of the reached, kept nodes of a level evened out together, as the
-        traversal's ``refine`` does (one gather and one evening per level, top down)."""
+        traversal's ``refine`` does (one gather and one evening per level, top down).
+
+        ``coarsest``: the coarsest level whose nodes' answers changed since the last propagation
+        (None: any may have). The levels above it keep what they had; level 0 (most of the rows,
+        never refined) is set again only under the level-1 nodes whose "reached and refined"
+        changed, while its rows are the ones the last full pass set."""
         kept = self.infr & self.inside
-        self.reached[:] = False
-        self.reached[self.parent < 0] = True
-        self.eff[:] = False
-        t, top = self._t, self.tree.top
+        t, top, root = self._t, self.tree.top, self.tree.root
         if self._levels is None or self._levels[0] is not self.lv:  # the rows of each level (kept with them)
             order = np.argsort(self.lv, kind="stable")
-            ends = np.searchsorted(self.lv[order], np.arange(self.tree.root + 2))
-            self._levels = (self.lv, [order[ends[L]:ends[L + 1]] for L in range(self.tree.root + 1)])
+            ends = np.searchsorted(self.lv[order], np.arange(root + 2))
+            self._levels = (self.lv, [order[ends[L]:ends[L + 1]] for L in range(root + 1)])
             self._evened = {}
-        for L in range(self.tree.root, -1, -1):
-            r = self._levels[1][L]
+            self._level0 = False
+            coarsest = None
+        if coarsest is None:
+            coarsest = root
+        rows_of = self._levels[1]
+        r1 = rows_of[1] if root >= 1 else rows_of[0][:0]
+        open1 = self.reached[r1] & self.eff[r1]  # the level-1 nodes' answers to their children, before
+        for L in range(min(coarsest, root), 0, -1):
+            r = rows_of[L]
             if not len(r):
                 continue
-            p = self.parent[r]
-            if L < self.tree.root:
+            if L == root:
+                self.reached[r] = self.parent[r] < 0
+            else:
+                p = self.parent[r]
                 self.reached[r] = np.where(p >= 0, self.reached[np.maximum(p, 0)] & self.eff[np.maximum(p, 0)], True)
+            self.eff[r] = False
             live = r[self.reached[r] & kept[r]]
             ref = self.ref[live]
-            if L > top or L == 0 or not len(live):
+            if L > top or not len(live):
                 self.eff[live] = ref
                 continue
             last = self._evened.get(L)  # a level whose nodes and answers did not change evens out the same
@@ -270,13 +310,30 @@ class KeptCut:
             eff = self.policy.even(t, L, self.lo[live], ref)
             self._evened[L] = (live, ref, eff)
             self.eff[live] = eff
+        # level 0: reached where its parent is reached and refined (never refined itself: no answer)
+        r0 = rows_of[0]
+        if not len(r0):
+            return
+        if root == 0:
+            self.reached[r0] = self.parent[r0] < 0
+            return
+        if self._level0:  # only the children of level-1 nodes whose answer changed
+            moved = r1[open1 != (self.reached[r1] & self.eff[r1])]
+            if not len(moved):
+                return
+            flag = np.zeros(len(self.lv), dtype=bool)
+            flag[moved] = True
+            r0 = r0[flag[self.parent[r0]]]
+        p = self.parent[r0]
+        self.reached[r0] = np.where(p >= 0, self.reached[np.maximum(p, 0)] & self.eff[np.maximum(p, 0)], True)
+        self._level0 = True
 
     def _compact(self) -> None:
         """Keep only the reached nodes (a reached node's parent is reached: the tree stays whole); a
         node whose children go is marked unexpanded, to grow again if it refines again."""
         keep = self.reached
         new = np.cumsum(keep) - 1
-        for name in ("lv", "idx", "lo", "hi", "expanded", "inside", "opaque", "infr", "ref", "eff", "slack",
+        for name in ("lv", "idx", "lo", "hi", "reach", "expanded", "inside", "opaque", "infr", "ref", "eff", "slack",
                      "cam_id", "reached"):
             setattr(self, name, getattr(self, name)[keep])
         self.drawn = None  # (a dropped row may have been drawn: the next selection compares keys anew)
@@ -298,6 +355,10 @@ class KeptCut:
         """
         if not self.supported:
             return None
+        if self.selection is not None and not ordered and not self.selection.ordered and \
+                (camera is self.camera or camera == self.camera):
+            self.retested = 0  # a still camera: every answer is the one it gave last
+            return self.selection
         terms = _camera_terms(camera, self.centre)
         last = self.camera
         if last is not None and (last.orthographic != camera.orthographic
@@ -308,22 +369,25 @@ class KeptCut:
             self._cams = [self._cams[i] for i in used.tolist()]
             if len(self._cams) > MAX_CAMERAS:
                 self.slack[:] = -np.inf
-        bound = camera_change(np.asarray(self._cams).reshape(-1, 7, 4), terms, self.radius) if self._cams \
-            else np.zeros((1, 7))
-        # each node's bound from the camera it was last tested at (per camera first: two 1-D gathers)
-        plane, depth = bound[:, :6].max(axis=1), bound[:, 6]
-        band = np.nonzero((self.slack[:, 0] <= plane[self.cam_id]) | (self.slack[:, 1] <= depth[self.cam_id]))[0]
+        turn, shift = _turn_shift(np.asarray(self._cams).reshape(-1, 7, 4), terms) if self._cams \
+            else (np.zeros((1, 7)), np.zeros((1, 7)))
+        # each node's bound from the camera it was last tested at: the turn of the planes (and of the
+        # view direction) times the node's reach from the centre, plus their shift at the centre
+        # (per camera first, then gathered: a node near the centre moves less than the volume's corners)
+        cid = self.cam_id
+        band = np.nonzero((self.slack[:, 0] <= turn[:, :6].max(axis=1)[cid] * self.reach + shift[:, :6].max(axis=1)[cid])
+                          | (self.slack[:, 1] <= turn[:, 6][cid] * self.reach + shift[:, 6][cid]))[0]
         self._cams.append(terms)
         was = (self.infr[band].copy(), self.ref[band].copy())
         self._t.camera = self.camera = camera
         self._test(band, camera)
         self.retested = len(band)
-        changed = self.selection is None or not (np.array_equal(was[0], self.infr[band])
-                                                 and np.array_equal(was[1], self.ref[band]))
+        flipped = (was[0] != self.infr[band]) | (was[1] != self.ref[band])
+        changed = self.selection is None or bool(flipped.any())
         if not changed and not ordered and not self.selection.ordered:
             return self.selection
-        if changed:
-            self._propagate()
+        if changed:  # (from the coarsest level whose answers flipped down)
+            self._propagate(None if self.selection is None else int(self.lv[band[flipped]].max()))
             n_out = len(self.lv) - int(self.reached.sum())
             if n_out > max(COMPACT_MIN, len(self.lv) - n_out):
                 self._compact()

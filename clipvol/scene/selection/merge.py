@@ -286,7 +286,11 @@ class KeptMerge:
         #: the lower passes' questions to ``may_cover`` of the kept cells, and the upper passes' of
         #: the last call: ``(level, node_level, nodes, answers, cells)`` (cells None: upper)
         self._asked: list[tuple] = []
+        #: the upper passes' input entries, their questions (as :attr:`_asked`'s) and their result:
+        #: the same entries whose camera answers hold merge the same, and the same object is returned
+        self._upper: tuple | None = None
         self.remerged = 0  # items the lower passes ran over in the last call (benchmarks and tests)
+        self.upper_kept = False  # the last call kept the upper passes' result (benchmarks and tests)
 
     @property
     def holding(self) -> bool:
@@ -297,6 +301,7 @@ class KeptMerge:
         """Forget the kept cells: the next :meth:`merge` merges from nothing."""
         self._items = self._kept = self._kept_cell = None
         self._asked = []
+        self._upper = None
 
     def _recording(self, may_cover, lower: bool):
         """``may_cover`` whose questions and answers are kept in :attr:`_asked` (with the cell of
@@ -372,6 +377,7 @@ class KeptMerge:
             redo = np.ones(len(arr), dtype=bool)
             keep = None
             self._asked = []
+            self._upper = None  # (other windows: other upper merges)
         else:
             # (the same items object: no leaf changed, only answers can have)
             dirty = np.zeros(int(np.prod(self._cell_grid)), dtype=bool) if arr is self._items \
@@ -407,7 +413,27 @@ class KeptMerge:
         # each entry's cell: its first brick's (a lower pass never merges beyond a cell)
         merged_cells = self._cells(np.concatenate([merged.data_lv[:, None], merged.idx], axis=1))
         self._items, self._kept, self._kept_cell, self._windows = arr, merged, merged_cells, windows
-        return _merge_levels(merged, pyr, windows, self._recording(may_cover, False), none, none, first=K).items()
+        # the upper passes: what they made of the same entries holds while the camera answers their
+        # questions as before (a cell merged again to the entries it had: a flying camera's usual frame)
+        up = self._upper
+        if up is not None and _same_entries(up[0], merged) and (may_cover is None or all(
+                np.array_equal(np.asarray(_camera_part(may_cover)(L, n, nodes), dtype=bool).reshape(len(nodes)), ans)
+                for L, n, nodes, ans, _ in up[1] if len(nodes))):
+            self.upper_kept = True
+            self._asked = self._asked + up[1]  # (asked again by answers_hold with the lower ones)
+            return up[2]
+        self.upper_kept = False
+        lower, self._asked = self._asked, []
+        out = _merge_levels(merged, pyr, windows, self._recording(may_cover, False), none, none, first=K).items()
+        self._upper = (merged, _grouped(self._asked), out)
+        self._asked = lower + self._upper[1]
+        return out
+
+
+def _same_entries(a: _Merging, b: _Merging) -> bool:
+    """Are two working lists the same entries in the same order (levels, nodes, bricks, boxes)?"""
+    return a is b or (len(a.data_lv) == len(b.data_lv)
+                      and all(np.array_equal(getattr(a, k), getattr(b, k)) for k in _Merging.__slots__))
 
 
 def _grouped(asked: list) -> list:
