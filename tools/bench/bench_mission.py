@@ -240,17 +240,7 @@ def main(argv: list[str] | None = None) -> int:
                  f"known: {', '.join(settings())}")
     if a.supersample < 1:
         ap.error(f"--supersample: expected an integer >= 1, got {a.supersample}")
-    if a.store is not None:
-        from clipvol.paging.open import open_store
-
-        loader = open_store(a.store)
-        volume = common.WholeVolume(loader).read_brick(0, (0, 0, 0))
-        store, label = a.store, f"{a.store.name}, {loader.pyramid.brick_shape[0]}^3 bricks"
-    else:
-        shape = tuple(int(v) for v in a.size.split("x"))
-        store = common.ct_store(a.size, a.brick)
-        volume = common.ct_volume(shape)
-        label = f"ct_head {a.size} uint16 (12 bit), {a.brick}^3 bricks"
+    store, volume, label = common.store_or_ct(a.store, a.size, a.brick)
     rows = run(store, volume, label, [int(v) for v in a.images.split(",")], a.repeat, a.step,
                supersample=a.supersample, converged_step=a.converged_step,
                view_names=None if a.views is None else a.views.split(","),

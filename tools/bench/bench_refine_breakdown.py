@@ -213,15 +213,7 @@ def main(argv: list[str] | None = None) -> int:
     unknown = set(names) - set(bench_mission.settings())
     if unknown:
         ap.error(f"--settings: unknown {sorted(unknown)}; known: {', '.join(bench_mission.settings())}")
-    if a.store is not None:
-        from clipvol.paging.open import open_store
-
-        loader = open_store(a.store)
-        volume = common.WholeVolume(loader).read_brick(0, (0, 0, 0))
-        store, label = a.store, f"{a.store.name}, {loader.pyramid.brick_shape[0]}^3 bricks"
-    else:
-        store, volume = common.ct_store("256x256x256", 32), common.ct_volume((256, 256, 256))
-        label = "ct_head 256x256x256 uint16 (12 bit), 32^3 bricks"
+    store, volume, label = common.store_or_ct(a.store)
     rows = run(store, volume, label, [int(v) for v in a.images.split(",")], a.repeat, names, a.views.split(","),
                floor=a.floor)
     keys = list(dict.fromkeys(k for r in rows for k in r))  # a pass's columns only where it drew: blank elsewhere

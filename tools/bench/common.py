@@ -119,6 +119,19 @@ def ct_store(size: str, brick: int, data_dir: Path = DATA) -> Path:
     return path
 
 
+def store_or_ct(store: Path | None, size: str = "256x256x256", brick: int = 32):
+    """``(store, level-0 volume, label)`` of a benchmark's input: the clipvol store at ``store``
+    (its level 0 read whole for the raw caster), else the CT-like head of ``size`` at ``brick``."""
+    if store is not None:
+        from clipvol.paging.open import open_store
+
+        loader = open_store(store)
+        volume = WholeVolume(loader).read_brick(0, (0, 0, 0))
+        return store, volume, f"{store.name}, {loader.pyramid.brick_shape[0]}^3 bricks"
+    shape = tuple(int(v) for v in size.split("x"))
+    return ct_store(size, brick), ct_volume(shape), f"ct_head {size} uint16 (12 bit), {brick}^3 bricks"
+
+
 class WarmScene:
     """A store opened for a warm benchmark: its loader and pyramid, a GL context, a clip-texture and a
     texture budget that hold every brick of every level (so each action's frames converge and stay
