@@ -77,9 +77,6 @@ PARAM_FIELDS: dict[str, tuple] = {
                          "composite: rays at 1/4 and 1/2 of the image's resolution first, then a ray per pixel only "
                          "where the four coarser rays around it differ by more than this in a premultiplied channel "
                          "(0: a ray per pixel)"),
-    "refine_block": (1,
-                     "with --refine-tolerance: decide per block of this many pixels a side (1, 2, 4 or 8; default 1, "
-                     "each pixel): where any pixel of a block needs its ray, every pixel of it is cast"),
     "jitter": (False, "start every pixel's ray at a hashed offset (turns lattice rings into fine noise)"),
     "skip_empty": (True,
                    "composite: leap over cells of 8^3 voxels the transfer function makes transparent; iso: over "

@@ -130,17 +130,14 @@ class Refine:
             ty = math.tan(math.radians(float(camera.fov_y)) / 2.0)
             prog["u_half"].value = (ty * w / h, ty)
 
-    def mask(self, fbo, camera, k: int, tolerance: float, origin, rect=None, block: int = 1) -> None:
+    def mask(self, fbo, camera, k: int, tolerance: float, origin, rect=None) -> None:
         """Blend pass ``k + 1``'s image into the smooth pixels of pass ``k``'s ``fbo`` (bound, depth
         cleared to 1, its viewport set at ``origin``) and set their depth to 0, so that the pass's
         fragments (depth test ``<=``, at 0.5) leave them alone; the caller's draw path then sets its
         own blending and depth test. ``camera``: the image's. ``rect``: the scissor box ``(x, y, w,
         h)`` of the volume in the target, or None (the whole target): outside it the pass draws
         nothing and every coarser pass drew nothing, so the cleared pixel is what a blend of the
-        coarse pass's cleared pixels would give, and the mask is not drawn there. ``block``
-        (``RenderParams.refine_block``): 1, each pixel decides for itself; 2, 4 or 8, the pass's
-        ``block`` x ``block`` blocks from its origin decide as one (any pixel's rays differ: every
-        pixel of the block is cast)."""
+        coarse pass's cleared pixels would give, and the mask is not drawn there."""
         import moderngl
 
         ctx = self.ctx
@@ -149,7 +146,6 @@ class Refine:
         lo = pass_origin(coarse)
         uset(self.prog, "u_coarse", 0)
         uset(self.prog, "u_refine_tol", float(tolerance))
-        uset(self.prog, "u_block", int(block))
         uset(self.prog, "u_origin", tuple(float(v) for v in origin))
         uset(self.prog, "u_coarse_lo", lo)
         uset(self.prog, "u_coarse_hi", (lo[0] + int(coarse[0]) - 1, lo[1] + int(coarse[1]) - 1))

@@ -22,7 +22,7 @@ from ..units import parse_bytes
 from .geometry import Shape
 from .policy_registry import POLICIES, policy_names
 
-__all__ = ["RenderParams", "MODES", "MODE_CHECKS", "ISO_COLORS", "PATHS", "CLASSIFY", "DEFAULT_BLOCK_BUDGET", "REFINE_BLOCKS"]
+__all__ = ["RenderParams", "MODES", "MODE_CHECKS", "ISO_COLORS", "PATHS", "CLASSIFY", "DEFAULT_BLOCK_BUDGET"]
 
 #: mode -> its checks of the parameters (``check(params)``, raising ParameterError).
 #: clipvol.render.modes.register puts each registered mode's own check here (and a new mode's name
@@ -51,8 +51,6 @@ MODE_CHECKS: dict = {name: (lambda p, n=name, need=need: check_mode_needs(p, n, 
                      for name, need in BUILT_IN_MODE_NEEDS.items()}
 #: bricks the "image" policy may draw when no block_budget is given
 DEFAULT_BLOCK_BUDGET = 128
-#: the block sizes (pixels a side) a refined frame's masks may decide for as one
-REFINE_BLOCKS = (1, 2, 4, 8)
 
 
 def _positive(value: Any, name: str, unit: str) -> float:
@@ -178,13 +176,6 @@ class RenderParams:
         (in ``[0, 1]``); elsewhere the pixel is their bilinear blend. Smooth images cost a fraction
         of the rays; a feature thinner than the coarse spacing between coarse rays that agree is
         lost (measure the error with ``clipvol report``). Other modes ignore it.
-    refine_block : int
-        With ``refine_tolerance``: 1 (default), each pixel of a finer pass decides for itself
-        whether to cast its ray; 2, 4 or 8, the pass's blocks of that many pixels a side decide as
-        one - where any pixel of a block needs its ray, all of them are cast. Mesa llvmpipe shades
-        fragments in 4 x 4 blocks, each until its longest ray ends, so the pixels beside a live one
-        cost little more and are exact instead of blends (``docs/benchmarks.md``, "Block-granular
-        refinement").
     jitter : bool
         Start each pixel's sample lattice at a stable per-pixel hashed offset (a fraction of the
         step), which turns the wood-grain rings of a constant-distance lattice on opaque surfaces
@@ -257,7 +248,6 @@ class RenderParams:
     early_termination: bool = True
     merge_boxes: bool = True
     refine_tolerance: float = _field("refine_tolerance")
-    refine_block: int = _field("refine_block")
     jitter: bool = _field("jitter")
     skip_empty: bool = _field("skip_empty")
     path: str = _field("path")
@@ -352,10 +342,6 @@ class RenderParams:
             raise ParameterError(f"refine_tolerance: expected a spread of premultiplied colour in [0, 1] (0: a ray "
                                  f"per pixel), got {self.refine_tolerance!r}")
         s(self, "refine_tolerance", tol)
-        if isinstance(self.refine_block, bool) or self.refine_block not in REFINE_BLOCKS:
-            raise ParameterError(f"refine_block: expected one of {', '.join(map(str, REFINE_BLOCKS))} (pixels a side "
-                                 f"of a block refined as one), got {self.refine_block!r}")
-        s(self, "refine_block", int(self.refine_block))
         s(self, "skip_empty", bool(self.skip_empty))
         s(self, "shading", bool(self.shading))
         for name in ("ambient", "diffuse", "specular"):

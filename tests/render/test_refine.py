@@ -5,9 +5,7 @@ The reference is built here from the independent caster (tests/reference_raycast
 algorithm as its docstring states it, in float64 numpy: the image at 1/4, 1/2 and full resolution
 (the rays of a camera of that size are the rays the coarse passes cast when the size divides), then
 from the coarsest up, a pixel whose four surrounding coarser rays agree to within the tolerance in
-every premultiplied channel is their bilinear blend, every other pixel is its own ray (with
-``refine_block`` B > 1: every pixel of a B x B block of the pass, counted from its first pixel, is
-its own ray where any pixel of the block is)."""
+every premultiplied channel is their bilinear blend, every other pixel is its own ray."""
 
 from __future__ import annotations
 
@@ -32,7 +30,7 @@ def camera(size=(96, 80)):
     return Camera.perspective((95.0, 75.0, -40.0), (31.5, 31.5, 31.5), size=size, fov_y=40)
 
 
-def refined_reference(vol, pyr, cam, tol: float, levels: int, block: int = 1) -> tuple[np.ndarray, float]:
+def refined_reference(vol, pyr, cam, tol: float, levels: int) -> tuple[np.ndarray, float]:
     """The refined image from the reference caster (premultiplied float, rows top first) and the
     share of its pixels that are blends rather than rays."""
     fc = cam.fit_depth(*pyr.volume_box())
@@ -58,12 +56,6 @@ def refined_reference(vol, pyr, cam, tol: float, levels: int, block: int = 1) ->
         a, b, d, e = tap(0, 0), tap(0, 1), tap(1, 0), tap(1, 1)
         taps = np.stack([a, b, d, e])
         smooth = (taps.max(axis=0) - taps.min(axis=0)).max(axis=-1) <= tol
-        if block > 1:  # a block is cast whole where any of its pixels is
-            live = ~smooth
-            by, bx = y // block, x // block
-            any_live = np.zeros((by.max() + 1, bx.max() + 1), dtype=bool)
-            np.logical_or.at(any_live, (by, bx), live)
-            smooth = ~any_live[by, bx]
         blend = (a * (1 - fx) + b * fx) * (1 - fy) + (d * (1 - fx) + e * fx) * fy
         img = np.where(smooth[..., None], blend, rays)
         blended = float(smooth.mean())
@@ -82,22 +74,6 @@ def test_refined_frame_is_the_reference_refinement(scene, draw_path):
     assert (d > 2).mean() <= 0.01, f"{(d > 2).sum()} pixels differ by more than 2 levels (max {d.max()})"
     plain = action(path=draw_path).render(cam, SHELL, wait=True)
     assert np.abs(plain.astype(np.int64) - img.astype(np.int64)).max() > 0  # refined, not the plain frame
-
-
-@pytest.mark.parametrize("block", [4, 8])
-def test_block_refined_frame_is_the_reference_block_refinement(scene, block):
-    """``refine_block``: the masks decide per block of the pass; the frame is the reference's
-    block refinement, and casts more rays (fewer blends) than the per-pixel refinement."""
-    vol, pyr, action = scene
-    cam = camera()
-    img = action(refine_tolerance=TOL, refine_block=block).render(cam, SHELL, wait=True)
-    want, blended = refined_reference(vol, pyr, cam, TOL, 2, block=block)
-    _, blended_pixel = refined_reference(vol, pyr, cam, TOL, 2)
-    assert 0.3 < blended < blended_pixel  # blocks of blends and of rays both drawn, fewer blends
-    d = np.abs(img.astype(np.int64) - ref.to_uint8(want).astype(np.int64)).max(axis=-1)
-    assert (d > 2).mean() <= 0.01, f"{(d > 2).sum()} pixels differ by more than 2 levels (max {d.max()})"
-    per_pixel = action(refine_tolerance=TOL).render(cam, SHELL, wait=True)
-    assert np.abs(per_pixel.astype(np.int64) - img.astype(np.int64)).max() > 2  # not the per-pixel frame
 
 
 def test_odd_sizes_keep_every_pixel_in_place(scene):
@@ -127,12 +103,6 @@ def test_refine_tolerance_is_checked(bad):
         RenderParams(refine_tolerance=bad)
 
 
-@pytest.mark.parametrize("bad", [0, 3, 16, 4.5, True, "4"])
-def test_refine_block_is_checked(bad):
-    with pytest.raises(ParameterError, match="refine_block"):
-        RenderParams(refine_block=bad)
-
-
 @pytest.mark.parametrize("early_termination", [True, False])
 def test_the_mask_drawn_only_over_the_volume_changes_no_pixel(scene, monkeypatch, early_termination):
     """The mask of a finer pass is drawn under the volume's scissor box: outside it the cleared pixel
@@ -148,8 +118,8 @@ def test_the_mask_drawn_only_over_the_volume_changes_no_pixel(scene, monkeypatch
     kw = dict(refine_tolerance=TOL, early_termination=early_termination, background=(0.2, 0.3, 0.4, 1.0))
     img = action(**kw).render(far, SHELL, wait=True)
     mask = Refine.mask
-    monkeypatch.setattr(Refine, "mask", lambda self, fbo, cam, k, tol, origin, rect=None, **kw: mask(self, fbo, cam, k,
-                                                                                                    tol, origin, None, **kw))
+    monkeypatch.setattr(Refine, "mask", lambda self, fbo, cam, k, tol, origin, rect=None: mask(self, fbo, cam, k, tol,
+                                                                                              origin, None))
     whole = action(**kw).render(far, SHELL, wait=True)
     assert np.array_equal(img, whole)
     assert (img[..., 3] > 0).any() and (img[..., 3] == 255).any()  # the volume is drawn, on a background

@@ -83,14 +83,6 @@ def settings() -> dict:
                 for st, tol in ((0.5, 0.16), (0.75, 0.16), (1.0, 0.08), (1.0, 0.16), (1.0, 0.3), (1.5, 0.08),
                                 (1.5, 0.16), (2.0, 0.12))})
     out.update({f"L1 step={st:g}": dict(policy="fixed", level=1, step=st) for st in (1.0, 1.5, 2.0)})
-    # the masks deciding per block of 4 or 8 pixels (refine_block): the same tolerances and higher ones
-    for b in (4, 8):
-        out.update({f"step={st:g} refine={tol:g} block={b}": dict(policy="fixed", level=0, step=st,
-                                                                  refine_tolerance=tol, refine_block=b)
-                    for st, tol in ((2.0, 0.16), (2.0, 0.3), (2.5, 0.3))})
-        out.update({f"L1 step={st:g} refine={tol:g} block={b}": dict(policy="fixed", level=1, step=st,
-                                                                     refine_tolerance=tol, refine_block=b)
-                    for st, tol in ((1.0, 0.08), (1.0, 0.16), (1.0, 0.3), (1.5, 0.16))})
     return out
 
 

@@ -227,8 +227,7 @@ class DrawSetup:
         fbo.clear(*clear)  # (depth to 1: nothing masked)
         if frame.repeats_pass:  # a finer pass: the smooth pixels come from the coarser one (where the volume is)
             rect = self.scissor_rects(frame.camera, *frame.pyramid.volume_box())[0]
-            self.refine.mask(fbo, frame.image_camera, k, frame.params.refine_tolerance, self.origin, rect,
-                             block=frame.params.refine_block)
+            self.refine.mask(fbo, frame.image_camera, k, frame.params.refine_tolerance, self.origin, rect)
         return fbo, previous, t0
 
     def scissor_rects(self, cam, lo, hi) -> np.ndarray:
