@@ -296,13 +296,13 @@ class ClipRenderAction:
         bytes_read = None if read0 is None else bytes_read_of(self.clip_texture.loader) - read0
         reads = self.clip_texture.take_reads()
         last = self.last_frame_stats
-        if plan.replayed and self.last_selection is sel and last is not None:  # the same cut: the same counts
+        if plan.replayed and self.last_selection is sel and last is not None:  # the same cut
             frame_read, other_read = split_reads(reads, np.concatenate([sel.item_keys(), sel.wanted_keys()])) \
                 if reads else ((None, None) if reads is None else (0, 0))
             self.last_frame_stats = dataclasses.replace(
                 last, times=times, bytes_uploaded=0, bricks_uploaded=0, passes=1, converged=True,
                 bytes_read=bytes_read, frame_bytes_read=frame_read, prefetch_bytes_read=other_read, replayed=True,
-                updated=False, **self._drawn_fields(drawn))
+                updated=False, counts=sel.counts.copy(), **self._drawn_fields(drawn))  # (a kept cut's: this camera's)
         else:
             self.last_frame_stats = dataclasses.replace(
                 frame_stats(sel, plan, times, self.cache, self.params.texture_budget, self.clip_texture,

@@ -42,8 +42,10 @@ class FrameStats:
         Every wanted brick was drawn at its own level.
     passes : int
         Select/upload passes made (more than one only with ``wait=True``).
-    counts : dict
-        The selection's counts (culled, refined, fallback).
+    counts : Mapping
+        The selection's counts (culled, refined, fallback): a dict, or for a kept cut a read-only
+        :class:`~clipvol.scene.selection.kept_cut.KeptCounts` whose culled counts are completed
+        when first read.
     bytes_read : int or None
         Bytes the loader read from storage during the call (chunk files or network responses,
         the clip-texture's prefetch included; :mod:`clipvol.paging.readcount`), ``None`` for a
@@ -128,7 +130,7 @@ def frame_stats(sel, plan, times: dict, cache, texture_budget: int, clip_texture
         texels_drawn=distinct * cache.brick_texels, bytes_uploaded=plan.bytes_uploaded,
         bricks_uploaded=plan.bricks_uploaded, texture_bytes=cache.texture_bytes,
         texture_budget=texture_budget, times=times, converged=plan.converged, passes=plan.passes,
-        items_drawn=len(sel.items), counts=dict(sel.counts), failed_bricks=failed_bricks(sel, clip_texture),
+        items_drawn=len(sel.items), counts=sel.counts.copy(), failed_bricks=failed_bricks(sel, clip_texture),
         bytes_read=bytes_read, frame_bytes_read=frame_read, prefetch_bytes_read=other_read,
         replayed=bool(getattr(plan, "replayed", False)), updated=bool(getattr(plan, "updated", False)),
     )

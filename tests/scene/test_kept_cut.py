@@ -191,6 +191,31 @@ def test_the_same_leaves_come_back_as_the_same_items_with_fresh_counts():
     assert kept > 3 and new > 3, (kept, new)  # (both kinds of move happened)
 
 
+def test_transparent_level0_nodes_are_counted_not_re_tested_and_counts_keep_their_camera():
+    """A transparent level-0 node's frustum answer only feeds the counts: the band leaves it out, so a
+    move that carries only such nodes across a frustum plane gives back the same selection object,
+    its counts (``KeptCounts``, completed when read) the fresh selection's for the new camera; and
+    each frame's counts, read only after the whole path (nodes reached and dropped since), are still
+    the fresh selection's of that frame's camera."""
+    params = RenderParams(policy="projected-size", lod_threshold=0.1)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    rng = np.random.default_rng(11)
+    held, fresh_counts, last, last_counts, same_obj_new_counts = [], [], None, None, 0
+    cams = [camera(10 + 0.2 * k, 20, 90 + 0.3 * k) for k in range(40)] + list(path(rng, 30, 2.0))
+    for cam in cams:
+        sel = kc.update(cam, ordered=False)
+        fresh = select(PYR, cam, params, transparent=transparent)
+        held.append(sel.counts.copy())  # what FrameStats keeps: not read yet
+        fresh_counts.append(dict(fresh.counts))
+        if sel is last and fresh.counts != last_counts:
+            same_obj_new_counts += 1  # only transparent level-0 nodes crossed a plane
+        last, last_counts = sel, dict(fresh.counts)
+        assert not kc.mute.any() or bool(np.isinf(kc.slack[kc.mute]).all())  # never in a band
+    assert same_obj_new_counts >= 3, same_obj_new_counts
+    for got, want in zip(held, fresh_counts):
+        assert dict(got) == want
+
+
 def test_the_propagation_kept_between_frames_is_the_full_propagation_along_random_paths():
     """``KeptCut._propagate`` sets again only the levels from the coarsest one whose answers flipped
     down, and level 0 only under the level-1 nodes whose answer changed: along random paths (turns,

@@ -148,8 +148,9 @@ class Selection:
         The ideal cut ignoring residency (inside the window), coarse levels first, then nearest
         first: the load priority and the target of ``wait``; a list of ``(level, index)`` held as
         one array (a plain list given here is taken as one).
-    counts : dict
-        ``visited``, ``culled_frustum``, ``culled_shape``, ``culled_transparent``,
+    counts : dict or Mapping
+        (A kept cut's is a read-only :class:`~clipvol.scene.selection.kept_cut.KeptCounts`, its
+        culled counts completed when first read.) ``visited``, ``culled_frustum``, ``culled_shape``, ``culled_transparent``,
         ``culled_policy`` (nodes a policy's own test left out), ``refined``, ``outside_window``
         (boxes drawn from the parent because the child is outside the window), ``fallback`` (items
         drawn from an ancestor because the ideal brick is not resident), ``missing`` (regions not

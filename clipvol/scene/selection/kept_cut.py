@@ -22,6 +22,13 @@ new camera:
    expansion, per level);
 4. reads the leaves off the arrays: reached, kept, not refined, not transparent.
 
+A transparent level-0 node (most of a band beside the frustum's side planes: air around the data)
+is never drawn and never refined, so its frustum answer changes nothing but the selection's
+counts (frustum-culled, shape-culled or transparent-culled). It is left out of the band, and the
+counts it feeds come from :class:`KeptCounts`, which tests those nodes against the frame's camera
+only when a count is read: the counts stay exactly ``select``'s, and a frame nobody asks them of
+does not pay for them.
+
 The cut it gives equals :func:`~clipvol.scene.selection.select`'s for the same camera exactly (the
 tests are the traversal's own functions on the same boxes; ``tests/scene/test_kept_cut.py``
 checks it over random camera paths against a fresh selection). With ``ordered=False`` the items
@@ -39,6 +46,8 @@ drawn from its own brick (the frame loop uses it only while every brick is on th
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 
 from ...rows import unique_rows
@@ -48,7 +57,7 @@ from .order import depth_first, load_order, order_nodes
 from .policies.base import RefinePolicy
 from .traversal import Traversal
 
-__all__ = ["KeptCut", "camera_change"]
+__all__ = ["KeptCounts", "KeptCut", "camera_change"]
 
 #: cameras kept to bound each node's change from the one it was last tested at; past this many,
 #: those no node refers to are dropped (and if still more, every node is tested again)
@@ -88,6 +97,51 @@ def _turn_shift(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.linalg.norm(d[..., :3], axis=-1), np.abs(d[..., 3])
 
 
+class KeptCounts(Mapping):
+    """A kept cut's :attr:`Selection.counts <clipvol.scene.selection.cut.Selection>` for one camera:
+    the counts of the tested nodes, and those of the transparent level-0 nodes (never drawn, never
+    refined: only the counts ask their frustum answers) added on the first read.
+
+    It holds the arrays those need as they were at the update (the kept cut replaces its box
+    arrays rather than writing into them; ``reached`` is copied), so a count read frames later is
+    still its own camera's. Read-only; :meth:`copy` gives itself (what ``dict.copy`` is to a dict).
+    """
+
+    def __init__(self, base: dict, camera, lo, hi, inside, mute, reached) -> None:
+        self._base, self._late = base, (camera, lo, hi, inside, mute, reached)
+        self._all: dict | None = None
+
+    def _counts(self) -> dict:
+        if self._all is None:
+            camera, lo, hi, inside, mute, reached = self._late
+            rows = np.nonzero(reached & mute)[0]
+            infr = np.all(camera._box_reach(lo[rows], hi[rows], 6) >= 0, axis=1)  # (the traversal's test)
+            ins = inside[rows]
+            out = dict(self._base)
+            out["culled_frustum"] += int((~infr).sum())
+            out["culled_shape"] += int((infr & ~ins).sum())
+            out["culled_transparent"] += int((infr & ins).sum())
+            self._all, self._late = out, None
+        return self._all
+
+    def __getitem__(self, key):
+        if key in self._base and key not in ("culled_frustum", "culled_shape", "culled_transparent"):
+            return self._base[key]
+        return self._counts()[key]
+
+    def __iter__(self):
+        return iter(self._base)
+
+    def __len__(self) -> int:
+        return len(self._base)
+
+    def __repr__(self) -> str:
+        return f"KeptCounts({self._counts()!r})"
+
+    def copy(self) -> "KeptCounts":
+        return self
+
+
 class KeptCut:
     """The nodes a projected-size traversal visited, kept as flat arrays, and updated per camera.
 
@@ -125,6 +179,8 @@ class KeptCut:
         self.expanded = np.zeros(1, dtype=bool)
         self.inside = self._inside(self.lv, self.lo, self.hi)  # not outside the shape (camera-free)
         self.opaque = self._opaque(self.lv, self.idx)
+        #: transparent level-0 nodes: only the counts ask their frustum answers (:class:`KeptCounts`)
+        self.mute = self._mute(self.lv, self.opaque)
         self.infr = np.zeros(1, dtype=bool)
         self.ref = np.zeros(1, dtype=bool)  # the rule node by node (policy.need), tested in the band
         self.eff = np.zeros(1, dtype=bool)  # refined: ``ref`` evened out over each level (policy.even)
@@ -165,10 +221,20 @@ class KeptCut:
             out[m] = ~np.asarray(self.transparent(L, idx[m]), dtype=bool).reshape(int(m.sum()))
         return out
 
+    @staticmethod
+    def _mute(lv, opaque) -> np.ndarray:
+        return (lv == 0) & ~opaque
+
     # -- the camera's tests ----------------------------------------------------------------------
     def _test(self, rows: np.ndarray, camera) -> None:
         """The frustum and refine answers of ``rows`` for ``camera`` (the last of ``_cams``), and
-        their slacks: how much either may change before an answer can flip."""
+        their slacks: how much either may change before an answer can flip. Transparent level-0 rows
+        are not tested (their answers are only counted, :class:`KeptCounts`): their slack is
+        infinite, so no band holds them."""
+        mute = self.mute[rows]
+        if mute.any():
+            self.slack[rows[mute]] = np.inf
+            rows = rows[~mute]
         if not len(rows):
             return
         t, tree = self._t, self.tree
@@ -246,7 +312,9 @@ class KeptCut:
             self.parent = np.concatenate([self.parent, par])
             self.expanded = np.concatenate([self.expanded, np.zeros(len(lv), dtype=bool)])
             self.inside = np.concatenate([self.inside, self._inside(lv, lo, hi)])
-            self.opaque = np.concatenate([self.opaque, self._opaque(lv, idx)])
+            opaque = self._opaque(lv, idx)
+            self.opaque = np.concatenate([self.opaque, opaque])
+            self.mute = np.concatenate([self.mute, self._mute(lv, opaque)])
             self.infr = np.concatenate([self.infr, np.zeros(len(lv), dtype=bool)])
             self.ref = np.concatenate([self.ref, np.zeros(len(lv), dtype=bool)])
             self.eff = np.concatenate([self.eff, np.zeros(len(lv), dtype=bool)])
@@ -333,7 +401,7 @@ class KeptCut:
         node whose children go is marked unexpanded, to grow again if it refines again."""
         keep = self.reached
         new = np.cumsum(keep) - 1
-        for name in ("lv", "idx", "lo", "hi", "reach", "expanded", "inside", "opaque", "infr", "ref", "eff", "slack",
+        for name in ("lv", "idx", "lo", "hi", "reach", "expanded", "inside", "opaque", "mute", "infr", "ref", "eff", "slack",
                      "cam_id", "reached"):
             setattr(self, name, getattr(self, name)[keep])
         self.drawn = None  # (a dropped row may have been drawn: the next selection compares keys anew)
@@ -345,7 +413,8 @@ class KeptCut:
     def update(self, camera, ordered: bool = True) -> Selection | None:
         """The cut :func:`~clipvol.scene.selection.select` makes for ``camera`` (residency apart:
         every leaf drawn from its own brick), or None where this cut cannot be kept (module
-        docstring). The same :class:`Selection` object comes back while no node's answer changed;
+        docstring). The same :class:`Selection` object comes back while no tested node's answer
+        changed (its ``counts`` replaced by this camera's :class:`KeptCounts`);
         with ``ordered=False``, a new one holding the same ``items`` and ``wanted`` objects while no
         leaf changed, so that what a caller made of the items stays valid.
 
@@ -385,6 +454,8 @@ class KeptCut:
         flipped = (was[0] != self.infr[band]) | (was[1] != self.ref[band])
         changed = self.selection is None or bool(flipped.any())
         if not changed and not ordered and not self.selection.ordered:
+            # (the same object; its counts this camera's: a transparent level-0 node's may differ)
+            self.selection.counts = self._counts(camera, self.selection.counts._base)
             return self.selection
         if changed:  # (from the coarsest level whose answers flipped down)
             self._propagate(None if self.selection is None else int(self.lv[band[flipped]].max()))
@@ -397,6 +468,11 @@ class KeptCut:
         self.selection = self._selection(camera, ordered)
         return self.selection
 
+    def _counts(self, camera, base: dict) -> KeptCounts:
+        """The counts for ``camera``: ``base`` (the tested nodes') and the transparent level-0
+        nodes', these read off the arrays as they are now when first asked."""
+        return KeptCounts(base, camera, self.lo, self.hi, self.inside, self.mute, self.reached.copy())
+
     def _selection(self, camera, ordered: bool) -> Selection:
         tree = self.tree
         kept = self.reached & self.infr & self.inside
@@ -404,11 +480,13 @@ class KeptCut:
         leaf = kept & ~self.eff
         mask = leaf & self.opaque
         draw = np.nonzero(mask)[0]
-        counts = dict(visited=int(self.reached.sum()), culled_frustum=int((self.reached & ~self.infr).sum()),
-                      culled_shape=int((self.reached & self.infr & ~self.inside).sum()),
-                      culled_transparent=int((leaf & ~self.opaque).sum()), culled_policy=0,
-                      refined=int((kept & self.eff & real & (self.lv > 0)).sum()), outside_window=0,
-                      fallback=0, missing=0, texels=len(draw) * tree.texels, level=-1)
+        tested = self.reached & ~self.mute  # (the transparent level-0 nodes are counted by KeptCounts)
+        counts = self._counts(camera, dict(
+            visited=int(self.reached.sum()), culled_frustum=int((tested & ~self.infr).sum()),
+            culled_shape=int((tested & self.infr & ~self.inside).sum()),
+            culled_transparent=int((leaf & ~self.opaque & ~self.mute).sum()), culled_policy=0,
+            refined=int((kept & self.eff & real & (self.lv > 0)).sum()), outside_window=0,
+            fallback=0, missing=0, texels=len(draw) * tree.texels, level=-1))
         last, was = self.selection, self.drawn
         self.drawn = mask
         node_data = getattr(self.policy, "node_data", None)
