@@ -460,6 +460,34 @@ def test_a_swallowed_interrupt_stops_the_flythrough_at_the_next_frame(tmp_path):
         assert [int(r["frame"]) for r in csv.DictReader(f)] == [0, 1, 2]
 
 
+def test_a_swallowed_interrupt_stops_the_server():
+    """Ctrl-C that C code caught and dropped while `clipvol serve` waits for requests (recorded,
+    nothing raised): the serving loop raises it within a poll instead of serving on until killed.
+    Bounded: without the check the server stops itself after 20 s and the test fails."""
+    pytest.importorskip("aiohttp")
+    import asyncio
+    import time
+    from types import SimpleNamespace
+
+    from clipvol import interrupts
+    from clipvol.app.serve.server import INTERRUPT_POLL_S, serve
+
+    stop = asyncio.Event()
+    t0 = []
+
+    def announce(url):  # on the serving loop, once the socket listens
+        asyncio.get_running_loop().call_later(20.0, stop.set)  # the bound
+        t0.append(time.monotonic())
+        interrupts.note()  # what the command line's SIGINT handler does before its raise is lost
+
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            serve(SimpleNamespace(names=["v"]), port=0, token="a-token-of-tests", announce=announce, stop=stop)
+    finally:
+        interrupts.clear()
+    assert t0 and time.monotonic() - t0[0] < 10 * INTERRUPT_POLL_S + 5
+
+
 def test_a_recorded_interrupt_is_raised_only_in_the_main_thread():
     from clipvol import interrupts
 

@@ -35,6 +35,7 @@ import secrets
 import socket
 import time
 
+from ... import interrupts
 from ...errors import MissingExtraError, ParameterError
 
 __all__ = ["check_exposure", "make_app", "serve", "LOOPBACK"]
@@ -42,6 +43,8 @@ __all__ = ["check_exposure", "make_app", "serve", "LOOPBACK"]
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 #: the largest message a page may send (a state change is a few hundred bytes)
 MAX_MESSAGE = 16 * 1024
+#: how often the serving loop looks for a Ctrl-C that C code swallowed (:mod:`clipvol.interrupts`)
+INTERRUPT_POLL_S = 0.25
 _HEADERS = {
     "Cache-Control": "no-store",
     "Referrer-Policy": "no-referrer",
@@ -294,7 +297,14 @@ def serve(worker, *, host: str = "127.0.0.1", port: int = 8642, token: str | Non
             shown = f"[{host}]" if ":" in host else host
             query = f"?token={token}" if token is not None else ""
             announce(f"http://{shown}:{bound}/{query}")
-            await (stop.wait() if stop is not None else asyncio.Event().wait())
+            until = stop if stop is not None else asyncio.Event()
+            while not until.is_set():
+                # a Ctrl-C that C code swallowed on its way (clipvol.interrupts) still stops the server
+                interrupts.check()
+                try:
+                    await asyncio.wait_for(until.wait(), INTERRUPT_POLL_S)
+                except asyncio.TimeoutError:
+                    pass
         finally:
             await runner.cleanup()
 
