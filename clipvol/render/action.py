@@ -94,7 +94,7 @@ from .overlay_binding import OverlayTextures, overlay_defines
 from .refine import Refine, refine_levels, refines
 from .paths import DRAW_PATHS, FALLBACK, DrawStats, FrameContext, pick
 from .paths.frame import level_ratios
-from .paths.setup import MAX_STEPS_PER_BOX, DrawSetup, check_samples, check_step, samples_per_box
+from .paths.setup import MAX_STEPS_PER_BOX, DrawSetup, check_samples, check_step, samples_bound, samples_per_box
 
 __all__ = ["ClipRenderAction", "FrameStats", "MODES", "SELECTIONS", "MIN_EMPTY_FRACTION"]
 
@@ -444,8 +444,7 @@ class ClipRenderAction:
         if kept is not None and kept[1] is merged and kept[2] == step and (kept[0] is None or kept[0] is cam):
             return kept[3]
         rep = self._extents(merged)
-        delta = step * float(min(self.pyramid.spacing)) * 2.0 ** rep.rows[:, 0].astype(np.float64)
-        n = float(np.max(np.linalg.norm(rep.hi - rep.lo, axis=1) / delta)) * 1.1 if len(rep) else 0.0
+        n = samples_bound(rep, self.pyramid, step)
         if n <= MAX_STEPS_PER_BOX:
             self._samples_kept = (None, merged, step, n)  # (None: any camera)
             return n

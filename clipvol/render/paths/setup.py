@@ -56,7 +56,7 @@ from ..target import FloatTarget
 from ..uniforms import uset, vec3
 from .frame import DrawStats, FrameContext
 
-__all__ = ["DrawPath", "DrawSetup", "MAX_STEPS_PER_BOX", "OPAQUE", "OCCUPANCY_UNIT", "MIP_EMPTY",
+__all__ = ["DrawPath", "DrawSetup", "MAX_STEPS_PER_BOX", "samples_bound", "OPAQUE", "OCCUPANCY_UNIT", "MIP_EMPTY",
            "scissor_boxes", "samples_per_box", "max_step", "check_step", "check_samples", "premultiplied_to_uint8"]
 
 #: most samples one ray takes inside one box (a smaller step is refused with ParameterError)
@@ -114,8 +114,21 @@ def samples_per_box(cam, items, pyramid, step: float) -> float:
     shapes, inv = np.unique(ext, axis=0, return_inverse=True)
     with np.errstate(divide="ignore"):
         path = np.min(shapes[:, None, :] / np.abs(dirs[None, :, :]), axis=2).max(axis=1)[inv.reshape(-1)]  # (n,)
-    delta = step * float(min(pyramid.spacing)) * 2.0 ** arr.rows[:, 0].astype(np.float64)
-    return float(np.max(path / delta)) * 1.1
+    return float(np.max(path / _sample_delta(arr, pyramid, step))) * 1.1
+
+
+def samples_bound(items, pyramid, step: float) -> float:
+    """:func:`samples_per_box`'s bound for every camera: no ray's path in a box is longer than its
+    diagonal (10 % margin). Where it passes, a check made of it holds whatever the camera."""
+    if not len(items):
+        return 0.0
+    arr = DrawItems.from_items(items)
+    return float(np.max(np.linalg.norm(arr.hi - arr.lo, axis=1) / _sample_delta(arr, pyramid, step))) * 1.1
+
+
+def _sample_delta(arr: DrawItems, pyramid, step: float) -> np.ndarray:
+    """``(n,)`` the sample spacing in each item's level (``step`` voxels of it)."""
+    return step * float(min(pyramid.spacing)) * 2.0 ** arr.rows[:, 0].astype(np.float64)
 
 
 def max_step(pyramid) -> float:
