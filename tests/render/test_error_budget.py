@@ -90,7 +90,7 @@ FACTOR = 2.0
                    "levels: the estimate (from the edges in front of each node, fitted on the MNI template) is "
                    "1.9-2.2x the measurement at block budgets 16-32: drawn alone, this head's level 2 differs on "
                    "hardly more of its shown pixels than level 1 (0.12-0.13 against 0.11-0.12; the template's "
-                   "about 4x more), and neither the opacity map nor the summary tables tell the two apart "
+                   "3-5x more), and neither the opacity map nor the summary tables tell the two apart "
                    "(docs/benchmarks.md, the estimate on a smooth head); strict, so it reports when it holds")
 def test_estimate_tracks_the_measured_error(gl, head):
     loader = open_store(head)
