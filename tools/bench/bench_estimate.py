@@ -340,7 +340,8 @@ def time_cut(store: Path, images, view_names=None, repeat: int = 20, log=print) 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--store", type=Path, required=True, help="a clipvol store with summary tables")
+    ap.add_argument("--store", type=Path, required=True, help=f"a clipvol store with summary tables, or {CT_HEAD} (the "
+                    "CT-like head of tests/render/test_error_budget.py, built once under bench-data/)")
     ap.add_argument("--images", default="256", help="image edges, comma separated (default 256)")
     ap.add_argument("--views", default=None, help="views, comma separated (default iso,face,close,turn0,turn1,turn2; far_iso and far_side "
                          "when named)")
@@ -365,11 +366,8 @@ def main(argv: list[str] | None = None) -> int:
                 common.save_rows(a.out.with_name(a.out.stem + tag + a.out.suffix), fn(a.store, images, views, a.classify))
         return 0
     if a.time_cut:
-        rows = time_cut(a.store, [int(v) for v in a.images.split(",")], None if a.views is None else a.views.split(","),
-                        a.time_cut)
-        common.save_rows(a.out.with_name(a.out.stem + "_cut" + a.out.suffix), rows)
-    rows = run(a.store, [int(v) for v in a.images.split(",")], None if a.views is None else a.views.split(","), a.classify)
-    return common.save_rows(a.out, rows)
+        common.save_rows(a.out.with_name(a.out.stem + "_cut" + a.out.suffix), time_cut(a.store, images, views, a.time_cut))
+    return common.save_rows(a.out, run(a.store, images, views, a.classify))
 
 
 if __name__ == "__main__":
