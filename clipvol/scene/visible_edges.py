@@ -45,7 +45,16 @@ on two views from farther away 29 of 32 (0.64-1.90).
 :func:`edge_share` (the view's share, which the benchmark prints) is the same map's mean. What it
 does not model: level 0's own error (one ray per pixel at half a voxel's step), and a data set whose
 coarse levels differ on fewer pixels per edge than the template's folds (a smooth CT-like head: the
-estimate is 1.9-2.2x there at block budgets 16-32). A model, not a bound.
+estimate is 1.9-2.2x there at block budgets 16-32). Measured there (``bench_estimate.py --levels``,
+``docs/benchmarks.md``, "The estimate on a smooth head"): drawn alone, the head's level 2 differs on
+0.12-0.13 of its shown pixels and level 1 on 0.11-0.12 (the template's overviews: 0.26-0.33 and
+0.05-0.09), while per node the edges predict the differing pixels there as on the template
+(correlation 0.96-0.99 within a level; the template's 0.6-0.87). A level-2 voxel (4 level-0 voxels)
+averages the head's skull, thicker than itself, and wipes out the template's folds, thinner than
+itself; neither the 64² map nor the summary tables (the share of visible opacity a level's own
+voxels lose: 0.032 against 0.045 at level 2; the classification bias; the share of fine voxels whose
+colour the coarse value changes) separate the two, so the growth per level stays the template's.
+A model, not a bound.
 
 The term applies to consistent coarse levels only (``classify="distribution"``, the default, which
 it was fitted on). With the mean classified, a coarse level loses thin structures outright, and the

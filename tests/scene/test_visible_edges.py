@@ -205,6 +205,10 @@ def test_the_estimate_sums_the_edges_in_front_of_each_node(shell_store, distance
             scaled.append(map_voxel < EDGE_MAP_VOXEL)
             q = 0.0 if level == 0 or errors.bias[level][b] <= 0 else 1 - np.exp(-EDGE_GAIN * EDGE_GROWTH ** level * share)
             num, den = num + w * q, den + w
+            # what the policy reports per node (bench_estimate.py --nodes): this q, this weight
+            w_pol, q_pol = pol.node_estimates()[(level, b)]
+            assert q_pol == pytest.approx(q, rel=1e-9, abs=1e-15) and w_pol == pytest.approx(w, rel=1e-6)
+        assert set(pol.node_estimates()) == set(pol.node_data)
         assert {L for L, _ in pol.node_data} - {0}, "the cut must hold coarse nodes"
         assert pol.estimated_error == pytest.approx(shown_map.mean() * num / den, rel=1e-9)
         est[side] = pol.estimated_error

@@ -17,8 +17,22 @@ same visibility estimate with the edge term (the ``distribution`` errors) and wi
 classification bias in its place (the ``mean`` errors: the estimate before the edge term), the
 medians in ms and their ratio.
 
+``--levels`` measures what the estimate's growth per level stands on, per view: each level drawn
+alone (``policy="fixed"``, the same classification), its measured % against the converged picture
+and that % as a share of the shown pixels per unit of the view's edge share, beside the estimate's
+``q`` (:func:`clipvol.scene.visible_edges.edge_difference`) at that edge share, and per level what
+the summary tables say of the data (:func:`level_tables`: the share of level 0's visible opacity the
+level's own voxels lose, the classification bias, the share of fine voxels whose colour the coarse
+value changes by Delta E >= 6). ``--nodes`` holds the estimate against the measurement node by node:
+for each cut, each node's predicted ``q`` (:meth:`ImageBased.node_estimates`), its edge share and
+shown share in the opacity map (:meth:`OcclusionLayers.footprint`) and the measured share of the
+shown pixels in its screen rectangle that differ (rectangles overlap: a node's share also counts
+what lies in front of or behind it).
+
 ``python tools/bench/bench_estimate.py --store mni32.zarr --images 256,512``; rows to
-``tools/bench/results/bench_estimate.csv``.
+``tools/bench/results/bench_estimate.csv`` (``--levels``: ``_levels`` before the suffix, ``--nodes``:
+``_nodes``). The CT-like head of ``tests/render/test_error_budget.py``: ``--store ct-head-96``
+(built once under ``bench-data/``: :func:`ct_head_store`) ``--images 96 --views iso,face``.
 """
 
 from __future__ import annotations
@@ -36,6 +50,23 @@ if str(HERE) not in sys.path:
 
 import bench_mission  # noqa: E402
 import common  # noqa: E402
+
+
+#: the name ``--store`` takes for the CT-like head of ``tests/render/test_error_budget.py``
+CT_HEAD = "ct-head-96"
+
+
+def ct_head_store(data_dir: Path = common.DATA) -> Path:
+    """The test's head: :func:`~clipvol.bricking.generators.ct_head` 96³, seed 3, 8³ bricks (8-bit),
+    built once under ``bench-data/``."""
+    from clipvol.bricking.generators import ct_head
+    from clipvol.bricking.pipeline import brick_volume
+
+    path = data_dir / "ct-head-96-seed3-b8.zarr"
+    if not common.store_is_built(path):
+        data_dir.mkdir(parents=True, exist_ok=True)
+        brick_volume(ct_head((96, 96, 96), seed=3), path, brick=8, progress=False, overwrite=True)
+    return path
 
 
 def settings() -> dict:
@@ -75,22 +106,34 @@ def far_views(pyr, image: int) -> dict:
     return out
 
 
-def run(store: Path, images, view_names=None, classify: str = "distribution", log=print) -> list[dict]:
+def _scene_and_truth(store: Path):
+    """The warm scene, its level-0 action and the converged pictures of ``store``."""
     from clipvol.app.converged import ConvergedPictures
-    from clipvol.scene.metrics import percent_delta_e
     from clipvol.scene.params import RenderParams
-    from clipvol.scene.visible_edges import edge_share
 
     scene = common.WarmScene(store)
-    pyr, tf = scene.pyramid, scene.tf
-    actions = {k: scene.action(step=0.5, classify=classify, **kw) for k, kw in settings().items()}
     ref = scene.action(policy="fixed", level=0)
 
     def draw(c, params):
         ref.set_params(params)
-        return ref.render(c, tf, wait=True, timeout=600)
+        return ref.render(c, scene.tf, wait=True, timeout=600)
 
-    conv = ConvergedPictures(draw, RenderParams(step=0.5), supersample=2, step=0.25)
+    return scene, draw, ConvergedPictures(draw, RenderParams(step=0.5), supersample=2, step=0.25)
+
+
+def _cams(scene, image: int, view_names) -> dict:
+    cams = {**bench_mission.views(scene.pyramid, image), **report_views(scene.loader, scene.tf, image)}
+    return {k: c for k, c in cams.items() if not view_names or k in view_names}
+
+
+def run(store: Path, images, view_names=None, classify: str = "distribution", log=print) -> list[dict]:
+    from clipvol.scene.metrics import percent_delta_e
+    from clipvol.scene.params import RenderParams
+    from clipvol.scene.visible_edges import edge_share
+
+    scene, draw, conv = _scene_and_truth(store)
+    pyr, tf = scene.pyramid, scene.tf
+    actions = {k: scene.action(step=0.5, classify=classify, **kw) for k, kw in settings().items()}
     rows = []
     try:
         for image in images:
@@ -121,6 +164,134 @@ def run(store: Path, images, view_names=None, classify: str = "distribution", lo
                     log(f"{image}^2 {view:5} {k:14}: {row['bricks']:3d} bricks (levels {row['levels']}), edge share "
                         f"{edges:.3f}: predicted {est:6.2f} %, measured {pct:6.2f} % "
                         f"(ratio {row['predicted_over_measured']}); full resolution {full:.2f} %")
+    finally:
+        scene.close()
+    return rows
+
+
+def level_tables(tables, tf) -> list[dict]:
+    """Per level ``L >= 1``, from the summary tables under ``tf`` (no voxel read): ``opacity_lost``,
+    ``1 - A_L / A_0`` with ``A_L`` the summed opacity of level ``L``'s own voxels and ``A_0`` that of
+    the level-0 voxels beneath them per level-``L`` voxel; ``bias``, the classification bias
+    (:func:`clipvol.scene.lod_error.classification_bias`, mean mode) averaged with the bricks' opacity
+    as weights; ``pairs_de6``, the share of the level-``L-1`` voxels that show something whose
+    colour differs from their level-``L`` voxel's by Delta E >= 6 (the correspondence tables)."""
+    from clipvol.bricking.summary import SUMMARY_BINS
+    from clipvol.scene.lod_error import colour_table, lod_errors
+
+    pyr = tables.pyramid
+    centres = tables.quantiser.centres()
+    alpha = tf.lookup(centres, pyr.value_range)[:, 3].astype(np.float64)
+    F = colour_table(tf, centres, pyr.value_range)
+    err = lod_errors(tables, tf)
+    H = [tables.histogram[L].reshape(-1, SUMMARY_BINS).astype(np.float64) for L in range(pyr.num_levels)]
+    count = [h.sum(axis=1) for h in H]
+    own = [(h @ alpha) / np.maximum(n, 1.0) for h, n in zip(H, count)]
+    below = own[0]  # per brick: the mean opacity of the level-0 voxels beneath it
+    out = []
+    for L in range(1, pyr.num_levels):
+        child = np.stack(np.unravel_index(np.arange(pyr.num_bricks(L - 1)), pyr.grid(L - 1)), axis=1)
+        parent = np.ravel_multi_index(tuple((child // 2).T), pyr.grid(L))
+        n = pyr.num_bricks(L)
+        w = count[L - 1]
+        below = np.bincount(parent, weights=w * below, minlength=n) / np.maximum(np.bincount(parent, weights=w, minlength=n), 1.0)
+        fine, coarse = float(np.sum(count[L] * below)), float(np.sum(count[L] * own[L]))
+        off = tables.pairs_offsets[L - 1]
+        code = tables.pairs_code[L - 1].astype(np.int64)
+        k, c = code // SUMMARY_BINS, code % SUMMARY_BINS
+        pw = tables.pairs_count[L - 1].astype(np.float64)
+        shows = (alpha[c] > 0) | (alpha[k] > 0)
+        de6 = np.linalg.norm(F[k] - F[c], axis=1) >= 6.0
+        op = err.opacity[L].reshape(-1)
+        b = np.asarray(err.bias[L]).reshape(-1)
+        out.append(dict(level=L, opacity_lost=round(max(0.0, 1.0 - coarse / fine) if fine > 0 else 0.0, 4),
+                        bias=round(float(np.sum(op * b) / max(np.sum(op), 1e-300)), 3),
+                        pairs_de6=round(float(np.sum(pw[shows & de6]) / max(np.sum(pw[shows]), 1e-300)), 4),
+                        bricks=int(len(off) - 1)))
+    return out
+
+
+def levels(store: Path, images, view_names=None, classify: str = "distribution", log=print) -> list[dict]:
+    """Per view and level: the level drawn alone against the converged picture, per unit of the
+    view's edge share, beside the estimate's ``q`` there and :func:`level_tables` (see the module
+    docstring)."""
+    from clipvol.render.image_lod import ImageLod  # noqa: F401 - the tables as the policy opens them
+    from clipvol.render.visibility import CpuVisibilityEstimator
+    from clipvol.scene.metrics import delta_e_luv
+    from clipvol.scene.params import RenderParams
+    from clipvol.scene.visible_edges import EDGE_ALPHA, edge_difference, edge_share
+
+    scene, draw, conv = _scene_and_truth(store)
+    pyr, tf = scene.pyramid, scene.tf
+    probe = scene.action(step=0.5, policy="image", block_budget=8, classify=classify)
+    rows = []
+    try:
+        tables = None
+        for image in images:
+            for view, cam in _cams(scene, image, view_names).items():
+                truth = conv.get(cam, key=(image, view))
+                shown = truth[..., 3] > EDGE_ALPHA * 255.0
+                if tables is None:
+                    probe.render(cam, tf, wait=True, timeout=600)
+                    tables = level_tables(probe.image_lod.tables, tf)
+                e = edge_share(np.asarray(CpuVisibilityEstimator(scene.loader).estimate(cam, tf).alpha[-1]))
+                for L in range(pyr.num_levels):
+                    img = draw(cam, RenderParams(policy="fixed", level=L, step=0.5, classify=classify))
+                    d = delta_e_luv(img, truth, premultiplied=False) >= 6.0
+                    share = float(d[shown].mean()) if shown.any() else 0.0
+                    tab = tables[L - 1] if L else dict(opacity_lost=0.0, bias=0.0, pairs_de6=0.0)
+                    row = dict(date=time.strftime("%Y-%m-%d"), store=store.name, image=image, view=view, level=L,
+                               classify=classify, edge_share=round(e, 4), shown=round(float(shown.mean()), 4),
+                               pct_de6=round(100.0 * float(d.mean()), 3), shown_share_de6=round(share, 4),
+                               per_edge=round(share / e, 3) if e > 0 else "",
+                               q=round(float(edge_difference(L, e)), 4), opacity_lost=tab["opacity_lost"],
+                               bias=tab["bias"], pairs_de6=tab["pairs_de6"])
+                    rows.append(row)
+                    log(f"{image}^2 {view:5} level {L}: {row['pct_de6']:6.2f} % ({share:.3f} of the shown pixels, "
+                        f"{row['per_edge']} per edge share {e:.3f}; estimate's q {row['q']:.3f}); tables: opacity lost "
+                        f"{tab['opacity_lost']:.4f}, bias {tab['bias']:.2f}, pairs >= 6 {tab['pairs_de6']:.4f}")
+    finally:
+        scene.close()
+    return rows
+
+
+def nodes(store: Path, images, view_names=None, classify: str = "distribution", log=print) -> list[dict]:
+    """Per cut of :func:`settings` and node: the predicted ``q`` against the measured share of the
+    shown pixels in the node's screen rectangle that differ (see the module docstring)."""
+    from clipvol.scene.metrics import delta_e_luv
+    from clipvol.scene.selection.octree import Octree
+    from clipvol.scene.visibility import screen_rects
+    from clipvol.scene.visible_edges import EDGE_ALPHA
+
+    scene, draw, conv = _scene_and_truth(store)
+    pyr, tf = scene.pyramid, scene.tf
+    tree = Octree(pyr)
+    actions = {k: scene.action(step=0.5, classify=classify, **kw) for k, kw in settings().items()}
+    rows = []
+    try:
+        for image in images:
+            for view, cam in _cams(scene, image, view_names).items():
+                truth = conv.get(cam, key=(image, view))
+                shown = truth[..., 3] > EDGE_ALPHA * 255.0
+                for k, a in actions.items():
+                    img = a.render(cam, tf, wait=True, timeout=600)
+                    pol = a.last_policy
+                    d = (delta_e_luv(img, truth, premultiplied=False) >= 6.0) & shown
+                    est = pol.node_estimates()
+                    H, W = d.shape
+                    for (L, b), (w, q) in sorted(est.items()):
+                        lo, hi = tree.boxes(L, np.array([b]))
+                        r = screen_rects(cam, lo, hi)[0][0]
+                        x0, y0 = int(np.clip(np.floor(r[0]), 0, W - 1)), int(np.clip(np.floor(r[1]), 0, H - 1))
+                        x1, y1 = int(np.clip(np.ceil(r[2]), x0 + 1, W)), int(np.clip(np.ceil(r[3]), y0 + 1, H))
+                        n = int(shown[y0:y1, x0:x1].sum())
+                        fs, fe = pol.visibility.footprint(lo, hi, cam)
+                        rows.append(dict(date=time.strftime("%Y-%m-%d"), store=store.name, image=image, view=view, setting=k,
+                                         level=L, brick="/".join(map(str, b)), weight=round(w, 2),
+                                         map_shown=round(float(fs[0]), 4), map_edges=round(float(fe[0]), 4),
+                                         predicted=round(q, 4), shown_pixels=n,
+                                         measured=round(float(d[y0:y1, x0:x1].sum()) / n, 4) if n else ""))
+                    log(f"{image}^2 {view:5} {k:14}: {len(est)} nodes")
     finally:
         scene.close()
     return rows
@@ -169,7 +340,8 @@ def time_cut(store: Path, images, view_names=None, repeat: int = 20, log=print) 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--store", type=Path, required=True, help="a clipvol store with summary tables")
+    ap.add_argument("--store", type=Path, required=True, help=f"a clipvol store with summary tables, or {CT_HEAD} (the "
+                    "CT-like head of tests/render/test_error_budget.py, built once under bench-data/)")
     ap.add_argument("--images", default="256", help="image edges, comma separated (default 256)")
     ap.add_argument("--views", default=None, help="views, comma separated (default iso,face,close,turn0,turn1,turn2; far_iso and far_side "
                          "when named)")
@@ -179,13 +351,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--time-cut", type=int, default=0, metavar="N",
                     help="also time the image policy's cut N times per view, with the edge term and with the bias "
                          "(rows to OUT with _cut before the suffix)")
+    ap.add_argument("--levels", action="store_true", help="each level drawn alone, per view, against the edge share "
+                    "and the summary tables (rows to OUT with _levels before the suffix), instead of the cuts")
+    ap.add_argument("--nodes", action="store_true", help="the estimate against the measurement node by node (rows "
+                    "to OUT with _nodes before the suffix), instead of the cuts")
     a = ap.parse_args(argv)
+    if str(a.store) == CT_HEAD:
+        a.store = ct_head_store()
+    images = [int(v) for v in a.images.split(",")]
+    views = None if a.views is None else a.views.split(",")
+    if a.levels or a.nodes:
+        for flag, fn, tag in ((a.levels, levels, "_levels"), (a.nodes, nodes, "_nodes")):
+            if flag:
+                common.save_rows(a.out.with_name(a.out.stem + tag + a.out.suffix), fn(a.store, images, views, a.classify))
+        return 0
     if a.time_cut:
-        rows = time_cut(a.store, [int(v) for v in a.images.split(",")], None if a.views is None else a.views.split(","),
-                        a.time_cut)
-        common.save_rows(a.out.with_name(a.out.stem + "_cut" + a.out.suffix), rows)
-    rows = run(a.store, [int(v) for v in a.images.split(",")], None if a.views is None else a.views.split(","), a.classify)
-    return common.save_rows(a.out, rows)
+        common.save_rows(a.out.with_name(a.out.stem + "_cut" + a.out.suffix), time_cut(a.store, images, views, a.time_cut))
+    return common.save_rows(a.out, run(a.store, images, views, a.classify))
 
 
 if __name__ == "__main__":

@@ -448,6 +448,18 @@ class ImageBased:
             return 1.0
         return float(np.mean(np.asarray(self.visibility.alpha[-1]) > NONEMPTY_ALPHA))
 
+    def node_estimates(self) -> dict:
+        """``{(level, index): (w, q)}`` over the last cut's nodes: each node's weight in
+        :attr:`estimated_error` (projected area times visibility, times the share of its rectangle
+        that shows something with the edge term) and its predicted fraction of differing pixels ``q``
+        (0 at level 0) - what ``tools/bench/bench_estimate.py --nodes`` holds against the measured
+        fraction per node. A replayed cut (:attr:`reused`) computed no weights: its nodes read ``(0, 0)``."""
+        out = {}
+        for k in self.node_data:
+            w, wq = self._mass.get(k, (0.0, 0.0))
+            out[k] = (w, wq / w if w > 0 else 0.0)
+        return out
+
     def covers(self, camera) -> bool:
         """Whether the recorded cut still holds every node ``camera`` sees: none of the boxes the
         frustum culled while the cut was made enters ``camera``'s frustum (else a replay would leave
