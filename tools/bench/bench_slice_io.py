@@ -69,9 +69,12 @@ def _centre(pyr) -> tuple[float, float, float]:
     return tuple(((lo + hi) / 2.0).tolist())
 
 
-def _slice(ctx, loader, plane, budget, *, threads, follow, size=None, px=None, timeout=600, **params):
+def _slice(ctx, loader, plane, budget, *, threads, follow, size=None, px=None, timeout=600, out=None, then=None,
+           **params):
     """Render one converged slice, then let the clip-texture finish what it queued; returns
-    ``(rgba, bytes read, chunks read, converged)``."""
+    ``(rgba, bytes read, chunks read, converged)``. ``out`` (a dict) receives the slice action's
+    ``stats``, ``levels``, ``values`` and ``params`` (what it drew: full resolution where that
+    reads no more bytes); ``then(slice_action)`` runs on the warm slice action before it closes."""
     from clipvol.paging.cliptexture import ClipTexture
     from clipvol.paging.region import Region
     from clipvol.render.slice_action import SliceAction
@@ -84,6 +87,11 @@ def _slice(ctx, loader, plane, budget, *, threads, follow, size=None, px=None, t
         rgba = sa.render(plane, size, px, wait=True, timeout=timeout)
         converged = sa.last_stats.converged
         ct.wait_until_idle(timeout)
+        if out is not None:
+            out.update(stats=sa.last_stats, levels=sa.last_levels.copy(), values=sa.last_values.copy(),
+                       params=sa.last_params)
+        if then is not None:
+            then(sa)
     d = loader.read_counter.snapshot() - r0
     return rgba, d.bytes, d.reads, converged
 
@@ -93,15 +101,19 @@ def exact_axial(loader, plane) -> np.ndarray:
     around it), as the grey RGBA the slice action draws by default: the quality reference."""
     from clipvol.render.slice_action import window_level_grey
 
+    lo, hi = loader.pyramid.value_range
+    return window_level_grey(exact_axial_values(loader, plane), (lo + hi) / 2.0, max(hi - lo, 1e-300))
+
+
+def exact_axial_values(loader, plane) -> np.ndarray:
+    """The values of :func:`exact_axial`, ``(ny, nx)`` float64."""
     pyr = loader.pyramid
     z = plane.origin[2] / pyr.spacing[0]
     z0 = min(int(np.floor(z)), pyr.shape[0] - 2)
     t = z - z0
     ny, nx = pyr.shape[1], pyr.shape[2]
     two = loader.base.generator.region(0, (z0, 0, 0), (z0 + 2, ny, nx)).astype(np.float64)
-    values = (1.0 - t) * two[0] + t * two[1]
-    lo, hi = pyr.value_range
-    return window_level_grey(values, (lo + hi) / 2.0, max(hi - lo, 1e-300))
+    return (1.0 - t) * two[0] + t * two[1]
 
 
 def centre_slice(ctx, args, brick, writer) -> dict:
@@ -225,6 +237,103 @@ def geometry(args, writer, samples: int = 200, seed: int = 0) -> None:
                   f"{100 * np.mean(r >= 8):.0f} %")
 
 
+def _fmt(v, digits: int) -> str:
+    return "(" + ", ".join(f"{float(x):.{digits}f}" for x in v) + ")"
+
+
+def random_slices(pyr, n: int, seed: int = 0) -> list:
+    """``n`` random slices of ``pyr``: ``(kind, plane, point of interest)``, axial and oblique in
+    turn. A plane passes through a uniform point of the volume (oblique: a normal uniform on the
+    sphere); its point of interest is another uniform point projected onto it, redrawn until it
+    lies in the volume."""
+    from clipvol.scene.plane import Plane
+
+    rng = np.random.default_rng(seed)
+    lo, hi = pyr.volume_box()
+    out: list = []
+    while len(out) < n:
+        oblique = len(out) % 2 == 1
+        p = rng.uniform(lo, hi)
+        normal = rng.normal(size=3) if oblique else np.array([0.0, 0.0, 1.0])
+        normal /= np.linalg.norm(normal)
+        q = rng.uniform(lo, hi)
+        q = q - ((q - p) @ normal) * normal
+        if np.all(q >= lo) and np.all(q <= hi):
+            out.append(("oblique" if oblique else "axial", Plane.through(tuple(p), tuple(normal)), q))
+    return out
+
+
+def never_more(ctx, args, writer, rendered: int = 0) -> None:
+    """The issue's condition "a multiresolution cut never reads more than the full-resolution one"
+    over ``--samples`` random planes and points of interest (:func:`random_slices`), the whole
+    plane in view at one level-0 voxel a pixel, at every distance factor.
+
+    Priced from the geometry alone (:func:`clipvol.scene.slice_region.slice_region`, no rendering):
+    on the virtual ``--size``^3 stores at ``--bricks`` in chunks (every chunk the same raw size;
+    no manifest), on the stores on disk (``--real``) in the bytes their manifests record
+    (:func:`~clipvol.scene.slice_region.region_bytes`: a chunk holding only the fill value is never
+    read), both for the per-brick cover's region and for what the slice action reads - the
+    full-resolution region where that holds no more bytes. With ``rendered`` > 0 the first that
+    many cases of each store on disk are also drawn (cold clip-texture, converged, queue drained)
+    and the bytes the loader read are counted, for both slices."""
+    from clipvol.bricking.pyramid import Pyramid
+    from clipvol.paging.open import open_store
+    from clipvol.scene.params import RenderParams
+    from clipvol.scene.plane import default_pixel_size, default_size
+    from clipvol.scene.slice_region import region_bytes, slice_region, stored_sizes
+
+    stores = [(f"fractal {args.size}^3 (virtual)", Pyramid.build((args.size,) * 3, (b,) * 3, dtype="float32"), None,
+               None) for b in args.bricks]
+    for path in args.real or ():
+        ld = open_store(path)
+        stores.append((Path(path).name, ld.pyramid, stored_sizes(ld), path))
+    for name, pyr, sizes, path in stores:
+        unit = "chunks" if sizes is None else "bytes"
+        slices = random_slices(pyr, args.samples, args.seed)
+        for df in args.distance_factors:
+            cover_more, read_more, worst, worst_case, fell_back, ratios = 0, 0, 0.0, None, 0, []
+            for i, (kind, plane, poi) in enumerate(slices):
+                px = default_pixel_size(pyr, plane)
+                size = default_size(pyr, plane, px)
+                params = RenderParams(policy="plane", focus=tuple(poi.tolist()), distance_factor=df)
+                full = slice_region(pyr, plane, RenderParams(policy="plane", level=0), px, size=size)
+                multi = slice_region(pyr, plane, params, px, size=size)
+                f, m = (full.nbricks, multi.nbricks) if sizes is None else \
+                    (region_bytes(full, sizes), region_bytes(multi, sizes))
+                # the slice action draws full resolution where that reads no more bytes (a manifest's sizes)
+                read = m if sizes is None or m < f else f
+                fell_back += int(sizes is not None and m >= f)
+                cover_more += int(m > f)
+                read_more += int(read > f)
+                ratios.append(f / max(read, 1))
+                if m / max(f, 1) > worst:
+                    worst, worst_case = m / max(f, 1), (kind, plane, poi, m, f)
+                row = dict(store=name, brick=pyr.brick_shape[0], distance_factor=df, case=i, kind=kind,
+                           origin=" ".join(f"{v:.2f}" for v in plane.origin),
+                           normal=" ".join(f"{v:.4f}" for v in plane.normal),
+                           focus=" ".join(f"{v:.2f}" for v in poi), unit=unit, cover=m, full_resolution=f,
+                           slice_action=read, measured_multires="", measured_full="")
+                if path is not None and i < rendered:
+                    ld_m, ld_f = open_store(path), open_store(path)
+                    _, row["measured_multires"], _, ok_m = _slice(ctx, ld_m, plane, "256MB", threads=args.threads,
+                                                                 follow=True, size=size, px=px,
+                                                                 focus=params.focus, distance_factor=df)
+                    _, row["measured_full"], _, ok_f = _slice(ctx, ld_f, plane, "256MB", threads=args.threads,
+                                                             follow=True, size=size, px=px, level=0)
+                    if not (ok_m and ok_f):
+                        row["measured_multires"] = f"{row['measured_multires']} (NOT CONVERGED)"
+                writer.writerow(row)
+            r = np.array(ratios)
+            kind, plane, poi, m, f = worst_case
+            print(f"{name} b{pyr.brick_shape[0]} df={df}: {len(slices)} random planes and points of interest "
+                  f"(axial and oblique); the cover's region holds more {unit} than the full-resolution slab on "
+                  f"{cover_more} (worst {worst:.3f}x: {kind} plane through {_fmt(plane.origin, 1)} "
+                  f"normal {_fmt(plane.normal, 3)}, point {_fmt(poi, 1)}, {m} against {f} "
+                  f"{unit}); the slice reads more on {read_more}"
+                  + (f" (full resolution drawn on {fell_back})" if sizes is not None else "")
+                  + f"; fewer: min {r.min():.2f}x, median {np.median(r):.2f}x", flush=True)
+
+
 def _zarr_plane(path, z: float):
     """The level-0 voxel planes around ``z`` read with zarr-python alone (outside our code path):
     ``(seconds, bytes of the chunk files it touched, plane as float64)``, linear between the two."""
@@ -331,12 +440,35 @@ def main(argv=None) -> int:
                    help="only the region's chunks from the pyramid's geometry (no rendering, seconds): "
                         "bench_slice_io_geometry.csv")
     p.add_argument("--real", nargs="+", default=None, metavar="STORE",
-                   help="only real stores on disk (e.g. the MNI template bricked by clipvol brick): bytes, time "
+                   help="(with --never-more: stores on disk checked besides the virtual ones) only real stores on disk (e.g. the MNI template bricked by clipvol brick): bytes, time "
                         "and error of the slice against the full-resolution one and a zarr-python read of the "
                         "plane: bench_slice_io_real.csv")
+    p.add_argument("--never-more", action="store_true",
+                   help="only the check that a multiresolution slice never reads more than the full-resolution "
+                        "one: --samples random axial and oblique planes with random points of interest on the "
+                        "virtual --size^3 stores at --bricks (chunks) and on the --real stores (bytes), "
+                        "distance factors 1 0.5 0.25 unless given: bench_slice_io_never_more.csv")
+    p.add_argument("--samples", type=int, default=200, help="random planes of --geometry / --never-more")
+    p.add_argument("--seed", type=int, default=0, help="the random planes' seed")
+    p.add_argument("--rendered", type=int, default=0,
+                   help="--never-more: also draw the first N cases of each --real store and count the bytes read")
     p.add_argument("--out", type=Path, default=HERE / "results")
     args = p.parse_args(argv)
-    if args.real:
+    if args.never_more:
+        from clipvol.render import create_context
+
+        args.out.mkdir(parents=True, exist_ok=True)
+        if args.distance_factors == [1.0, 0.5]:
+            args.distance_factors = [1.0, 0.5, 0.25]
+        ctx = create_context() if args.rendered and args.real else None
+        with open(args.out / "bench_slice_io_never_more.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, ["store", "brick", "distance_factor", "case", "kind", "origin", "normal", "focus",
+                                   "unit", "cover", "full_resolution", "slice_action", "measured_multires",
+                                   "measured_full"])
+            w.writeheader()
+            never_more(ctx, args, w, args.rendered)
+        return 0
+    if args.real and not args.never_more:
         from clipvol.render import create_context
 
         args.out.mkdir(parents=True, exist_ok=True)
@@ -355,7 +487,7 @@ def main(argv=None) -> int:
             w = csv.DictWriter(f, ["store", "brick", "distance_factor", "case", "z", "focus_x", "focus_y",
                                    "region_chunks", "per_level", "full_resolution_chunks", "ratio"])
             w.writeheader()
-            geometry(args, w)
+            geometry(args, w, args.samples, args.seed)
         return 0
     if args.quick:
         args.size, args.scroll_size, args.steps = 256, 1024, 4
