@@ -83,10 +83,14 @@ void main() { f_color = vec4(texture(u_tex, v_uv).r, 1.0, 0.0, 0.0); }
 
 
 class TextureSlice:
-    """The reference: a finished slice as one 2D float texture, drawn as one quad and read back."""
+    """The reference: a finished slice as one 2D float texture, drawn as one quad and read back
+    (into the float target the actions draw into, :class:`clipvol.render.target.FloatTarget`,
+    which binds back what was bound before)."""
 
     def __init__(self, ctx, values: np.ndarray) -> None:
         import moderngl
+
+        from clipvol.render.target import FloatTarget
 
         h, w = values.shape
         self.ctx, self.size = ctx, (w, h)
@@ -95,8 +99,7 @@ class TextureSlice:
         self.prog = ctx.program(vertex_shader=_QUAD_VS, fragment_shader=_QUAD_FS)
         self.vbo = ctx.buffer(np.array([-1, -1, 1, -1, -1, 1, 1, 1], dtype=np.float32).tobytes())
         self.vao = ctx.vertex_array(self.prog, [(self.vbo, "2f", "in_pos")])
-        self.color = ctx.texture((w, h), 4, dtype="f4")
-        self.fbo = ctx.framebuffer(color_attachments=[self.color])
+        self.target = FloatTarget(ctx)
         self._mgl = moderngl
 
     def render(self, window) -> np.ndarray:
@@ -104,26 +107,27 @@ class TextureSlice:
 
         w, h = self.size
         previous = self.ctx.fbo
-        self.fbo.use()
+        fbo = self.target.ensure((w, h))
+        fbo.use()
         self.ctx.viewport = (0, 0, w, h)
-        self.fbo.clear(0.0, 0.0, 0.0, 0.0)
+        fbo.clear(0.0, 0.0, 0.0, 0.0)
         self.tex.use(0)
         self.vao.render(self._mgl.TRIANGLE_STRIP)
         self.ctx.finish()
-        raw = np.frombuffer(self.fbo.read(components=4, dtype="f4"), dtype=np.float32).reshape(h, w, 4)[::-1]
-        if previous is not None:
-            previous.use()
+        raw = self.target.read()
+        self.target.restore(previous)
         v = np.where(raw[..., 1] > 0.5, raw[..., 0], np.nan)
         return window_level_grey(v, *window)
 
     def release(self) -> None:
-        for o in (self.vao, self.vbo, self.prog, self.tex, self.fbo, self.color):
+        for o in (self.vao, self.vbo, self.prog, self.tex):
             o.release()
+        self.target.release()
 
 
 FIELDS = ["store", "brick", "what", "distance_factor", "drawn", "tiles", "bytes_needed", "bytes_read", "chunks_read",
           "converged", "fewer_bytes_needed", "fewer_bytes_read", "pct_de6_vs_exact", "pct_de6_inside_focus",
-          "focus_radius", "max_de_vs_exact", "psnr_db", "frame_ms", "texture_ms", "frame_vs_texture"]
+          "focus_radius", "max_de_vs_exact", "psnr_db", "frame_ms", "texture_ms", "frame_vs_texture", "slices_per_s", "texture_of_budget"]
 
 
 def _stores(args) -> list:
@@ -272,9 +276,9 @@ def stepping(ctx, args, make_loader, log) -> dict:
     budget = parse_bytes(TEXTURE_BUDGET)
     log(f"  stepping: {len(zs)} slices in {dt:.2f} s = {len(zs) / dt:.2f} slices/s ({n_conv} converged), textures "
         f"{peak_tex / 1e6:.0f} MB of {budget / 1e6:.0f} MB")
-    return dict(what="stepping (distance_factor 0.5)", distance_factor=0.5, converged=f"{n_conv}/{len(zs)}",
-                frame_ms=round(1e3 * dt / len(zs), 1), tiles=len(zs), bytes_needed=peak_tex,
-                drawn=f"{len(zs) / dt:.2f} slices/s; peak texture bytes {peak_tex / budget:.2f} of the budget")
+    return dict(what=f"stepping {len(zs)} slices", distance_factor=0.5, drawn="multiresolution",
+                converged=f"{n_conv}/{len(zs)}", frame_ms=round(1e3 * dt / len(zs), 1),
+                slices_per_s=round(len(zs) / dt, 3), texture_of_budget=round(peak_tex / budget, 3))
 
 
 def save_images(img_dir: Path, shown: dict) -> None:
