@@ -73,3 +73,42 @@ def test_zoomed_view_pages_only_the_bricks_under_the_image():
     want = {(6, by, bx) for by in range(32) for bx in range(32)
             if 16 * bx - 0.5 <= 232 and 16 * bx + 15.5 >= 168 and 16 * by - 0.5 <= 316 and 16 * by + 15.5 >= 284}
     assert got == want and len(want) == 5 * 3
+
+
+def _full_slab_bruteforce(pyr, plane) -> int:
+    """Level-0 bricks whose boxes meet the slab of half a level-0 voxel around ``plane`` (every brick's
+    box from its index, the brick shape and unit spacing, clipped to the volume), and the top brick."""
+    gz, gy, gx = (-(-s // b) for s, b in zip(pyr.shape, pyr.brick_shape))
+    idx = np.stack(np.meshgrid(np.arange(gx), np.arange(gy), np.arange(gz), indexing="ij"), -1).reshape(-1, 3)
+    b = np.array(pyr.brick_shape[::-1], dtype=np.float64)  # x, y, z
+    lo = idx * b - 0.5
+    hi = np.minimum(lo + b, np.array(pyr.shape[::-1], dtype=np.float64) - 0.5)
+    n, o = np.asarray(plane.normal), np.asarray(plane.origin)
+    reach = 0.5 * (hi - lo) @ np.abs(n) + 0.5 * np.abs(n).sum()
+    return int(np.count_nonzero(np.abs(((lo + hi) / 2 - o) @ n) <= reach)) + 1
+
+
+@pytest.mark.parametrize("shape,brick", [((189, 233, 197), 16), ((1024, 1024, 1024), 64)])
+def test_the_cover_holds_fewer_chunks_than_the_full_resolution_slab(shape, brick):
+    # random axial and oblique planes, each with a random point of interest on it inside the volume.
+    # Not so at 32^3 bricks on the 197 x 233 x 189 shape: there the blend parents can outnumber the
+    # level-0 bricks the cover saves, and the slice action draws full resolution
+    # (tests/render/test_slice_bytes.py)
+    pyr = Pyramid.build(shape, (brick,) * 3, (1.0, 1.0, 1.0), "mean", "uint8", (0.0, 255.0))
+    rng = np.random.default_rng(7)
+    lo, hi = pyr.volume_box()
+    checked = 0
+    while checked < 12:
+        p, q = rng.uniform(lo, hi), rng.uniform(lo, hi)
+        n = rng.normal(size=3) if checked % 2 else np.array([0.0, 0.0, 1.0])
+        n /= np.linalg.norm(n)
+        q -= ((q - p) @ n) * n
+        if np.any(q < lo) or np.any(q > hi):
+            continue
+        plane = Plane.through(tuple(p), tuple(n))
+        full = slice_region(pyr, plane, RenderParams(policy="plane", level=0), 1.0)
+        assert full.nbricks == _full_slab_bruteforce(pyr, plane)
+        for df in (1.0, 0.5, 0.25):
+            multi = slice_region(pyr, plane, RenderParams(policy="plane", focus=tuple(q), distance_factor=df), 1.0)
+            assert multi.nbricks <= full.nbricks, (tuple(p), tuple(n), tuple(q), df)
+        checked += 1
