@@ -19,6 +19,14 @@ What it measures (one run, one process, ratios only):
   point of interest on the plane's centre (``--scroll-distance-factor``): the whole slice in view
   (8 voxels a pixel), and zoomed to full resolution around the point of interest (1 voxel a pixel).
 
+* **never more than full resolution** (``--never-more``, no rendering unless ``--rendered N``) - the
+  issue's condition over ``--samples`` random axial and oblique planes, each with a random point of
+  interest on it (``--seed``), on the virtual ``--size``^3 stores at ``--bricks`` and the stores on
+  disk given with ``--real``: the chunks and bytes of the multiresolution slice's region against
+  the full-resolution one's, and what the slice action reads (it draws full resolution where that
+  holds no more bytes); ``--rendered N`` draws the first N cases of each store on disk and counts
+  the bytes read. Writes ``bench_slice_io_never_more.csv``.
+
 The stores are *virtual*: a procedural fractal (:mod:`clipvol.bricking.generators`) evaluated
 per brick, and each brick read is encoded with the chunk codec ``clipvol brick`` writes (blosc
 lz4 + shuffle + crc32c, :func:`clipvol.bricking.pipeline.chunk_encoder`); the bytes read are the
@@ -27,6 +35,7 @@ without writing terabytes. Run from the repository root::
 
     python tools/bench/bench_slice_io.py            # ~2-4 min on 2 shared cores
     python tools/bench/bench_slice_io.py --quick    # smoke run (256^3 / 1024^3 stores)
+    python tools/bench/bench_slice_io.py --never-more --rendered 24 --real mni16.zarr mni32.zarr
 
 Writes ``tools/bench/results/bench_slice_io.csv`` and ``bench_slice_io_scroll.csv``.
 """
@@ -268,51 +277,55 @@ def never_more(ctx, args, writer, rendered: int = 0) -> None:
     over ``--samples`` random planes and points of interest (:func:`random_slices`), the whole
     plane in view at one level-0 voxel a pixel, at every distance factor.
 
-    Priced from the geometry alone (:func:`clipvol.scene.slice_region.slice_region`, no rendering):
-    on the virtual ``--size``^3 stores at ``--bricks`` in chunks (every chunk the same raw size;
-    no manifest), on the stores on disk (``--real``) in the bytes their manifests record
-    (:func:`~clipvol.scene.slice_region.region_bytes`: a chunk holding only the fill value is never
-    read), both for the per-brick cover's region and for what the slice action reads - the
-    full-resolution region where that holds no more bytes. With ``rendered`` > 0 the first that
-    many cases of each store on disk are also drawn (cold clip-texture, converged, queue drained)
-    and the bytes the loader read are counted, for both slices."""
+    Priced from the geometry alone (:func:`clipvol.scene.slice_region.slice_region`, no rendering),
+    the per-brick cover's region against the full-resolution one, in chunks and in bytes as the
+    slice action prices them (:func:`~clipvol.scene.slice_region.stored_sizes`): the bytes the
+    manifest of a store on disk (``--real``) records (a chunk holding only the fill value is never
+    read), the raw bytes of the bricks of the virtual ``--size``^3 stores at ``--bricks`` (no
+    manifest). The slice action reads the full-resolution region where that holds no more bytes,
+    so what it reads is the smaller of the two. With ``rendered`` > 0 the first that many cases of
+    each store on disk are also drawn (cold clip-texture, converged, queue drained) and the bytes
+    the loader read are counted, for both slices."""
+    from types import SimpleNamespace
+
     from clipvol.bricking.pyramid import Pyramid
     from clipvol.paging.open import open_store
     from clipvol.scene.params import RenderParams
     from clipvol.scene.plane import default_pixel_size, default_size
     from clipvol.scene.slice_region import region_bytes, slice_region, stored_sizes
 
-    stores = [(f"fractal {args.size}^3 (virtual)", Pyramid.build((args.size,) * 3, (b,) * 3, dtype="float32"), None,
-               None) for b in args.bricks]
+    stores = []
+    for b in args.bricks:
+        pyr = Pyramid.build((args.size,) * 3, (b,) * 3, dtype="float32")
+        stores.append((f"fractal {args.size}^3 (virtual)", pyr, stored_sizes(SimpleNamespace(pyramid=pyr)), None))
     for path in args.real or ():
         ld = open_store(path)
         stores.append((Path(path).name, ld.pyramid, stored_sizes(ld), path))
     for name, pyr, sizes, path in stores:
-        unit = "chunks" if sizes is None else "bytes"
         slices = random_slices(pyr, args.samples, args.seed)
         for df in args.distance_factors:
-            cover_more, read_more, worst, worst_case, fell_back, ratios = 0, 0, 0.0, None, 0, []
+            more_chunks, more_bytes, read_more, fell_back, worst, worst_case, ratios = 0, 0, 0, 0, 0.0, None, []
             for i, (kind, plane, poi) in enumerate(slices):
                 px = default_pixel_size(pyr, plane)
                 size = default_size(pyr, plane, px)
                 params = RenderParams(policy="plane", focus=tuple(poi.tolist()), distance_factor=df)
                 full = slice_region(pyr, plane, RenderParams(policy="plane", level=0), px, size=size)
                 multi = slice_region(pyr, plane, params, px, size=size)
-                f, m = (full.nbricks, multi.nbricks) if sizes is None else \
-                    (region_bytes(full, sizes), region_bytes(multi, sizes))
-                # the slice action draws full resolution where that reads no more bytes (a manifest's sizes)
-                read = m if sizes is None or m < f else f
-                fell_back += int(sizes is not None and m >= f)
-                cover_more += int(m > f)
+                f, m = region_bytes(full, sizes), region_bytes(multi, sizes)
+                read = m if m < f else f  # the slice action's choice (SliceAction.render)
+                fell_back += int(m >= f)
+                more_chunks += int(multi.nbricks > full.nbricks)
+                more_bytes += int(m > f)
                 read_more += int(read > f)
                 ratios.append(f / max(read, 1))
                 if m / max(f, 1) > worst:
-                    worst, worst_case = m / max(f, 1), (kind, plane, poi, m, f)
+                    worst, worst_case = m / max(f, 1), (kind, plane, poi, m, f, multi.nbricks, full.nbricks)
                 row = dict(store=name, brick=pyr.brick_shape[0], distance_factor=df, case=i, kind=kind,
                            origin=" ".join(f"{v:.2f}" for v in plane.origin),
                            normal=" ".join(f"{v:.4f}" for v in plane.normal),
-                           focus=" ".join(f"{v:.2f}" for v in poi), unit=unit, cover=m, full_resolution=f,
-                           slice_action=read, measured_multires="", measured_full="")
+                           focus=" ".join(f"{v:.2f}" for v in poi), cover_chunks=multi.nbricks,
+                           full_resolution_chunks=full.nbricks, cover_bytes=m, full_resolution_bytes=f,
+                           slice_action_bytes=read, measured_multires="", measured_full="")
                 if path is not None and i < rendered:
                     ld_m, ld_f = open_store(path), open_store(path)
                     _, row["measured_multires"], _, ok_m = _slice(ctx, ld_m, plane, "256MB", threads=args.threads,
@@ -324,14 +337,13 @@ def never_more(ctx, args, writer, rendered: int = 0) -> None:
                         row["measured_multires"] = f"{row['measured_multires']} (NOT CONVERGED)"
                 writer.writerow(row)
             r = np.array(ratios)
-            kind, plane, poi, m, f = worst_case
+            kind, plane, poi, m, f, mc, fc = worst_case
             print(f"{name} b{pyr.brick_shape[0]} df={df}: {len(slices)} random planes and points of interest "
-                  f"(axial and oblique); the cover's region holds more {unit} than the full-resolution slab on "
-                  f"{cover_more} (worst {worst:.3f}x: {kind} plane through {_fmt(plane.origin, 1)} "
-                  f"normal {_fmt(plane.normal, 3)}, point {_fmt(poi, 1)}, {m} against {f} "
-                  f"{unit}); the slice reads more on {read_more}"
-                  + (f" (full resolution drawn on {fell_back})" if sizes is not None else "")
-                  + f"; fewer: min {r.min():.2f}x, median {np.median(r):.2f}x", flush=True)
+                  f"(axial and oblique); the cover's region holds more chunks than the full-resolution slab on "
+                  f"{more_chunks}, more bytes on {more_bytes} (worst {worst:.3f}x: {kind} plane through "
+                  f"{_fmt(plane.origin, 1)} normal {_fmt(plane.normal, 3)}, point {_fmt(poi, 1)}, {m} bytes in {mc} "
+                  f"chunks against {f} in {fc}); the slice draws full resolution on {fell_back} and reads more on "
+                  f"{read_more}; fewer bytes: min {r.min():.2f}x, median {np.median(r):.2f}x", flush=True)
 
 
 def _zarr_plane(path, z: float):
@@ -446,7 +458,7 @@ def main(argv=None) -> int:
     p.add_argument("--never-more", action="store_true",
                    help="only the check that a multiresolution slice never reads more than the full-resolution "
                         "one: --samples random axial and oblique planes with random points of interest on the "
-                        "virtual --size^3 stores at --bricks (chunks) and on the --real stores (bytes), "
+                        "virtual --size^3 stores at --bricks and on the --real stores, in chunks and bytes, "
                         "distance factors 1 0.5 0.25 unless given: bench_slice_io_never_more.csv")
     p.add_argument("--samples", type=int, default=200, help="random planes of --geometry / --never-more")
     p.add_argument("--seed", type=int, default=0, help="the random planes' seed")
@@ -463,8 +475,8 @@ def main(argv=None) -> int:
         ctx = create_context() if args.rendered and args.real else None
         with open(args.out / "bench_slice_io_never_more.csv", "w", newline="") as f:
             w = csv.DictWriter(f, ["store", "brick", "distance_factor", "case", "kind", "origin", "normal", "focus",
-                                   "unit", "cover", "full_resolution", "slice_action", "measured_multires",
-                                   "measured_full"])
+                                   "cover_chunks", "full_resolution_chunks", "cover_bytes", "full_resolution_bytes",
+                                   "slice_action_bytes", "measured_multires", "measured_full"])
             w.writeheader()
             never_more(ctx, args, w, args.rendered)
         return 0
