@@ -317,7 +317,8 @@ def plot(path: Path, rows: list) -> None:
     except ImportError:  # pragma: no cover
         return
     multi = [r for r in rows if r["what"] == "multiresolution"]
-    labels = [f"{r['store'].split(' (')[0]}\nb{r['brick']} f={r['distance_factor']}" for r in multi]
+    labels = [f"{r['store'].split(' float32')[0].removesuffix('.zarr')}\nb{r['brick']} f={r['distance_factor']}"
+              for r in multi]
     fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(multi)), 3.6))
     x = np.arange(len(multi))
     ax.bar(x, [r["fewer_bytes_read"] for r in multi], color="tab:green")
