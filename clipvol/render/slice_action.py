@@ -9,7 +9,7 @@ level 3D textures and budgets the volume action uses. Per frame (:meth:`SliceAct
    towards the next slice while the plane scrolls) is handed to the clip-texture, which then reads that slab
    rather than filling cubes (``follow_plane = False`` keeps the cubes). Where the full-resolution
    slab holds no more bytes than this region (the chunk sizes a store's manifest records, or
-   without one the bricks' raw bytes: :func:`~clipvol.scene.slice_region.stored_sizes`), the slice
+   without one a brick's bytes each: :func:`~clipvol.scene.slice_region.stored_sizes`), the slice
    is drawn at full resolution (``level=0``, :attr:`SliceAction.last_params`): a better image for
    no more bytes read.
 1. **Select** - the frame loop (:class:`~clipvol.render.frame_loop.FrameLoop`) runs the slice's

@@ -27,9 +27,10 @@ for a ring of neighbours.
 (:meth:`~clipvol.bricking.manifest.Manifest.sizes`), :func:`stored_sizes` and :func:`region_bytes`
 price a region in the bytes its chunks hold on disk: a brick that only holds the fill value costs
 nothing (it is never read), and a coarse brick that holds tissue where the level-0 bricks it
-covers hold background costs more than they do. Without a manifest a region is priced by the raw
-bytes of its bricks: where the full-resolution slab is small (a 197 x 233 x 189 volume in 32³
-bricks), the parents the cover's tiles blend towards can outnumber the level-0 bricks it saves.
+covers hold background costs more than they do. Without a manifest a region is priced by its
+bricks (a brick's bytes each): where the full-resolution slab is small (a 197 x 233 x 189 volume
+in 32³ bricks), the parents the cover's tiles blend towards can outnumber the level-0 bricks it
+saves.
 The slice action draws the full-resolution slice where its region holds no more bytes than the
 multiresolution one: the better image for no more bytes read
 (:class:`~clipvol.render.slice_action.SliceAction`).
@@ -87,35 +88,30 @@ def slice_region(pyramid, plane, params, pixel_size: float, *, size=None, ahead:
     return Region(tuple(center.tolist()), tuple(bricks), slab=(tuple(plane.origin), tuple(n.tolist()), halves))
 
 
-class _RawLevel:
-    """The bytes of one level's bricks as a source without a manifest hands them over: the voxels of
-    each brick (clipped to the level) times the item size. Indexed like a ``(gz, gy, gx)`` array
-    with three index arrays, without holding one (a huge store's grid)."""
+class _PerBrick:
+    """The bytes of one level's bricks as a source without a manifest hands them over: a whole
+    brick each (a loader returns the brick shape, an edge brick padded), indexed like a
+    ``(gz, gy, gx)`` array with three index arrays without holding one (a huge store's grid)."""
 
-    def __init__(self, pyramid, level: int) -> None:
-        b = pyramid.brick_shape
-        self._extents = [np.minimum(b[a], n - b[a] * np.arange(-(-n // b[a]), dtype=np.int64))
-                         for a, n in enumerate(pyramid.levels[level].shape)]
-        self._itemsize = int(pyramid.dtype.itemsize)
+    def __init__(self, nbytes: int) -> None:
+        self.nbytes = int(nbytes)
 
     def __getitem__(self, index) -> np.ndarray:
-        ez, ey, ex = self._extents
-        iz, iy, ix = index
-        return ez[iz] * ey[iy] * ex[ix] * self._itemsize
+        return np.full(np.shape(index[0]), self.nbytes, dtype=np.int64)
 
 
 def stored_sizes(loader) -> tuple:
     """Per level, ``(gz, gy, gx)`` int64 bytes a read of each brick takes from storage: the chunk's
     size from the store's verified manifest, 0 for a chunk not stored or holding only the fill value
     (the clip-texture fills those without a read). Without a manifest (a procedural or in-memory
-    source, an unverified store) the bytes each brick holds, its voxels clipped to the level: a
-    region is then priced by its bricks' raw bytes, and a multiresolution slice whose coarse bricks
-    cost more than the level-0 bricks they replace is drawn at full resolution all the same."""
+    source, an unverified store) every brick costs a brick's bytes: a region is then priced by its
+    bricks, and a multiresolution slice whose coarse bricks outnumber the level-0 bricks they
+    replace is drawn at full resolution all the same."""
     manifest = getattr(loader, "manifest", None)
     sizes = getattr(manifest, "sizes", None)
     pyr = loader.pyramid
     if sizes is None:
-        return tuple(_RawLevel(pyr, L) for L in range(pyr.num_levels))
+        return tuple(_PerBrick(pyr.brick_nbytes) for _ in range(pyr.num_levels))
     fill = pyr.fill_value
     out = []
     for L in range(pyr.num_levels):

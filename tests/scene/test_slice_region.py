@@ -112,3 +112,21 @@ def test_the_cover_holds_fewer_chunks_than_the_full_resolution_slab(shape, brick
             multi = slice_region(pyr, plane, RenderParams(policy="plane", focus=tuple(q), distance_factor=df), 1.0)
             assert multi.nbricks <= full.nbricks, (tuple(p), tuple(n), tuple(q), df)
         checked += 1
+
+
+def test_a_store_without_a_manifest_is_priced_by_the_bricks_it_hands_over():
+    # every brick's price against the array the loader hands over for it (edge bricks padded)
+    from clipvol.loaders.numpy_array import NumpyLoader
+    from clipvol.scene.slice_region import region_bytes, stored_sizes
+
+    ld = NumpyLoader(np.zeros((37, 50, 21), dtype=np.uint16), brick=16)
+    pyr = ld.pyramid
+    sizes = stored_sizes(ld)
+    for L in range(pyr.num_levels):
+        idx = np.array(list(np.ndindex(*pyr.grid(L))), dtype=np.int64)
+        want = [ld.read_brick(L, tuple(int(v) for v in i)).nbytes for i in idx]
+        np.testing.assert_array_equal(sizes[L][idx[:, 0], idx[:, 1], idx[:, 2]], want)
+    plane = Plane.axis(pyr, "axial", 20)
+    region = slice_region(pyr, plane, RenderParams(policy="plane", level=0), 1.0)
+    assert region_bytes(region, sizes) == sum(ld.read_brick(L, tuple(int(v) for v in b)).nbytes
+                                              for L, bb in enumerate(region.bricks) for b in bb)

@@ -281,7 +281,7 @@ def never_more(ctx, args, writer, rendered: int = 0) -> None:
     the per-brick cover's region against the full-resolution one, in chunks and in bytes as the
     slice action prices them (:func:`~clipvol.scene.slice_region.stored_sizes`): the bytes the
     manifest of a store on disk (``--real``) records (a chunk holding only the fill value is never
-    read), the raw bytes of the bricks of the virtual ``--size``^3 stores at ``--bricks`` (no
+    read), a brick's bytes for every brick of the virtual ``--size``^3 stores at ``--bricks`` (no
     manifest). The slice action reads the full-resolution region where that holds no more bytes,
     so what it reads is the smaller of the two. With ``rendered`` > 0 the first that many cases of
     each store on disk are also drawn (cold clip-texture, converged, queue drained) and the bytes
