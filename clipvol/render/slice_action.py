@@ -7,10 +7,11 @@ level 3D textures and budgets the volume action uses. Per frame (:meth:`SliceAct
 0. **Page** - the slice's region (:func:`~clipvol.scene.slice_region.slice_region`: per level, the
    bricks within half a voxel of the plane that the slice's cut draws or blends towards, widened
    towards the next slice while the plane scrolls) is handed to the clip-texture, which then reads that slab
-   rather than filling cubes (``follow_plane = False`` keeps the cubes). On a store whose manifest
-   records its chunks' sizes, where the full-resolution slab holds no more bytes than this
-   region, the slice is drawn at full resolution (``level=0``, :attr:`SliceAction.last_params`):
-   a better image for no more bytes read.
+   rather than filling cubes (``follow_plane = False`` keeps the cubes). Where the full-resolution
+   slab holds no more bytes than this region (the chunk sizes a store's manifest records, or
+   without one a brick's bytes each: :func:`~clipvol.scene.slice_region.stored_sizes`), the slice
+   is drawn at full resolution (``level=0``, :attr:`SliceAction.last_params`): a better image for
+   no more bytes read.
 1. **Select** - the frame loop (:class:`~clipvol.render.frame_loop.FrameLoop`) runs the slice's
    cut (:func:`~clipvol.scene.slice_cover.slice_cut`) with an orthographic camera that sees
    exactly the slice's pixels: with a point of interest, the per-brick cover

@@ -27,9 +27,13 @@ for a ring of neighbours.
 (:meth:`~clipvol.bricking.manifest.Manifest.sizes`), :func:`stored_sizes` and :func:`region_bytes`
 price a region in the bytes its chunks hold on disk: a brick that only holds the fill value costs
 nothing (it is never read), and a coarse brick that holds tissue where the level-0 bricks it
-covers hold background costs more than they do. The slice action draws the full-resolution slice
-where its region holds no more bytes than the multiresolution one: the better image for no more
-bytes read (:class:`~clipvol.render.slice_action.SliceAction`).
+covers hold background costs more than they do. Without a manifest a region is priced by its
+bricks (a brick's bytes each): where the full-resolution slab is small (a 197 x 233 x 189 volume
+in 32³ bricks), the parents the cover's tiles blend towards can outnumber the level-0 bricks it
+saves.
+The slice action draws the full-resolution slice where its region holds no more bytes than the
+multiresolution one: the better image for no more bytes read
+(:class:`~clipvol.render.slice_action.SliceAction`).
 
 ``ahead`` (world units along the normal) widens every slab towards where the plane is scrolling,
 so the next slice's bricks are queued behind the current ones.
@@ -84,16 +88,30 @@ def slice_region(pyramid, plane, params, pixel_size: float, *, size=None, ahead:
     return Region(tuple(center.tolist()), tuple(bricks), slab=(tuple(plane.origin), tuple(n.tolist()), halves))
 
 
-def stored_sizes(loader) -> tuple[np.ndarray, ...] | None:
+class _PerBrick:
+    """The bytes of one level's bricks as a source without a manifest hands them over: a whole
+    brick each (a loader returns the brick shape, an edge brick padded), indexed like a
+    ``(gz, gy, gx)`` array with three index arrays without holding one (a huge store's grid)."""
+
+    def __init__(self, nbytes: int) -> None:
+        self.nbytes = int(nbytes)
+
+    def __getitem__(self, index) -> np.ndarray:
+        return np.full(np.shape(index[0]), self.nbytes, dtype=np.int64)
+
+
+def stored_sizes(loader) -> tuple:
     """Per level, ``(gz, gy, gx)`` int64 bytes a read of each brick takes from storage: the chunk's
     size from the store's verified manifest, 0 for a chunk not stored or holding only the fill value
-    (the clip-texture fills those without a read). None when ``loader`` has no manifest (a
-    procedural or in-memory source, an unverified store): a region is then priced by its bricks."""
+    (the clip-texture fills those without a read). Without a manifest (a procedural or in-memory
+    source, an unverified store) every brick costs a brick's bytes: a region is then priced by its
+    bricks, and a multiresolution slice whose coarse bricks outnumber the level-0 bricks they
+    replace is drawn at full resolution all the same."""
     manifest = getattr(loader, "manifest", None)
     sizes = getattr(manifest, "sizes", None)
-    if sizes is None:
-        return None
     pyr = loader.pyramid
+    if sizes is None:
+        return tuple(_PerBrick(pyr.brick_nbytes) for _ in range(pyr.num_levels))
     fill = pyr.fill_value
     out = []
     for L in range(pyr.num_levels):

@@ -49,6 +49,25 @@ def test_multiresolution_slice_reads_no_more_than_full_resolution(gl, axis):
     assert multi <= full, (multi, full)
 
 
+@pytest.mark.parametrize("origin,normal,focus", [
+    # found by `bench_slice_io.py --never-more` (random planes, seed 0): at the default distance_factor
+    # the per-brick cover of these planes holds 59 / 62 bricks where the full-resolution slab holds
+    # 57 / 58 - the level-1 parents its tiles blend towards cost more than the level-0 bricks it saves
+    ((103.5, 82.3, 120.0), (0.0, 0.0, 1.0), (132.6, 129.6, 120.0)),
+    ((14.0, 15.9, 163.7), (-0.036, -0.951, -0.306), (130.4, 26.0, 118.5)),
+])
+def test_a_store_without_a_manifest_reads_no_more_than_the_full_resolution_slice(gl, origin, normal, focus):
+    """A store without a manifest (in memory, procedural) is priced by the bytes its bricks hold:
+    where the full-resolution slab holds no more, the slice draws that."""
+    rng = np.random.default_rng(5)
+    vol = (rng.random((189, 233, 197)) * 255).astype(np.uint8)
+    plane = Plane.through(origin, normal)
+    full, ok_full = _bytes_read(gl, vol, plane, level=0)
+    multi, ok_multi = _bytes_read(gl, vol, plane, focus=focus, distance_factor=1.0)
+    assert ok_full and ok_multi
+    assert multi <= full, (multi, full)
+
+
 class _CountingStore(Counting):
     """The counting wrapper of a store on disk that also shows the store's manifest (what the slice
     action prices a region by); the bytes the test counts come from the chunk files' sizes."""

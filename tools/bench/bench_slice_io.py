@@ -19,6 +19,14 @@ What it measures (one run, one process, ratios only):
   point of interest on the plane's centre (``--scroll-distance-factor``): the whole slice in view
   (8 voxels a pixel), and zoomed to full resolution around the point of interest (1 voxel a pixel).
 
+* **never more than full resolution** (``--never-more``, no rendering unless ``--rendered N``) - the
+  issue's condition over ``--samples`` random axial and oblique planes, each with a random point of
+  interest on it (``--seed``), on the virtual ``--size``^3 stores at ``--bricks`` and the stores on
+  disk given with ``--real``: the chunks and bytes of the multiresolution slice's region against
+  the full-resolution one's, and what the slice action reads (it draws full resolution where that
+  holds no more bytes); ``--rendered N`` draws the first N cases of each store on disk and counts
+  the bytes read. Writes ``bench_slice_io_never_more.csv``.
+
 The stores are *virtual*: a procedural fractal (:mod:`clipvol.bricking.generators`) evaluated
 per brick, and each brick read is encoded with the chunk codec ``clipvol brick`` writes (blosc
 lz4 + shuffle + crc32c, :func:`clipvol.bricking.pipeline.chunk_encoder`); the bytes read are the
@@ -27,6 +35,7 @@ without writing terabytes. Run from the repository root::
 
     python tools/bench/bench_slice_io.py            # ~2-4 min on 2 shared cores
     python tools/bench/bench_slice_io.py --quick    # smoke run (256^3 / 1024^3 stores)
+    python tools/bench/bench_slice_io.py --never-more --rendered 24 --real mni16.zarr mni32.zarr
 
 Writes ``tools/bench/results/bench_slice_io.csv`` and ``bench_slice_io_scroll.csv``.
 """
@@ -69,9 +78,12 @@ def _centre(pyr) -> tuple[float, float, float]:
     return tuple(((lo + hi) / 2.0).tolist())
 
 
-def _slice(ctx, loader, plane, budget, *, threads, follow, size=None, px=None, timeout=600, **params):
+def _slice(ctx, loader, plane, budget, *, threads, follow, size=None, px=None, timeout=600, out=None, then=None,
+           **params):
     """Render one converged slice, then let the clip-texture finish what it queued; returns
-    ``(rgba, bytes read, chunks read, converged)``."""
+    ``(rgba, bytes read, chunks read, converged)``. ``out`` (a dict) receives the slice action's
+    ``stats``, ``levels``, ``values`` and ``params`` (what it drew: full resolution where that
+    reads no more bytes); ``then(slice_action)`` runs on the warm slice action before it closes."""
     from clipvol.paging.cliptexture import ClipTexture
     from clipvol.paging.region import Region
     from clipvol.render.slice_action import SliceAction
@@ -84,6 +96,11 @@ def _slice(ctx, loader, plane, budget, *, threads, follow, size=None, px=None, t
         rgba = sa.render(plane, size, px, wait=True, timeout=timeout)
         converged = sa.last_stats.converged
         ct.wait_until_idle(timeout)
+        if out is not None:
+            out.update(stats=sa.last_stats, levels=sa.last_levels.copy(), values=sa.last_values.copy(),
+                       params=sa.last_params)
+        if then is not None:
+            then(sa)
     d = loader.read_counter.snapshot() - r0
     return rgba, d.bytes, d.reads, converged
 
@@ -93,15 +110,19 @@ def exact_axial(loader, plane) -> np.ndarray:
     around it), as the grey RGBA the slice action draws by default: the quality reference."""
     from clipvol.render.slice_action import window_level_grey
 
+    lo, hi = loader.pyramid.value_range
+    return window_level_grey(exact_axial_values(loader, plane), (lo + hi) / 2.0, max(hi - lo, 1e-300))
+
+
+def exact_axial_values(loader, plane) -> np.ndarray:
+    """The values of :func:`exact_axial`, ``(ny, nx)`` float64."""
     pyr = loader.pyramid
     z = plane.origin[2] / pyr.spacing[0]
     z0 = min(int(np.floor(z)), pyr.shape[0] - 2)
     t = z - z0
     ny, nx = pyr.shape[1], pyr.shape[2]
     two = loader.base.generator.region(0, (z0, 0, 0), (z0 + 2, ny, nx)).astype(np.float64)
-    values = (1.0 - t) * two[0] + t * two[1]
-    lo, hi = pyr.value_range
-    return window_level_grey(values, (lo + hi) / 2.0, max(hi - lo, 1e-300))
+    return (1.0 - t) * two[0] + t * two[1]
 
 
 def centre_slice(ctx, args, brick, writer) -> dict:
@@ -225,6 +246,106 @@ def geometry(args, writer, samples: int = 200, seed: int = 0) -> None:
                   f"{100 * np.mean(r >= 8):.0f} %")
 
 
+def _fmt(v, digits: int) -> str:
+    return "(" + ", ".join(f"{float(x):.{digits}f}" for x in v) + ")"
+
+
+def random_slices(pyr, n: int, seed: int = 0) -> list:
+    """``n`` random slices of ``pyr``: ``(kind, plane, point of interest)``, axial and oblique in
+    turn. A plane passes through a uniform point of the volume (oblique: a normal uniform on the
+    sphere); its point of interest is another uniform point projected onto it, redrawn until it
+    lies in the volume."""
+    from clipvol.scene.plane import Plane
+
+    rng = np.random.default_rng(seed)
+    lo, hi = pyr.volume_box()
+    out: list = []
+    while len(out) < n:
+        oblique = len(out) % 2 == 1
+        p = rng.uniform(lo, hi)
+        normal = rng.normal(size=3) if oblique else np.array([0.0, 0.0, 1.0])
+        normal /= np.linalg.norm(normal)
+        q = rng.uniform(lo, hi)
+        q = q - ((q - p) @ normal) * normal
+        if np.all(q >= lo) and np.all(q <= hi):
+            out.append(("oblique" if oblique else "axial", Plane.through(tuple(p), tuple(normal)), q))
+    return out
+
+
+def never_more(ctx, args, writer, rendered: int = 0) -> None:
+    """The issue's condition "a multiresolution cut never reads more than the full-resolution one"
+    over ``--samples`` random planes and points of interest (:func:`random_slices`), the whole
+    plane in view at one level-0 voxel a pixel, at every distance factor.
+
+    Priced from the geometry alone (:func:`clipvol.scene.slice_region.slice_region`, no rendering),
+    the per-brick cover's region against the full-resolution one, in chunks and in bytes as the
+    slice action prices them (:func:`~clipvol.scene.slice_region.stored_sizes`): the bytes the
+    manifest of a store on disk (``--real``) records (a chunk holding only the fill value is never
+    read), a brick's bytes for every brick of the virtual ``--size``^3 stores at ``--bricks`` (no
+    manifest). The slice action reads the full-resolution region where that holds no more bytes,
+    so what it reads is the smaller of the two. With ``rendered`` > 0 the first that many cases of
+    each store on disk are also drawn (cold clip-texture, converged, queue drained) and the bytes
+    the loader read are counted, for both slices."""
+    from types import SimpleNamespace
+
+    from clipvol.bricking.pyramid import Pyramid
+    from clipvol.paging.open import open_store
+    from clipvol.scene.params import RenderParams
+    from clipvol.scene.plane import default_pixel_size, default_size
+    from clipvol.scene.slice_region import region_bytes, slice_region, stored_sizes
+
+    stores = []
+    for b in args.bricks:
+        pyr = Pyramid.build((args.size,) * 3, (b,) * 3, dtype="float32")
+        stores.append((f"fractal {args.size}^3 (virtual)", pyr, stored_sizes(SimpleNamespace(pyramid=pyr)), None))
+    for path in args.real or ():
+        ld = open_store(path)
+        stores.append((Path(path).name, ld.pyramid, stored_sizes(ld), path))
+    for name, pyr, sizes, path in stores:
+        slices = random_slices(pyr, args.samples, args.seed)
+        for df in args.distance_factors:
+            more_chunks, more_bytes, read_more, fell_back, worst, worst_case, ratios = 0, 0, 0, 0, 0.0, None, []
+            for i, (kind, plane, poi) in enumerate(slices):
+                px = default_pixel_size(pyr, plane)
+                size = default_size(pyr, plane, px)
+                params = RenderParams(policy="plane", focus=tuple(poi.tolist()), distance_factor=df)
+                full = slice_region(pyr, plane, RenderParams(policy="plane", level=0), px, size=size)
+                multi = slice_region(pyr, plane, params, px, size=size)
+                f, m = region_bytes(full, sizes), region_bytes(multi, sizes)
+                read = m if m < f else f  # the slice action's choice (SliceAction.render)
+                fell_back += int(m >= f)
+                more_chunks += int(multi.nbricks > full.nbricks)
+                more_bytes += int(m > f)
+                read_more += int(read > f)
+                ratios.append(f / max(read, 1))
+                if m / max(f, 1) > worst:
+                    worst, worst_case = m / max(f, 1), (kind, plane, poi, m, f, multi.nbricks, full.nbricks)
+                row = dict(store=name, brick=pyr.brick_shape[0], distance_factor=df, case=i, kind=kind,
+                           origin=" ".join(f"{v:.2f}" for v in plane.origin),
+                           normal=" ".join(f"{v:.4f}" for v in plane.normal),
+                           focus=" ".join(f"{v:.2f}" for v in poi), cover_chunks=multi.nbricks,
+                           full_resolution_chunks=full.nbricks, cover_bytes=m, full_resolution_bytes=f,
+                           slice_action_bytes=read, measured_multires="", measured_full="")
+                if path is not None and i < rendered:
+                    ld_m, ld_f = open_store(path), open_store(path)
+                    _, row["measured_multires"], _, ok_m = _slice(ctx, ld_m, plane, "256MB", threads=args.threads,
+                                                                 follow=True, size=size, px=px,
+                                                                 focus=params.focus, distance_factor=df)
+                    _, row["measured_full"], _, ok_f = _slice(ctx, ld_f, plane, "256MB", threads=args.threads,
+                                                             follow=True, size=size, px=px, level=0)
+                    if not (ok_m and ok_f):
+                        row["measured_multires"] = f"{row['measured_multires']} (NOT CONVERGED)"
+                writer.writerow(row)
+            r = np.array(ratios)
+            kind, plane, poi, m, f, mc, fc = worst_case
+            print(f"{name} b{pyr.brick_shape[0]} df={df}: {len(slices)} random planes and points of interest "
+                  f"(axial and oblique); the cover's region holds more chunks than the full-resolution slab on "
+                  f"{more_chunks}, more bytes on {more_bytes} (worst {worst:.3f}x: {kind} plane through "
+                  f"{_fmt(plane.origin, 1)} normal {_fmt(plane.normal, 3)}, point {_fmt(poi, 1)}, {m} bytes in {mc} "
+                  f"chunks against {f} in {fc}); the slice draws full resolution on {fell_back} and reads more on "
+                  f"{read_more}; fewer bytes: min {r.min():.2f}x, median {np.median(r):.2f}x", flush=True)
+
+
 def _zarr_plane(path, z: float):
     """The level-0 voxel planes around ``z`` read with zarr-python alone (outside our code path):
     ``(seconds, bytes of the chunk files it touched, plane as float64)``, linear between the two."""
@@ -331,12 +452,35 @@ def main(argv=None) -> int:
                    help="only the region's chunks from the pyramid's geometry (no rendering, seconds): "
                         "bench_slice_io_geometry.csv")
     p.add_argument("--real", nargs="+", default=None, metavar="STORE",
-                   help="only real stores on disk (e.g. the MNI template bricked by clipvol brick): bytes, time "
+                   help="(with --never-more: stores on disk checked besides the virtual ones) only real stores on disk (e.g. the MNI template bricked by clipvol brick): bytes, time "
                         "and error of the slice against the full-resolution one and a zarr-python read of the "
                         "plane: bench_slice_io_real.csv")
+    p.add_argument("--never-more", action="store_true",
+                   help="only the check that a multiresolution slice never reads more than the full-resolution "
+                        "one: --samples random axial and oblique planes with random points of interest on the "
+                        "virtual --size^3 stores at --bricks and on the --real stores, in chunks and bytes, "
+                        "distance factors 1 0.5 0.25 unless given: bench_slice_io_never_more.csv")
+    p.add_argument("--samples", type=int, default=200, help="random planes of --geometry / --never-more")
+    p.add_argument("--seed", type=int, default=0, help="the random planes' seed")
+    p.add_argument("--rendered", type=int, default=0,
+                   help="--never-more: also draw the first N cases of each --real store and count the bytes read")
     p.add_argument("--out", type=Path, default=HERE / "results")
     args = p.parse_args(argv)
-    if args.real:
+    if args.never_more:
+        from clipvol.render import create_context
+
+        args.out.mkdir(parents=True, exist_ok=True)
+        if args.distance_factors == [1.0, 0.5]:
+            args.distance_factors = [1.0, 0.5, 0.25]
+        ctx = create_context() if args.rendered and args.real else None
+        with open(args.out / "bench_slice_io_never_more.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, ["store", "brick", "distance_factor", "case", "kind", "origin", "normal", "focus",
+                                   "cover_chunks", "full_resolution_chunks", "cover_bytes", "full_resolution_bytes",
+                                   "slice_action_bytes", "measured_multires", "measured_full"])
+            w.writeheader()
+            never_more(ctx, args, w, args.rendered)
+        return 0
+    if args.real and not args.never_more:
         from clipvol.render import create_context
 
         args.out.mkdir(parents=True, exist_ok=True)
@@ -355,7 +499,7 @@ def main(argv=None) -> int:
             w = csv.DictWriter(f, ["store", "brick", "distance_factor", "case", "z", "focus_x", "focus_y",
                                    "region_chunks", "per_level", "full_resolution_chunks", "ratio"])
             w.writeheader()
-            geometry(args, w)
+            geometry(args, w, args.samples, args.seed)
         return 0
     if args.quick:
         args.size, args.scroll_size, args.steps = 256, 1024, 4
