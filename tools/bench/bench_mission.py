@@ -96,7 +96,11 @@ def settings() -> dict:
     out.update({f"{'L1 ' if L else ''}step={st:g} refine={tol:g} half={ht:g}":
                 dict(policy="fixed", level=L, step=st, refine_tolerance=tol, refine_half_tolerance=ht)
                 for L, st, tol, ht in ((0, 2.0, 0.16, 0.08), (0, 2.0, 0.16, 0.3), (0, 2.0, 0.3, 0.08), (0, 2.0, 0.08, 0.3),
-                                       (1, 1.0, 0.08, 0.16), (1, 1.0, 0.16, 0.08), (1, 1.0, 0.08, 0.04))})
+                                       (1, 1.0, 0.08, 0.16), (1, 1.0, 0.16, 0.08), (1, 1.0, 0.08, 0.04),
+                                       *((0, st, t, h) for st in (2.0, 2.5, 3.0) for t in (0.3, 0.5, 1.0)
+                                         for h in (0.04, 0.08, 0.12)),
+                                       *((1, st, t, h) for st in (1.0, 1.5) for t in (0.16, 0.3, 0.5, 1.0)
+                                         for h in (0.04, 0.08)))})
     return out
 
 
