@@ -149,8 +149,6 @@ class ClipRenderAction:
         self._answered = None  # the selection camera whose answers held the kept merge last: see _merged
         self._samples_kept = None  # (selection camera or None for any, merged items, step, bound): see _samples
         self._replayed = False  # the frame loop drew the last cut again (its order is the old camera's)
-        self._coarse_loop = None  # (params, the coarse passes' params, their frame loop): see _coarse_selection
-        self._coarse_kept = None  # (coarse items, GPU generation, camera, (path name, items) or None): _coarse_items
         self.image_lod: ImageLod | None = None  # the image policy's tables and visibility, made on first use
         self.overlays = OverlayTextures(ctx, clip_texture.loader)  # co-registered volumes (scene/overlay.py)
         try:
@@ -284,13 +282,11 @@ class ClipRenderAction:
                 self.image_lod = ImageLod(lambda p: type(self)(self.ctx, self.clip_texture, p), self.clip_texture)
             policy = self.image_lod.policy(cam, transfer_function, self.params)
         self.last_policy = policy
-        transparent = self._transparent(transfer_function)
-        coarse = self._coarse_selection(cam, transparent, wait, timeout)  # (before the image's cut: see there)
-        plan = self.frame_loop.run(cam, self.params, transparent=transparent,
+        plan = self.frame_loop.run(cam, self.params, transparent=self._transparent(transfer_function),
                                    policy=policy, wait=wait, timeout=timeout, ordered=False)
         sel, times = plan.selection, dict(plan.times)
         self._replayed = plan.replayed or not sel.ordered  # items not in this camera's order: _draw orders them
-        drawn = self._draw(cam, transfer_function, sel, coarse)
+        drawn = self._draw(cam, transfer_function, sel)
         image, read_t = drawn.image, drawn.readback_s
         times["draw"], times["readback"] = drawn.draw_s, read_t
         times["total"] = time.perf_counter() - t_start
@@ -353,49 +349,7 @@ class ClipRenderAction:
             cam = cam.with_depth_range(min(cam.near, cam.far * 1e-7), cam.far)
         return cam
 
-    def _coarse_selection(self, cam, transparent, wait: bool, timeout: float | None) -> Selection | None:
-        """The cut of ``refine_coarse_level`` for a refined frame's coarse passes, or None (no
-        such level set, or the frame does not refine): selected and uploaded by a frame loop of
-        its own on the same GPU cache (``policy="fixed"`` at that level; a camera-free cut, drawn
-        again from frame to frame). It runs before the image's cut, so that the image's frame
-        loop has the last word on the texture slots; :meth:`_coarse_items` then checks that the
-        coarse cut is still on the GPU."""
-        p = self.params
-        if p.refine_coarse_level is None or not refines(p, cam):
-            return None
-        kept = self._coarse_loop
-        if kept is None or kept[0] is not p or kept[2].cache is not self.cache:
-            cp = dataclasses.replace(p, policy="fixed", level=p.refine_coarse_level, refine_coarse_level=None,
-                                     max_error=None)
-            kept = self._coarse_loop = (p, cp, FrameLoop(self.clip_texture, self.cache))
-        return kept[2].run(cam, kept[1], transparent=transparent, wait=wait, timeout=timeout,
-                           ordered=False).selection
-
-    def _coarse_items(self, cam, sel: Selection | None):
-        """``(path name, items)`` of the coarse cut ``sel`` (:meth:`_coarse_selection`) merged and in
-        ``cam``'s visibility order for its path, or None where there is none or a brick of it is
-        no longer on the GPU (the image's uploads took its slot: the coarse passes then draw the
-        image's cut). Kept while the cut, the GPU cache's slots and the camera are the same."""
-        if sel is None:
-            return None
-        cache, pyr = self.cache, self.pyramid
-        kept = self._coarse_kept
-        if kept is not None and kept[0] is sel.items and kept[1] == cache.generation and kept[2] is cam:
-            return kept[3]
-        keys = sel.item_keys()
-        out = None
-        if len(keys) and all(cache.on_gpu_mask(int(L), keys[keys[:, 0] == L, 1:]).all() for L in np.unique(keys[:, 0])):
-            items = merge_items(sel.items, pyr, cache.windows, self._may_cover(cam)) if self.params.merge_boxes \
-                else list(sel.items)
-            check_samples(cam, items, pyr, self.params.step)
-            name = pick(self.params, items)
-            if self._path(name).wants_order:
-                items = [items[i] for i in node_order(items, pyr, cam)]
-            out = (name, items)
-        self._coarse_kept = (sel.items, cache.generation, cam, out)
-        return out
-
-    def _draw(self, cam, tf, sel, coarse: Selection | None = None) -> DrawStats:
+    def _draw(self, cam, tf, sel) -> DrawStats:
         """Merge the cut once, check once that no ray needs more samples in a box than the loop
         takes (:func:`check_samples`; every pass and path of the frame casts the image camera's
         rays through these boxes), decide whether the frame leaps over empty cells, and hand the
@@ -424,8 +378,7 @@ class ClipRenderAction:
         if self._path(name).wants_order:  # (the single pass walks a page table: it needs no order)
             items = ordered(items)
         frame = self._frame_context(cam, tf, items)
-        out = self._draw_refined(name, frame, self._coarse_items(cam, coarse)) if refines(self.params, cam) \
-            else self._path(name).draw(frame)
+        out = self._draw_refined(name, frame) if refines(self.params, cam) else self._path(name).draw(frame)
         if out is None:  # the path cannot draw this cut: the reference path does
             name = FALLBACK
             out = self._path(name).draw(dataclasses.replace(frame, items=ordered(items)))
@@ -515,28 +468,15 @@ class ClipRenderAction:
         self._extents_kept = (merged, rep)
         return rep
 
-    def _draw_refined(self, name: str, frame: FrameContext, coarse=None) -> DrawStats | None:
+    def _draw_refined(self, name: str, frame: FrameContext) -> DrawStats | None:
         """Draw ``frame`` with path ``name`` as a refined frame (:mod:`clipvol.render.refine`): its
         passes from the coarsest to the image, each finer one masked by the one before; None where
-        the path declines the cut (the fallback path then draws every pixel). ``coarse``: ``(path
-        name, items)`` of the coarse passes' own cut (``refine_coarse_level``,
-        :meth:`_coarse_items`), or None (every pass draws ``frame``'s). The statistics are the
-        image pass's, with the draw seconds and occlusion passes of all passes."""
-        cam = frame.camera
+        the path declines the cut (the fallback path then draws every pixel). The statistics are
+        the image pass's, with the draw seconds and occlusion passes of all passes."""
+        path, cam = self._path(name), frame.camera
         drawn, occlusion = 0.0, 0
         for k in range(refine_levels(cam), -1, -1):  # coarsest first; 0: the image
-            if k and coarse is not None:
-                path, pass_frame = self._path(coarse[0]), dataclasses.replace(frame, items=coarse[1])
-            else:
-                path, pass_frame = self._path(name), frame
-            p = self.params
-            if k == refine_levels(cam) and p.refine_coarse_step is not None:
-                pass_frame = dataclasses.replace(pass_frame, params=dataclasses.replace(
-                    pass_frame.params, step=p.refine_coarse_step))
-            if k == 1 and p.refine_half_tolerance is not None:
-                pass_frame = dataclasses.replace(pass_frame, params=dataclasses.replace(
-                    pass_frame.params, refine_tolerance=p.refine_half_tolerance))
-            out = path.draw(pass_frame.for_pass(k, Refine.coarse_camera(cam, k)))
+            out = path.draw(frame.for_pass(k, Refine.coarse_camera(cam, k)))
             if out is None:
                 return None
             drawn += out.draw_s

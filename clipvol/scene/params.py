@@ -176,14 +176,6 @@ class RenderParams:
         (in ``[0, 1]``); elsewhere the pixel is their bilinear blend. Smooth images cost a fraction
         of the rays; a feature thinner than the coarse spacing between coarse rays that agree is
         lost (measure the error with ``clipvol report``). Other modes ignore it.
-    refine_coarse_level : int, optional
-        With ``refine_tolerance`` above 0: draw the coarse passes (1/4 and 1/2 of the image's
-        resolution) from this level's whole cut (``policy="fixed"`` at that level, at ``step`` in
-        its voxels, classified as ``classify`` says), and only the full-resolution rays the masks
-        leave from the frame's own cut. The coarse passes then only decide where to cast rays and
-        fill the smooth pixels; both cuts are kept in texture memory for the frame (where the
-        texture budget cannot hold both, the coarse passes draw the frame's cut). None (default):
-        every pass draws the frame's cut.
     jitter : bool
         Start each pixel's sample lattice at a stable per-pixel hashed offset (a fraction of the
         step), which turns the wood-grain rings of a constant-distance lattice on opaque surfaces
@@ -256,9 +248,6 @@ class RenderParams:
     early_termination: bool = True
     merge_boxes: bool = True
     refine_tolerance: float = _field("refine_tolerance")
-    refine_coarse_level: int | None = None
-    refine_coarse_step: float | None = None
-    refine_half_tolerance: float | None = None
     jitter: bool = _field("jitter")
     skip_empty: bool = _field("skip_empty")
     path: str = _field("path")
@@ -353,15 +342,6 @@ class RenderParams:
             raise ParameterError(f"refine_tolerance: expected a spread of premultiplied colour in [0, 1] (0: a ray "
                                  f"per pixel), got {self.refine_tolerance!r}")
         s(self, "refine_tolerance", tol)
-        if self.refine_coarse_level is not None:
-            lv = self.refine_coarse_level
-            if isinstance(lv, bool) or not isinstance(lv, (int, float)) or int(lv) != lv or lv < 0:
-                raise ParameterError(f"refine_coarse_level: expected an integer >= 0 or None, got {lv!r}")
-            s(self, "refine_coarse_level", int(lv))
-        if self.refine_coarse_step is not None:
-            s(self, "refine_coarse_step", _positive(self.refine_coarse_step, "refine_coarse_step", "voxels"))
-        if self.refine_half_tolerance is not None:
-            s(self, "refine_half_tolerance", float(self.refine_half_tolerance))
         s(self, "skip_empty", bool(self.skip_empty))
         s(self, "shading", bool(self.shading))
         for name in ("ambient", "diffuse", "specular"):
@@ -438,9 +418,6 @@ class RenderParams:
         range, rather than drawn as if they showed a surface."""
         if self.level is not None and self.level >= pyramid.num_levels:
             raise ParameterError(f"level: expected 0..{pyramid.num_levels - 1} for this store, got {self.level}")
-        if self.refine_coarse_level is not None and self.refine_coarse_level >= pyramid.num_levels:
-            raise ParameterError(f"refine_coarse_level: expected 0..{pyramid.num_levels - 1} for this store, "
-                                 f"got {self.refine_coarse_level}")
         rng = getattr(pyramid, "value_range", None)
         if self.iso_value is not None and rng is not None:
             lo, hi = (float(v) for v in rng)

@@ -83,24 +83,6 @@ def settings() -> dict:
                 for st, tol in ((0.5, 0.16), (0.75, 0.16), (1.0, 0.08), (1.0, 0.16), (1.0, 0.3), (1.5, 0.08),
                                 (1.5, 0.16), (2.0, 0.12))})
     out.update({f"L1 step={st:g}": dict(policy="fixed", level=1, step=st) for st in (1.0, 1.5, 2.0)})
-    # the coarse passes of a refined frame from a coarser level's cut (refine_coarse_level), the
-    # full-resolution rays the masks leave from the frame's own level
-    out.update({f"{'L1 ' if L else ''}step={st:g} refine={tol:g} coarse=L{c}":
-                dict(policy="fixed", level=L, step=st, refine_tolerance=tol, refine_coarse_level=c)
-                for L, st, tol, c in ((0, 2.0, 0.16, 1), (0, 2.0, 0.12, 1), (0, 1.0, 0.16, 1), (0, 1.0, 0.08, 1), (0, 1.5, 0.16, 1),
-                                      (0, 2.0, 0.16, 2), (1, 1.0, 0.08, 2), (1, 1.0, 0.16, 2))})
-    # experimental: the coarsest pass at another step, the 1/2 pass's mask at another tolerance
-    out.update({f"{'L1 ' if L else ''}step={st:g} refine={tol:g} coarse step={cs:g}":
-                dict(policy="fixed", level=L, step=st, refine_tolerance=tol, refine_coarse_step=cs)
-                for L, st, tol, cs in ((0, 2.0, 0.16, 3.0), (0, 2.0, 0.16, 4.0), (1, 1.0, 0.08, 1.5), (1, 1.0, 0.08, 2.0))})
-    out.update({f"{'L1 ' if L else ''}step={st:g} refine={tol:g} half={ht:g}":
-                dict(policy="fixed", level=L, step=st, refine_tolerance=tol, refine_half_tolerance=ht)
-                for L, st, tol, ht in ((0, 2.0, 0.16, 0.08), (0, 2.0, 0.16, 0.3), (0, 2.0, 0.3, 0.08), (0, 2.0, 0.08, 0.3),
-                                       (1, 1.0, 0.08, 0.16), (1, 1.0, 0.16, 0.08), (1, 1.0, 0.08, 0.04),
-                                       *((0, st, t, h) for st in (2.0, 2.5, 3.0) for t in (0.3, 0.5, 1.0)
-                                         for h in (0.04, 0.08, 0.12)),
-                                       *((1, st, t, h) for st in (1.0, 1.5) for t in (0.16, 0.3, 0.5, 1.0)
-                                         for h in (0.04, 0.08)))})
     return out
 
 

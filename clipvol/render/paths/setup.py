@@ -312,14 +312,9 @@ class DrawSetup:
         corrected for level ``L``'s step), rebuilt only when the table or the step changes."""
         table = np.ascontiguousarray(np.asarray(frame.tf.table, dtype=np.float32))
         key = (table.shape, table.tobytes(), frame.params.step)
-        prev = getattr(self, "_tf_prev", None)
-        if self._tf_key != key and prev is not None and prev[0] == key:
-            self._tf_prev = (self._tf_key, self._tf_tex)
-            self._tf_key, self._tf_tex = prev
         if self._tf_key != key:
-            if prev is not None and prev[1] is not None:
-                prev[1].release()
-            self._tf_prev = (self._tf_key, self._tf_tex)
+            if self._tf_tex is not None:
+                self._tf_tex.release()
             rows = corrected_tables(table, frame.level_ratios)
             tex = self.ctx.texture((rows.shape[1], len(rows)), 4, rows.astype(np.float32).tobytes(), dtype="f4")
             tex.filter = (self.mgl.LINEAR, self.mgl.LINEAR)
