@@ -205,10 +205,10 @@ def run(store: Path, images, levels, supersample: int = 2, spread_scales=(), log
                     if k.endswith("mean (plain)"):
                         row["plain_vs_clipvol_pct"] = pct(img, imgs[k.replace(" (plain)", "")])
                     rows.append(row)
-                    log(f"{image}^2 {view:5} {k:>28}: {row['pct_de6']:6.2f} % dE>=6 ({row['over_l0_points']:+6.2f} points "
-                        f"over level 0; "
-                        f"{row['pct_de6_off_edges']:5.2f} % off edges)" + (f"; plain vs clipvol {row['plain_vs_clipvol_pct']:.2f} %"
-                                            if row["plain_vs_clipvol_pct"] != "" else ""))
+                    plain = row["plain_vs_clipvol_pct"]
+                    log(f"{image}^2 {view:5} {k:>28}: {row['pct_de6']:6.2f} % dE>=6 ({row['over_l0_points']:+6.2f} "
+                        f"points over level 0; {row['pct_de6_off_edges']:5.2f} % off edges)"
+                        + (f"; plain vs clipvol {plain:.2f} %" if plain != "" else ""))
                 log(f"{image}^2 {view}: {time.perf_counter() - t0:.0f} s, load {load:.2f}; edges (Delta E >= 6 within "
                     f"{radius} px, a level-{max(levels)} voxel ~{footprint_px(cam, pyr, max(levels)):.1f} px): "
                     f"{100.0 * float(edges.mean()):.1f} % of pixels")
@@ -224,7 +224,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--store", type=Path, required=True, help="a clipvol store built with its spread arrays")
     ap.add_argument("--images", default="256,512", help="image edges, comma separated (default 256,512)")
     ap.add_argument("--levels", default="1", help="coarse levels to split, comma separated (default 1)")
-    ap.add_argument("--supersample", type=int, default=2, help="rays per pixel along each axis of the converged picture")
+    ap.add_argument("--supersample", type=int, default=2,
+                    help="rays per pixel along each axis of the converged picture (default 2)")
     ap.add_argument("--spread-scales", default="",
                     help="also draw each level classified with its spread scaled by these factors (a probe of the "
                          "normal model's width: the renderer's spread-to-row scale divided by each), comma separated")
