@@ -17,15 +17,26 @@ points. This benchmark splits that error, per view (``bench_mission.views``: ``i
 * ``LL mean (plain)``: the plain caster on the stored level's means with the table: clipvol's mean
   path drawn outside clipvol; its difference from ``LL mean`` (``plain_vs_clipvol_pct``) says how
   far the plain caster's geometry and lattice are from clipvol's (the decomposition holds if small);
-* ``LL ideal (plain)``: **the floor of any per-voxel representation**: the level-0 voxels classified
+* ``LL ideal (plain)``: **a perfect distribution per coarse voxel**: the level-0 voxels classified
   (RGBA, premultiplied), averaged over each ``2**L`` block (edge-replicated like the mean filter) -
   the exact expected classification of the distribution beneath each coarse voxel - and drawn by the
-  plain caster (interpolated trilinearly between coarse voxels, then the opacity corrected for the
-  step). What is left there is resolution: an edge cannot sit finer than the coarse voxel;
+  plain caster (interpolated trilinearly between coarse voxels, which is the distribution itself
+  interpolated: the expectation over a trilinear mix of eight distributions is the mix of their
+  expectations; then the opacity corrected for the step). Any per-voxel distribution (histogram
+  bins, sparse values and weights) tends to it as it grows more faithful;
 * ``LL normal (plain)``: the stored mean and spread classified per coarse voxel under clipvol's normal
   model (:func:`clipvol.scene.consistent.distribution_tables`), then interpolated like the ideal: the
   model's share (normal against the true distribution) apart from the interpolation's (clipvol
-  interpolates mean and spread, then classifies).
+  interpolates mean and spread, then classifies);
+* ``LL dist spread*k`` (``--spread-scales``): clipvol's distribution path with every spread read
+  ``k`` times wider: is the normal model's width at its best?
+
+Where the error lies: ``pct_de6_off_edges`` counts only the wrong pixels off the converged picture's
+**edges** - pixels whose colour differs by Delta E >= 6 from a pixel within half a coarse voxel's
+footprint on screen (:func:`sub_resolution`; ``edge_pixels_pct`` of the image). An error there is a
+wrong colour where the picture is flat over a coarse voxel (the representation's); an error on an
+edge is an edge's position or a structure's width, which a per-voxel distribution (it has no
+position inside the voxel) cannot place.
 
 Usage::
 
