@@ -28,6 +28,11 @@ points. This benchmark splits that error, per view (``bench_mission.views``: ``i
   model (:func:`clipvol.scene.consistent.distribution_tables`), then interpolated like the ideal: the
   model's share (normal against the true distribution) apart from the interpolation's (clipvol
   interpolates mean and spread, then classifies);
+* ``LL dist (plain)``: the plain caster on the stored mean and spread, classified by clipvol's table
+  after interpolation: clipvol's distribution path drawn outside clipvol (``plain_vs_clipvol_pct``);
+* ``LL dist cubic (plain)``: the same mean and spread resampled onto level 0's grid by a cubic
+  B-spline (:func:`cubic_to_level0`) and classified the same way: does a reconstruction sharper than
+  trilinear place level L's edges nearer the converged picture's?
 * ``LL dist spread*k`` (``--spread-scales``): clipvol's distribution path with every spread read
   ``k`` times wider: is the normal model's width at its best?
 
@@ -99,6 +104,23 @@ def normal_classified(mean: np.ndarray, spread: np.ndarray, tf, value_range) -> 
     return _bilinear(prem, tf, mean, spread, value_range, SPREAD_ROWS)
 
 
+def cubic_to_level0(pair: np.ndarray, pyramid, level: int) -> np.ndarray:
+    """``(z, y, x, 2)`` (mean, spread) of ``level`` resampled onto level 0's grid by a cubic B-spline
+    (``scipy.ndimage.zoom``, grid-aligned: level-0 voxel ``i`` at ``(i + 1/2) / 2**L - 1/2`` of the
+    level, ends clamped), the spread kept >= 0: a reconstruction sharper than trilinear, drawn at
+    level 0 with the same table."""
+    from scipy import ndimage
+
+    f = 2 ** level
+    shape = pyramid.levels[0].shape
+    out = np.empty((*shape, 2), dtype=np.float32)
+    for c in range(2):
+        up = ndimage.zoom(pair[..., c].astype(np.float64), f, order=3, mode="nearest", grid_mode=True)
+        out[..., c] = up[: shape[0], : shape[1], : shape[2]]
+    out[..., 1] = np.maximum(out[..., 1], 0.0)
+    return out
+
+
 def straight_u8(prem: np.ndarray) -> np.ndarray:
     """A premultiplied float RGBA image as clipvol's frames are: straight uint8 RGBA."""
     a = np.clip(prem[..., 3:4], 0.0, 1.0)
@@ -143,6 +165,8 @@ def run(store: Path, images, levels, supersample: int = 2, spread_scales=(), log
     from clipvol.scene.metrics import delta_e_luv, percent_delta_e
     from clipvol.scene.params import RenderParams
 
+    from clipvol.scene.consistent import distribution_tables
+
     step = 0.5
     scene = common.WarmScene(store)
     pyr, tf, ctx = scene.pyramid, scene.tf, scene.ctx
@@ -168,6 +192,11 @@ def run(store: Path, images, levels, supersample: int = 2, spread_scales=(), log
         casters[f"L{L} ideal (plain)"] = (common.LevelCaster(ctx, block_mean(fine, 2 ** L), pyr, L), delta)
         casters[f"L{L} normal (plain)"] = (common.LevelCaster(ctx, normal_classified(mean, spread, tf, vr), pyr, L),
                                            delta)
+        table = distribution_tables(np.asarray(tf.table, dtype=np.float64), [delta / sp0])[0]
+        pair = np.stack([mean, spread], axis=-1)
+        casters[f"L{L} dist (plain)"] = (common.LevelCaster(ctx, pair, pyr, L, table), delta)
+        casters[f"L{L} dist cubic (plain)"] = (common.LevelCaster(ctx, cubic_to_level0(pair, pyr, L), pyr, 0, table),
+                                               delta)
     ref_action = scene.action(policy="fixed", level=0)
 
     def draw(c, params):
@@ -213,7 +242,7 @@ def run(store: Path, images, levels, supersample: int = 2, spread_scales=(), log
                                edge_radius_px=radius, edge_pixels_pct=round(100.0 * float(edges.mean()), 3))
                     bad = delta_e_luv(img, truth, premultiplied=False) >= 6.0
                     row["pct_de6_off_edges"] = round(100.0 * float((bad & ~edges).mean()), 3)
-                    if k.endswith("mean (plain)"):
+                    if k.endswith((" mean (plain)", " dist (plain)")):
                         row["plain_vs_clipvol_pct"] = pct(img, imgs[k.replace(" (plain)", "")])
                     rows.append(row)
                     plain = row["plain_vs_clipvol_pct"]

@@ -340,9 +340,12 @@ class RawCaster:
 _LEVEL_FRAG = """#version 330
 in vec2 v_ndc;
 out vec4 f_color;
-uniform sampler3D u_vol;        // one level, GL_LINEAR, clamp to edge: a value (.r) or premultiplied RGBA
-uniform sampler2D u_tf;         // the table (straight RGBA, opacity per level-0 voxel), for values only
-uniform bool u_rgba;            // the texels are classified already: (E[a c], E[a]) per voxel
+uniform sampler3D u_vol;        // one level, GL_LINEAR, clamp to edge: a value (.r), (mean, spread) (.rg)
+                                // or premultiplied RGBA
+uniform sampler2D u_tf;         // values: the table (straight RGBA, opacity per level-0 voxel), one row;
+                                // (mean, spread): a table per spread row, opacity corrected for the step
+uniform int u_mode;             // 0: a value; 1: classified already, (E[a c], E[a]); 2: (mean, spread)
+uniform float u_rows, u_sigma_scale;  // mode 2: the table's rows, spread (raw) -> row coordinate squared
 uniform vec3 u_eye, u_right, u_up, u_forward;
 uniform vec2 u_half;
 uniform vec3 u_lo, u_hi;        // the volume box (world): where rays are clipped
@@ -360,9 +363,14 @@ void main() {
         vec4 v = texture(u_vol, (u_eye + t * dir - u_tlo) / u_tsize);
         vec3 rgb;
         float a;
-        if (u_rgba) {  // straight colour E[a c] / E[a]; opacity E[a] corrected for the step
+        if (u_mode == 1) {  // straight colour E[a c] / E[a]; opacity E[a] corrected for the step
             a = v.a > 0.0 ? 1.0 - pow(1.0 - min(v.a, 1.0), u_ratio) : 0.0;
             rgb = v.a > 0.0 ? v.rgb / v.a : vec3(0.0);
+        } else if (u_mode == 2) {  // the row of the sample's spread, bilinear
+            float u = sqrt(clamp(v.g * u_sigma_scale, 0.0, 1.0)) * (u_rows - 1.0);
+            vec4 c = texture(u_tf, vec2(v.r * u_t_scale + u_t_offset, (u + 0.5) / u_rows));
+            a = c.a;
+            rgb = c.rgb;
         } else {
             vec4 c = texture(u_tf, vec2(v.r * u_t_scale + u_t_offset, 0.5));
             a = 1.0 - pow(1.0 - min(c.a, 1.0), u_ratio);
@@ -388,16 +396,21 @@ class LevelCaster:
     then its opacity corrected for the step: ``1 - (1 - A) ** ratio``). The second is what a perfect
     distribution per coarse voxel draws: the expectation of the classification over a trilinear mix
     of the eight voxels' distributions is the trilinear mix of their expectations.
-    ``volume``: ``(z, y, x)`` float32 values (raw units) or ``(z, y, x, 4)`` float32 RGBA.
+    ``volume``: ``(z, y, x)`` float32 values (raw units), ``(z, y, x, 4)`` float32 RGBA, or
+    ``(z, y, x, 2)`` (mean, spread) in raw units, classified by ``dist_table`` ``(rows, n, 4)``
+    (straight RGBA per spread row, opacity corrected for the step it is drawn at; the rows'
+    spreads ``SPREAD_MAX * (s / (rows - 1)) ** 2`` window widths, :mod:`clipvol.scene.consistent`).
     """
 
-    def __init__(self, ctx, volume: np.ndarray, pyramid, level: int) -> None:
+    def __init__(self, ctx, volume: np.ndarray, pyramid, level: int, dist_table: np.ndarray | None = None) -> None:
         import moderngl
 
         vol = np.ascontiguousarray(volume, dtype=np.float32)
-        self.rgba = vol.ndim == 4
+        channels = vol.shape[3] if vol.ndim == 4 else 1
+        self.mode = {1: 0, 4: 1, 2: 2}[channels]
+        self.dist_table = None if dist_table is None else np.ascontiguousarray(dist_table, dtype=np.float32)
         self.ctx = ctx
-        self.tex = ctx.texture3d(vol.shape[:3][::-1], 4 if self.rgba else 1, vol, dtype="f4", alignment=1)
+        self.tex = ctx.texture3d(vol.shape[:3][::-1], channels, vol, dtype="f4", alignment=1)
         self.tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
         self.tex.repeat_x = self.tex.repeat_y = self.tex.repeat_z = False
         self.prog = ctx.program(vertex_shader=_RAW_VERT, fragment_shader=_LEVEL_FRAG)
@@ -423,8 +436,8 @@ class LevelCaster:
         if self._fbo is None or self._fbo.size != (w, h):
             self._fbo = ctx.simple_framebuffer((w, h), components=4, dtype="f4")
         if self._tf is None:
-            table = np.asarray(tf.table, dtype=np.float32)
-            self._tf = ctx.texture((len(table), 1), 4, table.tobytes(), dtype="f4")
+            table = np.asarray(tf.table, dtype=np.float32)[None] if self.mode != 2 else self.dist_table
+            self._tf = ctx.texture((table.shape[1], table.shape[0]), 4, table.tobytes(), dtype="f4")
             self._tf.filter = (moderngl.LINEAR, moderngl.LINEAR)
             self._tf.repeat_x = self._tf.repeat_y = False
         lo, hi = tf.window(self.value_range)
@@ -432,7 +445,12 @@ class LevelCaster:
         p["u_vol"].value, p["u_tf"].value = 0, 1
         self.tex.use(0)
         self._tf.use(1)
-        p["u_rgba"].value = self.rgba
+        p["u_mode"].value = self.mode
+        if self.mode == 2:
+            from clipvol.scene.consistent import SPREAD_MAX
+
+            p["u_rows"].value = float(len(self.dist_table))
+            p["u_sigma_scale"].value = 1.0 / (abs(hi - lo) * SPREAD_MAX)
         p["u_eye"].value = tuple(float(v) for v in cam.eye)
         p["u_right"].value = tuple(float(v) for v in cam.right)
         p["u_up"].value = tuple(float(v) for v in cam.up)
