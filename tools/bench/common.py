@@ -473,7 +473,8 @@ class LevelCaster:
         self.vao.render(moderngl.TRIANGLES, vertices=3)
         ctx.finish()
         out = np.frombuffer(self._fbo.read(components=4, dtype="f4"), np.float32).reshape(h, w, 4)[::-1]
-        previous.use()
+        if previous is not None:  # a fresh context has no framebuffer bound yet
+            previous.use()
         return out
 
     def release(self) -> None:
