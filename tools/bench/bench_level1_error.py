@@ -32,7 +32,8 @@ points. This benchmark splits that error, per view (``bench_mission.views``: ``i
   after interpolation: clipvol's distribution path drawn outside clipvol (``plain_vs_clipvol_pct``);
 * ``LL dist cubic (plain)``: the same mean and spread resampled onto level 0's grid by a cubic
   B-spline (:func:`cubic_to_level0`) and classified the same way: does a reconstruction sharper than
-  trilinear place level L's edges nearer the converged picture's?
+  trilinear place level L's edges nearer the converged picture's? ``LL dist smooth cubic (plain)``:
+  the approximating cubic B-spline instead (no prefilter: a GPU's cheap tricubic filter on raw data);
 * ``LL dist spread*k`` (``--spread-scales``): clipvol's distribution path with every spread read
   ``k`` times wider: is the normal model's width at its best?
 
@@ -104,18 +105,21 @@ def normal_classified(mean: np.ndarray, spread: np.ndarray, tf, value_range) -> 
     return _bilinear(prem, tf, mean, spread, value_range, SPREAD_ROWS)
 
 
-def cubic_to_level0(pair: np.ndarray, pyramid, level: int) -> np.ndarray:
+def cubic_to_level0(pair: np.ndarray, pyramid, level: int, interpolating: bool = True) -> np.ndarray:
     """``(z, y, x, 2)`` (mean, spread) of ``level`` resampled onto level 0's grid by a cubic B-spline
     (``scipy.ndimage.zoom``, grid-aligned: level-0 voxel ``i`` at ``(i + 1/2) / 2**L - 1/2`` of the
-    level, ends clamped), the spread kept >= 0: a reconstruction sharper than trilinear, drawn at
-    level 0 with the same table."""
+    level, ends clamped), the spread kept >= 0, drawn at level 0 with the same table.
+    ``interpolating``: the spline through the voxels' values (its coefficients prefiltered: a
+    reconstruction sharper than trilinear); else the approximating spline of the raw values (what a
+    GPU's 8-fetch tricubic filter gives without prefiltered coefficients: smoother)."""
     from scipy import ndimage
 
     f = 2 ** level
     shape = pyramid.levels[0].shape
     out = np.empty((*shape, 2), dtype=np.float32)
     for c in range(2):
-        up = ndimage.zoom(pair[..., c].astype(np.float64), f, order=3, mode="nearest", grid_mode=True)
+        up = ndimage.zoom(pair[..., c].astype(np.float64), f, order=3, mode="nearest", grid_mode=True,
+                          prefilter=interpolating)
         out[..., c] = up[: shape[0], : shape[1], : shape[2]]
     out[..., 1] = np.maximum(out[..., 1], 0.0)
     return out
@@ -223,6 +227,8 @@ def run(store: Path, images, levels, supersample: int = 2, spread_scales=(), log
         casters[f"L{L} dist (plain)"] = (common.LevelCaster(ctx, pair, pyr, L, table), delta)
         casters[f"L{L} dist cubic (plain)"] = (common.LevelCaster(ctx, cubic_to_level0(pair, pyr, L), pyr, 0, table),
                                                delta)
+        casters[f"L{L} dist smooth cubic (plain)"] = (
+            common.LevelCaster(ctx, cubic_to_level0(pair, pyr, L, interpolating=False), pyr, 0, table), delta)
     ref_action = scene.action(policy="fixed", level=0)
 
     def draw(c, params):
