@@ -337,6 +337,152 @@ class RawCaster:
                 o.release()
 
 
+_LEVEL_FRAG = """#version 330
+in vec2 v_ndc;
+out vec4 f_color;
+uniform sampler3D u_vol;        // one level, GL_LINEAR, clamp to edge: a value (.r), (mean, spread) (.rg)
+                                // or premultiplied RGBA
+uniform sampler2D u_tf;         // values: the table (straight RGBA, opacity per level-0 voxel), one row;
+                                // (mean, spread): a table per spread row, opacity corrected for the step
+uniform int u_mode;             // 0: a value; 1: classified already, (E[a c], E[a]); 2: (mean, spread)
+uniform float u_rows, u_sigma_scale;  // mode 2: the table's rows, spread (raw) -> row coordinate squared
+uniform vec3 u_eye, u_right, u_up, u_forward;
+uniform vec2 u_half;
+uniform vec3 u_lo, u_hi;        // the volume box (world): where rays are clipped
+uniform vec3 u_tlo, u_tsize;    // the level's texel box (world): its texture coordinates
+uniform float u_delta, u_ratio, u_t_scale, u_t_offset, u_opaque;
+void main() {
+    vec3 dir = normalize(u_forward + v_ndc.x * u_half.x * u_right + v_ndc.y * u_half.y * u_up);
+    vec3 inv = 1.0 / dir;
+    vec3 ta = (u_lo - u_eye) * inv, tb = (u_hi - u_eye) * inv;
+    float t0 = max(max(max(min(ta.x, tb.x), min(ta.y, tb.y)), min(ta.z, tb.z)), 0.0);
+    float t1 = min(min(max(ta.x, tb.x), max(ta.y, tb.y)), max(ta.z, tb.z));
+    if (!(t1 > t0)) discard;
+    vec4 acc = vec4(0.0);
+    for (float t = ceil(t0 / u_delta) * u_delta; t < t1; t += u_delta) {
+        vec4 v = texture(u_vol, (u_eye + t * dir - u_tlo) / u_tsize);
+        vec3 rgb;
+        float a;
+        if (u_mode == 1) {  // straight colour E[a c] / E[a]; opacity E[a] corrected for the step
+            a = v.a > 0.0 ? 1.0 - pow(1.0 - min(v.a, 1.0), u_ratio) : 0.0;
+            rgb = v.a > 0.0 ? v.rgb / v.a : vec3(0.0);
+        } else if (u_mode == 2) {  // the row of the sample's spread, bilinear
+            float u = sqrt(clamp(v.g * u_sigma_scale, 0.0, 1.0)) * (u_rows - 1.0);
+            vec4 c = texture(u_tf, vec2(v.r * u_t_scale + u_t_offset, (u + 0.5) / u_rows));
+            a = c.a;
+            rgb = c.rgb;
+        } else {
+            vec4 c = texture(u_tf, vec2(v.r * u_t_scale + u_t_offset, 0.5));
+            a = 1.0 - pow(1.0 - min(c.a, 1.0), u_ratio);
+            rgb = c.rgb;
+        }
+        acc += (1.0 - acc.a) * a * vec4(rgb, 1.0);
+        if (acc.a >= u_opaque) break;
+    }
+    f_color = acc;
+}
+"""
+
+
+class LevelCaster:
+    """A plain one-texture moderngl ray caster of one pyramid level, outside clipvol's render path.
+
+    Like :class:`RawCaster` (one full-screen triangle, samples at ``t = k * delta`` from the eye, front
+    to back, a ray stops at ``opaque``) but the texture is any level's grid placed where the level's
+    voxels lie (voxel ``j`` at ``spacing * (scale * j + translation)``), the rays clipped to the
+    level-0 volume box; and the texture holds either a value per voxel (classified after trilinear
+    interpolation by the table, as clipvol classifies a coarse voxel's mean) or a premultiplied RGBA
+    per voxel, already classified (``(E[a c], E[a])`` of the fine voxels beneath it; interpolated,
+    then its opacity corrected for the step: ``1 - (1 - A) ** ratio``). The second is what a perfect
+    distribution per coarse voxel draws: the expectation of the classification over a trilinear mix
+    of the eight voxels' distributions is the trilinear mix of their expectations.
+    ``volume``: ``(z, y, x)`` float32 values (raw units), ``(z, y, x, 4)`` float32 RGBA, or
+    ``(z, y, x, 2)`` (mean, spread) in raw units, classified by ``dist_table`` ``(rows, n, 4)``
+    (straight RGBA per spread row, opacity corrected for the step it is drawn at; the rows'
+    spreads ``SPREAD_MAX * (s / (rows - 1)) ** 2`` window widths, :mod:`clipvol.scene.consistent`).
+    """
+
+    def __init__(self, ctx, volume: np.ndarray, pyramid, level: int, dist_table: np.ndarray | None = None) -> None:
+        import moderngl
+
+        vol = np.ascontiguousarray(volume, dtype=np.float32)
+        channels = vol.shape[3] if vol.ndim == 4 else 1
+        self.mode = {1: 0, 4: 1, 2: 2}[channels]
+        self.dist_table = None if dist_table is None else np.ascontiguousarray(dist_table, dtype=np.float32)
+        self.ctx = ctx
+        self.tex = ctx.texture3d(vol.shape[:3][::-1], channels, vol, dtype="f4", alignment=1)
+        self.tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        self.tex.repeat_x = self.tex.repeat_y = self.tex.repeat_z = False
+        self.prog = ctx.program(vertex_shader=_RAW_VERT, fragment_shader=_LEVEL_FRAG)
+        self.vao = ctx.vertex_array(self.prog, [])
+        lv = pyramid.levels[level]
+        sp = np.array(pyramid.spacing[::-1], dtype=np.float64)
+        scale = np.array(lv.scale[::-1], dtype=np.float64)
+        self.tlo = sp * (np.array(lv.translation[::-1], dtype=np.float64) - scale / 2.0)
+        self.tsize = sp * scale * np.array(vol.shape[:3][::-1], dtype=np.float64)
+        self.box = pyramid.volume_box()
+        self.ref = float(min(pyramid.spacing))  # the table's opacity is per level-0 voxel
+        self.value_range = tuple(float(v) for v in pyramid.value_range)
+        self._fbo = None
+        self._tf = None
+
+    def render(self, cam, tf, delta: float, opaque: float) -> np.ndarray:
+        """Draw ``cam``'s view with samples ``delta`` apart (world units); ``(h, w, 4)`` premultiplied
+        float32 RGBA, row 0 at the top."""
+        import moderngl
+
+        ctx = self.ctx
+        w, h = cam.size
+        if self._fbo is None or self._fbo.size != (w, h):
+            self._fbo = ctx.simple_framebuffer((w, h), components=4, dtype="f4")
+        if self._tf is None:
+            table = np.asarray(tf.table, dtype=np.float32)[None] if self.mode != 2 else self.dist_table
+            self._tf = ctx.texture((table.shape[1], table.shape[0]), 4, table.tobytes(), dtype="f4")
+            self._tf.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            self._tf.repeat_x = self._tf.repeat_y = False
+        lo, hi = tf.window(self.value_range)
+        p = self.prog
+        p["u_vol"].value, p["u_tf"].value = 0, 1
+        self.tex.use(0)
+        self._tf.use(1)
+        p["u_mode"].value = self.mode
+        if self.mode == 2:
+            from clipvol.scene.consistent import SPREAD_MAX
+
+            p["u_rows"].value = float(len(self.dist_table))
+            p["u_sigma_scale"].value = 1.0 / (abs(hi - lo) * SPREAD_MAX)
+        p["u_eye"].value = tuple(float(v) for v in cam.eye)
+        p["u_right"].value = tuple(float(v) for v in cam.right)
+        p["u_up"].value = tuple(float(v) for v in cam.up)
+        p["u_forward"].value = tuple(float(v) for v in cam.forward)
+        ty = np.tan(np.radians(float(cam.fov_y)) / 2.0)
+        p["u_half"].value = (float(ty * w / h), float(ty))
+        p["u_lo"].value = tuple(float(v) for v in self.box[0])
+        p["u_hi"].value = tuple(float(v) for v in self.box[1])
+        p["u_tlo"].value = tuple(float(v) for v in self.tlo)
+        p["u_tsize"].value = tuple(float(v) for v in self.tsize)
+        p["u_delta"].value = float(delta)
+        p["u_ratio"].value = float(delta) / self.ref
+        p["u_opaque"].value = float(opaque)
+        p["u_t_scale"].value = 1.0 / (hi - lo)
+        p["u_t_offset"].value = -lo / (hi - lo)
+        previous = ctx.fbo
+        self._fbo.use()
+        self._fbo.clear(0.0, 0.0, 0.0, 0.0)
+        ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        self.vao.render(moderngl.TRIANGLES, vertices=3)
+        ctx.finish()
+        out = np.frombuffer(self._fbo.read(components=4, dtype="f4"), np.float32).reshape(h, w, 4)[::-1]
+        if previous is not None:  # a fresh context has no framebuffer bound yet
+            previous.use()
+        return out
+
+    def release(self) -> None:
+        for o in (self.tex, self.prog, self.vao, self._fbo, self._tf):
+            if o is not None:
+                o.release()
+
+
 def fractal_scene(n: int, image: int, log=None):
     """The benchmarks' common set-up: ``procedural:fractal?size=n`` in memory (float32), its loader
     (64³ bricks), a camera that fills an ``image``² view with it (about one pixel per voxel at 512),
