@@ -112,12 +112,7 @@ def _scene_and_truth(store: Path):
     from clipvol.scene.params import RenderParams
 
     scene = common.WarmScene(store)
-    ref = scene.action(policy="fixed", level=0)
-
-    def draw(c, params):
-        ref.set_params(params)
-        return ref.render(c, scene.tf, wait=True, timeout=600)
-
+    draw = scene.converged_drawer()
     return scene, draw, ConvergedPictures(draw, RenderParams(step=0.5), supersample=2, step=0.25)
 
 

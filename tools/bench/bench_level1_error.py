@@ -229,14 +229,7 @@ def run(store: Path, images, levels, supersample: int = 2, spread_scales=(), log
                                                delta)
         casters[f"L{L} dist smooth cubic (plain)"] = (
             common.LevelCaster(ctx, cubic_to_level0(pair, pyr, L, interpolating=False), pyr, 0, table), delta)
-    ref_action = scene.action(policy="fixed", level=0)
-
-    def draw(c, params):
-        ref_action.set_params(params)
-        img = ref_action.render(c, tf, wait=True, timeout=900)
-        if not ref_action.last_frame_stats.converged:
-            raise RuntimeError(f"the converged picture did not converge in 900 s ({c.size[0]}^2)")
-        return img
+    draw = scene.converged_drawer(timeout=900)
 
     conv = ConvergedPictures(draw, RenderParams(step=step), supersample=supersample)
     log(f"errors against the converged picture: {conv.describe()}")

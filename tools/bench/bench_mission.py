@@ -139,14 +139,7 @@ def run(store: Path, volume: np.ndarray, label: str, images, repeat: int, step: 
         tag = "" if mode in (None, "mean") else " dist"
         conf.update({k + tag: {**kw, **extra} for k, kw in settings().items() if only is None or k in only})
     actions = {k: scene.action(**{"step": step, **kw}) for k, kw in conf.items()}
-    ref_action = scene.action(policy="fixed", level=0)
-
-    def draw(c, params):
-        ref_action.set_params(params)
-        img = ref_action.render(c, tf, wait=True, timeout=600)
-        if not ref_action.last_frame_stats.converged:
-            raise RuntimeError(f"the converged picture did not converge in 600 s ({c.size[0]}^2)")
-        return img
+    draw = scene.converged_drawer(timeout=600)
 
     conv = ConvergedPictures(draw, RenderParams(step=step), supersample=supersample, step=converged_step)
     log(f"errors against the converged picture: {conv.describe()}")

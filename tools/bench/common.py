@@ -163,6 +163,22 @@ class WarmScene:
         self._made.append(a.close)
         return a
 
+    def converged_drawer(self, timeout: float = 600.0):
+        """``draw(camera, params)``: a level-0 action's frame under ``params`` (what
+        :class:`clipvol.app.converged.ConvergedPictures` renders its references with), raising
+        where the frame did not converge within ``timeout`` s: a reference that stopped short would
+        make every error measured against it wrong."""
+        ref = self.action(policy="fixed", level=0)
+
+        def draw(cam, params):
+            ref.set_params(params)
+            img = ref.render(cam, self.tf, wait=True, timeout=timeout)
+            if not ref.last_frame_stats.converged:
+                raise RuntimeError(f"the converged picture did not converge in {timeout:.0f} s ({cam.size[0]}^2)")
+            return img
+
+        return draw
+
     def raw_caster(self, volume=None) -> "RawCaster":
         """The :class:`RawCaster` of ``volume`` (default: the store's level 0 read whole)."""
         if volume is None:
@@ -216,6 +232,14 @@ void main() {
     gl_Position = vec4(p, 0.0, 1.0);
 }
 """
+# Both plain casters' rays: the pixel's direction and where it enters [t0] and leaves [t1] the
+# volume box (u_lo, u_hi); a ray that misses the box draws nothing.
+_RAY_ENTRY = """vec3 dir = normalize(u_forward + v_ndc.x * u_half.x * u_right + v_ndc.y * u_half.y * u_up);
+    vec3 inv = 1.0 / dir;
+    vec3 ta = (u_lo - u_eye) * inv, tb = (u_hi - u_eye) * inv;
+    float t0 = max(max(max(min(ta.x, tb.x), min(ta.y, tb.y)), min(ta.z, tb.z)), 0.0);
+    float t1 = min(min(max(ta.x, tb.x), max(ta.y, tb.y)), max(ta.z, tb.z));
+    if (!(t1 > t0)) discard;"""
 _RAW_FRAG = """#version 330
 in vec2 v_ndc;
 out vec4 f_color;
@@ -226,12 +250,7 @@ uniform vec2 u_half;
 uniform vec3 u_lo, u_hi;        // the volume box (world)
 uniform float u_delta, u_t_scale, u_t_offset, u_opaque;
 void main() {
-    vec3 dir = normalize(u_forward + v_ndc.x * u_half.x * u_right + v_ndc.y * u_half.y * u_up);
-    vec3 inv = 1.0 / dir;
-    vec3 ta = (u_lo - u_eye) * inv, tb = (u_hi - u_eye) * inv;
-    float t0 = max(max(max(min(ta.x, tb.x), min(ta.y, tb.y)), min(ta.z, tb.z)), 0.0);
-    float t1 = min(min(max(ta.x, tb.x), max(ta.y, tb.y)), max(ta.z, tb.z));
-    if (!(t1 > t0)) discard;
+    RAY_ENTRY
     vec4 acc = vec4(0.0);
     vec3 isz = 1.0 / (u_hi - u_lo);
     for (float t = ceil(t0 / u_delta) * u_delta; t < t1; t += u_delta) {
@@ -242,7 +261,7 @@ void main() {
     }
     f_color = acc;
 }
-"""
+""".replace("RAY_ENTRY", _RAY_ENTRY)
 
 
 #: the raw caster's early ray termination: a ray stops at this accumulated opacity. clipvol stops
@@ -352,12 +371,7 @@ uniform vec3 u_lo, u_hi;        // the volume box (world): where rays are clippe
 uniform vec3 u_tlo, u_tsize;    // the level's texel box (world): its texture coordinates
 uniform float u_delta, u_ratio, u_t_scale, u_t_offset, u_opaque;
 void main() {
-    vec3 dir = normalize(u_forward + v_ndc.x * u_half.x * u_right + v_ndc.y * u_half.y * u_up);
-    vec3 inv = 1.0 / dir;
-    vec3 ta = (u_lo - u_eye) * inv, tb = (u_hi - u_eye) * inv;
-    float t0 = max(max(max(min(ta.x, tb.x), min(ta.y, tb.y)), min(ta.z, tb.z)), 0.0);
-    float t1 = min(min(max(ta.x, tb.x), max(ta.y, tb.y)), max(ta.z, tb.z));
-    if (!(t1 > t0)) discard;
+    RAY_ENTRY
     vec4 acc = vec4(0.0);
     for (float t = ceil(t0 / u_delta) * u_delta; t < t1; t += u_delta) {
         vec4 v = texture(u_vol, (u_eye + t * dir - u_tlo) / u_tsize);
@@ -381,7 +395,7 @@ void main() {
     }
     f_color = acc;
 }
-"""
+""".replace("RAY_ENTRY", _RAY_ENTRY)
 
 
 class LevelCaster:
