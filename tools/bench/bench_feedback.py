@@ -1,0 +1,199 @@
+"""Ray-guided residency (``RenderParams.feedback``): how soon a cold clip-texture draws the converged
+full-resolution frame when the rays tell the queue what they sample, against the queue's own order.
+
+A cold clip-texture loads a window's bricks nearest the centre of interest first. Behind an opaque
+surface (the skull under the ``bone`` table) many of them are never seen; with ``feedback`` each frame
+that is not yet converged reports the page-table nodes its rays sampled (:mod:`clipvol.scene.feedback`)
+and the cut's missing bricks under them move to the front of the load queue
+(:meth:`~clipvol.paging.cliptexture.ClipTexture.prioritize`).
+
+Per round, three variants each start from a cold clip-texture and draw frames without waiting
+(``render(wait=False)``: what is resident draws, as in the viewer) at one camera
+(:func:`bench_frame_cost.cameras`' static view) until the frame equals the converged frame:
+
+* ``queue``: the clip-texture's own order (distance from the centre of interest) - the baseline;
+* ``cut-first``: after each frame, the cut's missing bricks (``Selection.missing_wanted``) are moved
+  to the front of the queue - what the host knows without the rays;
+* ``feedback``: ``RenderParams.feedback=True``.
+
+The variants run one after another within each round, their order rotating from round to round.
+All use the single pass (``path="single-pass"``), a full-resolution cut (``policy="fixed",
+level=0``), step 1 voxel. Storage is modelled as slow (``--latency`` ms per brick read, default 20,
+a remote store's round trip; ``--threads`` loader threads), so the fill takes many frames. Columns:
+seconds, frames and bytes read until the frame is within 1 % of pixels at ΔE(L*u*v*) >= 6 of the
+converged frame and until it equals it exactly; the median frame ms during the fill; and, for
+``feedback``, the median ms of reading the flag image back (the per-frame cost the hook adds besides
+its unmerged nodes). Ratios are to ``queue`` within the same round. Rows go to
+``tools/bench/results/bench_feedback_<date>.csv``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from datetime import date
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+if str(HERE) not in sys.path:
+    sys.path.insert(0, str(HERE))
+
+import common  # noqa: E402  (tools/bench/common.py, beside this script)
+from bench_frame_cost import _load, cameras  # noqa: E402
+
+VARIANTS = ("queue", "cut-first", "feedback")
+DEBUG = False
+
+
+class SlowLoader:
+    """``loader`` with ``latency`` seconds added to every brick read (a slow store); everything else
+    (ranges, read counter, spread) is the loader's own. No ``read_brick_into``: each read sleeps."""
+
+    def __init__(self, loader, latency: float) -> None:
+        self._loader = loader
+        self._latency = float(latency)
+
+    @property
+    def pyramid(self):
+        return self._loader.pyramid
+
+    def read_brick(self, level, index):
+        time.sleep(self._latency)
+        return self._loader.read_brick(level, index)
+
+    def __getattr__(self, name):
+        if name == "read_brick_into":
+            raise AttributeError(name)
+        return getattr(self._loader, name)
+
+
+def converged_image(store: Path, cam, tf, params: dict) -> np.ndarray:
+    """The converged full-resolution frame (a warm scene, ``wait=True``)."""
+    scene = common.WarmScene(store)
+    try:
+        a = scene.action(**params)
+        img = a.render(cam, tf, wait=True, timeout=300)
+        assert a.last_frame_stats.converged, "the reference frame did not converge"
+        return img
+    finally:
+        scene.close()
+
+
+def fill(ctx, programs, store: Path, variant: str, cam, tf, ref: np.ndarray, params: dict, latency: float,
+         threads: int, limit: float) -> dict:
+    """One cold fill of ``variant``: frames until the image equals ``ref`` (or ``limit`` seconds).
+    The action compiles nothing: its programs come from ``programs``, warmed by an unrecorded round
+    (a viewer compiles its variants once; llvmpipe takes about a second each)."""
+    from clipvol.render.glsl import ProgramCache
+    from clipvol.paging.cliptexture import ClipTexture
+    from clipvol.paging.open import open_store
+    from clipvol.paging.readcount import bytes_read_of
+    from clipvol.render.action import ClipRenderAction
+    from clipvol.scene.metrics import percent_delta_e
+
+    loader = SlowLoader(open_store(store), latency)
+    pyr = loader.pyramid
+    budget = int(sum(pyr.num_bricks(L) for L in range(pyr.num_levels)) * pyr.brick_nbytes * 2.0) + (64 << 20)
+    row = dict(variant=variant, t_1pct_s="", frames_1pct="", mb_1pct="", t_equal_s="", frames_equal="",
+               mb_equal="", frame_ms="", readback_ms="", asked_first_frame="")
+    clip = ClipTexture(loader, budget, threads=threads)
+    a = ClipRenderAction(ctx, clip, texture_budget=budget, feedback=variant == "feedback", **params)
+    a.setup.programs = programs
+    frame_s, readback = [], []
+    try:
+        read0 = bytes_read_of(loader) or 0
+        t0 = time.perf_counter()
+        n = 0
+        while time.perf_counter() - t0 < limit:
+            tf0 = time.perf_counter()
+            img = a.render(cam, tf)
+            frame_s.append(time.perf_counter() - tf0)
+            if DEBUG:
+                print(variant, n, round(frame_s[-1], 3), len(programs), a.path_drawn, a.page_table_nodes,
+                      a.feedback_asked, a.last_frame_stats.times, flush=True)
+            n += 1
+            if variant == "cut-first":
+                clip.prioritize(a.last_selection.missing_wanted())
+            if variant == "feedback" and a.sampled_nodes is not None:
+                if row["asked_first_frame"] == "":
+                    row["asked_first_frame"] = a.feedback_asked
+                sp = a._paths["single-pass"]
+                tr = time.perf_counter()
+                sp._read_feedback(sp._table[2])  # the flag image read back again, timed alone
+                readback.append(time.perf_counter() - tr)
+            t = time.perf_counter() - t0
+            mb = round(((bytes_read_of(loader) or 0) - read0) / 1e6, 2)
+            if row["t_1pct_s"] == "" and percent_delta_e(img, ref, threshold=6.0, premultiplied=False) <= 1.0:
+                row.update(t_1pct_s=round(t, 3), frames_1pct=n, mb_1pct=mb)
+            if np.array_equal(img, ref):
+                row.update(t_equal_s=round(t, 3), frames_equal=n, mb_equal=mb)
+                break
+        row["frame_ms"] = round(1e3 * statistics.median(frame_s), 1)
+        row["readback_ms"] = round(1e3 * statistics.median(readback), 2) if readback else ""
+    finally:
+        a.setup.programs = ProgramCache(ctx)  # (the shared programs outlive the action)
+        a.close()
+        clip.close()
+    return row
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--store", type=Path, default=None, help="a clipvol store (default: the CT-like head)")
+    ap.add_argument("--head", default="256x256x256", help="CT-like head size when no --store")
+    ap.add_argument("--brick", type=int, default=32)
+    ap.add_argument("--image", type=int, default=128)
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--latency", type=float, default=20.0, help="ms added to each brick read")
+    ap.add_argument("--threads", type=int, default=4, help="loader threads")
+    ap.add_argument("--limit", type=float, default=120.0, help="seconds at most per fill")
+    ap.add_argument("--out", type=Path, default=HERE / "results" / f"bench_feedback_{date.today().isoformat()}.csv")
+    args = ap.parse_args(argv)
+
+    from clipvol.paging.open import open_store
+    from clipvol.render import create_context
+    from clipvol.render.glsl import ProgramCache
+    from clipvol.scene.transfer import TransferFunction
+
+    store, _volume, label = common.store_or_ct(args.store, args.head, args.brick)
+    pyr = open_store(store).pyramid
+    tf = TransferFunction.preset("bone", value_range=pyr.value_range)
+    cam = cameras(pyr, args.image, "static", 1)[0]
+    params = dict(policy="fixed", level=0, path="single-pass", step=1.0)
+    ref = converged_image(store, cam, tf, params)
+    ctx = create_context()
+    programs = ProgramCache(ctx)
+    rows = []
+    try:
+        for v in VARIANTS:  # the warm-up: every variant's programs compiled, nothing recorded
+            fill(ctx, programs, store, v, cam, tf, ref, params, args.latency / 1e3, args.threads, args.limit)
+        for r in range(args.rounds):
+            order = VARIANTS[r % 3:] + VARIANTS[:r % 3]
+            got = {}
+            for v in order:
+                load = _load()
+                got[v] = fill(ctx, programs, store, v, cam, tf, ref, params, args.latency / 1e3, args.threads,
+                              args.limit)
+                got[v].update(round=r, volume=label, image=args.image, latency_ms=args.latency, threads=args.threads,
+                              load=load)
+            base = got["queue"]
+            for v in VARIANTS:
+                row = got[v]
+                for k in ("t_1pct_s", "t_equal_s", "mb_equal"):
+                    b, x = base[k], row[k]
+                    row[f"{k}_vs_queue"] = round(x / b, 3) if b not in ("", 0) and x != "" else ""
+                rows.append(row)
+                print({k: row[k] for k in ("round", "variant", "t_1pct_s", "t_equal_s", "frames_equal", "mb_equal",
+                                           "frame_ms", "readback_ms", "t_equal_s_vs_queue", "load")}, flush=True)
+    finally:
+        programs.release()
+        ctx.release()
+    return common.save_rows(args.out, rows)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
