@@ -183,12 +183,13 @@ def main(argv: list[str] | None = None) -> int:
             base = got["queue"]
             for v in VARIANTS:
                 row = got[v]
-                for k in ("t_1pct_s", "t_equal_s", "mb_equal"):
+                for k in ("t_1pct_s", "mb_1pct", "t_equal_s", "mb_equal"):
                     b, x = base[k], row[k]
                     row[f"{k}_vs_queue"] = round(x / b, 3) if b not in ("", 0) and x != "" else ""
                 rows.append(row)
-                print({k: row[k] for k in ("round", "variant", "t_1pct_s", "t_equal_s", "frames_equal", "mb_equal",
-                                           "frame_ms", "readback_ms", "t_equal_s_vs_queue", "load")}, flush=True)
+                print({k: row[k] for k in ("round", "variant", "t_1pct_s", "mb_1pct", "t_equal_s", "frames_equal",
+                                           "frame_ms", "readback_ms", "t_1pct_s_vs_queue", "t_equal_s_vs_queue",
+                                           "load")}, flush=True)
     finally:
         programs.release()
         ctx.release()
