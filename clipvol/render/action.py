@@ -77,9 +77,7 @@ from ..errors import ParameterError
 from ..paging.loader import HasBrickRanges
 from ..paging.properties import may_hold_nonfinite
 from ..paging.readcount import bytes_read_of, split_reads
-from ..rows import rows_in
 from ..scene.consistent import SPREAD_ROWS, DistributionRanges
-from ..scene.feedback import wanted_under
 from ..scene.page_table import block_cells
 from ..scene.params import MODES, RenderParams
 from ..scene.selection import DrawItems, Selection, merge_items
@@ -139,9 +137,6 @@ class ClipRenderAction:
         self.path_drawn = None  # the registered name of the path that drew the last frame
         self.skipped_empty = False  # the last frame leapt over empty cells (EMPTY_SKIP, see _skips)
         self.page_table_nodes = 0  # single pass: drawn nodes of the last frame's table, after merge_items
-        self._feedback_frame = False  # this frame records the nodes its rays sample (FEEDBACK; _ask_sampled)
-        self.sampled_nodes = None  # feedback: (n, 4) nodes the last frame's rays sampled (_ask_sampled)
-        self.feedback_asked = 0  # feedback: missing bricks the last frame asked to load first
         self.last_frame_stats: FrameStats | None = None
         self._transparent_kept = None  # (key, callback) of _transparent for the last transfer function
         self.occlusion_passes = 0  # bricks path: opacity snapshots taken, all frames
@@ -184,8 +179,7 @@ class ClipRenderAction:
         return {**mode_defines(mode), "HAS_NAN": self.nonfinite,
                 "DISTRIB": SPREAD_ROWS if self.distribution else False,
                 "SHADING": self.params.shading and mode_of(mode).classifies,
-                "EMPTY_SKIP": self.skipped_empty, **overlay_defines(self.params.overlays, self.params.blend),
-                **({"FEEDBACK": True} if self._feedback_frame else {})}
+                "EMPTY_SKIP": self.skipped_empty, **overlay_defines(self.params.overlays, self.params.blend)}
 
     # -- helpers -----------------------------------------------------------------------------------
     def _transparent(self, tf):
@@ -292,10 +286,7 @@ class ClipRenderAction:
                                    policy=policy, wait=wait, timeout=timeout, ordered=False)
         sel, times = plan.selection, dict(plan.times)
         self._replayed = plan.replayed or not sel.ordered  # items not in this camera's order: _draw orders them
-        # feedback only while bricks are missing: a converged frame has nothing to ask for
-        self._feedback_frame = self.params.feedback and not plan.converged
         drawn = self._draw(cam, transfer_function, sel)
-        self._ask_sampled(sel)
         image, read_t = drawn.image, drawn.readback_s
         times["draw"], times["readback"] = drawn.draw_s, read_t
         times["total"] = time.perf_counter() - t_start
@@ -319,24 +310,6 @@ class ClipRenderAction:
         self.last_selection = sel
         return image
 
-    def _ask_sampled(self, sel) -> None:
-        """Ray-guided residency (``RenderParams.feedback``): move the cut's missing bricks under the
-        nodes the single pass's rays sampled to the front of the clip-texture's load queue
-        (:mod:`clipvol.scene.feedback`); :attr:`sampled_nodes` keeps those nodes (None: the frame
-        was not drawn by the single pass, or it converged, so nothing was recorded)."""
-        path = self._paths.get("single-pass")
-        self.sampled_nodes = path.sampled if self._feedback_frame and path is not None \
-            and self.path_drawn == "single-pass" else None
-        self.feedback_asked = 0
-        if self.sampled_nodes is None or not hasattr(sel, "wanted_keys"):
-            return
-        wanted = sel.wanted_keys()
-        missing = wanted[~rows_in(wanted, sel.item_keys())]
-        asked = wanted_under(self.sampled_nodes, missing)
-        self.feedback_asked = len(asked)
-        if len(asked):
-            self.clip_texture.prioritize((L, (z, y, x)) for L, z, y, x in asked.tolist())
-
     def render_items(self, camera, transfer_function, items) -> np.ndarray:
         """Draw the given :class:`~clipvol.scene.selection.DrawItem` list in the given order (no selection).
 
@@ -345,7 +318,6 @@ class ClipRenderAction:
         """
         from types import SimpleNamespace
 
-        self._feedback_frame = False  # (a fixed cut: nothing to ask for)
         cam = self._selection_camera(camera)
         cache = self.cache.begin_frame(self.clip_texture, None)
         for it in items:
@@ -389,9 +361,7 @@ class ClipRenderAction:
         replayed = self._replayed and isinstance(sel, Selection)
         self._replayed = False
         checked = False
-        # (a feedback frame keeps the selection's nodes: a merged block would report its bricks as
-        # one node, and the feedback would then ask for all of them)
-        if self.params.merge_boxes and len(items) and not self._feedback_frame:  # once, for either path
+        if self.params.merge_boxes and len(items):  # once, for either path
             merged = self._merged(cam, sel)
             if self._samples(cam, merged) <= MAX_STEPS_PER_BOX:
                 items, checked = merged, True  # (else the rays would be cut)

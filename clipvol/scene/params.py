@@ -154,11 +154,6 @@ class RenderParams:
         Composite: draw front to back and stop rays that are opaque (same image, faster).
     merge_boxes : bool
         Draw complete sibling sets of one level as one box over their parent (same image).
-    feedback : bool
-        Ray-guided residency (:mod:`clipvol.scene.feedback`): a frame the single pass draws
-        records which page-table nodes its rays sampled (a flag per entry, read back), and the
-        cut's missing bricks under them move to the front of the clip-texture's load queue; bricks
-        no ray reaches (behind opaque matter) load after them. Off by default (the same image).
     path : {"auto", "bricks", "single-pass"}
         ``"bricks"``: one proxy box per draw item composited in visibility order (the method of
         LaMar, Hamann & Joy and of OpenGL Volumizer; merged boxes); ``"single-pass"``: one
@@ -252,7 +247,6 @@ class RenderParams:
     step: float = _field("step")
     early_termination: bool = True
     merge_boxes: bool = True
-    feedback: bool = False
     refine_tolerance: float = _field("refine_tolerance")
     jitter: bool = _field("jitter")
     skip_empty: bool = _field("skip_empty")
@@ -339,7 +333,6 @@ class RenderParams:
             raise ParameterError(f"visibility_threshold: expected a number in [0, 1), got {self.visibility_threshold!r}")
         s(self, "visibility_threshold", vt)
         s(self, "merge_boxes", bool(self.merge_boxes))
-        s(self, "feedback", bool(self.feedback))
         s(self, "jitter", bool(self.jitter))
         try:
             tol = float(self.refine_tolerance)

@@ -1,30 +1,29 @@
-"""Ray-guided residency (``RenderParams.feedback``): how soon a cold clip-texture draws the converged
-full-resolution frame when the rays tell the queue what they sample, against the queue's own order.
+"""Ray-guided residency, measured and not kept: how soon a cold clip-texture draws the converged
+full-resolution frame when the load queue is told what the frame needs, against the queue's own order.
 
-A cold clip-texture loads a window's bricks nearest the centre of interest first. Behind an opaque
-surface (the skull under the ``bone`` table) many of them are never seen; with ``feedback`` each frame
-that is not yet converged reports the page-table nodes its rays sampled (:mod:`clipvol.scene.feedback`)
-and the cut's missing bricks under them move to the front of the load queue
-(:meth:`~clipvol.paging.cliptexture.ClipTexture.prioritize`).
-
-Per round, three variants each start from a cold clip-texture and draw frames without waiting
-(``render(wait=False)``: what is resident draws, as in the viewer) at one camera
-(:func:`bench_frame_cost.cameras`' static view) until the frame equals the converged frame:
+A cold clip-texture loads a window's bricks nearest the centre of interest first; behind an opaque
+surface (the skull under the ``bone`` table) many of them are never seen. Per round, each variant
+starts from a cold clip-texture and draws frames without waiting (``render(wait=False)``: what is
+resident draws, as in the viewer) at one camera (:func:`bench_frame_cost.cameras`' static view)
+until the frame equals the converged frame:
 
 * ``queue``: the clip-texture's own order (distance from the centre of interest) - the baseline;
 * ``cut-first``: after each frame, the cut's missing bricks (``Selection.missing_wanted``) are moved
-  to the front of the queue - what the host knows without the rays;
-* ``feedback``: ``RenderParams.feedback=True``.
+  to the front of the queue (:meth:`~clipvol.paging.cliptexture.ClipTexture.prioritize`) - what the
+  host knows without the rays.
+
+A third variant, ``feedback`` (the single pass flagging the page-table nodes its rays sampled, read
+back each frame, and the cut's missing bricks under them moved to the front: C. Crassin et al.,
+"GigaVoxels", I3D 2009; M. Hadwiger et al., IEEE TVCG 2012), ran at commit ``f38e60f`` and was not
+kept (docs/benchmarks.md, "Ray-guided residency"): its rows are in ``results/bench_feedback_*.csv``.
 
 The variants run one after another within each round, their order rotating from round to round.
 All use the single pass (``path="single-pass"``), a full-resolution cut (``policy="fixed",
-level=0``), step 1 voxel. Storage is modelled as slow (``--latency`` ms per brick read, default 20,
-a remote store's round trip; ``--threads`` loader threads), so the fill takes many frames. Columns:
-seconds, frames and bytes read until the frame is within 1 % of pixels at ΔE(L*u*v*) >= 6 of the
-converged frame and until it equals it exactly; the median frame ms during the fill; and, for
-``feedback``, the median ms of reading the flag image back (the per-frame cost the hook adds besides
-its unmerged nodes). Ratios are to ``queue`` within the same round. Rows go to
-``tools/bench/results/bench_feedback_<date>.csv``.
+level=0``), step 1 voxel. Storage is modelled as slow (``--latency`` ms per brick read, a remote
+store's round trip; ``--threads`` loader threads), so the fill takes many frames. Columns: seconds,
+frames and MB read until the frame is within 1 % of pixels at ΔE(L*u*v*) >= 6 of the converged frame
+and until it equals it exactly, and the median frame ms during the fill. Ratios are to ``queue``
+within the same round. Rows go to ``tools/bench/results/bench_feedback_<date>.csv``.
 """
 
 from __future__ import annotations
@@ -45,8 +44,7 @@ if str(HERE) not in sys.path:
 import common  # noqa: E402  (tools/bench/common.py, beside this script)
 from bench_frame_cost import _load, cameras  # noqa: E402
 
-VARIANTS = ("queue", "cut-first", "feedback")
-DEBUG = False
+VARIANTS = ("queue", "cut-first")
 
 
 class SlowLoader:
@@ -99,11 +97,11 @@ def fill(ctx, programs, store: Path, variant: str, cam, tf, ref: np.ndarray, par
     pyr = loader.pyramid
     budget = int(sum(pyr.num_bricks(L) for L in range(pyr.num_levels)) * pyr.brick_nbytes * 2.0) + (64 << 20)
     row = dict(variant=variant, t_1pct_s="", frames_1pct="", mb_1pct="", t_equal_s="", frames_equal="",
-               mb_equal="", frame_ms="", readback_ms="", asked_first_frame="")
+               mb_equal="", frame_ms="")
     clip = ClipTexture(loader, budget, threads=threads)
-    a = ClipRenderAction(ctx, clip, texture_budget=budget, feedback=variant == "feedback", **params)
+    a = ClipRenderAction(ctx, clip, texture_budget=budget, **params)
     a.setup.programs = programs
-    frame_s, readback = [], []
+    frame_s = []
     try:
         read0 = bytes_read_of(loader) or 0
         t0 = time.perf_counter()
@@ -112,19 +110,9 @@ def fill(ctx, programs, store: Path, variant: str, cam, tf, ref: np.ndarray, par
             tf0 = time.perf_counter()
             img = a.render(cam, tf)
             frame_s.append(time.perf_counter() - tf0)
-            if DEBUG:
-                print(variant, n, round(frame_s[-1], 3), len(programs), a.path_drawn, a.page_table_nodes,
-                      a.feedback_asked, a.last_frame_stats.times, flush=True)
             n += 1
             if variant == "cut-first":
                 clip.prioritize(a.last_selection.missing_wanted())
-            if variant == "feedback" and a.sampled_nodes is not None:
-                if row["asked_first_frame"] == "":
-                    row["asked_first_frame"] = a.feedback_asked
-                sp = a._paths["single-pass"]
-                tr = time.perf_counter()
-                sp._read_feedback(sp._table[2])  # the flag image read back again, timed alone
-                readback.append(time.perf_counter() - tr)
             t = time.perf_counter() - t0
             mb = round(((bytes_read_of(loader) or 0) - read0) / 1e6, 2)
             if row["t_1pct_s"] == "" and percent_delta_e(img, ref, threshold=6.0, premultiplied=False) <= 1.0:
@@ -133,7 +121,6 @@ def fill(ctx, programs, store: Path, variant: str, cam, tf, ref: np.ndarray, par
                 row.update(t_equal_s=round(t, 3), frames_equal=n, mb_equal=mb)
                 break
         row["frame_ms"] = round(1e3 * statistics.median(frame_s), 1)
-        row["readback_ms"] = round(1e3 * statistics.median(readback), 2) if readback else ""
     finally:
         a.setup.programs = ProgramCache(ctx)  # (the shared programs outlive the action)
         a.close()
@@ -172,7 +159,8 @@ def main(argv: list[str] | None = None) -> int:
         for v in VARIANTS:  # the warm-up: every variant's programs compiled, nothing recorded
             fill(ctx, programs, store, v, cam, tf, ref, params, args.latency / 1e3, args.threads, args.limit)
         for r in range(args.rounds):
-            order = VARIANTS[r % 3:] + VARIANTS[:r % 3]
+            k = r % len(VARIANTS)
+            order = VARIANTS[k:] + VARIANTS[:k]
             got = {}
             for v in order:
                 load = _load()
@@ -188,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
                     row[f"{k}_vs_queue"] = round(x / b, 3) if b not in ("", 0) and x != "" else ""
                 rows.append(row)
                 print({k: row[k] for k in ("round", "variant", "t_1pct_s", "mb_1pct", "t_equal_s", "frames_equal",
-                                           "frame_ms", "readback_ms", "t_1pct_s_vs_queue", "t_equal_s_vs_queue",
+                                           "frame_ms", "t_1pct_s_vs_queue", "t_equal_s_vs_queue",
                                            "load")}, flush=True)
     finally:
         programs.release()

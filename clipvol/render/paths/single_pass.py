@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...scene.feedback import sampled_nodes
 from ...scene.page_table import build_page_table
 from ...scene.selection import DrawItems
 from ..uniforms import uset, vec3
@@ -75,10 +74,6 @@ class SinglePassPath(DrawPath):
         self._uniforms: tuple | None = None
         self._rect: tuple | None = None
         self._regions: tuple = (None, 0)
-        self._fb_tex = None  # RenderParams.feedback: the flag image, laid out like the page table
-        #: RenderParams.feedback: ``(n, 4)`` ``(level, z, y, x)`` of the nodes the last pass's rays
-        #: sampled (:func:`clipvol.scene.feedback.sampled_nodes`); None when it was not recorded
-        self.sampled: np.ndarray | None = None
 
     def _page_table_texture(self, entries: np.ndarray):
         """The page-table texture (R32UI, :data:`PAGE_TABLE_WIDTH` entries per row) holding
@@ -142,7 +137,6 @@ class SinglePassPath(DrawPath):
             return None
         fbo, previous, t0 = self.setup.begin(frame, mode_of(params.mode).clear)
         defines = dict(frame.defines, NUM_LEVELS=nlev, LEVEL_LO=min(data_levels), LEVEL_HI=max(data_levels))
-        feedback = bool(defines.get("FEEDBACK"))  # the action's choice (RenderParams.feedback, a frame not converged)
         prog, vao = self.setup.program("screen.vert", "raymarch.frag", defines)
         origin = self.setup.frame_uniforms(prog, frame)
         uset(prog, "u_vol_lo", vec3(vlo - origin))
@@ -175,8 +169,6 @@ class SinglePassPath(DrawPath):
             if tex is not None:
                 uset(prog, f"u_level{L}", 3 + L)
                 tex.use(location=3 + L)
-        if feedback:
-            self._feedback_image(prog)
         ctx.disable(mgl.BLEND | mgl.CULL_FACE)
         self.setup.depth_test(frame)  # on only in the fine pass of a refined frame
         rect = self._scissor(cam, vlo, vhi)
@@ -184,28 +176,8 @@ class SinglePassPath(DrawPath):
             ctx.scissor = tuple(rect)
             vao.render(mgl.TRIANGLES, vertices=3)
             ctx.scissor = None
-        out = self.setup.read_back(frame, previous, mode_of(params.mode).classifies, t0, boxes_drawn=1,
-                                   page_table_nodes=len(items), program=prog)
-        self.sampled = self._read_feedback(table) if feedback else None
-        return out
-
-    def _feedback_image(self, prog) -> None:
-        """Bind the flag image (R32UI, the page-table texture's size) cleared to zero as
-        ``u_feedback`` (image unit 0) for a pass with ``FEEDBACK``."""
-        size = self._pt_tex.size
-        if self._fb_tex is None or self._fb_tex.size != size:
-            if self._fb_tex is not None:
-                self._fb_tex.release()
-            self._fb_tex = self.ctx.texture(size, 1, dtype="u4")
-        self._fb_tex.write(bytes(4 * size[0] * size[1]))
-        self._fb_tex.bind_to_image(0, read=False, write=True)
-        uset(prog, "u_feedback", 0)
-
-    def _read_feedback(self, table) -> np.ndarray:
-        """The nodes the pass's rays sampled, from the flag image (after the image stores land)."""
-        self.ctx.memory_barrier()
-        flags = np.frombuffer(self._fb_tex.read(), dtype=np.uint32)
-        return sampled_nodes(table, flags)
+        return self.setup.read_back(frame, previous, mode_of(params.mode).classifies, t0, boxes_drawn=1,
+                                    page_table_nodes=len(items), program=prog)
 
     def _scissor(self, cam, vlo, vhi):
         """The scissor rectangle of the volume's box, kept while the camera (the same object: a
@@ -274,10 +246,7 @@ class SinglePassPath(DrawPath):
     def release(self) -> None:
         if self._pt_tex is not None:
             self._pt_tex.release()
-        if self._fb_tex is not None:
-            self._fb_tex.release()
-        self._pt_tex = self._fb_tex = None
-        self.sampled = None
+        self._pt_tex = None
         self._pt_data = None
         self._table = (None, None, None)
         self._faces = (None, None, None)

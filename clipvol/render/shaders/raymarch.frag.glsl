@@ -11,11 +11,6 @@
 // LEVEL_LO..LEVEL_HI: the data levels the table draws from. Only those get a march in the level
 // chain below: a SIMD rasteriser (llvmpipe) runs every branch of a per-pixel `if` with its lanes
 // masked, so each level in the chain costs every pixel its set-up and one masked sample per node.
-// FEEDBACK (RenderParams.feedback; clipvol/scene/feedback.py): each DRAWN node a ray marches sets its
-// entry in u_feedback, a flag image laid out like the page table (ray-guided residency).
-#ifdef FEEDBACK
-#extension GL_ARB_shader_image_load_store : require
-#endif
 #ifndef LEVEL_LO
 #define LEVEL_LO 0
 #endif
@@ -101,9 +96,6 @@ uniform int u_top;                  // coarsest level
 uniform float u_nudge;              // world length past a node face where the next node is looked up
 uniform int u_max_regions;
 uniform int u_max_steps;
-#ifdef FEEDBACK
-layout(r32ui) uniform writeonly uimage2D u_feedback;
-#endif
 #if NUM_LEVELS > 0
 uniform sampler3D u_level0;
 #endif
@@ -217,13 +209,6 @@ bool region(vec3 origin, vec3 dir, vec3 inv, float tend, inout float ta, STATE) 
     bool progress = tb > ta;
     bool drawn = progress && (e & 3u) == PT_DRAWN;
     float tm = drawn ? tb : ta;
-#ifdef FEEDBACK
-    if (drawn) {
-        ivec3 fs = u_pt_size[L];
-        int fi = u_pt_base[L] + (cell.z * fs.y + cell.y) * fs.x + cell.x;
-        imageStore(u_feedback, ivec2(fi % u_pt_width, fi / u_pt_width), uvec4(1u));
-    }
-#endif
     {
         int Ld = clamp(int((e >> 2) & 31u), LEVEL_LO, LEVEL_HI);
         ivec3 gcell = cell + u_pt_c0[L];
