@@ -76,6 +76,12 @@ def corners(coarse: np.ndarray, h: int, w: int):
     return (a, b, d, e), (fx, fy)
 
 
+def _blend(four, weights) -> np.ndarray:
+    """The mask's bilinear blend of the four coarse colours (``mix(mix(a, b, fx), mix(d, e, fx), fy)``)."""
+    (a, b, d, e), (fx, fy) = four, weights
+    return (a * (1 - fx) + b * fx) * (1 - fy) + (d * (1 - fx) + e * fx) * fy
+
+
 def spread(metric: str, four, background, blend=None) -> np.ndarray:
     """The spread of the four colours per pixel under ``metric``: ``channel`` (premultiplied RGBA),
     ``rgb`` (the composited colour's channels), ``delta_e`` (largest pairwise Delta E of the
@@ -104,7 +110,7 @@ def replay(passes, metric: str, tol: float, background):
     for full in passes[1:]:
         h, w = full.shape[:2]
         (a, b, d, e), (fx, fy) = corners(img, h, w)
-        blend = (a * (1 - fx) + b * fx) * (1 - fy) + (d * (1 - fx) + e * fx) * fy
+        blend = _blend((a, b, d, e), (fx, fy))
         ray = spread(metric, (a, b, d, e), background, blend) > tol
         rays.append(int(ray.sum()))
         img = np.where(ray[..., None], full, blend)
@@ -112,6 +118,8 @@ def replay(passes, metric: str, tol: float, background):
 
 
 def _u8(img_prem: np.ndarray) -> np.ndarray:
+    """A replayed pass (premultiplied float, rows bottom first) as a frame returns it: straight RGBA
+    uint8, rows top first."""
     from clipvol.render.paths.setup import premultiplied_to_uint8
 
     return premultiplied_to_uint8(img_prem[::-1].astype(np.float32))
@@ -120,22 +128,26 @@ def _u8(img_prem: np.ndarray) -> np.ndarray:
 def oracle(passes, tol: float, background, truth: np.ndarray, masks=(("channel", "channel", None),)) -> dict:
     """How well each mask picks the image pass's pixels a ray fixes, the 1/2 pass replayed with the
     channel spread at ``tol``: ``fixable`` pixels have their blend at Delta E >= 6 from the converged
-    picture and their ray under 6; the *oracle* casts exactly those rays. For each ``(metric, t)``
-    (t None: the channel spread at ``tol``): its rays and the share of them that are fixable."""
+    picture and their ray under 6; the *oracle* casts exactly those rays (its error: ``oracle_pct``),
+    a bound no mask that sees only the coarse colours can pass; ``missed``: the fixable pixels the
+    channel mask at ``tol`` blends (and how many of them lie between four coarse rays that agree to
+    a quarter of ``tol``). For each mask ``(label, metric, t)`` (t None: ``tol``): the image pass's
+    rays, how many of them are fixable, and the image's error."""
     from clipvol.scene.metrics import delta_e_luv
 
     half, _ = replay(passes[:2], "channel", tol, background)
     full = passes[2]
     h, w = full.shape[:2]
     (a, b, d, e), (fx, fy) = corners(half, h, w)
-    blend = (a * (1 - fx) + b * fx) * (1 - fy) + (d * (1 - fx) + e * fx) * fy
+    blend = _blend((a, b, d, e), (fx, fy))
     de_blend = delta_e_luv(_u8(blend), truth, premultiplied=False)[::-1]
     de_ray = delta_e_luv(_u8(full), truth, premultiplied=False)[::-1]
     fixable = (de_blend >= DE_VISIBLE) & (de_ray < DE_VISIBLE)
     chan = spread("channel", (a, b, d, e), background)
     missed = fixable & (chan <= tol)  # a ray would fix them; the channel mask blends them
     out = {"fixable": int(fixable.sum()), "missed": int(missed.sum()),
-           "missed_spread_under_quarter_tol": int((missed & (chan <= tol / 4)).sum()), "ray_wrong_blend_right": int(((de_ray >= DE_VISIBLE) & (de_blend < DE_VISIBLE)).sum()),
+           "missed_spread_under_quarter_tol": int((missed & (chan <= tol / 4)).sum()),
+           "ray_wrong_blend_right": int(((de_ray >= DE_VISIBLE) & (de_blend < DE_VISIBLE)).sum()),
            "oracle_pct": round(pct(np.where(fixable[..., None], full, blend), truth), 3)}
     for label, metric, t in masks:
         t = tol if t is None else t
@@ -147,14 +159,15 @@ def oracle(passes, tol: float, background, truth: np.ndarray, masks=(("channel",
 
 
 def pct(img_prem: np.ndarray, truth: np.ndarray) -> float:
-    from clipvol.render.paths.setup import premultiplied_to_uint8
+    """% of pixels at Delta E >= 6 of a replayed pass against ``truth`` (8-bit straight RGBA, rows
+    top first), after the 8-bit read-back a frame gets (:func:`_u8`)."""
     from clipvol.scene.metrics import percent_delta_e
 
-    return float(percent_delta_e(premultiplied_to_uint8(img_prem[::-1].astype(np.float32)), truth,
-                                 threshold=DE_VISIBLE, premultiplied=False))
+    return float(percent_delta_e(_u8(img_prem), truth, threshold=DE_VISIBLE, premultiplied=False))
 
 
-def run(store: Path, images, view_names, names, log=print) -> list[dict]:
+def run(store: Path, images, view_names, names, log=print) -> tuple[list[dict], list[dict]]:
+    """Per setting, image size and view: the replay check, the oracle row and each mask's rows."""
     from clipvol.app.converged import ConvergedPictures
     from clipvol.scene.params import RenderParams
 
@@ -187,8 +200,7 @@ def run(store: Path, images, view_names, names, log=print) -> list[dict]:
                     probe.render(cam, tf, wait=True, timeout=600)
                     passes = [_pass(probe.setup, k, cam) for k in (2, 1, 0)]
                     img, _ = replay(passes, "channel", tol0, bg)
-                    from clipvol.render.paths.setup import premultiplied_to_uint8
-                    mine = premultiplied_to_uint8(img[::-1].astype(np.float32)).astype(int)
+                    mine = _u8(img).astype(int)
                     agree = float(np.mean(np.abs(mine - own_img.astype(int)).max(axis=-1) <= 2))
                     log(f"{image}^2 {view} {name}: replay at {tol0:g} matches the drawn frame on "
                         f"{100 * agree:.2f} % of pixels (within 2 levels)")
