@@ -128,10 +128,10 @@ def _u8(img_prem: np.ndarray) -> np.ndarray:
 def oracle(passes, tol: float, background, truth: np.ndarray, masks=(("channel", "channel", None),)) -> dict:
     """How well each mask picks the image pass's pixels a ray fixes, the 1/2 pass replayed with the
     channel spread at ``tol``: ``fixable`` pixels have their blend at Delta E >= 6 from the converged
-    picture and their ray under 6; the *oracle* casts exactly those rays (its error: ``oracle_pct``),
-    a bound no mask that sees only the coarse colours can pass; ``missed``: the fixable pixels the
-    channel mask at ``tol`` blends (and how many of them lie between four coarse rays that agree to
-    a quarter of ``tol``). For each mask ``(label, metric, t)`` (t None: ``tol``): the image pass's
+    picture and their ray under 6; the *oracle* casts exactly those rays (its error: ``oracle_pct``,
+    the least any mask of the image pass can leave over this 1/2 pass); ``missed``: the fixable
+    pixels the channel mask at ``tol`` blends (and how many of them lie between four coarse rays
+    that agree to a quarter of ``tol``). For each mask ``(label, metric, t)`` (t None: ``tol``): the image pass's
     rays, how many of them are fixable, and the image's error."""
     from clipvol.scene.metrics import delta_e_luv
 
