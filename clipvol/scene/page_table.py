@@ -84,6 +84,17 @@ class PageTable:
     drawn: "DrawnNodes | None" = None
     refs: np.ndarray | None = None
 
+    def lookup(self, level: int, cells) -> np.ndarray:
+        """Entries of ``cells`` ``(n, 3)`` ``(z, y, x)`` of ``level`` (``EMPTY`` outside its box)."""
+        c = np.asarray(cells, dtype=np.int64).reshape(-1, 3) - self.c0[level]
+        s = self.size[level]
+        inside = np.all((c >= 0) & (c < s), axis=1)
+        out = np.zeros(len(c), dtype=np.uint32)
+        ci = c[inside]
+        flat = self.base[level] + (ci[:, 0] * s[1] + ci[:, 1]) * s[2] + ci[:, 2]
+        out[inside] = self.entries[flat]
+        return out
+
 
 @dataclass(frozen=True)
 class DrawnNodes:
@@ -99,17 +110,6 @@ class DrawnNodes:
     pos: np.ndarray
     values: np.ndarray
     faces: np.ndarray
-
-    def lookup(self, level: int, cells) -> np.ndarray:
-        """Entries of ``cells`` ``(n, 3)`` ``(z, y, x)`` of ``level`` (``EMPTY`` outside its box)."""
-        c = np.asarray(cells, dtype=np.int64).reshape(-1, 3) - self.c0[level]
-        s = self.size[level]
-        inside = np.all((c >= 0) & (c < s), axis=1)
-        out = np.zeros(len(c), dtype=np.uint32)
-        ci = c[inside]
-        flat = self.base[level] + (ci[:, 0] * s[1] + ci[:, 1]) * s[2] + ci[:, 2]
-        out[inside] = self.entries[flat]
-        return out
 
 
 def item_nodes(items, pyramid) -> list[tuple[int, tuple[int, int, int]]] | None:

@@ -66,6 +66,7 @@ class SinglePassPath(DrawPath):
         self._pt_data: np.ndarray | None = None  # what the page-table texture holds now
         self._pt_held = None  # the table whose entries it holds (None: not known to be one)
         self.rows_written = 0  # page-table rows the last frame wrote (0: the table was kept)
+        self.tables_updated = 0  # tables updated from the one before, not built (benchmarks and tests)
         self._levels: tuple = (None, [])  # (items, their sorted data levels)
         # (GPU state, region, PageTable.faces) of the last table built: its items' open faces hold
         # while the slots are the same (build_page_table's known_faces)
@@ -110,6 +111,14 @@ class SinglePassPath(DrawPath):
             old[r0:r1] = grid[r0:r1]
         self.rows_written = r1 - r0
         return self._pt_tex
+
+    def _upload(self, table, changed: np.ndarray | None = None, prev=None):
+        """Make the page-table texture hold ``table`` (its entries ``changed`` from ``prev``'s where
+        it was updated from ``prev``: :meth:`_page_table_texture`)."""
+        tex = self._page_table_texture(table.entries, changed, prev)
+        self._pt_held = table
+        self.tables_updated += changed is not None
+        return tex
 
     def _write_changed(self, entries: np.ndarray, changed: np.ndarray) -> None:
         """Write the ``changed`` entries (sorted) into the texture and its copy: one rectangle per
@@ -158,7 +167,8 @@ class SinglePassPath(DrawPath):
             known = self._faces[2] if self._faces[0] == state and self._faces[1] is region else None
             # updated from the frame before's where its layout holds (the entries that changed)
             prev = self._table[2] if self._table[3] is pyr else None
-            table, changed = update_page_table(prev, items, pyr, cache.open_faces, known_faces=known)
+            table, changed = update_page_table(prev, items, pyr, cache.open_faces, known_faces=known,
+                                               faces_hold=known is not None and prev is not None and prev.faces is known)
             if table is not None:
                 self._faces = (state, region, table.faces)
         self._table = (items, state, table, pyr)
@@ -188,8 +198,7 @@ class SinglePassPath(DrawPath):
         if again and self._pt_data is not None:
             self.rows_written = 0
         else:
-            self._page_table_texture(table.entries, None if again else changed, prev)
-            self._pt_held = table
+            self._upload(table, None if again else changed, prev)
         self._pt_tex.use(location=2)
         if mode_of(params.mode).classifies:
             self.setup.tf_texture(frame).use(location=1)
