@@ -46,7 +46,8 @@ import numpy as np
 
 from .selection.cut import DrawItems
 
-__all__ = ["PageTable", "build_page_table", "update_page_table", "block_cells", "block_open_faces", "EMPTY", "REFINED", "DRAWN", "item_nodes"]
+__all__ = ["PageTable", "DrawnNodes", "build_page_table", "update_page_table", "block_cells", "block_open_faces",
+           "EMPTY", "REFINED", "DRAWN", "item_nodes", "item_keys"]
 
 EMPTY, REFINED, DRAWN = 0, 1, 2
 

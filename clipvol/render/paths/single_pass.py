@@ -67,6 +67,7 @@ class SinglePassPath(DrawPath):
         self._pt_held = None  # the table whose entries it holds (None: not known to be one)
         self.rows_written = 0  # page-table rows the last frame wrote (0: the table was kept)
         self.tables_updated = 0  # tables updated from the one before, not built (benchmarks and tests)
+        self.tables_built = 0  # tables built from nothing (benchmarks and tests)
         self._levels: tuple = (None, [])  # (items, their sorted data levels)
         # (GPU state, region, PageTable.faces) of the last table built: its items' open faces hold
         # while the slots are the same (build_page_table's known_faces)
@@ -118,6 +119,7 @@ class SinglePassPath(DrawPath):
         tex = self._page_table_texture(table.entries, changed, prev)
         self._pt_held = table
         self.tables_updated += changed is not None
+        self.tables_built += changed is None
         return tex
 
     def _write_changed(self, entries: np.ndarray, changed: np.ndarray) -> None:
@@ -167,8 +169,8 @@ class SinglePassPath(DrawPath):
             known = self._faces[2] if self._faces[0] == state and self._faces[1] is region else None
             # updated from the frame before's where its layout holds (the entries that changed)
             prev = self._table[2] if self._table[3] is pyr else None
-            table, changed = update_page_table(prev, items, pyr, cache.open_faces, known_faces=known,
-                                               faces_hold=known is not None and prev is not None and prev.faces is known)
+            hold = known is not None and prev is not None and prev.faces is known  # (prev's faces: these slots)
+            table, changed = update_page_table(prev, items, pyr, cache.open_faces, known_faces=known, faces_hold=hold)
             if table is not None:
                 self._faces = (state, region, table.faces)
         self._table = (items, state, table, pyr)
