@@ -160,6 +160,44 @@ def test_page_table_texture_takes_changed_rows_only(ctx):
         clip.close()
 
 
+def test_page_table_texture_takes_the_updated_entries_only(ctx):
+    """An updated table's changed entries (:func:`clipvol.scene.page_table.update_page_table`) are
+    written as rectangles of their rows: the texture read back from the GL holds the new table,
+    entry for entry, and only the rows holding a change were written; where the texture does not
+    hold the table the update started from, the rows are compared instead."""
+    from types import SimpleNamespace
+
+    from clipvol.loaders.numpy_array import NumpyLoader
+    from clipvol.render.paths.single_pass import PAGE_TABLE_WIDTH, SinglePassPath
+
+    clip = ClipTexture(NumpyLoader(blob(16), brick=8), "16MB", threads=1)
+    a = ClipRenderAction(ctx, clip, policy="fixed", level=0, path="single-pass")
+    try:
+        path = SinglePassPath(a.setup)
+        rng = np.random.default_rng(3)
+        n = 6 * PAGE_TABLE_WIDTH - 50
+        first = SimpleNamespace(entries=rng.integers(0, 2**32 - 1, size=n, dtype=np.uint64).astype(np.uint32))
+        path._upload(first)
+        assert path.rows_written == 6
+        entries = first.entries.copy()
+        changed = np.sort(rng.choice(np.r_[PAGE_TABLE_WIDTH:3 * PAGE_TABLE_WIDTH, 5 * PAGE_TABLE_WIDTH:n], 40,
+                                     replace=False))
+        entries[changed] ^= 0x5A5A
+        second = SimpleNamespace(entries=entries)
+        tex = path._upload(second, changed, first)
+        assert path.rows_written == 3  # rows 1-2 and 5, no compare of the table
+        np.testing.assert_array_equal(np.frombuffer(tex.read(), dtype=np.uint32)[:n], second.entries)
+        third = SimpleNamespace(entries=entries.copy())
+        third.entries[[7, 4 * PAGE_TABLE_WIDTH + 3]] += 1
+        path._upload(third, np.array([7, 4 * PAGE_TABLE_WIDTH + 3]), first)  # (it holds second, not first)
+        assert path.rows_written == 5  # the band of rows 0-4, found by comparing
+        np.testing.assert_array_equal(np.frombuffer(tex.read(), dtype=np.uint32)[:n], third.entries)
+        path.release()
+    finally:
+        a.close()
+        clip.close()
+
+
 @pytest.mark.parametrize("path", ["single-pass", "bricks"])
 def test_updated_projected_size_frames_equal_fresh_frames(ctx, path, tmp_path):
     """A projected-size cut kept and updated per camera (clipvol.scene.selection.kept_cut): every
@@ -195,6 +233,37 @@ def test_updated_projected_size_frames_equal_fresh_frames(ctx, path, tmp_path):
         # does too (it uploads); the others update the kept cut, and some of those changed it
         assert updated[0] is False and sum(updated) >= 4, updated
         assert any(updated[k] and cuts[k] != cuts[k - 1] for k in range(1, len(cuts))), updated
+    finally:
+        for x in made:
+            x.close()
+        clip.close()
+
+
+@pytest.mark.slow
+def test_frames_through_a_page_table_updated_in_place_equal_fresh_frames(ctx, tmp_path):
+    """A kept projected-size cut whose leaves change while every level's box holds: the single
+    pass updates its page table from the frame before's (only the changed entries written to the
+    texture), and every frame equals a new action's frame from nothing, bit for bit."""
+    brick_volume(blob(64), tmp_path / "blob.zarr", brick=8, progress=False, workers=1)
+    clip = ClipTexture(open_store(tmp_path / "blob.zarr"), "64MB", threads=2)
+    tf = TransferFunction.from_points([(0.0, (0, 0, 0, 0.0)), (0.2, (0, 0, 0, 0.0)), (0.6, (1, 0.6, 0.2, 0.3)),
+                                       (1.0, (1, 1, 1, 0.8))])
+    a = ClipRenderAction(ctx, clip, policy="projected-size", lod_threshold=2.0, path="single-pass")
+    pyr = a.pyramid
+    made = [a]
+    try:
+        every = [(L, tuple(int(v) for v in b)) for L in range(pyr.num_levels)
+                 for b in np.argwhere(np.ones(pyr.grid(L), dtype=bool))]
+        assert clip.wait_for(every, timeout=30)
+        for k in range(3, 9):
+            cam = orbit(3 * k, pyr, dist=1.0 - 0.01 * k)
+            img = a.render(cam, tf, wait=k == 3, timeout=30)
+            b = ClipRenderAction(ctx, clip, a.params)
+            made.append(b)
+            ref = b.render(cam, tf, wait=True, timeout=30)
+            assert np.array_equal(img, ref), f"frame {k} differs from a fresh action's"
+            assert img[..., 3].any()
+        assert a._path("single-pass").tables_updated >= 1
     finally:
         for x in made:
             x.close()

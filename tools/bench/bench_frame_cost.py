@@ -38,7 +38,9 @@ ms and GL ms (:attr:`FrameStats.host_ms`, :attr:`FrameStats.gpu_ms`), the share 
 drew the kept cut again (``replayed``) and that drew the kept projected-size cut updated for the
 camera (``updated``), the CPU time of the rendering thread per frame for ``clipvol`` and ``fresh``
 (``time.thread_time``: the host's own work, which a shared machine's load does not inflate as it
-does wall times), and the ratios ``clipvol/raw`` and ``fresh/clipvol`` (medians over frames of the
+does wall times), the share of its frames whose single-pass page table was updated from the frame
+before's (``tables_updated``) and built from nothing (``tables_built``; neither: the table was kept),
+and the ratios ``clipvol/raw`` and ``fresh/clipvol`` (medians over frames of the
 per-frame ratios). Rows go to ``tools/bench/results/bench_frame_cost.csv``.
 
 Runs as is on a machine with a GPU (``python tools/bench/bench_frame_cost.py``): the GL is whatever
@@ -145,6 +147,7 @@ def _run_policy(scene, raw, kept, fresh, label: str, images, frames: int, log) -
             raw.render(kept._selection_camera(cams[0]), tf, STEP, OPAQUE)
             t = {"raw": [], "clipvol": [], "fresh": []}
             host, gpu, replayed, updated, cpu_kept, cpu_fresh = [], [], [], [], [], []
+            tables = {"updated": 0, "built": 0}  # the single pass's page tables, clipvol's frames
             bricks = kept.last_frame_stats.bricks_distinct
             for k, cam in enumerate(cams):
                 fc = kept._selection_camera(cam)
@@ -153,7 +156,11 @@ def _run_policy(scene, raw, kept, fresh, label: str, images, frames: int, log) -
                     if name == "raw":
                         t[name].append(_timed(lambda: raw.render(fc, tf, STEP, OPAQUE)))
                     elif name == "clipvol":
+                        sp = kept._path("single-pass")
+                        was = (sp.tables_updated, sp.tables_built)
                         t[name].append(_timed_cpu(lambda: kept.render(cam, tf), cpu_kept))
+                        tables["updated"] += sp.tables_updated - was[0]
+                        tables["built"] += sp.tables_built - was[1]
                         st = kept.last_frame_stats
                         host.append(st.host_ms)
                         gpu.append(st.gpu_ms)
@@ -171,6 +178,8 @@ def _run_policy(scene, raw, kept, fresh, label: str, images, frames: int, log) -
                    "clipvol_cpu_ms": round(1e3 * statistics.median(cpu_kept), 2),
                    "fresh_cpu_ms": round(1e3 * statistics.median(cpu_fresh), 2),
                    "replayed": round(float(np.mean(replayed)), 2), "updated": round(float(np.mean(updated)), 2),
+                   "tables_updated": round(tables["updated"] / len(cams), 2),
+                   "tables_built": round(tables["built"] / len(cams), 2),
                    "clipvol_over_raw": round(statistics.median(c / r for c, r in zip(t["clipvol"], t["raw"])), 2),
                    "fresh_over_clipvol": round(statistics.median(f / c for f, c in zip(t["fresh"], t["clipvol"])), 2),
                    "load": _load()}
@@ -178,7 +187,8 @@ def _run_policy(scene, raw, kept, fresh, label: str, images, frames: int, log) -
             log(f"{label} {image}^2 {kind:6}: {bricks} bricks, raw {row['raw_ms']} ms, "
                 f"clipvol {row['clipvol_ms']} ms "
                 f"(host {row['host_ms']}, gl {row['gpu_ms']}, {100 * row['replayed']:.0f} % kept cut, "
-                f"{100 * row['updated']:.0f} % updated) = "
+                f"{100 * row['updated']:.0f} % updated; page table updated on {100 * row['tables_updated']:.0f} %, "
+                f"built on {100 * row['tables_built']:.0f} %) = "
                 f"{row['clipvol_over_raw']}x raw; from nothing {row['fresh_ms']} ms = "
                 f"{row['fresh_over_clipvol']}x clipvol; main-thread CPU {row['clipvol_cpu_ms']} ms kept, "
                 f"{row['fresh_cpu_ms']} ms from nothing; load {row['load']}")

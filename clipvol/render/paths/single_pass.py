@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...scene.page_table import build_page_table
+from ...scene.page_table import update_page_table
 from ...scene.selection import DrawItems
 from ..uniforms import uset, vec3
 from ..modes import mode_of
@@ -62,9 +62,12 @@ class SinglePassPath(DrawPath):
         self._pt_tex = None
         # (items, GPU state, page table) of the frame before: kept while the frame loop draws the
         # same cut again (the same merged list) over the same slots, and for a refined frame's passes
-        self._table = (None, None, None)
+        self._table = (None, None, None, None)  # (and the pyramid it is of)
         self._pt_data: np.ndarray | None = None  # what the page-table texture holds now
+        self._pt_held = None  # the table whose entries it holds (None: not known to be one)
         self.rows_written = 0  # page-table rows the last frame wrote (0: the table was kept)
+        self.tables_updated = 0  # tables updated from the one before, not built (benchmarks and tests)
+        self.tables_built = 0  # tables built from nothing (benchmarks and tests)
         self._levels: tuple = (None, [])  # (items, their sorted data levels)
         # (GPU state, region, PageTable.faces) of the last table built: its items' open faces hold
         # while the slots are the same (build_page_table's known_faces)
@@ -75,11 +78,18 @@ class SinglePassPath(DrawPath):
         self._rect: tuple | None = None
         self._regions: tuple = (None, 0)
 
-    def _page_table_texture(self, entries: np.ndarray):
+    def _page_table_texture(self, entries: np.ndarray, changed: np.ndarray | None = None, held=None):
         """The page-table texture (R32UI, :data:`PAGE_TABLE_WIDTH` entries per row) holding
-        ``entries``: only the band of rows that differ from what it holds is written (a sub-write;
-        none when nothing changed), the whole table when it grew or is new."""
+        ``entries``. ``changed``: the entries that differ from ``held``'s (an updated table,
+        :func:`~clipvol.scene.page_table.update_page_table`): where the texture holds ``held``,
+        only the rectangles of those entries' rows are written. Else the band of rows that
+        differ from what it holds is written (a sub-write; none when nothing changed), the whole
+        table when it grew or is new."""
         rows = max(1, -(-len(entries) // PAGE_TABLE_WIDTH))
+        if changed is not None and held is not None and self._pt_held is held and self._pt_data is not None \
+                and self._pt_tex is not None and self._pt_tex.size[1] >= rows:
+            self._write_changed(entries, changed)
+            return self._pt_tex
         data = np.zeros(rows * PAGE_TABLE_WIDTH, dtype=np.uint32)
         data[:len(entries)] = entries
         grid = data.reshape(rows, PAGE_TABLE_WIDTH)
@@ -93,8 +103,8 @@ class SinglePassPath(DrawPath):
         if old is None or len(old) < rows:
             r0, r1 = 0, rows
         else:
-            changed = np.nonzero(np.any(old[:rows] != grid, axis=1))[0]
-            r0, r1 = (int(changed[0]), int(changed[-1]) + 1) if len(changed) else (0, 0)
+            changed_rows = np.nonzero(np.any(old[:rows] != grid, axis=1))[0]
+            r0, r1 = (int(changed_rows[0]), int(changed_rows[-1]) + 1) if len(changed_rows) else (0, 0)
         if r1 > r0:
             self._pt_tex.write(np.ascontiguousarray(grid[r0:r1]).tobytes(), viewport=(0, r0, PAGE_TABLE_WIDTH, r1 - r0))
             if old is None or len(old) < rows:
@@ -102,6 +112,33 @@ class SinglePassPath(DrawPath):
             old[r0:r1] = grid[r0:r1]
         self.rows_written = r1 - r0
         return self._pt_tex
+
+    def _upload(self, table, changed: np.ndarray | None = None, prev=None):
+        """Make the page-table texture hold ``table`` (its entries ``changed`` from ``prev``'s where
+        it was updated from ``prev``: :meth:`_page_table_texture`)."""
+        tex = self._page_table_texture(table.entries, changed, prev)
+        self._pt_held = table
+        self.tables_updated += changed is not None
+        self.tables_built += changed is None
+        return tex
+
+    def _write_changed(self, entries: np.ndarray, changed: np.ndarray) -> None:
+        """Write the ``changed`` entries (sorted) into the texture and its copy: one rectangle per
+        run of consecutive rows holding them, spanning their columns (no compare of the table)."""
+        held = self._pt_data.reshape(-1)
+        held[changed] = entries[changed]
+        self.rows_written = 0
+        if not len(changed):
+            return
+        row, col = changed // PAGE_TABLE_WIDTH, changed % PAGE_TABLE_WIDTH
+        starts = np.concatenate([[0], np.nonzero(np.diff(row) > 1)[0] + 1])  # runs of consecutive rows
+        ends = np.concatenate([starts[1:], [len(row)]])
+        for a, b in zip(starts.tolist(), ends.tolist()):
+            r0, r1 = int(row[a]), int(row[b - 1]) + 1
+            x0, x1 = int(col[a:b].min()), int(col[a:b].max()) + 1
+            block = np.ascontiguousarray(self._pt_data[r0:r1, x0:x1])
+            self._pt_tex.write(block.tobytes(), viewport=(x0, r0, x1 - x0, r1 - r0))
+            self.rows_written += r1 - r0
 
     def draw(self, frame: FrameContext) -> DrawStats | None:
         """One pass over the volume box through the cut's page table; None when this cut or pyramid
@@ -124,15 +161,19 @@ class SinglePassPath(DrawPath):
         # later pass, or a cut the frame loop drew again (the same merged list object)
         state = (cache.generation, frame.residency_version)
         again = self._table[0] is items and (frame.repeats_pass or self._table[1] == state)
+        changed = prev = None
         if again:
             table = self._table[2]
         else:
             region = getattr(cache, "region", None)  # (open faces read it too)
             known = self._faces[2] if self._faces[0] == state and self._faces[1] is region else None
-            table = build_page_table(items, pyr, cache.open_faces, known_faces=known)
+            # updated from the frame before's where its layout holds (the entries that changed)
+            prev = self._table[2] if self._table[3] is pyr else None
+            hold = known is not None and prev is not None and prev.faces is known  # (prev's faces: these slots)
+            table, changed = update_page_table(prev, items, pyr, cache.open_faces, known_faces=known, faces_hold=hold)
             if table is not None:
                 self._faces = (state, region, table.faces)
-        self._table = (items, state, table)
+        self._table = (items, state, table, pyr)
         if table is None or len(table.entries) > MAX_PAGE_TABLE_ENTRIES:
             return None
         fbo, previous, t0 = self.setup.begin(frame, mode_of(params.mode).clear)
@@ -159,7 +200,7 @@ class SinglePassPath(DrawPath):
         if again and self._pt_data is not None:
             self.rows_written = 0
         else:
-            self._page_table_texture(table.entries)
+            self._upload(table, None if again else changed, prev)
         self._pt_tex.use(location=2)
         if mode_of(params.mode).classifies:
             self.setup.tf_texture(frame).use(location=1)
@@ -202,17 +243,19 @@ class SinglePassPath(DrawPath):
         return n
 
     def _table_uniforms(self, frame: FrameContext, table, origin) -> dict:
-        """The page table's and the levels' uniform bytes, kept while the table, the origin they
-        are relative to, the step and the GPU windows are the same (a still view; a kept cut's
-        table); the empty-space cells' are asked every frame."""
+        """The page table's and the levels' uniform bytes, kept while the table's layout (its
+        boxes, bases and data bricks: all they read of it; an updated table keeps them), the origin
+        they are relative to, the step and the GPU windows are the same (a still view; a kept
+        cut's table); the empty-space cells' are asked every frame."""
         key = (origin.tobytes(), frame.params.step, tuple(None if w is None else tuple(w) for w in frame.cache.windows))
+        layout = b"".join(np.ascontiguousarray(a).tobytes() for a in (table.base, table.c0, table.size, table.d0))
         kept = self._uniforms
-        if kept is not None and kept[0] is table and kept[1] == key and kept[2] is frame.cache \
+        if kept is not None and kept[0] == layout and kept[1] == key and kept[2] is frame.cache \
                 and kept[3] is frame.pyramid:
             uniforms = kept[4]
         else:
             uniforms = self._level_uniforms(frame, table, origin)
-            self._uniforms = (table, key, frame.cache, frame.pyramid, uniforms)
+            self._uniforms = (layout, key, frame.cache, frame.pyramid, uniforms)
         if frame.skipped_empty:  # (the empty-space cells' layout: asked every frame)
             f32 = lambda v: np.ascontiguousarray(v, dtype=np.float32).tobytes()  # noqa: E731
             occ = [self.setup.occupancy_uniforms(frame, L) for L in range(frame.pyramid.num_levels)]
@@ -248,5 +291,6 @@ class SinglePassPath(DrawPath):
             self._pt_tex.release()
         self._pt_tex = None
         self._pt_data = None
-        self._table = (None, None, None)
+        self._pt_held = None
+        self._table = (None, None, None, None)
         self._faces = (None, None, None)

@@ -194,10 +194,13 @@ class KeptCut:
         #: per row, drawn by :attr:`selection` (None: not known row by row, after a compaction)
         self.drawn: np.ndarray | None = None
         #: ``(lv, rows of each level)`` for the ``lv`` array it was made from, and per level the
-        #: last evening out ``(live rows, their answers, evened)``: :meth:`_propagate` evens again
-        #: only a level whose reached nodes or answers changed (most of a small move's levels keep both)
+        #: last evening out ``(live rows, their answers, evened, their sibling groups)``: :meth:`_propagate`
+        #: evens again only a level whose reached nodes or answers changed (most of a small move's
+        #: levels keep both), and keeps the groups while the nodes are the same
         self._levels: tuple | None = None
         self._evened: dict = {}
+        #: the policy's sibling groups of a level's nodes (camera-free), where it tells them apart
+        self._groups = getattr(policy, "sibling_groups", None)
         #: level 0's ``reached`` was set by a full pass over the rows :attr:`_levels` holds (a new row
         #: or a renumbering sets it again in full)
         self._level0 = False
@@ -372,11 +375,17 @@ class KeptCut:
                 self.eff[live] = ref
                 continue
             last = self._evened.get(L)  # a level whose nodes and answers did not change evens out the same
-            if last is not None and np.array_equal(last[0], live) and np.array_equal(last[1], ref):
+            same = last is not None and np.array_equal(last[0], live)
+            if same and np.array_equal(last[1], ref):
                 self.eff[live] = last[2]
                 continue
-            eff = self.policy.even(t, L, self.lo[live], ref)
-            self._evened[L] = (live, ref, eff)
+            # the same nodes, other answers: their sibling groups kept (the camera does not move them)
+            groups = last[3] if same else None
+            if groups is None and self._groups is not None:
+                groups = self._groups(t, L, self.lo[live])
+            eff = self.policy.even(t, L, self.lo[live], ref) if groups is None else \
+                self.policy.even(t, L, None, ref, groups=groups)
+            self._evened[L] = (live, ref, eff, groups)
             self.eff[live] = eff
         # level 0: reached where its parent is reached and refined (never refined itself: no answer)
         r0 = rows_of[0]

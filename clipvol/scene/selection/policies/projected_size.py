@@ -41,10 +41,15 @@ def even_out(refine: np.ndarray, groups: np.ndarray | None = None, growth: float
     refine = np.asarray(refine, dtype=bool)
     if len(refine) == 0:
         return refine
-    if groups is None:
-        groups = np.zeros(len(refine), dtype=np.int64)
+    if groups is None:  # one group: two counts
+        n, r = len(refine), int(np.count_nonzero(refine))
+        return refine | bool(0 < r < n and children * n <= growth * ((n - r) + children * r))
     _, inv = np.unique(groups, return_inverse=True)
-    inv = inv.reshape(-1)
+    return _even_groups(refine, inv.reshape(-1), growth, children)
+
+
+def _even_groups(refine: np.ndarray, inv: np.ndarray, growth: float = EVEN_OUT_GROWTH, children: int = 8) -> np.ndarray:
+    """:func:`even_out` with the groups given as a dense index per node (``0 .. groups - 1``)."""
     n = np.bincount(inv)
     r = np.bincount(inv, weights=refine.astype(np.float64))
     even = (r > 0) & (r < n) & (children * n <= growth * ((n - r) + children * r))
@@ -62,15 +67,27 @@ class ProjectedSize(RefinePolicy):
         pixels at the node's nearest depth (what :meth:`depth_threshold` states as a depth limit)."""
         return np.asarray(t.projected_voxel(level, lo, hi) > self.params.lod_threshold, dtype=bool).reshape(len(lo))
 
-    def even(self, t, level, lo, need) -> np.ndarray:
+    def even(self, t, level, lo, need, groups: np.ndarray | None = None) -> np.ndarray:
         """``need`` (every node of ``level`` the traversal reached and kept) evened out: per sibling
-        group, then the level as a whole (one level merges into one box); the greedy form as it is."""
+        group, then the level as a whole (one level merges into one box); the greedy form as it is.
+        ``groups``: :meth:`sibling_groups` of these nodes, where the caller kept them (``lo`` is
+        then not read)."""
         if self.params.max_texels_drawn is not None or len(need) < 2:  # the greedy form: the budget decides
             return need
+        if groups is None:
+            groups = self.sibling_groups(t, level, lo)
+        return even_out(_even_groups(np.asarray(need, dtype=bool), groups))
+
+    def sibling_groups(self, t, level, lo) -> np.ndarray:
+        """A dense index per node of ``level`` (boxes' low corners ``lo``), equal for siblings: what
+        :meth:`even` groups by. It depends on the nodes alone, not on the camera, so a kept cut
+        keeps it while a level's reached nodes are the same (a sort of the level per frame cost
+        the 512^3 head's 4 096 level-1 nodes most of their evening out)."""
         tree = t.tree
         idx = np.rint((np.asarray(lo) + 0.5 * tree.sp) / (tree.brick * 2.0**level * tree.sp)).astype(np.int64)
         parent = idx // 2
-        return even_out(even_out(need, parent[:, 0] * (1 << 42) + parent[:, 1] * (1 << 21) + parent[:, 2]))
+        _, inv = np.unique(parent[:, 0] * (1 << 42) + parent[:, 1] * (1 << 21) + parent[:, 2], return_inverse=True)
+        return inv.reshape(-1)
 
     def depth_threshold(self, camera, voxel: float) -> float:
         """The nearest depth below which a node of ``voxel``-sized voxels is refined (perspective):
