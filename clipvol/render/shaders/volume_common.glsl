@@ -455,7 +455,7 @@ void composite_lit(inout vec4 acc, float texel, float spread, float row, vec3 g,
 // sample that enters a cell and, where it is 0, goes on at the first sample past the cell, so an
 // empty cell costs one lookup instead of its samples; the lattice is untouched.
 #ifndef SKIP_BLOCK
-#define SKIP_BLOCK 8
+#define SKIP_BLOCK 8              // samples per lookup (the single pass compiles 2: single_pass.py)
 #endif
 uniform sampler3D u_occ;
 vec3 g_occ_size;
