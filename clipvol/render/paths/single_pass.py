@@ -53,9 +53,10 @@ MAX_PAGE_TABLE_ENTRIES = 1 << 24
 #: lanes masked, so each node a ray crosses costs at least one whole block (lookups and samples)
 #: whatever its own length, and the last block of a node its full size: with the ray crossing
 #: 4-5 merged nodes of 32-64 voxels (the MNI template at 16^3 bricks), blocks of 2 drew the still
-#: 32^2 frame at 1.03x the raw caster against 1.24x with blocks of 8, the 512^2 frame at 0.90x
-#: against 1.15x, the 256^3 head's at 0.93x against 1.11x (tools/bench/bench_march_loops.py). The
-#: samples taken are the same (a leap passes transparent samples only), so is the image.
+#: 32^2 frame at 1.03x the raw caster against 1.24x with blocks of 8, its 512^2 full-resolution
+#: frame at 0.90x against 1.15x, the 256^3 head's still 32^2 frame at 0.93x against 1.11x (one
+#: process, interleaved; the whole change: tools/bench/bench_march_loops.py). The samples that
+#: count are the same (a leap passes transparent samples only), so is the image.
 SINGLE_PASS_SKIP_BLOCK = 2
 #: entries per row of the page-table texture: a power of two, the shader's row and column of an
 #: entry are a shift and a mask (``PT_WIDTH_LOG2``)
