@@ -157,7 +157,8 @@ def run(store: Path, images, rounds: int, policy: str, lod: float, log=print) ->
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--store", type=Path, required=True, help="a clipvol store (its level 0 is read whole for the raw caster)")
+    ap.add_argument("--store", type=Path, required=True,
+                    help="a clipvol store (its level 0 is read whole for the raw caster)")
     ap.add_argument("--images", default="32,512", help="image edges, comma separated (default 32,512)")
     ap.add_argument("--rounds", type=int, default=20, help="interleaved rounds per image (default 20)")
     ap.add_argument("--policy", default="projected-size", choices=sorted(POLICY_PARAMS))
