@@ -2,8 +2,9 @@
 
 The loops of ``volume_common.glsl``'s fast march test their end after their samples (a do-while
 behind a test of the count, so that llvmpipe does not run a masked body once more per node a ray
-crosses), and ``raymarch.frag.glsl`` finds an entry's row and column of the page-table texture by
-a shift and a mask (``PT_WIDTH_LOG2``). What could go wrong: a segment of no sample taking one (the
+crosses; the single pass leaps empty cells in blocks of 2 samples, the per-brick path in blocks
+of 8), and ``raymarch.frag.glsl`` finds an entry's row and column of the page-table texture by a
+shift and a mask (``PT_WIDTH_LOG2``). What could go wrong: a segment of no sample taking one (the
 test of the count), a run's last sample taken twice or not at all, an entry beyond the texture's
 first row read from the wrong place. So: bricks drawn unmerged (one node per brick, so rays cross
 many nodes), a step of several voxels (segments of zero, one, a few samples) and one below a
