@@ -27,7 +27,8 @@ line ``#include MODE_GLSL``), ``HAS_NAN`` (the data may hold NaN/Inf: NaN-aware 
 neighbours, non-finite samples skipped; absent: one hardware trilinear fetch, no test), ``SHADING``
 (composite only: Blinn-Phong gradient lighting from central differences, ``volume_common.glsl``),
 ``EMPTY_SKIP`` (composite without overlays: leap over cells the transfer function makes
-transparent, :mod:`clipvol.scene.occupancy`; ``SKIP_BLOCK`` samples per cell lookup, default 8).
+transparent, :mod:`clipvol.scene.occupancy`; ``SKIP_BLOCK`` samples per cell lookup, default 8; the
+single pass compiles 2, see :data:`clipvol.render.paths.single_pass.SINGLE_PASS_SKIP_BLOCK`).
 """
 
 from __future__ import annotations

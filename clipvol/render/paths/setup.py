@@ -199,7 +199,7 @@ class DrawSetup:
         self._dist_texs: dict = {}
         self._resolve = None
         self.last_raw: np.ndarray | None = None  # MIP, minIP, average, iso: the target read back by the last frame
-        self.depth = (0.0, 1.0)  # the volume box's range of ray parameters this frame (iso_color="depth")
+        self._depth_of: tuple | None = None  # (camera, box lo, box hi) of this frame: what depth reads
         self.refine: Refine | None = None  # the coarse targets and the mask pass, made by the first refined frame
         self.origin = (0, 0)  # where this pass's viewport starts in its target (refine.pass_origin)
 
@@ -285,7 +285,7 @@ class DrawSetup:
         uset(prog, "u_jitter", 1.0 if p.jitter else 0.0)
         uset(prog, "u_light", (p.ambient, p.diffuse, p.specular, p.shininess))  # SHADING variant only
         mode_of(p.mode).uniforms(prog, fmt, p)  # iso: u_iso
-        self.depth = depth_range(cam, *pyr.volume_box())  # iso_color="depth" (render/modes)
+        self._depth_of = (cam, *pyr.volume_box())  # iso_color="depth" (render/modes): see depth
         if p.shape is None:
             box = np.array([[-1e30] * 3, [1e30] * 3])
             planes = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (6, 1))
@@ -306,6 +306,15 @@ class DrawSetup:
         prog["u_n_planes"].value = int(n_planes)
         prog["u_has_box"].value = bool(has_box)
         return origin
+
+    @property
+    def depth(self) -> tuple[float, float]:
+        """The volume box's range of ray parameters this frame (``iso_color="depth"`` spans its
+        colours over it; ``(0, 1)`` before a frame): worked out when read, since only a mapped
+        mode's read-back reads it and its numpy costs a still composite frame ~0.1-0.3 ms."""
+        if self._depth_of is None:
+            return (0.0, 1.0)
+        return depth_range(*self._depth_of)
 
     def tf_texture(self, frame: FrameContext):
         """The per-level corrected colour table of ``frame``'s transfer function (row ``L``: opacity

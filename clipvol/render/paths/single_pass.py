@@ -38,7 +38,7 @@ from .frame import DrawStats, FrameContext
 from .setup import DrawPath, DrawSetup
 
 __all__ = ["SinglePassPath", "MAX_SINGLE_PASS_LEVELS", "MAX_SINGLE_PASS_RAY_SAMPLES", "MAX_PAGE_TABLE_ENTRIES",
-           "PAGE_TABLE_WIDTH"]
+           "PAGE_TABLE_WIDTH", "PAGE_TABLE_WIDTH_LOG2", "SINGLE_PASS_SKIP_BLOCK"]
 
 #: most pyramid levels (one texture unit each) and page-table entries
 MAX_SINGLE_PASS_LEVELS = 16
@@ -48,7 +48,20 @@ MAX_SINGLE_PASS_LEVELS = 16
 #: segment, so a ray of more samples would be cut short there; such a frame is drawn per brick.
 MAX_SINGLE_PASS_RAY_SAMPLES = 1 << 15
 MAX_PAGE_TABLE_ENTRIES = 1 << 24
-PAGE_TABLE_WIDTH = 1024
+#: samples per empty-space cell lookup in the single pass's march (``SKIP_BLOCK``; the per-brick
+#: path keeps the shader's default, 8). A SIMD rasteriser (llvmpipe) runs a loop's body with its
+#: lanes masked, so each node a ray crosses costs at least one whole block (lookups and samples)
+#: whatever its own length, and the last block of a node its full size: with the ray crossing
+#: 4-5 merged nodes of 32-64 voxels (the MNI template at 16^3 bricks), blocks of 2 drew the still
+#: 32^2 frame at 1.03x the raw caster against 1.24x with blocks of 8, its 512^2 full-resolution
+#: frame at 0.90x against 1.15x, the 256^3 head's still 32^2 frame at 0.93x against 1.11x (one
+#: process, interleaved; the whole change: tools/bench/bench_march_loops.py). The samples that
+#: count are the same (a leap passes transparent samples only), so is the image.
+SINGLE_PASS_SKIP_BLOCK = 2
+#: entries per row of the page-table texture: a power of two, the shader's row and column of an
+#: entry are a shift and a mask (``PT_WIDTH_LOG2``)
+PAGE_TABLE_WIDTH_LOG2 = 10
+PAGE_TABLE_WIDTH = 1 << PAGE_TABLE_WIDTH_LOG2
 
 
 class SinglePassPath(DrawPath):
@@ -177,7 +190,8 @@ class SinglePassPath(DrawPath):
         if table is None or len(table.entries) > MAX_PAGE_TABLE_ENTRIES:
             return None
         fbo, previous, t0 = self.setup.begin(frame, mode_of(params.mode).clear)
-        defines = dict(frame.defines, NUM_LEVELS=nlev, LEVEL_LO=min(data_levels), LEVEL_HI=max(data_levels))
+        defines = dict(frame.defines, NUM_LEVELS=nlev, LEVEL_LO=min(data_levels), LEVEL_HI=max(data_levels),
+                       PT_WIDTH_LOG2=PAGE_TABLE_WIDTH_LOG2, SKIP_BLOCK=SINGLE_PASS_SKIP_BLOCK)
         prog, vao = self.setup.program("screen.vert", "raymarch.frag", defines)
         origin = self.setup.frame_uniforms(prog, frame)
         uset(prog, "u_vol_lo", vec3(vlo - origin))
@@ -194,7 +208,6 @@ class SinglePassPath(DrawPath):
         uset(prog, "u_nudge", 1e-3 * float(sp.min()))
         uset(prog, "u_max_regions", self._max_regions(pyr, table, items, arr, vlo, vhi))
         self.setup.loop_uniforms(prog)
-        uset(prog, "u_pt_width", PAGE_TABLE_WIDTH)
         uset(prog, "u_page_table", 2)
         uset(prog, "u_tf", 1)
         if again and self._pt_data is not None:

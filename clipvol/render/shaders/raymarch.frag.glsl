@@ -8,11 +8,15 @@
 // t = off + k * delta_Ld of the data level, exactly as the per-brick path samples that box, so the
 // two paths draw the same image; the ray stops early per pixel with no framebuffer copies.
 // Variants: MODE_MIP, MODE_MINIP, MODE_AVERAGE, MODE_ISO, MODE_GLSL, HAS_NAN, SHADING, EMPTY_SKIP (volume_common.glsl); NUM_LEVELS: levels of the pyramid (<= 16);
+// PT_WIDTH_LOG2: log2 of the page table's entries per row;
 // LEVEL_LO..LEVEL_HI: the data levels the table draws from. Only those get a march in the level
 // chain below: a SIMD rasteriser (llvmpipe) runs every branch of a per-pixel `if` with its lanes
 // masked, so each level in the chain costs every pixel its set-up and one masked sample per node.
 #ifndef LEVEL_LO
 #define LEVEL_LO 0
+#endif
+#ifndef PT_WIDTH_LOG2
+#define PT_WIDTH_LOG2 10
 #endif
 #ifndef LEVEL_HI
 #define LEVEL_HI 15
@@ -73,8 +77,7 @@
 
 uniform vec3 u_vol_lo;              // volume box relative to O
 uniform vec3 u_vol_hi;
-uniform usampler2D u_page_table;    // all levels' entries, flattened, PT_WIDTH per row
-uniform int u_pt_width;
+uniform usampler2D u_page_table;    // all levels' entries, flattened, 1 << PT_WIDTH_LOG2 per row
 uniform int u_pt_base[NUM_LEVELS];  // first entry of each level's box of cells
 uniform ivec3 u_pt_size[NUM_LEVELS];// cells of the box (x, y, z); 0: nothing at this level
 uniform vec3 u_pt_origin[NUM_LEVELS]; // world corner of the box's first cell, relative to O
@@ -151,7 +154,9 @@ uint pt_fetch(int L, ivec3 cell) {
     ivec3 s = u_pt_size[L];
     if (any(lessThan(cell, ivec3(0))) || any(greaterThanEqual(cell, s))) return PT_EMPTY;
     int i = u_pt_base[L] + (cell.z * s.y + cell.y) * s.x + cell.x;
-    return texelFetch(u_page_table, ivec2(i % u_pt_width, i / u_pt_width), 0).r;
+    // row and column by a shift and a mask (i >= 0): a division by a uniform is one integer
+    // division per lane on a SIMD rasteriser (llvmpipe scalarises it), two per level looked up
+    return texelFetch(u_page_table, ivec2(i & ((1 << PT_WIDTH_LOG2) - 1), i >> PT_WIDTH_LOG2), 0).r;
 }
 
 // Sample [ta, tb) of the ray from level L's texture (data brick origin vox0, slot texel base,

@@ -455,7 +455,7 @@ void composite_lit(inout vec4 acc, float texel, float spread, float row, vec3 g,
 // sample that enters a cell and, where it is 0, goes on at the first sample past the cell, so an
 // empty cell costs one lookup instead of its samples; the lattice is untouched.
 #ifndef SKIP_BLOCK
-#define SKIP_BLOCK 8
+#define SKIP_BLOCK 8              // samples per lookup (the single pass compiles 2: single_pass.py)
 #endif
 uniform sampler3D u_occ;
 vec3 g_occ_size;
@@ -593,8 +593,13 @@ void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int 
     // a block of samples (taking samples past a visible cell's exit is always right); an empty
     // cell is leapt from the block's first sample. Whether a sample needs the clamp is not worth
     // finding once samples are leapt.
+    // The test that ends the loop comes after the block (a do-while behind a test of n): a loop
+    // whose test comes first runs its body once more with every lane masked off before it
+    // leaves (llvmpipe executes a masked body, samples and all), and the single pass enters this
+    // loop once per node a ray crosses.
     SKIP_SETUP(c0, dc)
-    for (int i = 0; i < n; i += SKIP_BLOCK) {
+    int i = 0;
+    if (n > 0) do {
         bool vis_;
         int e_ = cell_exit(i, n, q0_, cs_, ics_, side_, vis_);
         while (!vis_ && e_ < n) {   // leap over a run of empty cells with lookups only
@@ -624,7 +629,7 @@ void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int 
 #if SKIP_BLOCK > 7
         if (i + 7 < n) FAST_TAKE(clamp(c0 + float(i + 7) * dc, clo_t, chi_t));
 #endif
-    }
+    } while ((i += SKIP_BLOCK) < n);     // (the step in the test: a `continue` takes it too)
 #else
     // [ia, ib): sample indices whose coordinates lie in [clo_t, chi_t] on every axis, with a margin
     // of 1e-3 sample so that rounding never lets an unclamped sample out of the box
@@ -637,16 +642,18 @@ void march_segment(sampler3D tex, vec3 base, vec3 dir, float off, float k0, int 
     float fb = min(min(emax.x, emax.y), emax.z) - 1e-3;
     int ia = int(clamp(ceil(fa), 0.0, float(n)));
     int ib = int(clamp(floor(fb) + 1.0, float(ia), float(n)));
+    // each run's test after its samples, behind a test of its length (see the EMPTY_SKIP loop:
+    // a loop whose test comes first costs one masked sample more per run)
     int i = 0;
-    for (; i < ia; ++i) FAST_TAKE(clamp(c0 + float(i) * dc, clo_t, chi_t));
+    if (i < ia) do FAST_TAKE(clamp(c0 + float(i) * dc, clo_t, chi_t)) while (++i < ia);
 #ifndef MODE_REDUCE
     if (acc.a >= u_opaque) return;
 #endif
-    for (; i < ib; ++i) FAST_TAKE(c0 + float(i) * dc);
+    if (i < ib) do FAST_TAKE(c0 + float(i) * dc) while (++i < ib);
 #ifndef MODE_REDUCE
     if (acc.a >= u_opaque) return;
 #endif
-    for (; i < n; ++i) FAST_TAKE(clamp(c0 + float(i) * dc, clo_t, chi_t));
+    if (i < n) do FAST_TAKE(clamp(c0 + float(i) * dc, clo_t, chi_t)) while (++i < n);
 #endif
 }
 #endif
