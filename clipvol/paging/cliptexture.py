@@ -160,6 +160,15 @@ def _count(value, name: str, minimum: int, maximum: int | None = None) -> int:
     return n
 
 
+def _key_rows(keys) -> np.ndarray:
+    """``(m, 4)`` int64 ``(level, z, y, x)`` rows of ``keys``: such an array, or ``(level, index)``
+    pairs / :class:`BrickKey` s (one Python step per key, for callers that hold a few)."""
+    if isinstance(keys, np.ndarray):
+        return np.asarray(keys, dtype=np.int64).reshape(-1, 4)
+    rows = [(k.level, *k.index) if isinstance(k, BrickKey) else (int(k[0]), *(int(i) for i in k[1])) for k in keys]
+    return np.asarray(rows, dtype=np.int64).reshape(-1, 4)
+
+
 class _Countdown:
     """Bricks a ``wait_for`` call still waits for (compared by identity)."""
 
@@ -173,7 +182,7 @@ class _Level:
     """Slot bookkeeping of one level: its pool and, per slot, brick, state, generation, attempts."""
 
     __slots__ = ("level", "grid", "whole", "shape", "start", "stop", "pool", "key", "state", "gen", "attempts", "not_before",
-                 "busy", "empty", "cell_lo", "cell_hi", "spread")
+                 "busy", "empty", "cell_lo", "cell_hi", "spread", "urgent")
 
     def __init__(self, level: int, grid: Int3, whole: bool, capacity: int, brick_shape: Int3, dtype: np.dtype,
                  prefault: bool = True, cells: Int3 | None = None):
@@ -207,6 +216,9 @@ class _Level:
         self.cell_hi = np.full(shape, -np.inf, dtype=np.float32)
         # per slot, its brick's spread (clipvol.bricking.spread) where the loader has one for the level
         self.spread: np.ndarray | None = None
+        # per slot, the generation of the brick whose prioritised entry waits in the load queue (-1:
+        # none): ClipTexture.prioritize pushes a brick once, not once per frame that asks for it
+        self.urgent = np.full(capacity, -1, dtype=np.int64)
 
 
 class ClipTexture:
@@ -345,6 +357,9 @@ class ClipTexture:
         self._watched: dict[tuple[int, Int3], list[_Countdown]] = {}  # brick -> wait_for calls waiting on it
         self.failures: dict[BrickKey, BaseException] = {}
         self.residency_version = 0
+        #: counts the re-sorts of the load queue (a move, a new region or cut): the order
+        #: :meth:`prioritize` set is gone after one
+        self.queue_version = 0
         self._loads_total = 0
         self._bytes_total = 0
         #: bytes read from storage per brick since the last take_reads(), charged by the loader thread
@@ -723,41 +738,58 @@ class ClipTexture:
                     if not waiters:
                         del self._watched[k]
 
-    def prioritize(self, keys: Iterable) -> int:
-        """Move the queued bricks among ``keys`` (``(level, index)``) to the front of the load queue,
-        nearest first; returns how many were moved.
+    def prioritize(self, keys: Iterable | np.ndarray) -> int:
+        """Move the queued bricks among ``keys`` to the front of the load queue, nearest first;
+        returns how many were moved.
+
+        ``keys``: an ``(m, 4)`` int64 array of ``(level, z, y, x)`` rows (a selection's
+        :meth:`~clipvol.scene.selection.Selection.missing_wanted_keys`, checked per level in numpy),
+        or ``(level, index)`` pairs / :class:`BrickKey` s. Keys outside their level's window or of no
+        level are skipped.
 
         The queue orders a window's bricks by distance from the centre of interest, which is right for
         prefetching but makes a frame that needs a few bricks of a large window (a point octree's
         sparse deep levels, a thin cut) wait behind many it does not draw. The moved bricks' old
         entries stay in the queue and are skipped when popped (lazy invalidation); retries keep
-        their back-off. A brick of a window that the current region (:meth:`set_region`) left
-        unqueued is queued now: a frame reads what it draws even where the region did not foresee it.
+        their back-off. A brick already moved and not yet taken by a loader thread is not pushed
+        again (a per-slot mark, cleared when its entry is popped or the queue is re-sorted): a frame
+        loop that asks for the same missing bricks every frame grows the queue by nothing. A brick
+        of a window that the current region (:meth:`set_region`) left unqueued is queued now: a
+        frame reads what it draws even where the region did not foresee it.
         """
+        rows = _key_rows(keys)
         moved = 0
         with self._cv:
-            by_level: dict[int, list[tuple[int, Int3]]] = {}
-            for k in keys:
-                L, idx = (k.level, k.index) if isinstance(k, BrickKey) else (int(k[0]), tuple(int(i) for i in k[1]))
+            entries: list[tuple] = []
+            for L in np.unique(rows[:, 0]).tolist():
                 if not 0 <= L < len(self._levels):
                     continue
                 lv = self._levels[L]
-                s = self._slot_if_held(lv, idx)
-                if s is not None and lv.state[s] == _ABSENT:  # in the window, outside the region: read on demand
-                    lv.state[s] = _QUEUED
-                    lv.attempts[s] = 0
-                    lv.not_before[s] = 0.0
-                    self._pending += 1
-                if s is not None and lv.state[s] == _QUEUED and lv.not_before[s] <= 0.0:
-                    by_level.setdefault(L, []).append((s, idx))
-            for L, items in by_level.items():
-                lv = self._levels[L]
-                slots = [s for s, _ in items]
-                cost = brick_costs(self.pyramid, L, lv.key[slots], self._interest_point(L))
-                for c, (s, idx) in zip(cost.tolist(), items):
-                    self._queue.push((c - _URGENT, -L, idx[0], idx[1], idx[2], L, s, int(lv.gen[s])))
-                    moved += 1
-            if moved:
+                idx = rows[rows[:, 0] == L, 1:]
+                idx = idx[np.all((idx >= np.asarray(lv.start)) & (idx < np.asarray(lv.stop)), axis=1)]
+                if not len(idx):
+                    continue
+                s = slot_of(idx, lv.shape)
+                held = np.all(lv.key[s] == idx, axis=1)
+                s = np.unique(s[held])  # (a key given twice is one brick)
+                on = s[lv.state[s] == _ABSENT]  # in the window, outside the region: read on demand
+                if len(on):
+                    lv.state[on] = _QUEUED
+                    lv.attempts[on] = 0
+                    lv.not_before[on] = 0.0
+                    self._pending += len(on)
+                s = s[(lv.state[s] == _QUEUED) & (lv.not_before[s] <= 0.0) & (lv.urgent[s] != lv.gen[s])]
+                if not len(s):
+                    continue
+                k = lv.key[s]
+                gen = lv.gen[s]
+                lv.urgent[s] = gen
+                cost = brick_costs(self.pyramid, L, k, self._interest_point(L)) - _URGENT
+                entries += [(c, -L, z, y, x, L, sl, g) for c, (z, y, x), sl, g in
+                            zip(cost.tolist(), k.tolist(), s.tolist(), gen.tolist())]
+            if entries:
+                self._queue.push_many(entries)
+                moved = len(entries)
                 self._cv.notify_all()
         return moved
 
@@ -999,6 +1031,9 @@ class ClipTexture:
             for c, k, s, g in zip(cost.tolist(), keys.tolist(), q.tolist(), lv.gen[q].tolist()):
                 entries.append((c, -L, k[0], k[1], k[2], L, s, g))
         self._queue.rebuild(entries, delayed)
+        for lv in self._levels:  # the prioritised entries are gone with the old heap
+            lv.urgent.fill(-1)
+        self.queue_version += 1
 
     def _valid(self, level: int, slot: int, gen: int, state: int) -> bool:
         lv = self._levels[level]
@@ -1022,13 +1057,15 @@ class ClipTexture:
         if not self._closing:
             while (entry := self._queue.pop()) is not None:
                 _, _, bz, by, bx, L, s, gen = entry
+                lv = self._levels[L]
+                if lv.busy[s] and self._valid(L, s, gen, _QUEUED):
+                    self._queue.park(L, s, entry)  # back in the queue when the writer is done
+                    continue
+                if lv.urgent[s] == gen:  # this brick's prioritised entry leaves the queue (or this is
+                    lv.urgent[s] = -1    # its plain one, popped first: the prioritised one is then stale)
                 if self._valid(L, s, gen, _QUEUED):
-                    lv = self._levels[L]
                     if lv.not_before[s] > 0.0 and lv.not_before[s] > time.monotonic():
                         continue  # a stale prioritised entry of a brick now waiting out its retry back-off
-                    if lv.busy[s]:
-                        self._queue.park(L, s, entry)  # back in the queue when the writer is done
-                        continue
                     lv.state[s] = _LOADING
                     empty = bool(lv.empty[s])
                     if self._read_into is not None and not empty:

@@ -62,6 +62,15 @@ class LoadQueue:
     def push(self, entry: Entry) -> None:
         heapq.heappush(self._heap, entry)
 
+    def push_many(self, entries: list[Entry]) -> None:
+        """Push ``entries``: one at a time while they are few beside the heap, else by one re-heapify."""
+        if len(entries) * 8 < len(self._heap):
+            for e in entries:
+                heapq.heappush(self._heap, e)
+        else:
+            self._heap.extend(entries)
+            heapq.heapify(self._heap)
+
     def pop(self) -> Entry | None:
         """The front entry (cheapest), or None when empty; the caller checks its validity."""
         return heapq.heappop(self._heap) if self._heap else None

@@ -38,6 +38,14 @@ where a path needs an order; the single pass needs none. The GPU check follows t
 a cut with the same items as the last one checked needs none, and a changed one checks only the
 bricks no earlier frame of the cut found on the GPU with all their neighbours
 (:class:`CheckedBricks`), the whole cut only where one of those is missing.
+
+**Cut first.** A frame drawn without waiting (``wait=False``, the viewer's) that is not converged
+moves its cut's missing wanted bricks to the front of the clip-texture's load queue
+(:meth:`~clipvol.paging.cliptexture.ClipTexture.prioritize`), so the next frames fill what they draw
+before the rest of the windows, which the queue orders by distance from the centre of interest. On a
+cold fill from slow storage the frame reaches the converged one sooner (docs/benchmarks.md,
+"Ray-guided residency" and "Cut first in the frame loop"). The same missing set is asked for once
+(until the queue is re-sorted), and a converged, replayed or kept frame asks nothing.
 """
 
 from __future__ import annotations
@@ -129,8 +137,14 @@ def on_gpu_with_neighbours(cache, keys: np.ndarray) -> bool:
 class FrameLoop:
     """Selection and uploads of one render action over ``clip_texture`` into ``cache``."""
 
-    def __init__(self, clip_texture: ClipTexture, cache) -> None:
+    def __init__(self, clip_texture: ClipTexture, cache, *, prioritize_missing: bool = True) -> None:
         self.clip_texture = clip_texture
+        #: after a frame drawn without waiting that is not converged, move the cut's missing wanted
+        #: bricks to the front of the clip-texture's load queue (module docstring, "Cut first");
+        #: False leaves the queue's own order (distance from the centre of interest)
+        self.prioritize_missing = bool(prioritize_missing)
+        #: (clip-texture queue version, missing rows) of the last request: the same set is not asked again
+        self._asked: tuple[int, np.ndarray] | None = None
         self.cache = cache
         self.pyramid = clip_texture.pyramid
         #: (state key, selection) of the last converged cut (module docstring, "Coherence")
@@ -256,6 +270,22 @@ class FrameLoop:
                 out.append((level, idx))
         return out
 
+    def _ask_missing(self, sel: Selection) -> None:
+        """Move ``sel``'s missing wanted bricks to the front of the load queue, unless this very set
+        was asked for last and the queue has not been re-sorted since (a still camera while nothing
+        arrives asks nothing; :meth:`ClipTexture.prioritize` pushes only bricks not already in front)."""
+        ct = self.clip_texture
+        prioritize = getattr(ct, "prioritize", None)
+        if prioritize is None:  # a clip-texture without a load queue
+            return
+        rows = sel.missing_wanted_keys()
+        version = getattr(ct, "queue_version", None)
+        asked = self._asked
+        if asked is not None and asked[0] == version and np.array_equal(asked[1], rows):
+            return
+        prioritize(rows)
+        self._asked = (version, rows)
+
     def run(self, camera, params: RenderParams, *, transparent=None, policy=None, wait: bool = False,
             timeout: float | None = None, ordered: bool = True) -> FramePlan:
         """Select and upload (and with ``wait``, repeat) for one frame; see the module docstring.
@@ -311,6 +341,8 @@ class FrameLoop:
             times["wait"] += time.perf_counter() - t3
             if ct.residency_version == version:
                 break
+        if not converged and not wait and self.prioritize_missing:
+            self._ask_missing(sel)
         if converged and replayable(sel):  # kept with what it was made under, after its uploads
             # (the version before its last selection: a brick that arrived since ends the replay)
             self._kept = (self._state(params, transparent, policy, version), sel)

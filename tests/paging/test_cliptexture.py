@@ -704,3 +704,38 @@ def test_prioritised_brick_keeps_its_retry_back_off(no_leaked_threads):
             t = times[k]
             assert len(t) == 2 and t[1] - t[0] >= 0.25, (k, t)
         assert ct.prioritize([(0, (99, 99, 99)), (7, (0, 0, 0))]) == 0  # outside the window / no such level
+
+
+def test_prioritize_pushes_a_brick_once_and_takes_key_rows(no_leaked_threads):
+    """Asking twice for the same bricks pushes nothing the second time (the queue does not grow per
+    frame), and the ``(m, 4)`` array form moves the same bricks, in the same order, as the key form."""
+    orders = []
+    for form in ("keys", "rows"):
+        loader = ArrayLoader(_VOL)
+        started, gate = threading.Event(), threading.Event()
+        read = loader.read_brick
+
+        def held(level, index, read=read, started=started, gate=gate):
+            started.set()
+            assert gate.wait(10)  # the one thread holds its first brick: the rest waits in the queue
+            return read(level, index)
+
+        loader.read_brick = held
+        with ClipTexture(loader, "4MB", threads=1) as ct:
+            assert started.wait(10)
+            # far from the centre of interest: the queue's own order reads them last
+            keys = [k for k in _window_keys(ct) if k[0] == 0 and k[1][0] == 0 and k[1][1] == 0][:5]
+            keys += [(0, (99, 99, 99)), (9, (0, 0, 0)), keys[0]]  # outside the window, no such level, a repeat
+            asked = keys if form == "keys" else np.array([(L, *i) for L, i in keys], dtype=np.int64)
+            n0 = len(ct._queue)
+            assert ct.prioritize(asked) == 5
+            n1 = len(ct._queue)
+            assert n1 == n0 + 5
+            assert ct.prioritize(asked) == 0 and len(ct._queue) == n1  # already in front: nothing pushed
+            gate.set()
+            assert ct.wait_until_idle(20)
+            assert set(loader.calls[1:6]) == set(keys[:5])  # the five, before every other brick
+            orders.append(loader.calls[1:6])
+            # once read, a brick can be asked for again (the mark left with its entry)
+            assert ct.prioritize(asked) == 0  # resident: nothing to move
+    assert orders[0] == orders[1]

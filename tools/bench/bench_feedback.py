@@ -7,10 +7,14 @@ starts from a cold clip-texture and draws frames without waiting (``render(wait=
 resident draws, as in the viewer) at one camera (:func:`bench_frame_cost.cameras`' static view)
 until the frame equals the converged frame:
 
-* ``queue``: the clip-texture's own order (distance from the centre of interest) - the baseline;
-* ``cut-first``: after each frame, the cut's missing bricks (``Selection.missing_wanted``) are moved
-  to the front of the queue (:meth:`~clipvol.paging.cliptexture.ClipTexture.prioritize`) - what the
-  host knows without the rays.
+* ``queue``: the clip-texture's own order (distance from the centre of interest) - the baseline,
+  the frame loop's own request switched off (``FrameLoop.prioritize_missing = False``);
+* ``cut-first``: that request off too, and after each frame the benchmark moves the cut's missing
+  bricks (``Selection.missing_wanted``) to the front of the queue
+  (:meth:`~clipvol.paging.cliptexture.ClipTexture.prioritize`) - what the host knows without the
+  rays, as first measured from outside the frame loop;
+* ``default``: what a render action does by itself: its frame loop asks for the missing bricks of a
+  frame drawn without waiting, once per changed set (``clipvol.render.frame_loop``, "Cut first").
 
 A third variant, ``feedback`` (the single pass flagging the page-table nodes its rays sampled, read
 back each frame, and the cut's missing bricks under them moved to the front: C. Crassin et al.,
@@ -44,7 +48,7 @@ if str(HERE) not in sys.path:
 import common  # noqa: E402  (tools/bench/common.py, beside this script)
 from bench_frame_cost import _load, cameras  # noqa: E402
 
-VARIANTS = ("queue", "cut-first")
+VARIANTS = ("queue", "cut-first", "default")
 
 
 class SlowLoader:
@@ -101,6 +105,7 @@ def fill(ctx, programs, store: Path, variant: str, cam, tf, ref: np.ndarray, par
     clip = ClipTexture(loader, budget, threads=threads)
     a = ClipRenderAction(ctx, clip, texture_budget=budget, **params)
     a.setup.programs = programs
+    a.frame_loop.prioritize_missing = variant == "default"  # the frame loop's own request (module docstring)
     frame_s = []
     try:
         read0 = bytes_read_of(loader) or 0
@@ -138,6 +143,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--latency", type=float, default=20.0, help="ms added to each brick read")
     ap.add_argument("--threads", type=int, default=4, help="loader threads")
     ap.add_argument("--limit", type=float, default=120.0, help="seconds at most per fill")
+    ap.add_argument("--variants", nargs="+", choices=VARIANTS, default=list(VARIANTS),
+                    help="variants to run (queue is always run: the ratios are to it)")
     ap.add_argument("--out", type=Path, default=HERE / "results" / f"bench_feedback_{date.today().isoformat()}.csv")
     args = ap.parse_args(argv)
 
@@ -154,13 +161,14 @@ def main(argv: list[str] | None = None) -> int:
     ref = converged_image(store, cam, tf, params)
     ctx = create_context()
     programs = ProgramCache(ctx)
+    variants = tuple(v for v in VARIANTS if v == "queue" or v in args.variants)
     rows = []
     try:
-        for v in VARIANTS:  # the warm-up: every variant's programs compiled, nothing recorded
+        for v in variants:  # the warm-up: every variant's programs compiled, nothing recorded
             fill(ctx, programs, store, v, cam, tf, ref, params, args.latency / 1e3, args.threads, args.limit)
         for r in range(args.rounds):
-            k = r % len(VARIANTS)
-            order = VARIANTS[k:] + VARIANTS[:k]
+            k = r % len(variants)
+            order = variants[k:] + variants[:k]
             got = {}
             for v in order:
                 load = _load()
@@ -169,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
                 got[v].update(round=r, volume=label, image=args.image, latency_ms=args.latency, threads=args.threads,
                               load=load)
             base = got["queue"]
-            for v in VARIANTS:
+            for v in variants:
                 row = got[v]
                 for k in ("t_1pct_s", "mb_1pct", "t_equal_s", "mb_equal"):
                     b, x = base[k], row[k]

@@ -201,9 +201,14 @@ class Selection:
         """Every wanted brick is drawn at its own level."""
         return bool(rows_in(self.wanted_keys(), self.item_keys()).all())
 
+    def missing_wanted_keys(self) -> np.ndarray:
+        """``(m, 4)`` int64 ``(level, z, y, x)`` of the wanted bricks not drawn at their own level,
+        in load-priority order: what a frame loop asks the clip-texture for, without a Python tuple
+        per brick (:meth:`~clipvol.paging.cliptexture.ClipTexture.prioritize` takes the array)."""
+        w = self.wanted_keys()
+        return w[~rows_in(w, self.item_keys())]
+
     def missing_wanted(self) -> list[tuple[int, tuple[int, int, int]]]:
         """Wanted bricks not drawn at their own level, in load-priority order."""
-        w = self.wanted_keys()
-        miss = w[~rows_in(w, self.item_keys())]
-        return [(L, (z, y, x)) for L, z, y, x in miss.tolist()]
+        return [(L, (z, y, x)) for L, z, y, x in self.missing_wanted_keys().tolist()]
 
