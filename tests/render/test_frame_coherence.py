@@ -19,26 +19,20 @@ from clipvol.scene.camera import Camera
 from clipvol.scene.geometry import Shape
 from clipvol.scene.transfer import TransferFunction
 
+from counting_loader import ReadThrough
+
 pytestmark = pytest.mark.gl
 
 #: bricks held back until the test lets them load: one of the level-0 cut, one of level 1 (not in it)
 GATED = ((0, (1, 2, 2)), (1, (1, 1, 2)))
 
 
-class GatedLoader:
+class GatedLoader(ReadThrough):
     """A store's loader whose bricks :data:`GATED` are read only once their ``gates`` are set."""
 
     def __init__(self, inner, gates: dict) -> None:
-        self._inner, self.gates = inner, gates
-
-    def __getattr__(self, name):
-        if name == "read_brick_into":  # every read goes through read_brick (and its gate)
-            raise AttributeError(name)
-        return getattr(self._inner, name)
-
-    @property
-    def pyramid(self):
-        return self._inner.pyramid
+        super().__init__(inner)
+        self.gates = gates
 
     def read_brick(self, level, index):
         gate = self.gates.get((int(level), tuple(int(v) for v in index)))

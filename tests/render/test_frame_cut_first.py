@@ -16,26 +16,19 @@ from clipvol.render.action import ClipRenderAction
 from clipvol.scene.camera import Camera
 from clipvol.scene.transfer import TransferFunction
 
+from counting_loader import ReadThrough
+
 pytestmark = pytest.mark.gl
 
 
-class OrderLoader:
+class OrderLoader(ReadThrough):
     """A loader that records the order of its reads and holds the first one until ``gate`` is set."""
 
     def __init__(self, inner) -> None:
-        self._inner = inner
+        super().__init__(inner)
         self.reads: list[tuple[int, tuple[int, int, int]]] = []
         self.started, self.gate = threading.Event(), threading.Event()
         self._lock = threading.Lock()
-
-    def __getattr__(self, name):
-        if name == "read_brick_into":  # every read goes through read_brick
-            raise AttributeError(name)
-        return getattr(self._inner, name)
-
-    @property
-    def pyramid(self):
-        return self._inner.pyramid
 
     def read_brick(self, level, index):
         with self._lock:

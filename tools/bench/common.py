@@ -271,6 +271,24 @@ void main() {
 RAW_OPAQUE = 0.9995
 
 
+def _draw_screen(ctx, fbo, vao, h: int, w: int) -> np.ndarray:
+    """Draw a plain caster's one screen triangle into its float framebuffer and read it back
+    (``(h, w, 4)`` float32, first row at the top); the framebuffer bound before is bound again (a
+    released framebuffer left bound breaks later ones; a fresh context has none)."""
+    import moderngl
+
+    previous = ctx.fbo
+    fbo.use()
+    fbo.clear(0.0, 0.0, 0.0, 0.0)
+    ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+    vao.render(moderngl.TRIANGLES, vertices=3)
+    ctx.finish()
+    out = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32).reshape(h, w, 4)[::-1]
+    if previous is not None:
+        previous.use()
+    return out
+
+
 class RawCaster:
     """A plain one-texture moderngl ray caster: one 3D texture, one table lookup, front to back.
 
@@ -340,15 +358,7 @@ class RawCaster:
         p["u_opaque"].value = float(opaque)
         p["u_t_scale"].value = self.norm / (hi - lo)
         p["u_t_offset"].value = -lo / (hi - lo)
-        previous = ctx.fbo
-        self._fbo.use()
-        self._fbo.clear(0.0, 0.0, 0.0, 0.0)
-        ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
-        self.vao.render(moderngl.TRIANGLES, vertices=3)
-        ctx.finish()
-        out = np.frombuffer(self._fbo.read(components=4, dtype="f4"), np.float32).reshape(h, w, 4)[::-1]
-        previous.use()  # give the binding back (a released framebuffer left bound breaks later ones)
-        return out
+        return _draw_screen(ctx, self._fbo, self.vao, h, w)
 
     def release(self) -> None:
         for o in (self.tex, self.prog, self.vao, self._fbo, self._tf):
@@ -480,16 +490,7 @@ class LevelCaster:
         p["u_opaque"].value = float(opaque)
         p["u_t_scale"].value = 1.0 / (hi - lo)
         p["u_t_offset"].value = -lo / (hi - lo)
-        previous = ctx.fbo
-        self._fbo.use()
-        self._fbo.clear(0.0, 0.0, 0.0, 0.0)
-        ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
-        self.vao.render(moderngl.TRIANGLES, vertices=3)
-        ctx.finish()
-        out = np.frombuffer(self._fbo.read(components=4, dtype="f4"), np.float32).reshape(h, w, 4)[::-1]
-        if previous is not None:  # a fresh context has no framebuffer bound yet
-            previous.use()
-        return out
+        return _draw_screen(ctx, self._fbo, self.vao, h, w)
 
     def release(self) -> None:
         for o in (self.tex, self.prog, self.vao, self._fbo, self._tf):
