@@ -314,15 +314,19 @@ def _sorted_faces(keys, of):
     return keys[order], of[order]
 
 
-def _drawn_entries(items, pyramid, open_faces, known_faces):
-    """The nodes of the draw items and their ``DRAWN`` entries: ``(node_lv, node_idx, data_lv,
-    data_idx, values, faces, of)`` (``faces``: :attr:`PageTable.faces` of these items; ``of``
-    their open faces in item order), or None where the items are not node boxes."""
-    nodes = _node_arrays(items, pyramid)
+def _item_arrays(items) -> DrawItems:
+    """The draw items as arrays (merge_items' output is one already: nothing made), none as empty ones."""
+    return DrawItems.from_items(items) if len(items) else DrawItems(np.zeros((0, 4), dtype=np.int64), (), ())
+
+
+def _drawn_entries(arr: DrawItems, pyramid, open_faces, known_faces):
+    """The nodes of the draw items ``arr`` and their ``DRAWN`` entries: ``(node_lv, node_idx,
+    data_lv, data_idx, values, faces, of)`` (``faces``: :attr:`PageTable.faces` of these items;
+    ``of`` their open faces in item order), or None where the items are not node boxes."""
+    nodes = _node_arrays(arr, pyramid)
     if nodes is None:
         return None
     node_lv, node_idx = nodes
-    arr = DrawItems.from_items(items) if len(items) else DrawItems(np.zeros((0, 4), dtype=np.int64), (), ())
     data_lv, data_idx = arr.rows[:, 0], arr.rows[:, 1:]
     of = np.zeros((len(data_lv), 3, 2), dtype=bool)  # (n, 3 zyx, 2): faces of each item's brick or block
     keys = face_keys(data_lv, data_idx, node_lv) if open_faces is not None else None
@@ -355,7 +359,8 @@ def build_page_table(items, pyramid, open_faces=None, known_faces=None) -> PageT
     the other items are asked. A projected-size cut updated for a turning camera keeps most of
     its merged items; asking the faces of every block again cost ~12 ms a frame on a 13 742-brick cut.
     """
-    drawn = _drawn_entries(items, pyramid, open_faces, known_faces)
+    arr = _item_arrays(items)
+    drawn = _drawn_entries(arr, pyramid, open_faces, known_faces)
     if drawn is None:
         return None
     node_lv, node_idx, data_lv, data_idx, values, faces, of = drawn
@@ -366,7 +371,6 @@ def build_page_table(items, pyramid, open_faces=None, known_faces=None) -> PageT
     entries = np.where(refs > 0, np.uint32(REFINED), np.uint32(EMPTY)).astype(np.uint32)
     pos = _flat(c0, size, base, node_lv, node_idx)
     entries[pos] = values
-    arr = DrawItems.from_items(items) if len(items) else DrawItems(np.zeros((0, 4), dtype=np.int64), (), ())
     return PageTable(entries, base, c0, size, d0, faces, _drawn_nodes(arr, node_lv, node_idx, pos, values, of), refs)
 
 
@@ -395,7 +399,7 @@ def update_page_table(old: PageTable | None, items, pyramid, open_faces=None, kn
 
     if old is None or old.drawn is None or old.refs is None:
         return fresh()
-    arr = DrawItems.from_items(items) if len(items) else DrawItems(np.zeros((0, 4), dtype=np.int64), (), ())
+    arr = _item_arrays(items)
     keys = item_keys(arr)
     if keys is None:
         return fresh()
