@@ -11,7 +11,11 @@ def pytest_generate_tests(metafunc):
     """A test taking a ``draw_path`` argument runs once per registered draw path: what holds for
     every path is written once and covers a path the moment it is registered."""
     if "draw_path" in metafunc.fixturenames:
-        metafunc.parametrize("draw_path", every_draw_path())
+        # ``@pytest.mark.slow_paths("bricks")``: a heavy test runs those paths in the slow run only
+        slow = metafunc.definition.get_closest_marker("slow_paths")
+        slow = set(slow.args) if slow else set()
+        metafunc.parametrize("draw_path", [pytest.param(p, marks=pytest.mark.slow) if p in slow else p
+                                           for p in every_draw_path()])
 
 
 @pytest.fixture

@@ -9,6 +9,7 @@ ones a test happens to run.
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -85,8 +86,20 @@ def _function_nodes(tree) -> set[int]:
     return inside
 
 
-def located_imports(path: Path, module: str, is_pkg: bool):
-    """``(line, imported module, in a function)`` of every import statement, relative ones resolved."""
+def located_imports(path: Path, module: str, is_pkg: bool) -> tuple:
+    """``(line, imported module, in a function)`` of every import statement, relative ones resolved;
+    each file parsed once per test session (a dozen tests read every module's imports), and again
+    when it changes on disk (the tests that write a module of their own)."""
+    st = path.stat()
+    return _located_imports(path, module, is_pkg, st.st_mtime_ns, st.st_size)
+
+
+@functools.lru_cache(maxsize=None)
+def _located_imports(path: Path, module: str, is_pkg: bool, mtime_ns: int, size: int) -> tuple:
+    return tuple(_parse_imports(path, module, is_pkg))
+
+
+def _parse_imports(path: Path, module: str, is_pkg: bool):
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
     in_function = _function_nodes(tree)
     package = module.split(".") if is_pkg else module.split(".")[:-1]

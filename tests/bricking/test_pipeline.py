@@ -99,7 +99,7 @@ def test_stats_integers(tmp_path, rng, dtype):
     _check_stats(tmp_path / "s.zarr", _levels(tmp_path / "s.zarr"), meta.pyramid.value_range)
 
 
-@pytest.mark.parametrize("workers,crash_after", [(1, 23), pytest.param(3, 23, marks=pytest.mark.slow), (2, 26)])  # 26: inside a level-1 row
+@pytest.mark.parametrize("workers,crash_after", [pytest.param(1, 23, marks=pytest.mark.slow), pytest.param(3, 23, marks=pytest.mark.slow), (2, 26)])  # 26: inside a level-1 row
 def test_resume_after_crash_is_bytes_identical(tmp_path, rng, monkeypatch, workers, crash_after):
     vol = rng.integers(0, 5000, size=(40, 24, 30)).astype(np.uint16)
     vol[8:16] = 0  # some empty bricks too

@@ -60,6 +60,7 @@ def orbit(deg: float, pyr, size: int = 48, dist: float = 1.15) -> Camera:
                               fov_y=35, size=(size, size))
 
 
+@pytest.mark.slow_paths("bricks")  # (6 s a path; the per-brick path's kept cut also below, slow)
 def test_kept_cut_frames_equal_fresh_frames(ctx, draw_path, tmp_path):
     gates = {k: threading.Event() for k in GATED}
     brick_volume(blob(), tmp_path / "blob.zarr", brick=8, progress=False, workers=1)
@@ -192,7 +193,7 @@ def test_page_table_texture_takes_the_updated_entries_only(ctx):
         clip.close()
 
 
-@pytest.mark.parametrize("path", ["single-pass", "bricks"])
+@pytest.mark.parametrize("path", ["single-pass", pytest.param("bricks", marks=pytest.mark.slow)])
 def test_updated_projected_size_frames_equal_fresh_frames(ctx, path, tmp_path):
     """A projected-size cut kept and updated per camera (clipvol.scene.selection.kept_cut): every
     frame of an orbit and a fly-in equals a new action's frame from nothing, bit for bit, and the

@@ -198,6 +198,7 @@ def test_iso_needs_a_finite_value_and_modes_are_checked():
     assert RenderParams(mode="iso", iso_value="2.5").iso_value == 2.5
 
 
+@pytest.mark.slow_paths("bricks")
 def test_iso_skips_what_lies_below_its_value_and_draws_the_same(ctx, tmp_path, draw_path):
     """Bricks (from a store's per-brick value ranges) and cells whose values all lie below the
     iso-value are culled / leapt - none of their samples can be a hit: the hit distances and the

@@ -70,7 +70,8 @@ def _camera():
     return Camera.perspective((c[0] + 1.2 * n, c[1] + 0.8 * n, c[2] - 1.0 * n), c, size=(80, 80), fov_y=35)
 
 
-@pytest.mark.parametrize("path,merge", [*((p, True) for p in every_draw_path()),
+@pytest.mark.parametrize("path,merge", [*(pytest.param(p, True, marks=pytest.mark.slow) if p == "bricks" else (p, True)
+                                          for p in every_draw_path()),
                                         pytest.param("bricks", False, marks=pytest.mark.slow)],
                          ids=[*every_draw_path(), "bricks-unmerged"])
 def test_lit_render_equals_the_reference_and_one_brick(ctx, stores, path, merge):

@@ -80,8 +80,10 @@ def cover_split(frame: int):
     return cover
 
 
-@pytest.mark.parametrize("windows,cover", [("grid", None), ("grid", cover_some), ("small", cover_some),
-                                           ("grid", cover_moving), ("grid", cover_split)])
+@pytest.mark.parametrize("windows,cover", [pytest.param("grid", None, marks=pytest.mark.slow), ("grid", cover_some),
+                                           ("small", cover_some),
+                                           pytest.param("grid", cover_moving, marks=pytest.mark.slow),
+                                           ("grid", cover_split)])
 def test_the_kept_merge_is_the_merge_from_nothing_along_random_paths(windows, cover):
     params = RenderParams(policy="projected-size", lod_threshold=0.1)
     kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)

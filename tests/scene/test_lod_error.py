@@ -91,7 +91,7 @@ TF_A = TransferFunction.preset("bone")
 TF_B = TransferFunction.from_points([(0.0, (0, 0, 0, 0)), (0.5, (0.2, 0.6, 1.0, 0.1)), (1.0, (1, 0.3, 0.1, 0.9))])
 
 
-@pytest.mark.parametrize("tf", [TF_A, TF_B], ids=["bone", "blue-red"])
+@pytest.mark.parametrize("tf", [TF_A, pytest.param(TF_B, marks=pytest.mark.slow)], ids=["bone", "blue-red"])
 def test_table_error_equals_voxel_error(tmp_path, rng, tf):
     path = tmp_path / "h.zarr"
     brick_volume(_head(rng), path, brick=8, progress=False)
@@ -152,7 +152,7 @@ def _direct_bias(path, tf):
     return out
 
 
-@pytest.mark.parametrize("tf", [TF_A, TF_B], ids=["bone", "blue-red"])
+@pytest.mark.parametrize("tf", [TF_A, pytest.param(TF_B, marks=pytest.mark.slow)], ids=["bone", "blue-red"])
 def test_classification_bias_equals_the_voxels(tmp_path, rng, tf):
     """The bias the visible-error estimate uses (``LodErrors.bias``), from the tables, equals the
     same quantity computed from the voxels."""
