@@ -17,6 +17,11 @@ that sample. Two ways of knowing that range, both evaluated along the renderer's
   around the sample (``scipy.ndimage`` minimum / maximum filters: a view-independent table, as a
   min/max volume beside each level would be).
 
+Each gives four ``u``: ``sum`` (``sum_i T_i D_i``), ``max`` (``max_i T_i D_i``: the one sample
+that could change the pixel most), and ``excess sum`` / ``excess max``, with ``D_i`` replaced by
+the range beyond what the ray itself holds within about a footprint in depth (an oblique surface
+the ray crosses a little earlier or later is no surprise; a sheet it never reaches is).
+
 The combined mask casts a ray where the four coarser colours differ by more than ``t`` in a
 premultiplied channel (today's mask) **or** the largest ``u`` of the four coarser rays exceeds
 ``tu``; a pixel the 1/2 pass blends carries the blend of its four coarse rays' ``u``, a pixel it
@@ -25,7 +30,10 @@ the channel mask (checked against the drawn frame), and each pair gives the rays
 pass) and the error against the converged picture (% of pixels CIELUV Delta E >= 6). Printed per
 view: the channel mask's curve, the combined mask's lower envelope, the rays each needs for 4 % and
 5 %, and what share of the fixable pixels the channel mask blends between agreeing rays (the
-oracle's ``missed_spread_under_quarter_tol``) the uncertainty flags. The cost of computing ``u`` in
+oracle's ``missed_spread_under_quarter_tol``) the uncertainty flags. Beside them, the bound of
+any mask that knows what lies between the coarse rays (``perfect``: a pixel takes its ray where
+that ray differs from its blend by more than ``t`` in a channel, read from the ray itself). The
+numpy rays are checked against the frame: their opacity against the read-back 1/4 pass's. The cost of computing ``u`` in
 the coarse passes is not counted (the rays are): a mask that does not cut the rays by a quarter
 does not pay for any.
 Rows: ``tools/bench/results/bench_refine_uncertainty.csv`` (``--out``).
@@ -133,7 +141,9 @@ class Uncertainty:
 
     def of_pass(self, cam, k: int, step: float, how: str) -> dict:
         """``u`` per ray of pass ``k`` (``(ch, cw)``, rows bottom first) at ``step`` level-0 voxels:
-        ``{"sum": sum_i T_i D_i, "max": max_i T_i D_i}``."""
+        ``{"sum": sum_i T_i D_i, "max": max_i T_i D_i}``, the same of the excess ``E_i`` (the
+        footprint's range beyond what the ray itself holds within about a footprint in depth), and
+        ``"alpha"``: the ray's own opacity, checked against the read-back pass."""
         o, d = pass_rays(cam, k)
         ch, cw = o.shape[:2]
         o, d = o.reshape(-1, 3), d.reshape(-1, 3)
@@ -146,7 +156,7 @@ class Uncertainty:
         lo, hi = self.box
         dt = step * float(self.scale.min())
         mm = self.minmax(self.footprint_voxels(cam, k)) if how == "minmax" else None
-        out = {key: np.zeros(len(o)) for key in ("sum", "max", "excess sum", "excess max")}
+        out = {key: np.zeros(len(o)) for key in ("sum", "max", "excess sum", "excess max", "alpha")}
         # the centre ray's own values within about a footprint in depth: what it already saw nearby
         from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
@@ -178,6 +188,7 @@ class Uncertainty:
             else:
                 vlo, vhi = self._sample(mm[0], pts), self._sample(mm[1], pts)
             D = R[_bin(vlo, self.window), _bin(vhi, self.window)]
+            out["alpha"][a:b] = 1.0 - T[:, -1] * (1.0 - alpha[:, -1])  # the ray's opacity (the check)
             TD = np.where(inside, T * D, 0.0)
             out["sum"][a:b] = TD.sum(axis=1)
             out["max"][a:b] = TD.max(axis=1)
@@ -210,6 +221,23 @@ def replay_u(passes, us, tol: float, utol: float):
             ublend = brm._blend((ua, ub, ud, ue), weights)[..., 0]
             u = np.where(ray, us[1], ublend)
     return img, rays, masks
+
+
+def replay_perfect(passes, tol: float):
+    """The bound of any mask that knows what lies between the coarse rays: a pixel takes its ray
+    where the ray differs from the pixel's blend by more than ``tol`` in a premultiplied channel
+    (read from the ray itself, which no coarse pass has): ``(image, rays per pass)``."""
+    img, rays = passes[0], []
+    for full in passes[1:]:
+        h, w = full.shape[:2]
+        blend = brm._blend(*brm.corners(img, h, w))
+        ray = np.abs(full - blend).max(axis=-1) > tol
+        rays.append(int(ray.sum()))
+        img = np.where(ray[..., None], full, blend)
+    return img, rays
+
+
+PERFECT_TOLS = (0.02, 0.04, 0.06, 0.08, 0.12, 0.16, 0.24, 0.3, 0.4, 0.5, 0.7)
 
 
 def _envelope(pts) -> np.ndarray:
@@ -276,13 +304,30 @@ def run(store: Path, images, view_names, names, hows, log=print):
                     fixable = (de_b >= brm.DE_VISIBLE) & (de_r < brm.DE_VISIBLE)
                     chan = brm.spread("channel", four, bg)
                     between = fixable & (chan <= tol0 / 4)
+                    pts_p = []
+                    for t in PERFECT_TOLS:
+                        out, rays = replay_perfect(passes, t)
+                        e = brm.pct(out, truth)
+                        pts_p.append((sum(rays), e))
+                        rows.append(dict(date=time.strftime("%Y-%m-%d"), image=image, view=view, setting=name,
+                                         how="perfect", tolerance=t, rays_half=rays[0], rays_image=rays[1],
+                                         rays=sum(rays), pct_de6=round(e, 3), replay_agrees_pct=round(100 * agree, 2)))
+                    env_p = _envelope(pts_p)
+                    perfect = {err: rays_for(env_p, err) for err in (3.0, 4.0, 4.5, 5.0)}
+                    log("  perfect (the ray's own deviation from its blend): rays for <= 3 / 4 / 4.5 / 5 %: "
+                        + " / ".join(f"{v:.0f}" for v in perfect.values()))
                     got = {}
                     for how in hows:
                         t_start = time.perf_counter()
                         per = [unc.of_pass(cam, k, step0, how) for k in (2, 1)]
                         secs = time.perf_counter() - t_start
+                        ga = passes[0][..., 3]
+                        log(f"  numpy rays against the read-back 1/4 pass: opacity correlation "
+                            f"{np.corrcoef(per[0]['alpha'].ravel(), ga.ravel())[0, 1]:.5f}, mean |difference| "
+                            f"{np.abs(per[0]['alpha'] - ga).mean():.4f}")
                         for agg in per[0]:
-                            got[f"{how} {agg}"] = [p[agg] for p in per]
+                            if agg != "alpha":
+                                got[f"{how} {agg}"] = [p[agg] for p in per]
                     for how, us in got.items():
                         log(f"  u {how}: {secs:.1f} s; 1/4 pass u quantiles 50/90/99 %: "
                             + ", ".join(f"{q:.3f}" for q in np.quantile(us[0], [0.5, 0.9, 0.99])))
@@ -322,6 +367,7 @@ def run(store: Path, images, view_names, names, hows, log=print):
                                     f"flags {r['between_flagged']} of {r['between_fixable']} between-agreeing fixable")
                         summ.append(dict(image=image, view=view, setting=name, how=how,
                                          **{f"channel_rays_{e:g}": round(v[0]) if np.isfinite(v[0]) else "" for e, v in line.items()},
+                                         **{f"perfect_rays_{e:g}": round(v) if np.isfinite(v) else "" for e, v in perfect.items()},
                                          least_channel_pct=round(float(fc[1]), 3), least_channel_rays=int(fc[0]),
                                          least_combined_pct=round(float(fu[1]), 3), least_combined_rays=int(fu[0]),
                                          **{f"combined_rays_{e:g}": round(v[1]) if np.isfinite(v[1]) else "" for e, v in line.items()}))
