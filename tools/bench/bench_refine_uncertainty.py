@@ -252,7 +252,53 @@ def rays_for(env: np.ndarray, err: float) -> float:
     return brm._rays_at(env, err)
 
 
-def run(store: Path, images, view_names, names, hows, log=print):
+def _finite(v: float):
+    return round(v) if np.isfinite(v) else ""
+
+
+def _sweep(passes, us, truth, how: str, ctx: dict, perfect: dict, rows: list, log) -> dict:
+    """Replay the combined mask with ``us`` over the tolerances, append its rows to ``rows``, log its
+    envelope against the channel mask's, and return the view's summary cells."""
+    log(f"  u {how}: 1/4 pass quantiles 50/90/99 %: "
+        + ", ".join(f"{q:.3f}" for q in np.quantile(us[0], [0.5, 0.9, 0.99])))
+    pts_c, pts_u, own = [], [], []
+    for t in TOLS:
+        for q, tu in [(q, float(np.quantile(us[0], q))) for q in U_QUANTILES] + [(1.0, np.inf)]:
+            out, rays, masks = replay_u(passes, us, t, tu)
+            e = brm.pct(out, truth)
+            row = dict(date=time.strftime("%Y-%m-%d"), image=ctx["image"], view=ctx["view"], setting=ctx["setting"],
+                       how=how, tolerance=t, u_quantile=q, u_tolerance=round(tu, 4), rays_half=rays[0],
+                       rays_image=rays[1], rays=sum(rays), pct_de6=round(e, 3),
+                       replay_agrees_pct=round(100 * ctx["agree"], 2))
+            if t == ctx["tol0"]:
+                # the between-agreeing fixable pixels this mask casts (its 1/2 pass may differ)
+                row["between_fixable"] = int(ctx["between"].sum())
+                row["between_flagged"] = int((ctx["between"] & masks[1]).sum())
+                own.append(row)
+            rows.append(row)
+            if tu == np.inf:
+                pts_c.append((sum(rays), e))
+            pts_u.append((sum(rays), e))
+    env_c, env_u = _envelope(pts_c), _envelope(pts_u)
+    line = {err: (rays_for(env_c, err), rays_for(env_u, err)) for err in (3.0, 4.0, 4.5, 5.0)}
+    log(f"  {how}: rays for <= 3 / 4 / 4.5 / 5 %: channel " + " / ".join(f"{v[0]:.0f}" for v in line.values())
+        + "; combined " + " / ".join(f"{v[1]:.0f}" for v in line.values())
+        + "; combined / channel " + " / ".join(f"{v[1] / v[0]:.2f}" for v in line.values()))
+    fc, fu = env_c[np.argmin(env_c[:, 1])], env_u[np.argmin(env_u[:, 1])]
+    log(f"  {how}: least error: channel {fc[1]:.2f} % at {fc[0]:.0f} rays; combined {fu[1]:.2f} % at {fu[0]:.0f} rays")
+    for r in own:
+        log(f"    t={r['tolerance']:g} tu={r['u_tolerance']:g} (q {r['u_quantile']:g}): {r['rays']} rays, "
+            f"{r['pct_de6']:.2f} %, flags {r['between_flagged']} of {r['between_fixable']} between-agreeing fixable")
+    return dict(**{f"channel_rays_{e:g}": _finite(v[0]) for e, v in line.items()},
+                **{f"perfect_rays_{e:g}": _finite(v) for e, v in perfect.items()},
+                least_channel_pct=round(float(fc[1]), 3), least_channel_rays=int(fc[0]),
+                least_combined_pct=round(float(fu[1]), 3), least_combined_rays=int(fu[0]),
+                **{f"combined_rays_{e:g}": _finite(v[1]) for e, v in line.items()})
+
+
+def run(store: Path, images, view_names, names, hows, log=print) -> tuple[list[dict], list[dict]]:
+    """Per setting, image size and view: the replay check, the perfect mask's rows, and each
+    uncertainty's rows over the tolerances; ``(rows, summary rows)``."""
     from clipvol.app.converged import ConvergedPictures
     from clipvol.scene.params import RenderParams
     from clipvol.scene.metrics import delta_e_luv
@@ -316,61 +362,20 @@ def run(store: Path, images, view_names, names, hows, log=print):
                     perfect = {err: rays_for(env_p, err) for err in (3.0, 4.0, 4.5, 5.0)}
                     log("  perfect (the ray's own deviation from its blend): rays for <= 3 / 4 / 4.5 / 5 %: "
                         + " / ".join(f"{v:.0f}" for v in perfect.values()))
-                    got = {}
+                    ctx = dict(image=image, view=view, setting=name, agree=agree, tol0=tol0, between=between)
                     for how in hows:
                         t_start = time.perf_counter()
                         per = [unc.of_pass(cam, k, step0, how) for k in (2, 1)]
-                        secs = time.perf_counter() - t_start
                         ga = passes[0][..., 3]
-                        log(f"  numpy rays against the read-back 1/4 pass: opacity correlation "
-                            f"{np.corrcoef(per[0]['alpha'].ravel(), ga.ravel())[0, 1]:.5f}, mean |difference| "
+                        corr = np.corrcoef(per[0]["alpha"].ravel(), ga.ravel())[0, 1]
+                        log(f"  u {how}: {time.perf_counter() - t_start:.1f} s; the numpy rays against the read-back "
+                            f"1/4 pass: opacity correlation {corr:.5f}, mean |difference| "
                             f"{np.abs(per[0]['alpha'] - ga).mean():.4f}")
                         for agg in per[0]:
                             if agg != "alpha":
-                                got[f"{how} {agg}"] = [p[agg] for p in per]
-                    for how, us in got.items():
-                        log(f"  u {how}: {secs:.1f} s; 1/4 pass u quantiles 50/90/99 %: "
-                            + ", ".join(f"{q:.3f}" for q in np.quantile(us[0], [0.5, 0.9, 0.99])))
-                        pts_c, pts_u = [], []
-                        for t in TOLS:
-                            for q, tu in [(q, float(np.quantile(us[0], q))) for q in U_QUANTILES] + [(1.0, np.inf)]:
-                                out, rays, masks = replay_u(passes, us, t, tu)
-                                e = brm.pct(out, truth)
-                                row = dict(date=time.strftime("%Y-%m-%d"), image=image, view=view, setting=name,
-                                           how=how, tolerance=t, u_quantile=q, u_tolerance=round(tu, 4), rays_half=rays[0],
-                                           rays_image=rays[1], rays=sum(rays), pct_de6=round(e, 3),
-                                           replay_agrees_pct=round(100 * agree, 2))
-                                if t == tol0:
-                                    # the between-agreeing fixable pixels this mask casts (its 1/2 pass differs)
-                                    row["between_fixable"] = int(between.sum())
-                                    row["between_flagged"] = int((between & masks[1]).sum())
-                                rows.append(row)
-                                if tu == np.inf:
-                                    pts_c.append((sum(rays), e))
-                                pts_u.append((sum(rays), e))
-                        env_c, env_u = _envelope(pts_c), _envelope(pts_u)
-                        line = {}
-                        for err in (3.0, 4.0, 4.5, 5.0):
-                            rc, ru = rays_for(env_c, err), rays_for(env_u, err)
-                            line[err] = (rc, ru)
-                        log(f"  {how}: rays for <= 3 / 4 / 4.5 / 5 %: channel "
-                            + " / ".join(f"{v[0]:.0f}" for v in line.values()) + "; combined "
-                            + " / ".join(f"{v[1]:.0f}" for v in line.values()) + "; combined / channel "
-                            + " / ".join(f"{v[1] / v[0]:.2f}" for v in line.values()))
-                        fc, fu = env_c[np.argmin(env_c[:, 1])], env_u[np.argmin(env_u[:, 1])]
-                        log(f"  {how}: least error: channel {fc[1]:.2f} % at {fc[0]:.0f} rays; combined "
-                            f"{fu[1]:.2f} % at {fu[0]:.0f} rays")
-                        for r in rows:
-                            if (r["image"], r["view"], r["setting"], r["how"], r["tolerance"]) == (
-                                    image, view, name, how, tol0) and "between_flagged" in r:
-                                log(f"    t={tol0:g} tu={r['u_tolerance']:g} (q {r['u_quantile']:g}): {r['rays']} rays, {r['pct_de6']:.2f} %, "
-                                    f"flags {r['between_flagged']} of {r['between_fixable']} between-agreeing fixable")
-                        summ.append(dict(image=image, view=view, setting=name, how=how,
-                                         **{f"channel_rays_{e:g}": round(v[0]) if np.isfinite(v[0]) else "" for e, v in line.items()},
-                                         **{f"perfect_rays_{e:g}": round(v) if np.isfinite(v) else "" for e, v in perfect.items()},
-                                         least_channel_pct=round(float(fc[1]), 3), least_channel_rays=int(fc[0]),
-                                         least_combined_pct=round(float(fu[1]), 3), least_combined_rays=int(fu[0]),
-                                         **{f"combined_rays_{e:g}": round(v[1]) if np.isfinite(v[1]) else "" for e, v in line.items()}))
+                                us = [p[agg] for p in per]
+                                summ.append(dict(image=image, view=view, setting=name, how=f"{how} {agg}",
+                                                 **_sweep(passes, us, truth, f"{how} {agg}", ctx, perfect, rows, log)))
     finally:
         scene.close()
     return rows, summ
