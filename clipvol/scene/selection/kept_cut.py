@@ -64,10 +64,6 @@ from .traversal import Traversal
 
 __all__ = ["KeptCounts", "KeptCut", "camera_change"]
 
-#: cameras kept to bound each node's change from the one it was last tested at; past this many (and
-#: twice those in use at the last pruning), those no node refers to are dropped (one pass over the
-#: rows, so once per that many frames at most)
-MAX_CAMERAS = 64
 #: drop the nodes no longer reached once they outnumber the reached ones and this many (a long
 #: fly-through would otherwise keep every node it ever visited)
 COMPACT_MIN = 4096
@@ -219,13 +215,6 @@ class KeptCut:
         self._band = MotionBand(3)  # each node's deadlines in accumulated motion
         self._band.grow(self.reach)
         self._terms: np.ndarray | None = None  # the last camera's terms (_camera_terms)
-        #: the camera each node was last tested at (in ``_cams``): a node the band's deadline brings
-        #: up is re-tested only if its change from that camera may reach its slack (else it gets a
-        #: later deadline), so a path that turns back re-tests no more than the direct bound says
-        self.cam_id = np.zeros(1, dtype=np.int64)
-        self._cams: list[np.ndarray] = []
-        self._cam_array: np.ndarray | None = None
-        self._cam_limit = MAX_CAMERAS
         self.camera = None
         self.retested = 0  # nodes re-tested by the last update (the band), for benchmarks and tests
         self.selection: Selection | None = None
@@ -307,7 +296,6 @@ class KeptCut:
                                     np.where(infr, ends, np.where(worst, np.inf, out)), dslack], axis=1) \
                 - 1e-9 * max(1.0, self.radius)
         self.slack[rows] = slack
-        self.cam_id[rows] = len(self._cams) - 1
         self._band.set(rows, slack)
 
     def _depth_slack(self, camera, level: np.ndarray, lo, hi) -> np.ndarray:
@@ -419,8 +407,7 @@ class KeptCut:
                          first=np.full(m, -1, dtype=np.int64), nchild=np.zeros(m, dtype=np.int64),
                          expanded=no, inside=self._inside(lv, lo, hi), opaque=opaque,
                          mute=self._mute(lv, opaque), infr=no, ref=no, eff=no, slack=np.zeros((m, 3)),
-                         reached=no, live=no, geven=no, _seen=np.full(m, -1, dtype=np.int64),
-                         cam_id=np.zeros(m, dtype=np.int64))
+                         reached=no, live=no, geven=no, _seen=np.full(m, -1, dtype=np.int64))
             for name, new in grown.items():
                 setattr(self, name, np.concatenate([getattr(self, name), new]))
             if self.drawn is not None:
@@ -542,7 +529,7 @@ class KeptCut:
         keep = self.reached
         new = np.cumsum(keep) - 1
         for name in ("lv", "idx", "lo", "hi", "reach", "expanded", "inside", "opaque", "mute", "infr", "ref", "eff",
-                     "slack", "reached", "live", "geven", "first", "nchild", "_seen", "cam_id"):
+                     "slack", "reached", "live", "geven", "first", "nchild", "_seen"):
             setattr(self, name, getattr(self, name)[keep])
         if self.drawn is not None:
             self.drawn = self.drawn[keep]
@@ -586,9 +573,7 @@ class KeptCut:
             turn = np.array([t[:4].max(), t[4:6].max(), t[6]])
             shift = np.array([s[:4].max(), s[4:6].max(), s[6]])
         self._terms = terms
-        self._cams.append(terms)
-        self._cam_array = None
-        band = self._due(self._band.advance(turn, shift), terms)
+        band = self._band.advance(turn, shift)
         self._touch(band)
         was = (self.infr[band], self.ref[band])
         self._t.camera = self.camera = camera
@@ -620,33 +605,6 @@ class KeptCut:
             self._settle()
         self.selection = self._selection(camera, ordered)
         return self.selection
-
-    def _due(self, rows: np.ndarray, terms: np.ndarray) -> np.ndarray:
-        """Of the rows whose deadline passed, those whose change from the camera they were last
-        tested at may reach their slack (the direct bound); the others get a later deadline: the
-        slack left over this change, in motion from now on (the triangle inequality again)."""
-        if len(self._cams) > self._cam_limit:  # forget the cameras no node was last tested at
-            used, inv = np.unique(self.cam_id, return_inverse=True)
-            self.cam_id = inv.reshape(-1)
-            self._cams = [self._cams[i] for i in used.tolist()]
-            self._cam_limit = 2 * len(self._cams) + MAX_CAMERAS
-            self._cam_array = None
-        if not len(rows):
-            return rows
-        if self._cam_array is None:
-            self._cam_array = np.asarray(self._cams)
-        # per camera first, then gathered per row (a reduction over 4 planes per row costs more)
-        t, s = _turn_shift(self._cam_array, terms)
-        turn = np.stack([t[:, :4].max(axis=1), t[:, 4:6].max(axis=1), t[:, 6]], axis=1)
-        shift = np.stack([s[:, :4].max(axis=1), s[:, 4:6].max(axis=1), s[:, 6]], axis=1)
-        cid = self.cam_id[rows]
-        bound = turn[cid] * self.reach[rows, None] + shift[cid]
-        slack = self.slack[rows]
-        due = np.any(slack <= bound, axis=1)
-        if not due.all():
-            with np.errstate(invalid="ignore"):  # (inf - finite: inf, never due)
-                self._band.set(rows[~due], slack[~due] - bound[~due])
-        return rows[due]
 
     def _counts(self, camera, base: dict) -> KeptCounts:
         """The counts for ``camera``: ``base`` (the tested nodes') and the transparent level-0
