@@ -320,3 +320,22 @@ def test_the_band_holds_every_node_whose_answer_changed_along_a_path_that_turns_
     finally:
         band_mod.MotionBand.advance = advance
     assert flips > 20, flips  # (the path moved answers)
+
+
+@pytest.mark.parametrize("threshold", [0.5, 1.5])
+def test_a_level_evened_whole_as_the_camera_nears_and_leaves(threshold):
+    """``ProjectedSize.even`` evens a level as one group once enough of it refines: a slow zoom in
+    and out carries levels across that count, and the kept cut - which evens again only the
+    sibling groups a flip touched, and the whole level where the level's count crosses - is the
+    fresh selection's on every frame; the whole-level evening flipped on some of them."""
+    params = RenderParams(policy="projected-size", lod_threshold=threshold)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    dists = np.r_[np.linspace(230, 45, 30), np.linspace(45, 230, 30)]
+    flags, flipped = None, 0
+    for k, dist in enumerate(dists):
+        cam = camera(25 + 0.3 * k, 20, dist)
+        same(kc.update(cam), select(PYR, cam, params, transparent=transparent))
+        now = [bool(kc.policy.evens(*kc._lvl[L])) for L in range(1, kc.tree.top + 1)]
+        flipped += flags is not None and now != flags
+        flags = now
+    assert flipped >= 2, flipped
