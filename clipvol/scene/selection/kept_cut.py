@@ -276,7 +276,9 @@ class KeptCut:
             t, tree = self._t, self.tree
             lo, hi, lv = self.lo[tested], self.hi[tested], self.lv[tested]
             reach = camera._box_reach(lo, hi, 6)  # what boxes_in_frustum tests
-            infr = np.all(reach >= 0, axis=1)
+            side, ends = reach[:, :4].min(axis=1), reach[:, 4:].min(axis=1)
+            low = np.minimum(side, ends)
+            infr = low >= 0  # (every reach >= 0)
             ref = lv > tree.top  # virtual levels are always entered
             dslack = np.full(len(tested), np.inf)
             # (level 0, most of a band, is never refined: no answer, no depth slack)
@@ -287,14 +289,14 @@ class KeptCut:
                 dslack[real] = self._depth_slack(camera, rl, rlo, rhi)
             # a kept node flips when a reach crosses 0 (each group of planes: its smallest), a culled
             # one when its most negative does (only that plane's group can bring it in)
-            side, ends = reach[:, :4].min(axis=1), reach[:, 4:].min(axis=1)
-            worst = reach.argmin(axis=1) < 4
-            out = np.where(infr, np.inf, -np.minimum(side, ends))
             self.infr[tested], self.ref[tested] = infr, ref
-            # rounding of the tests themselves: a node this close to flipping is always re-tested
-            slack[keep] = np.stack([np.where(infr, side, np.where(worst, out, np.inf)),
-                                    np.where(infr, ends, np.where(worst, np.inf, out)), dslack], axis=1) \
-                - 1e-9 * max(1.0, self.radius)
+            # (rounding of the tests themselves: a node this close to flipping is always re-tested)
+            eps = 1e-9 * max(1.0, self.radius)
+            sl = slack[keep]
+            sl[:, 0] = np.where(infr | (side <= ends), np.where(infr, side, -low), np.inf) - eps
+            sl[:, 1] = np.where(infr | (side > ends), np.where(infr, ends, -low), np.inf) - eps
+            sl[:, 2] = dslack - eps
+            slack[keep] = sl
         self.slack[rows] = slack
         self._band.set(rows, slack)
 
