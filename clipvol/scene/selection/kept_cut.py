@@ -8,20 +8,23 @@ re-derives everything else. :class:`KeptCut` keeps the nodes the last traversal 
 arrays (level, index, world box, parent row, the camera-free tests: shape, transparency) and, for a
 new camera:
 
-1. re-tests only the **band**: each node keeps its *slack*, how far (in world units) the camera's
-   frustum planes and the node's nearest depth may move before either test can flip; the change
-   of the camera is bounded per node by the planes' and the view direction's turn times the
-   node's *reach* (how far its farthest corner lies from the volume's centre), plus their shift at
-   the centre (:func:`_turn_shift`; :func:`camera_change` is the bound for the whole volume), summed
-   frame by frame, so each node has a *deadline* in accumulated motion and a frame takes only the
-   nodes whose deadline passed (:class:`~clipvol.scene.selection.band.MotionBand`: no pass over
-   every node);
+1. re-tests only the **band**: each node keeps its *slack* in three channels (the frustum's side
+   planes, its near and far planes, the nearest depth), how far (in world units) each may move
+   before a test can flip; a camera change moves them at a node by at most the planes' and the view
+   direction's turn times the node's *reach* (how far its farthest corner lies from the volume's
+   centre) plus their shift at the centre (:func:`_turn_shift`; :func:`camera_change` is the bound
+   for the whole volume). Summed frame by frame, these bounds give each node a *deadline* in
+   accumulated motion, fixed when it is tested (:class:`~clipvol.scene.selection.band.MotionBand`):
+   a frame takes the nodes whose deadline passed, one fused multiply-compare per node and channel
+   and no list of cameras. The near and far planes are a channel of their own: fitted to the
+   volume each frame, they shift back and forth while an orbit's side planes only turn;
 2. propagates from the nodes whose answers flipped only: a flip changes the evening out
    (``ProjectedSize.even``: per sibling group, then the level as one group) of its own sibling group
    and the level's two counts, and ``reached`` only below the nodes whose "reached and refined"
    changed, walked down through each node's children (a contiguous run of rows); a level whose
-   count flips its whole-level evening is set again whole. The selection's counts and its drawn
-   leaves follow by the difference over the rows this touched;
+   count flips its whole-level evening is set again whole (``ProjectedSize.evens``, the rule per
+   group of ``n`` nodes, ``r`` refined). The selection's counts and its drawn leaves follow by the
+   difference over the rows this touched (:meth:`KeptCut._settle`);
 3. grows the tree below nodes that now refine and had no children yet (the traversal's own
    expansion, per level);
 4. reads the leaves off the arrays (reached, kept, not refined, not transparent) where one changed.
