@@ -67,6 +67,10 @@ from .traversal import Traversal
 
 __all__ = ["KeptCounts", "KeptCut", "camera_change"]
 
+#: cameras kept to bound each node's change from the one it was last tested at; past this many (and
+#: twice those in use at the last pruning), those no node refers to are dropped (one pass over the
+#: rows, so at most once per that many frames)
+MAX_CAMERAS = 64
 #: drop the nodes no longer reached once they outnumber the reached ones and this many (a long
 #: fly-through would otherwise keep every node it ever visited)
 COMPACT_MIN = 4096
@@ -218,6 +222,14 @@ class KeptCut:
         self._band = MotionBand(3)  # each node's deadlines in accumulated motion
         self._band.grow(self.reach)
         self._terms: np.ndarray | None = None  # the last camera's terms (_camera_terms)
+        #: the camera each node was last tested at (a row of ``_cams``, the cameras' terms): a node
+        #: whose deadline passed is re-tested only if its change from that camera may reach its
+        #: slack, else it gets a later deadline (a path that turns back re-tests no more than the
+        #: direct bound says)
+        self.cam_id = np.zeros(1, dtype=np.int64)
+        self._cams = np.zeros((8, 7, 4))
+        self._ncams = 0
+        self._cam_limit = MAX_CAMERAS
         self.camera = None
         self.retested = 0  # nodes re-tested by the last update (the band), for benchmarks and tests
         self.selection: Selection | None = None
@@ -301,6 +313,7 @@ class KeptCut:
             sl[:, 2] = dslack - eps
             slack[keep] = sl
         self.slack[rows] = slack
+        self.cam_id[rows] = self._ncams - 1
         self._band.set(rows, slack)
 
     def _depth_slack(self, camera, level: np.ndarray, lo, hi) -> np.ndarray:
@@ -412,7 +425,8 @@ class KeptCut:
                          first=np.full(m, -1, dtype=np.int64), nchild=np.zeros(m, dtype=np.int64),
                          expanded=no, inside=self._inside(lv, lo, hi), opaque=opaque,
                          mute=self._mute(lv, opaque), infr=no, ref=no, eff=no, slack=np.zeros((m, 3)),
-                         reached=no, live=no, geven=no, _seen=np.full(m, -1, dtype=np.int64))
+                         reached=no, live=no, geven=no, _seen=np.full(m, -1, dtype=np.int64),
+                         cam_id=np.zeros(m, dtype=np.int64))
             for name, new in grown.items():
                 setattr(self, name, np.concatenate([getattr(self, name), new]))
             if self.drawn is not None:
@@ -534,7 +548,7 @@ class KeptCut:
         keep = self.reached
         new = np.cumsum(keep) - 1
         for name in ("lv", "idx", "lo", "hi", "reach", "expanded", "inside", "opaque", "mute", "infr", "ref", "eff",
-                     "slack", "reached", "live", "geven", "first", "nchild", "_seen"):
+                     "slack", "reached", "live", "geven", "first", "nchild", "_seen", "cam_id"):
             setattr(self, name, getattr(self, name)[keep])
         if self.drawn is not None:
             self.drawn = self.drawn[keep]
@@ -578,7 +592,8 @@ class KeptCut:
             turn = np.array([t[:4].max(), t[4:6].max(), t[6]])
             shift = np.array([s[:4].max(), s[4:6].max(), s[6]])
         self._terms = terms
-        band = self._band.advance(turn, shift)
+        self._add_camera(terms)
+        band = self._due(self._band.advance(turn, shift), terms)
         self._touch(band)
         was = (self.infr[band], self.ref[band])
         self._t.camera = self.camera = camera
@@ -610,6 +625,38 @@ class KeptCut:
             self._settle()
         self.selection = self._selection(camera, ordered)
         return self.selection
+
+    def _add_camera(self, terms: np.ndarray) -> None:
+        """Append a camera's terms (the nodes tested from now on refer to it); past the limit, first
+        drop the cameras no node refers to (a pass over the rows, at most once per ``MAX_CAMERAS``
+        frames: the limit is then twice the cameras left, plus ``MAX_CAMERAS``)."""
+        if self._ncams >= self._cam_limit:
+            used, inv = np.unique(self.cam_id, return_inverse=True)
+            self.cam_id = inv.reshape(-1)
+            self._cams[:len(used)] = self._cams[used]
+            self._ncams = len(used)
+            self._cam_limit = 2 * self._ncams + MAX_CAMERAS
+        if self._ncams == len(self._cams):
+            self._cams = np.concatenate([self._cams, np.zeros_like(self._cams)])
+        self._cams[self._ncams] = terms
+        self._ncams += 1
+
+    def _due(self, rows: np.ndarray, terms: np.ndarray) -> np.ndarray:
+        """Of the rows whose deadline passed, those whose change from the camera they were last
+        tested at may reach their slack (the direct bound, per camera then gathered); the others
+        get a later deadline: the slack left over that change, in motion from now on (the triangle
+        inequality again)."""
+        if not len(rows):
+            return rows
+        t, s = _turn_shift(self._cams[:self._ncams], terms)
+        per = np.concatenate([t[:, :4].max(axis=1, keepdims=True), t[:, 4:6].max(axis=1, keepdims=True), t[:, 6:],
+                              s[:, :4].max(axis=1, keepdims=True), s[:, 4:6].max(axis=1, keepdims=True), s[:, 6:]],
+                             axis=1)[self.cam_id[rows]]
+        left = self.slack[rows] - (per[:, :3] * self.reach[rows, None] + per[:, 3:])
+        due = np.any(left <= 0, axis=1)
+        if not due.all():
+            self._band.set(rows[~due], left[~due])
+        return rows[due]
 
     def _counts(self, camera, base: dict) -> KeptCounts:
         """The counts for ``camera``: ``base`` (the tested nodes') and the transparent level-0
