@@ -281,21 +281,21 @@ def test_a_motion_bands_deadlines_are_the_summed_per_frame_bounds():
 
 def test_the_band_holds_every_node_whose_answer_changed_along_a_path_that_turns_back():
     """Every kept node whose frustum or refine answer for the new camera differs from the one it
-    holds is re-tested (in the band), frame by frame along a camera swinging back and forth and
-    drifting (the sum of per-frame bounds grows while the camera returns), checked against each
-    node tested afresh with the traversal's own tests; and the cut stays the fresh selection's."""
-    from clipvol.scene.selection import band as band_mod, kept_cut
-
+    holds is re-tested (in the band: its deadline in accumulated motion passed, and the direct
+    bound from the camera it was tested at reaches its slack), frame by frame along a camera
+    swinging back and forth and drifting (the sum of per-frame bounds grows while the camera
+    returns), checked against each node tested afresh with the traversal's own tests; and the cut
+    stays the fresh selection's."""
     params = RenderParams(policy="projected-size", lod_threshold=0.1)
     kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
     got: list = []
-    advance = band_mod.MotionBand.advance
+    due = KeptCut._due
 
-    def recorded(self, turn, shift):
-        got.append(advance(self, turn, shift))
+    def recorded(self, rows, terms):  # (the band: the rows whose deadline passed, checked)
+        got.append(due(self, rows, terms))
         return got[-1]
 
-    band_mod.MotionBand.advance = recorded
+    KeptCut._due = recorded
     try:
         flips = 0
         for k in range(80):
@@ -318,7 +318,7 @@ def test_the_band_holds_every_node_whose_answer_changed_along_a_path_that_turns_
             assert set(np.flatnonzero(changed).tolist()) <= set(got[-1].tolist()), k
             same(kc.update(cam), select(PYR, cam, params, transparent=transparent))
     finally:
-        band_mod.MotionBand.advance = advance
+        KeptCut._due = due
     assert flips > 20, flips  # (the path moved answers)
 
 
@@ -339,3 +339,24 @@ def test_a_level_evened_whole_as_the_camera_nears_and_leaves(threshold):
         flipped += flags is not None and now != flags
         flags = now
     assert flipped >= 2, flipped
+
+
+def test_a_long_path_past_the_kept_cameras_prunes_them_and_keeps_the_cut(monkeypatch):
+    """Each node refers to the camera it was last tested at (its direct bound); past
+    ``MAX_CAMERAS`` cameras those no node refers to are dropped and the others renumbered, at most
+    once per that many frames. Along a path of small moves several times that long, every frame's
+    cut is the fresh selection's, the cameras stay bounded and were pruned more than once."""
+    from clipvol.scene.selection import kept_cut
+
+    monkeypatch.setattr(kept_cut, "MAX_CAMERAS", 6)
+    params = RenderParams(policy="projected-size", lod_threshold=0.1)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    rng = np.random.default_rng(21)
+    prunes, most = 0, 0
+    for k, cam in enumerate(path(rng, 70, 1.5)):
+        was = kc._ncams
+        same(kc.update(cam), select(PYR, cam, params, transparent=transparent))
+        prunes += kc._ncams <= was
+        most = max(most, kc._ncams)
+        assert kc.cam_id.max() < kc._ncams
+    assert prunes >= 3 and most < 70, (prunes, most)
