@@ -15,9 +15,11 @@ new camera:
    centre) plus their shift at the centre (:func:`_turn_shift`; :func:`camera_change` is the bound
    for the whole volume). Summed frame by frame, these bounds give each node a *deadline* in
    accumulated motion, fixed when it is tested (:class:`~clipvol.scene.selection.band.MotionBand`):
-   a frame takes the nodes whose deadline passed, one fused multiply-compare per node and channel
-   and no list of cameras. The near and far planes are a channel of their own: fitted to the
-   volume each frame, they shift back and forth while an orbit's side planes only turn;
+   a frame takes the nodes whose deadline passed (one fused multiply-compare per node and
+   channel) and re-tests those whose change from the camera they were tested at may reach their
+   slack, giving the others a later deadline. The near and far planes are a channel of their own:
+   fitted to the volume each frame, they shift back and forth while an orbit's side planes only
+   turn;
 2. propagates from the nodes whose answers flipped only: a flip changes the evening out
    (``ProjectedSize.even``: per sibling group, then the level as one group) of its own sibling group
    and the level's two counts, and ``reached`` only below the nodes whose "reached and refined"
