@@ -582,9 +582,10 @@ class KeptCut:
             return self.selection
         terms = _camera_terms(camera, self.centre)
         last = self.camera
-        if last is not None and (last.orthographic != camera.orthographic
-                                 or float(last.pixels_per_unit(1.0)) != float(camera.pixels_per_unit(1.0))):
-            self._band.everything()  # another lens or image size: the depth limits moved, test everything
+        lens = last is not None and (last.orthographic != camera.orthographic
+                                     or float(last.pixels_per_unit(1.0)) != float(camera.pixels_per_unit(1.0)))
+        if lens:  # another lens or image size: the depth limits moved, every slack is void: test everything
+            self._band.everything()
         if self._terms is None:
             turn = shift = np.zeros(3)
         else:  # this frame's move: the largest turn and shift of the side planes, of the near and far
@@ -595,7 +596,9 @@ class KeptCut:
             shift = np.array([s[:4].max(), s[4:6].max(), s[6]])
         self._terms = terms
         self._add_camera(terms)
-        band = self._due(self._band.advance(turn, shift), terms)
+        band = self._band.advance(turn, shift)
+        if not lens:
+            band = self._due(band, terms)
         self._touch(band)
         was = (self.infr[band], self.ref[band])
         self._t.camera = self.camera = camera
