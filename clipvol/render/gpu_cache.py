@@ -75,6 +75,13 @@ from ..scene.occupancy import cell_edges, cell_ranges, occupancy, widen
 from ..scene.selection.cut import DrawItems
 from .region_windows import region_gpu_windows
 
+#: per face ``(axis, side)`` in :meth:`GpuBrickCache.open_faces`'s order, the row of its neighbour in
+#: ``NEIGHBOUR_OFFSETS`` and the rows of the 3x3 slab behind it (made once: a call asks for a few
+#: bricks on most frames, where building these per face cost most of the call)
+_FACE = np.array([int(np.flatnonzero(np.all(NEIGHBOUR_OFFSETS == np.eye(3, dtype=np.int64)[a] * d, axis=1))[0])
+                  for a in range(3) for d in (-1, 1)])
+_SLAB = np.array([np.flatnonzero(NEIGHBOUR_OFFSETS[:, a] == d) for a in range(3) for d in (-1, 1)])
+
 __all__ = ["GpuBrickCache", "TextureFormat", "texture_format", "t_scale_offset", "texel_to_raw", "allocate_gpu_windows"]
 
 
@@ -808,13 +815,9 @@ class GpuBrickCache:
             away = exists & ~ok
             if away.any():
                 ok[away] = np.asarray(self._clip.out_of_reach_mask(level, nb[away]), dtype=bool)
-        for a in range(3):
-            for side, d in ((0, -1), (1, 1)):
-                slab = offs[:, a] == d
-                face = np.all(offs == (np.eye(3, dtype=np.int64)[a] * d), axis=1)
-                face_exists = exists[:, face][:, 0]
-                # a slab neighbour that duplicates a wrapped slot (w < 3 on an axis) is never both held
-                out[:, a, side] = face_exists & np.all(ok[:, slab], axis=1) & (w[a] >= 2)
+        # every face at once: its neighbour's existence and its 3x3 slab (a slab neighbour that
+        # duplicates a wrapped slot, w < 3 on an axis, is never both held)
+        out[:] = (exists[:, _FACE] & np.all(ok[:, _SLAB], axis=2)).reshape(-1, 3, 2) & (w >= 2)[None, :, None]
         return out
 
     def occupancy_texture(self, tf, data_range, distribution: bool = False):

@@ -237,3 +237,142 @@ def test_the_propagation_kept_between_frames_is_the_full_propagation_along_rando
         np.testing.assert_array_equal(kc.eff, full.eff)
         partial += kc.retested < len(kc.lv)
     assert partial > 20
+
+
+def test_a_motion_bands_deadlines_are_the_summed_per_frame_bounds():
+    """``MotionBand`` against the sum it stands for, accumulated row by row in plain numpy: after
+    each frame, a row is due exactly when the per-frame bounds ``turn * reach + shift`` summed
+    since its deadline was set reach its slack (in some channel), rows set again mid-way counting
+    from then; rows grown later join, and a compaction keeps the rest's deadlines."""
+    from clipvol.scene.selection.band import MotionBand
+
+    rng = np.random.default_rng(3)
+    band = MotionBand(3)
+    reach = rng.uniform(0, 50, 400)
+    band.grow(reach)
+    slack = rng.uniform(0, 30, (400, 3))
+    slack[rng.random((400, 3)) < 0.1] = np.inf  # (never due through that channel)
+    band.set(np.arange(400), slack)
+    moved = np.zeros((400, 3))  # the bound summed since each row's slack was measured
+    for frame in range(60):
+        turn, shift = rng.uniform(0, 0.05, 3), rng.uniform(0, 0.5, 3) * (rng.random(3) < 0.5)
+        got = band.advance(turn, shift)
+        moved += reach[:, None] * turn[None] + shift[None]
+        want = np.any(moved >= slack, axis=1)
+        clear = np.all(np.abs(moved - slack) > 1e-9, axis=1) | np.isinf(slack).all(axis=1)  # (no rounding tie)
+        np.testing.assert_array_equal(np.isin(np.arange(len(reach)), got)[clear], want[clear])
+        again = np.union1d(got, rng.choice(len(reach), 20, replace=False))  # (tested again: the kept cut's band)
+        slack[again] = rng.uniform(0, 30, (len(again), 3))
+        moved[again] = 0.0
+        band.set(again, slack[again])
+        if frame == 20:  # new rows, due until set
+            new = rng.uniform(0, 50, 50)
+            band.grow(new)
+            assert set(band.advance(np.zeros(3), np.zeros(3)).tolist()) >= set(range(400, 450))
+            reach = np.concatenate([reach, new])
+            slack = np.concatenate([slack, rng.uniform(0, 30, (50, 3))])
+            moved = np.concatenate([moved, np.zeros((50, 3))])
+            band.set(np.arange(400, 450), slack[400:])
+        if frame == 40:  # a compaction: the kept rows' deadlines renumbered with them
+            keep = rng.random(len(reach)) < 0.7
+            band.take(keep)
+            reach, slack, moved = reach[keep], slack[keep], moved[keep]
+
+
+def test_the_band_holds_every_node_whose_answer_changed_along_a_path_that_turns_back():
+    """Every kept node whose frustum or refine answer for the new camera differs from the one it
+    holds is re-tested (in the band: its deadline in accumulated motion passed, and the direct
+    bound from the camera it was tested at reaches its slack), frame by frame along a camera
+    swinging back and forth and drifting (the sum of per-frame bounds grows while the camera
+    returns), checked against each node tested afresh with the traversal's own tests; and the cut
+    stays the fresh selection's."""
+    params = RenderParams(policy="projected-size", lod_threshold=0.1)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    got: list = []
+    due = KeptCut._due
+
+    def recorded(self, rows, terms):  # (the band: the rows whose deadline passed, checked)
+        got.append(due(self, rows, terms))
+        return got[-1]
+
+    KeptCut._due = recorded
+    try:
+        flips = 0
+        for k in range(80):
+            cam = camera(30 + 6 * np.sin(k / 3.0), 15 + 0.1 * k, 120 - 0.4 * k)
+            n0 = len(kc.lv)
+            held = (kc.infr[:n0].copy(), kc.ref[:n0].copy(), kc.mute[:n0].copy())
+            lo, hi, lv = kc.lo[:n0].copy(), kc.hi[:n0].copy(), kc.lv[:n0].copy()
+            kc.update(cam, ordered=False)
+            if k == 0:
+                continue
+            infr = np.asarray(cam.boxes_in_frustum(lo, hi), dtype=bool)
+            t = kc._t
+            ref = np.zeros(n0, dtype=bool)
+            for L in np.unique(lv).tolist():
+                m = lv == L
+                ref[m] = L > kc.tree.top if L > kc.tree.top else \
+                    (kc.policy.need(t, L, lo[m], hi[m]) if L > 0 else False)
+            changed = ((infr != held[0]) | (ref != held[1])) & ~held[2]
+            flips += int(changed.sum())
+            assert set(np.flatnonzero(changed).tolist()) <= set(got[-1].tolist()), k
+            same(kc.update(cam), select(PYR, cam, params, transparent=transparent))
+    finally:
+        KeptCut._due = due
+    assert flips > 20, flips  # (the path moved answers)
+
+
+@pytest.mark.parametrize("threshold", [0.5, 1.5])
+def test_a_level_evened_whole_as_the_camera_nears_and_leaves(threshold):
+    """``ProjectedSize.even`` evens a level as one group once enough of it refines: a slow zoom in
+    and out carries levels across that count, and the kept cut - which evens again only the
+    sibling groups a flip touched, and the whole level where the level's count crosses - is the
+    fresh selection's on every frame; the whole-level evening flipped on some of them."""
+    params = RenderParams(policy="projected-size", lod_threshold=threshold)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    dists = np.r_[np.linspace(230, 45, 30), np.linspace(45, 230, 30)]
+    flags, flipped = None, 0
+    for k, dist in enumerate(dists):
+        cam = camera(25 + 0.3 * k, 20, dist)
+        same(kc.update(cam), select(PYR, cam, params, transparent=transparent))
+        now = [bool(kc.policy.evens(*kc._lvl[L])) for L in range(1, kc.tree.top + 1)]
+        flipped += flags is not None and now != flags
+        flags = now
+    assert flipped >= 2, flipped
+
+
+def test_a_long_path_past_the_kept_cameras_prunes_them_and_keeps_the_cut(monkeypatch):
+    """Each node refers to the camera it was last tested at (its direct bound); past
+    ``MAX_CAMERAS`` cameras those no node refers to are dropped and the others renumbered, at most
+    once per that many frames. Along a path of small moves several times that long, every frame's
+    cut is the fresh selection's, the cameras stay bounded and were pruned more than once."""
+    from clipvol.scene.selection import kept_cut
+
+    monkeypatch.setattr(kept_cut, "MAX_CAMERAS", 6)
+    params = RenderParams(policy="projected-size", lod_threshold=0.1)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    rng = np.random.default_rng(21)
+    prunes, most = 0, 0
+    for k, cam in enumerate(path(rng, 70, 1.5)):
+        was = kc._ncams
+        same(kc.update(cam), select(PYR, cam, params, transparent=transparent))
+        prunes += kc._ncams <= was
+        most = max(most, kc._ncams)
+        assert kc.cam_id.max() < kc._ncams
+    assert prunes >= 3 and most < 70, (prunes, most)
+
+
+def test_another_lens_or_image_size_tests_every_node_again():
+    """A camera of another lens or image size moves every depth limit: every kept node is due
+    at once (``MotionBand.everything``), and the cut is the fresh selection's across the changes."""
+    params = RenderParams(policy="projected-size", lod_threshold=0.1)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    for k, (fov, size) in enumerate([(35, (32, 32)), (35, (32, 32)), (20, (32, 32)), (20, (64, 48)),
+                                     (50, (64, 48)), (50, (64, 48))]):
+        cam = camera(40 + 0.5 * k, 10, 120, fov=fov, size=size)
+        n0 = len(kc.lv)
+        same(kc.update(cam), select(PYR, cam, params, transparent=transparent))
+        if k in (2, 3, 4):  # (a slack of the old lens says nothing: none may defer a node)
+            assert kc.retested == n0, (k, kc.retested, n0)
+        elif k == 5:
+            assert kc.retested < n0 // 4

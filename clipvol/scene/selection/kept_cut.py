@@ -8,19 +8,28 @@ re-derives everything else. :class:`KeptCut` keeps the nodes the last traversal 
 arrays (level, index, world box, parent row, the camera-free tests: shape, transparency) and, for a
 new camera:
 
-1. re-tests only the **band**: each node keeps its *slack*, how far (in world units) the camera's
-   frustum planes and the node's nearest depth may move before either test can flip, and the
-   camera it was last tested at; the change from that camera to this one is bounded per node by
-   the planes' and the view direction's turn times the node's *reach* (how far its farthest
-   corner lies from the volume's centre), plus their shift at the centre (:func:`_turn_shift`;
-   :func:`camera_change` is the bound for the whole volume), so a node whose slack exceeds its
-   bound keeps its answers untested - and a node near the centre moves less than the corners;
-2. propagates "reached" through the parents' answers (one gather per level) from the coarsest
-   level whose answers flipped down (the levels above keep theirs), and sets level 0 - most of
-   the nodes, never refined - again only under the level-1 nodes whose answer changed;
+1. re-tests only the **band**: each node keeps its *slack* in three channels (the frustum's side
+   planes, its near and far planes, the nearest depth), how far (in world units) each may move
+   before a test can flip; a camera change moves them at a node by at most the planes' and the view
+   direction's turn times the node's *reach* (how far its farthest corner lies from the volume's
+   centre) plus their shift at the centre (:func:`_turn_shift`; :func:`camera_change` is the bound
+   for the whole volume). Summed frame by frame, these bounds give each node a *deadline* in
+   accumulated motion, fixed when it is tested (:class:`~clipvol.scene.selection.band.MotionBand`):
+   a frame takes the nodes whose deadline passed (one fused multiply-compare per node and
+   channel) and re-tests those whose change from the camera they were tested at may reach their
+   slack, giving the others a later deadline. The near and far planes are a channel of their own:
+   fitted to the volume each frame, they shift back and forth while an orbit's side planes only
+   turn;
+2. propagates from the nodes whose answers flipped only: a flip changes the evening out
+   (``ProjectedSize.even``: per sibling group, then the level as one group) of its own sibling group
+   and the level's two counts, and ``reached`` only below the nodes whose "reached and refined"
+   changed, walked down through each node's children (a contiguous run of rows); a level whose
+   count flips its whole-level evening is set again whole (``ProjectedSize.evens``, the rule per
+   group of ``n`` nodes, ``r`` refined). The selection's counts and its drawn leaves follow by the
+   difference over the rows this touched (:meth:`KeptCut._settle`);
 3. grows the tree below nodes that now refine and had no children yet (the traversal's own
    expansion, per level);
-4. reads the leaves off the arrays: reached, kept, not refined, not transparent.
+4. reads the leaves off the arrays (reached, kept, not refined, not transparent) where one changed.
 
 A transparent level-0 node (most of a band beside the frustum's side planes: air around the data)
 is never drawn and never refined, so its frustum answer changes nothing but the selection's
@@ -51,6 +60,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from ...rows import unique_rows
+from .band import MotionBand, sorted_unique
 from .cut import BrickKeys, DrawItems, Selection
 from .octree import Octree
 from .order import depth_first, load_order, order_nodes
@@ -59,8 +69,9 @@ from .traversal import Traversal
 
 __all__ = ["KeptCounts", "KeptCut", "camera_change"]
 
-#: cameras kept to bound each node's change from the one it was last tested at; past this many,
-#: those no node refers to are dropped (and if still more, every node is tested again)
+#: cameras kept to bound each node's change from the one it was last tested at; past this many (and
+#: twice those in use at the last pruning), those no node refers to are dropped (one pass over the
+#: rows, so at most once per that many frames)
 MAX_CAMERAS = 64
 #: drop the nodes no longer reached once they outnumber the reached ones and this many (a long
 #: fly-through would otherwise keep every node it ever visited)
@@ -142,6 +153,20 @@ class KeptCounts(Mapping):
         return self
 
 
+def _runs(first: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """The rows ``first[i] .. first[i] + count[i] - 1`` of every ``i``, concatenated (a node's
+    children are one such run)."""
+    total = int(count.sum())
+    if not total:
+        return np.zeros(0, dtype=np.int64)
+    ends = np.cumsum(count)
+    return np.arange(total, dtype=np.int64) + np.repeat(first - (ends - count), count)
+
+
+#: the selection's counts kept by differences over the touched rows (:meth:`KeptCut._tally`)
+_TALLIED = ("visited", "culled_frustum", "culled_shape", "culled_transparent", "refined", "drawn")
+
+
 class KeptCut:
     """The nodes a projected-size traversal visited, kept as flat arrays, and updated per camera.
 
@@ -160,22 +185,26 @@ class KeptCut:
         self.params, self.policy = params, policy
         self._t = Traversal(tree, None, params, policy, residency, transparent)
         self.transparent, self.shape = transparent, params.shape
-        # a policy whose cut is the level-by-level descent and whose refine answer is a nearest-depth
-        # limit per level (it says so with ``depth_threshold``): the projected size
+        # a policy whose cut is the level-by-level descent, whose refine answer is a nearest-depth
+        # limit per level (it says so with ``depth_threshold``) and whose evening out is per sibling
+        # group and then per level (``evens``): the projected size
         self.supported = (getattr(policy, "keep", None) is None and params.max_texels_drawn is None
                           and getattr(policy, "depth_threshold", None) is not None
                           and getattr(policy, "need", None) is not None and getattr(policy, "even", None) is not None
+                          and getattr(policy, "evens", None) is not None
                           and getattr(type(policy), "cut", None) is RefinePolicy.cut)
         vlo, vhi = pyramid.volume_box()
         self.centre = (vlo + vhi) / 2.0
         self.radius = float(np.linalg.norm(vhi - vlo)) / 2.0
-        # the rows: one per visited node (parents before children)
+        # the rows: one per visited node (parents before children; a node's children one run of rows)
         self.lv = np.zeros(1, dtype=np.int64)
         self.lv[0] = tree.root
         self.idx = np.zeros((1, 3), dtype=np.int64)
         self.lo, self.hi = tree.boxes(tree.root, self.idx)
         self.reach = self._reach(self.lo, self.hi)  # how far each node's corners lie from the centre
         self.parent = np.full(1, -1, dtype=np.int64)
+        self.first = np.full(1, -1, dtype=np.int64)  # each node's first child row (-1: none)
+        self.nchild = np.zeros(1, dtype=np.int64)  # and how many children rows follow it
         self.expanded = np.zeros(1, dtype=bool)
         self.inside = self._inside(self.lv, self.lo, self.hi)  # not outside the shape (camera-free)
         self.opaque = self._opaque(self.lv, self.idx)
@@ -184,26 +213,41 @@ class KeptCut:
         self.infr = np.zeros(1, dtype=bool)
         self.ref = np.zeros(1, dtype=bool)  # the rule node by node (policy.need), tested in the band
         self.eff = np.zeros(1, dtype=bool)  # refined: ``ref`` evened out over each level (policy.even)
-        self.slack = np.full((1, 2), -np.inf)  # (frustum, depth) slack against the reference camera
+        self.slack = np.full((1, 3), -np.inf)  # (side planes, near and far, depth) slack at its last test
         self.reached = np.ones(1, dtype=bool)
-        self.cam_id = np.zeros(1, dtype=np.int64)  # the camera (in _cams) each node was last tested at
-        self._cams: list[np.ndarray] = []
+        #: what the evening out counted: reached and kept (``live``), and ``ref`` evened out in its
+        #: sibling group (``geven``); per level, how many of each (``_lvl``): a flip evens again only
+        #: its own group and the level's two counts
+        self.live = np.zeros(1, dtype=bool)
+        self.geven = np.zeros(1, dtype=bool)
+        self._lvl = np.zeros((tree.root + 1, 2), dtype=np.int64)
+        self._band = MotionBand(3)  # each node's deadlines in accumulated motion
+        self._band.grow(self.reach)
+        self._terms: np.ndarray | None = None  # the last camera's terms (_camera_terms)
+        #: the camera each node was last tested at (a row of ``_cams``, the cameras' terms): a node
+        #: whose deadline passed is re-tested only if its change from that camera may reach its
+        #: slack, else it gets a later deadline (a path that turns back re-tests no more than the
+        #: direct bound says)
+        self.cam_id = np.zeros(1, dtype=np.int64)
+        self._cams = np.zeros((8, 7, 4))
+        self._ncams = 0
+        self._cam_limit = MAX_CAMERAS
         self.camera = None
         self.retested = 0  # nodes re-tested by the last update (the band), for benchmarks and tests
         self.selection: Selection | None = None
-        #: per row, drawn by :attr:`selection` (None: not known row by row, after a compaction)
+        #: per row, drawn by :attr:`selection` (None: not counted yet)
         self.drawn: np.ndarray | None = None
-        #: ``(lv, rows of each level)`` for the ``lv`` array it was made from, and per level the
-        #: last evening out ``(live rows, their answers, evened, their sibling groups)``: :meth:`_propagate`
-        #: evens again only a level whose reached nodes or answers changed (most of a small move's
-        #: levels keep both), and keeps the groups while the nodes are the same
+        self._count = np.zeros(len(_TALLIED), dtype=np.int64)  # the tested rows' counts (_TALLIED)
+        self._leaves_changed = True  # a drawn flag changed since the last selection's items
+        #: the rows an update touched, with their (reached, infr, eff) before it: the counts and the
+        #: drawn flags follow by the difference over these rows alone (:meth:`_settle`)
+        self._touched: list = []
+        self._seen = np.full(1, -1, dtype=np.int64)
+        self._serial = 0
+        #: ``(lv, rows of each level)`` for the ``lv`` array it was made from
         self._levels: tuple | None = None
-        self._evened: dict = {}
         #: the policy's sibling groups of a level's nodes (camera-free), where it tells them apart
         self._groups = getattr(policy, "sibling_groups", None)
-        #: level 0's ``reached`` was set by a full pass over the rows :attr:`_levels` holds (a new row
-        #: or a renumbering sets it again in full)
-        self._level0 = False
 
     # -- the camera-free tests -------------------------------------------------------------------
     def _reach(self, lo, hi) -> np.ndarray:
@@ -228,72 +272,137 @@ class KeptCut:
     def _mute(lv, opaque) -> np.ndarray:
         return (lv == 0) & ~opaque
 
+    def _level_rows(self) -> list:
+        """The rows of each level (kept with the ``lv`` array they were found in)."""
+        if self._levels is None or self._levels[0] is not self.lv:
+            order = np.argsort(self.lv, kind="stable")
+            ends = np.searchsorted(self.lv[order], np.arange(self.tree.root + 2))
+            self._levels = (self.lv, [order[ends[L]:ends[L + 1]] for L in range(self.tree.root + 1)])
+        return self._levels[1]
+
     # -- the camera's tests ----------------------------------------------------------------------
     def _test(self, rows: np.ndarray, camera) -> None:
-        """The frustum and refine answers of ``rows`` for ``camera`` (the last of ``_cams``), and
-        their slacks: how much either may change before an answer can flip. Transparent level-0 rows
-        are not tested (their answers are only counted, :class:`KeptCounts`): their slack is
-        infinite, so no band holds them."""
-        mute = self.mute[rows]
-        if mute.any():
-            self.slack[rows[mute]] = np.inf
-            rows = rows[~mute]
-        if not len(rows):
-            return
-        t, tree = self._t, self.tree
-        lo, hi, lv = self.lo[rows], self.hi[rows], self.lv[rows]
-        reach = camera._box_reach(lo, hi, 6)  # what boxes_in_frustum tests
-        infr = np.all(reach >= 0, axis=1)
-        ref = np.zeros(len(rows), dtype=bool)
-        dslack = np.full(len(rows), np.inf)
-        f = np.asarray(camera.forward, dtype=np.float64)
-        up = np.nonzero(lv > 0)[0]  # (level 0, most of a band, is never refined: no answer, no depth slack)
-        if len(up):
-            ulv = lv[up]
-            for L in np.unique(ulv).tolist():
-                m = up[ulv == L]
-                if L > tree.top:
-                    ref[m] = True  # virtual levels are always entered
-                else:
-                    ref[m] = self.policy.need(t, L, lo[m], hi[m])
-                    dslack[m] = self._depth_slack(camera, f, L, lo[m], hi[m])
-        # a kept node flips when its smallest reach crosses 0, a culled one when its most negative does
-        fslack = np.where(infr, reach.min(axis=1), -np.where(reach < 0, reach, 0).min(axis=1))
-        self.infr[rows], self.ref[rows] = infr, ref
-        # rounding of the tests themselves: a node this close to flipping is always re-tested
-        self.slack[rows] = np.stack([fslack, dslack], axis=1) - 1e-9 * max(1.0, self.radius)
-        self.cam_id[rows] = len(self._cams) - 1
+        """The frustum and refine answers of ``rows`` for ``camera``, all levels at once, and their
+        slacks: how much either may change before an answer can flip (their deadlines in the
+        band). Transparent level-0 rows are not tested (their answers are only counted,
+        :class:`KeptCounts`): their slack is infinite, so no band holds them."""
+        slack = np.full((len(rows), 3), np.inf)
+        keep = ~self.mute[rows]
+        tested = rows[keep]
+        if len(tested):
+            t, tree = self._t, self.tree
+            lo, hi, lv = self.lo[tested], self.hi[tested], self.lv[tested]
+            reach = camera._box_reach(lo, hi, 6)  # what boxes_in_frustum tests
+            side, ends = reach[:, :4].min(axis=1), reach[:, 4:].min(axis=1)
+            low = np.minimum(side, ends)
+            infr = low >= 0  # (every reach >= 0)
+            ref = lv > tree.top  # virtual levels are always entered
+            dslack = np.full(len(tested), np.inf)
+            # (level 0, most of a band, is never refined: no answer, no depth slack)
+            real = np.nonzero((lv > 0) & (lv <= tree.top))[0]
+            if len(real):
+                rl, rlo, rhi = lv[real], lo[real], hi[real]
+                ref[real] = self.policy.need(t, rl, rlo, rhi)
+                dslack[real] = self._depth_slack(camera, rl, rlo, rhi)
+            # a kept node flips when a reach crosses 0 (each group of planes: its smallest), a culled
+            # one when its most negative does (only that plane's group can bring it in)
+            self.infr[tested], self.ref[tested] = infr, ref
+            # (rounding of the tests themselves: a node this close to flipping is always re-tested)
+            eps = 1e-9 * max(1.0, self.radius)
+            sl = slack[keep]
+            sl[:, 0] = np.where(infr | (side <= ends), np.where(infr, side, -low), np.inf) - eps
+            sl[:, 1] = np.where(infr | (side > ends), np.where(infr, ends, -low), np.inf) - eps
+            sl[:, 2] = dslack - eps
+            slack[keep] = sl
+        self.slack[rows] = slack
+        self.cam_id[rows] = self._ncams - 1
+        self._band.set(rows, slack)
 
-    def _depth_slack(self, camera, f, level: int, lo, hi) -> np.ndarray:
-        """How far a node's nearest depth may move before the projected-size policy's answer can
-        flip (infinite where it cannot: level 0; every box of an orthographic camera)."""
+    def _depth_slack(self, camera, level: np.ndarray, lo, hi) -> np.ndarray:
+        """How far each node's nearest depth may move before the projected-size policy's answer
+        can flip (``level``: each node's; infinite for every box of an orthographic camera)."""
         if camera.orthographic:  # the answer does not depend on depth (the lens is checked in update)
             return np.full(len(lo), np.inf)
+        f = np.asarray(camera.forward, dtype=np.float64)
         c, h = (lo + hi) * 0.5 - camera.eye, (hi - lo) * 0.5
         dc, dh = c @ f, h @ np.abs(f)
         dmin, dmax = dc - dh, dc + dh
-        limit = self.policy.depth_threshold(camera, self.tree.voxel(level))
+        limits = np.array([self.policy.depth_threshold(camera, self.tree.voxel(L)) if 0 < L <= self.tree.top
+                           else 0.0 for L in range(self.tree.top + 1)])
+        limit = limits[level]
         # refined while 0 < dmin < limit or dmin <= 0 (the eye plane crosses it); not once dmax <= 0
-        return np.minimum(np.abs(dmin - limit), np.abs(dmax)) - 1e-9 * max(1.0, abs(limit))
+        return np.minimum(np.abs(dmin - limit), np.abs(dmax)) - 1e-9 * np.maximum(1.0, np.abs(limit))
 
     # -- the update ------------------------------------------------------------------------------
-    def _grow(self, camera, propagated: bool = False) -> bool:
-        """Expand every reached, kept, refined node without children yet, level by level (the
-        traversal's own expansion), propagating after each round (the new level's nodes decide,
-        evened out together, what is refined there); False where a child lies outside the window.
-        ``propagated``: the answers were propagated since they last changed (no first round)."""
+    def _touch(self, rows: np.ndarray) -> None:
+        """Note ``(reached, infr, eff)`` of the rows not noted yet since the last :meth:`_settle`."""
+        new = rows[self._seen[rows] != self._serial]
+        if len(new):
+            self._seen[new] = self._serial
+            self._touched.append((new, self.reached[new], self.infr[new], self.eff[new]))
+
+    def _tally(self, rows: np.ndarray, reached, infr, eff) -> np.ndarray:
+        """The rows' part of each count of :data:`_TALLIED` for these ``reached``, ``infr``, ``eff``
+        (the traversal's counts; transparent level-0 rows are counted by :class:`KeptCounts`)."""
+        mute, inside, opaque, lv = self.mute[rows], self.inside[rows], self.opaque[rows], self.lv[rows]
+        tested = reached & ~mute
+        kept = reached & infr & inside
+        leaf = kept & ~eff
+        return np.array([np.count_nonzero(reached), np.count_nonzero(tested & ~infr),
+                         np.count_nonzero(tested & infr & ~inside), np.count_nonzero(leaf & ~opaque & ~mute),
+                         np.count_nonzero(kept & eff & (lv <= self.tree.top) & (lv > 0)),
+                         np.count_nonzero(leaf & opaque)], dtype=np.int64)
+
+    def _drawn(self, rows: np.ndarray) -> np.ndarray:
+        return self.reached[rows] & self.infr[rows] & self.inside[rows] & ~self.eff[rows] & self.opaque[rows]
+
+    def _settle(self) -> None:
+        """The counts and drawn flags moved by what the touched rows changed (their difference)."""
+        if self._touched:
+            rows = np.concatenate([t[0] for t in self._touched])
+            was = [np.concatenate([t[k] for t in self._touched]) for k in (1, 2, 3)]
+            self._count += self._tally(rows, self.reached[rows], self.infr[rows], self.eff[rows]) \
+                - self._tally(rows, *was)
+            d = self._drawn(rows)
+            if np.any(d != self.drawn[rows]):
+                self.drawn[rows] = d
+                self._leaves_changed = True
+        self._touched = []
+        self._serial += 1
+
+    def _recount(self) -> None:
+        """The counts, drawn flags and evening counts over every row (after a propagation from nothing)."""
+        rows = np.arange(len(self.lv))
+        self._count = self._tally(rows, self.reached, self.infr, self.eff)
+        self.drawn = self._drawn(rows)
+        self._leaves_changed = True
+        self._touched = []
+        self._serial += 1
+        tree, rows_of = self.tree, self._level_rows()
+        self.live = self.reached & self.infr & self.inside
+        self.geven = np.zeros(len(self.lv), dtype=bool)
+        self._lvl[:] = 0
+        for L in range(1, tree.root + 1):
+            r = rows_of[L]
+            r = r[self.live[r]]
+            if L > tree.top:
+                self.geven[r] = self.ref[r]
+                continue
+            _, inv = np.unique(self.parent[r], return_inverse=True)
+            inv = inv.reshape(-1)
+            ge = self.ref[r] | self.policy.evens(np.bincount(inv), np.bincount(inv, weights=self.ref[r]))[inv]
+            self.geven[r] = ge
+            self._lvl[L] = (len(r), int(np.count_nonzero(ge)))
+
+    def _grow(self, camera, rows: np.ndarray) -> bool:
+        """Expand ``rows`` (reached, kept, refined nodes without children yet), level by level (the
+        traversal's own expansion), testing the children and propagating from them after each
+        round (the new level's nodes decide, evened out together, what is refined there); False
+        where a child lies outside the window."""
         tree = self.tree
-        coarsest = None  # (the first round: any level may have changed)
-        while True:
-            if not propagated:
-                self._propagate(coarsest)
-            propagated = False
-            go = self.reached & self.infr & self.inside & self.eff & ~self.expanded
-            rows = np.nonzero(go)[0]
-            if not len(rows):
-                return True
+        while len(rows):
             new_lv, new_idx, new_par = [], [], []
-            for L in np.unique(self.lv[rows]).tolist():
+            for L in sorted_unique(self.lv[rows]).tolist():
                 r = rows[self.lv[rows] == L]
                 c, p = tree.children(L, self.idx[r])
                 if L <= tree.top and not self._t.in_window(L - 1, c).all():
@@ -303,121 +412,155 @@ class KeptCut:
                 new_par.append(r[p])
             self.expanded[rows] = True
             lv, idx, par = np.concatenate(new_lv), np.concatenate(new_idx), np.concatenate(new_par)
-            lo, hi = np.empty((len(lv), 3)), np.empty((len(lv), 3))
-            for L in np.unique(lv).tolist():
-                m = lv == L
-                lo[m], hi[m] = tree.boxes(L, idx[m])
-            n0 = len(self.lv)
-            self.lv = np.concatenate([self.lv, lv])
-            self.idx = np.concatenate([self.idx, idx])
-            self.lo, self.hi = np.concatenate([self.lo, lo]), np.concatenate([self.hi, hi])
-            self.reach = np.concatenate([self.reach, self._reach(lo, hi)])
-            self.parent = np.concatenate([self.parent, par])
-            self.expanded = np.concatenate([self.expanded, np.zeros(len(lv), dtype=bool)])
-            self.inside = np.concatenate([self.inside, self._inside(lv, lo, hi)])
+            n0, m = len(self.lv), len(lv)
+            # (each parent's children are one run of rows: tree.children gives them parent by parent)
+            start = np.flatnonzero(np.r_[True, par[1:] != par[:-1]])
+            self.first[par[start]], self.nchild[par[start]] = n0 + start, np.diff(np.r_[start, m])
+            lo, hi = np.empty((m, 3)), np.empty((m, 3))
+            for L in sorted_unique(lv).tolist():
+                k = lv == L
+                lo[k], hi[k] = tree.boxes(L, idx[k])
+            reach = self._reach(lo, hi)
+            no, yes = np.zeros(m, dtype=bool), np.ones(m, dtype=bool)
             opaque = self._opaque(lv, idx)
-            self.opaque = np.concatenate([self.opaque, opaque])
-            self.mute = np.concatenate([self.mute, self._mute(lv, opaque)])
-            self.infr = np.concatenate([self.infr, np.zeros(len(lv), dtype=bool)])
-            self.ref = np.concatenate([self.ref, np.zeros(len(lv), dtype=bool)])
-            self.eff = np.concatenate([self.eff, np.zeros(len(lv), dtype=bool)])
-            self.slack = np.concatenate([self.slack, np.zeros((len(lv), 2))])
-            self.cam_id = np.concatenate([self.cam_id, np.zeros(len(lv), dtype=np.int64)])
-            self.reached = np.concatenate([self.reached, np.ones(len(lv), dtype=bool)])
+            grown = dict(lv=lv, idx=idx, lo=lo, hi=hi, reach=reach, parent=par,
+                         first=np.full(m, -1, dtype=np.int64), nchild=np.zeros(m, dtype=np.int64),
+                         expanded=no, inside=self._inside(lv, lo, hi), opaque=opaque,
+                         mute=self._mute(lv, opaque), infr=no, ref=no, eff=no, slack=np.zeros((m, 3)),
+                         reached=no, live=no, geven=no, _seen=np.full(m, -1, dtype=np.int64),
+                         cam_id=np.zeros(m, dtype=np.int64))
+            for name, new in grown.items():
+                setattr(self, name, np.concatenate([getattr(self, name), new]))
             if self.drawn is not None:
-                self.drawn = np.concatenate([self.drawn, np.zeros(len(lv), dtype=bool)])
+                self.drawn = np.concatenate([self.drawn, yes & False])
             if self._levels is not None:  # the new rows join their levels' rows (the others keep theirs)
                 rows_of = list(self._levels[1])
-                for L in np.unique(lv).tolist():
+                for L in sorted_unique(lv).tolist():
                     rows_of[L] = np.concatenate([rows_of[L], n0 + np.nonzero(lv == L)[0]])
                 self._levels = (self.lv, rows_of)
-            self._test(np.arange(n0, len(self.lv)), camera)
-            # the next round propagates from the new rows' level down: the levels above keep their
-            # answers, and a new child of level 0 is reached (its parent is reached and refined)
-            coarsest = int(lv.max())
+            self._band.grow(reach)
+            new = np.arange(n0, n0 + m)
+            self._touch(new)  # (not reached before: they counted nothing)
+            self._test(new, camera)
+            rows = self._spread(new)
+        return True
 
-    def _propagate(self, coarsest: int | None = None) -> None:
-        """Reached: the root, and every child of a reached, kept, refined node; refined (``eff``):
-        the rule's answers of the reached, kept nodes of a level evened out together, as the
-        traversal's ``refine`` does (one gather and one evening per level, top down).
+    def _spread(self, seeds: np.ndarray) -> np.ndarray:
+        """Propagate what the rows ``seeds`` changed (their answers, or they are new), level by level
+        from the coarsest down: each touched sibling group evened out again and the level's counts
+        moved (the whole level evened again only where its count flips the level's evening), and
+        ``reached`` set again below the nodes whose "reached and refined" changed. Returns the nodes
+        now reached, kept and refined that have no children yet (to grow)."""
+        tree, top = self.tree, self.tree.top
+        lv, parent = self.lv, self.parent
+        todo: dict[int, list] = {}
+        for L in sorted_unique(lv[seeds]).tolist():
+            todo[L] = [seeds[lv[seeds] == L]]
+        grow = []
+        for L in range(max(todo, default=-1), -1, -1):
+            if L not in todo:
+                continue
+            d = sorted_unique(np.concatenate(todo.pop(L)))
+            if L == 0:  # level 0: reached where its parent is reached and refined (never refined itself)
+                self._touch(d)
+                p = parent[d]
+                q = np.maximum(p, 0)
+                self.reached[d] = np.where(p >= 0, self.reached[q] & self.eff[q], True)
+                continue
+            # the sibling groups of ``d``: every child of their parents (the root: a group of its own)
+            p = parent[d]
+            ups = sorted_unique(p[p >= 0])
+            roots = d[p < 0]
+            m = np.concatenate([_runs(self.first[ups], self.nchild[ups]), roots])
+            grp = np.concatenate([np.repeat(np.arange(len(ups)), self.nchild[ups]),
+                                  len(ups) + np.arange(len(roots))])
+            self._touch(m)
+            open_was = self.reached[m] & self.eff[m]
+            pm = parent[m]
+            q = np.maximum(pm, 0)
+            reached = np.where(pm >= 0, self.reached[q] & self.eff[q], True)
+            live = reached & self.infr[m] & self.inside[m]
+            ref = self.ref[m]
+            whole = False
+            if L > top:  # virtual levels: the rule as it is
+                ge, flag = live & ref, False
+            else:
+                ge = live & (ref | self.policy.evens(np.bincount(grp, weights=live),
+                                                     np.bincount(grp, weights=live & ref))[grp])
+                n, r = (int(v) for v in self._lvl[L])
+                was = bool(self.policy.evens(n, r))
+                n += int(np.count_nonzero(live)) - int(np.count_nonzero(self.live[m]))
+                r += int(np.count_nonzero(ge)) - int(np.count_nonzero(self.geven[m]))
+                self._lvl[L] = (n, r)
+                flag = bool(self.policy.evens(n, r))
+                whole = flag != was
+            if whole:  # the level's own evening flipped: every node of the level again
+                rl = self._level_rows()[L]
+                self._touch(rl)
+                open_l = self.reached[rl] & self.eff[rl]
+                self.reached[m], self.live[m], self.geven[m] = reached, live, ge
+                self.eff[rl] = self.geven[rl] | (flag & self.live[rl])
+                changed = rl[open_l != (self.reached[rl] & self.eff[rl])]
+            else:
+                self.reached[m], self.live[m], self.geven[m] = reached, live, ge
+                self.eff[m] = ge | (flag & live)
+                changed = m[open_was != (reached & self.eff[m])]
+            if len(changed):
+                opened = changed[self.reached[changed] & self.eff[changed]]
+                grow.append(opened[~self.expanded[opened]])
+                below = changed[self.nchild[changed] > 0]
+                if len(below):
+                    todo.setdefault(L - 1, []).append(_runs(self.first[below], self.nchild[below]))
+        return np.concatenate(grow) if grow else np.zeros(0, dtype=np.int64)
 
-        ``coarsest``: the coarsest level whose nodes' answers changed since the last propagation
-        (None: any may have). The levels above it keep what they had; level 0 (most of the rows,
-        never refined) is set again only under the level-1 nodes whose "reached and refined"
-        changed, while its rows are the ones the last full pass set."""
+    def _propagate(self) -> None:
+        """From nothing: reached, the root and every child of a reached, kept, refined node;
+        refined (``eff``), the rule's answers of the reached, kept nodes of a level evened out
+        together by the policy, as the traversal's ``refine`` does (one gather and one evening per
+        level, top down). What the first update and a lens change do; :meth:`_spread` follows the
+        changes from there."""
         kept = self.infr & self.inside
         t, top, root = self._t, self.tree.top, self.tree.root
-        if self._levels is None or self._levels[0] is not self.lv:  # the rows of each level (kept with them)
-            order = np.argsort(self.lv, kind="stable")
-            ends = np.searchsorted(self.lv[order], np.arange(root + 2))
-            self._levels = (self.lv, [order[ends[L]:ends[L + 1]] for L in range(root + 1)])
-            self._evened = {}
-            self._level0 = False
-            coarsest = None
-        if coarsest is None:
-            coarsest = root
-        rows_of = self._levels[1]
-        r1 = rows_of[1] if root >= 1 else rows_of[0][:0]
-        open1 = self.reached[r1] & self.eff[r1]  # the level-1 nodes' answers to their children, before
-        for L in range(min(coarsest, root), 0, -1):
+        rows_of = self._level_rows()
+        for L in range(root, 0, -1):
             r = rows_of[L]
             if not len(r):
                 continue
-            if L == root:
-                self.reached[r] = self.parent[r] < 0
-            else:
-                p = self.parent[r]
-                self.reached[r] = np.where(p >= 0, self.reached[np.maximum(p, 0)] & self.eff[np.maximum(p, 0)], True)
+            p = self.parent[r]
+            q = np.maximum(p, 0)
+            self.reached[r] = np.where(p >= 0, self.reached[q] & self.eff[q], True)
             self.eff[r] = False
             live = r[self.reached[r] & kept[r]]
             ref = self.ref[live]
             if L > top or not len(live):
                 self.eff[live] = ref
                 continue
-            last = self._evened.get(L)  # a level whose nodes and answers did not change evens out the same
-            same = last is not None and np.array_equal(last[0], live)
-            if same and np.array_equal(last[1], ref):
-                self.eff[live] = last[2]
-                continue
-            # the same nodes, other answers: their sibling groups kept (the camera does not move them)
-            groups = last[3] if same else None
-            if groups is None and self._groups is not None:
-                groups = self._groups(t, L, self.lo[live])
-            eff = self.policy.even(t, L, self.lo[live], ref) if groups is None else \
+            groups = self._groups(t, L, self.lo[live]) if self._groups is not None else None
+            self.eff[live] = self.policy.even(t, L, self.lo[live], ref) if groups is None else \
                 self.policy.even(t, L, None, ref, groups=groups)
-            self._evened[L] = (live, ref, eff, groups)
-            self.eff[live] = eff
-        # level 0: reached where its parent is reached and refined (never refined itself: no answer)
         r0 = rows_of[0]
-        if not len(r0):
-            return
-        if root == 0:
-            self.reached[r0] = self.parent[r0] < 0
-            return
-        if self._level0:  # only the children of level-1 nodes whose answer changed
-            moved = r1[open1 != (self.reached[r1] & self.eff[r1])]
-            if not len(moved):
-                return
-            flag = np.zeros(len(self.lv), dtype=bool)
-            flag[moved] = True
-            r0 = r0[flag[self.parent[r0]]]
         p = self.parent[r0]
-        self.reached[r0] = np.where(p >= 0, self.reached[np.maximum(p, 0)] & self.eff[np.maximum(p, 0)], True)
-        self._level0 = True
+        q = np.maximum(p, 0)
+        self.reached[r0] = np.where(p >= 0, self.reached[q] & self.eff[q], True)
 
     def _compact(self) -> None:
-        """Keep only the reached nodes (a reached node's parent is reached: the tree stays whole); a
-        node whose children go is marked unexpanded, to grow again if it refines again."""
+        """Keep only the reached nodes (a reached node's parent is reached: the tree stays whole,
+        and a node's children stay one run); a node whose children go is marked unexpanded, to grow
+        again if it refines again. The dropped rows counted nothing and drew nothing."""
         keep = self.reached
         new = np.cumsum(keep) - 1
-        for name in ("lv", "idx", "lo", "hi", "reach", "expanded", "inside", "opaque", "mute", "infr", "ref", "eff", "slack",
-                     "cam_id", "reached"):
+        for name in ("lv", "idx", "lo", "hi", "reach", "expanded", "inside", "opaque", "mute", "infr", "ref", "eff",
+                     "slack", "reached", "live", "geven", "first", "nchild", "_seen", "cam_id"):
             setattr(self, name, getattr(self, name)[keep])
-        self.drawn = None  # (a dropped row may have been drawn: the next selection compares keys anew)
+        if self.drawn is not None:
+            self.drawn = self.drawn[keep]
+        self._band.take(keep)
         self._levels = None  # (rows renumbered)
         parent = self.parent[keep]
         self.parent = np.where(parent >= 0, new[np.maximum(parent, 0)], -1)
         self.expanded &= self.infr & self.inside & self.eff  # (else its children were not reached)
+        self.first = np.where(self.expanded, new[np.maximum(self.first, 0)], -1)
+        self.nchild = np.where(self.expanded, self.nchild, 0)
 
     def update(self, camera, ordered: bool = True) -> Selection | None:
         """The cut :func:`~clipvol.scene.selection.select` makes for ``camera`` (residency apart:
@@ -439,43 +582,86 @@ class KeptCut:
             return self.selection
         terms = _camera_terms(camera, self.centre)
         last = self.camera
-        if last is not None and (last.orthographic != camera.orthographic
-                                 or float(last.pixels_per_unit(1.0)) != float(camera.pixels_per_unit(1.0))):
-            self.slack[:] = -np.inf  # another lens or image size: the depth limits moved, test everything
-        if len(self._cams) > MAX_CAMERAS:  # forget the cameras no node was last tested at
-            used, self.cam_id = np.unique(self.cam_id, return_inverse=True)
-            self._cams = [self._cams[i] for i in used.tolist()]
-            if len(self._cams) > MAX_CAMERAS:
-                self.slack[:] = -np.inf
-        turn, shift = _turn_shift(np.asarray(self._cams).reshape(-1, 7, 4), terms) if self._cams \
-            else (np.zeros((1, 7)), np.zeros((1, 7)))
-        # each node's bound from the camera it was last tested at: the turn of the planes (and of the
-        # view direction) times the node's reach from the centre, plus their shift at the centre
-        # (per camera first, then gathered: a node near the centre moves less than the volume's corners)
-        cid = self.cam_id
-        band = np.nonzero((self.slack[:, 0] <= turn[:, :6].max(axis=1)[cid] * self.reach + shift[:, :6].max(axis=1)[cid])
-                          | (self.slack[:, 1] <= turn[:, 6][cid] * self.reach + shift[:, 6][cid]))[0]
-        self._cams.append(terms)
-        was = (self.infr[band].copy(), self.ref[band].copy())
+        lens = last is not None and (last.orthographic != camera.orthographic
+                                     or float(last.pixels_per_unit(1.0)) != float(camera.pixels_per_unit(1.0)))
+        if lens:  # another lens or image size: the depth limits moved, every slack is void: test everything
+            self._band.everything()
+        if self._terms is None:
+            turn = shift = np.zeros(3)
+        else:  # this frame's move: the largest turn and shift of the side planes, of the near and far
+            # planes (fitted to the volume each frame: they shift back and forth, the sides do not), and
+            # the view direction's
+            t, s = _turn_shift(self._terms, terms)
+            turn = np.array([t[:4].max(), t[4:6].max(), t[6]])
+            shift = np.array([s[:4].max(), s[4:6].max(), s[6]])
+        self._terms = terms
+        self._add_camera(terms)
+        band = self._band.advance(turn, shift)
+        if not lens:
+            band = self._due(band, terms)
+        self._touch(band)
+        was = (self.infr[band], self.ref[band])
         self._t.camera = self.camera = camera
         self._test(band, camera)
         self.retested = len(band)
         flipped = (was[0] != self.infr[band]) | (was[1] != self.ref[band])
         changed = self.selection is None or bool(flipped.any())
-        if not changed and not ordered and not self.selection.ordered:
-            # (the same object; its counts this camera's: a transparent level-0 node's may differ)
-            self.selection.counts = self._counts(camera, self.selection.counts._base)
-            return self.selection
-        if changed:  # (from the coarsest level whose answers flipped down)
-            self._propagate(None if self.selection is None else int(self.lv[band[flipped]].max()))
-            n_out = len(self.lv) - int(self.reached.sum())
+        if not changed:
+            self._touched, self._serial = [], self._serial + 1  # (nothing moved)
+            if not ordered and not self.selection.ordered:
+                # (the same object; its counts this camera's: a transparent level-0 node's may differ)
+                self.selection.counts = self._counts(camera, self.selection.counts._base)
+                return self.selection
+        else:
+            if self.drawn is None:  # the first cut: from nothing
+                self._propagate()
+                self._recount()
+                go = np.nonzero(self.reached & self.infr & self.inside & self.eff & ~self.expanded)[0]
+            else:  # from the flipped nodes down
+                go = self._spread(band[flipped])
+                self._settle()
+            n_out = len(self.lv) - int(self._count[0])
             if n_out > max(COMPACT_MIN, len(self.lv) - n_out):
                 self._compact()
-            if not self._grow(camera, propagated=True):
+                go = np.nonzero(self.reached & self.infr & self.inside & self.eff & ~self.expanded)[0]
+            if not self._grow(camera, go):
                 self.supported = False
                 return None
+            self._settle()
         self.selection = self._selection(camera, ordered)
         return self.selection
+
+    def _add_camera(self, terms: np.ndarray) -> None:
+        """Append a camera's terms (the nodes tested from now on refer to it); past the limit, first
+        drop the cameras no node refers to (a pass over the rows, at most once per ``MAX_CAMERAS``
+        frames: the limit is then twice the cameras left, plus ``MAX_CAMERAS``)."""
+        if self._ncams >= self._cam_limit:
+            used, inv = np.unique(self.cam_id, return_inverse=True)
+            self.cam_id = inv.reshape(-1)
+            self._cams[:len(used)] = self._cams[used]
+            self._ncams = len(used)
+            self._cam_limit = 2 * self._ncams + MAX_CAMERAS
+        if self._ncams == len(self._cams):
+            self._cams = np.concatenate([self._cams, np.zeros_like(self._cams)])
+        self._cams[self._ncams] = terms
+        self._ncams += 1
+
+    def _due(self, rows: np.ndarray, terms: np.ndarray) -> np.ndarray:
+        """Of the rows whose deadline passed, those whose change from the camera they were last
+        tested at may reach their slack (the direct bound, per camera then gathered); the others
+        get a later deadline: the slack left over that change, in motion from now on (the triangle
+        inequality again)."""
+        if not len(rows):
+            return rows
+        t, s = _turn_shift(self._cams[:self._ncams], terms)
+        per = np.concatenate([t[:, :4].max(axis=1, keepdims=True), t[:, 4:6].max(axis=1, keepdims=True), t[:, 6:],
+                              s[:, :4].max(axis=1, keepdims=True), s[:, 4:6].max(axis=1, keepdims=True), s[:, 6:]],
+                             axis=1)[self.cam_id[rows]]
+        left = self.slack[rows] - (per[:, :3] * self.reach[rows, None] + per[:, 3:])
+        due = np.any(left <= 0, axis=1)
+        if not due.all():
+            self._band.set(rows[~due], left[~due])
+        return rows[due]
 
     def _counts(self, camera, base: dict) -> KeptCounts:
         """The counts for ``camera``: ``base`` (the tested nodes') and the transparent level-0
@@ -484,27 +670,21 @@ class KeptCut:
 
     def _selection(self, camera, ordered: bool) -> Selection:
         tree = self.tree
-        kept = self.reached & self.infr & self.inside
-        real = self.lv <= tree.top
-        leaf = kept & ~self.eff
-        mask = leaf & self.opaque
-        draw = np.nonzero(mask)[0]
-        tested = self.reached & ~self.mute  # (the transparent level-0 nodes are counted by KeptCounts)
+        c = dict(zip(_TALLIED, self._count.tolist()))
         counts = self._counts(camera, dict(
-            visited=int(self.reached.sum()), culled_frustum=int((tested & ~self.infr).sum()),
-            culled_shape=int((tested & self.infr & ~self.inside).sum()),
-            culled_transparent=int((leaf & ~self.opaque & ~self.mute).sum()), culled_policy=0,
-            refined=int((kept & self.eff & real & (self.lv > 0)).sum()), outside_window=0,
-            fallback=0, missing=0, texels=len(draw) * tree.texels, level=-1))
-        last, was = self.selection, self.drawn
-        self.drawn = mask
+            visited=c["visited"], culled_frustum=c["culled_frustum"], culled_shape=c["culled_shape"],
+            culled_transparent=c["culled_transparent"], culled_policy=0, refined=c["refined"], outside_window=0,
+            fallback=0, missing=0, texels=c["drawn"] * tree.texels, level=-1))
+        last = self.selection
         node_data = getattr(self.policy, "node_data", None)
         node_data = dict(node_data) if node_data else {}
-        if not ordered and last is not None and not last.ordered and was is not None and np.array_equal(mask, was):
+        if not ordered and last is not None and not last.ordered and not self._leaves_changed:
             # the band's answers flipped but no leaf did (a node culled or refined on another side):
             # the same items and wanted keys, kept objects, so that whatever was made of them (the
             # merge, the page table, the GPU check) is kept with them; only the counts are new
             return Selection(last.items, last.wanted, counts, self.params.policy, node_data, None, ordered=False)
+        self._leaves_changed = False
+        draw = np.nonzero(self.drawn)[0]
         lv, idx = self.lv[draw], self.idx[draw]
         keys = np.concatenate([lv[:, None], idx], axis=1)
         if ordered:

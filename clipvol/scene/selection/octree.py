@@ -54,6 +54,10 @@ class Octree:
         g = self.grids[level - 1]
         return np.prod(np.clip(g - 2 * idx, 0, 2), axis=1)
 
-    def voxel(self, level: int) -> float:
-        """The largest voxel size of a real level (world units)."""
-        return max(self.pyr.levels[level].scale)
+    def voxel(self, level):
+        """The largest voxel size of a real level (world units); of each level of an integer array,
+        an array (what a test of many levels' nodes at once gives per node)."""
+        if np.ndim(level) == 0:
+            return max(self.pyr.levels[level].scale)
+        table = np.array([max(lv.scale) for lv in self.pyr.levels], dtype=np.float64)
+        return table[np.asarray(level, dtype=np.int64)]

@@ -26,7 +26,7 @@ import numpy as np
 from .base import RefinePolicy
 from .image_based import EVEN_OUT_GROWTH
 
-__all__ = ["ProjectedSize", "TexelBudget", "even_out"]
+__all__ = ["ProjectedSize", "TexelBudget", "even_out", "even_rule"]
 
 
 def even_out(refine: np.ndarray, groups: np.ndarray | None = None, growth: float = EVEN_OUT_GROWTH,
@@ -42,8 +42,7 @@ def even_out(refine: np.ndarray, groups: np.ndarray | None = None, growth: float
     if len(refine) == 0:
         return refine
     if groups is None:  # one group: two counts
-        n, r = len(refine), int(np.count_nonzero(refine))
-        return refine | bool(0 < r < n and children * n <= growth * ((n - r) + children * r))
+        return refine | bool(even_rule(len(refine), int(np.count_nonzero(refine)), growth, children))
     _, inv = np.unique(groups, return_inverse=True)
     return _even_groups(refine, inv.reshape(-1), growth, children)
 
@@ -52,8 +51,13 @@ def _even_groups(refine: np.ndarray, inv: np.ndarray, growth: float = EVEN_OUT_G
     """:func:`even_out` with the groups given as a dense index per node (``0 .. groups - 1``)."""
     n = np.bincount(inv)
     r = np.bincount(inv, weights=refine.astype(np.float64))
-    even = (r > 0) & (r < n) & (children * n <= growth * ((n - r) + children * r))
-    return refine | even[inv]
+    return refine | even_rule(n, r, growth, children)[inv]
+
+
+def even_rule(n, r, growth: float = EVEN_OUT_GROWTH, children: int = 8):
+    """Is a group of ``n`` nodes, ``r`` of which the rule refines, refined whole (:func:`even_out`)?
+    Vectorised over arrays of groups; what a kept cut asks of the few groups a move changed."""
+    return (r > 0) & (r < n) & (children * n <= growth * ((n - r) + children * r))
 
 
 class ProjectedSize(RefinePolicy):
@@ -77,6 +81,12 @@ class ProjectedSize(RefinePolicy):
         if groups is None:
             groups = self.sibling_groups(t, level, lo)
         return even_out(_even_groups(np.asarray(need, dtype=bool), groups))
+
+    def evens(self, n, r):
+        """:func:`even_rule` (the greedy form is never evened, and no kept cut keeps it): a kept cut
+        evens out only the sibling groups and the level counts a move changed, as :meth:`even`
+        evens out a whole level (per sibling group, then the level as one group)."""
+        return even_rule(n, r)
 
     def sibling_groups(self, t, level, lo) -> np.ndarray:
         """A dense index per node of ``level`` (boxes' low corners ``lo``), equal for siblings: what
