@@ -29,7 +29,6 @@ Rows: ``tools/bench/results/bench_refine_metric.csv`` (``--out``).
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 import time
 from pathlib import Path
@@ -271,14 +270,8 @@ def main(argv: list[str] | None = None) -> int:
     rows, orows = run(a.store, [int(v) for v in a.images.split(",")], a.views.split(","), a.settings.split(","))
     summary(rows)
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    with open(a.out, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    with open(a.out.with_name(a.out.stem + "_oracle.csv"), "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(orows[0]))
-        w.writeheader()
-        w.writerows(orows)
+    common.write_rows(a.out, rows)
+    common.write_rows(a.out.with_name(a.out.stem + "_oracle.csv"), orows)
     print(f"rows: {a.out}")
     return 0
 

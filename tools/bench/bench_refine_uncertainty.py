@@ -42,7 +42,6 @@ Rows: ``tools/bench/results/bench_refine_uncertainty.csv`` (``--out``).
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 import time
 from pathlib import Path
@@ -394,15 +393,8 @@ def main(argv: list[str] | None = None) -> int:
     rows, summ = run(a.store, [int(v) for v in a.images.split(",")], a.views.split(","), a.settings.split(","),
                      a.how.split(","))
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    fields = list(dict.fromkeys(k for r in rows for k in r))
-    with open(a.out, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=fields)
-        w.writeheader()
-        w.writerows(rows)
-    with open(a.out.with_name(a.out.stem + "_summary.csv"), "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(summ[0]))
-        w.writeheader()
-        w.writerows(summ)
+    common.write_rows(a.out, rows)
+    common.write_rows(a.out.with_name(a.out.stem + "_summary.csv"), summ)
     print(f"rows: {a.out}")
     return 0
 

@@ -646,9 +646,10 @@ def sizes_main(argv, doc: str, run, default_out: Path, sizes_help: str) -> int:
 
 
 def write_rows(path, rows: list[dict]) -> None:
-    """``rows`` as a CSV at ``path`` (columns: the first row's keys)."""
+    """``rows`` as a CSV at ``path`` (columns: every row's keys, in the order they first appear;
+    a row without one leaves its cell empty)."""
     with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))
         w.writeheader()
         w.writerows(rows)
 
