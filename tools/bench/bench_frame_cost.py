@@ -43,6 +43,23 @@ before's (``tables_updated``) and built from nothing (``tables_built``; neither:
 and the ratios ``clipvol/raw`` and ``fresh/clipvol`` (medians over frames of the
 per-frame ratios). Rows go to ``tools/bench/results/bench_frame_cost.csv``.
 
+``--flat`` asks one question robustly: is the host's cost per orbit frame the same for a small cut
+and a large one? Run to run, the sequences above move the 12-frame medians by ~3 ms (the machine's
+load, the caches, llvmpipe's threads), more than the difference asked about. So ``--flat`` holds
+every volume's scene and action warm in ONE process and ONE GL context and draws their orbit frames
+alternately, frame by frame (small, large, small, large ...; the order reversed on every other
+frame), over ``--frames`` frames each (default 48 in this mode) of the same 1 degree a frame orbit,
+after the same warm-up; each clipvol frame beside the raw caster's of the same volume at the same
+camera. A drift in the load then weighs on both frames of a pair alike, and the figure is the
+median over frames of the per-pair ratio ``large / small`` of the rendering thread's CPU time
+(``time.thread_time``), with its quartiles, for each volume against the first (give the smallest
+cut first: ``--store`` comes before ``--head``, the heads in the order given). Each volume's
+clipvol ÷ raw caster (wall, medians of per-frame ratios) is reported too. Rows go to
+``tools/bench/results/bench_frame_cost_flat.csv`` (``--out``). It runs on an older tree too (the
+script's ``common.py`` with the installed clipvol), to measure it alternately with a change:
+
+    python tools/bench/bench_frame_cost.py --flat --store mni16.zarr --head 256,512 --brick 16
+
 Runs as is on a machine with a GPU (``python tools/bench/bench_frame_cost.py``): the GL is whatever
 the context gets.
 """
@@ -195,6 +212,79 @@ def _run_policy(scene, raw, kept, fresh, label: str, images, frames: int, log) -
     return rows
 
 
+def _quartiles(v) -> tuple[float, float, float]:
+    """The first quartile, median and third quartile of ``v``."""
+    q = np.percentile(np.asarray(v, dtype=float), [25, 50, 75])
+    return float(q[0]), float(q[1]), float(q[2])
+
+
+def run_flat(entries, image: int, frames: int, log=print, policy: str = "projected-size",
+             lod: float = 0.1) -> list[dict]:
+    """``--flat``: the orbit frames of every ``(store, volume, label)`` in ``entries`` drawn
+    alternately frame by frame in one process and one GL context (see the module's docstring); a
+    row per volume with its CPU per frame and, past the first, the per-pair ratios to the first's."""
+    from clipvol.render import create_context
+    from clipvol.render.paths.setup import OPAQUE
+
+    ctx = create_context()
+    scenes, raws, acts, seqs, labels = [], [], [], [], []
+    try:
+        for store, volume, label in entries:
+            scene = common.WarmScene(store, ctx=ctx)
+            scenes.append(scene)
+            raws.append(scene.raw_caster(volume))
+            act = scene.action(**POLICY_PARAMS[policy](lod), step=STEP)
+            cams = cameras(scene.pyramid, image, "orbit", frames)
+            for cam in (*cams, cams[0]):  # bench's warm-up: every brick of the orbit on the GPU
+                act.render(cam, scene.tf, wait=True, timeout=900)
+                if not act.last_frame_stats.converged:
+                    raise RuntimeError(f"{label}: the frame did not converge in 900 s ({image}^2 orbit)")
+            raws[-1].render(act._selection_camera(cams[0]), scene.tf, STEP, OPAQUE)
+            acts.append(act)
+            seqs.append(cams)
+            labels.append(label)
+        n = len(entries)
+        cpu = [[] for _ in range(n)]
+        wall = [[] for _ in range(n)]
+        raw = [[] for _ in range(n)]
+        bricks = [0] * n
+        for k in range(frames):
+            for i in (range(n) if k % 2 == 0 else reversed(range(n))):
+                act, scene, cam = acts[i], scenes[i], seqs[i][k]
+                fc = act._selection_camera(cam)
+                steps = ("raw", "clipvol") if k % 2 == 0 else ("clipvol", "raw")
+                for what in steps:
+                    if what == "raw":
+                        raw[i].append(_timed(lambda: raws[i].render(fc, scene.tf, STEP, OPAQUE)))
+                    else:
+                        wall[i].append(_timed_cpu(lambda: act.render(cam, scene.tf), cpu[i]))
+                        bricks[i] = max(bricks[i], act.last_frame_stats.bricks_distinct)
+    finally:
+        for scene in reversed(scenes):
+            scene.close()
+        ctx.release()
+    load = _load()
+    rows = []
+    for i in range(n):
+        q1, med, q3 = _quartiles(cpu[i])
+        row = {"date": time.strftime("%Y-%m-%d"), "volume": labels[i], "image": image, "camera": "orbit",
+               "policy": policy, "frames": frames, "bricks": bricks[i],
+               "clipvol_cpu_ms": round(1e3 * med, 2), "clipvol_cpu_q1_ms": round(1e3 * q1, 2),
+               "clipvol_cpu_q3_ms": round(1e3 * q3, 2),
+               "clipvol_over_raw": round(statistics.median(c / r for c, r in zip(wall[i], raw[i])), 2),
+               "against": labels[0], "load": load}
+        text = ""
+        if i > 0:
+            pq1, pmed, pq3 = _quartiles([a / b for a, b in zip(cpu[i], cpu[0])])
+            row.update(cpu_over_first=round(pmed, 3), cpu_over_first_q1=round(pq1, 3),
+                       cpu_over_first_q3=round(pq3, 3))
+            text = f"; per pair {pmed:.2f}x the first's CPU (quartiles {pq1:.2f}-{pq3:.2f})"
+        rows.append(row)
+        log(f"{labels[i]} {image}^2 orbit ({policy}): {bricks[i]} bricks, main-thread CPU {1e3 * med:.2f} ms "
+            f"(quartiles {1e3 * q1:.2f}-{1e3 * q3:.2f}), {row['clipvol_over_raw']}x raw{text}; load {load}")
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--store", type=Path, action="append", default=[],
@@ -207,11 +297,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--lod", type=float, default=0.1, help="projected-size's lod_threshold (default 0.1)")
     ap.add_argument("--data", type=Path, default=common.DATA, help="where the heads' stores are built once")
     ap.add_argument("--images", default="32,512", help="image edges, comma separated (default 32,512)")
-    ap.add_argument("--frames", type=int, default=10, help="frames per camera sequence (default 10)")
-    ap.add_argument("--out", type=Path, default=common.RESULTS / "bench_frame_cost.csv")
+    ap.add_argument("--frames", type=int, default=None,
+                    help="frames per camera sequence (default 10; 48 with --flat)")
+    ap.add_argument("--flat", action="store_true",
+                    help="the volumes' orbit frames drawn alternately in one process: per-pair CPU ratios "
+                         "to the first volume's (the first --policies, the first --images)")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="the rows' CSV (default results/bench_frame_cost.csv, with --flat bench_frame_cost_flat.csv)")
     a = ap.parse_args(argv)
+    if a.frames is None:
+        a.frames = 48 if a.flat else 10
     if a.frames < 3:
         ap.error(f"--frames: expected at least 3, got {a.frames}")
+    if a.out is None:
+        a.out = common.RESULTS / ("bench_frame_cost_flat.csv" if a.flat else "bench_frame_cost.csv")
     images = [int(v) for v in a.images.split(",")]
     policies = [v.strip() for v in a.policies.split(",") if v.strip()]
     bad = [p for p in policies if p not in POLICY_PARAMS]
@@ -219,6 +318,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--policies: expected names of {', '.join(POLICY_PARAMS)}, got {a.policies!r}")
     if not a.lod > 0:
         ap.error(f"--lod: expected a pixel size > 0, got {a.lod}")
+    if a.flat:
+        return _main_flat(a, images, policies)
     rows = []
     for store in a.store:
         from clipvol.paging.open import open_store
@@ -237,6 +338,25 @@ def main(argv: list[str] | None = None) -> int:
     if not rows:
         ap.error("nothing to measure: give --store or --head")
     return common.save_rows(a.out, rows)
+
+
+def _main_flat(a, images, policies) -> int:
+    """``--flat``: every ``--store`` and ``--head`` volume in one alternating run."""
+    from clipvol.paging.open import open_store
+
+    entries = []
+    for store in a.store:
+        loader = open_store(store)
+        entries.append((store, common.WholeVolume(loader).read_brick(0, (0, 0, 0)),
+                        f"{store.name}, {loader.pyramid.brick_shape[0]}^3 bricks"))
+    for n in (int(v) for v in a.head.split(",") if v.strip()):
+        size = f"{n}x{n}x{n}"
+        volume = common.ct_volume((n, n, n))
+        for brick in (int(v) for v in a.brick.split(",") if v.strip()):
+            entries.append((common.ct_store(size, brick, a.data), volume, f"ct_head {size} uint16, {brick}^3 bricks"))
+    if len(entries) < 2:
+        raise SystemExit("--flat: expected at least two volumes (--store, --head) to compare")
+    return common.save_rows(a.out, run_flat(entries, images[0], a.frames, policy=policies[0], lod=a.lod))
 
 
 if __name__ == "__main__":

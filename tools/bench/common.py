@@ -138,7 +138,9 @@ class WarmScene:
     resident), and the ``bone`` table over the store's value range. ``close()`` releases what it
     made: the actions and raw casters it handed out, the clip-texture, the context."""
 
-    def __init__(self, store: Path) -> None:
+    def __init__(self, store: Path, ctx=None) -> None:
+        """``ctx``: a GL context to draw in (kept open by ``close()``: several scenes drawn in turn in
+        one process share one, as moderngl draws in the context made current last); default: its own."""
         from clipvol.paging.cliptexture import ClipTexture
         from clipvol.paging.open import open_store
         from clipvol.render import create_context
@@ -146,7 +148,8 @@ class WarmScene:
 
         self.loader = open_store(store)
         pyr = self.pyramid = self.loader.pyramid
-        self.ctx = create_context()
+        self._own_ctx = ctx is None
+        self.ctx = create_context() if ctx is None else ctx
         # every brick with room to spare: a texture slot holds a brick and its one-voxel border (18^3
         # texels for a 16^3 brick, 1.42x), so 1.2x left a 512^3 head's level 0 (32^3 bricks of 16^3)
         # a 27^3 window: its full-resolution frame never converged
@@ -192,7 +195,8 @@ class WarmScene:
             release()
         self._made = []
         self.clip.close()
-        self.ctx.release()
+        if self._own_ctx:
+            self.ctx.release()
 
 
 # -- the reference outside clipvol's render path -----------------------------------------------------
