@@ -517,7 +517,10 @@ class ClipRenderAction:
 
         The two answers are also attributes of the function, ``may_cover.resident`` (the same for
         every camera while the slots are the same) and ``may_cover.beside``: a
-        :class:`~clipvol.scene.selection.merge.KeptMerge` asks only the camera's again.
+        :class:`~clipvol.scene.selection.merge.KeptMerge` asks only the camera's again. So are the
+        parts of ``beside``, ``may_cover.boxes`` (the padded node boxes, the same for every camera)
+        and ``may_cover.beside_boxes`` (the camera's test of boxes): the kept merge makes the boxes
+        of its questions once and asks each frame's camera about all of them in one call.
         """
         pyr = self.pyramid
         cache = self.cache
@@ -533,12 +536,16 @@ class ClipRenderAction:
             gone = ~cache.on_gpu_mask(level, first[block] + local)
             return np.bincount(block[gone], minlength=len(nodes)) == 0
 
-        def beside(level: int, node_level: int, nodes) -> np.ndarray:
+        def boxes(level: int, node_level: int, nodes) -> tuple[np.ndarray, np.ndarray]:
             lo, hi = pyr.node_box(node_level, np.asarray(nodes, dtype=np.int64).reshape(-1, 3))
             pad = float(max(pyr.levels[level].scale))  # grown by one voxel of the level
-            out = np.asarray(cam.boxes_beside_view(lo - pad, hi + pad), dtype=bool)
+            return lo - pad, hi + pad
+
+        def beside(level: int, node_level: int, nodes) -> np.ndarray:
+            lo, hi = boxes(level, node_level, nodes)
+            out = np.asarray(cam.boxes_beside_view(lo, hi), dtype=bool)
             if asked is not None:  # the answer depends on the camera: kept to be asked again
-                asked.append((lo - pad, hi + pad, out))
+                asked.append((lo, hi, out))
             return out
 
         def may_cover(level: int, node_level: int, nodes) -> np.ndarray:
@@ -549,6 +556,7 @@ class ClipRenderAction:
             return out
 
         may_cover.resident, may_cover.beside = resident, beside
+        may_cover.boxes, may_cover.beside_boxes = boxes, cam.boxes_beside_view  # (the camera-free boxes)
 
         return may_cover
 

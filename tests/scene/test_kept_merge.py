@@ -158,3 +158,56 @@ def test_the_upper_passes_are_merged_again_when_only_their_answers_change():
         differ += not np.array_equal(merge_items(items, PYR, win, cover(True)).rows,
                                      merge_items(items, PYR, win, cover(False)).rows)
     assert differ  # (else the upper questions decide nothing here)
+
+
+def cover_camera(cam, boxed: bool):
+    """The render action's ``may_cover`` in its parts for camera ``cam``: ``resident`` a fixed
+    pattern (the texture memory's), ``beside`` whether the node's box, grown by one voxel of the
+    level, lies wholly beside ``cam``'s view; with ``boxed`` also the camera-free ``boxes`` and the
+    camera's ``beside_boxes`` (what lets ``KeptMerge.answers_hold`` keep the boxes)."""
+    def resident(level, node_level, nodes):
+        nodes = np.asarray(nodes, dtype=np.int64).reshape(-1, 3)
+        return (nodes @ np.array([7, 3, 1]) + level) % 4 == 0
+
+    def boxes(level, node_level, nodes):
+        lo, hi = PYR.node_box(node_level, np.asarray(nodes, dtype=np.int64).reshape(-1, 3))
+        pad = float(max(PYR.levels[level].scale))
+        return lo - pad, hi + pad
+
+    def beside(level, node_level, nodes):
+        return cam.boxes_beside_view(*boxes(level, node_level, nodes))
+
+    def cover(level, node_level, nodes):
+        out = resident(level, node_level, nodes)
+        out[~out] = beside(level, node_level, np.asarray(nodes).reshape(-1, 3)[~out])
+        return out
+
+    cover.resident, cover.beside = resident, beside
+    if boxed:
+        cover.boxes, cover.beside_boxes = boxes, cam.boxes_beside_view
+    return cover
+
+
+def test_answers_hold_over_kept_boxes_answers_as_each_question_asked_again():
+    """``answers_hold`` with the boxes of the questions kept (one test of the next camera over all
+    of them) answers as asking every question group of the last merge again (the plain split
+    ``may_cover``), along a random path whose merges change the questions; where it says the
+    answers hold, the merge from nothing under the next camera is the kept merge's result."""
+    params = RenderParams(policy="projected-size", lod_threshold=0.1)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    win = [PYR.grid(L) for L in range(PYR.num_levels)]
+    km = KeptMerge(PYR)
+    cams = list(path(np.random.default_rng(11), 40, 6.0))
+    seen = set()
+    for k, (cam, nxt) in enumerate(zip(cams, cams[1:])):
+        sel = kc.update(cam, ordered=False)
+        got = km.merge(sel.items, win, cover_camera(cam, boxed=True))
+        for again in range(2):  # (the second: the kept boxes)
+            hold = km.answers_hold(cover_camera(nxt, boxed=True))
+            assert hold == km.answers_hold(cover_camera(nxt, boxed=False))
+        seen.add(hold)
+        if hold:
+            want = merge_items(sel.items, PYR, win, cover_camera(nxt, boxed=False))
+            np.testing.assert_array_equal(got.rows, want.rows)
+            np.testing.assert_array_equal(got.span, want.span)
+    assert seen == {True, False}  # (the path both keeps and changes the answers)
