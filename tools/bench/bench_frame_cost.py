@@ -319,7 +319,7 @@ def main(argv: list[str] | None = None) -> int:
     if not a.lod > 0:
         ap.error(f"--lod: expected a pixel size > 0, got {a.lod}")
     if a.flat:
-        return _main_flat(a, images, policies)
+        return _main_flat(ap, a, images, policies)
     rows = []
     for store in a.store:
         from clipvol.paging.open import open_store
@@ -340,7 +340,7 @@ def main(argv: list[str] | None = None) -> int:
     return common.save_rows(a.out, rows)
 
 
-def _main_flat(a, images, policies) -> int:
+def _main_flat(ap, a, images, policies) -> int:
     """``--flat``: every ``--store`` and ``--head`` volume in one alternating run."""
     from clipvol.paging.open import open_store
 
@@ -355,7 +355,7 @@ def _main_flat(a, images, policies) -> int:
         for brick in (int(v) for v in a.brick.split(",") if v.strip()):
             entries.append((common.ct_store(size, brick, a.data), volume, f"ct_head {size} uint16, {brick}^3 bricks"))
     if len(entries) < 2:
-        raise SystemExit("--flat: expected at least two volumes (--store, --head) to compare")
+        ap.error(f"--flat: expected at least two volumes (--store, --head) to compare, got {len(entries)}")
     return common.save_rows(a.out, run_flat(entries, images[0], a.frames, policy=policies[0], lod=a.lod))
 
 
