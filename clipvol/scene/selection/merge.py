@@ -341,7 +341,7 @@ class KeptMerge:
         boxes its camera answers for (:func:`_boxed`), one call over every question's box.
 
         A still cut's orbit frame asks this and nothing else of the merge. Each group's call made
-        its nodes' boxes again (``Pyramid.node_box``, the padding) before the camera's test: ~0.2 ms
+        its nodes' boxes again (``Pyramid.node_box``, the padding) before the camera's test: ~0.2-0.25 ms
         a group on the 512^3 CT-like head, whatever the group's size. The boxes do not depend on
         the camera, so they are made once per list of questions and kept; a frame is then one
         vectorised test over all of them and a compare."""
