@@ -108,12 +108,9 @@ def far_views(pyr, image: int) -> dict:
 
 def _scene_and_truth(store: Path):
     """The warm scene, its level-0 action and the converged pictures of ``store``."""
-    from clipvol.app.converged import ConvergedPictures
-    from clipvol.scene.params import RenderParams
-
     scene = common.WarmScene(store)
     draw = scene.converged_drawer()
-    return scene, draw, ConvergedPictures(draw, RenderParams(step=0.5), supersample=2, step=0.25)
+    return scene, draw, scene.converged_pictures(draw)
 
 
 def _cams(scene, image: int, view_names) -> dict:

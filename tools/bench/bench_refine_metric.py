@@ -165,28 +165,36 @@ def pct(img_prem: np.ndarray, truth: np.ndarray) -> float:
     return float(percent_delta_e(_u8(img_prem), truth, threshold=DE_VISIBLE, premultiplied=False))
 
 
+def setting(name: str) -> tuple[dict, float]:
+    """``(action keywords, tolerance)`` of a refined ``bench_mission`` setting (``' dist'``:
+    ``classify='distribution'``); the keywords leave the tolerance out."""
+    kw = dict(bench_mission.settings()[name.replace(" dist", "")])
+    kw.setdefault("step", 0.5)
+    if name.endswith(" dist"):
+        kw["classify"] = "distribution"
+    return kw, float(kw.pop("refine_tolerance"))
+
+
+def read_passes(probe, own, cam, tf, tolerance: float, bg) -> tuple[list, float]:
+    """The three passes of ``probe`` (a tolerance of 1e-7: a ray wherever the coarser rays differ
+    at all) read back at ``cam``, and the share of pixels on which the channel mask replayed at
+    ``tolerance`` matches the frame ``own`` draws at it (within 2 levels)."""
+    own_img = own.render(cam, tf, wait=True, timeout=600)
+    probe.render(cam, tf, wait=True, timeout=600)
+    passes = [_pass(probe.setup, k, cam) for k in (2, 1, 0)]
+    img, _ = replay(passes, "channel", tolerance, bg)
+    return passes, float(np.mean(np.abs(_u8(img).astype(int) - own_img.astype(int)).max(axis=-1) <= 2))
+
+
 def run(store: Path, images, view_names, names, log=print) -> tuple[list[dict], list[dict]]:
     """Per setting, image size and view: the replay check, the oracle row and each mask's rows."""
-    from clipvol.app.converged import ConvergedPictures
-    from clipvol.scene.params import RenderParams
-
     scene = common.WarmScene(store)
     pyr, tf = scene.pyramid, scene.tf
-    every = bench_mission.settings()
-    ref = scene.action(policy="fixed", level=0)
-
-    def draw(c, params):
-        ref.set_params(params)
-        return ref.render(c, tf, wait=True, timeout=600)
-
-    conv = ConvergedPictures(draw, RenderParams(step=0.5), supersample=2, step=0.25)
+    conv = scene.converged_pictures()
     rows, orows = [], []
     try:
         for name in names:
-            kw = dict(every[name.replace(" dist", "")], step=every[name.replace(" dist", "")].get("step", 0.5))
-            if name.endswith(" dist"):
-                kw["classify"] = "distribution"
-            tol0 = kw.pop("refine_tolerance")
+            kw, tol0 = setting(name)
             probe = scene.action(**kw, refine_tolerance=1e-7)
             own = scene.action(**kw, refine_tolerance=tol0)
             bg = tuple(probe.params.background)
@@ -195,12 +203,7 @@ def run(store: Path, images, view_names, names, log=print) -> tuple[list[dict], 
                     if view_names and view not in view_names:
                         continue
                     truth = conv.get(cam, key=(image, view))
-                    own_img = own.render(cam, tf, wait=True, timeout=600)
-                    probe.render(cam, tf, wait=True, timeout=600)
-                    passes = [_pass(probe.setup, k, cam) for k in (2, 1, 0)]
-                    img, _ = replay(passes, "channel", tol0, bg)
-                    mine = _u8(img).astype(int)
-                    agree = float(np.mean(np.abs(mine - own_img.astype(int)).max(axis=-1) <= 2))
+                    passes, agree = read_passes(probe, own, cam, tf, tol0, bg)
                     log(f"{image}^2 {view} {name}: replay at {tol0:g} matches the drawn frame on "
                         f"{100 * agree:.2f} % of pixels (within 2 levels)")
                     o = oracle(passes, tol0, bg, truth,

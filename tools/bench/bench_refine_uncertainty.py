@@ -298,30 +298,17 @@ def _sweep(passes, us, truth, how: str, ctx: dict, perfect: dict, rows: list, lo
 def run(store: Path, images, view_names, names, hows, log=print) -> tuple[list[dict], list[dict]]:
     """Per setting, image size and view: the replay check, the perfect mask's rows, and each
     uncertainty's rows over the tolerances; ``(rows, summary rows)``."""
-    from clipvol.app.converged import ConvergedPictures
-    from clipvol.scene.params import RenderParams
     from clipvol.scene.metrics import delta_e_luv
 
     scene = common.WarmScene(store)
     pyr, tf = scene.pyramid, scene.tf
     vol = common.WholeVolume(scene.loader).read_brick(0, (0, 0, 0))
     unc = Uncertainty(vol, pyr, tf)
-    every = bench_mission.settings()
-    ref = scene.action(policy="fixed", level=0)
-
-    def draw(c, params):
-        ref.set_params(params)
-        return ref.render(c, tf, wait=True, timeout=600)
-
-    conv = ConvergedPictures(draw, RenderParams(step=0.5), supersample=2, step=0.25)
+    conv = scene.converged_pictures()
     rows, summ = [], []
     try:
         for name in names:
-            base = every[name.replace(" dist", "")]
-            kw = dict(base, step=base.get("step", 0.5))
-            if name.endswith(" dist"):
-                kw["classify"] = "distribution"
-            tol0 = kw.pop("refine_tolerance")
+            kw, tol0 = brm.setting(name)
             level = int(kw.get("level", 0))
             step0 = float(kw["step"]) * 2**level  # in level-0 voxels
             probe = scene.action(**kw, refine_tolerance=1e-7)
@@ -332,11 +319,7 @@ def run(store: Path, images, view_names, names, hows, log=print) -> tuple[list[d
                     if view_names and view not in view_names:
                         continue
                     truth = conv.get(cam, key=(image, view))
-                    own_img = own.render(cam, tf, wait=True, timeout=600)
-                    probe.render(cam, tf, wait=True, timeout=600)
-                    passes = [brm._pass(probe.setup, k, cam) for k in (2, 1, 0)]
-                    img, _ = brm.replay(passes, "channel", tol0, bg)
-                    agree = float(np.mean(np.abs(brm._u8(img).astype(int) - own_img.astype(int)).max(axis=-1) <= 2))
+                    passes, agree = brm.read_passes(probe, own, cam, tf, tol0, bg)
                     log(f"{image}^2 {view} {name}: channel replay at {tol0:g} matches the drawn frame on "
                         f"{100 * agree:.2f} % of pixels")
                     # fixable pixels of the image pass the channel mask blends between agreeing rays

@@ -182,6 +182,16 @@ class WarmScene:
 
         return draw
 
+    def converged_pictures(self, draw=None):
+        """The converged pictures the LOD benchmarks measure error against (level 0 at step 0.25,
+        2x2 rays a pixel, box-filtered; :class:`clipvol.app.converged.ConvergedPictures`), drawn by
+        ``draw`` (default: :meth:`converged_drawer`)."""
+        from clipvol.app.converged import ConvergedPictures
+        from clipvol.scene.params import RenderParams
+
+        draw = self.converged_drawer() if draw is None else draw
+        return ConvergedPictures(draw, RenderParams(step=0.5), supersample=2, step=0.25)
+
     def raw_caster(self, volume=None) -> "RawCaster":
         """The :class:`RawCaster` of ``volume`` (default: the store's level 0 read whole)."""
         if volume is None:
