@@ -261,15 +261,21 @@ def summary(rows: list[dict], log=print) -> None:
             log(f"  channel {float(r['tolerance']):g}: {n} rays, {e:.2f} % | " + "; ".join(cells))
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def parser(doc: str, out: str) -> argparse.ArgumentParser:
+    """The refine benchmarks' flags: ``--store``, ``--images``, ``--views``, ``--settings``, and
+    ``--out`` (default ``results/OUT``)."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
     ap.add_argument("--store", type=Path, required=True, help="a clipvol store (e.g. the MNI template at 32^3 bricks)")
     ap.add_argument("--images", default="256", help="image sizes, comma-separated (default 256)")
     ap.add_argument("--views", default="iso,face", help="views of bench_mission, comma-separated (default iso,face)")
     ap.add_argument("--settings", default="step=2 refine=0.16,L1 step=1 refine=0.08 dist",
                     help="bench_mission refined settings, comma-separated (' dist': classify='distribution')")
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "bench_refine_metric.csv")
-    a = ap.parse_args(argv)
+    ap.add_argument("--out", type=Path, default=HERE / "results" / out)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    a = parser(__doc__, "bench_refine_metric.csv").parse_args(argv)
     rows, orows = run(a.store, [int(v) for v in a.images.split(",")], a.views.split(","), a.settings.split(","))
     summary(rows)
     a.out.parent.mkdir(parents=True, exist_ok=True)

@@ -41,7 +41,6 @@ Rows: ``tools/bench/results/bench_refine_uncertainty.csv`` (``--out``).
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -364,14 +363,8 @@ def run(store: Path, images, view_names, names, hows, log=print) -> tuple[list[d
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--store", type=Path, required=True, help="a clipvol store (e.g. the MNI template at 32^3 bricks)")
-    ap.add_argument("--images", default="256", help="image sizes, comma-separated (default 256)")
-    ap.add_argument("--views", default="iso,face", help="views of bench_mission, comma-separated (default iso,face)")
-    ap.add_argument("--settings", default="step=2 refine=0.16,L1 step=1 refine=0.08 dist",
-                    help="bench_mission refined settings, comma-separated (' dist': classify='distribution')")
+    ap = brm.parser(__doc__, "bench_refine_uncertainty.csv")
     ap.add_argument("--how", default="lateral,minmax", help="uncertainty estimates, comma-separated")
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "bench_refine_uncertainty.csv")
     a = ap.parse_args(argv)
     rows, summ = run(a.store, [int(v) for v in a.images.split(",")], a.views.split(","), a.settings.split(","),
                      a.how.split(","))
