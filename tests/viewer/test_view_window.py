@@ -16,10 +16,14 @@ pytest.importorskip("moderngl")
 
 
 def _free_display() -> int:
-    for n in range(91, 140):
+    # each pytest-xdist worker looks among its own numbers: two workers starting their servers at
+    # once never both take the same free one
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+    first = 91 + 20 * int(worker[2:] or 0)
+    for n in range(first, first + 20):
         if not Path(f"/tmp/.X{n}-lock").exists() and not Path(f"/tmp/.X11-unix/X{n}").exists():
             return n
-    pytest.skip("no free X display number in :91..:139")
+    pytest.skip(f"no free X display number in :{first}..:{first + 19}")
 
 
 @pytest.fixture(scope="module")
