@@ -253,6 +253,14 @@ def _apply(sess, base: RenderParams, s: _Setting) -> None:
         sess.update(**ch)
 
 
+#: untimed frames drawn after a change of setting or view before the timed one: the frame loop
+#: selects the new cut from nothing, and keeps a projected-size cut for the frames after it, built
+#: from nothing the next frame (:mod:`clipvol.render.frame_loop`, "Coherence"); timing the second
+#: frame charged that build to every projected-size setting (the demo's ``lod=1``, the same bricks as
+#: the full-resolution frame: 0.87-0.94x its speed, 1.0x when the third is timed)
+SETTLING_FRAMES = 2
+
+
 def _warm_frame_s(sess, cam, coi, timeout: float) -> float:
     """Wall time of one converged frame drawn from resident data (what a user waits for per frame
     once the view is loaded). A frame that still had to upload or was not converged is settled and
@@ -276,9 +284,11 @@ def _time_block(ref, entries, views, rounds: int, base: RenderParams, timeout: f
     backward on odd ones) and, per view, draws a **pair**: the reference frame and the setting's
     frame one right after the other (which comes first alternates), so that the load of a shared
     machine, which drifts over seconds, weighs on both frames of a pair alike. Each frame is the
-    second of two drawn in a row for its setting and view: the first takes what a change of
-    setting or view costs once (a new cut, the image policy's visibility estimate), so the time is
-    that of the frames a user gets while holding or slowly turning a view. Returns
+    third of three drawn in a row for its setting and view (:data:`SETTLING_FRAMES`): the first two
+    take what a change of setting or view costs once (a new cut and the image policy's visibility
+    estimate; then a projected-size cut kept for the next frames, built from nothing in the frame
+    after the new cut), so the time is that of the frames a user gets while holding or slowly
+    turning a view. Returns
     ``{"times": {(label, view): [s, ...]}, "ratios": {(label, view): [reference s / setting s per
     pair]}}`` and appends one raw row per timed frame to ``raw`` (its ``pair`` column joins the
     two frames of a pair).
@@ -298,7 +308,8 @@ def _time_block(ref, entries, views, rounds: int, base: RenderParams, timeout: f
                 got = {}
                 for sess, s in ((ref, entry) if (r + v) % 2 == 0 else (entry, ref)):
                     _apply(sess, base, s)
-                    sess.render(cam, coi, wait=False)  # what a change of setting or view costs once
+                    for _ in range(SETTLING_FRAMES):  # what a change of setting or view costs once
+                        sess.render(cam, coi, wait=False)
                     dt = _warm_frame_s(sess, cam, coi, timeout)
                     got[s.label] = dt
                     times.setdefault((s.label, v), []).append(dt)
