@@ -96,16 +96,18 @@ class _Merging:
         return DrawItems(np.concatenate([self.data_lv[:, None], self.idx], axis=1), self.lo, self.hi, self.span)
 
 
-def _touched(pyramid, m: _Merging, first_level: int) -> dict:
-    """Per node level from ``first_level`` up, the set (:func:`_flag_set`) of nodes that hold a
-    drawn whole-node entry of ``m`` (its node and every ancestor: a flat int key per node, no
-    tuple per brick and ancestor, thousands a frame)."""
+def _touched(pyramid, m: _Merging, first_level: int, stop: int | None = None) -> dict:
+    """Per node level from ``first_level`` up to below ``stop`` (default: every level), the set
+    (:func:`_flag_set`) of nodes that hold a drawn whole-node entry of ``m`` (its node and every
+    ancestor: a flat int key per node, no tuple per brick and ancestor, thousands a frame). The
+    merge asks it of the node levels it merges at only: a kept merge's lower passes, of a few
+    changed cells, ask two levels, not every level's set of flags."""
     grids = [np.asarray(pyramid.grid(n), dtype=np.int64) for n in range(pyramid.num_levels)]
     parts: dict[int, list[np.ndarray]] = {}
     whole = m.node_lv >= 0
     for L in np.unique(m.data_lv[whole]).tolist():
         idx = m.idx[whole & (m.data_lv == L)]  # (a merged entry's first brick: its ancestors are the node's)
-        for n in range(max(L, first_level), pyramid.num_levels):
+        for n in range(max(L, first_level), pyramid.num_levels if stop is None else stop):
             a = idx >> (n - L)
             g = grids[n]
             parts.setdefault(n, []).append((a[:, 0] * g[1] + a[:, 1]) * g[2] + a[:, 2])
@@ -122,7 +124,7 @@ def _merge_levels(m: _Merging, pyramid, windows, may_cover, fb_lo, fb_hi, first:
     if n >= top:
         return m
     grids = [np.asarray(pyramid.grid(k), dtype=np.int64) for k in range(pyramid.num_levels)]
-    touched = _touched(pyramid, m, n)
+    touched = _touched(pyramid, m, n, top)
 
     def undrawn(level: int, node_level: int, nodes: np.ndarray) -> np.ndarray:
         """``(m,)`` bool: may each of ``nodes`` (level ``node_level``, no item of which is drawn
@@ -164,7 +166,7 @@ def _merge_levels(m: _Merging, pyramid, windows, may_cover, fb_lo, fb_hi, first:
         present = np.bincount(run[cand], minlength=len(start))
         grid_n = np.asarray(pyramid.grid(n), dtype=np.int64)
         p_run = parent[start]
-        kids = np.prod(np.clip(grid_n - 2 * p_run, 0, 2), axis=1)
+        kids = np.prod(np.minimum(np.maximum(grid_n - 2 * p_run, 0), 2), axis=1)  # (np.clip costs more)
         L_run = data_lv[start]
         span = 2 ** (n + 1 - L_run)
         first = p_run * span[:, None]
