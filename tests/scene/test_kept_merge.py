@@ -192,16 +192,25 @@ def test_answers_hold_over_kept_boxes_answers_as_each_question_asked_again():
     """``answers_hold`` with the boxes of the questions kept (one test of the next camera over all
     of them) answers as asking every question group of the last merge again (the plain split
     ``may_cover``), along a random path whose merges change the questions; where it says the
-    answers hold, the merge from nothing under the next camera is the kept merge's result."""
+    answers hold, the merge from nothing under the next camera is the kept merge's result; the
+    boxes a merge kept with the questions it kept are the nodes' boxes (``Pyramid.node_box``)."""
     params = RenderParams(policy="projected-size", lod_threshold=0.1)
     kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
     win = [PYR.grid(L) for L in range(PYR.num_levels)]
     km = KeptMerge(PYR)
     cams = list(path(np.random.default_rng(11), 40, 6.0))
     seen = set()
+    kept_boxes = 0
     for k, (cam, nxt) in enumerate(zip(cams, cams[1:])):
         sel = kc.update(cam, ordered=False)
         got = km.merge(sel.items, win, cover_camera(cam, boxed=True))
+        for L, n, nodes, _, _, box in km._asked:  # each question's kept box is its node's, grown by a voxel
+            if box[0] is not None:
+                lo, hi = PYR.node_box(n, nodes)
+                pad = float(max(PYR.levels[L].scale))
+                np.testing.assert_array_equal(box[0][0], lo - pad)
+                np.testing.assert_array_equal(box[0][1], hi + pad)
+                kept_boxes += 1
         for again in range(2):  # (the second: the kept boxes)
             hold = km.answers_hold(cover_camera(nxt, boxed=True))
             assert hold == km.answers_hold(cover_camera(nxt, boxed=False))
@@ -211,6 +220,7 @@ def test_answers_hold_over_kept_boxes_answers_as_each_question_asked_again():
             np.testing.assert_array_equal(got.rows, want.rows)
             np.testing.assert_array_equal(got.span, want.span)
     assert seen == {True, False}  # (the path both keeps and changes the answers)
+    assert kept_boxes > 10  # (merges kept the boxes of the questions they kept)
 
 
 def leaf_cells(rows: np.ndarray, K: int) -> dict:

@@ -7,9 +7,10 @@ read-back, the frame's statistics), per frame, along the orbit of ``bench_frame_
 
 The stages are timed by wrapping the methods and functions that exist in the code it runs (it runs
 on an older tree too, where some are missing). A stage called inside another counts in both
-(``ClipRenderAction.render`` is the whole frame). ``rest`` is the frame less the frame loop and the
-merge: what the draw path, the page table, the GL calls and the statistics cost. Medians and means
-over the frames, per volume, and each volume's median over the first volume's.
+(``ClipRenderAction.render`` is the whole frame); the last lines are stages less the stages timed
+inside them, ``rest`` the frame less the frame loop and the merge: what the draw path, the page
+table, the GL calls and the statistics cost. Medians and means over the frames, per volume, and
+each volume's median over the first volume's.
 
     python tools/bench/profile_frame_rest.py --store mni16.zarr --head 512 --frames 24
 """
@@ -152,16 +153,22 @@ def main(argv: list[str] | None = None) -> int:
             med, mean, wall, calls = _stats(fr, key)
             cells.append(f"{med:6.3f} {mean:6.3f} {wall:6.3f} {calls:4.1f}")
         print(f"  {key:38} " + " | ".join(f"{c:>26}" for c in cells))
-    for fr in frames:  # the rest: the frame less the frame loop and the merge
-        for d in fr:
-            whole = d.get("ClipRenderAction.render", (0.0, 0.0, 0))
-            parts = [d.get(k, (0.0, 0.0, 0)) for k in ("FrameLoop.run", "ClipRenderAction._merged")]
-            d["rest"] = (whole[0] - sum(p[0] for p in parts), whole[1] - sum(p[1] for p in parts), 1)
-    cells = []
-    for fr in frames:
-        med, mean, wall, _ = _stats(fr, "rest")
-        cells.append(f"{med:6.3f} {mean:6.3f} {wall:6.3f}     ")
-    print(f"  {'rest (render - run - _merged)':38} " + " | ".join(f"{c:>26}" for c in cells))
+    derived = {  # a stage less the stages timed inside it
+        "rest (render - FrameLoop.run - _merged)": ("ClipRenderAction.render", "FrameLoop.run", "ClipRenderAction._merged"),
+        "_merged less merge, answers_hold": ("ClipRenderAction._merged", "KeptMerge.merge", "KeptMerge.answers_hold"),
+        "FrameLoop.run less KeptCut.update": ("FrameLoop.run", "KeptCut.update"),
+        "SinglePassPath.draw less read_back": ("SinglePassPath.draw", "DrawSetup.read_back"),
+    }
+    for label, (whole, *inner) in derived.items():
+        cells = []
+        for fr in frames:
+            for d in fr:
+                w = d.get(whole, (0.0, 0.0, 0))
+                parts = [d.get(k, (0.0, 0.0, 0)) for k in inner]
+                d[label] = (w[0] - sum(p[0] for p in parts), w[1] - sum(p[1] for p in parts), 1)
+            med, mean, wall, _ = _stats(fr, label)
+            cells.append(f"{med:6.3f} {mean:6.3f} {wall:6.3f}     ")
+        print(f"  {label:38} " + " | ".join(f"{c:>26}" for c in cells))
     base = _stats(frames[0], "ClipRenderAction.render")[0]
     for (_, name), fr in zip(entries, frames):
         print(f"  {name}: frame {_stats(fr, 'ClipRenderAction.render')[0]:.2f} ms CPU "

@@ -287,13 +287,15 @@ class KeptMerge:
         self._kept_cell: np.ndarray | None = None  # each kept entry's cell (flat key; -1: coarser than a cell)
         self._windows = None
         #: the lower passes' questions to ``may_cover`` of the kept cells, and the upper passes' of
-        #: the last call: ``(level, node_level, nodes, answers, cells)`` (cells None: upper)
+        #: the last call: ``(level, node_level, nodes, answers, cells, box)`` (cells None: upper;
+        #: box: a one-element list holding the nodes' camera-free boxes ``(lo, hi)`` once made, or
+        #: None: kept with the questions, so that a merge makes only its new questions' boxes)
         self._asked: list[tuple] = []
         #: the upper passes' input entries, their questions (as :attr:`_asked`'s) and their result:
         #: the same entries whose camera answers hold merge the same, and the same object is returned
         self._upper: tuple | None = None
-        #: :meth:`answers_hold`'s camera-free boxes of :attr:`_asked`'s questions, made once per
-        #: list of questions: ``(asked, lo, hi, answers)``
+        #: :meth:`answers_hold`'s camera-free boxes of :attr:`_asked`'s questions and their answers,
+        #: joined once per list of questions: ``(asked, lo, hi, answers)``
         self._boxes: tuple | None = None
         self.remerged = 0  # items the lower passes ran over in the last call (benchmarks and tests)
         self.upper_kept = False  # the last call kept the upper passes' result (benchmarks and tests)
@@ -333,7 +335,8 @@ class KeptMerge:
             if lower:
                 a = nodes >> max(K - node_level, 0)
                 cells = (a[:, 0] * g[1] + a[:, 1]) * g[2] + a[:, 2]
-            self._asked.append((level, node_level, nodes[ask], ans[ask], None if cells is None else cells[ask]))
+            self._asked.append((level, node_level, nodes[ask], ans[ask], None if cells is None else cells[ask],
+                                [None]))
             return ans
 
         return asked
@@ -350,8 +353,34 @@ class KeptMerge:
         vectorised test over all of them and a compare."""
         if not any(len(q[2]) for q in self._asked):
             return True
+        if _boxed(may_cover):  # one test over every question's kept box, one compare
+            _, lo, hi, ans = self._joined_boxes(may_cover)
+            return np.array_equal(np.asarray(may_cover.beside_boxes(lo, hi), dtype=bool).reshape(len(ans)), ans)
         now = self._answers_now(may_cover)
         return all(np.array_equal(a, q[3]) for a, q in zip(now, self._asked))
+
+    def _joined_boxes(self, may_cover) -> tuple:
+        """:attr:`_boxes` for the questions :attr:`_asked` holds (joined once per list of them),
+        each group's boxes made where it has none yet (:meth:`_make_boxes`)."""
+        held, asked = self._boxes, self._asked
+        if held is None or held[0] is not asked:  # (a merge made a new list of questions)
+            self._make_boxes(asked, may_cover)
+            boxes = [q[5][0] for q in asked if len(q[2])]
+            lo = np.concatenate([b[0] for b in boxes]) if boxes else np.zeros((0, 3))
+            hi = np.concatenate([b[1] for b in boxes]) if boxes else np.zeros((0, 3))
+            ans = np.concatenate([q[3] for q in asked]) if asked else np.zeros(0, dtype=bool)
+            held = self._boxes = (asked, lo, hi, ans)
+        return held
+
+    @staticmethod
+    def _make_boxes(asked: list, may_cover) -> None:
+        """Make the camera-free boxes of the question groups of ``asked`` that have none (where
+        ``may_cover`` tells them, :func:`_boxed`): a merge's new questions, a few."""
+        if not _boxed(may_cover):
+            return
+        for q in asked:
+            if q[5][0] is None and len(q[2]):
+                q[5][0] = may_cover.boxes(q[0], q[1], q[2])
 
     def _answers_now(self, may_cover) -> list[np.ndarray]:
         """``may_cover``'s camera part's answers now to each question group of :attr:`_asked`, in
@@ -361,14 +390,8 @@ class KeptMerge:
         if not _boxed(may_cover):
             ask = _camera_part(may_cover)
             return [np.asarray(ask(L, n, nodes), dtype=bool).reshape(len(nodes)) if len(nodes)
-                    else np.zeros(0, dtype=bool) for L, n, nodes, _, _ in asked]
-        held = self._boxes
-        if held is None or held[0] is not asked:  # (a merge made a new list of questions)
-            boxes = [may_cover.boxes(L, n, nodes) for L, n, nodes, _, _ in asked if len(nodes)]
-            lo = np.concatenate([b[0] for b in boxes]) if boxes else np.zeros((0, 3))
-            hi = np.concatenate([b[1] for b in boxes]) if boxes else np.zeros((0, 3))
-            held = self._boxes = (asked, lo, hi)
-        _, lo, hi = held
+                    else np.zeros(0, dtype=bool) for L, n, nodes, *_ in asked]
+        _, lo, hi, _ = self._joined_boxes(may_cover)
         flat = np.asarray(may_cover.beside_boxes(lo, hi), dtype=bool).reshape(len(lo)) if len(lo) \
             else np.zeros(0, dtype=bool)
         return np.split(flat, np.cumsum([len(q[2]) for q in asked])[:-1]) if asked else []
@@ -455,12 +478,13 @@ class KeptMerge:
             if now is not None:
                 upper_now = [(q, a) for q, a in zip(old, now) if q[4] is None]
             self._asked = []
-            for L, n, nodes, ans, where in old:  # the questions of the cells kept
+            for L, n, nodes, ans, where, box in old:  # the questions of the cells kept (with their boxes)
                 if where is None:
                     continue
                 k = ~dirty[where]
                 if k.any():
-                    self._asked.append((L, n, nodes[k], ans[k], where[k]))
+                    b = box[0]
+                    self._asked.append((L, n, nodes[k], ans[k], where[k], [None if b is None else (b[0][k], b[1][k])]))
             redo = (cells < 0) | dirty[np.maximum(cells, 0)]
             keep = (self._kept_cell >= 0) & ~dirty[np.maximum(self._kept_cell, 0)]
         self._boxes = None  # (the questions are made again below)
@@ -480,6 +504,7 @@ class KeptMerge:
         elif keep is not None and keep.any():  # the kept cells' entries and the new ones, in depth-first order
             merged = _Merging.join([self._kept.take(keep), merged])
             merged = merged.take(depth_first(merged.data_lv, merged.idx))
+        self._make_boxes(self._asked, may_cover)  # (the new questions': the kept ones have theirs)
         self._asked = _grouped(self._asked)  # (one call per level pair when asked again)
         if merged_cells is None:  # each entry's cell: its first brick's (a lower pass never merges beyond a cell)
             merged_cells = self._cells(np.concatenate([merged.data_lv[:, None], merged.idx], axis=1))
@@ -496,6 +521,7 @@ class KeptMerge:
         self.upper_kept = False
         lower, self._asked = self._asked, []
         out = _merge_levels(merged, pyr, windows, self._recording(may_cover, False), none, none, first=K).items()
+        self._make_boxes(self._asked, may_cover)
         self._upper = (merged, _grouped(self._asked), out)
         self._asked = lower + self._upper[1]
         return out
@@ -509,7 +535,7 @@ class KeptMerge:
             return all(np.array_equal(a, q[3]) for q, a in now)
         ask = _camera_part(may_cover)
         return all(np.array_equal(np.asarray(ask(L, n, nodes), dtype=bool).reshape(len(nodes)), ans)
-                   for L, n, nodes, ans, _ in asked if len(nodes))
+                   for L, n, nodes, ans, *_ in asked if len(nodes))
 
 
 def _same_entries(a: _Merging, b: _Merging) -> bool:
@@ -523,9 +549,15 @@ def _grouped(asked: list) -> list:
     groups: dict = {}
     for q in asked:
         groups.setdefault((q[0], q[1]), []).append(q)
-    return [qs[0] if len(qs) == 1 else (L, n, np.concatenate([q[2] for q in qs]), np.concatenate([q[3] for q in qs]),
-                                        np.concatenate([q[4] for q in qs]))
-            for (L, n), qs in groups.items()]
+    def joined(qs: list) -> tuple:
+        L, n = qs[0][:2]
+        cells = None if qs[0][4] is None else np.concatenate([q[4] for q in qs])
+        boxes = [q[5][0] for q in qs if len(q[2])]
+        box = None if any(b is None for b in boxes) else \
+            (np.concatenate([b[0] for b in boxes]), np.concatenate([b[1] for b in boxes])) if boxes else None
+        return (L, n, np.concatenate([q[2] for q in qs]), np.concatenate([q[3] for q in qs]), cells, [box])
+
+    return [qs[0] if len(qs) == 1 else joined(qs) for qs in groups.values()]
 
 
 def _split(may_cover) -> bool:
