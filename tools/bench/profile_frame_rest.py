@@ -154,7 +154,8 @@ def main(argv: list[str] | None = None) -> int:
             cells.append(f"{med:6.3f} {mean:6.3f} {wall:6.3f} {calls:4.1f}")
         print(f"  {key:38} " + " | ".join(f"{c:>26}" for c in cells))
     derived = {  # a stage less the stages timed inside it
-        "rest (render - FrameLoop.run - _merged)": ("ClipRenderAction.render", "FrameLoop.run", "ClipRenderAction._merged"),
+        "rest (render - FrameLoop.run - _merged)": ("ClipRenderAction.render", "FrameLoop.run",
+                                                    "ClipRenderAction._merged"),
         "_merged less merge, answers_hold": ("ClipRenderAction._merged", "KeptMerge.merge", "KeptMerge.answers_hold"),
         "FrameLoop.run less KeptCut.update": ("FrameLoop.run", "KeptCut.update"),
         "SinglePassPath.draw less read_back": ("SinglePassPath.draw", "DrawSetup.read_back"),

@@ -271,9 +271,17 @@ class KeptMerge:
     call a merge from nothing. ``may_cover`` may depend on the camera (the render action covers a
     culled node not in texture memory while it lies beside the view): a kept cell's entries hold
     only while it answers the cell's questions as before, so each call asks them again (one call
-    per level pair) and merges again the cells where an answer changed. New ``windows`` merge
-    everything again; a caller whose ``may_cover`` changed otherwise (other textures) calls
-    :meth:`reset`.
+    over every question's kept box where ``may_cover`` tells its boxes, else one per level pair)
+    and merges again the cells where an answer changed. New ``windows`` merge everything again; a
+    caller whose ``may_cover`` changed otherwise (other textures) calls :meth:`reset`.
+
+    What a changed frame costs besides the changed cells' merge is kept flat in the cut's size:
+    the cut is compared with the last one only past the rows they share at the front and the back
+    (:meth:`_diff`), the questions keep their boxes through a merge (only new questions' boxes are
+    made), and where the changed cells merge to the entries they had (an orbit's usual changed
+    frame: a leaf that a merged box covered as a culled sibling is now drawn in it, or the other
+    way round) the kept entries stay the same object, so the upper passes' result is known to be
+    theirs without a compare, and no sort of the entries is made.
     """
 
     def __init__(self, pyramid, cell_level: int = CELL_LEVEL) -> None:
