@@ -9,8 +9,10 @@ The stages are timed by wrapping the methods and functions that exist in the cod
 on an older tree too, where some are missing). A stage called inside another counts in both
 (``ClipRenderAction.render`` is the whole frame); the last lines are stages less the stages timed
 inside them, ``rest`` the frame less the frame loop and the merge: what the draw path, the page
-table, the GL calls and the statistics cost. Medians and means over the frames, per volume, and
-each volume's median over the first volume's.
+table, the GL calls and the statistics cost. Medians and means over the frames, per volume; then
+per stage the median (and mean) over frames of each pair's difference from the first volume's
+frame drawn beside it, and the frame's per-pair ratio to the first's with its quartiles (as
+``bench_frame_cost.py --flat`` gives it).
 
     python tools/bench/profile_frame_rest.py --store mni16.zarr --head 512 --frames 24
 """
@@ -23,6 +25,8 @@ import statistics
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
 
 HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
@@ -170,10 +174,23 @@ def main(argv: list[str] | None = None) -> int:
             med, mean, wall, _ = _stats(fr, label)
             cells.append(f"{med:6.3f} {mean:6.3f} {wall:6.3f}     ")
         print(f"  {label:38} " + " | ".join(f"{c:>26}" for c in cells))
-    base = _stats(frames[0], "ClipRenderAction.render")[0]
+    # what grows: per stage, the median over frames of each pair's difference from the first
+    # volume's frame drawn beside it (a drift in the load weighs on both alike)
+    print(f"  {'stage: CPU ms more than the first (median of pairs)':52} "
+          + " | ".join(f"{name[:16]:>16}" for _, name in entries[1:]))
+    for key in [*keys, *derived]:
+        cells = []
+        for fr in frames[1:]:
+            diff = [d.get(key, (0.0, 0.0, 0))[0] - d0.get(key, (0.0, 0.0, 0))[0] for d, d0 in zip(fr, frames[0])]
+            cells.append(f"{1e3 * statistics.median(diff):+7.3f} ({1e3 * statistics.mean(diff):+7.3f})")
+        print(f"  {key:52} " + " | ".join(f"{c:>16}" for c in cells))
+    base = [d.get("ClipRenderAction.render", (1.0, 0.0, 0))[0] for d in frames[0]]
     for (_, name), fr in zip(entries, frames):
-        print(f"  {name}: frame {_stats(fr, 'ClipRenderAction.render')[0]:.2f} ms CPU "
-              f"= {_stats(fr, 'ClipRenderAction.render')[0] / base:.2f}x the first's (medians)")
+        mine = [d.get("ClipRenderAction.render", (0.0, 0.0, 0))[0] for d in fr]
+        ratios = [m / b for m, b in zip(mine, base)]
+        q = [float(v) for v in np.percentile(ratios, [25, 50, 75])]
+        print(f"  {name}: frame {1e3 * statistics.median(mine):.2f} ms CPU, per pair {q[1]:.2f}x the first's "
+              f"(quartiles {q[0]:.2f}-{q[2]:.2f})")
     return 0
 
 
