@@ -278,10 +278,10 @@ class KeptMerge:
     What a changed frame costs besides the changed cells' merge is kept flat in the cut's size:
     the cut is compared with the last one only past the rows they share at the front and the back
     (:meth:`_diff`), the questions keep their boxes through a merge (only new questions' boxes are
-    made), and where the changed cells merge to the entries they had (an orbit's usual changed
-    frame: a leaf that a merged box covered as a culled sibling is now drawn in it, or the other
-    way round) the kept entries stay the same object, so the upper passes' result is known to be
-    theirs without a compare, and no sort of the entries is made.
+    made), and where the cells merged again give the entries they had (every merging frame of the
+    512^3 CT-like head's orbit: the answers that changed decide no merge) the kept entries stay the
+    same object, so the upper passes' result is known to be theirs without a compare, and no sort
+    of the entries is made (docs/benchmarks.md, "The rest of an orbit frame").
     """
 
     def __init__(self, pyramid, cell_level: int = CELL_LEVEL) -> None:
