@@ -295,14 +295,20 @@ class ClipRenderAction:
         times["host"] = max(0.0, times["total"] - times["wait"] - times["gpu"])
         bytes_read = None if read0 is None else bytes_read_of(self.clip_texture.loader) - read0
         reads = self.clip_texture.take_reads()
-        last = self.last_frame_stats
-        if plan.replayed and self.last_selection is sel and last is not None:  # the same cut
+        last, before = self.last_frame_stats, self.last_selection
+        if (plan.replayed or plan.updated) and last is not None and before is not None \
+                and getattr(before, "items", None) is sel.items:
+            # the same cut (drawn again, or a kept cut updated with the same leaves: the same items
+            # object): what the statistics count of its items is the last frame's, not counted again
+            # over the whole cut (a bincount and a pass per brick: ~0.2 ms a frame of the 512^3
+            # head's 15 774 bricks, where the frame's other work is flat in the cut)
             frame_read, other_read = split_reads(reads, np.concatenate([sel.item_keys(), sel.wanted_keys()])) \
                 if reads else ((None, None) if reads is None else (0, 0))
             self.last_frame_stats = dataclasses.replace(
                 last, times=times, bytes_uploaded=0, bricks_uploaded=0, passes=1, converged=True,
-                bytes_read=bytes_read, frame_bytes_read=frame_read, prefetch_bytes_read=other_read, replayed=True,
-                updated=False, counts=sel.counts.copy(), **self._drawn_fields(drawn))  # (a kept cut's: this camera's)
+                bytes_read=bytes_read, frame_bytes_read=frame_read, prefetch_bytes_read=other_read,
+                replayed=plan.replayed, updated=plan.updated,
+                counts=sel.counts.copy(), **self._drawn_fields(drawn))  # (a kept cut's: this camera's)
         else:
             self.last_frame_stats = dataclasses.replace(
                 frame_stats(sel, plan, times, self.cache, self.params.texture_budget, self.clip_texture,

@@ -224,6 +224,14 @@ def test_updated_projected_size_frames_equal_fresh_frames(ctx, path, tmp_path):
             assert img[..., 3].any()
             fresh_keys = b.last_selection.item_keys().tolist()
             assert sorted(map(tuple, sel.item_keys().tolist())) == sorted(map(tuple, fresh_keys))
+            # the frame's statistics of its cut (kept from the frame before where its items are the
+            # same object) are this cut's: counted here row by row
+            st, rows = a.last_frame_stats, sel.item_keys().tolist()
+            per: dict = {}
+            for r in rows:
+                per[r[0]] = per.get(r[0], 0) + 1
+            assert st.bricks_drawn == per and st.items_drawn == len(rows)
+            assert st.bricks_distinct == len(set(map(tuple, rows)))
         # the first frame selects from nothing; a frame whose cut needs a brick not yet on the GPU
         # does too (it uploads); the others update the kept cut, and some of those changed it
         assert updated[0] is False and sum(updated) >= 4, updated

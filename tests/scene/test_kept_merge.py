@@ -192,16 +192,25 @@ def test_answers_hold_over_kept_boxes_answers_as_each_question_asked_again():
     """``answers_hold`` with the boxes of the questions kept (one test of the next camera over all
     of them) answers as asking every question group of the last merge again (the plain split
     ``may_cover``), along a random path whose merges change the questions; where it says the
-    answers hold, the merge from nothing under the next camera is the kept merge's result."""
+    answers hold, the merge from nothing under the next camera is the kept merge's result; the
+    boxes a merge kept with the questions it kept are the nodes' boxes (``Pyramid.node_box``)."""
     params = RenderParams(policy="projected-size", lod_threshold=0.1)
     kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
     win = [PYR.grid(L) for L in range(PYR.num_levels)]
     km = KeptMerge(PYR)
     cams = list(path(np.random.default_rng(11), 40, 6.0))
     seen = set()
+    kept_boxes = 0
     for k, (cam, nxt) in enumerate(zip(cams, cams[1:])):
         sel = kc.update(cam, ordered=False)
         got = km.merge(sel.items, win, cover_camera(cam, boxed=True))
+        for L, n, nodes, _, _, box in km._asked:  # each question's kept box is its node's, grown by a voxel
+            if box[0] is not None:
+                lo, hi = PYR.node_box(n, nodes)
+                pad = float(max(PYR.levels[L].scale))
+                np.testing.assert_array_equal(box[0][0], lo - pad)
+                np.testing.assert_array_equal(box[0][1], hi + pad)
+                kept_boxes += 1
         for again in range(2):  # (the second: the kept boxes)
             hold = km.answers_hold(cover_camera(nxt, boxed=True))
             assert hold == km.answers_hold(cover_camera(nxt, boxed=False))
@@ -211,3 +220,53 @@ def test_answers_hold_over_kept_boxes_answers_as_each_question_asked_again():
             np.testing.assert_array_equal(got.rows, want.rows)
             np.testing.assert_array_equal(got.span, want.span)
     assert seen == {True, False}  # (the path both keeps and changes the answers)
+    assert kept_boxes > 10  # (merges kept the boxes of the questions they kept)
+
+
+def leaf_cells(rows: np.ndarray, K: int) -> dict:
+    """Per cell ``(z, y, x)`` of node level ``K``, the set of the rows' leaves below that level in it."""
+    out: dict = {}
+    for L, z, y, x in rows.tolist():
+        if L < K:
+            out.setdefault((z >> (K - L), y >> (K - L), x >> (K - L)), set()).add((L, z, y, x))
+    return out
+
+
+def test_the_changed_cells_are_those_whose_leaves_differ():
+    """``KeptMerge._diff`` (compares only past the rows two cuts share at the front and the back)
+    against a set of leaves per cell built row by row in Python: the cells whose sets differ, and
+    each new row's cell, along a random path and for rows taken out at the front, the back, the
+    middle and both ends of a cut."""
+    params = RenderParams(policy="projected-size", lod_threshold=0.1)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    km = KeptMerge(PYR)
+    K, grid = km.cell_level, tuple(PYR.grid(km.cell_level))
+
+    def check(old: np.ndarray, new: np.ndarray) -> None:
+        km._items = type("Rows", (), {"rows": old})()
+        km._items_cells = km._cells(old)
+        dirty, cells = km._diff(new)
+        a, b = leaf_cells(old, K), leaf_cells(new, K)
+        want = {c for c in a.keys() | b.keys() if a.get(c, set()) != b.get(c, set())}
+        got = {tuple(int(v) for v in np.unravel_index(i, grid)) for i in np.nonzero(dirty)[0]}
+        assert got == want
+        ref = [int(np.ravel_multi_index((z >> (K - L), y >> (K - L), x >> (K - L)), grid)) if L < K else -1
+               for L, z, y, x in new.tolist()]
+        np.testing.assert_array_equal(cells, ref)
+
+    changed = 0
+    last = None
+    for cam in path(np.random.default_rng(5), 30, 3.0):
+        items = kc.update(cam, ordered=False).items
+        if last is not None and last is not items:
+            check(last.rows, items.rows)
+            changed += 1
+        last = items
+    assert changed > 5
+    rows = last.rows
+    n = len(rows)
+    assert n > 20
+    for drop in ([0], [n - 1], [n // 2], [0, n - 1], [1, n // 3, n - 2], list(range(n // 4, n // 2))):
+        check(rows, np.delete(rows, drop, axis=0))
+        check(np.delete(rows, drop, axis=0), rows)
+    check(rows, rows.copy())  # (no change: no cell)

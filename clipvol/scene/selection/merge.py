@@ -96,16 +96,18 @@ class _Merging:
         return DrawItems(np.concatenate([self.data_lv[:, None], self.idx], axis=1), self.lo, self.hi, self.span)
 
 
-def _touched(pyramid, m: _Merging, first_level: int) -> dict:
-    """Per node level from ``first_level`` up, the set (:func:`_flag_set`) of nodes that hold a
-    drawn whole-node entry of ``m`` (its node and every ancestor: a flat int key per node, no
-    tuple per brick and ancestor, thousands a frame)."""
+def _touched(pyramid, m: _Merging, first_level: int, stop: int | None = None) -> dict:
+    """Per node level from ``first_level`` up to below ``stop`` (default: every level), the set
+    (:func:`_flag_set`) of nodes that hold a drawn whole-node entry of ``m`` (its node and every
+    ancestor: a flat int key per node, no tuple per brick and ancestor, thousands a frame). The
+    merge asks it of the node levels it merges at only: a kept merge's lower passes, of a few
+    changed cells, ask two levels, not every level's set of flags."""
     grids = [np.asarray(pyramid.grid(n), dtype=np.int64) for n in range(pyramid.num_levels)]
     parts: dict[int, list[np.ndarray]] = {}
     whole = m.node_lv >= 0
     for L in np.unique(m.data_lv[whole]).tolist():
         idx = m.idx[whole & (m.data_lv == L)]  # (a merged entry's first brick: its ancestors are the node's)
-        for n in range(max(L, first_level), pyramid.num_levels):
+        for n in range(max(L, first_level), pyramid.num_levels if stop is None else stop):
             a = idx >> (n - L)
             g = grids[n]
             parts.setdefault(n, []).append((a[:, 0] * g[1] + a[:, 1]) * g[2] + a[:, 2])
@@ -122,7 +124,7 @@ def _merge_levels(m: _Merging, pyramid, windows, may_cover, fb_lo, fb_hi, first:
     if n >= top:
         return m
     grids = [np.asarray(pyramid.grid(k), dtype=np.int64) for k in range(pyramid.num_levels)]
-    touched = _touched(pyramid, m, n)
+    touched = _touched(pyramid, m, n, top)
 
     def undrawn(level: int, node_level: int, nodes: np.ndarray) -> np.ndarray:
         """``(m,)`` bool: may each of ``nodes`` (level ``node_level``, no item of which is drawn
@@ -164,7 +166,7 @@ def _merge_levels(m: _Merging, pyramid, windows, may_cover, fb_lo, fb_hi, first:
         present = np.bincount(run[cand], minlength=len(start))
         grid_n = np.asarray(pyramid.grid(n), dtype=np.int64)
         p_run = parent[start]
-        kids = np.prod(np.clip(grid_n - 2 * p_run, 0, 2), axis=1)
+        kids = np.prod(np.minimum(np.maximum(grid_n - 2 * p_run, 0), 2), axis=1)  # (np.clip costs more)
         L_run = data_lv[start]
         span = 2 ** (n + 1 - L_run)
         first = p_run * span[:, None]
@@ -269,9 +271,17 @@ class KeptMerge:
     call a merge from nothing. ``may_cover`` may depend on the camera (the render action covers a
     culled node not in texture memory while it lies beside the view): a kept cell's entries hold
     only while it answers the cell's questions as before, so each call asks them again (one call
-    per level pair) and merges again the cells where an answer changed. New ``windows`` merge
-    everything again; a caller whose ``may_cover`` changed otherwise (other textures) calls
-    :meth:`reset`.
+    over every question's kept box where ``may_cover`` tells its boxes, else one per level pair)
+    and merges again the cells where an answer changed. New ``windows`` merge everything again; a
+    caller whose ``may_cover`` changed otherwise (other textures) calls :meth:`reset`.
+
+    What a changed frame costs besides the changed cells' merge is kept flat in the cut's size:
+    the cut is compared with the last one only past the rows they share at the front and the back
+    (:meth:`_diff`), the questions keep their boxes through a merge (only new questions' boxes are
+    made), and where the cells merged again give the entries they had (every merging frame of the
+    512^3 CT-like head's orbit: the answers that changed decide no merge) the kept entries stay the
+    same object, so the upper passes' result is known to be theirs without a compare, and no sort
+    of the entries is made (docs/benchmarks.md, "The rest of an orbit frame").
     """
 
     def __init__(self, pyramid, cell_level: int = CELL_LEVEL) -> None:
@@ -280,17 +290,20 @@ class KeptMerge:
         g = np.asarray(pyramid.grid(self.cell_level), dtype=np.int64)
         self._cell_grid = g
         self._items: DrawItems | None = None
+        self._items_cells: np.ndarray | None = None  # each of its rows' cell (:meth:`_cells`)
         self._kept: _Merging | None = None  # the lower passes' entries, in depth-first order
         self._kept_cell: np.ndarray | None = None  # each kept entry's cell (flat key; -1: coarser than a cell)
         self._windows = None
         #: the lower passes' questions to ``may_cover`` of the kept cells, and the upper passes' of
-        #: the last call: ``(level, node_level, nodes, answers, cells)`` (cells None: upper)
+        #: the last call: ``(level, node_level, nodes, answers, cells, box)`` (cells None: upper;
+        #: box: a one-element list holding the nodes' camera-free boxes ``(lo, hi)`` once made, or
+        #: None: kept with the questions, so that a merge makes only its new questions' boxes)
         self._asked: list[tuple] = []
         #: the upper passes' input entries, their questions (as :attr:`_asked`'s) and their result:
         #: the same entries whose camera answers hold merge the same, and the same object is returned
         self._upper: tuple | None = None
-        #: :meth:`answers_hold`'s camera-free boxes of :attr:`_asked`'s questions, made once per
-        #: list of questions: ``(asked, lo, hi, answers)``
+        #: :meth:`answers_hold`'s camera-free boxes of :attr:`_asked`'s questions and their answers,
+        #: joined once per list of questions: ``(asked, lo, hi, answers)``
         self._boxes: tuple | None = None
         self.remerged = 0  # items the lower passes ran over in the last call (benchmarks and tests)
         self.upper_kept = False  # the last call kept the upper passes' result (benchmarks and tests)
@@ -302,7 +315,7 @@ class KeptMerge:
 
     def reset(self) -> None:
         """Forget the kept cells: the next :meth:`merge` merges from nothing."""
-        self._items = self._kept = self._kept_cell = None
+        self._items = self._items_cells = self._kept = self._kept_cell = None
         self._asked = []
         self._upper = None
         self._boxes = None
@@ -330,7 +343,8 @@ class KeptMerge:
             if lower:
                 a = nodes >> max(K - node_level, 0)
                 cells = (a[:, 0] * g[1] + a[:, 1]) * g[2] + a[:, 2]
-            self._asked.append((level, node_level, nodes[ask], ans[ask], None if cells is None else cells[ask]))
+            self._asked.append((level, node_level, nodes[ask], ans[ask], None if cells is None else cells[ask],
+                                [None]))
             return ans
 
         return asked
@@ -345,20 +359,50 @@ class KeptMerge:
         a group on the 512^3 CT-like head, whatever the group's size. The boxes do not depend on
         the camera, so they are made once per list of questions and kept; a frame is then one
         vectorised test over all of them and a compare."""
-        asked = [q for q in self._asked if len(q[2])]
-        if not asked:
+        if not any(len(q[2]) for q in self._asked):
             return True
+        if _boxed(may_cover):  # one test over every question's kept box, one compare
+            _, lo, hi, ans = self._joined_boxes(may_cover)
+            return np.array_equal(np.asarray(may_cover.beside_boxes(lo, hi), dtype=bool).reshape(len(ans)), ans)
+        now = self._answers_now(may_cover)
+        return all(np.array_equal(a, q[3]) for a, q in zip(now, self._asked))
+
+    def _joined_boxes(self, may_cover) -> tuple:
+        """:attr:`_boxes` for the questions :attr:`_asked` holds (joined once per list of them),
+        each group's boxes made where it has none yet (:meth:`_make_boxes`)."""
+        held, asked = self._boxes, self._asked
+        if held is None or held[0] is not asked:  # (a merge made a new list of questions)
+            self._make_boxes(asked, may_cover)
+            boxes = [q[5][0] for q in asked if len(q[2])]
+            lo = np.concatenate([b[0] for b in boxes]) if boxes else np.zeros((0, 3))
+            hi = np.concatenate([b[1] for b in boxes]) if boxes else np.zeros((0, 3))
+            ans = np.concatenate([q[3] for q in asked]) if asked else np.zeros(0, dtype=bool)
+            held = self._boxes = (asked, lo, hi, ans)
+        return held
+
+    @staticmethod
+    def _make_boxes(asked: list, may_cover) -> None:
+        """Make the camera-free boxes of the question groups of ``asked`` that have none (where
+        ``may_cover`` tells them, :func:`_boxed`): a merge's new questions, a few."""
+        if not _boxed(may_cover):
+            return
+        for q in asked:
+            if q[5][0] is None and len(q[2]):
+                q[5][0] = may_cover.boxes(q[0], q[1], q[2])
+
+    def _answers_now(self, may_cover) -> list[np.ndarray]:
+        """``may_cover``'s camera part's answers now to each question group of :attr:`_asked`, in
+        its order (:meth:`answers_hold`): over the kept boxes in one call where ``may_cover`` tells
+        its boxes (:func:`_boxed`; the boxes made once per list of questions), else group by group."""
+        asked = self._asked
         if not _boxed(may_cover):
             ask = _camera_part(may_cover)
-            return all(np.array_equal(np.asarray(ask(L, n, nodes), dtype=bool).reshape(len(nodes)), ans)
-                       for L, n, nodes, ans, _ in asked)
-        held = self._boxes
-        if held is None or held[0] is not self._asked:  # (a merge made a new list of questions)
-            boxes = [may_cover.boxes(L, n, nodes) for L, n, nodes, _, _ in asked]
-            held = self._boxes = (self._asked, np.concatenate([b[0] for b in boxes]),
-                                  np.concatenate([b[1] for b in boxes]), np.concatenate([q[3] for q in asked]))
-        _, lo, hi, ans = held
-        return np.array_equal(np.asarray(may_cover.beside_boxes(lo, hi), dtype=bool).reshape(len(ans)), ans)
+            return [np.asarray(ask(L, n, nodes), dtype=bool).reshape(len(nodes)) if len(nodes)
+                    else np.zeros(0, dtype=bool) for L, n, nodes, *_ in asked]
+        _, lo, hi, _ = self._joined_boxes(may_cover)
+        flat = np.asarray(may_cover.beside_boxes(lo, hi), dtype=bool).reshape(len(lo)) if len(lo) \
+            else np.zeros(0, dtype=bool)
+        return np.split(flat, np.cumsum([len(q[2]) for q in asked])[:-1]) if asked else []
 
     def _cells(self, rows: np.ndarray) -> np.ndarray:
         """Flat key of each item's cell (-1 for an item at or above the cells' level)."""
@@ -367,12 +411,12 @@ class KeptMerge:
         a = rows[:, 1:] >> np.maximum(K - L, 0)[:, None]
         return np.where(L < K, (a[:, 0] * g[1] + a[:, 1]) * g[2] + a[:, 2], -1)
 
-    def _changed_cells(self, old: DrawItems, new: DrawItems) -> np.ndarray:
-        """``(cells,)`` bool over the cells' level: a leaf of ``old`` or ``new`` in the cell is not
-        in the other (a flag scatter per level, no sort)."""
+    def _changed_cells(self, old: np.ndarray, new: np.ndarray) -> np.ndarray:
+        """``(cells,)`` bool over the cells' level: a leaf of ``old`` or ``new`` (``(n, 4)`` rows)
+        in the cell is not in the other (a flag scatter per level, no sort)."""
         pyr = self.pyramid
         dirty = np.zeros(int(np.prod(self._cell_grid)), dtype=bool)
-        for a, b in ((old.rows, new.rows), (new.rows, old.rows)):
+        for a, b in ((old, new), (new, old)):
             for L in np.unique(a[:, 0]).tolist():
                 if L >= self.cell_level:
                     continue
@@ -384,41 +428,74 @@ class KeptMerge:
                     dirty[self._cells(a[a[:, 0] == L][gone])] = True
         return dirty
 
+    def _diff(self, new: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The cells whose leaves differ between the last call's items and ``new`` (rows, both in
+        depth-first order), and each of ``new``'s rows' cell (:meth:`_cells`).
+
+        A changed cut keeps most of its rows where they were: past the rows the two have in common
+        at the front and at the back, only the middles are compared (a row of one middle cannot be
+        in the other's front or back: depth-first order is strict over a cut's nodes, which do not
+        nest) and only the new middle's cells worked out; the common front's and back's cells are
+        the last call's."""
+        old, old_cells = self._items.rows, self._items_cells
+        m = min(len(old), len(new))
+        ne = np.any(old[:m] != new[:m], axis=1)
+        front = int(np.argmax(ne)) if ne.any() else m
+        k = m - front
+        ne = np.any(old[len(old) - k:][::-1] != new[len(new) - k:][::-1], axis=1)
+        back = int(np.argmax(ne)) if ne.any() else k
+        a, b = old[front:len(old) - back], new[front:len(new) - back]
+        dirty = self._changed_cells(a, b)
+        cells = np.concatenate([old_cells[:front], self._cells(b), old_cells[len(old) - back:]])
+        return dirty, cells
+
     def merge(self, items: DrawItems, windows, may_cover=None) -> DrawItems:
         """:func:`merge_items` of ``items`` (whole nodes, depth-first order) for ``windows`` and
         ``may_cover``, re-running the lower passes only in the cells whose leaves changed since
-        the last call."""
+        the last call (:meth:`_diff`), asking the kept questions again over their kept boxes
+        (:meth:`_answers_now`), and keeping the lower passes' entries (the same object, so the
+        upper passes' result is known to be for them without a compare) where the changed cells
+        merge to the entries they had: an orbit's usual changed frame."""
         arr = DrawItems.from_items(items)
         if not len(arr):
             self.reset()
             return _empty()
         pyr, K = self.pyramid, self.cell_level
-        self._boxes = None  # (the questions are made again below)
         windows = tuple(None if w is None else tuple(int(v) for v in w) for w in windows)
-        cells = self._cells(arr.rows)
+        upper_now = None  # the camera's answers now to the upper passes' questions (None: ask them)
         if self._kept is None or self._windows != windows:
+            cells = self._cells(arr.rows)
             redo = np.ones(len(arr), dtype=bool)
             keep = None
             self._asked = []
             self._upper = None  # (other windows: other upper merges)
         else:
             # (the same items object: no leaf changed, only answers can have)
-            dirty = np.zeros(int(np.prod(self._cell_grid)), dtype=bool) if arr is self._items \
-                else self._changed_cells(self._items, arr)
-            lower = [q for q in self._asked if q[4] is not None]
-            ask = _camera_part(may_cover)
-            for L, n, nodes, ans, where in lower:  # a kept cell whose answers changed: merged again
-                r = ~dirty[where]
-                if r.any() and may_cover is not None:
-                    now = np.asarray(ask(L, n, nodes[r]), dtype=bool).reshape(int(r.sum()))
-                    dirty[where[r][now != ans[r]]] = True
+            if arr is self._items:
+                dirty, cells = np.zeros(int(np.prod(self._cell_grid)), dtype=bool), self._items_cells
+            else:
+                dirty, cells = self._diff(arr.rows)
+            old = self._asked
+            now = self._answers_now(may_cover) if may_cover is not None else None
+            for q, a in zip(old, now if now is not None else [None] * len(old)):
+                if q[4] is None or a is None:
+                    continue
+                r = ~dirty[q[4]]  # a kept cell whose answers changed: merged again
+                if r.any():
+                    dirty[q[4][r][a[r] != q[3][r]]] = True
+            if now is not None:
+                upper_now = [(q, a) for q, a in zip(old, now) if q[4] is None]
             self._asked = []
-            for L, n, nodes, ans, where in lower:  # the questions of the cells kept
+            for L, n, nodes, ans, where, box in old:  # the questions of the cells kept (with their boxes)
+                if where is None:
+                    continue
                 k = ~dirty[where]
                 if k.any():
-                    self._asked.append((L, n, nodes[k], ans[k], where[k]))
+                    b = box[0]
+                    self._asked.append((L, n, nodes[k], ans[k], where[k], [None if b is None else (b[0][k], b[1][k])]))
             redo = (cells < 0) | dirty[np.maximum(cells, 0)]
             keep = (self._kept_cell >= 0) & ~dirty[np.maximum(self._kept_cell, 0)]
+        self._boxes = None  # (the questions are made again below)
         self.remerged = int(redo.sum())
         part = DrawItems(arr.rows[redo], arr.lo[redo], arr.hi[redo], arr.span[redo])
         full = _whole_nodes(part, pyr)  # (a kept cell's leaves were checked when it was merged)
@@ -429,28 +506,44 @@ class KeptMerge:
         none = np.zeros((0, 3))
         merged = _merge_levels(_Merging.of(part, full), pyr, windows, self._recording(may_cover, True), none, none,
                                stop=K)
-        if keep is not None and keep.any():  # the kept cells' entries and the new ones, in depth-first order
+        merged_cells = None
+        if keep is not None and _same_entries(self._kept.take(~keep), merged):
+            merged, merged_cells = self._kept, self._kept_cell  # the cells merged again to what they had
+        elif keep is not None and keep.any():  # the kept cells' entries and the new ones, in depth-first order
             merged = _Merging.join([self._kept.take(keep), merged])
             merged = merged.take(depth_first(merged.data_lv, merged.idx))
+        self._make_boxes(self._asked, may_cover)  # (the new questions': the kept ones have theirs)
         self._asked = _grouped(self._asked)  # (one call per level pair when asked again)
-        # each entry's cell: its first brick's (a lower pass never merges beyond a cell)
-        merged_cells = self._cells(np.concatenate([merged.data_lv[:, None], merged.idx], axis=1))
-        self._items, self._kept, self._kept_cell, self._windows = arr, merged, merged_cells, windows
+        if merged_cells is None:  # each entry's cell: its first brick's (a lower pass never merges beyond a cell)
+            merged_cells = self._cells(np.concatenate([merged.data_lv[:, None], merged.idx], axis=1))
+        self._items, self._items_cells = arr, cells
+        self._kept, self._kept_cell, self._windows = merged, merged_cells, windows
         # the upper passes: what they made of the same entries holds while the camera answers their
         # questions as before (a cell merged again to the entries it had: a flying camera's usual frame)
         up = self._upper
-        if up is not None and _same_entries(up[0], merged) and (may_cover is None or all(
-                np.array_equal(np.asarray(_camera_part(may_cover)(L, n, nodes), dtype=bool).reshape(len(nodes)), ans)
-                for L, n, nodes, ans, _ in up[1] if len(nodes))):
+        if up is not None and _same_entries(up[0], merged) and (may_cover is None or self._upper_hold(
+                up[1], may_cover, upper_now)):
             self.upper_kept = True
             self._asked = self._asked + up[1]  # (asked again by answers_hold with the lower ones)
             return up[2]
         self.upper_kept = False
         lower, self._asked = self._asked, []
         out = _merge_levels(merged, pyr, windows, self._recording(may_cover, False), none, none, first=K).items()
+        self._make_boxes(self._asked, may_cover)
         self._upper = (merged, _grouped(self._asked), out)
         self._asked = lower + self._upper[1]
         return out
+
+    @staticmethod
+    def _upper_hold(asked: list, may_cover, now: list | None) -> bool:
+        """Does the camera answer the upper passes' questions ``asked`` as before? ``now``: its
+        ``(question, answer)`` pairs already asked (:meth:`_answers_now`), used where they are
+        ``asked``'s questions, else they are asked here."""
+        if now is not None and len(now) == len(asked) and all(q is g for (q, _), g in zip(now, asked)):
+            return all(np.array_equal(a, q[3]) for q, a in now)
+        ask = _camera_part(may_cover)
+        return all(np.array_equal(np.asarray(ask(L, n, nodes), dtype=bool).reshape(len(nodes)), ans)
+                   for L, n, nodes, ans, *_ in asked if len(nodes))
 
 
 def _same_entries(a: _Merging, b: _Merging) -> bool:
@@ -464,9 +557,15 @@ def _grouped(asked: list) -> list:
     groups: dict = {}
     for q in asked:
         groups.setdefault((q[0], q[1]), []).append(q)
-    return [qs[0] if len(qs) == 1 else (L, n, np.concatenate([q[2] for q in qs]), np.concatenate([q[3] for q in qs]),
-                                        np.concatenate([q[4] for q in qs]))
-            for (L, n), qs in groups.items()]
+    def joined(qs: list) -> tuple:
+        L, n = qs[0][:2]
+        cells = None if qs[0][4] is None else np.concatenate([q[4] for q in qs])
+        boxes = [q[5][0] for q in qs if len(q[2])]
+        box = None if any(b is None for b in boxes) else \
+            (np.concatenate([b[0] for b in boxes]), np.concatenate([b[1] for b in boxes])) if boxes else None
+        return (L, n, np.concatenate([q[2] for q in qs]), np.concatenate([q[3] for q in qs]), cells, [box])
+
+    return [qs[0] if len(qs) == 1 else joined(qs) for qs in groups.values()]
 
 
 def _split(may_cover) -> bool:
