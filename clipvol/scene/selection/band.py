@@ -57,8 +57,9 @@ class MotionBand:
     a list of the rows with a finite deadline in some channel (their reaches and deadlines kept
     contiguous, in the list's order), not over every row: on the 512^3 CT-like head's orbit,
     20 407 of 36 425 kept nodes. A listed row whose deadlines all become infinite stays listed
-    (never due) until the list is made again, every :data:`RELIST` frames (a pass over the list,
-    amortised); an unlisted row that gets a finite deadline is appended.
+    (never due) until the list is made again: every :data:`RELIST` frames, and at the first frame
+    after rows grown since outnumber a quarter of the list (a pass over the list, amortised); an
+    unlisted row that gets a finite deadline is appended.
 
     Parameters
     ----------
@@ -78,6 +79,7 @@ class MotionBand:
         self._r = np.zeros(0)
         self._d = np.zeros((self.channels, 0))
         self._age = 0
+        self._grown = 0  # rows grown since the list was made (listed, due at once, until set)
         self._sorted = True  # the list in row order
         self._buf: tuple | None = None  # (motion, due, due in a channel) buffers of the list's length
 
@@ -94,7 +96,7 @@ class MotionBand:
         self._pos = np.full(len(self.reach), -1, dtype=np.int64)
         self._pos[rows] = np.arange(len(rows))
         self._rows, self._r, self._d = rows, self.reach[rows], np.ascontiguousarray(due)
-        self._age, self._buf, self._sorted = 0, None, True
+        self._age, self._grown, self._buf, self._sorted = 0, 0, None, True
 
     def _append(self, rows: np.ndarray, due: np.ndarray) -> None:
         """List ``rows`` (sorted) too, after the others."""
@@ -113,6 +115,7 @@ class MotionBand:
         n0, m = len(self.reach), len(reach)
         self.reach = np.concatenate([self.reach, reach])
         self._pos = np.concatenate([self._pos, np.full(m, -1, dtype=np.int64)])
+        self._grown += m
         self._append(np.arange(n0, n0 + m), np.full((self.channels, m), -np.inf))
 
     def take(self, keep: np.ndarray) -> None:
@@ -136,7 +139,7 @@ class MotionBand:
             self._all = False
             return np.arange(len(self.reach))
         self._age += 1
-        if self._age >= RELIST:  # drop the rows no motion can make due
+        if self._age >= RELIST or self._grown > len(self._rows) // 4:  # drop the rows no motion can make due
             keep = np.any(self._d != np.inf, axis=0)
             o = np.argsort(self._rows[keep], kind="stable")
             self._list(self._rows[keep][o], self._d[:, keep][:, o])

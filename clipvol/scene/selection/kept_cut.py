@@ -210,6 +210,8 @@ class KeptCut:
         self.opaque = self._opaque(self.lv, self.idx)
         #: transparent level-0 nodes: only the counts ask their frustum answers (:class:`KeptCounts`)
         self.mute = self._mute(self.lv, self.opaque)
+        #: the camera-free part of each row's key into the counts' table (:meth:`_kind`)
+        self.kind = self._kind(self.lv, self.inside, self.opaque, self.mute)
         self.infr = np.zeros(1, dtype=bool)
         self.ref = np.zeros(1, dtype=bool)  # the rule node by node (policy.need), tested in the band
         self.eff = np.zeros(1, dtype=bool)  # refined: ``ref`` evened out over each level (policy.even)
@@ -341,29 +343,57 @@ class KeptCut:
             self._seen[new] = self._serial
             self._touched.append((new, self.reached[new], self.infr[new], self.eff[new]))
 
-    def _tally(self, rows: np.ndarray, reached, infr, eff) -> np.ndarray:
-        """The rows' part of each count of :data:`_TALLIED` for these ``reached``, ``infr``, ``eff``
-        (the traversal's counts; transparent level-0 rows are counted by :class:`KeptCounts`)."""
-        mute, inside, opaque, lv = self.mute[rows], self.inside[rows], self.opaque[rows], self.lv[rows]
+    def _kind(self, lv, inside, opaque, mute) -> np.ndarray:
+        """``(n,)`` uint8: each row's camera-free part of its key into :attr:`_table` (mute, inside,
+        opaque, a real level above 0), times 8."""
+        real = (lv > 0) & (lv <= self.tree.top)
+        return ((mute.astype(np.uint8) | (inside.astype(np.uint8) << 1) | (opaque.astype(np.uint8) << 2)
+                 | (real.astype(np.uint8) << 3)) << 3).astype(np.uint8)
+
+    @staticmethod
+    def _rows_tally(reached, infr, eff, mute, inside, opaque, real) -> np.ndarray:
+        """``(6, n)`` bool: each row's part in each count of :data:`_TALLIED` for these flags (the
+        traversal's counts; transparent level-0 rows are counted by :class:`KeptCounts`)."""
         tested = reached & ~mute
         kept = reached & infr & inside
         leaf = kept & ~eff
-        return np.array([np.count_nonzero(reached), np.count_nonzero(tested & ~infr),
-                         np.count_nonzero(tested & infr & ~inside), np.count_nonzero(leaf & ~opaque & ~mute),
-                         np.count_nonzero(kept & eff & (lv <= self.tree.top) & (lv > 0)),
-                         np.count_nonzero(leaf & opaque)], dtype=np.int64)
+        return np.array([reached, tested & ~infr, tested & infr & ~inside, leaf & ~opaque & ~mute,
+                         kept & eff & real, leaf & opaque])
+
+    @staticmethod
+    def _table() -> np.ndarray:
+        """``(128, 7)`` int64: for each key (:meth:`_kind` plus reached, infr and eff in its low
+        bits) a row's part in each count of :data:`_TALLIED`, and whether it is drawn (the last
+        column): a settle is then a lookup of the touched rows' keys before and after, not a count
+        of each flag combination over them."""
+        k = np.arange(128)
+        bit = [(k >> b & 1).astype(bool) for b in range(7)]
+        reached, infr, eff, mute, inside, opaque, real = bit
+        t = KeptCut._rows_tally(reached, infr, eff, mute, inside, opaque, real)
+        return np.concatenate([t, [reached & infr & inside & ~eff & opaque]]).T.astype(np.int64)
+
+    def _keys(self, rows, reached, infr, eff) -> np.ndarray:
+        return self.kind[rows] | reached.view(np.uint8) | (infr.view(np.uint8) << 1) | (eff.view(np.uint8) << 2)
+
+    def _tally(self, rows: np.ndarray, reached, infr, eff) -> np.ndarray:
+        """The rows' part of each count of :data:`_TALLIED` for these ``reached``, ``infr``, ``eff``."""
+        return np.bincount(self._keys(rows, reached, infr, eff), minlength=128) @ _TABLE[:, :6]
 
     def _drawn(self, rows: np.ndarray) -> np.ndarray:
-        return self.reached[rows] & self.infr[rows] & self.inside[rows] & ~self.eff[rows] & self.opaque[rows]
+        return _TABLE[self._keys(rows, self.reached[rows], self.infr[rows], self.eff[rows]), 6].astype(bool)
 
     def _settle(self) -> None:
         """The counts and drawn flags moved by what the touched rows changed (their difference)."""
         if self._touched:
-            rows = np.concatenate([t[0] for t in self._touched])
-            was = [np.concatenate([t[k] for t in self._touched]) for k in (1, 2, 3)]
-            self._count += self._tally(rows, self.reached[rows], self.infr[rows], self.eff[rows]) \
-                - self._tally(rows, *was)
-            d = self._drawn(rows)
+            if len(self._touched) == 1:
+                rows, *was = self._touched[0]
+            else:
+                rows = np.concatenate([t[0] for t in self._touched])
+                was = [np.concatenate([t[k] for t in self._touched]) for k in (1, 2, 3)]
+            now = self._keys(rows, self.reached[rows], self.infr[rows], self.eff[rows])
+            self._count += (np.bincount(now, minlength=128) - np.bincount(self._keys(rows, *was), minlength=128)) \
+                @ _TABLE[:, :6]
+            d = _TABLE[now, 6].astype(bool)
             if np.any(d != self.drawn[rows]):
                 self.drawn[rows] = d
                 self._leaves_changed = True
@@ -423,10 +453,11 @@ class KeptCut:
             reach = self._reach(lo, hi)
             no, yes = np.zeros(m, dtype=bool), np.ones(m, dtype=bool)
             opaque = self._opaque(lv, idx)
+            inside, mute = self._inside(lv, lo, hi), self._mute(lv, opaque)
             grown = dict(lv=lv, idx=idx, lo=lo, hi=hi, reach=reach, parent=par,
                          first=np.full(m, -1, dtype=np.int64), nchild=np.zeros(m, dtype=np.int64),
-                         expanded=no, inside=self._inside(lv, lo, hi), opaque=opaque,
-                         mute=self._mute(lv, opaque), infr=no, ref=no, eff=no, slack=np.zeros((m, 3)),
+                         expanded=no, inside=inside, opaque=opaque, mute=mute,
+                         kind=self._kind(lv, inside, opaque, mute), infr=no, ref=no, eff=no, slack=np.zeros((m, 3)),
                          reached=no, live=no, geven=no, _seen=np.full(m, -1, dtype=np.int64),
                          cam_id=np.zeros(m, dtype=np.int64))
             for name, new in grown.items():
@@ -549,7 +580,7 @@ class KeptCut:
         again if it refines again. The dropped rows counted nothing and drew nothing."""
         keep = self.reached
         new = np.cumsum(keep) - 1
-        for name in ("lv", "idx", "lo", "hi", "reach", "expanded", "inside", "opaque", "mute", "infr", "ref", "eff",
+        for name in ("lv", "idx", "lo", "hi", "reach", "expanded", "inside", "opaque", "mute", "kind", "infr", "ref", "eff",
                      "slack", "reached", "live", "geven", "first", "nchild", "_seen", "cam_id"):
             setattr(self, name, getattr(self, name)[keep])
         if self.drawn is not None:
@@ -696,3 +727,7 @@ class KeptCut:
             wanted = keys[o]
         items = DrawItems(keys[o], self.lo[draw][o], self.hi[draw][o])
         return Selection(items, BrickKeys(wanted), counts, self.params.policy, node_data, None, ordered=ordered)
+
+
+#: :meth:`KeptCut._table`, made once
+_TABLE = KeptCut._table()
