@@ -283,14 +283,17 @@ class KeptCut:
         return self._levels[1]
 
     # -- the camera's tests ----------------------------------------------------------------------
-    def _test(self, rows: np.ndarray, camera) -> None:
+    def _test(self, rows: np.ndarray, camera) -> np.ndarray:
         """The frustum and refine answers of ``rows`` for ``camera``, all levels at once, and their
         slacks: how much either may change before an answer can flip (their deadlines in the
         band). Transparent level-0 rows are not tested (their answers are only counted,
-        :class:`KeptCounts`): their slack is infinite, so no band holds them."""
+        :class:`KeptCounts`): their slack is infinite, so no band holds them. Returns which rows'
+        answers changed; only those are noted for the counts (:meth:`_touch`: most of a band's
+        rows keep their answers, and a settle over them would move nothing)."""
         slack = np.full((len(rows), 3), np.inf)
         keep = ~self.mute[rows]
         tested = rows[keep]
+        flipped = np.zeros(len(rows), dtype=bool)
         if len(tested):
             t, tree = self._t, self.tree
             lo, hi, lv = self.lo[tested], self.hi[tested], self.lv[tested]
@@ -308,6 +311,10 @@ class KeptCut:
                 dslack[real] = self._depth_slack(camera, rl, rlo, rhi)
             # a kept node flips when a reach crosses 0 (each group of planes: its smallest), a culled
             # one when its most negative does (only that plane's group can bring it in)
+            changed = (infr != self.infr[tested]) | (ref != self.ref[tested])
+            flipped[keep] = changed
+            if changed.any():
+                self._touch(tested[changed])  # (before the answers change)
             self.infr[tested], self.ref[tested] = infr, ref
             # (rounding of the tests themselves: a node this close to flipping is always re-tested)
             eps = 1e-9 * max(1.0, self.radius)
@@ -319,6 +326,7 @@ class KeptCut:
         self.slack[rows] = slack
         self.cam_id[rows] = self._ncams - 1
         self._band.set(rows, slack)
+        return flipped
 
     def _depth_slack(self, camera, level: np.ndarray, lo, hi) -> np.ndarray:
         """How far each node's nearest depth may move before the projected-size policy's answer
@@ -630,12 +638,9 @@ class KeptCut:
         band = self._band.advance(turn, shift)
         if not lens:
             band = self._due(band, terms)
-        self._touch(band)
-        was = (self.infr[band], self.ref[band])
         self._t.camera = self.camera = camera
-        self._test(band, camera)
+        flipped = self._test(band, camera)
         self.retested = len(band)
-        flipped = (was[0] != self.infr[band]) | (was[1] != self.ref[band])
         changed = self.selection is None or bool(flipped.any())
         if not changed:
             self._touched, self._serial = [], self._serial + 1  # (nothing moved)
