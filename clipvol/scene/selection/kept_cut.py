@@ -156,10 +156,12 @@ class KeptCounts(Mapping):
 def _runs(first: np.ndarray, count: np.ndarray) -> np.ndarray:
     """The rows ``first[i] .. first[i] + count[i] - 1`` of every ``i``, concatenated (a node's
     children are one such run)."""
-    total = int(count.sum())
-    if not total:
+    if not len(count):
         return np.zeros(0, dtype=np.int64)
     ends = np.cumsum(count)
+    total = int(ends[-1])
+    if not total:
+        return np.zeros(0, dtype=np.int64)
     return np.arange(total, dtype=np.int64) + np.repeat(first - (ends - count), count)
 
 
@@ -492,32 +494,38 @@ class KeptCut:
         now reached, kept and refined that have no children yet (to grow)."""
         tree, top = self.tree, self.tree.top
         lv, parent = self.lv, self.parent
+        # (each part of a level's rows to do is distinct rows: the seeds, or the children of distinct
+        # nodes; several parts may share rows)
         todo: dict[int, list] = {}
-        for L in sorted_unique(lv[seeds]).tolist():
-            todo[L] = [seeds[lv[seeds] == L]]
+        ls = lv[seeds]
+        if len(seeds) and ls.min() == ls.max():  # (the seeds of one level: an orbit's level-1 flips)
+            todo[int(ls[0])] = [seeds]
+        else:
+            for L in sorted_unique(ls).tolist():
+                todo[L] = [seeds[ls == L]]
         grow = []
         for L in range(max(todo, default=-1), -1, -1):
             if L not in todo:
                 continue
-            d = sorted_unique(np.concatenate(todo.pop(L)))
+            parts = todo.pop(L)
+            d = parts[0] if len(parts) == 1 else sorted_unique(np.concatenate(parts))
             if L == 0:  # level 0: reached where its parent is reached and refined (never refined itself)
                 self._touch(d)
-                p = parent[d]
-                q = np.maximum(p, 0)
-                self.reached[d] = np.where(p >= 0, self.reached[q] & self.eff[q], True)
+                self.reached[d] = self._open_above(d)
                 continue
             # the sibling groups of ``d``: every child of their parents (the root: a group of its own)
-            p = parent[d]
-            ups = sorted_unique(p[p >= 0])
-            roots = d[p < 0]
-            m = np.concatenate([_runs(self.first[ups], self.nchild[ups]), roots])
-            grp = np.concatenate([np.repeat(np.arange(len(ups)), self.nchild[ups]),
-                                  len(ups) + np.arange(len(roots))])
+            ups = sorted_unique(parent[d])
+            if len(ups) and ups[0] < 0:  # (the root, whose parent is -1)
+                ups, roots = ups[1:], d[parent[d] < 0]
+                m = np.concatenate([_runs(self.first[ups], self.nchild[ups]), roots])
+                grp = np.concatenate([np.repeat(np.arange(len(ups)), self.nchild[ups]),
+                                      len(ups) + np.arange(len(roots))])
+            else:
+                m = _runs(self.first[ups], self.nchild[ups])
+                grp = np.repeat(np.arange(len(ups)), self.nchild[ups])
             self._touch(m)
             open_was = self.reached[m] & self.eff[m]
-            pm = parent[m]
-            q = np.maximum(pm, 0)
-            reached = np.where(pm >= 0, self.reached[q] & self.eff[q], True)
+            reached = self._open_above(m)
             live = reached & self.infr[m] & self.inside[m]
             ref = self.ref[m]
             whole = False
@@ -526,7 +534,7 @@ class KeptCut:
             else:
                 ge = live & (ref | self.policy.evens(np.bincount(grp, weights=live),
                                                      np.bincount(grp, weights=live & ref))[grp])
-                n, r = (int(v) for v in self._lvl[L])
+                n, r = self._lvl[L].tolist()
                 was = bool(self.policy.evens(n, r))
                 n += int(np.count_nonzero(live)) - int(np.count_nonzero(self.live[m]))
                 r += int(np.count_nonzero(ge)) - int(np.count_nonzero(self.geven[m]))
@@ -551,6 +559,14 @@ class KeptCut:
                 if len(below):
                     todo.setdefault(L - 1, []).append(_runs(self.first[below], self.nchild[below]))
         return np.concatenate(grow) if grow else np.zeros(0, dtype=np.int64)
+
+    def _open_above(self, rows: np.ndarray) -> np.ndarray:
+        """Whether each row is reached: its parent reached and refined (the root always)."""
+        p = self.parent[rows]
+        if not len(p) or p.min() >= 0:
+            return self.reached[p] & self.eff[p]
+        q = np.maximum(p, 0)
+        return np.where(p >= 0, self.reached[q] & self.eff[q], True)
 
     def _propagate(self) -> None:
         """From nothing: reached, the root and every child of a reached, kept, refined node;
