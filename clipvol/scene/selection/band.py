@@ -91,6 +91,15 @@ class MotionBand:
         """The rows the pass reads (every row with a finite deadline is among them)."""
         return self._rows
 
+    def deadline(self, rows: np.ndarray) -> np.ndarray:
+        """``(len(rows), channels)``: the rows' deadlines in accumulated motion (``inf``: never due;
+        ``-inf``: due at the next frame)."""
+        rows = np.asarray(rows, dtype=np.int64)
+        out = np.full((len(rows), self.channels), np.inf)
+        pos = self._pos[rows]
+        out[pos >= 0] = self._d[:, pos[pos >= 0]].T
+        return out
+
     def _list(self, rows: np.ndarray, due: np.ndarray) -> None:
         """Make the list anew: ``rows`` (sorted) with deadlines ``due`` ``(channels, len(rows))``."""
         self._pos = np.full(len(self.reach), -1, dtype=np.int64)

@@ -69,10 +69,6 @@ from .traversal import Traversal
 
 __all__ = ["KeptCounts", "KeptCut", "camera_change"]
 
-#: cameras kept to bound each node's change from the one it was last tested at; past this many (and
-#: twice those in use at the last pruning), those no node refers to are dropped (one pass over the
-#: rows, so at most once per that many frames)
-MAX_CAMERAS = 64
 #: drop the nodes no longer reached once they outnumber the reached ones and this many (a long
 #: fly-through would otherwise keep every node it ever visited)
 COMPACT_MIN = 4096
@@ -217,7 +213,6 @@ class KeptCut:
         self.infr = np.zeros(1, dtype=bool)
         self.ref = np.zeros(1, dtype=bool)  # the rule node by node (policy.need), tested in the band
         self.eff = np.zeros(1, dtype=bool)  # refined: ``ref`` evened out over each level (policy.even)
-        self.slack = np.full((1, 3), -np.inf)  # (side planes, near and far, depth) slack at its last test
         self.reached = np.ones(1, dtype=bool)
         #: what the evening out counted: reached and kept (``live``), and ``ref`` evened out in its
         #: sibling group (``geven``); per level, how many of each (``_lvl``): a flip evens again only
@@ -228,14 +223,6 @@ class KeptCut:
         self._band = MotionBand(3)  # each node's deadlines in accumulated motion
         self._band.grow(self.reach)
         self._terms: np.ndarray | None = None  # the last camera's terms (_camera_terms)
-        #: the camera each node was last tested at (a row of ``_cams``, the cameras' terms): a node
-        #: whose deadline passed is re-tested only if its change from that camera may reach its
-        #: slack, else it gets a later deadline (a path that turns back re-tests no more than the
-        #: direct bound says)
-        self.cam_id = np.zeros(1, dtype=np.int64)
-        self._cams = np.zeros((8, 7, 4))
-        self._ncams = 0
-        self._cam_limit = MAX_CAMERAS
         self.camera = None
         self.retested = 0  # nodes re-tested by the last update (the band), for benchmarks and tests
         self.selection: Selection | None = None
@@ -285,16 +272,22 @@ class KeptCut:
         return self._levels[1]
 
     # -- the camera's tests ----------------------------------------------------------------------
-    def _test(self, rows: np.ndarray, camera) -> np.ndarray:
+    def _test(self, rows: np.ndarray, camera, ask_all: bool = False) -> np.ndarray:
         """The frustum and refine answers of ``rows`` for ``camera``, all levels at once, and their
         slacks: how much either may change before an answer can flip (their deadlines in the
         band). Transparent level-0 rows are not tested (their answers are only counted,
         :class:`KeptCounts`): their slack is infinite, so no band holds them. Returns which rows'
         answers changed; only those are noted for the counts (:meth:`_touch`: most of a band's
-        rows keep their answers, and a settle over them would move nothing)."""
-        slack = np.full((len(rows), 3), np.inf)
-        keep = ~self.mute[rows]
-        tested = rows[keep]
+        rows keep their answers, and a settle over them would move nothing).
+
+        The refine rule (``policy.need``) is asked only of the rows whose answer the nearest depth
+        may have changed: those on the other side of their depth limit than their answer says,
+        and those within rounding of it (:meth:`_depth_slack`); the others keep their answer,
+        which is the rule's on that side. ``ask_all``: of every row (new rows, another lens)."""
+        mute = self.mute[rows]
+        some = bool(mute.any())  # (a band never holds a transparent level-0 row; every row may)
+        tested = rows[~mute] if some else rows
+        slack = np.full((3, len(rows)), np.inf)  # (side planes, near and far, depth) per row
         flipped = np.zeros(len(rows), dtype=bool)
         if len(tested):
             t, tree = self._t, self.tree
@@ -303,38 +296,52 @@ class KeptCut:
             side, ends = reach[:, :4].min(axis=1), reach[:, 4:].min(axis=1)
             low = np.minimum(side, ends)
             infr = low >= 0  # (every reach >= 0)
-            ref = lv > tree.top  # virtual levels are always entered
+            held = self.ref[tested]
+            ref = held.copy()
             dslack = np.full(len(tested), np.inf)
-            # (level 0, most of a band, is never refined: no answer, no depth slack)
-            real = np.nonzero((lv > 0) & (lv <= tree.top))[0]
+            # (level 0, most of a band, is never refined: no answer, no depth slack; a virtual level
+            # is always entered)
+            real = np.flatnonzero((lv > 0) & (lv <= tree.top))
+            if ask_all:
+                ref[lv > tree.top] = True
             if len(real):
                 rl, rlo, rhi = lv[real], lo[real], hi[real]
-                ref[real] = self.policy.need(t, rl, rlo, rhi)
-                dslack[real] = self._depth_slack(camera, rl, rlo, rhi)
-            # a kept node flips when a reach crosses 0 (each group of planes: its smallest), a culled
-            # one when its most negative does (only that plane's group can bring it in)
-            changed = (infr != self.infr[tested]) | (ref != self.ref[tested])
-            flipped[keep] = changed
+                dslack[real], side_now = self._depth_slack(camera, rl, rlo, rhi)
+                if ask_all:
+                    ask = np.arange(len(real))
+                elif side_now is None:  # (an orthographic camera: the answer does not depend on depth)
+                    ask = np.zeros(0, dtype=np.int64)
+                else:  # the rule asked where the limit may have been crossed
+                    ask = np.flatnonzero((side_now != held[real]) | (dslack[real] <= 1e-9 * max(1.0, self.radius)))
+                if len(ask):
+                    ref[real[ask]] = self.policy.need(t, rl[ask], rlo[ask], rhi[ask])
+            changed = (infr != self.infr[tested]) | (ref != held)
             if changed.any():
                 self._touch(tested[changed])  # (before the answers change)
             self.infr[tested], self.ref[tested] = infr, ref
-            # (rounding of the tests themselves: a node this close to flipping is always re-tested)
+            # a kept node flips when a reach crosses 0 (each group of planes: its smallest), a culled
+            # one when its most negative does (only that plane's group can bring it in); rounding of
+            # the tests themselves: a node this close to flipping is always re-tested
             eps = 1e-9 * max(1.0, self.radius)
-            sl = slack[keep]
-            sl[:, 0] = np.where(infr | (side <= ends), np.where(infr, side, -low), np.inf) - eps
-            sl[:, 1] = np.where(infr | (side > ends), np.where(infr, ends, -low), np.inf) - eps
-            sl[:, 2] = dslack - eps
-            slack[keep] = sl
-        self.slack[rows] = slack
-        self.cam_id[rows] = self._ncams - 1
-        self._band.set(rows, slack)
+            sl = (np.where(infr | (side <= ends), np.where(infr, side, -low), np.inf) - eps,
+                  np.where(infr | (side > ends), np.where(infr, ends, -low), np.inf) - eps, dslack - eps)
+            if some:
+                flipped[~mute] = changed
+                for c in range(3):
+                    slack[c, ~mute] = sl[c]
+            else:
+                flipped = changed
+                slack[0], slack[1], slack[2] = sl
+        self._band.set(rows, slack.T)
         return flipped
 
-    def _depth_slack(self, camera, level: np.ndarray, lo, hi) -> np.ndarray:
+    def _depth_slack(self, camera, level: np.ndarray, lo, hi) -> tuple[np.ndarray, np.ndarray | None]:
         """How far each node's nearest depth may move before the projected-size policy's answer
-        can flip (``level``: each node's; infinite for every box of an orthographic camera)."""
+        can flip (``level``: each node's; infinite for every box of an orthographic camera), and
+        on which side of its limit each node lies: refined where its nearest depth is below the
+        limit and its farthest beyond the eye (None for an orthographic camera)."""
         if camera.orthographic:  # the answer does not depend on depth (the lens is checked in update)
-            return np.full(len(lo), np.inf)
+            return np.full(len(lo), np.inf), None
         f = np.asarray(camera.forward, dtype=np.float64)
         c, h = (lo + hi) * 0.5 - camera.eye, (hi - lo) * 0.5
         dc, dh = c @ f, h @ np.abs(f)
@@ -343,7 +350,8 @@ class KeptCut:
                            else 0.0 for L in range(self.tree.top + 1)])
         limit = limits[level]
         # refined while 0 < dmin < limit or dmin <= 0 (the eye plane crosses it); not once dmax <= 0
-        return np.minimum(np.abs(dmin - limit), np.abs(dmax)) - 1e-9 * np.maximum(1.0, np.abs(limit))
+        return (np.minimum(np.abs(dmin - limit), np.abs(dmax)) - 1e-9 * np.maximum(1.0, np.abs(limit)),
+                (dmax > 0) & (dmin < limit))
 
     # -- the update ------------------------------------------------------------------------------
     def _touch(self, rows: np.ndarray) -> None:
@@ -467,9 +475,8 @@ class KeptCut:
             grown = dict(lv=lv, idx=idx, lo=lo, hi=hi, reach=reach, parent=par,
                          first=np.full(m, -1, dtype=np.int64), nchild=np.zeros(m, dtype=np.int64),
                          expanded=no, inside=inside, opaque=opaque, mute=mute,
-                         kind=self._kind(lv, inside, opaque, mute), infr=no, ref=no, eff=no, slack=np.zeros((m, 3)),
-                         reached=no, live=no, geven=no, _seen=np.full(m, -1, dtype=np.int64),
-                         cam_id=np.zeros(m, dtype=np.int64))
+                         kind=self._kind(lv, inside, opaque, mute), infr=no, ref=no, eff=no,
+                         reached=no, live=no, geven=no, _seen=np.full(m, -1, dtype=np.int64))
             for name, new in grown.items():
                 setattr(self, name, np.concatenate([getattr(self, name), new]))
             if self.drawn is not None:
@@ -482,7 +489,7 @@ class KeptCut:
             self._band.grow(reach)
             new = np.arange(n0, n0 + m)
             self._touch(new)  # (not reached before: they counted nothing)
-            self._test(new, camera)
+            self._test(new, camera, ask_all=True)
             rows = self._spread(new)
         return True
 
@@ -605,7 +612,7 @@ class KeptCut:
         keep = self.reached
         new = np.cumsum(keep) - 1
         for name in ("lv", "idx", "lo", "hi", "reach", "expanded", "inside", "opaque", "mute", "kind", "infr", "ref", "eff",
-                     "slack", "reached", "live", "geven", "first", "nchild", "_seen", "cam_id"):
+                     "reached", "live", "geven", "first", "nchild", "_seen"):
             setattr(self, name, getattr(self, name)[keep])
         if self.drawn is not None:
             self.drawn = self.drawn[keep]
@@ -650,12 +657,9 @@ class KeptCut:
             turn = np.array([t[:4].max(), t[4:6].max(), t[6]])
             shift = np.array([s[:4].max(), s[4:6].max(), s[6]])
         self._terms = terms
-        self._add_camera(terms)
         band = self._band.advance(turn, shift)
-        if not lens:
-            band = self._due(band, terms)
         self._t.camera = self.camera = camera
-        flipped = self._test(band, camera)
+        flipped = self._test(band, camera, ask_all=lens or self.drawn is None)
         self.retested = len(band)
         changed = self.selection is None or bool(flipped.any())
         if not changed:
@@ -682,38 +686,6 @@ class KeptCut:
             self._settle()
         self.selection = self._selection(camera, ordered)
         return self.selection
-
-    def _add_camera(self, terms: np.ndarray) -> None:
-        """Append a camera's terms (the nodes tested from now on refer to it); past the limit, first
-        drop the cameras no node refers to (a pass over the rows, at most once per ``MAX_CAMERAS``
-        frames: the limit is then twice the cameras left, plus ``MAX_CAMERAS``)."""
-        if self._ncams >= self._cam_limit:
-            used, inv = np.unique(self.cam_id, return_inverse=True)
-            self.cam_id = inv.reshape(-1)
-            self._cams[:len(used)] = self._cams[used]
-            self._ncams = len(used)
-            self._cam_limit = 2 * self._ncams + MAX_CAMERAS
-        if self._ncams == len(self._cams):
-            self._cams = np.concatenate([self._cams, np.zeros_like(self._cams)])
-        self._cams[self._ncams] = terms
-        self._ncams += 1
-
-    def _due(self, rows: np.ndarray, terms: np.ndarray) -> np.ndarray:
-        """Of the rows whose deadline passed, those whose change from the camera they were last
-        tested at may reach their slack (the direct bound, per camera then gathered); the others
-        get a later deadline: the slack left over that change, in motion from now on (the triangle
-        inequality again)."""
-        if not len(rows):
-            return rows
-        t, s = _turn_shift(self._cams[:self._ncams], terms)
-        per = np.concatenate([t[:, :4].max(axis=1, keepdims=True), t[:, 4:6].max(axis=1, keepdims=True), t[:, 6:],
-                              s[:, :4].max(axis=1, keepdims=True), s[:, 4:6].max(axis=1, keepdims=True), s[:, 6:]],
-                             axis=1)[self.cam_id[rows]]
-        left = self.slack[rows] - (per[:, :3] * self.reach[rows, None] + per[:, 3:])
-        due = np.any(left <= 0, axis=1)
-        if not due.all():
-            self._band.set(rows[~due], left[~due])
-        return rows[due]
 
     def _counts(self, camera, base: dict) -> KeptCounts:
         """The counts for ``camera``: ``base`` (the tested nodes') and the transparent level-0
