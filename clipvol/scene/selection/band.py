@@ -174,7 +174,8 @@ class MotionBand:
         h = (np.asarray(slack).T + self.reach[rows] * self.total[:, :1]) + self.total[:, 1:]
         pos = self._pos[rows]
         if pos.min() >= 0:
-            self._d[:, pos] = h
+            for c in range(self.channels):  # (a row of the deadlines at a time: faster than one 2-d scatter)
+                self._d[c][pos] = h[c]
             return
         on = pos >= 0
         self._d[:, pos[on]] = h[:, on]
