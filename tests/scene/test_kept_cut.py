@@ -322,13 +322,14 @@ def test_the_band_holds_every_node_whose_answer_changed_along_a_path_that_turns_
     assert flips > 20, flips  # (the path moved answers)
 
 
-def test_the_rule_is_asked_only_where_a_depth_limit_may_have_been_crossed(monkeypatch):
-    """A re-tested node keeps its refine answer unless its nearest depth lies on the other side of
-    its level's depth limit than that answer says, or within rounding of it: only those nodes
-    are handed to ``ProjectedSize.need``. Along random paths (turns, zooms, an eye inside the
-    volume: boxes behind the eye plane and straddling it), every node's held answer is the rule's
-    for that frame's camera (the rule asked of every kept node afresh, in plain calls), the rule
-    is asked of far fewer nodes than are re-tested, and the cut is the fresh selection's."""
+def test_a_refine_answer_is_the_side_of_the_depth_limit_and_the_rule_is_asked_near_it(monkeypatch):
+    """A re-tested node's refine answer is the side of its level's depth limit (``depth_threshold``)
+    its nearest depth lies on, and beyond the eye plane its farthest; ``ProjectedSize.need`` is
+    asked only of the nodes within rounding of their limit (and of new nodes). Along random paths
+    (turns, zooms, an eye inside the volume: boxes behind the eye plane and straddling it), every
+    node's held answer is the rule's for that frame's camera (the rule asked of every kept node
+    afresh, in plain calls), the rule is asked of far fewer nodes than are re-tested, and the cut
+    is the fresh selection's."""
     from clipvol.scene.selection.policies.projected_size import ProjectedSize
 
     params = RenderParams(policy="projected-size", lod_threshold=0.1)
