@@ -392,3 +392,24 @@ def test_another_lens_or_image_size_tests_every_node_again():
             assert kc.retested == n0, (k, kc.retested, n0)
         elif k == 5:
             assert kc.retested < n0 // 4
+
+
+def test_after_another_lens_small_moves_use_its_depth_limits():
+    """The depth limits are kept per lens (a node's refine answer is the side of its limit): after
+    a change of field of view and image size, a slow zoom under the new lens - where most nodes
+    are not asked again, their answers following their limits - gives the fresh selection's cut
+    and, node for node, the rule's answers (``ProjectedSize.need`` asked afresh) on every frame."""
+    params = RenderParams(policy="projected-size", lod_threshold=2.0)  # (limits within the camera's reach)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    lenses = [(35, (32, 32))] * 12 + [(20, (64, 48))] * 25
+    flips = 0
+    for k, (fov, size) in enumerate(lenses):
+        cam = camera(40 + 0.3 * k, 10, 160 - 3.0 * k, fov=fov, size=size)
+        held = kc.ref.copy()
+        same(kc.update(cam), select(PYR, cam, params, transparent=transparent))
+        real = np.flatnonzero((kc.lv > 0) & (kc.lv <= kc.tree.top) & ~kc.mute)
+        for L in np.unique(kc.lv[real]).tolist():
+            r = real[kc.lv[real] == L]
+            np.testing.assert_array_equal(kc.ref[r], kc.policy.need(kc._t, L, kc.lo[r], kc.hi[r]), err_msg=str(k))
+        flips += k > 12 and int(np.count_nonzero(kc.ref[:len(held)] != held))
+    assert flips > 10, flips  # (answers moved under the new lens's limits)
