@@ -15,18 +15,21 @@ new camera:
    centre) plus their shift at the centre (:func:`_turn_shift`; :func:`camera_change` is the bound
    for the whole volume). Summed frame by frame, these bounds give each node a *deadline* in
    accumulated motion, fixed when it is tested (:class:`~clipvol.scene.selection.band.MotionBand`):
-   a frame takes the nodes whose deadline passed (one fused multiply-compare per node and
-   channel) and re-tests those whose change from the camera they were tested at may reach their
-   slack, giving the others a later deadline. The near and far planes are a channel of their own:
-   fitted to the volume each frame, they shift back and forth while an orbit's side planes only
-   turn;
+   a frame takes the nodes whose deadline passed (a multiply-compare per node and channel, over
+   the nodes whose deadline is finite) and re-tests them exactly. The re-test is the frustum's
+   box reach and the nearest and farthest depth: a node's refine answer is the side of its
+   level's depth limit it lies on (the policy's ``depth_threshold``), and the rule itself
+   (``policy.need``, a fixed ~0.1-0.2 ms a call) is asked only of the nodes within rounding of
+   their limit. The near and far planes are a channel of their own: fitted to the volume each
+   frame, they shift back and forth while an orbit's side planes only turn;
 2. propagates from the nodes whose answers flipped only: a flip changes the evening out
    (``ProjectedSize.even``: per sibling group, then the level as one group) of its own sibling group
    and the level's two counts, and ``reached`` only below the nodes whose "reached and refined"
    changed, walked down through each node's children (a contiguous run of rows); a level whose
    count flips its whole-level evening is set again whole (``ProjectedSize.evens``, the rule per
    group of ``n`` nodes, ``r`` refined). The selection's counts and its drawn leaves follow by the
-   difference over the rows this touched (:meth:`KeptCut._settle`);
+   difference over the rows whose answers this changed (:meth:`KeptCut._settle`: each row's key,
+   its camera-free kind and its three flags, looked up before and after in one table);
 3. grows the tree below nodes that now refine and had no children yet (the traversal's own
    expansion, per level);
 4. reads the leaves off the arrays (reached, kept, not refined, not transparent) where one changed.
