@@ -279,6 +279,47 @@ def test_a_motion_bands_deadlines_are_the_summed_per_frame_bounds():
             reach, slack, moved = reach[keep], slack[keep], moved[keep]
 
 
+def test_a_motion_bands_pass_lists_only_rows_that_can_be_due(monkeypatch):
+    """``MotionBand`` passes over a list of the rows with a finite deadline: rows whose deadlines
+    are all infinite (a kept cut's transparent level-0 nodes) leave the list when it is made
+    again (every ``RELIST`` frames, or after much growth), and rows given a finite deadline later
+    join it (appended out of row order). Frame by frame, against the per-frame bounds summed row
+    by row in plain numpy, a row is due exactly when its sum reaches its slack, and after a
+    listing the list holds exactly the rows with a finite deadline."""
+    from clipvol.scene.selection import band as band_mod
+    from clipvol.scene.selection.band import MotionBand
+
+    monkeypatch.setattr(band_mod, "RELIST", 7)
+    rng = np.random.default_rng(8)
+    n = 600
+    band = MotionBand(3)
+    reach = rng.uniform(0, 50, n)
+    band.grow(reach)
+    slack = rng.uniform(0, 30, (n, 3))
+    slack[rng.random(n) < 0.5] = np.inf  # (half the rows never due)
+    band.set(np.arange(n), slack)
+    moved = np.zeros((n, 3))
+    listed_all_finite = 0
+    for frame in range(40):
+        turn, shift = rng.uniform(0, 0.05, 3), rng.uniform(0, 0.5, 3) * (rng.random(3) < 0.5)
+        got = band.advance(turn, shift)
+        assert np.all(np.diff(got) > 0)  # (sorted rows, each once)
+        moved += reach[:, None] * turn[None] + shift[None]
+        want = np.any(moved >= slack, axis=1)
+        clear = np.all(np.abs(moved - slack) > 1e-9, axis=1) | np.isinf(slack).all(axis=1)
+        np.testing.assert_array_equal(np.isin(np.arange(n), got)[clear], want[clear])
+        if band._age == 0:  # (listed anew this frame: exactly the rows that can be due)
+            finite = np.flatnonzero(np.any(np.isfinite(slack), axis=1))
+            np.testing.assert_array_equal(np.sort(band.listed), finite)
+            listed_all_finite += 1
+        again = np.union1d(got, rng.choice(n, 30, replace=False))
+        slack[again] = rng.uniform(0, 30, (len(again), 3))
+        slack[again[rng.random(len(again)) < 0.5]] = np.inf  # (some rows leave the band, some come back)
+        moved[again] = 0.0
+        band.set(again, slack[again])
+    assert listed_all_finite >= 4, listed_all_finite
+
+
 def test_the_band_holds_every_node_whose_answer_changed_along_a_path_that_turns_back():
     """Every kept node whose frustum or refine answer for the new camera differs from the one it
     holds is re-tested (in the band: its deadline in accumulated motion passed), frame by frame

@@ -33,7 +33,7 @@ import numpy as np
 
 __all__ = ["MotionBand", "RELIST", "sorted_unique"]
 
-#: frames between two listings of each channel's rows with a finite deadline (:class:`MotionBand`)
+#: frames between two listings of the rows with a finite deadline (:class:`MotionBand`)
 RELIST = 64
 
 
