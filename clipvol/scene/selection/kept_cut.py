@@ -373,7 +373,7 @@ class KeptCut:
             self._touched.append((new, self.reached[new], self.infr[new], self.eff[new]))
 
     def _kind(self, lv, inside, opaque, mute) -> np.ndarray:
-        """``(n,)`` uint8: each row's camera-free part of its key into :attr:`_table` (mute, inside,
+        """``(n,)`` uint8: each row's camera-free part of its key into :data:`_TABLE` (mute, inside,
         opaque, a real level above 0), times 8."""
         real = (lv > 0) & (lv <= self.tree.top)
         return ((mute.astype(np.uint8) | (inside.astype(np.uint8) << 1) | (opaque.astype(np.uint8) << 2)
@@ -622,8 +622,8 @@ class KeptCut:
         again if it refines again. The dropped rows counted nothing and drew nothing."""
         keep = self.reached
         new = np.cumsum(keep) - 1
-        for name in ("lv", "idx", "lo", "hi", "reach", "expanded", "inside", "opaque", "mute", "kind", "infr", "ref", "eff",
-                     "reached", "live", "geven", "first", "nchild", "_seen"):
+        for name in ("lv", "idx", "lo", "hi", "reach", "expanded", "inside", "opaque", "mute", "kind", "infr", "ref",
+                     "eff", "reached", "live", "geven", "first", "nchild", "_seen"):
             setattr(self, name, getattr(self, name)[keep])
         if self.drawn is not None:
             self.drawn = self.drawn[keep]
