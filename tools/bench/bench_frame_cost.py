@@ -15,7 +15,8 @@ thousand to about ten thousand bricks).
 Data: any clipvol store (``--store``, repeatable: the MNI ICBM152 T1 template bricked at 16^3 with
 ``clipvol brick``), and the CT-like head of :func:`common.ct_volume` at ``--head`` sizes (bricked
 once into ``bench-data/`` at each of ``--brick``'s edges, default 16^3: a 512^3 head is a level-0
-cut of thousands of bricks). Every brick resident and on the GPU (:class:`common.WarmScene`), the
+cut of thousands of bricks; at 16^3 bricks and a 32^2 orbit the projected-size cut holds 2 828
+bricks at 256^3, 10 170 at 432^3 and 15 774 at 512^3, and the MNI template's 1 390). Every brick resident and on the GPU (:class:`common.WarmScene`), the
 ``bone`` table, step 1 voxel; per ``--policies``: ``fixed`` (``level=0``) and ``projected-size``
 (``lod_threshold=--lod``, default 0.1 pixel per voxel: at a 32^2 image a cut of thousands of bricks
 over several levels).
@@ -58,7 +59,7 @@ clipvol ÷ raw caster (wall, medians of per-frame ratios) is reported too. Rows 
 ``tools/bench/results/bench_frame_cost_flat.csv`` (``--out``). It runs on an older tree too (the
 script's ``common.py`` with the installed clipvol), to measure it alternately with a change:
 
-    python tools/bench/bench_frame_cost.py --flat --store mni16.zarr --head 256,512 --brick 16
+    python tools/bench/bench_frame_cost.py --flat --store mni16.zarr --head 256,432,512 --brick 16
 
 Runs as is on a machine with a GPU (``python tools/bench/bench_frame_cost.py``): the GL is whatever
 the context gets.

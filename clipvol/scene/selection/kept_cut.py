@@ -15,18 +15,21 @@ new camera:
    centre) plus their shift at the centre (:func:`_turn_shift`; :func:`camera_change` is the bound
    for the whole volume). Summed frame by frame, these bounds give each node a *deadline* in
    accumulated motion, fixed when it is tested (:class:`~clipvol.scene.selection.band.MotionBand`):
-   a frame takes the nodes whose deadline passed (one fused multiply-compare per node and
-   channel) and re-tests those whose change from the camera they were tested at may reach their
-   slack, giving the others a later deadline. The near and far planes are a channel of their own:
-   fitted to the volume each frame, they shift back and forth while an orbit's side planes only
-   turn;
+   a frame takes the nodes whose deadline passed (a multiply-compare per node and channel, over
+   the nodes whose deadline is finite) and re-tests them exactly. The re-test is the frustum's
+   box reach and the nearest and farthest depth: a node's refine answer is the side of its
+   level's depth limit it lies on (the policy's ``depth_threshold``), and the rule itself
+   (``policy.need``, a fixed ~0.1-0.2 ms a call) is asked only of the nodes within rounding of
+   their limit. The near and far planes are a channel of their own: fitted to the volume each
+   frame, they shift back and forth while an orbit's side planes only turn;
 2. propagates from the nodes whose answers flipped only: a flip changes the evening out
    (``ProjectedSize.even``: per sibling group, then the level as one group) of its own sibling group
    and the level's two counts, and ``reached`` only below the nodes whose "reached and refined"
    changed, walked down through each node's children (a contiguous run of rows); a level whose
    count flips its whole-level evening is set again whole (``ProjectedSize.evens``, the rule per
    group of ``n`` nodes, ``r`` refined). The selection's counts and its drawn leaves follow by the
-   difference over the rows this touched (:meth:`KeptCut._settle`);
+   difference over the rows whose answers this changed (:meth:`KeptCut._settle`: each row's key,
+   its camera-free kind and its three flags, looked up before and after in one table);
 3. grows the tree below nodes that now refine and had no children yet (the traversal's own
    expansion, per level);
 4. reads the leaves off the arrays (reached, kept, not refined, not transparent) where one changed.
@@ -69,10 +72,6 @@ from .traversal import Traversal
 
 __all__ = ["KeptCounts", "KeptCut", "camera_change"]
 
-#: cameras kept to bound each node's change from the one it was last tested at; past this many (and
-#: twice those in use at the last pruning), those no node refers to are dropped (one pass over the
-#: rows, so at most once per that many frames)
-MAX_CAMERAS = 64
 #: drop the nodes no longer reached once they outnumber the reached ones and this many (a long
 #: fly-through would otherwise keep every node it ever visited)
 COMPACT_MIN = 4096
@@ -156,10 +155,12 @@ class KeptCounts(Mapping):
 def _runs(first: np.ndarray, count: np.ndarray) -> np.ndarray:
     """The rows ``first[i] .. first[i] + count[i] - 1`` of every ``i``, concatenated (a node's
     children are one such run)."""
-    total = int(count.sum())
-    if not total:
+    if not len(count):
         return np.zeros(0, dtype=np.int64)
     ends = np.cumsum(count)
+    total = int(ends[-1])
+    if not total:
+        return np.zeros(0, dtype=np.int64)
     return np.arange(total, dtype=np.int64) + np.repeat(first - (ends - count), count)
 
 
@@ -210,10 +211,11 @@ class KeptCut:
         self.opaque = self._opaque(self.lv, self.idx)
         #: transparent level-0 nodes: only the counts ask their frustum answers (:class:`KeptCounts`)
         self.mute = self._mute(self.lv, self.opaque)
+        #: the camera-free part of each row's key into the counts' table (:meth:`_kind`)
+        self.kind = self._kind(self.lv, self.inside, self.opaque, self.mute)
         self.infr = np.zeros(1, dtype=bool)
         self.ref = np.zeros(1, dtype=bool)  # the rule node by node (policy.need), tested in the band
         self.eff = np.zeros(1, dtype=bool)  # refined: ``ref`` evened out over each level (policy.even)
-        self.slack = np.full((1, 3), -np.inf)  # (side planes, near and far, depth) slack at its last test
         self.reached = np.ones(1, dtype=bool)
         #: what the evening out counted: reached and kept (``live``), and ``ref`` evened out in its
         #: sibling group (``geven``); per level, how many of each (``_lvl``): a flip evens again only
@@ -224,14 +226,6 @@ class KeptCut:
         self._band = MotionBand(3)  # each node's deadlines in accumulated motion
         self._band.grow(self.reach)
         self._terms: np.ndarray | None = None  # the last camera's terms (_camera_terms)
-        #: the camera each node was last tested at (a row of ``_cams``, the cameras' terms): a node
-        #: whose deadline passed is re-tested only if its change from that camera may reach its
-        #: slack, else it gets a later deadline (a path that turns back re-tests no more than the
-        #: direct bound says)
-        self.cam_id = np.zeros(1, dtype=np.int64)
-        self._cams = np.zeros((8, 7, 4))
-        self._ncams = 0
-        self._cam_limit = MAX_CAMERAS
         self.camera = None
         self.retested = 0  # nodes re-tested by the last update (the band), for benchmarks and tests
         self.selection: Selection | None = None
@@ -244,6 +238,7 @@ class KeptCut:
         self._touched: list = []
         self._seen = np.full(1, -1, dtype=np.int64)
         self._serial = 0
+        self._limits: tuple | None = None  # (the lens's pixels per unit at depth 1, depth limit per level)
         #: ``(lv, rows of each level)`` for the ``lv`` array it was made from
         self._levels: tuple | None = None
         #: the policy's sibling groups of a level's nodes (camera-free), where it tells them apart
@@ -281,57 +276,93 @@ class KeptCut:
         return self._levels[1]
 
     # -- the camera's tests ----------------------------------------------------------------------
-    def _test(self, rows: np.ndarray, camera) -> None:
+    def _test(self, rows: np.ndarray, camera, ask_all: bool = False) -> np.ndarray:
         """The frustum and refine answers of ``rows`` for ``camera``, all levels at once, and their
         slacks: how much either may change before an answer can flip (their deadlines in the
         band). Transparent level-0 rows are not tested (their answers are only counted,
-        :class:`KeptCounts`): their slack is infinite, so no band holds them."""
-        slack = np.full((len(rows), 3), np.inf)
-        keep = ~self.mute[rows]
-        tested = rows[keep]
+        :class:`KeptCounts`): their slack is infinite, so no band holds them. Returns which rows'
+        answers changed; only those are noted for the counts (:meth:`_touch`: most of a band's
+        rows keep their answers, and a settle over them would move nothing).
+
+        The refine answer is the side of its level's depth limit a node lies on
+        (:meth:`_depth_slack`; the policy's ``depth_threshold`` states its rule as that limit on the
+        nearest depth); the rule itself (``policy.need``, a fixed cost of ~0.1-0.2 ms a call) is
+        asked only of the nodes within rounding of their limit, and with ``ask_all`` of every node
+        (new rows, another lens)."""
+        mute = self.mute[rows]
+        some = bool(mute.any())  # (a band never holds a transparent level-0 row; every row may)
+        tested = rows[~mute] if some else rows
+        slack = np.full((3, len(rows)), np.inf)  # (side planes, near and far, depth) per row
+        flipped = np.zeros(len(rows), dtype=bool)
         if len(tested):
             t, tree = self._t, self.tree
-            lo, hi, lv = self.lo[tested], self.hi[tested], self.lv[tested]
-            reach = camera._box_reach(lo, hi, 6)  # what boxes_in_frustum tests
-            side, ends = reach[:, :4].min(axis=1), reach[:, 4:].min(axis=1)
+            # (np.take: a gather of rows of a 2-d array several times faster than indexing)
+            lo, hi, lv = np.take(self.lo, tested, axis=0), np.take(self.hi, tested, axis=0), self.lv[tested]
+            r = camera._box_reach(lo, hi, 6)  # what boxes_in_frustum tests
+            side = np.minimum(np.minimum(r[:, 0], r[:, 1]), np.minimum(r[:, 2], r[:, 3]))
+            ends = np.minimum(r[:, 4], r[:, 5])
             low = np.minimum(side, ends)
             infr = low >= 0  # (every reach >= 0)
-            ref = lv > tree.top  # virtual levels are always entered
+            held = self.ref[tested]
+            ref = held.copy()
             dslack = np.full(len(tested), np.inf)
-            # (level 0, most of a band, is never refined: no answer, no depth slack)
-            real = np.nonzero((lv > 0) & (lv <= tree.top))[0]
+            # (level 0, most of a band, is never refined: no answer, no depth slack; a virtual level
+            # is always entered)
+            real = np.flatnonzero((lv > 0) & (lv <= tree.top))
+            if ask_all:
+                ref[lv > tree.top] = True
             if len(real):
-                rl, rlo, rhi = lv[real], lo[real], hi[real]
-                ref[real] = self.policy.need(t, rl, rlo, rhi)
-                dslack[real] = self._depth_slack(camera, rl, rlo, rhi)
-            # a kept node flips when a reach crosses 0 (each group of planes: its smallest), a culled
-            # one when its most negative does (only that plane's group can bring it in)
+                rl, rlo, rhi = lv[real], np.take(lo, real, axis=0), np.take(hi, real, axis=0)
+                dslack[real], side_now = self._depth_slack(camera, rl, rlo, rhi)
+                if ask_all:
+                    ask = np.arange(len(real))
+                elif side_now is None:  # (an orthographic camera: the answer does not depend on depth)
+                    ask = np.zeros(0, dtype=np.int64)
+                else:  # the side of its limit a node lies on, the rule asked only within rounding of it
+                    ref[real] = side_now
+                    ask = np.flatnonzero(dslack[real] <= 1e-9 * max(1.0, self.radius))
+                if len(ask):
+                    ref[real[ask]] = self.policy.need(t, rl[ask], rlo[ask], rhi[ask])
+            changed = (infr != self.infr[tested]) | (ref != held)
+            if changed.any():
+                self._touch(tested[changed])  # (before the answers change)
             self.infr[tested], self.ref[tested] = infr, ref
-            # (rounding of the tests themselves: a node this close to flipping is always re-tested)
+            # a kept node flips when a reach crosses 0 (each group of planes: its smallest), a culled
+            # one when its most negative does (only that plane's group can bring it in); rounding of
+            # the tests themselves: a node this close to flipping is always re-tested
             eps = 1e-9 * max(1.0, self.radius)
-            sl = slack[keep]
-            sl[:, 0] = np.where(infr | (side <= ends), np.where(infr, side, -low), np.inf) - eps
-            sl[:, 1] = np.where(infr | (side > ends), np.where(infr, ends, -low), np.inf) - eps
-            sl[:, 2] = dslack - eps
-            slack[keep] = sl
-        self.slack[rows] = slack
-        self.cam_id[rows] = self._ncams - 1
-        self._band.set(rows, slack)
+            sl = (np.where(infr | (side <= ends), np.where(infr, side, -low), np.inf) - eps,
+                  np.where(infr | (side > ends), np.where(infr, ends, -low), np.inf) - eps, dslack - eps)
+            if some:
+                flipped[~mute] = changed
+                for c in range(3):
+                    slack[c, ~mute] = sl[c]
+            else:
+                flipped = changed
+                slack[0], slack[1], slack[2] = sl
+        self._band.set(rows, slack.T)
+        return flipped
 
-    def _depth_slack(self, camera, level: np.ndarray, lo, hi) -> np.ndarray:
+    def _depth_slack(self, camera, level: np.ndarray, lo, hi) -> tuple[np.ndarray, np.ndarray | None]:
         """How far each node's nearest depth may move before the projected-size policy's answer
-        can flip (``level``: each node's; infinite for every box of an orthographic camera)."""
+        can flip (``level``: each node's; infinite for every box of an orthographic camera), and
+        on which side of its limit each node lies: refined where its nearest depth is below the
+        limit and its farthest beyond the eye (None for an orthographic camera)."""
         if camera.orthographic:  # the answer does not depend on depth (the lens is checked in update)
-            return np.full(len(lo), np.inf)
+            return np.full(len(lo), np.inf), None
         f = np.asarray(camera.forward, dtype=np.float64)
         c, h = (lo + hi) * 0.5 - camera.eye, (hi - lo) * 0.5
         dc, dh = c @ f, h @ np.abs(f)
         dmin, dmax = dc - dh, dc + dh
-        limits = np.array([self.policy.depth_threshold(camera, self.tree.voxel(L)) if 0 < L <= self.tree.top
-                           else 0.0 for L in range(self.tree.top + 1)])
-        limit = limits[level]
+        # (the limits depend on the lens alone, as the slacks do: kept while the lens is the same)
+        key = float(camera.pixels_per_unit(1.0))
+        if self._limits is None or self._limits[0] != key:
+            self._limits = (key, np.array([self.policy.depth_threshold(camera, self.tree.voxel(L))
+                                           if 0 < L <= self.tree.top else 0.0 for L in range(self.tree.top + 1)]))
+        limit = self._limits[1][level]
         # refined while 0 < dmin < limit or dmin <= 0 (the eye plane crosses it); not once dmax <= 0
-        return np.minimum(np.abs(dmin - limit), np.abs(dmax)) - 1e-9 * np.maximum(1.0, np.abs(limit))
+        return (np.minimum(np.abs(dmin - limit), np.abs(dmax)) - 1e-9 * np.maximum(1.0, np.abs(limit)),
+                (dmax > 0) & (dmin < limit))
 
     # -- the update ------------------------------------------------------------------------------
     def _touch(self, rows: np.ndarray) -> None:
@@ -341,29 +372,57 @@ class KeptCut:
             self._seen[new] = self._serial
             self._touched.append((new, self.reached[new], self.infr[new], self.eff[new]))
 
-    def _tally(self, rows: np.ndarray, reached, infr, eff) -> np.ndarray:
-        """The rows' part of each count of :data:`_TALLIED` for these ``reached``, ``infr``, ``eff``
-        (the traversal's counts; transparent level-0 rows are counted by :class:`KeptCounts`)."""
-        mute, inside, opaque, lv = self.mute[rows], self.inside[rows], self.opaque[rows], self.lv[rows]
+    def _kind(self, lv, inside, opaque, mute) -> np.ndarray:
+        """``(n,)`` uint8: each row's camera-free part of its key into :data:`_TABLE` (mute, inside,
+        opaque, a real level above 0), times 8."""
+        real = (lv > 0) & (lv <= self.tree.top)
+        return ((mute.astype(np.uint8) | (inside.astype(np.uint8) << 1) | (opaque.astype(np.uint8) << 2)
+                 | (real.astype(np.uint8) << 3)) << 3).astype(np.uint8)
+
+    @staticmethod
+    def _rows_tally(reached, infr, eff, mute, inside, opaque, real) -> np.ndarray:
+        """``(6, n)`` bool: each row's part in each count of :data:`_TALLIED` for these flags (the
+        traversal's counts; transparent level-0 rows are counted by :class:`KeptCounts`)."""
         tested = reached & ~mute
         kept = reached & infr & inside
         leaf = kept & ~eff
-        return np.array([np.count_nonzero(reached), np.count_nonzero(tested & ~infr),
-                         np.count_nonzero(tested & infr & ~inside), np.count_nonzero(leaf & ~opaque & ~mute),
-                         np.count_nonzero(kept & eff & (lv <= self.tree.top) & (lv > 0)),
-                         np.count_nonzero(leaf & opaque)], dtype=np.int64)
+        return np.array([reached, tested & ~infr, tested & infr & ~inside, leaf & ~opaque & ~mute,
+                         kept & eff & real, leaf & opaque])
+
+    @staticmethod
+    def _table() -> np.ndarray:
+        """``(128, 7)`` int64: for each key (:meth:`_kind` plus reached, infr and eff in its low
+        bits) a row's part in each count of :data:`_TALLIED`, and whether it is drawn (the last
+        column): a settle is then a lookup of the touched rows' keys before and after, not a count
+        of each flag combination over them."""
+        k = np.arange(128)
+        bit = [(k >> b & 1).astype(bool) for b in range(7)]
+        reached, infr, eff, mute, inside, opaque, real = bit
+        t = KeptCut._rows_tally(reached, infr, eff, mute, inside, opaque, real)
+        return np.concatenate([t, [reached & infr & inside & ~eff & opaque]]).T.astype(np.int64)
+
+    def _keys(self, rows, reached, infr, eff) -> np.ndarray:
+        return self.kind[rows] | reached.view(np.uint8) | (infr.view(np.uint8) << 1) | (eff.view(np.uint8) << 2)
+
+    def _tally(self, rows: np.ndarray, reached, infr, eff) -> np.ndarray:
+        """The rows' part of each count of :data:`_TALLIED` for these ``reached``, ``infr``, ``eff``."""
+        return np.bincount(self._keys(rows, reached, infr, eff), minlength=128) @ _TABLE[:, :6]
 
     def _drawn(self, rows: np.ndarray) -> np.ndarray:
-        return self.reached[rows] & self.infr[rows] & self.inside[rows] & ~self.eff[rows] & self.opaque[rows]
+        return _TABLE[self._keys(rows, self.reached[rows], self.infr[rows], self.eff[rows]), 6].astype(bool)
 
     def _settle(self) -> None:
         """The counts and drawn flags moved by what the touched rows changed (their difference)."""
         if self._touched:
-            rows = np.concatenate([t[0] for t in self._touched])
-            was = [np.concatenate([t[k] for t in self._touched]) for k in (1, 2, 3)]
-            self._count += self._tally(rows, self.reached[rows], self.infr[rows], self.eff[rows]) \
-                - self._tally(rows, *was)
-            d = self._drawn(rows)
+            if len(self._touched) == 1:
+                rows, *was = self._touched[0]
+            else:
+                rows = np.concatenate([t[0] for t in self._touched])
+                was = [np.concatenate([t[k] for t in self._touched]) for k in (1, 2, 3)]
+            now = self._keys(rows, self.reached[rows], self.infr[rows], self.eff[rows])
+            self._count += (np.bincount(now, minlength=128) - np.bincount(self._keys(rows, *was), minlength=128)) \
+                @ _TABLE[:, :6]
+            d = _TABLE[now, 6].astype(bool)
             if np.any(d != self.drawn[rows]):
                 self.drawn[rows] = d
                 self._leaves_changed = True
@@ -423,12 +482,12 @@ class KeptCut:
             reach = self._reach(lo, hi)
             no, yes = np.zeros(m, dtype=bool), np.ones(m, dtype=bool)
             opaque = self._opaque(lv, idx)
+            inside, mute = self._inside(lv, lo, hi), self._mute(lv, opaque)
             grown = dict(lv=lv, idx=idx, lo=lo, hi=hi, reach=reach, parent=par,
                          first=np.full(m, -1, dtype=np.int64), nchild=np.zeros(m, dtype=np.int64),
-                         expanded=no, inside=self._inside(lv, lo, hi), opaque=opaque,
-                         mute=self._mute(lv, opaque), infr=no, ref=no, eff=no, slack=np.zeros((m, 3)),
-                         reached=no, live=no, geven=no, _seen=np.full(m, -1, dtype=np.int64),
-                         cam_id=np.zeros(m, dtype=np.int64))
+                         expanded=no, inside=inside, opaque=opaque, mute=mute,
+                         kind=self._kind(lv, inside, opaque, mute), infr=no, ref=no, eff=no,
+                         reached=no, live=no, geven=no, _seen=np.full(m, -1, dtype=np.int64))
             for name, new in grown.items():
                 setattr(self, name, np.concatenate([getattr(self, name), new]))
             if self.drawn is not None:
@@ -441,7 +500,7 @@ class KeptCut:
             self._band.grow(reach)
             new = np.arange(n0, n0 + m)
             self._touch(new)  # (not reached before: they counted nothing)
-            self._test(new, camera)
+            self._test(new, camera, ask_all=True)
             rows = self._spread(new)
         return True
 
@@ -453,32 +512,38 @@ class KeptCut:
         now reached, kept and refined that have no children yet (to grow)."""
         tree, top = self.tree, self.tree.top
         lv, parent = self.lv, self.parent
+        # (each part of a level's rows to do is distinct rows: the seeds, or the children of distinct
+        # nodes; several parts may share rows)
         todo: dict[int, list] = {}
-        for L in sorted_unique(lv[seeds]).tolist():
-            todo[L] = [seeds[lv[seeds] == L]]
+        ls = lv[seeds]
+        if len(seeds) and ls.min() == ls.max():  # (the seeds of one level: an orbit's level-1 flips)
+            todo[int(ls[0])] = [seeds]
+        else:
+            for L in sorted_unique(ls).tolist():
+                todo[L] = [seeds[ls == L]]
         grow = []
         for L in range(max(todo, default=-1), -1, -1):
             if L not in todo:
                 continue
-            d = sorted_unique(np.concatenate(todo.pop(L)))
+            parts = todo.pop(L)
+            d = parts[0] if len(parts) == 1 else sorted_unique(np.concatenate(parts))
             if L == 0:  # level 0: reached where its parent is reached and refined (never refined itself)
                 self._touch(d)
-                p = parent[d]
-                q = np.maximum(p, 0)
-                self.reached[d] = np.where(p >= 0, self.reached[q] & self.eff[q], True)
+                self.reached[d] = self._open_above(d)
                 continue
             # the sibling groups of ``d``: every child of their parents (the root: a group of its own)
-            p = parent[d]
-            ups = sorted_unique(p[p >= 0])
-            roots = d[p < 0]
-            m = np.concatenate([_runs(self.first[ups], self.nchild[ups]), roots])
-            grp = np.concatenate([np.repeat(np.arange(len(ups)), self.nchild[ups]),
-                                  len(ups) + np.arange(len(roots))])
+            ups = sorted_unique(parent[d])
+            if len(ups) and ups[0] < 0:  # (the root, whose parent is -1)
+                ups, roots = ups[1:], d[parent[d] < 0]
+                m = np.concatenate([_runs(self.first[ups], self.nchild[ups]), roots])
+                grp = np.concatenate([np.repeat(np.arange(len(ups)), self.nchild[ups]),
+                                      len(ups) + np.arange(len(roots))])
+            else:
+                m = _runs(self.first[ups], self.nchild[ups])
+                grp = np.repeat(np.arange(len(ups)), self.nchild[ups])
             self._touch(m)
             open_was = self.reached[m] & self.eff[m]
-            pm = parent[m]
-            q = np.maximum(pm, 0)
-            reached = np.where(pm >= 0, self.reached[q] & self.eff[q], True)
+            reached = self._open_above(m)
             live = reached & self.infr[m] & self.inside[m]
             ref = self.ref[m]
             whole = False
@@ -487,7 +552,7 @@ class KeptCut:
             else:
                 ge = live & (ref | self.policy.evens(np.bincount(grp, weights=live),
                                                      np.bincount(grp, weights=live & ref))[grp])
-                n, r = (int(v) for v in self._lvl[L])
+                n, r = self._lvl[L].tolist()
                 was = bool(self.policy.evens(n, r))
                 n += int(np.count_nonzero(live)) - int(np.count_nonzero(self.live[m]))
                 r += int(np.count_nonzero(ge)) - int(np.count_nonzero(self.geven[m]))
@@ -512,6 +577,14 @@ class KeptCut:
                 if len(below):
                     todo.setdefault(L - 1, []).append(_runs(self.first[below], self.nchild[below]))
         return np.concatenate(grow) if grow else np.zeros(0, dtype=np.int64)
+
+    def _open_above(self, rows: np.ndarray) -> np.ndarray:
+        """Whether each row is reached: its parent reached and refined (the root always)."""
+        p = self.parent[rows]
+        if not len(p) or p.min() >= 0:
+            return self.reached[p] & self.eff[p]
+        q = np.maximum(p, 0)
+        return np.where(p >= 0, self.reached[q] & self.eff[q], True)
 
     def _propagate(self) -> None:
         """From nothing: reached, the root and every child of a reached, kept, refined node;
@@ -549,8 +622,8 @@ class KeptCut:
         again if it refines again. The dropped rows counted nothing and drew nothing."""
         keep = self.reached
         new = np.cumsum(keep) - 1
-        for name in ("lv", "idx", "lo", "hi", "reach", "expanded", "inside", "opaque", "mute", "infr", "ref", "eff",
-                     "slack", "reached", "live", "geven", "first", "nchild", "_seen", "cam_id"):
+        for name in ("lv", "idx", "lo", "hi", "reach", "expanded", "inside", "opaque", "mute", "kind", "infr", "ref",
+                     "eff", "reached", "live", "geven", "first", "nchild", "_seen"):
             setattr(self, name, getattr(self, name)[keep])
         if self.drawn is not None:
             self.drawn = self.drawn[keep]
@@ -595,16 +668,10 @@ class KeptCut:
             turn = np.array([t[:4].max(), t[4:6].max(), t[6]])
             shift = np.array([s[:4].max(), s[4:6].max(), s[6]])
         self._terms = terms
-        self._add_camera(terms)
         band = self._band.advance(turn, shift)
-        if not lens:
-            band = self._due(band, terms)
-        self._touch(band)
-        was = (self.infr[band], self.ref[band])
         self._t.camera = self.camera = camera
-        self._test(band, camera)
+        flipped = self._test(band, camera, ask_all=lens or self.drawn is None)
         self.retested = len(band)
-        flipped = (was[0] != self.infr[band]) | (was[1] != self.ref[band])
         changed = self.selection is None or bool(flipped.any())
         if not changed:
             self._touched, self._serial = [], self._serial + 1  # (nothing moved)
@@ -630,38 +697,6 @@ class KeptCut:
             self._settle()
         self.selection = self._selection(camera, ordered)
         return self.selection
-
-    def _add_camera(self, terms: np.ndarray) -> None:
-        """Append a camera's terms (the nodes tested from now on refer to it); past the limit, first
-        drop the cameras no node refers to (a pass over the rows, at most once per ``MAX_CAMERAS``
-        frames: the limit is then twice the cameras left, plus ``MAX_CAMERAS``)."""
-        if self._ncams >= self._cam_limit:
-            used, inv = np.unique(self.cam_id, return_inverse=True)
-            self.cam_id = inv.reshape(-1)
-            self._cams[:len(used)] = self._cams[used]
-            self._ncams = len(used)
-            self._cam_limit = 2 * self._ncams + MAX_CAMERAS
-        if self._ncams == len(self._cams):
-            self._cams = np.concatenate([self._cams, np.zeros_like(self._cams)])
-        self._cams[self._ncams] = terms
-        self._ncams += 1
-
-    def _due(self, rows: np.ndarray, terms: np.ndarray) -> np.ndarray:
-        """Of the rows whose deadline passed, those whose change from the camera they were last
-        tested at may reach their slack (the direct bound, per camera then gathered); the others
-        get a later deadline: the slack left over that change, in motion from now on (the triangle
-        inequality again)."""
-        if not len(rows):
-            return rows
-        t, s = _turn_shift(self._cams[:self._ncams], terms)
-        per = np.concatenate([t[:, :4].max(axis=1, keepdims=True), t[:, 4:6].max(axis=1, keepdims=True), t[:, 6:],
-                              s[:, :4].max(axis=1, keepdims=True), s[:, 4:6].max(axis=1, keepdims=True), s[:, 6:]],
-                             axis=1)[self.cam_id[rows]]
-        left = self.slack[rows] - (per[:, :3] * self.reach[rows, None] + per[:, 3:])
-        due = np.any(left <= 0, axis=1)
-        if not due.all():
-            self._band.set(rows[~due], left[~due])
-        return rows[due]
 
     def _counts(self, camera, base: dict) -> KeptCounts:
         """The counts for ``camera``: ``base`` (the tested nodes') and the transparent level-0
@@ -694,5 +729,10 @@ class KeptCut:
         else:
             o = depth_first(lv, idx)
             wanted = keys[o]
-        items = DrawItems(keys[o], self.lo[draw][o], self.hi[draw][o])
+        do = draw[o]
+        items = DrawItems(keys[o], np.take(self.lo, do, axis=0), np.take(self.hi, do, axis=0))
         return Selection(items, BrickKeys(wanted), counts, self.params.policy, node_data, None, ordered=ordered)
+
+
+#: :meth:`KeptCut._table`, made once
+_TABLE = KeptCut._table()
