@@ -17,7 +17,6 @@ and the median of the per-call ratios kept ÷ from nothing. It runs on an older 
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import sys
 import time
@@ -62,18 +61,10 @@ def _wrap(calls: list) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--store", type=Path, action="append", default=[], help="a clipvol store (repeatable)")
-    ap.add_argument("--head", default="512", help="CT-like head edges, comma separated (16^3 bricks)")
-    ap.add_argument("--data", type=Path, default=common.DATA, help="where the heads' stores are built once")
-    ap.add_argument("--frames", type=int, default=48)
-    ap.add_argument("--image", type=int, default=32)
-    ap.add_argument("--lod", type=float, default=0.1)
+    ap = common.orbit_parser(__doc__, frames=48)
     ap.add_argument("--out", type=Path, default=common.RESULTS / "bench_kept_merge.csv")
     a = ap.parse_args(argv)
-    entries = [(s, s.name) for s in a.store]
-    for n in (int(v) for v in a.head.split(",") if v.strip()):
-        entries.append((common.ct_store(f"{n}x{n}x{n}", 16, a.data), f"ct_head {n}^3, 16^3 bricks"))
+    entries = common.orbit_stores(a)
     if not entries:
         ap.error("nothing to measure: give --store or --head")
     calls: list = []

@@ -659,6 +659,28 @@ def sizes_main(argv, doc: str, run, default_out: Path, sizes_help: str) -> int:
     return 0
 
 
+def orbit_parser(doc: str, frames: int) -> argparse.ArgumentParser:
+    """The flags of the benchmarks that orbit warm projected-size scenes (``--store`` repeatable,
+    ``--head`` CT-like heads at 16^3 bricks, ``--data``, ``--frames``, ``--image``, ``--lod``);
+    :func:`orbit_stores` turns the parsed ones into the stores to measure."""
+    ap = argparse.ArgumentParser(description=doc.split("\n")[0])
+    ap.add_argument("--store", type=Path, action="append", default=[], help="a clipvol store (repeatable)")
+    ap.add_argument("--head", default="512", help="CT-like head edges, comma separated (16^3 bricks)")
+    ap.add_argument("--data", type=Path, default=DATA, help="where the heads' stores are built once")
+    ap.add_argument("--frames", type=int, default=frames)
+    ap.add_argument("--image", type=int, default=32)
+    ap.add_argument("--lod", type=float, default=0.1)
+    return ap
+
+
+def orbit_stores(args) -> list[tuple[Path, str]]:
+    """``(store, label)`` of :func:`orbit_parser`'s ``--store`` and ``--head`` (built once)."""
+    entries = [(s, s.name) for s in args.store]
+    for n in (int(v) for v in args.head.split(",") if v.strip()):
+        entries.append((ct_store(f"{n}x{n}x{n}", 16, args.data), f"ct_head {n}^3, 16^3 bricks"))
+    return entries
+
+
 def write_rows(path, rows: list[dict]) -> None:
     """``rows`` as a CSV at ``path`` (columns: every row's keys, in the order they first appear;
     a row without one leaves its cell empty)."""

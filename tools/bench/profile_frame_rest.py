@@ -19,7 +19,6 @@ frame drawn beside it, and the frame's per-pair ratio to the first's with its qu
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import statistics
 import sys
@@ -110,19 +109,11 @@ def _stats(frames: list[dict], key: str) -> tuple[float, float, float, float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--store", type=Path, action="append", default=[], help="a clipvol store (repeatable)")
-    ap.add_argument("--head", default="512", help="CT-like head edges, comma separated (16^3 bricks)")
-    ap.add_argument("--data", type=Path, default=common.DATA, help="where the heads' stores are built once")
-    ap.add_argument("--frames", type=int, default=24)
-    ap.add_argument("--image", type=int, default=32)
-    ap.add_argument("--lod", type=float, default=0.1)
+    ap = common.orbit_parser(__doc__, frames=24)
     a = ap.parse_args(argv)
     from clipvol.render import create_context
 
-    entries = [(s, s.name) for s in a.store]
-    for n in (int(v) for v in a.head.split(",") if v.strip()):
-        entries.append((common.ct_store(f"{n}x{n}x{n}", 16, a.data), f"ct_head {n}^3"))
+    entries = common.orbit_stores(a)
     acc: dict = {}
     _wrap(acc)
     ctx = create_context()
