@@ -70,28 +70,19 @@ class MotionBand:
 
     def __init__(self, channels: int = 2) -> None:
         self.channels = int(channels)
-        #: accumulated turn per channel and axis (``(channels, axes)``, the axes fixed by the first
-        #: :meth:`grow`) and accumulated shift per channel
-        self.turns = np.zeros((self.channels, 1))
-        self.shifts = np.zeros(self.channels)
-        self.reach = np.zeros((0, 1))  # per row and axis
+        self.total = np.zeros((self.channels, 2))  # accumulated (turn, shift) per channel
+        self.reach = np.zeros(0)
         self._all = False
         self._pos = np.zeros(0, dtype=np.int64)  # each row's place in the list (-1: not listed)
-        #: the listed rows, their reaches ``(axes + 1, k)`` (:meth:`_reaches`) and their deadlines ``h = s + T_k . r + S_k``
-        #: per channel (due when ``T . r + S >= h``)
+        #: the listed rows, their reaches and their deadlines ``h = s + T_k r + S_k`` per channel
+        #: (due when ``T r + S >= h``)
         self._rows = np.zeros(0, dtype=np.int64)
-        self._r = np.zeros((2, 0))
+        self._r = np.zeros(0)
         self._d = np.zeros((self.channels, 0))
         self._age = 0
         self._grown = 0  # rows grown since the list was made (listed, due at once, until set)
         self._sorted = True  # the list in row order
-        self._buf: tuple | None = None  # (motion, due per channel, due) buffers of the list's length
-
-    @property
-    def total(self) -> np.ndarray:
-        """``(channels, 2)``: the accumulated turn (summed over the axes: the bound for a reach of
-        one along each) and shift per channel."""
-        return np.stack([self.turns.sum(axis=1), self.shifts], axis=1)
+        self._buf: tuple | None = None  # (motion, due, due in a channel) buffers of the list's length
 
     def __len__(self) -> int:
         return len(self.reach)
@@ -114,15 +105,8 @@ class MotionBand:
         """Make the list anew: ``rows`` (sorted) with deadlines ``due`` ``(channels, len(rows))``."""
         self._pos = np.full(len(self.reach), -1, dtype=np.int64)
         self._pos[rows] = np.arange(len(rows))
-        self._rows, self._r, self._d = rows, self._reaches(rows), np.ascontiguousarray(due)
+        self._rows, self._r, self._d = rows, self.reach[rows], np.ascontiguousarray(due)
         self._age, self._grown, self._buf, self._sorted = 0, 0, None, True
-
-    def _reaches(self, rows: np.ndarray) -> np.ndarray:
-        """``(axes + 1, len(rows))``: the rows' reaches per axis and a row of ones (the shift's
-        factor: a frame's motion at every listed row is then one matrix product)."""
-        out = np.ones((self.reach.shape[1] + 1, len(rows)))
-        out[:-1] = self.reach[rows].T
-        return out
 
     def _append(self, rows: np.ndarray, due: np.ndarray) -> None:
         """List ``rows`` (sorted) too, after the others."""
@@ -130,21 +114,15 @@ class MotionBand:
             self._sorted = False  # (the list is in row order while only grown rows are appended)
         self._pos[rows] = len(self._rows) + np.arange(len(rows))
         self._rows = np.concatenate([self._rows, rows])
-        self._r = np.concatenate([self._r, self._reaches(rows)], axis=1)
+        self._r = np.concatenate([self._r, self.reach[rows]])
         self._d = np.concatenate([self._d, due], axis=1)
         self._buf = None
 
     def grow(self, reach: np.ndarray) -> None:
-        """Append rows of these reaches, due at once until :meth:`set` gives their deadlines:
-        ``(m,)`` how far each row's farthest point lies from the centre, or ``(m, axes)`` how far
-        it extends from the centre along each axis (then each frame's turn is given per axis)."""
+        """Append rows of these reaches (how far their farthest corner lies from the centre), due
+        at once until :meth:`set` gives their deadlines."""
         reach = np.asarray(reach, dtype=np.float64)
-        reach = reach.reshape(len(reach), -1)
         n0, m = len(self.reach), len(reach)
-        if n0 == 0 and reach.shape[1] != self.reach.shape[1]:  # (the axes: fixed by the first rows)
-            self.reach = np.zeros((0, reach.shape[1]))
-            self._r = np.zeros((reach.shape[1] + 1, 0))
-            self.turns = np.zeros((self.channels, reach.shape[1]))
         self.reach = np.concatenate([self.reach, reach])
         self._pos = np.concatenate([self._pos, np.full(m, -1, dtype=np.int64)])
         self._grown += m
@@ -164,11 +142,9 @@ class MotionBand:
         self._all = True
 
     def advance(self, turn: np.ndarray, shift: np.ndarray) -> np.ndarray:
-        """Add a frame's motion and return the rows now due, sorted. ``turn``: per channel
-        ``(channels,)``, or per channel and axis ``(channels, axes)`` where the rows' reaches are
-        per axis; ``shift``: per channel."""
-        self.turns += np.asarray(turn, dtype=np.float64).reshape(self.channels, -1)
-        self.shifts += np.asarray(shift, dtype=np.float64)
+        """Add a frame's motion (``turn``, ``shift`` per channel) and return the rows now due, sorted."""
+        self.total[:, 0] += np.asarray(turn, dtype=np.float64)
+        self.total[:, 1] += np.asarray(shift, dtype=np.float64)
         if self._all:
             self._all = False
             return np.arange(len(self.reach))
@@ -179,13 +155,14 @@ class MotionBand:
             self._list(self._rows[keep][o], self._d[:, keep][:, o])
         k = len(self._rows)
         if self._buf is None:
-            self._buf = (np.empty((self.channels, k)), np.empty((self.channels, k), dtype=bool),
-                         np.empty(k, dtype=bool))
-        m, each, out = self._buf
-        # (every channel at once: one product of the turns and shifts with the reaches and ones)
-        np.matmul(np.concatenate([self.turns, self.shifts[:, None]], axis=1), self._r, out=m)
-        np.greater_equal(m, self._d, out=each)
-        each.any(axis=0, out=out)
+            self._buf = (np.empty(k), np.empty(k, dtype=bool), np.empty(k, dtype=bool))
+        m, out, one = self._buf
+        for c, (T, S) in enumerate(self.total.tolist()):
+            np.multiply(self._r, T, out=m)
+            m += S
+            np.greater_equal(m, self._d[c], out=out if c == 0 else one)
+            if c:
+                out |= one
         rows = self._rows[out]
         return rows if self._sorted else np.sort(rows)
 
@@ -195,7 +172,7 @@ class MotionBand:
         rows = np.asarray(rows, dtype=np.int64)
         if not len(rows):
             return
-        h = (np.asarray(slack).T + self.turns @ self.reach[rows].T) + self.shifts[:, None]
+        h = (np.asarray(slack).T + self.reach[rows] * self.total[:, :1]) + self.total[:, 1:]
         pos = self._pos[rows]
         if pos.min() >= 0:
             for c in range(self.channels):  # (a row of the deadlines at a time: faster than one 2-d scatter)

@@ -107,16 +107,6 @@ def _turn_shift(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.linalg.norm(d[..., :3], axis=-1), np.abs(d[..., 3])
 
 
-def _turn_axes(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_turn_shift` with the turn per axis: ``(7, 3)`` the change ``|dn_i|`` of each normal's
-    components and ``(7,)`` the change of the value at the centre. A point ``x`` changes by at most
-    ``sum_i |dn_i| |x_i - centre_i| + shift`` (the triangle inequality over the axes; at most
-    ``|dn| |x - centre| + shift`` by Cauchy-Schwarz), so a box of per-axis reach ``e`` changes by at
-    most ``|dn| . e + shift`` (what :class:`~clipvol.scene.selection.band.MotionBand` sums)."""
-    d = np.asarray(b) - np.asarray(a)
-    return np.abs(d[:, :3]), np.abs(d[:, 3])
-
-
 class KeptCounts(Mapping):
     """A kept cut's :attr:`Selection.counts <clipvol.scene.selection.cut.Selection>` for one camera:
     the counts of the tested nodes, and those of the transparent level-0 nodes (never drawn, never
@@ -212,7 +202,7 @@ class KeptCut:
         self.lv[0] = tree.root
         self.idx = np.zeros((1, 3), dtype=np.int64)
         self.lo, self.hi = tree.boxes(tree.root, self.idx)
-        self.reach = self._reach(self.lo, self.hi)  # how far each node extends from the centre, per axis
+        self.reach = self._reach(self.lo, self.hi)  # how far each node's corners lie from the centre
         self.parent = np.full(1, -1, dtype=np.int64)
         self.first = np.full(1, -1, dtype=np.int64)  # each node's first child row (-1: none)
         self.nchild = np.zeros(1, dtype=np.int64)  # and how many children rows follow it
@@ -256,13 +246,8 @@ class KeptCut:
 
     # -- the camera-free tests -------------------------------------------------------------------
     def _reach(self, lo, hi) -> np.ndarray:
-        """``(n, 3)``: how far each box extends from the centre along each axis (the largest
-        ``|x_i - centre_i|`` over the box): a camera change whose normals turn by ``dn`` moves a
-        plane's value anywhere in the box by at most ``sum_i |dn_i| reach_i`` (less than or equal
-        to ``|dn|`` times the farthest corner's distance, and far less where the turn has no part
-        along an axis the box extends along: an orbit about the vertical does not move a node's
-        height)."""
-        return np.maximum(np.abs(lo - self.centre), np.abs(hi - self.centre))
+        """``(n,)``: the farthest any corner of each box lies from the centre (an upper bound)."""
+        return np.linalg.norm((lo + hi) * 0.5 - self.centre, axis=1) + np.linalg.norm(hi - lo, axis=1) * 0.5
 
     def _inside(self, lv, lo, hi) -> np.ndarray:
         if self.shape is None or self.shape.is_everything:
@@ -675,12 +660,12 @@ class KeptCut:
         if lens:  # another lens or image size: the depth limits moved, every slack is void: test everything
             self._band.everything()
         if self._terms is None:
-            turn, shift = np.zeros((3, 3)), np.zeros(3)
-        else:  # this frame's move: per axis, the largest turn of the side planes, of the near and far
+            turn = shift = np.zeros(3)
+        else:  # this frame's move: the largest turn and shift of the side planes, of the near and far
             # planes (fitted to the volume each frame: they shift back and forth, the sides do not), and
-            # the view direction's; and the largest shift of each at the centre
-            t, s = _turn_axes(self._terms, terms)
-            turn = np.stack([t[:4].max(axis=0), t[4:6].max(axis=0), t[6]])
+            # the view direction's
+            t, s = _turn_shift(self._terms, terms)
+            turn = np.array([t[:4].max(), t[4:6].max(), t[6]])
             shift = np.array([s[:4].max(), s[4:6].max(), s[6]])
         self._terms = terms
         band = self._band.advance(turn, shift)
