@@ -7,7 +7,13 @@ tree too, where some are missing), with ``time.thread_time`` (llvmpipe rasterise
 threads). A stage called inside another counts in both. Medians and means over the frames, and the
 band (the nodes re-tested) per frame.
 
-    python tools/bench/profile_kept_cut.py --store mni16.zarr --camera orbit --frames 12
+``--replay N`` then replays the cameras the frames handed ``KeptCut.update`` through N fresh kept
+cuts built as the frame loop built its own, without drawing (the warm-up's cameras replayed too, untimed,
+and the first frame after them left out): the update's stages alone, away from llvmpipe's threads, over N times as many
+frames (steadier figures on a loaded machine). It runs on an older tree too (the kept cut's own
+methods are all it calls).
+
+    python tools/bench/profile_kept_cut.py --store mni16.zarr --camera orbit --frames 12 --replay 5
 """
 
 from __future__ import annotations
@@ -61,9 +67,24 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=12)
     ap.add_argument("--image", type=int, default=32)
     ap.add_argument("--lod", type=float, default=0.1)
+    ap.add_argument("--replay", type=int, default=0, help="replays of the update alone (see above)")
     a = ap.parse_args(argv)
     acc: dict = {}
     _wrap(acc)
+    from clipvol.scene.selection import kept_cut
+
+    made, seen = [], []
+    init, update = kept_cut.KeptCut.__init__, kept_cut.KeptCut.update
+
+    def recorded_init(self, *args, **kw):  # (how the frame loop builds its kept cut)
+        made.append((args, kw))
+        init(self, *args, **kw)
+
+    def recorded_update(self, camera, *args, **kw):  # (the cameras it hands the update)
+        seen.append((camera, args, kw))
+        return update(self, camera, *args, **kw)
+
+    kept_cut.KeptCut.__init__, kept_cut.KeptCut.update = recorded_init, recorded_update
     scene = common.WarmScene(a.store)
     try:
         act = scene.action(policy="projected-size", lod_threshold=a.lod, step=bench_frame_cost.STEP)
@@ -71,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
         for cam in (*cams, cams[0]):  # the benchmark's warm-up
             act.render(cam, scene.tf, wait=True, timeout=900)
         frames, bands = [], []
+        start = len(seen)  # (the warm-up's cameras before: replayed untimed)
         for cam in cams:
             acc.clear()
             t = time.thread_time()
@@ -79,6 +101,18 @@ def main(argv: list[str] | None = None) -> int:
             cut = act.frame_loop._cut
             if cut:
                 bands.append(cut[1].retested)
+        replayed, rbands = [], []
+        if a.replay and made and seen:
+            kept_cut.KeptCut.update = update
+            for _ in range(a.replay):
+                kc = kept_cut.KeptCut(*made[-1][0], **made[-1][1])
+                for k, (cam, args, kw) in enumerate(seen):
+                    acc.clear()
+                    t = time.thread_time()
+                    kc.update(cam, *args, **kw)
+                    if k > start:
+                        replayed.append((time.thread_time() - t, dict(acc)))
+                        rbands.append(kc.retested)
     finally:
         scene.close()
     print(f"{a.store.name} {a.camera}, {len(frames)} frames, load {bench_frame_cost._load()}")
@@ -88,6 +122,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {k:24} median {1e3 * statistics.median(v):.3f} ms, mean {1e3 * statistics.mean(v):.3f} ms")
     if bands:
         print(f"  band (nodes re-tested)   median {statistics.median(bands)}")
+    if replayed:
+        print(f"  replayed: {a.replay} x {len(replayed) // a.replay} updates, load {bench_frame_cost._load()}")
+        for k in sorted({k for _, d in replayed for k in d}):
+            v = [d.get(k, 0.0) for _, d in replayed]
+            print(f"  {k:24} median {1e3 * statistics.median(v):.3f} ms, mean {1e3 * statistics.mean(v):.3f} ms")
+        print(f"  band (nodes re-tested)   median {statistics.median(rbands)}")
     return 0
 
 
