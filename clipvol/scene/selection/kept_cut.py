@@ -523,15 +523,19 @@ class KeptCut:
         tree, top = self.tree, self.tree.top
         lv, parent = self.lv, self.parent
         ls = lv[seeds]
+        one = len(seeds) and not np.count_nonzero(ls != ls[0])  # (the seeds of one level: an orbit's level-1 flips)
         if flips and len(seeds):
-            keep = (ls > 0) & (self.live[seeds] | (self.reached[seeds] & self.infr[seeds] & self.inside[seeds]))
-            if np.count_nonzero(keep) < len(keep):
-                seeds, ls = seeds[keep], ls[keep]
+            was = self.live[seeds]  # (most of an orbit's flips: live before, above level 0; nothing to leave out)
+            if not (one and ls[0] > 0 and np.count_nonzero(was) == len(was)):
+                keep = (ls > 0) & (was | (self.reached[seeds] & self.infr[seeds] & self.inside[seeds]))
+                if np.count_nonzero(keep) < len(keep):
+                    seeds, ls = seeds[keep], ls[keep]
+                    one = len(seeds) and not np.count_nonzero(ls != ls[0])
         # (each part of a level's rows to do is distinct rows: the seeds, or the children of distinct
         # nodes; several parts may share rows; a part of children carries their reached, from their
         # parents, level 0 its only use)
         todo: dict[int, list] = {}
-        if len(seeds) and not np.count_nonzero(ls != ls[0]):  # (the seeds of one level: an orbit's level-1 flips)
+        if one:
             todo[int(ls[0])] = [(seeds, None)]
         else:
             for L in sorted_unique(ls).tolist():
