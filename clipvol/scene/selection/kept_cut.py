@@ -27,7 +27,9 @@ new camera:
    and the level's two counts, and ``reached`` only below the nodes whose "reached and refined"
    changed, walked down through each node's children (a contiguous run of rows); a level whose
    count flips its whole-level evening is set again whole (``ProjectedSize.evens``, the rule per
-   group of ``n`` nodes, ``r`` refined). The selection's counts and its drawn leaves follow by the
+   group of ``n`` nodes, ``r`` refined). A flip at level 0, or of a node live (reached, in the frustum,
+   inside the shape) neither before nor after it, moves nothing there and is left out. The
+   selection's counts and its drawn leaves follow by the
    difference over the rows whose answers this changed (:meth:`KeptCut._settle`: each row's key,
    its camera-free kind and its three flags, looked up before and after in one table);
 3. grows the tree below nodes that now refine and had no children yet (the traversal's own
