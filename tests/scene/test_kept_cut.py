@@ -454,3 +454,38 @@ def test_after_another_lens_small_moves_use_its_depth_limits():
             np.testing.assert_array_equal(kc.ref[r], kc.policy.need(kc._t, L, kc.lo[r], kc.hi[r]), err_msg=str(k))
         flips += k > 12 and int(np.count_nonzero(kc.ref[:len(held)] != held))
     assert flips > 10, flips  # (answers moved under the new lens's limits)
+
+
+def test_runs_are_each_nodes_child_rows_concatenated():
+    """``_runs`` (a node's children are one run of rows) against a list built row by row, with
+    equal counts (its broadcast path) and mixed ones, zeros included."""
+    from clipvol.scene.selection.kept_cut import _runs
+
+    rng = np.random.default_rng(3)
+    for counts in ([8, 8, 8], [8], [4, 8, 0, 2], [0, 0], [3, 3, 1]):
+        first = rng.integers(0, 1000, len(counts))
+        want = [f + k for f, c in zip(first.tolist(), counts) for k in range(c)]
+        np.testing.assert_array_equal(_runs(first, np.array(counts, dtype=np.int64)), np.array(want, dtype=np.int64))
+
+
+@pytest.mark.parametrize("shape", [None, CROP])
+def test_flips_that_move_nothing_are_left_out_and_the_cut_stays_selects(shape, monkeypatch):
+    """A flipped level-0 node, and one live (reached, in the frustum, inside the shape) neither
+    before nor after its flip, is left out of the propagation: along random paths such flips
+    happen (counted here from the arrays, apart from the kept cut's filter) and the cut stays a
+    fresh ``select``'s. Fails when a seed that becomes live is left out too."""
+    params = RenderParams(policy="projected-size", lod_threshold=0.1, shape=shape)
+    kc = KeptCut(PYR, params, policy_for(params), transparent=transparent)
+    spread, idle = KeptCut._spread, []
+
+    def counted(self, seeds, flips=False):
+        if flips:
+            live = self.reached[seeds] & self.infr[seeds] & self.inside[seeds]
+            idle.append(int(np.count_nonzero((self.lv[seeds] == 0) | (~self.live[seeds] & ~live))))
+        return spread(self, seeds, flips)
+
+    monkeypatch.setattr(KeptCut, "_spread", counted)
+    rng = np.random.default_rng(21 + (shape is not None))
+    for cam in path(rng, 40, 2.0):
+        same(kc.update(cam), select(PYR, cam, params, transparent=transparent))
+    assert sum(idle) > 0  # (the shortcut was taken)

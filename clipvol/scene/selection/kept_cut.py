@@ -27,7 +27,9 @@ new camera:
    and the level's two counts, and ``reached`` only below the nodes whose "reached and refined"
    changed, walked down through each node's children (a contiguous run of rows); a level whose
    count flips its whole-level evening is set again whole (``ProjectedSize.evens``, the rule per
-   group of ``n`` nodes, ``r`` refined). The selection's counts and its drawn leaves follow by the
+   group of ``n`` nodes, ``r`` refined). A flip at level 0, or of a node live (reached, in the frustum,
+   inside the shape) neither before nor after it, moves nothing there and is left out. The
+   selection's counts and its drawn leaves follow by the
    difference over the rows whose answers this changed (:meth:`KeptCut._settle`: each row's key,
    its camera-free kind and its three flags, looked up before and after in one table);
 3. grows the tree below nodes that now refine and had no children yet (the traversal's own
@@ -157,6 +159,9 @@ def _runs(first: np.ndarray, count: np.ndarray) -> np.ndarray:
     children are one such run)."""
     if not len(count):
         return np.zeros(0, dtype=np.int64)
+    c = int(count[0])
+    if c and not np.count_nonzero(count != c):  # (every node with as many children: most of an octree)
+        return (first[:, None] + np.arange(c, dtype=np.int64)).reshape(-1)
     ends = np.cumsum(count)
     total = int(ends[-1])
     if not total:
@@ -421,9 +426,9 @@ class KeptCut:
                 was = [np.concatenate([t[k] for t in self._touched]) for k in (1, 2, 3)]
             now = self._keys(rows, self.reached[rows], self.infr[rows], self.eff[rows])
             self._count += (np.bincount(now, minlength=128) - np.bincount(self._keys(rows, *was), minlength=128)) \
-                @ _TABLE[:, :6]
-            d = _TABLE[now, 6].astype(bool)
-            if np.any(d != self.drawn[rows]):
+                @ _COUNTS
+            d = _DRAWN[now]
+            if np.count_nonzero(d != self.drawn[rows]):
                 self.drawn[rows] = d
                 self._leaves_changed = True
         self._touched = []
@@ -504,33 +509,55 @@ class KeptCut:
             rows = self._spread(new)
         return True
 
-    def _spread(self, seeds: np.ndarray) -> np.ndarray:
+    def _spread(self, seeds: np.ndarray, flips: bool = False) -> np.ndarray:
         """Propagate what the rows ``seeds`` changed (their answers, or they are new), level by level
         from the coarsest down: each touched sibling group evened out again and the level's counts
         moved (the whole level evened again only where its count flips the level's evening), and
         ``reached`` set again below the nodes whose "reached and refined" changed. Returns the nodes
-        now reached, kept and refined that have no children yet (to grow)."""
+        now reached, kept and refined that have no children yet (to grow).
+
+        ``flips``: the seeds are kept rows whose answers flipped (not new rows). Such a seed moves
+        nothing where it is live neither before nor after (not reached, culled or outside the
+        shape both times: its group's counts stay), nor at level 0 (never refined: its flip moves
+        only the counts, noted by :meth:`_test`); both are left out. A seed's own flip never
+        changes whether it is reached (its parent's answers do, and a parent that changes brings
+        its children itself)."""
         tree, top = self.tree, self.tree.top
         lv, parent = self.lv, self.parent
-        # (each part of a level's rows to do is distinct rows: the seeds, or the children of distinct
-        # nodes; several parts may share rows)
-        todo: dict[int, list] = {}
         ls = lv[seeds]
-        if len(seeds) and ls.min() == ls.max():  # (the seeds of one level: an orbit's level-1 flips)
-            todo[int(ls[0])] = [seeds]
+        one = len(seeds) and not np.count_nonzero(ls != ls[0])  # (the seeds of one level: an orbit's level-1 flips)
+        if flips and len(seeds):
+            was = self.live[seeds]  # (most of an orbit's flips: live before, above level 0; nothing to leave out)
+            if not (one and ls[0] > 0 and np.count_nonzero(was) == len(was)):
+                keep = (ls > 0) & (was | (self.reached[seeds] & self.infr[seeds] & self.inside[seeds]))
+                if np.count_nonzero(keep) < len(keep):
+                    seeds, ls = seeds[keep], ls[keep]
+                    one = len(seeds) and not np.count_nonzero(ls != ls[0])
+        # (each part of a level's rows to do is distinct rows: the seeds, or the children of distinct
+        # nodes; several parts may share rows; a part of children carries their reached, from their
+        # parents, level 0 its only use)
+        todo: dict[int, list] = {}
+        if one:
+            todo[int(ls[0])] = [(seeds, None)]
         else:
             for L in sorted_unique(ls).tolist():
-                todo[L] = [seeds[ls == L]]
+                todo[L] = [(seeds[ls == L], None)]
         grow = []
         for L in range(max(todo, default=-1), -1, -1):
             if L not in todo:
                 continue
             parts = todo.pop(L)
-            d = parts[0] if len(parts) == 1 else sorted_unique(np.concatenate(parts))
             if L == 0:  # level 0: reached where its parent is reached and refined (never refined itself)
-                self._touch(d)
-                self.reached[d] = self._open_above(d)
+                if len(parts) == 1 and parts[0][1] is not None:
+                    d, r0 = parts[0]
+                    self._touch(d)
+                    self.reached[d] = r0
+                else:
+                    d = parts[0][0] if len(parts) == 1 else sorted_unique(np.concatenate([p[0] for p in parts]))
+                    self._touch(d)
+                    self.reached[d] = self._open_above(d)
                 continue
+            d = parts[0][0] if len(parts) == 1 else sorted_unique(np.concatenate([p[0] for p in parts]))
             # the sibling groups of ``d``: every child of their parents (the root: a group of its own)
             ups = sorted_unique(parent[d])
             if len(ups) and ups[0] < 0:  # (the root, whose parent is -1)
@@ -538,12 +565,15 @@ class KeptCut:
                 m = np.concatenate([_runs(self.first[ups], self.nchild[ups]), roots])
                 grp = np.concatenate([np.repeat(np.arange(len(ups)), self.nchild[ups]),
                                       len(ups) + np.arange(len(roots))])
-            else:
-                m = _runs(self.first[ups], self.nchild[ups])
-                grp = np.repeat(np.arange(len(ups)), self.nchild[ups])
-            self._touch(m)
+                self._touch(m)
+                reached = self._open_above(m)
+            else:  # (a group's rows share their parent: reached is the parent's, repeated)
+                nu = self.nchild[ups]
+                m = _runs(self.first[ups], nu)
+                grp = np.repeat(np.arange(len(ups)), nu)
+                self._touch(m)
+                reached = (self.reached[ups] & self.eff[ups])[grp]
             open_was = self.reached[m] & self.eff[m]
-            reached = self._open_above(m)
             live = reached & self.infr[m] & self.inside[m]
             ref = self.ref[m]
             whole = False
@@ -568,14 +598,18 @@ class KeptCut:
                 changed = rl[open_l != (self.reached[rl] & self.eff[rl])]
             else:
                 self.reached[m], self.live[m], self.geven[m] = reached, live, ge
-                self.eff[m] = ge | (flag & live)
-                changed = m[open_was != (reached & self.eff[m])]
+                eff = ge | (flag & live)
+                self.eff[m] = eff
+                changed = m[open_was != (reached & eff)]
             if len(changed):
-                opened = changed[self.reached[changed] & self.eff[changed]]
+                now = self.reached[changed] & self.eff[changed]
+                opened = changed[now]
                 grow.append(opened[~self.expanded[opened]])
-                below = changed[self.nchild[changed] > 0]
-                if len(below):
-                    todo.setdefault(L - 1, []).append(_runs(self.first[below], self.nchild[below]))
+                nb = self.nchild[changed]
+                below = nb > 0
+                if np.count_nonzero(below):
+                    todo.setdefault(L - 1, []).append((_runs(self.first[changed[below]], nb[below]),
+                                                       np.repeat(now[below], nb[below])))
         return np.concatenate(grow) if grow else np.zeros(0, dtype=np.int64)
 
     def _open_above(self, rows: np.ndarray) -> np.ndarray:
@@ -685,7 +719,7 @@ class KeptCut:
                 self._recount()
                 go = np.nonzero(self.reached & self.infr & self.inside & self.eff & ~self.expanded)[0]
             else:  # from the flipped nodes down
-                go = self._spread(band[flipped])
+                go = self._spread(band[flipped], flips=True)
                 self._settle()
             n_out = len(self.lv) - int(self._count[0])
             if n_out > max(COMPACT_MIN, len(self.lv) - n_out):
@@ -736,3 +770,5 @@ class KeptCut:
 
 #: :meth:`KeptCut._table`, made once
 _TABLE = KeptCut._table()
+#: its counts' columns (contiguous) and its drawn column (bool), what a settle reads
+_COUNTS, _DRAWN = np.ascontiguousarray(_TABLE[:, :6]), _TABLE[:, 6].astype(bool)
