@@ -274,14 +274,19 @@ def parser(doc: str, out: str) -> argparse.ArgumentParser:
     return ap
 
 
+def write_results(out: Path, rows: list[dict], beside: str, more: list[dict]) -> None:
+    """The refine benchmarks' rows to ``out`` and a second table to ``<out>_<beside>.csv``."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    common.write_rows(out, rows)
+    common.write_rows(out.with_name(f"{out.stem}_{beside}.csv"), more)
+    print(f"rows: {out}")
+
+
 def main(argv: list[str] | None = None) -> int:
     a = parser(__doc__, "bench_refine_metric.csv").parse_args(argv)
     rows, orows = run(a.store, [int(v) for v in a.images.split(",")], a.views.split(","), a.settings.split(","))
     summary(rows)
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    common.write_rows(a.out, rows)
-    common.write_rows(a.out.with_name(a.out.stem + "_oracle.csv"), orows)
-    print(f"rows: {a.out}")
+    write_results(a.out, rows, "oracle", orows)
     return 0
 
 

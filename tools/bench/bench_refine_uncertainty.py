@@ -368,10 +368,7 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     rows, summ = run(a.store, [int(v) for v in a.images.split(",")], a.views.split(","), a.settings.split(","),
                      a.how.split(","))
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    common.write_rows(a.out, rows)
-    common.write_rows(a.out.with_name(a.out.stem + "_summary.csv"), summ)
-    print(f"rows: {a.out}")
+    brm.write_results(a.out, rows, "summary", summ)
     return 0
 
 
