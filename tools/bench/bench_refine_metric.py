@@ -186,42 +186,51 @@ def read_passes(probe, own, cam, tf, tolerance: float, bg) -> tuple[list, float]
     return passes, float(np.mean(np.abs(_u8(img).astype(int) - own_img.astype(int)).max(axis=-1) <= 2))
 
 
+def cases(scene, conv, names, images, view_names, log=print):
+    """Each setting of ``names`` at each image size and view (of ``view_names``; all where empty),
+    its passes read back and replay-checked (:func:`read_passes`): ``(name, kwargs, tolerance,
+    image, view, camera, converged picture, passes, agreement, background)``, what the refine
+    benchmarks measure over."""
+    for name in names:
+        kw, tol0 = setting(name)
+        probe = scene.action(**kw, refine_tolerance=1e-7)
+        own = scene.action(**kw, refine_tolerance=tol0)
+        bg = tuple(probe.params.background)
+        for image in images:
+            for view, cam in bench_mission.views(scene.pyramid, image).items():
+                if view_names and view not in view_names:
+                    continue
+                truth = conv.get(cam, key=(image, view))
+                passes, agree = read_passes(probe, own, cam, scene.tf, tol0, bg)
+                log(f"{image}^2 {view} {name}: channel replay at {tol0:g} matches the drawn frame on "
+                    f"{100 * agree:.2f} % of pixels (within 2 levels)")
+                yield name, kw, tol0, image, view, cam, truth, passes, agree, bg
+
+
 def run(store: Path, images, view_names, names, log=print) -> tuple[list[dict], list[dict]]:
     """Per setting, image size and view: the replay check, the oracle row and each mask's rows."""
     scene = common.WarmScene(store)
-    pyr, tf = scene.pyramid, scene.tf
     conv = scene.converged_pictures()
     rows, orows = [], []
     try:
-        for name in names:
-            kw, tol0 = setting(name)
-            probe = scene.action(**kw, refine_tolerance=1e-7)
-            own = scene.action(**kw, refine_tolerance=tol0)
-            bg = tuple(probe.params.background)
-            for image in images:
-                for view, cam in bench_mission.views(pyr, image).items():
-                    if view_names and view not in view_names:
-                        continue
-                    truth = conv.get(cam, key=(image, view))
-                    passes, agree = read_passes(probe, own, cam, tf, tol0, bg)
-                    log(f"{image}^2 {view} {name}: replay at {tol0:g} matches the drawn frame on "
-                        f"{100 * agree:.2f} % of pixels (within 2 levels)")
-                    o = oracle(passes, tol0, bg, truth,
-                               (("channel", "channel", None), ("delta_e", "delta_e", DE_AT.get(name, 16.0)),
-                                ("delta_e_six", "delta_e", DE_VISIBLE)))
-                    log(f"  image pass, 1/2 pass at {tol0:g}: {o}")
-                    orows.append(dict(image=image, view=view, setting=name, **o))
-                    for metric, tols in (("channel", CHANNEL_TOLS), ("rgb", CHANNEL_TOLS), ("delta_e", DE_TOLS),
-                                         ("delta_e_blend", DE_TOLS)):
-                        for t in tols:
-                            img, rays = replay(passes, metric, t, bg)
-                            row = dict(date=time.strftime("%Y-%m-%d"), image=image, view=view, setting=name,
-                                       metric=metric, tolerance=t, rays_half=rays[0], rays_image=rays[1],
-                                       rays=sum(rays), pct_de6=round(pct(img, truth), 3),
-                                       replay_agrees_pct=round(100 * agree, 2))
-                            rows.append(row)
-                            log(f"  {metric:13} {t:6g}: {row['rays']:6d} rays ({rays[0]} + {rays[1]}), "
-                                f"{row['pct_de6']:6.2f} % dE>=6")
+        for name, kw, tol0, image, view, cam, truth, passes, agree, bg in cases(scene, conv, names, images,
+                                                                                view_names, log):
+            o = oracle(passes, tol0, bg, truth,
+                       (("channel", "channel", None), ("delta_e", "delta_e", DE_AT.get(name, 16.0)),
+                        ("delta_e_six", "delta_e", DE_VISIBLE)))
+            log(f"  image pass, 1/2 pass at {tol0:g}: {o}")
+            orows.append(dict(image=image, view=view, setting=name, **o))
+            for metric, tols in (("channel", CHANNEL_TOLS), ("rgb", CHANNEL_TOLS), ("delta_e", DE_TOLS),
+                                 ("delta_e_blend", DE_TOLS)):
+                for t in tols:
+                    img, rays = replay(passes, metric, t, bg)
+                    row = dict(date=time.strftime("%Y-%m-%d"), image=image, view=view, setting=name,
+                               metric=metric, tolerance=t, rays_half=rays[0], rays_image=rays[1],
+                               rays=sum(rays), pct_de6=round(pct(img, truth), 3),
+                               replay_agrees_pct=round(100 * agree, 2))
+                    rows.append(row)
+                    log(f"  {metric:13} {t:6g}: {row['rays']:6d} rays ({rays[0]} + {rays[1]}), "
+                        f"{row['pct_de6']:6.2f} % dE>=6")
     finally:
         scene.close()
     return rows, orows

@@ -306,57 +306,46 @@ def run(store: Path, images, view_names, names, hows, log=print) -> tuple[list[d
     conv = scene.converged_pictures()
     rows, summ = [], []
     try:
-        for name in names:
-            kw, tol0 = brm.setting(name)
+        for name, kw, tol0, image, view, cam, truth, passes, agree, bg in brm.cases(scene, conv, names, images,
+                                                                                    view_names, log):
             level = int(kw.get("level", 0))
             step0 = float(kw["step"]) * 2**level  # in level-0 voxels
-            probe = scene.action(**kw, refine_tolerance=1e-7)
-            own = scene.action(**kw, refine_tolerance=tol0)
-            bg = tuple(probe.params.background)
-            for image in images:
-                for view, cam in bench_mission.views(pyr, image).items():
-                    if view_names and view not in view_names:
-                        continue
-                    truth = conv.get(cam, key=(image, view))
-                    passes, agree = brm.read_passes(probe, own, cam, tf, tol0, bg)
-                    log(f"{image}^2 {view} {name}: channel replay at {tol0:g} matches the drawn frame on "
-                        f"{100 * agree:.2f} % of pixels")
-                    # fixable pixels of the image pass the channel mask blends between agreeing rays
-                    half, _ = brm.replay(passes[:2], "channel", tol0, bg)
-                    h, w = passes[2].shape[:2]
-                    four, weights = brm.corners(half, h, w)
-                    blend = brm._blend(four, weights)
-                    de_b = delta_e_luv(brm._u8(blend), truth, premultiplied=False)[::-1]
-                    de_r = delta_e_luv(brm._u8(passes[2]), truth, premultiplied=False)[::-1]
-                    fixable = (de_b >= brm.DE_VISIBLE) & (de_r < brm.DE_VISIBLE)
-                    chan = brm.spread("channel", four, bg)
-                    between = fixable & (chan <= tol0 / 4)
-                    pts_p = []
-                    for t in PERFECT_TOLS:
-                        out, rays = replay_perfect(passes, t)
-                        e = brm.pct(out, truth)
-                        pts_p.append((sum(rays), e))
-                        rows.append(dict(date=time.strftime("%Y-%m-%d"), image=image, view=view, setting=name,
-                                         how="perfect", tolerance=t, rays_half=rays[0], rays_image=rays[1],
-                                         rays=sum(rays), pct_de6=round(e, 3), replay_agrees_pct=round(100 * agree, 2)))
-                    env_p = _envelope(pts_p)
-                    perfect = {err: rays_for(env_p, err) for err in (3.0, 4.0, 4.5, 5.0)}
-                    log("  perfect (the ray's own deviation from its blend): rays for <= 3 / 4 / 4.5 / 5 %: "
-                        + " / ".join(f"{v:.0f}" for v in perfect.values()))
-                    ctx = dict(image=image, view=view, setting=name, agree=agree, tol0=tol0, between=between)
-                    for how in hows:
-                        t_start = time.perf_counter()
-                        per = [unc.of_pass(cam, k, step0, how) for k in (2, 1)]
-                        ga = passes[0][..., 3]
-                        corr = np.corrcoef(per[0]["alpha"].ravel(), ga.ravel())[0, 1]
-                        log(f"  u {how}: {time.perf_counter() - t_start:.1f} s; the numpy rays against the read-back "
-                            f"1/4 pass: opacity correlation {corr:.5f}, mean |difference| "
-                            f"{np.abs(per[0]['alpha'] - ga).mean():.4f}")
-                        for agg in per[0]:
-                            if agg != "alpha":
-                                us = [p[agg] for p in per]
-                                summ.append(dict(image=image, view=view, setting=name, how=f"{how} {agg}",
-                                                 **_sweep(passes, us, truth, f"{how} {agg}", ctx, perfect, rows, log)))
+            # fixable pixels of the image pass the channel mask blends between agreeing rays
+            half, _ = brm.replay(passes[:2], "channel", tol0, bg)
+            h, w = passes[2].shape[:2]
+            four, weights = brm.corners(half, h, w)
+            blend = brm._blend(four, weights)
+            de_b = delta_e_luv(brm._u8(blend), truth, premultiplied=False)[::-1]
+            de_r = delta_e_luv(brm._u8(passes[2]), truth, premultiplied=False)[::-1]
+            fixable = (de_b >= brm.DE_VISIBLE) & (de_r < brm.DE_VISIBLE)
+            chan = brm.spread("channel", four, bg)
+            between = fixable & (chan <= tol0 / 4)
+            pts_p = []
+            for t in PERFECT_TOLS:
+                out, rays = replay_perfect(passes, t)
+                e = brm.pct(out, truth)
+                pts_p.append((sum(rays), e))
+                rows.append(dict(date=time.strftime("%Y-%m-%d"), image=image, view=view, setting=name,
+                                 how="perfect", tolerance=t, rays_half=rays[0], rays_image=rays[1],
+                                 rays=sum(rays), pct_de6=round(e, 3), replay_agrees_pct=round(100 * agree, 2)))
+            env_p = _envelope(pts_p)
+            perfect = {err: rays_for(env_p, err) for err in (3.0, 4.0, 4.5, 5.0)}
+            log("  perfect (the ray's own deviation from its blend): rays for <= 3 / 4 / 4.5 / 5 %: "
+                + " / ".join(f"{v:.0f}" for v in perfect.values()))
+            ctx = dict(image=image, view=view, setting=name, agree=agree, tol0=tol0, between=between)
+            for how in hows:
+                t_start = time.perf_counter()
+                per = [unc.of_pass(cam, k, step0, how) for k in (2, 1)]
+                ga = passes[0][..., 3]
+                corr = np.corrcoef(per[0]["alpha"].ravel(), ga.ravel())[0, 1]
+                log(f"  u {how}: {time.perf_counter() - t_start:.1f} s; the numpy rays against the read-back "
+                    f"1/4 pass: opacity correlation {corr:.5f}, mean |difference| "
+                    f"{np.abs(per[0]['alpha'] - ga).mean():.4f}")
+                for agg in per[0]:
+                    if agg != "alpha":
+                        us = [p[agg] for p in per]
+                        summ.append(dict(image=image, view=view, setting=name, how=f"{how} {agg}",
+                                         **_sweep(passes, us, truth, f"{how} {agg}", ctx, perfect, rows, log)))
     finally:
         scene.close()
     return rows, summ
