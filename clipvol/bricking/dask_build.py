@@ -39,16 +39,14 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputFormatError, MissingExtraError, ParameterError
+from ..errors import MissingExtraError, ParameterError
 from .build_options import BuildOptions
-from .output_guard import check_not_input, check_overwrite
-from .pipeline import (_create_store, chunk_encoder, encode_brick, has_spread_arrays, job_spec, mark_complete,
-                       output_lock, prepare_output, write_errors)
+from .pipeline import (_create_store, chunk_encoder, encode_brick, has_spread_arrays, mark_complete, output_lock,
+                       plan_build, prepare_output, write_errors)
 from .pyramid import Pyramid, downsample
 from .spread import SPREAD_GROUP, moments_down, spread_dtype, spread_of
-from .sources import check_source_unchanged, file_inodes, open_source
+from .sources import check_source_unchanged, open_source
 from .stats import StatsComputer, finite_range
-from .worldframe import WorldFrame
 from .store import STAT_ARRAYS, STATS_GROUP, StoreMeta, parse_metadata
 
 __all__ = ["brick_volume_dask", "SCHEDULERS", "DEFAULT_SPAN"]
@@ -262,27 +260,15 @@ def brick_volume_dask(
     """
     _need_dask()
     opts = BuildOptions.from_kwargs(options, **kwargs)
-    spacing, unit, workers, progress, overwrite = opts.spacing, opts.unit, opts.workers, opts.progress, opts.overwrite
-    bshape, filter, codec, origin = opts.brick, opts.filter, opts.codec, opts.origin
+    workers, progress, overwrite = opts.workers, opts.progress, opts.overwrite
+    bshape, filter, codec = opts.brick, opts.filter, opts.codec
     raw_shape, raw_dtype, byte_order = opts.raw_shape, opts.raw_dtype, opts.byte_order
     if isinstance(span, bool) or not isinstance(span, int) or not 1 <= span <= 6:
         raise ParameterError(f"span: expected an integer in 1..6, got {span!r}")
     output = Path(output).absolute()
     src = open_source(source, raw_shape=raw_shape, raw_dtype=raw_dtype, byte_order=byte_order)
     try:
-        if spacing is None and getattr(src, "spacing_required", None):  # the input records no voxel size
-            raise InputFormatError(src.spacing_required)
-        sp = tuple(float(v) for v in (spacing or src.spacing or (1.0, 1.0, 1.0)))
-        unit = unit or getattr(src, "unit", None) or "micrometer"  # as the local path decides them
-        frame = src.frame.with_spacing(sp) if getattr(src, "frame", None) is not None else None
-        if origin is not None:  # as the local build places voxel 0
-            frame = (frame or WorldFrame.from_spacing(sp)).with_origin(origin)
-        job = job_spec(src, src.shape, bshape, filter, codec, sp, unit)
-        inodes = file_inodes(src)
-        inputs = [*src.files(), *([source] if isinstance(source, (str, Path)) else [])]
-        check_not_input(output, inputs)
-        if overwrite:
-            check_overwrite(output, inputs)
+        sp, unit, frame, job, inodes = plan_build(src, source, output, opts)  # as the local build decides them
         shape, dtype = src.shape, src.dtype
     finally:
         src.close()

@@ -69,7 +69,7 @@ from .store import (
 )
 
 __all__ = ["brick_volume", "BuildOptions", "write_chunk", "CODECS", "BRICK_RANGE", "store_codecs", "chunk_encoder", "output_lock", "job_spec",
-           "prepare_output", "mark_complete", "encode_brick"]
+           "prepare_output", "mark_complete", "encode_brick", "plan_build"]
 
 
 
@@ -457,6 +457,32 @@ def create_stats_arrays(group, g: tuple[int, int, int], L: int, names=STAT_ARRAY
                         overwrite=True)
 
 
+def plan_build(src: Source, source, output: Path, opts: BuildOptions) -> tuple:
+    """What a build of ``src`` (opened from ``source``) into ``output`` writes, decided once for the
+    local and the Dask build (:func:`clipvol.bricking.dask_build.brick_volume_dask`), so that both
+    write the same store: ``(spacing, unit, frame, job, inodes)`` - the voxel size (the option, else
+    the input's, else 1), the unit, the world frame (the input's with that spacing, moved to
+    ``opts.origin``), the job spec a resumed build must match and the input files' inodes.
+
+    Refuses, before anything is written, an input that records no voxel size when none is given, an
+    output that is one of the inputs, and an ``--overwrite`` of anything clipvol did not write
+    (:mod:`clipvol.bricking.output_guard`)."""
+    if opts.spacing is None and getattr(src, "spacing_required", None):  # the input records no voxel size
+        raise InputFormatError(src.spacing_required)
+    sp = tuple(float(v) for v in (opts.spacing or src.spacing or (1.0, 1.0, 1.0)))
+    unit = opts.unit or getattr(src, "unit", None) or "micrometer"
+    frame = src.frame.with_spacing(sp) if getattr(src, "frame", None) is not None else None
+    if opts.origin is not None:
+        frame = (frame or WorldFrame.from_spacing(sp)).with_origin(opts.origin)
+    job = job_spec(src, src.shape, opts.brick, opts.filter, opts.codec, sp, unit)
+    inodes = file_inodes(src)
+    inputs = [*src.files(), *([source] if isinstance(source, (str, Path)) else [])]
+    check_not_input(output, inputs)
+    if opts.overwrite:
+        check_overwrite(output, inputs)
+    return sp, unit, frame, job, inodes
+
+
 def brick_volume(source, output, options: BuildOptions | None = None, **kwargs) -> StoreMeta:
     """Brick ``source`` into a multiresolution clipvol store at ``output`` (a local directory).
 
@@ -479,25 +505,12 @@ def brick_volume(source, output, options: BuildOptions | None = None, **kwargs) 
         The validated metadata of the finished store.
     """
     opts = BuildOptions.from_kwargs(options, **kwargs)
-    spacing, unit, workers, progress = opts.spacing, opts.unit, opts.workers, opts.progress
-    bshape, filter, codec, origin, overwrite = opts.brick, opts.filter, opts.codec, opts.origin, opts.overwrite
+    workers, progress, overwrite = opts.workers, opts.progress, opts.overwrite
+    bshape, filter, codec = opts.brick, opts.filter, opts.codec
     output = Path(output)
     src = open_source(source, raw_shape=opts.raw_shape, raw_dtype=opts.raw_dtype, byte_order=opts.byte_order)
     try:
-        if spacing is None and getattr(src, "spacing_required", None):  # the input records no voxel size
-            raise InputFormatError(src.spacing_required)
-        sp = spacing or src.spacing or (1.0, 1.0, 1.0)
-        sp = tuple(float(v) for v in sp)
-        unit = unit or src.unit or "micrometer"
-        frame = src.frame.with_spacing(sp) if src.frame is not None else None
-        if origin is not None:
-            frame = (frame or WorldFrame.from_spacing(sp)).with_origin(origin)
-        job = job_spec(src, src.shape, bshape, filter, codec, sp, unit)
-        inodes = file_inodes(src)
-        inputs = [*src.files(), *([source] if isinstance(source, (str, Path)) else [])]
-        check_not_input(output, inputs)
-        if overwrite:
-            check_overwrite(output, inputs)
+        sp, unit, frame, job, inodes = plan_build(src, source, output, opts)
         with write_errors(output), output_lock(output), \
                 ThreadPoolExecutor(max_workers=workers, thread_name_prefix="clipvol-brick") as pool:
             attrs = prepare_output(output, job, overwrite)
