@@ -24,8 +24,11 @@
 #                 smallest cut's, and each against the raw caster
 #   frame512b32   as frame512 with 32^3 bricks (the cut of the 2026-11-26 H100 rows)
 #   mission_head  as mission_mni on the 512^3 head at 32^3 bricks (the H100 rows' volume)
-#   report        `clipvol report` on the MNI store at 512^2, 2 rounds, without the memory, texture and
-#                 block budget sweeps and without plots
+#   report        `clipvol report` on the MNI store at 512^2: 3 views, 3 rounds, thresholds 1,4,8,
+#                 --max-errors 5%, the default --refine settings; no memory, texture or block budget
+#                 sweeps, no plots
+# and, only when PARTS names them (run_h100.sh does), the 2026-11-26 H100 rows' empty-space skipping:
+#   skip256 / skip512   bench_skip.py on the head at 256^3 (256^2, 512^2) and 512^3 (512^2, 1024^2)
 #
 # Environment: OUT (required), WORK (default /tmp/clipvol-gpu), BUDGET_S (510), PARTS (default all, in
 # the order above), PYTHON (default: the first of python3, python3.12, python3.11 with a carried wheel
@@ -55,20 +58,21 @@ die() { say "STOP: $1"; exit "${2:-1}"; }
 # ---- the sizes of each part (QUICK: a few seconds each on llvmpipe) -----------------------------------
 SETTINGS_MNI="fixed L1,fixed L2,lod=2,lod=4,lod=8,max-error=5%,step=2 refine=0.16,step=2.5 refine=0.3"
 if [ "$QUICK" = 1 ]; then
-  HEAD=64; FLAT_HEADS="48 64"; FC_IMAGES=64,32; FC_FRAMES=3; FLAT_FRAMES=4
+  HEAD=64; FLAT_HEADS="48 64"; FC_IMAGES=64,32; FC_FRAMES=3; FLAT_FRAMES=4; SKIP=(48 64 5)
   MIS_IMAGES=64; MIS_ARGS=(--repeat 2 --dev --views iso --settings "fixed L1,step=2 refine=0.16")
   REP_ARGS=(--size 64x64 --views 1 --rounds 1 --thresholds 1 --max-errors none --refine none)
 else
-  HEAD=512; FLAT_HEADS="256 432 512"; FC_IMAGES=512,32; FC_FRAMES=10; FLAT_FRAMES=48
+  HEAD=512; FLAT_HEADS="256 432 512"; FC_IMAGES=512,32; FC_FRAMES=10; FLAT_FRAMES=48; SKIP=(256 512 7)
   MIS_IMAGES=512,1024; MIS_ARGS=(--repeat 5 --views iso,face,close --settings "$SETTINGS_MNI")
-  REP_ARGS=(--size 512x512 --rounds 2)
+  REP_ARGS=(--size 512x512 --views 3 --rounds 3 --thresholds 1,4,8 --max-errors 5%)
 fi
 REP_ARGS+=(--tf bone --no-plots --memory-budgets none --texture-budgets none --block-budgets none)
 # each part's most seconds (cut to what is left of BUDGET_S); estimates for an idle 16-core machine in
 # docs/benchmarks.md, "On a lent GPU: one prepared run"
-declare -A CAP=([frame512]=180 [mission_mni]=150 [flat]=170 [frame512b32]=110 [mission_head]=150 [report]=200)
+declare -A CAP=([frame512]=180 [mission_mni]=150 [flat]=120 [frame512b32]=110 [mission_head]=150 [report]=200
+                [skip256]=200 [skip512]=250)
 BUILD_CAP=210
-MIN_PART_S=30
+MIN_PART_S=${MIN_PART_S:-30}  # a part given less is skipped
 
 # ---- Python: the first interpreter with a carried wheel set ------------------------------------------
 PY=
@@ -187,6 +191,10 @@ part_cmd() {  # the command line of part $1, one argument per line
     mission_head) printf '%s\n' "$PY" "$ROOT"/tools/bench/bench_mission.py --store "$(head_store $HEAD 32)" --images $MIS_IMAGES \
                 "${MIS_ARGS[@]}" --out "$OUT/bench_mission_gpu_head${HEAD}b32.csv";;
     report) printf '%s\n' "${CLIPVOL[@]}" report "$WORK/mni32.zarr" --out "$OUT/report_mni32_gpu" "${REP_ARGS[@]}";;
+    skip256) printf '%s\n' "$PY" "$ROOT"/tools/bench/bench_skip.py --size ${SKIP[0]} --images ${SKIP[0]},${SKIP[1]} \
+               --repeat ${SKIP[2]} --out "$OUT/bench_skip_gpu_${SKIP[0]}.csv";;
+    skip512) printf '%s\n' "$PY" "$ROOT"/tools/bench/bench_skip.py --size ${SKIP[1]} --images ${SKIP[1]},$((2 * SKIP[1])) \
+               --repeat ${SKIP[2]} --out "$OUT/bench_skip_gpu_${SKIP[1]}.csv";;
     *) return 1;;
   esac
 }
@@ -219,7 +227,8 @@ for p in $PARTS; do
                             | sed -E 's/, [0-9]+ % kept cut[^)]*\)/)/; s/; from nothing.*//; s/-uint16-crc.zarr//' | cut -c1-200;;
     mission_*) grep -E "^[0-9]+\^2 [a-z]+: full" "$OUT/$p.log" | cut -c1-300;;
     flat) grep -E "orbit \(" "$OUT/$p.log" | sed -E 's/-uint16-crc.zarr//' | cut -c1-240;;
-    report) grep -iE "fastest|speed-up|written" "$OUT/$p.log" | tail -4 | cut -c1-240;;
+    report) grep -E "^At <= " "$OUT/$p.log" | cut -c1-300;;
+    skip*) grep -E "skip/raw" "$OUT/$p.log" | cut -c1-200;;
   esac
 done
 echo
