@@ -50,11 +50,11 @@ GL_UNPACK=${GL_UNPACK:-1}
 INSTALL=${INSTALL:-1}
 PARTS=${PARTS:-"frame512 mission_mni flat frame512b32 mission_head report"}
 mkdir -p "$WORK"
-exec > >(tee -a "$OUT/run_gpu.log") 2>&1
 
 say() { printf '[%4d s] %s\n' $((SECONDS - T0)) "$*"; }
 die() { say "STOP: $1"; exit "${2:-1}"; }
 
+main() {
 # ---- the sizes of each part (QUICK: a few seconds each on llvmpipe) -----------------------------------
 SETTINGS_MNI="fixed L1,fixed L2,lod=2,lod=4,lod=8,max-error=5%,step=2 refine=0.16,step=2.5 refine=0.3"
 if [ "$QUICK" = 1 ]; then
@@ -235,3 +235,8 @@ echo
 echo "== summary ($((SECONDS - T0)) s of BUDGET_S=$BUDGET_S; GL: $GL)"
 for p in $PARTS; do printf '%-13s %-40s %5s s  %s\n' "$p" "${STATUS[$p]:-not run}" "${SECS[$p]:--}" "${FILES[$p]:-}"; done
 echo "files in $OUT: gpu_env.txt, run_gpu.log, build_*.log, <part>.log, the CSVs above (rows for tools/bench/results/*_gpu_*.csv)"
+}
+
+# everything to the console and to run_gpu.log (the pipe ends before the script does: no lost tail)
+main 2>&1 | tee -a "$OUT/run_gpu.log"
+exit "${PIPESTATUS[0]}"
