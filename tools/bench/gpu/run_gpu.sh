@@ -53,6 +53,10 @@ mkdir -p "$WORK"
 
 say() { printf '[%4d s] %s\n' $((SECONDS - T0)) "$*"; }
 die() { say "STOP: $1"; exit "${2:-1}"; }
+packages() {  # "name version" of every distribution PY sees (pip may be absent: it ran from its wheel)
+  (cd "$WORK" && "$PY" -c 'import importlib.metadata as m
+print("\n".join(sorted({f"{d.name} {d.version}" for d in m.distributions()}, key=str.lower)))')
+}
 
 main() {
 # ---- the sizes of each part (QUICK: a few seconds each on llvmpipe) -----------------------------------
@@ -96,12 +100,12 @@ if [ "$INSTALL" = 1 ]; then
   export PIP_NO_INDEX=1 PIP_FIND_LINKS="$CARRY/whl/any $CARRY/whl/$tag" PIP_BREAK_SYSTEM_PACKAGES=1 \
          PIP_ROOT_USER_ACTION=ignore PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_NO_CACHE_DIR=1
   "${PIPC[@]}" install -q -r tools/bench/gpu/requirements-gpu.txt > "$OUT/pip_install.log" 2>&1 \
-    || { tail -20 "$OUT/pip_install.log"; die "installing the carried wheels failed (numpy missing or < 1.26 in the image? prepare.sh WITH_NUMPY=${tag#cp3} carries it)" 3; }
+    || { tail -20 "$OUT/pip_install.log"; die "installing the carried wheels failed (numpy missing or < 1.26 in the image? prepare.sh WITH_NUMPY=3.${tag#cp3} carries it)" 3; }
   # clipvol from the checkout (build isolation: setuptools and wheel from the carried wheels)
   rm -rf build
   "${PIPC[@]}" install -q --no-deps . >> "$OUT/pip_install.log" 2>&1 \
     || { tail -20 "$OUT/pip_install.log"; die "building clipvol from the checkout failed" 3; }
-  say "installed: $("$PY" -m pip list 2>/dev/null | grep -i -E '^(clipvol|numpy|zarr|numcodecs|moderngl|glcontext) ' | tr -s ' ' | tr '\n' ';')"
+  say "installed: $(packages | grep -i -E '^(clipvol|numpy|zarr|numcodecs|moderngl|glcontext) ' | tr '\n' ';')"
 fi
 hash -r
 # the CLI through the interpreter (its console script may sit outside PATH, /usr/local/bin or a venv's bin)
@@ -143,7 +147,7 @@ print(c.info["GL_RENDERER"], "|", c.info["GL_VENDOR"], "|", c.info["GL_VERSION"]
 say "GL: $GL"
 { echo "date: $(date -u +%Y-%m-%dT%H:%M:%SZ)"; echo "commit: ${COMMIT:-$(git rev-parse HEAD 2>/dev/null || echo unknown)}"
   echo "gpu: ${GPU:-none}"; echo "gl: $GL"; echo "python: $("$PY" -V 2>&1)"; echo "cpu: $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2)"
-  echo "load: $(cat /proc/loadavg)"; echo "quick: $QUICK"; "$PY" -m pip list 2>/dev/null; } > "$OUT/gpu_env.txt"
+  echo "load: $(cat /proc/loadavg)"; echo "quick: $QUICK"; echo "packages:"; packages; } > "$OUT/gpu_env.txt"
 if [ "$GPU_CHECK" = 1 ] && ! grep -qi nvidia <<<"$GL"; then
   die "the GL context is not an NVIDIA GPU's ($GL): no GPU rows would come of it" 4
 fi
