@@ -208,10 +208,11 @@ for p in $PARTS; do
   left=$((BUDGET_S - (SECONDS - T0) - 5))
   t=${CAP[$p]}; [ "$left" -lt "$t" ] && t=$left
   if [ "$t" -lt "$MIN_PART_S" ]; then STATUS[$p]="skipped: ${left} s left of BUDGET_S=$BUDGET_S"; say "$p: ${STATUS[$p]}"; continue; fi
-  say "$p (at most $t s): ${cmd[*]:1}"
+  say "$p (at most $t s; the command heads $p.log)"
   s=$SECONDS
+  printf '%q ' "${cmd[@]}" > "$OUT/$p.log"; echo >> "$OUT/$p.log"
   # from $WORK: a `python -c` in the checkout would import its clipvol/ folder, not the installed package
-  (cd "$WORK" && exec timeout -k 10 "$t" "${cmd[@]}") > "$OUT/$p.log" 2>&1
+  (cd "$WORK" && exec timeout -k 10 "$t" "${cmd[@]}") >> "$OUT/$p.log" 2>&1
   rc=$?
   SECS[$p]=$((SECONDS - s))
   case $rc in 0) STATUS[$p]=ok;; 124|137) STATUS[$p]="timed out after $t s";; *) STATUS[$p]="failed (rc $rc)";; esac
@@ -229,11 +230,24 @@ for p in $PARTS; do
   case $p in
     frame512|frame512b32) grep -E "\^2 (static|orbit|fly)" "$OUT/$p.log" \
                             | sed -E 's/, [0-9]+ % kept cut[^)]*\)/)/; s/; from nothing.*//; s/-uint16-crc.zarr//' | cut -c1-200;;
-    mission_*) grep -E "^[0-9]+\^2 [a-z]+: full" "$OUT/$p.log" | cut -c1-300;;
+    mission_*) grep -E "^[0-9]+\^2 [a-z]+: full" "$OUT/$p.log" | sed -E 's/ against the converged picture//; s/ \(target 5x: .*//' | cut -c1-220;;
     flat) grep -E "orbit \(" "$OUT/$p.log" | sed -E 's/-uint16-crc.zarr//' | cut -c1-240;;
     report) grep -E "^At <= " "$OUT/$p.log" | cut -c1-300;;
     skip*) grep -E "skip/raw" "$OUT/$p.log" | cut -c1-200;;
   esac
+done
+# issue 42's GPU target, read from the CSVs: the full-resolution frame at the first image size
+for f in "$OUT"/bench_frame_cost_gpu_*.csv; do
+  [ -f "$f" ] || continue
+  "$PY" - "$f" "${FC_IMAGES%%,*}" <<'PYEOF'
+import csv, sys
+for r in csv.DictReader(open(sys.argv[1])):
+    if r["image"] == sys.argv[2] and r["volume"].endswith(", fixed"):
+        ms, ratio = float(r["clipvol_ms"]), float(r["clipvol_over_raw"])
+        print(f"target (full resolution, {r['image']}^2, {r['volume'].split(',')[0].replace('-uint16-crc.zarr', '')}, "
+              f"{r['camera']}): {ratio}x the plain caster ({'met' if ratio <= 1.1 else 'not met'}: <= 1.1x), "
+              f"{1e3 / ms:.0f} fps ({'met' if 1e3 / ms >= 60 else 'not met'}: >= 60)")
+PYEOF
 done
 echo
 echo "== summary ($((SECONDS - T0)) s of BUDGET_S=$BUDGET_S; GL: $GL)"
