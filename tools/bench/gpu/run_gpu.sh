@@ -99,6 +99,8 @@ if [ "$INSTALL" = 1 ]; then
   # the image is thrown away after the run: its Python is installed into directly (PEP 668 waived)
   export PIP_NO_INDEX=1 PIP_FIND_LINKS="$CARRY/whl/any $CARRY/whl/$tag" PIP_BREAK_SYSTEM_PACKAGES=1 \
          PIP_ROOT_USER_ACTION=ignore PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_NO_CACHE_DIR=1
+  site=$(cd "$WORK" && "$PY" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
+  [ -w "$site" ] || { export PIP_USER=1; say "$site is not writable: installing into the user's site-packages"; }
   "${PIPC[@]}" install -q -r tools/bench/gpu/requirements-gpu.txt > "$OUT/pip_install.log" 2>&1 \
     || { tail -20 "$OUT/pip_install.log"; die "installing the carried wheels failed (numpy missing or < 1.26 in the image? prepare.sh WITH_NUMPY=3.${tag#cp3} carries it)" 3; }
   # clipvol from the checkout (build isolation: setuptools and wheel from the carried wheels)
