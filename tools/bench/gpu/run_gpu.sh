@@ -13,13 +13,13 @@
 # what is left of BUDGET_S (default 510 s for the whole script), each part's failure leaving the others
 # to run. CSVs, logs and a summary go to $OUT; the rows belong under tools/bench/results/*_gpu_*.csv.
 #
-#   frame512      issue 42: bench_frame_cost.py on the 512^3 CT-like head, 16^3 bricks: clipvol's
+#   frame512      bench_frame_cost.py on the 512^3 CT-like head, 16^3 bricks: clipvol's
 #                 full-resolution (fixed level 0) and projected-size frames against the plain
 #                 one-texture caster at 512^2 and 32^2, static / orbiting 1 deg a frame / flying
-#   mission_mni   issue 41: bench_mission.py on the MNI T1 template bricked at 32^3 (consistent coarse
+#   mission_mni   bench_mission.py on the MNI T1 template bricked at 32^3 (consistent coarse
 #                 levels), the eight settings of docs/benchmarks.md's 2026-11-29 MNI rows, each with
 #                 classify mean and distribution, 512^2 and 1024^2, iso / face / close, 5 rounds
-#   flat          issue 42: bench_frame_cost.py --flat, 32^2 orbit: the MNI template at 16^3 bricks and
+#   flat          bench_frame_cost.py --flat, 32^2 orbit: the MNI template at 16^3 bricks and
 #                 the head at 256^3 / 432^3 / 512^3 (16^3 bricks), host CPU per frame against the
 #                 smallest cut's, and each against the raw caster
 #   frame512b32   as frame512 with 32^3 bricks (the cut of the 2026-11-26 H100 rows)
@@ -238,7 +238,7 @@ for p in $PARTS; do
     skip*) grep -E "skip/raw" "$OUT/$p.log" | cut -c1-200;;
   esac
 done
-# issue 42's GPU target, read from the CSVs: the full-resolution frame at the first image size
+# the frame-cost GPU target (<= 1.1x the plain caster, >= 60 fps), read from the CSVs: the full-resolution frame at the first image size
 for f in "$OUT"/bench_frame_cost_gpu_*.csv; do
   [ -f "$f" ] || continue
   "$PY" - "$f" "${FC_IMAGES%%,*}" <<'PYEOF'
