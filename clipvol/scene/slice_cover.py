@@ -164,7 +164,8 @@ def finest_level(pyramid, params, pixel_size: float) -> int:
     return L
 
 
-def slice_cover(pyramid, plane, params, pixel_size: float, *, in_view=None, ahead: float = 0.0) -> SliceCover:
+def slice_cover(pyramid, plane, params, pixel_size: float, *, in_view=None, ahead: float = 0.0,
+                stand_in=None) -> SliceCover:
     """The :class:`SliceCover` of ``plane`` drawn with ``params`` (the rule in the module docstring).
 
     Parameters
@@ -180,6 +181,10 @@ def slice_cover(pyramid, plane, params, pixel_size: float, *, in_view=None, ahea
     ahead : float
         World units along the normal the slab is widened by towards where the plane scrolls
         (:func:`clipvol.scene.slice_region.slice_region`).
+    stand_in : sequence of ndarray, optional
+        Per level, grid-shaped bool: the bricks whose data may stand for their children's under the
+        slice's colours (:func:`clipvol.scene.slice_exact.stand_ins`). A brick in reach whose parent
+        may stand for it is left out of reach: the parent draws there. None: distance alone.
     """
     if params.focus is None or params.level is not None:
         raise ParameterError("slice_cover: expected a point of interest (focus) and no fixed level, got "
@@ -206,7 +211,11 @@ def slice_cover(pyramid, plane, params, pixel_size: float, *, in_view=None, ahea
         lo0, hi0 = pyramid.node_box(L + 1, np.zeros((1, 3), dtype=np.int64))
         radius = df * float(np.linalg.norm(np.atleast_2d(hi0 - lo0), axis=1)[0])  # the longest parent diagonal
         cand = slab_bricks(pyramid, L, origin, n, half(L), point=focus, radius=radius)
-        reach[L] = keep_view(L, cand[in_reach(pyramid, L, cand, focus, df)])
+        cand = cand[in_reach(pyramid, L, cand, focus, df)]
+        if stand_in is not None and len(cand):  # where the parent looks the same, the parent draws
+            par = cand // 2
+            cand = cand[~np.asarray(stand_in[L + 1])[par[:, 0], par[:, 1], par[:, 2]]]
+        reach[L] = keep_view(L, cand)
 
     records: list = []
     nodes = reach[top]
@@ -332,14 +341,16 @@ class CoverCut(RefinePolicy):
         t.counts["balance_splits"] = 0
 
 
-def slice_cut(pyramid, plane, params, pixel_size: float, size=None, cover: SliceCover | None = None):
+def slice_cut(pyramid, plane, params, pixel_size: float, size=None, cover: SliceCover | None = None,
+              stand_in=None):
     """The cut a slice draws: with a point of interest and no fixed level, the per-brick cover
-    (:class:`CoverCut`; ``cover`` if given, else computed for the bricks under ``size`` pixels);
+    (:class:`CoverCut`; ``cover`` if given, else computed for the bricks under ``size`` pixels, with
+    ``stand_in`` as :func:`slice_cover` takes it);
     else the plane policy (:class:`~clipvol.scene.selection.policies.plane.PlaneCut`: one level
     everywhere, the finest the pixels need or ``level``)."""
     if params.focus is None or params.level is not None:
         return PlaneCut(params, plane)
     if cover is None:
         view = None if size is None else (lambda L, b: in_view_mask(pyramid, L, b, plane, size, pixel_size))
-        cover = slice_cover(pyramid, plane, params, pixel_size, in_view=view)
+        cover = slice_cover(pyramid, plane, params, pixel_size, in_view=view, stand_in=stand_in)
     return CoverCut(params, plane, cover)

@@ -52,9 +52,12 @@ from .slice_cover import finest_level, half_voxel, in_view_mask, slice_cover
 __all__ = ["slice_region", "stored_sizes", "region_bytes", "in_view_mask"]
 
 
-def slice_region(pyramid, plane, params, pixel_size: float, *, size=None, ahead: float = 0.0) -> Region:
+def slice_region(pyramid, plane, params, pixel_size: float, *, size=None, ahead: float = 0.0,
+                 stand_in=None) -> Region:
     """The :class:`~clipvol.paging.region.Region` of ``plane`` drawn with ``params`` at ``pixel_size``;
-    with ``size`` (``(w, h)`` pixels), only bricks under the image (a zoomed view of a huge plane)."""
+    with ``size`` (``(w, h)`` pixels), only bricks under the image (a zoomed view of a huge plane);
+    ``stand_in``: the cover's bricks that may stand for their children
+    (:func:`~clipvol.scene.slice_cover.slice_cover`)."""
     n = np.asarray(plane.normal, dtype=np.float64)
     top = pyramid.num_levels - 1
     focus = None if params.focus is None else np.asarray(params.focus, dtype=np.float64)
@@ -72,7 +75,7 @@ def slice_region(pyramid, plane, params, pixel_size: float, *, size=None, ahead:
             bricks[L] = slab(L)
     elif focus is not None:  # the per-brick cover (clipvol.scene.slice_cover) and its blend parents
         view = None if size is None else (lambda L, b: in_view_mask(pyramid, L, b, plane, size, pixel_size))
-        got = slice_cover(pyramid, plane, params, pixel_size, in_view=view, ahead=ahead).bricks()
+        got = slice_cover(pyramid, plane, params, pixel_size, in_view=view, ahead=ahead, stand_in=stand_in).bricks()
         bricks = list(got)
         if not len(bricks[top]):
             bricks[top] = slab(top)

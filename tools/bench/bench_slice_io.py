@@ -73,17 +73,44 @@ class EncodedFractal:
         return brick
 
 
+def slab_tables(loader, plane, workers: int = 2):
+    """Summary tables of the bricks the slice of ``plane`` can touch on a virtual store: at every level
+    below the top, the bricks within half a voxel of the plane (:mod:`clipvol.paging.slab`), built
+    from the generator's bricks by the summary module's own code (:func:`clipvol.bricking.summary.summary_of`,
+    what ``clipvol brick`` runs over a store on disk). ``(tables, seconds)``."""
+    import time
+
+    from clipvol.bricking.summary import summary_of
+    from clipvol.paging.slab import slab_bricks
+    from clipvol.scene.slice_cover import half_voxel
+
+    pyr = loader.pyramid
+    base = getattr(loader, "base", loader)
+    n = np.asarray(plane.normal, dtype=np.float64)
+    origin = np.asarray(plane.origin, dtype=np.float64)
+    children = [slab_bricks(pyr, L, origin, n, half_voxel(pyr, L, n)) for L in range(pyr.num_levels - 1)]
+
+    def read(level, index):
+        s, e = pyr.brick_voxel_box(level, index)
+        return base.read_brick(level, index)[tuple(slice(0, b - a) for a, b in zip(s, e))]
+
+    t0 = time.perf_counter()
+    tables = summary_of(read, pyr, children, workers=workers)
+    return tables, time.perf_counter() - t0
+
+
 def _centre(pyr) -> tuple[float, float, float]:
     lo, hi = pyr.volume_box()
     return tuple(((lo + hi) / 2.0).tolist())
 
 
 def _slice(ctx, loader, plane, budget, *, threads, follow, size=None, px=None, timeout=600, out=None, then=None,
-           **params):
+           prepare=None, **params):
     """Render one converged slice, then let the clip-texture finish what it queued; returns
     ``(rgba, bytes read, chunks read, converged)``. ``out`` (a dict) receives the slice action's
     ``stats``, ``levels``, ``values`` and ``params`` (what it drew: full resolution where that
-    reads no more bytes); ``then(slice_action)`` runs on the warm slice action before it closes."""
+    reads no more bytes); ``prepare(slice_action)`` runs before the slice (``exact_tol``, ``summary``),
+    ``then(slice_action)`` on the warm slice action before it closes."""
     from clipvol.paging.cliptexture import ClipTexture
     from clipvol.paging.region import Region
     from clipvol.render.slice_action import SliceAction
@@ -93,6 +120,8 @@ def _slice(ctx, loader, plane, budget, *, threads, follow, size=None, px=None, t
     with ClipTexture(loader, budget, threads, prefault=False, **kw) as ct, \
             SliceAction(ctx, ct, texture_budget=TEXTURE_BUDGET, **params) as sa:
         sa.follow_plane = follow
+        if prepare is not None:
+            prepare(sa)
         rgba = sa.render(plane, size, px, wait=True, timeout=timeout)
         converged = sa.last_stats.converged
         ct.wait_until_idle(timeout)
@@ -141,9 +170,18 @@ def centre_slice(ctx, args, brick, writer) -> dict:
     de_full = percent_delta_e(full, exact) if ok_full else float("nan")
     rows = {}
     cube: dict = {}
-    for df in args.distance_factors:
+    tables, t_secs = slab_tables(ld, plane, args.threads) if args.exact_tols else (None, 0.0)
+    if tables is not None:
+        print(f"{args.size}^3 b{brick}: summary tables of the slab's bricks in {t_secs:.1f} s")
+
+    def rule(tol):
+        def prepare(sa):
+            sa.exact_tol, sa.summary = tol, tables
+        return prepare
+
+    for df, tol in [(df, tol) for df in args.distance_factors for tol in [None] + list(args.exact_tols)]:
         multi, b_multi, n_multi, ok_multi = _slice(ctx, ld, plane, args.budget, threads=args.threads, follow=True,
-                                                  focus=focus, distance_factor=df)
+                                                  focus=focus, distance_factor=df, prepare=rule(tol))
         de = percent_delta_e(multi, exact)
         de_max = float(delta_e_luv(multi, exact).max())
         # cube windows around the centre fill the same whatever the distance factor: read once per brick size
@@ -151,16 +189,20 @@ def centre_slice(ctx, args, brick, writer) -> dict:
             _, b_cube, n_cube, ok_cube = _slice(ctx, ld, plane, budget, threads=args.threads, follow=False,
                                                focus=focus, distance_factor=df)
             cube[budget] = (b_cube, n_cube, ok_cube)
-        rows[df] = (b_multi, n_multi, de, cube)
-        for name, b, n, ok, d in [("multires_slab", b_multi, n_multi, ok_multi, de),
+        rows[df, tol] = (b_multi, n_multi, de, cube)
+        multi_name = "multires_slab" if tol is None else f"multires_slab_exact_tol={tol:g}"
+        for name, b, n, ok, d in [(multi_name, b_multi, n_multi, ok_multi, de),
                                   ("full_resolution_slab", b_full, n_full, ok_full, de_full)] + \
                 [(f"multires_cube_{bud}", b_c, n_c, ok_c, "") for bud, (b_c, n_c, ok_c) in cube.items()]:
-            writer.writerow(dict(store=f"fractal {args.size}^3 float32", brick=brick, distance_factor=df,
-                                 what=name, bytes_read=b, chunks_read=n, converged=ok,
-                                 ratio_to_multires=round(b / max(b_multi, 1), 2),
-                                 pct_de6_vs_exact="" if d == "" or d != d else round(d, 3),
-                                 max_de_vs_exact=round(de_max, 2) if name == "multires_slab" else ""))
-        print(f"{args.size}^3 b{brick} df={df}: multires {b_multi / 1e6:.2f} MB ({n_multi} chunks), "
+            row = dict(store=f"fractal {args.size}^3 float32", brick=brick, distance_factor=df,
+                       what=name, bytes_read=b, chunks_read=n, converged=ok,
+                       ratio_to_multires=round(b / max(b_multi, 1), 2),
+                       pct_de6_vs_exact="" if d == "" or d != d else round(d, 3),
+                       max_de_vs_exact=round(de_max, 2) if name == multi_name else "")
+            if args.exact_tols:
+                row.update(exact_tol="" if tol is None else tol, tables_s=round(t_secs, 1))
+            writer.writerow(row)
+        print(f"{args.size}^3 b{brick} df={df}{'' if tol is None else f' tol={tol:g}'}: multires {b_multi / 1e6:.2f} MB ({n_multi} chunks), "
               f"full-res {b_full / 1e6:.2f} MB ({n_full}) = {b_full / max(b_multi, 1):.1f}x, "
               + ", ".join(f"cube@{bud} {b_c / 1e6:.1f} MB ({n_c}) = {b_c / max(b_multi, 1):.1f}x"
                           for bud, (b_c, n_c, _) in cube.items())
@@ -438,7 +480,7 @@ def main(argv=None) -> int:
     p.add_argument("--budget", default="1GB",
                    help="memory budget of the multiresolution slab runs (their windows must hold the region)")
     p.add_argument("--full-budget", default="2GB", help="memory budget of the full-resolution slab (must hold it)")
-    p.add_argument("--cube-budgets", nargs="+", default=["256MB", "1GB"])
+    p.add_argument("--cube-budgets", nargs="*", default=["256MB", "1GB"])
     p.add_argument("--distance-factors", nargs="+", type=float, default=[1.0, 0.5])
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--scroll-size", type=int, default=4096)
@@ -448,6 +490,11 @@ def main(argv=None) -> int:
                    help="the scroll's distance factor (1.0 makes the level-0 disc 8 bricks wide at 64^3)")
     p.add_argument("--stride", type=float, default=16.0)
     p.add_argument("--quick", action="store_true")
+    p.add_argument("--exact-tols", nargs="*", type=float, default=[],
+                   help="also draw the centre slices (and the --real slices) with a coarser brick where the summary "
+                        "tables show it within this CIELUV Delta E of level 0 (SliceAction.exact_tol; the virtual "
+                        "stores' tables built for the slab's bricks); with it only the centre slices run, no cube "
+                        "windows: bench_slice_io_exact.csv (bench_slice_io_exact_real.csv with --real)")
     p.add_argument("--geometry", action="store_true",
                    help="only the region's chunks from the pyramid's geometry (no rendering, seconds): "
                         "bench_slice_io_geometry.csv")
@@ -509,13 +556,18 @@ def main(argv=None) -> int:
 
     ctx = create_context()
     args.out.mkdir(parents=True, exist_ok=True)
-    with open(args.out / "bench_slice_io.csv", "w", newline="") as f:
+    exact = bool(args.exact_tols)
+    with open(args.out / ("bench_slice_io_exact.csv" if exact else "bench_slice_io.csv"), "w", newline="") as f:
         w = csv.DictWriter(f, ["store", "brick", "distance_factor", "what", "bytes_read", "chunks_read", "converged",
                                "ratio_to_multires", "pct_de6_vs_exact",
-                               "max_de_vs_exact"])
+                               "max_de_vs_exact"] + (["exact_tol", "tables_s"] if exact else []))
         w.writeheader()
+        if exact:
+            args.cube_budgets = []
         for brick in args.bricks:
             centre_slice(ctx, args, brick, w)
+    if exact:
+        return 0
     with open(args.out / "bench_slice_io_scroll.csv", "w", newline="") as f:
         w = csv.DictWriter(f, ["store", "brick", "view", "voxels_per_pixel", "slice", "z", "bytes_read", "chunks_read",
                                "converged"])
