@@ -242,7 +242,7 @@ def slice_cover(pyramid, plane, params, pixel_size: float, *, in_view=None, ahea
         if len(nodes):
             records.append((finest, nodes, finest, nodes))
     records = [r for r in records if len(r[1])]
-    return SliceCover(tuple(records), _blend_ratios(records, top), pyramid.num_levels)
+    return SliceCover(tuple(records), _blend_ratios(records, top, stand_in), pyramid.num_levels)
 
 
 def _touching(corners: np.ndarray, level: int, box_level: int, boxes: np.ndarray) -> np.ndarray:
@@ -258,8 +258,13 @@ def _touching(corners: np.ndarray, level: int, box_level: int, boxes: np.ndarray
     return rows_in(cand.reshape(-1, 3), boxes).reshape(len(corners), 8).any(axis=1)
 
 
-def _blend_ratios(records: list, top: int) -> dict:
+def _blend_ratios(records: list, top: int, stand_in=None) -> dict:
     """Corner ratios of the whole-brick tiles next to coarser boxes (module docstring).
+
+    A coarser box drawn from data that may stand for the level-0 data beneath it (``stand_in``,
+    :func:`slice_cover`) shows the picture the finer levels would: no level change to hide, and
+    blending a tile towards its parent there would draw the parent's difference across the tile.
+    Such boxes do not make a corner coarse.
 
     A corner is 1 where a box drawn from coarser data touches it and no box that shows this
     tile's level there does: a finer box (which blends up to this level at its faces) or a
@@ -276,8 +281,10 @@ def _blend_ratios(records: list, top: int) -> dict:
         corners = (tiles[:, None, :] + _CHILD[None]).reshape(-1, 3)  # [cz, cy, cx] order of _CHILD
         coarse = np.zeros(len(corners), dtype=bool)
         pinned = np.zeros(len(corners), dtype=bool)
-        for dl, _, bl, bidx in records:
+        for dl, didx, bl, bidx in records:
             if dl > L:
+                if stand_in is not None:  # only boxes whose data differs from level 0's
+                    bidx = bidx[~np.asarray(stand_in[dl])[didx[:, 0], didx[:, 1], didx[:, 2]]]
                 coarse |= _touching(corners, L, bl, bidx)
             elif dl < L or bl < L:
                 pinned |= _touching(corners, L, bl, bidx)
