@@ -17,7 +17,9 @@ level 3D textures and budgets the volume action uses. Per frame (:meth:`SliceAct
    exactly the slice's pixels: with a point of interest, the per-brick cover
    (:mod:`clipvol.scene.slice_cover`: each part of the plane at the finest level whose brick lies
    within ``distance_factor`` of its parent's diagonals of the point, with per-corner blend ratios for
-   the tiles next to coarser boxes); without one, the ``"plane"`` policy's one level
+   the tiles next to coarser boxes; on a store with summary tables a coarser brick where its data
+   is within :attr:`SliceAction.exact_tol` CIELUV Delta E of level 0's under the slice's colours,
+   :mod:`clipvol.scene.slice_exact`); without one, the ``"plane"`` policy's one level
    (:class:`~clipvol.scene.selection.policies.plane.PlaneCut`). Bricks still loading are drawn
    from their nearest resident ancestor (coarser fallback, as the volume does).
 2. **Upload** - the cache's sub-loads, plus the parent bricks ("low tiles") of the tiles that

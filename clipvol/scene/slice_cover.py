@@ -21,6 +21,11 @@ With a point of interest ``p`` (``RenderParams.focus``) and no fixed ``level``:
   for the plane policy); every brick of the coarsest level is in reach. A brick in reach has its
   parent in reach (the parent's box holds it and the grandparent's diagonal is no shorter than the
   parent's), so the bricks in reach form a tree;
+* with **stand-ins** (``stand_in``: per level the bricks whose data looks the same as the level-0
+  data beneath them under the slice's colours, from the store's summary tables,
+  :mod:`clipvol.scene.slice_exact`), a brick in reach whose parent may stand for it leaves reach:
+  the parent draws there. Stand-ins are closed under descent, so the bricks left in reach still
+  form a tree, and the cover is nowhere finer than by distance alone;
 * only bricks in the plane's **slab** count: at level ``L`` those within half a voxel of ``L``
   of the plane (:mod:`clipvol.paging.slab`), the trilinear footprint of samples on it; with an
   image size, only those under the image rectangle;
@@ -34,7 +39,8 @@ With a point of interest ``p`` (``RenderParams.focus``) and no fixed ``level``:
 paper's high and low tiles): per corner a ratio, 1 where a box drawn from coarser data touches the
 corner and no box showing the tile's own level there does (a finer box, which blends up to this
 level at its faces, or a child box drawn from this level's data, which does not blend), else 0,
-interpolated across the tile. The parent brick is read too - only the parents of such tiles, not
+interpolated across the tile (a coarser box drawn from a stand-in shows the tile's picture and does
+not count as coarser). The parent brick is read too - only the parents of such tiles, not
 their sibling groups. Where a tile meets a box one level coarser over a whole face, the image is
 continuous across the level change. Without balancing it steps in three places: where a box meets
 one two or more levels coarser (the tile reaches its parent's level, not the neighbour's: a jump

@@ -8,7 +8,8 @@ The region is what the slice action's cut draws, without a traversal:
 
 * with a point of interest (``RenderParams.focus``) and no fixed level, the per-brick cover of
   :mod:`clipvol.scene.slice_cover` - each part of the plane at the finest level whose brick is
-  within ``distance_factor`` of its parent's diagonals of the point - and the parents its blending
+  within ``distance_factor`` of its parent's diagonals of the point, or coarser where the store's
+  summary tables show the coarser data looks the same (``stand_in``) - and the parents its blending
   tiles blend towards, over the coarsest level's slab (the fallback under everything);
 * without a point of interest, one level: the finest whose parent level's voxel covers more than
   ``lod_threshold`` pixels of ``pixel_size`` (the plane policy's cut), and the coarsest;
