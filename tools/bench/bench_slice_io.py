@@ -327,7 +327,9 @@ def never_more(ctx, args, writer, rendered: int = 0) -> None:
     manifest). The slice action reads the full-resolution region where that holds no more bytes,
     so what it reads is the smaller of the two. With ``rendered`` > 0 the first that many cases of
     each store on disk are also drawn (cold clip-texture, converged, queue drained) and the bytes
-    the loader read are counted, for both slices."""
+    the loader read are counted, for both slices. With ``--exact-tols T ...`` the stores on disk's
+    covers are also priced with their summary tables at the tolerance ``T`` (the first; grey window
+    over the value range, :mod:`clipvol.scene.slice_exact`) and, rendered, drawn with it."""
     from types import SimpleNamespace
 
     from clipvol.bricking.pyramid import Pyramid
@@ -343,10 +345,20 @@ def never_more(ctx, args, writer, rendered: int = 0) -> None:
     for path in args.real or ():
         ld = open_store(path)
         stores.append((Path(path).name, ld.pyramid, stored_sizes(ld), path))
+    from clipvol.bricking.summary import open_summary
+    from clipvol.scene.slice_exact import accumulated_errors, grey_window_colours, stand_ins
+
+    tol = args.exact_tols[0] if args.exact_tols else None
     for name, pyr, sizes, path in stores:
         slices = random_slices(pyr, args.samples, args.seed)
+        stand = None
+        if tol is not None and path is not None:
+            lo, hi = pyr.value_range
+            stand = stand_ins(accumulated_errors(open_summary(path), grey_window_colours((lo + hi) / 2.0,
+                                                                                           max(hi - lo, 1e-300))), tol)
         for df in args.distance_factors:
             more_chunks, more_bytes, read_more, fell_back, worst, worst_case, ratios = 0, 0, 0, 0, 0.0, None, []
+            exact_ratios, exact_more = [], 0
             for i, (kind, plane, poi) in enumerate(slices):
                 px = default_pixel_size(pyr, plane)
                 size = default_size(pyr, plane, px)
@@ -360,6 +372,13 @@ def never_more(ctx, args, writer, rendered: int = 0) -> None:
                 more_bytes += int(m > f)
                 read_more += int(read > f)
                 ratios.append(f / max(read, 1))
+                ex = {}
+                if stand is not None:
+                    er = slice_region(pyr, plane, params, px, size=size, stand_in=stand)
+                    e = region_bytes(er, sizes)
+                    exact_more += int(e > m)
+                    exact_ratios.append(f / max(min(e, f), 1))
+                    ex = dict(exact_chunks=er.nbricks, exact_bytes=e, exact_slice_action_bytes=min(e, f))
                 if m / max(f, 1) > worst:
                     worst, worst_case = m / max(f, 1), (kind, plane, poi, m, f, multi.nbricks, full.nbricks)
                 row = dict(store=name, brick=pyr.brick_shape[0], distance_factor=df, case=i, kind=kind,
@@ -367,12 +386,23 @@ def never_more(ctx, args, writer, rendered: int = 0) -> None:
                            normal=" ".join(f"{v:.4f}" for v in plane.normal),
                            focus=" ".join(f"{v:.2f}" for v in poi), cover_chunks=multi.nbricks,
                            full_resolution_chunks=full.nbricks, cover_bytes=m, full_resolution_bytes=f,
-                           slice_action_bytes=read, measured_multires="", measured_full="")
+                           slice_action_bytes=read, measured_multires="", measured_full="", **ex)
                 if path is not None and i < rendered:
                     ld_m, ld_f = open_store(path), open_store(path)
+                    def rule(t):
+                        def prepare(sa):
+                            sa.exact_tol = t
+                        return prepare
+
                     _, row["measured_multires"], _, ok_m = _slice(ctx, ld_m, plane, "256MB", threads=args.threads,
-                                                                 follow=True, size=size, px=px,
+                                                                 follow=True, size=size, px=px, prepare=rule(None),
                                                                  focus=params.focus, distance_factor=df)
+                    if stand is not None:
+                        _, row["measured_exact"], _, ok_e = _slice(ctx, open_store(path), plane, "256MB",
+                                                                  threads=args.threads, follow=True, size=size, px=px,
+                                                                  prepare=rule(tol), focus=params.focus,
+                                                                  distance_factor=df)
+                        ok_m = ok_m and ok_e
                     _, row["measured_full"], _, ok_f = _slice(ctx, ld_f, plane, "256MB", threads=args.threads,
                                                              follow=True, size=size, px=px, level=0)
                     if not (ok_m and ok_f):
@@ -385,7 +415,11 @@ def never_more(ctx, args, writer, rendered: int = 0) -> None:
                   f"{more_chunks}, more bytes on {more_bytes} (worst {worst:.3f}x: {kind} plane through "
                   f"{_fmt(plane.origin, 1)} normal {_fmt(plane.normal, 3)}, point {_fmt(poi, 1)}, {m} bytes in {mc} "
                   f"chunks against {f} in {fc}); the slice draws full resolution on {fell_back} and reads more on "
-                  f"{read_more}; fewer bytes: min {r.min():.2f}x, median {np.median(r):.2f}x", flush=True)
+                  f"{read_more}; fewer bytes: min {r.min():.2f}x, median {np.median(r):.2f}x"
+                  + ("" if stand is None else
+                     f"; with the colour rule (exact_tol={tol:g}) the cover holds more bytes than by distance alone on "
+                     f"{exact_more}, fewer bytes read than full resolution: min {np.min(exact_ratios):.2f}x, median "
+                     f"{np.median(exact_ratios):.2f}x"), flush=True)
 
 
 def _zarr_plane(path, z: float):
@@ -435,16 +469,21 @@ def real_stores(ctx, args, writer, rounds: int = 3) -> None:
         lo, hi = pyr.value_range
         win = ((lo + hi) / 2.0, max(hi - lo, 1e-300))
         runs = {"full": dict(level=0)}
-        runs.update({f"multires df={df:g}": dict(focus=tuple(plane.origin), distance_factor=df)
-                     for df in args.distance_factors})
+        for df in args.distance_factors:  # the rule off (distance alone), then at each tolerance
+            for tol in [None] + list(args.exact_tols):
+                runs[f"multires df={df:g}" + ("" if tol is None else f" exact_tol={tol:g}")] = dict(
+                    focus=tuple(plane.origin), distance_factor=df, exact_tol=tol)
         times: dict = {k: [] for k in list(runs) + ["zarr"]}
         got: dict = {}
         for _ in range(rounds):
             for name, params in runs.items():
                 ld = open_store(path)
                 t0 = time.perf_counter()
+                kw = dict(params)
+                tol = kw.pop("exact_tol", None)
                 with ClipTexture(ld, "256MB", args.threads, region=Region.empty(pyr.num_levels)) as ct, \
-                        SliceAction(ctx, ct, **params) as sa:
+                        SliceAction(ctx, ct, **kw) as sa:
+                    sa.exact_tol = tol
                     rgba = sa.render(plane, window=win, wait=True, timeout=600)
                     ok = sa.last_stats.converged
                     ct.wait_until_idle(600)
@@ -456,20 +495,21 @@ def real_stores(ctx, args, writer, rounds: int = 3) -> None:
         zarr_grey = window_level_grey(values, *win)
         for name in list(runs) + ["zarr"]:
             if name == "zarr":
-                nb, nr, ok, de = nbytes, "", True, percent_delta_e(zarr_grey, full_rgba)
+                nb, nr, ok, de, dz = nbytes, "", True, percent_delta_e(zarr_grey, full_rgba), 0.0
             else:
                 rgba, rd, ok = got[name]
-                nb, nr, de = rd.bytes, rd.reads, percent_delta_e(rgba, full_rgba)
+                nb, nr, de, dz = rd.bytes, rd.reads, percent_delta_e(rgba, full_rgba), percent_delta_e(rgba, zarr_grey)
             t = statistics.median(times[name])
             writer.writerow(dict(store=Path(path).name, brick=pyr.brick_shape[0], what=name, bytes_read=nb,
                                  chunks_read=nr, converged=ok, median_s=round(t, 4),
                                  bytes_vs_full=round(full_read.bytes / max(nb, 1), 3),
                                  time_vs_zarr=round(t / statistics.median(times["zarr"]), 2),
-                                 pct_de6_vs_full=round(de, 3)))
+                                 pct_de6_vs_full=round(de, 3), pct_de6_vs_zarr=round(dz, 3)))
             print(f"{Path(path).name} {name}: {nb / 1e3:.0f} kB ({nr} chunks), "
                   f"{full_read.bytes / max(nb, 1):.2f}x fewer "
                   f"than the full-resolution slice, {1e3 * t:.0f} ms = {t / statistics.median(times['zarr']):.1f}x "
-                  f"zarr-python's plane; Delta E>=6 against the full-resolution slice on {de:.2f} % of pixels"
+                  f"zarr-python's plane; Delta E>=6 against the full-resolution slice on {de:.2f} % of pixels, "
+                  f"against zarr-python's plane on {dz:.2f} %"
                   + ("" if ok else " (NOT CONVERGED)"))
 
 
@@ -511,6 +551,7 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0, help="the random planes' seed")
     p.add_argument("--rendered", type=int, default=0,
                    help="--never-more: also draw the first N cases of each --real store and count the bytes read")
+    p.add_argument("--rounds", type=int, default=3, help="--real: alternating rounds (median times)")
     p.add_argument("--out", type=Path, default=HERE / "results")
     args = p.parse_args(argv)
     if args.never_more:
@@ -523,7 +564,8 @@ def main(argv=None) -> int:
         with open(args.out / "bench_slice_io_never_more.csv", "w", newline="") as f:
             w = csv.DictWriter(f, ["store", "brick", "distance_factor", "case", "kind", "origin", "normal", "focus",
                                    "cover_chunks", "full_resolution_chunks", "cover_bytes", "full_resolution_bytes",
-                                   "slice_action_bytes", "measured_multires", "measured_full"])
+                                   "slice_action_bytes", "measured_multires", "measured_full", "exact_chunks",
+                                   "exact_bytes", "exact_slice_action_bytes", "measured_exact"])
             w.writeheader()
             never_more(ctx, args, w, args.rendered)
         return 0
@@ -532,11 +574,12 @@ def main(argv=None) -> int:
 
         args.out.mkdir(parents=True, exist_ok=True)
         ctx = create_context()
-        with open(args.out / "bench_slice_io_real.csv", "w", newline="") as f:
+        name = "bench_slice_io_exact_real.csv" if args.exact_tols else "bench_slice_io_real.csv"
+        with open(args.out / name, "w", newline="") as f:
             w = csv.DictWriter(f, ["store", "brick", "what", "bytes_read", "chunks_read", "converged", "median_s",
-                                   "bytes_vs_full", "time_vs_zarr", "pct_de6_vs_full"])
+                                   "bytes_vs_full", "time_vs_zarr", "pct_de6_vs_full", "pct_de6_vs_zarr"])
             w.writeheader()
-            real_stores(ctx, args, w)
+            real_stores(ctx, args, w, args.rounds)
         return 0
     if args.geometry:
         args.out.mkdir(parents=True, exist_ok=True)
