@@ -11,7 +11,9 @@ level 3D textures and budgets the volume action uses. Per frame (:meth:`SliceAct
    slab holds no more bytes than this region (the chunk sizes a store's manifest records, or
    without one a brick's bytes each: :func:`~clipvol.scene.slice_region.stored_sizes`), the slice
    is drawn at full resolution (``level=0``, :attr:`SliceAction.last_params`): a better image for
-   no more bytes read.
+   no more bytes read. Likewise, where the cover by distance alone holds no more bytes than the one
+   with coarser data where it looks the same (step 1), distance alone draws: the rule never makes
+   a slice read more than it would without it.
 1. **Select** - the frame loop (:class:`~clipvol.render.frame_loop.FrameLoop`) runs the slice's
    cut (:func:`~clipvol.scene.slice_cover.slice_cut`) with an orthographic camera that sees
    exactly the slice's pixels: with a point of interest, the per-brick cover
@@ -289,16 +291,22 @@ class SliceAction:
             ahead = self._scroll_step(plane)
             key = (plane, float(px), tuple(size), float(ahead), params, colours, self.exact_tol)
             if self._region_memo is not None and self._region_memo[0] == key:  # the same slice drawn again
-                params, region = self._region_memo[1:]
+                params, region, stand_in = self._region_memo[1:]
             else:
                 region = slice_region(pyr, plane, params, px, size=size, ahead=ahead, stand_in=stand_in)
                 sizes = self._stored_sizes() if params.level is None else None
-                if sizes is not None:  # the full-resolution slice when it reads no more bytes (slice_region)
-                    full_params = self._full_resolution_params()
-                    full = slice_region(pyr, plane, full_params, px, size=size, ahead=ahead)
-                    if region_bytes(full, sizes) <= region_bytes(region, sizes):
-                        params, region = full_params, full
-                self._region_memo = (key, params, region)
+                if sizes is not None:
+                    # the fewest bytes, the finer picture where they tie: the full-resolution slice, the
+                    # cover by distance alone (a parent standing in over children that hold only the
+                    # fill costs bytes they do not), this slice (slice_region, slice_exact)
+                    options = [(self._full_resolution_params(), None)] + ([(params, None)] if stand_in is not None else [])
+                    best = region_bytes(region, sizes)
+                    for p, s in reversed(options):
+                        r = slice_region(pyr, plane, p, px, size=size, ahead=ahead)
+                        cost = region_bytes(r, sizes)
+                        if cost <= best:
+                            params, region, stand_in, best = p, r, s, cost
+                self._region_memo = (key, params, region, stand_in)
             self.clip_texture.set_region(region)
             region_bricks = region.nbricks
         self._last_plane = plane

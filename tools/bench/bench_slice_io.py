@@ -377,8 +377,8 @@ def never_more(ctx, args, writer, rendered: int = 0) -> None:
                     er = slice_region(pyr, plane, params, px, size=size, stand_in=stand)
                     e = region_bytes(er, sizes)
                     exact_more += int(e > m)
-                    exact_ratios.append(f / max(min(e, f), 1))
-                    ex = dict(exact_chunks=er.nbricks, exact_bytes=e, exact_slice_action_bytes=min(e, f))
+                    exact_ratios.append(f / max(min(e, m, f), 1))  # the slice action's choice (SliceAction.render)
+                    ex = dict(exact_chunks=er.nbricks, exact_bytes=e, exact_slice_action_bytes=min(e, m, f))
                 if m / max(f, 1) > worst:
                     worst, worst_case = m / max(f, 1), (kind, plane, poi, m, f, multi.nbricks, full.nbricks)
                 row = dict(store=name, brick=pyr.brick_shape[0], distance_factor=df, case=i, kind=kind,
@@ -418,7 +418,8 @@ def never_more(ctx, args, writer, rendered: int = 0) -> None:
                   f"{read_more}; fewer bytes: min {r.min():.2f}x, median {np.median(r):.2f}x"
                   + ("" if stand is None else
                      f"; with the colour rule (exact_tol={tol:g}) the cover holds more bytes than by distance alone on "
-                     f"{exact_more}, fewer bytes read than full resolution: min {np.min(exact_ratios):.2f}x, median "
+                     f"{exact_more} (the slice action then draws by distance alone)"
+                     f", fewer bytes read than full resolution: min {np.min(exact_ratios):.2f}x, median "
                      f"{np.median(exact_ratios):.2f}x"), flush=True)
 
 
