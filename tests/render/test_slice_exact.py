@@ -126,3 +126,28 @@ def test_without_summary_tables_a_slice_reads_what_distance_alone_reads(gl, stor
     (rule_off, _, _), = _render(gl, tables, [FULL], tol=None)
     assert no_tables == rule_off
     assert any(L == 0 and _x_range(0, b)[1] <= 64 for L, b in no_tables)
+
+
+def test_a_transfer_function_that_shows_no_difference_reads_the_coarsest_level(gl, stores):
+    """Under a transfer function whose colour is one orange everywhere (its opacity ramps: a slice
+    does not use it) no brick differs from its parent: the slice reads the coarsest brick alone and
+    shows that colour on every pixel; under a grey ramp it reads level 0 over the lines."""
+    from clipvol.paging.open import open_store
+    from clipvol.scene.transfer import TransferFunction
+
+    _, tables, _ = stores
+    flat = TransferFunction.from_points([(0.0, (1.0, 0.5, 0.0, 0.0)), (1.0, (1.0, 0.5, 0.0, 1.0))])
+    ramp = TransferFunction.from_points([(0.0, (0.0, 0.0, 0.0, 1.0)), (1.0, (1.0, 1.0, 1.0, 1.0))])
+    got = {}
+    for name, tf in (("flat", flat), ("ramp", ramp)):
+        ld = _Reads(open_store(tables))
+        pyr = ld.pyramid
+        with ClipTexture(ld, "256MB", 2, region=Region.empty(pyr.num_levels)) as ct, \
+                SliceAction(gl, ct, focus=FOCUS, distance_factor=8.0) as sa:
+            rgba = sa.render(Plane.axis(pyr, "axial", Z), transfer_function=tf, wait=True, timeout=120)
+            assert ct.wait_until_idle(120) and sa.last_stats.converged
+        got[name] = (set(ld.reads), rgba, pyr.num_levels - 1)
+    reads, rgba, top = got["flat"]
+    assert reads == {(top, (0, 0, 0))}
+    assert np.abs(rgba.astype(int) - [255, 128, 0, 255]).max() <= 1  # 0.5 * 255 rounds either way
+    assert any(L == 0 and _x_range(0, b)[0] >= 64 for L, b in got["ramp"][0])
