@@ -50,6 +50,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -214,8 +215,9 @@ class SliceAction:
         #: leaves the clip-texture's cube windows (what a volume view pages) in place
         self.follow_plane = True
         self._last_plane: Plane | None = None
-        #: (plane, pixel size, size, scroll-ahead, parameters) -> the parameters and region drawn: a
-        #: slice drawn again (a window redrawing, a viewer waiting for bricks) prices no region twice
+        #: (plane, pixel size, size, scroll-ahead, parameters, colours) -> the parameters, region and
+        #: stand-ins drawn: a slice drawn again (a window redrawing, a viewer waiting for bricks)
+        #: prices no region twice
         self._region_memo = None
         #: (plane, pixel size, size, parameters, colours) -> the slice's cover (clipvol.scene.slice_cover)
         self._cover_memo = None
@@ -289,7 +291,9 @@ class SliceAction:
         stand_in = self._stand_in(colours, params, transfer_function)
         if self.follow_plane:
             ahead = self._scroll_step(plane)
-            key = (plane, float(px), tuple(size), float(ahead), params, colours, self.exact_tol)
+            # the colours count only where they decide (summary tables, a tolerance, a point of interest)
+            rule = None if stand_in is None else (colours, self.exact_tol)
+            key = (plane, float(px), tuple(size), float(ahead), params, rule)
             if self._region_memo is not None and self._region_memo[0] == key:  # the same slice drawn again
                 params, region, stand_in = self._region_memo[1:]
             else:
@@ -299,7 +303,9 @@ class SliceAction:
                     # the fewest bytes, the finer picture where they tie: the full-resolution slice, the
                     # cover by distance alone (a parent standing in over children that hold only the
                     # fill costs bytes they do not), this slice (slice_region, slice_exact)
-                    options = [(self._full_resolution_params(), None)] + ([(params, None)] if stand_in is not None else [])
+                    options = [(self._full_resolution_params(), None)]
+                    if stand_in is not None:
+                        options.append((params, None))
                     best = region_bytes(region, sizes)
                     for p, s in reversed(options):
                         r = slice_region(pyr, plane, p, px, size=size, ahead=ahead)
@@ -394,7 +400,7 @@ class SliceAction:
         stand for their children under ``colours``, :meth:`_stand_in`)."""
         if params.focus is None or params.level is not None:
             return slice_cut(self.pyramid, plane, params, px, size)
-        key = (plane, float(px), tuple(size), params, colours, None if stand_in is None else self.exact_tol)
+        key = (plane, float(px), tuple(size), params, None if stand_in is None else (colours, self.exact_tol))
         if self._cover_memo is None or self._cover_memo[0] != key:
             self._cover_memo = (key, slice_cut(self.pyramid, plane, params, px, size, stand_in=stand_in).cover)
         return slice_cut(self.pyramid, plane, params, px, size, cover=self._cover_memo[1])
@@ -417,8 +423,6 @@ class SliceAction:
             loader = self.clip_texture.loader
             path = getattr(loader, "meta_path", getattr(loader, "path", None))
             if path is not None and getattr(loader, "is_clipvol_store", False):
-                from pathlib import Path
-
                 if isinstance(path, Path) or (isinstance(path, str) and "://" not in path and Path(path).is_dir()):
                     try:
                         self.summary = open_summary(path)

@@ -202,7 +202,8 @@ def centre_slice(ctx, args, brick, writer) -> dict:
             if args.exact_tols:
                 row.update(exact_tol="" if tol is None else tol, tables_s=round(t_secs, 1))
             writer.writerow(row)
-        print(f"{args.size}^3 b{brick} df={df}{'' if tol is None else f' tol={tol:g}'}: multires {b_multi / 1e6:.2f} MB ({n_multi} chunks), "
+        print(f"{args.size}^3 b{brick} df={df}{'' if tol is None else f' tol={tol:g}'}: "
+              f"multires {b_multi / 1e6:.2f} MB ({n_multi} chunks), "
               f"full-res {b_full / 1e6:.2f} MB ({n_full}) = {b_full / max(b_multi, 1):.1f}x, "
               + ", ".join(f"cube@{bud} {b_c / 1e6:.1f} MB ({n_c}) = {b_c / max(b_multi, 1):.1f}x"
                           for bud, (b_c, n_c, _) in cube.items())
