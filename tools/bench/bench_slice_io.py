@@ -27,6 +27,13 @@ What it measures (one run, one process, ratios only):
   holds no more bytes); ``--rendered N`` draws the first N cases of each store on disk and counts
   the bytes read. Writes ``bench_slice_io_never_more.csv``.
 
+* **coarser data where the colours cannot tell** (``--exact-tols T ...``) - the centre slices (and
+  with ``--real`` the stores on disk, with ``--never-more`` the random planes of the stores on
+  disk) drawn by distance alone and with the slice action's colour rule at each tolerance
+  (:mod:`clipvol.scene.slice_exact`, ``SliceAction.exact_tol``). The virtual stores have no summary
+  tables: :func:`slab_tables` builds them for the bricks the slice can touch with the summary
+  module's own code. Writes ``bench_slice_io_exact.csv`` (``bench_slice_io_exact_real.csv``).
+
 The stores are *virtual*: a procedural fractal (:mod:`clipvol.bricking.generators`) evaluated
 per brick, and each brick read is encoded with the chunk codec ``clipvol brick`` writes (blosc
 lz4 + shuffle + crc32c, :func:`clipvol.bricking.pipeline.chunk_encoder`); the bytes read are the
@@ -454,7 +461,9 @@ def real_stores(ctx, args, writer, rounds: int = 3) -> None:
     for zarr-python), wall time from a cold clip-texture to the converged slice with its queue
     drained, and the slice's error against the full-resolution one (% pixels Delta E >= 6, grey
     window over the value range). Rounds alternate the three reads (the OS page cache is warm
-    after the first: all three read from memory)."""
+    after the first: all three read from memory). With ``--exact-tols`` each multiresolution slice
+    is drawn by distance alone (``exact_tol = None``) and at each tolerance, and the error is also
+    measured against zarr-python's plane."""
     import statistics
     import time
 
