@@ -47,7 +47,7 @@ from .store import open_store_meta
 from .store_files import chunk_cap, read_file
 
 __all__ = ["SUMMARY_GROUP", "SUMMARY_BINS", "SummaryMissingError", "Quantiser", "SummaryTables",
-           "build_summary", "open_summary", "summary_bytes", "tree_bytes"]
+           "build_summary", "summary_of", "open_summary", "summary_bytes", "tree_bytes"]
 
 SUMMARY_GROUP = "clipvol_summary"
 SUMMARY_BINS = 256
@@ -214,11 +214,11 @@ def _up(a: np.ndarray, cut: tuple, shape: tuple) -> np.ndarray:
         : shape[0], : shape[1], : shape[2]]
 
 
-def _tables_for_parent(loader: "_BrickReader", pyr: Pyramid, q: Quantiser, level: int, pidx) -> list:
+def _tables_for_parent(loader: "_BrickReader", pyr: Pyramid, q: Quantiser, level: int, pidx, only=None) -> list:
     """Histograms of the children of parent ``(level, pidx)`` (level >= 1) and their correspondence
-    tables. The parent is quantised once, at its own resolution, and its levels repeated 2x per axis
-    under each child (quantising is per voxel, so this equals quantising the repeated values, on an
-    eighth of the voxels)."""
+    tables (``only``: a set of child index tuples, the others skipped). The parent is quantised once,
+    at its own resolution, and its levels repeated 2x per axis under each child (quantising is per
+    voxel, so this equals quantising the repeated values, on an eighth of the voxels)."""
     qp, pnan = _quantised(q, loader(level, pidx))
     out = []
     grid_c = np.array(pyr.grid(level - 1))
@@ -227,7 +227,7 @@ def _tables_for_parent(loader: "_BrickReader", pyr: Pyramid, q: Quantiser, level
         for dy in (0, 1):
             for dx in (0, 1):
                 c = np.array(pidx) * 2 + (dz, dy, dx)
-                if np.any(c >= grid_c):
+                if np.any(c >= grid_c) or (only is not None and tuple(int(v) for v in c) not in only):
                     continue
                 child = loader(level - 1, tuple(int(v) for v in c))
                 off = (np.array((dz, dy, dx)) * B) // 2
@@ -319,6 +319,40 @@ def build_summary(path, *, workers: int | None = None, progress: bool = True, ov
     finally:
         bar.close()
     group.attrs.update({"complete": True})  # the very last write
+
+
+def summary_of(read, pyr: Pyramid, children, *, workers: int | None = None) -> SummaryTables:
+    """In-memory summary tables of some bricks: for each level ``L`` below the top, the correspondence
+    tables and histograms of the bricks ``children[L]`` (``(n, 3)``); every other brick has none (no
+    pairs, an empty histogram). ``read(level, index)`` returns a brick's valid voxels.
+
+    Why: a source that is not a store on disk (a benchmark's virtual 1024³ store, generated brick by
+    brick) has no tables, and building them for every brick means generating the whole volume. The
+    bricks a slice can touch are few; their tables come from the same code :func:`build_summary`
+    runs over a store's bricks (:func:`_tables_for_parent`), so they equal a full build's there."""
+    import os
+
+    q = Quantiser.for_pyramid(pyr)
+    top = pyr.num_levels - 1
+    hist = [np.zeros(pyr.grid(L) + (SUMMARY_BINS,), dtype=np.int64) for L in range(pyr.num_levels)]
+    nanc = [np.zeros(pyr.grid(L), dtype=np.int64) for L in range(pyr.num_levels)]
+    offs, codes, counts = [], [], []
+    with ThreadPoolExecutor(max_workers=workers or os.cpu_count() or 1) as pool:
+        for L in range(top):
+            want = {tuple(int(v) for v in c) for c in np.asarray(children[L], dtype=np.int64).reshape(-1, 3)}
+            parents = sorted({(c[0] // 2, c[1] // 2, c[2] // 2) for c in want})
+            n = pyr.num_bricks(L)
+            cd: list = [np.zeros(0, np.uint16)] * n
+            ct: list = [np.zeros(0, np.uint32)] * n
+            for res in pool.map(lambda p: _tables_for_parent(read, pyr, q, L + 1, p, only=want), parents):
+                for idx, h, nc, c, k in res:
+                    hist[L][idx], nanc[L][idx] = h, nc
+                    flat = int(np.ravel_multi_index(idx, pyr.grid(L)))
+                    cd[flat], ct[flat] = c, k
+            offs.append(np.concatenate([[0], np.cumsum([len(c) for c in cd])]).astype(np.int64))
+            codes.append(np.concatenate(cd).astype(np.uint16))
+            counts.append(np.concatenate(ct).astype(np.uint32))
+    return SummaryTables(pyr, q, hist, nanc, offs + [None], codes + [None], counts + [None])
 
 
 def _build_level(group, loader, pyr: Pyramid, q: Quantiser, L: int, pool, bar) -> None:

@@ -11,13 +11,17 @@ level 3D textures and budgets the volume action uses. Per frame (:meth:`SliceAct
    slab holds no more bytes than this region (the chunk sizes a store's manifest records, or
    without one a brick's bytes each: :func:`~clipvol.scene.slice_region.stored_sizes`), the slice
    is drawn at full resolution (``level=0``, :attr:`SliceAction.last_params`): a better image for
-   no more bytes read.
+   no more bytes read. Likewise, where the cover by distance alone holds no more bytes than the one
+   with coarser data where it looks the same (step 1), distance alone draws: the rule never makes
+   a slice read more than it would without it.
 1. **Select** - the frame loop (:class:`~clipvol.render.frame_loop.FrameLoop`) runs the slice's
    cut (:func:`~clipvol.scene.slice_cover.slice_cut`) with an orthographic camera that sees
    exactly the slice's pixels: with a point of interest, the per-brick cover
    (:mod:`clipvol.scene.slice_cover`: each part of the plane at the finest level whose brick lies
    within ``distance_factor`` of its parent's diagonals of the point, with per-corner blend ratios for
-   the tiles next to coarser boxes); without one, the ``"plane"`` policy's one level
+   the tiles next to coarser boxes; on a store with summary tables a coarser brick where its data
+   is within :attr:`SliceAction.exact_tol` CIELUV Delta E of level 0's under the slice's colours,
+   :mod:`clipvol.scene.slice_exact`); without one, the ``"plane"`` policy's one level
    (:class:`~clipvol.scene.selection.policies.plane.PlaneCut`). Bricks still loading are drawn
    from their nearest resident ancestor (coarser fallback, as the volume does).
 2. **Upload** - the cache's sub-loads, plus the parent bricks ("low tiles") of the tiles that
@@ -46,6 +50,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -54,7 +59,9 @@ from ..errors import ParameterError
 from ..scene.params import RenderParams
 from ..scene.plane import Plane, default_pixel_size, default_size
 from ..paging.readcount import bytes_read_of, split_reads
+from ..bricking.summary import SummaryMissingError, open_summary
 from ..scene.slice_cover import slice_cut
+from ..scene.slice_exact import DEFAULT_TOL, accumulated_errors, grey_window_colours, stand_ins, window_grey
 from ..scene.slice_region import region_bytes, slice_region, stored_sizes
 from .failures import failed_bricks
 from .frame_loop import FrameLoop
@@ -65,6 +72,9 @@ from .target import FloatTarget
 from .uniforms import vec3 as _vec
 
 __all__ = ["SliceAction", "SliceStats", "window_level_grey"]
+
+#: :attr:`SliceAction.summary` before the store's tables are looked for
+_UNREAD = object()
 
 
 @dataclass(frozen=True, slots=True)
@@ -148,12 +158,8 @@ class SliceStats:
 def window_level_grey(values: np.ndarray, center: float, width: float) -> np.ndarray:
     """``(h, w, 4)`` uint8 grey RGBA of ``values`` for a window ``center``/``width`` (clinicians'
     window/level: ``C - W/2`` is black, ``C + W/2`` white); NaN pixels are transparent."""
-    if not (math.isfinite(center) and math.isfinite(width) and width > 0):
-        raise ParameterError(f"window: expected a finite centre and a width > 0, got {center!r}, {width!r}")
-    v = np.asarray(values, dtype=np.float64)
-    with np.errstate(invalid="ignore"):
-        g = np.clip((v - (center - width / 2.0)) / width, 0.0, 1.0)
-    ok = np.isfinite(v)
+    g = window_grey(values, center, width)
+    ok = np.isfinite(g)
     g8 = np.rint(np.where(ok, g, 0.0) * 255.0).astype(np.uint8)
     return np.stack([g8, g8, g8, np.where(ok, 255, 0).astype(np.uint8)], axis=-1)
 
@@ -209,11 +215,22 @@ class SliceAction:
         #: leaves the clip-texture's cube windows (what a volume view pages) in place
         self.follow_plane = True
         self._last_plane: Plane | None = None
-        #: (plane, pixel size, size, scroll-ahead, parameters) -> the parameters and region drawn: a
-        #: slice drawn again (a window redrawing, a viewer waiting for bricks) prices no region twice
+        #: (plane, pixel size, size, scroll-ahead, parameters, colours) -> the parameters, region and
+        #: stand-ins drawn: a slice drawn again (a window redrawing, a viewer waiting for bricks)
+        #: prices no region twice
         self._region_memo = None
-        #: (plane, pixel size, size, parameters) -> the slice's cover (clipvol.scene.slice_cover)
+        #: (plane, pixel size, size, parameters, colours) -> the slice's cover (clipvol.scene.slice_cover)
         self._cover_memo = None
+        #: a coarser brick draws where the store's summary tables show its data within this CIELUV
+        #: Delta E of level 0's under the slice's colours (:mod:`clipvol.scene.slice_exact`); None:
+        #: the cover decides by distance alone. No effect without summary tables
+        self.exact_tol: float | None = DEFAULT_TOL
+        #: the store's summary tables (:class:`~clipvol.bricking.summary.SummaryTables`), read from a
+        #: clipvol store on disk at the first slice; None: none (a procedural or in-memory source, a
+        #: store without them). A caller may set tables of its own before the first slice
+        self.summary = _UNREAD
+        #: (colours, tolerance, tables) -> per level the bricks that may stand for their children
+        self._stand_in_memo = None
 
     def set_params(self, params: RenderParams) -> None:
         """Use ``params`` from the next frame on (policy forced to ``"plane"``)."""
@@ -270,27 +287,39 @@ class SliceAction:
         read0 = bytes_read_of(self.clip_texture.loader)
         region_bricks = 0
         params = self.params
+        colours = self._colours_key(transfer_function, window)
+        stand_in = self._stand_in(colours, params, transfer_function)
         if self.follow_plane:
             ahead = self._scroll_step(plane)
-            key = (plane, float(px), tuple(size), float(ahead), params)
+            # the colours count only where they decide (summary tables, a tolerance, a point of interest)
+            rule = None if stand_in is None else (colours, self.exact_tol)
+            key = (plane, float(px), tuple(size), float(ahead), params, rule)
             if self._region_memo is not None and self._region_memo[0] == key:  # the same slice drawn again
-                params, region = self._region_memo[1:]
+                params, region, stand_in = self._region_memo[1:]
             else:
-                region = slice_region(pyr, plane, params, px, size=size, ahead=ahead)
+                region = slice_region(pyr, plane, params, px, size=size, ahead=ahead, stand_in=stand_in)
                 sizes = self._stored_sizes() if params.level is None else None
-                if sizes is not None:  # the full-resolution slice when it reads no more bytes (slice_region)
-                    full_params = self._full_resolution_params()
-                    full = slice_region(pyr, plane, full_params, px, size=size, ahead=ahead)
-                    if region_bytes(full, sizes) <= region_bytes(region, sizes):
-                        params, region = full_params, full
-                self._region_memo = (key, params, region)
+                if sizes is not None:
+                    # the fewest bytes, the finer picture where they tie: the full-resolution slice, the
+                    # cover by distance alone (a parent standing in over children that hold only the
+                    # fill costs bytes they do not), this slice (slice_region, slice_exact)
+                    options = [(self._full_resolution_params(), None)]
+                    if stand_in is not None:
+                        options.append((params, None))
+                    best = region_bytes(region, sizes)
+                    for p, s in reversed(options):
+                        r = slice_region(pyr, plane, p, px, size=size, ahead=ahead)
+                        cost = region_bytes(r, sizes)
+                        if cost <= best:
+                            params, region, stand_in, best = p, r, s, cost
+                self._region_memo = (key, params, region, stand_in)
             self.clip_texture.set_region(region)
             region_bricks = region.nbricks
         self._last_plane = plane
         self.last_params = params
         cam = plane.camera(size, px).fit_depth(vlo, vhi)
         deadline = None if timeout is None else t_start + float(timeout)
-        policy = self._policy(params, plane, px, size)
+        policy = self._policy(params, plane, px, size, colours, stand_in)
         up_bytes = up_bricks = 0
         times = dict(select=0.0, upload=0.0, wait=0.0)
         while True:
@@ -365,15 +394,60 @@ class SliceAction:
             frame_bytes_read=frame_read, prefetch_bytes_read=other_read)
         return (rgba, values) if return_values else rgba
 
-    def _policy(self, params: RenderParams, plane: Plane, px: float, size):
+    def _policy(self, params: RenderParams, plane: Plane, px: float, size, colours=None, stand_in=None):
         """The slice's cut (:func:`~clipvol.scene.slice_cover.slice_cut`), its cover computed once
-        per plane, pixel size, image size and parameters."""
+        per plane, pixel size, image size, parameters and colours (``stand_in``: the bricks that may
+        stand for their children under ``colours``, :meth:`_stand_in`)."""
         if params.focus is None or params.level is not None:
             return slice_cut(self.pyramid, plane, params, px, size)
-        key = (plane, float(px), tuple(size), params)
+        key = (plane, float(px), tuple(size), params, None if stand_in is None else (colours, self.exact_tol))
         if self._cover_memo is None or self._cover_memo[0] != key:
-            self._cover_memo = (key, slice_cut(self.pyramid, plane, params, px, size).cover)
+            self._cover_memo = (key, slice_cut(self.pyramid, plane, params, px, size, stand_in=stand_in).cover)
         return slice_cut(self.pyramid, plane, params, px, size, cover=self._cover_memo[1])
+
+    def _colours_key(self, transfer_function, window) -> tuple:
+        """What the slice's colours depend on (:meth:`render`'s ``window``, else the transfer function's
+        table, else the grey window over the value range), as a hashable key."""
+        if window is not None:
+            return ("window", float(window[0]), float(window[1]))
+        if transfer_function is not None:
+            return ("tf", transfer_function.table.tobytes(), tuple(transfer_function.value_range or ()))
+        lo, hi = self.pyramid.value_range
+        return ("window", (lo + hi) / 2.0, max(hi - lo, 1e-300))
+
+    def _summary_tables(self):
+        """The store's summary tables (:attr:`summary`), read once from a clipvol store on disk; None
+        for any other source or a store without (complete) tables."""
+        if self.summary is _UNREAD:
+            self.summary = None
+            loader = self.clip_texture.loader
+            path = getattr(loader, "meta_path", getattr(loader, "path", None))
+            if path is not None and getattr(loader, "is_clipvol_store", False):
+                if isinstance(path, Path) or (isinstance(path, str) and "://" not in path and Path(path).is_dir()):
+                    try:
+                        self.summary = open_summary(path)
+                    except SummaryMissingError:
+                        pass  # no tables: the cover decides by distance alone
+        return self.summary
+
+    def _stand_in(self, colours: tuple, params: RenderParams, transfer_function=None):
+        """Per level, the bricks whose data may stand for their children's under ``colours``
+        (:func:`~clipvol.scene.slice_exact.stand_ins`), or None: no tolerance, no tables, or a slice
+        without a point of interest (one level everywhere)."""
+        if self.exact_tol is None or params.focus is None or params.level is not None:
+            return None
+        tables = self._summary_tables()
+        if tables is None:
+            return None
+        key = (colours, float(self.exact_tol), id(tables))
+        if self._stand_in_memo is None or self._stand_in_memo[0] != key:
+            if colours[0] == "window":
+                cmap = grey_window_colours(colours[1], colours[2])
+            else:
+                tf, rng = transfer_function, self.pyramid.value_range
+                cmap = lambda v: tf.lookup(v, rng)[..., :3]  # noqa: E731 - opaque: colours alone
+            self._stand_in_memo = (key, stand_ins(accumulated_errors(tables, cmap), self.exact_tol))
+        return self._stand_in_memo[1]
 
     def _stored_sizes(self):
         """The clip-texture's loader's chunk sizes (:func:`~clipvol.scene.slice_region.stored_sizes`),

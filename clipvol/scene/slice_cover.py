@@ -21,6 +21,11 @@ With a point of interest ``p`` (``RenderParams.focus``) and no fixed ``level``:
   for the plane policy); every brick of the coarsest level is in reach. A brick in reach has its
   parent in reach (the parent's box holds it and the grandparent's diagonal is no shorter than the
   parent's), so the bricks in reach form a tree;
+* with **stand-ins** (``stand_in``: per level the bricks whose data looks the same as the level-0
+  data beneath them under the slice's colours, from the store's summary tables,
+  :mod:`clipvol.scene.slice_exact`), a brick in reach whose parent may stand for it leaves reach:
+  the parent draws there. Stand-ins are closed under descent, so the bricks left in reach still
+  form a tree, and the cover is nowhere finer than by distance alone;
 * only bricks in the plane's **slab** count: at level ``L`` those within half a voxel of ``L``
   of the plane (:mod:`clipvol.paging.slab`), the trilinear footprint of samples on it; with an
   image size, only those under the image rectangle;
@@ -34,7 +39,8 @@ With a point of interest ``p`` (``RenderParams.focus``) and no fixed ``level``:
 paper's high and low tiles): per corner a ratio, 1 where a box drawn from coarser data touches the
 corner and no box showing the tile's own level there does (a finer box, which blends up to this
 level at its faces, or a child box drawn from this level's data, which does not blend), else 0,
-interpolated across the tile. The parent brick is read too - only the parents of such tiles, not
+interpolated across the tile (a coarser box drawn from a stand-in shows the tile's picture and does
+not count as coarser). The parent brick is read too - only the parents of such tiles, not
 their sibling groups. Where a tile meets a box one level coarser over a whole face, the image is
 continuous across the level change. Without balancing it steps in three places: where a box meets
 one two or more levels coarser (the tile reaches its parent's level, not the neighbour's: a jump
@@ -164,7 +170,8 @@ def finest_level(pyramid, params, pixel_size: float) -> int:
     return L
 
 
-def slice_cover(pyramid, plane, params, pixel_size: float, *, in_view=None, ahead: float = 0.0) -> SliceCover:
+def slice_cover(pyramid, plane, params, pixel_size: float, *, in_view=None, ahead: float = 0.0,
+                stand_in=None) -> SliceCover:
     """The :class:`SliceCover` of ``plane`` drawn with ``params`` (the rule in the module docstring).
 
     Parameters
@@ -180,6 +187,10 @@ def slice_cover(pyramid, plane, params, pixel_size: float, *, in_view=None, ahea
     ahead : float
         World units along the normal the slab is widened by towards where the plane scrolls
         (:func:`clipvol.scene.slice_region.slice_region`).
+    stand_in : sequence of ndarray, optional
+        Per level, grid-shaped bool: the bricks whose data may stand for their children's under the
+        slice's colours (:func:`clipvol.scene.slice_exact.stand_ins`). A brick in reach whose parent
+        may stand for it is left out of reach: the parent draws there. None: distance alone.
     """
     if params.focus is None or params.level is not None:
         raise ParameterError("slice_cover: expected a point of interest (focus) and no fixed level, got "
@@ -206,7 +217,11 @@ def slice_cover(pyramid, plane, params, pixel_size: float, *, in_view=None, ahea
         lo0, hi0 = pyramid.node_box(L + 1, np.zeros((1, 3), dtype=np.int64))
         radius = df * float(np.linalg.norm(np.atleast_2d(hi0 - lo0), axis=1)[0])  # the longest parent diagonal
         cand = slab_bricks(pyramid, L, origin, n, half(L), point=focus, radius=radius)
-        reach[L] = keep_view(L, cand[in_reach(pyramid, L, cand, focus, df)])
+        cand = cand[in_reach(pyramid, L, cand, focus, df)]
+        if stand_in is not None and len(cand):  # where the parent looks the same, the parent draws
+            par = cand // 2
+            cand = cand[~np.asarray(stand_in[L + 1])[par[:, 0], par[:, 1], par[:, 2]]]
+        reach[L] = keep_view(L, cand)
 
     records: list = []
     nodes = reach[top]
@@ -233,7 +248,7 @@ def slice_cover(pyramid, plane, params, pixel_size: float, *, in_view=None, ahea
         if len(nodes):
             records.append((finest, nodes, finest, nodes))
     records = [r for r in records if len(r[1])]
-    return SliceCover(tuple(records), _blend_ratios(records, top), pyramid.num_levels)
+    return SliceCover(tuple(records), _blend_ratios(records, top, stand_in), pyramid.num_levels)
 
 
 def _touching(corners: np.ndarray, level: int, box_level: int, boxes: np.ndarray) -> np.ndarray:
@@ -249,8 +264,13 @@ def _touching(corners: np.ndarray, level: int, box_level: int, boxes: np.ndarray
     return rows_in(cand.reshape(-1, 3), boxes).reshape(len(corners), 8).any(axis=1)
 
 
-def _blend_ratios(records: list, top: int) -> dict:
+def _blend_ratios(records: list, top: int, stand_in=None) -> dict:
     """Corner ratios of the whole-brick tiles next to coarser boxes (module docstring).
+
+    A coarser box drawn from data that may stand for the level-0 data beneath it (``stand_in``,
+    :func:`slice_cover`) shows the picture the finer levels would: no level change to hide, and
+    blending a tile towards its parent there would draw the parent's difference across the tile.
+    Such boxes do not make a corner coarse.
 
     A corner is 1 where a box drawn from coarser data touches it and no box that shows this
     tile's level there does: a finer box (which blends up to this level at its faces) or a
@@ -267,8 +287,10 @@ def _blend_ratios(records: list, top: int) -> dict:
         corners = (tiles[:, None, :] + _CHILD[None]).reshape(-1, 3)  # [cz, cy, cx] order of _CHILD
         coarse = np.zeros(len(corners), dtype=bool)
         pinned = np.zeros(len(corners), dtype=bool)
-        for dl, _, bl, bidx in records:
+        for dl, didx, bl, bidx in records:
             if dl > L:
+                if stand_in is not None:  # only boxes whose data differs from level 0's
+                    bidx = bidx[~np.asarray(stand_in[dl])[didx[:, 0], didx[:, 1], didx[:, 2]]]
                 coarse |= _touching(corners, L, bl, bidx)
             elif dl < L or bl < L:
                 pinned |= _touching(corners, L, bl, bidx)
@@ -332,14 +354,16 @@ class CoverCut(RefinePolicy):
         t.counts["balance_splits"] = 0
 
 
-def slice_cut(pyramid, plane, params, pixel_size: float, size=None, cover: SliceCover | None = None):
+def slice_cut(pyramid, plane, params, pixel_size: float, size=None, cover: SliceCover | None = None,
+              stand_in=None):
     """The cut a slice draws: with a point of interest and no fixed level, the per-brick cover
-    (:class:`CoverCut`; ``cover`` if given, else computed for the bricks under ``size`` pixels);
+    (:class:`CoverCut`; ``cover`` if given, else computed for the bricks under ``size`` pixels, with
+    ``stand_in`` as :func:`slice_cover` takes it);
     else the plane policy (:class:`~clipvol.scene.selection.policies.plane.PlaneCut`: one level
     everywhere, the finest the pixels need or ``level``)."""
     if params.focus is None or params.level is not None:
         return PlaneCut(params, plane)
     if cover is None:
         view = None if size is None else (lambda L, b: in_view_mask(pyramid, L, b, plane, size, pixel_size))
-        cover = slice_cover(pyramid, plane, params, pixel_size, in_view=view)
+        cover = slice_cover(pyramid, plane, params, pixel_size, in_view=view, stand_in=stand_in)
     return CoverCut(params, plane, cover)

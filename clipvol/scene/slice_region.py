@@ -8,7 +8,8 @@ The region is what the slice action's cut draws, without a traversal:
 
 * with a point of interest (``RenderParams.focus``) and no fixed level, the per-brick cover of
   :mod:`clipvol.scene.slice_cover` - each part of the plane at the finest level whose brick is
-  within ``distance_factor`` of its parent's diagonals of the point - and the parents its blending
+  within ``distance_factor`` of its parent's diagonals of the point, or coarser where the store's
+  summary tables show the coarser data looks the same (``stand_in``) - and the parents its blending
   tiles blend towards, over the coarsest level's slab (the fallback under everything);
 * without a point of interest, one level: the finest whose parent level's voxel covers more than
   ``lod_threshold`` pixels of ``pixel_size`` (the plane policy's cut), and the coarsest;
@@ -52,9 +53,12 @@ from .slice_cover import finest_level, half_voxel, in_view_mask, slice_cover
 __all__ = ["slice_region", "stored_sizes", "region_bytes", "in_view_mask"]
 
 
-def slice_region(pyramid, plane, params, pixel_size: float, *, size=None, ahead: float = 0.0) -> Region:
+def slice_region(pyramid, plane, params, pixel_size: float, *, size=None, ahead: float = 0.0,
+                 stand_in=None) -> Region:
     """The :class:`~clipvol.paging.region.Region` of ``plane`` drawn with ``params`` at ``pixel_size``;
-    with ``size`` (``(w, h)`` pixels), only bricks under the image (a zoomed view of a huge plane)."""
+    with ``size`` (``(w, h)`` pixels), only bricks under the image (a zoomed view of a huge plane);
+    ``stand_in``: the cover's bricks that may stand for their children
+    (:func:`~clipvol.scene.slice_cover.slice_cover`)."""
     n = np.asarray(plane.normal, dtype=np.float64)
     top = pyramid.num_levels - 1
     focus = None if params.focus is None else np.asarray(params.focus, dtype=np.float64)
@@ -72,7 +76,7 @@ def slice_region(pyramid, plane, params, pixel_size: float, *, size=None, ahead:
             bricks[L] = slab(L)
     elif focus is not None:  # the per-brick cover (clipvol.scene.slice_cover) and its blend parents
         view = None if size is None else (lambda L, b: in_view_mask(pyramid, L, b, plane, size, pixel_size))
-        got = slice_cover(pyramid, plane, params, pixel_size, in_view=view, ahead=ahead).bricks()
+        got = slice_cover(pyramid, plane, params, pixel_size, in_view=view, ahead=ahead, stand_in=stand_in).bricks()
         bricks = list(got)
         if not len(bricks[top]):
             bricks[top] = slab(top)

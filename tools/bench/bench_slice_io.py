@@ -27,6 +27,13 @@ What it measures (one run, one process, ratios only):
   holds no more bytes); ``--rendered N`` draws the first N cases of each store on disk and counts
   the bytes read. Writes ``bench_slice_io_never_more.csv``.
 
+* **coarser data where the colours cannot tell** (``--exact-tols T ...``) - the centre slices (and
+  with ``--real`` the stores on disk, with ``--never-more`` the random planes of the stores on
+  disk) drawn by distance alone and with the slice action's colour rule at each tolerance
+  (:mod:`clipvol.scene.slice_exact`, ``SliceAction.exact_tol``). The virtual stores have no summary
+  tables: :func:`slab_tables` builds them for the bricks the slice can touch with the summary
+  module's own code. Writes ``bench_slice_io_exact.csv`` (``bench_slice_io_exact_real.csv``).
+
 The stores are *virtual*: a procedural fractal (:mod:`clipvol.bricking.generators`) evaluated
 per brick, and each brick read is encoded with the chunk codec ``clipvol brick`` writes (blosc
 lz4 + shuffle + crc32c, :func:`clipvol.bricking.pipeline.chunk_encoder`); the bytes read are the
@@ -73,17 +80,44 @@ class EncodedFractal:
         return brick
 
 
+def slab_tables(loader, plane, workers: int = 2):
+    """Summary tables of the bricks the slice of ``plane`` can touch on a virtual store: at every level
+    below the top, the bricks within half a voxel of the plane (:mod:`clipvol.paging.slab`), built
+    from the generator's bricks by the summary module's own code (:func:`clipvol.bricking.summary.summary_of`,
+    what ``clipvol brick`` runs over a store on disk). ``(tables, seconds)``."""
+    import time
+
+    from clipvol.bricking.summary import summary_of
+    from clipvol.paging.slab import slab_bricks
+    from clipvol.scene.slice_cover import half_voxel
+
+    pyr = loader.pyramid
+    base = getattr(loader, "base", loader)
+    n = np.asarray(plane.normal, dtype=np.float64)
+    origin = np.asarray(plane.origin, dtype=np.float64)
+    children = [slab_bricks(pyr, L, origin, n, half_voxel(pyr, L, n)) for L in range(pyr.num_levels - 1)]
+
+    def read(level, index):
+        s, e = pyr.brick_voxel_box(level, index)
+        return base.read_brick(level, index)[tuple(slice(0, b - a) for a, b in zip(s, e))]
+
+    t0 = time.perf_counter()
+    tables = summary_of(read, pyr, children, workers=workers)
+    return tables, time.perf_counter() - t0
+
+
 def _centre(pyr) -> tuple[float, float, float]:
     lo, hi = pyr.volume_box()
     return tuple(((lo + hi) / 2.0).tolist())
 
 
 def _slice(ctx, loader, plane, budget, *, threads, follow, size=None, px=None, timeout=600, out=None, then=None,
-           **params):
+           prepare=None, **params):
     """Render one converged slice, then let the clip-texture finish what it queued; returns
     ``(rgba, bytes read, chunks read, converged)``. ``out`` (a dict) receives the slice action's
     ``stats``, ``levels``, ``values`` and ``params`` (what it drew: full resolution where that
-    reads no more bytes); ``then(slice_action)`` runs on the warm slice action before it closes."""
+    reads no more bytes); ``prepare(slice_action)`` runs before the slice (``exact_tol``, ``summary``),
+    ``then(slice_action)`` on the warm slice action before it closes."""
     from clipvol.paging.cliptexture import ClipTexture
     from clipvol.paging.region import Region
     from clipvol.render.slice_action import SliceAction
@@ -93,6 +127,8 @@ def _slice(ctx, loader, plane, budget, *, threads, follow, size=None, px=None, t
     with ClipTexture(loader, budget, threads, prefault=False, **kw) as ct, \
             SliceAction(ctx, ct, texture_budget=TEXTURE_BUDGET, **params) as sa:
         sa.follow_plane = follow
+        if prepare is not None:
+            prepare(sa)
         rgba = sa.render(plane, size, px, wait=True, timeout=timeout)
         converged = sa.last_stats.converged
         ct.wait_until_idle(timeout)
@@ -141,9 +177,18 @@ def centre_slice(ctx, args, brick, writer) -> dict:
     de_full = percent_delta_e(full, exact) if ok_full else float("nan")
     rows = {}
     cube: dict = {}
-    for df in args.distance_factors:
+    tables, t_secs = slab_tables(ld, plane, args.threads) if args.exact_tols else (None, 0.0)
+    if tables is not None:
+        print(f"{args.size}^3 b{brick}: summary tables of the slab's bricks in {t_secs:.1f} s")
+
+    def rule(tol):
+        def prepare(sa):
+            sa.exact_tol, sa.summary = tol, tables
+        return prepare
+
+    for df, tol in [(df, tol) for df in args.distance_factors for tol in [None] + list(args.exact_tols)]:
         multi, b_multi, n_multi, ok_multi = _slice(ctx, ld, plane, args.budget, threads=args.threads, follow=True,
-                                                  focus=focus, distance_factor=df)
+                                                  focus=focus, distance_factor=df, prepare=rule(tol))
         de = percent_delta_e(multi, exact)
         de_max = float(delta_e_luv(multi, exact).max())
         # cube windows around the centre fill the same whatever the distance factor: read once per brick size
@@ -151,16 +196,21 @@ def centre_slice(ctx, args, brick, writer) -> dict:
             _, b_cube, n_cube, ok_cube = _slice(ctx, ld, plane, budget, threads=args.threads, follow=False,
                                                focus=focus, distance_factor=df)
             cube[budget] = (b_cube, n_cube, ok_cube)
-        rows[df] = (b_multi, n_multi, de, cube)
-        for name, b, n, ok, d in [("multires_slab", b_multi, n_multi, ok_multi, de),
+        rows[df, tol] = (b_multi, n_multi, de, cube)
+        multi_name = "multires_slab" if tol is None else f"multires_slab_exact_tol={tol:g}"
+        for name, b, n, ok, d in [(multi_name, b_multi, n_multi, ok_multi, de),
                                   ("full_resolution_slab", b_full, n_full, ok_full, de_full)] + \
                 [(f"multires_cube_{bud}", b_c, n_c, ok_c, "") for bud, (b_c, n_c, ok_c) in cube.items()]:
-            writer.writerow(dict(store=f"fractal {args.size}^3 float32", brick=brick, distance_factor=df,
-                                 what=name, bytes_read=b, chunks_read=n, converged=ok,
-                                 ratio_to_multires=round(b / max(b_multi, 1), 2),
-                                 pct_de6_vs_exact="" if d == "" or d != d else round(d, 3),
-                                 max_de_vs_exact=round(de_max, 2) if name == "multires_slab" else ""))
-        print(f"{args.size}^3 b{brick} df={df}: multires {b_multi / 1e6:.2f} MB ({n_multi} chunks), "
+            row = dict(store=f"fractal {args.size}^3 float32", brick=brick, distance_factor=df,
+                       what=name, bytes_read=b, chunks_read=n, converged=ok,
+                       ratio_to_multires=round(b / max(b_multi, 1), 2),
+                       pct_de6_vs_exact="" if d == "" or d != d else round(d, 3),
+                       max_de_vs_exact=round(de_max, 2) if name == multi_name else "")
+            if args.exact_tols:
+                row.update(exact_tol="" if tol is None else tol, tables_s=round(t_secs, 1))
+            writer.writerow(row)
+        print(f"{args.size}^3 b{brick} df={df}{'' if tol is None else f' tol={tol:g}'}: "
+              f"multires {b_multi / 1e6:.2f} MB ({n_multi} chunks), "
               f"full-res {b_full / 1e6:.2f} MB ({n_full}) = {b_full / max(b_multi, 1):.1f}x, "
               + ", ".join(f"cube@{bud} {b_c / 1e6:.1f} MB ({n_c}) = {b_c / max(b_multi, 1):.1f}x"
                           for bud, (b_c, n_c, _) in cube.items())
@@ -285,7 +335,9 @@ def never_more(ctx, args, writer, rendered: int = 0) -> None:
     manifest). The slice action reads the full-resolution region where that holds no more bytes,
     so what it reads is the smaller of the two. With ``rendered`` > 0 the first that many cases of
     each store on disk are also drawn (cold clip-texture, converged, queue drained) and the bytes
-    the loader read are counted, for both slices."""
+    the loader read are counted, for both slices. With ``--exact-tols T ...`` the stores on disk's
+    covers are also priced with their summary tables at the tolerance ``T`` (the first; grey window
+    over the value range, :mod:`clipvol.scene.slice_exact`) and, rendered, drawn with it."""
     from types import SimpleNamespace
 
     from clipvol.bricking.pyramid import Pyramid
@@ -301,10 +353,36 @@ def never_more(ctx, args, writer, rendered: int = 0) -> None:
     for path in args.real or ():
         ld = open_store(path)
         stores.append((Path(path).name, ld.pyramid, stored_sizes(ld), path))
+    from clipvol.bricking.summary import open_summary
+    from clipvol.scene.slice_exact import accumulated_errors, grey_window_colours, stand_ins
+
+    tol = args.exact_tols[0] if args.exact_tols else None
+    def grey(pyr):
+        lo, hi = pyr.value_range
+        return grey_window_colours((lo + hi) / 2.0, max(hi - lo, 1e-300))
+
     for name, pyr, sizes, path in stores:
         slices = random_slices(pyr, args.samples, args.seed)
+        stand = None
+        if tol is not None and path is not None:
+            stand = stand_ins(accumulated_errors(open_summary(path), grey(pyr)), tol)
+        per_plane: dict = {}
+
+        def stand_for(i, plane):
+            """The virtual store's stand-ins for plane ``i`` (its slab's tables built from the
+            generator, :func:`slab_tables`), for the first ``--exact-virtual`` planes."""
+            if tol is None or i >= args.exact_virtual:
+                return None
+            if i not in per_plane:
+                ld = EncodedFractal(args.size, pyr.brick_shape[0])
+                tables, secs = slab_tables(ld, plane, args.threads)
+                per_plane[i] = stand_ins(accumulated_errors(tables, grey(ld.pyramid)), tol)
+                print(f"  {name} b{pyr.brick_shape[0]} plane {i}: slab tables in {secs:.1f} s", flush=True)
+            return per_plane[i]
+
         for df in args.distance_factors:
             more_chunks, more_bytes, read_more, fell_back, worst, worst_case, ratios = 0, 0, 0, 0, 0.0, None, []
+            exact_ratios, exact_more = [], 0
             for i, (kind, plane, poi) in enumerate(slices):
                 px = default_pixel_size(pyr, plane)
                 size = default_size(pyr, plane, px)
@@ -318,6 +396,14 @@ def never_more(ctx, args, writer, rendered: int = 0) -> None:
                 more_bytes += int(m > f)
                 read_more += int(read > f)
                 ratios.append(f / max(read, 1))
+                ex = {}
+                st = stand if path is not None else stand_for(i, plane)
+                if st is not None:
+                    er = slice_region(pyr, plane, params, px, size=size, stand_in=st)
+                    e = region_bytes(er, sizes)
+                    exact_more += int(e > m)
+                    exact_ratios.append(f / max(min(e, m, f), 1))  # the slice action's choice (SliceAction.render)
+                    ex = dict(exact_chunks=er.nbricks, exact_bytes=e, exact_slice_action_bytes=min(e, m, f))
                 if m / max(f, 1) > worst:
                     worst, worst_case = m / max(f, 1), (kind, plane, poi, m, f, multi.nbricks, full.nbricks)
                 row = dict(store=name, brick=pyr.brick_shape[0], distance_factor=df, case=i, kind=kind,
@@ -325,12 +411,23 @@ def never_more(ctx, args, writer, rendered: int = 0) -> None:
                            normal=" ".join(f"{v:.4f}" for v in plane.normal),
                            focus=" ".join(f"{v:.2f}" for v in poi), cover_chunks=multi.nbricks,
                            full_resolution_chunks=full.nbricks, cover_bytes=m, full_resolution_bytes=f,
-                           slice_action_bytes=read, measured_multires="", measured_full="")
+                           slice_action_bytes=read, measured_multires="", measured_full="", **ex)
                 if path is not None and i < rendered:
                     ld_m, ld_f = open_store(path), open_store(path)
+                    def rule(t):
+                        def prepare(sa):
+                            sa.exact_tol = t
+                        return prepare
+
                     _, row["measured_multires"], _, ok_m = _slice(ctx, ld_m, plane, "256MB", threads=args.threads,
-                                                                 follow=True, size=size, px=px,
+                                                                 follow=True, size=size, px=px, prepare=rule(None),
                                                                  focus=params.focus, distance_factor=df)
+                    if stand is not None:
+                        _, row["measured_exact"], _, ok_e = _slice(ctx, open_store(path), plane, "256MB",
+                                                                  threads=args.threads, follow=True, size=size, px=px,
+                                                                  prepare=rule(tol), focus=params.focus,
+                                                                  distance_factor=df)
+                        ok_m = ok_m and ok_e
                     _, row["measured_full"], _, ok_f = _slice(ctx, ld_f, plane, "256MB", threads=args.threads,
                                                              follow=True, size=size, px=px, level=0)
                     if not (ok_m and ok_f):
@@ -343,7 +440,14 @@ def never_more(ctx, args, writer, rendered: int = 0) -> None:
                   f"{more_chunks}, more bytes on {more_bytes} (worst {worst:.3f}x: {kind} plane through "
                   f"{_fmt(plane.origin, 1)} normal {_fmt(plane.normal, 3)}, point {_fmt(poi, 1)}, {m} bytes in {mc} "
                   f"chunks against {f} in {fc}); the slice draws full resolution on {fell_back} and reads more on "
-                  f"{read_more}; fewer bytes: min {r.min():.2f}x, median {np.median(r):.2f}x", flush=True)
+                  f"{read_more}; fewer bytes: min {r.min():.2f}x, median {np.median(r):.2f}x"
+                  + ("" if not exact_ratios else
+                     f"; with the colour rule (exact_tol={tol:g}, {len(exact_ratios)} planes) the cover holds more "
+                     f"bytes than by distance alone on {exact_more} (the slice action then draws by distance alone), "
+                     f"fewer bytes read than full resolution: min {np.min(exact_ratios):.2f}x, median "
+                     f"{np.median(exact_ratios):.2f}x, >= 8x on {100 * np.mean(np.array(exact_ratios) >= 8):.0f} % "
+                     f"(by distance alone on those planes: median {np.median(r[:len(exact_ratios)]):.2f}x, >= 8x on "
+                     f"{100 * np.mean(r[:len(exact_ratios)] >= 8):.0f} %)"), flush=True)
 
 
 def _zarr_plane(path, z: float):
@@ -376,7 +480,9 @@ def real_stores(ctx, args, writer, rounds: int = 3) -> None:
     for zarr-python), wall time from a cold clip-texture to the converged slice with its queue
     drained, and the slice's error against the full-resolution one (% pixels Delta E >= 6, grey
     window over the value range). Rounds alternate the three reads (the OS page cache is warm
-    after the first: all three read from memory)."""
+    after the first: all three read from memory). With ``--exact-tols`` each multiresolution slice
+    is drawn by distance alone (``exact_tol = None``) and at each tolerance, and the error is also
+    measured against zarr-python's plane."""
     import statistics
     import time
 
@@ -393,16 +499,21 @@ def real_stores(ctx, args, writer, rounds: int = 3) -> None:
         lo, hi = pyr.value_range
         win = ((lo + hi) / 2.0, max(hi - lo, 1e-300))
         runs = {"full": dict(level=0)}
-        runs.update({f"multires df={df:g}": dict(focus=tuple(plane.origin), distance_factor=df)
-                     for df in args.distance_factors})
+        for df in args.distance_factors:  # the rule off (distance alone), then at each tolerance
+            for tol in [None] + list(args.exact_tols):
+                runs[f"multires df={df:g}" + ("" if tol is None else f" exact_tol={tol:g}")] = dict(
+                    focus=tuple(plane.origin), distance_factor=df, exact_tol=tol)
         times: dict = {k: [] for k in list(runs) + ["zarr"]}
         got: dict = {}
         for _ in range(rounds):
             for name, params in runs.items():
                 ld = open_store(path)
                 t0 = time.perf_counter()
+                kw = dict(params)
+                tol = kw.pop("exact_tol", None)
                 with ClipTexture(ld, "256MB", args.threads, region=Region.empty(pyr.num_levels)) as ct, \
-                        SliceAction(ctx, ct, **params) as sa:
+                        SliceAction(ctx, ct, **kw) as sa:
+                    sa.exact_tol = tol
                     rgba = sa.render(plane, window=win, wait=True, timeout=600)
                     ok = sa.last_stats.converged
                     ct.wait_until_idle(600)
@@ -414,20 +525,21 @@ def real_stores(ctx, args, writer, rounds: int = 3) -> None:
         zarr_grey = window_level_grey(values, *win)
         for name in list(runs) + ["zarr"]:
             if name == "zarr":
-                nb, nr, ok, de = nbytes, "", True, percent_delta_e(zarr_grey, full_rgba)
+                nb, nr, ok, de, dz = nbytes, "", True, percent_delta_e(zarr_grey, full_rgba), 0.0
             else:
                 rgba, rd, ok = got[name]
-                nb, nr, de = rd.bytes, rd.reads, percent_delta_e(rgba, full_rgba)
+                nb, nr, de, dz = rd.bytes, rd.reads, percent_delta_e(rgba, full_rgba), percent_delta_e(rgba, zarr_grey)
             t = statistics.median(times[name])
             writer.writerow(dict(store=Path(path).name, brick=pyr.brick_shape[0], what=name, bytes_read=nb,
                                  chunks_read=nr, converged=ok, median_s=round(t, 4),
                                  bytes_vs_full=round(full_read.bytes / max(nb, 1), 3),
                                  time_vs_zarr=round(t / statistics.median(times["zarr"]), 2),
-                                 pct_de6_vs_full=round(de, 3)))
+                                 pct_de6_vs_full=round(de, 3), pct_de6_vs_zarr=round(dz, 3)))
             print(f"{Path(path).name} {name}: {nb / 1e3:.0f} kB ({nr} chunks), "
                   f"{full_read.bytes / max(nb, 1):.2f}x fewer "
                   f"than the full-resolution slice, {1e3 * t:.0f} ms = {t / statistics.median(times['zarr']):.1f}x "
-                  f"zarr-python's plane; Delta E>=6 against the full-resolution slice on {de:.2f} % of pixels"
+                  f"zarr-python's plane; Delta E>=6 against the full-resolution slice on {de:.2f} % of pixels, "
+                  f"against zarr-python's plane on {dz:.2f} %"
                   + ("" if ok else " (NOT CONVERGED)"))
 
 
@@ -438,7 +550,7 @@ def main(argv=None) -> int:
     p.add_argument("--budget", default="1GB",
                    help="memory budget of the multiresolution slab runs (their windows must hold the region)")
     p.add_argument("--full-budget", default="2GB", help="memory budget of the full-resolution slab (must hold it)")
-    p.add_argument("--cube-budgets", nargs="+", default=["256MB", "1GB"])
+    p.add_argument("--cube-budgets", nargs="*", default=["256MB", "1GB"])
     p.add_argument("--distance-factors", nargs="+", type=float, default=[1.0, 0.5])
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--scroll-size", type=int, default=4096)
@@ -448,6 +560,11 @@ def main(argv=None) -> int:
                    help="the scroll's distance factor (1.0 makes the level-0 disc 8 bricks wide at 64^3)")
     p.add_argument("--stride", type=float, default=16.0)
     p.add_argument("--quick", action="store_true")
+    p.add_argument("--exact-tols", nargs="*", type=float, default=[],
+                   help="also draw the centre slices (and the --real slices) with a coarser brick where the summary "
+                        "tables show it within this CIELUV Delta E of level 0 (SliceAction.exact_tol; the virtual "
+                        "stores' tables built for the slab's bricks); with it only the centre slices run, no cube "
+                        "windows: bench_slice_io_exact.csv (bench_slice_io_exact_real.csv with --real)")
     p.add_argument("--geometry", action="store_true",
                    help="only the region's chunks from the pyramid's geometry (no rendering, seconds): "
                         "bench_slice_io_geometry.csv")
@@ -462,8 +579,12 @@ def main(argv=None) -> int:
                         "distance factors 1 0.5 0.25 unless given: bench_slice_io_never_more.csv")
     p.add_argument("--samples", type=int, default=200, help="random planes of --geometry / --never-more")
     p.add_argument("--seed", type=int, default=0, help="the random planes' seed")
+    p.add_argument("--exact-virtual", type=int, default=0,
+                   help="--never-more --exact-tols: also price the colour rule on the first N planes of the virtual "
+                        "stores (their slab's summary tables built from the generator, 10-60 s a plane)")
     p.add_argument("--rendered", type=int, default=0,
                    help="--never-more: also draw the first N cases of each --real store and count the bytes read")
+    p.add_argument("--rounds", type=int, default=3, help="--real: alternating rounds (median times)")
     p.add_argument("--out", type=Path, default=HERE / "results")
     args = p.parse_args(argv)
     if args.never_more:
@@ -476,7 +597,8 @@ def main(argv=None) -> int:
         with open(args.out / "bench_slice_io_never_more.csv", "w", newline="") as f:
             w = csv.DictWriter(f, ["store", "brick", "distance_factor", "case", "kind", "origin", "normal", "focus",
                                    "cover_chunks", "full_resolution_chunks", "cover_bytes", "full_resolution_bytes",
-                                   "slice_action_bytes", "measured_multires", "measured_full"])
+                                   "slice_action_bytes", "measured_multires", "measured_full", "exact_chunks",
+                                   "exact_bytes", "exact_slice_action_bytes", "measured_exact"])
             w.writeheader()
             never_more(ctx, args, w, args.rendered)
         return 0
@@ -485,11 +607,12 @@ def main(argv=None) -> int:
 
         args.out.mkdir(parents=True, exist_ok=True)
         ctx = create_context()
-        with open(args.out / "bench_slice_io_real.csv", "w", newline="") as f:
+        name = "bench_slice_io_exact_real.csv" if args.exact_tols else "bench_slice_io_real.csv"
+        with open(args.out / name, "w", newline="") as f:
             w = csv.DictWriter(f, ["store", "brick", "what", "bytes_read", "chunks_read", "converged", "median_s",
-                                   "bytes_vs_full", "time_vs_zarr", "pct_de6_vs_full"])
+                                   "bytes_vs_full", "time_vs_zarr", "pct_de6_vs_full", "pct_de6_vs_zarr"])
             w.writeheader()
-            real_stores(ctx, args, w)
+            real_stores(ctx, args, w, args.rounds)
         return 0
     if args.geometry:
         args.out.mkdir(parents=True, exist_ok=True)
@@ -509,13 +632,18 @@ def main(argv=None) -> int:
 
     ctx = create_context()
     args.out.mkdir(parents=True, exist_ok=True)
-    with open(args.out / "bench_slice_io.csv", "w", newline="") as f:
+    exact = bool(args.exact_tols)
+    with open(args.out / ("bench_slice_io_exact.csv" if exact else "bench_slice_io.csv"), "w", newline="") as f:
         w = csv.DictWriter(f, ["store", "brick", "distance_factor", "what", "bytes_read", "chunks_read", "converged",
                                "ratio_to_multires", "pct_de6_vs_exact",
-                               "max_de_vs_exact"])
+                               "max_de_vs_exact"] + (["exact_tol", "tables_s"] if exact else []))
         w.writeheader()
+        if exact:
+            args.cube_budgets = []
         for brick in args.bricks:
             centre_slice(ctx, args, brick, w)
+    if exact:
+        return 0
     with open(args.out / "bench_slice_io_scroll.csv", "w", newline="") as f:
         w = csv.DictWriter(f, ["store", "brick", "view", "voxels_per_pixel", "slice", "z", "bytes_read", "chunks_read",
                                "converged"])
