@@ -74,7 +74,7 @@ from .selection.policies.base import RefinePolicy
 from .selection.policies.plane import PlaneCut
 
 __all__ = ["SliceCover", "slice_cover", "CoverCut", "slice_cut", "in_reach", "finest_level", "half_voxel",
-           "in_view_mask"]
+           "in_view_mask", "plane_crosses"]
 
 #: offsets (z, y, x) of a brick's 8 children
 _CHILD = np.array([(z, y, x) for z in (0, 1) for y in (0, 1) for x in (0, 1)], dtype=np.int64)
@@ -248,7 +248,25 @@ def slice_cover(pyramid, plane, params, pixel_size: float, *, in_view=None, ahea
         if len(nodes):
             records.append((finest, nodes, finest, nodes))
     records = [r for r in records if len(r[1])]
-    return SliceCover(tuple(records), _blend_ratios(records, top, stand_in), pyramid.num_levels)
+    at = np.asarray(plane.origin, dtype=np.float64)
+
+    def crossed(L: int, boxes: np.ndarray) -> np.ndarray:
+        return plane_crosses(pyramid, L, boxes, at, n)
+
+    return SliceCover(tuple(records), _blend_ratios(records, top, stand_in, crossed), pyramid.num_levels)
+
+
+def plane_crosses(pyramid, level: int, bricks: np.ndarray, origin: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """``(n,)`` bool: the node boxes of ``bricks`` (level ``level``) whose inside the plane through
+    ``origin`` with unit ``normal`` passes through - not a box it only touches at a face, edge or
+    corner, nor one the slab holds for the half voxel of its samples' footprint without meeting it."""
+    if not len(bricks):
+        return np.zeros(0, dtype=bool)
+    lo, hi = pyramid.node_box(level, bricks)
+    lo, hi = np.atleast_2d(lo), np.atleast_2d(hi)
+    d = ((lo + hi) / 2.0 - origin) @ normal  # the centre's signed distance
+    r = ((hi - lo) / 2.0) @ np.abs(normal)  # the box's half extent along the normal
+    return np.abs(d) < r - 1e-9 * np.maximum(r, 1.0)
 
 
 def _touching(corners: np.ndarray, level: int, box_level: int, boxes: np.ndarray) -> np.ndarray:
@@ -264,8 +282,14 @@ def _touching(corners: np.ndarray, level: int, box_level: int, boxes: np.ndarray
     return rows_in(cand.reshape(-1, 3), boxes).reshape(len(corners), 8).any(axis=1)
 
 
-def _blend_ratios(records: list, top: int, stand_in=None) -> dict:
+def _blend_ratios(records: list, top: int, stand_in=None, crossed=None) -> dict:
     """Corner ratios of the whole-brick tiles next to coarser boxes (module docstring).
+
+    Only boxes the plane passes through take part (``crossed(level, boxes) -> (n,) bool``,
+    :func:`plane_crosses`; all when None): the slab holds, for the trilinear footprint, boxes half a
+    voxel of their level off the plane, and such a box - a coarse one under a plane on its level's
+    brick face, say - draws nothing, yet it touches the corners of the tiles beside it: counted, it
+    blended every tile of the plane towards its parent.
 
     A coarser box drawn from data that may stand for the level-0 data beneath it (``stand_in``,
     :func:`slice_cover`) shows the picture the finer levels would: no level change to hide, and
@@ -288,6 +312,9 @@ def _blend_ratios(records: list, top: int, stand_in=None) -> dict:
         coarse = np.zeros(len(corners), dtype=bool)
         pinned = np.zeros(len(corners), dtype=bool)
         for dl, didx, bl, bidx in records:
+            if crossed is not None:
+                on = crossed(bl, bidx)
+                didx, bidx = didx[on], bidx[on]
             if dl > L:
                 if stand_in is not None:  # only boxes whose data differs from level 0's
                     bidx = bidx[~np.asarray(stand_in[dl])[didx[:, 0], didx[:, 1], didx[:, 2]]]
