@@ -248,25 +248,21 @@ def slice_cover(pyramid, plane, params, pixel_size: float, *, in_view=None, ahea
         if len(nodes):
             records.append((finest, nodes, finest, nodes))
     records = [r for r in records if len(r[1])]
-    at = np.asarray(plane.origin, dtype=np.float64)
-
     def crossed(L: int, boxes: np.ndarray) -> np.ndarray:
-        return plane_crosses(pyramid, L, boxes, at, n)
+        return plane_crosses(pyramid, L, boxes, plane)
 
     return SliceCover(tuple(records), _blend_ratios(records, top, stand_in, crossed), pyramid.num_levels)
 
 
-def plane_crosses(pyramid, level: int, bricks: np.ndarray, origin: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """``(n,)`` bool: the node boxes of ``bricks`` (level ``level``) whose inside the plane through
-    ``origin`` with unit ``normal`` passes through - not a box it only touches at a face, edge or
-    corner, nor one the slab holds for the half voxel of its samples' footprint without meeting it."""
+def plane_crosses(pyramid, level: int, bricks: np.ndarray, plane) -> np.ndarray:
+    """``(n,)`` bool: the node boxes of ``bricks`` (level ``level``) that draw part of ``plane`` - those
+    :meth:`Plane.box_polygons <clipvol.scene.plane.Plane.box_polygons>` gives a polygon, as the draw
+    does (on a box face the box on the plane's negative side draws it) - and not a box the slab holds
+    for the half voxel of its samples' footprint without the plane passing through it."""
     if not len(bricks):
         return np.zeros(0, dtype=bool)
     lo, hi = pyramid.node_box(level, bricks)
-    lo, hi = np.atleast_2d(lo), np.atleast_2d(hi)
-    d = ((lo + hi) / 2.0 - origin) @ normal  # the centre's signed distance
-    r = ((hi - lo) / 2.0) @ np.abs(normal)  # the box's half extent along the normal
-    return np.abs(d) < r - 1e-9 * np.maximum(r, 1.0)
+    return plane.box_polygons(lo, hi)[1] >= 3
 
 
 def _touching(corners: np.ndarray, level: int, box_level: int, boxes: np.ndarray) -> np.ndarray:
@@ -285,7 +281,7 @@ def _touching(corners: np.ndarray, level: int, box_level: int, boxes: np.ndarray
 def _blend_ratios(records: list, top: int, stand_in=None, crossed=None) -> dict:
     """Corner ratios of the whole-brick tiles next to coarser boxes (module docstring).
 
-    Only boxes the plane passes through take part (``crossed(level, boxes) -> (n,) bool``,
+    Only boxes that draw part of the plane take part (``crossed(level, boxes) -> (n,) bool``,
     :func:`plane_crosses`; all when None): the slab holds, for the trilinear footprint, boxes half a
     voxel of their level off the plane, and such a box - a coarse one under a plane on its level's
     brick face, say - draws nothing, yet it touches the corners of the tiles beside it: counted, it

@@ -160,10 +160,10 @@ def test_a_slice_of_16_bricks_a_side_reads_a_fraction_of_the_full_resolution_sla
         assert 8 * multi.nbricks <= full.nbricks
 
 
-def test_plane_crosses_only_boxes_the_plane_passes_through():
-    """Against each box's eight corners enumerated here: the plane passes through a box where corners
-    lie strictly on both sides of it; a box it touches at a face, or one half a voxel off it, is
-    not crossed."""
+def test_plane_crosses_only_boxes_that_draw_part_of_the_plane():
+    """Against each box's eight corners enumerated here: a box draws part of the plane where a corner
+    lies on its negative side and one on it or beyond (on a face, the box below draws it); a box
+    half a voxel off the plane, or with only its face on the plane's positive side, draws nothing."""
     from itertools import product
 
     from clipvol.scene.slice_cover import plane_crosses
@@ -174,18 +174,18 @@ def test_plane_crosses_only_boxes_the_plane_passes_through():
               ((31.5, 40.0, 20.0), (1.0, 0.0, 0.0))]
     planes += [(tuple(rng.uniform(0, 47, 3)), tuple(rng.normal(size=3))) for _ in range(6)]
     for origin, normal in planes:
-        n = np.asarray(normal, dtype=np.float64) / np.linalg.norm(normal)
-        o = np.asarray(origin, dtype=np.float64)
+        plane = Plane.through(origin, normal)
+        n, o = np.asarray(plane.normal), np.asarray(plane.origin)
         for L in range(pyr.num_levels):
             bricks = np.array(list(np.ndindex(*pyr.grid(L))), dtype=np.int64)
-            got = plane_crosses(pyr, L, bricks, o, n)
+            got = plane_crosses(pyr, L, bricks, plane)
             want = []
             for b in bricks:
                 lo, hi = pyr.node_box(L, b)
                 d = [float((np.array(c) - o) @ n) for c in product(*zip(lo, hi))]
-                want.append(min(d) < -1e-6 and max(d) > 1e-6)
+                want.append(min(d) < 0 <= max(d) and max(d) - min(d) > 1e-9)
             assert got.tolist() == want, (origin, normal, L)
-    # the axial plane on the level-0 brick faces z = 15.5 crosses no level-0 brick; at z = 16 the layer above
-    at_face = plane_crosses(pyr, 0, np.array([[1, 0, 0], [2, 0, 0]]), np.array([0.0, 0.0, 15.5]), np.array([0.0, 0.0, 1.0]))
-    inside = plane_crosses(pyr, 0, np.array([[1, 0, 0], [2, 0, 0]]), np.array([0.0, 0.0, 16.0]), np.array([0.0, 0.0, 1.0]))
-    assert at_face.tolist() == [False, False] and inside.tolist() == [False, True]
+    # the axial plane on the level-0 brick face z = 15.5: the brick below draws it; at z = 16 the one above
+    below_above = np.array([[1, 0, 0], [2, 0, 0]])
+    assert plane_crosses(pyr, 0, below_above, Plane.through((0, 0, 15.5), (0, 0, 1))).tolist() == [True, False]
+    assert plane_crosses(pyr, 0, below_above, Plane.through((0, 0, 16.0), (0, 0, 1))).tolist() == [False, True]
