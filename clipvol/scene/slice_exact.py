@@ -20,12 +20,13 @@ The rule
   point of bin ``k``'s box and one of bin ``l``'s (per channel the larger of ``hi_k - lo_l`` and
   ``hi_l - lo_k``): no value of either bin can be farther apart, so a wide bin cannot hide a
   difference the window shows.
-* **Per child brick, a high quantile.** ``D(c)`` is the :data:`QUANTILE` quantile of ``Delta E`` over
-  the brick's (parent code, child code, count) pairs, weighted by the counts: the colour difference
-  that all but 1 % of its voxels stay within when drawn from the parent's data. A plane through a
-  ``B``-cube brick crosses about ``1/B`` of its voxels, and a random plane samples the bad voxels in
-  proportion, so a brick's outliers cost about their share of its pixels; a feature filling a
-  whole voxel sheet of a brick up to 64 voxels wide (1.6 %) still counts.
+* **Per child brick, the largest.** ``D(c)`` is the largest ``Delta E`` over the brick's (parent
+  code, child code, count) pairs (:data:`QUANTILE` 1; :func:`brick_differences` takes any quantile,
+  weighted by the counts): every voxel of the brick stays within ``D`` of the parent voxel above it.
+  A high quantile instead (99 %) lets a feature under 1 % of a brick's voxels - one vessel through
+  a 64³ brick is 0.02 % of it - leave no trace in ``D``: the slice would draw the parent, and the
+  vessel would be gone from a plane through it. With the largest, a coarser brick stands in only
+  where no voxel beneath it changes colour by more than the tolerance.
 * **Bottom-up, the worst accumulated difference.** ``E(b) = max over children c of (E(c) + D(c))``,
   ``E = 0`` at level 0: how far drawing ``b``'s data can be from the level-0 data beneath it (a
   brick drawn two levels up pays both levels). ``E`` grows towards the root, so the bricks that may
@@ -61,16 +62,14 @@ __all__ = ["BIN_SAMPLES", "QUANTILE", "DEFAULT_TOL", "window_grey", "grey_window
 #: values sampled per code bin (edges included) for its colour box: a transfer function's table of
 #: 256 entries over the value range changes slope at most twice inside one of 256 bins
 BIN_SAMPLES = 17
-#: the share of a brick's voxels whose colour difference ``D`` bounds
-QUANTILE = 0.99
-#: the default tolerance in CIELUV Delta E (``SliceAction.exact_tol``): half the Delta E of 6 the
-#: benchmarks count as visible, room for what the voxel pairs do not see (trilinear interpolation,
-#: the 1 % beyond the quantile at each level). Measured (docs/benchmarks.md, "A slice reads coarser
-#: data where the colours cannot tell"): the centre slice of the 1024³ fractal at 64³ bricks and the
-#: default factor reads 14.0x fewer bytes than at full resolution (2.2x by distance alone), no pixel
-#: at Delta E >= 6 against the exact slice; on the MNI ICBM152 T1 template no pixel more than by
-#: distance alone (its tissue bricks' E is 17-79), and the rule alone keeps <= 1 % up to 12
-DEFAULT_TOL = 3.0
+#: the share of a brick's voxels whose colour difference ``D`` bounds: all of them (see the module
+#: docstring: a thin feature must not hide in the rest of a quantile)
+QUANTILE = 1.0
+#: the default tolerance in CIELUV Delta E (``SliceAction.exact_tol``): below the Delta E of 6 the
+#: benchmarks count as visible, with room for what the voxel pairs do not see (trilinear
+#: interpolation between the coarser voxels). Measured in docs/benchmarks.md, "A slice reads coarser
+#: data where the colours cannot tell"
+DEFAULT_TOL = 4.0
 
 
 def window_grey(values: np.ndarray, center: float, width: float) -> np.ndarray:

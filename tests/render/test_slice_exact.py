@@ -165,3 +165,28 @@ def test_a_transfer_function_that_shows_no_difference_reads_the_coarsest_level(g
     assert reads == {(top, (0, 0, 0))}
     assert np.abs(rgba.astype(int) - [255, 128, 0, 255]).max() <= 1  # 0.5 * 255 rounds either way
     assert any(L == 0 and _x_range(0, b)[0] >= 64 for L, b in got["ramp"][0])
+
+
+def test_one_thin_vessel_in_a_smooth_brick_keeps_its_level(gl, tmp_path):
+    """A single bright line through a gentle gradient (16 voxels of a 32³ brick; with the parent
+    voxels it shares, 64 voxels differ: 0.2 % of the brick) hides in a 99 % quantile: the slice
+    through it must still read the line's brick at level 0 and draw the line as numpy's plane
+    shows it (with the quantile, it drew the parent and the line was gone)."""
+    from clipvol.bricking.pipeline import brick_volume
+    from clipvol.paging.open import open_store
+
+    z, y, x = np.ogrid[:64, :64, :64]
+    vol = np.broadcast_to((100 + 10 * x / 64).astype(np.uint8), (64, 64, 64)).copy()
+    vol[40, 9, 36:52] = 250  # one line along x inside the level-0 brick (1, 0, 1)
+    brick_volume(vol, tmp_path / "v.zarr", brick=32, progress=False)
+    ld = _Reads(open_store(tmp_path / "v.zarr"))
+    pyr = ld.pyramid
+    with ClipTexture(ld, "256MB", 2, region=Region.empty(pyr.num_levels)) as ct, \
+            SliceAction(gl, ct, focus=(44.0, 9.0, 40.0), distance_factor=8.0) as sa:
+        rgba = sa.render(Plane.axis(pyr, "axial", 40), window=FULL, wait=True, timeout=120)
+        assert ct.wait_until_idle(120) and sa.last_stats.converged
+    assert (0, (1, 0, 1)) in set(ld.reads)
+    exact = _grey(vol[40].astype(np.float64), *FULL)
+    exact = np.dstack([exact, exact, exact, np.full_like(exact, 255)])
+    assert percent_delta_e(rgba[9:10, 36:52], exact[9:10, 36:52]) == 0.0  # the line, every pixel of it
+    assert percent_delta_e(rgba, exact) <= 1.0

@@ -19,7 +19,7 @@ from clipvol.bricking.pyramid import Pyramid
 from clipvol.scene.params import RenderParams
 from clipvol.scene.plane import Plane, default_size
 from clipvol.scene.slice_cover import slice_cover
-from clipvol.scene.slice_exact import (accumulated_errors, brick_differences, code_distances, bin_colour_boxes,
+from clipvol.scene.slice_exact import (QUANTILE, accumulated_errors, brick_differences, code_distances, bin_colour_boxes,
                                        grey_window_colours, stand_ins)
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -46,7 +46,7 @@ def _store(tmp_path, vol, brick=8):
     return tables, levels
 
 
-def _reference_differences(levels, L, brick, center, width, q=99):
+def _reference_differences(levels, L, brick, center, width, q=100 * QUANTILE):
     """Per brick of level ``L`` (grid-shaped) D: the inverted-CDF percentile of |L*(voxel) - L*(the
     parent voxel above it)| over the brick's voxels."""
     child, parent = levels[L], levels[L + 1]
@@ -59,7 +59,7 @@ def _reference_differences(levels, L, brick, center, width, q=99):
     return out
 
 
-def _reference_errors(levels, brick, center, width, q=99):
+def _reference_errors(levels, brick, center, width, q=100 * QUANTILE):
     """Per level (grid-shaped) E: 0 at level 0, E(parent) the largest E(child) + D(child)."""
     E = [np.zeros(tuple(-(-n // brick) for n in levels[0].shape))]
     for L in range(1, len(levels)):
@@ -82,13 +82,15 @@ def _smooth_and_lines(shape=(24, 40, 56)):
     return np.where(lines, 240, vol).astype(np.uint8)
 
 
+@pytest.mark.parametrize("quantile", [QUANTILE, 0.99])
 @pytest.mark.parametrize("window", [(165.0, 150.0), (100.0, 12.0)])
-def test_accumulated_errors_match_the_voxels(tmp_path, window):
-    """An 8-bit store's codes are its values: E is the voxels' own quantiles, summed up the levels."""
+def test_accumulated_errors_match_the_voxels(tmp_path, window, quantile):
+    """An 8-bit store's codes are its values: E is the voxels' own quantiles (the default: their
+    largest), summed up the levels."""
     vol = _smooth_and_lines()
     tables, levels = _store(tmp_path, vol)
-    got = accumulated_errors(tables, grey_window_colours(*window))
-    want = _reference_errors(levels, 8, *window)
+    got = accumulated_errors(tables, grey_window_colours(*window), quantile=quantile)
+    want = _reference_errors(levels, 8, *window, q=100 * quantile)
     assert len(got) == len(want) == tables.pyramid.num_levels
     for g, w in zip(got, want):
         np.testing.assert_allclose(g, w, atol=1e-9)
