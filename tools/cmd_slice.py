@@ -9,7 +9,9 @@ DICOM), converted by :mod:`clipvol.scene.cut`; only ``--plane`` and ``--index`` 
 Without ``--poi`` and ``--level`` the slice is as fine as its pixels need; with ``--poi`` (a world
 point, which the plane passes through unless ``--plane``/``--index``/``--through`` place it) it is full
 resolution near that point and coarser away from it, balanced and blended so no seam shows
-(LaMar, Hamann & Joy, "Multiresolution cutting planes"); ``--level 0`` is full resolution
+(LaMar, Hamann & Joy, "Multiresolution cutting planes"), and on a store with summary tables coarser
+still where the tables show the coarser data looks the same under the slice's colours
+(``--exact-tol``, :mod:`clipvol.scene.slice_exact`); ``--level 0`` is full resolution
 everywhere. Outputs: a PNG (grey ``--window C,W`` or a ``--tf`` colour map), the float32 values
 (``--npy``, NaN outside the volume) and statistics (``--stats``, JSON; with the image edges'
 anatomical labels, R/L A/P S/I, when the store records its patient frame). Outputs are written
@@ -64,6 +66,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="point of interest x,y,z in the store's world frame: full resolution near it; the plane "
                         "moves through it unless --plane, --index or --through place it")
     add_render_arguments(r, ("level", "distance_factor", "lod_threshold"))
+    r.add_argument("--exact-tol", default=None, metavar="DELTA_E",
+                   help="with --poi, on a store with summary tables: draw a coarser brick where every voxel beneath "
+                        "it stays within this CIELUV Delta E of level 0 under the slice's colours (default 4, under "
+                        "the Delta E of 6 a reader sees; 0: only where nothing changes); 'off': by distance alone")
     add_common_arguments(r, ("brick", "memory_budget"))
     add_render_arguments(r, ("texture_budget", "classify"))
     add_common_arguments(r, ("threads", "no_wait", "timeout"))

@@ -183,6 +183,7 @@ def slice(args) -> int:  # noqa: A001 - the hook is named for its command
         raise ParameterError("--window: expected either --window or --tf, got both")
     if args.pixel_size is not None and not (math.isfinite(args.pixel_size) and args.pixel_size > 0):
         raise ParameterError(f"--pixel-size: expected a finite size > 0 (world units), got {args.pixel_size}")
+    exact_tol = _exact_tol(args.exact_tol)
     kwargs = {} if args.brick is None else {"brick": args.brick}
     deadline = CommandDeadline(None if args.no_wait else args.timeout)  # --timeout bounds the whole command
     loader = open_store(bricked_source(args.source, args.store, log=_log), **kwargs,
@@ -206,5 +207,24 @@ def slice(args) -> int:  # noqa: A001 - the hook is named for its command
                    pixel_size=args.pixel_size, tf=TransferFunction.preset(args.tf) if args.tf is not None else None,
                    window=args.window, center=poi, poi=args.poi, memory_budget=args.memory_budget,
                    threads=args.threads, wait=not args.no_wait, timeout=args.timeout, deadline=deadline,
-                   allow_partial=args.allow_partial, labels=not args.no_labels, log=_log)
+                   allow_partial=args.allow_partial, labels=not args.no_labels, log=_log, exact_tol=exact_tol)
     return 0
+
+
+def _exact_tol(text):
+    """``--exact-tol``: a CIELUV Delta E >= 0, ``off`` (None), or not given (the slice action's default)."""
+    import math
+
+    from clipvol.scene.slice_exact import DEFAULT_TOL
+
+    if text is None:
+        return DEFAULT_TOL
+    if str(text).strip().lower() == "off":
+        return None
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not (math.isfinite(v) and v >= 0):
+        raise ParameterError(f"--exact-tol: expected a CIELUV Delta E >= 0 or 'off', got {text!r}")
+    return v

@@ -18,6 +18,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import ParameterError
+from ..scene.slice_exact import DEFAULT_TOL
 from .deadline import CommandDeadline
 from .outputs import write_atomic
 
@@ -32,7 +33,7 @@ def slice_to_files(loader, plane, params, *, out=None, npy=None, stats=None, siz
                    tf=None, window=None, center=None, poi=None, memory_budget, threads=None, wait: bool = True,
                    timeout: float | None = None, deadline: CommandDeadline | None = None,
                    allow_partial: bool = False, labels: bool = True, log: Callable[[str], None] = _stderr,
-                   command: str = "slice"):
+                   command: str = "slice", exact_tol: float | None = DEFAULT_TOL):
     """Draw ``plane`` of ``loader`` and write the PNG ``out``, the float32 values ``npy`` and the
     statistics JSON ``stats`` (each None: not written; at least one is asked).
 
@@ -60,6 +61,10 @@ def slice_to_files(loader, plane, params, *, out=None, npy=None, stats=None, siz
         As for :func:`clipvol.app.render_png.render_to_png`.
     labels : bool
         The edge letters on the PNG.
+    exact_tol : float or None
+        With a point of interest, on a store with summary tables: a coarser brick draws where every
+        voxel beneath it stays within this CIELUV Delta E of level 0 under the slice's colours
+        (:attr:`~clipvol.render.slice_action.SliceAction.exact_tol`); None: by distance alone.
 
     Returns
     -------
@@ -95,6 +100,7 @@ def slice_to_files(loader, plane, params, *, out=None, npy=None, stats=None, siz
                              center=centre) as session:
             register(session.clip_texture)
             action, clip = session.action, session.clip_texture
+            action.exact_tol = exact_tol
             rgba, values = session.render(plane, size, pixel_size, transfer_function=tf, window=window, wait=wait,
                                           timeout=deadline.left() if wait else timeout)
             st = action.last_stats

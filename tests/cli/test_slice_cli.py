@@ -106,3 +106,53 @@ def test_slice_of_a_nifti_store_labels_its_edges_like_nibabel(tmp_path):
     flip = {"L": "R", "R": "L", "A": "P", "P": "A", "S": "I", "I": "S"}
     edges = json.loads(st.read_text())["edges"]
     assert edges == {"right": codes[0], "left": flip[codes[0]], "top": flip[codes[1]], "bottom": codes[1]}
+
+
+def test_exact_tol_reads_coarser_bricks_where_the_colours_cannot_tell(tmp_path, capsys):
+    """A store (with its summary tables) whose x < 32 half is a gentle gradient and whose other half
+    holds thin bright lines: by default the slice with a point of interest reads no level-0 brick
+    over the gradient and its values there differ from level 0's by less than the grey window can
+    show; ``--exact-tol off`` reads level 0 there (distance alone); ``--exact-tol 0`` reads level 0
+    wherever any voxel changes. The values against numpy's plane; bytes from the statistics."""
+    from clipvol.bricking.pipeline import brick_volume
+
+    z, y, x = np.ogrid[:32, :32, :64]
+    vol = np.broadcast_to((100 + x).astype(np.uint8), (32, 32, 64)).copy()  # one value a voxel along x
+    vol[:, :, 32:] = 100
+    vol[::4, ::4, 32:] = 250
+    store = tmp_path / "v.zarr"
+    brick_volume(vol, store, brick=8, progress=False)
+    got = {}
+    for name, extra in (("default", []), ("off", ["--exact-tol", "off"]), ("zero", ["--exact-tol", "0"])):
+        st, npy = tmp_path / f"{name}.json", tmp_path / f"{name}.npy"
+        rc = main(["slice", str(store), "--plane", "z=20", "--poi", "32,16,20", "--distance-factor", "8",
+                   "--window", "175,150", "--stats", str(st), "--npy", str(npy), *extra])
+        assert rc == 0, capsys.readouterr().err
+        got[name] = (json.loads(st.read_text()), np.load(npy))
+    ref = vol[20].astype(np.float64)
+    for name, (doc, v) in got.items():
+        assert np.allclose(v[:, 32:], ref[:, 32:], atol=1e-3), name  # the lines at level 0 in every case
+    assert got["off"][0]["tiles_per_level"] == {"0": 32}  # distance alone: level 0 everywhere in reach
+    assert got["zero"][0]["tiles_per_level"] == {"0": 32}  # the gradient changes voxel by voxel
+    coarse = got["default"]
+    assert coarse[0]["bytes_needed"] < got["off"][0]["bytes_needed"]
+    assert set(coarse[0]["tiles_per_level"]) - {"0"}  # coarser tiles over the gradient
+    # over the gradient the coarser values stay within what the window shows as the same: each of
+    # them maps to a grey within Delta E 6 of numpy's level-0 voxel there
+    from clipvol.scene.metrics import percent_delta_e
+
+    def grey(a):
+        g = np.rint(np.clip((a - 100.0) / 150.0, 0, 1) * 255).astype(np.uint8)
+        return np.dstack([g, g, g, np.full_like(g, 255)])
+
+    assert percent_delta_e(grey(coarse[1][:, :32]), grey(ref[:, :32])) == 0.0
+
+
+@pytest.mark.parametrize("value", ["-1", "nan", "loose"])
+def test_a_bad_exact_tol_is_one_line_exit_2(tmp_path, capsys, value):
+    st = tmp_path / "s.json"
+    assert main(["slice", SRC, "--brick", "16", "--plane", "z=20", "--poi", "20,20,20", "--stats", str(st),
+                 "--exact-tol", value]) == 2
+    err = capsys.readouterr().err
+    assert "--exact-tol" in err and len(err.strip().splitlines()) == 1
+    assert not st.exists()
