@@ -125,9 +125,13 @@ def brick_differences(tables: SummaryTables, level: int, dist: np.ndarray, quant
     out = np.zeros(n)
     if off[-1] == 0:
         return out
-    owner = np.repeat(np.arange(n, dtype=np.int64), np.diff(off))
     code = tables.pairs_code[level].astype(np.int64)
     d = dist[code]
+    if float(quantile) >= 1.0:  # the largest (the default): one pass, no sort - a window being dragged
+        some = np.nonzero(np.diff(off) > 0)[0]  # re-evaluates this per window (10^7 pairs: ~0.1 s, not 1.1 s)
+        out[some] = np.maximum.reduceat(np.where(tables.pairs_count[level] > 0, d, 0.0), off[some])
+        return out
+    owner = np.repeat(np.arange(n, dtype=np.int64), np.diff(off))
     w = tables.pairs_count[level].astype(np.float64)
     # by brick, then by Delta E: one integer key (a pair code's rank in Delta E order), a quarter of
     # a two-key lexsort's time (a window being dragged re-evaluates this per window)
