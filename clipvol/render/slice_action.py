@@ -287,6 +287,9 @@ class SliceAction:
         read0 = bytes_read_of(self.clip_texture.loader)
         region_bricks = 0
         params = self.params
+        if window is None and transfer_function is None:  # the grey window over the value range
+            lo_v, hi_v = pyr.value_range
+            window = ((lo_v + hi_v) / 2.0, max(hi_v - lo_v, 1e-300))
         colours = self._colours_key(transfer_function, window)
         stand_in = self._stand_in(colours, params, transfer_function)
         if self.follow_plane:
@@ -370,9 +373,6 @@ class SliceAction:
             ok = np.isfinite(values)
             rgba = np.concatenate([np.rint(np.clip(rgb, 0, 1) * 255), np.where(ok, 255, 0)[..., None]], axis=-1)
             rgba = np.where(ok[..., None], rgba, 0).astype(np.uint8)
-        else:
-            lo_v, hi_v = pyr.value_range
-            rgba = window_level_grey(values, (lo_v + hi_v) / 2.0, max(hi_v - lo_v, 1e-300))
         times["total"] = time.perf_counter() - t_start
         per_level: dict[int, int] = {}
         for it in sel.items:
@@ -406,14 +406,11 @@ class SliceAction:
         return slice_cut(self.pyramid, plane, params, px, size, cover=self._cover_memo[1])
 
     def _colours_key(self, transfer_function, window) -> tuple:
-        """What the slice's colours depend on (:meth:`render`'s ``window``, else the transfer function's
-        table, else the grey window over the value range), as a hashable key."""
+        """What the slice's colours depend on (:meth:`render`'s grey ``window``, else the transfer
+        function's table), as a hashable key."""
         if window is not None:
             return ("window", float(window[0]), float(window[1]))
-        if transfer_function is not None:
-            return ("tf", transfer_function.table.tobytes(), tuple(transfer_function.value_range or ()))
-        lo, hi = self.pyramid.value_range
-        return ("window", (lo + hi) / 2.0, max(hi - lo, 1e-300))
+        return ("tf", transfer_function.table.tobytes(), tuple(transfer_function.value_range or ()))
 
     def _summary_tables(self):
         """The store's summary tables (:attr:`summary`), read once from a clipvol store on disk; None

@@ -248,10 +248,8 @@ def slice_cover(pyramid, plane, params, pixel_size: float, *, in_view=None, ahea
         if len(nodes):
             records.append((finest, nodes, finest, nodes))
     records = [r for r in records if len(r[1])]
-    def crossed(L: int, boxes: np.ndarray) -> np.ndarray:
-        return plane_crosses(pyramid, L, boxes, plane)
-
-    return SliceCover(tuple(records), _blend_ratios(records, top, stand_in, crossed), pyramid.num_levels)
+    drawn = [plane_crosses(pyramid, bl, bidx, plane) for _, _, bl, bidx in records]
+    return SliceCover(tuple(records), _blend_ratios(records, top, stand_in, drawn), pyramid.num_levels)
 
 
 def plane_crosses(pyramid, level: int, bricks: np.ndarray, plane) -> np.ndarray:
@@ -278,14 +276,14 @@ def _touching(corners: np.ndarray, level: int, box_level: int, boxes: np.ndarray
     return rows_in(cand.reshape(-1, 3), boxes).reshape(len(corners), 8).any(axis=1)
 
 
-def _blend_ratios(records: list, top: int, stand_in=None, crossed=None) -> dict:
+def _blend_ratios(records: list, top: int, stand_in=None, drawn=None) -> dict:
     """Corner ratios of the whole-brick tiles next to coarser boxes (module docstring).
 
-    Only boxes that draw part of the plane take part (``crossed(level, boxes) -> (n,) bool``,
-    :func:`plane_crosses`; all when None): the slab holds, for the trilinear footprint, boxes half a
-    voxel of their level off the plane, and such a box - a coarse one under a plane on its level's
-    brick face, say - draws nothing, yet it touches the corners of the tiles beside it: counted, it
-    blended every tile of the plane towards its parent.
+    Only boxes that draw part of the plane take part (``drawn``: per record, the
+    :func:`plane_crosses` mask of its boxes, computed once; all when None): the slab holds, for the
+    trilinear footprint, boxes half a voxel of their level off the plane, and such a box - a coarse
+    one under a plane on its level's brick face, say - draws nothing, yet it touches the corners of
+    the tiles beside it: counted, it blended every tile of the plane towards its parent.
 
     A coarser box drawn from data that may stand for the level-0 data beneath it (``stand_in``,
     :func:`slice_cover`) shows the picture the finer levels would: no level change to hide, and
@@ -298,6 +296,7 @@ def _blend_ratios(records: list, top: int, stand_in=None, crossed=None) -> dict:
     touch a corner, the corner keeps the tile's own level: the tiles stay continuous with the
     finer side and the step of one level is left at the coarser face.
     """
+    boxes = records if drawn is None else [(dl, d[m], bl, b[m]) for (dl, d, bl, b), m in zip(records, drawn)]
     out: dict = {}
     for L in range(top):
         tiles = [d for dl, d, bl, _ in records if dl == L and bl == L]
@@ -307,10 +306,7 @@ def _blend_ratios(records: list, top: int, stand_in=None, crossed=None) -> dict:
         corners = (tiles[:, None, :] + _CHILD[None]).reshape(-1, 3)  # [cz, cy, cx] order of _CHILD
         coarse = np.zeros(len(corners), dtype=bool)
         pinned = np.zeros(len(corners), dtype=bool)
-        for dl, didx, bl, bidx in records:
-            if crossed is not None:
-                on = crossed(bl, bidx)
-                didx, bidx = didx[on], bidx[on]
+        for dl, didx, bl, bidx in boxes:
             if dl > L:
                 if stand_in is not None:  # only boxes whose data differs from level 0's
                     bidx = bidx[~np.asarray(stand_in[dl])[didx[:, 0], didx[:, 1], didx[:, 2]]]
