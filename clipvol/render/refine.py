@@ -29,8 +29,16 @@ Edges, silhouettes and fine texture keep their full-resolution rays. What is los
 ray sees: a feature thinner than the coarse rays' spacing (four pixels at the coarsest) lying
 between four rays that agree. That error is
 measured (``clipvol report``, ``tools/bench/bench_mission.py``: % of pixels with CIELUV ΔE >= 6
-against the full-resolution frame), not bounded. MIP, minIP, average and iso frames draw every
+against the converged picture), not bounded. MIP, minIP, average and iso frames draw every
 pixel (their targets hold values mapped after the pass, not colours a blend can stand for).
+
+What it saves on a CPU rasteriser is less than the rays it leaves out. Mesa llvmpipe shades 4 x 4
+pixels as SIMD lanes that run until the block's longest ray ends. The coarse passes' neighbouring
+rays are far apart and the masked passes' rays lie along edges, so their blocks diverge: on an idle
+2-core machine a 1/4-pass ray of a 256² frame costs 1.7-1.8 us against 0.5-0.6 us in a dense frame
+at the same step, and the three passes of a refined 256² frame with no ray refined are already
+only 3.7-6.4x faster than the full-resolution frame (``tools/bench/bench_refine_breakdown.py``;
+``docs/benchmarks.md``, "The deciding figures on an idle machine"). At 512² the gain is larger.
 
 References
 ----------
