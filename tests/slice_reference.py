@@ -46,3 +46,20 @@ def off_faces(q, brick: int, levels: int, margin: float = 1e-6) -> np.ndarray:
         t = (np.asarray(q) + 0.5) / (brick * 2.0**L)
         ok &= np.all(np.abs(t - np.rint(t)) * brick * 2.0**L > margin, axis=1)
     return ok
+
+
+def cover_levels(cover, q, shape_zyx, brick: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(count, level)``, each ``(m,)``: how many of a cover's drawn boxes hold each point ``q`` strictly
+    inside, and the data level of the box that holds it (-1: none). Reads the cover's records only;
+    the boxes are computed here from the brick grid, not by the code under test."""
+    q = np.asarray(q, dtype=np.float64)
+    count = np.zeros(len(q), dtype=int)
+    level = np.full(len(q), -1)
+    for dl, _, bl, bidx in cover.records:
+        ext = brick * 2.0**bl
+        lo = np.maximum(bidx[:, ::-1] * ext - 0.5, -0.5)
+        hi = np.minimum((bidx[:, ::-1] + 1) * ext - 0.5, np.array(shape_zyx[::-1]) - 0.5)
+        inside = np.all((q[:, None] > lo[None]) & (q[:, None] < hi[None]), axis=2)
+        count += inside.sum(axis=1)
+        level[inside.any(axis=1)] = dl
+    return count, level

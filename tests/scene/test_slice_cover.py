@@ -25,7 +25,7 @@ from clipvol.scene.slice_cover import slice_cover
 from clipvol.scene.slice_region import slice_region
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from slice_reference import finest_in_reach, in_reach_at, off_faces  # noqa: E402
+from slice_reference import cover_levels, finest_in_reach, in_reach_at, off_faces  # noqa: E402
 
 SHAPE = (48, 80, 112)  # z, y, x
 BRICK = 8
@@ -61,17 +61,9 @@ def test_every_point_is_drawn_once_at_the_finest_level_in_reach(origin, normal, 
     want = finest_in_reach(q, focus, df, SHAPE, BRICK, pyr.num_levels)
     assert len(np.unique(want)) >= 3  # a real multiresolution cover
     # exactly one drawn box holds each point, and it is drawn from the level the rule gives
-    count = np.zeros(len(q), dtype=int)
-    level = np.full(len(q), -1)
-    for dl, didx, bl, bidx in cover.records:
-        ext = BRICK * 2.0**bl
-        lo = np.maximum(bidx[:, ::-1] * ext - 0.5, -0.5)
-        hi = np.minimum((bidx[:, ::-1] + 1) * ext - 0.5, np.array(SHAPE[::-1]) - 0.5)
-        inside = np.all((q[:, None] > lo[None]) & (q[:, None] < hi[None]), axis=2)
-        # the data brick of a box is the box's node or its parent
+    for dl, didx, bl, bidx in cover.records:  # the data brick of a box is the box's node or its parent
         assert np.array_equal(didx, bidx >> (dl - bl))
-        count += inside.sum(axis=1)
-        level[inside.any(axis=1)] = dl
+    count, level = cover_levels(cover, q, SHAPE, BRICK)
     assert np.all(count == 1)
     np.testing.assert_array_equal(level, want)
     # no level-0 brick beyond reach

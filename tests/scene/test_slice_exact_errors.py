@@ -23,7 +23,7 @@ from clipvol.scene.slice_exact import (QUANTILE, accumulated_errors, brick_diffe
                                        grey_window_colours, stand_ins)
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from slice_reference import finest_in_reach, off_faces  # noqa: E402
+from slice_reference import cover_levels, finest_in_reach, off_faces  # noqa: E402
 
 
 def _lstar(values, center, width):
@@ -168,15 +168,7 @@ def test_the_cover_draws_a_parent_where_it_may_stand_for_its_children(origin, no
     cover = slice_cover(pyr, plane, params, 1.0, stand_in=st)
     levels = []
     for cov in (plain, cover):
-        count = np.zeros(len(q), dtype=int)
-        level = np.full(len(q), -1)
-        for dl, didx, bl, bidx in cov.records:
-            ext = BRICK * 2.0**bl
-            lo = np.maximum(bidx[:, ::-1] * ext - 0.5, -0.5)
-            hi = np.minimum((bidx[:, ::-1] + 1) * ext - 0.5, np.array(SHAPE[::-1]) - 0.5)
-            inside = np.all((q[:, None] > lo[None]) & (q[:, None] < hi[None]), axis=2)
-            count += inside.sum(axis=1)
-            level[inside.any(axis=1)] = dl
+        count, level = cover_levels(cov, q, SHAPE, BRICK)
         assert np.all(count == 1)
         levels.append(level)
     np.testing.assert_array_equal(levels[0], reach)
